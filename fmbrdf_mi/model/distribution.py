@@ -1,0 +1,97 @@
+"""Microfacet distribution D, its normalisation and Smith masking (paper sec. 3.1).
+
+* D(theta) = c exp(-(theta/alpha)^beta), with c fixed by the slope-area
+  normalisation  int_Omega D(theta_m) cos(theta_m) d omega_m = 1.
+* Smith's separable masking (Heitz 2014): G1(w) = chi+ / (1 + Lambda(w)) with
+  1 + Lambda(w) = P(w) / cos(theta_w), where
+  P(w) = int_Omega max(0, w.m) D(m) d omega_m  is the projected microfacet area.
+  There is no closed form for the generalised normal; P is integrated
+  numerically (the azimuthal part in closed form, the polar part by
+  Gauss-Legendre split at the kink theta_m = pi/2 - theta_w) and tabulated.
+  Tabulating P rather than Lambda keeps the table bounded at grazing angles,
+  and G1(w)/cos(theta_w) = 1/P(w) is what the BRDF needs.
+"""
+import math
+
+import drjit as dr
+import numpy as np
+
+from .quadrature import PolarMap, gauss_legendre, gennormal_unnormalised
+
+
+def azimuthal_clamped_cosine(theta_m, theta_w):
+    """int_0^{2pi} max(0, w.m) dphi for m at polar angle theta_m, w at theta_w."""
+    a = dr.sin(theta_w) * dr.sin(theta_m)
+    b = dr.cos(theta_w) * dr.cos(theta_m)
+    ratio = dr.clip(-b / dr.maximum(a, 1e-30), -1.0, 1.0)
+    phi0 = dr.acos(ratio)
+    partial = 2.0 * (b * phi0 + a * dr.safe_sqrt(1.0 - ratio * ratio))
+    return dr.select(b >= a, 2.0 * math.pi * b, partial)
+
+
+class Distribution:
+    """D, its normalisation constant and the projected-area table P for one (alpha, beta).
+
+    ``Float`` is the Dr.Jit array type to compute with (it carries AD).
+    """
+
+    #: Gauss-Legendre order of the 1D normalisation integral.
+    N_NORM = 256
+    #: Gauss-Legendre order of each of the two pieces of the P integral.
+    N_PROJ = 96
+    #: Nodes of the P table over theta_w in [0, pi/2].
+    N_PTAB = 257
+
+    def __init__(self, Float, alpha, beta):
+        self.Float, self.alpha, self.beta = Float, alpha, beta
+        self.map = PolarMap(alpha, beta)
+        u, w = gauss_legendre(self.N_NORM)
+        u, w = Float(u), Float(w)
+        th = self.map.theta(u)
+        integrand = gennormal_unnormalised(th, alpha, beta) * dr.sin(th) * dr.cos(th)
+        self.norm = 1.0 / (2.0 * math.pi * dr.sum(w * self.map.dtheta_du(u) * integrand))
+        self.theta_tab = np.linspace(0.0, 0.5 * math.pi, self.N_PTAB)
+        self.p_tab = self.projected_area(Float(self.theta_tab))
+
+    def D(self, cos_theta):
+        """Normalised D at a microfacet normal with cos(theta_m) = ``cos_theta``."""
+        th = dr.acos(dr.clip(cos_theta, -1.0, 1.0))
+        return dr.select(cos_theta > 0, self.norm * gennormal_unnormalised(th, self.alpha, self.beta), 0.0)
+
+    def projected_area(self, theta_w):
+        """P(theta_w) = int max(0, w.m) D(m) d omega_m, evaluated by quadrature."""
+        Float = self.Float
+        n = self.N_PROJ
+        u, w = gauss_legendre(n)
+        theta_w = Float(theta_w)
+        m = dr.width(theta_w)
+        # Split [0, theta_cut] at the kink of the azimuthal integral.
+        u_k = dr.clip(self.map.u_of_theta(dr.clip(0.5 * math.pi - theta_w, 0.0, self.map.theta_cut)), 0.0, 1.0)
+        idx = dr.arange(dr.uint32_array_t(Float), m * 2 * n)
+        row = idx // (2 * n)
+        col = idx % (2 * n)
+        piece = col // n
+        j = col % n
+        uu = dr.gather(Float, Float(u), j)
+        ww = dr.gather(Float, Float(w), j)
+        uk = dr.gather(Float, u_k, row)
+        lo = dr.select(piece == 0, 0.0, uk)
+        hi = dr.select(piece == 0, uk, 1.0)
+        us = lo + (hi - lo) * uu
+        th = self.map.theta(us)
+        tw = dr.gather(Float, theta_w, row)
+        f = (ww * (hi - lo) * self.map.dtheta_du(us) * dr.sin(th)
+             * gennormal_unnormalised(th, self.alpha, self.beta)
+             * azimuthal_clamped_cosine(th, tw))
+        return self.norm * dr.block_sum(f, 2 * n)
+
+    def proj_area_lookup(self, cos_theta):
+        """P at cos(theta_w) by linear interpolation in the table."""
+        Float = self.Float
+        th = dr.acos(dr.clip(cos_theta, 0.0, 1.0))
+        x = th * ((self.N_PTAB - 1) / (0.5 * math.pi))
+        i0 = dr.minimum(dr.uint32_array_t(Float)(dr.floor(x)), self.N_PTAB - 2)
+        t = x - Float(i0)
+        p0 = dr.gather(Float, self.p_tab, i0)
+        p1 = dr.gather(Float, self.p_tab, i0 + 1)
+        return dr.fma(t, p1 - p0, p0)
