@@ -64,12 +64,12 @@ class _FMBRDFMethods:
         self.polarized = mi.is_polarized
         for name in _SCALARS:
             default = P.SCALAR_PARAMS[name][0]
-            value = props.get(name, default) if props.has_property(name) else default
+            value = props.get(name, default) if (name in props) else default
             setattr(self, name, mi.Float(P.check_scalar(name, value)))
         self.k_s = props.get_unbounded_texture("k_s", P.DEFAULT_K_S)
-        if props.has_property("k_b") and props.has_property("r_k"):
+        if ("k_b" in props) and ("r_k" in props):
             raise P.ParameterError("fmbrdf: give the body albedo as 'k_b' or as 'r_k' (= k_b / k_s), not both")
-        self.body_key = "k_b" if props.has_property("k_b") else "r_k"
+        self.body_key = "k_b" if ("k_b" in props) else "r_k"
         self.body = props.get_unbounded_texture(self.body_key, P.DEFAULT_R_K)
         self.grid = BodyGrid()
         self.m_components = [mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide,
@@ -145,7 +145,7 @@ class _FMBRDFMethods:
         if has_spec:
             H = dr.normalize(L + V)
             cos_d = dr.dot(L, H)
-            d = self.dist.D(H.z)
+            d = self.dist.D(H)
             scale = d * cos_l / (4.0 * p_l * p_v)  # k_s D G1(L) G1(V) / (4 N.V), G1 = cos/P
             rp, rm, rc = reflection_mueller_terms(cos_d, self.eta)
             if self.polarized:

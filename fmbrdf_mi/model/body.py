@@ -37,7 +37,7 @@ from .quadrature import gauss_legendre, gennormal_unnormalised
 class BodyGrid:
     """Resolution of the body quadrature and of its table."""
 
-    def __init__(self, n_theta=32, n_phi=64, n_table_theta=65, n_table_phi=65):
+    def __init__(self, n_theta=32, n_phi=64, n_table_theta=65, n_table_phi=129):
         self.n_theta, self.n_phi = n_theta, n_phi
         self.n_table_theta, self.n_table_phi = n_table_theta, n_table_phi
 

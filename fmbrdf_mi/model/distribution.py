@@ -53,10 +53,15 @@ class Distribution:
         self.theta_tab = np.linspace(0.0, 0.5 * math.pi, self.N_PTAB)
         self.p_tab = self.projected_area(Float(self.theta_tab))
 
-    def D(self, cos_theta):
-        """Normalised D at a microfacet normal with cos(theta_m) = ``cos_theta``."""
-        th = dr.acos(dr.clip(cos_theta, -1.0, 1.0))
-        return dr.select(cos_theta > 0, self.norm * gennormal_unnormalised(th, self.alpha, self.beta), 0.0)
+    def D(self, m):
+        """Normalised D at the microfacet normal ``m`` (local frame, unit length).
+
+        The polar angle comes from atan2, not acos(m.z): in float32 acos loses
+        all precision within 1e-3 rad of the pole, where D of a small alpha
+        (and the cusp of beta < 1) changes fastest.
+        """
+        th = dr.atan2(dr.sqrt(m.x * m.x + m.y * m.y), m.z)
+        return dr.select(m.z > 0, self.norm * gennormal_unnormalised(th, self.alpha, self.beta), 0.0)
 
     def projected_area(self, theta_w):
         """P(theta_w) = int max(0, w.m) D(m) d omega_m, evaluated by quadrature."""

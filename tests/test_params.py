@@ -1,0 +1,74 @@
+"""Bad input raises an error that names the parameter and its valid range."""
+import math
+
+import pytest
+from conftest import make
+
+
+@pytest.mark.parametrize("name,value,needle", [
+    ("eta", 1.0, "eta"), ("eta", 0.5, "eta"), ("alpha", 0.0, "alpha"), ("alpha", -0.1, "alpha"),
+    ("beta", 0.0, "beta"), ("kappa", -1.0, "kappa"), ("alpha", math.nan, "alpha"),
+    ("eta", math.inf, "eta"), ("k_s", -0.5, "k_s"), ("k_b", math.nan, "k_b"),
+])
+def test_bad_value_at_load(variant, name, value, needle):
+    mi = variant
+    with pytest.raises(Exception) as err:
+        make(mi, **{name: value})
+    msg = str(err.value)
+    assert needle in msg and ("range" in msg)
+
+
+def test_both_body_albedos_rejected(variant):
+    mi = variant
+    with pytest.raises(Exception, match="k_b.*r_k|r_k.*k_b"):
+        mi.load_dict({"type": "fmbrdf", "k_b": 0.5, "r_k": 0.5})
+
+
+@pytest.mark.parametrize("name,value", [("eta", 0.9), ("alpha", -1.0), ("kappa", math.nan), ("beta", 100.0)])
+def test_bad_value_through_traverse(variant, name, value):
+    mi = variant
+    bsdf = make(mi)
+    params = mi.traverse(bsdf)
+    params[name] = value
+    with pytest.raises(Exception) as err:
+        params.update()
+    assert name in str(err.value) and "range" in str(err.value)
+
+
+def test_bad_albedo_through_traverse(variant):
+    mi = variant
+    bsdf = make(mi)
+    params = mi.traverse(bsdf)
+    params["k_s.value"] = -1.0
+    with pytest.raises(Exception, match="k_s"):
+        params.update()
+
+
+def test_defaults_are_valid_and_documented(variant):
+    mi = variant
+    from fmbrdf_mi.params import SCALAR_PARAMS
+
+    bsdf = mi.load_dict({"type": "fmbrdf"})
+    params = mi.traverse(bsdf)
+    for name, (default, *_rest) in SCALAR_PARAMS.items():
+        assert float(params[name][0]) == pytest.approx(default)
+
+
+def test_unsupported_variant():
+    import mitsuba as mi
+
+    import fmbrdf_mi
+
+    with pytest.raises(ValueError, match="scalar_rgb"):
+        fmbrdf_mi.register("scalar_rgb")
+    mi.set_variant("llvm_ad_mono_polarized")
+
+
+def test_old_llvm_is_reported(monkeypatch):
+    import drjit as dr
+
+    from fmbrdf_mi import _llvm
+
+    monkeypatch.setattr(dr.detail, "llvm_version", lambda: (15, 0, 7))
+    with pytest.raises(_llvm.LLVMTooOldError, match="libllvm19"):
+        _llvm.check_llvm()
