@@ -9,16 +9,19 @@ polarised perpendicular to that plane.  This is the basis Mitsuba's
 import drjit as dr
 
 
-def fresnel_rs_rp(cos_theta, eta):
-    """Intensity reflectances (R_s, R_p) for incidence from air onto IOR ``eta`` > 1.
+def fresnel_amplitudes(cos_theta, eta):
+    """Signed amplitude coefficients (r_s, r_p) for incidence from air onto IOR ``eta`` > 1.
 
     ``cos_theta`` is clamped to [0, 1]; Snell's law gives the refracted angle.
     """
     c = dr.clip(cos_theta, 0.0, 1.0)
-    sin2_t = (1.0 - c * c) / (eta * eta)
-    ct = dr.safe_sqrt(1.0 - sin2_t)
-    rs = (c - eta * ct) / (c + eta * ct)
-    rp = (eta * c - ct) / (eta * c + ct)
+    ct = dr.safe_sqrt(1.0 - (1.0 - c * c) / (eta * eta))
+    return (c - eta * ct) / (c + eta * ct), (eta * c - ct) / (eta * c + ct)
+
+
+def fresnel_rs_rp(cos_theta, eta):
+    """Intensity reflectances (R_s, R_p)."""
+    rs, rp = fresnel_amplitudes(cos_theta, eta)
     return rs * rs, rp * rp
 
 
@@ -29,11 +32,7 @@ def reflection_mueller_terms(cos_theta, eta):
     R_s R_p >= 0 always and r_s r_p changes sign at Brewster's angle, so
     Rc = R_x cos delta = r_s r_p with the signed amplitude coefficients.
     """
-    c = dr.clip(cos_theta, 0.0, 1.0)
-    sin2_t = (1.0 - c * c) / (eta * eta)
-    ct = dr.safe_sqrt(1.0 - sin2_t)
-    rs = (c - eta * ct) / (c + eta * ct)
-    rp = (eta * c - ct) / (eta * c + ct)
+    rs, rp = fresnel_amplitudes(cos_theta, eta)
     Rs, Rp = rs * rs, rp * rp
     return 0.5 * (Rs + Rp), 0.5 * (Rs - Rp), rs * rp
 
