@@ -15,7 +15,6 @@ from . import params as P
 from .model.body import BodyGrid, body_table, table_x_of_theta
 from .model.distribution import Distribution
 from .model.fresnel import reflection_mueller_terms
-from .model.quadrature import gennormal_unnormalised
 from .model.sampling import MicrofacetSampler
 
 _SCALARS = ("eta", "alpha", "beta", "kappa")
@@ -39,10 +38,6 @@ def _texture_values(tex):
         except Exception:
             pass
     return np.concatenate(out) if out else np.zeros(0)
-
-
-def _v3(v):
-    return (v.x, v.y, v.z)
 
 
 def _axis(v, fallback=(1.0, 0.0, 0.0)):
