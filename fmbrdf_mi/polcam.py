@@ -1,0 +1,82 @@
+"""Division-of-focal-plane polarisation cameras: polariser-angle images and mosaics.
+
+An ideal linear polariser at angle theta (measured like the AoLP, from image
+right counter-clockwise, see :mod:`fmbrdf_mi.stokes_io`) passes
+
+    I(theta) = (S0 + S1 cos 2 theta + S2 sin 2 theta) / 2.
+
+A quad-Bayer sensor such as Sony's IMX250MZR puts four polariser angles in each
+2x2 super-pixel.  ``IMX250MZR_LAYOUT`` is the angle of each position, rows top
+to bottom: 90 45 / 135 0.  Other cameras (or a camera mounted rotated) use
+another layout; every function takes ``layout`` to say so.
+
+Angle images here have shape (4, H, W[, C]) in the order of ``ANGLES``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+ANGLES = (0, 45, 90, 135)
+IMX250MZR_LAYOUT = ((90, 45), (135, 0))
+
+
+def _analyser_matrix(angles):
+    t = np.deg2rad(np.asarray(angles, dtype=np.float64))
+    return 0.5 * np.stack([np.ones_like(t), np.cos(2 * t), np.sin(2 * t)], axis=1)  # (n, 3)
+
+
+def angle_images_from_stokes(stokes, angles=ANGLES):
+    """Intensities behind ideal linear polarisers: (len(angles), H, W[, C])."""
+    s = np.asarray(stokes)
+    if s.shape[0] < 3:
+        raise ValueError(f"stokes: expected S0, S1, S2 along axis 0, got shape {s.shape}")
+    a = _analyser_matrix(angles)
+    return np.tensordot(a, s[:3], axes=(1, 0)).astype(s.dtype, copy=False)
+
+
+def stokes_from_angle_images(images, angles=ANGLES):
+    """Linear Stokes vector (4, H, W[, C]) from polariser-angle images; S3 = 0.
+
+    For (0, 45, 90, 135) this is S0 = (I0 + I45 + I90 + I135) / 2,
+    S1 = I0 - I90, S2 = I45 - I135; other angle sets use least squares.
+    """
+    imgs = np.asarray(images)
+    if imgs.shape[0] != len(angles) or len(angles) < 3:
+        raise ValueError(f"images: expected {len(angles)} polariser-angle images along axis 0 "
+                         f"(angles {tuple(angles)}), got shape {imgs.shape}")
+    pinv = np.linalg.pinv(_analyser_matrix(angles))  # (3, n)
+    lin = np.tensordot(pinv, imgs.astype(np.float64), axes=(1, 0))
+    out = np.concatenate([lin, np.zeros_like(lin[:1])])
+    return out.astype(np.result_type(imgs.dtype, np.float32), copy=False)
+
+
+def _check_layout(layout):
+    flat = [a for row in layout for a in row]
+    if len(layout) != 2 or any(len(r) != 2 for r in layout) or sorted(flat) != sorted(ANGLES):
+        raise ValueError(f"layout: expected a 2x2 arrangement of the angles {ANGLES}, got {layout}")
+    return flat
+
+
+def mosaic_from_angle_images(images, layout=IMX250MZR_LAYOUT):
+    """Raw mosaic (2H, 2W) from angle images (4, H, W), one super-pixel per pixel."""
+    imgs = np.asarray(images)
+    if imgs.ndim != 3 or imgs.shape[0] != 4:
+        raise ValueError(f"images: expected shape (4, H, W), got {imgs.shape}")
+    flat = _check_layout(layout)
+    _, h, w = imgs.shape
+    raw = np.empty((2 * h, 2 * w), dtype=imgs.dtype)
+    for pos, angle in enumerate(flat):
+        raw[pos // 2::2, pos % 2::2] = imgs[ANGLES.index(angle)]
+    return raw
+
+
+def angle_images_from_mosaic(raw, layout=IMX250MZR_LAYOUT):
+    """Angle images (4, H/2, W/2) from a raw mosaic, one per super-pixel (no interpolation)."""
+    raw = np.asarray(raw)
+    if raw.ndim != 2 or raw.shape[0] % 2 or raw.shape[1] % 2:
+        raise ValueError(f"raw: expected a 2-D mosaic with even height and width, got shape {raw.shape}")
+    flat = _check_layout(layout)
+    out = [None] * 4
+    for pos, angle in enumerate(flat):
+        out[ANGLES.index(angle)] = raw[pos // 2::2, pos % 2::2]
+    return np.stack(out)

@@ -1,0 +1,136 @@
+"""Stokes images: the EXR layout, reading and writing, and derived quantities.
+
+Array layout used throughout the package: ``stokes`` has shape ``(4, H, W, C)``
+with ``stokes[k]`` the Stokes component S_k as an image, rows top to bottom, and
+C = 3 colour channels (R, G, B) or C = 1 (monochrome, channel "Y").
+
+Stokes frame (that of Mitsuba's ``stokes`` integrator): x = image right,
+y = image up, light travelling towards the camera.  S1 > 0 is horizontal
+polarisation, S2 > 0 polarisation along the diagonal from lower left to upper
+right; the AoLP is measured from image right counter-clockwise as the image is
+displayed, in (-pi/2, pi/2].
+
+EXR layout written by :func:`write_stokes_exr`: one float32 channel per Stokes
+component and colour, named ``S0.R, S0.G, S0.B, S1.R, ...`` (or ``S0.Y ... S3.Y``),
+plus a string header attribute ``fmbrdf_mi`` holding JSON metadata (material
+parameters, light, camera, ... as the writer chose).  Plain OpenEXR readers see
+ordinary named channels.
+"""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+META_KEY = "fmbrdf_mi"
+COLOUR_CHANNELS = {3: ("R", "G", "B"), 1: ("Y",)}
+
+
+class StokesFileError(ValueError):
+    """A Stokes file is missing, unreadable or not in the documented layout."""
+
+
+def _check_stokes(stokes):
+    s = np.asarray(stokes)
+    if s.ndim == 3:
+        s = s[..., None]
+    if s.ndim != 4 or s.shape[0] != 4 or s.shape[3] not in COLOUR_CHANNELS:
+        raise ValueError(f"stokes: expected an array of shape (4, H, W, C) with C = 1 or 3 "
+                         f"(or (4, H, W)), got shape {np.shape(stokes)}")
+    return s
+
+
+def stokes_from_film(array, names):
+    """Stokes array (4, H, W, C) from a Mitsuba ``stokes`` film bitmap.
+
+    ``array`` is ``np.asarray(film.bitmap())`` (H, W, n) and ``names`` its
+    channel names (``[f.name for f in bitmap.struct_()]``).  Monochrome variants
+    still write S*.R/G/B with equal values; ``mono=True`` layouts come back with C = 1.
+    """
+    array = np.asarray(array, dtype=np.float32)
+    index = {n: i for i, n in enumerate(names)}
+    if "S0.R" not in index:
+        raise ValueError(f"film has no Stokes channels (got {list(names)}); "
+                         "render with the 'stokes' integrator")
+    mono = "Y" in index and "R" not in index
+    cols = ("R",) if mono else ("R", "G", "B")
+    out = np.stack([np.stack([array[..., index[f"S{k}.{c}"]] for c in cols], axis=-1)
+                    for k in range(4)])
+    return out
+
+
+def write_stokes_exr(path, stokes, metadata=None, force=False):
+    """Write ``stokes`` (4, H, W, C) as a float32 EXR with channels S0.R ... S3.B.
+
+    ``metadata`` (JSON-serialisable dict) goes into the header attribute
+    ``fmbrdf_mi``.  An existing file is only replaced with ``force=True``.
+    """
+    import OpenEXR
+
+    s = _check_stokes(stokes).astype(np.float32)
+    path = os.fspath(path)
+    if os.path.exists(path) and not force:
+        raise FileExistsError(f"{path} exists; pass force=True (--force) to overwrite it")
+    cols = COLOUR_CHANNELS[s.shape[3]]
+    channels = {f"S{k}.{c}": np.ascontiguousarray(s[k, :, :, i])
+                for k in range(4) for i, c in enumerate(cols)}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    if metadata is not None:
+        header[META_KEY] = json.dumps(metadata, sort_keys=True)
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    tmp = os.path.join(directory, f".{os.path.basename(path)}.tmp{os.getpid()}.exr")
+    with OpenEXR.File(header, channels) as f:
+        f.write(tmp)
+    os.replace(tmp, path)
+
+
+def read_stokes_exr(path):
+    """Read a Stokes EXR; returns ``(stokes (4, H, W, C) float32, metadata dict)``.
+
+    Accepts the layout of :func:`write_stokes_exr` and Mitsuba's own film output
+    (S0.R ... S3.B beside R, G, B).  Raises :class:`StokesFileError` naming the
+    file for a missing or malformed file.
+    """
+    import OpenEXR
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise StokesFileError(f"{path}: no such file")
+    try:
+        with OpenEXR.File(path, separate_channels=True) as f:
+            header = dict(f.header())
+            channels = {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
+    except Exception as exc:  # OpenEXR raises bare RuntimeErrors
+        raise StokesFileError(f"{path}: not a readable EXR file ({exc})") from None
+    cols = next((c for c in (("R", "G", "B"), ("Y",))
+                 if all(f"S{k}.{x}" in channels for k in range(4) for x in c)), None)
+    if cols is None:
+        raise StokesFileError(f"{path}: no Stokes channels S0..S3 (.R/.G/.B or .Y); "
+                              f"found {sorted(channels)}")
+    stokes = np.stack([np.stack([channels[f"S{k}.{c}"] for c in cols], axis=-1)
+                       for k in range(4)]).astype(np.float32)
+    meta = header.get(META_KEY)
+    if isinstance(meta, bytes):
+        meta = meta.decode()
+    return stokes, (json.loads(meta) if meta else {})
+
+
+def intensity(stokes):
+    """S0."""
+    return np.asarray(stokes)[0]
+
+
+def dolp(stokes, eps=1e-12):
+    """Degree of linear polarisation sqrt(S1^2 + S2^2) / S0 (0 where S0 <= eps)."""
+    s = np.asarray(stokes)
+    s0 = s[0]
+    out = np.hypot(s[1], s[2]) / np.where(s0 > eps, s0, 1.0)
+    return np.where(s0 > eps, out, 0.0)
+
+
+def aolp(stokes):
+    """Angle of linear polarisation 0.5 atan2(S2, S1) in radians, in (-pi/2, pi/2]."""
+    s = np.asarray(stokes)
+    return 0.5 * np.arctan2(s[2], s[1])
