@@ -12,7 +12,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import params as P
-from .model.body import BodyGrid, body_table, table_x_of_theta
+from .model.body import BodyGrid, body_tables, table_x_of_theta
 from .model.distribution import Distribution
 from .model.fresnel import reflection_mueller_terms
 from .model.sampling import MicrofacetSampler
@@ -44,6 +44,32 @@ def _axis(v, fallback=(1.0, 0.0, 0.0)):
     n2 = dr.squared_norm(v)
     ok = n2 > 1e-14
     return dr.select(ok, v * dr.rsqrt(dr.select(ok, n2, 1.0)), mi.Vector3f(*fallback))
+
+
+def _rotation(forward, current, target):
+    """(cos 2t, sin 2t) of ``mi.mueller.rotate_stokes_basis(forward, current, target)``
+    for unit axes normal to ``forward``, without trigonometric functions."""
+    c = dr.dot(current, target)
+    s = dr.dot(forward, dr.cross(current, target))
+    return c * c - s * s, 2.0 * c * s
+
+
+def _rotate_block(M, out_rot, in_rot):
+    """R_out M R_in^T for the 3x3 linear block M (list of rows), as
+    ``mi.mueller.rotate_mueller_basis`` does for the whole matrix."""
+    co, so = out_rot
+    ci, si = in_rot
+    r0, r1, r2 = M
+    r1, r2 = ([co * a + so * b for a, b in zip(r1, r2)], [co * b - so * a for a, b in zip(r1, r2)])
+    return [[row[0], ci * row[1] + si * row[2], ci * row[2] - si * row[1]] for row in (r0, r1, r2)]
+
+
+def _unit_xy(v):
+    """Azimuthal unit vector (cos phi, sin phi) of ``v``; (1, 0) at the pole."""
+    r2 = v.x * v.x + v.y * v.y
+    ok = r2 > 1e-14
+    inv = dr.rsqrt(dr.select(ok, r2, 1.0))
+    return dr.select(ok, v.x * inv, 1.0), dr.select(ok, v.y * inv, 0.0)
 
 
 class _FMBRDFMethods:
@@ -94,16 +120,11 @@ class _FMBRDFMethods:
     def _rebuild(self):
         """Everything that depends on (eta, alpha, beta, kappa) only (paper sec. 3-4)."""
         self.dist = Distribution(mi.Float, self.alpha, self.beta)
-        table = body_table(self.dist, self.eta, self.kappa, self.grid)
-        if not self.polarized:
-            table = mi.TensorXf(dr.gather(mi.Float, table.array,
-                                          dr.arange(mi.UInt32, dr.width(table.array) // 9) * 9),
-                                shape=table.shape[:3] + (1,))
-        self.table = mi.Texture3f(table, use_accel=False, filter_mode=dr.FilterMode.Linear,
-                                  wrap_mode=dr.WrapMode.Clamp)
+        self.primary, self.secondary = body_tables(self.dist, self.eta, self.kappa, self.grid, self.polarized)
         with dr.suspend_grad():
             self.sampler = MicrofacetSampler(self.dist)
-        dr.eval(self.dist.p_tab, self.dist.norm)
+        tables = [self.primary.values] + ([self.secondary.values] if self.secondary else [])
+        dr.eval(self.dist.p_tab, self.dist.norm, *tables)
 
     # ------------------------------------------------------------ evaluation
     def _albedos(self, si, active):
@@ -119,88 +140,82 @@ class _FMBRDFMethods:
             return wo, si.wi
         return si.wi, wo
 
-    def _table_coords(self, cos_l, cos_v, phi):
-        nt, nph = self.grid.n_table_theta, self.grid.n_table_phi
+    def table_coords(self, cos_l, cos_v, phi):
+        """Coordinates in [0, 1]^3 of the body tables for (cos theta_L, cos theta_V, |phi|)."""
         x_l = table_x_of_theta(dr.acos(dr.clip(cos_l, 0.0, 1.0)))
         x_v = table_x_of_theta(dr.acos(dr.clip(cos_v, 0.0, 1.0)))
-        # node i of n sits at texel centre (i + 0.5) / n
-        u = lambda x, n: (x * (n - 1) + 0.5) / n
-        return mi.Point3f(u(phi * (1.0 / math.pi), nph), u(x_v, nt), u(x_l, nt))
+        return x_l, x_v, phi * (1.0 / math.pi)
+
+    def _surface(self, L, V):
+        """Surface reflection (eq:Torrance-Sparrow, sec. 4.2): (scale, 3x3 block, M33)."""
+        H = dr.normalize(L + V)
+        p_l = self.dist.proj_area_lookup(L.z)
+        p_v = self.dist.proj_area_lookup(V.z)
+        scale = self.dist.D(H) * L.z / (4.0 * p_l * p_v)  # D G1(L) G1(V) / (4 N.V), G1 = cos/P
+        rp, rm, rc = reflection_mueller_terms(dr.dot(L, H), self.eta)
+        if not self.polarized:
+            return scale * rp, None, None
+        M = [[rp, rm, 0.0], [rm, rp, 0.0], [0.0, 0.0, rc]]
+        # from the s axes of the plane of reflection to Mitsuba's Stokes bases
+        out_rot = _rotation(V, _axis(dr.cross(H, V)), mi.mueller.stokes_basis(V))
+        in_rot = _rotation(-L, _axis(dr.cross(H, -L)), mi.mueller.stokes_basis(-L))
+        return scale, _rotate_block(M, out_rot, in_rot), rc
+
+    def _body(self, L, V):
+        """Body reflection (eq:observed body reflection Stokes vector): (scale, 3x3 block)."""
+        lx, ly = _unit_xy(L)
+        vx, vy = _unit_xy(V)
+        sin_phi = lx * vy - ly * vx  # phi = phi_V - phi_L
+        phi = dr.acos(dr.clip(lx * vx + ly * vy, -1.0, 1.0))
+        u = self.table_coords(L.z, V.z, phi)
+        primary = self.primary.eval(*u)
+        m00 = dr.exp(primary[0])
+        if not self.polarized:
+            return L.z * m00, None
+        r10, r20 = primary[1], primary[2]
+        r01, r02, r11, r12, r21, r22 = self.secondary.eval(*u)
+        flip = dr.select(sin_phi < 0, -1.0, 1.0)  # mirror image: s2 changes sign on one side
+        M = [[1.0, r01, flip * r02], [r10, r11, flip * r12], [flip * r20, flip * r21, r22]]
+        # table bases: s axes of the planes of incidence and exit
+        x_in = mi.Vector3f(-ly, lx, 0.0)
+        x_out = mi.Vector3f(-vy, vx, 0.0)
+        out_rot = _rotation(V, x_out, mi.mueller.stokes_basis(V))
+        in_rot = _rotation(-L, x_in, mi.mueller.stokes_basis(-L))
+        return L.z * m00, _rotate_block(M, out_rot, in_rot)
 
     def _eval_parts(self, ctx, si, wo, active):
-        """Surface and body contributions as (scale, Mueller-or-None) pairs."""
+        """Surface and body contributions: {name: (scale, 3x3 block or None, M33)}."""
         L, V = self._directions(ctx, si, wo)
-        cos_l, cos_v = L.z, V.z
-        active = active & (cos_l > 0) & (cos_v > 0)
-        has_spec = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0)
-        has_body = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 1)
-        p_l = self.dist.proj_area_lookup(cos_l)
-        p_v = self.dist.proj_area_lookup(cos_v)
+        active = active & (L.z > 0) & (V.z > 0)
         out = {}
-        if has_spec:
-            H = dr.normalize(L + V)
-            cos_d = dr.dot(L, H)
-            d = self.dist.D(H)
-            scale = d * cos_l / (4.0 * p_l * p_v)  # k_s D G1(L) G1(V) / (4 N.V), G1 = cos/P
-            rp, rm, rc = reflection_mueller_terms(cos_d, self.eta)
-            if self.polarized:
-                M = mi.Matrix4f(rp, rm, 0, 0,
-                                rm, rp, 0, 0,
-                                0, 0, rc, 0,
-                                0, 0, 0, rc)
-                s_in = _axis(dr.cross(H, -L))
-                s_out = _axis(dr.cross(H, V))
-                M = mi.mueller.rotate_mueller_basis(M, -L, s_in, mi.mueller.stokes_basis(-L),
-                                                    V, s_out, mi.mueller.stokes_basis(V))
-                out["spec"] = (dr.select(active, scale, 0.0), M)
-            else:
-                out["spec"] = (dr.select(active, scale * rp, 0.0), None)
-        if has_body:
-            phi_l = dr.atan2(L.y, L.x)
-            phi = dr.atan2(V.y, V.x) - phi_l
-            phi = dr.select(phi > math.pi, phi - 2 * math.pi, dr.select(phi < -math.pi, phi + 2 * math.pi, phi))
-            mirrored = phi < 0
-            vals = self.table.eval(self._table_coords(cos_l, cos_v, dr.abs(phi)))
-            if self.polarized:
-                flip = dr.select(mirrored, -1.0, 1.0)
-                y = [vals[i] for i in range(9)]
-                for i in (2, 5, 6, 7):  # elements with exactly one s2 index change sign
-                    y[i] = y[i] * flip
-                M = mi.Matrix4f(y[0], y[1], y[2], 0,
-                                y[3], y[4], y[5], 0,
-                                y[6], y[7], y[8], 0,
-                                0, 0, 0, 0)
-                sp, cp = dr.sincos(phi_l)
-                x_in = mi.Vector3f(-sp, cp, 0.0)
-                x_out = _axis(x_in - dr.dot(x_in, V) * V, (cp, sp, 0.0))
-                M = mi.mueller.rotate_mueller_basis(M, -L, x_in, mi.mueller.stokes_basis(-L),
-                                                    V, x_out, mi.mueller.stokes_basis(V))
-                out["body"] = (dr.select(active, cos_l, 0.0), M)
-            else:
-                out["body"] = (dr.select(active, cos_l * vals[0], 0.0), None)
+        if ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
+            scale, M, m33 = self._surface(L, V)
+            out["spec"] = (dr.select(active, scale, 0.0), M, m33)
+        if ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 1):
+            scale, M = self._body(L, V)
+            out["body"] = (dr.select(active, scale, 0.0), M, 0.0)
         return out
 
     def _combine(self, parts, si, active):
         ks, kb = self._albedos(si, active)
+        weights = {"spec": ks, "body": kb}
         if not self.polarized:
             value = mi.UnpolarizedSpectrum(0.0)
-            if "spec" in parts:
-                value += ks * parts["spec"][0]
-            if "body" in parts:
-                value += kb * parts["body"][0]
+            for name, (scale, _, _) in parts.items():
+                value += weights[name] * scale
             return value
         result = dr.zeros(mi.Spectrum)
-        terms = []
-        if "spec" in parts:
-            terms.append((ks * parts["spec"][0], parts["spec"][1]))
-        if "body" in parts:
-            terms.append((kb * parts["body"][0], parts["body"][1]))
-        for i in range(4):
-            for j in range(4):
+        terms = [(weights[name] * scale, M, m33) for name, (scale, M, m33) in parts.items()]
+        for i in range(3):
+            for j in range(3):
                 entry = mi.UnpolarizedSpectrum(0.0)
-                for weight, M in terms:
-                    entry += weight * M[i, j]
+                for weight, M, _ in terms:
+                    entry += weight * M[i][j]
                 result[i, j] = entry
+        entry = mi.UnpolarizedSpectrum(0.0)
+        for weight, _, m33 in terms:
+            entry += weight * m33
+        result[3, 3] = entry
         return result
 
     def eval(self, ctx, si, wo, active=True):

@@ -19,11 +19,12 @@ the 4x4 matrix is a sum of outer products
 
 Isotropy leaves three angles (theta_L, theta_V, phi = phi_V - phi_L); the
 matrix (its 3x3 linear-polarisation block: D_p removes circular terms) is
-tabulated over them with two dense matrix products per parameter change.
-Stokes bases of the table, in the frame where L has azimuth 0:
-incident (travelling along -L): x_in = e_y;
-outgoing (along V): x_out = e_y projected onto the plane normal to V.
-Mirror symmetry gives phi < 0 from phi > 0 with s2 flipped on both sides.
+tabulated over them with dense matrix products per parameter change
+(:func:`body_tables`).  Stokes bases of the tables, in the frame where L has
+azimuth 0: incident (travelling along -L) x_in = e_y, outgoing (along V)
+x_out = (-sin phi, cos phi, 0): the s directions of the planes of incidence
+and exit.  Mirror symmetry gives phi < 0 from phi > 0 with s2 flipped on both
+sides.
 """
 import math
 
@@ -31,15 +32,21 @@ import drjit as dr
 import numpy as np
 
 from .fresnel import transmission_mueller_terms
+from .interp import TetraTable
 from .quadrature import gauss_legendre, gennormal_unnormalised
 
 
 class BodyGrid:
-    """Resolution of the body quadrature and of its table."""
+    """Resolution of the body quadrature and of its tables.
 
-    def __init__(self, n_theta=32, n_phi=64, n_table_theta=65, n_table_phi=129):
+    The primary table (column 0 of the matrix: what unpolarised light sees)
+    is finer than the secondary one (the response to polarised light); both
+    resolutions come from tools/check_table.py.
+    """
+
+    def __init__(self, n_theta=32, n_phi=64, primary=(65, 129), secondary=(33, 65)):
         self.n_theta, self.n_phi = n_theta, n_phi
-        self.n_table_theta, self.n_table_phi = n_table_theta, n_table_phi
+        self.primary, self.secondary = primary, secondary
 
 
 def microfacet_nodes(dist, grid):
@@ -81,9 +88,9 @@ def _rotation(forward, x_cur, x_new):
 
 
 #: Table polar angles are theta = (pi/2) sin(A x) / sin(A), x uniform in [0, 1]:
-#: near grazing, where Fresnel transmittance changes fastest, the spacing is
-#: cos(A) = 0.36 times the spacing at the pole.
-TABLE_WARP = 1.2
+#: near grazing, where Fresnel transmittance and masking change fastest, the
+#: spacing is cos(A) = 0.17 times the spacing at the pole.
+TABLE_WARP = 1.4
 
 
 def table_theta_of_x(x):
@@ -95,45 +102,46 @@ def table_x_of_theta(theta):
     return dr.asin(theta * (math.sin(TABLE_WARP) / (0.5 * math.pi))) * (1.0 / TABLE_WARP)
 
 
-def table_angles(grid):
+def table_angles(n_theta, n_phi):
     """Table nodes: theta in [0, pi/2] (both ends, warped), phi in [0, pi] (both ends)."""
-    return (table_theta_of_x(np.linspace(0.0, 1.0, grid.n_table_theta)),
-            np.linspace(0.0, math.pi, grid.n_table_phi))
+    return table_theta_of_x(np.linspace(0.0, 1.0, n_theta)), np.linspace(0.0, math.pi, n_phi)
 
 
-def body_table(dist, eta, kappa, grid):
-    """Body matrix table, shape (n_theta_L, n_theta_V, n_phi, 9), row-major 3x3.
+def body_matrices(dist, eta, kappa, grid, theta_l, theta_v, phi, columns=(0, 1, 2)):
+    """Body matrices for every pair of incident angle and outgoing direction.
 
-    Entry [i, j, k, 3 r + s] is element (r, s) of the body Mueller matrix
-    divided by k_b cos(theta_L), at theta_L = theta[i], theta_V = theta[j],
-    phi = phi[k], in the table bases described in the module docstring.
-    Returns a Dr.Jit TensorXf of the backend of ``dist.Float``.
+    ``theta_l`` (n_L,) are the light's polar angles (L at azimuth 0),
+    ``theta_v``, ``phi`` (n_V,) the view's polar angle and azimuth.  Returns a
+    TensorXf (n_L, n_V, 3, len(columns)): elements (r, s), s in ``columns``, of
+    the 3x3 linear block of the body Mueller matrix divided by k_b cos(theta_L).
+    Stokes bases: incident x_in = e_y, outgoing x_out = (-sin phi, cos phi, 0),
+    the s directions of the planes of incidence and exit, in which the matrix
+    varies smoothly (the alpha -> 0 limit is diagonal in them).
     """
     Float = dist.Float
     UInt = dr.uint32_array_t(Float)
     Tensor = dr.tensor_t(Float)
     n, w = microfacet_nodes(dist, grid)
     N = dr.width(w)
-    th_tab, ph_tab = table_angles(grid)
-    nt, nph = grid.n_table_theta, grid.n_table_phi
+    theta_l, theta_v, phi = (Float(np.asarray(x, dtype=np.float64)) if isinstance(x, (np.ndarray, list)) else x
+                             for x in (theta_l, theta_v, phi))
+    nt, nv = dr.width(theta_l), dr.width(theta_v)
 
     # --- vMF coupling K (N x N), normalised per column (eq:energy conservation2)
     idx = dr.arange(UInt, N * N)
     p, q = idx // N, idx % N
     np_ = tuple(dr.gather(Float, c, p) for c in n)
     nq_ = tuple(dr.gather(Float, c, q) for c in n)
-    wp = dr.gather(Float, w, p)
     e = dr.exp(kappa * (_dot(np_, nq_) - 1.0))
-    Z = dr.block_sum(dr.gather(Float, w, q) * dr.exp(kappa * (_dot(nq_, np_) - 1.0)), N)  # Z[p] as column normaliser
     # Z[p] = sum_q W_q exp(kappa n_q.n_p): normaliser of column p.
-    K = e / dr.gather(Float, Z, q)
-    K = Tensor(K, shape=(N, N))
+    Z = dr.block_sum(dr.gather(Float, w, q) * e, N)
+    K = Tensor(e / dr.gather(Float, Z, q), shape=(N, N))
 
-    # --- b_q(L) for every table theta_L, L = (sin, 0, cos): incident basis x_in = e_y
+    # --- b_q(L) for every theta_L, L = (sin, 0, cos): incident basis x_in = e_y
     m = N * nt
     idx = dr.arange(UInt, m)
     qi, li = idx // nt, idx % nt
-    thL = dr.gather(Float, Float(th_tab), li)
+    thL = dr.gather(Float, theta_l, li)
     L = (dr.sin(thL), dr.zeros(Float, m), dr.cos(thL))
     nq = tuple(dr.gather(Float, c, qi) for c in n)
     cos_i = _dot(L, nq)
@@ -145,28 +153,27 @@ def body_table(dist, eta, kappa, grid):
     # Intensity transmitted = T+ s0 + T- s1', s1' = c2 s1 + s2 s2 (s1' in facet basis)
     scale = dr.gather(Float, w, qi) * dr.maximum(cos_i, 0.0)
     b = (scale * tp, scale * tm * c2, scale * tm * s2)
-    # B[q, 3 l + s]
-    B = dr.zeros(Float, m * 3)
-    for s_ in range(3):
-        dr.scatter(B, b[s_], qi * (3 * nt) + li * 3 + s_)
-    B = Tensor(B, shape=(N, 3 * nt))
+    nc = len(columns)
+    B = dr.zeros(Float, m * nc)
+    for j, s_ in enumerate(columns):
+        dr.scatter(B, b[s_], qi * (nc * nt) + li * nc + j)
+    B = Tensor(B, shape=(N, nc * nt))
 
-    C = K @ B  # (N, 3 nt): c_p(L) = sum_q K_pq b_q(L)
+    C = K @ B  # (N, nc nt): c_p(L) = sum_q K_pq b_q(L)
 
-    # --- a_p(V) for every table (theta_V, phi): outgoing basis = e_y projected
-    nv = nt * nph
+    # --- a_p(V) for every outgoing direction
     m = nv * N
     idx = dr.arange(UInt, m)
     vi, pi_ = idx // N, idx % N
-    thV = dr.gather(Float, Float(th_tab), vi // nph)
-    phV = dr.gather(Float, Float(ph_tab), vi % nph)
-    V = (dr.sin(thV) * dr.cos(phV), dr.sin(thV) * dr.sin(phV), dr.cos(thV))
+    thV = dr.gather(Float, theta_v, vi)
+    phV = dr.gather(Float, phi, vi)
+    sph, cph = dr.sincos(phV)
+    V = (dr.sin(thV) * cph, dr.sin(thV) * sph, dr.cos(thV))
     npp = tuple(dr.gather(Float, c, pi_) for c in n)
     cos_o = _dot(V, npp)
     tp, tm = transmission_mueller_terms(cos_o, eta)
     s_facet = _normalize(_cross(npp, V), (Float(1.0), Float(0.0), Float(0.0)))
-    eyv = V[1]
-    x_out = _normalize((-eyv * V[0], 1.0 - eyv * V[1], -eyv * V[2]), (Float(1.0), Float(0.0), Float(0.0)))
+    x_out = (-sph, cph, dr.zeros(Float, m))
     c2, s2 = _rotation(V, s_facet, x_out)
     scale = dr.gather(Float, w, pi_) * dr.maximum(cos_o, 0.0)
     # Stokes [T+, T-, 0] in the facet basis, re-expressed in x_out: s1 = c2 T-, s2 = -s2 T-
@@ -176,19 +183,56 @@ def body_table(dist, eta, kappa, grid):
         dr.scatter(A, a[r_], (vi * 3 + r_) * N + pi_)
     A = Tensor(A, shape=(3 * nv, N))
 
-    Y = A @ C  # (3 nv, 3 nt): rows (v, r), cols (l, s)
+    Y = A @ C  # (3 nv, nc nt): rows (v, r), cols (l, s)
 
-    # --- reorder to (l, theta_V, phi, 3 r + s) and divide by pi P(V) P(L)
-    total = nt * nv * 9
-    idx = dr.arange(UInt, total)
-    l = idx // (nv * 9)
-    rest = idx % (nv * 9)
-    v = rest // 9
-    rs = rest % 9
-    r_, s_ = rs // 3, rs % 3
-    val = dr.gather(Float, Y.array, (v * 3 + r_) * (3 * nt) + l * 3 + s_)
-    P = dist.projected_area(Float(th_tab))
-    PL = dr.gather(Float, P, l)
-    PV = dr.gather(Float, P, v // nph)
-    val = val / (math.pi * PL * PV)
-    return Tensor(val, shape=(nt, nt, nph, 9))
+    # --- reorder to (l, v, r, s) and divide by pi P(V) P(L)
+    per_l = nv * 3 * nc
+    idx = dr.arange(UInt, nt * per_l)
+    l = idx // per_l
+    rest = idx % per_l
+    v = rest // (3 * nc)
+    rs = rest % (3 * nc)
+    r_, s_ = rs // nc, rs % nc
+    val = dr.gather(Float, Y.array, (v * 3 + r_) * (nc * nt) + l * nc + s_)
+    PL = dr.gather(Float, dist.projected_area(theta_l), l)
+    PV = dr.gather(Float, dist.projected_area(theta_v), v)
+    return Tensor(val / (math.pi * PL * PV), shape=(nt, nv, 3, nc))
+
+
+def _table_matrices(dist, eta, kappa, grid, resolution, columns):
+    n_theta, n_phi = resolution
+    th, ph = table_angles(n_theta, n_phi)
+    Y = body_matrices(dist, eta, kappa, grid, th, np.repeat(th, n_phi), np.tile(ph, n_theta), columns)
+    return Y.array, (n_theta, n_theta, n_phi)
+
+
+def body_tables(dist, eta, kappa, grid, polarized=True):
+    """The body term as interpolation tables over (x(theta_L), x(theta_V), phi / pi).
+
+    primary: (log M00, M10 / M00, M20 / M00) on ``grid.primary``: everything
+    unpolarised incident light sees (only log M00 when not ``polarized``);
+    secondary: (M01, M02, M11, M12, M21, M22) / M00 on ``grid.secondary``, the
+    response to polarised incident light.  Logarithm and ratios vary more
+    smoothly than the elements (a large kappa makes M00 peaked); M is divided by
+    k_b cos(theta_L) and expressed in the bases of :func:`body_matrices`.
+    Returns (primary, secondary or None) as :class:`TetraTable`.
+    """
+    Float = dist.Float
+    UInt = dr.uint32_array_t(Float)
+    vals, shape = _table_matrices(dist, eta, kappa, grid, grid.primary, (0,))
+    n = dr.width(vals) // 3
+    m00 = dr.maximum(dr.gather(Float, vals, dr.arange(UInt, n) * 3), 1e-30)
+    if not polarized:
+        return TetraTable(dr.log(m00), shape + (1,)), None
+    # elements k = 3 j + c: channel 0 -> log M00, channels 1, 2 -> M10, M20 over M00
+    k = dr.arange(UInt, 3 * n)
+    m00_k = dr.gather(Float, m00, k // 3)
+    primary = dr.select(k % 3 == 0, dr.log(m00_k), dr.gather(Float, vals, k) / m00_k)
+
+    vals, shape2 = _table_matrices(dist, eta, kappa, grid, grid.secondary, (0, 1, 2))
+    n2 = dr.width(vals) // 9
+    k = dr.arange(UInt, 6 * n2)
+    cell, ch = k // 6, k % 6
+    elem = ch + 1 + ch // 2  # (M01, M02, M11, M12, M21, M22) -> row-major indices 1, 2, 4, 5, 7, 8
+    secondary = dr.gather(Float, vals, cell * 9 + elem) / dr.maximum(dr.gather(Float, vals, cell * 9), 1e-30)
+    return TetraTable(primary, shape + (3,)), TetraTable(secondary, shape2 + (6,))

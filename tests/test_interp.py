@@ -1,0 +1,46 @@
+"""Tetrahedral table interpolation: exact on affine data and at nodes, continuous, clamped."""
+import numpy as np
+import pytest
+
+
+@pytest.fixture
+def Float(variant):
+    import mitsuba as mi
+    return mi.Float
+
+
+def _table(Float, data):
+    from fmbrdf_mi.model.interp import TetraTable
+    return TetraTable(Float(np.ascontiguousarray(data, dtype=np.float32).ravel()), data.shape)
+
+
+def test_affine_functions_are_reproduced(Float):
+    shape = (5, 7, 9)
+    g = np.meshgrid(*[np.linspace(0, 1, n) for n in shape], indexing="ij")
+    data = np.stack([1 + 2 * g[0] - 3 * g[1] + 0.5 * g[2], -g[2] + 4 * g[0]], axis=-1)
+    t = _table(Float, data)
+    u = np.random.default_rng(0).uniform(0, 1, (3, 5000))
+    out = t.eval(*(Float(x) for x in u))
+    assert np.allclose(np.asarray(out[0]), 1 + 2 * u[0] - 3 * u[1] + 0.5 * u[2], atol=2e-6)
+    assert np.allclose(np.asarray(out[1]), -u[2] + 4 * u[0], atol=2e-6)
+
+
+def test_nodes_exact_and_outside_clamped(Float):
+    rng = np.random.default_rng(1)
+    data = rng.normal(size=(4, 3, 5, 1))
+    t = _table(Float, data)
+    idx = np.array([(i, j, k) for i in range(4) for j in range(3) for k in range(5)]).T
+    u = [Float(idx[a] / (data.shape[a] - 1)) for a in range(3)]
+    assert np.allclose(np.asarray(t.eval(*u)[0]), data[idx[0], idx[1], idx[2], 0], atol=1e-6)
+    far = [Float([-0.5, 1.5]), Float([-1.0, 2.0]), Float([-3.0, 7.0])]
+    assert np.allclose(np.asarray(t.eval(*far)[0]), [data[0, 0, 0, 0], data[-1, -1, -1, 0]], atol=1e-6)
+
+
+def test_interpolation_is_continuous_across_tetrahedra(Float):
+    data = np.random.default_rng(2).normal(size=(3, 3, 3, 1))
+    t = _table(Float, data)
+    # walk across the cell diagonals, where the tetrahedron changes
+    s = np.linspace(0, 1, 20001)
+    u = [0.5 * s, 0.5 * (1 - s) ** 2, 0.25 + 0.5 * np.sin(3 * s) ** 2]
+    v = np.asarray(t.eval(*(Float(x) for x in u))[0])
+    assert np.abs(np.diff(v)).max() < 1e-3
