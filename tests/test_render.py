@@ -251,7 +251,7 @@ def test_progress_reports_on_non_tty():
     bar.step()
     bar.close()
     lines = buf.getvalue().splitlines()
-    assert len(lines) == 2 and "2/2 passes" in lines[-1]
+    assert 1 <= len(lines) <= 2 and "2/2 passes" in lines[-1]  # at most a line a second, and the last
     quiet = io.StringIO()
     bar = S._Progress("x", 2, delay=10.0, stream=quiet)  # fast renders say nothing
     bar.step()
