@@ -331,6 +331,7 @@ def run_render(args):
         if "k_b" in given and "r_k" not in given:
             values.pop("r_k")
         values.update(given)
+        values["light_dir"] = S.check_light_dir(values["light_dir"])  # normalised, as used
         material = {k: values[k] for k in S.MATERIAL_KEYS if k in values}
         scene_dict = S.sphere_scene(material, light_dir=values["light_dir"], irradiance=values["irradiance"],
                                     resolution=(values["width"], values["height"]), spp=values["spp"],
@@ -338,7 +339,6 @@ def run_render(args):
                                     seed=seed)
         scene = mi.load_dict(scene_dict)
         resolved = dict(values, seed=seed)
-        resolved["material"] = S.check_material(material)
     else:
         if "pixel_format" in declared and "pixel_format" not in given and mi.is_monochromatic:
             given["pixel_format"] = "luminance"  # avoids Mitsuba's warning that it switches
@@ -366,8 +366,7 @@ def run_render(args):
         "mitsuba_version": mi.__version__,
         "variant": args.variant,
         "scene": "builtin:sphere" if kind == "builtin" else os.path.abspath(args.scene),
-        "parameters": {k: (list(v) if isinstance(v, tuple) else v) for k, v in resolved.items()
-                       if k != "material"},
+        "parameters": {k: (list(v) if isinstance(v, tuple) else v) for k, v in resolved.items()},
         "materials": S.scene_materials(scene),
         "lights": S.scene_lights(scene),
         "camera": S.scene_camera(scene),
