@@ -221,7 +221,8 @@ class _FMBRDFMethods:
             for name, (scale, _, _) in parts.items():
                 value += weights[name] * scale
             return value
-        result = dr.zeros(mi.Spectrum)
+        width = max([dr.width(scale) for scale, _, _ in parts.values()] + [dr.width(si.wi)])
+        result = dr.zeros(mi.Spectrum, width)  # elements not set below stay zero
         terms = [(weights[name] * scale, M, m33) for name, (scale, M, m33) in parts.items()]
         for i in range(3):
             for j in range(3):
