@@ -21,6 +21,8 @@ _SCALARS = ("eta", "alpha", "beta", "kappa")
 
 
 def _scalar_value(x):
+    if isinstance(x, (int, float)):  # scalar variants
+        return float(x)
     arr = dr.detach(x)
     if dr.width(arr) != 1:
         raise P.ParameterError(f"fmbrdf: parameters must be single numbers, got an array of width {dr.width(arr)}")
@@ -38,15 +40,23 @@ def _texture_values(tex):
     """
     import numpy as np
 
-    n = 32
+    n = 32 if dr.is_jit_v(mi.Float) else 8  # scalar variants evaluate one point per call
     with dr.suspend_grad():
-        idx = dr.arange(mi.UInt32, n * n)
-        si = dr.zeros(mi.SurfaceInteraction3f, n * n)
-        si.uv = mi.Point2f((mi.Float(idx % n) + 0.5) / n, (mi.Float(idx // n) + 0.5) / n)
-        if mi.is_spectral:
-            frac = lambda k: (lambda x: x - dr.floor(x))(mi.Float(idx) * 0.6180339887 + 0.25 * k)
-            si.wavelengths = mi.UnpolarizedSpectrum(*[360.0 + 470.0 * frac(k) for k in range(4)])
-        out = [np.asarray(tex.eval(si)).ravel()]
+        if dr.is_jit_v(mi.Float):
+            idx = dr.arange(mi.UInt32, n * n)
+            points = [dr.zeros(mi.SurfaceInteraction3f, n * n)]
+            points[0].uv = mi.Point2f((mi.Float(idx % n) + 0.5) / n, (mi.Float(idx // n) + 0.5) / n)
+        else:
+            idx = 0
+            points = []
+            for i in range(n * n):
+                points.append(dr.zeros(mi.SurfaceInteraction3f))
+                points[-1].uv = mi.Point2f((i % n + 0.5) / n, (i // n + 0.5) / n)
+        for k, si in enumerate(points):
+            if mi.is_spectral:
+                frac = lambda j: (lambda x: x - dr.floor(x))((idx + k) * 0.6180339887 + 0.25 * j)
+                si.wavelengths = mi.UnpolarizedSpectrum(*[360.0 + 470.0 * frac(j) for j in range(4)])
+        out = [np.asarray(tex.eval(si), dtype=np.float64).ravel() for si in points]
         if not mi.is_spectral:
             params = mi.traverse(tex)
             for key in params.keys():
@@ -136,12 +146,25 @@ class _FMBRDFMethods:
 
     def _rebuild(self):
         """Everything that depends on (eta, alpha, beta, kappa) only (paper sec. 3-4)."""
+        if not dr.is_jit_v(mi.Float):
+            return self._rebuild_scalar()
         self.dist = Distribution(mi.Float, self.alpha, self.beta)
         self.primary, self.secondary = body_tables(self.dist, self.eta, self.kappa, self.grid, self.polarized)
         with dr.suspend_grad():
             self.sampler = MicrofacetSampler(self.dist)
         tables = [self.primary.values] + ([self.secondary.values] if self.secondary else [])
         dr.eval(self.dist.p_tab, self.dist.norm, *tables)
+
+    def _rebuild_scalar(self):
+        """Scalar variants: the tables are built with Dr.Jit's LLVM backend, then
+        read from NumPy copies by the same lookup code."""
+        from drjit.llvm.ad import Float
+
+        dist = Distribution(Float, Float(self.alpha), Float(self.beta))
+        primary, _ = body_tables(dist, Float(self.eta), Float(self.kappa), self.grid, polarized=False)
+        self.dist = dist.scalar_copy()
+        self.primary, self.secondary = primary.scalar_copy(), None
+        self.sampler = MicrofacetSampler(dist).scalar_copy(self.dist)
 
     # ------------------------------------------------------------ evaluation
     def _albedos(self, si, active):

@@ -59,8 +59,8 @@ def test_unsupported_variant():
 
     import fmbrdf_mi
 
-    with pytest.raises(ValueError, match="scalar_rgb"):
-        fmbrdf_mi.register("scalar_rgb")
+    with pytest.raises(ValueError, match="scalar_spectral_polarized"):
+        fmbrdf_mi.register("scalar_spectral_polarized")
     mi.set_variant("llvm_ad_mono_polarized")
 
 
