@@ -148,6 +148,8 @@ class _FMBRDFMethods:
         """Everything that depends on (eta, alpha, beta, kappa) only (paper sec. 3-4)."""
         if not dr.is_jit_v(mi.Float):
             return self._rebuild_scalar()
+        # opaque: a new parameter value must not be baked into (and recompile) every kernel
+        dr.make_opaque(self.eta, self.alpha, self.beta, self.kappa)
         self.dist = Distribution(mi.Float, self.alpha, self.beta)
         self.primary, self.secondary = body_tables(self.dist, self.eta, self.kappa, self.grid, self.polarized)
         with dr.suspend_grad():
