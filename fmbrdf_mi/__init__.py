@@ -14,11 +14,13 @@ __all__ = ["register", "ParameterError", "LLVMTooOldError", "SUPPORTED_VARIANTS"
 
 pin_newest_llvm()
 
-#: Variants in which the plugin is known to work (JIT backends).
+#: Variants in which the plugin works.  Scalar variants (unpolarised only:
+#: a Python BSDF called once per ray is for checks, not production) build
+#: their tables with the LLVM backend.
 SUPPORTED_VARIANTS = (
     "llvm_ad_rgb", "llvm_ad_mono", "llvm_ad_mono_polarized", "llvm_ad_spectral",
     "llvm_ad_spectral_polarized", "cuda_ad_rgb", "cuda_ad_mono", "cuda_ad_mono_polarized",
-    "cuda_ad_spectral", "cuda_ad_spectral_polarized",
+    "cuda_ad_spectral", "cuda_ad_spectral_polarized", "scalar_rgb", "scalar_mono", "scalar_spectral",
 )
 
 _registered = set()
@@ -41,7 +43,7 @@ def register(variant=None):
     if variant not in SUPPORTED_VARIANTS:
         raise ValueError(f"fmbrdf: variant '{variant}' is not supported; use one of "
                          f"{', '.join(SUPPORTED_VARIANTS)}")
-    if variant.startswith("llvm"):
+    if not variant.startswith("cuda"):
         check_llvm()
     if variant in _registered:
         return

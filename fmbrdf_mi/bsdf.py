@@ -21,6 +21,8 @@ _SCALARS = ("eta", "alpha", "beta", "kappa")
 
 
 def _scalar_value(x):
+    if isinstance(x, (int, float)):  # scalar variants
+        return float(x)
     arr = dr.detach(x)
     if dr.width(arr) != 1:
         raise P.ParameterError(f"fmbrdf: parameters must be single numbers, got an array of width {dr.width(arr)}")
@@ -28,16 +30,41 @@ def _scalar_value(x):
 
 
 def _texture_values(tex):
-    """All numeric values a texture holds (for validation)."""
+    """Values of an albedo texture, for validation.
+
+    The texture is evaluated on a 32 x 32 grid of uv (and, in spectral
+    variants, across the visible range): spectral variants store an RGB value
+    as upsampling coefficients, which may be negative for a valid reflectance.
+    In RGB and mono variants the stored values are checked too (exhaustive for
+    bitmaps).
+    """
     import numpy as np
 
-    out = []
-    for key, value in mi.traverse(tex).items():
-        try:
-            out.append(np.asarray(dr.detach(value)).ravel())
-        except Exception:
-            pass
-    return np.concatenate(out) if out else np.zeros(0)
+    n = 32 if dr.is_jit_v(mi.Float) else 8  # scalar variants evaluate one point per call
+    with dr.suspend_grad():
+        if dr.is_jit_v(mi.Float):
+            idx = dr.arange(mi.UInt32, n * n)
+            points = [dr.zeros(mi.SurfaceInteraction3f, n * n)]
+            points[0].uv = mi.Point2f((mi.Float(idx % n) + 0.5) / n, (mi.Float(idx // n) + 0.5) / n)
+        else:
+            idx = 0
+            points = []
+            for i in range(n * n):
+                points.append(dr.zeros(mi.SurfaceInteraction3f))
+                points[-1].uv = mi.Point2f((i % n + 0.5) / n, (i // n + 0.5) / n)
+        for k, si in enumerate(points):
+            if mi.is_spectral:
+                frac = lambda j: (lambda x: x - dr.floor(x))((idx + k) * 0.6180339887 + 0.25 * j)
+                si.wavelengths = mi.UnpolarizedSpectrum(*[360.0 + 470.0 * frac(j) for j in range(4)])
+        out = [np.asarray(tex.eval(si), dtype=np.float64).ravel() for si in points]
+        if not mi.is_spectral:
+            params = mi.traverse(tex)
+            for key in params.keys():
+                try:
+                    out.append(np.asarray(dr.detach(params[key]), dtype=np.float64).ravel())
+                except Exception:  # non-numeric parameters
+                    pass
+    return np.concatenate(out)
 
 
 def _axis(v, fallback=(1.0, 0.0, 0.0)):
@@ -119,12 +146,25 @@ class _FMBRDFMethods:
 
     def _rebuild(self):
         """Everything that depends on (eta, alpha, beta, kappa) only (paper sec. 3-4)."""
+        if not dr.is_jit_v(mi.Float):
+            return self._rebuild_scalar()
         self.dist = Distribution(mi.Float, self.alpha, self.beta)
         self.primary, self.secondary = body_tables(self.dist, self.eta, self.kappa, self.grid, self.polarized)
         with dr.suspend_grad():
             self.sampler = MicrofacetSampler(self.dist)
         tables = [self.primary.values] + ([self.secondary.values] if self.secondary else [])
         dr.eval(self.dist.p_tab, self.dist.norm, *tables)
+
+    def _rebuild_scalar(self):
+        """Scalar variants: the tables are built with Dr.Jit's LLVM backend, then
+        read from NumPy copies by the same lookup code."""
+        from drjit.llvm.ad import Float
+
+        dist = Distribution(Float, Float(self.alpha), Float(self.beta))
+        primary, _ = body_tables(dist, Float(self.eta), Float(self.kappa), self.grid, polarized=False)
+        self.dist = dist.scalar_copy()
+        self.primary, self.secondary = primary.scalar_copy(), None
+        self.sampler = MicrofacetSampler(dist).scalar_copy(self.dist)
 
     # ------------------------------------------------------------ evaluation
     def _albedos(self, si, active):
@@ -204,7 +244,8 @@ class _FMBRDFMethods:
             for name, (scale, _, _) in parts.items():
                 value += weights[name] * scale
             return value
-        result = dr.zeros(mi.Spectrum)
+        width = max([dr.width(scale) for scale, _, _ in parts.values()] + [dr.width(si.wi)])
+        result = dr.zeros(mi.Spectrum, width)  # elements not set below stay zero
         terms = [(weights[name] * scale, M, m33) for name, (scale, M, m33) in parts.items()]
         for i in range(3):
             for j in range(3):

@@ -16,7 +16,9 @@ import math
 import drjit as dr
 import numpy as np
 
+from .interp import gather
 from .quadrature import PolarMap, gauss_legendre, gennormal_unnormalised
+
 
 
 def azimuthal_clamped_cosine(theta_m, theta_w):
@@ -90,6 +92,17 @@ class Distribution:
              * azimuthal_clamped_cosine(th, tw))
         return self.norm * dr.block_sum(f, 2 * n)
 
+    def scalar_copy(self):
+        """A copy whose D and proj_area_lookup take Python floats (scalar variants)."""
+        out = object.__new__(Distribution)
+        val = lambda x: float(np.asarray(dr.detach(x)).ravel()[0])
+        out.Float, out.alpha, out.beta = float, val(self.alpha), val(self.beta)
+        out.map = PolarMap(out.alpha, out.beta)
+        out.norm = val(self.norm)
+        out.theta_tab = self.theta_tab
+        out.p_tab = np.asarray(dr.detach(self.p_tab), dtype=np.float64)
+        return out
+
     def proj_area_lookup(self, cos_theta):
         """P at cos(theta_w) by linear interpolation in the table."""
         Float = self.Float
@@ -97,6 +110,6 @@ class Distribution:
         x = th * ((self.N_PTAB - 1) / (0.5 * math.pi))
         i0 = dr.minimum(dr.uint32_array_t(Float)(dr.floor(x)), self.N_PTAB - 2)
         t = x - Float(i0)
-        p0 = dr.gather(Float, self.p_tab, i0)
-        p1 = dr.gather(Float, self.p_tab, i0 + 1)
+        p0 = gather(Float, self.p_tab, i0)
+        p1 = gather(Float, self.p_tab, i0 + 1)
         return dr.fma(t, p1 - p0, p0)

@@ -7,6 +7,15 @@ random in eval, where the number of gathered texels sets the cost, so this
 halves it.  Gathers from a differentiable table carry gradients to the table.
 """
 import drjit as dr
+import numpy as np
+
+
+def gather(Float, values, index):
+    """``dr.gather``; in scalar variants (``Float is float``) ``values`` is a
+    NumPy array and this is plain indexing."""
+    if Float is float:
+        return float(values[int(index)])
+    return dr.gather(Float, values, index)
 
 
 class TetraTable:
@@ -18,6 +27,10 @@ class TetraTable:
         self.shape = tuple(int(s) for s in shape)
         n0, n1, n2, c = self.shape
         self.strides = (n1 * n2 * c, n2 * c, c)
+
+    def scalar_copy(self):
+        """The same table for scalar lookups (Python floats; NumPy storage)."""
+        return TetraTable(np.asarray(dr.detach(self.values), dtype=np.float64), self.shape)
 
     def eval(self, u0, u1, u2):
         """Interpolated channels (a list of C arrays) at coordinates in [0, 1] (clamped)."""
@@ -45,6 +58,6 @@ class TetraTable:
         for ch in range(self.shape[3]):
             acc = 0.0
             for w, idx in zip(weights, corners):
-                acc = acc + w * dr.gather(Float, self.values, idx + ch)
+                acc = acc + w * gather(Float, self.values, idx + ch)
             out.append(acc)
         return out

@@ -11,7 +11,9 @@ float32 when alpha is small.
 import math
 
 import drjit as dr
+import numpy as np
 
+from .interp import gather
 from .quadrature import gauss_legendre, gennormal_unnormalised
 
 
@@ -40,17 +42,25 @@ class MicrofacetSampler:
             self.v_edges = 2.0 * dr.square(dr.sin(0.5 * edges))
             dr.eval(self.cdf, self.v_edges)
 
+    def scalar_copy(self, dist):
+        """A copy for Python floats (scalar variants), drawing on ``dist.scalar_copy()``."""
+        out = object.__new__(MicrofacetSampler)
+        out.Float, out.dist = float, dist
+        out.cdf = np.asarray(dr.detach(self.cdf), dtype=np.float64)
+        out.v_edges = np.asarray(dr.detach(self.v_edges), dtype=np.float64)
+        return out
+
     def sample(self, xi1, xi2):
         """Microfacet normal (local frame) from two uniform variates."""
         Float, UInt = self.Float, dr.uint32_array_t(self.Float)
         n = self.N_BINS
-        k = dr.binary_search(0, n - 1, lambda i: dr.gather(Float, self.cdf, i + 1) <= xi1)
+        k = dr.binary_search(0, n - 1, lambda i: gather(Float, self.cdf, i + 1) <= xi1)
         k = dr.minimum(k, n - 1)
-        c0 = dr.gather(Float, self.cdf, k)
-        c1 = dr.gather(Float, self.cdf, k + 1)
+        c0 = gather(Float, self.cdf, k)
+        c1 = gather(Float, self.cdf, k + 1)
         t = dr.clip((xi1 - c0) / dr.maximum(c1 - c0, 1e-30), 0.0, 1.0)
-        v0 = dr.gather(Float, self.v_edges, k)
-        v1 = dr.gather(Float, self.v_edges, k + 1)
+        v0 = gather(Float, self.v_edges, k)
+        v1 = gather(Float, self.v_edges, k + 1)
         v = v0 + t * (v1 - v0)
         cos_t = 1.0 - v
         sin_t = dr.safe_sqrt(v * (2.0 - v))
@@ -65,6 +75,6 @@ class MicrofacetSampler:
         u = self.dist.map.u_of_theta(th)
         inside = (cos_theta > 0) & (u < 1.0)
         k = dr.minimum(UInt(dr.maximum(u * n, 0.0)), n - 1)
-        mass = dr.gather(Float, self.cdf, k + 1) - dr.gather(Float, self.cdf, k)
-        dv = dr.gather(Float, self.v_edges, k + 1) - dr.gather(Float, self.v_edges, k)
+        mass = gather(Float, self.cdf, k + 1) - gather(Float, self.cdf, k)
+        dv = gather(Float, self.v_edges, k + 1) - gather(Float, self.v_edges, k)
         return dr.select(inside & (dv > 0), mass / (2.0 * math.pi * dr.maximum(dv, 1e-30)), 0.0)
