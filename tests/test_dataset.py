@@ -64,7 +64,7 @@ def _env():
 
 
 def _cli(config_path, out, *extra):
-    return [sys.executable, "-m", "fmbrdf_mi.dataset", "--config", str(config_path), "--out", str(out), *extra]
+    return [sys.executable, "-m", "fmbrdf_mi", "dataset", "--config", str(config_path), "--out", str(out), *extra]
 
 
 @pytest.fixture(scope="module")

@@ -236,9 +236,9 @@ def make_label(cfg, index, draw, geometry):
               "elevation": draw["elevation"], "azimuth": draw["azimuth"], "resolution": [w, h],
               "position": g["camera"]["position"], "to_world": g["camera"]["to_world"]}
     if draw["camera"] == "orthographic":
-        from .render import half_width
+        from ..scene import _half_width
 
-        camera["half_width"] = half_width(draw["distance"], draw["fov"])
+        camera["half_width"] = _half_width(draw["fov"], draw["distance"])
     return {
         "format": FORMAT, "index": index, "id": sample_id(index, cfg.samples), "dataset_seed": cfg.seed,
         "files": sample_files(index, cfg.samples),
@@ -351,11 +351,14 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
 
         bar = Progress(len(todo), skipped, stream=stream, enabled=progress)
         t_render = time.perf_counter()
+        t_write = 0.0
         for shape, cam, i, draw in plan:
             geometry = sample_geometry(draw, renderer.normalisation(shape))
             label = make_label(cfg, i, draw, geometry)
             stokes, normals, mask = renderer.render(draw, geometry)
+            t = time.perf_counter()
             write_sample(out, label, stokes, normals, mask)
+            t_write += time.perf_counter() - t
             bar.step()
         t_render = time.perf_counter() - t_render
     except KeyboardInterrupt:
@@ -380,7 +383,8 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
     summary = {"out": out, "samples": cfg.samples, "shard": f"{k}/{n_shards}", "rendered": rendered,
                "skipped": skipped, "seconds": elapsed, "render_seconds": t_render,
                "samples_per_second": rendered / t_render if rendered and t_render > 0 else 0.0,
-               "complete": complete, "manifests": manifests}
+               "complete": complete, "manifests": manifests,
+               "phase_seconds": dict(renderer.seconds, write=t_write)}
     if progress:
         tail = (f"{MANIFEST} lists all {cfg.samples}" if complete
                 else f"{sum(is_complete(out, i, cfg.samples) for i in range(cfg.samples))} of "

@@ -1,7 +1,8 @@
 """The ``dataset`` subcommand: ``fmbrdf-mi dataset --config CONFIG --out DIR [--shard I/N]``.
 
 :func:`add_dataset_arguments` and :func:`run_dataset` follow the subcommand
-protocol of :mod:`fmbrdf_mi.cli`.
+protocol of :mod:`fmbrdf_mi.cli`, which reports errors (ValueError and its
+subclasses: bad config keys, --shard, ...) as one line.
 """
 from __future__ import annotations
 
@@ -49,19 +50,3 @@ def run_dataset(args):
         print(f"{summary['rendered']} samples rendered ({summary['skipped']} already done) in "
               f"{summary['seconds']:.1f} s, {summary['samples_per_second']:.2f} samples/s")
     return 0
-
-
-def main(argv=None):
-    """Stand-alone entry point (``python -m fmbrdf_mi.dataset``)."""
-    import sys
-
-    p = argparse.ArgumentParser(prog="python -m fmbrdf_mi.dataset", description=HELP)
-    add_dataset_arguments(p)
-    args = p.parse_args(argv)
-    try:
-        return run_dataset(args)
-    except ValueError as e:  # DatasetConfigError, ParameterError, bad --shard, ...
-        print(f"{p.prog}: error: {' '.join(str(e).split())}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        return 130

@@ -29,26 +29,29 @@ import os
 import numpy as np
 
 from .. import params as P
+from .. import scene as S
 
 FORMAT = "fmbrdf-mi-dataset/1"
 
 #: Mitsuba's built-in shapes offered, besides meshes (.ply, .obj).
 BUILTIN_SHAPES = ("sphere", "cube", "cylinder", "disk", "rectangle")
 MESH_SUFFIXES = (".ply", ".obj")
-CAMERAS = ("orthographic", "perspective")
+CAMERAS = S.CAMERAS
 #: Polarised variants a dataset can be rendered in.
 VARIANTS = ("llvm_ad_spectral_polarized", "llvm_ad_mono_polarized",
             "cuda_ad_spectral_polarized", "cuda_ad_mono_polarized")
 
+#: Defaults: those of fmbrdf_mi.scene (the ``fmbrdf-mi render`` sphere), but 16 spp.
 DEFAULTS = {
     "seed": 0,
-    "render": {"resolution": 256, "spp": 16, "variant": "llvm_ad_spectral_polarized"},
+    "render": {"resolution": S.DEFAULT_RESOLUTION, "spp": 16, "variant": "llvm_ad_spectral_polarized"},
     "shape": {"type": "sphere", "rotate": False},
-    "camera": {"type": "orthographic", "distance": 5.0, "fov": 25.0, "elevation": 0.0, "azimuth": 0.0},
-    "light": {"direction": [-0.5, 0.5, 1.0], "irradiance": math.pi},
-    "material": {"eta": 1.5, "alpha": 0.3, "beta": 2.0, "kappa": 10.0, "k_s": 1.0},
+    "camera": {"type": S.DEFAULT_CAMERA, "distance": S.DEFAULT_DISTANCE, "fov": S.DEFAULT_FOV,
+               "elevation": 0.0, "azimuth": 0.0},
+    "light": {"direction": list(S.DEFAULT_LIGHT_DIR), "irradiance": S.DEFAULT_IRRADIANCE},
+    "material": {k: S.DEFAULT_MATERIAL[k] for k in ("eta", "alpha", "beta", "kappa", "k_s")},
 }
-DEFAULT_R_K = 1.0
+DEFAULT_R_K = S.DEFAULT_MATERIAL["r_k"]
 SECTIONS = {
     "render": ("resolution", "spp", "variant"),
     "shape": ("type", "rotate"),

@@ -25,6 +25,7 @@ from one ray per pixel through the pixel centre.
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -43,6 +44,7 @@ SHAPES = {
     "rectangle": ("rectangle", np.diag([2 ** -0.5] * 2 + [1.0, 1.0])),
 }
 
+_SCALARS = ("eta", "alpha", "beta", "kappa")
 #: Wavelengths (nm) at which an RGB albedo's spectrum is tabulated (Mitsuba's CIE range).
 WAVELENGTHS = np.linspace(360.0, 830.0, 471)
 
@@ -56,11 +58,6 @@ def camera_frame(distance, elevation, azimuth):
     right /= np.linalg.norm(right)
     up = np.cross(back, right)
     return distance * back, np.stack([right, up, back], axis=1)
-
-
-def half_width(distance, fov):
-    """Half the width of the view in the plane through the origin (both cameras frame alike)."""
-    return distance * math.tan(math.radians(fov) / 2)
 
 
 def mesh_normalisation(positions):
@@ -155,8 +152,10 @@ class SampleRenderer:
     Only one scene is alive at a time: Dr.Jit compiles every live BSDF into
     every kernel.  Samples of the same structure only update parameters
     (``mi.traverse``), passed as opaque values so that no kernel is recompiled.
-    Every parameter that varies is set for every sample, so a sample's images
-    do not depend on which samples were rendered before it.
+    Every parameter that varies is set for every sample (eta, alpha, beta,
+    kappa when they differ from the previous sample's: the BSDF's tables depend
+    on them alone), so a sample's images do not depend on which samples were
+    rendered before it.  ``seconds`` accumulates the time spent per phase.
     """
 
     def __init__(self, cfg):
@@ -164,8 +163,10 @@ class SampleRenderer:
         self.key = None
         self.scene = None
         self.params = None
+        self._scalars = None
         self._normalisations = {}
         self.rgb = {k: _is_rgb(d) for k, d in cfg.material.items()}
+        self.seconds = {"load": 0.0, "update": 0.0, "render": 0.0, "geometry": 0.0}
 
     def normalisation(self, shape):
         if shape in SHAPES:
@@ -186,6 +187,10 @@ class SampleRenderer:
         return self._normalisations[shape]
 
     def _scene_dict(self, shape, camera):
+        """The scene of a structure: fmbrdf_mi.scene's sensor, light and integrator around
+        this shape; camera pose, light, material and seed are placeholders set per sample."""
+        from .. import scene as S
+
         mi = _mi()
         cfg = self.cfg
         if shape in SHAPES:
@@ -197,23 +202,13 @@ class SampleRenderer:
         bsdf = {"type": "fmbrdf"}
         for k, rgb in self.rgb.items():
             if k in ("k_s", "k_b", "r_k"):
-                # placeholders (every sample sets its values), loaded as objects of
-                # their own: in a dict, Mitsuba would merge two equal textures into one
+                # loaded as objects of their own: in a dict, Mitsuba would merge two equal textures
                 bsdf[k] = mi.load_dict(_albedo_texture([1.0] * 3 if rgb else 1.0, rgb))
         shape_dict["bsdf"] = bsdf
         w, h = cfg.resolution
-        sensor = {"type": camera,
-                  "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
-                           "pixel_format": "rgb" if cfg.spectral else "luminance"},
-                  "sampler": {"type": "independent", "sample_count": cfg.spp}}
-        if camera == "perspective":
-            sensor.update(fov_axis="x", fov=30.0)  # x_fov: set per sample
-        return {"type": "scene",
-                "integrator": {"type": "stokes", "integrator": {"type": "direct"}},
-                "sensor": sensor,
-                # irradiance 1: the image is scaled by the sample's irradiance
-                "light": {"type": "directional", "direction": [0.0, 0.0, -1.0], "irradiance": 1.0},
-                "shape": shape_dict}
+        sensor = S._sensor(mi, camera, w, h, 1, S.DEFAULT_FOV, S.DEFAULT_DISTANCE, cfg.spp, 0)
+        # irradiance 1: the image is scaled by the sample's irradiance
+        return S._scene(mi, {"shape": shape_dict}, (0.0, 0.0, 1.0), 1.0, sensor)
 
     def _load(self, key):
         import gc
@@ -224,7 +219,7 @@ class SampleRenderer:
         self.scene = mi.load_dict(self._scene_dict(*key))
         self.params = mi.traverse(self.scene)
         self.key = key
-        self.names = None  # film channel names, known after the first render
+        self._scalars = None  # (eta, alpha, beta, kappa) last set
 
     def close(self):
         import gc
@@ -238,16 +233,21 @@ class SampleRenderer:
         import drjit as dr
 
         mi = _mi()
-        from ..stokes_io import stokes_from_film
+        from ..scene import _half_width, render_stokes
 
+        t0 = time.perf_counter()
         key = (draw["shape"], draw["camera"])
         if key != self.key:
             self._load(key)
+        t1 = time.perf_counter()
         p = self.params
         g = geometry["render"]
         m = draw["material"]
-        for name in ("eta", "alpha", "beta", "kappa"):
-            p[f"shape.bsdf.{name}"] = dr.opaque(mi.Float, m[name])
+        scalars = tuple(m[name] for name in _SCALARS)
+        if scalars != self._scalars:  # a change rebuilds the BSDF's tables (most of a sample's time)
+            for name, value in zip(_SCALARS, scalars):
+                p[f"shape.bsdf.{name}"] = dr.opaque(mi.Float, value)
+            self._scalars = scalars
         for name, rgb in self.rgb.items():
             if name in ("k_s", "k_b", "r_k"):
                 if rgb:
@@ -258,7 +258,7 @@ class SampleRenderer:
         look = mi.ScalarTransform4f().look_at(origin=pos.tolist(), target=(pos - axes[:, 2]).tolist(),
                                               up=axes[:, 1].tolist())
         if draw["camera"] == "orthographic":
-            hw = half_width(draw["distance"], draw["fov"])
+            hw = _half_width(draw["fov"], draw["distance"])
             look = look @ mi.ScalarTransform4f().scale([hw, hw, 1.0])
         else:
             p["sensor.x_fov"] = float(draw["fov"])
@@ -268,15 +268,15 @@ class SampleRenderer:
         p["light.to_world"] = mi.Transform4f(mi.ScalarTransform4f().look_at(
             origin=[0.0, 0.0, 0.0], target=(-light).tolist(), up=up))
         p.update()
-
-        img = mi.render(self.scene, seed=draw["render_seed"])
-        if self.names is None:
-            self.names = [f.name for f in self.scene.sensors()[0].film().bitmap().struct_()]
-        stokes = stokes_from_film(np.asarray(img, dtype=np.float32), self.names)
-        if not self.cfg.spectral:
-            stokes = stokes[..., :1]
+        dr.sync_thread()
+        t2 = time.perf_counter()
+        stokes = render_stokes(self.scene, seed=draw["render_seed"], progress=False)
         stokes = np.ascontiguousarray(stokes * np.float32(draw["irradiance"]), dtype=np.float32)
+        t3 = time.perf_counter()
         normals, mask = self._pixel_centres(axes)
+        t4 = time.perf_counter()
+        for k, dt in zip(("load", "update", "render", "geometry"), (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
+            self.seconds[k] += dt
         return stokes, normals, mask
 
     def _pixel_centres(self, axes):
