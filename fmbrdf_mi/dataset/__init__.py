@@ -183,6 +183,8 @@ def _dataset_record(cfg):
                 "normal": "unit shading normals in the camera frame at the pixel centres, float32 (H, W, 3)",
                 "mask": "255 where the ray through the pixel centre hits the shape",
                 "light.direction": "camera frame, from the surface towards the light",
+                "render.seed": "the seed given to fmbrdf_mi.scene.render_stokes; the image is rendered "
+                               "with irradiance 1 and multiplied by light.irradiance",
             }}
 
 
