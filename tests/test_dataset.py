@@ -379,6 +379,9 @@ def test_config_files(tmp_path):
     (tmp_path / "bad.toml").write_text("samples = = 3\n")
     with pytest.raises(DatasetConfigError, match="not valid TOML"):
         load_config(tmp_path / "bad.toml")
+    (tmp_path / "list.json").write_text("[1, 2]")
+    with pytest.raises(DatasetConfigError, match="config: expected a table"):
+        load_config(tmp_path / "list.json")
     (tmp_path / "c.yaml").write_text("samples: 3\n")
     with pytest.raises(DatasetConfigError, match=r"expected a \.toml or \.json file"):
         load_config(tmp_path / "c.yaml")
@@ -390,4 +393,12 @@ def test_command_line_reports_bad_config(tmp_path):
     r = subprocess.run(_cli(p, tmp_path / "out"), env=_env(), capture_output=True, text=True, timeout=120)
     assert r.returncode == 1
     assert "material.eta.uniform: high 3.5 outside (1, 3]" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_broken_mesh_refused_before_writing(tmp_path):
+    (tmp_path / "bad.obj").write_text("v 1 0 0\nf 1 2 3\n")
+    with pytest.raises(ValueError, match="shape.type: cannot load mesh 'bad.obj'"):
+        generate({"samples": 2, "shape": {"type": "bad.obj"}}, tmp_path / "out", base_dir=tmp_path,
+                 progress=False)
     assert not (tmp_path / "out").exists()

@@ -326,6 +326,8 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
 
     renderer = SampleRenderer(cfg)
     try:
+        for name in cfg.mesh_files():  # a mesh that does not load fails now, not mid-run
+            renderer.normalisation(name)
         os.makedirs(os.path.join(out, SAMPLES_DIR), exist_ok=True)
         _check_dataset_file(out, cfg)
         mine = [i for i in range(cfg.samples) if i % n_shards == k]
@@ -340,22 +342,22 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
                          + (f"; removed {len(removed)} temporary file(s) of an interrupted run" if removed else "")
                          + "\n")
             stream.flush()
-        # Draw everything first (cheap), then render grouped by scene structure so
-        # that each structure's scene is loaded once; the order does not affect the output.
+        # Render grouped by scene structure (shape, camera type), so that each
+        # structure's scene is loaded once; the order does not affect the output.
+        # Draws are cheap: made once to sort, again when rendering (not kept: N may be large).
+        order = {}
         plan = []
         for i in todo:
             draw = cfg.draw(i)
-            plan.append((draw["shape"], draw["camera"], i, draw))
-        order = {}
-        for shape, cam, i, _ in plan:
-            order.setdefault((shape, cam), len(order))
-        plan.sort(key=lambda t: (order[(t[0], t[1])], t[2]))
+            plan.append((order.setdefault((draw["shape"], draw["camera"]), len(order)), i))
+        plan.sort()
 
         bar = Progress(len(todo), skipped, stream=stream, enabled=progress)
         t_render = time.perf_counter()
         t_write = 0.0
-        for shape, cam, i, draw in plan:
-            geometry = sample_geometry(draw, renderer.normalisation(shape))
+        for _, i in plan:
+            draw = cfg.draw(i)
+            geometry = sample_geometry(draw, renderer.normalisation(draw["shape"]))
             label = make_label(cfg, i, draw, geometry)
             stokes, normals, mask = renderer.render(draw, geometry)
             t = time.perf_counter()

@@ -139,7 +139,7 @@ def _integer(path, x, low):
 
 def _table(path, x, keys):
     if not isinstance(x, dict):
-        raise _err(path, f"expected a table of {', '.join(keys)}, got {x!r}")
+        raise _err(path or "config", f"expected a table of {', '.join(keys)}, got {x!r}")
     unknown = [k for k in x if k not in keys]
     if unknown:
         where = f"{path}.{unknown[0]}" if path else unknown[0]
