@@ -300,6 +300,9 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
         raw = read_config_file(config)
         base_dir = base_dir or os.path.dirname(os.path.abspath(os.fspath(config)))
     elif isinstance(config, DatasetConfig):
+        if seed is not None or samples is not None:
+            raise ValueError("generate(): seed= and samples= override a config given as a path or a dict, "
+                             "not a loaded DatasetConfig")
         raw = None
         cfg = config
     else:
