@@ -3,6 +3,7 @@
     fmbrdf-mi render out/sphere.exr                       # built-in sphere scene
     fmbrdf-mi render -s scenes/spheres.xml -D alpha_1=0.5 --res 384x128 out/spheres.exr
     fmbrdf-mi render --list-params [-s scene.xml]
+    fmbrdf-mi dataset --config scenes/dataset_example.toml --out data/ds [--shard I/N]
 
 Adding a subcommand ``NAME``: write ``add_NAME_arguments(parser)`` and
 ``run_NAME(args) -> int``, then add one line to :data:`SUBCOMMANDS`.  Raise
@@ -25,6 +26,7 @@ import time
 from . import __version__
 from . import scene as S
 from ._llvm import LLVMTooOldError
+from .dataset.command import HELP as DATASET_HELP, add_dataset_arguments, run_dataset
 from .params import ParameterError
 
 PROG = "fmbrdf-mi"
@@ -395,6 +397,7 @@ def run_render(args):
 SUBCOMMANDS = [
     ("render", "render spheres of FMBRDF material to a Stokes EXR and PNG previews",
      add_render_arguments, run_render),
+    ("dataset", DATASET_HELP, add_dataset_arguments, run_dataset),
 ]
 
 

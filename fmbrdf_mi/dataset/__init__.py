@@ -1,0 +1,403 @@
+"""Synthetic polarimetric datasets: N rendered samples from a configuration file.
+
+    from fmbrdf_mi.dataset import generate
+    generate("scenes/dataset_example.toml", "out/ds")              # the whole set
+    generate("scenes/dataset_example.toml", "out/ds", shard="1/4")  # a quarter of it
+
+(``fmbrdf-mi dataset --config CONFIG --out DIR`` on the command line.)
+
+Output layout of ``DIR``::
+
+    dataset.json                 the configuration with defaults filled in, versions
+    samples/000000.exr           Stokes S0..S3 (float32 EXR, fmbrdf_mi.stokes_io layout;
+                                 header attribute "fmbrdf_mi" = the label)
+    samples/000000.normal.npy    float32 (H, W, 3) unit shading normals, camera frame
+                                 (x right, y up, z towards the camera), 0 outside the mask
+    samples/000000.mask.png      8-bit grey, 255 where the ray through the pixel centre hits
+    samples/000000.json          the label: material, light, camera, shape, render seed
+    manifest.jsonl               one line per sample (its label), by index, once all exist
+    manifest.shard-I-of-N.jsonl  the same for the samples of shard I (runs with a shard)
+
+Sample ``i`` depends only on the configuration, the seed and ``i``: its
+parameters come from ``numpy.random.default_rng([seed, i])`` and its Mitsuba
+sampler seed is drawn from the same generator.  A sample is complete when its
+label exists; every file is written under a temporary name and renamed, the
+label last, so an interrupted run leaves no partial file under a final name and
+a rerun renders only the missing samples.  ``shard="i/N"`` takes the samples
+with ``index % N == i``.
+"""
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import re
+import struct
+import sys
+import time
+import zlib
+
+import numpy as np
+
+from .config import (BUILTIN_SHAPES, FORMAT, DatasetConfig, DatasetConfigError, load_config,
+                     read_config_file)
+
+__all__ = ["generate", "load_config", "read_sample", "DatasetConfig", "DatasetConfigError",
+           "parse_shard", "BUILTIN_SHAPES"]
+
+SAMPLES_DIR = "samples"
+DATASET_FILE = "dataset.json"
+MANIFEST = "manifest.jsonl"
+SUFFIXES = {"stokes": ".exr", "normal": ".normal.npy", "mask": ".mask.png", "label": ".json"}
+_TMP = re.compile(r"^\.(\d+)\..*\.tmp\d+")
+
+
+# ------------------------------------------------------------------ small helpers
+def parse_shard(shard):
+    """(i, n) from ``"i/n"`` or a pair; 0 <= i < n."""
+    if shard is None:
+        return 0, 1
+    if isinstance(shard, str):
+        m = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", shard)
+        if not m:
+            raise ValueError(f"--shard {shard!r}: expected I/N with 0 <= I < N, e.g. 0/4")
+        i, n = int(m.group(1)), int(m.group(2))
+    else:
+        i, n = (int(x) for x in shard)
+    if not (n >= 1 and 0 <= i < n):
+        raise ValueError(f"--shard {i}/{n}: expected I/N with 0 <= I < N (shards are numbered from 0)")
+    return i, n
+
+
+def dumps(obj, indent=None):
+    """JSON with sorted keys; floats as Python's repr (exact)."""
+    return json.dumps(obj, sort_keys=True, indent=indent, separators=(",", ": ") if indent else (",", ":"),
+                      allow_nan=False)
+
+
+def _atomic_write(path, data):
+    d, name = os.path.split(path)
+    tmp = os.path.join(d, f".{name}.tmp{os.getpid()}")
+    with open(tmp, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+def png_grey8(image):
+    """PNG bytes of an 8-bit grey image (H, W) uint8 (deterministic: no time or text chunks)."""
+    a = np.ascontiguousarray(image, dtype=np.uint8)
+    h, w = a.shape
+
+    def chunk(tag, data):
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+
+    raw = b"".join(b"\x00" + a[r].tobytes() for r in range(h))
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b""))
+
+
+def _npy_bytes(a):
+    buf = io.BytesIO()
+    np.save(buf, a, allow_pickle=False)
+    return buf.getvalue()
+
+
+def _versions():
+    import drjit
+    import mitsuba
+
+    from .. import __version__
+
+    return {"fmbrdf_mi": __version__, "mitsuba": mitsuba.__version__, "drjit": drjit.__version__}
+
+
+def _duration(s):
+    if not math.isfinite(s):
+        return "?"
+    s = int(round(s))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"
+
+
+class Progress:
+    """Progress on a stream: samples done, rate, time left (a line every ``every`` s; one
+    updated line on a terminal)."""
+
+    def __init__(self, total, skipped, stream=None, enabled=True, every=2.0, label="dataset"):
+        self.total, self.skipped, self.done = total, skipped, 0
+        self.stream = stream or sys.stderr
+        self.enabled, self.every, self.label = enabled, every, label
+        self.tty = getattr(self.stream, "isatty", lambda: False)()
+        self.t0 = time.perf_counter()
+        self.last = -math.inf
+
+    def rate(self):
+        t = time.perf_counter() - self.t0
+        return self.done / t if t > 0 else 0.0
+
+    def line(self):
+        r = self.rate()
+        left = (self.total - self.done) / r if r > 0 else math.inf
+        skip = f" (+{self.skipped} already done)" if self.skipped else ""
+        return (f"{self.label}: {self.done}/{self.total} samples{skip}, {r:.2f} samples/s, "
+                f"{_duration(left)} left")
+
+    def step(self):
+        self.done += 1
+        now = time.perf_counter()
+        if self.enabled and (self.tty or now - self.last >= self.every or self.done == self.total):
+            self.last = now
+            self.stream.write(("\r" + self.line() + "   ") if self.tty else self.line() + "\n")
+            if self.tty and self.done == self.total:
+                self.stream.write("\n")
+            self.stream.flush()
+
+
+# ------------------------------------------------------------------ the dataset directory
+def sample_id(index, n):
+    return f"{index:0{max(6, len(str(n - 1)))}d}"
+
+
+def sample_files(index, n):
+    """{kind: path relative to the dataset directory} of sample ``index``."""
+    sid = sample_id(index, n)
+    return {k: f"{SAMPLES_DIR}/{sid}{suffix}" for k, suffix in SUFFIXES.items()}
+
+
+def is_complete(out, index, n):
+    return all(os.path.isfile(os.path.join(out, p)) for p in sample_files(index, n).values())
+
+
+def _dataset_record(cfg):
+    return {"format": FORMAT, "config": cfg.canonical(), "versions": _versions(),
+            "conventions": {
+                "world": "shape centred at the origin, scaled into the unit sphere, then rotated "
+                         "by shape.rotation",
+                "camera": "x = image right, y = image up, z = towards the camera (looks along -z); "
+                          "camera.to_world maps it to the world",
+                "stokes": "stokes integrator frame: x = image right, y = image up (fmbrdf_mi.stokes_io)",
+                "normal": "unit shading normals in the camera frame at the pixel centres, float32 (H, W, 3)",
+                "mask": "255 where the ray through the pixel centre hits the shape",
+                "light.direction": "camera frame, from the surface towards the light",
+                "render.seed": "the seed given to fmbrdf_mi.scene.render_stokes; the image is rendered "
+                               "with irradiance 1 and multiplied by light.irradiance",
+            }}
+
+
+def _check_dataset_file(out, cfg):
+    path = os.path.join(out, DATASET_FILE)
+    record = _dataset_record(cfg)
+    if os.path.exists(path):
+        with open(path, encoding="utf-8") as f:
+            old = json.load(f)
+        for key in ("format", "config", "versions"):
+            if old.get(key) != record[key]:
+                raise ValueError(
+                    f"{out} holds a dataset made with a different {key} (see {path}); "
+                    "resume it with the same config, seed and versions, or choose another --out")
+        return
+    _atomic_write(path, (dumps(record, indent=1) + "\n").encode())
+
+
+def _clean_temporaries(samples_dir, indices):
+    """Remove temporary files of interrupted writes of these samples (other shards' are left alone)."""
+    removed = []
+    if not os.path.isdir(samples_dir):
+        return removed
+    for name in os.listdir(samples_dir):
+        m = _TMP.match(name)
+        if m and int(m.group(1)) in indices:
+            os.remove(os.path.join(samples_dir, name))
+            removed.append(name)
+    return removed
+
+
+def write_manifest(out, indices, n, name=MANIFEST):
+    """Write the manifest ``name`` listing ``indices`` (their labels, one JSON line each)."""
+    lines = []
+    for i in sorted(indices):
+        with open(os.path.join(out, sample_files(i, n)["label"]), encoding="utf-8") as f:
+            lines.append(dumps(json.load(f)) + "\n")
+    path = os.path.join(out, name)
+    _atomic_write(path, "".join(lines).encode())
+    return path
+
+
+# ------------------------------------------------------------------ one sample
+def make_label(cfg, index, draw, geometry):
+    """The label of a sample: everything needed to re-render it, as plain JSON data."""
+    import mitsuba as mi
+
+    g = geometry["label"]
+    w, h = cfg.resolution
+    camera = {"type": draw["camera"], "distance": draw["distance"], "fov": draw["fov"],
+              "elevation": draw["elevation"], "azimuth": draw["azimuth"], "resolution": [w, h],
+              "position": g["camera"]["position"], "to_world": g["camera"]["to_world"]}
+    if draw["camera"] == "orthographic":
+        from ..scene import _half_width
+
+        camera["half_width"] = _half_width(draw["fov"], draw["distance"])
+    return {
+        "format": FORMAT, "index": index, "id": sample_id(index, cfg.samples), "dataset_seed": cfg.seed,
+        "files": sample_files(index, cfg.samples),
+        "material": dict(draw["material"]),
+        "light": {"type": "directional", "direction": draw["light_dir"],
+                  "direction_world": g["light"]["direction_world"], "irradiance": draw["irradiance"]},
+        "camera": camera,
+        "shape": {"type": draw["shape"], "mesh": draw["shape"] not in BUILTIN_SHAPES,
+                  "rotation": draw["rotation"], "to_world": g["shape"]["to_world"]},
+        "render": {"integrator": "stokes(direct)", "variant": cfg.variant, "spp": cfg.spp,
+                   "seed": draw["render_seed"], "mitsuba": mi.__version__},
+    }
+
+
+def write_sample(out, label, stokes, normals, mask):
+    """Write a sample's files, each atomically; the label last (it marks the sample complete)."""
+    from ..stokes_io import write_stokes_exr
+
+    f = {k: os.path.join(out, p) for k, p in label["files"].items()}
+    write_stokes_exr(f["stokes"], stokes, metadata=label, force=True)
+    _atomic_write(f["normal"], _npy_bytes(np.ascontiguousarray(normals, dtype=np.float32)))
+    _atomic_write(f["mask"], png_grey8(np.where(mask, 255, 0)))
+    _atomic_write(f["label"], (dumps(label, indent=1) + "\n").encode())
+
+
+def read_sample(out, index):
+    """A sample as a dict: ``stokes`` (4, H, W, C), ``normal`` (H, W, 3), ``mask`` (H, W) bool, ``label``."""
+    from matplotlib.image import imread
+
+    from ..stokes_io import read_stokes_exr
+
+    with open(os.path.join(out, DATASET_FILE), encoding="utf-8") as f:
+        n = json.load(f)["config"]["samples"]
+    files = {k: os.path.join(out, p) for k, p in sample_files(index, n).items()}
+    with open(files["label"], encoding="utf-8") as f:
+        label = json.load(f)
+    stokes, _ = read_stokes_exr(files["stokes"])
+    return {"stokes": stokes, "normal": np.load(files["normal"]), "mask": imread(files["mask"]) > 0.5,
+            "label": label}
+
+
+# ------------------------------------------------------------------ the run
+def generate(config, out, *, shard=None, seed=None, samples=None, progress=True, stream=None,
+             base_dir=None):
+    """Render the samples of ``config`` (a .toml/.json path or a dict) into directory ``out``.
+
+    ``shard``: ``"i/N"`` (or ``(i, N)``) renders only samples with ``index % N == i``.
+    ``seed`` and ``samples`` override the config's.  Samples already complete in
+    ``out`` are kept as they are (resume); ``out`` must hold the same dataset
+    (same canonical config and versions, checked against its dataset.json).
+    Progress with rate and time left goes to ``stream`` (stderr) and a summary
+    at the end.  Returns the summary as a dict.
+    """
+    stream = stream or sys.stderr
+    t_start = time.perf_counter()
+    if isinstance(config, (str, os.PathLike)):
+        raw = read_config_file(config)
+        base_dir = base_dir or os.path.dirname(os.path.abspath(os.fspath(config)))
+    elif isinstance(config, DatasetConfig):
+        if seed is not None or samples is not None:
+            raise ValueError("generate(): seed= and samples= override a config given as a path or a dict, "
+                             "not a loaded DatasetConfig")
+        raw = None
+        cfg = config
+    else:
+        raw = dict(config)
+    if raw is not None:
+        if seed is not None:
+            raw["seed"] = seed
+        if samples is not None:
+            raw["samples"] = samples
+        cfg = load_config(raw, base_dir=base_dir)
+    k, n_shards = parse_shard(shard)
+    out = os.fspath(out)
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(f"--out {out}: exists and is not a directory")
+
+    import mitsuba as mi
+
+    previous = mi.variant()
+    mi.set_variant(cfg.variant)
+    import fmbrdf_mi
+
+    fmbrdf_mi.register()
+    from .render import SampleRenderer, sample_geometry
+
+    renderer = SampleRenderer(cfg)
+    try:
+        for name in cfg.mesh_files():  # a mesh that does not load fails now, not mid-run
+            renderer.normalisation(name)
+        os.makedirs(os.path.join(out, SAMPLES_DIR), exist_ok=True)
+        _check_dataset_file(out, cfg)
+        mine = [i for i in range(cfg.samples) if i % n_shards == k]
+        removed = _clean_temporaries(os.path.join(out, SAMPLES_DIR), set(mine))
+        todo = [i for i in mine if not is_complete(out, i, cfg.samples)]
+        skipped = len(mine) - len(todo)
+        what = f"shard {k}/{n_shards}: {len(mine)} of {cfg.samples} samples" if n_shards > 1 \
+            else f"{cfg.samples} samples"
+        if progress:
+            stream.write(f"dataset: {what} into {out}; {skipped} already done, {len(todo)} to render "
+                         f"({cfg.resolution[0]}x{cfg.resolution[1]}, {cfg.spp} spp, {cfg.variant})"
+                         + (f"; removed {len(removed)} temporary file(s) of an interrupted run" if removed else "")
+                         + "\n")
+            stream.flush()
+        # Render grouped by scene structure (shape, camera type), so that each
+        # structure's scene is loaded once; the order does not affect the output.
+        # Draws are cheap: made once to sort, again when rendering (not kept: N may be large).
+        order = {}
+        plan = []
+        for i in todo:
+            draw = cfg.draw(i)
+            plan.append((order.setdefault((draw["shape"], draw["camera"]), len(order)), i))
+        plan.sort()
+
+        bar = Progress(len(todo), skipped, stream=stream, enabled=progress)
+        t_render = time.perf_counter()
+        t_write = 0.0
+        for _, i in plan:
+            draw = cfg.draw(i)
+            geometry = sample_geometry(draw, renderer.normalisation(draw["shape"]))
+            label = make_label(cfg, i, draw, geometry)
+            stokes, normals, mask = renderer.render(draw, geometry)
+            t = time.perf_counter()
+            write_sample(out, label, stokes, normals, mask)
+            t_write += time.perf_counter() - t
+            bar.step()
+        t_render = time.perf_counter() - t_render
+    except KeyboardInterrupt:
+        if progress:
+            stream.write("\ndataset: interrupted; run the same command again to resume "
+                         "(finished samples are kept)\n")
+            stream.flush()
+        raise
+    finally:
+        renderer.close()
+        if previous is not None and previous != cfg.variant:
+            mi.set_variant(previous)
+
+    manifests = []
+    if n_shards > 1:
+        manifests.append(write_manifest(out, mine, cfg.samples, f"manifest.shard-{k}-of-{n_shards}.jsonl"))
+    complete = all(is_complete(out, i, cfg.samples) for i in range(cfg.samples))
+    if complete:
+        manifests.append(write_manifest(out, range(cfg.samples), cfg.samples))
+    elapsed = time.perf_counter() - t_start
+    rendered = len(todo)
+    summary = {"out": out, "samples": cfg.samples, "shard": f"{k}/{n_shards}", "rendered": rendered,
+               "skipped": skipped, "seconds": elapsed, "render_seconds": t_render,
+               "samples_per_second": rendered / t_render if rendered and t_render > 0 else 0.0,
+               "complete": complete, "manifests": manifests,
+               "phase_seconds": dict(renderer.seconds, write=t_write)}
+    if progress:
+        tail = (f"{MANIFEST} lists all {cfg.samples}" if complete
+                else f"{sum(is_complete(out, i, cfg.samples) for i in range(cfg.samples))} of "
+                     f"{cfg.samples} samples exist; {MANIFEST} is written once all do")
+        stream.write(f"dataset: done: rendered {rendered} samples ({skipped} already done) in "
+                     f"{_duration(elapsed)} ({elapsed:.1f} s), {summary['samples_per_second']:.2f} samples/s; "
+                     f"{tail}\n")
+        stream.flush()
+    return summary
