@@ -28,16 +28,33 @@ def _scalar_value(x):
 
 
 def _texture_values(tex):
-    """All numeric values a texture holds (for validation)."""
+    """Values of an albedo texture, for validation.
+
+    The texture is evaluated on a 32 x 32 grid of uv (and, in spectral
+    variants, across the visible range): spectral variants store an RGB value
+    as upsampling coefficients, which may be negative for a valid reflectance.
+    In RGB and mono variants the stored values are checked too (exhaustive for
+    bitmaps).
+    """
     import numpy as np
 
-    out = []
-    for key, value in mi.traverse(tex).items():
-        try:
-            out.append(np.asarray(dr.detach(value)).ravel())
-        except Exception:
-            pass
-    return np.concatenate(out) if out else np.zeros(0)
+    n = 32
+    with dr.suspend_grad():
+        idx = dr.arange(mi.UInt32, n * n)
+        si = dr.zeros(mi.SurfaceInteraction3f, n * n)
+        si.uv = mi.Point2f((mi.Float(idx % n) + 0.5) / n, (mi.Float(idx // n) + 0.5) / n)
+        if mi.is_spectral:
+            frac = lambda k: (lambda x: x - dr.floor(x))(mi.Float(idx) * 0.6180339887 + 0.25 * k)
+            si.wavelengths = mi.UnpolarizedSpectrum(*[360.0 + 470.0 * frac(k) for k in range(4)])
+        out = [np.asarray(tex.eval(si)).ravel()]
+        if not mi.is_spectral:
+            params = mi.traverse(tex)
+            for key in params.keys():
+                try:
+                    out.append(np.asarray(dr.detach(params[key]), dtype=np.float64).ravel())
+                except Exception:  # non-numeric parameters
+                    pass
+    return np.concatenate(out)
 
 
 def _axis(v, fallback=(1.0, 0.0, 0.0)):
@@ -204,7 +221,8 @@ class _FMBRDFMethods:
             for name, (scale, _, _) in parts.items():
                 value += weights[name] * scale
             return value
-        result = dr.zeros(mi.Spectrum)
+        width = max([dr.width(scale) for scale, _, _ in parts.values()] + [dr.width(si.wi)])
+        result = dr.zeros(mi.Spectrum, width)  # elements not set below stay zero
         terms = [(weights[name] * scale, M, m33) for name, (scale, M, m33) in parts.items()]
         for i in range(3):
             for j in range(3):

@@ -72,3 +72,17 @@ def test_old_llvm_is_reported(monkeypatch):
     monkeypatch.setattr(dr.detail, "llvm_version", lambda: (15, 0, 7))
     with pytest.raises(_llvm.LLVMTooOldError, match="libllvm19"):
         _llvm.check_llvm()
+
+
+def test_coloured_albedos_in_spectral_variant():
+    """Spectral variants store RGB as upsampling coefficients (possibly negative):
+    validation must look at the reflectance, not the coefficients."""
+    import mitsuba as mi
+    import fmbrdf_mi
+
+    fmbrdf_mi.register("llvm_ad_spectral_polarized")
+    for kb in ({"type": "rgb", "value": [0.8, 0.25, 0.15]}, {"type": "rgb", "value": [0.3, 0.3, 0.3]}):
+        mi.load_dict({"type": "fmbrdf", "k_b": kb, "k_s": {"type": "rgb", "value": [0.9, 0.9, 0.2]}})
+    for bad in (-0.5, math.nan):
+        with pytest.raises(Exception, match=r"k_b.*valid range \[0, inf\)"):
+            mi.load_dict({"type": "fmbrdf", "k_b": bad})

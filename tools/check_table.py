@@ -9,7 +9,7 @@ and compares it with the plugin's table lookup there: relative error of the
 intensity, absolute error of the DoLP for unpolarised light, and the largest
 error of any Mueller element relative to M00 (what polarised light sees).
 
-    python tools/check_table.py --materials 12 --points 4000 --seed 0
+    python tools/check_table.py --materials 12 --points 4000 --seed 0 [--full-range]
 """
 import argparse
 import math
@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from check_accuracy import BOX, random_materials
+from check_accuracy import BOX, full_box, random_materials
 
 
 def random_angles(rng, n):
@@ -38,6 +38,8 @@ def main():
     ap.add_argument("--materials", type=int, default=12)
     ap.add_argument("--points", type=int, default=4000)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--full-range", action="store_true",
+                    help="sample the whole valid parameter range instead of the issue's box")
     args = ap.parse_args()
 
     import drjit as dr
@@ -49,7 +51,7 @@ def main():
     rng = np.random.default_rng(args.seed)
     worst = {"I": (0.0, None), "dolp": (0.0, None), "M": (0.0, None)}
     t0 = time.time()
-    for eta, alpha, beta, kappa in random_materials(rng, args.materials):
+    for eta, alpha, beta, kappa in random_materials(rng, args.materials, full_box() if args.full_range else BOX):
         bsdf = mi.load_dict({"type": "fmbrdf", "eta": eta, "alpha": alpha, "beta": beta, "kappa": kappa})
         thL, thV, ph = random_angles(rng, args.points)
         # direct quadrature, one light angle per point (diagonal of the (n_L, n_V) product)

@@ -1,0 +1,437 @@
+"""The ``fmbrdf-mi`` command line (also ``python -m fmbrdf_mi``).
+
+    fmbrdf-mi render out/sphere.exr                       # built-in sphere scene
+    fmbrdf-mi render -s scenes/spheres.xml -D alpha_1=0.5 --res 384x128 out/spheres.exr
+    fmbrdf-mi render --list-params [-s scene.xml]
+
+Adding a subcommand ``NAME``: write ``add_NAME_arguments(parser)`` and
+``run_NAME(args) -> int``, then add one line to :data:`SUBCOMMANDS`.  Raise
+:class:`CLIError` (or any of :data:`USER_ERRORS`) for problems the user can
+fix: :func:`main` prints them as one line ``fmbrdf-mi NAME: error: ...`` on
+stderr and returns 1, without a traceback (set ``FMBRDF_MI_TRACEBACK=1`` to see
+one).  Import Mitsuba inside ``run_NAME`` only after the arguments are checked,
+so that mistakes are reported at once.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import re
+import shlex
+import sys
+import time
+
+from . import __version__
+from . import scene as S
+from ._llvm import LLVMTooOldError
+from .params import ParameterError
+
+PROG = "fmbrdf-mi"
+POLARISED_VARIANTS = ("llvm_ad_spectral_polarized", "llvm_ad_mono_polarized",
+                      "cuda_ad_spectral_polarized", "cuda_ad_mono_polarized")
+
+
+class CLIError(Exception):
+    """A mistake in the command line or its inputs, reported as one line."""
+
+
+#: Exceptions reported as a one-line error message (no traceback).
+USER_ERRORS = (CLIError, ParameterError, ValueError, FileExistsError, FileNotFoundError,
+               LLVMTooOldError)
+
+
+# ------------------------------------------------------------------ helpers
+def parse_defines(items):
+    """``["name=value", ...]`` from ``-D`` options -> dict (later ones win)."""
+    out = {}
+    for item in items or ():
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+            raise CLIError(f"-D {item!r}: expected NAME=VALUE, e.g. -D eta=1.6")
+        out[name] = value.strip()
+    return out
+
+
+def _numbers(name, text, count=None):
+    parts = [p for p in re.split(r"[,\s]+", str(text).strip()) if p]
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        raise CLIError(f"{name}={text!r}: expected numbers") from None
+    if count is not None and len(vals) not in count:
+        want = " or ".join(str(c) for c in count)
+        raise CLIError(f"{name}={text!r}: expected {want} number(s), got {len(vals)}")
+    return vals
+
+
+def _int(name, text, low=1):
+    try:
+        v = int(str(text).strip())
+    except ValueError:
+        raise CLIError(f"{name}={text!r}: expected an integer") from None
+    if v < low:
+        raise CLIError(f"{name}={text!r}: expected an integer >= {low}")
+    return v
+
+
+def _positive(name, text):
+    (v,) = _numbers(name, text, (1,))
+    if not (math.isfinite(v) and v > 0):
+        raise CLIError(f"{name}={text!r}: expected a positive number")
+    return v
+
+
+def parse_value(name, text):
+    """Typed value of scene parameter ``name`` given as text, validated.
+
+    Material parameters may carry a sphere index suffix (``eta_1``).  Names not
+    known here are returned as text (an XML scene may declare anything).
+    """
+    base = re.sub(r"_\d+$", "", name)
+    base = base if base in S.MATERIAL_KEYS else name
+    if base in ("eta", "alpha", "beta", "kappa"):
+        from .params import check_scalar
+
+        try:
+            value = float(str(text).strip())
+        except ValueError:
+            raise ParameterError(f"fmbrdf: '{name}' must be a number, got {text!r}") from None
+        try:
+            check_scalar(base, value)
+        except ParameterError as e:
+            raise ParameterError(str(e) if base == name else f"{name}: {e}") from None
+        return value
+    if base in ("k_s", "r_k", "k_b"):
+        from .params import check_albedo
+
+        vals = _numbers(name, text, (1, 3))
+        check_albedo(name, vals)
+        return vals[0] if len(vals) == 1 else tuple(vals)
+    if name == "light_dir":
+        try:
+            return S.check_light_dir(_numbers(name, text, (3,)))
+        except ValueError as e:
+            raise CLIError(f"light_dir={text!r}: {str(e).split(': ', 1)[-1]}") from None
+    if name == "irradiance":
+        (v,) = _numbers(name, text, (1,))
+        if not (math.isfinite(v) and v >= 0):
+            raise CLIError(f"irradiance={text!r}: expected a finite number >= 0")
+        return v
+    if name in ("width", "height", "spp"):
+        return _int(name, text)
+    if name == "seed":
+        return _int(name, text, low=0)
+    if name == "fov":
+        v = _positive(name, text)
+        if v >= 180:
+            raise CLIError(f"fov={text!r}: expected an angle in (0, 180) degrees")
+        return v
+    if name in ("distance", "half_width", "spacing"):
+        return _positive(name, text)
+    if name == "camera":
+        if text not in S.CAMERAS:
+            raise CLIError(f"camera={text!r}: expected one of {', '.join(S.CAMERAS)}")
+        return text
+    return text
+
+
+def _text(value):
+    """A parameter value as Mitsuba's XML substitution wants it."""
+    if isinstance(value, tuple):
+        return ", ".join(repr(float(v)) for v in value)
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+#: Parameters of the built-in scene (fmbrdf_mi.scene.sphere_scene): name -> (default, help).
+BUILTIN_PARAMS = {
+    "eta": (S.DEFAULT_MATERIAL["eta"], "index of refraction, (1, 3]"),
+    "alpha": (S.DEFAULT_MATERIAL["alpha"], "roughness (radians), [0.01, pi/2]"),
+    "beta": (S.DEFAULT_MATERIAL["beta"], "shape of the generalised normal distribution, [0.4, 5]"),
+    "kappa": (S.DEFAULT_MATERIAL["kappa"], "vMF microfacet correlation, [0, 100]"),
+    "k_s": (S.DEFAULT_MATERIAL["k_s"], "surface albedo, >= 0 (one number or r,g,b)"),
+    "r_k": (S.DEFAULT_MATERIAL["r_k"], "body albedo ratio k_b / k_s, >= 0"),
+    "k_b": (None, "body albedo, instead of r_k"),
+    "light_dir": (S.DEFAULT_LIGHT_DIR, "x,y,z from the surface towards the light (x right, y up, z to camera)"),
+    "irradiance": (S.DEFAULT_IRRADIANCE, "irradiance of the directional light"),
+    "camera": (S.DEFAULT_CAMERA, "orthographic or perspective"),
+    "fov": (S.DEFAULT_FOV, "horizontal field of view in degrees (framing of both cameras)"),
+    "distance": (S.DEFAULT_DISTANCE, "camera distance from the sphere centre"),
+    "width": (S.DEFAULT_RESOLUTION, "image width (pixels)"),
+    "height": (S.DEFAULT_RESOLUTION, "image height (pixels)"),
+    "spp": (S.DEFAULT_SPP, "samples per pixel"),
+    "seed": (0, "sampler seed"),
+}
+
+
+def xml_parameters(path):
+    """``({name: default text or None}, xml text)`` of an XML scene's parameters.
+
+    Names come from its ``<default>`` elements and ``$name`` references; a
+    reference without a default (None) must be given.
+    """
+    import xml.etree.ElementTree as ET
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
+    except OSError as e:
+        raise CLIError(f"scene file {path}: {e.strerror or e}") from None
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as e:
+        raise CLIError(f"scene file {path}: not valid XML ({e})") from None
+    found = {}
+    for el in root.iter():
+        for value in el.attrib.values():
+            for name in re.findall(r"(?<!\\)\$([A-Za-z0-9_]+)", value):
+                found.setdefault(name, None)
+    for el in root.iter("default"):
+        if "name" in el.attrib:
+            found[el.attrib["name"]] = el.attrib.get("value")
+    return found, text
+
+
+def _check_output(path, force, preview_kinds):
+    from .previews import preview_paths
+
+    if not str(path).lower().endswith(".exr"):
+        raise CLIError(f"output {path!r}: expected a file name ending in .exr")
+    previews = preview_paths(str(path)[:-4], preview_kinds)
+    if not force:
+        for p in [path, *previews.values()]:
+            if os.path.exists(p):
+                raise CLIError(f"{p} exists; pass --force to overwrite it")
+    return previews
+
+
+def _parse_res(text):
+    m = re.fullmatch(r"\s*(\d+)\s*(?:[xX,]\s*(\d+)\s*)?", text or "")
+    if not m or int(m.group(1)) < 1 or (m.group(2) and int(m.group(2)) < 1):
+        raise CLIError(f"--res {text!r}: expected N or WxH, e.g. 256 or 512x256")
+    return int(m.group(1)), int(m.group(2) or m.group(1))
+
+
+def _mitsuba_message(exc):
+    """One informative line out of a (multi-line) Mitsuba exception."""
+    lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
+    if not lines:
+        return type(exc).__name__
+    last = lines[-1]
+    if re.match(r"^[A-Za-z_.]*(Error|Exception): ", last):  # a Python error inside a plugin
+        return last.split(": ", 1)[1]
+    return re.sub(r"^\[[\w.]+:\d+\]\s*", "", lines[0])
+
+
+# ------------------------------------------------------------------ render
+def add_render_arguments(p):
+    p.add_argument("output", nargs="?", help="Stokes EXR to write (previews go beside it: "
+                   "NAME_intensity.png, NAME_dolp.png, NAME_aolp.png, ...)")
+    p.add_argument("-s", "--scene", metavar="FILE",
+                   help="Mitsuba XML scene (e.g. scenes/spheres.xml); default: the built-in sphere")
+    p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
+                   help="set a scene parameter, e.g. -D eta=1.6 -D light_dir=0,0.5,1 (repeatable)")
+    p.add_argument("--spp", type=int, help="samples per pixel (default: the scene's, 64)")
+    p.add_argument("--res", metavar="N|WxH", help="resolution (default: the scene's, 256)")
+    p.add_argument("--seed", type=int, help="sampler seed (default 0)")
+    p.add_argument("--variant", default="llvm_ad_spectral_polarized", choices=POLARISED_VARIANTS,
+                   help="Mitsuba variant; llvm_ad_mono_polarized for a monochrome polarisation camera "
+                        "(default %(default)s)")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.add_argument("--no-previews", action="store_true", help="write only the EXR")
+    p.add_argument("--angles", action="store_true",
+                   help="also write the four polariser-angle images (0, 45, 90, 135 deg)")
+    p.add_argument("--mosaic", action="store_true",
+                   help="also write the raw mosaic of a quad-Bayer polarisation sensor (IMX250MZR layout)")
+    p.add_argument("--aolp-dolp", action="store_true",
+                   help="modulate the AoLP preview's brightness by the DoLP")
+    p.add_argument("--exposure", type=float, help="intensity scale of the previews (default: automatic)")
+    p.add_argument("--dolp-max", type=float, metavar="D",
+                   help="top of the DoLP colour scale, e.g. 1 (default: automatic, 0.05 to 1)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.add_argument("--list-params", action="store_true",
+                   help="list the scene's parameters and their defaults, then exit")
+
+
+def _scene_params(args):
+    """(kind, {name: default}, xml text or None) of the chosen scene."""
+    if args.scene is None:
+        return "builtin", {k: v for k, (v, _) in BUILTIN_PARAMS.items()}, None
+    if not os.path.isfile(args.scene):
+        raise CLIError(f"scene file {args.scene} not found")
+    params, text = xml_parameters(args.scene)
+    return "xml", params, text
+
+
+def _resolve(args, kind, declared):
+    """The user's parameters (typed), after checking names and values."""
+    where = "the built-in scene" if kind == "builtin" else args.scene
+    given = parse_defines(args.defines)
+    for name in given:
+        if name not in declared:
+            raise CLIError(f"unknown parameter '{name}' for {where}; known: {', '.join(sorted(declared))}")
+    if args.res is not None:
+        if "width" not in declared or "height" not in declared:
+            raise CLIError(f"--res: {where} has no width/height parameters")
+        given["width"], given["height"] = (str(v) for v in _parse_res(args.res))
+    for name in ("spp", "seed"):  # also used without a scene parameter of that name
+        value = getattr(args, name)
+        if value is not None:
+            given[name] = str(value)
+    missing = [n for n, v in declared.items() if v is None and n not in given and kind == "xml"]
+    if missing:
+        raise CLIError(f"{args.scene} needs a value for '{missing[0]}': pass -D {missing[0]}=...")
+    return {name: parse_value(name, text) for name, text in given.items()}
+
+
+def _list_params(kind, declared, args):
+    title = "built-in sphere scene" if kind == "builtin" else args.scene
+    print(f"parameters of the {title} (set with -D NAME=VALUE):")
+    width = max(len(n) for n in declared) if declared else 0
+    for name, default in declared.items():
+        help_ = BUILTIN_PARAMS[name][1] if kind == "builtin" else ""
+        if isinstance(default, tuple):
+            default = ",".join(f"{v:g}" for v in default)
+        print(f"  {name:<{width}}  {'(none)' if default is None else default!s:<18}  {help_}".rstrip())
+    return 0
+
+
+def run_render(args):
+    kinds = [] if args.no_previews else ["intensity", "dolp", "aolp"]
+    kinds += (["angles"] if args.angles else []) + (["mosaic"] if args.mosaic else [])
+    if args.angles and args.no_previews or args.mosaic and args.no_previews:
+        raise CLIError("--angles/--mosaic are previews: drop --no-previews")
+    if args.exposure is not None and not (math.isfinite(args.exposure) and args.exposure > 0):
+        raise CLIError(f"--exposure {args.exposure}: expected a positive number")
+    if args.dolp_max is not None and not (0 < args.dolp_max <= 1):
+        raise CLIError(f"--dolp-max {args.dolp_max}: expected a number in (0, 1]")
+    kind, declared, xml_text = _scene_params(args)
+    if args.list_params:
+        return _list_params(kind, declared, args)
+    if args.output is None:
+        raise CLIError("no output file given, e.g. fmbrdf-mi render out/sphere.exr")
+    given = _resolve(args, kind, declared)
+    previews = _check_output(args.output, args.force, kinds)
+
+    import mitsuba as mi
+
+    try:
+        mi.set_variant(args.variant)
+    except Exception as e:  # e.g. a CUDA variant without a GPU
+        raise CLIError(f"variant {args.variant} is not available here: {_mitsuba_message(e)}") from None
+    import fmbrdf_mi
+
+    fmbrdf_mi.register()
+    spp = given.get("spp")  # None: the scene's sample count
+    seed = given.get("seed", parse_value("seed", declared["seed"]) if declared.get("seed") is not None else 0)
+    t0 = time.perf_counter()
+    if kind == "builtin":
+        values = {k: v for k, (v, _) in BUILTIN_PARAMS.items() if v is not None}
+        if "k_b" in given and "r_k" not in given:
+            values.pop("r_k")
+        values.update(given)
+        values["light_dir"] = S.check_light_dir(values["light_dir"])  # normalised, as used
+        material = {k: values[k] for k in S.MATERIAL_KEYS if k in values}
+        scene_dict = S.sphere_scene(material, light_dir=values["light_dir"], irradiance=values["irradiance"],
+                                    resolution=(values["width"], values["height"]), spp=values["spp"],
+                                    camera=values["camera"], fov=values["fov"], distance=values["distance"],
+                                    seed=seed)
+        scene = mi.load_dict(scene_dict)
+        resolved = dict(values, seed=seed)
+    else:
+        if "pixel_format" in declared and "pixel_format" not in given and mi.is_monochromatic:
+            given["pixel_format"] = "luminance"  # avoids Mitsuba's warning that it switches
+        xml_given = {k: _text(v) for k, v in given.items() if k in declared}
+        try:
+            scene = mi.load_file(args.scene, **xml_given)
+        except Exception as e:
+            raise CLIError(f"{args.scene}: {_mitsuba_message(e)}") from None
+        resolved = {}
+        for k, v in declared.items():
+            try:
+                resolved[k] = parse_value(k, v) if v is not None else None
+            except USER_ERRORS:  # an odd default in a user's scene: keep its text
+                resolved[k] = v
+        resolved.update(given)
+    from .stokes_io import write_stokes_exr
+    from .previews import write_previews
+
+    stokes = S.render_stokes(scene, spp=spp, seed=seed, progress=not args.quiet)
+    _, h, w, c = stokes.shape
+    spp_used = spp if spp is not None else int(scene.sensors()[0].sampler().sample_count())
+    meta = {
+        "generator": f"fmbrdf-mi {__version__}",
+        "fmbrdf_mi_version": __version__,
+        "mitsuba_version": mi.__version__,
+        "variant": args.variant,
+        "scene": "builtin:sphere" if kind == "builtin" else os.path.abspath(args.scene),
+        "parameters": {k: (list(v) if isinstance(v, tuple) else v) for k, v in resolved.items()},
+        "materials": S.scene_materials(scene),
+        "lights": S.scene_lights(scene),
+        "camera": S.scene_camera(scene),
+        "resolution": [w, h],
+        "spp": spp_used,
+        "seed": seed,
+        "stokes_frame": "x = image right, y = image up, light towards the camera; "
+                        "AoLP from image right counter-clockwise",
+        "command": shlex.join([PROG, "render", *args.argv]),
+    }
+    if xml_text is not None:
+        meta["scene_xml"] = xml_text
+    write_stokes_exr(args.output, stokes, meta, force=args.force)
+    written = write_previews(args.output[:-4], stokes, kinds, exposure=args.exposure,
+                             dolp_max=args.dolp_max, modulate_aolp=args.aolp_dolp, force=args.force) if kinds else {}
+    cols = "Y" if c == 1 else "R,G,B"
+    print(f"wrote {args.output}: Stokes S0-S3 x {cols}, {w}x{h}, {spp_used} spp, {args.variant}, "
+          f"{time.perf_counter() - t0:.1f} s")
+    for p in written.values():
+        print(f"wrote {p}")
+    return 0
+
+
+# ------------------------------------------------------------------ main
+#: (name, help, add_arguments, run): one line per subcommand.
+SUBCOMMANDS = [
+    ("render", "render spheres of FMBRDF material to a Stokes EXR and PNG previews",
+     add_render_arguments, run_render),
+]
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog=PROG, description="Fresnel Microfacet BRDF for Mitsuba 3: polarimetric rendering.")
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, help_, add_arguments, run in SUBCOMMANDS:
+        p = sub.add_parser(name, help=help_, description=help_)
+        add_arguments(p)
+        p.set_defaults(run=run)
+    return parser
+
+
+def main(argv=None):
+    """Run the command line; returns the exit status (0 on success)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return 2
+    args.argv = argv[argv.index(args.command) + 1:]
+    try:
+        return int(args.run(args) or 0)
+    except USER_ERRORS as e:
+        if os.environ.get("FMBRDF_MI_TRACEBACK"):
+            raise
+        msg = " ".join(str(e).split()) or type(e).__name__
+        print(f"{PROG} {args.command}: error: {msg}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+def console_main():
+    """Entry point of the ``fmbrdf-mi`` console script."""
+    sys.exit(main())

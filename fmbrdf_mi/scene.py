@@ -1,0 +1,513 @@
+"""Spheres of FMBRDF material under a directional light: scenes, geometry, rendering.
+
+World and camera convention (shared with ``scenes/*.xml``):
+
+* a sphere of radius 1 at the origin (:func:`sphere_scene`), or several spheres
+  of radius 1 side by side along x (:func:`spheres_scene`);
+* the camera on +z looking towards -z with up +y, so world x = image right,
+  y = image up, z = towards the camera;
+* ``light_dir`` is the unit vector from the surface *towards* the light in that
+  frame (Mitsuba's directional emitter ``direction`` is its negative).
+
+Framing: ``fov`` (degrees, horizontal) and ``distance`` (camera to the plane
+z = 0) fix the width ``2 * distance * tan(fov / 2)`` seen in the plane of the
+sphere centres.  The perspective camera uses them as they are; the orthographic
+camera (the default) sees exactly that width everywhere, so both cameras frame
+the sphere alike.  The orthographic camera is the default because it makes the
+view direction the same (+z) for every pixel, so each pixel of the sphere is one
+(normal, view, light) configuration of the BSDF — what the fitting code and
+per-pixel comparisons want — and it models a polarisation camera with a
+telecentric or long lens looking at a small sphere.
+
+Scene keys (``mi.traverse(mi.load_dict(sphere_scene()))``)::
+
+    sphere.bsdf.eta, sphere.bsdf.alpha, sphere.bsdf.beta, sphere.bsdf.kappa,
+    sphere.bsdf.k_s.value, sphere.bsdf.r_k.value (or .k_b.value),
+    light.irradiance.value, light.to_world, sensor.to_world, ...
+
+:func:`spheres_scene` names its spheres ``sphere_0``, ``sphere_1``, ... from
+left to right, so the keys are ``sphere_0.bsdf.eta`` and so on.
+
+Rendering: :func:`render_stokes` returns the Stokes array of
+:mod:`fmbrdf_mi.stokes_io`, shape (4, H, W, C), rows top to bottom, in the
+``stokes`` integrator's frame (x = image right, y = image up).
+"""
+from __future__ import annotations
+
+import math
+import re
+import numbers
+import sys
+import threading
+import time
+
+import numpy as np
+
+from . import params as P
+from .params import ParameterError
+
+DEFAULT_MATERIAL = dict(eta=1.5, alpha=0.3, beta=2.0, kappa=10.0, k_s=1.0, r_k=1.0)
+#: From the upper left, in front: 35 degrees from the view direction.
+DEFAULT_LIGHT_DIR = (-0.5, 0.5, 1.0)
+#: Irradiance pi: a white Lambertian surface facing the light has radiance 1.
+DEFAULT_IRRADIANCE = math.pi
+DEFAULT_RESOLUTION = 256
+DEFAULT_SPP = 64
+DEFAULT_CAMERA = "orthographic"
+DEFAULT_FOV = 25.0
+DEFAULT_DISTANCE = 5.0
+CAMERAS = ("orthographic", "perspective")
+MATERIAL_KEYS = ("eta", "alpha", "beta", "kappa", "k_s", "r_k", "k_b")
+
+#: Three materials for :func:`spheres_scene` (the defaults of scenes/spheres.xml):
+#: glossy plastic with a dark body, the default material, a rough high-index one.
+EXAMPLE_MATERIALS = (
+    dict(eta=1.5, alpha=0.1, beta=2.0, kappa=10.0, k_s=1.0, r_k=0.3),
+    dict(DEFAULT_MATERIAL),
+    dict(eta=2.0, alpha=0.6, beta=1.0, kappa=50.0, k_s=1.0, r_k=1.5),
+)
+
+
+# ---------------------------------------------------------------- validation
+def check_material(material=None):
+    """Full material dict (defaults filled in) after validation.
+
+    Raises :class:`ParameterError` naming the parameter for unknown names and
+    out-of-range values.  ``k_b`` replaces the default ``r_k``; giving both is an error.
+    """
+    material = dict(material or {})
+    unknown = sorted(set(material) - set(MATERIAL_KEYS))
+    if unknown:
+        raise ParameterError(f"fmbrdf: unknown material parameter '{unknown[0]}'; "
+                             f"expected some of {', '.join(MATERIAL_KEYS)}")
+    if "r_k" in material and "k_b" in material:
+        raise ParameterError("fmbrdf: give the body albedo as 'k_b' or as 'r_k' (= k_b / k_s), not both")
+    out = dict(DEFAULT_MATERIAL)
+    if "k_b" in material:
+        del out["r_k"]
+    out.update(material)
+    for name in P.SCALAR_PARAMS:
+        out[name] = P.check_scalar(name, out[name])
+    for name in ("k_s", "r_k", "k_b"):
+        if name in out and not isinstance(out[name], dict):
+            value = out[name]
+            if isinstance(value, numbers.Number):
+                value = float(value)
+            else:
+                value = tuple(float(v) for v in np.asarray(value, dtype=np.float64).ravel())
+                if len(value) not in (1, 3):
+                    raise ParameterError(f"fmbrdf: '{name}' must be one number or three (RGB), "
+                                         f"got {len(value)} values")
+                value = value[0] if len(value) == 1 else value
+            P.check_albedo(name, value)
+            out[name] = value
+    return out
+
+
+def check_light_dir(light_dir):
+    """``light_dir`` as a normalised float tuple; ValueError if not finite and non-zero."""
+    try:
+        v = np.asarray(light_dir, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise ValueError(f"light_dir: expected three numbers x, y, z, got {light_dir!r}") from None
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"light_dir: expected three finite numbers x, y, z, got {light_dir!r}")
+    n = np.linalg.norm(v)
+    if n < 1e-12:
+        raise ValueError("light_dir: must not be the zero vector")
+    return tuple(float(x) for x in v / n)
+
+
+def _check_positive(name, value, integer=False):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number, got {value!r}") from None
+    if not math.isfinite(v) or v <= 0 or (integer and v != int(v)):
+        kind = "a positive integer" if integer else "a positive number"
+        raise ValueError(f"{name}: expected {kind}, got {value!r}")
+    return int(v) if integer else v
+
+
+def check_resolution(resolution):
+    """(width, height) from an int or a pair."""
+    if isinstance(resolution, numbers.Number):
+        r = _check_positive("resolution", resolution, integer=True)
+        return r, r
+    try:
+        w, h = resolution
+    except (TypeError, ValueError):
+        raise ValueError(f"resolution: expected an int or (width, height), got {resolution!r}") from None
+    return _check_positive("resolution width", w, True), _check_positive("resolution height", h, True)
+
+
+def _check_camera(camera, fov, distance):
+    if camera not in CAMERAS:
+        raise ValueError(f"camera: expected one of {', '.join(CAMERAS)}, got {camera!r}")
+    fov = _check_positive("fov", fov)
+    if fov >= 180:
+        raise ValueError(f"fov: expected an angle in (0, 180) degrees, got {fov:g}")
+    return camera, fov, _check_positive("distance", distance)
+
+
+def _check_irradiance(irradiance):
+    try:
+        v = float(irradiance)
+    except (TypeError, ValueError):
+        raise ValueError(f"irradiance: expected a number, got {irradiance!r}") from None
+    if not math.isfinite(v) or v < 0:
+        raise ValueError(f"irradiance: expected a finite number >= 0, got {irradiance!r}")
+    return v
+
+
+# ---------------------------------------------------------------- scene dicts
+def _mi():
+    import mitsuba as mi
+
+    if mi.variant() is None:
+        raise RuntimeError("call mi.set_variant(...) first, e.g. mi.set_variant('llvm_ad_spectral_polarized')")
+    import fmbrdf_mi
+
+    fmbrdf_mi.register()
+    return mi
+
+
+def material_bsdf(material=None):
+    """The ``fmbrdf`` BSDF dict of a material (validated, defaults filled in)."""
+    m = check_material(material)
+    d = {"type": "fmbrdf"}
+    for k, v in m.items():
+        d[k] = {"type": "rgb", "value": list(v)} if isinstance(v, tuple) else v
+    return d
+
+
+def _half_width(fov, distance):
+    return distance * math.tan(math.radians(fov) / 2)
+
+
+def _sensor(mi, camera, width, height, n_cells, fov, distance, spp, seed):
+    T = mi.ScalarTransform4f
+    look = T().look_at(origin=[0, 0, distance], target=[0, 0, 0], up=[0, 1, 0])
+    half_w = n_cells * _half_width(fov, distance)  # along x, at z = 0
+    if camera == "orthographic":
+        sensor = {"type": "orthographic", "to_world": look @ T().scale([half_w, half_w, 1.0])}
+    else:
+        sensor = {"type": "perspective", "to_world": look, "fov_axis": "x",
+                  "fov": math.degrees(2 * math.atan(half_w / distance))}
+    sensor["film"] = {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"},
+                      "pixel_format": "luminance" if mi.is_monochromatic else "rgb"}
+    sensor["sampler"] = {"type": "independent", "sample_count": spp, "seed": seed}
+    return sensor
+
+
+def _scene(mi, shapes, light_dir, irradiance, sensor):
+    d = {"type": "scene",
+         "integrator": {"type": "stokes", "integrator": {"type": "direct"}},
+         "sensor": sensor,
+         "light": {"type": "directional", "direction": [-x for x in check_light_dir(light_dir)],
+                   "irradiance": _check_irradiance(irradiance)}}
+    d.update(shapes)
+    return d
+
+
+def sphere_scene(material=None, *, light_dir=DEFAULT_LIGHT_DIR, irradiance=DEFAULT_IRRADIANCE,
+                 resolution=DEFAULT_RESOLUTION, spp=DEFAULT_SPP, camera=DEFAULT_CAMERA,
+                 fov=DEFAULT_FOV, distance=DEFAULT_DISTANCE, seed=0):
+    """Scene dict for ``mi.load_dict``: one sphere of ``material`` under a directional light.
+
+    ``material``: dict of some of eta, alpha, beta, kappa, k_s, r_k / k_b (the
+    rest from :data:`DEFAULT_MATERIAL`); k_s, r_k, k_b may be a number, an RGB
+    triple or a Mitsuba texture dict.  ``irradiance`` is that of the directional
+    light (a float; in spectral variants Mitsuba's D65-shaped emission spectrum
+    of that luminance).  ``resolution`` is an int or (width, height).  The
+    sphere's id is ``"sphere"``, the light's ``"light"``, the sensor's ``"sensor"``.
+    Needs a Mitsuba variant to be set (transforms are variant types).
+    """
+    mi = _mi()
+    width, height = check_resolution(resolution)
+    camera, fov, distance = _check_camera(camera, fov, distance)
+    spp = _check_positive("spp", spp, integer=True)
+    shapes = {"sphere": {"type": "sphere", "bsdf": material_bsdf(material)}}
+    return _scene(mi, shapes, light_dir, irradiance,
+                  _sensor(mi, camera, width, height, 1, fov, distance, spp, int(seed)))
+
+
+def sphere_centres(n, fov=DEFAULT_FOV, distance=DEFAULT_DISTANCE):
+    """x coordinates of the centres of :func:`spheres_scene`'s ``n`` spheres (left to right)."""
+    cell = 2 * _half_width(fov, distance)
+    return [(i - (n - 1) / 2) * cell for i in range(n)]
+
+
+def spheres_scene(materials, *, light_dir=DEFAULT_LIGHT_DIR, irradiance=DEFAULT_IRRADIANCE,
+                  resolution=DEFAULT_RESOLUTION, spp=DEFAULT_SPP, camera=DEFAULT_CAMERA,
+                  fov=DEFAULT_FOV, distance=DEFAULT_DISTANCE, seed=0):
+    """Scene dict with one unit sphere per material, side by side along x.
+
+    The image is ``len(materials)`` cells side by side, each framed like
+    :func:`sphere_scene`: ``resolution`` and ``fov`` are per cell (an int
+    resolution r gives an image of n*r by r pixels), and the centres are one
+    cell width, ``2 * distance * tan(fov / 2)``, apart (:func:`sphere_centres`).
+    Spheres are ``sphere_0``, ``sphere_1``, ... from left to right.
+    """
+    mi = _mi()
+    materials = list(materials)
+    if not materials:
+        raise ValueError("materials: expected at least one material")
+    n = len(materials)
+    cw, ch = check_resolution(resolution)
+    camera, fov, distance = _check_camera(camera, fov, distance)
+    spp = _check_positive("spp", spp, integer=True)
+    T = mi.ScalarTransform4f
+    shapes = {f"sphere_{i}": {"type": "sphere", "to_world": T().translate([x, 0.0, 0.0]),
+                              "bsdf": material_bsdf(m)}
+              for i, (x, m) in enumerate(zip(sphere_centres(n, fov, distance), materials))}
+    return _scene(mi, shapes, light_dir, irradiance,
+                  _sensor(mi, camera, n * cw, ch, n, fov, distance, spp, int(seed)))
+
+
+# ---------------------------------------------------------------- geometry
+def _pixel_rays(width, height, n_cells, camera, fov, distance):
+    """Ray origins and unit directions (H, W, 3) through the pixel centres."""
+    half_w = n_cells * _half_width(fov, distance)
+    half_h = half_w * height / width
+    x = (2 * (np.arange(width) + 0.5) / width - 1) * half_w
+    y = (1 - 2 * (np.arange(height) + 0.5) / height) * half_h
+    X, Y = np.meshgrid(x, y)
+    if camera == "orthographic":
+        o = np.stack([X, Y, np.full_like(X, distance)], -1)
+        d = np.broadcast_to(np.array([0.0, 0.0, -1.0]), o.shape).copy()
+    else:
+        o = np.broadcast_to(np.array([0.0, 0.0, distance]), X.shape + (3,)).copy()
+        d = np.stack([X, Y, np.full_like(X, -distance)], -1)
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    return o, d
+
+
+def _intersect(o, d, centre, radius):
+    """Nearest hit distance of rays with a sphere (inf where missed)."""
+    oc = o - np.asarray(centre, dtype=np.float64)
+    b = np.sum(oc * d, -1)
+    c = np.sum(oc * oc, -1) - radius ** 2
+    disc = b * b - c
+    t = -b - np.sqrt(np.maximum(disc, 0.0))
+    return np.where((disc >= 0) & (t > 0), t, np.inf)
+
+
+def _geometry(width, height, n_cells, camera, fov, distance, centres, radius):
+    camera, fov, distance = _check_camera(camera, fov, distance)
+    o, d = _pixel_rays(width, height, n_cells, camera, fov, distance)
+    ts = np.stack([_intersect(o, d, c, radius) for c in centres])
+    label = np.argmin(ts, 0)
+    t = np.take_along_axis(ts, label[None], 0)[0]
+    mask = np.isfinite(t)
+    p = o + np.where(mask, t, 0.0)[..., None] * d
+    c = np.asarray(centres, dtype=np.float64)[label]
+    normals = np.where(mask[..., None], (p - c) / radius, 0.0)
+    view = np.where(mask[..., None], -d, 0.0)
+    return normals, view, mask, np.where(mask, label, -1)
+
+
+def sphere_geometry(resolution=DEFAULT_RESOLUTION, camera=DEFAULT_CAMERA, fov=DEFAULT_FOV,
+                    distance=DEFAULT_DISTANCE, centre=(0.0, 0.0, 0.0), radius=1.0):
+    """Analytic geometry of :func:`sphere_scene` at the pixel centres.
+
+    Returns ``(normals (H, W, 3), view_dirs (H, W, 3), mask (H, W) bool)``:
+    unit normals and unit vectors from the surface towards the camera in the
+    world frame (x right, y up, z towards the camera), rows top to bottom,
+    zero where the pixel centre misses the sphere (``mask`` False).
+    """
+    w, h = check_resolution(resolution)
+    n, v, m, _ = _geometry(w, h, 1, camera, fov, distance, [centre], radius)
+    return n, v, m
+
+
+def spheres_geometry(n_spheres, resolution=DEFAULT_RESOLUTION, camera=DEFAULT_CAMERA,
+                     fov=DEFAULT_FOV, distance=DEFAULT_DISTANCE):
+    """Geometry of :func:`spheres_scene` with ``n_spheres`` spheres (``resolution`` per cell).
+
+    Returns ``(normals, view_dirs, labels)``: labels (H, W) is the index of the
+    sphere seen at each pixel centre, -1 for background.
+    """
+    cw, ch = check_resolution(resolution)
+    centres = [(x, 0.0, 0.0) for x in sphere_centres(n_spheres, fov, distance)]
+    n, v, _, labels = _geometry(n_spheres * cw, ch, n_spheres, camera, fov, distance, centres, 1.0)
+    return n, v, labels
+
+
+# ---------------------------------------------------------------- rendering
+#: Samples per pass of :func:`render_stokes` (a pass is one Mitsuba kernel launch).
+PASS_SAMPLES = 1 << 22
+
+
+def _n_passes(width, height, spp):
+    """A divisor of spp giving passes of about PASS_SAMPLES samples (a function of the size only)."""
+    want = max(1, math.ceil(width * height * spp / PASS_SAMPLES))
+    divisors = [d for d in range(1, spp + 1) if spp % d == 0]
+    return min(divisors, key=lambda d: (abs(math.log(d / want)), d))
+
+
+def pass_seed(seed, k):
+    """Sampler seed of pass ``k`` of a render with ``seed`` (deterministic, distinct per pass)."""
+    return int(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, k]).generate_state(1)[0])
+
+
+class _Progress:
+    """Prints render progress on stderr once a render has taken longer than ``delay`` seconds."""
+
+    def __init__(self, label, n_passes, enabled=True, delay=1.0, stream=None):
+        self.label, self.n, self.done = label, n_passes, 0
+        self.stream = stream or sys.stderr
+        self.enabled, self.delay = enabled, delay
+        self.tty = getattr(self.stream, "isatty", lambda: False)()
+        self.t0 = self._last = time.perf_counter()
+        self.shown = False
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = None
+        if enabled and self.tty:
+            self._thread = threading.Thread(target=self._tick, daemon=True)
+            self._thread.start()
+
+    def _line(self):
+        t = time.perf_counter() - self.t0
+        frac = self.done / self.n
+        bar = "#" * int(20 * frac) + "." * (20 - int(20 * frac))
+        state = "compiling and rendering" if self.done == 0 else "rendering"
+        return f"{self.label}: [{bar}] {self.done}/{self.n} passes, {t:.1f} s ({state})"
+
+    def _show(self, end=""):
+        with self._lock:
+            if self.tty:
+                self.stream.write("\r" + self._line() + " " * 4 + end)
+            else:
+                self.stream.write(self._line() + "\n")
+            self.stream.flush()
+            self.shown = True
+
+    def _tick(self):
+        while not self._stop.wait(0.25):
+            if time.perf_counter() - self.t0 > self.delay:
+                self._show()
+
+    def step(self):
+        self.done += 1
+        now = time.perf_counter()
+        if (self.enabled and not self.tty and now - self.t0 > self.delay
+                and (self.done == self.n or now - self._last >= 1.0)):  # a line a second at most
+            self._last = now
+            self._show()
+
+    def close(self):
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if self.enabled and self.tty and self.shown:
+            self._show(end="\n")
+
+
+def render_stokes(scene, spp=None, seed=0, progress=True):
+    """Render ``scene`` (a loaded ``mi.Scene`` with the ``stokes`` integrator).
+
+    Returns the Stokes array (4, H, W, C) of :mod:`fmbrdf_mi.stokes_io`,
+    float32, C = 3 (R, G, B) or C = 1 in monochrome variants.  ``spp`` defaults
+    to the scene sampler's sample count.  The samples are split into equal
+    passes of about :data:`PASS_SAMPLES` samples (their number depends on the
+    image size and spp only; pass k uses the seed :func:`pass_seed` (seed, k)),
+    so the result is a deterministic function of ``seed``.  With ``progress``,
+    renders longer than a second report their progress on stderr.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    from .stokes_io import stokes_from_film
+
+    if not mi.is_polarized:
+        raise ValueError(f"render_stokes: variant {mi.variant()} is not polarised; "
+                         "use e.g. llvm_ad_spectral_polarized or llvm_ad_mono_polarized")
+    sensor = scene.sensors()[0]
+    film = sensor.film()
+    width, height = (int(x) for x in film.crop_size())
+    sampler = sensor.sampler()
+    scene_spp = int(sampler.sample_count())
+    spp = _check_positive("spp", scene_spp if spp is None else spp, integer=True)
+    n = _n_passes(width, height, spp)
+    bar = _Progress(f"{width}x{height}, {spp} spp", n, enabled=progress)
+    try:
+        total = None
+        for k in range(n):
+            img = mi.render(scene, spp=spp // n, seed=pass_seed(seed, k))
+            total = img if total is None else total + img
+            dr.eval(total)
+            bar.step()
+        arr = np.asarray(total, dtype=np.float32) / n
+    finally:
+        bar.close()
+        sampler.set_sample_count(scene_spp)  # mi.render(spp=...) changes it
+    names = [f.name for f in film.bitmap().struct_()]
+    stokes = stokes_from_film(arr, names)
+    if mi.is_monochromatic and stokes.shape[-1] == 3:
+        stokes = stokes[..., :1]
+    return np.ascontiguousarray(stokes)
+
+
+# ---------------------------------------------------------------- description
+def _plain(value):
+    """A traversed parameter value as a float or a list of floats (None if not numeric)."""
+    import drjit as dr
+
+    try:
+        arr = np.asarray(dr.detach(value), dtype=np.float64).ravel()
+    except Exception:
+        return None
+    if arr.size == 0:
+        return None
+    return float(arr[0]) if arr.size == 1 else [float(x) for x in arr]
+
+
+def scene_materials(scene):
+    """{shape id: {parameter: value}} of the fmbrdf BSDFs of a loaded scene (for metadata).
+
+    Albedos given as RGB in spectral variants appear as Mitsuba's spectral
+    upsampling coefficients, not as RGB.
+    """
+    import mitsuba as mi
+
+    out = {}
+    for key, value in mi.traverse(scene).items():
+        m = re.match(r"^(.*)\.bsdf\.(eta|alpha|beta|kappa|k_s|r_k|k_b)(\.value)?$", key)
+        if m:
+            v = _plain(value)
+            if v is not None:
+                out.setdefault(m.group(1), {})[m.group(2)] = v
+    return out
+
+
+def scene_lights(scene):
+    """[{id, light_dir}] of the directional emitters of a loaded scene (light_dir: towards the light)."""
+    import mitsuba as mi
+
+    params = mi.traverse(scene)
+    out = []
+    for emitter in scene.emitters():
+        eid = emitter.id()
+        if emitter.class_name() != "DirectionalEmitter" or f"{eid}.to_world" not in params:
+            continue
+        m = np.asarray(params[f"{eid}.to_world"].matrix, dtype=np.float64).reshape(4, 4)
+        d = m[:3, 2]  # the emitter radiates along its local +z
+        out.append({"id": eid, "light_dir": [float(x) for x in -d / np.linalg.norm(d)]})
+    return out
+
+
+def scene_camera(scene):
+    """{type, to_world (4x4 rows), fov (perspective), resolution} of the scene's first sensor."""
+    import mitsuba as mi
+
+    sensor = scene.sensors()[0]
+    params = mi.traverse(sensor)
+    out = {"type": sensor.class_name()}
+    if "to_world" in params:
+        out["to_world"] = np.asarray(params["to_world"].matrix, dtype=np.float64).reshape(4, 4).tolist()
+    if "x_fov" in params:
+        out["fov_x"] = _plain(params["x_fov"])
+    out["resolution"] = [int(x) for x in sensor.film().crop_size()]
+    return out
