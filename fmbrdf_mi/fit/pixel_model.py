@@ -142,6 +142,10 @@ class PixelEvaluator(_Evaluator):
         light = np.asarray(light_dir, dtype=np.float64).reshape(3)
         if normals.shape != view_dirs.shape:
             raise ValueError(f"normals {normals.shape} and view_dirs {view_dirs.shape} differ in shape")
+        # unit length to float64 precision (a cosine above 1 gives NaN derivatives in the BSDF)
+        normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+        view_dirs = view_dirs / np.linalg.norm(view_dirs, axis=1, keepdims=True)
+        light = light / np.linalg.norm(light)
         self.n = len(normals)
         bsdf = mi.load_dict(model.bsdf_dict())
         super().__init__(model, mi.traverse(bsdf))
