@@ -27,11 +27,12 @@ def test_raw_mosaic_to_angles_to_stokes_is_exact(tmp_path, layout):
     # each angle sits where the layout says: IMX250MZR top-left pixel is 90 deg
     r, c = next((r, c) for r in range(2) for c in range(2) if layout[r][c] == 90)
     assert np.array_equal(raw[r::2, c::2], angles[2])
-    back = ob.stokes_from_raw(raw, layout)
+    back = ob.stokes_from_raw(raw, layout, demosaic="superpixel")
     np.testing.assert_allclose(back, s, rtol=0, atol=1e-12)
     # the same from files: .npy mosaic, (4, H, W) angle stack, four 16-bit PNGs
     np.save(tmp_path / "raw.npy", raw)
-    np.testing.assert_allclose(ob.load_polarisation(tmp_path / "raw.npy", layout=layout)[0], s, atol=1e-12)
+    np.testing.assert_allclose(ob.load_polarisation(tmp_path / "raw.npy", layout=layout, demosaic="superpixel")[0],
+                               s, atol=1e-12)
     np.save(tmp_path / "angles.npy", angles)
     np.testing.assert_allclose(ob.load_polarisation(tmp_path / "angles.npy")[0], s, atol=1e-12)
 
@@ -42,8 +43,8 @@ def test_16bit_png_mosaic_and_angle_files(tmp_path):
     rng = np.random.default_rng(1)
     raw = rng.integers(0, 4096, (8, 10)).astype(np.uint16)
     Image.fromarray(raw).save(tmp_path / "raw.png")
-    s, meta = ob.load_polarisation(str(tmp_path / "raw.png"))
-    np.testing.assert_allclose(s, ob.stokes_from_raw(raw), atol=1e-12)
+    s, meta = ob.load_polarisation(str(tmp_path / "raw.png"), demosaic="superpixel")
+    np.testing.assert_allclose(s, ob.stokes_from_raw(raw, demosaic="superpixel"), atol=1e-12)
     assert meta["source"] == "raw mosaic"
     imgs = polcam.angle_images_from_mosaic(raw)
     paths = []
@@ -51,6 +52,22 @@ def test_16bit_png_mosaic_and_angle_files(tmp_path):
         paths.append(str(tmp_path / f"i{a}.png"))
         Image.fromarray(im.astype(np.uint16)).save(paths[-1])
     np.testing.assert_allclose(ob.load_polarisation(paths)[0], s, atol=1e-12)
+
+
+@pytest.mark.parametrize("layout", [polcam.IMX250MZR_LAYOUT, ((45, 0), (90, 135))])
+def test_bilinear_demosaic_is_exact_for_a_linear_field(layout):
+    """Each angle interpolated to the super-pixel centre: exact where the Stokes field is linear."""
+    h, w = 12, 16  # raw pixels
+    y, x = np.mgrid[0:h, 0:w] + 0.5
+    field = lambda x, y: np.stack([1 + 0.03 * x + 0.02 * y, 0.01 * x - 0.02 * y, 0.2 - 0.01 * y])
+    raw = cn._angle_at_each_pixel(field(x, y), layout)
+    yc, xc = np.mgrid[0:h // 2, 0:w // 2] * 2.0 + 1.0  # super-pixel centres
+    want = field(xc, yc)
+    got = ob.stokes_from_raw(raw, layout)
+    inner = (slice(None), slice(1, -1), slice(1, -1))  # edges are clamped
+    np.testing.assert_allclose(got[inner], want[inner], atol=1e-12)
+    plain = ob.stokes_from_raw(raw, layout, demosaic="superpixel")
+    assert np.abs(plain[inner] - want[inner]).max() > 1e-3  # what the interpolation removes
 
 
 def test_noise_model_is_seeded_unbiased_and_quantised():
@@ -63,16 +80,19 @@ def test_noise_model_is_seeded_unbiased_and_quantised():
     assert a.shape == (3, 32, 32)
     assert info["raw"].dtype == np.uint16 and info["raw"].max() <= 4095
     # noiseless capture: only 12-bit quantisation and the 2x2 sampling remain
-    c, info = cn.noisy_stokes(s, noise, noiseless=True)
+    c, info = cn.noisy_stokes(s, noise, noiseless=True, demosaic="superpixel")
     ideal = polcam.stokes_from_angle_images(
         polcam.angle_images_from_mosaic(cn._angle_at_each_pixel(s, noise.layout), noise.layout))[:3]
     assert np.max(np.abs(c - ideal)) <= 2 * info["dn_to_input"]
     # shot noise: relative S0 scatter ~ 1/sqrt(electrons)
     flat = np.stack([np.full((64, 64), 0.5), np.zeros((64, 64)), np.zeros((64, 64))])
-    d, info = cn.noisy_stokes(flat, noise, seed=1)
+    d, info = cn.noisy_stokes(flat, noise, seed=1, demosaic="superpixel")
     e_per_pixel = 0.25 * info["gain"]  # each polariser passes half of S0 = 0.5
     assert abs(d[0].mean() / 0.5 - 1) < 2e-3
     assert d[0].std() / 0.5 == pytest.approx(1 / np.sqrt(4 * e_per_pixel), rel=0.15)
+    # bilinear demosaicking averages neighbours: std x sqrt(81 + 9 + 9 + 1) / 16
+    d2, _ = cn.noisy_stokes(flat, noise, seed=1)
+    assert d2[0].std() / d[0].std() == pytest.approx(np.sqrt(100) / 16, rel=0.15)
 
 
 def test_find_sphere_and_sphere_normals():

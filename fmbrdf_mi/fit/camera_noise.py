@@ -92,12 +92,15 @@ def simulate_capture(stokes, noise=None, *, seed=0, gain=None, noiseless=False):
             "saturated": float(np.mean(dn >= levels))}
 
 
-def noisy_stokes(stokes, noise=None, *, seed=0, gain=None, noiseless=False):
+def noisy_stokes(stokes, noise=None, *, seed=0, gain=None, noiseless=False, demosaic="bilinear"):
     """Convenience: capture and demosaic (one Stokes vector per super-pixel), in the input's units.
 
+    ``demosaic`` as in :func:`fmbrdf_mi.fit.observations.stokes_from_raw`.
     Returns ``(stokes (3, H, W), info)`` with ``info`` the dict of :func:`simulate_capture`.
     """
+    from .observations import stokes_from_raw
+
     noise = noise or CameraNoise()
     cap = simulate_capture(stokes, noise, seed=seed, gain=gain, noiseless=noiseless)
-    imgs = polcam.angle_images_from_mosaic(cap["raw"].astype(np.float64) * cap["dn_to_input"], noise.layout)
-    return polcam.stokes_from_angle_images(imgs)[:3], cap
+    s = stokes_from_raw(cap["raw"], noise.layout, demosaic=demosaic) * cap["dn_to_input"]
+    return s, cap

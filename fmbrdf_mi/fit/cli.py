@@ -84,14 +84,15 @@ def _builtin_sphere(meta):
 
 def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
                       fov=None, light=None, irradiance=None, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0,
-                      channel="mean", geometry=None):
+                      channel="mean", geometry=None, demosaic="bilinear"):
     """An :class:`Observation` from files (see :func:`fit_files` for the options).
 
     ``geometry``: (normals, mask, view_dirs) reused from another observation of the same object.
     """
     if isinstance(layout, str):
         layout = parse_layout(layout)
-    stokes, meta = load_polarisation(inputs, layout=layout, channel=channel, black_level=black_level)
+    stokes, meta = load_polarisation(inputs, layout=layout, channel=channel, black_level=black_level,
+                                     demosaic=demosaic)
     shape = stokes.shape[1:]
     builtin = _builtin_sphere(meta) if (normals is None and sphere is None and geometry is None) else None
     if builtin is not None:
@@ -148,8 +149,8 @@ def _outputs(out, relight):
 
 def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
               fov=None, light=None, irradiance=None, layout="90,45,135,0", black_level=0.0, channel="mean",
-              model="fmbrdf", baselines=False, optimizer="lm", path="pixel", bounds=None, init=None,
-              max_iter=40, tol=1e-5, time_limit=None, max_pixels=20000, erode=2, seed=0, relight=None,
+              demosaic="bilinear", model="fmbrdf", baselines=False, optimizer="lm", path="pixel", bounds=None, init=None,
+              max_iter=40, tol=1e-4, time_limit=None, max_time=110.0, max_pixels=20000, erode=2, seed=0, relight=None,
               relight_light=None, relight_irradiance=None, force=False, progress=True):
     """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
 
@@ -182,17 +183,19 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
                 raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
     obs = build_observation(inputs, normals=normals, mask=mask, view=view, sphere=sphere, camera=camera,
                             fov=fov, light=light, irradiance=irradiance, layout=layout,
-                            black_level=black_level, channel=channel)
+                            black_level=black_level, channel=channel, demosaic=demosaic)
     obs2 = None
     if relight is not None:
         geom = None if (normals is None and sphere is None and "truth" in obs.meta) \
             else (obs.normals, obs.mask, obs.view_dirs)
         obs2 = build_observation(relight, light=relight_light, irradiance=relight_irradiance,
-                                 layout=layout, black_level=black_level, channel=channel, geometry=geom)
+                                 layout=layout, black_level=black_level, channel=channel, geometry=geom,
+                                 demosaic=demosaic)
         if obs2.shape != obs.shape:
             raise InputError(f"relight image: shape {obs2.shape} differs from the fitted image {obs.shape}")
     opts = FitOptions(model=model, path="pixel", optimizer=optimizer, bounds=parse_bounds(bounds),
                       init=parse_init(init), max_iter=int(max_iter), tol=float(tol), time_limit=time_limit,
+                      max_time=max_time or None,
                       max_pixels=max_pixels, erode=int(erode), seed=int(seed))
     scene = None
     if path == "render":
@@ -276,6 +279,9 @@ def add_fit_arguments(p):
     g.add_argument("--layout", default="90,45,135,0",
                    help="mosaic polariser angles, 2x2 row-major from the top left (default IMX250MZR: %(default)s)")
     g.add_argument("--black-level", type=float, default=0.0, help="subtracted from raw / angle images")
+    g.add_argument("--demosaic", default="bilinear", choices=("bilinear", "superpixel"),
+                   help="raw mosaics: interpolate each angle to the super-pixel centre (default) or take "
+                        "the 2x2 pixels as they are")
     g.add_argument("--channel", default="mean", help="colour channel of an RGB Stokes EXR: mean, R, G or B")
     g = p.add_argument_group("geometry and light (camera frame: x image right, y image up, z towards the camera)")
     g.add_argument("--normals", metavar="N.npy", help="normal map, H x W x 3 unit vectors")
@@ -291,14 +297,18 @@ def add_fit_arguments(p):
     g.add_argument("--model", default="fmbrdf", choices=("fmbrdf", "pplastic", "lambert_ts"))
     g.add_argument("--baselines", action="store_true",
                    help="also fit pplastic and Lambertian + Torrance-Sparrow the same way")
-    g.add_argument("--optimizer", default="lm", choices=("lm", "adam"))
+    g.add_argument("--optimizer", default="lm", choices=("lm", "adam"),
+                   help="Levenberg-Marquardt (forward-mode AD Jacobian) or Adam (reverse-mode gradient); "
+                        "the render path needs adam")
     g.add_argument("--path", default="pixel", choices=("pixel", "render"),
                    help="per-pixel BSDF evaluation, or rendering the scene (synthetic EXRs of the built-in sphere)")
     g.add_argument("--bounds", action="append", metavar="NAME=LO:HI", help="narrow a parameter's bounds (repeatable)")
     g.add_argument("--init", metavar="NAME=V,...", help="start from these parameters instead of the coarse search")
     g.add_argument("--max-iter", type=int, default=40)
-    g.add_argument("--tol", type=float, default=1e-5, help="stop when the loss falls by less than this (relative) twice")
+    g.add_argument("--tol", type=float, default=1e-4, help="stop when the loss falls by less than this (relative) twice")
     g.add_argument("--time-limit", type=float, help="seconds per refinement round")
+    g.add_argument("--max-time", type=float, default=110.0,
+                   help="seconds for a whole fit; refinement stops when exceeded (default %(default)s, 0: none)")
     g.add_argument("--max-pixels", type=int, default=20000, help="random subset of usable pixels (0: all)")
     g.add_argument("--erode", type=int, default=2, help="pixels removed from the mask border")
     g.add_argument("--seed", type=int, default=0)
@@ -319,9 +329,9 @@ def run_fit(args):
     report = fit_files(inputs, args.out, normals=args.normals, mask=args.mask, view=args.view,
                        sphere=args.sphere, camera=args.camera, fov=args.fov, light=_vec(args.light, "--light"),
                        irradiance=args.irradiance, layout=args.layout, black_level=args.black_level,
-                       channel=args.channel, model=args.model, baselines=args.baselines,
+                       channel=args.channel, demosaic=args.demosaic, model=args.model, baselines=args.baselines,
                        optimizer=args.optimizer, path=args.path, bounds=args.bounds, init=args.init,
-                       max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit,
+                       max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
                        max_pixels=args.max_pixels or None, erode=args.erode, seed=args.seed, relight=relight,
                        relight_light=_vec(args.relight_light, "--relight-light"),
                        relight_irradiance=args.relight_irradiance, force=args.force, progress=not args.quiet)

@@ -28,8 +28,9 @@ class FitOptions:
     bounds: dict = None               # {name: (lo, hi)} narrowing the model's bounds
     init: dict = None                 # reported parameters to start from (skips the coarse search)
     max_iter: int = 40
-    tol: float = 1e-5
+    tol: float = 1e-4
     time_limit: float = None          # seconds for each refinement round
+    max_time: float = 110.0           # seconds for the whole fit: refinement stops when exceeded
     rounds: int = 3                   # inlier/outlier refresh rounds
     max_pixels: int = 20000           # random subset of the usable pixels (None: all)
     erode: int = 2                    # pixels removed from the mask's border
@@ -122,6 +123,9 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
     opts = dataclasses.replace(options or FitOptions(), **kw)
     if opts.optimizer not in ("lm", "adam"):
         raise ValueError(f"optimizer: expected 'lm' or 'adam', got {opts.optimizer!r}")
+    if opts.path == "render" and opts.optimizer != "adam":
+        raise InputError("path 'render' works with optimizer 'adam' only (reverse-mode gradient through "
+                         "mi.render; its forward-mode derivatives, which 'lm' needs, miss the body term)")
     report = O.default_progress if progress is True else (progress or (lambda m: None))
     model = get_model(opts.model)
     t0 = time.time()
@@ -146,25 +150,35 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
     reason, J, r = "", None, None
     for rnd in range(1, max(1, opts.rounds) + 1):
         parts = problem.parts(st)
-        old = problem.outliers.copy()
+        old_out, old_w = problem.outliers.copy(), problem.w.copy()
         problem.set_weights(parts, st)
-        if rnd > 1 and np.array_equal(old, problem.outliers):
-            break
+        if rnd > 1:
+            valid = target.dolp_valid
+            changed = int(((old_out != problem.outliers) & valid).sum())
+            smaller = min(int((problem.outliers & valid).sum()), int((~problem.outliers & valid).sum()))
+            if changed <= max(5, 0.1 * smaller):  # the weighting is settled
+                problem.outliers, problem.w = old_out, old_w
+                break
         report(f"[fit] round {rnd}: {int((problem.outliers & target.dolp_valid).sum())} outliers "
                f"(surface-dominated) / {int((~problem.outliers & target.dolp_valid).sum())} inliers")
+        left = None if opts.max_time is None else opts.max_time - (time.time() - t0)
+        limit = min([x for x in (opts.time_limit, left) if x is not None], default=None)
+        if limit is not None and limit <= 0:
+            reason = f"max_time {opts.max_time:g} s reached"
+            break
         if opts.optimizer == "lm":
             st, f, reason, J, r = O.levenberg_marquardt(problem, st, max_iter=opts.max_iter, tol=opts.tol,
-                                                        time_limit=opts.time_limit, history=history,
-                                                        round_no=rnd)
+                                                        time_limit=limit, history=history, round_no=rnd)
         else:
             st, f, reason = O.adam(problem, st, max_iter=opts.max_iter, lr=opts.lr, tol=opts.tol,
-                                   time_limit=opts.time_limit, history=history, round_no=rnd)
-    parts = problem.parts(st, jac=J is None)
-    if J is None:
+                                   time_limit=limit, history=history, round_no=rnd)
+    can_jac = opts.path == "pixel"
+    parts = problem.parts(st, jac=(J is None and can_jac))
+    if J is None and can_jac:
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
     i, rho = L.predict(parts.surface, parts.body, st.a_s, st.a_b)
     li, lr = L.loss_terms(target, problem.w, i, rho)
-    std = O.standard_errors(problem, st, J, r)
+    std = O.standard_errors(problem, st, J, r) if J is not None else {}
     t_total = time.time() - t0
     report(f"[fit] done in {t_total:.1f} s: loss {li + lr:.6e} ({reason})  {O._fmt(problem, st)}")
     return FitResult(model=model.name, params=model.report(st.shape, st.a_s, st.a_b), loss=li + lr,

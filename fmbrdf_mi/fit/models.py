@@ -106,7 +106,7 @@ FMBRDF = Model(
         ShapeParam("eta", "eta", 1.01, 3.0, "log_minus_1", (1.2, 1.4, 1.6, 1.9, 2.3)),
         ShapeParam("alpha", "alpha", 0.01, 1.5, "log", (0.03, 0.06, 0.12, 0.25, 0.5, 1.0)),
         ShapeParam("beta", "beta", 0.4, 5.0, "log", (0.8, 1.6, 3.2)),
-        ShapeParam("kappa", "kappa", 0.0, 100.0, "log1p", (0.0, 20.0)),
+        ShapeParam("kappa", "kappa", 0.0, 100.0, "log1p", (0.0, 10.0, 40.0)),
     ),
     surface_key="k_s.value",
     body_key="k_b.value",

@@ -176,15 +176,57 @@ def parse_layout(text):
     return _check_layout(((a[0], a[1]), (a[2], a[3])))
 
 
-def stokes_from_raw(raw, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0):
-    """Linear Stokes (3, H/2, W/2) from a raw quad-Bayer mosaic (one value per super-pixel)."""
+def angle_images_at_superpixel_centres(raw, layout=polcam.IMX250MZR_LAYOUT):
+    """Angle images (4, H/2, W/2) of a raw mosaic, each interpolated to the super-pixel centres.
+
+    The four polarisers of a super-pixel sit at four different points; taking
+    them as they are (:func:`fmbrdf_mi.polcam.angle_images_from_mosaic`)
+    mixes spatial change into the Stokes vector (false polarisation at edges
+    and highlights).  Here each angle's samples, a lattice of spacing 2, are
+    interpolated bilinearly to the centre of every super-pixel (weights 9/16,
+    3/16, 3/16, 1/16 from the nearest four samples of that angle; edges
+    clamped), so all four angles describe the same point.
+    """
+    raw = np.asarray(raw, dtype=np.float64)
+    flat = [a for row in layout for a in row]
+    out = [None] * 4
+    for pos, angle in enumerate(flat):
+        r, c = divmod(pos, 2)
+        lat = raw[r::2, c::2]  # sample (i, j) at raw (2i + r, 2j + c); centre of super-pixel (i, j) at (2i + 0.5, 2j + 0.5)
+        dr_, dc = (1 if r == 0 else -1), (1 if c == 0 else -1)  # direction of the second-nearest sample
+        p = np.pad(lat, 1, mode="edge")
+        h, w = lat.shape
+        near = p[1:h + 1, 1:w + 1]
+        row2 = p[1 + dr_:h + 1 + dr_, 1:w + 1]
+        col2 = p[1:h + 1, 1 + dc:w + 1 + dc]
+        diag = p[1 + dr_:h + 1 + dr_, 1 + dc:w + 1 + dc]
+        out[polcam.ANGLES.index(angle)] = (9 * near + 3 * row2 + 3 * col2 + diag) / 16.0
+    return np.stack(out)
+
+
+DEMOSAIC = ("bilinear", "superpixel")
+
+
+def stokes_from_raw(raw, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0, demosaic="bilinear"):
+    """Linear Stokes (3, H/2, W/2) from a raw quad-Bayer mosaic, one vector per super-pixel.
+
+    ``demosaic``: ``bilinear`` (default) interpolates each angle to the
+    super-pixel centre (:func:`angle_images_at_superpixel_centres`);
+    ``superpixel`` takes the four pixels as they are.
+    """
     raw = np.asarray(raw)
     if raw.ndim != 2:
         raise InputError(f"raw mosaic: expected a 2-D single-channel image, got shape {raw.shape}")
     if raw.shape[0] % 2 or raw.shape[1] % 2 or min(raw.shape) < 2:
         raise InputError(f"raw mosaic: height and width must be even (2x2 super-pixels), got {raw.shape}")
     layout = _check_layout(layout)
-    imgs = polcam.angle_images_from_mosaic(raw.astype(np.float64) - float(black_level), layout)
+    if demosaic not in DEMOSAIC:
+        raise InputError(f"demosaic: expected one of {DEMOSAIC}, got {demosaic!r}")
+    r = raw.astype(np.float64) - float(black_level)
+    if demosaic == "bilinear":
+        imgs = angle_images_at_superpixel_centres(r, layout)
+    else:
+        imgs = polcam.angle_images_from_mosaic(r, layout)
     return polcam.stokes_from_angle_images(imgs)[:3].astype(np.float64)
 
 
@@ -215,7 +257,8 @@ def select_channel(stokes, channel="mean"):
     raise InputError(f"channel: expected 'mean' or one of {names}, got {channel!r}")
 
 
-def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", black_level=0.0):
+def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", black_level=0.0,
+                      demosaic="bilinear"):
     """Read a polarimetric image; returns ``(stokes (3, H, W) float64, meta dict)``.
 
     ``paths`` is one of
@@ -253,7 +296,8 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
         return select_channel(stokes, channel), meta
     a = _read_array(path, "polarisation image")
     if a.ndim == 2:
-        return stokes_from_raw(a, layout, black_level), {"source": "raw mosaic", "layout": layout}
+        return (stokes_from_raw(a, layout, black_level, demosaic),
+                {"source": "raw mosaic", "layout": layout, "demosaic": demosaic})
     if a.ndim == 3 and a.shape[0] == 4:
         return stokes_from_angles(a, black_level), {"source": "angle images"}
     raise InputError(f"polarisation image {path}: expected a 2-D raw mosaic or (4, H, W) angle images, "

@@ -149,11 +149,19 @@ def _score(problem, parts, st):
 
 
 def coarse_search(problem, keep=2):
-    """Two-stage grid search; returns candidates [(loss, State)] best first."""
+    """Grid search in stages; returns candidates [(loss, State)] best first.
+
+    Stage 1: every shape parameter but eta and kappa on its grid, eta and
+    kappa at their middle grid values; stage 2: eta on its grid for the
+    ``keep`` best; stage 3: kappa on its grid for the best (kappa changes the
+    body term least, and is often weakly identifiable: README).  Each grid
+    point costs one BSDF table rebuild.
+    """
     model, bounds = problem.model, problem.bounds
     grids = {p.name: bounds.clip_grid(p.name, p.grid) for p in model.shape}
-    first = [n for n in problem.names if n != "eta"]
-    mid_eta = grids["eta"][len(grids["eta"]) // 2] if "eta" in grids else None
+    later = [n for n in ("eta", "kappa") if n in grids]
+    first = [n for n in problem.names if n not in later]
+    mids = {n: grids[n][len(grids[n]) // 2] for n in later}
     results = {}
 
     def try_point(shape):
@@ -165,24 +173,22 @@ def coarse_search(problem, keep=2):
         st = State(dict(shape), a_s, a_b)
         results[key] = (_score(problem, parts, st), st)
 
+    def best():
+        return min(results.values(), key=lambda x: x[0])
+
     t = time.time()
     combos = list(itertools.product(*[grids[n] for n in first]))
     for j, combo in enumerate(combos):
-        shape = dict(zip(first, combo))
-        if mid_eta is not None:
-            shape["eta"] = mid_eta
-        try_point(shape)
-        if (j + 1) % 12 == 0 or j + 1 == len(combos):
-            best = min(results.values(), key=lambda x: x[0])
-            problem.progress(f"[search] stage 1: {j + 1}/{len(combos)} grid points, best loss "
-                             f"{best[0]:.4e} ({time.time() - t:.1f} s)")
-    if "eta" in grids:
-        top = sorted(results.values(), key=lambda x: x[0])[:keep]
+        try_point({**mids, **dict(zip(first, combo))})
+        if (j + 1) % 6 == 0 or j + 1 == len(combos):
+            problem.progress(f"[search] stage 1 ({', '.join(first)}): {j + 1}/{len(combos)} grid points, "
+                             f"best loss {best()[0]:.4e} ({time.time() - t:.1f} s)")
+    for stage, name in enumerate(later, start=2):
+        top = sorted(results.values(), key=lambda x: x[0])[:keep if name == "eta" else 1]
         for _, st in top:
-            for eta in grids["eta"]:
-                try_point({**st.shape, "eta": eta})
-        best = min(results.values(), key=lambda x: x[0])
-        problem.progress(f"[search] stage 2: eta for the best {len(top)}, best loss {best[0]:.4e} "
+            for value in grids[name]:
+                try_point({**st.shape, name: value})
+        problem.progress(f"[search] stage {stage} ({name}): best loss {best()[0]:.4e} "
                          f"({time.time() - t:.1f} s, {len(results)} grid points)")
     return sorted(results.values(), key=lambda x: x[0])
 
