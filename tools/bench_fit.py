@@ -12,7 +12,9 @@ beta 1-4, kappa 0-50, r_k 0.1-5, k_s 0.6-2):
   - noisy: a 2res x 2res render at 16 spp seen by the camera model of
     ``fmbrdf_mi.fit.camera_noise`` (IMX250MZR quad-Bayer sampling, full well
     10 000 e-, read noise 2.5 e-, 12-bit ADC, brightest raw pixel at 90 % of
-    full scale, seeded), demosaicked to res x res super-pixels;
+    full scale, seeded), demosaicked to res x res super-pixels (bilinear);
+    the fit knows the camera's gain and read noise (as from a data sheet) and
+    removes the noise bias of the observed DoLP;
 * fit: ``fmbrdf_mi.fit.fit`` with its defaults, i.e. the *per-pixel* path at
   pixel centres (not the renderer that made the data), coarse search from no
   prior knowledge, Levenberg-Marquardt, 20 000 random pixels of the mask
@@ -63,13 +65,18 @@ def render(material, light, res, spp, seed):
 
 
 def observe(material, light, res, noisy, seed):
-    """(Stokes (3, res, res), capture info) of the sphere under ``light``."""
+    """(Stokes (3, res, res), var(S1) (res, res) or None, capture info) of the sphere under ``light``."""
     from fmbrdf_mi.fit import camera_noise as cn
 
     if not noisy:
-        return render(material, light, res, 64, seed), None
+        return render(material, light, res, 64, seed), None, None
     s = render(material, light, 2 * res, 16, seed)
-    return cn.noisy_stokes(s, cn.CameraNoise(), seed=seed)
+    noise = cn.CameraNoise()
+    stokes, cap = cn.noisy_stokes(s, noise, seed=seed)
+    # what a user knows from the camera's data sheet: electrons per DN and read noise
+    var = cn.linear_stokes_variance(stokes[0], cap["gain"], noise.read_noise, "bilinear",
+                                    dn_per_unit=1.0 / cap["dn_to_input"])
+    return stokes, var, cap
 
 
 def main():
@@ -99,11 +106,11 @@ def main():
         for cond in conditions:
             noisy = cond == "noisy"
             t = time.time()
-            s1, cap = observe(truth, LIGHT, args.res, noisy, seed=100 + i)
-            s2, _ = observe(truth, LIGHT2, args.res, noisy, seed=200 + i)
+            s1, var1, cap = observe(truth, LIGHT, args.res, noisy, seed=100 + i)
+            s2, var2, _ = observe(truth, LIGHT2, args.res, noisy, seed=200 + i)
             t_data = time.time() - t
-            obs = Observation(s1, m, n, v, LIGHT, IRRADIANCE)
-            obs2 = Observation(s2, m, n, v, LIGHT2, IRRADIANCE)
+            obs = Observation(s1, m, n, v, LIGHT, IRRADIANCE, lin_variance=var1)
+            obs2 = Observation(s2, m, n, v, LIGHT2, IRRADIANCE, lin_variance=var2)
             res = fit(obs, progress=False)
             row = {"set": i + 1, "condition": cond, "truth": truth, "estimate": res.params,
                    "std_error": res.std_errors, "fit_time": res.timings["total"],

@@ -104,3 +104,27 @@ def noisy_stokes(stokes, noise=None, *, seed=0, gain=None, noiseless=False, demo
     cap = simulate_capture(stokes, noise, seed=seed, gain=gain, noiseless=noiseless)
     s = stokes_from_raw(cap["raw"], noise.layout, demosaic=demosaic) * cap["dn_to_input"]
     return s, cap
+
+
+#: Variance factor of bilinear demosaicking (weights 9, 3, 3, 1 / 16 per angle).
+DEMOSAIC_VARIANCE = {"bilinear": (81 + 9 + 9 + 1) / 256.0, "superpixel": 1.0}
+
+
+def linear_stokes_variance(s0, gain, read_noise, demosaic="bilinear", dn_per_unit=None):
+    """Per-pixel variance of S1 (and of S2) of a demosaicked capture, in the units of ``s0``.
+
+    ``gain``: electrons per unit of ``s0``; ``read_noise``: electrons rms;
+    ``dn_per_unit``: digital numbers per unit (adds the ADC's quantisation,
+    step^2 / 12; default: ``s0`` is in DN, one unit per DN).  Each polariser
+    pixel behind S1 = I0 - I90 passes about S0 / 2, so
+    var(S1) = f * 2 * (gain S0 / 2 + read_noise^2 + q^2 / 12) / gain^2, with
+    q the ADC step in electrons and f the demosaicking's variance factor.
+    This is what :class:`fmbrdf_mi.fit.loss.Target` subtracts to remove the
+    upward bias that noise gives the DoLP of dim, weakly polarised pixels.
+    """
+    if not (gain > 0 and read_noise >= 0):
+        raise ValueError(f"noise: need gain > 0 (electrons per unit) and read_noise >= 0, got {gain}, {read_noise}")
+    q_e = gain / (dn_per_unit if dn_per_unit else 1.0)
+    e = np.clip(np.asarray(s0, dtype=np.float64), 0.0, None) * gain / 2.0
+    var_e = e + read_noise ** 2 + q_e ** 2 / 12.0
+    return DEMOSAIC_VARIANCE[demosaic] * 2.0 * var_e / gain ** 2

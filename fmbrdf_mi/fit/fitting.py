@@ -56,6 +56,7 @@ class FitResult:
     n_outliers: int
     timings: dict
     options: dict
+    weakly_identified: list = dataclasses.field(default_factory=list)
     pixels: np.ndarray = dataclasses.field(repr=False, default=None)
 
     def to_json(self):
@@ -76,6 +77,17 @@ def _json_default(x):
     if isinstance(x, np.ndarray):
         return x.tolist()
     raise TypeError(f"not JSON serialisable: {type(x)}")
+
+
+#: A parameter is reported as weakly identified when its Gauss-Newton standard
+#: error exceeds this fraction of max(|value|, WEAK_FLOOR[name]).
+WEAK_REL = 0.1
+WEAK_FLOOR = {"kappa": 10.0}
+
+
+def weakly_identified(params, std):
+    return [k for k, v in params.items()
+            if k in std and std[k] > WEAK_REL * max(abs(v), WEAK_FLOOR.get(k, 0.0))]
 
 
 def usable_pixels(obs, opts):
@@ -130,11 +142,13 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
     model = get_model(opts.model)
     t0 = time.time()
     idx = usable_pixels(obs, opts)
-    target = L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx], opts.dolp_min_intensity)
+    var = None if obs.lin_variance is None else obs.lin_variance.ravel()[idx]
+    target = L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx], opts.dolp_min_intensity, var)
     ev = make_evaluator(model, obs, idx, opts, scene)
     problem = O.Problem(model, ev, target, Bounds(model, opts.bounds), report)
     report(f"[fit] {model.name} on {len(idx)} pixels ({opts.path} path), "
-           f"{int(target.dolp_valid.sum())} in the DoLP term")
+           f"{int(target.dolp_valid.sum())} in the DoLP term"
+           + ("" if var is None else ", DoLP noise bias removed with the given variance"))
     history = []
     if opts.init:
         shape, a_s, a_b = model.split(opts.init)
@@ -179,6 +193,9 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
     i, rho = L.predict(parts.surface, parts.body, st.a_s, st.a_b)
     li, lr = L.loss_terms(target, problem.w, i, rho)
     std = O.standard_errors(problem, st, J, r) if J is not None else {}
+    weak = weakly_identified(model.report(st.shape, st.a_s, st.a_b), std)
+    if weak:
+        report(f"[fit] weakly identified (standard error > {WEAK_REL:.0%}): {', '.join(weak)}")
     t_total = time.time() - t0
     report(f"[fit] done in {t_total:.1f} s: loss {li + lr:.6e} ({reason})  {O._fmt(problem, st)}")
     return FitResult(model=model.name, params=model.report(st.shape, st.a_s, st.a_b), loss=li + lr,
@@ -186,7 +203,7 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
                      stop_reason=reason, n_pixels=len(idx),
                      n_outliers=int((problem.outliers & target.dolp_valid).sum()),
                      timings={"search": t_search, "total": t_total, "evaluations": problem.n_evals},
-                     options=dataclasses.asdict(opts), pixels=idx)
+                     options=dataclasses.asdict(opts), weakly_identified=weak, pixels=idx)
 
 
 def predict_image(model_name, params, obs, pixels=None):

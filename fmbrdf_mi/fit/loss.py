@@ -19,7 +19,14 @@ AoLP not used.  Choices this implementation makes where the paper is silent:
   total weight in the DoLP term;
 * **DoLP term pixels**: only pixels whose observed intensity exceeds
   ``dolp_min_intensity`` times the 99th percentile enter the DoLP term (the
-  DoLP of a dark pixel is noise); all fitted pixels enter the intensity term.
+  DoLP of a dark pixel is noise); all fitted pixels enter the intensity term;
+* **noise bias of the DoLP**: sqrt(S1^2 + S2^2) / S0 of a noisy measurement is
+  biased upwards (E[S1^2 + S2^2] = true + var(S1) + var(S2)); when the
+  per-pixel variance of S1 and S2 is known (a camera model, e.g.
+  :func:`fmbrdf_mi.fit.camera_noise.linear_stokes_variance`) the observed DoLP
+  is sqrt(max(S1^2 + S2^2 - 2 var, 0)) / S0.  Without it, rough materials
+  with weakly polarised body reflection can trade body for surface albedo to
+  explain the excess DoLP (README, bench_fit).
 """
 from __future__ import annotations
 
@@ -40,11 +47,14 @@ class Target:
     scale: float               # intensity unit (mean observed intensity)
 
     @classmethod
-    def from_stokes(cls, stokes_px, dolp_min_intensity=0.02):
-        """From observed (3, n) Stokes values of the fitted pixels."""
+    def from_stokes(cls, stokes_px, dolp_min_intensity=0.02, lin_variance=None):
+        """From observed (3, n) Stokes values of the fitted pixels (and var(S1) = var(S2), (n,), if known)."""
         s = np.asarray(stokes_px, dtype=np.float64)
         i = s[0]
-        rho = np.hypot(s[1], s[2]) / np.where(i > 0, i, 1.0)
+        lin2 = s[1] ** 2 + s[2] ** 2
+        if lin_variance is not None:
+            lin2 = np.clip(lin2 - 2.0 * np.asarray(lin_variance, dtype=np.float64), 0.0, None)
+        rho = np.sqrt(lin2) / np.where(i > 0, i, 1.0)
         rho = np.where(i > 0, rho, 0.0)
         scale = float(np.mean(i))
         if not scale > 0:

@@ -51,6 +51,8 @@ class Observation:
     light_dir: np.ndarray
     irradiance: float = 1.0
     meta: dict = dataclasses.field(default_factory=dict)
+    #: per-pixel variance of S1 (= that of S2), (H, W), if known: removes the DoLP's noise bias
+    lin_variance: np.ndarray = None
 
     def __post_init__(self):
         validate(self)
@@ -67,12 +69,12 @@ class Observation:
     def dolp(self):
         return stokes_io.dolp(self.stokes)
 
-    def with_light(self, stokes, light_dir, irradiance=None, meta=None):
+    def with_light(self, stokes, light_dir, irradiance=None, meta=None, lin_variance=None):
         """The same object and camera under another light (for relighting)."""
         return Observation(np.asarray(stokes, dtype=np.float64), self.mask, self.normals,
                            self.view_dirs, np.asarray(light_dir, dtype=np.float64),
                            self.irradiance if irradiance is None else float(irradiance),
-                           dict(meta or {}))
+                           dict(meta or {}), lin_variance)
 
 
 def validate(obs):
@@ -105,6 +107,11 @@ def validate(obs):
         setattr(obs, name, a)
     if not np.all(np.isfinite(s[:, mask])):
         raise InputError("stokes: non-finite values inside the mask")
+    if obs.lin_variance is not None:
+        var = np.asarray(obs.lin_variance, dtype=np.float64)
+        if var.shape != (h, w) or not np.all(np.isfinite(var[mask])) or np.any(var[mask] < 0):
+            raise InputError(f"lin_variance: expected finite values >= 0 of shape ({h}, {w}), got shape {var.shape}")
+        obs.lin_variance = var
     obs.stokes, obs.mask = s, mask
     obs.light_dir = check_direction(obs.light_dir, "light_dir")
     obs.irradiance = float(obs.irradiance)
