@@ -14,9 +14,10 @@ beta 1-4, kappa 0-50, r_k 0.1-5, k_s 0.6-2):
     10 000 e-, read noise 2.5 e-, 12-bit ADC, brightest raw pixel at 90 % of
     full scale, seeded), demosaicked to res x res super-pixels (bilinear);
     the fit knows the camera's gain and read noise (as from a data sheet) and
-    removes the noise bias of the observed DoLP;
-* fit: ``fmbrdf_mi.fit.fit`` with its defaults, i.e. the *per-pixel* path at
-  pixel centres (not the renderer that made the data), coarse search from no
+    removes the noise bias of the observed DoLP, and it averages its model
+    over the raw pixels each super-pixel comes from (``demosaic_footprint``);
+* fit: ``fmbrdf_mi.fit.fit`` with its defaults, i.e. the *per-pixel* path
+  (not the renderer that made the data; noise-free: at pixel centres), coarse search from no
   prior knowledge, Levenberg-Marquardt, 20 000 random pixels of the mask
   eroded by 2 pixels;
 * relighting: the same sphere under a second light (noise-free, resp. through
@@ -75,7 +76,7 @@ def observe(material, light, res, noisy, seed):
     stokes, cap = cn.noisy_stokes(s, noise, seed=seed)
     # what a user knows from the camera's data sheet: electrons per DN and read noise
     var = cn.linear_stokes_variance(stokes[0], cap["gain"], noise.read_noise, "bilinear",
-                                    dn_per_unit=1.0 / cap["dn_to_input"])
+                                    adc_step_e=cap["gain"] * cap["dn_to_input"])
     return stokes, var, cap
 
 
@@ -93,6 +94,7 @@ def main():
     set_variant()
     from fmbrdf_mi import scene as S
     from fmbrdf_mi.fit import Observation, fit
+    from fmbrdf_mi.fit import camera_noise as cn
     from fmbrdf_mi.fit.relight import relight_error
 
     n, v, m = S.sphere_geometry(args.res)
@@ -109,8 +111,10 @@ def main():
             s1, var1, cap = observe(truth, LIGHT, args.res, noisy, seed=100 + i)
             s2, var2, _ = observe(truth, LIGHT2, args.res, noisy, seed=200 + i)
             t_data = time.time() - t
-            obs = Observation(s1, m, n, v, LIGHT, IRRADIANCE, lin_variance=var1)
-            obs2 = Observation(s2, m, n, v, LIGHT2, IRRADIANCE, lin_variance=var2)
+            # noisy: the fit knows the camera pipeline, as `fmbrdf-mi fit` does for a raw mosaic
+            fp = cn.demosaic_footprint("bilinear") if noisy else None
+            obs = Observation(s1, m, n, v, LIGHT, IRRADIANCE, lin_variance=var1, footprint=fp)
+            obs2 = Observation(s2, m, n, v, LIGHT2, IRRADIANCE, lin_variance=var2, footprint=fp)
             res = fit(obs, progress=False)
             row = {"set": i + 1, "condition": cond, "truth": truth, "estimate": res.params,
                    "std_error": res.std_errors, "fit_time": res.timings["total"],

@@ -110,21 +110,49 @@ def noisy_stokes(stokes, noise=None, *, seed=0, gain=None, noiseless=False, demo
 DEMOSAIC_VARIANCE = {"bilinear": (81 + 9 + 9 + 1) / 256.0, "superpixel": 1.0}
 
 
-def linear_stokes_variance(s0, gain, read_noise, demosaic="bilinear", dn_per_unit=None):
+def linear_stokes_variance(s0, gain, read_noise, demosaic="bilinear", adc_step_e=None):
     """Per-pixel variance of S1 (and of S2) of a demosaicked capture, in the units of ``s0``.
 
-    ``gain``: electrons per unit of ``s0``; ``read_noise``: electrons rms;
-    ``dn_per_unit``: digital numbers per unit (adds the ADC's quantisation,
-    step^2 / 12; default: ``s0`` is in DN, one unit per DN).  Each polariser
-    pixel behind S1 = I0 - I90 passes about S0 / 2, so
-    var(S1) = f * 2 * (gain S0 / 2 + read_noise^2 + q^2 / 12) / gain^2, with
-    q the ADC step in electrons and f the demosaicking's variance factor.
+    ``gain``: electrons per unit of ``s0`` (for raw images in DN: the camera's
+    conversion gain, e-/DN); ``read_noise``: electrons rms; ``adc_step_e``:
+    the ADC step in electrons, adding step^2 / 12 (None: no quantisation
+    term).  Each polariser pixel behind S1 = I0 - I90 passes about S0 / 2, so
+    var(S1) = f * 2 * (gain S0 / 2 + read_noise^2 + step^2 / 12) / gain^2, with
+    f the demosaicking's variance factor (:data:`DEMOSAIC_VARIANCE`).
     This is what :class:`fmbrdf_mi.fit.loss.Target` subtracts to remove the
     upward bias that noise gives the DoLP of dim, weakly polarised pixels.
     """
     if not (gain > 0 and read_noise >= 0):
-        raise ValueError(f"noise: need gain > 0 (electrons per unit) and read_noise >= 0, got {gain}, {read_noise}")
-    q_e = gain / (dn_per_unit if dn_per_unit else 1.0)
+        raise ValueError(f"noise: need gain > 0 (electrons per unit) and read noise >= 0, got {gain}, {read_noise}")
     e = np.clip(np.asarray(s0, dtype=np.float64), 0.0, None) * gain / 2.0
-    var_e = e + read_noise ** 2 + q_e ** 2 / 12.0
+    var_e = e + read_noise ** 2 + (adc_step_e ** 2 / 12.0 if adc_step_e else 0.0)
     return DEMOSAIC_VARIANCE[demosaic] * 2.0 * var_e / gain ** 2
+
+
+def demosaic_footprint(demosaic="bilinear"):
+    """Where a demosaicked super-pixel's S0 comes from: (offsets (K, 2), weights (K,)).
+
+    Offsets (dx right, dy down) are in super-pixels from the super-pixel
+    centre, at the centres of the raw pixels that contribute.  ``bilinear``
+    (:func:`fmbrdf_mi.fit.observations.angle_images_at_superpixel_centres`):
+    each raw pixel of the 4 x 4 neighbourhood serves exactly one angle, with
+    weight (3/4 or 1/4) x (3/4 or 1/4) per axis, i.e. [1, 3, 3, 1] / 8 at
+    -0.75, -0.25, 0.25, 0.75 along each axis.  ``superpixel``: the 2 x 2 raw
+    pixels, 1/4 each.  A fit that evaluates its model over this footprint
+    sees the same blur as the data (:class:`fmbrdf_mi.fit.Observation`).
+    """
+    if demosaic == "bilinear":
+        pos, w = np.array([-0.75, -0.25, 0.25, 0.75]), np.array([1.0, 3.0, 3.0, 1.0]) / 8.0
+    elif demosaic == "superpixel":
+        pos, w = np.array([-0.25, 0.25]), np.array([0.5, 0.5])
+    else:
+        raise ValueError(f"demosaic: expected 'bilinear' or 'superpixel', got {demosaic!r}")
+    X, Y = np.meshgrid(pos, pos)
+    return np.stack([X.ravel(), Y.ravel()], 1), np.outer(w, w).ravel()
+
+
+def box_footprint(n=3):
+    """An n x n grid over the pixel, equal weights: a pixel that averages over its area."""
+    pos = (np.arange(n) + 0.5) / n - 0.5
+    X, Y = np.meshgrid(pos, pos)
+    return np.stack([X.ravel(), Y.ravel()], 1), np.full(n * n, 1.0 / (n * n))

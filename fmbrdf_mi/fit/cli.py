@@ -84,7 +84,8 @@ def _builtin_sphere(meta):
 
 def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
                       fov=None, light=None, irradiance=None, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0,
-                      channel="mean", geometry=None, demosaic="bilinear"):
+                      channel="mean", geometry=None, demosaic="bilinear", conversion_gain=None,
+                      read_noise=None, footprint="auto"):
     """An :class:`Observation` from files (see :func:`fit_files` for the options).
 
     ``geometry``: (normals, mask, view_dirs) reused from another observation of the same object.
@@ -139,7 +140,28 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
         raise InputError("light: give the light direction (--light x,y,z, from the surface towards the light; "
                          "x image right, y image up, z towards the camera)")
     light = check_direction(light, "light")
-    return Observation(stokes, m, n, v, light, 1.0 if irradiance is None else float(irradiance), meta)
+    var = None
+    if conversion_gain is not None:
+        from .camera_noise import linear_stokes_variance
+
+        if not (conversion_gain > 0) or read_noise is None or not (read_noise >= 0):
+            raise InputError(f"noise: --conversion-gain must be > 0 and --read-noise >= 0 given with it, got "
+                             f"{conversion_gain}, {read_noise}")
+        src = meta.get("source")
+        var = linear_stokes_variance(stokes[0], float(conversion_gain), float(read_noise),
+                                     demosaic if src == "raw mosaic" else "superpixel",
+                                     adc_step_e=float(conversion_gain) if src in ("raw mosaic", "angle images")
+                                     else None)
+    from .camera_noise import box_footprint, demosaic_footprint
+
+    if footprint == "auto":
+        footprint = "demosaic" if meta.get("source") == "raw mosaic" else "point"
+    fp = {"point": lambda: None, "box": lambda: box_footprint(3),
+          "demosaic": lambda: demosaic_footprint(demosaic)}.get(footprint)
+    if fp is None:
+        raise InputError(f"footprint: expected auto, point, box or demosaic, got {footprint!r}")
+    return Observation(stokes, m, n, v, light, 1.0 if irradiance is None else float(irradiance), meta,
+                       lin_variance=var, footprint=fp())
 
 
 def _outputs(out, relight):
@@ -149,7 +171,7 @@ def _outputs(out, relight):
 
 def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
               fov=None, light=None, irradiance=None, layout="90,45,135,0", black_level=0.0, channel="mean",
-              demosaic="bilinear", model="fmbrdf", baselines=False, optimizer="lm", path="pixel", bounds=None, init=None,
+              demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf", baselines=False, optimizer="lm", path="pixel", bounds=None, init=None,
               max_iter=40, tol=1e-4, time_limit=None, max_time=110.0, max_pixels=20000, erode=2, seed=0, relight=None,
               relight_light=None, relight_irradiance=None, force=False, progress=True):
     """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
@@ -162,8 +184,12 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     view directions from ``view`` (.npy) or ``camera`` (``orthographic``, or
     ``perspective`` with ``fov`` degrees).  ``light`` x,y,z towards the light.
     An EXR written by ``fmbrdf-mi render`` (built-in sphere) brings its own
-    geometry, light and true parameters.  ``relight``: a second image of the
-    same object under ``relight_light`` for the relighting check.
+    geometry, light and true parameters.  ``conversion_gain`` (electrons per
+    image unit) and ``read_noise`` (electrons): remove the noise bias of the
+    observed DoLP.  ``footprint``: ``point`` (pixel centres), ``box`` (3 x 3
+    over the pixel), ``demosaic`` (the raw pixels a demosaicked super-pixel
+    comes from) or ``auto``.  ``relight``: a second image of the same object under
+    ``relight_light`` for the relighting check.
 
     Writes ``out``/fit.json, profiles.png, images.png, history.png,
     fitted_stokes.exr (and relight.png); refuses to overwrite them without
@@ -183,14 +209,16 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
                 raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
     obs = build_observation(inputs, normals=normals, mask=mask, view=view, sphere=sphere, camera=camera,
                             fov=fov, light=light, irradiance=irradiance, layout=layout,
-                            black_level=black_level, channel=channel, demosaic=demosaic)
+                            black_level=black_level, channel=channel, demosaic=demosaic,
+                            conversion_gain=conversion_gain, read_noise=read_noise, footprint=footprint)
     obs2 = None
     if relight is not None:
         geom = None if (normals is None and sphere is None and "truth" in obs.meta) \
             else (obs.normals, obs.mask, obs.view_dirs)
         obs2 = build_observation(relight, light=relight_light, irradiance=relight_irradiance,
                                  layout=layout, black_level=black_level, channel=channel, geometry=geom,
-                                 demosaic=demosaic)
+                                 demosaic=demosaic, conversion_gain=conversion_gain, read_noise=read_noise,
+                                 footprint=footprint)
         if obs2.shape != obs.shape:
             raise InputError(f"relight image: shape {obs2.shape} differs from the fitted image {obs.shape}")
     opts = FitOptions(model=model, path="pixel", optimizer=optimizer, bounds=parse_bounds(bounds),
@@ -283,6 +311,14 @@ def add_fit_arguments(p):
                    help="raw mosaics: interpolate each angle to the super-pixel centre (default) or take "
                         "the 2x2 pixels as they are")
     g.add_argument("--channel", default="mean", help="colour channel of an RGB Stokes EXR: mean, R, G or B")
+    g.add_argument("--conversion-gain", type=float, metavar="E_PER_UNIT",
+                   help="camera gain in electrons per image unit (e-/DN for raw images); with --read-noise, "
+                        "removes the noise bias of the observed DoLP")
+    g.add_argument("--read-noise", type=float, metavar="E", help="read noise in electrons rms")
+    g.add_argument("--footprint", default="auto", choices=("auto", "point", "box", "demosaic"),
+                   help="what a pixel integrates over, modelled by averaging the BSDF over it: the pixel "
+                        "centre, a 3x3 box, or the demosaicking's raw pixels (auto: demosaic for raw "
+                        "mosaics, point otherwise)")
     g = p.add_argument_group("geometry and light (camera frame: x image right, y image up, z towards the camera)")
     g.add_argument("--normals", metavar="N.npy", help="normal map, H x W x 3 unit vectors")
     g.add_argument("--mask", metavar="M", help="object mask (.npy or .png, non-zero = object)")
@@ -329,7 +365,8 @@ def run_fit(args):
     report = fit_files(inputs, args.out, normals=args.normals, mask=args.mask, view=args.view,
                        sphere=args.sphere, camera=args.camera, fov=args.fov, light=_vec(args.light, "--light"),
                        irradiance=args.irradiance, layout=args.layout, black_level=args.black_level,
-                       channel=args.channel, demosaic=args.demosaic, model=args.model, baselines=args.baselines,
+                       channel=args.channel, demosaic=args.demosaic, conversion_gain=args.conversion_gain,
+                       read_noise=args.read_noise, footprint=args.footprint, model=args.model, baselines=args.baselines,
                        optimizer=args.optimizer, path=args.path, bounds=args.bounds, init=args.init,
                        max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
                        max_pixels=args.max_pixels or None, erode=args.erode, seed=args.seed, relight=relight,

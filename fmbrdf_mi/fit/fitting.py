@@ -17,7 +17,7 @@ from .pixel_model import PixelEvaluator, RenderEvaluator
 #: Pixels whose view or light direction is within this angle (degrees) of the
 #: normal are left out of the fit: the BSDF's reverse-mode derivative with
 #: respect to alpha is NaN there for some alpha (see the README).
-POLE_EXCLUSION_DEG = 2.0
+POLE_EXCLUSION_DEG = 3.0
 
 
 @dataclasses.dataclass
@@ -111,9 +111,8 @@ def usable_pixels(obs, opts):
 
 def make_evaluator(model, obs, idx, opts, scene=None):
     if opts.path == "pixel":
-        n = obs.normals.reshape(-1, 3)[idx]
-        v = obs.view_dirs.reshape(-1, 3)[idx]
-        return PixelEvaluator(model, n, v, obs.light_dir, obs.irradiance)
+        n, v, w = obs.sample_geometry(idx)
+        return PixelEvaluator(model, n, v, obs.light_dir, obs.irradiance, weights=None if len(w) == 1 else w)
     if opts.path == "render":
         if scene is None:
             raise InputError("path 'render' needs a Mitsuba scene (scene=...) containing the model's BSDF")
@@ -193,6 +192,8 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
     i, rho = L.predict(parts.surface, parts.body, st.a_s, st.a_b)
     li, lr = L.loss_terms(target, problem.w, i, rho)
     std = O.standard_errors(problem, st, J, r) if J is not None else {}
+    if problem.n_nonfinite:
+        report(f"[fit] {problem.n_nonfinite} pixels had non-finite BSDF derivatives; their Jacobian rows were zeroed")
     weak = weakly_identified(model.report(st.shape, st.a_s, st.a_b), std)
     if weak:
         report(f"[fit] weakly identified (standard error > {WEAK_REL:.0%}): {', '.join(weak)}")
@@ -202,7 +203,8 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
                      loss_terms={"intensity": li, "dolp": lr}, std_errors=std, history=history,
                      stop_reason=reason, n_pixels=len(idx),
                      n_outliers=int((problem.outliers & target.dolp_valid).sum()),
-                     timings={"search": t_search, "total": t_total, "evaluations": problem.n_evals},
+                     timings={"search": t_search, "total": t_total, "evaluations": problem.n_evals,
+                              "nonfinite_derivative_pixels": problem.n_nonfinite},
                      options=dataclasses.asdict(opts), weakly_identified=weak, pixels=idx)
 
 
@@ -214,8 +216,8 @@ def predict_image(model_name, params, obs, pixels=None):
     model = get_model(model_name)
     shape, a_s, a_b = model.split(params)
     idx = np.flatnonzero(obs.mask.ravel()) if pixels is None else np.asarray(pixels)
-    ev = PixelEvaluator(model, obs.normals.reshape(-1, 3)[idx], obs.view_dirs.reshape(-1, 3)[idx],
-                        obs.light_dir, obs.irradiance)
+    n, v, w = obs.sample_geometry(idx)
+    ev = PixelEvaluator(model, n, v, obs.light_dir, obs.irradiance, weights=None if len(w) == 1 else w)
     parts = ev.parts(shape)
     out = np.zeros((3, obs.shape[0] * obs.shape[1]))
     out[:, idx] = a_s * parts.surface + a_b * parts.body

@@ -53,6 +53,9 @@ class Observation:
     meta: dict = dataclasses.field(default_factory=dict)
     #: per-pixel variance of S1 (= that of S2), (H, W), if known: removes the DoLP's noise bias
     lin_variance: np.ndarray = None
+    #: what a pixel integrates over: (offsets (K, 2) in pixels, dx right / dy down, weights (K,));
+    #: None: the pixel centre (see camera_noise.demosaic_footprint, box_footprint)
+    footprint: tuple = None
 
     def __post_init__(self):
         validate(self)
@@ -74,7 +77,35 @@ class Observation:
         return Observation(np.asarray(stokes, dtype=np.float64), self.mask, self.normals,
                            self.view_dirs, np.asarray(light_dir, dtype=np.float64),
                            self.irradiance if irradiance is None else float(irradiance),
-                           dict(meta or {}), lin_variance)
+                           dict(meta or {}), lin_variance, self.footprint)
+
+    def sample_geometry(self, idx):
+        """Normals and view directions (n K, 3) over the footprint of the pixels ``idx``, and the weights (K,).
+
+        Bilinear interpolation of the normal and view maps at the footprint's
+        offsets, renormalised (exact enough for smooth surfaces; pixels next
+        to the mask border should be eroded away).  Without a footprint: the
+        pixel centres, K = 1.
+        """
+        idx = np.asarray(idx)
+        if self.footprint is None:
+            return self.normals.reshape(-1, 3)[idx], self.view_dirs.reshape(-1, 3)[idx], np.ones(1)
+        off, w = self.footprint
+        h, wd = self.shape
+        rows, cols = np.divmod(idx, wd)
+        y = rows[:, None] + np.asarray(off)[None, :, 1]
+        x = cols[:, None] + np.asarray(off)[None, :, 0]
+
+        def interp(a):
+            y0 = np.clip(np.floor(y).astype(int), 0, h - 2)
+            x0 = np.clip(np.floor(x).astype(int), 0, wd - 2)
+            fy, fx = (y - y0)[..., None], (x - x0)[..., None]
+            v = ((1 - fy) * ((1 - fx) * a[y0, x0] + fx * a[y0, x0 + 1])
+                 + fy * ((1 - fx) * a[y0 + 1, x0] + fx * a[y0 + 1, x0 + 1]))
+            v = v.reshape(-1, 3)
+            return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+        return interp(self.normals), interp(self.view_dirs), np.asarray(w, dtype=np.float64)
 
 
 def validate(obs):
@@ -113,6 +144,13 @@ def validate(obs):
             raise InputError(f"lin_variance: expected finite values >= 0 of shape ({h}, {w}), got shape {var.shape}")
         obs.lin_variance = var
     obs.stokes, obs.mask = s, mask
+    if obs.footprint is not None:
+        off, wt = (np.asarray(a, dtype=np.float64) for a in obs.footprint)
+        if off.ndim != 2 or off.shape[1] != 2 or wt.shape != (len(off),) or not np.isclose(wt.sum(), 1.0) \
+                or np.abs(off).max() > 1.0:
+            raise InputError("footprint: expected (offsets (K, 2) within one pixel of the centre, "
+                             f"weights (K,) summing to 1), got shapes {off.shape}, {wt.shape}")
+        obs.footprint = (off, wt)
     obs.light_dir = check_direction(obs.light_dir, "light_dir")
     obs.irradiance = float(obs.irradiance)
     if not (np.isfinite(obs.irradiance) and obs.irradiance > 0):

@@ -63,6 +63,7 @@ class Problem:
         self.w = target.dolp_valid.astype(np.float64)
         self.outliers = np.zeros(len(target.intensity), bool)
         self.n_evals = 0
+        self.n_nonfinite = 0
         self.t0 = time.time()
 
     # ---- z <-> state
@@ -113,6 +114,12 @@ class Problem:
         k = len(self.names)
         J[:, k] = cols(a_s * S)       # d/d log a_s
         J[:, k + 1] = cols(a_b * B)   # d/d log a_b
+        if parts.nonfinite is not None and parts.nonfinite.any():
+            # a few directions where the BSDF's forward-mode derivative is NaN: those pixels'
+            # rows are left out of the Jacobian (their residuals still count in the loss)
+            bad = np.concatenate([parts.nonfinite, parts.nonfinite])
+            J[bad] = 0.0
+            self.n_nonfinite = max(self.n_nonfinite, int(parts.nonfinite.sum()))
         return r, J
 
 

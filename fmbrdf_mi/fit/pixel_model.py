@@ -49,6 +49,8 @@ class Parts:
     body: np.ndarray
     d_surface: dict = dataclasses.field(default_factory=dict)
     d_body: dict = dataclasses.field(default_factory=dict)
+    #: pixels where some derivative came out NaN / inf (the BSDF's AD has a few such directions: README)
+    nonfinite: np.ndarray = None
 
 
 #: Albedo that switches a term "off" when the parts are evaluated.  Not 0: with
@@ -128,6 +130,8 @@ class _Evaluator:
             dr.forward(x)
             grads = [np.stack([np.asarray(dr.grad(c), dtype=np.float64) for c in s]) for s in s_all]
             parts.d_surface[name], parts.d_body[name] = grads
+            bad = ~(np.all(np.isfinite(grads[0]), 0) & np.all(np.isfinite(grads[1]), 0))
+            parts.nonfinite = parts.nonfinite | bad if parts.nonfinite is not None else bad
             # leave a detached value in place (no graph kept alive)
             self._assign(p.key, float(shape_values[name]))
             self._current[name] = float(shape_values[name])
@@ -141,9 +145,14 @@ def _stokes_components(M, irradiance):
 
 
 class PixelEvaluator(_Evaluator):
-    """Per-pixel BSDF evaluation at normals ``(n, 3)``, view directions ``(n, 3)`` and one light direction."""
+    """Per-pixel BSDF evaluation at normals ``(n, 3)``, view directions ``(n, 3)`` and one light direction.
 
-    def __init__(self, model, normals, view_dirs, light_dir, irradiance=1.0, variant=None):
+    With ``weights`` (K,), the directions are (n K, 3), K samples per pixel
+    (a pixel's footprint, :meth:`Observation.sample_geometry`), and each
+    pixel's Stokes vector is their weighted sum.
+    """
+
+    def __init__(self, model, normals, view_dirs, light_dir, irradiance=1.0, variant=None, weights=None):
         mi = set_variant(variant)
         import drjit as dr
 
@@ -156,27 +165,35 @@ class PixelEvaluator(_Evaluator):
         normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
         view_dirs = view_dirs / np.linalg.norm(view_dirs, axis=1, keepdims=True)
         light = light / np.linalg.norm(light)
-        self.n = len(normals)
+        self.k = 1 if weights is None else len(weights)
+        if len(normals) % self.k:
+            raise ValueError(f"{len(normals)} directions are not a multiple of {self.k} samples per pixel")
+        self.n = len(normals) // self.k
+        n_dirs = len(normals)
+        self._w = None if self.k == 1 else mi.Float(np.tile(np.asarray(weights, np.float32), self.n))
         bsdf = mi.load_dict(model.bsdf_dict())
         super().__init__(model, mi.traverse(bsdf))
         self.bsdf = bsdf
         self.irradiance = float(irradiance)
         frame = mi.Frame3f(mi.Vector3f(np.ascontiguousarray(normals.T, dtype=np.float32)))
-        si = dr.zeros(mi.SurfaceInteraction3f, self.n)
+        si = dr.zeros(mi.SurfaceInteraction3f, n_dirs)
         si.sh_frame = frame
         si.n = frame.n
         si.wi = frame.to_local(mi.Vector3f(np.ascontiguousarray(view_dirs.T, dtype=np.float32)))
-        self.wo = frame.to_local(mi.Vector3f(np.ascontiguousarray(np.tile(light, (self.n, 1)).T,
+        self.wo = frame.to_local(mi.Vector3f(np.ascontiguousarray(np.tile(light, (n_dirs, 1)).T,
                                                                  dtype=np.float32)))
         self.si = si
         self.ctx = mi.BSDFContext()
         dr.eval(self.si, self.wo)
-        self.cos_view = np.asarray(si.wi.z, dtype=np.float64)
-        self.cos_light = np.asarray(self.wo.z, dtype=np.float64)
 
     def _stokes(self):
+        import drjit as dr
+
         M = self.bsdf.eval(self.ctx, self.si, self.wo)
-        return _stokes_components(M, self.irradiance)
+        s = _stokes_components(M, self.irradiance)
+        if self._w is None:
+            return s
+        return tuple(dr.block_sum(c * self._w, self.k) for c in s)
 
 
 class RenderEvaluator(_Evaluator):
