@@ -27,6 +27,7 @@ from . import __version__
 from . import scene as S
 from ._llvm import LLVMTooOldError
 from .dataset.command import HELP as DATASET_HELP, add_dataset_arguments, run_dataset
+from .fit.cli import add_fit_arguments, run_fit
 from .params import ParameterError
 
 PROG = "fmbrdf-mi"
@@ -397,6 +398,8 @@ def run_render(args):
 SUBCOMMANDS = [
     ("render", "render spheres of FMBRDF material to a Stokes EXR and PNG previews",
      add_render_arguments, run_render),
+    ("fit", "estimate FMBRDF parameters from one polarimetric image (inverse rendering)",
+     add_fit_arguments, run_fit),
     ("dataset", DATASET_HELP, add_dataset_arguments, run_dataset),
 ]
 

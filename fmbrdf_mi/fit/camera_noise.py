@@ -1,0 +1,158 @@
+"""A polarisation camera's measurement of a Stokes image: quad-Bayer sampling, shot and read noise, ADC.
+
+Model of a division-of-focal-plane sensor such as Sony's IMX250MZR:
+
+1. quad-Bayer sampling: raw pixel (r, c) sits behind the polariser of its
+   position in the 2x2 ``layout`` and sees the intensity of the Stokes image
+   *at that pixel*, so the four angles of a super-pixel are measured at four
+   adjacent points (the instantaneous-field-of-view error of real sensors);
+2. exposure: ``electrons = intensity * gain``, with ``gain`` chosen (unless
+   given) so that the brightest raw pixel collects ``peak_fraction`` of the
+   full well;
+3. shot noise (Poisson in electrons) and Gaussian read noise, clipped to
+   [0, full well];
+4. an ADC of ``bits`` bits spanning the full well, stored as uint16.
+
+:func:`simulate_capture` returns the raw mosaic and the factor that maps
+digital numbers back to the units of the input, so that the Stokes image
+recovered from the mosaic is comparable with the input.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .. import polcam
+
+
+@dataclasses.dataclass
+class CameraNoise:
+    """Sensor parameters (defaults: a typical 5 MP polarisation sensor, 12-bit ADC)."""
+
+    full_well: float = 10000.0     # electrons
+    read_noise: float = 2.5        # electrons rms
+    bits: int = 12                 # ADC resolution
+    peak_fraction: float = 0.9     # brightest raw pixel / full well (when gain is chosen here)
+    layout: tuple = polcam.IMX250MZR_LAYOUT
+
+    def __post_init__(self):
+        if not (self.full_well > 0 and self.read_noise >= 0 and 1 <= int(self.bits) <= 16
+                and 0 < self.peak_fraction <= 1):
+            raise ValueError(f"camera noise: need full_well > 0, read_noise >= 0, bits in [1, 16], "
+                             f"peak_fraction in (0, 1]; got {self}")
+        polcam._check_layout(self.layout)
+
+
+def _angle_at_each_pixel(stokes3, layout):
+    """Intensity behind the polariser of each pixel's mosaic position, (H, W)."""
+    _, h, w = stokes3.shape
+    out = np.empty((h, w))
+    for pos, angle in enumerate(a for row in layout for a in row):
+        r, c = divmod(pos, 2)
+        t = np.radians(angle)
+        s = stokes3[:, r::2, c::2]
+        out[r::2, c::2] = 0.5 * (s[0] + np.cos(2 * t) * s[1] + np.sin(2 * t) * s[2])
+    return out
+
+
+def simulate_capture(stokes, noise=None, *, seed=0, gain=None, noiseless=False):
+    """Raw quad-Bayer capture of a Stokes image.
+
+    ``stokes``: (>=3, 2H, 2W) linear Stokes image (one channel) at the
+    resolution of the raw sensor.  Returns a dict with
+
+    * ``raw``: (2H, 2W) uint16 digital numbers in [0, 2^bits - 1];
+    * ``dn_to_input``: multiply (raw - black level 0) by this to get back the
+      input's intensity units;
+    * ``gain``: electrons per input unit; ``saturated``: fraction of clipped pixels.
+
+    ``noiseless=True`` skips shot and read noise (quantisation and clipping stay).
+    """
+    noise = noise or CameraNoise()
+    s = np.asarray(stokes, dtype=np.float64)[:3]
+    if s.ndim != 3 or s.shape[1] % 2 or s.shape[2] % 2:
+        raise ValueError(f"stokes: expected shape (3 or 4, 2H, 2W) with even sizes, got {np.shape(stokes)}")
+    ideal = np.clip(_angle_at_each_pixel(s, noise.layout), 0.0, None)
+    if gain is None:
+        peak = ideal.max()
+        if peak <= 0:
+            raise ValueError("stokes: the image is black; cannot choose an exposure")
+        gain = noise.peak_fraction * noise.full_well / peak
+    electrons = ideal * gain
+    rng = np.random.default_rng(seed)
+    if not noiseless:
+        electrons = rng.poisson(electrons).astype(np.float64)
+        electrons += rng.normal(0.0, noise.read_noise, electrons.shape)
+    electrons = np.clip(electrons, 0.0, noise.full_well)
+    levels = 2 ** int(noise.bits) - 1
+    dn = np.round(electrons / noise.full_well * levels)
+    raw = dn.astype(np.uint16)
+    return {"raw": raw, "dn_to_input": noise.full_well / levels / gain, "gain": float(gain),
+            "saturated": float(np.mean(dn >= levels))}
+
+
+def noisy_stokes(stokes, noise=None, *, seed=0, gain=None, noiseless=False, demosaic="bilinear"):
+    """Convenience: capture and demosaic (one Stokes vector per super-pixel), in the input's units.
+
+    ``demosaic`` as in :func:`fmbrdf_mi.fit.observations.stokes_from_raw`.
+    Returns ``(stokes (3, H, W), info)`` with ``info`` the dict of :func:`simulate_capture`.
+    """
+    from .observations import stokes_from_raw
+
+    noise = noise or CameraNoise()
+    cap = simulate_capture(stokes, noise, seed=seed, gain=gain, noiseless=noiseless)
+    s = stokes_from_raw(cap["raw"], noise.layout, demosaic=demosaic) * cap["dn_to_input"]
+    return s, cap
+
+
+#: Variance factor of bilinear demosaicking (weights 9, 3, 3, 1 / 16 per angle).
+DEMOSAIC_VARIANCE = {"bilinear": (81 + 9 + 9 + 1) / 256.0, "superpixel": 1.0}
+
+
+def linear_stokes_variance(s0, gain, read_noise, demosaic="bilinear", adc_step_e=None):
+    """Per-pixel variance of S1 (and of S2) of a demosaicked capture, in the units of ``s0``.
+
+    ``gain``: electrons per unit of ``s0`` (for raw images in DN: the camera's
+    conversion gain, e-/DN); ``read_noise``: electrons rms; ``adc_step_e``:
+    the ADC step in electrons, adding step^2 / 12 (None: no quantisation
+    term).  Each polariser pixel behind S1 = I0 - I90 passes about S0 / 2, so
+    var(S1) = f * 2 * (gain S0 / 2 + read_noise^2 + step^2 / 12) / gain^2, with
+    f the demosaicking's variance factor (:data:`DEMOSAIC_VARIANCE`).
+    This is what :class:`fmbrdf_mi.fit.loss.Target` subtracts to remove the
+    upward bias that noise gives the DoLP of dim, weakly polarised pixels.
+    """
+    if not (gain > 0 and read_noise >= 0):
+        raise ValueError(f"noise: need gain > 0 (electrons per unit) and read noise >= 0, got {gain}, {read_noise}")
+    e = np.clip(np.asarray(s0, dtype=np.float64), 0.0, None) * gain / 2.0
+    var_e = e + read_noise ** 2 + (adc_step_e ** 2 / 12.0 if adc_step_e else 0.0)
+    return DEMOSAIC_VARIANCE[demosaic] * 2.0 * var_e / gain ** 2
+
+
+def demosaic_footprint(demosaic="bilinear"):
+    """Where a demosaicked super-pixel's S0 comes from: (offsets (K, 2), weights (K,)).
+
+    Offsets (dx right, dy down) are in super-pixels from the super-pixel
+    centre, at the centres of the raw pixels that contribute.  ``bilinear``
+    (:func:`fmbrdf_mi.fit.observations.angle_images_at_superpixel_centres`):
+    each raw pixel of the 4 x 4 neighbourhood serves exactly one angle, with
+    weight (3/4 or 1/4) x (3/4 or 1/4) per axis, i.e. [1, 3, 3, 1] / 8 at
+    -0.75, -0.25, 0.25, 0.75 along each axis.  ``superpixel``: the 2 x 2 raw
+    pixels, 1/4 each.  A fit that evaluates its model over this footprint
+    sees the same blur as the data (:class:`fmbrdf_mi.fit.Observation`).
+    """
+    if demosaic == "bilinear":
+        pos, w = np.array([-0.75, -0.25, 0.25, 0.75]), np.array([1.0, 3.0, 3.0, 1.0]) / 8.0
+    elif demosaic == "superpixel":
+        pos, w = np.array([-0.25, 0.25]), np.array([0.5, 0.5])
+    else:
+        raise ValueError(f"demosaic: expected 'bilinear' or 'superpixel', got {demosaic!r}")
+    X, Y = np.meshgrid(pos, pos)
+    return np.stack([X.ravel(), Y.ravel()], 1), np.outer(w, w).ravel()
+
+
+def box_footprint(n=3):
+    """An n x n grid over the pixel, equal weights: a pixel that averages over its area."""
+    pos = (np.arange(n) + 0.5) / n - 0.5
+    X, Y = np.meshgrid(pos, pos)
+    return np.stack([X.ravel(), Y.ravel()], 1), np.full(n * n, 1.0 / (n * n))

@@ -1,0 +1,112 @@
+"""Figures of a fit: DoLP and intensity profiles (as in the paper's figures) and image comparisons."""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import stokes_io
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _binned(x, y, bins):
+    idx = np.digitize(x, bins) - 1
+    centres, means = [], []
+    for b in range(len(bins) - 1):
+        sel = idx == b
+        if sel.sum() >= 3:
+            centres.append(0.5 * (bins[b] + bins[b + 1]))
+            means.append(np.mean(y[sel]))
+    return np.array(centres), np.array(means)
+
+
+def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_points=4000, seed=0):
+    """DoLP against the angle between normal and view, intensity against the angle between normal and light.
+
+    ``fitted``: predicted Stokes (3, H, W); ``others``: {label: Stokes} of
+    further models (baselines) drawn as binned means; ``pixels``: flat indices
+    (default: the mask).
+    """
+    plt = _plt()
+    idx = np.flatnonzero(obs.mask.ravel()) if pixels is None else np.asarray(pixels)
+    n = obs.normals.reshape(-1, 3)[idx]
+    ang_v = np.degrees(np.arccos(np.clip(np.sum(n * obs.view_dirs.reshape(-1, 3)[idx], 1), -1, 1)))
+    ang_l = np.degrees(np.arccos(np.clip(n @ obs.light_dir, -1, 1)))
+    series = {"observed": obs.stokes, "fitted": fitted}
+    series.update(others or {})
+    vals = {k: (stokes_io.dolp(s).ravel()[idx], s[0].ravel()[idx]) for k, s in series.items()}
+    rng = np.random.default_rng(seed)
+    sub = rng.choice(len(idx), min(max_points, len(idx)), replace=False)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, x, j, xl, yl in ((axes[0], ang_v, 0, "angle between normal and view (deg)", "DoLP"),
+                             (axes[1], ang_l, 1, "angle between normal and light (deg)", "intensity")):
+        bins = np.linspace(0, max(90.0, float(x.max())), 46)
+        ax.scatter(x[sub], vals["observed"][j][sub], s=2, c="0.6", label="observed", rasterized=True)
+        ax.scatter(x[sub], vals["fitted"][j][sub], s=2, c="C3", alpha=0.5, label="fitted (per pixel)",
+                   rasterized=True)
+        for k, (label, v) in enumerate(vals.items()):
+            c, m = _binned(x, v[j], bins)
+            ax.plot(c, m, lw=1.5, c="k" if label == "observed" else f"C{(k + 1) % 10}",
+                    ls="-" if label in ("observed", "fitted") else "--", label=f"{label} (binned mean)")
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl)
+        ax.grid(alpha=0.3)
+    rmse_d = np.sqrt(np.mean((vals["fitted"][0] - vals["observed"][0]) ** 2))
+    rmse_i = np.sqrt(np.mean((vals["fitted"][1] - vals["observed"][1]) ** 2)) / np.mean(vals["observed"][1])
+    axes[0].set_title(f"DoLP RMSE {rmse_d:.4f}")
+    axes[1].set_title(f"intensity RMSE / mean {rmse_i:.4f}")
+    axes[1].legend(fontsize=7, loc="upper right")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_images(observed, predicted, mask, path, title="", label="fitted"):
+    """Intensity and DoLP: observed | predicted | error, masked."""
+    plt = _plt()
+    m = np.asarray(mask, bool)
+    rows = (("intensity", observed[0], predicted[0]),
+            ("DoLP", stokes_io.dolp(observed), stokes_io.dolp(predicted)))
+    fig, axes = plt.subplots(2, 3, figsize=(11, 7))
+    for r, (name, o, p) in enumerate(rows):
+        o = np.where(m, o, np.nan)
+        p = np.where(m, p, np.nan)
+        vmax = float(np.nanpercentile(o, 99.5)) or 1.0
+        err = p - o
+        emax = float(np.nanpercentile(np.abs(err), 99)) or 1e-6
+        for c, (img, t, kw) in enumerate(((o, f"observed {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
+                                          (p, f"{label} {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
+                                          (err, f"{label} - observed", dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
+            im = axes[r, c].imshow(img, **kw)
+            axes[r, c].set_title(t)
+            axes[r, c].axis("off")
+            fig.colorbar(im, ax=axes[r, c], fraction=0.046)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_loss_history(histories, path):
+    """Loss against wall time for each fitted model."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for label, hist in histories.items():
+        if hist:
+            ax.semilogy([h["time"] for h in hist], [h["loss"] for h in hist], "o-", ms=3, label=label)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("loss (eq. optimization)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,210 @@
+"""Inputs of `fmbrdf-mi fit`: camera algebra, noise model, geometry helpers and rejection of bad input.
+
+No Mitsuba here: these run in well under a second.
+"""
+import numpy as np
+import pytest
+
+from fmbrdf_mi import polcam, stokes_io
+from fmbrdf_mi.fit import camera_noise as cn
+from fmbrdf_mi.fit import observations as ob
+from fmbrdf_mi.fit.observations import InputError, Observation
+
+
+def _stokes(rng, h, w):
+    s0 = rng.uniform(0.2, 1.0, (h, w))
+    d = rng.uniform(0, 0.9, (h, w))
+    psi = rng.uniform(-np.pi / 2, np.pi / 2, (h, w))
+    return np.stack([s0, s0 * d * np.cos(2 * psi), s0 * d * np.sin(2 * psi)])
+
+
+@pytest.mark.parametrize("layout", [polcam.IMX250MZR_LAYOUT, ((0, 45), (135, 90))])
+def test_raw_mosaic_to_angles_to_stokes_is_exact(tmp_path, layout):
+    rng = np.random.default_rng(0)
+    s = _stokes(rng, 6, 8)
+    angles = polcam.angle_images_from_stokes(s)
+    raw = polcam.mosaic_from_angle_images(angles, layout)
+    # each angle sits where the layout says: IMX250MZR top-left pixel is 90 deg
+    r, c = next((r, c) for r in range(2) for c in range(2) if layout[r][c] == 90)
+    assert np.array_equal(raw[r::2, c::2], angles[2])
+    back = ob.stokes_from_raw(raw, layout, demosaic="superpixel")
+    np.testing.assert_allclose(back, s, rtol=0, atol=1e-12)
+    # the same from files: .npy mosaic, (4, H, W) angle stack, four 16-bit PNGs
+    np.save(tmp_path / "raw.npy", raw)
+    np.testing.assert_allclose(ob.load_polarisation(tmp_path / "raw.npy", layout=layout, demosaic="superpixel")[0],
+                               s, atol=1e-12)
+    np.save(tmp_path / "angles.npy", angles)
+    np.testing.assert_allclose(ob.load_polarisation(tmp_path / "angles.npy")[0], s, atol=1e-12)
+
+
+def test_16bit_png_mosaic_and_angle_files(tmp_path):
+    from PIL import Image
+
+    rng = np.random.default_rng(1)
+    raw = rng.integers(0, 4096, (8, 10)).astype(np.uint16)
+    Image.fromarray(raw).save(tmp_path / "raw.png")
+    s, meta = ob.load_polarisation(str(tmp_path / "raw.png"), demosaic="superpixel")
+    np.testing.assert_allclose(s, ob.stokes_from_raw(raw, demosaic="superpixel"), atol=1e-12)
+    assert meta["source"] == "raw mosaic"
+    imgs = polcam.angle_images_from_mosaic(raw)
+    paths = []
+    for a, im in zip(polcam.ANGLES, imgs):
+        paths.append(str(tmp_path / f"i{a}.png"))
+        Image.fromarray(im.astype(np.uint16)).save(paths[-1])
+    np.testing.assert_allclose(ob.load_polarisation(paths)[0], s, atol=1e-12)
+
+
+@pytest.mark.parametrize("layout", [polcam.IMX250MZR_LAYOUT, ((45, 0), (90, 135))])
+def test_bilinear_demosaic_is_exact_for_a_linear_field(layout):
+    """Each angle interpolated to the super-pixel centre: exact where the Stokes field is linear."""
+    h, w = 12, 16  # raw pixels
+    y, x = np.mgrid[0:h, 0:w] + 0.5
+    field = lambda x, y: np.stack([1 + 0.03 * x + 0.02 * y, 0.01 * x - 0.02 * y, 0.2 - 0.01 * y])
+    raw = cn._angle_at_each_pixel(field(x, y), layout)
+    yc, xc = np.mgrid[0:h // 2, 0:w // 2] * 2.0 + 1.0  # super-pixel centres
+    want = field(xc, yc)
+    got = ob.stokes_from_raw(raw, layout)
+    inner = (slice(None), slice(1, -1), slice(1, -1))  # edges are clamped
+    np.testing.assert_allclose(got[inner], want[inner], atol=1e-12)
+    plain = ob.stokes_from_raw(raw, layout, demosaic="superpixel")
+    assert np.abs(plain[inner] - want[inner]).max() > 1e-3  # what the interpolation removes
+
+
+def test_noise_model_is_seeded_unbiased_and_quantised():
+    rng = np.random.default_rng(2)
+    s = _stokes(rng, 64, 64)
+    noise = cn.CameraNoise()
+    a, info = cn.noisy_stokes(s, noise, seed=5)
+    b, _ = cn.noisy_stokes(s, noise, seed=5)
+    assert np.array_equal(a, b)
+    assert a.shape == (3, 32, 32)
+    assert info["raw"].dtype == np.uint16 and info["raw"].max() <= 4095
+    # noiseless capture: only 12-bit quantisation and the 2x2 sampling remain
+    c, info = cn.noisy_stokes(s, noise, noiseless=True, demosaic="superpixel")
+    ideal = polcam.stokes_from_angle_images(
+        polcam.angle_images_from_mosaic(cn._angle_at_each_pixel(s, noise.layout), noise.layout))[:3]
+    assert np.max(np.abs(c - ideal)) <= 2 * info["dn_to_input"]
+    # shot noise: relative S0 scatter ~ 1/sqrt(electrons)
+    flat = np.stack([np.full((64, 64), 0.5), np.zeros((64, 64)), np.zeros((64, 64))])
+    d, info = cn.noisy_stokes(flat, noise, seed=1, demosaic="superpixel")
+    e_per_pixel = 0.25 * info["gain"]  # each polariser passes half of S0 = 0.5
+    assert abs(d[0].mean() / 0.5 - 1) < 2e-3
+    assert d[0].std() / 0.5 == pytest.approx(1 / np.sqrt(4 * e_per_pixel), rel=0.15)
+    # bilinear demosaicking averages neighbours: std x sqrt(81 + 9 + 9 + 1) / 16
+    d2, _ = cn.noisy_stokes(flat, noise, seed=1)
+    assert d2[0].std() / d[0].std() == pytest.approx(np.sqrt(100) / 16, rel=0.15)
+
+
+def test_find_sphere_and_sphere_normals():
+    n, m, v = ob.sphere_normals((90, 120), (61.3, 40.2), 30.7)
+    (cx, cy), r = ob.find_sphere(m)
+    assert (cx, cy, r) == pytest.approx((61.3, 40.2, 30.7), abs=0.3)
+    assert np.allclose(np.linalg.norm(n[m], axis=1), 1)
+    assert np.array_equal(v[m], np.tile([0.0, 0.0, 1.0], (m.sum(), 1)))
+    # against the scene module's ray-traced geometry (orthographic and perspective, sphere on the axis)
+    from fmbrdf_mi import scene as S
+
+    for camera in ("orthographic", "perspective"):
+        n_ref, v_ref, m_ref = S.sphere_geometry(64, camera=camera, fov=30, distance=5)
+        f = 32 / np.tan(np.radians(15))
+        r = f * np.tan(np.arcsin(1 / 5)) if camera == "perspective" else 32 / (5 * np.tan(np.radians(15)))
+        n, m, v = ob.sphere_normals((64, 64), (32, 32), r, camera=camera, fov=30)
+        both = m & m_ref
+        assert (m != m_ref).sum() <= 4
+        assert np.abs(n[both] - n_ref[both]).max() < 1e-9
+        assert np.abs(v[both] - v_ref[both]).max() < 1e-9
+
+
+def _good(h=16, w=16):
+    n, m, v = ob.sphere_normals((h, w), (w / 2, h / 2), h / 2 - 1)
+    return dict(stokes=np.ones((3, h, w)) * [[[1]], [[0.1]], [[0]]], mask=m, normals=n, view_dirs=v,
+                light_dir=[0.3, 0.2, 1.0])
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.update(mask=d["mask"][:-1]), r"mask: shape \(15, 16\) does not match"),
+    (lambda d: d.update(normals=d["normals"][:, :-1]), r"normals: expected shape \(H, W, 3\) = \(16, 16, 3\)"),
+    (lambda d: d.update(stokes=d["stokes"][:2]), r"stokes: expected shape \(3, H, W\)"),
+    (lambda d: d.update(normals=0.5 * d["normals"] + 0.5), "normals: vectors inside the mask must have unit length"),
+    (lambda d: d.update(mask=np.zeros_like(d["mask"])), "empty mask"),
+    (lambda d: d.update(light_dir=[0, 0, -1]), "below the horizon"),
+    (lambda d: d.update(light_dir=[0, 0, 0]), "light_dir: expected a finite non-zero 3-vector"),
+    (lambda d: d.update(view_dirs=-d["view_dirs"]), "faces the camera"),
+])
+def test_malformed_observations_are_rejected(change, message):
+    d = _good()
+    change(d)
+    with pytest.raises(InputError, match=message):
+        Observation(**d)
+
+
+def test_unreadable_and_malformed_files(tmp_path):
+    with pytest.raises(InputError, match="no such file"):
+        ob.load_polarisation(tmp_path / "missing.exr")
+    (tmp_path / "bad.exr").write_bytes(b"garbage")
+    with pytest.raises(InputError, match="not a readable EXR"):
+        ob.load_polarisation(str(tmp_path / "bad.exr"))
+    (tmp_path / "bad.npy").write_bytes(b"garbage")
+    with pytest.raises(InputError, match="not a readable .npy"):
+        ob.load_polarisation(str(tmp_path / "bad.npy"))
+    np.save(tmp_path / "odd.npy", np.zeros((5, 6)))
+    with pytest.raises(InputError, match="even"):
+        ob.load_polarisation(str(tmp_path / "odd.npy"))
+    np.save(tmp_path / "rgb.npy", np.zeros((3, 4, 4)))
+    with pytest.raises(InputError, match=r"\(4, H, W\) angle images"):
+        ob.load_polarisation(str(tmp_path / "rgb.npy"))
+    with pytest.raises(InputError, match="four angles"):
+        ob.parse_layout("90,45,135")
+    np.save(tmp_path / "raw0.npy", np.zeros((4, 6)))
+    with pytest.raises(InputError, match="2x2 arrangement"):
+        ob.load_polarisation(str(tmp_path / "raw0.npy"), layout=((90, 45), (45, 0)))
+    s = np.zeros((4, 4, 4, 3), np.float32)
+    stokes_io.write_stokes_exr(tmp_path / "rgb.exr", s)
+    with pytest.raises(InputError, match="channel: expected 'mean' or one of"):
+        ob.load_polarisation(str(tmp_path / "rgb.exr"), channel="Q")
+
+
+def test_cli_input_errors_and_no_overwrite(tmp_path, capsys):
+    from fmbrdf_mi.cli import main
+
+    d = _good()
+    np.save(tmp_path / "n.npy", d["normals"])
+    np.save(tmp_path / "m.npy", d["mask"])
+    np.save(tmp_path / "raw.npy", np.ones((32, 32)))
+    args = ["fit", str(tmp_path / "raw.npy"), "--normals", str(tmp_path / "n.npy"), "--mask",
+            str(tmp_path / "m.npy"), "-o", str(tmp_path / "out")]
+    assert main(args) == 1
+    assert "light: give the light direction" in capsys.readouterr().err
+    np.save(tmp_path / "n.npy", d["normals"][:8])
+    assert main(args + ["--light", "0,0,1"]) == 1
+    assert "does not match" in capsys.readouterr().err
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "fit.json").write_text("{}")
+    assert main(args + ["--light", "0,0,1"]) == 1
+    assert "exists; pass --force" in capsys.readouterr().err
+    assert (tmp_path / "out" / "fit.json").read_text() == "{}"
+
+
+@pytest.mark.parametrize("demosaic", ["bilinear", "superpixel"])
+def test_linear_stokes_variance_matches_simulated_captures(demosaic):
+    """The variance model behind the DoLP de-biasing, against the camera simulation."""
+    noise = cn.CameraNoise()
+    flat = np.stack([np.full((128, 128), 0.3), np.full((128, 128), 0.03), np.zeros((128, 128))])
+    s, info = cn.noisy_stokes(flat, noise, seed=3, gain=6000.0, demosaic=demosaic)
+    var = cn.linear_stokes_variance(s[0], info["gain"], noise.read_noise, demosaic,
+                                    adc_step_e=info["gain"] * info["dn_to_input"])
+    inner = (slice(2, -2), slice(2, -2))
+    for k in (1, 2):
+        assert s[k][inner].var() == pytest.approx(var[inner].mean(), rel=0.1)
+
+
+def test_dolp_noise_bias_is_removed_with_known_variance():
+    from fmbrdf_mi.fit.loss import Target
+
+    rng = np.random.default_rng(4)
+    n, rho, sigma = 200000, 0.03, 0.02
+    s = np.stack([np.ones(n), rho + rng.normal(0, sigma, n), rng.normal(0, sigma, n)])
+    biased = Target.from_stokes(s).dolp.mean()
+    fixed = Target.from_stokes(s, lin_variance=np.full(n, sigma ** 2)).dolp
+    assert biased > 1.2 * rho                        # noise inflates the DoLP
+    assert np.sqrt(np.mean(fixed ** 2)) == pytest.approx(rho, rel=0.1)  # E[rho^2] is unbiased
