@@ -171,7 +171,8 @@ def _outputs(out, relight):
 
 def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
               fov=None, light=None, irradiance=None, layout="90,45,135,0", black_level=0.0, channel="mean",
-              demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf", baselines=False, optimizer="lm", path="pixel", bounds=None, init=None,
+              demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf",
+              baselines=False, optimizer="lm", path="pixel", bounds=None, init=None,
               max_iter=40, tol=1e-4, time_limit=None, max_time=110.0, max_pixels=20000, erode=2, seed=0, relight=None,
               relight_light=None, relight_irradiance=None, force=False, progress=True):
     """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.

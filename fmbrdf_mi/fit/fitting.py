@@ -38,7 +38,7 @@ class FitOptions:
     min_cos_light: float = 0.02       # n . l above this
     dolp_min_intensity: float = 0.02  # DoLP term: observed I > this x 99th percentile
     seed: int = 0
-    lr: float = 0.05                  # Adam
+    lr: float = 0.02                  # Adam (step in the reparameterised variables)
     spp: int = 16                     # render path
     bsdf_prefix: str = "sphere.bsdf"  # render path: traverse prefix of the object's BSDF
 

@@ -237,7 +237,8 @@ def angle_images_at_superpixel_centres(raw, layout=polcam.IMX250MZR_LAYOUT):
     out = [None] * 4
     for pos, angle in enumerate(flat):
         r, c = divmod(pos, 2)
-        lat = raw[r::2, c::2]  # sample (i, j) at raw (2i + r, 2j + c); centre of super-pixel (i, j) at (2i + 0.5, 2j + 0.5)
+        # sample (i, j) is raw pixel (2i + r, 2j + c); super-pixel (i, j) is centred at (2i + 0.5, 2j + 0.5)
+        lat = raw[r::2, c::2]
         dr_, dc = (1 if r == 0 else -1), (1 if c == 0 else -1)  # direction of the second-nearest sample
         p = np.pad(lat, 1, mode="edge")
         h, w = lat.shape

@@ -322,7 +322,7 @@ def loss_and_grad_reverse(problem, st):
     return f, grad
 
 
-def adam(problem, st, *, max_iter=300, lr=0.05, tol=1e-4, patience=20, time_limit=None, history=None,
+def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limit=None, history=None,
          round_no=0):
     """Adam on z with the reverse-mode gradient; returns (best State, loss, reason)."""
     z = problem.to_z(st)
@@ -331,7 +331,6 @@ def adam(problem, st, *, max_iter=300, lr=0.05, tol=1e-4, patience=20, time_limi
     b1, b2, eps = 0.9, 0.999, 1e-8
     best = (math.inf, st)
     since, reason, t0 = 0, "max_iter", time.time()
-    k = len(problem.names)
     for it in range(1, max_iter + 1):
         st = problem.from_z(z)
         f, g = loss_and_grad_reverse(problem, st)
@@ -363,7 +362,6 @@ def adam(problem, st, *, max_iter=300, lr=0.05, tol=1e-4, patience=20, time_limi
         v = b2 * v + (1 - b2) * gz * gz
         mh, vh = m / (1 - b1 ** it), v / (1 - b2 ** it)
         z = np.clip(z - lr * mh / (np.sqrt(vh) + eps), -40, 40)
-    del k
     return best[1], best[0], reason
 
 
