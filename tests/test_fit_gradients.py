@@ -5,7 +5,9 @@ parameters: the reverse-mode gradient through the BSDF (Adam) and the
 gradient 2 J^T r from the forward-mode Jacobian (Levenberg-Marquardt).  The
 observation comes from other parameters, so the loss is far from zero;
 steps of 1 % of each value keep float32 round-off (~1e-6 relative in the
-loss) and truncation well below the 2 % tolerance.
+loss) and truncation well below the 2 % tolerance.  Each check runs without
+and with a known camera noise (the DoLP term then compares with the mean
+DoLP a noisy camera measures, fmbrdf_mi.fit.rice).
 """
 import numpy as np
 import pytest
@@ -17,8 +19,8 @@ AT = {"eta": 1.65, "alpha": 0.31, "beta": 1.7, "kappa": 20.0, "k_s": 1.3, "r_k":
 NAMES = list(AT)
 
 
-@pytest.fixture(scope="module")
-def problem():
+@pytest.fixture(scope="module", params=["noise-free", "known noise"])
+def problem(request):
     from fmbrdf_mi.fit import FitOptions, Observation, predict_image, usable_pixels
     from fmbrdf_mi.fit import loss as L, observations as ob
     from fmbrdf_mi.fit.models import FMBRDF
@@ -30,7 +32,10 @@ def problem():
     obs = Observation(np.ones((3, 32, 32)), m, n, v, light)
     obs = Observation(predict_image("fmbrdf", TRUE, obs), m, n, v, light)
     idx = usable_pixels(obs, FitOptions())
-    target = L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx])
+    var = None
+    if request.param == "known noise":  # S1, S2 noise of 3 % of S0: the DoLP model becomes a Rice mean
+        var = (0.03 * obs.stokes[0].reshape(-1)[idx]) ** 2
+    target = L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx], lin_variance=var)
     ev = PixelEvaluator(FMBRDF, n.reshape(-1, 3)[idx], v.reshape(-1, 3)[idx], light)
     pb = Problem(FMBRDF, ev, target)
     shape, a_s, a_b = FMBRDF.split(AT)

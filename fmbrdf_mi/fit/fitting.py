@@ -189,7 +189,7 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
     parts = problem.parts(st, jac=(J is None and can_jac))
     if J is None and can_jac:
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
-    i, rho = L.predict(parts.surface, parts.body, st.a_s, st.a_b)
+    i, rho = L.predict(parts.surface, parts.body, st.a_s, st.a_b, target.lin_sigma)
     li, lr = L.loss_terms(target, problem.w, i, rho)
     std = O.standard_errors(problem, st, J, r) if J is not None else {}
     if problem.n_nonfinite:

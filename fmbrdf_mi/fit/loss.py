@@ -20,19 +20,26 @@ AoLP not used.  Choices this implementation makes where the paper is silent:
 * **DoLP term pixels**: only pixels whose observed intensity exceeds
   ``dolp_min_intensity`` times the 99th percentile enter the DoLP term (the
   DoLP of a dark pixel is noise); all fitted pixels enter the intensity term;
-* **noise bias of the DoLP**: sqrt(S1^2 + S2^2) / S0 of a noisy measurement is
-  biased upwards (E[S1^2 + S2^2] = true + var(S1) + var(S2)); when the
-  per-pixel variance of S1 and S2 is known (a camera model, e.g.
-  :func:`fmbrdf_mi.fit.camera_noise.linear_stokes_variance`) the observed DoLP
-  is sqrt(max(S1^2 + S2^2 - 2 var, 0)) / S0.  Without it, rough materials
-  with weakly polarised body reflection can trade body for surface albedo to
-  explain the excess DoLP (README, bench_fit).
+* **noise bias of the DoLP**: a camera's DoLP sqrt(S1^2 + S2^2) / S0 is
+  biased upwards by noise (the length of a noisy 2-vector follows a Rice
+  distribution); for dim, weakly polarised pixels -- the body of rough
+  dielectrics, DoLP ~ 0.01 -- the bias is as large as the signal, and a
+  rough material can trade body for surface albedo to explain it.  When the
+  per-pixel variance sigma^2 of S1 and S2 is known (a camera model, e.g.
+  :func:`fmbrdf_mi.fit.camera_noise.linear_stokes_variance`) the model side
+  of the DoLP term is the DoLP such a camera measures on average,
+  E[|(S1, S2) + noise|] / S0 (:mod:`fmbrdf_mi.fit.rice`), and the observed
+  DoLP is left as measured.  Both sides then have the same expectation;
+  subtracting 2 sigma^2 from the observed S1^2 + S2^2 instead (and clipping
+  at 0) leaves a bias of the same order for DoLP ~ sigma / S0.
 """
 from __future__ import annotations
 
 import dataclasses
 
 import numpy as np
+
+from . import rice
 
 DOLP_EPS = 1e-12
 
@@ -42,19 +49,17 @@ class Target:
     """The observed side of the loss at the fitted pixels."""
 
     intensity: np.ndarray      # (n,) observed S0, image units
-    dolp: np.ndarray           # (n,) observed DoLP
+    dolp: np.ndarray           # (n,) observed DoLP, as measured
     dolp_valid: np.ndarray     # (n,) bool: pixel enters the DoLP term
     scale: float               # intensity unit (mean observed intensity)
+    lin_sigma: np.ndarray = None  # (n,) noise standard deviation of S1 and S2, if known
 
     @classmethod
     def from_stokes(cls, stokes_px, dolp_min_intensity=0.02, lin_variance=None):
         """From observed (3, n) Stokes values of the fitted pixels (and var(S1) = var(S2), (n,), if known)."""
         s = np.asarray(stokes_px, dtype=np.float64)
         i = s[0]
-        lin2 = s[1] ** 2 + s[2] ** 2
-        if lin_variance is not None:
-            lin2 = np.clip(lin2 - 2.0 * np.asarray(lin_variance, dtype=np.float64), 0.0, None)
-        rho = np.sqrt(lin2) / np.where(i > 0, i, 1.0)
+        rho = np.sqrt(s[1] ** 2 + s[2] ** 2) / np.where(i > 0, i, 1.0)
         rho = np.where(i > 0, rho, 0.0)
         scale = float(np.mean(i))
         if not scale > 0:
@@ -62,14 +67,24 @@ class Target:
         valid = i > dolp_min_intensity * np.percentile(i, 99)
         if not valid.any():
             raise ValueError("observation: no pixel is bright enough for the DoLP term")
-        return cls(i, rho, valid, scale)
+        sigma = None
+        if lin_variance is not None:
+            sigma = np.sqrt(np.clip(np.broadcast_to(np.asarray(lin_variance, dtype=np.float64), i.shape),
+                                    0.0, None))
+        return cls(i, rho, valid, scale, sigma)
 
 
-def predict(parts_surface, parts_body, a_s, a_b):
-    """Intensity and DoLP (n,) of a_s * surface + a_b * body (arrays (3, n))."""
+def predict(parts_surface, parts_body, a_s, a_b, lin_sigma=None):
+    """Intensity and DoLP (n,) of a_s * surface + a_b * body (arrays (3, n)).
+
+    With ``lin_sigma`` the DoLP is the one a camera with that noise in S1
+    and S2 measures on average (module docstring).
+    """
     s = a_s * parts_surface + a_b * parts_body
     i = s[0]
     lin = np.sqrt(s[1] ** 2 + s[2] ** 2 + DOLP_EPS ** 2)
+    if lin_sigma is not None:
+        lin = rice.mean_length(lin, lin_sigma)
     return i, lin / np.where(i > 0, i, 1.0)
 
 
@@ -120,7 +135,10 @@ def loss_dr(target, w, s0, s1, s2):
     rho_obs = mi.Float(target.dolp.astype(np.float32))
     wt = mi.Float((w / w.sum()).astype(np.float32))
     safe_i = dr.select(s0 > 0, s0, 1.0)
-    rho = dr.sqrt(s1 * s1 + s2 * s2 + DOLP_EPS ** 2) / safe_i
+    lin = dr.sqrt(s1 * s1 + s2 * s2 + DOLP_EPS ** 2)
+    if target.lin_sigma is not None:
+        lin = rice.mean_length_dr(lin, mi.Float(target.lin_sigma.astype(np.float32)))
+    rho = lin / safe_i
     li = dr.sum(dr.square((s0 - i_obs) * (1.0 / target.scale))) * (1.0 / m)
     lr = dr.sum(wt * dr.square(rho - rho_obs))
     return li + lr

@@ -37,6 +37,7 @@ import time
 import numpy as np
 
 from . import loss as L
+from . import rice
 from .models import Bounds
 
 
@@ -86,7 +87,7 @@ class Problem:
         self.w = L.weights(self.outliers, self.target.dolp_valid)
 
     def loss(self, parts, st, w=None):
-        i, rho = L.predict(parts.surface, parts.body, st.a_s, st.a_b)
+        i, rho = L.predict(parts.surface, parts.body, st.a_s, st.a_b, self.target.lin_sigma)
         return L.loss(self.target, self.w if w is None else w, i, rho)
 
     def residuals_and_jacobian(self, parts, st, z):
@@ -95,7 +96,11 @@ class Problem:
         a_s, a_b = st.a_s, st.a_b
         s = a_s * S + a_b * B
         i = s[0]
-        lin = np.sqrt(s[1] ** 2 + s[2] ** 2 + L.DOLP_EPS ** 2)
+        nu = np.sqrt(s[1] ** 2 + s[2] ** 2 + L.DOLP_EPS ** 2)
+        sigma = self.target.lin_sigma
+        # the DoLP's numerator: |(S1, S2)|, or its mean as a noisy camera measures it (loss.py)
+        lin = nu if sigma is None else rice.mean_length(nu, sigma)
+        dlin = 1.0 if sigma is None else rice.mean_length_derivative(nu, sigma)
         safe_i = np.where(i > 0, i, 1.0)
         rho = lin / safe_i
         r = L.residuals(self.target, self.w, i, rho)
@@ -105,7 +110,7 @@ class Problem:
 
         def cols(ds):  # derivative of the Stokes prediction -> residual column
             d_i = ds[0]
-            d_rho = (s[1] * ds[1] + s[2] * ds[2]) / (lin * safe_i) - rho * d_i / safe_i
+            d_rho = dlin * (s[1] * ds[1] + s[2] * ds[2]) / (nu * safe_i) - rho * d_i / safe_i
             return np.concatenate([ci * d_i, cr * d_rho])
 
         J = np.empty((len(r), len(z)))
@@ -223,7 +228,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
 
     def trial(st):
         p = problem.parts(st)
-        i, rho = L.predict(p.surface, p.body, st.a_s, st.a_b)
+        i, rho = L.predict(p.surface, p.body, st.a_s, st.a_b, problem.target.lin_sigma)
         r = L.residuals(problem.target, problem.w, i, rho)
         return r, float(r @ r)
 
