@@ -187,7 +187,7 @@ def test_cli_input_errors_and_no_overwrite(tmp_path, capsys):
 
 @pytest.mark.parametrize("demosaic", ["bilinear", "superpixel"])
 def test_linear_stokes_variance_matches_simulated_captures(demosaic):
-    """The variance model behind the DoLP de-biasing, against the camera simulation."""
+    """The variance model behind the noisy-DoLP model, against the camera simulation."""
     noise = cn.CameraNoise()
     flat = np.stack([np.full((128, 128), 0.3), np.full((128, 128), 0.03), np.zeros((128, 128))])
     s, info = cn.noisy_stokes(flat, noise, seed=3, gain=6000.0, demosaic=demosaic)

@@ -182,7 +182,7 @@ def test_footprint_average_equals_averaged_evaluations(variant):
 
 
 def test_cli_raw_mosaic_with_camera_noise(tmp_path, capsys):
-    """Raw 12-bit mosaic in, geometry at raw resolution, DoLP de-biasing and the demosaicking footprint."""
+    """Raw 12-bit mosaic in, geometry at raw resolution, the noisy-DoLP model and the demosaicking footprint."""
     from fmbrdf_mi.cli import main
     from fmbrdf_mi.fit import camera_noise as cn
 

@@ -14,7 +14,8 @@ beta 1-4, kappa 0-50, r_k 0.1-5, k_s 0.6-2):
     10 000 e-, read noise 2.5 e-, 12-bit ADC, brightest raw pixel at 90 % of
     full scale, seeded), demosaicked to res x res super-pixels (bilinear);
     the fit knows the camera's gain and read noise (as from a data sheet) and
-    removes the noise bias of the observed DoLP, and it averages its model
+    compares the observed DoLP with the mean DoLP that camera measures
+    (``fmbrdf_mi.fit.rice``), and it averages its model
     over the raw pixels each super-pixel comes from (``demosaic_footprint``);
 * fit: ``fmbrdf_mi.fit.fit`` with its defaults, i.e. the *per-pixel* path
   (not the renderer that made the data; noise-free: at pixel centres), coarse search from no
@@ -87,7 +88,16 @@ def main():
     ap.add_argument("--conditions", default="noise-free,noisy")
     ap.add_argument("--json", help="also write all results to this JSON file")
     ap.add_argument("--no-baselines", action="store_true")
+    ap.add_argument("--table", metavar="JSON", help="only print the summary and a Markdown table of the "
+                    "results saved by an earlier run with --json")
     args = ap.parse_args()
+    if args.table:
+        with open(args.table) as f:
+            rows = json.load(f)
+        conditions = list(dict.fromkeys(r["condition"] for r in rows))
+        summary(rows, conditions)
+        markdown_table(rows)
+        return
 
     from fmbrdf_mi.fit.pixel_model import set_variant
 
@@ -137,22 +147,52 @@ def main():
                 print(f"  {k:<6} {tv:8.3f} {ev:10.4f} {rel_s} {res.std_errors.get(k, float('nan')):9.2g}")
             print("  relight RMSE/mean: " + "  ".join(f"{k} {x:.4f}" for k, x in row["relight"].items()),
                   flush=True)
-    # summary
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=2)
+    summary(rows, conditions)
+    markdown_table(rows)
+
+
+def _rel(r, k):
+    """Relative error of parameter k (absolute for a true value of 0)."""
+    t = r["truth"][k]
+    return (r["estimate"][k] - t) / t if t else r["estimate"][k] - t
+
+
+def summary(rows, conditions):
     print("\nsummary: worst |relative error| per parameter (kappa = 0: absolute error), max fit time")
     for cond in conditions:
         sel = [r for r in rows if r["condition"] == cond]
         worst = {}
         for k in NAMES:
-            errs = [abs(r["estimate"][k] - r["truth"][k]) / (r["truth"][k] or 1.0) for r in sel]
+            errs = [abs(_rel(r, k)) for r in sel]
             j = int(np.argmax(errs))
             worst[k] = f"{errs[j]:.2%} (set {sel[j]['set']})"
         print(f"  {cond:<10} " + "  ".join(f"{k} {w}" for k, w in worst.items())
               + f"  | max fit {max(r['fit_time'] for r in sel):.0f} s")
         rl = {k: np.mean([r["relight"][k] for r in sel]) for k in sel[0]["relight"]}
         print(f"  {'':<10} mean relight RMSE/mean: " + "  ".join(f"{k} {x:.4f}" for k, x in rl.items()))
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(rows, f, indent=2)
+
+
+def markdown_table(rows):
+    """One row per set and condition: relative error (noisy: ± the fit's Gauss-Newton standard error;
+    kappa = 0: the estimate), fit time, relighting errors."""
+    base = [k for k in ("pplastic", "lambert_ts") if k in rows[0]["relight"]]
+    print("\n| set | truth (eta, alpha, beta, kappa, k_s, r_k) | noise | " + " | ".join(NAMES)
+          + " | fit (s) | relight fmbrdf | " + " | ".join(f"relight {b}" for b in base) + " |")
+    print("|" + "---|" * (5 + len(NAMES) + len(base)))
+    for r in rows:
+        t = r["truth"]
+        cells = []
+        for k in NAMES:
+            e = _rel(r, k)
+            se = r["std_error"].get(k)
+            cells.append((f"{e:+.2%}" if t[k] else f"{r['estimate'][k]:.1f} (abs)")
+                         + ("" if se is None or not t[k] or r["condition"] != "noisy" else f" ± {100 * se / t[k]:.2g}%"))
+        print(f"| {r['set']} | {', '.join(format(t[k], 'g') for k in NAMES)} | {r['condition']} | "
+              + " | ".join(cells) + f" | {r['fit_time']:.0f} | {r['relight']['fmbrdf']:.4f} | "
+              + " | ".join(f"{r['relight'][b]:.4f}" for b in base) + " |")
 
 
 if __name__ == "__main__":

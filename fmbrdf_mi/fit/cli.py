@@ -186,8 +186,8 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     ``perspective`` with ``fov`` degrees).  ``light`` x,y,z towards the light.
     An EXR written by ``fmbrdf-mi render`` (built-in sphere) brings its own
     geometry, light and true parameters.  ``conversion_gain`` (electrons per
-    image unit) and ``read_noise`` (electrons): remove the noise bias of the
-    observed DoLP.  ``footprint``: ``point`` (pixel centres), ``box`` (3 x 3
+    image unit) and ``read_noise`` (electrons): the DoLP term then compares the
+    observed DoLP with the mean DoLP a camera with that noise measures.  ``footprint``: ``point`` (pixel centres), ``box`` (3 x 3
     over the pixel), ``demosaic`` (the raw pixels a demosaicked super-pixel
     comes from) or ``auto``.  ``relight``: a second image of the same object under
     ``relight_light`` for the relighting check.
@@ -256,13 +256,15 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
             report["relight"][name] = {k: v for k, v in err.items() if k != "predicted"}
         plots.plot_images(obs2.stokes, relit[model], obs2.mask, outs["relight.png"],
                           title=f"relighting with the {model} estimates: RMSE/mean = "
-                                f"{report['relight'][model]['rel_rmse']:.4f}", label="relit")
+                                f"{report['relight'][model]['rel_rmse']:.4f}", label="relit",
+                          lin_variance=obs2.lin_variance)
     main = results[model]
     fitted = preds[model]
     plots.plot_profiles(obs, fitted, outs["profiles.png"], pixels=main.pixels,
                         title=f"{model}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()),
                         others={f"{n} (baseline)": preds[n] for n in models[1:]})
-    plots.plot_images(obs.stokes, fitted, obs.mask, outs["images.png"], title=f"{model} fit (per-pixel re-render)")
+    plots.plot_images(obs.stokes, fitted, obs.mask, outs["images.png"], title=f"{model} fit (per-pixel re-render)",
+                      lin_variance=obs.lin_variance)
     plots.plot_loss_history({n: r.history for n, r in results.items()}, outs["history.png"])
     s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
     stokes_io.write_stokes_exr(outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
@@ -314,7 +316,7 @@ def add_fit_arguments(p):
     g.add_argument("--channel", default="mean", help="colour channel of an RGB Stokes EXR: mean, R, G or B")
     g.add_argument("--conversion-gain", type=float, metavar="E_PER_UNIT",
                    help="camera gain in electrons per image unit (e-/DN for raw images); with --read-noise, "
-                        "removes the noise bias of the observed DoLP")
+                        "the DoLP term accounts for the noise bias of the observed DoLP")
     g.add_argument("--read-noise", type=float, metavar="E", help="read noise in electrons rms")
     g.add_argument("--footprint", default="auto", choices=("auto", "point", "box", "demosaic"),
                    help="what a pixel integrates over, modelled by averaging the BSDF over it: the pixel "

@@ -147,12 +147,12 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
     problem = O.Problem(model, ev, target, Bounds(model, opts.bounds), report)
     report(f"[fit] {model.name} on {len(idx)} pixels ({opts.path} path), "
            f"{int(target.dolp_valid.sum())} in the DoLP term"
-           + ("" if var is None else ", DoLP noise bias removed with the given variance"))
+           + ("" if var is None else ", DoLP term with the given noise variance (Rice mean)"))
     history = []
     if opts.init:
         shape, a_s, a_b = model.split(opts.init)
         st = O.State(shape, a_s, a_b)
-        t_search = 0.0
+        t_search, cands = 0.0, []
     else:
         cands = O.coarse_search(problem)
         st = cands[0][1]
@@ -160,6 +160,49 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
         history.append({"stage": "search", "iter": 0, "loss": cands[0][0], "time": t_search,
                         "params": model.report(st.shape, st.a_s, st.a_b)})
         report(f"[search] start: loss {cands[0][0]:.4e}  {O._fmt(problem, st)}")
+    st, reason, J, r = _refine(problem, st, opts, target, t0, history, report)
+    if not opts.init and _albedo_at_bound(problem, st):
+        # A start where one lobe is switched off (albedo ~ 0) can trap the refinement: with the
+        # lobe's albedo near zero its shape barely moves the loss.  Refine again from the best
+        # coarse candidate that has both lobes, and keep whichever ends with the lower loss.
+        alt = next((c for _, c in cands[1:11] if not _albedo_at_bound(problem, c)), None)
+        if alt is not None:
+            report(f"[fit] one albedo ended at ~0; refining again from {O._fmt(problem, alt)}")
+            saved = (problem.outliers.copy(), problem.w.copy())
+            first = _own_split_loss(problem, st)
+            st2, reason2, J2, r2 = _refine(problem, alt, opts, target, t0, history, report)
+            if _own_split_loss(problem, st2) < first:
+                st, reason, J, r = st2, reason2, J2, r2
+            else:
+                problem.outliers, problem.w = saved
+    can_jac = opts.path == "pixel"
+    parts = problem.parts(st, jac=(J is None and can_jac))
+    if J is None and can_jac:
+        r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
+    i, rho = L.predict(parts.surface, parts.body, st.a_s, st.a_b, target.lin_sigma)
+    li, lr = L.loss_terms(target, problem.w, i, rho)
+    std = O.standard_errors(problem, st, J, r) if J is not None else {}
+    if problem.n_nonfinite:
+        report(f"[fit] {problem.n_nonfinite} pixels had non-finite BSDF derivatives; their Jacobian rows were zeroed")
+    weak = weakly_identified(model.report(st.shape, st.a_s, st.a_b), std)
+    if weak:
+        report(f"[fit] weakly identified (standard error > {WEAK_REL:.0%}): {', '.join(weak)}")
+    t_total = time.time() - t0
+    report(f"[fit] done in {t_total:.1f} s: loss {li + lr:.6e} ({reason})  {O._fmt(problem, st)}")
+    return FitResult(model=model.name, params=model.report(st.shape, st.a_s, st.a_b), loss=li + lr,
+                     loss_terms={"intensity": li, "dolp": lr}, std_errors=std, history=history,
+                     stop_reason=reason, n_pixels=len(idx),
+                     n_outliers=int((problem.outliers & target.dolp_valid).sum()),
+                     timings={"search": t_search, "total": t_total, "evaluations": problem.n_evals,
+                              "nonfinite_derivative_pixels": problem.n_nonfinite},
+                     options=dataclasses.asdict(opts), weakly_identified=weak, pixels=idx)
+
+
+def _refine(problem, st, opts, target, t0, history, report):
+    """Refinement rounds from ``st``, refreshing the inlier/outlier split until it settles.
+
+    Returns (State, stop reason, Jacobian or None, residuals or None).
+    """
     reason, J, r = "", None, None
     for rnd in range(1, max(1, opts.rounds) + 1):
         parts = problem.parts(st)
@@ -185,27 +228,24 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
         else:
             st, f, reason = O.adam(problem, st, max_iter=opts.max_iter, lr=opts.lr, tol=opts.tol,
                                    time_limit=limit, history=history, round_no=rnd)
-    can_jac = opts.path == "pixel"
-    parts = problem.parts(st, jac=(J is None and can_jac))
-    if J is None and can_jac:
-        r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
-    i, rho = L.predict(parts.surface, parts.body, st.a_s, st.a_b, target.lin_sigma)
-    li, lr = L.loss_terms(target, problem.w, i, rho)
-    std = O.standard_errors(problem, st, J, r) if J is not None else {}
-    if problem.n_nonfinite:
-        report(f"[fit] {problem.n_nonfinite} pixels had non-finite BSDF derivatives; their Jacobian rows were zeroed")
-    weak = weakly_identified(model.report(st.shape, st.a_s, st.a_b), std)
-    if weak:
-        report(f"[fit] weakly identified (standard error > {WEAK_REL:.0%}): {', '.join(weak)}")
-    t_total = time.time() - t0
-    report(f"[fit] done in {t_total:.1f} s: loss {li + lr:.6e} ({reason})  {O._fmt(problem, st)}")
-    return FitResult(model=model.name, params=model.report(st.shape, st.a_s, st.a_b), loss=li + lr,
-                     loss_terms={"intensity": li, "dolp": lr}, std_errors=std, history=history,
-                     stop_reason=reason, n_pixels=len(idx),
-                     n_outliers=int((problem.outliers & target.dolp_valid).sum()),
-                     timings={"search": t_search, "total": t_total, "evaluations": problem.n_evals,
-                              "nonfinite_derivative_pixels": problem.n_nonfinite},
-                     options=dataclasses.asdict(opts), weakly_identified=weak, pixels=idx)
+            J = r = None
+    return st, reason, J, r
+
+
+#: An albedo whose lobe contributes less than this fraction of the other's
+#: mean intensity over the fitted pixels counts as switched off.
+ALBEDO_BOUND = 1e-3
+
+
+def _albedo_at_bound(problem, st):
+    parts = problem.parts(st)
+    c_s = st.a_s * float(np.mean(parts.surface[0]))
+    c_b = st.a_b * float(np.mean(parts.body[0]))
+    return min(c_s, c_b) < ALBEDO_BOUND * max(c_s, c_b)
+
+
+def _own_split_loss(problem, st):
+    return O._score(problem, problem.parts(st), st)
 
 
 def predict_image(model_name, params, obs, pixels=None):

@@ -51,7 +51,7 @@ class Observation:
     light_dir: np.ndarray
     irradiance: float = 1.0
     meta: dict = dataclasses.field(default_factory=dict)
-    #: per-pixel variance of S1 (= that of S2), (H, W), if known: removes the DoLP's noise bias
+    #: per-pixel variance of S1 (= that of S2), (H, W), if known: the fit models the DoLP's noise bias
     lin_variance: np.ndarray = None
     #: what a pixel integrates over: (offsets (K, 2) in pixels, dx right / dy down, weights (K,));
     #: None: the pixel centre (see camera_noise.demosaic_footprint, box_footprint)

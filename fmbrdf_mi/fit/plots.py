@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import stokes_io
+from . import rice
 
 
 def _plt():
@@ -13,6 +14,19 @@ def _plt():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def model_dolp(stokes, lin_variance=None):
+    """DoLP of a model's Stokes image; with the camera's var(S1) = var(S2), the DoLP it measures on average.
+
+    That is what the fit compares with a noisy observation (loss.py); the
+    noise-free DoLP of a dim, weakly polarised pixel lies below the observed one.
+    """
+    if lin_variance is None:
+        return stokes_io.dolp(stokes)
+    s = np.asarray(stokes, dtype=np.float64)
+    lin = rice.mean_length(np.hypot(s[1], s[2]) + 1e-30, np.sqrt(np.clip(lin_variance, 0, None)))
+    return np.where(s[0] > 1e-12, lin / np.where(s[0] > 1e-12, s[0], 1.0), 0.0)
 
 
 def _binned(x, y, bins):
@@ -40,7 +54,9 @@ def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_poi
     ang_l = np.degrees(np.arccos(np.clip(n @ obs.light_dir, -1, 1)))
     series = {"observed": obs.stokes, "fitted": fitted}
     series.update(others or {})
-    vals = {k: (stokes_io.dolp(s).ravel()[idx], s[0].ravel()[idx]) for k, s in series.items()}
+    var = obs.lin_variance
+    vals = {k: ((stokes_io.dolp(s) if k == "observed" else model_dolp(s, var)).ravel()[idx], s[0].ravel()[idx])
+            for k, s in series.items()}
     rng = np.random.default_rng(seed)
     sub = rng.choice(len(idx), min(max_points, len(idx)), replace=False)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -55,7 +71,7 @@ def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_poi
             ax.plot(c, m, lw=1.5, c="k" if label == "observed" else f"C{(k + 1) % 10}",
                     ls="-" if label in ("observed", "fitted") else "--", label=f"{label} (binned mean)")
         ax.set_xlabel(xl)
-        ax.set_ylabel(yl)
+        ax.set_ylabel(yl + (" (models: as measured with the camera's noise)" if j == 0 and var is not None else ""))
         ax.grid(alpha=0.3)
     rmse_d = np.sqrt(np.mean((vals["fitted"][0] - vals["observed"][0]) ** 2))
     rmse_i = np.sqrt(np.mean((vals["fitted"][1] - vals["observed"][1]) ** 2)) / np.mean(vals["observed"][1])
@@ -69,12 +85,12 @@ def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_poi
     plt.close(fig)
 
 
-def plot_images(observed, predicted, mask, path, title="", label="fitted"):
-    """Intensity and DoLP: observed | predicted | error, masked."""
+def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_variance=None):
+    """Intensity and DoLP: observed | predicted | error, masked (``lin_variance``: see :func:`model_dolp`)."""
     plt = _plt()
     m = np.asarray(mask, bool)
     rows = (("intensity", observed[0], predicted[0]),
-            ("DoLP", stokes_io.dolp(observed), stokes_io.dolp(predicted)))
+            ("DoLP", stokes_io.dolp(observed), model_dolp(predicted, lin_variance)))
     fig, axes = plt.subplots(2, 3, figsize=(11, 7))
     for r, (name, o, p) in enumerate(rows):
         o = np.where(m, o, np.nan)
