@@ -378,7 +378,10 @@ def run_fit(args):
     for name, m in report["models"].items():
         print(f"{name}: loss {m['loss']:.4e}  " + "  ".join(f"{k}={v:.4g}" for k, v in m["params"].items()))
         if m.get("weakly_identified"):
-            print(f"  weakly identified (Gauss-Newton standard error > 10 %): {', '.join(m['weakly_identified'])}")
+            from .fitting import WEAK_REL
+
+            print(f"  weakly identified (Gauss-Newton standard error > {WEAK_REL:.0%}): "
+                  f"{', '.join(m['weakly_identified'])}")
         if "relative_error" in m:
             print("  relative error vs metadata: " + "  ".join(f"{k} {v:+.2%}" for k, v in m["relative_error"].items()))
     if "relight" in report:

@@ -80,8 +80,9 @@ def _json_default(x):
 
 
 #: A parameter is reported as weakly identified when its Gauss-Newton standard
-#: error exceeds this fraction of max(|value|, WEAK_FLOOR[name]).
-WEAK_REL = 0.1
+#: error exceeds this fraction of max(|value|, WEAK_FLOOR[name]): the image
+#: does not pin it down to 5 %.
+WEAK_REL = 0.05
 WEAK_FLOOR = {"kappa": 10.0}
 
 
