@@ -176,14 +176,20 @@ def _rel(r, k):
 
 
 def summary(rows, conditions):
-    print("\nsummary: worst |relative error| per parameter (kappa = 0: absolute error), max fit time")
+    print("\nsummary: worst |relative error| per parameter over the sets where it is not 0 "
+          "(where it is 0: the largest estimate), max fit time")
     for cond in conditions:
         sel = [r for r in rows if r["condition"] == cond]
         worst = {}
         for k in NAMES:
-            errs = [abs(_rel(r, k)) for r in sel]
+            nz = [r for r in sel if r["truth"][k]]
+            errs = [abs(_rel(r, k)) for r in nz]
             j = int(np.argmax(errs))
-            worst[k] = f"{errs[j]:.2%} (set {sel[j]['set']})"
+            worst[k] = f"{errs[j]:.2%} (set {nz[j]['set']})"
+            zero = [r for r in sel if not r["truth"][k]]
+            if zero:
+                r0 = max(zero, key=lambda r: r["estimate"][k])
+                worst[k] += f" [0 -> {r0['estimate'][k]:.3g} (set {r0['set']})]"
         print(f"  {cond:<10} " + "  ".join(f"{k} {w}" for k, w in worst.items())
               + f"  | max fit {max(r['fit_time'] for r in sel):.0f} s")
         rl = {k: np.mean([r["relight"][k] for r in sel]) for k in sel[0]["relight"]}
@@ -194,8 +200,9 @@ def markdown_table(rows):
     """One row per set and condition: relative error (noisy: ± the fit's Gauss-Newton standard error;
     kappa = 0: the estimate), fit time, relighting errors."""
     base = [k for k in ("pplastic", "lambert_ts") if k in rows[0]["relight"]]
-    print("\n| set | truth (eta, alpha, beta, kappa, k_s, r_k) | noise | " + " | ".join(NAMES)
-          + " | fit (s) | relight fmbrdf | " + " | ".join(f"relight {b}" for b in base) + " |")
+    head = ["set", "truth (eta, alpha, beta, kappa, k_s, r_k)", "noise", *NAMES, "fit (s)", "relight fmbrdf",
+            *(f"relight {b}" for b in base)]
+    print("\n| " + " | ".join(head) + " |")
     print("|" + "---|" * (5 + len(NAMES) + len(base)))
     for r in rows:
         t = r["truth"]
@@ -207,8 +214,8 @@ def markdown_table(rows):
                          + ("" if se is None or not t[k] or r["condition"] != "noisy" else f" ± {100 * se / t[k]:.2g}%"))
         cond = r["condition"] + (f" (seed {r['noise_seed']})" if r.get("noise_seed") else "")
         print(f"| {r['set']} | {', '.join(format(t[k], 'g') for k in NAMES)} | {cond} | "
-              + " | ".join(cells) + f" | {r['fit_time']:.0f} | {r['relight']['fmbrdf']:.4f} | "
-              + " | ".join(f"{r['relight'][b]:.4f}" for b in base) + " |")
+              + " | ".join(cells) + f" | {r['fit_time']:.0f} | {r['relight']['fmbrdf']:.4f} |"
+              + "".join(f" {r['relight'][b]:.4f} |" for b in base))
 
 
 if __name__ == "__main__":
