@@ -220,3 +220,28 @@ def test_model_dolp_with_known_variance_matches_the_noisy_measurement():
         _, noisy = predict(model, 0 * model, 1.0, 1.0, lin_sigma=np.array([sigma]))
         assert plain[0] == pytest.approx(rho, abs=1e-9)
         assert noisy[0] == pytest.approx(measured, abs=5e-4), rho
+
+
+def test_sphere_auto_accepts_a_mask_at_raw_mosaic_resolution(tmp_path):
+    """`--sphere auto` with the mask of the raw mosaic: pooled to super-pixels, the same sphere is found."""
+    from fmbrdf_mi.fit.cli import build_observation
+
+    raw = np.full((80, 96), 1000, np.uint16)
+    np.save(tmp_path / "raw.npy", raw)
+    _, m_raw, _ = ob.sphere_normals((80, 96), (50.0, 38.0), 30.0)
+    m_sp = m_raw.reshape(40, 2, 48, 2).all(axis=(1, 3))
+    for name, m in (("raw", m_raw), ("superpixel", m_sp)):
+        np.save(tmp_path / f"m_{name}.npy", m)
+    a = build_observation(str(tmp_path / "raw.npy"), sphere="auto", mask=str(tmp_path / "m_raw.npy"),
+                          light=[0.2, 0.1, 1.0])
+    b = build_observation(str(tmp_path / "raw.npy"), sphere="auto", mask=str(tmp_path / "m_superpixel.npy"),
+                          light=[0.2, 0.1, 1.0])
+    assert a.shape == (40, 48)
+    np.testing.assert_array_equal(a.mask, b.mask)
+    np.testing.assert_allclose(a.normals, b.normals)
+    (cx, cy), r = ob.find_sphere(a.mask)
+    assert (cx, cy, r) == pytest.approx((25.0, 19.0, 15.0), abs=0.5)  # half the raw geometry
+    with pytest.raises(InputError, match=r"matches neither the polarisation image \(40, 48\) nor its raw mosaic"):
+        np.save(tmp_path / "m_bad.npy", m_raw[:-2])
+        build_observation(str(tmp_path / "raw.npy"), sphere="auto", mask=str(tmp_path / "m_bad.npy"),
+                          light=[0.2, 0.1, 1.0])

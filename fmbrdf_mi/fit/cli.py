@@ -129,7 +129,14 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
         else:
             cx, cy, radius = _vec(sphere, "sphere (cx,cy,r in pixels)")
             centre = (cx, cy)
-        mk = read_mask(mask, shape) if mask is not None else None
+        mk = None
+        if mask is not None:
+            mk = read_mask(mask)
+            if mk.shape == (2 * shape[0], 2 * shape[1]):  # mask of the raw mosaic: super-pixels inside it
+                mk = mk.reshape(shape[0], 2, shape[1], 2).all(axis=(1, 3))
+            elif mk.shape != tuple(shape):
+                raise InputError(f"mask: shape {mk.shape} matches neither the polarisation image {tuple(shape)} "
+                                 f"nor its raw mosaic {(2 * shape[0], 2 * shape[1])}")
         n, m, v = geometry_from_sphere(shape, centre, radius, mk, camera, fov)
         if view is not None:
             v = read_vectors(view, "view", shape)
