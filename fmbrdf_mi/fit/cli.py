@@ -194,9 +194,10 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     An EXR written by ``fmbrdf-mi render`` (built-in sphere) brings its own
     geometry, light and true parameters.  ``conversion_gain`` (electrons per
     image unit) and ``read_noise`` (electrons): the DoLP term then compares the
-    observed DoLP with the mean DoLP a camera with that noise measures.  ``footprint``: ``point`` (pixel centres), ``box`` (3 x 3
-    over the pixel), ``demosaic`` (the raw pixels a demosaicked super-pixel
-    comes from) or ``auto``.  ``relight``: a second image of the same object under
+    observed DoLP with the mean DoLP a camera with that noise measures.
+    ``footprint``: ``point`` (pixel centres), ``box`` (3 x 3 over the pixel),
+    ``demosaic`` (the raw pixels a demosaicked super-pixel comes from) or
+    ``auto``.  ``relight``: a second image of the same object under
     ``relight_light`` for the relighting check.
 
     Writes ``out``/fit.json, profiles.png, images.png, history.png,
@@ -382,11 +383,11 @@ def run_fit(args):
                        max_pixels=args.max_pixels or None, erode=args.erode, seed=args.seed, relight=relight,
                        relight_light=_vec(args.relight_light, "--relight-light"),
                        relight_irradiance=args.relight_irradiance, force=args.force, progress=not args.quiet)
+    from .fitting import WEAK_REL
+
     for name, m in report["models"].items():
         print(f"{name}: loss {m['loss']:.4e}  " + "  ".join(f"{k}={v:.4g}" for k, v in m["params"].items()))
         if m.get("weakly_identified"):
-            from .fitting import WEAK_REL
-
             print(f"  weakly identified (Gauss-Newton standard error > {WEAK_REL:.0%}): "
                   f"{', '.join(m['weakly_identified'])}")
         if "relative_error" in m:
