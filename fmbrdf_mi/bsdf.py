@@ -183,10 +183,11 @@ class _FMBRDFMethods:
         return si.wi, wo
 
     def table_coords(self, cos_l, cos_v, phi):
-        """Coordinates in [0, 1]^3 of the body tables for (cos theta_L, cos theta_V, |phi|)."""
+        """Coordinates in [0, 1]^3 of the body tables, in their axis order
+        (phi / pi, x(theta_L), x(theta_V)), for (cos theta_L, cos theta_V, |phi|)."""
         x_l = table_x_of_theta(dr.acos(dr.clip(cos_l, 0.0, 1.0)))
         x_v = table_x_of_theta(dr.acos(dr.clip(cos_v, 0.0, 1.0)))
-        return x_l, x_v, phi * (1.0 / math.pi)
+        return phi * (1.0 / math.pi), x_l, x_v
 
     def _surface(self, L, V):
         """Surface reflection (eq:Torrance-Sparrow, sec. 4.2): (scale, 3x3 block, M33)."""

@@ -46,7 +46,7 @@ def main():
     import mitsuba as mi
     mi.set_variant("llvm_ad_mono_polarized")
     import fmbrdf_mi  # noqa: F401
-    from fmbrdf_mi.model.body import body_matrices
+    from fmbrdf_mi.model.body_direct import body_matrices
 
     rng = np.random.default_rng(args.seed)
     worst = {"I": (0.0, None), "dolp": (0.0, None), "M": (0.0, None)}

@@ -3,9 +3,10 @@
 s_b = 1/(N.V) int int G_m(n) D(n) (V.n) C T(theta_o) D_p(k_b/pi) f(n, n_i)
                      G_s(n_i) D(n_i) (L.n_i) T(theta_i) C  d omega_n d omega_ni  s_i
 
-evaluated by quadrature over a node set {n_p, W_p} of microfacet normals
-(PolarMap polar nodes x uniform azimuths).  Because D_p keeps intensity only,
-the 4x4 matrix is a sum of outer products
+evaluated by quadrature over a node set {n_p, W_p} of microfacet normals: the
+product of PolarMap polar nodes theta_j (j < J) and uniform azimuths
+phi_k = (k + 1/2) 2 pi / N_az.  Because D_p keeps intensity only, the 4x4
+matrix is a sum of outer products
 
     M = k_b cos(theta_L) / (pi P(V) P(L)) * sum_pq a_p(V) K_pq b_q(L)^T
 
@@ -17,14 +18,32 @@ the 4x4 matrix is a sum of outer products
   (eq:energy conservation2, normalised on the same nodes, so sum_p W_p K_pq = 1
   holds exactly and aliasing of a narrow vMF lobe cannot create energy).
 
+Azimuthal structure (DESIGN.md section 2).  K_pq depends on the azimuths only
+through phi_p - phi_q (Z_q on theta_q only): K is block-circulant.  With L at
+azimuth 0, b_q depends on phi_q, and with V at azimuth phi_V = n 2 pi / N_az
+(on the node grid), a_p(V) is a_p(V at azimuth 0) shifted by n nodes, its
+Stokes basis turning with V.  With the discrete Fourier transform over the
+node azimuths, X_m = sum_k x(phi_k) exp(-i m phi_k),
+
+    Y(phi_V = n 2 pi / N_az) = (1 / N_az) sum_m  Yhat_m exp(i m phi_V),
+    Yhat_m = sum_j conj(Ahat_m[j]) sum_l Khat_m[j, l] Bhat_m[l]        (*)
+
+exactly (the dense double sum over the same nodes, up to rounding): the
+N x N coupling becomes N_az/2 + 1 blocks of J x J, and the dependence on
+phi = phi_V - phi_L a Fourier series.  Between grid azimuths the series is
+the trigonometric interpolant of the grid values (Nyquist term split
+symmetrically), which is how the tables' finer phi nodes are filled.
+:func:`body_series` computes the coefficients (*) with batched matrix
+products, :func:`synthesise` the series; tools/check_table.py and
+tests/test_body_fourier.py measure both against direct sums.
+
 Isotropy leaves three angles (theta_L, theta_V, phi = phi_V - phi_L); the
 matrix (its 3x3 linear-polarisation block: D_p removes circular terms) is
-tabulated over them with dense matrix products per parameter change
-(:func:`body_tables`).  Stokes bases of the tables, in the frame where L has
-azimuth 0: incident (travelling along -L) x_in = e_y, outgoing (along V)
-x_out = (-sin phi, cos phi, 0): the s directions of the planes of incidence
-and exit.  Mirror symmetry gives phi < 0 from phi > 0 with s2 flipped on both
-sides.
+tabulated over them per parameter change (:func:`body_tables`).  Stokes bases
+of the tables, in the frame where L has azimuth 0: incident (travelling along
+-L) x_in = e_y, outgoing (along V) x_out = (-sin phi, cos phi, 0): the s
+directions of the planes of incidence and exit.  Mirror symmetry gives
+phi < 0 from phi > 0 with s2 flipped on both sides.
 """
 import math
 
@@ -39,31 +58,48 @@ from .quadrature import gauss_legendre, gennormal_unnormalised
 class BodyGrid:
     """Resolution of the body quadrature and of its tables.
 
+    ``n_theta`` polar x ``n_phi`` azimuthal microfacet nodes (n_phi even).
     The primary table (column 0 of the matrix: what unpolarised light sees)
     is finer than the secondary one (the response to polarised light); both
-    resolutions come from tools/check_table.py.
+    resolutions come from tools/check_table.py.  The secondary table's nodes
+    are every other node of the primary one.
     """
 
     def __init__(self, n_theta=32, n_phi=64, primary=(65, 129), secondary=(33, 65)):
+        if n_phi % 2:
+            raise ValueError("BodyGrid: n_phi must be even")
         self.n_theta, self.n_phi = n_theta, n_phi
         self.primary, self.secondary = primary, secondary
 
 
+def polar_nodes(dist, grid):
+    """Polar angles theta_j (J,) and weights W_j = w sin(theta) D(theta) 2 pi / N_az
+    of the node set: every azimuth of a polar ring has the same weight."""
+    Float = dist.Float
+    u, w = gauss_legendre(grid.n_theta)
+    u, w = Float(u), Float(w)
+    th = dist.map.theta(u)
+    weight = (w * dist.map.dtheta_du(u) * dr.sin(th) * (2.0 * math.pi / grid.n_phi)
+              * dist.norm * gennormal_unnormalised(th, dist.alpha, dist.beta))
+    return th, weight
+
+
+def node_azimuths(grid):
+    """phi_k = (k + 1/2) 2 pi / N_az (NumPy, float64)."""
+    return (np.arange(grid.n_phi) + 0.5) * (2.0 * math.pi / grid.n_phi)
+
+
 def microfacet_nodes(dist, grid):
-    """Normals (x, y, z) and weights W_p = w sin(theta) D(theta) of the node set."""
+    """The whole node set: normals (x, y, z) and weights, p = j N_az + k."""
     Float = dist.Float
     UInt = dr.uint32_array_t(Float)
-    u, w = gauss_legendre(grid.n_theta)
-    j = dr.arange(UInt, grid.n_theta * grid.n_phi) // grid.n_phi
-    k = dr.arange(UInt, grid.n_theta * grid.n_phi) % grid.n_phi
-    uu = dr.gather(Float, Float(u), j)
-    ww = dr.gather(Float, Float(w), j)
-    th = dist.map.theta(uu)
+    th, w = polar_nodes(dist, grid)
+    idx = dr.arange(UInt, grid.n_theta * grid.n_phi)
+    j, k = idx // grid.n_phi, idx % grid.n_phi
+    th, weight = dr.gather(Float, th, j), dr.gather(Float, w, j)
     ph = (Float(k) + 0.5) * (2.0 * math.pi / grid.n_phi)
-    st, ct = dr.sin(th), dr.cos(th)
-    weight = (ww * dist.map.dtheta_du(uu) * st * (2.0 * math.pi / grid.n_phi)
-              * dist.norm * gennormal_unnormalised(th, dist.alpha, dist.beta))
-    return (st * dr.cos(ph), st * dr.sin(ph), ct), weight
+    st = dr.sin(th)
+    return (st * dr.cos(ph), st * dr.sin(ph), dr.cos(th)), weight
 
 
 def _dot(a, b):
@@ -87,6 +123,173 @@ def _rotation(forward, x_cur, x_new):
     return c * c - s * s, 2.0 * c * s
 
 
+def transmitted(Float, eta, theta_dir, phi_dir, n, w, incident):
+    """Stokes channels of a_p (``incident=False``: V, outgoing) or b_q
+    (``incident=True``: L) for directions (theta_dir, phi_dir) and nodes
+    (normals ``n``, weights ``w``), lane by lane.
+
+    Bases: the s axis of the plane through the direction and the macro normal,
+    (-sin phi_dir, cos phi_dir, 0).  a = W chi+ cos_o [T+, T- c, -T- s] (the
+    facet's [T+, T-, 0] re-expressed in x_out); b = W chi+ cos_i [T+, T- c, T- s]
+    (the row e0^T T C mapping the incident basis to the facet's).
+    """
+    sth, cth = dr.sin(theta_dir), dr.cos(theta_dir)
+    sph, cph = dr.sin(phi_dir), dr.cos(phi_dir)
+    d = (sth * cph, sth * sph, cth)
+    x_dir = (-sph, cph, dr.zeros(Float, dr.width(sph)))
+    cos_t = _dot(d, n)
+    tp, tm = transmission_mueller_terms(cos_t, eta)
+    one, zero = Float(1.0), Float(0.0)
+    scale = w * dr.maximum(cos_t, 0.0)
+    if incident:
+        fwd = tuple(-c for c in d)
+        s_facet = _normalize(_cross(n, fwd), (one, zero, zero))
+        c2, s2 = _rotation(fwd, x_dir, s_facet)
+        return scale * tp, scale * tm * c2, scale * tm * s2
+    s_facet = _normalize(_cross(n, d), (one, zero, zero))
+    c2, s2 = _rotation(d, s_facet, x_dir)
+    return scale * tp, scale * tm * c2, -scale * tm * s2
+
+
+def _side_vectors(dist, eta, grid, theta, w_j, th_j, channels, incident, factor):
+    """a (or b) for directions at azimuth 0 and polar angles ``theta`` (n,), at
+    every node, times ``factor`` (n,), as a tensor (N_az, J * n * len(channels)):
+    lanes (k, j, i, c)."""
+    Float = dist.Float
+    UInt = dr.uint32_array_t(Float)
+    J, K = grid.n_theta, grid.n_phi
+    nc, n = len(channels), dr.width(theta)
+    idx = dr.arange(UInt, K * J * n * nc)
+    k = idx // (J * n * nc)
+    j = (idx // (n * nc)) % J
+    i = (idx // nc) % n
+    c = idx % nc
+    thn = dr.gather(Float, th_j, j)
+    phn = (Float(k) + 0.5) * (2.0 * math.pi / K)
+    stn = dr.sin(thn)
+    node = (stn * dr.cos(phn), stn * dr.sin(phn), dr.cos(thn))
+    w = dr.gather(Float, w_j, j) * dr.gather(Float, factor, i)
+    vals = transmitted(Float, eta, dr.gather(Float, theta, i), Float(0.0), node, w, incident)
+    chan = dr.gather(UInt, UInt(channels), c) if nc > 1 else UInt(channels[0])
+    out = dr.select(chan == 0, vals[0], dr.select(chan == 1, vals[1], vals[2]))
+    return dr.tensor_t(Float)(out, shape=(K, J * n * nc))
+
+
+def _dft_rows(grid, rows):
+    """DFT matrix over the node azimuths, ``rows`` per mode m = 0 .. N_az/2:
+    'c' cos(m phi_k), 's' -sin(m phi_k), 'C' -cos(m phi_k) (NumPy, float64)."""
+    m = np.arange(grid.n_phi // 2 + 1)[:, None]
+    ph = node_azimuths(grid)[None, :]
+    table = {"c": np.cos(m * ph), "s": -np.sin(m * ph), "C": -np.cos(m * ph)}
+    return np.stack([table[r] for r in rows], axis=1).reshape(-1, grid.n_phi)
+
+
+def coupling_modes(dist, kappa, grid, th_j, w_j):
+    """Khat_m[j, l] (M, J, J): the DFT of the block-circulant vMF coupling
+    K(j, l, d) = exp(kappa (n_j,0 . n_l,d - 1)) / Z_l over the azimuth
+    difference d (real: K is even in d), Z_l = sum_j W_j sum_d exp(...)."""
+    Float = dist.Float
+    UInt = dr.uint32_array_t(Float)
+    Tensor = dr.tensor_t(Float)
+    J, K = grid.n_theta, grid.n_phi
+    M = K // 2 + 1
+    idx = dr.arange(UInt, K * J * J)
+    d = idx // (J * J)
+    j = (idx // J) % J
+    l = idx % J
+    tj, tl = dr.gather(Float, th_j, j), dr.gather(Float, th_j, l)
+    cos_d = dr.cos(Float(d) * (2.0 * math.pi / K))
+    e = dr.exp(kappa * (dr.cos(tj) * dr.cos(tl) + dr.sin(tj) * dr.sin(tl) * cos_d - 1.0))
+    cos_md = np.cos(np.arange(M)[:, None] * np.arange(K)[None, :] * (2.0 * math.pi / K))
+    E = Tensor(Float(cos_md.ravel()), shape=(M, K)) @ Tensor(e, shape=(K, J * J))  # (M, J*J)
+    # Z_l = sum_j W_j Ehat_0[j, l]
+    lj = dr.arange(UInt, J * J)
+    Z = dr.block_sum(dr.gather(Float, w_j, lj % J) * dr.gather(Float, E.array, (lj % J) * J + lj // J), J)
+    midx = dr.arange(UInt, M * J * J)
+    return Tensor(E.array / dr.gather(Float, Z, midx % J), shape=(M, J, J))
+
+
+def body_series(dist, eta, kappa, grid, theta_l, theta_v, rows=(0, 1, 2), columns=(0, 1, 2), nodes=None,
+                khat=None):
+    """Fourier coefficients (*) of the body matrices over phi = phi_V - phi_L,
+    divided by pi P(V) P(L) (Smith, see the module docstring).
+
+    Returns a tensor (2M, n_L nc n_V nr), M = N_az/2 + 1, rows (m, re/im),
+    columns (l, s, v, r): Yhat_m of element (rows[r], columns[s]) of the 3x3
+    linear block for theta_L[l], theta_V[v], in the bases of the module
+    docstring.  ``nodes`` (:func:`polar_nodes`) and ``khat``
+    (:func:`coupling_modes`): if already computed for this material.
+    """
+    Float = dist.Float
+    Tensor = dr.tensor_t(Float)
+    th_j, w_j = nodes if nodes is not None else polar_nodes(dist, grid)
+    if khat is None:
+        khat = coupling_modes(dist, kappa, grid, th_j, w_j)
+    theta_l, theta_v = (Float(np.asarray(x, dtype=np.float64)) if isinstance(x, (np.ndarray, list)) else x
+                        for x in (theta_l, theta_v))
+    J, M = grid.n_theta, grid.n_phi // 2 + 1
+    nl, nv, nr, nc = dr.width(theta_l), dr.width(theta_v), len(rows), len(columns)
+    a = _side_vectors(dist, eta, grid, theta_v, w_j, th_j, tuple(rows), False,
+                      1.0 / (math.pi * dist.projected_area(theta_v)))
+    b = _side_vectors(dist, eta, grid, theta_l, w_j, th_j, tuple(columns), True,
+                      1.0 / dist.projected_area(theta_l))
+    # Ahat: rows (m, re/im) -> (M, 1, 2J, nv nr): [Re; Im] stacked over j
+    A = Tensor(Float(_dft_rows(grid, "cs").ravel()), shape=(2 * M, grid.n_phi)) @ a
+    A = dr.reshape(Tensor, A, (M, 1, 2 * J, nv * nr))
+    # Bhat rows per mode: Re, Im, Im, -Re -> Chat = Khat Bhat -> [Re; Im] and [Im; -Re]
+    B = Tensor(Float(_dft_rows(grid, "cssC").ravel()), shape=(4 * M, grid.n_phi)) @ b
+    B = dr.reshape(Tensor, B, (M, 4, J, nl * nc))
+    C = dr.reshape(Tensor, dr.reshape(Tensor, khat, (M, 1, J, J)) @ B, (M, 2, 2 * J, nl * nc))
+    # Yhat = Chat^T conj(Ahat): Re = Cr^T Ar + Ci^T Ai, Im = Ci^T Ar - Cr^T Ai
+    Y = dr.matmul(C, A, At=True)  # (M, 2, nl nc, nv nr)
+    return dr.reshape(Tensor, Y, (2 * M, nl * nc * nv * nr))
+
+
+def synthesis_matrix(grid, phi):
+    """(len(phi), 2M) weights of :func:`body_series`'s rows giving the series at
+    ``phi``: (w_m / N_az) (cos m phi, -sin m phi), w_0 = w_{N/2} = 1, else 2; the
+    Nyquist sine is dropped (symmetric trigonometric interpolation)."""
+    K = grid.n_phi
+    m = np.arange(K // 2 + 1)
+    wm = np.where((m == 0) | (m == K // 2), 1.0, 2.0) / K
+    ang = np.asarray(phi, dtype=np.float64)[:, None] * m[None, :]
+    S = np.stack([wm * np.cos(ang), -wm * np.sin(ang)], axis=2)
+    S[:, -1, 1] = 0.0
+    return S.reshape(len(phi), -1)
+
+
+def synthesise(Float, grid, series, phi):
+    """The series of :func:`body_series` at azimuths ``phi`` (NumPy): (n_phi, cols)."""
+    Tensor = dr.tensor_t(Float)
+    S = synthesis_matrix(grid, phi)
+    return Tensor(Float(S.ravel()), shape=S.shape) @ series
+
+
+def body_grid_matrices(dist, eta, kappa, grid, theta_l, theta_v, phi, rows=(0, 1, 2), columns=(0, 1, 2),
+                       nodes=None, khat=None):
+    """Body matrices on the product grid phi x theta_L x theta_V: a tensor
+    (n_phi, n_L, n_V, nr, nc) (the tables' order), elements (rows[r],
+    columns[s]) of the 3x3 linear block divided by k_b cos(theta_L), in the
+    bases of the module docstring."""
+    Float = dist.Float
+    UInt = dr.uint32_array_t(Float)
+    Tensor = dr.tensor_t(Float)
+    theta_l, theta_v = (np.asarray(x, dtype=np.float64) for x in (theta_l, theta_v))
+    nl, nv, nt, nr, nc = len(theta_l), len(theta_v), len(phi), len(rows), len(columns)
+    series = body_series(dist, eta, kappa, grid, theta_l, theta_v, rows, columns, nodes, khat)
+    Y = synthesise(Float, grid, series, phi).array  # (t, l, s, v, r)
+    if nc == 1:
+        return Tensor(Y, shape=(nt, nl, nv, nr, nc))
+    # to (t, l, v, r, s): a transpose inside each (t, l) block, which stays in cache
+    idx = dr.arange(UInt, nt * nl * nv * nr * nc)
+    block = idx // (nv * nr * nc)
+    v = (idx // (nr * nc)) % nv
+    r = (idx // nc) % nr
+    s = idx % nc
+    Y = dr.gather(Float, Y, block * (nv * nr * nc) + (s * nv + v) * nr + r)
+    return Tensor(Y, shape=(nt, nl, nv, nr, nc))
+
+
 #: Table polar angles are theta = (pi/2) sin(A x) / sin(A), x uniform in [0, 1]:
 #: near grazing, where Fresnel transmittance and masking change fastest, the
 #: spacing is cos(A) = 0.17 times the spacing at the pole.
@@ -107,132 +310,38 @@ def table_angles(n_theta, n_phi):
     return table_theta_of_x(np.linspace(0.0, 1.0, n_theta)), np.linspace(0.0, math.pi, n_phi)
 
 
-def body_matrices(dist, eta, kappa, grid, theta_l, theta_v, phi, columns=(0, 1, 2)):
-    """Body matrices for every pair of incident angle and outgoing direction.
-
-    ``theta_l`` (n_L,) are the light's polar angles (L at azimuth 0),
-    ``theta_v``, ``phi`` (n_V,) the view's polar angle and azimuth.  Returns a
-    TensorXf (n_L, n_V, 3, len(columns)): elements (r, s), s in ``columns``, of
-    the 3x3 linear block of the body Mueller matrix divided by k_b cos(theta_L).
-    Stokes bases: incident x_in = e_y, outgoing x_out = (-sin phi, cos phi, 0),
-    the s directions of the planes of incidence and exit, in which the matrix
-    varies smoothly (the alpha -> 0 limit is diagonal in them).
-    """
-    Float = dist.Float
-    UInt = dr.uint32_array_t(Float)
-    Tensor = dr.tensor_t(Float)
-    n, w = microfacet_nodes(dist, grid)
-    N = dr.width(w)
-    theta_l, theta_v, phi = (Float(np.asarray(x, dtype=np.float64)) if isinstance(x, (np.ndarray, list)) else x
-                             for x in (theta_l, theta_v, phi))
-    nt, nv = dr.width(theta_l), dr.width(theta_v)
-
-    # --- vMF coupling K (N x N), normalised per column (eq:energy conservation2)
-    idx = dr.arange(UInt, N * N)
-    p, q = idx // N, idx % N
-    np_ = tuple(dr.gather(Float, c, p) for c in n)
-    nq_ = tuple(dr.gather(Float, c, q) for c in n)
-    e = dr.exp(kappa * (_dot(np_, nq_) - 1.0))
-    # Z[p] = sum_q W_q exp(kappa n_q.n_p): normaliser of column p.
-    Z = dr.block_sum(dr.gather(Float, w, q) * e, N)
-    K = Tensor(e / dr.gather(Float, Z, q), shape=(N, N))
-
-    # --- b_q(L) for every theta_L, L = (sin, 0, cos): incident basis x_in = e_y
-    m = N * nt
-    idx = dr.arange(UInt, m)
-    qi, li = idx // nt, idx % nt
-    thL = dr.gather(Float, theta_l, li)
-    L = (dr.sin(thL), dr.zeros(Float, m), dr.cos(thL))
-    nq = tuple(dr.gather(Float, c, qi) for c in n)
-    cos_i = _dot(L, nq)
-    tp, tm = transmission_mueller_terms(cos_i, eta)
-    fwd = tuple(-c for c in L)
-    s_facet = _normalize(_cross(nq, fwd), (Float(1.0), Float(0.0), Float(0.0)))
-    ey = (dr.zeros(Float, m), dr.ones(Float, m), dr.zeros(Float, m))
-    c2, s2 = _rotation(fwd, ey, s_facet)
-    # Intensity transmitted = T+ s0 + T- s1', s1' = c2 s1 + s2 s2 (s1' in facet basis)
-    scale = dr.gather(Float, w, qi) * dr.maximum(cos_i, 0.0)
-    b = (scale * tp, scale * tm * c2, scale * tm * s2)
-    nc = len(columns)
-    B = dr.zeros(Float, m * nc)
-    for j, s_ in enumerate(columns):
-        dr.scatter(B, b[s_], qi * (nc * nt) + li * nc + j)
-    B = Tensor(B, shape=(N, nc * nt))
-
-    C = K @ B  # (N, nc nt): c_p(L) = sum_q K_pq b_q(L)
-
-    # --- a_p(V) for every outgoing direction
-    m = nv * N
-    idx = dr.arange(UInt, m)
-    vi, pi_ = idx // N, idx % N
-    thV = dr.gather(Float, theta_v, vi)
-    phV = dr.gather(Float, phi, vi)
-    sph, cph = dr.sincos(phV)
-    V = (dr.sin(thV) * cph, dr.sin(thV) * sph, dr.cos(thV))
-    npp = tuple(dr.gather(Float, c, pi_) for c in n)
-    cos_o = _dot(V, npp)
-    tp, tm = transmission_mueller_terms(cos_o, eta)
-    s_facet = _normalize(_cross(npp, V), (Float(1.0), Float(0.0), Float(0.0)))
-    x_out = (-sph, cph, dr.zeros(Float, m))
-    c2, s2 = _rotation(V, s_facet, x_out)
-    scale = dr.gather(Float, w, pi_) * dr.maximum(cos_o, 0.0)
-    # Stokes [T+, T-, 0] in the facet basis, re-expressed in x_out: s1 = c2 T-, s2 = -s2 T-
-    a = (scale * tp, scale * tm * c2, -scale * tm * s2)
-    A = dr.zeros(Float, m * 3)
-    for r_ in range(3):
-        dr.scatter(A, a[r_], (vi * 3 + r_) * N + pi_)
-    A = Tensor(A, shape=(3 * nv, N))
-
-    Y = A @ C  # (3 nv, nc nt): rows (v, r), cols (l, s)
-
-    # --- reorder to (l, v, r, s) and divide by pi P(V) P(L)
-    per_l = nv * 3 * nc
-    idx = dr.arange(UInt, nt * per_l)
-    l = idx // per_l
-    rest = idx % per_l
-    v = rest // (3 * nc)
-    rs = rest % (3 * nc)
-    r_, s_ = rs // nc, rs % nc
-    val = dr.gather(Float, Y.array, (v * 3 + r_) * (nc * nt) + l * nc + s_)
-    PL = dr.gather(Float, dist.projected_area(theta_l), l)
-    PV = dr.gather(Float, dist.projected_area(theta_v), v)
-    return Tensor(val / (math.pi * PL * PV), shape=(nt, nv, 3, nc))
-
-
-def _table_matrices(dist, eta, kappa, grid, resolution, columns):
-    n_theta, n_phi = resolution
-    th, ph = table_angles(n_theta, n_phi)
-    Y = body_matrices(dist, eta, kappa, grid, th, np.repeat(th, n_phi), np.tile(ph, n_theta), columns)
-    return Y.array, (n_theta, n_theta, n_phi)
-
-
 def body_tables(dist, eta, kappa, grid, polarized=True):
-    """The body term as interpolation tables over (x(theta_L), x(theta_V), phi / pi).
+    """The body term as interpolation tables over (phi / pi, x(theta_L), x(theta_V)).
 
     primary: (log M00, M10 / M00, M20 / M00) on ``grid.primary``: everything
     unpolarised incident light sees (only log M00 when not ``polarized``);
     secondary: (M01, M02, M11, M12, M21, M22) / M00 on ``grid.secondary``, the
     response to polarised incident light.  Logarithm and ratios vary more
     smoothly than the elements (a large kappa makes M00 peaked); M is divided by
-    k_b cos(theta_L) and expressed in the bases of :func:`body_matrices`.
+    k_b cos(theta_L) and expressed in the bases of :func:`body_grid_matrices`.
     Returns (primary, secondary or None) as :class:`TetraTable`.
     """
     Float = dist.Float
     UInt = dr.uint32_array_t(Float)
-    vals, shape = _table_matrices(dist, eta, kappa, grid, grid.primary, (0,))
-    n = dr.width(vals) // 3
-    m00 = dr.maximum(dr.gather(Float, vals, dr.arange(UInt, n) * 3), 1e-30)
+    nodes = polar_nodes(dist, grid)
+    khat = coupling_modes(dist, kappa, grid, *nodes)
+    th, ph = table_angles(*grid.primary)
+    shape = (grid.primary[1], grid.primary[0], grid.primary[0])
+    rows = (0, 1, 2) if polarized else (0,)
+    Y = body_grid_matrices(dist, eta, kappa, grid, th, th, ph, rows, (0,), nodes, khat).array
     if not polarized:
-        return TetraTable(dr.log(m00), shape + (1,)), None
-    # elements k = 3 j + c: channel 0 -> log M00, channels 1, 2 -> M10, M20 over M00
-    k = dr.arange(UInt, 3 * n)
-    m00_k = dr.gather(Float, m00, k // 3)
-    primary = dr.select(k % 3 == 0, dr.log(m00_k), dr.gather(Float, vals, k) / m00_k)
+        return TetraTable(dr.log(dr.maximum(Y, 1e-30)), shape + (1,)), None
+    # (t, l, v, r): elements k = 3 texel + c: channel 0 -> log M00, channels 1, 2 -> M10, M20 over M00
+    k = dr.arange(UInt, dr.width(Y))
+    m00 = dr.maximum(dr.gather(Float, Y, k - k % 3), 1e-30)
+    primary = dr.select(k % 3 == 0, dr.log(m00), Y / m00)
 
-    vals, shape2 = _table_matrices(dist, eta, kappa, grid, grid.secondary, (0, 1, 2))
-    n2 = dr.width(vals) // 9
-    k = dr.arange(UInt, 6 * n2)
+    th2, ph2 = table_angles(*grid.secondary)
+    shape2 = (grid.secondary[1], grid.secondary[0], grid.secondary[0])
+    Y2 = body_grid_matrices(dist, eta, kappa, grid, th2, th2, ph2, (0, 1, 2), (0, 1, 2), nodes, khat).array
+    dr.eval(Y2)  # gathered twice below
+    k = dr.arange(UInt, dr.width(Y2) // 9 * 6)
     cell, ch = k // 6, k % 6
     elem = ch + 1 + ch // 2  # (M01, M02, M11, M12, M21, M22) -> row-major indices 1, 2, 4, 5, 7, 8
-    secondary = dr.gather(Float, vals, cell * 9 + elem) / dr.maximum(dr.gather(Float, vals, cell * 9), 1e-30)
+    secondary = dr.gather(Float, Y2, cell * 9 + elem) / dr.maximum(dr.gather(Float, Y2, cell * 9), 1e-30)
     return TetraTable(primary, shape + (3,)), TetraTable(secondary, shape2 + (6,))

@@ -22,13 +22,24 @@ from .quadrature import PolarMap, gauss_legendre, gennormal_unnormalised
 
 
 def azimuthal_clamped_cosine(theta_m, theta_w):
-    """int_0^{2pi} max(0, w.m) dphi for m at polar angle theta_m, w at theta_w."""
+    """int_0^{2pi} max(0, w.m) dphi for m at polar angle theta_m, w at theta_w.
+
+    With a = sin sin >= 0, b = cos cos: 2 pi b where the whole circle is lit
+    (b >= a), 0 where none of it is (b <= -a), else 2 (b phi0 + a sin phi0)
+    with cos phi0 = -b / a.  The branches meet continuously, so the partial
+    case is kept to |b| < a (1 - 1e-6) and fed harmless values elsewhere:
+    reverse-mode AD multiplies an unselected branch's partial derivatives by
+    a zero adjoint, and 0 * inf (from -b / a at a = 0, or acos' at +-1) is NaN.
+    """
     a = dr.sin(theta_w) * dr.sin(theta_m)
     b = dr.cos(theta_w) * dr.cos(theta_m)
-    ratio = dr.clip(-b / dr.maximum(a, 1e-30), -1.0, 1.0)
+    edge = a * (1.0 - 1e-6)
+    full, dark = b >= edge, b <= -edge
+    part = ~(full | dark)
+    ratio = dr.select(part, -b / dr.select(part, a, 1.0), 0.0)
     phi0 = dr.acos(ratio)
-    partial = 2.0 * (b * phi0 + a * dr.safe_sqrt(1.0 - ratio * ratio))
-    return dr.select(b >= a, 2.0 * math.pi * b, partial)
+    partial = 2.0 * (b * phi0 + a * dr.sqrt(1.0 - ratio * ratio))
+    return dr.select(full, 2.0 * math.pi * b, dr.select(dark, 0.0, partial))
 
 
 class Distribution:
