@@ -43,3 +43,14 @@ def eval_mueller(bsdf, L, V, component=None):
 def dolp(M):
     """DoLP of the light a Mueller matrix (n, 4, 4) reflects from unpolarised light."""
     return np.hypot(M[:, 1, 0], M[:, 2, 0]) / M[:, 0, 0]
+
+
+def set_body_grid(bsdf, n_phi=None):
+    """Rebuild ``bsdf``'s tables with ``n_phi`` node azimuths (None: keep the package's)."""
+    if n_phi is None:
+        return bsdf
+    from fmbrdf_mi.model.body import BodyGrid
+    g = bsdf.grid
+    bsdf.grid = BodyGrid(g.n_theta, n_phi, g.primary, g.secondary)
+    bsdf._rebuild()
+    return bsdf

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from _common import directions, dolp, eval_mueller
+from _common import directions, dolp, eval_mueller, set_body_grid
 
 #: The box of issue 2's accuracy targets.
 BOX = {"eta": (1.1, 2.5), "alpha": (0.02, 1.5), "beta": (0.5, 4.0), "kappa": (0.0, 100.0)}
@@ -59,6 +59,8 @@ def main():
     ap.add_argument("--variant", default="llvm_ad_mono_polarized")
     ap.add_argument("--full-range", action="store_true",
                     help="sample the whole valid parameter range instead of the issue's box")
+    ap.add_argument("--n-phi", type=int, default=None,
+                    help="microfacet node azimuths of the body quadrature (default: the package's)")
     ap.add_argument("--ref-convergence", action="store_true",
                     help="compare the reference at --ref-res with twice that resolution instead")
     args = ap.parse_args()
@@ -76,6 +78,7 @@ def main():
         L, V = random_pairs(rng, args.pairs, alpha)
         bsdf = mi.load_dict({"type": "fmbrdf", "eta": eta, "alpha": alpha, "beta": beta,
                              "kappa": kappa, "k_s": 1.0, "k_b": 1.0})
+        set_body_grid(bsdf, args.n_phi)
         Mb, x_in, x_out = eval_mueller(bsdf, L, V, component=1)
         Ms, _, _ = eval_mueller(bsdf, L, V, component=0)
         pairs = [(L[k], V[k], x_in[k], x_out[k]) for k in range(len(L))]

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from _common import set_body_grid
 from check_accuracy import BOX, full_box, random_materials
 
 
@@ -40,6 +41,8 @@ def main():
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--full-range", action="store_true",
                     help="sample the whole valid parameter range instead of the issue's box")
+    ap.add_argument("--n-phi", type=int, default=None,
+                    help="microfacet node azimuths of the body quadrature (default: the package's)")
     args = ap.parse_args()
 
     import drjit as dr
@@ -52,7 +55,8 @@ def main():
     worst = {"I": (0.0, None), "dolp": (0.0, None), "M": (0.0, None)}
     t0 = time.time()
     for eta, alpha, beta, kappa in random_materials(rng, args.materials, full_box() if args.full_range else BOX):
-        bsdf = mi.load_dict({"type": "fmbrdf", "eta": eta, "alpha": alpha, "beta": beta, "kappa": kappa})
+        bsdf = set_body_grid(mi.load_dict({"type": "fmbrdf", "eta": eta, "alpha": alpha, "beta": beta,
+                                           "kappa": kappa}), args.n_phi)
         thL, thV, ph = random_angles(rng, args.points)
         # direct quadrature, one light angle per point (diagonal of the (n_L, n_V) product)
         n = args.points
