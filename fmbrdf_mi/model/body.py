@@ -52,7 +52,7 @@ import numpy as np
 
 from .fresnel import transmission_mueller_terms
 from .interp import TetraTable
-from .quadrature import gauss_legendre, gennormal_unnormalised
+from .quadrature import constant, gauss_legendre_array, gennormal_unnormalised
 
 
 class BodyGrid:
@@ -76,8 +76,7 @@ def polar_nodes(dist, grid):
     """Polar angles theta_j (J,) and weights W_j = w sin(theta) D(theta) 2 pi / N_az
     of the node set: every azimuth of a polar ring has the same weight."""
     Float = dist.Float
-    u, w = gauss_legendre(grid.n_theta)
-    u, w = Float(u), Float(w)
+    u, w = gauss_legendre_array(Float, grid.n_theta)
     th = dist.map.theta(u)
     weight = (w * dist.map.dtheta_du(u) * dr.sin(th) * (2.0 * math.pi / grid.n_phi)
               * dist.norm * gennormal_unnormalised(th, dist.alpha, dist.beta))
@@ -200,8 +199,9 @@ def coupling_modes(dist, kappa, grid, th_j, w_j):
     tj, tl = dr.gather(Float, th_j, j), dr.gather(Float, th_j, l)
     cos_d = dr.cos(Float(d) * (2.0 * math.pi / K))
     e = dr.exp(kappa * (dr.cos(tj) * dr.cos(tl) + dr.sin(tj) * dr.sin(tl) * cos_d - 1.0))
-    cos_md = np.cos(np.arange(M)[:, None] * np.arange(K)[None, :] * (2.0 * math.pi / K))
-    E = Tensor(Float(cos_md.ravel()), shape=(M, K)) @ Tensor(e, shape=(K, J * J))  # (M, J*J)
+    cos_md = constant(Tensor, ("cos_md", K),
+                       lambda: np.cos(np.arange(M)[:, None] * np.arange(K)[None, :] * (2.0 * math.pi / K)))
+    E = cos_md @ Tensor(e, shape=(K, J * J))  # (M, J*J)
     # Z_l = sum_j W_j Ehat_0[j, l]
     lj = dr.arange(UInt, J * J)
     Z = dr.block_sum(dr.gather(Float, w_j, lj % J) * dr.gather(Float, E.array, (lj % J) * J + lj // J), J)
@@ -210,15 +210,16 @@ def coupling_modes(dist, kappa, grid, th_j, w_j):
 
 
 def body_series(dist, eta, kappa, grid, theta_l, theta_v, rows=(0, 1, 2), columns=(0, 1, 2), nodes=None,
-                khat=None):
+                khat=None, proj=None):
     """Fourier coefficients (*) of the body matrices over phi = phi_V - phi_L,
     divided by pi P(V) P(L) (Smith, see the module docstring).
 
     Returns a tensor (2M, n_L nc n_V nr), M = N_az/2 + 1, rows (m, re/im),
     columns (l, s, v, r): Yhat_m of element (rows[r], columns[s]) of the 3x3
     linear block for theta_L[l], theta_V[v], in the bases of the module
-    docstring.  ``nodes`` (:func:`polar_nodes`) and ``khat``
-    (:func:`coupling_modes`): if already computed for this material.
+    docstring.  ``nodes`` (:func:`polar_nodes`), ``khat``
+    (:func:`coupling_modes`) and ``proj`` (P at theta_L and at theta_V): if
+    already computed for this material.
     """
     Float = dist.Float
     Tensor = dr.tensor_t(Float)
@@ -229,15 +230,14 @@ def body_series(dist, eta, kappa, grid, theta_l, theta_v, rows=(0, 1, 2), column
                         for x in (theta_l, theta_v))
     J, M = grid.n_theta, grid.n_phi // 2 + 1
     nl, nv, nr, nc = dr.width(theta_l), dr.width(theta_v), len(rows), len(columns)
-    a = _side_vectors(dist, eta, grid, theta_v, w_j, th_j, tuple(rows), False,
-                      1.0 / (math.pi * dist.projected_area(theta_v)))
-    b = _side_vectors(dist, eta, grid, theta_l, w_j, th_j, tuple(columns), True,
-                      1.0 / dist.projected_area(theta_l))
+    p_l, p_v = proj if proj is not None else (dist.projected_area(theta_l), dist.projected_area(theta_v))
+    a = _side_vectors(dist, eta, grid, theta_v, w_j, th_j, tuple(rows), False, 1.0 / (math.pi * p_v))
+    b = _side_vectors(dist, eta, grid, theta_l, w_j, th_j, tuple(columns), True, 1.0 / p_l)
     # Ahat: rows (m, re/im) -> (M, 1, 2J, nv nr): [Re; Im] stacked over j
-    A = Tensor(Float(_dft_rows(grid, "cs").ravel()), shape=(2 * M, grid.n_phi)) @ a
+    A = constant(Tensor, ("dft", grid.n_phi, "cs"), lambda: _dft_rows(grid, "cs")) @ a
     A = dr.reshape(Tensor, A, (M, 1, 2 * J, nv * nr))
     # Bhat rows per mode: Re, Im, Im, -Re -> Chat = Khat Bhat -> [Re; Im] and [Im; -Re]
-    B = Tensor(Float(_dft_rows(grid, "cssC").ravel()), shape=(4 * M, grid.n_phi)) @ b
+    B = constant(Tensor, ("dft", grid.n_phi, "cssC"), lambda: _dft_rows(grid, "cssC")) @ b
     B = dr.reshape(Tensor, B, (M, 4, J, nl * nc))
     C = dr.reshape(Tensor, dr.reshape(Tensor, khat, (M, 1, J, J)) @ B, (M, 2, 2 * J, nl * nc))
     # Yhat = Chat^T conj(Ahat): Re = Cr^T Ar + Ci^T Ai, Im = Ci^T Ar - Cr^T Ai
@@ -260,13 +260,13 @@ def synthesis_matrix(grid, phi):
 
 def synthesise(Float, grid, series, phi):
     """The series of :func:`body_series` at azimuths ``phi`` (NumPy): (n_phi, cols)."""
-    Tensor = dr.tensor_t(Float)
-    S = synthesis_matrix(grid, phi)
-    return Tensor(Float(S.ravel()), shape=S.shape) @ series
+    phi = np.asarray(phi, dtype=np.float64)
+    S = constant(dr.tensor_t(Float), ("synth", grid.n_phi, phi.tobytes()), lambda: synthesis_matrix(grid, phi))
+    return S @ series
 
 
 def body_grid_matrices(dist, eta, kappa, grid, theta_l, theta_v, phi, rows=(0, 1, 2), columns=(0, 1, 2),
-                       nodes=None, khat=None):
+                       nodes=None, khat=None, proj=None):
     """Body matrices on the product grid phi x theta_L x theta_V: a tensor
     (n_phi, n_L, n_V, nr, nc) (the tables' order), elements (rows[r],
     columns[s]) of the 3x3 linear block divided by k_b cos(theta_L), in the
@@ -276,7 +276,7 @@ def body_grid_matrices(dist, eta, kappa, grid, theta_l, theta_v, phi, rows=(0, 1
     Tensor = dr.tensor_t(Float)
     theta_l, theta_v = (np.asarray(x, dtype=np.float64) for x in (theta_l, theta_v))
     nl, nv, nt, nr, nc = len(theta_l), len(theta_v), len(phi), len(rows), len(columns)
-    series = body_series(dist, eta, kappa, grid, theta_l, theta_v, rows, columns, nodes, khat)
+    series = body_series(dist, eta, kappa, grid, theta_l, theta_v, rows, columns, nodes, khat, proj)
     Y = synthesise(Float, grid, series, phi).array  # (t, l, s, v, r)
     if nc == 1:
         return Tensor(Y, shape=(nt, nl, nv, nr, nc))
@@ -328,7 +328,8 @@ def body_tables(dist, eta, kappa, grid, polarized=True):
     th, ph = table_angles(*grid.primary)
     shape = (grid.primary[1], grid.primary[0], grid.primary[0])
     rows = (0, 1, 2) if polarized else (0,)
-    Y = body_grid_matrices(dist, eta, kappa, grid, th, th, ph, rows, (0,), nodes, khat).array
+    p = dist.projected_area(Float(th))
+    Y = body_grid_matrices(dist, eta, kappa, grid, th, th, ph, rows, (0,), nodes, khat, (p, p)).array
     if not polarized:
         return TetraTable(dr.log(dr.maximum(Y, 1e-30)), shape + (1,)), None
     # (t, l, v, r): elements k = 3 texel + c: channel 0 -> log M00, channels 1, 2 -> M10, M20 over M00
@@ -338,7 +339,13 @@ def body_tables(dist, eta, kappa, grid, polarized=True):
 
     th2, ph2 = table_angles(*grid.secondary)
     shape2 = (grid.secondary[1], grid.secondary[0], grid.secondary[0])
-    Y2 = body_grid_matrices(dist, eta, kappa, grid, th2, th2, ph2, (0, 1, 2), (0, 1, 2), nodes, khat).array
+    step = (len(th) - 1) // (len(th2) - 1)
+    if len(th) == step * (len(th2) - 1) + 1 and np.array_equal(th[::step], th2):  # every other node
+        p2 = dr.gather(Float, p, dr.arange(UInt, len(th2)) * step)
+    else:
+        p2 = dist.projected_area(Float(th2))
+    Y2 = body_grid_matrices(dist, eta, kappa, grid, th2, th2, ph2, (0, 1, 2), (0, 1, 2), nodes, khat,
+                            (p2, p2)).array
     dr.eval(Y2)  # gathered twice below
     k = dr.arange(UInt, dr.width(Y2) // 9 * 6)
     cell, ch = k // 6, k % 6

@@ -17,7 +17,7 @@ import drjit as dr
 import numpy as np
 
 from .interp import gather
-from .quadrature import PolarMap, gauss_legendre, gennormal_unnormalised
+from .quadrature import PolarMap, gauss_legendre_array, gennormal_unnormalised
 
 
 
@@ -58,8 +58,7 @@ class Distribution:
     def __init__(self, Float, alpha, beta):
         self.Float, self.alpha, self.beta = Float, alpha, beta
         self.map = PolarMap(alpha, beta)
-        u, w = gauss_legendre(self.N_NORM)
-        u, w = Float(u), Float(w)
+        u, w = gauss_legendre_array(Float, self.N_NORM)
         th = self.map.theta(u)
         integrand = gennormal_unnormalised(th, alpha, beta) * dr.sin(th) * dr.cos(th)
         self.norm = 1.0 / (2.0 * math.pi * dr.sum(w * self.map.dtheta_du(u) * integrand))
@@ -80,7 +79,7 @@ class Distribution:
         """P(theta_w) = int max(0, w.m) D(m) d omega_m, evaluated by quadrature."""
         Float = self.Float
         n = self.N_PROJ
-        u, w = gauss_legendre(n)
+        u, w = gauss_legendre_array(Float, n)
         theta_w = Float(theta_w)
         m = dr.width(theta_w)
         # Split [0, theta_cut] at the kink of the azimuthal integral.
@@ -90,8 +89,8 @@ class Distribution:
         col = idx % (2 * n)
         piece = col // n
         j = col % n
-        uu = dr.gather(Float, Float(u), j)
-        ww = dr.gather(Float, Float(w), j)
+        uu = dr.gather(Float, u, j)
+        ww = dr.gather(Float, w, j)
         uk = dr.gather(Float, u_k, row)
         lo = dr.select(piece == 0, 0.0, uk)
         hi = dr.select(piece == 0, uk, 1.0)

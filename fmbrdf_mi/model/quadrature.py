@@ -27,6 +27,32 @@ def _leggauss(n):
     return x, w
 
 
+_CONSTANTS = {}
+
+
+def constant(Type, key, make):
+    """``Type(make())`` (a Dr.Jit array or tensor type; ``make`` returns a NumPy
+    array), made once per (Type, key) and kept: quadrature rules and transform
+    matrices depend on resolutions only, and converting them anew on every
+    table rebuild cost a good part of it."""
+    k = (Type, key)
+    if k not in _CONSTANTS:
+        arr = np.asarray(make(), dtype=np.float64)
+        if dr.is_tensor_v(Type):
+            value = Type(dr.array_t(Type)(arr.ravel()), shape=arr.shape)
+        else:
+            value = Type(arr)
+        dr.eval(value)
+        _CONSTANTS[k] = value
+    return _CONSTANTS[k]
+
+
+def gauss_legendre_array(Float, n):
+    """:func:`gauss_legendre` on [0, 1] as Dr.Jit arrays (cached)."""
+    return (constant(Float, ("gl_x", n), lambda: gauss_legendre(n)[0]),
+            constant(Float, ("gl_w", n), lambda: gauss_legendre(n)[1]))
+
+
 def gauss_legendre(n, a=0.0, b=1.0):
     """Gauss-Legendre nodes and weights on [a, b] (NumPy, float64).
 
