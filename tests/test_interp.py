@@ -44,3 +44,34 @@ def test_interpolation_is_continuous_across_tetrahedra(Float):
     u = [0.5 * s, 0.5 * (1 - s) ** 2, 0.25 + 0.5 * np.sin(3 * s) ** 2]
     v = np.asarray(t.eval(*(Float(x) for x in u))[0])
     assert np.abs(np.diff(v)).max() < 1e-3
+
+
+@pytest.mark.parametrize("n_float", [0, 1])
+def test_packed_table_equals_float_table_to_its_step(variant, n_float):
+    """PackedTetraTable stores packed channels as 16-bit fixed point (step
+    2/32767): each node value is within half a step, so an interpolated value
+    (a convex combination) is within 3.06e-5 of the float32 table's; float
+    channels are bit-identical.  Values outside [-2, 2] are clipped."""
+    import mitsuba as mi
+    if not mi.variant().startswith(("llvm", "cuda")):
+        pytest.skip("packed tables are for the JIT variants")
+    from fmbrdf_mi.model.interp import PackedTetraTable
+    Float = mi.Float
+    rng = np.random.default_rng(3)
+    data = rng.uniform(-2, 2, size=(6, 5, 7, 6 + n_float))
+    data[..., 0] *= 50 if n_float else 1  # a float channel far outside [-2, 2]
+    t = _table(Float, data)
+    p = PackedTetraTable(t, n_float=n_float)
+    assert p.shape[3] == n_float + 3
+    u = [Float(x) for x in rng.uniform(-0.1, 1.1, (3, 20000))]
+    a = [np.asarray(x) for x in t.eval(*u)]
+    b = [np.asarray(x) for x in p.eval(*u)]
+    for k, (x, y) in enumerate(zip(a, b)):
+        if k < n_float:
+            assert np.array_equal(x, y)
+        else:
+            err = np.abs(x - y).max()
+            assert err <= 0.5 * PackedTetraTable.SCALE + 1e-6, (k, err)
+            assert err > 1e-7  # it is really quantised
+    clipped = PackedTetraTable(_table(Float, np.full((2, 2, 2, 2), 3.0)))
+    assert np.allclose(np.asarray(clipped.eval(Float(0.3), Float(0.3), Float(0.3))[0]), 2.0, atol=1e-4)
