@@ -181,7 +181,7 @@ def _dataset_record(cfg):
                           "camera.to_world maps it to the world",
                 "stokes": "stokes integrator frame: x = image right, y = image up (fmbrdf_mi.stokes_io)",
                 "normal": "unit shading normals in the camera frame at the pixel centres, float32 (H, W, 3)",
-                "mask": "255 where the ray through the pixel centre hits the shape",
+                "mask": "255 where the ray through the pixel centre hits the shape on a face turned towards the camera",
                 "light.direction": "camera frame, from the surface towards the light",
                 "render.seed": "the seed given to fmbrdf_mi.scene.render_stokes; the image is rendered "
                                "with irradiance 1 and multiplied by light.irradiance",
