@@ -49,7 +49,11 @@ def a_file(tmp_path):
     (["--seed", "-1"], ["seed", ">= 0"]),
     (["-D", "distance=-1"], ["distance", "positive"]),
 ])
-def test_render_options_checked_before_work(capsys, tmp_path, argv, words):
+def test_render_options_checked_before_work(capsys, tmp_path, monkeypatch, argv, words):
+    from fmbrdf_mi import _paths
+
+    # as on a machine with 16 GiB free, so that 16000 x 16000 (about 122 GiB) is refused anywhere
+    monkeypatch.setattr(_paths, "available_memory", lambda: 16 << 30)
     rc, _, err = run(capsys, "render", *argv, str(tmp_path / "x.exr"))
     one_line_error(rc, err, "render", *words)
     assert not os.listdir(tmp_path)
@@ -183,7 +187,10 @@ def _cfg(tmp_path, **over):
     ({"render": {"resolution": HUGE}}, ["render.resolution", "memory"]),
     ({"samples": 0}, ["samples", ">= 1"]),
 ])
-def test_dataset_config_refused_up_front(capsys, tmp_path, over, words):
+def test_dataset_config_refused_up_front(capsys, tmp_path, monkeypatch, over, words):
+    from fmbrdf_mi import _paths
+
+    monkeypatch.setattr(_paths, "available_memory", lambda: 16 << 30)
     rc, _, err = run(capsys, "dataset", "--config", str(_cfg(tmp_path, **over)), "--out", str(tmp_path / "ds"))
     one_line_error(rc, err, "dataset", *words)
     assert not (tmp_path / "ds").exists()
