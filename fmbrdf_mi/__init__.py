@@ -2,15 +2,55 @@
 
     import mitsuba as mi
     mi.set_variant("llvm_ad_spectral_polarized")
-    import fmbrdf_mi
-    fmbrdf_mi.register()          # also done on import when a variant is set
-    bsdf = mi.load_dict({"type": "fmbrdf", "eta": 1.5, "alpha": 0.3})
+    import fmbrdf_mi              # registers "fmbrdf" now and for every variant set later
+    bsdf = fmbrdf_mi.load_dict({"type": "fmbrdf", "eta": 1.5, "alpha": 0.3})
+    # (mi.load_dict works too; it reports a bad value as a RuntimeError, see load_dict)
 """
+import re
+import sys
+import warnings
+
 from ._llvm import LLVMTooOldError, check_llvm, pin_newest_llvm
 from .params import ParameterError
 
 __version__ = "0.1.0"
-__all__ = ["register", "ParameterError", "LLVMTooOldError", "SUPPORTED_VARIANTS"]
+__all__ = ["register", "load_dict", "load_file", "ParameterError", "LLVMTooOldError",
+           "UntestedVersionWarning", "check_versions", "SUPPORTED_VARIANTS", "TESTED_VERSIONS"]
+
+#: The versions the package was tested with (pyproject.toml pins them).
+TESTED_VERSIONS = {"mitsuba": "3.9.1", "drjit": "1.5.0"}
+
+
+class UntestedVersionWarning(UserWarning):
+    """Mitsuba or Dr.Jit is not the version the package was tested with."""
+
+
+def check_versions():
+    """Warn (:class:`UntestedVersionWarning`) if Mitsuba or Dr.Jit is not the tested version.
+
+    Returns the list of ``(package, installed version)`` that differ.
+    """
+    from importlib import metadata
+
+    bad = []
+    for pkg, tested in TESTED_VERSIONS.items():
+        mod = sys.modules.get(pkg)
+        try:
+            version = getattr(mod, "__version__", None) or metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            continue
+        if version != tested:
+            bad.append((pkg, version))
+    if bad:
+        found = ", ".join(f"{p} {v}" for p, v in bad)
+        want = ", ".join(f"{p} {v}" for p, v in TESTED_VERSIONS.items())
+        warnings.warn(f"fmbrdf_mi {__version__} was tested with {want} only; found {found}. "
+                      "It may fail or give wrong results: install the tested versions "
+                      f"(pip install {' '.join(f'{p}=={v}' for p, v in TESTED_VERSIONS.items())}) "
+                      "or run the tests (python -m pytest tests) first.",
+                      UntestedVersionWarning, stacklevel=3)
+    return bad
+
 
 pin_newest_llvm()
 
@@ -54,12 +94,75 @@ def register(variant=None):
     _registered.add(variant)
 
 
-def _register_if_variant_set():
-    import sys
+def _parameter_error(exc, where=None):
+    """The ParameterError inside a Mitsuba RuntimeError (which wraps a plugin's Python
+    exception, traceback and all, in its message), or None."""
+    text = str(exc)
+    m = re.search(r"(?:^|\n)\s*(?:[\w.]+\.)?ParameterError: (.*)\Z", text.strip(), re.S)
+    if not m:
+        return None
+    msg = " ".join(m.group(1).split())
+    return ParameterError(f"{where}: {msg}" if where else msg)
 
-    mi = sys.modules.get("mitsuba")
-    if mi is not None and mi.variant() in SUPPORTED_VARIANTS:
+
+def load_dict(d, *args, **kwargs):
+    """``mi.load_dict`` that raises :class:`ParameterError` (one line) for a bad fmbrdf value.
+
+    Mitsuba wraps every exception a plugin's constructor raises in a
+    ``RuntimeError`` whose message holds the Python traceback, so a plain
+    ``mi.load_dict`` cannot raise the documented type; this one unwraps it.
+    Other errors are passed on as Mitsuba raised them.
+    """
+    import mitsuba as mi
+
+    _register_current()
+    try:
+        return mi.load_dict(d, *args, **kwargs)
+    except RuntimeError as e:
+        err = _parameter_error(e)
+        if err is None:
+            raise
+        raise err from None
+
+
+def load_file(path, *args, **kwargs):
+    """``mi.load_file`` that raises :class:`ParameterError` naming the file for a bad fmbrdf value
+    (see :func:`load_dict`)."""
+    import mitsuba as mi
+
+    _register_current()
+    try:
+        return mi.load_file(str(path), *args, **kwargs)
+    except RuntimeError as e:
+        err = _parameter_error(e, where=str(path))
+        if err is None:
+            raise
+        raise err from None
+
+
+def _register_current():
+    import mitsuba as mi
+
+    if mi.variant() in SUPPORTED_VARIANTS and mi.variant() not in _registered:
         register()
 
 
-_register_if_variant_set()
+def _on_variant(old, new):
+    """Mitsuba variant callback: register the plugin for every supported variant that gets set."""
+    if new in SUPPORTED_VARIANTS and new not in _registered:
+        try:
+            register()
+        except LLVMTooOldError as e:  # register() raises it; load_dict would only say "unknown plugin"
+            warnings.warn(str(e), RuntimeWarning, stacklevel=2)
+
+
+def _install():
+    import mitsuba as mi
+
+    check_versions()
+    mi.detail.add_variant_callback(_on_variant)
+    if mi.variant() in SUPPORTED_VARIANTS:
+        register()
+
+
+_install()

@@ -19,6 +19,7 @@ from .model.fresnel import reflection_mueller_terms
 from .model.sampling import MicrofacetSampler
 
 _SCALARS = ("eta", "alpha", "beta", "kappa")
+_PROPERTIES = _SCALARS + ("k_s", "k_b", "r_k")
 
 
 def _scalar_value(x):
@@ -28,6 +29,46 @@ def _scalar_value(x):
     if dr.width(arr) != 1:
         raise P.ParameterError(f"fmbrdf: parameters must be single numbers, got an array of width {dr.width(arr)}")
     return arr[0]
+
+
+def _keep(x):
+    """A new reference to the variable of ``x`` (same JIT and AD index), or its value."""
+    try:
+        return type(x)(x)
+    except Exception:
+        return x
+
+
+def _fingerprint(x):
+    """What identifies the variable behind a parameter: (JIT index, AD index), or the value."""
+    if isinstance(x, (int, float)):
+        return float(x)
+    return (x.index, x.index_ad)
+
+
+class _Watch(dr.CustomOp):
+    """Identity on a parameter that calls ``on_use`` when an AD pass goes through it.
+
+    The tables are built from watched copies of the parameters: after a
+    ``dr.backward``/``dr.forward`` has traversed them, Dr.Jit has cleared the
+    edges between the parameters and the tables, so the tables must be rebuilt
+    before their derivatives are used again.
+    """
+
+    def eval(self, x, on_use):
+        self.on_use = on_use
+        return type(x)(x)
+
+    def forward(self):
+        self.on_use()
+        self.set_grad_out(self.grad_in("x"))
+
+    def backward(self):
+        self.on_use()
+        self.set_grad_in("x", self.grad_out())
+
+    def name(self):
+        return "fmbrdf_watch"
 
 
 def _texture_values(tex):
@@ -71,7 +112,19 @@ def _texture_values(tex):
 def _axis(v, fallback=(1.0, 0.0, 0.0)):
     n2 = dr.squared_norm(v)
     ok = n2 > 1e-14
+    if not isinstance(fallback, tuple):
+        return dr.select(ok, v * dr.rsqrt(dr.select(ok, n2, 1.0)), fallback)
     return dr.select(ok, v * dr.rsqrt(dr.select(ok, n2, 1.0)), mi.Vector3f(*fallback))
+
+
+def _s_axis(H, V):
+    """s axis of reflection off a facet with normal H towards V: normal to the plane of
+    H and V.  For H parallel to V (retro-reflection, where the plane is undefined)
+    any axis perpendicular to V gives the same Mueller matrix (at normal facet
+    incidence R_s = R_p); the one normal to the plane of V and the macro normal is
+    taken, and (1, 0, 0) when V is the macro normal too."""
+    fallback = _axis(mi.Vector3f(-V.y, V.x, 0.0))  # z x V
+    return _axis(dr.cross(H, V), fallback)
 
 
 def _rotation(forward, current, target):
@@ -110,6 +163,13 @@ class _FMBRDFMethods:
 
     def __init__(self, props):
         mi.BSDF.__init__(self, props)
+        unknown = [k for k in props.keys() if k not in _PROPERTIES]
+        if unknown:
+            raise P.ParameterError(f"fmbrdf: unknown property '{unknown[0]}'; expected some of "
+                                   f"{', '.join(_PROPERTIES)}")
+        for name in ("k_s", "k_b", "r_k"):  # RGB values: checked before spectral upsampling hides a NaN
+            if name in props and props.type(name) == mi.Properties.Type.Color:
+                P.check_albedo(name, list(props.get(name)))
         self.polarized = mi.is_polarized
         for name in _SCALARS:
             default = P.SCALAR_PARAMS[name][0]
@@ -125,7 +185,8 @@ class _FMBRDFMethods:
                              mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide]
         self.m_flags = self.m_components[0] | self.m_components[1]
         self._check_albedos()
-        self._rebuild()
+        self._build()
+        self._save_state()
 
     # ------------------------------------------------------------ parameters
     def traverse(self, callback):
@@ -135,11 +196,105 @@ class _FMBRDFMethods:
         callback.put(self.body_key, self.body, mi.ParamFlags.Differentiable)
 
     def parameters_changed(self, keys=[]):
-        for name in _SCALARS:
-            P.check_scalar(name, _scalar_value(getattr(self, name)))
-        self._check_albedos()
-        if not keys or any(k in _SCALARS for k in keys):
+        """Validate, rebuild the tables if needed; on a bad value restore the last valid state.
+
+        Every parameter (the four scalars and the albedo textures' own
+        parameters) goes back to the values of the last successful load or
+        update, so the BSDF keeps evaluating what it did before and later
+        valid updates work; then the ParameterError is raised.
+        """
+        try:
+            for name in _SCALARS:
+                P.check_scalar(name, _scalar_value(getattr(self, name)), single=True)
+            self._check_albedos()
+            if not keys or any(k in _SCALARS for k in keys) or self._tables_stale():
+                self._build()
+        except BaseException:
+            self._restore_state()
+            raise
+        self._save_state()
+
+    def _save_state(self):
+        """Remember the current (valid) parameters: references to their variables."""
+        self._valid = {name: _keep(getattr(self, name)) for name in _SCALARS}
+        self._valid_textures = {}
+        for attr in ("k_s", "body"):
+            tp = mi.traverse(getattr(self, attr))
+            self._valid_textures[attr] = {k: _keep(tp[k]) for k in tp.keys()}
+
+    def _restore_state(self):
+        """Put back the parameters saved by :meth:`_save_state` (in place: traverse() holds them)."""
+        for name, value in self._valid.items():
+            cur = getattr(self, name)
+            if isinstance(cur, (int, float)):
+                setattr(self, name, value)
+            else:
+                mi.set_property(cur, value)
+        for attr, values in self._valid_textures.items():
+            tp = mi.traverse(getattr(self, attr))
+            for k, v in values.items():
+                try:
+                    tp[k] = v
+                except Exception:  # read-only or non-Mitsuba parameters
+                    pass
+            tp.update()
+        if self._tables_stale():
+            self._build()
+
+    def _build(self):
+        """:meth:`_rebuild`, remembering which variables the tables were built from.
+
+        The references kept in ``_built_from`` stop Dr.Jit from reusing their
+        JIT and AD indices, so that any later change of a parameter (its value,
+        or its AD variable after ``dr.disable_grad``/``dr.enable_grad``) gives a
+        new index: Mitsuba's change detection then calls parameters_changed, and
+        :meth:`_tables_stale` sees it too.  With gradients enabled, the tables
+        are built from watched copies (:class:`_Watch`) that mark them as used
+        up once an AD pass has gone through them.
+        """
+        originals = {name: getattr(self, name) for name in _SCALARS}
+        jit = dr.is_jit_v(mi.Float)
+        if jit:
+            dr.make_opaque(*originals.values())
+        watch = jit and any(dr.grad_enabled(x) for x in originals.values())
+        self._ad_used = False
+        if watch:
+            def used():
+                self._ad_used = True
+
+            for name, x in originals.items():
+                setattr(self, name, dr.custom(_Watch, x, used) if dr.grad_enabled(x) else x)
+        try:
             self._rebuild()
+        finally:
+            for name, x in originals.items():
+                setattr(self, name, x)
+        self._built_from = {name: _keep(x) for name, x in originals.items()}
+        self._stale_warned = False
+
+    def _tables_stale(self):
+        """Whether the tables no longer belong to the parameters' current variables."""
+        built = getattr(self, "_built_from", None)
+        if built is None:
+            return True
+        return self._ad_used or any(_fingerprint(getattr(self, n)) != _fingerprint(built[n]) for n in _SCALARS)
+
+    def _ensure_fresh(self):
+        """Rebuild stale tables before an evaluation (a parameter's variable changed without
+        params.update(), or an AD pass used up the tables' graph).  Inside a symbolic
+        region (a render) nothing can be evaluated: warn once instead."""
+        if not self._tables_stale():
+            return
+        if dr.is_jit_v(mi.Float) and dr.flag(dr.JitFlag.SymbolicScope):
+            if not self._stale_warned:
+                self._stale_warned = True
+                mi.Log(mi.LogLevel.Warn,
+                       "fmbrdf: eta/alpha/beta/kappa changed, or an AD pass used up the graph of the "
+                       "tables, since they were built, and they cannot be rebuilt inside a render: "
+                       "derivatives with respect to them from this render are incomplete. Call "
+                       "params.set_dirty(KEY) and params.update() before rendering again.")
+            return
+        self.parameters_changed(list(_SCALARS))
 
     def _check_albedos(self):
         P.check_albedo("k_s", _texture_values(self.k_s))
@@ -207,8 +362,9 @@ class _FMBRDFMethods:
             return scale * rp, None, None
         M = [[rp, rm, 0.0], [rm, rp, 0.0], [0.0, 0.0, rc]]
         # from the s axes of the plane of reflection to Mitsuba's Stokes bases
-        out_rot = _rotation(V, _axis(dr.cross(H, V)), mi.mueller.stokes_basis(V))
-        in_rot = _rotation(-L, _axis(dr.cross(H, -L)), mi.mueller.stokes_basis(-L))
+        s_axis = _s_axis(H, V)  # = H x (-L) / |...| away from retro-reflection
+        out_rot = _rotation(V, s_axis, mi.mueller.stokes_basis(V))
+        in_rot = _rotation(-L, s_axis, mi.mueller.stokes_basis(-L))
         return scale, _rotate_block(M, out_rot, in_rot), rc
 
     def _body(self, L, V):
@@ -270,6 +426,7 @@ class _FMBRDFMethods:
         return result
 
     def eval(self, ctx, si, wo, active=True):
+        self._ensure_fresh()
         return self._combine(self._eval_parts(ctx, si, wo, active), si, active)
 
     # ------------------------------------------------------------ sampling
@@ -296,12 +453,15 @@ class _FMBRDFMethods:
         return dr.select(active, w_s * pdf_s + (1.0 - w_s) * pdf_b, 0.0)
 
     def pdf(self, ctx, si, wo, active=True):
+        self._ensure_fresh()
         return self._pdf(ctx, si, wo, active)
 
     def eval_pdf(self, ctx, si, wo, active=True):
+        self._ensure_fresh()
         return self.eval(ctx, si, wo, active), self._pdf(ctx, si, wo, active)
 
     def sample(self, ctx, si, sample1, sample2, active=True):
+        self._ensure_fresh()
         w_s = self._spec_weight(ctx, si, active)
         active = active & (si.wi.z > 0)
         pick_spec = sample1 < w_s

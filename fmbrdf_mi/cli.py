@@ -23,6 +23,8 @@ import shlex
 import sys
 import time
 
+import numpy as np
+
 from . import __version__
 from . import scene as S
 from ._llvm import LLVMTooOldError
@@ -39,9 +41,21 @@ class CLIError(Exception):
     """A mistake in the command line or its inputs, reported as one line."""
 
 
-#: Exceptions reported as a one-line error message (no traceback).
-USER_ERRORS = (CLIError, ParameterError, ValueError, FileExistsError, FileNotFoundError,
-               LLVMTooOldError)
+#: Exceptions reported as a one-line error message (no traceback).  OSError covers
+#: the operating system's errors (permissions, a full disk, ...): they name the path.
+USER_ERRORS = (CLIError, ParameterError, ValueError, OSError, LLVMTooOldError)
+
+
+def _error_text(e):
+    """One line for a user error; an OSError names its path."""
+    if isinstance(e, OSError) and e.filename is not None and e.strerror:
+        return f"{e.filename}: {e.strerror}"
+    return " ".join(str(e).split()) or type(e).__name__
+
+
+def warn(command, message):
+    """A one-line warning on stderr, like the error lines."""
+    print(f"{PROG} {command}: warning: {message}", file=sys.stderr)
 
 
 # ------------------------------------------------------------------ helpers
@@ -199,13 +213,15 @@ def xml_parameters(path):
 def _check_output(path, force, preview_kinds):
     from .previews import preview_paths
 
+    from ._paths import check_output_file
+
     if not str(path).lower().endswith(".exr"):
         raise CLIError(f"output {path!r}: expected a file name ending in .exr")
     previews = preview_paths(str(path)[:-4], preview_kinds)
-    if not force:
-        for p in [path, *previews.values()]:
-            if os.path.exists(p):
-                raise CLIError(f"{p} exists; pass --force to overwrite it")
+    for p in [path, *previews.values()]:
+        check_output_file(p)
+        if not force and os.path.exists(p):
+            raise CLIError(f"{p} exists; pass --force to overwrite it")
     return previews
 
 
@@ -224,7 +240,10 @@ def _mitsuba_message(exc):
     last = lines[-1]
     if re.match(r"^[A-Za-z_.]*(Error|Exception): ", last):  # a Python error inside a plugin
         return last.split(": ", 1)[1]
-    return re.sub(r"^\[[\w.]+:\d+\]\s*", "", lines[0])
+    first = re.sub(r"^\[[\w.]+:\d+\]\s*", "", lines[0])
+    if first.endswith(":") and len(lines) > 1:  # e.g. a list of unreferenced properties
+        return " ".join([first] + [ln.lstrip("- ") for ln in lines[1:]])
+    return first
 
 
 # ------------------------------------------------------------------ render
@@ -300,6 +319,42 @@ def _list_params(kind, declared, args):
     return 0
 
 
+def _check_size(kind, declared, given):
+    """Refuse a resolution whose render cannot fit in memory, before anything is loaded."""
+    from ._paths import check_render_size
+
+    def value(name):
+        if name in given:
+            return given[name]
+        default = BUILTIN_PARAMS[name][0] if kind == "builtin" else declared.get(name)
+        try:
+            return int(default)
+        except (TypeError, ValueError):
+            return None
+
+    w, h = value("width"), value("height")
+    if w is not None and h is not None:
+        check_render_size(w, h, "--res" if "width" in given or "height" in given else "resolution")
+
+
+def _warn_if_black(given):
+    """The built-in sphere: warn when no pixel can be lit (light behind the sphere as seen
+    from the camera, or the camera inside the sphere)."""
+    values = {k: v for k, (v, _) in BUILTIN_PARAMS.items()}
+    values.update(given)
+    if values["distance"] <= 1.0:
+        warn("render", f"distance={values['distance']:g}: the camera is inside the unit sphere; "
+                       "the image will be black")
+        return True
+    n, _, m = S.sphere_geometry(64, camera=values["camera"], fov=values["fov"], distance=values["distance"])
+    lit = m & (n @ np.asarray(S.check_light_dir(values["light_dir"])) > 0)
+    if not lit.any():
+        warn("render", f"light_dir={','.join(f'{x:g}' for x in values['light_dir'])}: the light is "
+                       "behind the sphere as seen from the camera; the image will be black")
+        return True
+    return False
+
+
 def run_render(args):
     kinds = [] if args.no_previews else ["intensity", "dolp", "aolp"]
     kinds += (["angles"] if args.angles else []) + (["mosaic"] if args.mosaic else [])
@@ -316,6 +371,8 @@ def run_render(args):
         raise CLIError("no output file given, e.g. fmbrdf-mi render out/sphere.exr")
     given = _resolve(args, kind, declared)
     previews = _check_output(args.output, args.force, kinds)
+    _check_size(kind, declared, given)
+    warned_black = kind == "builtin" and _warn_if_black(given)
 
     import mitsuba as mi
 
@@ -340,14 +397,16 @@ def run_render(args):
                                     resolution=(values["width"], values["height"]), spp=values["spp"],
                                     camera=values["camera"], fov=values["fov"], distance=values["distance"],
                                     seed=seed)
-        scene = mi.load_dict(scene_dict)
+        scene = fmbrdf_mi.load_dict(scene_dict)
         resolved = dict(values, seed=seed)
     else:
         if "pixel_format" in declared and "pixel_format" not in given and mi.is_monochromatic:
             given["pixel_format"] = "luminance"  # avoids Mitsuba's warning that it switches
         xml_given = {k: _text(v) for k, v in given.items() if k in declared}
         try:
-            scene = mi.load_file(args.scene, **xml_given)
+            scene = fmbrdf_mi.load_file(args.scene, **xml_given)
+        except ParameterError:
+            raise
         except Exception as e:
             raise CLIError(f"{args.scene}: {_mitsuba_message(e)}") from None
         resolved = {}
@@ -362,6 +421,9 @@ def run_render(args):
 
     stokes = S.render_stokes(scene, spp=spp, seed=seed, progress=not args.quiet)
     _, h, w, c = stokes.shape
+    if not warned_black and not np.any(stokes[0] > 0):
+        warn("render", "the image is black: nothing lit is visible (a light behind the object, "
+                       "a camera inside it, or no object in view)")
     spp_used = spp if spp is not None else int(scene.sensors()[0].sampler().sample_count())
     meta = {
         "generator": f"fmbrdf-mi {__version__}",
@@ -430,8 +492,7 @@ def main(argv=None):
     except USER_ERRORS as e:
         if os.environ.get("FMBRDF_MI_TRACEBACK"):
             raise
-        msg = " ".join(str(e).split()) or type(e).__name__
-        print(f"{PROG} {args.command}: error: {msg}", file=sys.stderr)
+        print(f"{PROG} {args.command}: error: {_error_text(e)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"{PROG} {args.command}: interrupted", file=sys.stderr)

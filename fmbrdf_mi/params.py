@@ -26,13 +26,30 @@ def range_text(name):
     return f"{'[' if lo_incl else '('}{lo:g}, {hi:g}]"
 
 
-def check_scalar(name, value):
-    """Raise ParameterError unless ``value`` is a finite number in the range of ``name``."""
+def _f32(x):
+    import numpy as np
+
+    return float(np.float32(x))
+
+
+def check_scalar(name, value, single=False):
+    """Raise ParameterError unless ``value`` is a finite number in the range of ``name``.
+
+    ``single``: ``value`` is stored in single precision (a ``mi.Float`` of a JIT
+    variant).  Inclusive bounds are then compared in single precision too, so
+    that the float32 rounding of a valid bound (alpha = 0.01 -> 0.0099999998,
+    pi/2 -> 1.5707964) is accepted; a float32 value passes exactly when it is
+    the rounding of some valid double.  Exclusive bounds stay strict.  Values
+    given as doubles (load time, the command line) are checked as doubles.
+    """
     _, lo, hi, lo_incl, desc = SCALAR_PARAMS[name]
     try:
         v = float(value)
     except (TypeError, ValueError):
         raise ParameterError(f"fmbrdf: '{name}' ({desc}) must be a number, got {value!r}") from None
+    if single:
+        lo = _f32(lo) if lo_incl else lo
+        hi = _f32(hi)
     ok = math.isfinite(v) and (v >= lo if lo_incl else v > lo) and v <= hi
     if not ok:
         raise ParameterError(

@@ -424,9 +424,12 @@ def render_stokes(scene, spp=None, seed=0, progress=True):
     if not mi.is_polarized:
         raise ValueError(f"render_stokes: variant {mi.variant()} is not polarised; "
                          "use e.g. llvm_ad_spectral_polarized or llvm_ad_mono_polarized")
+    from ._paths import check_render_size
+
     sensor = scene.sensors()[0]
     film = sensor.film()
     width, height = (int(x) for x in film.crop_size())
+    check_render_size(width, height)
     sampler = sensor.sampler()
     scene_spp = int(sampler.sample_count())
     spp = _check_positive("spp", scene_spp if spp is None else spp, integer=True)

@@ -181,7 +181,7 @@ def _dataset_record(cfg):
                           "camera.to_world maps it to the world",
                 "stokes": "stokes integrator frame: x = image right, y = image up (fmbrdf_mi.stokes_io)",
                 "normal": "unit shading normals in the camera frame at the pixel centres, float32 (H, W, 3)",
-                "mask": "255 where the ray through the pixel centre hits the shape",
+                "mask": "255 where the ray through the pixel centre hits the shape on a face turned towards the camera",
                 "light.direction": "camera frame, from the surface towards the light",
                 "render.seed": "the seed given to fmbrdf_mi.scene.render_stokes; the image is rendered "
                                "with irradiance 1 and multiplied by light.irradiance",
@@ -225,6 +225,105 @@ def write_manifest(out, indices, n, name=MANIFEST):
     path = os.path.join(out, name)
     _atomic_write(path, "".join(lines).encode())
     return path
+
+
+# ------------------------------------------------------------------ locks
+LOCK_PREFIX = ".lock.shard-"
+
+
+def _lock_name(k, n):
+    return f"{LOCK_PREFIX}{k}-of-{n}"
+
+
+def _overlap(k1, n1, k2, n2, samples):
+    """Whether shards k1/n1 and k2/n2 share a sample index below ``samples``."""
+    if (k1 - k2) % math.gcd(n1, n2):
+        return False  # no i with i % n1 == k1 and i % n2 == k2 (Chinese remainder theorem)
+    return any(i % n2 == k2 for i in range(k1, min(samples, k1 + n1 * n2), n1))
+
+
+def _holder_alive(info):
+    import socket
+
+    if info.get("host") != socket.gethostname():
+        return True  # cannot tell: assume it runs
+    try:
+        os.kill(int(info["pid"]), 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, KeyError, ValueError, TypeError):
+        return True
+    return True
+
+
+def _read_lock(path):
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+def _describe(info, path):
+    return (f"pid {info.get('pid')} on {info.get('host')}, started {info.get('started')} "
+            f"(lock file {path}; delete it if that process is gone)")
+
+
+def acquire_lock(out, k, n, samples):
+    """Take the lock of shard k/n of the dataset in ``out``; ValueError if a live generator
+    holds this shard or one that shares samples with it.  Locks of dead processes on this
+    host are removed.  Returns the lock's path."""
+    import socket
+
+    me = {"pid": os.getpid(), "host": socket.gethostname(), "shard": f"{k}/{n}",
+          "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    path = os.path.join(out, _lock_name(k, n))
+
+    def conflicts():
+        for name in sorted(os.listdir(out)):
+            m = re.fullmatch(re.escape(LOCK_PREFIX) + r"(\d+)-of-(\d+)", name)
+            if not m:
+                continue
+            other = os.path.join(out, name)
+            info = _read_lock(other)
+            if info is None or info.get("pid") == me["pid"] and info.get("host") == me["host"]:
+                continue
+            k2, n2 = int(m.group(1)), int(m.group(2))
+            if not _overlap(k, n, k2, n2, samples):
+                continue
+            if not _holder_alive(info):
+                try:
+                    os.remove(other)  # stale: its process is gone
+                except FileNotFoundError:
+                    pass
+                continue
+            what = "this shard" if (k2, n2) == (k, n) else f"shard {k2}/{n2}, which shares samples with {k}/{n},"
+            raise ValueError(f"--out {out}: another generator is rendering {what} into it: "
+                             f"{_describe(info, other)}")
+
+    conflicts()
+    for _ in range(2):
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            conflicts()  # removes it if stale, raises if alive
+            continue
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(json.dumps(me) + "\n")
+        try:
+            conflicts()  # a generator of an overlapping shard that started at the same moment
+        except BaseException:
+            release_lock(path)
+            raise
+        return path
+    raise ValueError(f"--out {out}: could not take the lock {path}")
+
+
+def release_lock(path):
+    try:
+        os.remove(path)
+    except FileNotFoundError:
+        pass
 
 
 # ------------------------------------------------------------------ one sample
@@ -315,8 +414,9 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
         cfg = load_config(raw, base_dir=base_dir)
     k, n_shards = parse_shard(shard)
     out = os.fspath(out)
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise ValueError(f"--out {out}: exists and is not a directory")
+    from .._paths import check_output_dir
+
+    check_output_dir(out, "--out")
 
     import mitsuba as mi
 
@@ -328,10 +428,12 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
     from .render import SampleRenderer, sample_geometry
 
     renderer = SampleRenderer(cfg)
+    lock = None
     try:
         for name in cfg.mesh_files():  # a mesh that does not load fails now, not mid-run
             renderer.normalisation(name)
         os.makedirs(os.path.join(out, SAMPLES_DIR), exist_ok=True)
+        lock = acquire_lock(out, k, n_shards, cfg.samples)
         _check_dataset_file(out, cfg)
         mine = [i for i in range(cfg.samples) if i % n_shards == k]
         removed = _clean_temporaries(os.path.join(out, SAMPLES_DIR), set(mine))
@@ -355,6 +457,7 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
             plan.append((order.setdefault((draw["shape"], draw["camera"]), len(order)), i))
         plan.sort()
 
+        black = []
         bar = Progress(len(todo), skipped, stream=stream, enabled=progress)
         t_render = time.perf_counter()
         t_write = 0.0
@@ -363,6 +466,9 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
             geometry = sample_geometry(draw, renderer.normalisation(draw["shape"]))
             label = make_label(cfg, i, draw, geometry)
             stokes, normals, mask = renderer.render(draw, geometry)
+            label["shape"]["back_face_pixels"] = renderer.back_face_pixels
+            if not mask.any() or not np.any(stokes[0] > 0):
+                black.append(i)
             t = time.perf_counter()
             write_sample(out, label, stokes, normals, mask)
             t_write += time.perf_counter() - t
@@ -376,8 +482,16 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
         raise
     finally:
         renderer.close()
+        if lock is not None:
+            release_lock(lock)
         if previous is not None and previous != cfg.variant:
             mi.set_variant(previous)
+    if black and progress:
+        stream.write(f"dataset: warning: {len(black)} sample(s) show nothing lit (the light behind the "
+                     f"object as seen from the camera, or the object out of view): "
+                     f"{', '.join(sample_id(i, cfg.samples) for i in black[:10])}"
+                     f"{', ...' if len(black) > 10 else ''}\n")
+        stream.flush()
 
     manifests = []
     if n_shards > 1:

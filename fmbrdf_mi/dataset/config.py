@@ -182,7 +182,8 @@ class Uniform:
 
 class LogUniform(Uniform):
     def draw(self, rng):
-        return float(math.exp(rng.uniform(math.log(self.lo), math.log(self.hi))))
+        # exp(log(lo)) can round below lo (0.01 -> 0.009999999999999998): clip to the range
+        return float(min(max(math.exp(rng.uniform(math.log(self.lo), math.log(self.hi))), self.lo), self.hi))
 
     def canonical(self):
         return {"loguniform": [self.lo, self.hi]}
@@ -381,6 +382,12 @@ class DatasetConfig:
 
         r = sec["render"]
         self.resolution = _resolution("render.resolution", r.get("resolution", DEFAULTS["render"]["resolution"]))
+        from .._paths import check_render_size
+
+        try:  # a sample also keeps its normal map (float64, 24 bytes per pixel) and mask
+            check_render_size(*self.resolution, what="render.resolution", extra_per_pixel=32)
+        except ValueError as e:
+            raise DatasetConfigError(str(e)) from None
         self.spp = _integer("render.spp", r.get("spp", DEFAULTS["render"]["spp"]), 1)
         self.variant = r.get("variant", DEFAULTS["render"]["variant"])
         if self.variant not in VARIANTS:

@@ -288,9 +288,15 @@ class SampleRenderer:
         uv = mi.Point2f(x.ravel().astype(np.float32), y.ravel().astype(np.float32))
         ray, _ = sensor.sample_ray(0.0, 0.5, uv, mi.Point2f(0.5, 0.5))
         si = self.scene.ray_intersect(ray)
-        mask = np.asarray(si.is_valid()).reshape(h, w)
+        hit = np.asarray(si.is_valid()).reshape(h, w)
         n = np.asarray(si.sh_frame.n, dtype=np.float64).T.reshape(h, w, 3) @ axes  # -> camera frame
         n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+        # back faces (e.g. the inside of the open cylinder, a one-sided disk seen from behind):
+        # the surface faces away from the camera and the one-sided BSDF renders them black;
+        # they are not part of the mask (label: shape.back_face_pixels counts them)
+        front = np.asarray(si.wi.z).reshape(h, w) > 0  # wi: towards the camera, shading frame
+        mask = hit & front
+        self.back_face_pixels = int(np.sum(hit & ~front))
         n[~mask] = 0.0
         return n.astype(np.float32), mask
 

@@ -210,7 +210,16 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     from .relight import relight_error
     from .. import stokes_io
 
+    from .options import check_fit_options, check_input_options
+    from .._paths import check_output_dir
+
     get_model(model)
+    check_input_options(black_level=black_level, conversion_gain=conversion_gain, read_noise=read_noise,
+                        irradiance=irradiance, fov=fov, relight_irradiance=relight_irradiance)
+    check_fit_options(model=model, optimizer=optimizer, path=path, bounds=parse_bounds(bounds),
+                      init=parse_init(init), max_iter=max_iter, tol=tol, time_limit=time_limit,
+                      max_time=max_time, max_pixels=max_pixels, erode=erode, seed=seed)
+    check_output_dir(out)
     outs = _outputs(out, relight)
     if not force:
         for p in outs.values():
@@ -369,8 +378,27 @@ def add_fit_arguments(p):
     g.add_argument("-q", "--quiet", action="store_true")
 
 
+def check_args(args):
+    """Validate the command line's options before any file is read (one line per mistake)."""
+    from .options import check_fit_options, check_input_options
+
+    def flag(name):
+        return "--" + name.replace("_", "-")
+
+    check_input_options(black_level=args.black_level, conversion_gain=args.conversion_gain,
+                        read_noise=args.read_noise, irradiance=args.irradiance, fov=args.fov,
+                        relight_irradiance=args.relight_irradiance, flag=flag)
+    check_fit_options(model=args.model, optimizer=args.optimizer, path=args.path,
+                      bounds=parse_bounds(args.bounds), init=parse_init(args.init), max_iter=args.max_iter,
+                      tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
+                      max_pixels=args.max_pixels, erode=args.erode, seed=args.seed, flag=flag)
+    if args.relight_light is not None and not args.relight:
+        raise InputError("--relight-light needs --relight IMAGE")
+
+
 def run_fit(args):
     t0 = time.time()
+    check_args(args)
     inputs = args.inputs if len(args.inputs) > 1 else args.inputs[0]
     relight = None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0])
     report = fit_files(inputs, args.out, normals=args.normals, mask=args.mask, view=args.view,

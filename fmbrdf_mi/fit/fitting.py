@@ -11,6 +11,7 @@ import numpy as np
 from . import loss as L
 from . import optimise as O
 from .models import Bounds, get_model
+from .options import check_fit_options
 from .observations import InputError, erode as erode_mask
 from .pixel_model import PixelEvaluator, RenderEvaluator
 
@@ -133,6 +134,7 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
     callable receives each progress line, False is silent.
     """
     opts = dataclasses.replace(options or FitOptions(), **kw)
+    check_fit_options(**dataclasses.asdict(opts))
     if opts.optimizer not in ("lm", "adam"):
         raise ValueError(f"optimizer: expected 'lm' or 'adam', got {opts.optimizer!r}")
     if opts.path == "render" and opts.optimizer != "adam":
