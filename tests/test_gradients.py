@@ -9,7 +9,7 @@ able to catch a wrong or missing derivative.
 """
 import numpy as np
 import pytest
-from conftest import make
+from conftest import make, make_float32
 
 BASE = {"eta": 1.6, "alpha": 0.4, "beta": 1.7, "kappa": 20.0, "k_s": 0.8, "k_b": 0.6}
 
@@ -32,20 +32,10 @@ def objective(mi, bsdf):
 
 
 def value_with(mi, name, x):
-    """The objective at ``name`` = x, with the BSDF's float32 tables: without
-    gradients the plugin stores the polarised-light table in 16-bit fixed point
-    (steps of 6e-5 of M00), whose rounding would swamp a central difference of
-    M11; enabling gradients (and not using them) keeps the float32 table."""
+    """The objective at ``name`` = x, on the float32 tables (conftest.make_float32)."""
     import drjit as dr
 
-    bsdf = make(mi, **BASE)
-    params = mi.traverse(bsdf)
-    key = name if name in params else f"{name}.value"
-    params[key] = x
-    for k in ("eta", "alpha", "beta", "kappa"):
-        dr.enable_grad(params[k])
-    params.update()
-    return float(dr.detach(objective(mi, bsdf))[0])
+    return float(dr.detach(objective(mi, make_float32(mi, **{**BASE, name: x})))[0])
 
 
 @pytest.mark.parametrize("name", ["eta", "alpha", "beta", "kappa", "k_s", "k_b"])
