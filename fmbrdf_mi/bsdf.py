@@ -19,7 +19,9 @@ from .model.fresnel import reflection_mueller_terms
 from .model.sampling import MicrofacetSampler
 
 _SCALARS = ("eta", "alpha", "beta", "kappa")
-_PROPERTIES = _SCALARS + ("k_s", "k_b", "r_k")
+_PROPERTIES = _SCALARS + ("k_s", "k_b", "r_k", "tables")
+#: Values of the string property ``tables`` (see :meth:`_rebuild`).
+TABLE_MODES = ("compact", "float32")
 
 
 def _scalar_value(x):
@@ -171,6 +173,9 @@ class _FMBRDFMethods:
             if name in props and props.type(name) == mi.Properties.Type.Color:
                 P.check_albedo(name, list(props.get(name)))
         self.polarized = mi.is_polarized
+        self.table_mode = props.get("tables", "compact") if "tables" in props else "compact"
+        if self.table_mode not in TABLE_MODES:
+            raise P.ParameterError(f"fmbrdf: 'tables' = {self.table_mode!r} is not one of {', '.join(TABLE_MODES)}")
         for name in _SCALARS:
             default = P.SCALAR_PARAMS[name][0]
             value = props.get(name, default) if (name in props) else default
@@ -308,11 +313,13 @@ class _FMBRDFMethods:
         dr.make_opaque(self.eta, self.alpha, self.beta, self.kappa)
         self.dist = Distribution(mi.Float, self.alpha, self.beta)
         self.primary, self.secondary = body_tables(self.dist, self.eta, self.kappa, self.grid, self.polarized)
-        if self.polarized and not dr.grad_enabled(self.eta, self.alpha, self.beta, self.kappa):
-            # No derivatives wanted: the response to polarised light in 16-bit fixed point (within
-            # 3.1e-5 of M00), half the bytes for eval's random-access reads (interp.py).  What
-            # unpolarised light sees (the primary table, all a fit uses) stays float32, so finite
-            # differences of it remain as smooth as float32 allows.
+        if (self.table_mode == "compact" and self.polarized
+                and not dr.grad_enabled(self.eta, self.alpha, self.beta, self.kappa)):
+            # No derivatives wanted: every Mueller element but log M00 in 16-bit fixed point (within
+            # 3.1e-5 of M00), 2/3 and 1/2 of the bytes for eval's random-access reads (interp.py).
+            # With gradients, or tables="float32", they stay float32 (smooth in the parameters
+            # to float32 rounding, which finite differences with small steps need).
+            self.primary = PackedTetraTable(self.primary, n_float=1)
             self.secondary = PackedTetraTable(self.secondary)
         with dr.suspend_grad():
             self.sampler = MicrofacetSampler(self.dist)

@@ -28,18 +28,11 @@ def make(mi, **kw):
 
 
 def make_float32(mi, **kw):
-    """:func:`make` with the float32 tables that gradients get: without
-    gradients the plugin stores the polarised-light table in 16-bit fixed point
-    (within 3.1e-5 of M00), whose rounding would swamp a central difference of
-    an element like M11.  Enabling gradients (and not using them) keeps it float32."""
-    import drjit as dr
-
-    bsdf = make(mi, **kw)
-    params = mi.traverse(bsdf)
-    for k in ("eta", "alpha", "beta", "kappa"):
-        dr.enable_grad(params[k])
-    params.update()
-    return bsdf
+    """:func:`make` with float32 tables: by default (``tables="compact"``) the
+    plugin stores every Mueller ratio in 16-bit fixed point when no gradients
+    are wanted (within 3.1e-5 of M00), whose rounding would swamp a central
+    difference with a small step."""
+    return make(mi, tables="float32", **kw)
 
 
 def fresnel_T(theta, eta):

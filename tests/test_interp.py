@@ -75,3 +75,33 @@ def test_packed_table_equals_float_table_to_its_step(variant, n_float):
             assert err > 1e-7  # it is really quantised
     clipped = PackedTetraTable(_table(Float, np.full((2, 2, 2, 2), 3.0)))
     assert np.allclose(np.asarray(clipped.eval(Float(0.3), Float(0.3), Float(0.3))[0]), 2.0, atol=1e-4)
+
+
+def test_compact_and_float32_tables_agree(variant):
+    """The plugin's default tables ("compact": ratios in 16-bit fixed point when
+    no gradients are wanted) against tables="float32": each ratio within 3.06e-5,
+    so each Mueller element of the body term within 4 x 3.06e-5 x M00 after the
+    two Stokes-frame rotations (each output element mixes at most 4 ratios with
+    coefficients of modulus <= 1); the surface term is not tabulated and equal."""
+    from _common import directions, eval_mueller
+    from conftest import make, make_float32
+    import fmbrdf_mi
+
+    mi = variant
+    rng = np.random.default_rng(4)
+    n = 400
+    L = directions(rng.uniform(0, 85, n), rng.uniform(-180, 180, n))
+    V = directions(rng.uniform(0, 85, n), rng.uniform(-180, 180, n))
+    mat = dict(eta=1.7, alpha=0.5, beta=1.5, kappa=30.0)
+    compact, f32 = make(mi, **mat), make_float32(mi, **mat)
+    a, _, _ = eval_mueller(compact, L, V, component=1)
+    b, _, _ = eval_mueller(f32, L, V, component=1)
+    err = np.abs(a - b).max(axis=(1, 2)) / b[:, 0, 0]
+    assert err.max() <= 4 * 3.06e-5 + 1e-6
+    assert err.max() > 1e-7  # the default really is the compact table
+    np.testing.assert_array_equal(a[:, 0, 0], b[:, 0, 0])  # log M00 stays float32
+    s1, _, _ = eval_mueller(compact, L, V, component=0)
+    s2, _, _ = eval_mueller(f32, L, V, component=0)
+    np.testing.assert_array_equal(s1, s2)
+    with pytest.raises(fmbrdf_mi.ParameterError, match="tables"):
+        fmbrdf_mi.load_dict({"type": "fmbrdf", "tables": "half"})
