@@ -315,12 +315,13 @@ class _FMBRDFMethods:
         self.primary, self.secondary = body_tables(self.dist, self.eta, self.kappa, self.grid, self.polarized)
         if (self.table_mode == "compact" and self.polarized
                 and not dr.grad_enabled(self.eta, self.alpha, self.beta, self.kappa)):
-            # No derivatives wanted: every Mueller element but log M00 in 16-bit fixed point (within
-            # 3.1e-5 of M00), 2/3 and 1/2 of the bytes for eval's random-access reads (interp.py).
-            # With gradients, or tables="float32", they stay float32 (smooth in the parameters
-            # to float32 rounding, which finite differences with small steps need).
-            self.primary = PackedTetraTable(self.primary, n_float=1)
-            self.secondary = PackedTetraTable(self.secondary)
+            # No derivatives wanted: every Mueller element but log M00 in 16-bit fixed point, 2/3
+            # and 1/2 of the bytes for eval's random-access reads (interp.py).  M10/M00 and M20/M00
+            # (the DoLP of unpolarised light) are bounded by 1: within 1.5e-5; the others within
+            # 3.1e-5.  With gradients, or tables="float32", they stay float32 (smooth in the
+            # parameters to float32 rounding, which finite differences with small steps need).
+            self.primary = PackedTetraTable(self.primary, n_float=1, bound=1.0)
+            self.secondary = PackedTetraTable(self.secondary, bound=2.0)
         with dr.suspend_grad():
             self.sampler = MicrofacetSampler(self.dist)
         tables = [self.primary.values] + ([self.secondary.values] if self.secondary else [])

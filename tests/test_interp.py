@@ -61,7 +61,7 @@ def test_packed_table_equals_float_table_to_its_step(variant, n_float):
     data = rng.uniform(-2, 2, size=(6, 5, 7, 6 + n_float))
     data[..., 0] *= 50 if n_float else 1  # a float channel far outside [-2, 2]
     t = _table(Float, data)
-    p = PackedTetraTable(t, n_float=n_float)
+    p = PackedTetraTable(t, n_float=n_float, bound=2.0)
     assert p.shape[3] == n_float + 3
     u = [Float(x) for x in rng.uniform(-0.1, 1.1, (3, 20000))]
     a = [np.asarray(x) for x in t.eval(*u)]
@@ -71,7 +71,7 @@ def test_packed_table_equals_float_table_to_its_step(variant, n_float):
             assert np.array_equal(x, y)
         else:
             err = np.abs(x - y).max()
-            assert err <= 0.5 * PackedTetraTable.SCALE + 1e-6, (k, err)
+            assert err <= 0.5 * p.scale + 1e-6, (k, err)
             assert err > 1e-7  # it is really quantised
     clipped = PackedTetraTable(_table(Float, np.full((2, 2, 2, 2), 3.0)))
     assert np.allclose(np.asarray(clipped.eval(Float(0.3), Float(0.3), Float(0.3))[0]), 2.0, atol=1e-4)

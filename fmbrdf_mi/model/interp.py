@@ -71,18 +71,16 @@ class TetraTable:
 
 class PackedTetraTable(TetraTable):
     """The same interpolation from half the bytes: the first ``n_float``
-    channels stay float32, the others (an even number, values in [-2, 2]) are
-    stored as 16-bit fixed point, two to a 32-bit word (step 2 / 32767 =
-    6.1e-5, so at most 3.1e-5 from the float32 value, a hundredth of the
-    tables' interpolation error).  eval's random-access reads are what costs:
+    channels stay float32, the others (an even number, values in [-bound,
+    bound]) are stored as 16-bit fixed point, two to a 32-bit word (step
+    bound / 32767: for bound 2, at most 3.1e-5 from the float32 value, a
+    hundredth of the tables' interpolation error).  eval's random-access reads are what costs:
     fewer bytes keep more of the table in the caches and fewer words are
     gathered per texel.  The bits carry no AD graph: use it only where no
     parameter of the table has gradients enabled.
     """
 
-    SCALE = 2.0 / 32767.0
-
-    def __init__(self, table, n_float=0):
+    def __init__(self, table, n_float=0, bound=2.0):
         Float = type(table.values)
         UInt = dr.uint32_array_t(Float)
         Int = dr.int32_array_t(Float)
@@ -90,13 +88,14 @@ class PackedTetraTable(TetraTable):
         if (c - n_float) % 2:
             raise ValueError("PackedTetraTable: the packed channels must come in pairs")
         n_words = n_float + (c - n_float) // 2
+        self.scale = bound / 32767.0
         vals = dr.detach(table.values)
         idx = dr.arange(UInt, n0 * n1 * n2 * n_words)
         texel, k = idx // n_words, idx % n_words
         first = dr.select(k < n_float, k, n_float + 2 * (k - n_float))
         a = dr.gather(Float, vals, texel * c + first)
         b = dr.gather(Float, vals, texel * c + dr.minimum(first + 1, c - 1))
-        q = [Int(dr.round(dr.clip(x, -2.0, 2.0) * (1.0 / self.SCALE))) for x in (a, b)]
+        q = [Int(dr.round(dr.clip(x, -bound, bound) * (1.0 / self.scale))) for x in (a, b)]
         words = dr.select(k < n_float, dr.reinterpret_array(UInt, a),
                           dr.reinterpret_array(UInt, (q[0] & 0xFFFF) | (q[1] << 16)))
         dr.eval(words)
@@ -123,4 +122,4 @@ class PackedTetraTable(TetraTable):
                 j = nf + 2 * (k - nf)
                 out[j] = out[j] + w * Float((word << 16) >> 16)
                 out[j + 1] = out[j + 1] + w * Float(word >> 16)
-        return [o if k < nf else o * self.SCALE for k, o in enumerate(out)]
+        return [o if k < nf else o * self.scale for k, o in enumerate(out)]
