@@ -117,25 +117,36 @@ class _Evaluator:
             dr.eval(s)
             out.append(np.stack([np.asarray(c, dtype=np.float64) for c in s]))
         parts = Parts(out[0], out[1])
+        if not wrt:
+            return parts
+        # One table build with gradients on every parameter in ``wrt``, then one forward pass
+        # per parameter through the same graph (edges kept, interior gradients cleared).
+        xs = {}
         for name in wrt:
-            p = self.model.param(name)
-            x = mi.Float(float(shape_values[name]))
-            dr.enable_grad(x)
-            self._assign(p.key, x)
-            self.params.update()
-            s_all = []
-            for a in UNIT_ALBEDOS:
-                self.set_albedos(*a)
-                s_all.append(self._stokes())
-            dr.forward(x)
+            xs[name] = mi.Float(float(shape_values[name]))
+            dr.enable_grad(xs[name])
+            self._assign(self.model.param(name).key, xs[name])
+        self.params.update()
+        s_all = []
+        for a in UNIT_ALBEDOS:
+            self.set_albedos(*a)
+            s_all.append(self._stokes())
+        outputs = [c for s in s_all for c in s]
+        for name in wrt:
+            dr.set_grad(xs[name], 1.0)
+            dr.forward_to(*outputs, flags=dr.ADFlag.ClearInterior | dr.ADFlag.ClearInput)
             grads = [np.stack([np.asarray(dr.grad(c), dtype=np.float64) for c in s]) for s in s_all]
+            for c in outputs:
+                dr.clear_grad(c)
             parts.d_surface[name], parts.d_body[name] = grads
             bad = ~(np.all(np.isfinite(grads[0]), 0) & np.all(np.isfinite(grads[1]), 0))
             parts.nonfinite = parts.nonfinite | bad if parts.nonfinite is not None else bad
-            # leave a detached value in place (no graph kept alive)
-            self._assign(p.key, float(shape_values[name]))
+        del outputs, s_all
+        # leave detached values in place (no graph kept alive)
+        for name in wrt:
+            self._assign(self.model.param(name).key, float(shape_values[name]))
             self._current[name] = float(shape_values[name])
-            self.params.update()
+        self.params.update()
         return parts
 
 
