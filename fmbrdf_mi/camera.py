@@ -160,15 +160,18 @@ def write_sidecar(raw_path, camera, extra=None, force=False):
     path = sidecar_path(raw_path)
     if os.path.exists(path) and not force:
         raise FileExistsError(f"{path} exists; pass --force to overwrite it")
-    d = {SIDECAR_KEY: 1, "camera": camera.to_dict()}
-    d.update(extra or {})
+    d = dict(extra or {})
+    d.update({SIDECAR_KEY: 1, "sensor": camera.to_dict()})
     with open(path, "w") as f:
         json.dump(d, f, indent=2)
     return path
 
 
 def read_sidecar(raw_path):
-    """The sidecar dict of a raw capture, or None when there is none (or the JSON beside it is not one)."""
+    """The sidecar dict of a raw capture, or None when there is none (or the JSON beside it is not one).
+
+    ``d["sensor"]`` is the :class:`CameraModel`; the rest is what the writer added.
+    """
     path = sidecar_path(raw_path)
     if not os.path.isfile(path):
         return None
@@ -180,7 +183,7 @@ def read_sidecar(raw_path):
     if not isinstance(d, dict) or SIDECAR_KEY not in d:
         return None
     try:
-        d["camera"] = CameraModel.from_dict(d["camera"])
+        d["sensor"] = CameraModel.from_dict(d["sensor"])
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: camera settings are malformed ({exc})") from None
     d["path"] = path

@@ -345,7 +345,8 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
                     raise InputError(f"angle image {p}: expected a 2-D single-channel image, got {im.shape}")
             if len({im.shape for im in imgs}) != 1:
                 raise InputError(f"angle images: shapes differ: {[im.shape for im in imgs]}")
-            return stokes_from_angles(np.stack(imgs), black_level), {"source": "angle images"}
+            return stokes_from_angles(np.stack(imgs), black_level), {"source": "angle images",
+                                                                      "_array": np.stack(imgs)}
         else:
             raise InputError(f"polarisation input: give one file (Stokes .exr, raw mosaic, or a (4, H, W) "
                              f".npy of angle images) or four angle images, got {len(paths)} paths")
@@ -359,9 +360,9 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
     a = _read_array(path, "polarisation image")
     if a.ndim == 2:
         return (stokes_from_raw(a, layout, black_level, demosaic),
-                {"source": "raw mosaic", "layout": layout, "demosaic": demosaic})
+                {"source": "raw mosaic", "layout": layout, "demosaic": demosaic, "_array": a})
     if a.ndim == 3 and a.shape[0] == 4:
-        return stokes_from_angles(a, black_level), {"source": "angle images"}
+        return stokes_from_angles(a, black_level), {"source": "angle images", "_array": a}
     raise InputError(f"polarisation image {path}: expected a 2-D raw mosaic or (4, H, W) angle images, "
                      f"got shape {a.shape}")
 
