@@ -140,9 +140,10 @@ def plot_loss_history(histories, path):
         if hist:
             ax.semilogy([h["time"] for h in hist], [h["loss"] for h in hist], "o-", ms=3, label=label)
     ax.set_xlabel("time (s)")
-    ax.set_ylabel("loss (eq. optimization)")
+    ax.set_ylabel("objective (chi^2 for the likelihood; eq:optimization for the paper's loss)")
     ax.grid(alpha=0.3)
-    ax.legend()
+    if any(histories.values()):
+        ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

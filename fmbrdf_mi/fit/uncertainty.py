@@ -71,14 +71,19 @@ def at_bound(problem, st):
     return out
 
 
-def covariance(problem, st, J, r, n_independent=None):
-    """Covariance of the reported free parameters; returns (names, cov (p, p), info dict)."""
+def jacobian_in_reported(problem, st, J):
+    """(names, J_theta): the residuals' Jacobian with respect to the reported free parameters."""
     names = _free_names(problem)
     G = dtheta_dz(problem, st, names)
+    return names, J @ np.linalg.inv(G)
+
+
+def covariance(problem, st, J, r, n_independent=None):
+    """Covariance of the reported free parameters; returns (names, cov (p, p), info dict)."""
     try:
-        Jt = J @ np.linalg.inv(G)
+        names, Jt = jacobian_in_reported(problem, st, J)
     except np.linalg.LinAlgError:
-        return names, None, {"method": "singular reparameterisation"}
+        return _free_names(problem), None, {"method": "singular reparameterisation"}
     p = Jt.shape[1]
     H = Jt.T @ Jt
     try:
