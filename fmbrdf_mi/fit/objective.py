@@ -78,19 +78,27 @@ class NoiseModel:
         return self.a * mu + self.b
 
     def estimate(self, mu, resid2, dof_factor=1.0):
-        """Fit v = a mu + b to squared residuals (weighted least squares, a, b >= 0)."""
+        """Fit v = a mu + b (a, b >= 0) to squared residuals: the Gaussian quasi-likelihood of e = r^2,
+        E[e] = v, var[e] = 2 v^2, solved by iterated weighted least squares to its fixed point (so the
+        estimate is a function of the residuals alone and does not oscillate between IRLS rounds)."""
         mu = np.clip(np.asarray(mu, dtype=np.float64).ravel(), 0.0, None)
         e = np.asarray(resid2, dtype=np.float64).ravel() / dof_factor
-        v = np.maximum(self.variance(mu), 1e-300) if self.estimated else np.ones_like(mu)
-        w = 1.0 / v ** 2
-        X = np.stack([mu, np.ones_like(mu)], 1)
-        a, b = np.linalg.lstsq(X * np.sqrt(w)[:, None], e * np.sqrt(w), rcond=None)[0]
         floor = 1e-12 * max(float(np.mean(e)), 1e-300)
-        if b < floor:  # keep v > 0: refit a alone
-            a, b = float(np.sum(w * mu * e) / max(np.sum(w * mu * mu), 1e-300)), floor
-        if a < 0:
-            a, b = 0.0, max(float(np.sum(w * e) / np.sum(w)), floor)
-        self.a, self.b, self.estimated = float(a), float(b), True
+        X = np.stack([mu, np.ones_like(mu)], 1)
+        a, b = 0.0, max(float(np.mean(e)), floor)
+        for _ in range(50):
+            v = np.maximum(a * mu + b, floor)
+            sw = 1.0 / v
+            a1, b1 = np.linalg.lstsq(X * sw[:, None], e * sw, rcond=None)[0]
+            if b1 < floor:  # keep v > 0: a alone
+                a1, b1 = float(np.sum(sw * sw * mu * e) / max(np.sum(sw * sw * mu * mu), 1e-300)), floor
+            if a1 < 0:
+                a1, b1 = 0.0, max(float(np.sum(sw * sw * e) / np.sum(sw * sw)), floor)
+            done = abs(a1 - a) <= 1e-6 * abs(a1) + 1e-300 and abs(b1 - b) <= 1e-6 * abs(b1) + floor
+            a, b = float(a1), float(b1)
+            if done:
+                break
+        self.a, self.b, self.estimated = a, b, True
 
     def describe(self):
         if self.known:

@@ -45,8 +45,11 @@ def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fract
     irr = cap["exposure"] / cam.conversion_gain
     meta = {"truth": ideal["params"], "capture": {"exposure": cap["exposure"], "saturated": cap["saturated"],
                                                   "seed": seed}}
-    from .camera_noise import demosaic_footprint
+    from .camera_noise import demosaic_footprint, linear_stokes_variance
 
+    # the paper's loss gets what it can use of the known noise: the Rice mean of the DoLP
+    var = (linear_stokes_variance(stokes[0], cam.conversion_gain, cam.read_noise, demosaic,
+                                  adc_step_e=cam.conversion_gain) if known_noise else None)
     return ob.Observation(stokes, ideal["mask"], ideal["normals"], ideal["view_dirs"], ideal["light"], irr,
-                          meta, samples=smp, noise=noise, geometry=ideal["geometry"],
+                          meta, samples=smp, noise=noise, geometry=ideal["geometry"], lin_variance=var,
                           footprint=demosaic_footprint(demosaic)), cap
