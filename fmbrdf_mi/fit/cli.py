@@ -530,7 +530,9 @@ def run_fit(args):
             print(line)
         if unc.get("method"):
             print(f"  uncertainty: {unc['method']}"
-                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else ""))
+                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
+                  + (" (the model or the stated noise does not explain the data: errors too small)"
+                     if unc.get("misfit") else ""))
         if unc.get("correlation"):
             c = unc["correlation"]
             big = [(c["names"][i], c["names"][j], c["matrix"][i][j]) for i in range(len(c["names"]))

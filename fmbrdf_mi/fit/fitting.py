@@ -289,6 +289,10 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, **kw):
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
         n_ind = None if loss == "paper" else len(idx) * objective.dof
         unc = U.summarise(problem, st, J, r, n_ind)
+        if unc.get("misfit"):
+            report(f"[fit] warning: chi^2/dof = {unc['chi2_per_dof']:.3g} with the stated camera noise: the model "
+                   "(geometry, light, BSDF) or the noise settings do not explain the data; the standard errors "
+                   "are too small")
     elif not converged:
         unc = {"std_errors": {}, "method": "not computed: the fit did not converge"}
     if parts is None:

@@ -98,6 +98,9 @@ def covariance(problem, st, J, r, n_independent=None):
         info["chi2_per_dof"] = chi2 / max(n - p, 1)
         if obj.noise.known:
             scale, info["method"] = 1.0, "inverse Fisher information (known camera noise)"
+            # chi^2 / dof has standard deviation sqrt(2 / dof): far above 1, the model or the stated
+            # noise does not explain the data, and these errors are too small
+            info["misfit"] = bool(info["chi2_per_dof"] > 1.0 + max(0.1, 5.0 * math.sqrt(2.0 / max(n - p, 1))))
         else:
             scale = info["chi2_per_dof"]
             info["method"] = "inverse Fisher information, noise level estimated from the residuals"
