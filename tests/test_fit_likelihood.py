@@ -261,3 +261,20 @@ def test_max_time_is_a_hard_limit_and_exits_3(tmp_path, capsys, variant):
     assert m["converged"] is False and "max_time" in m["stop_reason"]
     assert m["timings"]["total"] < 3 + 2.5, m["timings"]  # one model evaluation of slack at most
     assert time.time() - t0 < 60
+
+
+def test_likelihood_on_a_stokes_image_recovers_noise_free_albedos(variant):
+    """A Stokes image (no raw samples): the likelihood uses the four angle intensities computed from it;
+    noise-free, with the noise level estimated from the (float32-sized) residuals, the albedos come back."""
+    from fmbrdf_mi.fit import Observation, fit, predict_image
+    from fmbrdf_mi.fit import observations as ob
+
+    n, m, v = ob.sphere_normals((16, 16), (8, 8), 7)
+    obs = Observation(np.ones((3, 16, 16)), m, n, v, LIGHT)
+    obs = Observation(predict_image("fmbrdf", TRUE, obs), m, n, v, LIGHT)
+    r = fit(obs, loss="likelihood", fixed=SHAPE, starts=1, progress=False)
+    assert r.objective == "likelihood" and r.converged and r.noise["estimated"]
+    assert r.params["k_s"] == pytest.approx(TRUE["k_s"], rel=1e-4)
+    assert r.params["r_k"] == pytest.approx(TRUE["r_k"], rel=1e-4)
+    # the paper's loss stays the default for a Stokes image without known noise
+    assert fit(obs, fixed=SHAPE, starts=1, progress=False).objective == "paper"

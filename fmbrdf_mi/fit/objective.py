@@ -83,9 +83,13 @@ class NoiseModel:
         estimate is a function of the residuals alone and does not oscillate between IRLS rounds)."""
         mu = np.clip(np.asarray(mu, dtype=np.float64).ravel(), 0.0, None)
         e = np.asarray(resid2, dtype=np.float64).ravel() / dof_factor
-        floor = 1e-12 * max(float(np.mean(e)), 1e-300)
+        # work in normalised units (noise-free data have residuals of float32 size)
+        mscale = max(float(np.mean(mu)), 1e-300)
+        escale = max(float(np.mean(e)), 1e-30 * mscale ** 2, 1e-300)
+        mu, e = mu / mscale, e / escale
+        floor = 1e-9
         X = np.stack([mu, np.ones_like(mu)], 1)
-        a, b = 0.0, max(float(np.mean(e)), floor)
+        a, b = 0.0, 1.0
         for _ in range(50):
             v = np.maximum(a * mu + b, floor)
             sw = 1.0 / v
@@ -94,10 +98,11 @@ class NoiseModel:
                 a1, b1 = float(np.sum(sw * sw * mu * e) / max(np.sum(sw * sw * mu * mu), 1e-300)), floor
             if a1 < 0:
                 a1, b1 = 0.0, max(float(np.sum(sw * sw * e) / np.sum(sw * sw)), floor)
-            done = abs(a1 - a) <= 1e-6 * abs(a1) + 1e-300 and abs(b1 - b) <= 1e-6 * abs(b1) + floor
+            done = abs(a1 - a) <= 1e-6 * abs(a1) + 1e-12 and abs(b1 - b) <= 1e-6 * abs(b1) + 1e-12
             a, b = float(a1), float(b1)
             if done:
                 break
+        a, b = a * escale / mscale, b * escale
         self.a, self.b, self.estimated = a, b, True
 
     def describe(self):
