@@ -32,8 +32,14 @@ def ideal_sphere(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf"):
 
 
 def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fraction=0.8, known_noise=True,
-                        demosaic="superpixel"):
-    """One noisy raw capture of ``ideal`` as an :class:`Observation` (samples, noise model, Stokes image)."""
+                        demosaic="bilinear"):
+    """One noisy raw capture of ``ideal`` as an :class:`Observation` (samples, noise model, Stokes image).
+
+    The likelihood uses the raw samples; the paper's loss the Stokes image demosaicked with ``demosaic``
+    (default bilinear, with the matching footprint: the fit command's default for raw mosaics; with
+    ``superpixel`` the four samples' different points make false polarisation at highlights that the
+    footprint average does not model).
+    """
     from .objective import NoiseModel
 
     cam = camera or CameraModel()
