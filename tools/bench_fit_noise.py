@@ -19,9 +19,9 @@ super-pixel image, radius SIZE/2 - 1) x camera-noise seed x loss:
 * fit: :func:`fmbrdf_mi.fit.fit` with its defaults (coarse search from no
   prior, 2 starts, LM until converged, 20 000 random super-pixels at most)
   and the camera's gain and read noise known, with ``--loss likelihood``
-  (the raw samples) and ``--loss paper`` (superpixel-demosaicked Stokes
+  (the raw samples) and ``--loss paper`` (bilinear-demosaicked Stokes
   image, DoLP term with the Rice mean of that noise, demosaicking
-  footprint).
+  footprint: the command's defaults for a raw mosaic).
 
 Per material x size x loss x parameter it reports, over the seeds: the
 mean relative error +- its standard error (std / sqrt(n)), the spread (std
@@ -86,6 +86,7 @@ def run(args):
                            "params": r.params, "std_errors": r.std_errors,
                            "ci95": r.uncertainty.get("ci95", {}), "converged": r.converged,
                            "stop_reason": r.stop_reason, "time": r.timings["total"], "n_pixels": r.n_pixels,
+                           "evaluations": r.timings["evaluations"],
                            "saturated": cap["saturated"], "fixed": fx,
                            "chi2_per_dof": r.uncertainty.get("chi2_per_dof")}
                     runs.append(rec)
