@@ -193,7 +193,12 @@ def _distinct_starts(problem, cands, n):
     first = [k for k in problem.names if k not in ("eta", "kappa")] or list(problem.names)
     chosen = [cands[0][1]]
     pool = [c for _, c in cands[1:]]
-    pool.sort(key=lambda c: _albedo_at_bound(problem, c))  # stable: keeps the score order otherwise
+
+    def off(c):  # from the coarse search's own evaluation (no new table rebuild)
+        key = tuple(round(c.shape[n], 9) for n in problem.model.shape_names)
+        return not problem.both_lobes.get(key, True)
+
+    pool.sort(key=off)  # stable: keeps the score order otherwise
     for c in pool:
         if len(chosen) >= n:
             break
@@ -380,16 +385,7 @@ def _refine(problem, st, opts, t0, history, report):
     return st, reason, converged, J, r
 
 
-#: An albedo whose lobe contributes less than this fraction of the other's
-#: mean intensity over the fitted pixels counts as switched off.
-ALBEDO_BOUND = 1e-3
-
-
-def _albedo_at_bound(problem, st):
-    parts = problem.parts(st)
-    c_s = st.a_s * float(np.mean(parts.surface[0]))
-    c_b = st.a_b * float(np.mean(parts.body[0]))
-    return min(c_s, c_b) < ALBEDO_BOUND * max(c_s, c_b)
+ALBEDO_BOUND = O.ALBEDO_BOUND
 
 
 def predict_image(model_name, params, obs, pixels=None):

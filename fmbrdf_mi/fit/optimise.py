@@ -36,7 +36,6 @@ import time
 import numpy as np
 
 from . import loss as L
-from . import rice
 from .models import Bounds
 
 
@@ -89,6 +88,7 @@ class Problem:
         self._cost = {False: 0.0, True: 0.0}
         self._cache = []
         self.current = None     # latest accepted state (what a fit stopped by the clock reports)
+        self.both_lobes = {}    # coarse-search point -> both albedos switched on
 
     # the paper objective's weights, as before (tests and Adam use them)
     @property
@@ -171,6 +171,11 @@ def _score(problem, parts, st):
     return problem.obj.score(parts, st)
 
 
+#: An albedo whose lobe contributes less than this fraction of the other's
+#: mean intensity over the fitted pixels counts as switched off.
+ALBEDO_BOUND = 1e-3
+
+
 def coarse_search(problem, keep=2):
     """Grid search in stages; returns candidates [(score, State)] best first.
 
@@ -198,6 +203,8 @@ def coarse_search(problem, keep=2):
         a_s, a_b = problem.obj.albedos(parts)
         st = State(dict(shape), a_s, a_b)
         results[key] = (problem.obj.score(parts, st), st)
+        c_s, c_b = a_s * float(np.mean(parts.surface[0])), a_b * float(np.mean(parts.body[0]))
+        problem.both_lobes[key] = min(c_s, c_b) >= ALBEDO_BOUND * max(c_s, c_b)
         b = min(results.values(), key=lambda x: x[0])
         problem.current = b[1]
 
