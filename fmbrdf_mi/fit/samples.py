@@ -21,7 +21,15 @@ each and where on the super-pixel each was taken:
 A super-pixel is **unusable** when any of its raw samples is at or above the
 white level (clipped: its value says only "at least this") or at or below
 the dark level (clipped at the bottom of the ADC).  Such samples obey no
-Gaussian law; the super-pixel is dropped from the fit and counted.
+Gaussian law; the super-pixel is dropped from the fit and counted.  The
+choice depends on the observed values, so it selects: near the white level
+it keeps the super-pixels whose noise happened to stay below it, near the
+dark level those whose noise stayed above.  The resulting bias is confined
+to super-pixels within a few noise standard deviations of a clipping level;
+a camera with a black-level offset (``--black-level``) has no clipping at
+the bottom, and the default exposure of ``render --raw`` keeps the peak at
+80 % of the full well.  (A censored likelihood would use those samples
+without the selection; not implemented.)
 """
 from __future__ import annotations
 
