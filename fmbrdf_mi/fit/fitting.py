@@ -179,8 +179,12 @@ def _objective(obs, idx, opts, loss):
 
     if loss == "paper":
         var = None if obs.lin_variance is None else obs.lin_variance.ravel()[idx]
-        return PaperObjective(L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx], opts.dolp_min_intensity,
-                                                   var)), None
+        obj = PaperObjective(L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx], opts.dolp_min_intensity,
+                                                  var))
+        if obs.samples is not None and obs.samples.source == "raw mosaic" and obs.meta.get("demosaic") != "superpixel":
+            # bilinear demosaicking: neighbours share raw samples (the sandwich covariance accounts for it)
+            obj.grid = np.divmod(np.asarray(idx), obs.shape[1])
+        return obj, None
     smp = obs.samples if obs.samples is not None else SM.from_stokes(obs.stokes)
     noise = dataclasses.replace(obs.noise) if obs.noise is not None else NoiseModel(step=smp.step)
     return LikelihoodObjective(smp.at(idx), smp.analyser(), noise, smp.dof), smp

@@ -156,6 +156,7 @@ class PaperObjective:
         self.target = target
         self.w = target.dolp_valid.astype(np.float64)
         self.outliers = np.zeros(len(target.intensity), bool)
+        self.grid = None    # (rows, cols) of the pixels when neighbours are correlated (uncertainty.py)
 
     # weights of the DoLP term: the paper's inlier / outlier balance
     def refresh(self, parts, st):

@@ -49,7 +49,7 @@ def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fract
     noise = NoiseModel(cam.conversion_gain, cam.read_noise, 1.0) if known_noise else None
     # irradiance in DN: the albedos come back in the units of ``ideal`` (DN = input * exposure / gain)
     irr = cap["exposure"] / cam.conversion_gain
-    meta = {"truth": ideal["params"], "capture": {"exposure": cap["exposure"], "saturated": cap["saturated"],
+    meta = {"truth": ideal["params"], "demosaic": demosaic, "capture": {"exposure": cap["exposure"], "saturated": cap["saturated"],
                                                   "seed": seed}}
     from .camera_noise import demosaic_footprint, linear_stokes_variance
 

@@ -11,7 +11,9 @@
   spread of its minimiser.  The sandwich (robust, "HC0") estimate
   H^-1 M H^-1 with H = J^T J and M = sum over pixels of u_p u_p^T,
   u_p = sum of J^T r over the pixel's residual rows (its intensity and DoLP
-  residuals are correlated, so they are grouped), times n / (n - p).  It
+  residuals are correlated, so they are grouped), times n / (n - p); for a
+  bilinear-demosaicked mosaic M also sums u_p u_q^T over neighbouring
+  pixels (:func:`_neighbour_meat`), whose values share raw samples.  It
   describes the spread of the estimate, not its bias (the DoLP of a noisy
   pixel is biased: README).
 
@@ -110,10 +112,36 @@ def covariance(problem, st, J, r, n_independent=None):
         npx = int(pix.max()) + 1
         U = np.zeros((npx, p))
         np.add.at(U, pix, Jt * r[:, None])
-        M = U.T @ U
+        grid = getattr(obj, "grid", None)
+        if grid is None:
+            M = U.T @ U
+            info["method"] = "sandwich (robust) estimate for the paper's loss"
+        else:
+            M = _neighbour_meat(U, *grid)
+            info["method"] = ("sandwich (robust) estimate for the paper's loss, with the correlation of "
+                              "neighbouring pixels (demosaicking) included")
         cov = Hi @ M @ Hi * npx / max(npx - p, 1)
-        info["method"] = "sandwich (robust) estimate for the paper's loss"
     return names, cov, info
+
+
+def _neighbour_meat(U, rows, cols):
+    """sum_p u_p (sum_{q: |dr|, |dc| <= 1} u_q)^T, symmetrised, negative eigenvalues removed.
+
+    Bilinear demosaicking builds each super-pixel from raw samples it shares
+    with its 8 neighbours, so their residuals are correlated; beyond that
+    they are independent.  The uniform 3 x 3 window is unbiased for such a
+    correlation range.
+    """
+    rows, cols = np.asarray(rows), np.asarray(cols)
+    r0, c0 = rows.min(), cols.min()
+    G = np.zeros((rows.max() - r0 + 3, cols.max() - c0 + 3, U.shape[1]))
+    G[rows - r0 + 1, cols - c0 + 1] = U
+    S = sum(G[1 + dr:G.shape[0] - 1 + dr, 1 + dc:G.shape[1] - 1 + dc]
+            for dr in (-1, 0, 1) for dc in (-1, 0, 1))
+    M = U.T @ S[rows - r0, cols - c0]
+    M = 0.5 * (M + M.T)
+    w, V = np.linalg.eigh(M)
+    return (V * np.clip(w, 0.0, None)) @ V.T
 
 
 def summarise(problem, st, J, r, n_independent=None):
