@@ -141,9 +141,11 @@ def usable_pixels(obs, opts):
 
 
 def resolve_loss(obs, opts):
-    """``auto`` -> ``likelihood`` when the camera noise is known (gain given or in a sidecar), else ``paper``."""
+    """``auto`` -> ``likelihood`` when the camera noise is known (gain given or in a sidecar) and the fit
+    runs LM on the pixel path (what the likelihood needs), else ``paper``."""
     if opts.loss == "auto":
-        return "likelihood" if (obs.noise is not None and obs.noise.known) else "paper"
+        ok = opts.path == "pixel" and opts.optimizer == "lm"
+        return "likelihood" if (ok and obs.noise is not None and obs.noise.known) else "paper"
     if opts.loss not in ("likelihood", "paper"):
         raise InputError(f"loss: expected 'likelihood', 'paper' or 'auto', got {opts.loss!r}")
     return opts.loss
