@@ -266,6 +266,21 @@ def add_render_arguments(p):
                    help="also write the four polariser-angle images (0, 45, 90, 135 deg)")
     p.add_argument("--mosaic", action="store_true",
                    help="also write the raw mosaic of a quad-Bayer polarisation sensor (IMX250MZR layout)")
+    g = p.add_argument_group("raw capture (--raw): the camera model of fmbrdf_mi.camera")
+    g.add_argument("--raw", action="store_true",
+                   help="also write OUTPUT_raw.png, a linear 16-bit quad-Bayer mosaic through the camera model "
+                        "(shot and read noise, ADC), and OUTPUT_raw.json, its settings (read by fmbrdf-mi fit)")
+    g.add_argument("--full-well", type=float, default=10000.0, help="electrons (default %(default)s)")
+    g.add_argument("--conversion-gain", type=float, metavar="E_PER_DN",
+                   help="electrons per DN (default: the ADC spans the full well)")
+    g.add_argument("--read-noise", type=float, default=2.5, help="electrons rms (default %(default)s)")
+    g.add_argument("--bits", type=int, default=12, help="ADC bits (default %(default)s)")
+    g.add_argument("--black-level", type=float, default=0.0, help="DN offset (default %(default)s)")
+    g.add_argument("--layout", default="90,45,135,0", help="2x2 polariser angles, row-major (default %(default)s)")
+    g.add_argument("--raw-exposure", type=float, metavar="E_PER_UNIT",
+                   help="electrons per unit of the Stokes image (default: the brightest raw pixel at 80%% "
+                        "of the full well)")
+    g.add_argument("--raw-seed", type=int, default=0, help="seed of the camera noise (default %(default)s)")
     p.add_argument("--aolp-dolp", action="store_true",
                    help="modulate the AoLP preview's brightness by the DoLP")
     p.add_argument("--exposure", type=float, help="intensity scale of the previews (default: automatic)")
@@ -373,6 +388,11 @@ def run_render(args):
     previews = _check_output(args.output, args.force, kinds)
     _check_size(kind, declared, given)
     warned_black = kind == "builtin" and _warn_if_black(given)
+    if args.raw:
+        _raw_camera(args)  # bad settings: say so before rendering
+        for p in (args.output[:-4] + "_raw.png", args.output[:-4] + "_raw.json"):
+            if os.path.exists(p) and not args.force:
+                raise FileExistsError(f"{p} exists; pass --force to overwrite it")
 
     import mitsuba as mi
 
@@ -447,12 +467,50 @@ def run_render(args):
     write_stokes_exr(args.output, stokes, meta, force=args.force)
     written = write_previews(args.output[:-4], stokes, kinds, exposure=args.exposure,
                              dolp_max=args.dolp_max, modulate_aolp=args.aolp_dolp, force=args.force) if kinds else {}
+    if args.raw:
+        written["raw"], written["raw_sidecar"] = _write_raw(args, stokes, meta)
     cols = "Y" if c == 1 else "R,G,B"
     print(f"wrote {args.output}: Stokes S0-S3 x {cols}, {w}x{h}, {spp_used} spp, {args.variant}, "
           f"{time.perf_counter() - t0:.1f} s")
     for p in written.values():
         print(f"wrote {p}")
     return 0
+
+
+def _raw_camera(args):
+    from .camera import CameraModel
+    from .fit.observations import InputError, parse_layout
+
+    try:
+        return CameraModel(full_well=args.full_well, read_noise=args.read_noise, bits=args.bits,
+                           conversion_gain=args.conversion_gain, black_level=args.black_level,
+                           layout=parse_layout(args.layout))
+    except (InputError, ValueError) as e:
+        raise CLIError(f"--raw: {e}") from None
+
+
+def _write_raw(args, stokes, meta):
+    """OUTPUT_raw.png (uint16 mosaic) and OUTPUT_raw.json (camera settings + the EXR's metadata)."""
+    import numpy as np
+    from PIL import Image
+
+    from .camera import capture, write_sidecar
+
+    cam = _raw_camera(args)
+    s = np.asarray(stokes)[:3].mean(axis=-1)  # one channel: the mean, as the fit uses
+    if s.shape[1] % 2 or s.shape[2] % 2:
+        raise CLIError(f"--raw: the image must have even width and height for 2x2 super-pixels, got "
+                       f"{s.shape[2]}x{s.shape[1]}")
+    cap = capture(s, cam, exposure=args.raw_exposure, peak_fraction=0.8, seed=args.raw_seed)
+    path = args.output[:-4] + "_raw.png"
+    if os.path.exists(path) and not args.force:
+        raise FileExistsError(f"{path} exists; pass --force to overwrite it")
+    Image.fromarray(np.ascontiguousarray(cap["raw"], dtype=np.uint16)).save(path)
+    extra = dict(meta, capture={"exposure_e_per_unit": cap["exposure"], "seed": args.raw_seed,
+                                "dn_per_input_unit": 1.0 / cap["dn_to_input"], "saturated": cap["saturated"],
+                                "channel": "mean", "stokes_exr": os.path.abspath(args.output)})
+    side = write_sidecar(path, cam, extra, force=args.force)
+    return path, side
 
 
 # ------------------------------------------------------------------ main

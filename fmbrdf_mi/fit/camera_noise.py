@@ -1,5 +1,8 @@
 """A polarisation camera's measurement of a Stokes image: quad-Bayer sampling, shot and read noise, ADC.
 
+The camera model itself lives in :mod:`fmbrdf_mi.camera` (rendering and fitting
+share it); this module keeps the fit's older interface to it.
+
 Model of a division-of-focal-plane sensor such as Sony's IMX250MZR:
 
 1. quad-Bayer sampling: raw pixel (r, c) sits behind the polariser of its
@@ -45,19 +48,20 @@ class CameraNoise:
 
 
 def _angle_at_each_pixel(stokes3, layout):
-    """Intensity behind the polariser of each pixel's mosaic position, (H, W)."""
-    _, h, w = stokes3.shape
-    out = np.empty((h, w))
-    for pos, angle in enumerate(a for row in layout for a in row):
-        r, c = divmod(pos, 2)
-        t = np.radians(angle)
-        s = stokes3[:, r::2, c::2]
-        out[r::2, c::2] = 0.5 * (s[0] + np.cos(2 * t) * s[1] + np.sin(2 * t) * s[2])
-    return out
+    from ..camera import intensity_at_each_pixel
+
+    return intensity_at_each_pixel(stokes3, layout)
+
+
+def _camera(noise):
+    from ..camera import CameraModel
+
+    return CameraModel(full_well=noise.full_well, read_noise=noise.read_noise, bits=noise.bits,
+                       layout=noise.layout)
 
 
 def simulate_capture(stokes, noise=None, *, seed=0, gain=None, noiseless=False):
-    """Raw quad-Bayer capture of a Stokes image.
+    """Raw quad-Bayer capture of a Stokes image (:func:`fmbrdf_mi.camera.capture`, black level 0).
 
     ``stokes``: (>=3, 2H, 2W) linear Stokes image (one channel) at the
     resolution of the raw sensor.  Returns a dict with
@@ -69,27 +73,13 @@ def simulate_capture(stokes, noise=None, *, seed=0, gain=None, noiseless=False):
 
     ``noiseless=True`` skips shot and read noise (quantisation and clipping stay).
     """
+    from ..camera import capture
+
     noise = noise or CameraNoise()
-    s = np.asarray(stokes, dtype=np.float64)[:3]
-    if s.ndim != 3 or s.shape[1] % 2 or s.shape[2] % 2:
-        raise ValueError(f"stokes: expected shape (3 or 4, 2H, 2W) with even sizes, got {np.shape(stokes)}")
-    ideal = np.clip(_angle_at_each_pixel(s, noise.layout), 0.0, None)
-    if gain is None:
-        peak = ideal.max()
-        if peak <= 0:
-            raise ValueError("stokes: the image is black; cannot choose an exposure")
-        gain = noise.peak_fraction * noise.full_well / peak
-    electrons = ideal * gain
-    rng = np.random.default_rng(seed)
-    if not noiseless:
-        electrons = rng.poisson(electrons).astype(np.float64)
-        electrons += rng.normal(0.0, noise.read_noise, electrons.shape)
-    electrons = np.clip(electrons, 0.0, noise.full_well)
-    levels = 2 ** int(noise.bits) - 1
-    dn = np.round(electrons / noise.full_well * levels)
-    raw = dn.astype(np.uint16)
-    return {"raw": raw, "dn_to_input": noise.full_well / levels / gain, "gain": float(gain),
-            "saturated": float(np.mean(dn >= levels))}
+    cap = capture(stokes, _camera(noise), exposure=gain, peak_fraction=noise.peak_fraction, seed=seed,
+                  noiseless=noiseless)
+    return {"raw": cap["raw"], "dn_to_input": cap["dn_to_input"], "gain": cap["exposure"],
+            "saturated": cap["saturated"]}
 
 
 def noisy_stokes(stokes, noise=None, *, seed=0, gain=None, noiseless=False, demosaic="bilinear"):

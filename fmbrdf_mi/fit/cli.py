@@ -68,6 +68,23 @@ def parse_init(text):
     return out
 
 
+def parse_fixed(items):
+    """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (shape parameters held fixed)."""
+    if isinstance(items, dict) or items is None:
+        return items
+    items = [items] if isinstance(items, str) else list(items)
+    out = {}
+    for item in ",".join(items).split(","):
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise InputError(f"--fix {item!r}: expected NAME=VALUE, e.g. kappa=0") from None
+        if not sep:
+            raise InputError(f"--fix {item!r}: expected NAME=VALUE, e.g. kappa=0")
+    return out
+
+
 def _builtin_sphere(meta):
     """Geometry, light, irradiance and true material of an EXR from ``fmbrdf-mi render`` (built-in scene)."""
     if meta.get("scene") != "builtin:sphere" or "parameters" not in meta:
@@ -85,21 +102,53 @@ def _builtin_sphere(meta):
 def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
                       fov=None, light=None, irradiance=None, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0,
                       channel="mean", geometry=None, demosaic="bilinear", conversion_gain=None,
-                      read_noise=None, footprint="auto"):
+                      read_noise=None, footprint="auto", white_level=None, dark_level=None):
     """An :class:`Observation` from files (see :func:`fit_files` for the options).
 
     ``geometry``: (normals, mask, view_dirs) reused from another observation of the same object.
+    A raw mosaic with a capture sidecar (:func:`fmbrdf_mi.camera.read_sidecar`,
+    written by ``fmbrdf-mi render --raw``) supplies the layout, black level,
+    gain, read noise and white level that were not given, and the scene's
+    geometry and light.  ``meta["settings"]`` records what was used.
     """
+    from .. import camera as C
+    from . import samples as SM
+    from .objective import NoiseModel
+
+    sidecar = None
+    if isinstance(inputs, (str, os.PathLike)) and not os.fspath(inputs).lower().endswith(".exr"):
+        try:
+            sidecar = C.read_sidecar(inputs)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+    if sidecar is not None:
+        cam = sidecar["sensor"]
+        layout = cam.layout if layout is None else layout
+        black_level = cam.black_level if black_level is None else black_level
+        if conversion_gain is None:
+            conversion_gain, read_noise = cam.conversion_gain, cam.read_noise if read_noise is None else read_noise
+        white_level = cam.white_level if white_level is None else white_level
+    layout = polcam.IMX250MZR_LAYOUT if layout is None else layout
+    black_level = 0.0 if black_level is None else float(black_level)
     if isinstance(layout, str):
         layout = parse_layout(layout)
     stokes, meta = load_polarisation(inputs, layout=layout, channel=channel, black_level=black_level,
                                      demosaic=demosaic)
+    array = meta.pop("_array", None)
+    if sidecar is not None:
+        meta.update({k: v for k, v in sidecar.items() if k not in ("sensor", "path", C.SIDECAR_KEY)})
+        meta["sidecar"] = sidecar["path"]
     shape = stokes.shape[1:]
     builtin = _builtin_sphere(meta) if (normals is None and sphere is None and geometry is None) else None
+    exact = None
     if builtin is not None:
         n, m, v = builtin["normals"], builtin["mask"], builtin["view_dirs"]
+        if meta.get("source") == "raw mosaic" and n.shape[:2] == (2 * shape[0], 2 * shape[1]):
+            n, m, v = downsample_geometry(n, m, v)
         light = builtin["light_dir"] if light is None else light
-        irradiance = builtin["irradiance"] if irradiance is None else irradiance
+        if irradiance is None:
+            # a raw capture's DN are the Stokes image's units times the capture's DN per unit
+            irradiance = builtin["irradiance"] * float(meta.get("capture", {}).get("dn_per_input_unit", 1.0))
         meta = dict(meta, truth=builtin["truth"])
         if n.shape[:2] != shape:
             raise InputError(f"{inputs}: metadata describe a {n.shape[1]}x{n.shape[0]} image, the file is "
@@ -137,9 +186,19 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
             elif mk.shape != tuple(shape):
                 raise InputError(f"mask: shape {mk.shape} matches neither the polarisation image {tuple(shape)} "
                                  f"nor its raw mosaic {(2 * shape[0], 2 * shape[1])}")
+        if centre is None:
+            from .observations import find_sphere
+
+            centre, radius = find_sphere(mk)
         n, m, v = geometry_from_sphere(shape, centre, radius, mk, camera, fov)
+        meta["sphere"] = {"centre": [float(c) for c in centre], "radius": float(radius),
+                          "found_from_mask": sphere == "auto"}
         if view is not None:
             v = read_vectors(view, "view", shape)
+        else:
+            from .observations import SphereGeometry
+
+            exact = SphereGeometry(shape, centre, radius, camera, fov)
     else:
         raise InputError("geometry: give a normal map (--normals N.npy --mask M.png) or a sphere "
                          "(--sphere cx,cy,r or --sphere auto --mask M.png)")
@@ -167,8 +226,26 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
           "demosaic": lambda: demosaic_footprint(demosaic)}.get(footprint)
     if fp is None:
         raise InputError(f"footprint: expected auto, point, box or demosaic, got {footprint!r}")
+    src = meta.get("source")
+    samples = None
+    if src == "raw mosaic":
+        samples = SM.from_raw(array, layout, black_level, white_level, dark_level)
+    elif src == "angle images":
+        integer = np.issubdtype(np.asarray(array).dtype, np.integer)
+        samples = SM.from_angle_images(array, black_level, white_level, dark_level, integer=integer)
+    noise = None
+    if conversion_gain is not None:
+        noise = NoiseModel(float(conversion_gain), float(read_noise),
+                           samples.step if samples is not None else 0.0)
+    meta["settings"] = {"layout": [list(r) for r in layout], "black_level": black_level,
+                        "demosaic": demosaic if src == "raw mosaic" else None, "footprint": footprint,
+                        "white_level": None if samples is None else samples.white_level,
+                        "dark_level": None if samples is None else samples.dark_level,
+                        "conversion_gain": conversion_gain, "read_noise": read_noise,
+                        "light": [float(x) for x in light],
+                        "irradiance": 1.0 if irradiance is None else float(irradiance)}
     return Observation(stokes, m, n, v, light, 1.0 if irradiance is None else float(irradiance), meta,
-                       lin_variance=var, footprint=fp())
+                       lin_variance=var, footprint=fp(), samples=samples, noise=noise, geometry=exact)
 
 
 def _outputs(out, relight):
@@ -177,11 +254,12 @@ def _outputs(out, relight):
 
 
 def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
-              fov=None, light=None, irradiance=None, layout="90,45,135,0", black_level=0.0, channel="mean",
+              fov=None, light=None, irradiance=None, layout=None, black_level=None, channel="mean",
               demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf",
-              baselines=False, optimizer="lm", path="pixel", bounds=None, init=None,
-              max_iter=40, tol=1e-4, time_limit=None, max_time=110.0, max_pixels=20000, erode=2, seed=0, relight=None,
-              relight_light=None, relight_irradiance=None, force=False, progress=True):
+              baselines=False, optimizer="lm", path="pixel", bounds=None, init=None, loss="auto",
+              white_level=None, dark_level=None, fixed=None, starts=2,
+              max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
+              relight_light=None, relight_irradiance=None, force=False, progress=True, command=None):
     """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
 
     Inputs: ``inputs`` a Stokes EXR, a raw mosaic (.npy / 16-bit .png / .tif,
@@ -204,8 +282,10 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     fitted_stokes.exr (and relight.png); refuses to overwrite them without
     ``force``.  Returns the dict written to fit.json.
     """
-    from . import plots
+    from . import plots, record
     from .fitting import FitOptions, fit, predict_image
+
+    arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
     from .models import get_model
     from .relight import relight_error
     from .. import stokes_io
@@ -228,7 +308,8 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     obs = build_observation(inputs, normals=normals, mask=mask, view=view, sphere=sphere, camera=camera,
                             fov=fov, light=light, irradiance=irradiance, layout=layout,
                             black_level=black_level, channel=channel, demosaic=demosaic,
-                            conversion_gain=conversion_gain, read_noise=read_noise, footprint=footprint)
+                            conversion_gain=conversion_gain, read_noise=read_noise, footprint=footprint,
+                            white_level=white_level, dark_level=dark_level)
     obs2 = None
     if relight is not None:
         geom = None if (normals is None and sphere is None and "truth" in obs.meta) \
@@ -241,7 +322,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
             raise InputError(f"relight image: shape {obs2.shape} differs from the fitted image {obs.shape}")
     opts = FitOptions(model=model, path="pixel", optimizer=optimizer, bounds=parse_bounds(bounds),
                       init=parse_init(init), max_iter=int(max_iter), tol=float(tol), time_limit=time_limit,
-                      max_time=max_time or None,
+                      max_time=max_time or None, loss=loss, fixed=parse_fixed(fixed), starts=int(starts),
                       max_pixels=max_pixels, erode=int(erode), seed=int(seed))
     scene = None
     if path == "render":
@@ -250,11 +331,12 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
         raise InputError(f"path: expected 'pixel' or 'render', got {path!r}")
     os.makedirs(out, exist_ok=True)
     models = [model] + ([m for m in ("pplastic", "lambert_ts") if m != model] if baselines else [])
-    results, preds, report = {}, {}, {"inputs": inputs if isinstance(inputs, str) else list(inputs),
-                                      "truth": obs.meta.get("truth"), "models": {}}
+    results, preds = {}, {}
+    report = {"inputs": inputs if isinstance(inputs, str) else list(inputs), "truth": obs.meta.get("truth"),
+              "reproduce": record.reproduce_block(arguments, inputs, command, obs, relight), "models": {}}
     for name in models:
         o = opts if name == model else FitOptions(**{**opts.__dict__, "model": name, "bounds": None,
-                                                      "init": None, "path": "pixel"})
+                                                      "init": None, "path": "pixel", "fixed": None})
         res = fit(obs, o, scene=scene if name == model else None, progress=progress)
         results[name] = res
         preds[name] = predict_image(name, res.params, obs)
@@ -281,7 +363,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
                         title=f"{model}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()),
                         others={f"{n} (baseline)": preds[n] for n in models[1:]})
     plots.plot_images(obs.stokes, fitted, obs.mask, outs["images.png"], title=f"{model} fit (per-pixel re-render)",
-                      lin_variance=obs.lin_variance)
+                      lin_variance=obs.lin_variance, pixels=main.pixels)
     plots.plot_loss_history({n: r.history for n, r in results.items()}, outs["history.png"])
     s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
     stokes_io.write_stokes_exr(outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
@@ -321,12 +403,20 @@ def _render_scene(obs, model):
 # ---------------------------------------------------------------- command line
 def add_fit_arguments(p):
     g = p.add_argument_group("polarimetric image")
-    g.add_argument("inputs", nargs="+", metavar="INPUT",
+    g.add_argument("inputs", nargs="*", metavar="INPUT",
                    help="Stokes .exr; raw quad-Bayer mosaic (.npy, 16-bit .png/.tif); (4,H,W) .npy of "
                         "angle images; or four angle images in the order 0 45 90 135 deg")
-    g.add_argument("--layout", default="90,45,135,0",
-                   help="mosaic polariser angles, 2x2 row-major from the top left (default IMX250MZR: %(default)s)")
-    g.add_argument("--black-level", type=float, default=0.0, help="subtracted from raw / angle images")
+    g.add_argument("--layout", default=None,
+                   help="mosaic polariser angles, 2x2 row-major from the top left (default: the capture "
+                        "sidecar's, else IMX250MZR 90,45,135,0)")
+    g.add_argument("--black-level", type=float, default=None,
+                   help="subtracted from raw / angle images (default: the sidecar's, else 0)")
+    g.add_argument("--white-level", type=float, metavar="DN",
+                   help="raw samples at or above this are clipped: their super-pixel is left out (default: "
+                        "the sidecar's, else the smallest 2^b - 1, b in 8,10,12,14,16, holding the data)")
+    g.add_argument("--dark-level", type=float, metavar="DN",
+                   help="raw samples at or below this (raw value, black level included) are clipped: their "
+                        "super-pixel is left out (default: 0 when the black level is 0, else none)")
     g.add_argument("--demosaic", default="bilinear", choices=("bilinear", "superpixel"),
                    help="raw mosaics: interpolate each angle to the super-pixel centre (default) or take "
                         "the 2x2 pixels as they are")
@@ -335,6 +425,10 @@ def add_fit_arguments(p):
                    help="camera gain in electrons per image unit (e-/DN for raw images); with --read-noise, "
                         "the DoLP term accounts for the noise bias of the observed DoLP")
     g.add_argument("--read-noise", type=float, metavar="E", help="read noise in electrons rms")
+    g.add_argument("--loss", default="auto", choices=("auto", "likelihood", "paper"),
+                   help="likelihood of the camera's samples (Poisson-Gaussian noise), or the paper's loss "
+                        "(intensity MSE + weighted DoLP MSE); auto: likelihood when the camera noise is "
+                        "known (--conversion-gain / a capture sidecar), else paper")
     g.add_argument("--footprint", default="auto", choices=("auto", "point", "box", "demosaic"),
                    help="what a pixel integrates over, modelled by averaging the BSDF over it: the pixel "
                         "centre, a 3x3 box, or the demosaicking's raw pixels (auto: demosaic for raw "
@@ -363,8 +457,14 @@ def add_fit_arguments(p):
     g.add_argument("--max-iter", type=int, default=40)
     g.add_argument("--tol", type=float, default=1e-4, help="stop when the loss falls by less than this (relative) twice")
     g.add_argument("--time-limit", type=float, help="seconds per refinement round")
-    g.add_argument("--max-time", type=float, default=110.0,
-                   help="seconds for a whole fit; refinement stops when exceeded (default %(default)s, 0: none)")
+    g.add_argument("--max-time", type=float, default=None,
+                   help="hard wall-clock limit in seconds for each model's fit (default: none, the fit runs "
+                        "until it converges); a fit it stops exits with status 3")
+    g.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                   help="hold a shape parameter fixed, e.g. --fix kappa=0 (repeatable)")
+    g.add_argument("--starts", type=int, default=2,
+                   help="refine from this many of the best distinct coarse-search points and keep the best "
+                        "(default %(default)s)")
     g.add_argument("--max-pixels", type=int, default=20000, help="random subset of usable pixels (0: all)")
     g.add_argument("--erode", type=int, default=2, help="pixels removed from the mask border")
     g.add_argument("--seed", type=int, default=0)
@@ -374,8 +474,14 @@ def add_fit_arguments(p):
     g.add_argument("--relight-irradiance", type=float)
     g = p.add_argument_group("output")
     g.add_argument("-o", "--out", required=True, metavar="DIR", help="output directory")
+    g.add_argument("--from", dest="from_json", metavar="FIT.json",
+                   help="rerun the fit recorded in a fit.json (same inputs, checked by SHA-256, and options)")
     g.add_argument("--force", action="store_true", help="overwrite existing outputs")
     g.add_argument("-q", "--quiet", action="store_true")
+
+
+#: Exit status of a fit that stopped before it converged (time limit, iteration limit).
+EXIT_NOT_CONVERGED = 3
 
 
 def check_args(args):
@@ -387,45 +493,97 @@ def check_args(args):
 
     check_input_options(black_level=args.black_level, conversion_gain=args.conversion_gain,
                         read_noise=args.read_noise, irradiance=args.irradiance, fov=args.fov,
-                        relight_irradiance=args.relight_irradiance, flag=flag)
+                        relight_irradiance=args.relight_irradiance, white_level=args.white_level,
+                        dark_level=args.dark_level, flag=flag)
     check_fit_options(model=args.model, optimizer=args.optimizer, path=args.path,
                       bounds=parse_bounds(args.bounds), init=parse_init(args.init), max_iter=args.max_iter,
                       tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
-                      max_pixels=args.max_pixels, erode=args.erode, seed=args.seed, flag=flag)
+                      max_pixels=args.max_pixels, erode=args.erode, seed=args.seed, loss=args.loss,
+                      starts=args.starts, fixed=parse_fixed(args.fix), flag=flag)
     if args.relight_light is not None and not args.relight:
         raise InputError("--relight-light needs --relight IMAGE")
 
 
 def run_fit(args):
+    import shlex
+    import sys
+
     t0 = time.time()
     check_args(args)
-    inputs = args.inputs if len(args.inputs) > 1 else args.inputs[0]
-    relight = None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0])
-    report = fit_files(inputs, args.out, normals=args.normals, mask=args.mask, view=args.view,
-                       sphere=args.sphere, camera=args.camera, fov=args.fov, light=_vec(args.light, "--light"),
-                       irradiance=args.irradiance, layout=args.layout, black_level=args.black_level,
-                       channel=args.channel, demosaic=args.demosaic, conversion_gain=args.conversion_gain,
-                       read_noise=args.read_noise, footprint=args.footprint, model=args.model, baselines=args.baselines,
-                       optimizer=args.optimizer, path=args.path, bounds=args.bounds, init=args.init,
-                       max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
-                       max_pixels=args.max_pixels or None, erode=args.erode, seed=args.seed, relight=relight,
-                       relight_light=_vec(args.relight_light, "--relight-light"),
-                       relight_irradiance=args.relight_irradiance, force=args.force, progress=not args.quiet)
+    command = shlex.join(["fmbrdf-mi", "fit", *getattr(args, "argv", [])])
+    if args.from_json:
+        from . import record
+
+        if args.inputs:
+            raise InputError("--from: give no INPUT files (they come from the fit.json)")
+        kw = record.rerun_arguments(args.from_json)
+        report = fit_files(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
+    else:
+        if not args.inputs:
+            raise InputError("no INPUT given: a Stokes .exr, a raw mosaic, angle images, or --from fit.json")
+        inputs = args.inputs if len(args.inputs) > 1 else args.inputs[0]
+        relight = None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0])
+        report = fit_files(inputs, args.out, normals=args.normals, mask=args.mask, view=args.view,
+                           sphere=args.sphere, camera=args.camera, fov=args.fov, light=_vec(args.light, "--light"),
+                           irradiance=args.irradiance, layout=args.layout, black_level=args.black_level,
+                           channel=args.channel, demosaic=args.demosaic, conversion_gain=args.conversion_gain,
+                           read_noise=args.read_noise, footprint=args.footprint, model=args.model,
+                           baselines=args.baselines, optimizer=args.optimizer, path=args.path, bounds=args.bounds,
+                           init=args.init, loss=args.loss, white_level=args.white_level,
+                           dark_level=args.dark_level, fixed=args.fix, starts=args.starts,
+                           max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit,
+                           max_time=args.max_time, max_pixels=args.max_pixels or None, erode=args.erode,
+                           seed=args.seed, relight=relight,
+                           relight_light=_vec(args.relight_light, "--relight-light"),
+                           relight_irradiance=args.relight_irradiance, force=args.force,
+                           progress=not args.quiet, command=command)
     from .fitting import WEAK_REL
 
+    status = 0
     for name, m in report["models"].items():
-        print(f"{name}: loss {m['loss']:.4e}  " + "  ".join(f"{k}={v:.4g}" for k, v in m["params"].items()))
+        unc = m.get("uncertainty") or {}
+        print(f"{name}: {m['objective']} {m['loss']:.6e}  ({'converged' if m['converged'] else 'NOT converged'}: "
+              f"{m['stop_reason']})")
+        if m.get("noise"):
+            print(f"  camera noise {m['noise']['description']}")
+        ex = m.get("pixels_excluded") or {}
+        if ex.get("saturated") or ex.get("dark"):
+            print(f"  excluded {ex['saturated']} saturated and {ex['dark']} dark super-pixels of "
+                  f"{ex['candidates']}; fitted {ex['used']}")
+        std, ci = unc.get("std_errors", {}), unc.get("ci95", {})
+        for k, v in m["params"].items():
+            line = f"  {k:<6} {v:10.5g}"
+            if k in std:
+                line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]"
+            if "relative_error" in m and k in m["relative_error"]:
+                line += f"  (vs metadata {m['relative_error'][k]:+.2%})"
+            print(line)
+        if unc.get("method"):
+            print(f"  uncertainty: {unc['method']}"
+                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
+                  + (" (the model or the stated noise does not explain the data: errors too small)"
+                     if unc.get("misfit") else ""))
+        if unc.get("correlation"):
+            c = unc["correlation"]
+            big = [(c["names"][i], c["names"][j], c["matrix"][i][j]) for i in range(len(c["names"]))
+                   for j in range(i + 1, len(c["names"])) if abs(c["matrix"][i][j]) > 0.9]
+            if big:
+                print("  strongly correlated: " + ", ".join(f"{a}/{b} {x:+.2f}" for a, b, x in big))
         if m.get("weakly_identified"):
-            print(f"  weakly identified (Gauss-Newton standard error > {WEAK_REL:.0%}): "
+            print(f"  weakly identified (standard error > {WEAK_REL:.0%} of the value, or at a bound): "
                   f"{', '.join(m['weakly_identified'])}")
-        if "relative_error" in m:
-            print("  relative error vs metadata: " + "  ".join(f"{k} {v:+.2%}" for k, v in m["relative_error"].items()))
+        if not m["converged"]:
+            print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
+                  f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
+                  file=sys.stderr)
+            status = EXIT_NOT_CONVERGED
     if "relight" in report:
         for name, r in report["relight"].items():
             if isinstance(r, dict):
                 print(f"relighting {name}: RMSE / mean intensity = {r['rel_rmse']:.4f}")
-    print(f"wrote {', '.join(_outputs(args.out, args.relight))} ({time.time() - t0:.1f} s)")
-    return 0
+    print(f"wrote {', '.join(_outputs(args.out, report.get('reproduce', {}).get('arguments', {}).get('relight')))} "
+          f"({time.time() - t0:.1f} s)")
+    return status
 
 
 def main(argv=None):

@@ -10,6 +10,8 @@ import numpy as np
 
 from . import loss as L
 from . import optimise as O
+from . import uncertainty as U
+from .uncertainty import WEAK_FLOOR, WEAK_REL  # noqa: F401  (re-exported)
 from .models import Bounds, get_model
 from .options import check_fit_options
 from .observations import InputError, erode as erode_mask
@@ -26,13 +28,16 @@ class FitOptions:
     model: str = "fmbrdf"
     path: str = "pixel"               # "pixel" or "render"
     optimizer: str = "lm"             # "lm" or "adam"
+    loss: str = "auto"                # "likelihood", "paper" or "auto" (likelihood when the camera noise is known)
     bounds: dict = None               # {name: (lo, hi)} narrowing the model's bounds
+    fixed: dict = None                # {shape name: value} held fixed (not estimated)
     init: dict = None                 # reported parameters to start from (skips the coarse search)
+    starts: int = 2                   # refine from this many of the best distinct coarse-search points
     max_iter: int = 40
-    tol: float = 1e-4
+    tol: float = 1e-4                 # paper's loss: relative decrease (likelihood: 0.01 in chi^2, fixed)
     time_limit: float = None          # seconds for each refinement round
-    max_time: float = 110.0           # seconds for the whole fit: refinement stops when exceeded
-    rounds: int = 3                   # inlier/outlier refresh rounds
+    max_time: float = None            # seconds for the whole fit: a hard limit (None: until converged)
+    rounds: int = 3                   # paper: inlier/outlier refresh rounds; likelihood: IRLS rounds + 2
     max_pixels: int = 20000           # random subset of the usable pixels (None: all)
     erode: int = 2                    # pixels removed from the mask's border
     min_cos_view: float = 0.1         # n . v above this
@@ -58,6 +63,12 @@ class FitResult:
     timings: dict
     options: dict
     weakly_identified: list = dataclasses.field(default_factory=list)
+    converged: bool = True
+    objective: str = "paper"
+    uncertainty: dict = dataclasses.field(default_factory=dict)
+    noise: dict = None
+    pixels_excluded: dict = dataclasses.field(default_factory=dict)
+    starts: list = dataclasses.field(default_factory=list)
     pixels: np.ndarray = dataclasses.field(repr=False, default=None)
 
     def to_json(self):
@@ -80,20 +91,21 @@ def _json_default(x):
     raise TypeError(f"not JSON serialisable: {type(x)}")
 
 
-#: A parameter is reported as weakly identified when its Gauss-Newton standard
-#: error exceeds this fraction of max(|value|, WEAK_FLOOR[name]): the image
-#: does not pin it down to 5 %.
-WEAK_REL = 0.05
-WEAK_FLOOR = {"kappa": 10.0}
+def weakly_identified(params, std, at_bound=()):
+    return U.weakly_identified(params, std, at_bound)
 
 
-def weakly_identified(params, std):
-    return [k for k, v in params.items()
-            if k in std and std[k] > WEAK_REL * max(abs(v), WEAK_FLOOR.get(k, 0.0))]
+#: Fewest super-pixels a fit accepts.
+MIN_PIXELS = 20
 
 
-def usable_pixels(obs, opts):
-    """Flat indices of the pixels a fit uses (see :class:`FitOptions` for the criteria)."""
+def select_pixels(obs, opts, use_samples=True):
+    """Flat indices of the pixels a fit uses, and what was excluded (see :class:`FitOptions`).
+
+    With raw samples (:attr:`Observation.samples`), super-pixels with a
+    sample at or above the white level or at or below the dark level are
+    excluded (:mod:`fmbrdf_mi.fit.samples`) and counted.
+    """
     m = erode_mask(obs.mask, opts.erode)
     n = obs.normals
     cos_v = np.sum(n * obs.view_dirs, axis=-1)
@@ -101,18 +113,55 @@ def usable_pixels(obs, opts):
     pole = math.cos(math.radians(POLE_EXCLUSION_DEG))
     m = m & (cos_v > opts.min_cos_view) & (cos_l > opts.min_cos_light) & (cos_v < pole) & (cos_l < pole)
     m &= np.all(np.isfinite(obs.stokes), axis=0)
+    excluded = {"candidates": int(m.sum()), "saturated": 0, "dark": 0}
+    smp = obs.samples if use_samples else None
+    if smp is not None:
+        excluded["saturated"] = int((m & smp.saturated).sum())
+        excluded["dark"] = int((m & smp.dark & ~smp.saturated).sum())
+        excluded["white_level"], excluded["dark_level"] = smp.white_level, smp.dark_level
+        m &= smp.usable
     idx = np.flatnonzero(m.ravel())
-    if len(idx) < 20:
+    if len(idx) < MIN_PIXELS:
+        why = ""
+        if excluded["saturated"] or excluded["dark"]:
+            why = (f" after excluding {excluded['saturated']} super-pixels with a sample at or above the white "
+                   f"level {smp.white_level:g} and {excluded['dark']} with a sample at or below the dark level "
+                   f"{smp.dark_level} (lower the exposure, or set --white-level / --dark-level)")
         raise InputError(f"only {len(idx)} usable pixels (mask eroded by {opts.erode}, n.v > "
-                         f"{opts.min_cos_view}, n.l > {opts.min_cos_light}); need at least 20")
+                         f"{opts.min_cos_view}, n.l > {opts.min_cos_light}){why}; need at least {MIN_PIXELS}")
     if opts.max_pixels and len(idx) > opts.max_pixels:
         rng = np.random.default_rng(opts.seed)
         idx = np.sort(rng.choice(idx, opts.max_pixels, replace=False))
-    return idx
+    excluded["used"] = int(len(idx))
+    return idx, excluded
 
 
-def make_evaluator(model, obs, idx, opts, scene=None):
+def usable_pixels(obs, opts):
+    """Flat indices of the pixels a fit uses (:func:`select_pixels`)."""
+    return select_pixels(obs, opts)[0]
+
+
+def resolve_loss(obs, opts):
+    """``auto`` -> ``likelihood`` when the camera noise is known (gain given or in a sidecar) and the fit
+    runs LM on the pixel path (what the likelihood needs), else ``paper``."""
+    if opts.loss == "auto":
+        ok = opts.path == "pixel" and opts.optimizer == "lm"
+        return "likelihood" if (ok and obs.noise is not None and obs.noise.known) else "paper"
+    if opts.loss not in ("likelihood", "paper"):
+        raise InputError(f"loss: expected 'likelihood', 'paper' or 'auto', got {opts.loss!r}")
+    return opts.loss
+
+
+def make_evaluator(model, obs, idx, opts, scene=None, samples=None):
+    """The model evaluated at the pixels ``idx``: over their footprint, or (``samples``) at each sample's point."""
     if opts.path == "pixel":
+        if samples is not None:
+            off = samples.offsets
+            if not np.any(off):  # all four samples at the pixel centre: evaluate once
+                n, v, _ = obs.sample_geometry(idx, footprint=None)
+            else:
+                n, v, _ = obs.sample_geometry(idx, footprint=samples.footprint())
+            return PixelEvaluator(model, n, v, obs.light_dir, obs.irradiance)
         n, v, w = obs.sample_geometry(idx)
         return PixelEvaluator(model, n, v, obs.light_dir, obs.irradiance, weights=None if len(w) == 1 else w)
     if opts.path == "render":
@@ -126,12 +175,57 @@ def make_evaluator(model, obs, idx, opts, scene=None):
     raise InputError(f"path: expected 'pixel' or 'render', got {opts.path!r}")
 
 
-def fit(obs, options=None, *, scene=None, progress=True, **kw):
+def _objective(obs, idx, opts, loss):
+    """(objective, samples or None) for the pixels ``idx``."""
+    from . import samples as SM
+    from .objective import LikelihoodObjective, NoiseModel, PaperObjective
+
+    if loss == "paper":
+        var = None if obs.lin_variance is None else obs.lin_variance.ravel()[idx]
+        obj = PaperObjective(L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx], opts.dolp_min_intensity,
+                                                  var))
+        if obs.samples is not None and obs.samples.source == "raw mosaic" and obs.meta.get("demosaic") != "superpixel":
+            # bilinear demosaicking: neighbours share raw samples (the sandwich covariance accounts for it)
+            obj.grid = np.divmod(np.asarray(idx), obs.shape[1])
+        return obj, None
+    smp = obs.samples if obs.samples is not None else SM.from_stokes(obs.stokes)
+    noise = dataclasses.replace(obs.noise) if obs.noise is not None else NoiseModel(step=smp.step)
+    return LikelihoodObjective(smp.at(idx), smp.analyser(), noise, smp.dof), smp
+
+
+def _distinct_starts(problem, cands, n):
+    """Up to ``n`` starts: the best candidate, then the best ones differing from all chosen in a
+    shape parameter other than eta and kappa (those the coarse search tuned last), preferring
+    candidates with both lobes switched on."""
+    first = [k for k in problem.names if k not in ("eta", "kappa")] or list(problem.names)
+    chosen = [cands[0][1]]
+    pool = [c for _, c in cands[1:]]
+
+    def off(c):  # from the coarse search's own evaluation (no new table rebuild)
+        key = tuple(round(c.shape[n], 9) for n in problem.model.shape_names)
+        return not problem.both_lobes.get(key, True)
+
+    pool.sort(key=off)  # stable: keeps the score order otherwise
+    for c in pool:
+        if len(chosen) >= n:
+            break
+        if all(any(abs(c.shape[k] - o.shape[k]) > 1e-9 for k in first) for o in chosen):
+            chosen.append(c)
+    return chosen
+
+
+def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, **kw):
     """Estimate the parameters of ``options.model`` from ``obs``; returns a :class:`FitResult`.
 
     Keyword arguments override fields of :class:`FitOptions` (the CLI's
     options have the same names).  ``progress``: True prints to stderr, a
-    callable receives each progress line, False is silent.
+    callable receives each progress line, False is silent.  ``evaluator``:
+    a pixel evaluator built by :func:`make_evaluator` for the same geometry,
+    pixels and objective (reused across noise seeds by the benchmarks).
+
+    A fit stopped by ``max_time`` (a hard wall-clock limit, checked before
+    every model evaluation) returns the latest accepted estimate with
+    ``converged=False`` and no standard errors.
     """
     opts = dataclasses.replace(options or FitOptions(), **kw)
     check_fit_options(**dataclasses.asdict(opts))
@@ -140,115 +234,166 @@ def fit(obs, options=None, *, scene=None, progress=True, **kw):
     if opts.path == "render" and opts.optimizer != "adam":
         raise InputError("path 'render' works with optimizer 'adam' only (reverse-mode gradient through "
                          "mi.render; its forward-mode derivatives, which 'lm' needs, miss the body term)")
+    loss = resolve_loss(obs, opts)
+    if loss == "likelihood" and (opts.optimizer != "lm" or opts.path != "pixel"):
+        raise InputError("loss 'likelihood' works with the pixel path and optimizer 'lm' (use --loss paper "
+                         "for adam or the render path)")
     report = O.default_progress if progress is True else (progress or (lambda m: None))
     model = get_model(opts.model)
     t0 = time.time()
-    idx = usable_pixels(obs, opts)
-    var = None if obs.lin_variance is None else obs.lin_variance.ravel()[idx]
-    target = L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx], opts.dolp_min_intensity, var)
-    ev = make_evaluator(model, obs, idx, opts, scene)
-    problem = O.Problem(model, ev, target, Bounds(model, opts.bounds), report)
-    report(f"[fit] {model.name} on {len(idx)} pixels ({opts.path} path), "
-           f"{int(target.dolp_valid.sum())} in the DoLP term"
-           + ("" if var is None else ", DoLP term with the given noise variance (Rice mean)"))
-    history = []
-    if opts.init:
-        shape, a_s, a_b = model.split(opts.init)
-        st = O.State(shape, a_s, a_b)
-        t_search, cands = 0.0, []
+    deadline = None if not opts.max_time else t0 + float(opts.max_time)
+    idx, excluded = select_pixels(obs, opts)
+    if excluded["saturated"] or excluded["dark"]:
+        report(f"[fit] excluded {excluded['saturated']} super-pixels with a sample at or above the white level "
+               f"{excluded['white_level']:g} and {excluded['dark']} with a sample at or below the dark level "
+               f"{excluded['dark_level']} (of {excluded['candidates']})")
+    objective, smp = _objective(obs, idx, opts, loss)
+    ev = evaluator if evaluator is not None else make_evaluator(model, obs, idx, opts, scene, smp)
+    problem = O.Problem(model, ev, objective, Bounds(model, opts.bounds), report, fixed=opts.fixed,
+                        deadline=deadline)
+    if loss == "paper":
+        report(f"[fit] {model.name} on {len(idx)} pixels ({opts.path} path), paper's loss, "
+               f"{int(objective.target.dolp_valid.sum())} in the DoLP term"
+               + ("" if objective.target.lin_sigma is None else
+                  ", DoLP term with the given noise variance (Rice mean)"))
     else:
-        cands = O.coarse_search(problem)
-        st = cands[0][1]
-        t_search = time.time() - t0
-        history.append({"stage": "search", "iter": 0, "loss": cands[0][0], "time": t_search,
-                        "params": model.report(st.shape, st.a_s, st.a_b)})
-        report(f"[search] start: loss {cands[0][0]:.4e}  {O._fmt(problem, st)}")
-    st, reason, J, r = _refine(problem, st, opts, target, t0, history, report)
-    if not opts.init and _albedo_at_bound(problem, st):
-        # A start where one lobe is switched off (albedo ~ 0) can trap the refinement: with the
-        # lobe's albedo near zero its shape barely moves the loss.  Refine again from the best
-        # coarse candidate that has both lobes, and keep whichever ends with the lower loss.
-        alt = next((c for _, c in cands[1:11] if not _albedo_at_bound(problem, c)), None)
-        if alt is not None:
-            report(f"[fit] one albedo ended at ~0; refining again from {O._fmt(problem, alt)}")
-            saved = (problem.outliers.copy(), problem.w.copy())
-            first = _own_split_loss(problem, st)
-            st2, reason2, J2, r2 = _refine(problem, alt, opts, target, t0, history, report)
-            if _own_split_loss(problem, st2) < first:
-                st, reason, J, r = st2, reason2, J2, r2
-            else:
-                problem.outliers, problem.w = saved
+        report(f"[fit] {model.name} on {len(idx)} super-pixels x 4 {smp.source} samples, likelihood; "
+               f"camera noise {objective.noise.describe()}")
+    history, cands, t_search = [], [], 0.0
+    converged, reason, J, r, st = False, "", None, None, None
+    starts_log = []
+    try:
+        if opts.init:
+            shape, a_s, a_b = model.split(opts.init)
+            starts = [problem.state(shape, a_s, a_b)]
+        else:
+            cands = O.coarse_search(problem)
+            t_search = time.time() - t0
+            history.append({"stage": "search", "iter": 0, "loss": cands[0][0], "time": t_search,
+                            "params": model.report(cands[0][1].shape, cands[0][1].a_s, cands[0][1].a_b)})
+            starts = _distinct_starts(problem, cands, max(1, int(opts.starts)))
+        best = None
+        for k, st0 in enumerate(starts):
+            report(f"[fit] start {k + 1}/{len(starts)}: {O._fmt(problem, st0)}")
+            saved = problem.obj.save()
+            res = _refine(problem, st0, opts, t0, history, report)
+            score = problem.obj.score(problem.parts(res[0]), res[0])
+            starts_log.append({"start": model.report(st0.shape, st0.a_s, st0.a_b),
+                               "end": model.report(res[0].shape, res[0].a_s, res[0].a_b),
+                               "score": score, "converged": res[2], "reason": res[1]})
+            report(f"[fit] start {k + 1} ended at score {score:.6e} ({res[1]})")
+            if best is None or score < best[0]:
+                best = (score, res, problem.obj.save())
+            if k + 1 < len(starts):
+                problem.obj.restore(saved)
+        _, (st, reason, converged, J, r), state = best
+        problem.obj.restore(state)
+    except O.TimeUp:
+        st = problem.current
+        if st is None:
+            raise InputError(f"max_time {opts.max_time:g} s: no model evaluation fits in that time") from None
+        reason, converged, J, r = f"max_time {opts.max_time:g} s reached", False, None, None
     can_jac = opts.path == "pixel"
-    parts = problem.parts(st, jac=(J is None and can_jac))
-    if J is None and can_jac:
+    unc = {}
+    parts = None
+    if converged and can_jac:
+        problem.deadline = None  # the fit is done; its uncertainty is part of the answer
+        parts = problem.parts(st, jac=True)
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
-    i, rho = L.predict(parts.surface, parts.body, st.a_s, st.a_b, target.lin_sigma)
-    li, lr = L.loss_terms(target, problem.w, i, rho)
-    std = O.standard_errors(problem, st, J, r) if J is not None else {}
+        n_ind = None if loss == "paper" else len(idx) * objective.dof
+        unc = U.summarise(problem, st, J, r, n_ind)
+        if unc.get("misfit"):
+            report(f"[fit] warning: chi^2/dof = {unc['chi2_per_dof']:.3g} with the stated camera noise: the model "
+                   "(geometry, light, BSDF) or the noise settings do not explain the data; the standard errors "
+                   "are too small")
+    elif not converged:
+        unc = {"std_errors": {}, "method": "not computed: the fit did not converge"}
+    if parts is None:
+        try:
+            parts = problem.parts(st)
+        except O.TimeUp:
+            problem.deadline = None
+            parts = problem.parts(st)
+    terms = problem.obj.loss_terms(parts, st)
+    value = problem.obj.value(parts, st)
+    std = unc.get("std_errors", {})
     if problem.n_nonfinite:
         report(f"[fit] {problem.n_nonfinite} pixels had non-finite BSDF derivatives; their Jacobian rows were zeroed")
-    weak = weakly_identified(model.report(st.shape, st.a_s, st.a_b), std)
+    params = model.report(st.shape, st.a_s, st.a_b)
+    weak = weakly_identified(params, std, unc.get("at_bound", ()))
     if weak:
-        report(f"[fit] weakly identified (standard error > {WEAK_REL:.0%}): {', '.join(weak)}")
+        report(f"[fit] weakly identified (standard error > {WEAK_REL:.0%} or at a bound): {', '.join(weak)}")
     t_total = time.time() - t0
-    report(f"[fit] done in {t_total:.1f} s: loss {li + lr:.6e} ({reason})  {O._fmt(problem, st)}")
-    return FitResult(model=model.name, params=model.report(st.shape, st.a_s, st.a_b), loss=li + lr,
-                     loss_terms={"intensity": li, "dolp": lr}, std_errors=std, history=history,
-                     stop_reason=reason, n_pixels=len(idx),
-                     n_outliers=int((problem.outliers & target.dolp_valid).sum()),
+    report(f"[fit] done in {t_total:.1f} s: {loss} {value:.6e} ({reason})  {O._fmt(problem, st)}")
+    n_out = int((objective.outliers & objective.target.dolp_valid).sum()) if loss == "paper" else 0
+    return FitResult(model=model.name, params=params, loss=value, loss_terms=terms, std_errors=std,
+                     history=history, stop_reason=reason, n_pixels=len(idx), n_outliers=n_out,
                      timings={"search": t_search, "total": t_total, "evaluations": problem.n_evals,
                               "nonfinite_derivative_pixels": problem.n_nonfinite},
-                     options=dataclasses.asdict(opts), weakly_identified=weak, pixels=idx)
+                     options=dataclasses.asdict(opts), weakly_identified=weak, converged=bool(converged),
+                     objective=loss, uncertainty=unc,
+                     noise=objective.noise.to_dict() if loss == "likelihood" else None,
+                     pixels_excluded=excluded, starts=starts_log, pixels=idx)
 
 
-def _refine(problem, st, opts, target, t0, history, report):
-    """Refinement rounds from ``st``, refreshing the inlier/outlier split until it settles.
+def _step_in_se(problem, st_old, st_new, J):
+    """Largest |change| of z between two states in units of its standard error (from J^T J)."""
+    try:
+        cov = np.linalg.pinv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return math.inf
+    sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+    return float(np.max(np.abs(problem.to_z(st_new) - problem.to_z(st_old)) / sd))
 
-    Returns (State, stop reason, Jacobian or None, residuals or None).
+
+def _refine(problem, st, opts, t0, history, report):
+    """Refinement rounds from ``st``: the objective's weights are refreshed between rounds until they settle.
+
+    Paper's loss: the inlier/outlier split; likelihood: the variances from
+    the model (IRLS), until a round moves the estimate by < 0.05 standard
+    errors.  Returns (State, stop reason, converged, Jacobian or None, residuals or None).
     """
-    reason, J, r = "", None, None
-    for rnd in range(1, max(1, opts.rounds) + 1):
+    obj = problem.obj
+    reason, converged, J, r = "", False, None, None
+    n_rounds = max(1, opts.rounds) + (2 if obj.is_likelihood else 0)
+    step_se = None
+    settled = False
+    for rnd in range(1, n_rounds + 1):
         parts = problem.parts(st)
-        old_out, old_w = problem.outliers.copy(), problem.w.copy()
-        problem.set_weights(parts, st)
-        if rnd > 1:
-            valid = target.dolp_valid
-            changed = int(((old_out != problem.outliers) & valid).sum())
-            smaller = min(int((problem.outliers & valid).sum()), int((~problem.outliers & valid).sum()))
-            if changed <= max(5, 0.1 * smaller):  # the weighting is settled
-                problem.outliers, problem.w = old_out, old_w
-                break
-        report(f"[fit] round {rnd}: {int((problem.outliers & target.dolp_valid).sum())} outliers "
-               f"(surface-dominated) / {int((~problem.outliers & target.dolp_valid).sum())} inliers")
-        left = None if opts.max_time is None else opts.max_time - (time.time() - t0)
-        limit = min([x for x in (opts.time_limit, left) if x is not None], default=None)
-        if limit is not None and limit <= 0:
-            reason = f"max_time {opts.max_time:g} s reached"
+        saved = obj.save()
+        if rnd > 1 and obj.is_likelihood and obj.settled(saved, parts, st, step_se=step_se):
+            settled = True
             break
+        obj.refresh(parts, st)
+        if rnd > 1 and not obj.is_likelihood and obj.settled(saved, parts, st):
+            obj.restore(saved)  # the weighting is settled
+            settled = True
+            break
+        report(f"[fit] round {rnd}: {obj.describe_round()}")
+        limit = opts.time_limit
+        st_old = st
         if opts.optimizer == "lm":
-            st, f, reason, J, r = O.levenberg_marquardt(problem, st, max_iter=opts.max_iter, tol=opts.tol,
-                                                        time_limit=limit, history=history, round_no=rnd)
+            st, f, reason, converged, J, r = O.levenberg_marquardt(
+                problem, st, max_iter=opts.max_iter, tol=opts.tol, time_limit=limit, history=history,
+                round_no=rnd)
+            step_se = _step_in_se(problem, st_old, st, J) if J is not None else None
         else:
-            st, f, reason = O.adam(problem, st, max_iter=opts.max_iter, lr=opts.lr, tol=opts.tol,
-                                   time_limit=limit, history=history, round_no=rnd)
+            st, f, reason, converged = O.adam(problem, st, max_iter=opts.max_iter, lr=opts.lr, tol=opts.tol,
+                                             time_limit=limit, history=history, round_no=rnd)
             J = r = None
-    return st, reason, J, r
+        if not converged:
+            break
+    if obj.is_likelihood and converged and not settled:
+        if step_se is not None and step_se < 0.05:
+            settled = True
+        else:
+            converged = False
+            reason = (f"IRLS weights not settled after {n_rounds} rounds (last round moved the estimate "
+                      f"by {step_se:.2g} standard errors)")
+    return st, reason, converged, J, r
 
 
-#: An albedo whose lobe contributes less than this fraction of the other's
-#: mean intensity over the fitted pixels counts as switched off.
-ALBEDO_BOUND = 1e-3
-
-
-def _albedo_at_bound(problem, st):
-    parts = problem.parts(st)
-    c_s = st.a_s * float(np.mean(parts.surface[0]))
-    c_b = st.a_b * float(np.mean(parts.body[0]))
-    return min(c_s, c_b) < ALBEDO_BOUND * max(c_s, c_b)
-
-
-def _own_split_loss(problem, st):
-    return O._score(problem, problem.parts(st), st)
+ALBEDO_BOUND = O.ALBEDO_BOUND
 
 
 def predict_image(model_name, params, obs, pixels=None):

@@ -41,8 +41,9 @@ def reported_names(model):
 
 
 def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=None, init=None, max_iter=40,
-                      tol=1e-4, time_limit=None, max_time=110.0, max_pixels=20000, erode=2, seed=0,
-                      lr=0.02, spp=16, rounds=3, flag=lambda name: name, **_ignored):
+                      tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0,
+                      lr=0.02, spp=16, rounds=3, loss="auto", starts=2, fixed=None,
+                      flag=lambda name: name, **_ignored):
     """Raise InputError for the first invalid fit option.  ``flag`` maps an option name to
     how the user wrote it (``--max-pixels`` on the command line)."""
     from .models import Bounds, get_model
@@ -64,6 +65,21 @@ def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=No
     _num(flag("lr"), lr, lo=0.0, lo_incl=False, none_ok=False)
     _num(flag("spp"), spp, lo=1, integer=True, none_ok=False)
     _num(flag("rounds"), rounds, lo=1, integer=True, none_ok=False)
+    if loss not in ("auto", "likelihood", "paper"):
+        raise InputError(f"{flag('loss')}: expected 'auto', 'likelihood' or 'paper', got {loss!r}")
+    _num(flag("starts"), starts, lo=1, integer=True, none_ok=False)
+    if fixed is not None:
+        if not isinstance(fixed, dict):
+            raise InputError(f"{flag('fix')}: expected {{name: value}}, got {fixed!r}")
+        lims = Bounds(m, None).lims
+        for name, v in fixed.items():
+            if name not in m.shape_names:
+                raise InputError(f"{flag('fix')}: '{name}' is not a shape parameter of {m.name} "
+                                 f"({', '.join(m.shape_names)})")
+            v = _num(f"{flag('fix')} {name}", v, none_ok=False)
+            lo, hi = lims[name][2], lims[name][3]
+            if not lo <= v <= hi:
+                raise InputError(f"{flag('fix')} {name}: {v:g} is outside the fit's bounds [{lo:g}, {hi:g}]")
     if bounds is not None:
         if not isinstance(bounds, dict):
             raise InputError(f"{flag('bounds')}: expected {{name: (lo, hi)}}, got {bounds!r}")
@@ -101,9 +117,14 @@ def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=No
 
 
 def check_input_options(*, black_level=0.0, conversion_gain=None, read_noise=None, irradiance=None,
-                        fov=None, relight_irradiance=None, flag=lambda name: name, **_ignored):
+                        fov=None, relight_irradiance=None, white_level=None, dark_level=None,
+                        flag=lambda name: name, **_ignored):
     """Raise InputError for the first invalid option about the image and the light."""
-    _num(flag("black_level"), black_level, lo=0.0, none_ok=False)
+    _num(flag("black_level"), black_level, lo=0.0)
+    _num(flag("white_level"), white_level, lo=0.0, lo_incl=False)
+    _num(flag("dark_level"), dark_level, lo=0.0)
+    if white_level is not None and dark_level is not None and not dark_level < white_level:
+        raise InputError(f"{flag('dark_level')} {dark_level:g} must be below {flag('white_level')} {white_level:g}")
     _num(flag("conversion_gain"), conversion_gain, lo=0.0, lo_incl=False)
     _num(flag("read_noise"), read_noise, lo=0.0)
     if (conversion_gain is None) != (read_noise is None):

@@ -17,7 +17,13 @@ The model is linear in its two albedos, so any prediction is
   forward-mode derivatives through ``mi.render`` miss the body term.
 
 Intensity and DoLP of ``M @ [1, 0, 0, 0]`` are invariant under rotations of
-the Stokes frames, so the pixel path needs no frame alignment.
+the Stokes frames; the polariser samples a camera measures are not.  The pixel
+path therefore rotates each Stokes vector from the BSDF's outgoing basis
+(``mi.mueller.stokes_basis(wi)`` in the shading frame) to the camera's
+(x = image right projected perpendicular to the view direction, y = image up,
+light travelling towards the camera), the frame of the ``stokes`` integrator
+and of :mod:`fmbrdf_mi.polcam` (checked against a render in
+``tests/test_fit_likelihood.py``).
 """
 from __future__ import annotations
 
@@ -195,13 +201,24 @@ class PixelEvaluator(_Evaluator):
                                                                  dtype=np.float32)))
         self.si = si
         self.ctx = mi.BSDFContext()
-        dr.eval(self.si, self.wo)
+        # the camera's Stokes x axis at each direction: image right, orthogonal to the view direction
+        ex = np.array([1.0, 0.0, 0.0])
+        xc = ex[None, :] - (view_dirs @ ex)[:, None] * view_dirs
+        bad = np.linalg.norm(xc, axis=1) < 1e-6
+        xc[bad] = (0.0, 1.0, 0.0)
+        xc /= np.linalg.norm(xc, axis=1, keepdims=True)
+        xl = frame.to_local(mi.Vector3f(np.ascontiguousarray(xc.T, dtype=np.float32)))
+        rot = mi.mueller.rotate_stokes_basis(si.wi, mi.mueller.stokes_basis(si.wi), xl)
+        self._rot = (rot[1, 1], rot[1, 2], rot[2, 1], rot[2, 2])
+        dr.eval(self.si, self.wo, self._rot)
 
     def _stokes(self):
         import drjit as dr
 
         M = self.bsdf.eval(self.ctx, self.si, self.wo)
-        s = _stokes_components(M, self.irradiance)
+        s0, s1, s2 = _stokes_components(M, self.irradiance)
+        r11, r12, r21, r22 = self._rot
+        s = (s0, r11 * s1 + r12 * s2, r21 * s1 + r22 * s2)  # in the camera's Stokes frame
         if self._w is None:
             return s
         return tuple(dr.block_sum(c * self._w, self.k) for c in s)

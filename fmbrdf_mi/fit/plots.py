@@ -85,19 +85,39 @@ def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_poi
     plt.close(fig)
 
 
-def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_variance=None):
-    """Intensity and DoLP: observed | predicted | error, masked (``lin_variance``: see :func:`model_dolp`)."""
+def scale_from(values, sel, q=99.0, floor=1e-6):
+    """Colour-scale maximum: the ``q``-th percentile of |values| over the selected (fitted) pixels.
+
+    Unlit pixels (whose DoLP is noise) and the one-pixel rim (whose DoLP and
+    error are extreme) are not fitted, so they no longer set the scale.
+    """
+    v = np.abs(np.asarray(values, dtype=np.float64)[sel])
+    v = v[np.isfinite(v)]
+    return max(float(np.percentile(v, q)), floor) if v.size else 1.0
+
+
+def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_variance=None, pixels=None):
+    """Intensity and DoLP: observed | predicted | error, masked (``lin_variance``: see :func:`model_dolp`).
+
+    Colour scales and error ranges come from the 99th percentile over
+    ``pixels`` (flat indices of the fitted pixels; default the mask).
+    """
     plt = _plt()
     m = np.asarray(mask, bool)
+    sel = m.copy()
+    if pixels is not None:
+        sel = np.zeros(m.size, bool)
+        sel[np.asarray(pixels)] = True
+        sel = sel.reshape(m.shape)
     rows = (("intensity", observed[0], predicted[0]),
             ("DoLP", stokes_io.dolp(observed), model_dolp(predicted, lin_variance)))
     fig, axes = plt.subplots(2, 3, figsize=(11, 7))
     for r, (name, o, p) in enumerate(rows):
         o = np.where(m, o, np.nan)
         p = np.where(m, p, np.nan)
-        vmax = float(np.nanpercentile(o, 99.5)) or 1.0
+        vmax = scale_from(o, sel, 99.0)
         err = p - o
-        emax = float(np.nanpercentile(np.abs(err), 99)) or 1e-6
+        emax = scale_from(err, sel, 99.0)
         for c, (img, t, kw) in enumerate(((o, f"observed {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
                                           (p, f"{label} {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
                                           (err, f"{label} - observed", dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
@@ -120,9 +140,10 @@ def plot_loss_history(histories, path):
         if hist:
             ax.semilogy([h["time"] for h in hist], [h["loss"] for h in hist], "o-", ms=3, label=label)
     ax.set_xlabel("time (s)")
-    ax.set_ylabel("loss (eq. optimization)")
+    ax.set_ylabel("objective (chi^2 for the likelihood; eq:optimization for the paper's loss)")
     ax.grid(alpha=0.3)
-    ax.legend()
+    if any(histories.values()):
+        ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -1,0 +1,203 @@
+"""The camera model: how a division-of-focal-plane polarisation sensor turns a Stokes image into raw numbers.
+
+One home for what rendering (``fmbrdf-mi render --raw``) simulates and what
+fitting (the likelihood of :mod:`fmbrdf_mi.fit.likelihood`) assumes:
+
+1. **sampling** (:mod:`fmbrdf_mi.polcam`): raw pixel (r, c) sits behind the
+   polariser of its position in the 2x2 ``layout`` and sees
+   I(phi) = (S0 + S1 cos 2 phi + S2 sin 2 phi) / 2 of the Stokes image *at
+   that pixel*;
+2. **exposure**: ``electrons = exposure * I`` (``exposure`` in electrons per
+   unit of the Stokes image);
+3. **noise**: Poisson shot noise in electrons plus Gaussian read noise
+   (``read_noise`` electrons rms), clipped to [0, ``full_well``];
+4. **ADC**: ``DN = round(electrons / conversion_gain) + black_level``,
+   clipped to [0, 2^bits - 1], stored as uint16.
+
+In digital numbers above the black level, a raw sample of mean mu (DN) then
+has, to the accuracy of the Gaussian approximation of the Poisson law,
+
+    var = mu / g + (read_noise / g)^2 + 1 / 12                     (DN^2)
+
+with g = ``conversion_gain`` in electrons per DN (shot noise, read noise,
+rounding): :meth:`CameraModel.variance`.  Samples at the white level
+(:attr:`CameraModel.white_level`) or at 0 are clipped and obey no such law.
+
+A capture's settings travel with it as a JSON *sidecar* (:func:`write_sidecar`,
+:func:`read_sidecar`), which ``fmbrdf-mi fit`` reads.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+
+import numpy as np
+
+from . import polcam
+
+#: Key that marks a JSON file as a capture sidecar of this package.
+SIDECAR_KEY = "fmbrdf_mi_capture"
+
+
+@dataclasses.dataclass
+class CameraModel:
+    """Sensor and ADC settings.  Defaults: a 5 MP IMX250MZR-like sensor with a 12-bit ADC over its full well."""
+
+    full_well: float = 10000.0       # electrons
+    read_noise: float = 2.5          # electrons rms
+    bits: int = 12                   # ADC resolution
+    conversion_gain: float = None    # electrons per DN (None: the ADC spans the full well)
+    black_level: float = 0.0         # DN added to every sample (an offset keeps the read noise of dark pixels)
+    layout: tuple = polcam.IMX250MZR_LAYOUT
+
+    def __post_init__(self):
+        if not (np.isfinite(self.full_well) and self.full_well > 0 and np.isfinite(self.read_noise)
+                and self.read_noise >= 0 and 1 <= int(self.bits) <= 16):
+            raise ValueError(f"camera: need full_well > 0, read_noise >= 0, bits in [1, 16]; got {self}")
+        self.bits = int(self.bits)
+        if self.conversion_gain is None:
+            self.conversion_gain = self.full_well / self.levels
+        if not (np.isfinite(self.conversion_gain) and self.conversion_gain > 0):
+            raise ValueError(f"camera: conversion_gain must be > 0 electrons per DN, got {self.conversion_gain}")
+        if not (0 <= self.black_level < self.levels):
+            raise ValueError(f"camera: black_level must be in [0, {self.levels}), got {self.black_level}")
+        self.layout = tuple(tuple(int(a) for a in row) for row in self.layout)
+        polcam._check_layout(self.layout)
+
+    @property
+    def levels(self):
+        """The ADC maximum, 2^bits - 1."""
+        return 2 ** int(self.bits) - 1
+
+    @property
+    def white_level(self):
+        """Raw value (DN) at and above which a sample is clipped: the ADC maximum or the full well."""
+        return float(min(self.levels, np.floor(self.full_well / self.conversion_gain + self.black_level)))
+
+    @property
+    def read_noise_dn(self):
+        return self.read_noise / self.conversion_gain
+
+    def variance(self, mean_dn):
+        """Variance (DN^2) of a raw sample whose mean above the black level is ``mean_dn``."""
+        mu = np.clip(np.asarray(mean_dn, dtype=np.float64), 0.0, None)
+        return mu / self.conversion_gain + self.read_noise_dn ** 2 + 1.0 / 12.0
+
+    def to_dict(self):
+        d = dataclasses.asdict(self)
+        d["layout"] = [list(r) for r in self.layout]
+        d["white_level"] = self.white_level
+        return d
+
+    @classmethod
+    def from_dict(cls, d):
+        keys = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: (tuple(tuple(r) for r in v) if k == "layout" else v) for k, v in d.items() if k in keys})
+
+
+def intensity_at_each_pixel(stokes3, layout):
+    """Intensity behind the polariser of each pixel's mosaic position, (H, W), from (3, H, W) Stokes."""
+    s = np.asarray(stokes3, dtype=np.float64)
+    _, h, w = s.shape
+    out = np.empty((h, w))
+    for pos, angle in enumerate(a for row in layout for a in row):
+        r, c = divmod(pos, 2)
+        t = np.radians(angle)
+        sp = s[:, r::2, c::2]
+        out[r::2, c::2] = 0.5 * (sp[0] + np.cos(2 * t) * sp[1] + np.sin(2 * t) * sp[2])
+    return out
+
+
+def capture(stokes, camera=None, *, exposure=None, peak_fraction=0.9, seed=0, noiseless=False):
+    """Raw quad-Bayer capture of a Stokes image through ``camera`` (:class:`CameraModel`).
+
+    ``stokes``: (>=3, 2H, 2W) linear Stokes image (one channel) at the
+    resolution of the raw sensor.  ``exposure``: electrons per unit of
+    ``stokes``; None chooses it so that the brightest raw pixel collects
+    ``peak_fraction`` of the full well.  Returns a dict with
+
+    * ``raw``: (2H, 2W) uint16 digital numbers, black level included;
+    * ``exposure``: electrons per input unit; ``dn_to_input``: multiply
+      (raw - black level) by this to get back the input's units
+      (= conversion_gain / exposure);
+    * ``saturated``: fraction of samples at the white level.
+
+    ``noiseless=True`` skips shot and read noise (rounding and clipping stay).
+    """
+    cam = camera or CameraModel()
+    s = np.asarray(stokes, dtype=np.float64)[:3]
+    if s.ndim != 3 or s.shape[1] % 2 or s.shape[2] % 2:
+        raise ValueError(f"stokes: expected shape (3 or 4, 2H, 2W) with even sizes, got {np.shape(stokes)}")
+    ideal = np.clip(intensity_at_each_pixel(s, cam.layout), 0.0, None)
+    if exposure is None:
+        peak = ideal.max()
+        if peak <= 0:
+            raise ValueError("stokes: the image is black; cannot choose an exposure")
+        exposure = peak_fraction * cam.full_well / peak
+    if not (np.isfinite(exposure) and exposure > 0):
+        raise ValueError(f"exposure: must be > 0 electrons per unit, got {exposure}")
+    electrons = ideal * exposure
+    rng = np.random.default_rng(seed)
+    if not noiseless:
+        electrons = rng.poisson(electrons).astype(np.float64)
+        electrons += rng.normal(0.0, cam.read_noise, electrons.shape)
+    electrons = np.clip(electrons, 0.0, cam.full_well)
+    dn = np.clip(np.round(electrons / cam.conversion_gain + cam.black_level), 0, cam.levels)
+    return {"raw": dn.astype(np.uint16), "exposure": float(exposure),
+            "dn_to_input": cam.conversion_gain / exposure,
+            "saturated": float(np.mean(dn >= cam.white_level))}
+
+
+# ---------------------------------------------------------------- sidecar
+def sidecar_path(raw_path):
+    """``capture.png`` -> ``capture.json``."""
+    return os.path.splitext(os.fspath(raw_path))[0] + ".json"
+
+
+def write_sidecar(raw_path, camera, extra=None, force=False):
+    """Write the JSON sidecar of a raw capture (camera settings plus ``extra``, e.g. scene metadata)."""
+    path = sidecar_path(raw_path)
+    if os.path.exists(path) and not force:
+        raise FileExistsError(f"{path} exists; pass --force to overwrite it")
+    d = dict(extra or {})
+    d.update({SIDECAR_KEY: 1, "sensor": camera.to_dict()})
+    with open(path, "w") as f:
+        json.dump(d, f, indent=2)
+    return path
+
+
+def read_sidecar(raw_path):
+    """The sidecar dict of a raw capture, or None when there is none (or the JSON beside it is not one).
+
+    ``d["sensor"]`` is the :class:`CameraModel`; the rest is what the writer added.
+    """
+    path = sidecar_path(raw_path)
+    if not os.path.isfile(path):
+        return None
+    try:
+        with open(path) as f:
+            d = json.load(f)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: not a readable JSON sidecar ({exc})") from None
+    if not isinstance(d, dict) or SIDECAR_KEY not in d:
+        return None
+    try:
+        d["sensor"] = CameraModel.from_dict(d["sensor"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: camera settings are malformed ({exc})") from None
+    d["path"] = path
+    return d
+
+
+def default_white_level(raw):
+    """The ADC maximum assumed when none is given: the smallest 2^b - 1 (b in 8, 10, 12, 14, 16) >= max(raw).
+
+    A 12-bit camera stored in 16-bit files clips at 4095: its clipped
+    samples are then recognised without the user saying so.
+    """
+    m = float(np.max(raw)) if np.size(raw) else 0.0
+    for b in (8, 10, 12, 14, 16):
+        if m <= 2 ** b - 1:
+            return float(2 ** b - 1)
+    return m
