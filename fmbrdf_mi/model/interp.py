@@ -70,14 +70,14 @@ class TetraTable:
 
 
 class PackedTetraTable(TetraTable):
-    """The same interpolation from half the bytes: the first ``n_float``
+    """The same interpolation from fewer bytes: the first ``n_float``
     channels stay float32, the others (an even number, values in [-bound,
     bound]) are stored as 16-bit fixed point, two to a 32-bit word (step
     bound / 32767: for bound 2, at most 3.1e-5 from the float32 value, a
-    hundredth of the tables' interpolation error).  eval's random-access reads are what costs:
-    fewer bytes keep more of the table in the caches and fewer words are
-    gathered per texel.  The bits carry no AD graph: use it only where no
-    parameter of the table has gradients enabled.
+    hundredth of the tables' interpolation error).  eval's random-access
+    reads are what costs: fewer bytes keep more of the table in the caches
+    and fewer words are gathered per texel.  The bits carry no AD graph: use
+    it only where no parameter of the table has gradients enabled.
     """
 
     def __init__(self, table, n_float=0, bound=2.0):

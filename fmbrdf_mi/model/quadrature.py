@@ -37,6 +37,8 @@ def constant(Type, key, make):
     table rebuild cost a good part of it."""
     k = (Type, key)
     if k not in _CONSTANTS:
+        if len(_CONSTANTS) >= 256:  # callers with ever new keys (arbitrary azimuths) must not grow it
+            _CONSTANTS.clear()
         arr = np.asarray(make(), dtype=np.float64)
         if dr.is_tensor_v(Type):
             value = Type(dr.array_t(Type)(arr.ravel()), shape=arr.shape)
