@@ -35,6 +35,29 @@ def make_float32(mi, **kw):
     return make(mi, tables="float32", **kw)
 
 
+def small_sphere_paths(light, spp, res=24, seed=3):
+    """A res x res render of the built-in sphere (unit albedos, stokes over direct) and its
+    usable pixels, with a RenderEvaluator and a PixelEvaluator of FMBRDF on those pixels:
+    the two differentiable paths of the fit, on the same object.
+    Returns (scene, obs, idx, render_evaluator, pixel_evaluator)."""
+    import mitsuba as mi
+
+    from fmbrdf_mi import scene as S
+    from fmbrdf_mi.fit import FitOptions, Observation, usable_pixels
+    from fmbrdf_mi.fit.models import FMBRDF
+    from fmbrdf_mi.fit.pixel_model import PixelEvaluator, RenderEvaluator, set_variant
+
+    set_variant()
+    scene = mi.load_dict(S.sphere_scene({"k_s": 1.0, "k_b": 1.0}, light_dir=light, irradiance=1.0,
+                                        resolution=res, spp=spp))
+    n, v, m = S.sphere_geometry(res)
+    obs = Observation(np.ones((3, res, res)), m, n, v, light)
+    idx = usable_pixels(obs, FitOptions(erode=1))
+    rev = RenderEvaluator(FMBRDF, scene, "sphere.bsdf", idx, spp=spp, seed=seed)
+    pev = PixelEvaluator(FMBRDF, n.reshape(-1, 3)[idx], v.reshape(-1, 3)[idx], light)
+    return scene, obs, idx, rev, pev
+
+
 def fresnel_T(theta, eta):
     """(T_s, T_p) at incidence angle theta (independent NumPy formula)."""
     c = np.cos(theta)

@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import small_sphere_paths
 
 TRUE = {"eta": 1.55, "alpha": 0.35, "beta": 1.4, "kappa": 30.0, "k_s": 0.9, "r_k": 1.7}
 SHAPE = {k: TRUE[k] for k in ("eta", "alpha", "beta", "kappa")}
@@ -141,22 +142,8 @@ def test_likelihood_jacobian_and_fisher_information_against_finite_differences(v
 def test_pixel_path_stokes_are_in_the_camera_frame(variant):
     """S1 and S2 of the per-pixel path agree with a render through the stokes integrator (the likelihood
     needs the polariser samples, which depend on the AoLP, not just intensity and DoLP)."""
-    import mitsuba as mi
-
-    from fmbrdf_mi import scene as S
-    from fmbrdf_mi.fit import FitOptions, Observation, usable_pixels
-    from fmbrdf_mi.fit.models import FMBRDF
-    from fmbrdf_mi.fit.pixel_model import PixelEvaluator, RenderEvaluator, set_variant
-
-    set_variant()
-    res = 24
-    scene = mi.load_dict(S.sphere_scene({"k_s": 1.0, "k_b": 1.0}, light_dir=LIGHT, irradiance=1.0,
-                                        resolution=res, spp=64))
-    n, v, m = S.sphere_geometry(res)
-    obs = Observation(np.ones((3, res, res)), m, n, v, LIGHT)
-    idx = usable_pixels(obs, FitOptions(erode=1))
-    a = RenderEvaluator(FMBRDF, scene, "sphere.bsdf", idx, spp=64, seed=3).parts(SHAPE)
-    b = PixelEvaluator(FMBRDF, n.reshape(-1, 3)[idx], v.reshape(-1, 3)[idx], LIGHT).parts(SHAPE)
+    _, _, _, rev, pev = small_sphere_paths(LIGHT, spp=64)
+    a, b = rev.parts(SHAPE), pev.parts(SHAPE)
     for x, y in ((a.surface, b.surface), (a.body, b.body)):
         for c in (1, 2):
             assert np.corrcoef(x[c], y[c])[0, 1] > 0.999, c

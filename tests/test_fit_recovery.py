@@ -11,6 +11,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import small_sphere_paths
 
 # off every coarse-search grid value
 TRUE = {"eta": 1.55, "alpha": 0.35, "beta": 1.4, "kappa": 30.0, "k_s": 0.9, "r_k": 1.7}
@@ -48,23 +49,7 @@ def test_pplastic_baseline_recovers_its_parameters(variant):
 
 @pytest.fixture(scope="module")
 def render_setup():
-    import mitsuba as mi
-
-    from fmbrdf_mi import scene as S
-    from fmbrdf_mi.fit import FitOptions, Observation, usable_pixels
-    from fmbrdf_mi.fit.models import FMBRDF
-    from fmbrdf_mi.fit.pixel_model import PixelEvaluator, RenderEvaluator, set_variant
-
-    set_variant()
-    res = 24
-    scene = mi.load_dict(S.sphere_scene({"k_s": 1.0, "k_b": 1.0}, light_dir=LIGHT, irradiance=1.0,
-                                        resolution=res, spp=16))
-    n, v, m = S.sphere_geometry(res)
-    obs = Observation(np.ones((3, res, res)), m, n, v, LIGHT)
-    idx = usable_pixels(obs, FitOptions(erode=1))
-    rev = RenderEvaluator(FMBRDF, scene, "sphere.bsdf", idx, spp=16, seed=3)
-    pev = PixelEvaluator(FMBRDF, n.reshape(-1, 3)[idx], v.reshape(-1, 3)[idx], LIGHT)
-    return scene, obs, idx, rev, pev
+    return small_sphere_paths(LIGHT, spp=16)
 
 
 def test_render_path_agrees_with_pixel_path(render_setup):
