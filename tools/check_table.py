@@ -43,6 +43,10 @@ def main():
                     help="sample the whole valid parameter range instead of the issue's box")
     ap.add_argument("--n-phi", type=int, default=None,
                     help="microfacet node azimuths of the body quadrature (default: the package's)")
+    ap.add_argument("--primary", type=int, nargs=2, default=None, metavar=("N_THETA", "N_PHI"),
+                    help="table nodes of the primary table (default: the package's)")
+    ap.add_argument("--secondary", type=int, nargs=2, default=None, metavar=("N_THETA", "N_PHI"),
+                    help="table nodes of the secondary table (default: the package's)")
     args = ap.parse_args()
 
     import drjit as dr
@@ -56,7 +60,8 @@ def main():
     t0 = time.time()
     for eta, alpha, beta, kappa in random_materials(rng, args.materials, full_box() if args.full_range else BOX):
         bsdf = set_body_grid(mi.load_dict({"type": "fmbrdf", "eta": eta, "alpha": alpha, "beta": beta,
-                                           "kappa": kappa}), args.n_phi)
+                                           "kappa": kappa}), args.n_phi,
+                              args.primary, args.secondary)
         thL, thV, ph = random_angles(rng, args.points)
         # direct quadrature, one light angle per point (diagonal of the (n_L, n_V) product)
         n = args.points
