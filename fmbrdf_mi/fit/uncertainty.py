@@ -8,15 +8,22 @@
   the covariance is multiplied by chi^2 / (N - p) (N the independent
   samples), which is then ~1 by construction;
 * **paper's loss**: it is not a likelihood, so J^T J says nothing about the
-  spread of its minimiser.  The sandwich (robust, "HC0") estimate
-  H^-1 M H^-1 with H = J^T J and M = sum over pixels of u_p u_p^T,
-  u_p = sum of J^T r over the pixel's residual rows (its intensity and DoLP
-  residuals are correlated, so they are grouped), times n / (n - p); for a
-  bilinear-demosaicked mosaic M also sums u_p u_q^T over neighbouring
-  pixels (:func:`_neighbour_meat`), whose values share raw samples.  It
+  spread of its minimiser.  A sandwich estimate H^-1 M H^-1 with H = J^T J
+  and M the covariance of the estimating equation J^T r, summed over pixel
+  neighbourhoods: each pixel's rows (its intensity and DoLP residuals are
+  correlated) and, for a bilinear-demosaicked mosaic, those of its 8
+  neighbours, whose values share raw samples (:func:`block_meat`).  Plain
+  residuals r at the estimate underestimate M: the fit has pulled them
+  towards the data, and with the neighbour sums the loss is large when the
+  object has few pixels (measured: 32 super-pixels, M 41 % too small, 95 %
+  intervals covering 75 %; 88 super-pixels: 83 %).  The residuals of each
+  neighbourhood g are therefore replaced by its leave-g-out prediction
+  residuals (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster jackknife, "CR3"
+  of the econometrics literature; with one pixel per block the "HC3"
+  estimate), which is unbiased to first order and slightly conservative for
+  small objects; for large ones P_gg -> 0 and it is the plain sandwich.  It
   describes the spread of the estimate, not its bias (the DoLP of a noisy
   pixel is biased: README).
-
 **Transforms and bounds.**  The optimiser works in unconstrained z (sigmoid
 onto the bounds, log albedos); the covariance is computed for the reported
 parameters directly: J_theta = J_z (d theta / d z)^-1, so the standard
@@ -108,37 +115,62 @@ def covariance(problem, st, J, r, n_independent=None):
             info["method"] = "inverse Fisher information, noise level estimated from the residuals"
         cov = scale * Hi
     else:
-        pix = obj.row_pixels(len(r))
-        npx = int(pix.max()) + 1
-        U = np.zeros((npx, p))
-        np.add.at(U, pix, Jt * r[:, None])
         grid = getattr(obj, "grid", None)
-        if grid is None:
-            M = U.T @ U
-            info["method"] = "sandwich (robust) estimate for the paper's loss"
-        else:
-            M = _neighbour_meat(U, *grid)
-            info["method"] = ("sandwich (robust) estimate for the paper's loss, with the correlation of "
-                              "neighbouring pixels (demosaicking) included")
-        cov = Hi @ M @ Hi * npx / max(npx - p, 1)
+        M = block_meat(Jt, r, obj.row_pixels(len(r)), Hi, grid)
+        info["method"] = ("sandwich estimate for the paper's loss, leave-neighbourhood-out residuals (CR3)"
+                          + (", with the correlation of neighbouring pixels (demosaicking)" if grid is not None else ""))
+        cov = Hi @ M @ Hi
     return names, cov, info
 
 
-def _neighbour_meat(U, rows, cols):
-    """sum_p u_p (sum_{q: |dr|, |dc| <= 1} u_q)^T, symmetrised, negative eigenvalues removed.
+def _blocks(row_pix, grid):
+    """(rows (n, R) padded with -1: each pixel's residual rows, nb (n, K) padded with -1: its block's pixels)."""
+    row_pix = np.asarray(row_pix)
+    npx = int(row_pix.max()) + 1
+    order = np.argsort(row_pix, kind="stable")
+    counts = np.bincount(row_pix, minlength=npx)
+    R = int(counts.max())
+    rows = -np.ones((npx, R), int)
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    k = np.arange(len(row_pix)) - np.repeat(start, counts)
+    rows[row_pix[order], k] = order
+    if grid is None:
+        return rows, np.arange(npx)[:, None]
+    pr, pc = (np.asarray(g) for g in grid)
+    r0, c0 = pr.min(), pc.min()
+    lut = -np.ones((pr.max() - r0 + 3, pc.max() - c0 + 3), int)
+    lut[pr - r0 + 1, pc - c0 + 1] = np.arange(npx)
+    nb = np.stack([lut[pr - r0 + 1 + dr, pc - c0 + 1 + dc] for dr in (0, -1, 1) for dc in (0, -1, 1)], 1)
+    nb = np.stack([np.concatenate([row[row >= 0], row[row < 0]]) for row in nb])  # own pixel first
+    return rows, nb
 
-    Bilinear demosaicking builds each super-pixel from raw samples it shares
-    with its 8 neighbours, so their residuals are correlated; beyond that
-    they are independent.  The uniform 3 x 3 window is unbiased for such a
-    correlation range.
+
+def block_meat(J, r, row_pix, Hi, grid=None):
+    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals (module docstring).
+
+    ``row_pix``: the pixel of each residual row; ``grid``: (rows, cols) of the
+    pixels when neighbours (|dr|, |dc| <= 1) are correlated, else None (one
+    pixel per block).  Symmetrised, negative eigenvalues removed.
     """
-    rows, cols = np.asarray(rows), np.asarray(cols)
-    r0, c0 = rows.min(), cols.min()
-    G = np.zeros((rows.max() - r0 + 3, cols.max() - c0 + 3, U.shape[1]))
-    G[rows - r0 + 1, cols - c0 + 1] = U
-    S = sum(G[1 + dr:G.shape[0] - 1 + dr, 1 + dc:G.shape[1] - 1 + dc]
-            for dr in (-1, 0, 1) for dc in (-1, 0, 1))
-    M = U.T @ S[rows - r0, cols - c0]
+    rows, nb = _blocks(row_pix, grid)
+    npx, R = rows.shape
+    p = J.shape[1]
+    # the residual rows of each block: own pixel's rows first
+    g = np.where(nb[:, :, None] >= 0, rows[np.clip(nb, 0, None)], -1).reshape(npx, -1)  # (n, K R)
+    valid = g >= 0
+    Jz = np.concatenate([J, np.zeros((1, p))])
+    rz = np.concatenate([r, [0.0]])
+    Jg = Jz[np.where(valid, g, -1)]                      # (n, B, p), zero rows where padded
+    rg = rz[np.where(valid, g, -1)]                      # (n, B)
+    P = np.einsum("nbi,ij,ncj->nbc", Jg, Hi, Jg)
+    A = np.eye(Jg.shape[1])[None] - P
+    try:
+        rt = np.linalg.solve(A, rg[..., None])[..., 0]
+    except np.linalg.LinAlgError:  # a block that determines a parameter on its own (leverage 1)
+        rt = np.einsum("nbc,nc->nb", np.linalg.pinv(A, rcond=1e-10), rg)
+    ua = np.einsum("nbi,nb->ni", Jg[:, :R], rt[:, :R])   # the pixel's own rows
+    ug = np.einsum("nbi,nb->ni", Jg, rt)                 # the whole block
+    M = ua.T @ ug
     M = 0.5 * (M + M.T)
     w, V = np.linalg.eigh(M)
     return (V * np.clip(w, 0.0, None)) @ V.T
