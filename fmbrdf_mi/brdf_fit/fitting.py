@@ -285,7 +285,7 @@ def fit_brdf(brdf, options=None, progress=None):
                                                    "error_all": time.time() - t2})
 
 
-def model_brdf(params, shape_out=True):
+def model_brdf(params):
     """The fitted FMBRDF on the whole MERL grid: (90, 90, 180, 3), NaN below the horizon."""
     from .values import FMBRDFValues
 
