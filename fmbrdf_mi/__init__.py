@@ -2,8 +2,9 @@
 
     import mitsuba as mi
     mi.set_variant("llvm_ad_spectral_polarized")
-    import fmbrdf_mi              # registers "fmbrdf" now and for every variant set later
+    import fmbrdf_mi              # registers "fmbrdf" (and "orennayar") now and for every variant set later
     bsdf = fmbrdf_mi.load_dict({"type": "fmbrdf", "eta": 1.5, "alpha": 0.3})
+    rough = fmbrdf_mi.load_dict({"type": "orennayar", "sigma": 0.4, "reflectance": 0.6})
     # (mi.load_dict works too; it reports a bad value as a RuntimeError, see load_dict)
 """
 import re
@@ -67,7 +68,7 @@ _registered = set()
 
 
 def register(variant=None):
-    """Register the ``fmbrdf`` BSDF plugin for the current (or given) Mitsuba variant.
+    """Register the ``fmbrdf`` and ``orennayar`` BSDF plugins for the current (or given) Mitsuba variant.
 
     Raises ValueError for a variant the plugin cannot run in, and
     LLVMTooOldError when Dr.Jit's LLVM backend would crash on this machine.
@@ -88,9 +89,12 @@ def register(variant=None):
     if variant in _registered:
         return
     from .bsdf import make_plugin_class
+    from .oren_nayar_bsdf import make_plugin_class as make_oren_nayar_class
 
     cls = make_plugin_class()
     mi.register_bsdf("fmbrdf", lambda props: cls(props))
+    on_cls = make_oren_nayar_class()
+    mi.register_bsdf("orennayar", lambda props: on_cls(props))
     _registered.add(variant)
 
 

@@ -29,6 +29,7 @@ from . import __version__
 from . import scene as S
 from ._llvm import LLVMTooOldError
 from .dataset.command import HELP as DATASET_HELP, add_dataset_arguments, run_dataset
+from .brdf_fit.command import HELP as FIT_BRDF_HELP, add_fit_brdf_arguments, run_fit_brdf
 from .fit.cli import add_fit_arguments, run_fit
 from .params import ParameterError
 
@@ -521,6 +522,7 @@ SUBCOMMANDS = [
     ("fit", "estimate FMBRDF parameters from one polarimetric image (inverse rendering)",
      add_fit_arguments, run_fit),
     ("dataset", DATASET_HELP, add_dataset_arguments, run_dataset),
+    ("fit-brdf", FIT_BRDF_HELP, add_fit_brdf_arguments, run_fit_brdf),
 ]
 
 

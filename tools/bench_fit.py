@@ -27,8 +27,9 @@ beta 1-4, kappa 0-50, r_k 0.1-5, k_s 0.6-2):
   prior knowledge, Levenberg-Marquardt, 20 000 random pixels of the mask
   eroded by 2 pixels;
 * relighting: the same sphere under a second light (noise-free, resp. through
-  the same camera), predicted from the estimates of FMBRDF and of the two
-  baselines fitted to the same image the same way; RMSE / mean observed intensity.
+  the same camera), predicted from the estimates of FMBRDF and of the three
+  baselines (pplastic, lambert_ts, oren_nayar_ts) fitted to the same image the
+  same way; RMSE / mean observed intensity.
 
 Prints, per set and condition, true value, estimate, relative error and the
 Gauss-Newton standard error of every parameter, and the fit time; then a
@@ -55,6 +56,7 @@ SETS = [
     dict(eta=1.45, alpha=1.00, beta=1.2, kappa=20.0, k_s=0.7, r_k=3.0),
     dict(eta=1.90, alpha=0.15, beta=3.5, kappa=40.0, k_s=1.0, r_k=0.8),
 ]
+BASELINES = ("pplastic", "lambert_ts", "oren_nayar_ts")
 NAMES = ("eta", "alpha", "beta", "kappa", "k_s", "r_k")
 LIGHT = (-0.5, 0.5, 1.0)        # fitted image: 35 deg from the view direction, upper left
 LIGHT2 = (0.7, -0.2, 0.6)       # relighting: lower right, 51 deg from the view
@@ -98,6 +100,8 @@ def main():
     ap.add_argument("--conditions", default="noise-free,noisy")
     ap.add_argument("--json", help="also write all results to this JSON file")
     ap.add_argument("--no-baselines", action="store_true")
+    ap.add_argument("--baselines", default=",".join(BASELINES),
+                    help=f"comma-separated baselines to fit (default: {','.join(BASELINES)})")
     ap.add_argument("--noise-seeds", type=int, default=1, metavar="K",
                     help="repeat the noisy condition with K camera-noise seeds (same render)")
     ap.add_argument("--table", metavar="JSON", help="only print the summary and a Markdown table of the "
@@ -148,7 +152,7 @@ def main():
                    "saturated": cap["saturated"] if cap else 0.0,
                    "relight": {"fmbrdf": relight_error("fmbrdf", res.params, obs2)["rel_rmse"]}}
             if not args.no_baselines:
-                for b in ("pplastic", "lambert_ts"):
+                for b in args.baselines.split(","):
                     rb = fit(obs, model=b, progress=False)
                     row["relight"][b] = relight_error(b, rb.params, obs2)["rel_rmse"]
             rows.append(row)
@@ -199,7 +203,7 @@ def summary(rows, conditions):
 def markdown_table(rows):
     """One row per set and condition: relative error (noisy: ± the fit's Gauss-Newton standard error;
     kappa = 0: the estimate), fit time, relighting errors."""
-    base = [k for k in ("pplastic", "lambert_ts") if k in rows[0]["relight"]]
+    base = [k for k in BASELINES if k in rows[0]["relight"]]
     head = ["set", "truth (eta, alpha, beta, kappa, k_s, r_k)", "noise", *NAMES, "fit (s)", "relight fmbrdf",
             *(f"relight {b}" for b in base)]
     print("\n| " + " | ".join(head) + " |")

@@ -13,6 +13,7 @@ import time
 import numpy as np
 
 from .. import polcam
+from .models import BASELINES, MODELS
 from .observations import (InputError, Observation, check_direction, downsample_geometry,
                            geometry_from_sphere, load_polarisation, parse_layout, pixel_rays,
                            read_mask, read_vectors)
@@ -330,7 +331,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     elif path != "pixel":
         raise InputError(f"path: expected 'pixel' or 'render', got {path!r}")
     os.makedirs(out, exist_ok=True)
-    models = [model] + ([m for m in ("pplastic", "lambert_ts") if m != model] if baselines else [])
+    models = [model] + ([m for m in BASELINES if m != model] if baselines else [])
     results, preds = {}, {}
     report = {"inputs": inputs if isinstance(inputs, str) else list(inputs), "truth": obs.meta.get("truth"),
               "reproduce": record.reproduce_block(arguments, inputs, command, obs, relight), "models": {}}
@@ -444,9 +445,10 @@ def add_fit_arguments(p):
     g.add_argument("--light", metavar="X,Y,Z", help="direction from the surface towards the light")
     g.add_argument("--irradiance", type=float, help="light irradiance in image units (default 1: absorbed by k_s)")
     g = p.add_argument_group("fit")
-    g.add_argument("--model", default="fmbrdf", choices=("fmbrdf", "pplastic", "lambert_ts"))
+    g.add_argument("--model", default="fmbrdf", choices=tuple(MODELS))
     g.add_argument("--baselines", action="store_true",
-                   help="also fit pplastic and Lambertian + Torrance-Sparrow the same way")
+                   help="also fit pplastic, Lambertian + Torrance-Sparrow and Oren-Nayar + Torrance-Sparrow "
+                        "the same way")
     g.add_argument("--optimizer", default="lm", choices=("lm", "adam"),
                    help="Levenberg-Marquardt (forward-mode AD Jacobian) or Adam (reverse-mode gradient); "
                         "the render path needs adam")

@@ -15,6 +15,13 @@ same code.
   Smith shadowing, dielectric Fresnel reflectance through Mitsuba's
   ``roughconductor`` with k = 0), added as a ``blendbsdf`` with weight 1/2
   (its albedos are reported as the effective ones, k_d and k_s).
+* ``oren_nayar_ts``: Oren-Nayar + Torrance-Sparrow, the paper's third
+  comparison: this package's ``orennayar`` BSDF in its qualitative form
+  (Oren & Nayar, SIGGRAPH 1994; linear in the albedo, which the fit's
+  closed-form albedos need: the full form's interreflection term is
+  quadratic in it) in place of the Lambertian of ``lambert_ts``, the same
+  Torrance-Sparrow term, the same blend; shape parameters eta, alpha and
+  sigma (facet slope deviation, radians).
 """
 from __future__ import annotations
 
@@ -151,7 +158,28 @@ LAMBERT_TS = Model(
     body_name="k_d",
 )
 
-MODELS = {m.name: m for m in (FMBRDF, PPLASTIC, LAMBERT_TS)}
+OREN_NAYAR_TS = Model(
+    name="oren_nayar_ts",
+    description="Oren-Nayar (qualitative form) + Torrance-Sparrow (Beckmann, Smith, dielectric Fresnel)",
+    shape=(
+        ShapeParam("eta", "bsdf_1.eta.value", 1.01, 3.0, "log_minus_1", (1.2, 1.5, 2.0)),
+        ShapeParam("alpha", "bsdf_1.alpha.value", 0.01, 1.0, "log", (0.02, 0.04, 0.08, 0.15, 0.3, 0.6)),
+        ShapeParam("sigma", "bsdf_0.sigma", 0.0, 1.5, "linear", (0.0, 0.25, 0.5, 0.9)),
+    ),
+    surface_key="bsdf_1.specular_reflectance.value",
+    body_key="bsdf_0.reflectance.value",
+    albedo_factor=0.5,
+    base_dict={"type": "blendbsdf", "weight": 0.5,
+               "bsdf_0": {"type": "orennayar", "form": "qualitative", "sigma": "$sigma", "reflectance": 1.0},
+               "bsdf_1": {"type": "roughconductor", "distribution": "beckmann", "alpha": "$alpha",
+                          "eta": "$eta", "k": 0.0, "specular_reflectance": 1.0}},
+    surface_name="k_s",
+    body_name="k_d",
+)
+
+MODELS = {m.name: m for m in (FMBRDF, PPLASTIC, LAMBERT_TS, OREN_NAYAR_TS)}
+#: The models fitted beside the chosen one by ``--baselines``.
+BASELINES = ("pplastic", "lambert_ts", "oren_nayar_ts")
 
 
 def get_model(name):

@@ -49,7 +49,7 @@ def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=No
     from .models import Bounds, get_model
 
     if not isinstance(model, str):
-        raise InputError(f"{flag('model')}: expected fmbrdf, pplastic or lambert_ts, got {model!r}")
+        raise InputError(f"{flag('model')}: expected fmbrdf, pplastic, lambert_ts or oren_nayar_ts, got {model!r}")
     m = get_model(model)
     if optimizer not in ("lm", "adam"):
         raise InputError(f"{flag('optimizer')}: expected 'lm' or 'adam', got {optimizer!r}")
