@@ -359,12 +359,13 @@ class _FMBRDFMethods:
         x_v = table_x_of_theta(dr.acos(dr.clip(cos_v, 0.0, 1.0)))
         return phi * (1.0 / math.pi), x_l, x_v
 
-    def _surface(self, L, V):
-        """Surface reflection (eq:Torrance-Sparrow, sec. 4.2): (scale, 3x3 block, M33)."""
+    def _surface(self, L, V, cos_o):
+        """Surface reflection (eq:Torrance-Sparrow, sec. 4.2) times ``cos_o``: (scale, 3x3 block, M33)."""
         H = dr.normalize(L + V)
         p_l = self.dist.proj_area_lookup(L.z)
         p_v = self.dist.proj_area_lookup(V.z)
-        scale = self.dist.D(H) * L.z / (4.0 * p_l * p_v)  # D G1(L) G1(V) / (4 N.V), G1 = cos/P
+        # f cos_o = D G1(L) G1(V) cos_o / (4 N.L N.V), G1 = cos / P
+        scale = self.dist.D(H) * cos_o / (4.0 * p_l * p_v)
         rp, rm, rc = reflection_mueller_terms(dr.dot(L, H), self.eta)
         if not self.polarized:
             return scale * rp, None, None
@@ -375,8 +376,8 @@ class _FMBRDFMethods:
         in_rot = _rotation(-L, s_axis, mi.mueller.stokes_basis(-L))
         return scale, _rotate_block(M, out_rot, in_rot), rc
 
-    def _body(self, L, V):
-        """Body reflection (eq:observed body reflection Stokes vector): (scale, 3x3 block)."""
+    def _body(self, L, V, cos_o):
+        """Body reflection (eq:observed body reflection Stokes vector) times ``cos_o``: (scale, 3x3 block)."""
         lx, ly = _unit_xy(L)
         vx, vy = _unit_xy(V)
         sin_phi = lx * vy - ly * vx  # phi = phi_V - phi_L
@@ -385,7 +386,7 @@ class _FMBRDFMethods:
         primary = self.primary.eval(*u)
         m00 = dr.exp(primary[0])
         if not self.polarized:
-            return L.z * m00, None
+            return cos_o * m00, None
         r10, r20 = primary[1], primary[2]
         r01, r02, r11, r12, r21, r22 = self.secondary.eval(*u)
         flip = dr.select(sin_phi < 0, -1.0, 1.0)  # mirror image: s2 changes sign on one side
@@ -395,18 +396,22 @@ class _FMBRDFMethods:
         x_out = mi.Vector3f(-vy, vx, 0.0)
         out_rot = _rotation(V, x_out, mi.mueller.stokes_basis(V))
         in_rot = _rotation(-L, x_in, mi.mueller.stokes_basis(-L))
-        return L.z * m00, _rotate_block(M, out_rot, in_rot)
+        return cos_o * m00, _rotate_block(M, out_rot, in_rot)
 
     def _eval_parts(self, ctx, si, wo, active):
-        """Surface and body contributions: {name: (scale, 3x3 block or None, M33)}."""
+        """Surface and body contributions: {name: (scale, 3x3 block or None, M33)}.
+
+        The BRDF of light arriving from L seen from V, times cos(theta) of
+        ``wo`` as Mitsuba's BSDFs return in either transport mode (``wo`` is L
+        in radiance mode, V in importance mode)."""
         L, V = self._directions(ctx, si, wo)
         active = active & (L.z > 0) & (V.z > 0)
         out = {}
         if ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
-            scale, M, m33 = self._surface(L, V)
+            scale, M, m33 = self._surface(L, V, wo.z)
             out["spec"] = (dr.select(active, scale, 0.0), M, m33)
         if ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 1):
-            scale, M = self._body(L, V)
+            scale, M = self._body(L, V, wo.z)
             out["body"] = (dr.select(active, scale, 0.0), M, 0.0)
         return out
 
