@@ -425,10 +425,12 @@ def add_fit_arguments(p):
                    help="camera gain in electrons per image unit (e-/DN for raw images); with --read-noise, "
                         "the DoLP term accounts for the noise bias of the observed DoLP")
     g.add_argument("--read-noise", type=float, metavar="E", help="read noise in electrons rms")
-    g.add_argument("--loss", default="auto", choices=("auto", "likelihood", "paper"),
+    g.add_argument("--loss", default="auto", choices=("auto", "likelihood", "paper", "intensity", "dolp"),
                    help="likelihood of the camera's samples (Poisson-Gaussian noise), or the paper's loss "
                         "(intensity MSE + weighted DoLP MSE); auto: likelihood when the camera noise is "
-                        "known (--conversion-gain / a capture sidecar), else paper")
+                        "known (--conversion-gain / a capture sidecar), else paper.  The paper's comparison: "
+                        "intensity (its intensity term alone: radiometric fits) or dolp (its DoLP term "
+                        "alone, overall albedo from the mean intensity); for the baselines too")
     g.add_argument("--footprint", default="auto", choices=("auto", "point", "box", "demosaic"),
                    help="what a pixel integrates over, modelled by averaging the BSDF over it: the pixel "
                         "centre, a 3x3 box, or the demosaicking's raw pixels (auto: demosaic for raw "
