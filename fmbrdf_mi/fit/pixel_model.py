@@ -203,6 +203,17 @@ class PixelEvaluator(_Evaluator):
             self.irradiance = mi.Float(irr.astype(np.float32))
         else:
             raise ValueError(f"irradiance {irr.shape}: one value, or one per direction ({n_dirs},)")
+        self.ctx = mi.BSDFContext()
+        self.set_geometry(normals, view_dirs, light)
+        if not isinstance(self.irradiance, float):
+            dr.eval(self.irradiance)
+
+    def set_geometry(self, normals, view_dirs, light):
+        """Directions (unit, float64 arrays as in the constructor) of the same count; the BSDF is kept."""
+        import drjit as dr
+        import mitsuba as mi
+
+        n_dirs = len(normals)
         frame = mi.Frame3f(mi.Vector3f(np.ascontiguousarray(normals.T, dtype=np.float32)))
         si = dr.zeros(mi.SurfaceInteraction3f, n_dirs)
         si.sh_frame = frame
@@ -211,7 +222,6 @@ class PixelEvaluator(_Evaluator):
         lights = light if light.ndim == 2 else np.tile(light, (n_dirs, 1))
         self.wo = frame.to_local(mi.Vector3f(np.ascontiguousarray(lights.T, dtype=np.float32)))
         self.si = si
-        self.ctx = mi.BSDFContext()
         # the camera's Stokes x axis at each direction: image right, orthogonal to the view direction
         ex = np.array([1.0, 0.0, 0.0])
         xc = ex[None, :] - (view_dirs @ ex)[:, None] * view_dirs
@@ -222,8 +232,6 @@ class PixelEvaluator(_Evaluator):
         rot = mi.mueller.rotate_stokes_basis(si.wi, mi.mueller.stokes_basis(si.wi), xl)
         self._rot = (rot[1, 1], rot[1, 2], rot[2, 1], rot[2, 2])
         dr.eval(self.si, self.wo, self._rot)
-        if not isinstance(self.irradiance, float):
-            dr.eval(self.irradiance)
 
     def _stokes(self):
         import drjit as dr
