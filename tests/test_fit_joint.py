@@ -190,3 +190,26 @@ def test_loss_variant_options_are_checked():
     check_fit_options(loss="dolp")
     with pytest.raises(InputError, match="loss"):
         check_fit_options(loss="radiance")
+
+
+def test_joint_fit_of_different_views(variant):
+    """Each image its own view (pixel grid, sphere position and size, orthographic or perspective view
+    directions): noise-free images give back the truth (float32 precision of the BSDF, 1e-4)."""
+    from fmbrdf_mi.fit import observations as ob
+    from fmbrdf_mi.fit.fitting import predict_image
+    from fmbrdf_mi.fit.joint import fit_joint
+
+    views = [((16, 16), (8, 8), 7, "orthographic", None, LIGHTS[0]),
+             ((14, 20), (11, 6.5), 6, "orthographic", None, LIGHTS[1]),
+             ((18, 18), (9, 9), 8, "perspective", 30.0, LIGHTS[2])]
+    obs = []
+    for shape, c, r, cam, fov, l in views:
+        n, m, v = ob.sphere_normals(shape, c, r, cam, fov)
+        o = ob.Observation(np.ones((3,) + shape), m, n, v, l)
+        o.stokes = predict_image("fmbrdf", TRUE, o)
+        obs.append(o)
+    res = fit_joint(obs, loss="paper", init=NEAR, progress=False, max_pixels=None)
+    assert res.fit.converged
+    for k, v in TRUE.items():
+        assert abs(res.params[k] - v) <= 1e-4 * max(v, 1.0), (k, res.params[k])
+    assert [im["n_pixels"] for im in res.images] == [len(p) for p in res.pixels]
