@@ -184,7 +184,7 @@ def test_loss_variants_recover_noise_free_truth_and_dolp_ignores_the_intensity_s
 
 
 def test_loss_variant_options_are_checked():
-    from fmbrdf_mi.fit import FitOptions, InputError
+    from fmbrdf_mi.fit import InputError
     from fmbrdf_mi.fit.options import check_fit_options
 
     check_fit_options(loss="dolp")

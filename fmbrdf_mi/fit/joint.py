@@ -158,7 +158,6 @@ def prepare(observations, opts, loss):
         smp = None
         w = observations[0].sample_geometry(idxs[0][:1])[2]
         weights = None if len(w) == 1 else w
-    pts = len(geo[0][0]) // max(len(idxs[0]), 1)
     normals = np.concatenate([g[0] for g in geo])
     views = np.concatenate([g[1] for g in geo])
     lights = np.concatenate([np.tile(o.light_dir, (len(g[0]), 1)) for o, g in zip(observations, geo)])
@@ -167,7 +166,6 @@ def prepare(observations, opts, loss):
     if np.allclose(irr, irr[0]):
         irr = float(irr[0])
     ev = PixelEvaluator(model, normals, views, lights, irr, weights=weights)
-    assert pts >= 1
     flat_idx = np.concatenate(idxs)
     return (loss, flat_idx, excluded, objective, smp, ev), idxs, slices
 

@@ -188,7 +188,6 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     ``fit_kw``: :class:`~fmbrdf_mi.fit.fitting.FitOptions` fields (loss,
     fixed, bounds, init, max_pixels, ...).  Returns the dict written to fit.json.
     """
-    from .. import stokes_io  # noqa: F401  (Stokes EXR support is imported with the package)
     from .._paths import check_output_dir
     from . import plots
     from .fitting import FitOptions, predict_image
