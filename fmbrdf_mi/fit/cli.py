@@ -426,10 +426,12 @@ def add_fit_arguments(p):
                    help="camera gain in electrons per image unit (e-/DN for raw images); with --read-noise, "
                         "the DoLP term accounts for the noise bias of the observed DoLP")
     g.add_argument("--read-noise", type=float, metavar="E", help="read noise in electrons rms")
-    g.add_argument("--loss", default="auto", choices=("auto", "likelihood", "paper"),
+    g.add_argument("--loss", default="auto", choices=("auto", "likelihood", "paper", "intensity", "dolp"),
                    help="likelihood of the camera's samples (Poisson-Gaussian noise), or the paper's loss "
                         "(intensity MSE + weighted DoLP MSE); auto: likelihood when the camera noise is "
-                        "known (--conversion-gain / a capture sidecar), else paper")
+                        "known (--conversion-gain / a capture sidecar), else paper.  The paper's comparison: "
+                        "intensity (its intensity term alone: radiometric fits) or dolp (its DoLP term "
+                        "alone, overall albedo from the mean intensity); for the baselines too")
     g.add_argument("--footprint", default="auto", choices=("auto", "point", "box", "demosaic"),
                    help="what a pixel integrates over, modelled by averaging the BSDF over it: the pixel "
                         "centre, a 3x3 box, or the demosaicking's raw pixels (auto: demosaic for raw "
@@ -442,7 +444,9 @@ def add_fit_arguments(p):
     g.add_argument("--view", metavar="V.npy", help="view directions, H x W x 3 (default: from --camera)")
     g.add_argument("--camera", default="orthographic", choices=("orthographic", "perspective"))
     g.add_argument("--fov", type=float, help="horizontal field of view (degrees) of a perspective camera")
-    g.add_argument("--light", metavar="X,Y,Z", help="direction from the surface towards the light")
+    g.add_argument("--light", metavar="X,Y,Z", action="append",
+                   help="direction from the surface towards the light; repeated, one per INPUT: a joint fit of "
+                        "several images of the object (one raw mosaic or Stokes EXR each)")
     g.add_argument("--irradiance", type=float, help="light irradiance in image units (default 1: absorbed by k_s)")
     g = p.add_argument_group("fit")
     g.add_argument("--model", default="fmbrdf", choices=tuple(MODELS))
@@ -470,6 +474,14 @@ def add_fit_arguments(p):
     g.add_argument("--max-pixels", type=int, default=20000, help="random subset of usable pixels (0: all)")
     g.add_argument("--erode", type=int, default=2, help="pixels removed from the mask border")
     g.add_argument("--seed", type=int, default=0)
+    g = p.add_argument_group("several images of one object (joint fit: shared material, one light each)")
+    g.add_argument("--manifest", metavar="FILE.toml|json",
+                   help="images, lights, relative powers, geometry and held-out images (fmbrdf_mi.fit.manifest)")
+    g.add_argument("--authors", metavar="OBJECT_DIR",
+                   help="an object in the paper authors' captured-data layout (calibration/L.txt, "
+                        "image/img_ud/*.png, normal/normal_GT.npy, ...: fmbrdf_mi.fit.authors_layout)")
+    g.add_argument("--holdout", metavar="I,J,...",
+                   help="with --authors: image indices not fitted but predicted (relighting check)")
     g = p.add_argument_group("relighting check")
     g.add_argument("--relight", nargs="+", metavar="INPUT", help="a second image of the object under another light")
     g.add_argument("--relight-light", metavar="X,Y,Z", help="its light direction")
@@ -504,6 +516,10 @@ def check_args(args):
                       starts=args.starts, fixed=parse_fixed(args.fix), flag=flag)
     if args.relight_light is not None and not args.relight:
         raise InputError("--relight-light needs --relight IMAGE")
+    if args.holdout is not None and not args.authors:
+        raise InputError("--holdout needs --authors (in a manifest, mark images with holdout = true)")
+    if args.manifest and args.authors:
+        raise InputError("--manifest and --authors: give one of them")
 
 
 def run_fit(args):
@@ -513,7 +529,13 @@ def run_fit(args):
     t0 = time.time()
     check_args(args)
     command = shlex.join(["fmbrdf-mi", "fit", *getattr(args, "argv", [])])
-    if args.from_json:
+    lights = args.light or []
+    n_in = len(args.inputs or [])
+    if args.manifest or args.authors or len(lights) > 1 or n_in not in (0, 1, 4):
+        from .manifest import run_joint
+
+        report = run_joint(args, command)
+    elif args.from_json:
         from . import record
 
         if args.inputs:
@@ -526,7 +548,8 @@ def run_fit(args):
         inputs = args.inputs if len(args.inputs) > 1 else args.inputs[0]
         relight = None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0])
         report = fit_files(inputs, args.out, normals=args.normals, mask=args.mask, view=args.view,
-                           sphere=args.sphere, camera=args.camera, fov=args.fov, light=_vec(args.light, "--light"),
+                           sphere=args.sphere, camera=args.camera, fov=args.fov,
+                           light=_vec(lights[0] if lights else None, "--light"),
                            irradiance=args.irradiance, layout=args.layout, black_level=args.black_level,
                            channel=args.channel, demosaic=args.demosaic, conversion_gain=args.conversion_gain,
                            read_noise=args.read_noise, footprint=args.footprint, model=args.model,
@@ -579,6 +602,12 @@ def run_fit(args):
                   f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
                   file=sys.stderr)
             status = EXIT_NOT_CONVERGED
+    if report.get("joint"):
+        from .manifest import print_joint
+
+        print_joint(report)
+        print(f"wrote {', '.join(report['joint']['outputs'])} ({time.time() - t0:.1f} s)")
+        return status
     if "relight" in report:
         for name, r in report["relight"].items():
             if isinstance(r, dict):

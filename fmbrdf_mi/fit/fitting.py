@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from . import loss as L
+from . import loss_variants as LV
 from . import optimise as O
 from . import uncertainty as U
 from .uncertainty import WEAK_FLOOR, WEAK_REL  # noqa: F401  (re-exported)
@@ -28,7 +29,8 @@ class FitOptions:
     model: str = "fmbrdf"
     path: str = "pixel"               # "pixel" or "render"
     optimizer: str = "lm"             # "lm" or "adam"
-    loss: str = "auto"                # "likelihood", "paper" or "auto" (likelihood when the camera noise is known)
+    loss: str = "auto"                # "likelihood", "paper" or "auto" (likelihood when the camera noise is known);
+                                      # "intensity" / "dolp": one term of the paper's loss (loss_variants.py)
     bounds: dict = None               # {name: (lo, hi)} narrowing the model's bounds
     fixed: dict = None                # {shape name: value} held fixed (not estimated)
     init: dict = None                 # reported parameters to start from (skips the coarse search)
@@ -147,8 +149,8 @@ def resolve_loss(obs, opts):
     if opts.loss == "auto":
         ok = opts.path == "pixel" and opts.optimizer == "lm"
         return "likelihood" if (ok and obs.noise is not None and obs.noise.known) else "paper"
-    if opts.loss not in ("likelihood", "paper"):
-        raise InputError(f"loss: expected 'likelihood', 'paper' or 'auto', got {opts.loss!r}")
+    if opts.loss not in ("likelihood", "paper") + LV.VARIANTS:
+        raise InputError(f"loss: expected 'likelihood', 'paper', 'intensity', 'dolp' or 'auto', got {opts.loss!r}")
     return opts.loss
 
 
@@ -180,10 +182,10 @@ def _objective(obs, idx, opts, loss):
     from . import samples as SM
     from .objective import LikelihoodObjective, NoiseModel, PaperObjective
 
-    if loss == "paper":
+    if loss != "likelihood":
         var = None if obs.lin_variance is None else obs.lin_variance.ravel()[idx]
-        obj = PaperObjective(L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx], opts.dolp_min_intensity,
-                                                  var))
+        target = L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx], opts.dolp_min_intensity, var)
+        obj = PaperObjective(target) if loss == "paper" else LV.make(loss, target)
         if obs.samples is not None and obs.samples.source == "raw mosaic" and obs.meta.get("demosaic") != "superpixel":
             # bilinear demosaicking: neighbours share raw samples (the sandwich covariance accounts for it)
             obj.grid = np.divmod(np.asarray(idx), obs.shape[1])
@@ -214,7 +216,7 @@ def _distinct_starts(problem, cands, n):
     return chosen
 
 
-def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, **kw):
+def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, prepared=None, **kw):
     """Estimate the parameters of ``options.model`` from ``obs``; returns a :class:`FitResult`.
 
     Keyword arguments override fields of :class:`FitOptions` (the CLI's
@@ -222,6 +224,10 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, **kw):
     callable receives each progress line, False is silent.  ``evaluator``:
     a pixel evaluator built by :func:`make_evaluator` for the same geometry,
     pixels and objective (reused across noise seeds by the benchmarks).
+    ``prepared``: (loss, pixels, excluded, objective, samples, evaluator)
+    built by the caller for data that are not one observation (several
+    images of one object: :func:`fmbrdf_mi.fit.joint.fit_joint`); ``obs``
+    is then only used for its noise model.
 
     A fit stopped by ``max_time`` (a hard wall-clock limit, checked before
     every model evaluation) returns the latest accepted estimate with
@@ -238,21 +244,29 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, **kw):
     if loss == "likelihood" and (opts.optimizer != "lm" or opts.path != "pixel"):
         raise InputError("loss 'likelihood' works with the pixel path and optimizer 'lm' (use --loss paper "
                          "for adam or the render path)")
+    if loss in LV.VARIANTS and opts.optimizer != "lm":
+        raise InputError(f"loss '{loss}' works with optimizer 'lm' (Adam minimises the full paper's loss)")
     report = O.default_progress if progress is True else (progress or (lambda m: None))
     model = get_model(opts.model)
     t0 = time.time()
     deadline = None if not opts.max_time else t0 + float(opts.max_time)
-    idx, excluded = select_pixels(obs, opts)
-    if excluded["saturated"] or excluded["dark"]:
+    if prepared is not None:
+        loss, idx, excluded, objective, smp, evaluator = prepared
+    else:
+        idx, excluded = select_pixels(obs, opts)
+    if excluded.get("saturated") or excluded.get("dark"):
         report(f"[fit] excluded {excluded['saturated']} super-pixels with a sample at or above the white level "
                f"{excluded['white_level']:g} and {excluded['dark']} with a sample at or below the dark level "
                f"{excluded['dark_level']} (of {excluded['candidates']})")
-    objective, smp = _objective(obs, idx, opts, loss)
+    if prepared is None:
+        objective, smp = _objective(obs, idx, opts, loss)
     ev = evaluator if evaluator is not None else make_evaluator(model, obs, idx, opts, scene, smp)
     problem = O.Problem(model, ev, objective, Bounds(model, opts.bounds), report, fixed=opts.fixed,
                         deadline=deadline)
-    if loss == "paper":
-        report(f"[fit] {model.name} on {len(idx)} pixels ({opts.path} path), paper's loss, "
+    if loss != "likelihood":
+        what = {"paper": "paper's loss", "intensity": "intensity term of the paper's loss only",
+                "dolp": "DoLP term of the paper's loss only"}[loss]
+        report(f"[fit] {model.name} on {len(idx)} pixels ({opts.path} path), {what}, "
                f"{int(objective.target.dolp_valid.sum())} in the DoLP term"
                + ("" if objective.target.lin_sigma is None else
                   ", DoLP term with the given noise variance (Rice mean)"))
@@ -300,7 +314,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, **kw):
         problem.deadline = None  # the fit is done; its uncertainty is part of the answer
         parts = problem.parts(st, jac=True)
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
-        n_ind = None if loss == "paper" else len(idx) * objective.dof
+        n_ind = None if loss != "likelihood" else len(idx) * objective.dof
         unc = U.summarise(problem, st, J, r, n_ind)
         if unc.get("misfit"):
             report(f"[fit] warning: chi^2/dof = {unc['chi2_per_dof']:.3g} with the stated camera noise: the model "
@@ -325,7 +339,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, **kw):
         report(f"[fit] weakly identified (standard error > {WEAK_REL:.0%} or at a bound): {', '.join(weak)}")
     t_total = time.time() - t0
     report(f"[fit] done in {t_total:.1f} s: {loss} {value:.6e} ({reason})  {O._fmt(problem, st)}")
-    n_out = int((objective.outliers & objective.target.dolp_valid).sum()) if loss == "paper" else 0
+    n_out = int((objective.outliers & objective.target.dolp_valid).sum()) if loss != "likelihood" else 0
     return FitResult(model=model.name, params=params, loss=value, loss_terms=terms, std_errors=std,
                      history=history, stop_reason=reason, n_pixels=len(idx), n_outliers=n_out,
                      timings={"search": t_search, "total": t_total, "evaluations": problem.n_evals,

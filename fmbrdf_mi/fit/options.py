@@ -65,8 +65,9 @@ def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=No
     _num(flag("lr"), lr, lo=0.0, lo_incl=False, none_ok=False)
     _num(flag("spp"), spp, lo=1, integer=True, none_ok=False)
     _num(flag("rounds"), rounds, lo=1, integer=True, none_ok=False)
-    if loss not in ("auto", "likelihood", "paper"):
-        raise InputError(f"{flag('loss')}: expected 'auto', 'likelihood' or 'paper', got {loss!r}")
+    if loss not in ("auto", "likelihood", "paper", "intensity", "dolp"):
+        raise InputError(f"{flag('loss')}: expected 'auto', 'likelihood', 'paper', 'intensity' or 'dolp', "
+                         f"got {loss!r}")
     _num(flag("starts"), starts, lo=1, integer=True, none_ok=False)
     if fixed is not None:
         if not isinstance(fixed, dict):

@@ -166,7 +166,9 @@ class PixelEvaluator(_Evaluator):
 
     With ``weights`` (K,), the directions are (n K, 3), K samples per pixel
     (a pixel's footprint, :meth:`Observation.sample_geometry`), and each
-    pixel's Stokes vector is their weighted sum.
+    pixel's Stokes vector is their weighted sum.  ``light_dir`` may also be
+    (n K, 3) and ``irradiance`` (n K,): one light per direction (several
+    images of one object in one evaluation, :mod:`fmbrdf_mi.fit.joint`).
     """
 
     def __init__(self, model, normals, view_dirs, light_dir, irradiance=1.0, variant=None, weights=None):
@@ -175,13 +177,16 @@ class PixelEvaluator(_Evaluator):
 
         normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
         view_dirs = np.asarray(view_dirs, dtype=np.float64).reshape(-1, 3)
-        light = np.asarray(light_dir, dtype=np.float64).reshape(3)
+        light = np.asarray(light_dir, dtype=np.float64)
+        light = light.reshape(3) if light.size == 3 else light.reshape(-1, 3)
         if normals.shape != view_dirs.shape:
             raise ValueError(f"normals {normals.shape} and view_dirs {view_dirs.shape} differ in shape")
+        if light.ndim == 2 and light.shape != normals.shape:
+            raise ValueError(f"light_dir {light.shape}: one direction, or one per normal {normals.shape}")
         # unit length to float64 precision (a cosine above 1 gives NaN derivatives in the BSDF)
         normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
         view_dirs = view_dirs / np.linalg.norm(view_dirs, axis=1, keepdims=True)
-        light = light / np.linalg.norm(light)
+        light = light / np.linalg.norm(light, axis=-1, keepdims=True)
         self.k = 1 if weights is None else len(weights)
         if len(normals) % self.k:
             raise ValueError(f"{len(normals)} directions are not a multiple of {self.k} samples per pixel")
@@ -191,16 +196,32 @@ class PixelEvaluator(_Evaluator):
         bsdf = mi.load_dict(model.bsdf_dict())
         super().__init__(model, mi.traverse(bsdf))
         self.bsdf = bsdf
-        self.irradiance = float(irradiance)
+        irr = np.asarray(irradiance, dtype=np.float64)
+        if irr.size == 1:
+            self.irradiance = float(irr)
+        elif irr.shape == (n_dirs,):
+            self.irradiance = mi.Float(irr.astype(np.float32))
+        else:
+            raise ValueError(f"irradiance {irr.shape}: one value, or one per direction ({n_dirs},)")
+        self.ctx = mi.BSDFContext()
+        self.set_geometry(normals, view_dirs, light)
+        if not isinstance(self.irradiance, float):
+            dr.eval(self.irradiance)
+
+    def set_geometry(self, normals, view_dirs, light):
+        """Directions (unit, float64 arrays as in the constructor) of the same count; the BSDF is kept."""
+        import drjit as dr
+        import mitsuba as mi
+
+        n_dirs = len(normals)
         frame = mi.Frame3f(mi.Vector3f(np.ascontiguousarray(normals.T, dtype=np.float32)))
         si = dr.zeros(mi.SurfaceInteraction3f, n_dirs)
         si.sh_frame = frame
         si.n = frame.n
         si.wi = frame.to_local(mi.Vector3f(np.ascontiguousarray(view_dirs.T, dtype=np.float32)))
-        self.wo = frame.to_local(mi.Vector3f(np.ascontiguousarray(np.tile(light, (n_dirs, 1)).T,
-                                                                 dtype=np.float32)))
+        lights = light if light.ndim == 2 else np.tile(light, (n_dirs, 1))
+        self.wo = frame.to_local(mi.Vector3f(np.ascontiguousarray(lights.T, dtype=np.float32)))
         self.si = si
-        self.ctx = mi.BSDFContext()
         # the camera's Stokes x axis at each direction: image right, orthogonal to the view direction
         ex = np.array([1.0, 0.0, 0.0])
         xc = ex[None, :] - (view_dirs @ ex)[:, None] * view_dirs

@@ -1,0 +1,175 @@
+"""What more lights buy: joint likelihood fits of K = 1, 3, 6 images of one object (fmbrdf_mi.fit.joint).
+
+    python tools/bench_fit_lights.py [--materials glossy,rough] [--lights 1,3,6] [--seeds 10] [--size 40]
+                                     [--json out.json]
+    python tools/bench_fit_lights.py --table out.json      # the Markdown table of a saved run
+
+The sibling of ``tools/bench_fit_noise.py`` with the same materials, camera
+and data: an orthographic sphere filling a SIZE x SIZE super-pixel image,
+the model evaluated at every raw pixel's centre, captured by
+:func:`fmbrdf_mi.camera.capture` (IMX250MZR, 10 000 e- full well, 2.5 e- read
+noise, 12 bits, each image's brightest raw pixel at 80 % of full scale; the
+fit knows the gain and read noise and each image's exposure).  Six lights
+35 degrees from the view direction at azimuths 135 + 60 j degrees (light 0 is
+within 0.3 degrees of the noise bench's (-0.5, 0.5, 1) direction); K = 1 fits light 0, K = 3
+lights 0, 2, 4, K = 6 all.  Image j of seed s has camera-noise seed
+1000 s + j, so the K = 1 data are part of the K = 3 data, which are part of
+the K = 6 data (nested: the comparison is between designs, not noise draws).
+Every fit: :func:`fmbrdf_mi.fit.joint.fit_joint` with the defaults (coarse
+search from no prior, 2 starts, LM, likelihood, all six parameters free,
+20 000 super-pixels at most).
+
+Per material x K x parameter, over the seeds: mean relative error +- its
+standard error, spread (std of the relative error), mean reported relative
+standard error, spread / reported SE, coverage of the reported 95 %
+intervals, the mean fit time; the JSON also keeps each fit's reported
+k_s / r_k correlation (about -1 whatever K: r_k = k_b / k_s makes it
+structural, so it does not measure the split).  kappa = 0 (``rough``):
+absolute errors.
+"""
+import argparse
+import json
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "tools"))
+
+from bench_fit_noise import MATERIALS, NAMES  # noqa: E402
+
+TILT_DEG = 35.0
+
+
+def light_ring(k=6, tilt=TILT_DEG):
+    """k unit light directions ``tilt`` degrees from the view axis, azimuths 135 + 360 j / k degrees."""
+    t = math.radians(tilt)
+    return [(math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), math.cos(t))
+            for a in (math.radians(135.0 + 360.0 * j / k) for j in range(k))]
+
+
+def subsets(ks, n=6):
+    return {k: list(range(0, n, n // k)) if n % k == 0 else list(range(k)) for k in ks}
+
+
+def run(args):
+    from fmbrdf_mi.camera import CameraModel
+    from fmbrdf_mi.fit.joint import fit_joint
+    from fmbrdf_mi.fit.synthetic import capture_observation, ideal_sphere
+
+    cam = CameraModel(full_well=args.full_well, read_noise=args.read_noise, bits=args.bits)
+    lights = light_ring(6)
+    sets = subsets(args.lights)
+    runs = []
+    for mat in args.materials:
+        truth = MATERIALS[mat]
+        t = time.time()
+        ideals = [ideal_sphere(truth, res=args.size, light=l) for l in lights]
+        print(f"# {mat}: 6 ideal images {time.time() - t:.1f} s", file=sys.stderr, flush=True)
+        for seed in range(args.seed0, args.seed0 + args.seeds):
+            obs = [capture_observation(i, cam, seed=1000 * seed + j)[0] for j, i in enumerate(ideals)]
+            for k in args.lights:
+                r = fit_joint([obs[j] for j in sets[k]], progress=False, max_time=args.max_time)
+                f = r.fit
+                corr = (f.uncertainty or {}).get("correlation")
+                c_ks_rk = None
+                if corr:
+                    nm = corr["names"]
+                    c_ks_rk = corr["matrix"][nm.index("k_s")][nm.index("r_k")]
+                rec = {"material": mat, "K": k, "lights": sets[k], "seed": seed, "truth": truth,
+                       "params": f.params, "std_errors": f.std_errors, "ci95": f.uncertainty.get("ci95", {}),
+                       "converged": f.converged, "stop_reason": f.stop_reason, "time": f.timings["total"],
+                       "n_pixels": f.n_pixels, "corr_ks_rk": c_ks_rk,
+                       "chi2_per_dof": f.uncertainty.get("chi2_per_dof")}
+                runs.append(rec)
+                print(f"{mat:7s} K={k} seed {seed:3d} {f.timings['total']:6.1f} s {'ok ' if f.converged else 'NC '}"
+                      + " ".join(f"{n}={v:.4g}" for n, v in f.params.items()), file=sys.stderr, flush=True)
+                if args.json:
+                    _save(args, runs)
+    return runs
+
+
+def summarise(runs):
+    groups = {}
+    for r in runs:
+        groups.setdefault((r["material"], r["K"]), []).append(r)
+    rows = []
+    for (mat, k), rs in groups.items():
+        ok = [r for r in rs if r["converged"]]
+        t = float(np.mean([r["time"] for r in rs]))
+        corr = [r["corr_ks_rk"] for r in ok if r.get("corr_ks_rk") is not None]
+        for name in NAMES:
+            tv = rs[0]["truth"][name]
+            denom = tv if tv != 0 else 1.0
+            e = np.array([(r["params"][name] - tv) / denom for r in ok])
+            se = np.array([r["std_errors"].get(name, np.nan) / abs(denom) for r in ok])
+            cov = [r["ci95"][name][0] <= tv <= r["ci95"][name][1] for r in ok if name in r.get("ci95", {})]
+            n = len(e)
+            spread = float(e.std(ddof=1)) if n > 1 else np.nan
+            rep = float(np.nanmean(se)) if n else np.nan
+            rows.append({"material": mat, "K": k, "param": name, "n": n, "not_converged": len(rs) - n,
+                         "relative": tv != 0, "mean_error": float(e.mean()) if n else np.nan,
+                         "se_mean": spread / math.sqrt(n) if n > 1 else np.nan, "spread": spread,
+                         "mean_reported_se": rep, "ratio": spread / rep if rep else np.nan,
+                         "coverage": float(np.mean(cov)) if cov else np.nan, "time": t,
+                         "corr_ks_rk": float(np.mean(corr)) if corr else np.nan})
+    rows.sort(key=lambda r: (r["material"], NAMES.index(r["param"]), r["K"]))
+    return rows
+
+
+def table(rows):
+    out = ["| material | param | K | n (NC) | mean error ± SE | spread | mean reported SE | spread / SE | "
+           "95 % coverage | fit time (s) |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        pct = (lambda x: f"{100 * x:+.2f} %") if r["relative"] else (lambda x: f"{x:+.3g}")
+        pc = (lambda x: f"{100 * x:.2f} %") if r["relative"] else (lambda x: f"{x:.3g}")
+        out.append(f"| {r['material']} | {r['param']} | {r['K']} | {r['n']} ({r['not_converged']}) | "
+                   f"{pct(r['mean_error'])} ± {pc(r['se_mean'])} | {pc(r['spread'])} | {pc(r['mean_reported_se'])} | "
+                   f"{r['ratio']:.2f} | {100 * r['coverage']:.0f} % | {r['time']:.1f} |")
+    return "\n".join(out)
+
+
+def _save(args, runs):
+    with open(args.json, "w") as f:
+        json.dump({"config": {k: v for k, v in vars(args).items() if k != "table"}, "runs": runs,
+                   "summary": summarise(runs)}, f, indent=1)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--materials", default="glossy,rough", help=f"comma-separated of {', '.join(MATERIALS)}")
+    p.add_argument("--lights", default="1,3,6", help="numbers of lights K (1, 2, 3 or 6; default %(default)s)")
+    p.add_argument("--seeds", type=int, default=10)
+    p.add_argument("--seed0", type=int, default=0)
+    p.add_argument("--size", type=int, default=40, help="super-pixels across the image (default %(default)s)")
+    p.add_argument("--max-time", type=float, default=None)
+    p.add_argument("--full-well", type=float, default=10000.0)
+    p.add_argument("--read-noise", type=float, default=2.5)
+    p.add_argument("--bits", type=int, default=12)
+    p.add_argument("--json", metavar="OUT.json")
+    p.add_argument("--table", metavar="IN.json")
+    args = p.parse_args(argv)
+    if args.table:
+        with open(args.table) as f:
+            print(table(summarise(json.load(f)["runs"])))
+        return 0
+    args.materials = [m for m in args.materials.split(",") if m]
+    bad = [m for m in args.materials if m not in MATERIALS]
+    if bad:
+        p.error(f"--materials: unknown {', '.join(bad)} (have {', '.join(MATERIALS)})")
+    args.lights = [int(k) for k in args.lights.split(",")]
+    if any(k not in (1, 2, 3, 6) for k in args.lights):
+        p.error("--lights: each K must be 1, 2, 3 or 6 (subsets of the ring of six)")
+    t0 = time.time()
+    runs = run(args)
+    print(table(summarise(runs)))
+    print(f"# {len(runs)} fits in {time.time() - t0:.0f} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
