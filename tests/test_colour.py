@@ -117,3 +117,49 @@ def test_colour_sidecar_round_trip(tmp_path):
     json.dump(bad, open(tmp_path / "c_raw.json", "w"))
     with pytest.raises(ValueError, match=r"c_raw\.json.*cfa"):
         read_sidecar(p)
+
+
+def _cli(*argv):
+    from fmbrdf_mi.cli import main
+    return main(list(argv))
+
+
+def test_render_raw_colour(tmp_path, capsys):
+    from PIL import Image
+
+    from fmbrdf_mi.stokes_io import read_stokes_exr
+
+    out = str(tmp_path / "s.exr")
+    assert _cli("render", out, "--raw", "--sensor", "colour", "--res", "32", "--spp", "16",
+                "--read-noise", "0") == 0
+    raw = np.array(Image.open(out[:-4] + "_raw.png"))
+    side = read_sidecar(out[:-4] + "_raw.png")
+    assert side["sensor"].cfa == polcam.BAYER_RGGB
+    stokes = np.asarray(read_stokes_exr(out)[0])           # (4, H, W, 3)
+    # each raw pixel's expected DN, by hand: colour from its place in the 4x4 period, polariser angle from its
+    # place in the 2x2 block, intensity from the EXR's channel at that pixel
+    rr, cc = np.mgrid[0:32, 0:32]
+    colour = np.array([[0, 1], [1, 2]])[(rr % 4) // 2, (cc % 4) // 2]
+    t = np.radians(np.array([[90, 45], [135, 0]])[rr % 2, cc % 2])
+    s = np.take_along_axis(stokes[:3], colour[None, :, :, None], axis=3)[..., 0].astype(float)
+    expected = 0.5 * (s[0] + np.cos(2 * t) * s[1] + np.sin(2 * t) * s[2]) * side["capture"]["dn_per_input_unit"]
+    g = side["sensor"].conversion_gain
+    for ch in range(3):
+        m = colour == ch
+        # per channel: sum of raw against sum of expected; the shot noise of the sum is sqrt(sum / g) DN
+        # (>= ~1e5 electrons in each channel here): 5 of those plus rounding (0.5 DN per pixel at most)
+        tol = 5 * np.sqrt(expected[m].sum() / g) + 0.5 * m.sum()
+        assert abs(raw[m].astype(float).sum() - expected[m].sum()) < tol, ch
+    # the colours differ (the built-in sphere is not grey), so a swapped channel would be caught
+    # (channel means differ by ~4.5 % here, > 10 shot-noise SEs of a channel sum)
+    assert np.ptp([expected[colour == ch].mean() for ch in range(3)]) > 0.02 * expected.mean()
+
+
+@pytest.mark.parametrize("args,msg", [(("--res", "30"), "multiples of 4"), (("--cfa", "RGGX"), "--cfa"),
+                                      (("--variant", "llvm_ad_mono_polarized"), "colour variant")])
+def test_render_raw_colour_bad_input(tmp_path, capsys, args, msg):
+    out = str(tmp_path / "s.exr")
+    assert _cli("render", out, "--raw", "--sensor", "colour", "--spp", "4", *args) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and msg in err[0]
+    assert not list(tmp_path.iterdir())   # nothing written
