@@ -200,3 +200,13 @@ def test_colour_fit_recovers_per_channel_albedos():
         assert abs(p["r_k"][c] - rk) < 0.3 * se["r_k"][c], (c, p["r_k"], se["r_k"])
         assert se["k_s"][c] < 0.25 * ks and se["r_k"][c] < 0.25 * rk
     assert res["chi2_per_dof"] < 0.01   # quantisation only: far below 1
+
+
+def test_fit_cli_colour_mosaic_one_line(tmp_path, capsys):
+    out = str(tmp_path / "s.exr")
+    assert _cli("render", out, "--raw", "--sensor", "colour", "--res", "16", "--spp", "4") == 0
+    capsys.readouterr()
+    assert _cli("fit", out[:-4] + "_raw.png", "--out", str(tmp_path / "fit")) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "colour polarisation mosaic" in err[0] and "fit_colour" in err[0]
+    assert not (tmp_path / "fit").exists()
