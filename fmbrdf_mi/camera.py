@@ -23,6 +23,14 @@ with g = ``conversion_gain`` in electrons per DN (shot noise, read noise,
 rounding): :meth:`CameraModel.variance`.  Samples at the white level
 (:attr:`CameraModel.white_level`) or at 0 are clipped and obey no such law.
 
+**Colour polarisation sensors** (Sony IMX250MYR type): ``cfa`` (e.g.
+``polcam.BAYER_RGGB``) puts a colour filter over each 2x2 polariser block, so
+the period is 4x4 raw pixels (:func:`fmbrdf_mi.polcam.colour_cells`); a raw
+pixel of colour c sees the Stokes image *of channel c* at that pixel, and
+:func:`capture` then takes (3 channels R, G, B; 3 or 4; H, W) Stokes.  The
+noise model is the same per pixel (one gain, one read noise: the colour
+filter changes the signal, not the electronics).  ``cfa=None``: monochrome.
+
 A capture's settings travel with it as a JSON *sidecar* (:func:`write_sidecar`,
 :func:`read_sidecar`), which ``fmbrdf-mi fit`` reads.
 """
@@ -50,6 +58,7 @@ class CameraModel:
     conversion_gain: float = None    # electrons per DN (None: the ADC spans the full well)
     black_level: float = 0.0         # DN added to every sample (an offset keeps the read noise of dark pixels)
     layout: tuple = polcam.IMX250MZR_LAYOUT
+    cfa: tuple = None                # colour filter per 2x2 polariser block (None: monochrome sensor)
 
     def __post_init__(self):
         if not (np.isfinite(self.full_well) and self.full_well > 0 and np.isfinite(self.read_noise)
@@ -64,6 +73,13 @@ class CameraModel:
             raise ValueError(f"camera: black_level must be in [0, {self.levels}), got {self.black_level}")
         self.layout = tuple(tuple(int(a) for a in row) for row in self.layout)
         polcam._check_layout(self.layout)
+        if self.cfa is not None:
+            self.cfa = polcam.check_cfa(self.cfa)
+
+    @property
+    def period(self):
+        """Raw pixels per mosaic period: 2 (monochrome) or 4 (colour)."""
+        return 2 if self.cfa is None else 4
 
     @property
     def levels(self):
@@ -87,13 +103,17 @@ class CameraModel:
     def to_dict(self):
         d = dataclasses.asdict(self)
         d["layout"] = [list(r) for r in self.layout]
+        if self.cfa is None:
+            del d["cfa"]
+        else:
+            d["cfa"] = [list(r) for r in self.cfa]
         d["white_level"] = self.white_level
         return d
 
     @classmethod
     def from_dict(cls, d):
         keys = {f.name for f in dataclasses.fields(cls)}
-        return cls(**{k: (tuple(tuple(r) for r in v) if k == "layout" else v) for k, v in d.items() if k in keys})
+        return cls(**{k: (tuple(tuple(r) for r in v) if k in ("layout", "cfa") and v is not None else v) for k, v in d.items() if k in keys})
 
 
 def intensity_at_each_pixel(stokes3, layout):
@@ -106,6 +126,23 @@ def intensity_at_each_pixel(stokes3, layout):
         t = np.radians(angle)
         sp = s[:, r::2, c::2]
         out[r::2, c::2] = 0.5 * (sp[0] + np.cos(2 * t) * sp[1] + np.sin(2 * t) * sp[2])
+    return out
+
+
+def intensity_at_each_pixel_colour(stokes, layout, cfa):
+    """(4H, 4W) intensity of a colour sensor: each raw pixel behind its polariser sees its colour's Stokes.
+
+    ``stokes``: (3 channels R, G, B; >=3; 4H, 4W).
+    """
+    s = np.asarray(stokes, dtype=np.float64)
+    out = np.empty(s.shape[2:])
+    for r, c, ch in polcam.colour_cells(cfa):
+        for dr in range(2):
+            for dc in range(2):
+                sl = (slice(2 * r + dr, None, 4), slice(2 * c + dc, None, 4))
+                angle = np.radians(layout[dr][dc])
+                sp = s[ch][(slice(0, 3),) + sl]
+                out[sl] = 0.5 * (sp[0] + np.cos(2 * angle) * sp[1] + np.sin(2 * angle) * sp[2])
     return out
 
 
@@ -123,13 +160,23 @@ def capture(stokes, camera=None, *, exposure=None, peak_fraction=0.9, seed=0, no
       (= conversion_gain / exposure);
     * ``saturated``: fraction of samples at the white level.
 
+    A colour camera (``camera.cfa`` set) takes ``stokes`` of shape
+    (3 channels R, G, B; 3 or 4; 4H, 4W) and returns a (4H, 4W) colour mosaic.
+
     ``noiseless=True`` skips shot and read noise (rounding and clipping stay).
     """
     cam = camera or CameraModel()
-    s = np.asarray(stokes, dtype=np.float64)[:3]
-    if s.ndim != 3 or s.shape[1] % 2 or s.shape[2] % 2:
-        raise ValueError(f"stokes: expected shape (3 or 4, 2H, 2W) with even sizes, got {np.shape(stokes)}")
-    ideal = np.clip(intensity_at_each_pixel(s, cam.layout), 0.0, None)
+    if cam.cfa is None:
+        s = np.asarray(stokes, dtype=np.float64)[:3]
+        if s.ndim != 3 or s.shape[1] % 2 or s.shape[2] % 2:
+            raise ValueError(f"stokes: expected shape (3 or 4, 2H, 2W) with even sizes, got {np.shape(stokes)}")
+        ideal = np.clip(intensity_at_each_pixel(s, cam.layout), 0.0, None)
+    else:
+        s = np.asarray(stokes, dtype=np.float64)
+        if s.ndim != 4 or s.shape[0] != 3 or s.shape[1] < 3 or s.shape[2] % 4 or s.shape[3] % 4:
+            raise ValueError(f"stokes: a colour sensor needs shape (3 channels R, G, B; 3 or 4; 4H, 4W) with "
+                             f"sizes multiples of 4, got {np.shape(stokes)}")
+        ideal = np.clip(intensity_at_each_pixel_colour(s, cam.layout, cam.cfa), 0.0, None)
     if exposure is None:
         peak = ideal.max()
         if peak <= 0:

@@ -278,6 +278,14 @@ def add_render_arguments(p):
     g.add_argument("--bits", type=int, default=12, help="ADC bits (default %(default)s)")
     g.add_argument("--black-level", type=float, default=0.0, help="DN offset (default %(default)s)")
     g.add_argument("--layout", default="90,45,135,0", help="2x2 polariser angles, row-major (default %(default)s)")
+    g.add_argument("--sensor", choices=("mono", "colour"), default="mono",
+                   help="mono: quad-Bayer polarisation sensor (IMX250MZR type, 2x2 period, the mean of the "
+                        "channels); colour: colour polarisation sensor (IMX250MYR type: a Bayer colour filter "
+                        "over 2x2 polariser blocks, 4x4 period, each colour seeing its own channel; needs a "
+                        "colour variant) (default %(default)s)")
+    g.add_argument("--cfa", default="RGGB",
+                   help="--sensor colour: Bayer arrangement of the 2x2 polariser blocks, row-major "
+                        "(default %(default)s)")
     g.add_argument("--raw-exposure", type=float, metavar="E_PER_UNIT",
                    help="electrons per unit of the Stokes image (default: the brightest raw pixel at 80%% "
                         "of the full well)")
@@ -390,7 +398,17 @@ def run_render(args):
     _check_size(kind, declared, given)
     warned_black = kind == "builtin" and _warn_if_black(given)
     if args.raw:
-        _raw_camera(args)  # bad settings: say so before rendering
+        period = _raw_camera(args).period  # bad settings: say so before rendering
+        try:
+            w_, h_ = (int(given.get(k, declared.get(k))) for k in ("width", "height"))
+        except (TypeError, ValueError):
+            w_ = h_ = None
+        if w_ is not None and (w_ % period or h_ % period):
+            raise CLIError(f"--raw: the image's width and height must be multiples of {period} for the "
+                           f"{'colour' if period == 4 else 'quad-Bayer'} mosaic period, got {w_}x{h_} (--res)")
+        if args.sensor == "colour" and "mono" in args.variant:
+            raise CLIError(f"--sensor colour: needs a colour variant (rgb or spectral), got "
+                           f"--variant {args.variant}")
         for p in (args.output[:-4] + "_raw.png", args.output[:-4] + "_raw.json"):
             if os.path.exists(p) and not args.force:
                 raise FileExistsError(f"{p} exists; pass --force to overwrite it")
@@ -481,11 +499,19 @@ def run_render(args):
 def _raw_camera(args):
     from .camera import CameraModel
     from .fit.observations import InputError, parse_layout
+    from .polcam import parse_cfa
 
     try:
+        cfa = None
+        if args.sensor == "colour":
+            try:
+                cfa = parse_cfa(args.cfa)
+            except ValueError:
+                raise ValueError(f"--cfa: expected four letters with one R, two G and one B, such as RGGB; "
+                                 f"got {args.cfa!r}") from None
         return CameraModel(full_well=args.full_well, read_noise=args.read_noise, bits=args.bits,
                            conversion_gain=args.conversion_gain, black_level=args.black_level,
-                           layout=parse_layout(args.layout))
+                           layout=parse_layout(args.layout), cfa=cfa)
     except (InputError, ValueError) as e:
         raise CLIError(f"--raw: {e}") from None
 
@@ -498,10 +524,19 @@ def _write_raw(args, stokes, meta):
     from .camera import capture, write_sidecar
 
     cam = _raw_camera(args)
-    s = np.asarray(stokes)[:3].mean(axis=-1)  # one channel: the mean, as the fit uses
-    if s.shape[1] % 2 or s.shape[2] % 2:
-        raise CLIError(f"--raw: the image must have even width and height for 2x2 super-pixels, got "
-                       f"{s.shape[2]}x{s.shape[1]}")
+    if cam.cfa is None:
+        s = np.asarray(stokes)[:3].mean(axis=-1)  # one channel: the mean, as the fit uses
+        channel = "mean"
+    else:
+        s = np.moveaxis(np.asarray(stokes)[:3], -1, 0)  # (R, G, B; 3; H, W): each colour sees its channel
+        if s.shape[0] != 3:
+            raise CLIError(f"--sensor colour: the render has {s.shape[0]} channel(s), need R, G, B "
+                           "(a colour variant)")
+        channel = "per colour (R, G, B)"
+    p = cam.period
+    if s.shape[-2] % p or s.shape[-1] % p:
+        raise CLIError(f"--raw: the image's width and height must be multiples of {p} for the "
+                       f"{'colour' if p == 4 else 'quad-Bayer'} mosaic period, got {s.shape[-1]}x{s.shape[-2]}")
     cap = capture(s, cam, exposure=args.raw_exposure, peak_fraction=0.8, seed=args.raw_seed)
     path = args.output[:-4] + "_raw.png"
     if os.path.exists(path) and not args.force:
@@ -509,7 +544,7 @@ def _write_raw(args, stokes, meta):
     Image.fromarray(np.ascontiguousarray(cap["raw"], dtype=np.uint16)).save(path)
     extra = dict(meta, capture={"exposure_e_per_unit": cap["exposure"], "seed": args.raw_seed,
                                 "dn_per_input_unit": 1.0 / cap["dn_to_input"], "saturated": cap["saturated"],
-                                "channel": "mean", "stokes_exr": os.path.abspath(args.output)})
+                                "channel": channel, "stokes_exr": os.path.abspath(args.output)})
     side = write_sidecar(path, cam, extra, force=args.force)
     return path, side
 

@@ -80,3 +80,85 @@ def angle_images_from_mosaic(raw, layout=IMX250MZR_LAYOUT):
     for pos, angle in enumerate(flat):
         out[ANGLES.index(angle)] = raw[pos // 2::2, pos % 2::2]
     return np.stack(out)
+
+
+# ---------------------------------------------------------------- colour polarisation sensors
+#: Colour channels of a colour-polarisation sensor's Bayer cells (IMX250MYR type), in output order.
+COLOURS = ("R", "G", "B")
+#: The Bayer arrangement of 2x2 polariser blocks, rows top to bottom: an RGGB 4x4 period.
+BAYER_RGGB = (("R", "G"), ("G", "B"))
+
+
+def check_cfa(cfa):
+    """The 2x2 colour filter arrangement as a tuple of tuples; ValueError unless it has one R, two G, one B."""
+    try:
+        cfa = tuple(tuple(str(c).upper() for c in row) for row in cfa)
+    except TypeError:
+        raise ValueError(f"cfa: expected a 2x2 arrangement of R, G, G, B, got {cfa!r}") from None
+    flat = [c for row in cfa for c in row]
+    if len(cfa) != 2 or any(len(r) != 2 for r in cfa) or sorted(flat) != ["B", "G", "G", "R"]:
+        raise ValueError(f"cfa: expected a 2x2 arrangement of R, G, G, B (e.g. RGGB), got {cfa!r}")
+    return cfa
+
+
+def parse_cfa(text):
+    """'RGGB' (or 'R,G,G,B') -> (('R', 'G'), ('G', 'B'))."""
+    s = str(text).replace(",", "").replace(" ", "").upper()
+    if len(s) != 4:
+        raise ValueError(f"cfa: expected four letters such as RGGB, got {text!r}")
+    return check_cfa(((s[0], s[1]), (s[2], s[3])))
+
+
+def colour_cells(cfa=BAYER_RGGB):
+    """[(row, col, channel index into COLOURS)] of the four Bayer cells in row-major order."""
+    cfa = check_cfa(cfa)
+    return [(r, c, COLOURS.index(cfa[r][c])) for r in range(2) for c in range(2)]
+
+
+def colour_mosaic_from_angle_images(images, layout=IMX250MZR_LAYOUT, cfa=BAYER_RGGB):
+    """Raw colour mosaic (4H, 4W) from per-channel angle images (3, 4, H, W) (channels R, G, B).
+
+    Each 4x4 period holds the Bayer cells ``cfa``; each cell is a 2x2
+    polariser block arranged as ``layout``.  Both G cells take the G images.
+    """
+    imgs = np.asarray(images)
+    if imgs.ndim != 4 or imgs.shape[:2] != (3, 4):
+        raise ValueError(f"images: expected shape (3 channels, 4 angles, H, W), got {imgs.shape}")
+    _, _, h, w = imgs.shape
+    raw = np.empty((4 * h, 4 * w), dtype=imgs.dtype)
+    for r, c, ch in colour_cells(cfa):
+        cell = mosaic_from_angle_images(imgs[ch], layout)  # (2H, 2W): block (i, j) at rows 2i, 2i+1
+        for dr in range(2):
+            for dc in range(2):
+                raw[2 * r + dr::4, 2 * c + dc::4] = cell[dr::2, dc::2]
+    return raw
+
+
+def colour_cell_angle_images(raw, layout=IMX250MZR_LAYOUT, cfa=BAYER_RGGB):
+    """Angle images per Bayer cell, (4 cells, 4 angles, H/4, W/4), and each cell's channel index (4,).
+
+    Super-pixel demosaicking: one value per cell and angle per 4x4 period (no interpolation).
+    """
+    raw = np.asarray(raw)
+    if raw.ndim != 2 or raw.shape[0] % 4 or raw.shape[1] % 4:
+        raise ValueError(f"raw: expected a 2-D colour mosaic with height and width multiples of 4, "
+                         f"got shape {raw.shape}")
+    out, chans = [], []
+    for r, c, ch in colour_cells(cfa):
+        block = np.empty((raw.shape[0] // 2, raw.shape[1] // 2), dtype=raw.dtype)
+        for dr in range(2):
+            for dc in range(2):
+                block[dr::2, dc::2] = raw[2 * r + dr::4, 2 * c + dc::4]
+        out.append(angle_images_from_mosaic(block, layout))
+        chans.append(ch)
+    return np.stack(out), np.array(chans)
+
+
+def stokes_from_colour_mosaic(raw, layout=IMX250MZR_LAYOUT, cfa=BAYER_RGGB):
+    """Per-channel linear Stokes (3 channels R, G, B; 4; H/4, W/4) of a colour mosaic, one per 4x4 period.
+
+    R and B from their cell; G from the mean of the two G cells' angle images.
+    """
+    cells, chans = colour_cell_angle_images(raw, layout, cfa)
+    per = [cells[chans == ch].astype(np.float64).mean(axis=0) for ch in range(3)]
+    return np.stack([stokes_from_angle_images(a) for a in per])

@@ -1,0 +1,325 @@
+"""Fits to colour polarisation mosaics (IMX250MYR type): shared eta, alpha, beta, kappa, per-channel albedos.
+
+    smp = colour_samples(raw, camera)                     # 16 raw samples per 4x4 period
+    res = fit_colour(obs, smp, noise)                     # obs: geometry on the period grid
+    res["params"]["k_s"]   # {"R": ..., "G": ..., "B": ...}; res["std_errors"] likewise
+
+The colour filter changes how much light reaches a pixel, not the geometry
+of reflection: FMBRDF's shape parameters (eta, alpha, beta, kappa; paper
+eq:fmbrdf) are one material's, while its two albedos k_s and k_b = r_k k_s
+are per colour channel.  The model of raw sample k (colour c_k, polariser
+phi_k, at its own point in the 4x4 period) is
+
+    mu_ik = 1/2 (1, cos 2 phi_k, sin 2 phi_k) . (a_s[c_k] S_ik + a_b[c_k] B_ik)
+
+with S, B the unit-albedo surface and body Stokes vectors
+(:class:`~fmbrdf_mi.fit.pixel_model.Parts`), and the likelihood is that of
+:class:`~fmbrdf_mi.fit.objective.LikelihoodObjective` (Gaussian,
+Poisson-Gaussian variance, iteratively reweighted): every raw sample, of
+every channel, is one independent measurement.
+
+Unknowns: z = (shape parameters through :class:`~fmbrdf_mi.fit.models.Bounds`,
+log a_s[R, G, B], log a_b[R, G, B]).  Start: a staged grid over the shape
+parameters (as :func:`~fmbrdf_mi.fit.optimise.coarse_search`) with each
+channel's two albedos in closed form (non-negative weighted least squares of
+that channel's samples); then Levenberg-Marquardt with the shape columns of
+the Jacobian from forward-mode AD and the albedo columns analytic.  Standard
+errors: (J^T J)^-1 of the standardised residuals at the optimum (the Fisher
+information), mapped to the reported parameters by the delta method.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from .. import polcam
+from .models import Bounds, get_model
+from .objective import NoiseModel, nnls2
+from .observations import InputError
+
+CHANNELS = polcam.COLOURS
+
+
+class ColourSamples:
+    """The 16 raw samples of each 4x4 period: values (16, H, W) image units, channel, angle, offset per sample."""
+
+    def __init__(self, values, channel, angles, offsets, usable):
+        self.values, self.channel, self.angles = values, np.asarray(channel), tuple(angles)
+        self.offsets, self.usable = np.asarray(offsets, float), usable
+
+    def analyser(self):
+        t = np.radians(np.asarray(self.angles, dtype=np.float64))
+        return 0.5 * np.stack([np.ones_like(t), np.cos(2 * t), np.sin(2 * t)], axis=1)
+
+
+def colour_samples(raw, layout=polcam.IMX250MZR_LAYOUT, cfa=polcam.BAYER_RGGB, black_level=0.0,
+                   white_level=None):
+    """:class:`ColourSamples` of a raw colour mosaic (4H, 4W) in DN; a period with a clipped sample is unusable."""
+    from ..camera import default_white_level
+
+    raw = np.asarray(raw)
+    if raw.ndim != 2 or raw.shape[0] % 4 or raw.shape[1] % 4:
+        raise InputError(f"raw colour mosaic: expected a 2-D image with height and width multiples of 4, "
+                         f"got {raw.shape}")
+    white = default_white_level(raw) if white_level is None else float(white_level)
+    r = raw.astype(np.float64)
+    vals, chans, angles, offs = [], [], [], []
+    for cr, cc, ch in polcam.colour_cells(cfa):
+        for dr in range(2):
+            for dc in range(2):
+                R, C = 2 * cr + dr, 2 * cc + dc
+                vals.append(r[R::4, C::4])
+                chans.append(ch)
+                angles.append(layout[dr][dc])
+                offs.append(((C + 0.5) / 4 - 0.5, (R + 0.5) / 4 - 0.5))   # (dx right, dy down) in periods
+    v = np.stack(vals)
+    usable = ~np.any(v >= white, axis=0)
+    if float(black_level) == 0:
+        usable &= ~np.any(v <= 0, axis=0)
+    return ColourSamples(v - float(black_level), chans, angles, offs, usable)
+
+
+def _unit_mu(A, stokes, n):
+    """(n, 16) intensities behind each sample's polariser of a (3, 16 n) pixel-major Stokes array."""
+    return np.einsum("kc,cik->ik", A, stokes.reshape(3, n, -1))
+
+
+class _Colour:
+    def __init__(self, model, ev, y, A, chan, noise, fixed=None, bounds=None):
+        self.model, self.ev, self.y, self.A, self.chan, self.noise = model, ev, y, A, chan, noise
+        self.n = len(y)
+        self.fixed = dict(fixed or {})
+        self.names = tuple(p for p in model.shape_names if p not in self.fixed)
+        self.bounds = Bounds(model, bounds)
+        self.var = np.maximum(noise.variance(y), 1e-300)
+        self.masks = [chan == c for c in range(3)]
+        self.evals = 0
+
+    def parts(self, shape, jac=False):
+        self.evals += 1
+        return self.ev.parts(shape, self.names if jac else ())
+
+    def mu(self, p, a_s, a_b):
+        S, B = _unit_mu(self.A, p.surface, self.n), _unit_mu(self.A, p.body, self.n)
+        return a_s[self.chan] * S + a_b[self.chan] * B
+
+    def albedos(self, p):
+        S, B = _unit_mu(self.A, p.surface, self.n), _unit_mu(self.A, p.body, self.n)
+        out = [nnls2(S[:, m].ravel(), B[:, m].ravel(), self.y[:, m].ravel(), 1.0 / self.var[:, m].ravel())
+               for m in self.masks]
+        return np.array([o[0] for o in out]), np.array([o[1] for o in out])
+
+    def chi2(self, p, a_s, a_b):
+        r = (self.y - self.mu(p, a_s, a_b)) / np.sqrt(self.var)
+        return float(np.sum(r * r))
+
+    # z <-> (shape, a_s, a_b)
+    def to_z(self, shape, a_s, a_b):
+        return np.array([self.bounds.to_z(n, shape[n]) for n in self.names] + list(np.log(a_s)) + list(np.log(a_b)))
+
+    def from_z(self, z):
+        shape = dict(self.fixed)
+        shape.update({n: self.bounds.to_value(n, z[i]) for i, n in enumerate(self.names)})
+        k = len(self.names)
+        return ({n: shape[n] for n in self.model.shape_names}, np.exp(np.clip(z[k:k + 3], -60, 60)),
+                np.exp(np.clip(z[k + 3:k + 6], -60, 60)))
+
+    def residuals(self, z):
+        shape, a_s, a_b = self.from_z(z)
+        return ((self.y - self.mu(self.parts(shape), a_s, a_b)) / np.sqrt(self.var)).ravel()
+
+    def jacobian(self, z):
+        shape, a_s, a_b = self.from_z(z)
+        p = self.parts(shape, jac=True)
+        sd = np.sqrt(self.var)
+        r = ((self.y - self.mu(p, a_s, a_b)) / sd).ravel()
+        J = np.empty((r.size, len(z)))
+        for j, n in enumerate(self.names):
+            dmu = (a_s[self.chan] * _unit_mu(self.A, p.d_surface[n], self.n)
+                   + a_b[self.chan] * _unit_mu(self.A, p.d_body[n], self.n))
+            J[:, j] = (-dmu / sd).ravel() * self.bounds.derivative(n, z[j])
+        k = len(self.names)
+        S, B = _unit_mu(self.A, p.surface, self.n), _unit_mu(self.A, p.body, self.n)
+        for c, m in enumerate(self.masks):
+            J[:, k + c] = (-(a_s[c] * S * m) / sd).ravel()
+            J[:, k + 3 + c] = (-(a_b[c] * B * m) / sd).ravel()
+        J[~np.isfinite(J)] = 0.0
+        return r, J
+
+
+def _coarse(prob, say):
+    """Staged grid (optimise.coarse_search's stages) with per-channel closed-form albedos; best (shape, a_s, a_b)."""
+    model, bounds = prob.model, prob.bounds
+    grids = {n: ([prob.fixed[n]] if n in prob.fixed else bounds.clip_grid(n, model.param(n).grid))
+             for n in model.shape_names}
+    later = [n for n in ("eta", "kappa") if n in prob.names]
+    first = [n for n in model.shape_names if n not in later]
+    mids = {n: grids[n][len(grids[n]) // 2] for n in later}
+    results = {}
+
+    def try_point(shape):
+        key = tuple(round(shape[n], 9) for n in model.shape_names)
+        if key not in results:
+            p = prob.parts(shape)
+            a_s, a_b = prob.albedos(p)
+            results[key] = (prob.chi2(p, a_s, a_b), dict(shape), a_s, a_b)
+
+    import itertools
+    for combo in itertools.product(*[grids[n] for n in first]):
+        try_point({**mids, **dict(zip(first, combo))})
+    for name in later:
+        for _, shape, _, _ in sorted(results.values(), key=lambda x: x[0])[:2]:
+            for value in grids[name]:
+                try_point({**shape, name: value})
+    best = min(results.values(), key=lambda x: x[0])
+    say(f"[colour] coarse search: {len(results)} grid points, best chi2 {best[0]:.6e}")
+    return best[1:]
+
+
+def _lm(prob, z, say, max_iter=40, tag=""):
+    r, J = prob.jacobian(z)
+    f = float(r @ r)
+    lam = 1e-3
+    for it in range(1, max_iter + 1):
+        g = J.T @ r
+        A = J.T @ J
+        try:
+            dec = float(g @ np.linalg.lstsq(A, g, rcond=None)[0])
+        except np.linalg.LinAlgError:
+            dec = math.inf
+        if dec < 0.01:  # optimum within ~0.1 standard error (optimise.DECREMENT_TOL)
+            break
+        D = np.diag(A).copy()
+        D[D <= 0] = 1e-12
+        while lam < 1e10:
+            z_new = np.clip(z + np.linalg.solve(A + lam * np.diag(D), -g), -40, 40)
+            r_new = prob.residuals(z_new)
+            f_new = float(r_new @ r_new)
+            if np.isfinite(f_new) and f_new < f:
+                break
+            lam *= 4
+        else:
+            break
+        z, lam = z_new, max(lam / 3, 1e-9)
+        r, J = prob.jacobian(z)
+        f = float(r @ r)
+        say(f"[colour{tag}] iter {it:2d}  chi2 {f:.6e}")
+    return z, r, J
+
+
+def report(model, shape, a_s, a_b):
+    """Reported parameters: the shape values, and k_s and r_k (fmbrdf; else the model's albedo names) per channel."""
+    out = {n: float(shape[n]) for n in model.shape_names}
+    per = [model.report(shape, a_s[c], a_b[c]) for c in range(3)]
+    for key in per[0]:
+        if key not in model.shape_names:
+            out[key] = {CHANNELS[c]: per[c][key] for c in range(3)}
+    return out
+
+
+def _reported_jacobian(prob, z):
+    """d(reported, flat) / dz: rows eta.. (free shape), then per albedo name per channel."""
+    shape, a_s, a_b = prob.from_z(z)
+    k = len(prob.names)
+    rows, labels = [], []
+    for j, n in enumerate(prob.names):
+        row = np.zeros(len(z))
+        row[j] = prob.bounds.derivative(n, z[j])
+        rows.append(row)
+        labels.append((n, None))
+    f = prob.model.albedo_factor
+    sn, bn = ("k_s", "r_k") if prob.model.name == "fmbrdf" else (prob.model.surface_name, prob.model.body_name)
+    for c in range(3):
+        row = np.zeros(len(z))
+        row[k + c] = f * a_s[c]              # d k_s / d log a_s
+        rows.append(row)
+        labels.append((sn, CHANNELS[c]))
+    for c in range(3):
+        row = np.zeros(len(z))
+        if prob.model.name == "fmbrdf":      # r_k = a_b / a_s
+            rk = a_b[c] / a_s[c]
+            row[k + c], row[k + 3 + c] = -rk, rk
+        else:
+            row[k + 3 + c] = f * a_b[c]
+        rows.append(row)
+        labels.append((bn, CHANNELS[c]))
+    return np.array(rows), labels
+
+
+def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=None, max_pixels=None, seed=0,
+               irls_rounds=4, progress=None):
+    """Fit one material with per-channel albedos to a colour mosaic's samples (module docstring).
+
+    ``obs``: an :class:`~fmbrdf_mi.fit.observations.Observation` whose grid is
+    the mosaic's 4x4 periods (its ``stokes`` is only used for its shape),
+    ``samples``: :func:`colour_samples`; ``noise``: a
+    :class:`~fmbrdf_mi.fit.objective.NoiseModel` (None: unknown, estimated from
+    the residuals).  Returns a dict: params, std_errors (per-channel entries as
+    {"R", "G", "B"} dicts), chi2_per_dof, n_pixels, noise, time_s.
+    """
+    from .pixel_model import PixelEvaluator
+
+    say = progress or (lambda m: None)
+    t0 = time.time()
+    m = get_model(model)
+    if samples.values.shape[1:] != obs.mask.shape:
+        raise InputError(f"colour fit: the mosaic has {samples.values.shape[2]}x{samples.values.shape[1]} periods, "
+                         f"the geometry {obs.mask.shape[1]}x{obs.mask.shape[0]} pixels; they must agree")
+    sel = obs.mask & samples.usable
+    idx = np.flatnonzero(sel.ravel())
+    if max_pixels and len(idx) > max_pixels:
+        idx = np.sort(np.random.default_rng(seed).choice(idx, max_pixels, replace=False))
+    if len(idx) < 4:
+        raise InputError(f"colour fit: only {len(idx)} usable periods inside the mask (need >= 4)")
+    n, v, _ = obs.sample_geometry(idx, footprint=(samples.offsets, np.full(16, 1 / 16)))
+    ev = PixelEvaluator(m, n, v, obs.light_dir, obs.irradiance)
+    y = samples.values.reshape(16, -1)[:, idx].T
+    known = noise is not None and noise.known
+    noise = noise if noise is not None else NoiseModel(step=1.0)
+    prob = _Colour(m, ev, y, samples.analyser(), samples.channel, noise, fixed, bounds)
+    shape, a_s, a_b = _coarse(prob, say)
+    z = prob.to_z(shape, a_s, a_b)
+    for rnd in range(irls_rounds):
+        z_old = z.copy()
+        z, r, J = _lm(prob, z, say, tag=f" {rnd}")
+        shape, a_s, a_b = prob.from_z(z)
+        mu = prob.mu(prob.parts(shape), a_s, a_b)
+        if not known:
+            noise.estimate(mu, (y - mu) ** 2)
+        prob.var = np.maximum(noise.variance(mu), 1e-300)
+        r, J = prob.jacobian(z)
+        cov_z = np.linalg.pinv(J.T @ J)
+        step = np.abs(z - z_old) / np.sqrt(np.maximum(np.diag(cov_z), 1e-300))
+        if rnd > 0 and float(np.max(step)) < 0.05:
+            break
+    D, labels = _reported_jacobian(prob, z)
+    cov = D @ cov_z @ D.T
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    params = report(m, shape, a_s, a_b)
+    std = {n: None for n in m.shape_names}
+    for (name, ch), s in zip(labels, se):
+        if ch is None:
+            std[name] = float(s)
+        else:
+            std.setdefault(name, {})[ch] = float(s)
+    chi2 = float(r @ r)
+    dof = max(r.size - len(z), 1)
+    out = {"model": m.name, "params": params, "std_errors": std, "chi2": chi2, "chi2_per_dof": chi2 / dof,
+           "n_pixels": int(len(idx)), "n_samples": int(r.size), "noise": noise.to_dict(),
+           "evaluations": prob.evals, "time_s": time.time() - t0, "channels": list(CHANNELS)}
+    say("[colour] " + format_result(out))
+    return out
+
+
+def format_result(res):
+    """One line per parameter: value +- SE (per channel for the albedos)."""
+    lines = []
+    for k, v in res["params"].items():
+        s = res["std_errors"].get(k)
+        if isinstance(v, dict):
+            lines.append(f"{k}: " + ", ".join(f"{c} {v[c]:.5g} +- {s[c]:.2g}" for c in v))
+        else:
+            lines.append(f"{k}: {v:.5g}" + ("" if s is None else f" +- {s:.2g}"))
+    return "\n".join(lines)

@@ -1,0 +1,212 @@
+"""Colour polarisation sensors (IMX250MYR type): mosaic layout, simulated capture, demosaicking, colour fit."""
+import json
+
+import numpy as np
+import pytest
+
+from fmbrdf_mi import polcam
+from fmbrdf_mi.camera import CameraModel, capture, read_sidecar, write_sidecar
+
+
+def _random_stokes(rng, h, w):
+    """(3 channels, 3, h, w) physically valid Stokes (DoLP < 1), different per channel."""
+    s0 = rng.uniform(0.2, 1.0, (3, h, w))
+    dolp = rng.uniform(0.0, 0.9, (3, h, w))
+    phi = rng.uniform(0, np.pi, (3, h, w))
+    return np.stack([s0, s0 * dolp * np.cos(2 * phi), s0 * dolp * np.sin(2 * phi)], axis=1)
+
+
+def test_colour_layout_by_hand():
+    # independent reference: the raw pixel (row, col) of a 4x4 period, written out from the sensor's datasheet
+    # picture: rows 0-1 / cols 0-1 the R block, cols 2-3 G; rows 2-3 cols 0-1 G, cols 2-3 B; in every block
+    # 90 45 / 135 0.
+    imgs = np.zeros((3, 4, 1, 1))
+    for ch in range(3):
+        for a in range(4):
+            imgs[ch, a] = 10 * ch + a   # value = 10 * channel + index of the angle in (0, 45, 90, 135)
+    raw = polcam.colour_mosaic_from_angle_images(imgs)
+    angle_idx = {90: 2, 45: 1, 135: 3, 0: 0}
+    expected = np.array([[10 * ch + angle_idx[a] for ch, a in row] for row in [
+        [(0, 90), (0, 45), (1, 90), (1, 45)],
+        [(0, 135), (0, 0), (1, 135), (1, 0)],
+        [(1, 90), (1, 45), (2, 90), (2, 45)],
+        [(1, 135), (1, 0), (2, 135), (2, 0)]]], float)
+    np.testing.assert_array_equal(raw, expected)
+
+
+def test_colour_round_trip():
+    # render -> mosaic -> demosaic equals the per-channel Stokes (exact up to float rounding: 3 free
+    # parameters are recovered from 4 noise-free samples)
+    rng = np.random.default_rng(1)
+    s = _random_stokes(rng, 5, 7)
+    imgs = np.stack([polcam.angle_images_from_stokes(s[c]) for c in range(3)])
+    raw = polcam.colour_mosaic_from_angle_images(imgs)
+    assert raw.shape == (20, 28)
+    back = polcam.stokes_from_colour_mosaic(raw)
+    np.testing.assert_allclose(back[:, :3], s, atol=1e-12)
+    np.testing.assert_array_equal(back[:, 3], 0)
+    # the simulated camera (noise-free, 16-bit, no clipping) samples the same mosaic
+    cam = CameraModel(full_well=1e9, bits=16, read_noise=0.0, cfa=polcam.BAYER_RGGB)
+    up = np.repeat(np.repeat(s, 4, axis=2), 4, axis=3)   # constant over each 4x4 period
+    cap = capture(up, cam, exposure=1.0, noiseless=True)
+    g = cam.conversion_gain
+    # noise-free capture = round(I * exposure / g): the Stokes back within half a DN per sample
+    got = polcam.stokes_from_colour_mosaic(cap["raw"].astype(float) * g)
+    np.testing.assert_allclose(got[:, :3], s, atol=2 * g)   # |dS| <= sum of 4 samples' rounding, each <= g / 2
+
+
+def test_other_cfa_and_bad_cfa():
+    rng = np.random.default_rng(2)
+    s = _random_stokes(rng, 2, 3)
+    imgs = np.stack([polcam.angle_images_from_stokes(s[c]) for c in range(3)])
+    cfa = polcam.parse_cfa("BGGR")
+    raw = polcam.colour_mosaic_from_angle_images(imgs, cfa=cfa)
+    np.testing.assert_allclose(polcam.stokes_from_colour_mosaic(raw, cfa=cfa)[:, :3], s, atol=1e-12)
+    # read with the wrong arrangement: R and B swap
+    np.testing.assert_allclose(polcam.stokes_from_colour_mosaic(raw)[::-1, :3], s, atol=1e-12)
+    for bad in ("RGGG", "RGB", "RGGBX"):
+        with pytest.raises(ValueError, match="cfa"):
+            polcam.parse_cfa(bad)
+    with pytest.raises(ValueError, match="cfa"):
+        CameraModel(cfa=(("R", "R"), ("G", "B")))
+    with pytest.raises(ValueError, match="multiples of 4"):
+        polcam.stokes_from_colour_mosaic(np.zeros((6, 8)))
+
+
+def test_colour_capture_mean_and_variance():
+    # per-pixel mean and variance over many captures of a constant scene against the camera model's law:
+    # mean = exposure * I / g (DN), var = mu / g + (read / g)^2 + 1/12 (camera.py's docstring)
+    cam = CameraModel(full_well=4000.0, read_noise=3.0, bits=12, black_level=64, cfa=polcam.BAYER_RGGB)
+    s = np.zeros((3, 3, 4, 4))
+    for ch, (i0, d, phi) in enumerate([(0.3, 0.5, 0.3), (0.8, 0.2, 1.1), (0.5, 0.7, 2.0)]):
+        s[ch] = np.array([i0, i0 * d * np.cos(2 * phi), i0 * d * np.sin(2 * phi)])[:, None, None]
+    exposure = 3000.0
+    n = 4000
+    raws = np.stack([capture(s, cam, exposure=exposure, seed=k)["raw"] for k in range(n)]).astype(float)
+    # the ideal intensity of each raw pixel, by hand: its colour from the period position, its angle from
+    # the block position
+    colour = {(0, 0): 0, (0, 1): 1, (1, 0): 1, (1, 1): 2}
+    angle = {(0, 0): 90, (0, 1): 45, (1, 0): 135, (1, 1): 0}
+    for r in range(4):
+        for c in range(4):
+            ch = colour[(r // 2, c // 2)]
+            t = np.radians(angle[(r % 2, c % 2)])
+            i = 0.5 * (s[ch, 0, 0, 0] + np.cos(2 * t) * s[ch, 1, 0, 0] + np.sin(2 * t) * s[ch, 2, 0, 0])
+            mu = exposure * i / cam.conversion_gain
+            var = cam.variance(mu)
+            x = raws[:, r, c] - cam.black_level
+            # mean: 5 standard errors of the mean; variance: 5 SEs of a sample variance (sqrt(2 / n) var,
+            # Gaussian approximation, which the Poisson law at > 400 electrons meets)
+            assert abs(x.mean() - mu) < 5 * np.sqrt(var / n), (r, c)
+            assert abs(x.var(ddof=1) - var) < 5 * np.sqrt(2.0 / n) * var, (r, c)
+
+
+def test_colour_sidecar_round_trip(tmp_path):
+    cam = CameraModel(cfa=polcam.BAYER_RGGB)
+    p = tmp_path / "c_raw.png"
+    write_sidecar(p, cam)
+    d = read_sidecar(p)
+    assert d["sensor"].cfa == polcam.BAYER_RGGB and d["sensor"].period == 4
+    # a monochrome sidecar has no cfa key and reads back monochrome (files written before colour sensors)
+    write_sidecar(tmp_path / "m_raw.png", CameraModel())
+    assert "cfa" not in json.load(open(tmp_path / "m_raw.json"))["sensor"]
+    assert read_sidecar(tmp_path / "m_raw.png")["sensor"].cfa is None
+    # a malformed colour arrangement: one clear error naming the file
+    bad = json.load(open(tmp_path / "c_raw.json"))
+    bad["sensor"]["cfa"] = [["R", "G"], ["B", "X"]]
+    json.dump(bad, open(tmp_path / "c_raw.json", "w"))
+    with pytest.raises(ValueError, match=r"c_raw\.json.*cfa"):
+        read_sidecar(p)
+
+
+def _cli(*argv):
+    from fmbrdf_mi.cli import main
+    return main(list(argv))
+
+
+def test_render_raw_colour(tmp_path, capsys):
+    from PIL import Image
+
+    from fmbrdf_mi.stokes_io import read_stokes_exr
+
+    out = str(tmp_path / "s.exr")
+    assert _cli("render", out, "--raw", "--sensor", "colour", "--res", "32", "--spp", "16",
+                "--read-noise", "0") == 0
+    raw = np.array(Image.open(out[:-4] + "_raw.png"))
+    side = read_sidecar(out[:-4] + "_raw.png")
+    assert side["sensor"].cfa == polcam.BAYER_RGGB
+    stokes = np.asarray(read_stokes_exr(out)[0])           # (4, H, W, 3)
+    # each raw pixel's expected DN, by hand: colour from its place in the 4x4 period, polariser angle from its
+    # place in the 2x2 block, intensity from the EXR's channel at that pixel
+    rr, cc = np.mgrid[0:32, 0:32]
+    colour = np.array([[0, 1], [1, 2]])[(rr % 4) // 2, (cc % 4) // 2]
+    t = np.radians(np.array([[90, 45], [135, 0]])[rr % 2, cc % 2])
+    s = np.take_along_axis(stokes[:3], colour[None, :, :, None], axis=3)[..., 0].astype(float)
+    expected = 0.5 * (s[0] + np.cos(2 * t) * s[1] + np.sin(2 * t) * s[2]) * side["capture"]["dn_per_input_unit"]
+    g = side["sensor"].conversion_gain
+    for ch in range(3):
+        m = colour == ch
+        # per channel: sum of raw against sum of expected; the shot noise of the sum is sqrt(sum / g) DN
+        # (>= ~1e5 electrons in each channel here): 5 of those plus rounding (0.5 DN per pixel at most)
+        tol = 5 * np.sqrt(expected[m].sum() / g) + 0.5 * m.sum()
+        assert abs(raw[m].astype(float).sum() - expected[m].sum()) < tol, ch
+    # the colours differ (the built-in sphere is not grey), so a swapped channel would be caught
+    # (channel means differ by ~4.5 % here, > 10 shot-noise SEs of a channel sum)
+    assert np.ptp([expected[colour == ch].mean() for ch in range(3)]) > 0.02 * expected.mean()
+
+
+@pytest.mark.parametrize("args,msg", [(("--res", "30"), "multiples of 4"), (("--cfa", "RGGX"), "--cfa"),
+                                      (("--variant", "llvm_ad_mono_polarized"), "colour variant")])
+def test_render_raw_colour_bad_input(tmp_path, capsys, args, msg):
+    out = str(tmp_path / "s.exr")
+    assert _cli("render", out, "--raw", "--sensor", "colour", "--spp", "4", *args) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and msg in err[0]
+    assert not list(tmp_path.iterdir())   # nothing written
+
+
+def test_colour_fit_recovers_per_channel_albedos():
+    """Noise-free colour capture (16-bit ADC: quantisation only) of a 12-period sphere, k_s and r_k different per
+    channel: all ten parameters recovered.  Tolerance: the fit stops when a Gauss-Newton step would lower chi^2
+    by < 0.01, i.e. within ~0.1 standard error of the optimum; the noise-free optimum is the truth up to the
+    16-bit rounding (<< 1 SE).  So |error| < 0.3 SE (the SEs are those of a real capture with this camera's
+    shot and read noise), and the SEs themselves must be small enough for that to mean something (< 25 %
+    for the albedos, < 50 % for the shape parameters)."""
+    from fmbrdf_mi.fit import observations as ob
+    from fmbrdf_mi.fit.colour import colour_samples, fit_colour
+    from fmbrdf_mi.fit.objective import NoiseModel
+    from fmbrdf_mi.fit.synthetic import ideal_sphere
+
+    R = 12
+    shape = dict(eta=1.5, alpha=0.25, beta=0.4, kappa=1.0)
+    alb = {"R": (0.6, 0.8), "G": (0.4, 1.5), "B": (0.5, 0.4)}
+    light = (0.45, 0.35, 1.0)
+    st = np.stack([ideal_sphere({**shape, "k_s": ks, "r_k": rk}, res=2 * R, light=light)["stokes"]
+                   for ks, rk in alb.values()])
+    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=16, full_well=60000, read_noise=2.5)
+    cap = capture(st, cam, peak_fraction=0.8, noiseless=True)
+    smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
+    n, m, v = ob.sphere_normals((R, R), (R / 2, R / 2), R / 2 - 0.5)
+    geom = ob.SphereGeometry((R, R), (R / 2, R / 2), R / 2 - 0.5)
+    obs = ob.Observation(np.ones((3, R, R)), ob.erode(m, 1), n, v, np.asarray(light, float),
+                         cap["exposure"] / cam.conversion_gain, geometry=geom)
+    res = fit_colour(obs, smp, NoiseModel(cam.conversion_gain, cam.read_noise, 1.0))
+    p, se = res["params"], res["std_errors"]
+    for k, truth in shape.items():
+        assert abs(p[k] - truth) < 0.3 * se[k], (k, p[k], se[k])
+        assert se[k] < 0.5 * truth   # alpha is the loosest on 58 periods (SE ~ 0.085)
+    for c, (ks, rk) in alb.items():
+        assert abs(p["k_s"][c] - ks) < 0.3 * se["k_s"][c], (c, p["k_s"], se["k_s"])
+        assert abs(p["r_k"][c] - rk) < 0.3 * se["r_k"][c], (c, p["r_k"], se["r_k"])
+        assert se["k_s"][c] < 0.25 * ks and se["r_k"][c] < 0.25 * rk
+    assert res["chi2_per_dof"] < 0.01   # quantisation only: far below 1
+
+
+def test_fit_cli_colour_mosaic_one_line(tmp_path, capsys):
+    out = str(tmp_path / "s.exr")
+    assert _cli("render", out, "--raw", "--sensor", "colour", "--res", "16", "--spp", "4") == 0
+    capsys.readouterr()
+    assert _cli("fit", out[:-4] + "_raw.png", "--out", str(tmp_path / "fit")) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "colour polarisation mosaic" in err[0] and "fit_colour" in err[0]
+    assert not (tmp_path / "fit").exists()
