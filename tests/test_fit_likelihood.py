@@ -241,12 +241,15 @@ def test_max_time_is_a_hard_limit_and_exits_3(tmp_path, capsys, variant):
 
     base = _raw_files(tmp_path)
     t0 = time.time()
-    code = main(base + ["--max-time", "3", "-o", str(tmp_path / "a")])
+    # 0.5 s: far less than this fit needs on any machine (its coarse search alone
+    # takes longer), so the limit is what stops it; with 3 s a quiet fast machine
+    # finished the whole fit first
+    code = main(base + ["--max-time", "0.5", "-o", str(tmp_path / "a")])
     assert code == 3
     assert "stopped before convergence" in capsys.readouterr().err
     m = json.loads((tmp_path / "a" / "fit.json").read_text())["models"]["fmbrdf"]
     assert m["converged"] is False and "max_time" in m["stop_reason"]
-    assert m["timings"]["total"] < 3 + 2.5, m["timings"]  # one model evaluation of slack at most
+    assert m["timings"]["total"] < 0.5 + 2.5, m["timings"]  # one model evaluation of slack at most
     assert time.time() - t0 < 60
 
 
