@@ -40,7 +40,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tools"))
 
-from bench_fit_noise import MATERIALS, NAMES  # noqa: E402
+from bench_fit_noise import MATERIALS, NAMES, stat_cells  # noqa: E402
 
 TILT_DEG = 35.0
 
@@ -125,10 +125,7 @@ def table(rows):
     out = ["| material | param | K | n (NC) | mean error ± SE | spread | mean reported SE | spread / SE | "
            "95 % coverage | fit time (s) |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        pct = (lambda x: f"{100 * x:+.2f} %") if r["relative"] else (lambda x: f"{x:+.3g}")
-        pc = (lambda x: f"{100 * x:.2f} %") if r["relative"] else (lambda x: f"{x:.3g}")
-        out.append(f"| {r['material']} | {r['param']} | {r['K']} | {r['n']} ({r['not_converged']}) | "
-                   f"{pct(r['mean_error'])} ± {pc(r['se_mean'])} | {pc(r['spread'])} | {pc(r['mean_reported_se'])} | "
+        out.append(f"| {r['material']} | {r['param']} | {r['K']} | {stat_cells(r)} | "
                    f"{r['ratio']:.2f} | {100 * r['coverage']:.0f} % | {r['time']:.1f} |")
     return "\n".join(out)
 

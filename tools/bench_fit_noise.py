@@ -172,14 +172,20 @@ def pooled_table(prow):
     return "\n".join(out)
 
 
+def stat_cells(r):
+    """The cells 'n (NC) | mean error ± SE | spread | mean reported SE' of a summary row
+    (relative errors in %, absolute ones where the truth is 0)."""
+    pct = (lambda x: f"{100 * x:+.2f} %") if r["relative"] else (lambda x: f"{x:+.3g}")
+    pc = (lambda x: f"{100 * x:.2f} %") if r["relative"] else (lambda x: f"{x:.3g}")
+    return (f"{r['n']} ({r['not_converged']}) | {pct(r['mean_error'])} ± {pc(r['se_mean'])} | "
+            f"{pc(r['spread'])} | {pc(r['mean_reported_se'])}")
+
+
 def table(rows):
     out = ["| material | size | loss | param | n (NC) | mean error ± SE | spread | mean reported SE | "
            "95 % coverage (binomial 95 % interval) | fit time (s) |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        pct = (lambda x: f"{100 * x:+.2f} %") if r["relative"] else (lambda x: f"{x:+.3g}")
-        pc = (lambda x: f"{100 * x:.2f} %") if r["relative"] else (lambda x: f"{x:.3g}")
-        out.append(f"| {r['material']} | {r['size']}² | {r['loss']} | {r['param']} | {r['n']} ({r['not_converged']}) | "
-                   f"{pct(r['mean_error'])} ± {pc(r['se_mean'])} | {pc(r['spread'])} | {pc(r['mean_reported_se'])} | "
+        out.append(f"| {r['material']} | {r['size']}² | {r['loss']} | {r['param']} | {stat_cells(r)} | "
                    f"{100 * r['coverage']:.0f} % ({_ci(r)}) | {r['time']:.1f} |")
     return "\n".join(out)
 
