@@ -34,7 +34,7 @@ from .record import _jsonable, load, sha256, versions
 
 #: fit_images keywords that define a joint fit (not where it writes or how it talks).
 FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
-            "max_time", "max_pixels", "erode", "seed", "free_power")
+            "max_time", "max_pixels", "erode", "seed")
 #: read_object keywords recorded for an authors' object.
 AUTHORS_KEYS = ("mask", "holdout", "conversion_gain", "read_noise", "white_level", "dark_level", "black_level",
                 "demosaic", "footprint")
