@@ -186,7 +186,9 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     """Joint fit of the non-held-out images of ``specs``, relighting check on the held-out ones; write outputs.
 
     ``fit_kw``: :class:`~fmbrdf_mi.fit.fitting.FitOptions` fields (loss,
-    fixed, bounds, init, max_pixels, ...).  Returns the dict written to fit.json.
+    fixed, bounds, init, max_pixels, ...).  ``reproduce``: called with the
+    observations, returns fit.json's ``reproduce`` block (the command's:
+    :func:`fmbrdf_mi.fit.joint_record.block`).  Returns the dict written to fit.json.
     """
     from .._paths import check_output_dir
     from . import plots
