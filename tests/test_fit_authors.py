@@ -194,6 +194,10 @@ def test_manifest_and_repeated_light_give_the_authors_fit(blob, tmp_path, capsys
         argv.append("--light=" + ",".join(map(str, l)))
     assert main(argv) == 0
     assert (tmp_path / "c" / "images_001.png").is_file()
+    # ... and reruns from its fit.json to the same estimates
+    assert main(["fit", "--from", str(tmp_path / "c" / "fit.json"), "-o", str(tmp_path / "c2"), "-q"]) == 0
+    pc, pc2 = (json.loads((tmp_path / d / "fit.json").read_text())["models"]["fmbrdf"]["params"] for d in ("c", "c2"))
+    assert pc2 == pc
     capsys.readouterr()
     assert main(argv[:-1] + ["--force"]) == 1
     assert "--light given 1 times for 2 INPUT images" in capsys.readouterr().err
@@ -228,3 +232,87 @@ def test_normal_refinement_on_the_mesh_object(blob):
     assert np.mean(e1 < e0) > 0.8
     with pytest.raises(Exception, match="K >= 3"):
         refine_normals(obs[:2], n0, progress=False)
+
+
+def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys):
+    """`fmbrdf-mi fit --from fit.json` reruns a joint fit made through a manifest and through --authors: the
+    record names every image with its SHA-256, light, power, geometry and held-out flag, and the rerun gives
+    the same estimates (same files, same options, same seed: bit for bit); a changed image, sidecar-free raw
+    mosaic or manifest, is refused in one line naming the file, before anything is written."""
+    import shutil
+
+    from fmbrdf_mi.cli import main
+    from fmbrdf_mi.fit.authors_layout import read_object
+    from fmbrdf_mi.fit.record import sha256
+
+    src, truth = blob
+    root = tmp_path / "obj"             # a copy: the test changes an image
+    shutil.copytree(src, root)
+    specs, _ = read_object(root)
+    o = specs[0].input
+    np.save(tmp_path / "n.npy", o.normals)
+    np.save(tmp_path / "v.npy", o.view_dirs)
+    np.save(tmp_path / "m.npy", o.mask)
+    g = truth["camera"]["conversion_gain"]
+    lines = ["[defaults]", 'normals = "n.npy"', 'view = "v.npy"', 'mask = "m.npy"', f"conversion_gain = {g!r}",
+             "read_noise = 2.5", "white_level = 65535.0"]
+    for k, (l, p) in enumerate(zip(LIGHTS, POWERS)):
+        lines += ["[[image]]", f'input = "obj/image/img_ud/{k:03d}.png"', f"light = {list(l)}",
+                  f"power = {p / max(POWERS)!r}"] + (["holdout = true"] if k == 3 else [])
+    (tmp_path / "m.toml").write_text("\n".join(lines) + "\n")
+    ks = truth["irradiance_dn"] * max(POWERS)
+    init = f"eta=1.5,alpha=0.22,beta=1.2,kappa=14,k_s={0.8 * ks!r},r_k=0.6"   # no coarse search: a quick test
+    common = ["--max-pixels", "400", "-q", "--init", init, "--seed", "3"]
+    assert main(["fit", "--manifest", str(tmp_path / "m.toml"), "-o", str(tmp_path / "a")] + common) == 0
+    assert main(["fit", "--authors", str(root), "--holdout", "3", "--conversion-gain", repr(g), "--read-noise",
+                 "2.5", "-o", str(tmp_path / "b")] + common) == 0
+    img1 = str(root / "image" / "img_ud" / "001.png")
+    for run, kind in (("a", "manifest"), ("b", "authors")):
+        rep = json.loads((tmp_path / run / "fit.json").read_text())
+        r = rep["reproduce"]
+        assert r["joint"]["kind"] == kind and r["arguments"]["seed"] == 3 and r["versions"]["mitsuba"]
+        ims = r["joint"]["images"]
+        assert [im["holdout"] for im in ims] == [False, False, False, True]
+        for im, l, p in zip(ims, LIGHTS, POWERS):
+            np.testing.assert_allclose(im["light"], np.array(l) / np.linalg.norm(l), atol=1e-12)
+            assert math.isclose(im["power"], p / max(POWERS)) and math.isclose(im["irradiance"], p / max(POWERS))
+        assert ims[1]["files_sha256"][img1] == sha256(img1) == r["files_sha256"][img1]
+        assert ims[0]["geometry"]["normals"].endswith("n.npy" if kind == "manifest" else "normal_GT.npy")
+        assert ims[0]["settings"]["conversion_gain"] == g
+        # rerun from another directory: the record holds absolute paths
+        cwd = os.getcwd()
+        os.chdir(tmp_path / run)
+        try:
+            assert main(["fit", "--from", "fit.json", "-o", str(tmp_path / (run + "2")), "-q"]) == 0
+        finally:
+            os.chdir(cwd)
+        again = json.loads((tmp_path / (run + "2") / "fit.json").read_text())
+        m, m2 = rep["models"]["fmbrdf"], again["models"]["fmbrdf"]
+        assert m2["params"] == m["params"] and m2["std_errors"] == m["std_errors"]
+        assert [im["n_pixels"] for im in m2["images"]] == [im["n_pixels"] for im in m["images"]]
+        assert again["relight"] == rep["relight"]
+        assert again["reproduce"]["files_sha256"] == r["files_sha256"]
+    # --from takes no other inputs
+    capsys.readouterr()
+    assert main(["fit", "--from", str(tmp_path / "a" / "fit.json"), "--manifest", str(tmp_path / "m.toml"),
+                 "-o", str(tmp_path / "x"), "-q"]) == 1
+    assert "--from: give no --manifest" in capsys.readouterr().err
+    # a changed image: refused, one line naming it, nothing written
+    from PIL import Image
+
+    from fmbrdf_mi.fit.observations import _read_array
+
+    original = open(img1, "rb").read()
+    im = _read_array(img1, "image").astype(np.uint16)
+    im[0, 0] ^= 1                                       # one raw sample one DN off
+    Image.fromarray(im).save(img1)
+    for run in ("a", "b"):
+        assert main(["fit", "--from", str(tmp_path / run / "fit.json"), "-o", str(tmp_path / (run + "3"))]) == 1
+        err = capsys.readouterr().err
+        assert f"input {img1} has changed since the fit" in err and err.count("\n") == 1, err
+        assert not (tmp_path / (run + "3")).exists()
+    # a changed manifest too (the image restored)
+    open(img1, "wb").write(original)
+    (tmp_path / "m.toml").write_text((tmp_path / "m.toml").read_text() + "# edited\n")
+    assert main(["fit", "--from", str(tmp_path / "a" / "fit.json"), "-o", str(tmp_path / "a4")]) == 1
+    assert f"input {tmp_path / 'm.toml'} has changed" in capsys.readouterr().err

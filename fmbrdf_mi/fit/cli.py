@@ -545,8 +545,14 @@ def run_fit(args):
 
         if args.inputs:
             raise InputError("--from: give no INPUT files (they come from the fit.json)")
-        kw = record.rerun_arguments(args.from_json)
-        report = fit_files(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
+        from . import joint_record
+
+        if joint_record.is_joint(args.from_json):
+            report = joint_record.rerun(args.from_json, args.out, force=args.force, progress=not args.quiet,
+                                        command=command)
+        else:
+            kw = record.rerun_arguments(args.from_json)
+            report = fit_files(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
     else:
         if not args.inputs:
             raise InputError("no INPUT given: a Stokes .exr, a raw mosaic, angle images, or --from fit.json")

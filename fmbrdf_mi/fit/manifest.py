@@ -182,11 +182,13 @@ def outputs(out, names, holdout):
 
 
 def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, progress=True, command=None,
-               observations=None, extra=None, **fit_kw):
+               observations=None, extra=None, reproduce=None, **fit_kw):
     """Joint fit of the non-held-out images of ``specs``, relighting check on the held-out ones; write outputs.
 
     ``fit_kw``: :class:`~fmbrdf_mi.fit.fitting.FitOptions` fields (loss,
-    fixed, bounds, init, max_pixels, ...).  Returns the dict written to fit.json.
+    fixed, bounds, init, max_pixels, ...).  ``reproduce``: called with the
+    observations, returns fit.json's ``reproduce`` block (the command's:
+    :func:`fmbrdf_mi.fit.joint_record.block`).  Returns the dict written to fit.json.
     """
     from .._paths import check_output_dir
     from . import plots
@@ -221,7 +223,9 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
                           "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance, "power": s.power,
                           "holdout": s.holdout} for n, s, o in zip(names, specs, obs)],
               "truth": truth, "models": {}, "relight": {}}
-    if command is not None:
+    if reproduce is not None:
+        report["reproduce"] = reproduce(obs)
+    elif command is not None:
         from .record import versions
 
         report["reproduce"] = {"command": command, "cwd": os.getcwd(), "versions": versions()}
@@ -282,14 +286,14 @@ def run_joint(args, command):
     from .cli import _vec, parse_bounds, parse_fixed, parse_init
 
     if args.from_json:
-        raise InputError("--from: reruns of joint fits are not supported; rerun the same command")
+        raise InputError("--from: give no --manifest, --authors or INPUT files (they come from the fit.json)")
     if args.relight:
         raise InputError("--relight: in a joint fit, mark held-out images instead (holdout = true in the "
                          "manifest, --holdout with --authors)")
     if args.optimizer != "lm" or args.path != "pixel":
         raise InputError("joint fits use --optimizer lm and --path pixel")
     cli_opts = _cli_input_options(args)
-    info = None
+    info = authors = None
     if args.manifest:
         if args.inputs:
             raise InputError("--manifest: give no INPUT files (the manifest lists them)")
@@ -306,12 +310,12 @@ def run_joint(args, command):
             hold = [int(x) for x in str(args.holdout).split(",") if x.strip()] if args.holdout else []
         except ValueError:
             raise InputError(f"--holdout {args.holdout!r}: expected image indices such as 3,7") from None
-        specs, info = read_object(args.authors, mask=args.mask, holdout=hold,
-                                  conversion_gain=args.conversion_gain, read_noise=args.read_noise,
-                                  white_level=65535.0 if args.white_level is None else args.white_level,
-                                  dark_level=args.dark_level,
-                                  black_level=0.0 if args.black_level is None else args.black_level,
-                                  demosaic=args.demosaic, footprint=args.footprint)
+        authors = dict(mask=None if args.mask is None else os.path.abspath(args.mask), holdout=hold,
+                       conversion_gain=args.conversion_gain, read_noise=args.read_noise,
+                       white_level=65535.0 if args.white_level is None else args.white_level,
+                       dark_level=args.dark_level, black_level=0.0 if args.black_level is None else args.black_level,
+                       demosaic=args.demosaic, footprint=args.footprint)
+        specs, info = read_object(args.authors, **authors)
     else:
         if len(args.light or []) != len(args.inputs):
             raise InputError(f"--light given {len(args.light or [])} times for {len(args.inputs)} INPUT images: a joint "
@@ -321,14 +325,32 @@ def run_joint(args, command):
                  for k, (inp, li) in enumerate(zip(args.inputs, args.light))]
     names = _names(specs)
     files = outputs(args.out, names, [s.holdout for s in specs])
-    report = fit_images(specs, args.out, model=args.model, baselines=args.baselines, force=args.force,
-                        progress=not args.quiet, command=command,
-                        extra={"joint": {"outputs": files, "authors_layout": info}},
-                        loss=args.loss, fixed=parse_fixed(args.fix), bounds=parse_bounds(args.bounds),
-                        init=parse_init(args.init), starts=args.starts, max_iter=args.max_iter, tol=args.tol,
-                        time_limit=args.time_limit, max_time=args.max_time, max_pixels=args.max_pixels or None,
-                        erode=args.erode, seed=args.seed)
+    if not args.authors:   # the record names files by absolute path (a rerun may start elsewhere)
+        for s in specs:
+            s.input = _abs_paths(s.input)
+            s.options.update({k: _abs_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
+    fit_kw = dict(model=args.model, baselines=args.baselines, loss=args.loss, fixed=parse_fixed(args.fix),
+                  bounds=parse_bounds(args.bounds), init=parse_init(args.init), starts=args.starts,
+                  max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
+                  max_pixels=args.max_pixels or None, erode=args.erode, seed=args.seed)
+    kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
+
+    def reproduce(obs):
+        from .joint_record import block
+
+        return block(kind, specs, names, obs, fit_kw, command, manifest=args.manifest, authors=authors, info=info)
+
+    report = fit_images(specs, args.out, force=args.force, progress=not args.quiet, command=command,
+                        extra={"joint": {"outputs": files, "authors_layout": info}}, reproduce=reproduce, **fit_kw)
     return report
+
+
+def _abs_paths(v):
+    if isinstance(v, str):
+        return os.path.abspath(v)
+    if isinstance(v, list):
+        return [_abs_paths(x) for x in v]
+    return v
 
 
 def print_joint(report):
