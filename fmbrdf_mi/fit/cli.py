@@ -527,6 +527,25 @@ def check_args(args):
         raise InputError("--manifest and --authors: give one of them")
 
 
+def _colour_sidecar(path):
+    from .colour_cli import colour_sidecar
+
+    return colour_sidecar(path)
+
+
+def _check_colour_args(args):
+    """Options the colour path does not take: one line naming them."""
+    bad = [flag for flag, on in (("--baselines", args.baselines), ("--relight", args.relight),
+                                 ("--path render", args.path != "pixel"), ("--optimizer adam", args.optimizer != "lm"),
+                                 ("--init", args.init), ("--loss " + str(args.loss), args.loss not in ("auto", "likelihood")),
+                                 ("--layout", args.layout), ("--dark-level", args.dark_level is not None),
+                                 ("--footprint " + str(args.footprint), args.footprint != "auto"))
+           if on]
+    if bad:
+        raise InputError(f"colour polarisation mosaic: {', '.join(bad)} not supported (the colour fit is the "
+                         "likelihood of the raw samples, layout and cfa from the sidecar, pixel path, LM)")
+
+
 def run_fit(args):
     import shlex
     import sys
@@ -553,6 +572,19 @@ def run_fit(args):
         else:
             kw = record.rerun_arguments(args.from_json)
             report = fit_files(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
+    elif len(args.inputs or []) == 1 and _colour_sidecar(args.inputs[0]) is not None:
+        from .colour_cli import fit_colour_files, print_colour
+
+        _check_colour_args(args)
+        report = fit_colour_files(args.inputs[0], args.out, normals=args.normals, mask=args.mask, view=args.view,
+                                  sphere=args.sphere, camera=args.camera, fov=args.fov,
+                                  light=_vec(lights[0] if lights else None, "--light"), irradiance=args.irradiance,
+                                  black_level=args.black_level, white_level=args.white_level,
+                                  conversion_gain=args.conversion_gain, read_noise=args.read_noise,
+                                  model=args.model, bounds=args.bounds, fixed=args.fix, max_time=args.max_time,
+                                  max_iter=args.max_iter, max_pixels=args.max_pixels or None, erode=args.erode,
+                                  seed=args.seed, force=args.force, progress=not args.quiet, command=command)
+        return print_colour(report)
     else:
         if not args.inputs:
             raise InputError("no INPUT given: a Stokes .exr, a raw mosaic, angle images, or --from fit.json")

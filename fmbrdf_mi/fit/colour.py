@@ -42,6 +42,10 @@ from .observations import InputError
 CHANNELS = polcam.COLOURS
 
 
+class _TimeUp(Exception):
+    """The fit's wall-clock limit passed (raised from the model evaluation once an estimate exists)."""
+
+
 class ColourSamples:
     """The 16 raw samples of each 4x4 period: values (16, H, W) image units, channel, angle, offset per sample."""
 
@@ -96,8 +100,12 @@ class _Colour:
         self.var = np.maximum(noise.variance(y), 1e-300)
         self.masks = [chan == c for c in range(3)]
         self.evals = 0
+        self.deadline = None     # time.time() past which parts() raises _TimeUp (once self.last is set)
+        self.last = None         # z of the best estimate so far (coarse point or accepted LM step)
 
     def parts(self, shape, jac=False):
+        if self.deadline is not None and self.last is not None and time.time() > self.deadline:
+            raise _TimeUp()
         self.evals += 1
         return self.ev.parts(shape, self.names if jac else ())
 
@@ -165,6 +173,9 @@ def _coarse(prob, say):
             p = prob.parts(shape)
             a_s, a_b = prob.albedos(p)
             results[key] = (prob.chi2(p, a_s, a_b), dict(shape), a_s, a_b)
+            best = min(results.values(), key=lambda x: x[0])
+            if best is results[key] and np.all(a_s > 0) and np.all(a_b > 0):
+                prob.last = prob.to_z(shape, a_s, a_b)
 
     import itertools
     for combo in itertools.product(*[grids[n] for n in first]):
@@ -179,9 +190,11 @@ def _coarse(prob, say):
 
 
 def _lm(prob, z, say, max_iter=40, tag=""):
+    """Levenberg-Marquardt from ``z``; returns (z, r, J, converged)."""
     r, J = prob.jacobian(z)
     f = float(r @ r)
     lam = 1e-3
+    converged = False
     for it in range(1, max_iter + 1):
         g = J.T @ r
         A = J.T @ J
@@ -190,6 +203,7 @@ def _lm(prob, z, say, max_iter=40, tag=""):
         except np.linalg.LinAlgError:
             dec = math.inf
         if dec < 0.01:  # optimum within ~0.1 standard error (optimise.DECREMENT_TOL)
+            converged = True
             break
         D = np.diag(A).copy()
         D[D <= 0] = 1e-12
@@ -201,12 +215,14 @@ def _lm(prob, z, say, max_iter=40, tag=""):
                 break
             lam *= 4
         else:
+            converged = True     # no step lowers chi2 at any damping: a minimum to rounding
             break
         z, lam = z_new, max(lam / 3, 1e-9)
+        prob.last = z
         r, J = prob.jacobian(z)
         f = float(r @ r)
         say(f"[colour{tag}] iter {it:2d}  chi2 {f:.6e}")
-    return z, r, J
+    return z, r, J, converged
 
 
 def report(model, shape, a_s, a_b):
@@ -249,15 +265,20 @@ def _reported_jacobian(prob, z):
 
 
 def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=None, max_pixels=None, seed=0,
-               irls_rounds=4, progress=None):
+               irls_rounds=4, progress=None, max_time=None, max_iter=40):
     """Fit one material with per-channel albedos to a colour mosaic's samples (module docstring).
 
     ``obs``: an :class:`~fmbrdf_mi.fit.observations.Observation` whose grid is
     the mosaic's 4x4 periods (its ``stokes`` is only used for its shape),
     ``samples``: :func:`colour_samples`; ``noise``: a
     :class:`~fmbrdf_mi.fit.objective.NoiseModel` (None: unknown, estimated from
-    the residuals).  Returns a dict: params, std_errors (per-channel entries as
-    {"R", "G", "B"} dicts), chi2_per_dof, n_pixels, noise, time_s.
+    the residuals).  ``max_time``: hard wall-clock limit in seconds; a fit it
+    stops returns the last accepted estimate with ``converged`` False and no
+    standard errors (as does one that runs out of ``max_iter`` LM iterations).
+    Returns a dict: params, std_errors (per-channel entries as {"R", "G", "B"}
+    dicts; None when not converged), chi2_per_dof, n_pixels, noise, time_s,
+    converged, stop_reason, pixels (the fitted flat period indices), internal
+    (shape and unit albedos for :func:`predict_samples`).
     """
     from .pixel_model import PixelEvaluator
 
@@ -279,37 +300,75 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     known = noise is not None and noise.known
     noise = noise if noise is not None else NoiseModel(step=1.0)
     prob = _Colour(m, ev, y, samples.analyser(), samples.channel, noise, fixed, bounds)
-    shape, a_s, a_b = _coarse(prob, say)
-    z = prob.to_z(shape, a_s, a_b)
-    for rnd in range(irls_rounds):
-        z_old = z.copy()
-        z, r, J = _lm(prob, z, say, tag=f" {rnd}")
-        shape, a_s, a_b = prob.from_z(z)
-        mu = prob.mu(prob.parts(shape), a_s, a_b)
-        if not known:
-            noise.estimate(mu, (y - mu) ** 2)
-        prob.var = np.maximum(noise.variance(mu), 1e-300)
-        r, J = prob.jacobian(z)
-        cov_z = np.linalg.pinv(J.T @ J)
-        step = np.abs(z - z_old) / np.sqrt(np.maximum(np.diag(cov_z), 1e-300))
-        if rnd > 0 and float(np.max(step)) < 0.05:
-            break
-    D, labels = _reported_jacobian(prob, z)
-    cov = D @ cov_z @ D.T
-    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    if max_time is not None:
+        prob.deadline = t0 + float(max_time)
+    converged, stop = False, "iteration limit"
+    r = J = None
+    try:
+        shape, a_s, a_b = _coarse(prob, say)
+        z = prob.to_z(shape, a_s, a_b)
+        prob.last = z
+        for rnd in range(irls_rounds):
+            z_old = z.copy()
+            z, r, J, converged = _lm(prob, z, say, max_iter=max_iter, tag=f" {rnd}")
+            shape, a_s, a_b = prob.from_z(z)
+            mu = prob.mu(prob.parts(shape), a_s, a_b)
+            if not known:
+                noise.estimate(mu, (y - mu) ** 2)
+            prob.var = np.maximum(noise.variance(mu), 1e-300)
+            r, J = prob.jacobian(z)
+            cov_z = np.linalg.pinv(J.T @ J)
+            step = np.abs(z - z_old) / np.sqrt(np.maximum(np.diag(cov_z), 1e-300))
+            if rnd > 0 and float(np.max(step)) < 0.05:
+                break
+        stop = "converged" if converged else f"iteration limit ({max_iter} LM iterations)"
+    except _TimeUp:
+        converged, stop = False, f"time limit (max_time {float(max_time):g} s)"
+        z = prob.last
+        prob.deadline = None
+        r = prob.residuals(z)
+    shape, a_s, a_b = prob.from_z(z)
     params = report(m, shape, a_s, a_b)
-    std = {n: None for n in m.shape_names}
-    for (name, ch), s in zip(labels, se):
-        if ch is None:
-            std[name] = float(s)
-        else:
-            std.setdefault(name, {})[ch] = float(s)
+    std = None
+    if converged:
+        D, labels = _reported_jacobian(prob, z)
+        cov = D @ cov_z @ D.T
+        se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        std = {n: None for n in m.shape_names}
+        for (name, ch), s in zip(labels, se):
+            if ch is None:
+                std[name] = float(s)
+            else:
+                std.setdefault(name, {})[ch] = float(s)
     chi2 = float(r @ r)
     dof = max(r.size - len(z), 1)
     out = {"model": m.name, "params": params, "std_errors": std, "chi2": chi2, "chi2_per_dof": chi2 / dof,
            "n_pixels": int(len(idx)), "n_samples": int(r.size), "noise": noise.to_dict(),
-           "evaluations": prob.evals, "time_s": time.time() - t0, "channels": list(CHANNELS)}
-    say("[colour] " + format_result(out))
+           "evaluations": prob.evals, "time_s": time.time() - t0, "channels": list(CHANNELS),
+           "converged": bool(converged), "stop_reason": stop, "pixels": idx,
+           "internal": {"shape": {k: float(x) for k, x in shape.items()}, "a_s": a_s.tolist(),
+                        "a_b": a_b.tolist()}}
+    if std is not None:
+        say("[colour] " + format_result(out))
+    return out
+
+
+def predict_samples(obs, samples, res):
+    """The fitted model's 16 samples (16, H, W) per period (image units, NaN outside mask & usable)."""
+    from .pixel_model import PixelEvaluator
+
+    m = get_model(res["model"])
+    idx = np.flatnonzero((obs.mask & samples.usable).ravel())
+    out = np.full(samples.values.shape, np.nan)
+    if len(idx) == 0:
+        return out
+    n, v, _ = obs.sample_geometry(idx, footprint=(samples.offsets, np.full(16, 1 / 16)))
+    p = PixelEvaluator(m, n, v, obs.light_dir, obs.irradiance).parts(res["internal"]["shape"], ())
+    A, chan = samples.analyser(), samples.channel
+    a_s, a_b = np.asarray(res["internal"]["a_s"]), np.asarray(res["internal"]["a_b"])
+    mu = a_s[chan] * _unit_mu(A, p.surface, len(idx)) + a_b[chan] * _unit_mu(A, p.body, len(idx))
+    flat = out.reshape(16, -1)
+    flat[:, idx] = mu.T
     return out
 
 
@@ -317,9 +376,10 @@ def format_result(res):
     """One line per parameter: value +- SE (per channel for the albedos)."""
     lines = []
     for k, v in res["params"].items():
-        s = res["std_errors"].get(k)
+        s = (res["std_errors"] or {}).get(k)
         if isinstance(v, dict):
-            lines.append(f"{k}: " + ", ".join(f"{c} {v[c]:.5g} +- {s[c]:.2g}" for c in v))
+            lines.append(f"{k}: " + ", ".join(f"{c} {v[c]:.5g}" + ("" if s is None else f" +- {s[c]:.2g}")
+                                              for c in v))
         else:
             lines.append(f"{k}: {v:.5g}" + ("" if s is None else f" +- {s:.2g}"))
     return "\n".join(lines)
