@@ -38,6 +38,7 @@ from .. import polcam
 from .models import Bounds, get_model
 from .objective import NoiseModel, nnls2
 from .observations import InputError
+from .optimise import search_grids
 
 CHANNELS = polcam.COLOURS
 
@@ -159,12 +160,8 @@ class _Colour:
 
 def _coarse(prob, say):
     """Staged grid (optimise.coarse_search's stages) with per-channel closed-form albedos; best (shape, a_s, a_b)."""
-    model, bounds = prob.model, prob.bounds
-    grids = {n: ([prob.fixed[n]] if n in prob.fixed else bounds.clip_grid(n, model.param(n).grid))
-             for n in model.shape_names}
-    later = [n for n in ("eta", "kappa") if n in prob.names]
-    first = [n for n in model.shape_names if n not in later]
-    mids = {n: grids[n][len(grids[n]) // 2] for n in later}
+    model = prob.model
+    grids, first, later, mids = search_grids(model, prob.bounds, prob.fixed, prob.names)
     results = {}
 
     def try_point(shape):

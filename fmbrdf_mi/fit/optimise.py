@@ -176,6 +176,16 @@ def _score(problem, parts, st):
 ALBEDO_BOUND = 1e-3
 
 
+def search_grids(model, bounds, fixed, names):
+    """The coarse search's grids: ({shape parameter: its grid values (one if fixed)},
+    the stage-1 parameters, the later ones (eta, kappa, when free), their middle values)."""
+    grids = {n: ([fixed[n]] if n in fixed else bounds.clip_grid(n, model.param(n).grid))
+             for n in model.shape_names}
+    later = [n for n in ("eta", "kappa") if n in names]
+    first = [n for n in model.shape_names if n not in later]
+    return grids, first, later, {n: grids[n][len(grids[n]) // 2] for n in later}
+
+
 def coarse_search(problem, keep=2):
     """Grid search in stages; returns candidates [(score, State)] best first.
 
@@ -187,12 +197,8 @@ def coarse_search(problem, keep=2):
     closed form (the objective's weighted least squares) and the objective
     with the candidate's own weights decides.
     """
-    model, bounds = problem.model, problem.bounds
-    grids = {n: ([problem.fixed[n]] if n in problem.fixed else bounds.clip_grid(n, model.param(n).grid))
-             for n in model.shape_names}
-    later = [n for n in ("eta", "kappa") if n in problem.names]
-    first = [n for n in model.shape_names if n not in later]
-    mids = {n: grids[n][len(grids[n]) // 2] for n in later}
+    model = problem.model
+    grids, first, later, mids = search_grids(model, problem.bounds, problem.fixed, problem.names)
     results = {}
 
     def try_point(shape):
