@@ -1,0 +1,131 @@
+"""The colour fit under camera noise: bias, spread, reported standard errors and interval coverage.
+
+    python tools/bench_fit_colour.py [--periods 16] [--seeds 16] [--fix eta=1.5,...] [--noiseless] [--json out.json]
+
+One material (eta 1.5, alpha 0.25, beta 0.4, kappa 1; k_s / r_k 0.6 / 0.8, 0.4 / 1.5,
+0.5 / 0.4 for R, G, B: the material of tests/test_colour.py), an orthographic
+sphere filling PERIODS x PERIODS 4x4 periods of an IMX250MYR-type colour
+polarisation mosaic (RGGB), light (0.45, 0.35, 1).  The data are each
+channel's model Stokes image evaluated at every raw pixel's centre
+(:func:`fmbrdf_mi.fit.synthetic.ideal_sphere`) captured by
+:func:`fmbrdf_mi.camera.capture` (full well 10 000 e-, read noise 2.5 e-,
+12 bits, brightest raw pixel at 80 %; seed = the noise seed), so only the
+camera's noise separates data and model.  Each capture is fitted by
+:func:`fmbrdf_mi.fit.colour.fit_colour` with the gain and read noise known.
+Per parameter (per channel for the albedos): mean relative error +- its
+standard error, spread, mean reported SE, coverage of the reported 95 %
+intervals (with its binomial 95 % interval), fit time.
+"""
+import argparse
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "tools"))
+
+SHAPE = dict(eta=1.5, alpha=0.25, beta=0.4, kappa=1.0)
+ALBEDOS = {"R": (0.6, 0.8), "G": (0.4, 1.5), "B": (0.5, 0.4)}
+LIGHT = (0.45, 0.35, 1.0)
+
+
+def wilson(k, n, z=1.96):
+    """Binomial 95 % interval of a proportion k / n (Wilson score)."""
+    p = k / n
+    c = (p + z * z / (2 * n)) / (1 + z * z / n)
+    h = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return c - h, c + h
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--periods", type=int, default=16, help="sphere diameter in 4x4 periods (>= 8)")
+    ap.add_argument("--seeds", type=int, default=16)
+    ap.add_argument("--seed0", type=int, default=0)
+    ap.add_argument("--fix", default="", help="e.g. eta=1.5,kappa=1 (fixed at these values)")
+    ap.add_argument("--noiseless", action="store_true", help="capture without noise (quantisation only)")
+    ap.add_argument("--json", metavar="OUT.json")
+    args = ap.parse_args()
+    if args.periods < 8 or args.seeds < 2:
+        sys.exit("bench_fit_colour: --periods must be >= 8 and --seeds >= 2")
+    fixed = {}
+    for item in filter(None, args.fix.split(",")):
+        name, _, value = item.partition("=")
+        if name not in SHAPE:
+            sys.exit(f"bench_fit_colour: --fix: {name!r} is not one of {', '.join(SHAPE)}")
+        fixed[name] = float(value) if value else SHAPE[name]
+
+    import mitsuba as mi  # noqa: F401  (the package sets its variant)
+    from fmbrdf_mi import polcam
+    from fmbrdf_mi.camera import CameraModel, capture
+    from fmbrdf_mi.fit import observations as ob
+    from fmbrdf_mi.fit.colour import colour_samples, fit_colour
+    from fmbrdf_mi.fit.objective import NoiseModel
+    from fmbrdf_mi.fit.synthetic import ideal_sphere
+    from bench_rebuild import cpu_name
+
+    R = args.periods
+    print(f"bench_fit_colour: {time.strftime('%Y-%m-%d')}, {cpu_name()}, {os.cpu_count()} cores; "
+          f"{R}x{R} periods, {args.seeds} seeds, fixed {fixed or 'none'}", flush=True)
+    st = np.stack([ideal_sphere({**SHAPE, "k_s": ks, "r_k": rk}, res=2 * R, light=LIGHT)["stokes"]
+                   for ks, rk in ALBEDOS.values()])
+    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=12, full_well=10000.0, read_noise=2.5)
+    centre, radius = (R / 2, R / 2), R / 2 - 0.5
+    n, m, v = ob.sphere_normals((R, R), centre, radius)
+    geom = ob.SphereGeometry((R, R), centre, radius)
+    truth = dict(SHAPE, **{f"k_s[{c}]": a[0] for c, a in ALBEDOS.items()},
+                 **{f"r_k[{c}]": a[1] for c, a in ALBEDOS.items()})
+    runs = []
+    for seed in range(args.seed0, args.seed0 + args.seeds):
+        cap = capture(st, cam, peak_fraction=0.8, seed=seed, noiseless=args.noiseless)
+        smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
+        obs = ob.Observation(np.ones((3, R, R)), ob.erode(m, 1), n, v, np.asarray(LIGHT, float),
+                             cap["exposure"] / cam.conversion_gain, geometry=geom)
+        t = time.time()
+        res = fit_colour(obs, smp, NoiseModel(cam.conversion_gain, cam.read_noise, 1.0), fixed=fixed or None)
+        t = time.time() - t
+        flat = lambda d: {**{k: d[k] for k in SHAPE},  # noqa: E731
+                          **{f"{a}[{c}]": d[a][c] for a in ("k_s", "r_k") for c in "RGB"}}
+        est = flat(res["params"])
+        se = flat(res["std_errors"]) if res["converged"] else None
+        runs.append({"seed": seed, "converged": bool(res["converged"]), "time": t, "params": est,
+                     "std_errors": se, "chi2_per_dof": res.get("chi2_per_dof")})
+        print(f"seed {seed:3d}: {t:5.1f} s {'ok' if res['converged'] else 'NC'}  "
+              + " ".join(f"{k}={est[k]:.4g}" for k in est), flush=True)
+
+    ok = [r for r in runs if r["converged"]]
+    print(f"\n{len(ok)} of {len(runs)} fits converged; mean chi2/dof "
+          f"{np.mean([r['chi2_per_dof'] for r in ok]):.3f}\n")
+    print("| param | truth | mean error ± SE | spread | mean reported SE | 95 % coverage (binomial 95 % interval) |")
+    print("|---|---|---|---|---|---|")
+    rows = []
+    for k, tv in truth.items():
+        if k in fixed:
+            continue
+        e = np.array([r["params"][k] - tv for r in ok]) / tv
+        s = np.array([r["std_errors"][k] for r in ok]) / tv
+        cov = np.array([abs(r["params"][k] - tv) <= 1.96 * r["std_errors"][k] for r in ok])
+        lo, hi = wilson(int(cov.sum()), len(cov))
+        row = {"param": k, "truth": tv, "mean_error": e.mean(), "se_mean": e.std(ddof=1) / np.sqrt(len(e)),
+               "spread": e.std(ddof=1), "mean_reported_se": s.mean(), "coverage": cov.mean(), "ci": (lo, hi)}
+        rows.append(row)
+        print(f"| {k} | {tv:g} | {100 * row['mean_error']:+.2f} % ± {100 * row['se_mean']:.2f} % | "
+              f"{100 * row['spread']:.2f} % | {100 * row['mean_reported_se']:.2f} % | "
+              f"{100 * row['coverage']:.0f} % ({100 * lo:.0f}-{100 * hi:.0f} %) |")
+    pooled = np.concatenate([[abs(r["params"][k] - tv) <= 1.96 * r["std_errors"][k] for r in ok]
+                             for k, tv in truth.items() if k not in fixed])
+    lo, hi = wilson(int(pooled.sum()), len(pooled))
+    print(f"\npooled coverage {100 * pooled.mean():.1f} % of {len(pooled)} intervals "
+          f"(binomial 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %); fit time "
+          f"{min(r['time'] for r in runs):.1f}-{max(r['time'] for r in runs):.1f} s")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"config": vars(args), "runs": runs, "rows": rows}, f, indent=1, default=float)
+
+
+if __name__ == "__main__":
+    main()
