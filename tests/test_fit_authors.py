@@ -160,23 +160,9 @@ def test_manifest_and_repeated_light_give_the_authors_fit(blob, tmp_path, capsys
     powers, a held-out image) and through repeated --light give the estimates of --authors to 1e-6
     (same pixels, same data, same options); manifest mistakes are one line naming the key."""
     from fmbrdf_mi.cli import main
-    from fmbrdf_mi.fit.authors_layout import read_object
 
     root, truth = blob
-    specs, _ = read_object(root)
-    o = specs[0].input
-    np.save(tmp_path / "n.npy", o.normals)
-    np.save(tmp_path / "v.npy", o.view_dirs)
-    np.save(tmp_path / "m.npy", o.mask)
-    g = truth["camera"]["conversion_gain"]
-    lines = ["[defaults]", 'normals = "n.npy"', 'view = "v.npy"', 'mask = "m.npy"', f"conversion_gain = {g!r}",
-             "read_noise = 2.5", "white_level = 65535.0"]
-    for k, (l, p) in enumerate(zip(LIGHTS, POWERS)):
-        lines += ["[[image]]", f'input = "{root}/image/img_ud/{k:03d}.png"', f"light = {list(l)}",
-                  f"power = {p / max(POWERS)!r}"] + (["holdout = true"] if k == 3 else [])
-    (tmp_path / "m.toml").write_text("\n".join(lines) + "\n")
-    ks = truth["irradiance_dn"] * max(POWERS)
-    init = f"eta=1.5,alpha=0.22,beta=1.2,kappa=14,k_s={0.8 * ks!r},r_k=0.6"   # no coarse search: a quick test
+    g, init = _write_manifest(tmp_path, root, truth, str(root))
     common = ["--max-pixels", "600", "-q", "--init", init]
     assert main(["fit", "--manifest", str(tmp_path / "m.toml"), "-o", str(tmp_path / "a")] + common) == 0
     assert main(["fit", "--authors", str(root), "--holdout", "3", "--conversion-gain", repr(g), "--read-noise",
@@ -242,26 +228,12 @@ def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys):
     import shutil
 
     from fmbrdf_mi.cli import main
-    from fmbrdf_mi.fit.authors_layout import read_object
     from fmbrdf_mi.fit.record import sha256
 
     src, truth = blob
     root = tmp_path / "obj"             # a copy: the test changes an image
     shutil.copytree(src, root)
-    specs, _ = read_object(root)
-    o = specs[0].input
-    np.save(tmp_path / "n.npy", o.normals)
-    np.save(tmp_path / "v.npy", o.view_dirs)
-    np.save(tmp_path / "m.npy", o.mask)
-    g = truth["camera"]["conversion_gain"]
-    lines = ["[defaults]", 'normals = "n.npy"', 'view = "v.npy"', 'mask = "m.npy"', f"conversion_gain = {g!r}",
-             "read_noise = 2.5", "white_level = 65535.0"]
-    for k, (l, p) in enumerate(zip(LIGHTS, POWERS)):
-        lines += ["[[image]]", f'input = "obj/image/img_ud/{k:03d}.png"', f"light = {list(l)}",
-                  f"power = {p / max(POWERS)!r}"] + (["holdout = true"] if k == 3 else [])
-    (tmp_path / "m.toml").write_text("\n".join(lines) + "\n")
-    ks = truth["irradiance_dn"] * max(POWERS)
-    init = f"eta=1.5,alpha=0.22,beta=1.2,kappa=14,k_s={0.8 * ks!r},r_k=0.6"   # no coarse search: a quick test
+    g, init = _write_manifest(tmp_path, root, truth, "obj")
     common = ["--max-pixels", "400", "-q", "--init", init, "--seed", "3"]
     assert main(["fit", "--manifest", str(tmp_path / "m.toml"), "-o", str(tmp_path / "a")] + common) == 0
     assert main(["fit", "--authors", str(root), "--holdout", "3", "--conversion-gain", repr(g), "--read-noise",
@@ -316,3 +288,25 @@ def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys):
     (tmp_path / "m.toml").write_text((tmp_path / "m.toml").read_text() + "# edited\n")
     assert main(["fit", "--from", str(tmp_path / "a" / "fit.json"), "-o", str(tmp_path / "a4")]) == 1
     assert f"input {tmp_path / 'm.toml'} has changed" in capsys.readouterr().err
+
+
+def _write_manifest(tmp_path, root, truth, image_dir):
+    """m.toml in tmp_path for the object at ``root`` (images under ``image_dir``, as the manifest
+    names them), its first view's geometry as n.npy, v.npy, m.npy; returns (conversion gain,
+    an --init near the truth: no coarse search, a quick test)."""
+    from fmbrdf_mi.fit.authors_layout import read_object
+
+    specs, _ = read_object(root)
+    o = specs[0].input
+    np.save(tmp_path / "n.npy", o.normals)
+    np.save(tmp_path / "v.npy", o.view_dirs)
+    np.save(tmp_path / "m.npy", o.mask)
+    g = truth["camera"]["conversion_gain"]
+    lines = ["[defaults]", 'normals = "n.npy"', 'view = "v.npy"', 'mask = "m.npy"', f"conversion_gain = {g!r}",
+             "read_noise = 2.5", "white_level = 65535.0"]
+    for k, (l, p) in enumerate(zip(LIGHTS, POWERS)):
+        lines += ["[[image]]", f'input = "{image_dir}/image/img_ud/{k:03d}.png"', f"light = {list(l)}",
+                  f"power = {p / max(POWERS)!r}"] + (["holdout = true"] if k == 3 else [])
+    (tmp_path / "m.toml").write_text("\n".join(lines) + "\n")
+    ks = truth["irradiance_dn"] * max(POWERS)
+    return g, f"eta=1.5,alpha=0.22,beta=1.2,kappa=14,k_s={0.8 * ks!r},r_k=0.6"
