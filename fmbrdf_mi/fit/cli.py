@@ -566,9 +566,16 @@ def run_fit(args):
             raise InputError("--from: give no INPUT files (they come from the fit.json)")
         from . import joint_record
 
+        from .colour_cli import fit_colour_files, is_colour_record, print_colour
+
         if joint_record.is_joint(args.from_json):
             report = joint_record.rerun(args.from_json, args.out, force=args.force, progress=not args.quiet,
                                         command=command)
+        elif is_colour_record(args.from_json):
+            kw = record.rerun_arguments(args.from_json)
+            report = fit_colour_files(out=args.out, force=args.force, progress=not args.quiet, command=command,
+                                      **kw)
+            return print_colour(report)
         else:
             kw = record.rerun_arguments(args.from_json)
             report = fit_files(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
@@ -583,7 +590,8 @@ def run_fit(args):
                                   conversion_gain=args.conversion_gain, read_noise=args.read_noise,
                                   model=args.model, bounds=args.bounds, fixed=args.fix, max_time=args.max_time,
                                   max_iter=args.max_iter, max_pixels=args.max_pixels or None, erode=args.erode,
-                                  seed=args.seed, force=args.force, progress=not args.quiet, command=command)
+                                  seed=args.seed, starts=args.starts, force=args.force, progress=not args.quiet,
+                                  command=command)
         return print_colour(report)
     else:
         if not args.inputs:

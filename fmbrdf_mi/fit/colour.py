@@ -22,8 +22,10 @@ Unknowns: z = (shape parameters through :class:`~fmbrdf_mi.fit.models.Bounds`,
 log a_s[R, G, B], log a_b[R, G, B]).  Start: a staged grid over the shape
 parameters (as :func:`~fmbrdf_mi.fit.optimise.coarse_search`) with each
 channel's two albedos in closed form (non-negative weighted least squares of
-that channel's samples); then Levenberg-Marquardt with the shape columns of
-the Jacobian from forward-mode AD and the albedo columns analytic.  Standard
+that channel's samples); then Levenberg-Marquardt from the best ``starts``
+grid points, with the shape columns of the Jacobian from forward-mode AD and
+the albedo columns analytic, and the albedos re-solved in closed form at
+every trial point (variable projection, :meth:`_Colour.project`).  Standard
 errors: (J^T J)^-1 of the standardised residuals at the optimum (the Fisher
 information), mapped to the reported parameters by the delta method.
 """
@@ -120,6 +122,26 @@ class _Colour:
                for m in self.masks]
         return np.array([o[0] for o in out]), np.array([o[1] for o in out])
 
+    def project(self, z):
+        """(z with its albedos replaced by the closed-form optimum for its shape parameters, its residuals).
+
+        Variable projection: the model is linear in the six albedos, so for
+        given shape parameters their best values follow from each channel's
+        non-negative least squares.  Without this, a channel whose albedo
+        the first steps drive towards 0 stays there (the log-albedo's
+        Jacobian column vanishes with it) and the fit ends at a wrong point
+        (a 24-period sphere did, every time, before this).  An albedo at 0 is
+        kept at 1e-9 of the largest so that z stays finite.  One model
+        evaluation.
+        """
+        shape, _, _ = self.from_z(z)
+        p = self.parts(shape)
+        a_s, a_b = self.albedos(p)
+        floor = 1e-9 * max(float(np.max(a_s)), float(np.max(a_b)), 1e-300)
+        a_s, a_b = np.maximum(a_s, floor), np.maximum(a_b, floor)
+        z = self.to_z(shape, a_s, a_b)
+        return z, ((self.y - self.mu(p, a_s, a_b)) / np.sqrt(self.var)).ravel()
+
     def chi2(self, p, a_s, a_b):
         r = (self.y - self.mu(p, a_s, a_b)) / np.sqrt(self.var)
         return float(np.sum(r * r))
@@ -159,7 +181,9 @@ class _Colour:
 
 
 def _coarse(prob, say):
-    """Staged grid (optimise.coarse_search's stages) with per-channel closed-form albedos; best (shape, a_s, a_b)."""
+    """Staged grid (optimise.coarse_search's stages) with per-channel closed-form albedos.
+
+    Returns the grid points [(shape, a_s, a_b)], best first."""
     model = prob.model
     grids, first, later, mids = search_grids(model, prob.bounds, prob.fixed, prob.names)
     results = {}
@@ -181,13 +205,15 @@ def _coarse(prob, say):
         for _, shape, _, _ in sorted(results.values(), key=lambda x: x[0])[:2]:
             for value in grids[name]:
                 try_point({**shape, name: value})
-    best = min(results.values(), key=lambda x: x[0])
-    say(f"[colour] coarse search: {len(results)} grid points, best chi2 {best[0]:.6e}")
-    return best[1:]
+    ranked = sorted(results.values(), key=lambda x: x[0])
+    say(f"[colour] coarse search: {len(results)} grid points, best chi2 {ranked[0][0]:.6e}")
+    return [r[1:] for r in ranked]
 
 
 def _lm(prob, z, say, max_iter=40, tag=""):
-    """Levenberg-Marquardt from ``z``; returns (z, r, J, converged)."""
+    """Levenberg-Marquardt from ``z`` with the albedos projected out at every trial (:meth:`_Colour.project`);
+    returns (z, r, J, converged)."""
+    z, _ = prob.project(z)
     r, J = prob.jacobian(z)
     f = float(r @ r)
     lam = 1e-3
@@ -205,8 +231,7 @@ def _lm(prob, z, say, max_iter=40, tag=""):
         D = np.diag(A).copy()
         D[D <= 0] = 1e-12
         while lam < 1e10:
-            z_new = np.clip(z + np.linalg.solve(A + lam * np.diag(D), -g), -40, 40)
-            r_new = prob.residuals(z_new)
+            z_new, r_new = prob.project(np.clip(z + np.linalg.solve(A + lam * np.diag(D), -g), -40, 40))
             f_new = float(r_new @ r_new)
             if np.isfinite(f_new) and f_new < f:
                 break
@@ -262,7 +287,7 @@ def _reported_jacobian(prob, z):
 
 
 def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=None, max_pixels=None, seed=0,
-               irls_rounds=4, progress=None, max_time=None, max_iter=40):
+               irls_rounds=4, progress=None, max_time=None, max_iter=40, starts=2):
     """Fit one material with per-channel albedos to a colour mosaic's samples (module docstring).
 
     ``obs``: an :class:`~fmbrdf_mi.fit.observations.Observation` whose grid is
@@ -272,6 +297,8 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     the residuals).  ``max_time``: hard wall-clock limit in seconds; a fit it
     stops returns the last accepted estimate with ``converged`` False and no
     standard errors (as does one that runs out of ``max_iter`` LM iterations).
+    ``starts``: Levenberg-Marquardt runs from this many of the best grid
+    points (as the one-channel fit's ``--starts``); the lowest chi^2 wins.
     Returns a dict: params, std_errors (per-channel entries as {"R", "G", "B"}
     dicts; None when not converged), chi2_per_dof, n_pixels, noise, time_s,
     converged, stop_reason, pixels (the fitted flat period indices), internal
@@ -302,12 +329,17 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     converged, stop = False, "iteration limit"
     r = J = None
     try:
-        shape, a_s, a_b = _coarse(prob, say)
-        z = prob.to_z(shape, a_s, a_b)
+        cands = _coarse(prob, say)
+        z = prob.project(prob.to_z(*cands[0]))[0]
         prob.last = z
         for rnd in range(irls_rounds):
             z_old = z.copy()
-            z, r, J, converged = _lm(prob, z, say, max_iter=max_iter, tag=f" {rnd}")
+            if rnd == 0:      # LM from the best `starts` grid points; the lowest chi2 goes on
+                ends = [_lm(prob, prob.project(prob.to_z(*c))[0], say, max_iter=max_iter, tag=f" {rnd}.{j}")
+                        for j, c in enumerate(cands[:max(1, int(starts))])]
+                z, r, J, converged = min(ends, key=lambda e: float(e[1] @ e[1]))
+            else:
+                z, r, J, converged = _lm(prob, z, say, max_iter=max_iter, tag=f" {rnd}")
             shape, a_s, a_b = prob.from_z(z)
             mu = prob.mu(prob.parts(shape), a_s, a_b)
             if not known:

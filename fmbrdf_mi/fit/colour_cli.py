@@ -45,6 +45,15 @@ def colour_sidecar(inputs):
     return side if side is not None and side["sensor"].cfa is not None else None
 
 
+def is_colour_record(path):
+    """Whether ``path`` (a fit.json with a ``reproduce`` block) records a colour fit (``--from`` reruns it)."""
+    from . import record
+
+    record.load(path)      # refuses files that are not fit.json records, in one line
+    with open(path) as f:
+        return json.load(f).get("sensor") == "colour"
+
+
 def _pool4(n, m, v):
     """Raw-resolution maps -> 4x4-period maps (two 2x2 poolings: the mean of 16, mask = all 16)."""
     return ob.downsample_geometry(*ob.downsample_geometry(n, m, v))
@@ -131,8 +140,8 @@ def _ci95(model, name, value, se, bounds=None):
 def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
                      fov=None, light=None, irradiance=None, black_level=None, white_level=None,
                      conversion_gain=None, read_noise=None, model="fmbrdf", bounds=None, fixed=None,
-                     max_time=None, max_iter=40, max_pixels=20000, erode=2, seed=0, force=False, progress=True,
-                     command=None):
+                     max_time=None, max_iter=40, max_pixels=20000, erode=2, seed=0, starts=2, force=False,
+                     progress=True, command=None):
     """Fit a colour polarisation mosaic (module docstring); write ``out``/fit.json and colour_fit.png.
 
     Returns the dict written to fit.json (``models[model]``: params with
@@ -149,9 +158,9 @@ def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=
     from .objective import NoiseModel
 
     t0 = time.time()
+    arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
     path = inputs[0] if isinstance(inputs, (list, tuple)) else inputs
     path = os.fspath(path)
-    arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
     side = colour_sidecar(path)
     if side is None:
         raise InputError(f"{path}: no colour capture sidecar ({os.path.splitext(path)[0]}.json with \"cfa\")")
@@ -195,13 +204,9 @@ def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=
     if progress:
         print(f"colour fit of {path}: {shape[1]}x{shape[0]} periods, {int((fitted_mask & smp.usable).sum())} "
               f"usable in the mask (eroded by {erode}), cfa {''.join(c for r in cam.cfa for c in r)}", flush=True)
-    # Known defect (tools/bench_fit_colour.py --periods 24): on a 24-period sphere the
-    # colour fit ends in a wrong solution (k_s[G] -> 0) even on noise-free data, and
-    # reports it as converged.  Say so until the search is fixed.
-    sys.stderr.write("fmbrdf-mi fit: warning: the colour fit is experimental: on spheres of 24 or more "
-                     "periods it can converge to a wrong solution (README, colour sensors)\n")
     res = fit_colour(obs, smp, noise, model=model, fixed=fixed, bounds=bounds, max_pixels=max_pixels or None,
-                     seed=seed, progress=say, max_time=max_time, max_iter=max_iter)
+                     seed=seed, progress=say, max_time=max_time, max_iter=max_iter,
+                     starts=int(starts))
     truth = {k: params[k] for k in ("eta", "alpha", "beta", "kappa", "k_s", "r_k") if k in params} or None
     std = res["std_errors"]
     entry = {k: res[k] for k in ("model", "params", "std_errors", "chi2", "chi2_per_dof", "n_pixels", "n_samples",
