@@ -559,6 +559,10 @@ def run_fit(args):
         from .manifest import run_joint
 
         report = run_joint(args, command)
+        if report.get("sensor") == "colour":
+            from .colour_cli import print_colour
+
+            return print_colour(report)
     elif args.from_json:
         from . import record
 
@@ -571,6 +575,8 @@ def run_fit(args):
         if joint_record.is_joint(args.from_json):
             report = joint_record.rerun(args.from_json, args.out, force=args.force, progress=not args.quiet,
                                         command=command)
+            if report.get("sensor") == "colour":
+                return print_colour(report)
         elif is_colour_record(args.from_json):
             kw = record.rerun_arguments(args.from_json)
             report = fit_colour_files(out=args.out, force=args.force, progress=not args.quiet, command=command,

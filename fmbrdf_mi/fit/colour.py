@@ -292,7 +292,10 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
 
     ``obs``: an :class:`~fmbrdf_mi.fit.observations.Observation` whose grid is
     the mosaic's 4x4 periods (its ``stokes`` is only used for its shape),
-    ``samples``: :func:`colour_samples`; ``noise``: a
+    ``samples``: :func:`colour_samples`.  Several images of one object (a
+    joint fit: each its own light, irradiance, view and geometry; one camera):
+    lists of both, one entry per mosaic; they share every parameter, and
+    ``max_pixels`` is split evenly between them.  ``noise``: a
     :class:`~fmbrdf_mi.fit.objective.NoiseModel` (None: unknown, estimated from
     the residuals).  ``max_time``: hard wall-clock limit in seconds; a fit it
     stops returns the last accepted estimate with ``converged`` False and no
@@ -301,26 +304,43 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     points (as the one-channel fit's ``--starts``); the lowest chi^2 wins.
     Returns a dict: params, std_errors (per-channel entries as {"R", "G", "B"}
     dicts; None when not converged), chi2_per_dof, n_pixels, noise, time_s,
-    converged, stop_reason, pixels (the fitted flat period indices), internal
-    (shape and unit albedos for :func:`predict_samples`).
+    converged, stop_reason, pixels (the fitted flat period indices; a list
+    per image for lists), chi2_per_sample (chi^2 / samples, per image for
+    lists), internal (shape and unit albedos for :func:`predict_samples`).
     """
     from .pixel_model import PixelEvaluator
 
     say = progress or (lambda m: None)
     t0 = time.time()
     m = get_model(model)
-    if samples.values.shape[1:] != obs.mask.shape:
-        raise InputError(f"colour fit: the mosaic has {samples.values.shape[2]}x{samples.values.shape[1]} periods, "
-                         f"the geometry {obs.mask.shape[1]}x{obs.mask.shape[0]} pixels; they must agree")
-    sel = obs.mask & samples.usable
-    idx = np.flatnonzero(sel.ravel())
-    if max_pixels and len(idx) > max_pixels:
-        idx = np.sort(np.random.default_rng(seed).choice(idx, max_pixels, replace=False))
-    if len(idx) < 4:
-        raise InputError(f"colour fit: only {len(idx)} usable periods inside the mask (need >= 4)")
-    n, v, _ = obs.sample_geometry(idx, footprint=(samples.offsets, np.full(16, 1 / 16)))
-    ev = PixelEvaluator(m, n, v, obs.light_dir, obs.irradiance)
-    y = samples.values.reshape(16, -1)[:, idx].T
+    joint = isinstance(obs, (list, tuple))
+    obs_l, smp_l = (list(obs), list(samples)) if joint else ([obs], [samples])
+    if len(obs_l) != len(smp_l) or not obs_l:
+        raise InputError(f"colour fit: {len(obs_l)} geometries for {len(smp_l)} mosaics; give one per mosaic")
+    idxs, geo, ys = [], [], []
+    per_image = None if not max_pixels else max(1, int(math.ceil(max_pixels / len(obs_l))))
+    for k, (o, smp) in enumerate(zip(obs_l, smp_l)):
+        tag = f"colour fit, image {k}" if joint else "colour fit"
+        if smp.values.shape[1:] != o.mask.shape:
+            raise InputError(f"{tag}: the mosaic has {smp.values.shape[2]}x{smp.values.shape[1]} periods, "
+                             f"the geometry {o.mask.shape[1]}x{o.mask.shape[0]} pixels; they must agree")
+        if k and (smp.angles != smp_l[0].angles or not np.array_equal(smp.channel, smp_l[0].channel)):
+            raise InputError(f"{tag}: its polariser layout or colour filter differs from image 0's; a joint fit "
+                             "takes one camera")
+        idx = np.flatnonzero((o.mask & smp.usable).ravel())
+        if per_image and len(idx) > per_image:
+            idx = np.sort(np.random.default_rng(seed + k).choice(idx, per_image, replace=False))
+        if len(idx) < 4:
+            raise InputError(f"{tag}: only {len(idx)} usable periods inside the mask (need >= 4)")
+        n, v, _ = o.sample_geometry(idx, footprint=(smp.offsets, np.full(16, 1 / 16)))
+        geo.append((n, v, np.tile(np.asarray(o.light_dir, float), (len(n), 1)), np.full(len(n), o.irradiance)))
+        ys.append(smp.values.reshape(16, -1)[:, idx].T)
+        idxs.append(idx)
+    n, v, lights, irr = (np.concatenate([g[j] for g in geo]) for j in range(4))
+    ev = PixelEvaluator(m, n, v, lights if joint else obs_l[0].light_dir,
+                        irr if joint else obs_l[0].irradiance)
+    y = np.concatenate(ys)
+    samples = smp_l[0]
     known = noise is not None and noise.known
     noise = noise if noise is not None else NoiseModel(step=1.0)
     prob = _Colour(m, ev, y, samples.analyser(), samples.channel, noise, fixed, bounds)
@@ -371,10 +391,14 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
                 std.setdefault(name, {})[ch] = float(s)
     chi2 = float(r @ r)
     dof = max(r.size - len(z), 1)
+    bounds_k = np.cumsum([0] + [len(i) for i in idxs])
+    rr = r.reshape(len(y), -1)
+    per_chi2 = [float(np.sum(rr[a:b] ** 2) / max((b - a) * rr.shape[1], 1)) for a, b in zip(bounds_k, bounds_k[1:])]
     out = {"model": m.name, "params": params, "std_errors": std, "chi2": chi2, "chi2_per_dof": chi2 / dof,
-           "n_pixels": int(len(idx)), "n_samples": int(r.size), "noise": noise.to_dict(),
+           "n_pixels": int(sum(len(i) for i in idxs)), "n_samples": int(r.size), "noise": noise.to_dict(),
            "evaluations": prob.evals, "time_s": time.time() - t0, "channels": list(CHANNELS),
-           "converged": bool(converged), "stop_reason": stop, "pixels": idx,
+           "converged": bool(converged), "stop_reason": stop, "pixels": idxs if joint else idxs[0],
+           "chi2_per_sample": per_chi2 if joint else per_chi2[0],
            "internal": {"shape": {k: float(x) for k, x in shape.items()}, "a_s": a_s.tolist(),
                         "a_b": a_b.tolist()}}
     if std is not None:

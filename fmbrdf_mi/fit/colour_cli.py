@@ -137,42 +137,31 @@ def _ci95(model, name, value, se, bounds=None):
     return [max(lo, value - 1.96 * se), min(hi, value + 1.96 * se)]
 
 
-def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
-                     fov=None, light=None, irradiance=None, black_level=None, white_level=None,
-                     conversion_gain=None, read_noise=None, model="fmbrdf", bounds=None, fixed=None,
-                     max_time=None, max_iter=40, max_pixels=20000, erode=2, seed=0, starts=2, force=False,
-                     progress=True, command=None):
-    """Fit a colour polarisation mosaic (module docstring); write ``out``/fit.json and colour_fit.png.
+class ColourInput:
+    """One colour mosaic read for a fit: its Observation on the period grid, samples, camera, noise and metadata."""
 
-    Returns the dict written to fit.json (``models[model]``: params with
-    per-channel k_s and r_k, std_errors, ci95, converged, stop_reason ...).
+    def __init__(self, obs, samples, camera, noise, truth, side):
+        self.obs, self.samples, self.camera, self.noise, self.truth, self.side = obs, samples, camera, noise, truth, side
+
+
+def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic", fov=None,
+                      light=None, irradiance=None, power=1.0, black_level=None, white_level=None,
+                      conversion_gain=None, read_noise=None, erode=2):
+    """A :class:`ColourInput` of the raw colour mosaic ``path`` (its capture sidecar gives the camera).
+
+    Light and irradiance default to the sidecar's built-in scene; the
+    irradiance is multiplied by ``power`` (a joint fit's relative light power).
+    The Observation's ``meta`` holds ``settings``, ``sphere``, ``sidecar`` and
+    ``truth`` (the built-in scene's parameters) as the mono path's do.
     """
-    import time
-
-    from .. import polcam
-    from .._paths import check_output_dir
-    from . import record
-    from .cli import _json_default, parse_bounds, parse_fixed
-    from .colour import colour_samples, fit_colour, format_result, predict_samples
-    from .models import get_model
+    from .colour import colour_samples
     from .objective import NoiseModel
 
-    t0 = time.time()
-    arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
-    path = inputs[0] if isinstance(inputs, (list, tuple)) else inputs
     path = os.fspath(path)
     side = colour_sidecar(path)
     if side is None:
         raise InputError(f"{path}: no colour capture sidecar ({os.path.splitext(path)[0]}.json with \"cfa\")")
     cam = side["sensor"]
-    get_model(model)
-    bounds, fixed = parse_bounds(bounds), parse_fixed(fixed)
-    check_output_dir(out)
-    outs = {n: os.path.join(out, n) for n in OUTPUTS}
-    if not force:
-        for p in outs.values():
-            if os.path.exists(p):
-                raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
     raw = ob._read_array(path, "raw colour mosaic")
     if raw.ndim != 2 or not np.issubdtype(raw.dtype, np.number):
         raise InputError(f"{path}: expected a single-channel raw mosaic, got an array of shape {raw.shape}")
@@ -192,22 +181,24 @@ def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=
     if irradiance is None and params:
         # the raw DN are the render's units times the capture's DN per unit
         irradiance = params["irradiance"] * float(side.get("capture", {}).get("dn_per_input_unit", 1.0))
-    irradiance = 1.0 if irradiance is None else float(irradiance)
+    irradiance = (1.0 if irradiance is None else float(irradiance)) * float(power)
     gain = cam.conversion_gain if conversion_gain is None else float(conversion_gain)
     rn = cam.read_noise if read_noise is None else float(read_noise)
     if not (gain > 0 and rn >= 0):
         raise InputError(f"noise: --conversion-gain must be > 0 and --read-noise >= 0, got {gain}, {rn}")
-    noise = NoiseModel(gain, rn, 1.0)
-    fitted_mask = ob.erode(m, int(erode))
-    obs = ob.Observation(np.ones((3,) + tuple(shape)), fitted_mask, n, v, light, irradiance, geometry=exact)
-    say = (lambda s: print(s, flush=True)) if progress else None
-    if progress:
-        print(f"colour fit of {path}: {shape[1]}x{shape[0]} periods, {int((fitted_mask & smp.usable).sum())} "
-              f"usable in the mask (eroded by {erode}), cfa {''.join(c for r in cam.cfa for c in r)}", flush=True)
-    res = fit_colour(obs, smp, noise, model=model, fixed=fixed, bounds=bounds, max_pixels=max_pixels or None,
-                     seed=seed, progress=say, max_time=max_time, max_iter=max_iter,
-                     starts=int(starts))
     truth = {k: params[k] for k in ("eta", "alpha", "beta", "kappa", "k_s", "r_k") if k in params} or None
+    settings = {"layout": [list(r) for r in cam.layout], "cfa": [list(r) for r in cam.cfa], "black_level": black,
+                "white_level": white, "conversion_gain": gain, "read_noise": rn,
+                "light": [float(x) for x in light], "irradiance": irradiance, "erode": int(erode),
+                "grid": "4x4 periods", "geometry": "exact sphere" if exact is not None else "maps"}
+    meta = {"settings": settings, "sphere": gmeta.get("sphere"), "sidecar": side["path"], "truth": truth}
+    obs = ob.Observation(np.ones((3,) + tuple(shape)), ob.erode(m, int(erode)), n, v, light, irradiance,
+                         geometry=exact, meta=meta)
+    return ColourInput(obs, smp, cam, NoiseModel(gain, rn, 1.0), truth, side)
+
+
+def model_entry(model, res, bounds, fixed, truth):
+    """fit.json's ``models[model]`` of a :func:`~fmbrdf_mi.fit.colour.fit_colour` result (intervals, errors)."""
     std = res["std_errors"]
     entry = {k: res[k] for k in ("model", "params", "std_errors", "chi2", "chi2_per_dof", "n_pixels", "n_samples",
                                  "noise", "evaluations", "time_s", "channels", "converged", "stop_reason")}
@@ -224,17 +215,58 @@ def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=
             elif val is not None and not isinstance(t, (list, tuple)) and t:
                 rel[k] = (val - t) / t
         entry["relative_error"] = rel
-    settings = {"layout": [list(r) for r in cam.layout], "cfa": [list(r) for r in cam.cfa], "black_level": black,
-                "white_level": white, "conversion_gain": gain, "read_noise": rn,
-                "light": [float(x) for x in light], "irradiance": irradiance, "erode": int(erode),
-                "grid": "4x4 periods", "geometry": "exact sphere" if exact is not None else "maps"}
-    meta = {"settings": settings, "sphere": gmeta.get("sphere"), "sidecar": side["path"]}
-    report = {"inputs": path, "sensor": "colour", "truth": truth,
+    return entry
+
+
+def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
+                     fov=None, light=None, irradiance=None, black_level=None, white_level=None,
+                     conversion_gain=None, read_noise=None, model="fmbrdf", bounds=None, fixed=None,
+                     max_time=None, max_iter=40, max_pixels=20000, erode=2, seed=0, starts=2, force=False,
+                     progress=True, command=None):
+    """Fit a colour polarisation mosaic (module docstring); write ``out``/fit.json and colour_fit.png.
+
+    Returns the dict written to fit.json (``models[model]``: params with
+    per-channel k_s and r_k, std_errors, ci95, converged, stop_reason ...).
+    """
+    import time
+
+    from .._paths import check_output_dir
+    from . import record
+    from .cli import _json_default, parse_bounds, parse_fixed
+    from .colour import fit_colour, format_result, predict_samples
+    from .models import get_model
+
+    t0 = time.time()
+    arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
+    path = inputs[0] if isinstance(inputs, (list, tuple)) else inputs
+    path = os.fspath(path)
+    if colour_sidecar(path) is None:
+        raise InputError(f"{path}: no colour capture sidecar ({os.path.splitext(path)[0]}.json with \"cfa\")")
+    get_model(model)
+    bounds, fixed = parse_bounds(bounds), parse_fixed(fixed)
+    check_output_dir(out)
+    outs = {n: os.path.join(out, n) for n in OUTPUTS}
+    if not force:
+        for p in outs.values():
+            if os.path.exists(p):
+                raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
+    ci = read_colour_input(path, normals=normals, mask=mask, view=view, sphere=sphere, camera=camera, fov=fov,
+                           light=light, irradiance=irradiance, black_level=black_level, white_level=white_level,
+                           conversion_gain=conversion_gain, read_noise=read_noise, erode=erode)
+    obs, smp, cam = ci.obs, ci.samples, ci.camera
+    say = (lambda s: print(s, flush=True)) if progress else None
+    if progress:
+        print(f"colour fit of {path}: {obs.shape[1]}x{obs.shape[0]} periods, {int((obs.mask & smp.usable).sum())} "
+              f"usable in the mask (eroded by {erode}), cfa {''.join(c for r in cam.cfa for c in r)}", flush=True)
+    res = fit_colour(obs, smp, ci.noise, model=model, fixed=fixed, bounds=bounds, max_pixels=max_pixels or None,
+                     seed=seed, progress=say, max_time=max_time, max_iter=max_iter, starts=int(starts))
+    meta = {k: obs.meta[k] for k in ("settings", "sphere", "sidecar")}
+    report = {"inputs": path, "sensor": "colour", "truth": ci.truth,
               "reproduce": record.reproduce_block(arguments, path, command, type("O", (), {"meta": meta})),
-              "models": {model: entry}}
+              "models": {model: model_entry(model, res, bounds, fixed, ci.truth)}}
     pred = predict_samples(obs, smp, res)
     os.makedirs(out, exist_ok=True)
-    _plot(smp, pred, fitted_mask & smp.usable, cam, outs["colour_fit.png"],
+    _plot(smp, pred, obs.mask & smp.usable, cam, outs["colour_fit.png"],
           title=f"{model}: " + format_result(res).replace("\n", "; "))
     tmp = outs["fit.json"] + ".part"
     with open(tmp, "w") as f:
@@ -329,10 +361,16 @@ def print_colour(report):
                 print(line)
         if std:
             print("  uncertainty: inverse Fisher information of the raw samples (delta method)")
+        for img, c2 in (m.get("chi2_per_sample") or {}).items():
+            print(f"  {img}: chi2 per raw sample {c2:.3f}")
         if not m["converged"]:
             print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
                   f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
                   file=sys.stderr)
             status = EXIT_NOT_CONVERGED
+    for img, errs in report.get("relight", {}).items():
+        for name, e in errs.items():
+            print(f"relighting {img} ({name}): raw-sample RMSE / mean = {e['rel_rmse']:.4f} (R "
+                  f"{e['rel_rmse_R']:.4f}, G {e['rel_rmse_G']:.4f}, B {e['rel_rmse_B']:.4f})")
     print(f"wrote {', '.join(report['outputs'])} ({report['wall_s']:.1f} s)")
     return status

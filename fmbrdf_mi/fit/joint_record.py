@@ -144,7 +144,7 @@ def is_joint(path):
 
 def rerun(path, out, *, force=False, progress=True, command=None):
     """Rerun the joint fit recorded in ``path`` into ``out``; returns the dict written to fit.json."""
-    from .manifest import ImageSpec, fit_images, outputs, _names
+    from .manifest import ImageSpec, fitter, _names
 
     rep = load(path)
     joint = rep.get("joint")
@@ -168,8 +168,9 @@ def rerun(path, out, *, force=False, progress=True, command=None):
     recorded = [im["name"] for im in joint["images"]]
     if names != recorded:
         raise InputError(f"--from {path}: the images are now {names}, the fit had {recorded}")
-    files = outputs(out, names, [s.holdout for s in specs])
-    return fit_images(specs, out, force=force, progress=progress, command=command,
+    fit_fn, outputs_fn = fitter(specs)
+    files = outputs_fn(out, names, [s.holdout for s in specs])
+    return fit_fn(specs, out, force=force, progress=progress, command=command,
                       extra={"joint": {"outputs": files, "authors_layout": info, "rerun_of": os.path.abspath(path)}},
                       reproduce=lambda obs: block(joint["kind"], specs, names, obs, fit_kw, command,
                                                   manifest=joint.get("manifest"), authors=authors, info=info),

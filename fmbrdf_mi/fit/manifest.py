@@ -266,6 +266,16 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     return report
 
 
+def fitter(specs):
+    """(fit function, outputs function) for the images of ``specs``: :func:`fit_images` and :func:`outputs`, or
+    their colour counterparts in :mod:`fmbrdf_mi.fit.colour_joint` when the images are colour mosaics."""
+    from . import colour_joint
+
+    if colour_joint.is_colour(specs):
+        return colour_joint.fit_colour_images, colour_joint.outputs
+    return fit_images, outputs
+
+
 def _pixels_of(res, holdout):
     it = iter(res.pixels)
     return [None if h else next(it) for h in holdout]
@@ -324,7 +334,12 @@ def run_joint(args, command):
         specs = [ImageSpec(inp, _vec(li, f"--light {k + 1}"), options=dict(cli_opts))
                  for k, (inp, li) in enumerate(zip(args.inputs, args.light))]
     names = _names(specs)
-    files = outputs(args.out, names, [s.holdout for s in specs])
+    fit_fn, outputs_fn = fitter(specs)
+    if fit_fn is not fit_images:
+        from .cli import _check_colour_args
+
+        _check_colour_args(args)
+    files = outputs_fn(args.out, names, [s.holdout for s in specs])
     if not args.authors:   # the record names files by absolute path (a rerun may start elsewhere)
         for s in specs:
             s.input = _abs_paths(s.input)
@@ -340,8 +355,8 @@ def run_joint(args, command):
 
         return block(kind, specs, names, obs, fit_kw, command, manifest=args.manifest, authors=authors, info=info)
 
-    report = fit_images(specs, args.out, force=args.force, progress=not args.quiet, command=command,
-                        extra={"joint": {"outputs": files, "authors_layout": info}}, reproduce=reproduce, **fit_kw)
+    report = fit_fn(specs, args.out, force=args.force, progress=not args.quiet, command=command,
+                    extra={"joint": {"outputs": files, "authors_layout": info}}, reproduce=reproduce, **fit_kw)
     return report
 
 

@@ -1,0 +1,163 @@
+"""Joint fits of several colour polarisation mosaics of one object (``--manifest`` / repeated ``--light``).
+
+The colour counterpart of :func:`fmbrdf_mi.fit.manifest.fit_images`: the
+images (each its own light, relative power, geometry; one camera) share
+eta, alpha, beta, kappa and the per-channel k_s, r_k, fitted by
+:func:`fmbrdf_mi.fit.colour.fit_colour` on all their raw samples at once.
+Held-out images are predicted from the estimates (relighting check).
+
+Outputs in ``out``: ``fit.json`` (the shared estimate and its standard
+errors from the joint Fisher information, per image its light, power,
+irradiance and chi^2 per raw sample, relighting errors, the ``reproduce``
+block of :func:`fmbrdf_mi.fit.joint_record.block`, so ``--from`` reruns
+it), ``colour_fit_NAME.png`` per fitted image and ``relight_NAME.png`` per
+held-out image (observed, predicted and their difference in intensity and
+DoLP per channel).
+"""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+from .observations import InputError
+
+#: Manifest / command-line options a colour image may take (read_colour_input's).
+COLOUR_KEYS = ("normals", "mask", "view", "sphere", "camera", "fov", "irradiance", "black_level", "white_level",
+               "conversion_gain", "read_noise")
+#: Mono-only options at the values that mean "not given" (the command's defaults): ignored for colour mosaics.
+_UNSET = {"channel": "mean", "demosaic": "bilinear", "footprint": "auto", "layout": None, "dark_level": None}
+
+
+def is_colour(specs):
+    """Whether the images of ``specs`` are colour mosaics (all of them); mixed sets are refused in one line."""
+    from .colour_cli import colour_sidecar
+
+    flags = [not hasattr(s.input, "stokes") and colour_sidecar(s.input) is not None for s in specs]
+    if any(flags) and not all(flags):
+        k = flags.index(not flags[0])
+        raise InputError(f"joint fit: image {k} is {'a colour' if flags[k] else 'not a colour'} mosaic and "
+                         f"image 0 is {'one' if flags[0] else 'not'}; a joint fit takes images of one camera")
+    return bool(flags) and all(flags)
+
+
+def outputs(out, names, holdout):
+    files = ["fit.json"]
+    for n, h in zip(names, holdout):
+        files.append(f"relight_{n}.png" if h else f"colour_fit_{n}.png")
+    return [os.path.join(out, f) for f in files]
+
+
+def _read(specs, erode):
+    from .cli import _vec
+    from .colour_cli import read_colour_input
+    from .manifest import _stem
+
+    out = []
+    for k, s in enumerate(specs):
+        opts = {x: v for x, v in s.options.items() if not (x in _UNSET and v == _UNSET[x])}
+        bad = [x for x in opts if x not in COLOUR_KEYS]
+        if bad:
+            raise InputError(f"image {k} ({_stem(s.input)}): {', '.join(bad)} not supported for a colour mosaic "
+                             f"(valid: {', '.join(COLOUR_KEYS)}; layout and cfa come from the sidecar)")
+        try:
+            light = _vec(s.light, f"image {k}: light") if s.light is not None else None
+            out.append(read_colour_input(s.input, light=light, power=s.power, erode=erode, **opts))
+        except InputError as exc:
+            raise InputError(f"image {k} ({_stem(s.input)}): {exc}") from None
+    cams = [(c.camera.layout, c.camera.cfa, c.noise.gain, c.noise.read_noise) for c in out]
+    for k, c in enumerate(cams[1:], 1):
+        if c != cams[0]:
+            raise InputError(f"joint fit: image {k}'s camera (layout, cfa, gain, read noise) differs from image "
+                             "0's; a joint fit assumes one camera")
+    return out
+
+
+def sample_rmse(smp, pred, sel, channel):
+    """RMSE / mean of the raw samples in ``sel`` (all, and per colour channel): the held-out images' error."""
+    from .colour import CHANNELS
+
+    o, p = smp.values[:, sel], pred[:, sel]
+    out = {"rel_rmse": float(np.sqrt(np.mean((p - o) ** 2)) / np.mean(o)), "n_periods": int(sel.sum())}
+    for c, name in enumerate(CHANNELS):
+        m = np.asarray(channel) == c
+        out[f"rel_rmse_{name}"] = float(np.sqrt(np.mean((p[m] - o[m]) ** 2)) / np.mean(o[m]))
+    return out
+
+
+def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True, command=None, extra=None,
+                      reproduce=None, baselines=False, loss="auto", init=None, fixed=None, bounds=None, starts=2,
+                      max_iter=40, max_time=None, max_pixels=None, erode=2, seed=0, tol=None, time_limit=None):
+    """Joint colour fit of the non-held-out images of ``specs`` (module docstring); returns fit.json's dict.
+
+    ``specs``: :class:`~fmbrdf_mi.fit.manifest.ImageSpec` s of colour
+    mosaics.  Keywords as :func:`~fmbrdf_mi.fit.manifest.fit_images`'s;
+    ``baselines``, ``init`` and losses other than the likelihood are refused
+    (the colour fit has none of them), ``tol`` and ``time_limit`` do not apply.
+    """
+    import time
+
+    from .._paths import check_output_dir
+    from .cli import _json_default
+    from .colour import fit_colour, format_result, predict_samples
+    from .colour_cli import _plot, model_entry
+    from .manifest import _names
+    from .models import get_model
+
+    t0 = time.time()
+    refused = [f for f, on in (("baselines", baselines), ("init", init), (f"loss {loss}", loss not in
+                                                                          ("auto", "likelihood", None))) if on]
+    if refused:
+        raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
+                         "of the raw samples)")
+    get_model(model)
+    names = _names(specs)
+    holdout = [s.holdout for s in specs]
+    if all(holdout):
+        raise InputError("joint fit: every image is held out; fit at least one")
+    check_output_dir(out)
+    files = outputs(out, names, holdout)
+    if not force:
+        for p in files:
+            if os.path.exists(p):
+                raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
+    inputs = _read(specs, erode)
+    fit_in = [c for c, h in zip(inputs, holdout) if not h]
+    say = (lambda s: print(s, flush=True)) if progress else None
+    if progress:
+        print(f"colour joint fit: {len(fit_in)} image(s) fitted, {sum(holdout)} held out; "
+              + ", ".join(f"{n}: {int((c.obs.mask & c.samples.usable).sum())} periods"
+                          for n, c, h in zip(names, inputs, holdout) if not h), flush=True)
+    res = fit_colour([c.obs for c in fit_in], [c.samples for c in fit_in], fit_in[0].noise, model=model,
+                     fixed=fixed, bounds=bounds, max_pixels=max_pixels or None, seed=seed, progress=say,
+                     max_time=max_time, max_iter=max_iter, starts=int(starts))
+    truth = next((c.truth for c in inputs if c.truth), None)
+    entry = model_entry(model, res, bounds, fixed, truth)
+    entry["chi2_per_sample"] = dict(zip([n for n, h in zip(names, holdout) if not h], res["chi2_per_sample"]))
+    report = {"sensor": "colour", "truth": truth,
+              "images": [{"name": n, "input": s.input if isinstance(s.input, (str, list)) else None,
+                          "light_dir": c.obs.light_dir.tolist(), "irradiance": c.obs.irradiance, "power": s.power,
+                          "holdout": s.holdout} for n, s, c in zip(names, specs, inputs)],
+              "models": {model: entry}, "relight": {}}
+    if reproduce is not None:
+        report["reproduce"] = reproduce([c.obs for c in inputs])
+    report.update(extra or {})
+    os.makedirs(out, exist_ok=True)
+    title = f"{model}: " + format_result(res).replace("\n", "; ")
+    for n, c, h in zip(names, inputs, holdout):
+        pred = predict_samples(c.obs, c.samples, res)
+        sel = c.obs.mask & c.samples.usable
+        if h:
+            err = sample_rmse(c.samples, pred, sel, c.samples.channel)
+            report["relight"][n] = {model: err}
+            _plot(c.samples, pred, sel, c.camera, os.path.join(out, f"relight_{n}.png"),
+                  title=f"{n}: relit with the joint estimates, raw-sample RMSE/mean {err['rel_rmse']:.4f}")
+        else:
+            _plot(c.samples, pred, sel, c.camera, os.path.join(out, f"colour_fit_{n}.png"), title=f"{n}: {title}")
+    tmp = os.path.join(out, "fit.json.part")
+    with open(tmp, "w") as f:
+        json.dump(report, f, indent=2, default=_json_default)
+    os.replace(tmp, os.path.join(out, "fit.json"))
+    report["outputs"], report["wall_s"] = files, time.time() - t0
+    return report
