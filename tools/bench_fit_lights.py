@@ -133,7 +133,11 @@ def run(args):
     return runs
 
 
+_RUNS = []
+
+
 def summarise(runs):
+    _RUNS[:] = runs
     groups = {}
     for r in runs:
         groups.setdefault((r["material"], r["K"], r.get("start")), []).append(r)
@@ -169,11 +173,20 @@ def summarise(runs):
 def table(rows):
     free = any(r.get("start") for r in rows)
     out = ["| material |" + (" start |" if free else "") + " param | K | n (NC) | mean error ± SE | spread | "
-           "mean reported SE | spread / SE | 95 % coverage | fit time (s) |",
-           "|---|" + ("---|" if free else "") + "---|---|---|---|---|---|---|---|---|"]
+           "mean reported SE | spread / SE | 95 % coverage | fit time (s) |" + (" BSDF evaluations |" if free else ""),
+           "|---|" + ("---|" if free else "") + "---|---|---|---|---|---|---|---|---|" + ("---|" if free else "")]
     for r in rows:
         out.append(f"| {r['material']} |" + (f" {r['start']} |" if free else "") + f" {r['param']} | {r['K']} | "
-                   f"{stat_cells(r)} | {r['ratio']:.2f} | {100 * r['coverage']:.0f} % | {r['time']:.1f} |")
+                   f"{stat_cells(r)} | {r['ratio']:.2f} | {100 * r['coverage']:.0f} % | {r['time']:.1f} |"
+                   + (f" {r['evaluations']:.0f} |" if free else ""))
+    if free:   # which start reaches the better optimum: the final objective, paired by seed
+        by = {}
+        for r in _RUNS:
+            by.setdefault((r["material"], r["K"], r["seed"]), {})[r["start"]] = r["loss"]
+        d = [v["given"] - v["ratio"] for v in by.values() if "given" in v and "ratio" in v]
+        if d:
+            out.append(f"\nfinal objective (the likelihood: chi^2 with IRLS variances), given start minus ratio start, "
+                       f"over {len(d)} paired fits: mean {np.mean(d):+.3g}, min {np.min(d):+.3g}, max {np.max(d):+.3g}")
     return "\n".join(out)
 
 

@@ -25,6 +25,9 @@ independent measurements, so
   :class:`~fmbrdf_mi.fit.pixel_model.PixelEvaluator`), so K images cost
   about as much as one image with K times the pixels.
 
+With ``free_power`` the relative powers of images 1 .. K-1 are estimated
+too (:mod:`fmbrdf_mi.fit.free_power`; image 0's is the reference).
+
 The standard errors are the inverse of the joint Fisher information
 (:mod:`fmbrdf_mi.fit.uncertainty`): J^T J over the standardised residuals of
 all images.  ``max_pixels`` is split evenly between the images (each draws
@@ -207,7 +210,10 @@ def fit_joint(observations, options=None, *, names=None, progress=True, powers=N
     if opts.free_power and len(observations) < 2:
         raise InputError("free_power: needs two or more fitted images (one image's power is not separable "
                          "from k_s and k_b)")
-    given = [1.0] * len(observations) if powers is None else [float(p) for p in powers]
+    try:
+        given = [1.0] * len(observations) if powers is None else [float(p) for p in powers]
+    except (TypeError, ValueError):
+        given = []
     if len(given) != len(observations) or not all(math.isfinite(p) and p > 0 for p in given):
         raise InputError(f"powers: expected {len(observations)} positive numbers, got {powers!r}")
     check_fit_options(**dataclasses.asdict(opts))
