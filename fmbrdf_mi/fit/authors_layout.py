@@ -167,7 +167,8 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
                                   demosaic=demosaic, footprint=footprint)
         except InputError as exc:
             raise InputError(f"{f}: {exc}") from None
-        o.meta["authors_layout"] = {"index": k, "light_opencv": L[k].tolist(), "file": os.path.abspath(f)}
+        o.meta["authors_layout"] = {"index": k, "light_opencv": L[k].tolist(), "file": os.path.abspath(f),
+                                    "power": float(power[k])}
         specs.append(ImageSpec(o, o.light_dir, 1.0, k in holdout,
                                os.path.splitext(os.path.basename(f))[0]))
     info = {"root": os.path.abspath(root), "images": len(files), "view_rays": view_src,

@@ -487,6 +487,13 @@ def add_fit_arguments(p):
                         "image/img_ud/*.png, normal/normal_GT.npy, ...: fmbrdf_mi.fit.authors_layout)")
     g.add_argument("--holdout", metavar="I,J,...",
                    help="with --authors: image indices not fitted but predicted (relighting check)")
+    g.add_argument("--free-power", action="store_true",
+                   help="estimate the relative light power of every fitted image but the first (the "
+                        "reference, held at its given power; the given powers are then starting values): "
+                        "fmbrdf_mi.fit.free_power")
+    g.add_argument("--power-start", default="ratio", choices=("ratio", "given"),
+                   help="with --free-power: start the powers in closed form at every coarse-search point "
+                        "(ratio, default) or at the given powers")
     g = p.add_argument_group("relighting check")
     g.add_argument("--relight", nargs="+", metavar="INPUT", help="a second image of the object under another light")
     g.add_argument("--relight-light", metavar="X,Y,Z", help="its light direction")
@@ -555,7 +562,12 @@ def run_fit(args):
     command = shlex.join(["fmbrdf-mi", "fit", *getattr(args, "argv", [])])
     lights = args.light or []
     n_in = len(args.inputs or [])
-    if args.manifest or args.authors or len(lights) > 1 or n_in not in (0, 1, 4):
+    joint = bool(args.manifest or args.authors or len(lights) > 1 or n_in not in (0, 1, 4))
+    if getattr(args, "free_power", False) and not joint:
+        raise InputError("--free-power: with --from the fit.json's options apply (give none)" if args.from_json
+                         else "--free-power: needs a joint fit of two or more images (--manifest, --authors, "
+                              "or several INPUTs with one --light each)")
+    if joint:
         from .manifest import run_joint
 
         report = run_joint(args, command)

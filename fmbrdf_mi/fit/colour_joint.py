@@ -88,13 +88,15 @@ def sample_rmse(smp, pred, sel, channel):
 
 def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True, command=None, extra=None,
                       reproduce=None, baselines=False, loss="auto", init=None, fixed=None, bounds=None, starts=2,
-                      max_iter=40, max_time=None, max_pixels=None, erode=2, seed=0, tol=None, time_limit=None):
+                      max_iter=40, max_time=None, max_pixels=None, erode=2, seed=0, tol=None, time_limit=None,
+                      free_power=False, power_start=None):
     """Joint colour fit of the non-held-out images of ``specs`` (module docstring); returns fit.json's dict.
 
     ``specs``: :class:`~fmbrdf_mi.fit.manifest.ImageSpec` s of colour
     mosaics.  Keywords as :func:`~fmbrdf_mi.fit.manifest.fit_images`'s;
     ``baselines``, ``init`` and losses other than the likelihood are refused
-    (the colour fit has none of them), ``tol`` and ``time_limit`` do not apply.
+    (the colour fit has none of them), as is ``free_power`` (not yet for colour
+    mosaics: give the powers); ``tol`` and ``time_limit`` do not apply.
     """
     import time
 
@@ -106,8 +108,8 @@ def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True,
     from .models import get_model
 
     t0 = time.time()
-    refused = [f for f, on in (("baselines", baselines), ("init", init), (f"loss {loss}", loss not in
-                                                                          ("auto", "likelihood", None))) if on]
+    refused = [f for f, on in (("baselines", baselines), ("init", init), ("free_power (--free-power)", free_power),
+                               (f"loss {loss}", loss not in ("auto", "likelihood", None))) if on]
     if refused:
         raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
                          "of the raw samples)")

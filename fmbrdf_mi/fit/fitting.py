@@ -49,6 +49,8 @@ class FitOptions:
     lr: float = 0.02                  # Adam (step in the reparameterised variables)
     spp: int = 16                     # render path
     bsdf_prefix: str = "sphere.bsdf"  # render path: traverse prefix of the object's BSDF
+    free_power: bool = False          # joint fits: estimate the relative light powers (free_power.py)
+    power_start: str = "ratio"        # ... starting from "ratio" (closed form) or "given"
 
 
 @dataclasses.dataclass
@@ -199,7 +201,8 @@ def _distinct_starts(problem, cands, n):
     """Up to ``n`` starts: the best candidate, then the best ones differing from all chosen in a
     shape parameter other than eta and kappa (those the coarse search tuned last), preferring
     candidates with both lobes switched on."""
-    first = [k for k in problem.names if k not in ("eta", "kappa")] or list(problem.names)
+    material = getattr(problem.model, "base", problem.model).shape_names   # not the free light powers
+    first = [k for k in problem.names if k in material and k not in ("eta", "kappa")] or list(problem.names)
     chosen = [cands[0][1]]
     pool = [c for _, c in cands[1:]]
 
@@ -227,7 +230,10 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, prepare
     ``prepared``: (loss, pixels, excluded, objective, samples, evaluator)
     built by the caller for data that are not one observation (several
     images of one object: :func:`fmbrdf_mi.fit.joint.fit_joint`); ``obs``
-    is then only used for its noise model.
+    is then only used for its noise model.  A seventh element, if there is
+    one, builds the problem: ``make(model, evaluator, objective, bounds,
+    progress, fixed, deadline)`` (free light powers:
+    :func:`fmbrdf_mi.fit.free_power.problem_factory`).
 
     A fit stopped by ``max_time`` (a hard wall-clock limit, checked before
     every model evaluation) returns the latest accepted estimate with
@@ -240,6 +246,10 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, prepare
     if opts.path == "render" and opts.optimizer != "adam":
         raise InputError("path 'render' works with optimizer 'adam' only (reverse-mode gradient through "
                          "mi.render; its forward-mode derivatives, which 'lm' needs, miss the body term)")
+    if opts.free_power and (prepared is None or len(prepared) < 7):
+        raise InputError("free_power: the relative light powers are estimated in joint fits of two or more "
+                         "images (fit_joint; fmbrdf-mi fit --free-power with --manifest, --authors or several "
+                         "--light)")
     loss = resolve_loss(obs, opts)
     if loss == "likelihood" and (opts.optimizer != "lm" or opts.path != "pixel"):
         raise InputError("loss 'likelihood' works with the pixel path and optimizer 'lm' (use --loss paper "
@@ -251,7 +261,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, prepare
     t0 = time.time()
     deadline = None if not opts.max_time else t0 + float(opts.max_time)
     if prepared is not None:
-        loss, idx, excluded, objective, smp, evaluator = prepared
+        loss, idx, excluded, objective, smp, evaluator = prepared[:6]
     else:
         idx, excluded = select_pixels(obs, opts)
     if excluded.get("saturated") or excluded.get("dark"):
@@ -261,8 +271,13 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, prepare
     if prepared is None:
         objective, smp = _objective(obs, idx, opts, loss)
     ev = evaluator if evaluator is not None else make_evaluator(model, obs, idx, opts, scene, smp)
-    problem = O.Problem(model, ev, objective, Bounds(model, opts.bounds), report, fixed=opts.fixed,
-                        deadline=deadline)
+    make_problem = prepared[6] if prepared is not None and len(prepared) > 6 else None
+    if make_problem is None:
+        problem = O.Problem(model, ev, objective, Bounds(model, opts.bounds), report, fixed=opts.fixed,
+                            deadline=deadline)
+    else:   # a joint fit's own problem (free light powers: free_power.py); its model reports more
+        problem = make_problem(model, ev, objective, opts.bounds, report, opts.fixed, deadline)
+        model = problem.model
     if loss != "likelihood":
         what = {"paper": "paper's loss", "intensity": "intensity term of the paper's loss only",
                 "dolp": "DoLP term of the paper's loss only"}[loss]

@@ -25,6 +25,9 @@ independent measurements, so
   :class:`~fmbrdf_mi.fit.pixel_model.PixelEvaluator`), so K images cost
   about as much as one image with K times the pixels.
 
+With ``free_power`` the relative powers of images 1 .. K-1 are estimated
+too (:mod:`fmbrdf_mi.fit.free_power`; image 0's is the reference).
+
 The standard errors are the inverse of the joint Fisher information
 (:mod:`fmbrdf_mi.fit.uncertainty`): J^T J over the standardised residuals of
 all images.  ``max_pixels`` is split evenly between the images (each draws
@@ -41,6 +44,7 @@ from . import loss as L
 from . import loss_variants as LV
 from . import samples as SM
 from .fitting import FitOptions, fit, predict_image, resolve_loss, select_pixels
+from .options import check_fit_options
 from .models import get_model
 from .objective import LikelihoodObjective, NoiseModel, PaperObjective
 from .observations import InputError
@@ -55,6 +59,8 @@ class JointResult:
     images: list
     #: flat pixel indices (into each image) of the fitted pixels, per image
     pixels: list = dataclasses.field(repr=False, default=None)
+    #: free light powers (``free_power``): :func:`fmbrdf_mi.fit.free_power.split_result`'s block, else None
+    powers: dict = None
 
     @property
     def params(self):
@@ -63,6 +69,8 @@ class JointResult:
     def to_json(self):
         d = self.fit.to_json()
         d["images"] = self.images
+        if self.powers is not None:
+            d["powers"] = self.powers
         return d
 
 
@@ -170,12 +178,20 @@ def prepare(observations, opts, loss):
     return (loss, flat_idx, excluded, objective, smp, ev), idxs, slices
 
 
-def fit_joint(observations, options=None, *, names=None, progress=True, **kw):
+def fit_joint(observations, options=None, *, names=None, progress=True, powers=None, **kw):
     """Estimate one material from several :class:`Observation` s of the same object; a :class:`JointResult`.
 
     ``options`` / keywords: :class:`~fmbrdf_mi.fit.fitting.FitOptions` (the
     pixel path and the Levenberg-Marquardt optimiser).  ``names``: labels of
     the images in the result (default ``image0``, ...).
+
+    ``free_power=True`` (an option) estimates the light powers of images
+    1 .. K-1 relative to image 0's (:mod:`fmbrdf_mi.fit.free_power`);
+    ``powers``: the relative powers the observations' irradiances already
+    include (default 1 each): image 0's stays fixed, the others are where
+    the search starts (``power_start="given"``) and what the fitted powers
+    are reported against.  The result's :attr:`JointResult.powers` and each
+    image's ``power`` / ``power_se`` then hold them.
     """
     observations = list(observations)
     if not observations:
@@ -191,7 +207,24 @@ def fit_joint(observations, options=None, *, names=None, progress=True, **kw):
         raise InputError("joint fit: the camera noise is known for some images and not for others "
                          f"(loss 'auto' resolves to {sorted(losses)}); give it for all, or choose --loss")
     loss = losses.pop()
+    if opts.free_power and len(observations) < 2:
+        raise InputError("free_power: needs two or more fitted images (one image's power is not separable "
+                         "from k_s and k_b)")
+    try:
+        given = [1.0] * len(observations) if powers is None else [float(p) for p in powers]
+    except (TypeError, ValueError):
+        given = []
+    if len(given) != len(observations) or not all(math.isfinite(p) and p > 0 for p in given):
+        raise InputError(f"powers: expected {len(observations)} positive numbers, got {powers!r}")
+    check_fit_options(**dataclasses.asdict(opts))
     prepared, idxs, slices = prepare(observations, opts, loss)
+    pmodel = None
+    if opts.free_power:
+        from . import free_power as FP
+
+        pmodel = FP.PowerModel(get_model(opts.model), given)
+        pev = FP.PowerEvaluator(prepared[5], pmodel, [b - a for a, b in slices])
+        prepared = prepared[:5] + (pev, FP.problem_factory(pmodel, pev, slices, opts.power_start))
     report = progress
     if progress is True:
         from .optimise import default_progress as report
@@ -200,20 +233,44 @@ def fit_joint(observations, options=None, *, names=None, progress=True, **kw):
         f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
         for n, o, (a, b) in zip(names, observations, slices)))
     res = fit(observations[0], opts, progress=progress, prepared=prepared)
-    images = diagnose(res, prepared, observations, idxs, slices, names)
+    images = diagnose(res, prepared, observations, idxs, slices, names, pmodel)
+    block = None
+    if pmodel is not None:
+        from .free_power import split_result
+
+        block = split_result(res, pmodel, names)
+        for k, im in enumerate(images):
+            im.update({"power": block["values"][k], "power_given": given[k], "power_se": block["std_errors"][k],
+                       "power_ci95": block["ci95"][k], "power_reference": k == 0})
     for im in images:
         say(f"[joint] {im['name']}: " + ", ".join(f"{k} {im[k]:.4g}" for k in ("chi2_per_dof", "intensity_rel_rmse",
-                                                                             "dolp_rmse") if im.get(k) is not None))
+                                                                             "dolp_rmse") if im.get(k) is not None)
+            + ("" if pmodel is None else ", " + power_text(im)))
     res.pixels = None
-    return JointResult(res, images, idxs)
+    return JointResult(res, images, idxs, powers=block)
 
 
-def diagnose(res, prepared, observations, idxs, slices, names):
+def power_text(im):
+    """``power 0.61 +- 0.004 (given 1)`` of one image of a free-power fit (its entry of ``images``)."""
+    if im.get("power_reference"):
+        return f"power {im['power']:.4g} (reference, fixed)"
+    se = im.get("power_se")
+    return f"power {im['power']:.4g}" + ("" if se is None else f" +- {se:.2g}") + f" (given {im['power_given']:.4g})"
+
+
+def fitted_observation(obs, im):
+    """``obs`` with the irradiance of the fitted light power (``im``: its entry of ``images``), else itself."""
+    if im.get("power") is None or im["power"] == im["power_given"]:
+        return obs
+    return dataclasses.replace(obs, irradiance=obs.irradiance * im["power"] / im["power_given"])
+
+
+def diagnose(res, prepared, observations, idxs, slices, names, power_model=None):
     """Per image: pixels, light, irradiance, and how well the shared estimate explains it."""
     from .optimise import State
 
-    loss, _, excluded, objective, _, ev = prepared
-    model = get_model(res.model)
+    loss, _, excluded, objective, _, ev = prepared[:6]
+    model = power_model or get_model(res.model)
     shape, a_s, a_b = model.split(res.params)
     parts = ev.parts(shape)
     st = State(shape, a_s, a_b)

@@ -6,7 +6,8 @@ The joint counterpart of :mod:`fmbrdf_mi.fit.record`.  A joint fit
 
 * ``command``, ``cwd``, ``versions`` (as a single-image fit);
 * ``arguments``: the fit options as resolved (model, baselines, loss, fixed,
-  bounds, init, starts, max_iter, tol, time limits, max_pixels, erode, seed);
+  bounds, init, starts, max_iter, tol, time limits, max_pixels, erode, seed,
+  free_power, power_start);
 * ``joint``: how the images were given (``kind`` ``manifest``, ``authors`` or
   ``lights``) and, per image, its name, input file(s) with SHA-256 (and
   the capture sidecar's), the light (this package's camera frame), the
@@ -34,7 +35,7 @@ from .record import _jsonable, load, sha256, versions
 
 #: fit_images keywords that define a joint fit (not where it writes or how it talks).
 FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
-            "max_time", "max_pixels", "erode", "seed")
+            "max_time", "max_pixels", "erode", "seed", "free_power", "power_start")
 #: read_object keywords recorded for an authors' object.
 AUTHORS_KEYS = ("mask", "holdout", "conversion_gain", "read_noise", "white_level", "dark_level", "black_level",
                 "demosaic", "footprint")

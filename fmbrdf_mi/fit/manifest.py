@@ -193,7 +193,7 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     from .._paths import check_output_dir
     from . import plots
     from .fitting import FitOptions, predict_image
-    from .joint import fit_joint
+    from .joint import fit_joint, fitted_observation, power_text
     from .options import check_fit_options
     from .relight import relight_error
 
@@ -212,17 +212,27 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     fit_obs = [o for o, h in zip(obs, holdout) if not h]
     fit_names = [n for n, h in zip(names, holdout) if not h]
     opts = FitOptions(model=model, **fit_kw)
+    if opts.free_power and len(fit_obs) < 2:
+        raise InputError(f"--free-power (free_power): needs two or more fitted images, got {len(fit_obs)} (one "
+                         "image's light power is not separable from k_s and k_b)")
+    given = [given_power(s, o) for s, o, h in zip(specs, obs, holdout) if not h]
     models = [model] + ([m for m in ("pplastic", "lambert_ts") if m != model] if baselines else [])
     results = {}
     for name in models:
         o = opts if name == model else dataclasses.replace(opts, model=name, bounds=None, init=None, fixed=None)
-        results[name] = fit_joint(fit_obs, o, names=fit_names, progress=progress)
+        results[name] = fit_joint(fit_obs, o, names=fit_names, progress=progress, powers=given)
     main = results[model]
     truth = next((o.meta.get("truth") for o in obs if o.meta.get("truth")), None)
     report = {"images": [{"name": n, "input": (s.input if isinstance(s.input, (str, list)) else None),
-                          "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance, "power": s.power,
-                          "holdout": s.holdout} for n, s, o in zip(names, specs, obs)],
+                          "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance,
+                          "power": given_power(s, o), "holdout": s.holdout} for n, s, o in zip(names, specs, obs)],
               "truth": truth, "models": {}, "relight": {}}
+    if main.powers is not None:
+        for im in report["images"]:
+            fitted = next((x for x in main.images if x["name"] == im["name"]), None)
+            if fitted is not None:
+                im.update({"power_fitted": fitted["power"], "power_se": fitted["power_se"],
+                           "power_reference": fitted["power_reference"]})
     if reproduce is not None:
         report["reproduce"] = reproduce(obs)
     elif command is not None:
@@ -250,14 +260,17 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
                               title=f"{n}: relit with the {model} estimates, RMSE/mean = "
                                     f"{errs[model]['rel_rmse']:.4f}", label="relit", lin_variance=o.lin_variance)
         else:
-            pred = predict_image(model, main.params, o)
-            others = {f"{m} (baseline)": predict_image(m, r.params, o) for m, r in results.items() if m != model}
+            im = {m: next(x for x in r.images if x["name"] == n) for m, r in results.items()}
+            pred = predict_image(model, main.params, fitted_observation(o, im[model]))
+            others = {f"{m} (baseline)": predict_image(m, r.params, fitted_observation(o, im[m]))
+                      for m, r in results.items() if m != model}
+            power = "" if main.powers is None else "; " + power_text(im[model])
             plots.plot_profiles(o, pred, os.path.join(out, f"profiles_{n}.png"), pixels=idx,
-                                title=f"{n}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()),
+                                title=f"{n}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()) + power,
                                 others=others)
             plots.plot_images(o.stokes, pred, o.mask, os.path.join(out, f"images_{n}.png"),
-                              title=f"{n}: joint {model} fit (per-pixel re-render)", lin_variance=o.lin_variance,
-                              pixels=idx)
+                              title=f"{n}: joint {model} fit (per-pixel re-render){power}",
+                              lin_variance=o.lin_variance, pixels=idx)
     plots.plot_loss_history({n: r.fit.history for n, r in results.items()}, os.path.join(out, "history.png"))
     from .cli import _json_default
 
@@ -274,6 +287,12 @@ def fitter(specs):
     if colour_joint.is_colour(specs):
         return colour_joint.fit_colour_images, colour_joint.outputs
     return fit_images, outputs
+
+
+def given_power(spec, obs):
+    """The relative light power image ``spec`` was given: the manifest's ``power``, the authors'
+    ``intensities.npy`` / max (both already in the observation's irradiance), 1 if none."""
+    return float((obs.meta.get("authors_layout") or {}).get("power", spec.power))
 
 
 def _pixels_of(res, holdout):
@@ -347,7 +366,8 @@ def run_joint(args, command):
     fit_kw = dict(model=args.model, baselines=args.baselines, loss=args.loss, fixed=parse_fixed(args.fix),
                   bounds=parse_bounds(args.bounds), init=parse_init(args.init), starts=args.starts,
                   max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
-                  max_pixels=args.max_pixels or None, erode=args.erode, seed=args.seed)
+                  max_pixels=args.max_pixels or None, erode=args.erode, seed=args.seed,
+                  free_power=getattr(args, "free_power", False), power_start=getattr(args, "power_start", "ratio"))
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
 
     def reproduce(obs):
@@ -375,6 +395,10 @@ def print_joint(report):
             if im.get("chi2_per_dof") is not None:
                 line += f", chi2/dof {im['chi2_per_dof']:.3f}"
             line += f", intensity RMSE/mean {im['intensity_rel_rmse']:.4f}"
+            if im.get("power") is not None:
+                from .joint import power_text
+
+                line += ", " + power_text(im)
             print(f"{name}{line}" if len(report["models"]) > 1 else line)
     for img, errs in report.get("relight", {}).items():
         for name, e in errs.items():

@@ -140,6 +140,12 @@ class Problem:
         self._cache = [(key, jac, p)] + self._cache[:1]
         return p
 
+    def closed_form(self, shape):
+        """(State, parts) of a coarse-search point: the shape values with the albedos in closed form."""
+        parts = self.parts(State(shape, 1.0, 1.0))
+        a_s, a_b = self.obj.albedos(parts)
+        return State(dict(shape), a_s, a_b), parts
+
     def set_weights(self, parts, st):
         self.obj.refresh(parts, st)
 
@@ -205,9 +211,8 @@ def coarse_search(problem, keep=2):
         key = tuple(round(shape[n], 9) for n in model.shape_names)
         if key in results:
             return
-        parts = problem.parts(State(shape, 1.0, 1.0))
-        a_s, a_b = problem.obj.albedos(parts)
-        st = State(dict(shape), a_s, a_b)
+        st, parts = problem.closed_form(shape)
+        a_s, a_b = st.a_s, st.a_b
         results[key] = (problem.obj.score(parts, st), st)
         c_s, c_b = a_s * float(np.mean(parts.surface[0])), a_b * float(np.mean(parts.body[0]))
         problem.both_lobes[key] = min(c_s, c_b) >= ALBEDO_BOUND * max(c_s, c_b)

@@ -42,8 +42,8 @@ def reported_names(model):
 
 def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=None, init=None, max_iter=40,
                       tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0,
-                      lr=0.02, spp=16, rounds=3, loss="auto", starts=2, fixed=None,
-                      flag=lambda name: name, **_ignored):
+                      lr=0.02, spp=16, rounds=3, loss="auto", starts=2, fixed=None, free_power=False,
+                      power_start="ratio", flag=lambda name: name, **_ignored):
     """Raise InputError for the first invalid fit option.  ``flag`` maps an option name to
     how the user wrote it (``--max-pixels`` on the command line)."""
     from .models import Bounds, get_model
@@ -69,6 +69,13 @@ def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=No
         raise InputError(f"{flag('loss')}: expected 'auto', 'likelihood', 'paper', 'intensity' or 'dolp', "
                          f"got {loss!r}")
     _num(flag("starts"), starts, lo=1, integer=True, none_ok=False)
+    if not isinstance(free_power, bool):
+        raise InputError(f"{flag('free_power')}: expected True or False, got {free_power!r}")
+    if free_power and loss == "dolp":
+        raise InputError(f"{flag('free_power')}: not with {flag('loss')} dolp (the DoLP does not depend on the "
+                         "light's power, so the powers would be undetermined)")
+    if power_start not in ("ratio", "given"):
+        raise InputError(f"{flag('power_start')}: expected 'ratio' or 'given', got {power_start!r}")
     if fixed is not None:
         if not isinstance(fixed, dict):
             raise InputError(f"{flag('fix')}: expected {{name: value}}, got {fixed!r}")
