@@ -1,6 +1,7 @@
 """The colour fit under camera noise: bias, spread, reported standard errors and interval coverage.
 
     python tools/bench_fit_colour.py [--periods 16] [--seeds 16] [--fix eta=1.5,...] [--noiseless] [--json out.json]
+    python tools/bench_fit_colour.py --table a.json b.json      # saved runs of one configuration, pooled
 
 One material (eta 1.5, alpha 0.25, beta 0.4, kappa 1; k_s / r_k 0.6 / 0.8, 0.4 / 1.5,
 0.5 / 0.4 for R, G, B: the material of tests/test_colour.py), an orthographic
@@ -41,6 +42,62 @@ def wilson(k, n, z=1.96):
     return c - h, c + h
 
 
+def summarise(runs, truth, fixed):
+    """Print the Markdown table of ``runs`` (bias, spread, reported SE, coverage per parameter); its rows."""
+    ok = [r for r in runs if r["converged"]]
+    print(f"\n{len(ok)} of {len(runs)} fits converged; mean chi2/dof "
+          f"{np.mean([r['chi2_per_dof'] for r in ok]):.3f}\n")
+    print("| param | truth | mean error ± SE | spread | mean reported SE | 95 % coverage (binomial 95 % interval) |")
+    print("|---|---|---|---|---|---|")
+    rows = []
+    for k, tv in truth.items():
+        if k in fixed:
+            continue
+        e = np.array([r["params"][k] - tv for r in ok]) / tv
+        s = np.array([r["std_errors"][k] for r in ok]) / tv
+        cov = np.array([abs(r["params"][k] - tv) <= 1.96 * r["std_errors"][k] for r in ok])
+        lo, hi = wilson(int(cov.sum()), len(cov))
+        row = {"param": k, "truth": tv, "mean_error": e.mean(), "se_mean": e.std(ddof=1) / np.sqrt(len(e)),
+               "spread": e.std(ddof=1), "mean_reported_se": s.mean(), "coverage": cov.mean(), "ci": (lo, hi)}
+        rows.append(row)
+        print(f"| {k} | {tv:g} | {100 * row['mean_error']:+.2f} % ± {100 * row['se_mean']:.2f} % | "
+              f"{100 * row['spread']:.2f} % | {100 * row['mean_reported_se']:.2f} % | "
+              f"{100 * row['coverage']:.0f} % ({100 * lo:.0f}-{100 * hi:.0f} %) |")
+    pooled = np.concatenate([[abs(r["params"][k] - tv) <= 1.96 * r["std_errors"][k] for r in ok]
+                             for k, tv in truth.items() if k not in fixed])
+    lo, hi = wilson(int(pooled.sum()), len(pooled))
+    print(f"\npooled coverage {100 * pooled.mean():.1f} % of {len(pooled)} intervals "
+          f"(binomial 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %); fit time "
+          f"{min(r['time'] for r in runs):.1f}-{max(r['time'] for r in runs):.1f} s")
+    return rows
+
+
+def _truth(fixed):
+    return {k: v for k, v in dict(SHAPE, **{f"k_s[{c}]": a[0] for c, a in ALBEDOS.items()},
+                                  **{f"r_k[{c}]": a[1] for c, a in ALBEDOS.items()}).items()}
+
+
+def table(paths):
+    """The table of saved runs; the files must share periods, fixed parameters and noise setting."""
+    runs, cfg, seeds = [], None, set()
+    for p in paths:
+        with open(p) as f:
+            d = json.load(f)
+        c = {k: d["config"][k] for k in ("periods", "fix", "noiseless")}
+        if cfg is not None and c != cfg:
+            sys.exit(f"bench_fit_colour: --table: {p} has {c}, {paths[0]} {cfg}; pool only one configuration")
+        cfg = c
+        new = [r for r in d["runs"] if r["seed"] not in seeds]
+        if len(new) != len(d["runs"]):
+            sys.exit(f"bench_fit_colour: --table: {p} repeats seeds of an earlier file")
+        seeds |= {r["seed"] for r in new}
+        runs += new
+    fixed = {i.partition("=")[0] for i in filter(None, cfg["fix"].split(","))}
+    print(f"bench_fit_colour --table: {len(runs)} runs from {len(paths)} file(s); {cfg['periods']} periods, "
+          f"fixed {sorted(fixed) or 'none'}{', noiseless' if cfg['noiseless'] else ''}")
+    summarise(runs, _truth(fixed), fixed)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--periods", type=int, default=16, help="sphere diameter in 4x4 periods (>= 8)")
@@ -49,7 +106,11 @@ def main():
     ap.add_argument("--fix", default="", help="e.g. eta=1.5,kappa=1 (fixed at these values)")
     ap.add_argument("--noiseless", action="store_true", help="capture without noise (quantisation only)")
     ap.add_argument("--json", metavar="OUT.json")
+    ap.add_argument("--table", nargs="+", metavar="IN.json",
+                    help="print the table of saved runs (several files of one configuration, other seeds: pooled)")
     args = ap.parse_args()
+    if args.table:
+        return table(args.table)
     if args.periods < 8 or args.seeds < 2:
         sys.exit("bench_fit_colour: --periods must be >= 8 and --seeds >= 2")
     fixed = {}
@@ -77,8 +138,7 @@ def main():
     centre, radius = (R / 2, R / 2), R / 2 - 0.5
     n, m, v = ob.sphere_normals((R, R), centre, radius)
     geom = ob.SphereGeometry((R, R), centre, radius)
-    truth = dict(SHAPE, **{f"k_s[{c}]": a[0] for c, a in ALBEDOS.items()},
-                 **{f"r_k[{c}]": a[1] for c, a in ALBEDOS.items()})
+    truth = _truth(fixed)
     runs = []
     for seed in range(args.seed0, args.seed0 + args.seeds):
         cap = capture(st, cam, peak_fraction=0.8, seed=seed, noiseless=args.noiseless)
@@ -97,31 +157,7 @@ def main():
         print(f"seed {seed:3d}: {t:5.1f} s {'ok' if res['converged'] else 'NC'}  "
               + " ".join(f"{k}={est[k]:.4g}" for k in est), flush=True)
 
-    ok = [r for r in runs if r["converged"]]
-    print(f"\n{len(ok)} of {len(runs)} fits converged; mean chi2/dof "
-          f"{np.mean([r['chi2_per_dof'] for r in ok]):.3f}\n")
-    print("| param | truth | mean error ± SE | spread | mean reported SE | 95 % coverage (binomial 95 % interval) |")
-    print("|---|---|---|---|---|---|")
-    rows = []
-    for k, tv in truth.items():
-        if k in fixed:
-            continue
-        e = np.array([r["params"][k] - tv for r in ok]) / tv
-        s = np.array([r["std_errors"][k] for r in ok]) / tv
-        cov = np.array([abs(r["params"][k] - tv) <= 1.96 * r["std_errors"][k] for r in ok])
-        lo, hi = wilson(int(cov.sum()), len(cov))
-        row = {"param": k, "truth": tv, "mean_error": e.mean(), "se_mean": e.std(ddof=1) / np.sqrt(len(e)),
-               "spread": e.std(ddof=1), "mean_reported_se": s.mean(), "coverage": cov.mean(), "ci": (lo, hi)}
-        rows.append(row)
-        print(f"| {k} | {tv:g} | {100 * row['mean_error']:+.2f} % ± {100 * row['se_mean']:.2f} % | "
-              f"{100 * row['spread']:.2f} % | {100 * row['mean_reported_se']:.2f} % | "
-              f"{100 * row['coverage']:.0f} % ({100 * lo:.0f}-{100 * hi:.0f} %) |")
-    pooled = np.concatenate([[abs(r["params"][k] - tv) <= 1.96 * r["std_errors"][k] for r in ok]
-                             for k, tv in truth.items() if k not in fixed])
-    lo, hi = wilson(int(pooled.sum()), len(pooled))
-    print(f"\npooled coverage {100 * pooled.mean():.1f} % of {len(pooled)} intervals "
-          f"(binomial 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %); fit time "
-          f"{min(r['time'] for r in runs):.1f}-{max(r['time'] for r in runs):.1f} s")
+    rows = summarise(runs, truth, fixed)
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"config": vars(args), "runs": runs, "rows": rows}, f, indent=1, default=float)
