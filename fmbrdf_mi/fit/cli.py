@@ -487,6 +487,9 @@ def add_fit_arguments(p):
                         "image/img_ud/*.png, normal/normal_GT.npy, ...: fmbrdf_mi.fit.authors_layout)")
     g.add_argument("--holdout", metavar="I,J,...",
                    help="with --authors: image indices not fitted but predicted (relighting check)")
+    from .normals_cli import add_arguments as add_normal_arguments
+
+    add_normal_arguments(p)
     g = p.add_argument_group("relighting check")
     g.add_argument("--relight", nargs="+", metavar="INPUT", help="a second image of the object under another light")
     g.add_argument("--relight-light", metavar="X,Y,Z", help="its light direction")
@@ -555,7 +558,11 @@ def run_fit(args):
     command = shlex.join(["fmbrdf-mi", "fit", *getattr(args, "argv", [])])
     lights = args.light or []
     n_in = len(args.inputs or [])
-    if args.manifest or args.authors or len(lights) > 1 or n_in not in (0, 1, 4):
+    joint = bool(args.manifest or args.authors or len(lights) > 1 or n_in not in (0, 1, 4))
+    from .normals_cli import check as check_normal_args
+
+    check_normal_args(args, joint and not args.from_json)
+    if joint:
         from .manifest import run_joint
 
         report = run_joint(args, command)
@@ -605,6 +612,12 @@ def run_fit(args):
                            relight_light=_vec(args.relight_light, "--relight-light"),
                            relight_irradiance=args.relight_irradiance, force=args.force,
                            progress=not args.quiet, command=command)
+    if report.get("refine_normals"):
+        from .normals_cli import print_report
+
+        print_report(report)
+        print(f"wrote {', '.join(report['refine_normals']['outputs'])} ({time.time() - t0:.1f} s)")
+        return 0 if report["refine_normals"]["converged"] else EXIT_NOT_CONVERGED
     from .fitting import WEAK_REL
 
     status = 0

@@ -86,14 +86,37 @@ class JointRefineResult:
     prior_energy: float = None
 
 
-def _edges(mask):
-    """(E, 2) pixel pairs (indices into the mask's pixels) of right and down 4-neighbours."""
-    from .normal_refine import _neighbours
+#: The smoothness priors: stencil coefficients along image rows and columns.
+PRIORS = {"curvature": (1.0, -2.0, 1.0), "membrane": (1.0, -1.0)}
 
-    nb = _neighbours(mask)
-    i = np.arange(len(nb))
-    out = [np.stack([i[nb[:, j] >= 0], nb[nb[:, j] >= 0, j]], 1) for j in (1, 3)]
-    return np.concatenate(out).astype(np.int64)
+
+def stencils(mask, prior="curvature"):
+    """(E, S) pixel indices (into the mask's pixels) of the prior's stencils, and their coefficients (S,).
+
+    ``membrane``: first differences n_i - n_j of 4-neighbours (each pair once;
+    :func:`~fmbrdf_mi.fit.normal_refine.refine_normals`' prior); ``curvature``:
+    second differences n_a - 2 n_b + n_c of three consecutive pixels in a row
+    or a column, all in the mask: zero wherever the normal changes linearly
+    across the image, so a surface of constant curvature is not pulled flat.
+    """
+    try:
+        coef = PRIORS[prior]
+    except KeyError:
+        raise InputError(f"prior: expected one of {', '.join(PRIORS)}, got {prior!r}") from None
+    h, w = mask.shape
+    pos = -np.ones((h, w), int)
+    ys, xs = np.nonzero(mask)
+    pos[ys, xs] = np.arange(len(ys))
+    out = []
+    for dy, dx in ((0, 1), (1, 0)):
+        idx = []
+        for s in range(len(coef)):
+            y2, x2 = ys + s * dy, xs + s * dx
+            ok = (y2 < h) & (x2 < w)
+            idx.append(np.where(ok, pos[np.minimum(y2, h - 1), np.minimum(x2, w - 1)], -1))
+        idx = np.stack(idx, 1)
+        out.append(idx[np.all(idx >= 0, 1)])
+    return np.concatenate(out).astype(np.int64), np.array(coef)
 
 
 def _tangents(n):
@@ -114,7 +137,7 @@ class _JointProblem:
     :meth:`Observation.sample_geometry` interpolates).
     """
 
-    def __init__(self, obs, m, model, bounds, fixed, lam):
+    def __init__(self, obs, m, model, bounds, fixed, lam, prior="curvature"):
         from .joint import _same_noise
         from .optimise import Problem
         from .pixel_model import PixelEvaluator
@@ -143,7 +166,7 @@ class _JointProblem:
         self.problem = Problem(model, self.ev, self.obj, bounds, fixed=fixed)
         self.names = self.problem.names
         self.p = len(self.names) + 2
-        self.edges = _edges(m)
+        self.stencils, self.coef = stencils(m, prior)
         self.lam = float(lam)
         self.set_scale()
 
@@ -191,8 +214,8 @@ class _JointProblem:
         return self.ev.parts(st.shape, self.names if jac else ())
 
     def prior(self, n):
-        d = n[self.edges[:, 0]] - n[self.edges[:, 1]]
-        return math.sqrt(self.w_prior) * d.ravel()
+        d = sum(c * n[self.stencils[:, s]] for s, c in enumerate(self.coef))
+        return math.sqrt(self.w_prior) * np.asarray(d).ravel()
 
     def energy(self, st, nmap):
         parts = self.parts(st, nmap)
@@ -230,13 +253,13 @@ class _JointProblem:
         return r, Jm, (pix, val.reshape(-1, 4, 2)), (t1, t2), z
 
     def prior_gradient(self, gn, t, n):
-        """Add the prior's gradient (w sum over edges of (n_i - n_j) on each end's tangents) to ``gn``."""
-        if len(self.edges):
+        """Add the prior's gradient (w coef_s (sum_s' coef_s' n_s') on pixel s's tangents) to ``gn``."""
+        if len(self.stencils):
             t1, t2 = t
-            i, j = self.edges[:, 0], self.edges[:, 1]
-            d = self.w_prior * (n[i] - n[j])
-            np.add.at(gn, i, np.stack([np.sum(t1[i] * d, 1), np.sum(t2[i] * d, 1)], 1))
-            np.add.at(gn, j, -np.stack([np.sum(t1[j] * d, 1), np.sum(t2[j] * d, 1)], 1))
+            d = self.w_prior * sum(c * n[self.stencils[:, s]] for s, c in enumerate(self.coef))
+            for s, c in enumerate(self.coef):
+                k = self.stencils[:, s]
+                np.add.at(gn, k, c * np.stack([np.sum(t1[k] * d, 1), np.sum(t2[k] * d, 1)], 1))
         return gn
 
     def system(self, r, Jm, Jn, t, n):
@@ -244,11 +267,11 @@ class _JointProblem:
         return Hmm, Hmn, gm, self.prior_gradient(gn, t, n)
 
     def block(self, Jn, t, mu=0.0):
-        return NS.NormalBlock(Jn[0], Jn[1], self.edges, t[0], t[1], self.w_prior, mu)
+        return NS.NormalBlock(Jn[0], Jn[1], self.stencils, self.coef, t[0], t[1], self.w_prior, mu)
 
 
-def refine_joint(observations, normals, params, *, mask=None, lam=0.3, model="fmbrdf", bounds=None, fixed=None,
-                 max_iter=30, refreshes=2, h=1e-3, progress=None, time_limit=None):
+def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="curvature", model="fmbrdf",
+                 bounds=None, fixed=None, max_iter=30, refreshes=2, h=1e-3, progress=None, time_limit=None):
     """Jointly refine the material ``params`` (reported, e.g. from a joint fit) and ``normals`` (H, W, 3).
 
     ``observations``: K >= 3 :class:`Observation` s of one view (one pixel
@@ -272,7 +295,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, model="fm
     if m.sum() < 2:
         raise InputError("normal refinement: fewer than 2 usable pixels in the mask")
     mdl = get_model(model)
-    jp = _JointProblem(obs, m, mdl, Bounds(mdl, bounds), fixed, lam)
+    jp = _JointProblem(obs, m, mdl, Bounds(mdl, bounds), fixed, lam, prior)
     shape, a_s, a_b = mdl.split(params)
     st = jp.problem.state(shape, a_s, a_b)
     n_map /= np.where(np.linalg.norm(n_map, axis=-1, keepdims=True) > 0,

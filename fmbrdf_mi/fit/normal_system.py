@@ -13,14 +13,14 @@ smoothness prior's rows), the Gauss-Newton system of (1/2) r.r is
   depends on the normals of at most 4 pixels (i and 3 neighbours; only i
   for samples at the centre): 8 non-zeros per row, kept as (pixel, value)
   lists, never as a matrix;
-* H_nn = J_n^T J_n + w L: the data's part couples 8-neighbours, L is the
-  prior's Laplacian on the 4-neighbour graph projected on each pixel's
-  tangent plane, w the prior's weight.
+* H_nn = J_n^T J_n + w P: the data's part couples 8-neighbours, P is the
+  prior's (first or second differences along rows and columns, projected
+  on each pixel's tangent plane), w the prior's weight.
 
 H_nn is never formed: :class:`NormalBlock` applies it (O(pixels) per
 product) and solves with it by conjugate gradients preconditioned by its
-2 x 2 diagonal blocks (the data's own block + w deg_i I: the tangent bases
-are orthonormal),
+2 x 2 diagonal blocks (the data's own block + the prior's, a multiple of I:
+the tangent bases are orthonormal),
 several right-hand sides at once.  The full system is solved by the Schur
 complement onto the material, S = H_mm - H_mn H_nn^-1 H_nm (the
 bundle-adjustment reduction): p + 1 solves with H_nn, then a p x p one.
@@ -51,25 +51,29 @@ def data_products(pix, val, Jm, r, N):
 
 
 class NormalBlock:
-    """H_nn = J_n^T J_n (data) + w L (prior) (+ damping mu diag) as an operator on (N, 2, R) arrays.
+    """H_nn = J_n^T J_n (data) + w P (prior) (+ damping mu diag) as an operator on (N, 2, R) arrays.
 
     ``pix``, ``val``: the data rows' dependence on the unknown normals
-    (:func:`data_products`); ``edges`` (E, 2); ``t1``, ``t2`` (N, 3): each
+    (:func:`data_products`); ``stencils`` (E, S) pixel indices and ``coef``
+    (S,): the prior's residuals sqrt(w) sum_s coef_s n_{stencil_s} (first
+    differences: (1, -1); second: (1, -2, 1)); ``t1``, ``t2`` (N, 3): each
     pixel's tangent basis; ``w``: the prior's weight.
     """
 
-    def __init__(self, pix, val, edges, t1, t2, w, mu=0.0):
+    def __init__(self, pix, val, stencils, coef, t1, t2, w, mu=0.0):
         self.N = len(t1)
         ok = pix >= 0
         self.q = np.where(ok, pix, 0)
         self.v = np.where(ok[..., None], val, 0.0)
-        self.edges, self.t1, self.t2, self.w = edges, t1, t2, float(w)
-        self.deg = (np.bincount(edges.ravel(), minlength=self.N).astype(np.float64) if len(edges)
-                    else np.zeros(self.N))
+        self.st, self.coef = stencils, np.asarray(coef, float)
+        self.t1, self.t2, self.w = t1, t2, float(w)
+        self.csum = np.zeros(self.N)
+        if len(stencils):
+            np.add.at(self.csum, stencils.ravel(), np.tile(self.coef ** 2, len(stencils)))
         diag = np.zeros((self.N, 2, 2))
         np.add.at(diag, self.q.ravel(), np.einsum("mqa,mqb->mqab", self.v, self.v).reshape(-1, 2, 2))
-        diag[:, 0, 0] += self.w * self.deg
-        diag[:, 1, 1] += self.w * self.deg
+        diag[:, 0, 0] += self.w * self.csum      # the tangent bases are orthonormal
+        diag[:, 1, 1] += self.w * self.csum
         d = np.stack([diag[:, 0, 0], diag[:, 1, 1]], 1)
         # Marquardt damping on the diagonal of H_nn; a tiny ridge keeps a pixel with neither data nor
         # neighbours from making the system singular
@@ -84,16 +88,17 @@ class NormalBlock:
         y = np.zeros_like(x)
         np.add.at(y, self.q.ravel(), (self.v[:, :, :, None] * jx[:, None, None, :]).reshape(-1, 2, x.shape[2]))
         y += self.ridge[:, :, None] * x
-        if len(self.edges) and self.w:
-            i, j = self.edges[:, 0], self.edges[:, 1]
-            # tangent displacement (3-vector) of each end, then the edge difference
-            vi = self.t1[i][:, :, None] * x[i, 0][:, None, :] + self.t2[i][:, :, None] * x[i, 1][:, None, :]
-            vj = self.t1[j][:, :, None] * x[j, 0][:, None, :] + self.t2[j][:, :, None] * x[j, 1][:, None, :]
-            d = self.w * (vi - vj)                                           # (E, 3, R)
-            gi = np.stack([np.einsum("ec,ecr->er", self.t1[i], d), np.einsum("ec,ecr->er", self.t2[i], d)], 1)
-            gj = np.stack([np.einsum("ec,ecr->er", self.t1[j], d), np.einsum("ec,ecr->er", self.t2[j], d)], 1)
-            np.add.at(y, i, gi)
-            np.add.at(y, j, -gj)
+        if len(self.st) and self.w:
+            # the prior's residual change: sum_s coef_s (tangent displacement of pixel s), a 3-vector
+            d = 0.0
+            for s, c in enumerate(self.coef):
+                k = self.st[:, s]
+                d = d + c * (self.t1[k][:, :, None] * x[k, 0][:, None, :] + self.t2[k][:, :, None] * x[k, 1][:, None, :])
+            d = self.w * d                                                   # (E, 3, R)
+            for s, c in enumerate(self.coef):
+                k = self.st[:, s]
+                g = np.stack([np.einsum("ec,ecr->er", self.t1[k], d), np.einsum("ec,ecr->er", self.t2[k], d)], 1)
+                np.add.at(y, k, c * g)
         return y
 
     def solve(self, b, rtol=1e-10, max_iter=5000):
