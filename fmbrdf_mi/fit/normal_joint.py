@@ -133,8 +133,9 @@ class _JointProblem:
     Sample s of pixel i is modelled at its own point (offset from the
     super-pixel centre, :attr:`Samples.offsets`); its normal is the bilinear
     interpolation of the normal map there (the corners: ``self.corner``
-    (N, 4, 4) flat map indices, ``self.cw`` their weights, exactly as
-    :meth:`Observation.sample_geometry` interpolates).
+    (N, 4, 4) flat map indices, ``self.cw`` their weights, as
+    :meth:`Observation.sample_geometry` interpolates), with corners outside
+    the refined pixels replaced by the pixel itself.
     """
 
     def __init__(self, obs, m, model, bounds, fixed, lam, prior="curvature"):
@@ -182,7 +183,11 @@ class _JointProblem:
         self.cw = np.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], 2)   # (N, 4, 4)
         pos = -np.ones(h * w, int)
         pos[self.idx] = np.arange(len(self.idx))
-        self.cpix = pos[self.corner]                                        # unknown index, -1: held fixed
+        # a corner outside the refined pixels takes the pixel's own normal (its value in the map is the start
+        # map's, which may be far off): constant extrapolation at the border of the refined region
+        out = pos[self.corner] < 0
+        self.corner = np.where(out, self.idx[:, None, None], self.corner)
+        self.cpix = pos[self.corner]                                        # unknown index of every corner
 
     def set_scale(self):
         """c of the module docstring from the current variances: lam c is the prior's weight in chi^2 units."""

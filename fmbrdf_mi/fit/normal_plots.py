@@ -54,15 +54,15 @@ def plot_change(n0, n1, mask, path, gt=None):
         ax.set_title(t, fontsize=9)
         ax.axis("off")
     ch = angle_deg(n0, n1)
-    angle_panel(axes[0, 2], ch, f"angle start -> refined (mean {ch[mask].mean():.2f} deg)",
+    angle_panel(axes[0, 2], ch, f"angle start -> refined\nmean {ch[mask].mean():.2f} deg",
                 max(float(np.percentile(ch[mask], 99)), 1e-3))
     if gt is not None:
         e0, e1 = angle_deg(n0, gt), angle_deg(n1, gt)
         vmax = max(float(np.percentile(e0[mask], 99)), 1e-3)
-        angle_panel(axes[1, 0], e0, f"start vs ground truth: mean {e0[mask].mean():.2f}, median "
+        angle_panel(axes[1, 0], e0, f"start vs ground truth\nmean {e0[mask].mean():.2f}, median "
                                     f"{np.median(e0[mask]):.2f} deg", vmax)
-        angle_panel(axes[1, 1], e1, f"refined vs ground truth: mean {e1[mask].mean():.2f}, median "
-                                    f"{np.median(e1[mask]):.2f} deg (same scale)", vmax)
+        angle_panel(axes[1, 1], e1, f"refined vs ground truth (same scale)\nmean {e1[mask].mean():.2f}, "
+                                    f"median {np.median(e1[mask]):.2f} deg", vmax)
         v1 = max(float(np.percentile(e1[mask], 99)), 1e-3)
         angle_panel(axes[1, 2], e1, "refined vs ground truth (own scale)", v1)
     fig.savefig(path, dpi=90, bbox_inches="tight")

@@ -8,10 +8,13 @@ held-out images are left out) must share one view.  From the start map
 (``ps``: Lambertian photometric stereo; ``sphere``: the sphere whose outline
 best fits the mask; or a (H, W, 3) ``.npy`` in this package's camera frame),
 ``--rounds`` rounds of the alternation
-(:func:`fmbrdf_mi.fit.normal_refine.refine_normals`) and then the joint
+(:func:`fmbrdf_mi.fit.normal_refine.refine_normals`; 0, the default: one
+joint fit of the material on the start map) and then the joint
 Levenberg-Marquardt on the material and the normals
 (:func:`fmbrdf_mi.fit.normal_joint.refine_joint`) with smoothness weight
-``--smooth``.  Outputs in ``-o DIR``: ``normals.npy`` (H, W, 3, this
+``--smooth`` (curvature prior), over the mask eroded by ``--erode`` (at
+least 1) less super-pixels with a clipped sample; ``--max-iter`` bounds its
+iterations per IRLS round.  Outputs in ``-o DIR``: ``normals.npy`` (H, W, 3, this
 package's camera frame: x image right, y image up, z towards the camera),
 ``normals.png`` (the refined map, cropped to the object), ``normals_change.png``
 (start, refined, angle between them, and against the ground truth when the
@@ -39,7 +42,7 @@ def add_arguments(p):
                    help="start map: photometric stereo (default), the mask's sphere, or a normal map file")
     g.add_argument("--smooth", type=float, default=0.3, metavar="LAMBDA",
                    help="smoothness weight (units of Stokes residuals / image mean; default %(default)s)")
-    g.add_argument("--rounds", type=int, default=1,
+    g.add_argument("--rounds", type=int, default=0,
                    help="alternation rounds (material fit, then normals) before the joint step (default %(default)s)")
 
 
@@ -47,7 +50,7 @@ def check(args, joint):
     """One line per mistake, before any file is read."""
     if not getattr(args, "refine_normals", False):
         for flag, given in (("--normals-start", args.normals_start != "ps"), ("--smooth", args.smooth != 0.3),
-                            ("--rounds", args.rounds != 1)):
+                            ("--rounds", args.rounds != 0)):
             if given:
                 raise InputError(f"{flag} needs --refine-normals")
         return
@@ -105,7 +108,7 @@ def _errors(n, gt, mask):
             "pixels": int(mask.sum())}
 
 
-def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=1, model="fmbrdf", fit_kw=None, ground_truth=None,
+def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=0, model="fmbrdf", fit_kw=None, ground_truth=None,
         force=False, progress=True, command=None):
     """Refine the normals of the non-held-out images; write the outputs; returns the fit.json dict."""
     from .._paths import check_output_dir
@@ -150,8 +153,10 @@ def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=1, model="fmbrdf"
             o.normals = n0
             o.geometry = None
         params = fit_joint(fit_obs, opts, progress=False).params
-    joint = refine_joint(fit_obs, n1, params, lam=lam, model=model, bounds=opts.bounds, fixed=opts.fixed,
-                         progress=say)
+    from .observations import erode
+
+    joint = refine_joint(fit_obs, n1, params, mask=erode(fit_obs[0].mask, max(int(opts.erode), 1)), lam=lam,
+                         model=model, bounds=opts.bounds, fixed=opts.fixed, max_iter=opts.max_iter, progress=say)
     m = joint.mask
     report = {"images": [{"name": names[k], "light_dir": obs[k].light_dir.tolist(),
                           "irradiance": obs[k].irradiance, "holdout": specs[k].holdout} for k in range(len(specs))],
@@ -196,7 +201,9 @@ def print_report(report):
             print(line)
         if unc.get("method"):
             print(f"  uncertainty: {unc['method']}"
-                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else ""))
+                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
+                  + (" (the model or the stated noise does not explain the data: errors too small)"
+                     if unc.get("misfit") else ""))
     ch = rn["angle_change"]
     print(f"  normals moved from the start by {ch['mean']:.2f} deg mean, {ch['median']:.2f} deg median")
     ae = rn.get("angular_error")
