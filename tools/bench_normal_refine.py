@@ -103,11 +103,15 @@ def main(argv=None):
                 j = refine_joint(obs, n_mid, p_mid, lam=args.lam, prior=args.prior, progress=default_progress)
                 n1, params, mask, hist = j.normals, j.params, j.mask, j.history
                 se = {k: v / (ks_scale if k == "k_s" else 1.0) for k, v in j.std_errors.items()}
+                stop = {"converged": j.converged, "reason": j.reason, "iterations": len(hist),
+                        "chi2_per_dof": j.uncertainty.get("chi2_per_dof")}
             e0 = angular_error_deg(n0, gt, mask)
             e1 = angular_error_deg(n1, gt, mask)
             params = dict(params)
             params["k_s"] /= ks_scale
-            rec = {"start": start, "pixels": int(mask.sum()), "std_errors": se if args.method == "joint" else None, "before_mean": float(e0.mean()),
+            joint = args.method == "joint"
+            rec = {"start": start, "pixels": int(mask.sum()), "std_errors": se if joint else None,
+                   "stop": stop if joint else None, "before_mean": float(e0.mean()),
                    "before_median": float(np.median(e0)), "after_mean": float(e1.mean()),
                    "after_median": float(np.median(e1)), "params": params, "time": time.time() - t,
                    "history": [{k: v for k, v in h.items() if k != "params"} for h in hist]}
@@ -117,13 +121,21 @@ def main(argv=None):
     method = (f"{args.rounds} alternation rounds" if args.method == "alternation" else
               (f"{args.rounds} alternation round(s) + " if args.rounds else "") + f"joint LM ({args.prior})")
     print(f"| start | K | method | pixels | before: mean / median | after: mean / median | "
-          "material after (k_s relative to the truth's scale; +- SE) | time (s) |")
-    print("|---|---|---|---|---|---|---|---|")
+          "material after (k_s relative to the truth's scale; ± SE) | joint LM: iterations, χ²/dof | time (s) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    def conv(r):
+        st = r.get("stop")
+        if not st:
+            return "-"
+        c = f"{st['iterations']}" + ("" if st["converged"] else " (not converged)")
+        return c + (f", {st['chi2_per_dof']:.2f}" if st.get("chi2_per_dof") else "")
+
     for r in out:
         se = r.get("std_errors") or {}
         mat = ", ".join(f"{k} {v:.3g}" + (f" ± {se[k]:.2g}" if k in se else "") for k, v in r["params"].items())
         print(f"| {r['start']} | {K} | {method}, λ {args.lam:g} | {r['pixels']} | {r['before_mean']:.2f}° / "
-              f"{r['before_median']:.2f}° | {r['after_mean']:.2f}° / {r['after_median']:.2f}° | {mat} | {r['time']:.0f} |")
+              f"{r['before_median']:.2f}° | {r['after_mean']:.2f}° / {r['after_median']:.2f}° | {mat} | {conv(r)} | "
+              f"{r['time']:.0f} |")
     print(f"truth: " + ", ".join(f"{k} {v:.3g}" for k, v in TRUTH.items()))
     if args.json:
         with open(args.json, "w") as f:

@@ -13,48 +13,47 @@ bounds, log albedos: :class:`fmbrdf_mi.fit.optimise.Problem`) and, per
 pixel, two tangent-plane unknowns n_i = normalise(n_i + u_i t1_i + v_i t2_i).
 The energy is
 
-    E = sum_{k, i, s} ((y_kis - mu_kis) / sd_kis)^2  +  lam c sum_{(i, j)} |n_i - n_j|^2
+    E = sum_{k, i, s} ((y_kis - mu_kis) / sd_kis)^2  +  lam c sum_e |sum_s coef_s n_{e_s}|^2
 
 * the first term is the likelihood of the camera's samples
   (:class:`fmbrdf_mi.fit.objective.LikelihoodObjective`: image k, pixel i,
-  polariser sample s, mu = the model's Stokes vector at the pixel centre
-  through the analyser, variances frozen between IRLS refreshes);
-* the second is the smoothness prior over the 4-neighbour edges of the
-  mask (each edge once).  ``lam`` has the units of
+  polariser sample s, variances frozen between IRLS refreshes), with mu
+  the model at the sample's own point, as the fit has it: its normal is
+  the bilinear interpolation of the normal map there (a corner outside the
+  refined pixels takes the pixel's own normal), so a sample's prediction
+  depends on up to 4 pixels' normals;
+* the second is the smoothness prior (:func:`stencils`): ``curvature``
+  (default) sums the squared second differences n_a - 2 n_b + n_c along
+  rows and columns, which vanish where the normal changes linearly across
+  the image (a surface of constant curvature is not pulled flat);
+  ``membrane``, the first differences n_i - n_j of 4-neighbours (the
+  alternation's prior: it penalises curvature itself and biases the normals
+  of a small object towards a plane).  ``lam`` has the units of
   :func:`~fmbrdf_mi.fit.normal_refine.refine_normals` (Stokes residuals
   divided by the image's mean intensity); c = mean over the images of
-  (mean intensity)^2 / (mean sample variance) converts it, so the balance
-  between data and prior is that of the alternation.
+  (mean intensity)^2 / (mean sample variance) converts it to chi^2 units.
 
-**Normal equations.**  With J = [J_m | J_n] (material columns dense; a
-pixel's data rows depend on its own normal only, so J_n's data part is
-block diagonal, 2 columns per pixel; the prior's rows are sparse), the
-damped system
-
-    [H_mm  H_mn] [dm]     [g_m]
-    [H_nm  H_nn] [dn] = - [g_n]
-
-has a sparse H_nn (2 x 2 blocks plus the prior's graph Laplacian) and a
-small H_mm; it is solved by the Schur complement onto the material (the
-bundle-adjustment trick; :mod:`fmbrdf_mi.fit.normal_system`: conjugate
-gradients with H_nn, then a p x p solve).  The
-material Jacobian is the fit's (forward-mode Dr.Jit AD through the BSDF, one
-table build per shape parameter; analytic in the albedos), the normal
-Jacobian central differences taken for all pixels at once (one BSDF
-evaluation per perturbation).  A step is accepted only if it lowers E
+**Normal equations** (:mod:`fmbrdf_mi.fit.normal_system`).  J = [J_m | J_n]:
+the material's columns dense, the normals' sparse (each data row touches at
+most 4 pixels, each prior row 2 or 3).  The damped Gauss-Newton system is
+solved by the Schur complement onto the material (the bundle-adjustment
+trick): conjugate gradients with H_nn (2 x 2 block-preconditioned, never
+formed), then a p x p solve.  The material Jacobian is the fit's
+(forward-mode Dr.Jit AD through the BSDF, one table build per shape
+parameter; analytic in the albedos); the normals' comes from central
+differences of every sample's prediction in its own normal's tangent plane
+(all samples at once: one BSDF evaluation per perturbation), chained
+through the bilinear weights.  A step is accepted only if it lowers E
 (Levenberg-Marquardt damping otherwise), so E decreases monotonically
-between refreshes; a step that turns a normal away from the camera
-(n . v < 0.05) keeps that pixel's old normal.
+between IRLS refreshes; a step that turns a normal away from the camera
+(n . v < 0.05) keeps that pixel's old normal.  Converged: E falls by less
+than 0.01 twice in a row (chi^2 units), or no step lowers it.
 
 **Uncertainty.**  The material's covariance is the inverse of the Schur
-complement of the undamped H (the normals' uncertainty included, not held
-fixed), mapped to the reported parameters as the fit does
-(:mod:`fmbrdf_mi.fit.uncertainty`); with unknown camera noise it is scaled
-by chi^2 / (N - p - 2 n).
-
-**Not modelled**: each polariser sample is taken at the super-pixel
-centre here (the fit's likelihood puts a raw mosaic's samples at their own
-points); for the smooth objects tested this is below the noise.
+complement of the undamped H (the normals free, not held fixed; the prior
+included, as a Laplace approximation), mapped to the reported parameters
+as the fit does (:mod:`fmbrdf_mi.fit.uncertainty`); with unknown camera
+noise it is scaled by chi^2 / (N - p - 2 n).  Only after convergence.
 """
 from __future__ import annotations
 
@@ -276,7 +275,7 @@ class _JointProblem:
 
 
 def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="curvature", model="fmbrdf",
-                 bounds=None, fixed=None, max_iter=30, refreshes=2, h=1e-3, progress=None, time_limit=None):
+                 bounds=None, fixed=None, max_iter=50, refreshes=2, h=1e-3, progress=None, time_limit=None):
     """Jointly refine the material ``params`` (reported, e.g. from a joint fit) and ``normals`` (H, W, 3).
 
     ``observations``: K >= 3 :class:`Observation` s of one view (one pixel

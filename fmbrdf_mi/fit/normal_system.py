@@ -93,7 +93,8 @@ class NormalBlock:
             d = 0.0
             for s, c in enumerate(self.coef):
                 k = self.st[:, s]
-                d = d + c * (self.t1[k][:, :, None] * x[k, 0][:, None, :] + self.t2[k][:, :, None] * x[k, 1][:, None, :])
+                d = d + c * (self.t1[k][:, :, None] * x[k, 0][:, None, :]
+                             + self.t2[k][:, :, None] * x[k, 1][:, None, :])
             d = self.w * d                                                   # (E, 3, R)
             for s, c in enumerate(self.coef):
                 k = self.st[:, s]

@@ -173,7 +173,8 @@ def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=0, model="fmbrdf"
               "models": {model: {"params": joint.params, "uncertainty": joint.uncertainty,
                                  "converged": joint.converged, "stop_reason": joint.reason}}}
     if gt is not None:
-        report["refine_normals"]["angular_error"] = {"before": _errors(n0, gt, m), "after": _errors(joint.normals, gt, m),
+        report["refine_normals"]["angular_error"] = {"before": _errors(n0, gt, m),
+                                                    "after": _errors(joint.normals, gt, m),
                                                     "reference": "normal/normal_GT.npy"}
     report["reproduce"] = {"command": command, "cwd": os.getcwd(), "versions": versions()}
     os.makedirs(out, exist_ok=True)
