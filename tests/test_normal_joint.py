@@ -30,11 +30,12 @@ def _dense_system(pix, val, st, coef, t1, t2, w, ridge):
 @pytest.mark.parametrize("prior", ["curvature", "membrane"])
 def test_normal_block_and_schur_step_match_dense_algebra(prior):
     """NormalBlock's product, its CG solve, the Schur-complement step and the Schur complement itself against
-    dense NumPy on a 4 x 5 mask with a hole (random Jacobians; 2 x 2 bilinear stencils with fixed pixels).
+    dense NumPy on a 4 x 5 mask with a hole (random Jacobians; 2 x 2 bilinear stencils with fixed pixels),
+    and the material's sandwich covariance against [H^-1 F H^-1]_mm formed densely.
     CG stops at a relative residual of 1e-10 on a system of condition < 1e4: 1e-6 relative is generous."""
     from fmbrdf_mi.fit.normal_joint import stencils
     from fmbrdf_mi.fit.normal_refine import _tangents
-    from fmbrdf_mi.fit.normal_system import NormalBlock, data_products, schur, solve_step
+    from fmbrdf_mi.fit.normal_system import NormalBlock, data_products, material_covariance, schur, solve_step
 
     rng = np.random.default_rng(4)
     mask = np.ones((4, 5), bool)
@@ -74,6 +75,18 @@ def test_normal_block_and_schur_step_match_dense_algebra(prior):
     _, H0 = _dense_system(pix, val, st, coef, t1, t2, w, blk0.ridge)
     S = Hmm - (Jm.T @ Jd) @ np.linalg.solve(H0, Jd.T @ Jm)
     np.testing.assert_allclose(schur(Hmm, Hmn, blk0), S, rtol=1e-6, atol=1e-6 * np.abs(S).max())
+    # the sandwich: full H^-1 (with the prior) around the data's J^T J, material block
+    Hfull = np.block([[Hmm, Jm.T @ Jd], [Jd.T @ Jm, H0]])
+    Jfull = np.hstack([Jm, Jd])
+    Hi = np.linalg.inv(Hfull)
+    C = (Hi @ Jfull.T @ Jfull @ Hi)[:p, :p]
+    np.testing.assert_allclose(material_covariance(Hmm, Hmn, blk0, Jm), C, rtol=1e-6, atol=1e-6 * np.abs(C).max())
+    # without a prior the sandwich is the inverse Fisher information
+    blk1 = NormalBlock(pix, val, st, coef, t1, t2, 0.0, 0.0)
+    _, H1 = _dense_system(pix, val, st, coef, t1, t2, 0.0, blk1.ridge)
+    H1full = np.block([[Hmm, Jm.T @ Jd], [Jd.T @ Jm, H1]])
+    np.testing.assert_allclose(material_covariance(Hmm, Hmn, blk1, Jm), np.linalg.inv(H1full)[:p, :p], rtol=1e-5,
+                               atol=1e-8)
 
 
 def test_curvature_prior_is_zero_on_a_linear_normal_field():

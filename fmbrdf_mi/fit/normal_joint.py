@@ -49,11 +49,14 @@ between IRLS refreshes; a step that turns a normal away from the camera
 (n . v < 0.05) keeps that pixel's old normal.  Converged: E falls by less
 than 0.01 twice in a row (chi^2 units), or no step lowers it.
 
-**Uncertainty.**  The material's covariance is the inverse of the Schur
-complement of the undamped H (the normals free, not held fixed; the prior
-included, as a Laplace approximation), mapped to the reported parameters
-as the fit does (:mod:`fmbrdf_mi.fit.uncertainty`); with unknown camera
-noise it is scaled by chi^2 / (N - p - 2 n).  Only after convergence.
+**Uncertainty.**  The material's covariance is the sandwich
+[H^-1 F H^-1]_mm of the penalised likelihood (H with the prior, F the data's
+J^T J: :func:`fmbrdf_mi.fit.normal_system.material_covariance`), the normals
+free, not held fixed; the inverse Schur complement alone would count the
+prior as information and understate the spread (measured:
+tools/bench_normal_refine_seeds.py).  It is mapped to the reported
+parameters as the fit does (:mod:`fmbrdf_mi.fit.uncertainty`); with unknown
+camera noise it is scaled by chi^2 / (N - p - 2 n).  Only after convergence.
 """
 from __future__ import annotations
 
@@ -361,18 +364,21 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
                 break
         if not converged:
             break
-    # uncertainty of the material with the normals free: the Schur complement of the undamped H
+    # uncertainty of the material with the normals free (module docstring)
     r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
     unc = {"std_errors": {}, "method": "not computed: the refinement did not converge"}
     if converged:
         Hmm, Hmn, gm, gn = jp.system(r, Jm, Jn, t, nmap[jp.idx])
-        S = NS.schur(Hmm, Hmn, jp.block(Jn, t))
-        w, V = np.linalg.eigh(S)
-        L = V * np.sqrt(np.clip(w, 1e-300, None))     # S = L L^T: a p x p "Jacobian" with the same J^T J
+        C = NS.material_covariance(Hmm, Hmn, jp.block(Jn, t), Jm)
+        w, V = np.linalg.eigh(C)
+        # a p x p "Jacobian" L^T with (L L^T)^-1 = C, so that the fit's summary (reported parameters through
+        # d theta / d z, intervals, correlations, at_bound) applies unchanged
+        L = V / np.sqrt(np.clip(w, 1e-300, None))
         chi2 = float(r @ r)
         n_ind = jp.K * jp.n * jp.obj.dof - 2 * jp.n   # the normals' unknowns take their share of the dof
         unc = U.summarise(jp.problem, st, L.T, np.array([math.sqrt(chi2)]), n_ind)
-        unc["method"] = unc.get("method", "") + "; joint with the normals (Schur complement)"
+        unc["method"] = unc.get("method", "") + ("; sandwich of the penalised likelihood with the normals free "
+                                                 "(the prior not counted as information)")
     out = nmap.reshape(n_map.shape)
     params_out = mdl.report(st.shape, st.a_s, st.a_b)
     say(f"[joint-normals] done in {time.time() - t0:.1f} s ({reason}): "

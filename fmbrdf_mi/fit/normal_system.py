@@ -24,8 +24,9 @@ the tangent bases are orthonormal),
 several right-hand sides at once.  The full system is solved by the Schur
 complement onto the material, S = H_mm - H_mn H_nn^-1 H_nm (the
 bundle-adjustment reduction): p + 1 solves with H_nn, then a p x p one.
-S^-1 is the material's covariance with the normals free (for standardised
-residuals).  NumPy only: no sparse-matrix library.
+The material's covariance (:func:`material_covariance`) is the sandwich of
+the penalised likelihood, with the normals free.  NumPy only: no
+sparse-matrix library.
 """
 from __future__ import annotations
 
@@ -81,6 +82,10 @@ class NormalBlock:
         diag[:, 0, 0] += self.ridge[:, 0]
         diag[:, 1, 1] += self.ridge[:, 1]
         self.pre = np.linalg.inv(diag)
+
+    def data_product(self, x):
+        """J_n x (data rows only), x (N, 2, R) -> (m, R)."""
+        return np.einsum("mqa,mqar->mr", self.v, x[self.q])
 
     def apply(self, x):
         """H_nn x for x (N, 2, R)."""
@@ -148,3 +153,19 @@ def schur(Hmm, Hmn, Hnn):
     X = Hnn.solve(np.ascontiguousarray(Hmn.transpose(1, 2, 0)))
     S = Hmm - Hmn.reshape(p, -1) @ X.reshape(-1, p)
     return 0.5 * (S + S.T)
+
+
+def material_covariance(Hmm, Hmn, Hnn, Jm):
+    """Covariance of the material (p x p, in the unknowns' units) with the normals free: the sandwich
+    [H^-1 F H^-1]_mm of the penalised likelihood, F = J^T J of the data rows only (``Hnn`` undamped).
+
+    The prior is a regulariser, not information about the data: counting it
+    in the covariance (the inverse Schur complement alone) understates the
+    material's spread when it constrains the normals.  The material rows of
+    H^-1 are Y_m = S^-1 and Y_n = -H_nn^-1 H_nm S^-1; then C = (J Y)^T (J Y).
+    """
+    Si = np.linalg.inv(schur(Hmm, Hmn, Hnn))
+    Yn = -Hnn.solve(np.einsum("pna,pq->naq", Hmn, Si))                        # (N, 2, p)
+    JY = Jm @ Si + Hnn.data_product(Yn)
+    C = JY.T @ JY
+    return 0.5 * (C + C.T)
