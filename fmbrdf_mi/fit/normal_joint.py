@@ -53,8 +53,10 @@ than 0.01 twice in a row (chi^2 units), or no step lowers it.
 [H^-1 F H^-1]_mm of the penalised likelihood (H with the prior, F the data's
 J^T J: :func:`fmbrdf_mi.fit.normal_system.material_covariance`), the normals
 free, not held fixed; the inverse Schur complement alone would count the
-prior as information and understate the spread (measured:
-tools/bench_normal_refine_seeds.py).  It is mapped to the reported
+prior as information.  Measured over noise seeds
+(tools/bench_normal_refine_seeds.py, README) both are 1.5-3x smaller than
+the actual spread of eta, alpha, beta, kappa: not yet trustworthy intervals.
+It is mapped to the reported
 parameters as the fit does (:mod:`fmbrdf_mi.fit.uncertainty`); with unknown
 camera noise it is scaled by chi^2 / (N - p - 2 n).  Only after convergence.
 """
