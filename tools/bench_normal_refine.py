@@ -1,6 +1,7 @@
 """Normal refinement (fmbrdf_mi.fit.normal_refine) on a synthetic non-spherical object: angular errors before and after.
 
-    python tools/bench_normal_refine.py [--res 40] [--lights 4] [--rounds 6] [--lam 0.3] [--starts ps,sphere]
+    python tools/bench_normal_refine.py [--res 40] [--lights 4] [--method joint] [--rounds 0] [--lam 0.3]
+                                        [--prior curvature] [--starts ps,sphere]
 
 The object (:mod:`fmbrdf_mi.fit.synthetic_object`): a smooth mesh (ellipsoid
 with a three-lobed bump, rotated), a pinhole camera (12 degree field of
@@ -15,9 +16,14 @@ read noise known).  Starting normal maps:
 * ``sphere``: the sphere whose outline best fits the mask (an orthographic
   sphere: a user's crude prior).
 
-Each start is refined for ROUNDS rounds (material by a joint likelihood fit,
-then 4 Gauss-Newton steps on the normals) with smoothness weight LAM.
-Reported: mean and median angle to the ray-cast normals over the refined
+``--method alternation``: ROUNDS rounds of
+:func:`fmbrdf_mi.fit.normal_refine.refine_normals` (material by a joint
+likelihood fit, then 4 Gauss-Newton steps on the normals, membrane prior
+with weight LAM).  ``--method joint`` (what ``fmbrdf-mi fit --refine-normals``
+does): ROUNDS rounds of that alternation (0: one joint fit of the material on
+the start normals), then the joint Levenberg-Marquardt on material and
+normals (:func:`fmbrdf_mi.fit.normal_joint.refine_joint`, prior PRIOR with
+weight LAM).  Reported: mean and median angle to the ray-cast normals over the refined
 pixels (the mask eroded by one super-pixel), before and after, the final
 material and the wall time.
 """
@@ -42,14 +48,21 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--res", type=int, default=40)
     p.add_argument("--lights", type=int, default=4, help="K, 3 to 6 (default %(default)s)")
-    p.add_argument("--rounds", type=int, default=6)
+    p.add_argument("--method", default="joint", choices=("joint", "alternation"))
+    p.add_argument("--rounds", type=int, default=None, help="alternation rounds (default: 6 alone, 0 before joint)")
     p.add_argument("--lam", type=float, default=0.3)
+    p.add_argument("--prior", default="curvature", choices=("curvature", "membrane"))
     p.add_argument("--starts", default="ps,sphere")
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--json", metavar="OUT.json")
     args = p.parse_args(argv)
+    if args.rounds is None:
+        args.rounds = 6 if args.method == "alternation" else 0
     from fmbrdf_mi.fit.authors_layout import read_object
+    from fmbrdf_mi.fit.joint import fit_joint
+    from fmbrdf_mi.fit.normal_joint import refine_joint
     from fmbrdf_mi.fit.normal_refine import angular_error_deg, photometric_stereo, refine_normals
+    from fmbrdf_mi.fit.optimise import default_progress
     from fmbrdf_mi.fit.observations import erode, find_sphere, sphere_normals
     from fmbrdf_mi.fit.synthetic_object import write_authors_object
 
@@ -76,25 +89,53 @@ def main(argv=None):
             else:
                 p.error(f"--starts: unknown {start!r} (ps, sphere)")
             t = time.time()
-            res = refine_normals(obs, n0, rounds=args.rounds, lam=args.lam, progress=True)
-            e0 = angular_error_deg(n0, gt, res.mask)
-            e1 = angular_error_deg(res.normals, gt, res.mask)
-            params = dict(res.params)
+            if args.method == "alternation":
+                res = refine_normals(obs, n0, rounds=args.rounds, lam=args.lam, progress=True)
+                n1, params, mask, hist = res.normals, res.params, res.mask, res.history
+            else:
+                if args.rounds:
+                    res = refine_normals(obs, n0, rounds=args.rounds, lam=args.lam, progress=True)
+                    n_mid, p_mid = res.normals, res.params
+                else:
+                    for o in obs:
+                        o.normals, o.geometry = n0, None
+                    n_mid, p_mid = n0, fit_joint(obs, progress=False).params
+                j = refine_joint(obs, n_mid, p_mid, lam=args.lam, prior=args.prior, progress=default_progress)
+                n1, params, mask, hist = j.normals, j.params, j.mask, j.history
+                se = {k: v / (ks_scale if k == "k_s" else 1.0) for k, v in j.std_errors.items()}
+                stop = {"converged": j.converged, "reason": j.reason, "iterations": len(hist),
+                        "chi2_per_dof": j.uncertainty.get("chi2_per_dof")}
+            e0 = angular_error_deg(n0, gt, mask)
+            e1 = angular_error_deg(n1, gt, mask)
+            params = dict(params)
             params["k_s"] /= ks_scale
-            rec = {"start": start, "pixels": int(res.mask.sum()), "before_mean": float(e0.mean()),
+            joint = args.method == "joint"
+            rec = {"start": start, "pixels": int(mask.sum()), "std_errors": se if joint else None,
+                   "stop": stop if joint else None, "before_mean": float(e0.mean()),
                    "before_median": float(np.median(e0)), "after_mean": float(e1.mean()),
                    "after_median": float(np.median(e1)), "params": params, "time": time.time() - t,
-                   "history": [{k: v for k, v in h.items() if k != "params"} for h in res.history]}
+                   "history": [{k: v for k, v in h.items() if k != "params"} for h in hist]}
             out.append(rec)
             print(f"# {start}: {rec['before_mean']:.2f} / {rec['before_median']:.2f} deg -> {rec['after_mean']:.2f} / "
                   f"{rec['after_median']:.2f} deg (mean / median), {rec['time']:.0f} s", file=sys.stderr, flush=True)
-    print(f"| start | K | pixels | before: mean / median | after {args.rounds} rounds: mean / median | "
-          "material after (k_s relative to the truth's scale) | time (s) |")
-    print("|---|---|---|---|---|---|---|")
+    method = (f"{args.rounds} alternation rounds" if args.method == "alternation" else
+              (f"{args.rounds} alternation round(s) + " if args.rounds else "") + f"joint LM ({args.prior})")
+    print(f"| start | K | method | pixels | before: mean / median | after: mean / median | "
+          "material after (k_s relative to the truth's scale; ± SE) | joint LM: iterations, χ²/dof | time (s) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    def conv(r):
+        st = r.get("stop")
+        if not st:
+            return "-"
+        c = f"{st['iterations']}" + ("" if st["converged"] else " (not converged)")
+        return c + (f", {st['chi2_per_dof']:.2f}" if st.get("chi2_per_dof") else "")
+
     for r in out:
-        mat = ", ".join(f"{k} {v:.3g}" for k, v in r["params"].items())
-        print(f"| {r['start']} | {K} | {r['pixels']} | {r['before_mean']:.2f}° / {r['before_median']:.2f}° | "
-              f"{r['after_mean']:.2f}° / {r['after_median']:.2f}° | {mat} | {r['time']:.0f} |")
+        se = r.get("std_errors") or {}
+        mat = ", ".join(f"{k} {v:.3g}" + (f" ± {se[k]:.2g}" if k in se else "") for k, v in r["params"].items())
+        print(f"| {r['start']} | {K} | {method}, λ {args.lam:g} | {r['pixels']} | {r['before_mean']:.2f}° / "
+              f"{r['before_median']:.2f}° | {r['after_mean']:.2f}° / {r['after_median']:.2f}° | {mat} | {conv(r)} | "
+              f"{r['time']:.0f} |")
     print(f"truth: " + ", ".join(f"{k} {v:.3g}" for k, v in TRUTH.items()))
     if args.json:
         with open(args.json, "w") as f:

@@ -494,6 +494,9 @@ def add_fit_arguments(p):
     g.add_argument("--power-start", default="ratio", choices=("ratio", "given"),
                    help="with --free-power: start the powers in closed form at every coarse-search point "
                         "(ratio, default) or at the given powers")
+    from .normals_cli import add_arguments as add_normal_arguments
+
+    add_normal_arguments(p)
     g = p.add_argument_group("relighting check")
     g.add_argument("--relight", nargs="+", metavar="INPUT", help="a second image of the object under another light")
     g.add_argument("--relight-light", metavar="X,Y,Z", help="its light direction")
@@ -567,6 +570,9 @@ def run_fit(args):
         raise InputError("--free-power: with --from the fit.json's options apply (give none)" if args.from_json
                          else "--free-power: needs a joint fit of two or more images (--manifest, --authors, "
                               "or several INPUTs with one --light each)")
+    from .normals_cli import check as check_normal_args
+
+    check_normal_args(args, joint and not args.from_json)
     if joint:
         from .manifest import run_joint
 
@@ -631,6 +637,12 @@ def run_fit(args):
                            relight_light=_vec(args.relight_light, "--relight-light"),
                            relight_irradiance=args.relight_irradiance, force=args.force,
                            progress=not args.quiet, command=command)
+    if report.get("refine_normals"):
+        from .normals_cli import print_report
+
+        print_report(report)
+        print(f"wrote {', '.join(report['refine_normals']['outputs'])} ({time.time() - t0:.1f} s)")
+        return 0 if report["refine_normals"]["converged"] else EXIT_NOT_CONVERGED
     from .fitting import WEAK_REL
 
     status = 0

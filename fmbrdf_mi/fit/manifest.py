@@ -369,6 +369,15 @@ def run_joint(args, command):
                   max_pixels=args.max_pixels or None, erode=args.erode, seed=args.seed,
                   free_power=getattr(args, "free_power", False), power_start=getattr(args, "power_start", "ratio"))
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
+    if getattr(args, "refine_normals", False):
+        from .normals_cli import run as refine
+
+        obs = build_observations(specs)
+        # the authors' layout carries the ground truth (normal/normal_GT.npy): it is the geometry read
+        gt = obs[0].normals.copy() if args.authors else None
+        return refine(specs, names, obs, args.out, start=args.normals_start, lam=args.smooth, rounds=args.rounds,
+                      model=args.model, fit_kw={k: v for k, v in fit_kw.items() if k not in ("model", "baselines")},
+                      ground_truth=gt, force=args.force, progress=not args.quiet, command=command)
 
     def reproduce(obs):
         from .joint_record import block

@@ -100,6 +100,23 @@ def _neighbours(mask):
     return nb
 
 
+def check_views(obs, normals):
+    """K >= 3 observations of one view; returns the normal map as a float64 copy (H, W, 3)."""
+    if len(obs) < 3:
+        raise InputError(f"normal refinement: needs K >= 3 images under different lights, got {len(obs)}")
+    shape = obs[0].shape
+    for k, o in enumerate(obs[1:], 1):
+        if o.shape != shape or not np.allclose(o.view_dirs, obs[0].view_dirs):
+            raise InputError(f"normal refinement: image {k} is not of the same view as image 0 (pixel grid and "
+                             "view directions must agree)")
+    n_map = np.asarray(normals, dtype=np.float64).copy()
+    if n_map.shape != shape + (3,):
+        raise InputError(f"normals: expected shape {shape + (3,)}, got {n_map.shape}")
+    if not np.all(np.isfinite(n_map[obs[0].mask])):
+        raise InputError("normals: non-finite values inside the mask")
+    return n_map
+
+
 def refine_normals(observations, normals, *, mask=None, lam=0.5, rounds=3, steps=4, h=1e-3, fit_options=None,
                    material=None, progress=True):
     """Refine ``normals`` (H, W, 3) and the material from K >= 3 :class:`Observation` s of one view.
@@ -116,16 +133,7 @@ def refine_normals(observations, normals, *, mask=None, lam=0.5, rounds=3, steps
 
     say = default_progress if progress is True else (progress or (lambda m: None))
     obs = list(observations)
-    if len(obs) < 3:
-        raise InputError(f"normal refinement: needs K >= 3 images under different lights, got {len(obs)}")
-    shape = obs[0].shape
-    for k, o in enumerate(obs[1:], 1):
-        if o.shape != shape or not np.allclose(o.view_dirs, obs[0].view_dirs):
-            raise InputError(f"normal refinement: image {k} is not of the same view as image 0 (pixel grid and "
-                             "view directions must agree)")
-    n_map = np.asarray(normals, dtype=np.float64).copy()
-    if n_map.shape != shape + (3,):
-        raise InputError(f"normals: expected shape {shape + (3,)}, got {n_map.shape}")
+    n_map = check_views(obs, normals)
     m = erode(obs[0].mask, 1) if mask is None else np.asarray(mask, bool)
     idx = np.flatnonzero(m.ravel())
     nb = _neighbours(m)

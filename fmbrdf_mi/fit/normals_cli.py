@@ -1,0 +1,226 @@
+"""``fmbrdf-mi fit ... --refine-normals``: per-pixel normals and the material from K >= 3 images of one view.
+
+    fmbrdf-mi fit --authors OBJ --refine-normals -o out/                 # start: photometric stereo
+    fmbrdf-mi fit --manifest m.toml --refine-normals --normals-start sphere --smooth 0.3 --rounds 1 -o out/
+
+The images of a joint fit (manifest, ``--authors``, or repeated ``--light``;
+held-out images are left out) must share one view.  From the start map
+(``ps``: Lambertian photometric stereo; ``sphere``: the sphere whose outline
+best fits the mask; or a (H, W, 3) ``.npy`` in this package's camera frame),
+``--rounds`` rounds of the alternation
+(:func:`fmbrdf_mi.fit.normal_refine.refine_normals`; 0, the default: one
+joint fit of the material on the start map) and then the joint
+Levenberg-Marquardt on the material and the normals
+(:func:`fmbrdf_mi.fit.normal_joint.refine_joint`) with smoothness weight
+``--smooth`` (curvature prior), over the mask eroded by ``--erode`` (at
+least 1) less super-pixels with a clipped sample; ``--max-iter`` bounds its
+iterations per IRLS round.  Outputs in ``-o DIR``: ``normals.npy`` (H, W, 3, this
+package's camera frame: x image right, y image up, z towards the camera),
+``normals.png`` (the refined map, cropped to the object), ``normals_change.png``
+(start, refined, angle between them, and against the ground truth when the
+input has one: the authors' ``normal/normal_GT.npy``) and ``fit.json``
+(material with standard errors, angular errors, per-round history).
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import numpy as np
+
+from .observations import InputError
+
+OUTPUTS = ("fit.json", "normals.npy", "normals.png", "normals_change.png")
+
+
+def add_arguments(p):
+    g = p.add_argument_group("normal refinement (a joint fit of K >= 3 images of one view)")
+    g.add_argument("--refine-normals", action="store_true",
+                   help="refine per-pixel normals and the material together (outputs normals.npy and plots)")
+    g.add_argument("--normals-start", default="ps", metavar="ps|sphere|FILE.npy",
+                   help="start map: photometric stereo (default), the mask's sphere, or a normal map file")
+    g.add_argument("--smooth", type=float, default=0.3, metavar="LAMBDA",
+                   help="smoothness weight (units of Stokes residuals / image mean; default %(default)s)")
+    g.add_argument("--rounds", type=int, default=0,
+                   help="alternation rounds (material fit, then normals) before the joint step (default %(default)s)")
+
+
+def check(args, joint):
+    """One line per mistake, before any file is read."""
+    if not getattr(args, "refine_normals", False):
+        for flag, given in (("--normals-start", args.normals_start != "ps"), ("--smooth", args.smooth != 0.3),
+                            ("--rounds", args.rounds != 0)):
+            if given:
+                raise InputError(f"{flag} needs --refine-normals")
+        return
+    if args.from_json:
+        raise InputError("--refine-normals: --from is not supported (rerun the command instead)")
+    if not joint:
+        raise InputError("--refine-normals: needs K >= 3 images of one view under different lights (--manifest, "
+                         "--authors, or INPUT files with one --light each)")
+    if not (np.isfinite(args.smooth) and args.smooth >= 0):
+        raise InputError(f"--smooth: expected a finite value >= 0, got {args.smooth!r}")
+    if args.rounds < 0:
+        raise InputError(f"--rounds: expected an integer >= 0, got {args.rounds}")
+    bad = [f for f, on in (("--baselines", args.baselines),
+                           ("--free-power", getattr(args, "free_power", False)),
+                           ("--loss " + str(args.loss), args.loss not in ("auto", "likelihood")))
+           if on]
+    if bad:
+        raise InputError(f"--refine-normals: {', '.join(bad)} not supported (the refinement is the likelihood "
+                         "of the camera samples, one model, the given light powers)")
+    start = args.normals_start
+    if start not in ("ps", "sphere") and not (start.endswith(".npy") and os.path.isfile(start)):
+        raise InputError(f"--normals-start {start!r}: expected ps, sphere or an existing .npy file")
+
+
+def start_normals(obs, start):
+    """(H, W, 3) start map and the mask of pixels it covers."""
+    from .normal_refine import photometric_stereo
+    from .observations import find_sphere, read_vectors, sphere_normals
+
+    m = obs[0].mask.copy()
+    if start == "ps":
+        return photometric_stereo(obs), m
+    if start == "sphere":
+        (cx, cy), r = find_sphere(m)
+        ns, ms, _ = sphere_normals(obs[0].shape, (cx, cy), r)
+        m &= ms
+        return np.where(m[..., None], ns, np.array([0.0, 0.0, 1.0])), m
+    n = read_vectors(start, "--normals-start", obs[0].shape)
+    ln = np.linalg.norm(n, axis=-1)
+    ok = np.isfinite(ln) & (ln > 0.5)
+    if not np.all(ok[m]):
+        raise InputError(f"--normals-start {start}: {int((~ok & m).sum())} pixels of the mask have no unit normal "
+                         "(non-finite or length < 0.5)")
+    n = np.where(ok[..., None], n / np.where(ok, ln, 1.0)[..., None], np.array([0.0, 0.0, 1.0]))
+    if np.mean(np.sum(n[m] * obs[0].view_dirs[m], 1) < 0) > 0.5:
+        raise InputError(f"--normals-start {start}: most normals face away from the camera (this package's frame "
+                         "is x image right, y image up, z towards the camera; OpenCV maps need y and z negated)")
+    return n, m
+
+
+def _errors(n, gt, mask):
+    from .normal_refine import angular_error_deg
+
+    e = angular_error_deg(n, gt, mask)
+    return {"mean": float(e.mean()), "median": float(np.median(e)), "p90": float(np.percentile(e, 90)),
+            "pixels": int(mask.sum())}
+
+
+def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=0, model="fmbrdf", fit_kw=None, ground_truth=None,
+        force=False, progress=True, command=None):
+    """Refine the normals of the non-held-out images; write the outputs; returns the fit.json dict."""
+    from .._paths import check_output_dir
+    from .fitting import FitOptions
+    from .normal_joint import refine_joint
+    from .normal_refine import check_views, refine_normals
+    from .optimise import default_progress
+    from .record import versions
+    from . import normal_plots
+
+    say = default_progress if progress else (lambda m: None)
+    keep = [k for k, s in enumerate(specs) if not s.holdout]
+    fit_obs = [obs[k] for k in keep]
+    if len(fit_obs) < 3:
+        raise InputError(f"--refine-normals: needs K >= 3 images under different lights, got {len(fit_obs)}"
+                         + (" (held-out images do not count)" if len(keep) < len(specs) else ""))
+    check_output_dir(out)
+    files = [os.path.join(out, f) for f in OUTPUTS]
+    if not force:
+        for p in files:
+            if os.path.exists(p):
+                raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
+    gt = None if ground_truth is None else np.asarray(ground_truth, float).copy()
+    n0, m0 = start_normals(fit_obs, start)
+    check_views(fit_obs, n0)
+    for o in fit_obs:
+        o.mask = o.mask & m0
+    t0 = time.time()
+    kw = dict(fit_kw or {})
+    opts = FitOptions(model=model, **{k: v for k, v in kw.items() if k in FitOptions.__dataclass_fields__})
+    say(f"[normals] start {start}; {len(fit_obs)} images; {rounds} alternation round(s), then the joint step; "
+        f"smoothness {lam:g}")
+    n1, params = n0, None
+    alt = []
+    if rounds > 0:
+        res = refine_normals(fit_obs, n0, rounds=rounds, lam=lam, fit_options=opts, progress=say)
+        n1, params, alt = res.normals, res.params, res.history
+    else:
+        from .joint import fit_joint
+
+        for o in fit_obs:
+            o.normals = n0
+            o.geometry = None
+        params = fit_joint(fit_obs, opts, progress=False).params
+    from .observations import erode
+
+    joint = refine_joint(fit_obs, n1, params, mask=erode(fit_obs[0].mask, max(int(opts.erode), 1)), lam=lam,
+                         model=model, bounds=opts.bounds, fixed=opts.fixed, max_iter=opts.max_iter, progress=say)
+    m = joint.mask
+    report = {"images": [{"name": names[k], "light_dir": obs[k].light_dir.tolist(),
+                          "irradiance": obs[k].irradiance, "holdout": specs[k].holdout} for k in range(len(specs))],
+              "truth": next((o.meta.get("truth") for o in obs if o.meta.get("truth")), None),
+              "refine_normals": {"start": start, "smooth": lam, "rounds": rounds, "pixels": int(m.sum()),
+                                 "frame": "x image right, y image up, z towards the camera",
+                                 "converged": joint.converged, "stop_reason": joint.reason,
+                                 "energy": {"total": joint.energy, "data_chi2": joint.data_energy,
+                                            "prior": joint.prior_energy},
+                                 "alternation": [{k: v for k, v in h.items()} for h in alt],
+                                 "joint_history": joint.history, "time": time.time() - t0,
+                                 "angle_change": _errors(joint.normals, n0, m),
+                                 "angular_error": None, "outputs": files},
+              # Not reported as standard errors: over noise seeds (tools/bench_normal_refine_seeds.py) the
+              # material's spread was 1.5-3.1x these for eta, alpha, beta, kappa (README, Normal refinement).
+              "models": {model: {"params": joint.params, "uncertainty": None,
+                                 "uncertainty_uncalibrated": dict(joint.uncertainty or {}, note=UNCALIBRATED),
+                                 "converged": joint.converged, "stop_reason": joint.reason}}}
+    if gt is not None:
+        report["refine_normals"]["angular_error"] = {"before": _errors(n0, gt, m),
+                                                    "after": _errors(joint.normals, gt, m),
+                                                    "reference": "normal/normal_GT.npy"}
+    report["reproduce"] = {"command": command, "cwd": os.getcwd(), "versions": versions()}
+    os.makedirs(out, exist_ok=True)
+    np.save(files[1], joint.normals.astype(np.float32))
+    normal_plots.plot_normal_map(joint.normals, m, files[2], title=f"refined normals ({start} start)")
+    normal_plots.plot_change(n0, joint.normals, m, files[3], gt=gt)
+    from .cli import _json_default
+
+    with open(files[0], "w") as f:
+        json.dump(report, f, indent=2, default=_json_default)
+    return report
+
+
+UNCALIBRATED = ("curvature-based standard errors of the material with the normals free; over noise seeds "
+               "(tools/bench_normal_refine_seeds.py) the spread of eta, alpha, beta, kappa was 1.5-3.1 times "
+               "these, so they are not reported as standard errors")
+
+
+def print_report(report):
+    rn = report["refine_normals"]
+    for name, mdl in report["models"].items():
+        unc = mdl.get("uncertainty") or {}
+        std, ci = unc.get("std_errors", {}), unc.get("ci95", {})
+        print(f"{name}: normal refinement ({'converged' if rn['converged'] else 'NOT converged'}: {rn['stop_reason']})"
+              f", {rn['pixels']} pixels, start {rn['start']}, smoothness {rn['smooth']:g}")
+        for k, v in mdl["params"].items():
+            line = f"  {k:<6} {v:10.5g}"
+            if k in std:
+                line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]"
+            print(line)
+        if mdl.get("uncertainty_uncalibrated"):
+            print("  no standard errors: the refinement's curvature-based ones were 1.5-3.1 times too small over "
+                  "noise seeds (fit.json: uncertainty_uncalibrated; README, Normal refinement)")
+        if unc.get("method"):
+            print(f"  uncertainty: {unc['method']}"
+                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
+                  + (" (the model or the stated noise does not explain the data: errors too small)"
+                     if unc.get("misfit") else ""))
+    ch = rn["angle_change"]
+    print(f"  normals moved from the start by {ch['mean']:.2f} deg mean, {ch['median']:.2f} deg median")
+    ae = rn.get("angular_error")
+    if ae:
+        b, a = ae["before"], ae["after"]
+        print(f"  angle to the ground truth: before {b['mean']:.2f} / {b['median']:.2f} deg, after "
+              f"{a['mean']:.2f} / {a['median']:.2f} deg (mean / median, {a['pixels']} pixels)")
