@@ -100,11 +100,10 @@ def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True,
     """
     import time
 
-    from .._paths import check_output_dir
     from .cli import _json_default
     from .colour import fit_colour, format_result, predict_samples
     from .colour_cli import _plot, model_entry
-    from .manifest import _names
+    from .manifest import prepare_outputs
     from .models import get_model
 
     t0 = time.time()
@@ -114,16 +113,7 @@ def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True,
         raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
                          "of the raw samples)")
     get_model(model)
-    names = _names(specs)
-    holdout = [s.holdout for s in specs]
-    if all(holdout):
-        raise InputError("joint fit: every image is held out; fit at least one")
-    check_output_dir(out)
-    files = outputs(out, names, holdout)
-    if not force:
-        for p in files:
-            if os.path.exists(p):
-                raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
+    names, holdout, files = prepare_outputs(specs, out, outputs, force)
     inputs = _read(specs, erode)
     fit_in = [c for c, h in zip(inputs, holdout) if not h]
     say = (lambda s: print(s, flush=True)) if progress else None

@@ -181,6 +181,24 @@ def outputs(out, names, holdout):
     return [os.path.join(out, f) for f in files]
 
 
+def prepare_outputs(specs, out, outputs_fn, force):
+    """(names, held-out flags, output files) of a joint fit; refuses an all-held-out set, an unusable ``out``
+    and, without ``force``, existing outputs (before anything is read or written)."""
+    from .._paths import check_output_dir
+
+    names = _names(specs)
+    holdout = [s.holdout for s in specs]
+    if all(holdout):
+        raise InputError("joint fit: every image is held out; fit at least one")
+    check_output_dir(out)
+    files = outputs_fn(out, names, holdout)
+    if not force:
+        for p in files:
+            if os.path.exists(p):
+                raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
+    return names, holdout, files
+
+
 def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, progress=True, command=None,
                observations=None, extra=None, reproduce=None, **fit_kw):
     """Joint fit of the non-held-out images of ``specs``, relighting check on the held-out ones; write outputs.
@@ -190,7 +208,6 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     observations, returns fit.json's ``reproduce`` block (the command's:
     :func:`fmbrdf_mi.fit.joint_record.block`).  Returns the dict written to fit.json.
     """
-    from .._paths import check_output_dir
     from . import plots
     from .fitting import FitOptions, predict_image
     from .joint import fit_joint, fitted_observation, power_text
@@ -198,16 +215,7 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     from .relight import relight_error
 
     check_fit_options(model=model, **fit_kw)
-    names = _names(specs)
-    holdout = [s.holdout for s in specs]
-    if all(holdout):
-        raise InputError("joint fit: every image is held out; fit at least one")
-    check_output_dir(out)
-    files = outputs(out, names, holdout)
-    if not force:
-        for p in files:
-            if os.path.exists(p):
-                raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
+    names, holdout, files = prepare_outputs(specs, out, outputs, force)
     obs = observations if observations is not None else build_observations(specs)
     fit_obs = [o for o, h in zip(obs, holdout) if not h]
     fit_names = [n for n, h in zip(names, holdout) if not h]
