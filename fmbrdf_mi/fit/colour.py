@@ -93,6 +93,12 @@ def _unit_mu(A, stokes, n):
     return np.einsum("kc,cik->ik", A, stokes.reshape(3, n, -1))
 
 
+def _floored(a_s, a_b):
+    """The albedos with those at 0 raised to 1e-9 of the largest (so that their logs stay finite)."""
+    floor = 1e-9 * max(float(np.max(a_s)), float(np.max(a_b)), 1e-300)
+    return np.maximum(a_s, floor), np.maximum(a_b, floor)
+
+
 class _Colour:
     def __init__(self, model, ev, y, A, chan, noise, fixed=None, bounds=None):
         self.model, self.ev, self.y, self.A, self.chan, self.noise = model, ev, y, A, chan, noise
@@ -137,10 +143,12 @@ class _Colour:
         shape, _, _ = self.from_z(z)
         p = self.parts(shape)
         a_s, a_b = self.albedos(p)
-        floor = 1e-9 * max(float(np.max(a_s)), float(np.max(a_b)), 1e-300)
-        a_s, a_b = np.maximum(a_s, floor), np.maximum(a_b, floor)
-        z = self.to_z(shape, a_s, a_b)
-        return z, ((self.y - self.mu(p, a_s, a_b)) / np.sqrt(self.var)).ravel()
+        a_s, a_b = _floored(a_s, a_b)
+        return self.to_z(shape, a_s, a_b), ((self.y - self.mu(p, a_s, a_b)) / np.sqrt(self.var)).ravel()
+
+    def floored_z(self, shape, a_s, a_b):
+        """z of (shape, a_s, a_b) with albedos at 0 raised to 1e-9 of the largest (z stays finite)."""
+        return self.to_z(shape, *_floored(a_s, a_b))
 
     def chi2(self, p, a_s, a_b):
         r = (self.y - self.mu(p, a_s, a_b)) / np.sqrt(self.var)
@@ -350,12 +358,12 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     r = J = None
     try:
         cands = _coarse(prob, say)
-        z = prob.project(prob.to_z(*cands[0]))[0]
+        z = prob.floored_z(*cands[0])      # the grid's albedos are already the closed-form ones
         prob.last = z
         for rnd in range(irls_rounds):
             z_old = z.copy()
             if rnd == 0:      # LM from the best `starts` grid points; the lowest chi2 goes on
-                ends = [_lm(prob, prob.project(prob.to_z(*c))[0], say, max_iter=max_iter, tag=f" {rnd}.{j}")
+                ends = [_lm(prob, prob.floored_z(*c), say, max_iter=max_iter, tag=f" {rnd}.{j}")
                         for j, c in enumerate(cands[:max(1, int(starts))])]
                 z, r, J, converged = min(ends, key=lambda e: float(e[1] @ e[1]))
             else:
