@@ -12,13 +12,17 @@ import drjit as dr
 import mitsuba as mi
 
 from . import params as P
-from .model.body import BodyGrid, body_tables, table_x_of_theta
+from .model.body import BodyGrid, body_tables, table_x_of_phi, table_x_of_theta
 from .model.distribution import Distribution
 from .model.interp import PackedTetraTable
 from .model.fresnel import reflection_mueller_terms
 from .model.sampling import MicrofacetSampler
 
 _SCALARS = ("eta", "alpha", "beta", "kappa")
+#: Compact tables: which channels of body.CHANNELS go into each 64-bit word of
+#: a texel, with their bits (interp.PackedTetraTable).  log M00 gets 20 bits,
+#: what unpolarised light sees besides (M10, M20) 16, the rest 12-13.
+PACKING = (((0, 20), (3, 16), (6, 16), (1, 12)), ((2, 13), (4, 13), (5, 13), (7, 13), (8, 12)))
 _PROPERTIES = _SCALARS + ("k_s", "k_b", "r_k", "tables")
 #: Values of the string property ``tables`` (see :meth:`_rebuild`).
 TABLE_MODES = ("compact", "float32")
@@ -312,20 +316,21 @@ class _FMBRDFMethods:
         # opaque: a new parameter value must not be baked into (and recompile) every kernel
         dr.make_opaque(self.eta, self.alpha, self.beta, self.kappa)
         self.dist = Distribution(mi.Float, self.alpha, self.beta)
-        self.primary, self.secondary = body_tables(self.dist, self.eta, self.kappa, self.grid, self.polarized)
+        self.table, self.factors = body_tables(self.dist, self.eta, self.kappa, self.grid, self.polarized)
         if (self.table_mode == "compact" and self.polarized
                 and not dr.grad_enabled(self.eta, self.alpha, self.beta, self.kappa)):
-            # No derivatives wanted: every Mueller element but log M00 in 16-bit fixed point, 2/3
-            # and 1/2 of the bytes for eval's random-access reads (interp.py).  M10/M00 and M20/M00
-            # (the DoLP of unpolarised light) are bounded by 1: within 1.5e-5; the others within
-            # 3.1e-5.  With gradients, or tables="float32", they stay float32 (smooth in the
-            # parameters to float32 rounding, which finite differences with small steps need).
-            self.primary = PackedTetraTable(self.primary, n_float=1, bound=1.0)
-            self.secondary = PackedTetraTable(self.secondary, bound=2.0)
+            # No derivatives wanted: the nine channels in fixed point over their own range, 16 bytes
+            # a texel (interp.py): log M00 within 4.8e-7 of its range (at most 8 in the valid
+            # parameter range: 3.8e-6 relative in M00), M10 and M20 within 7.6e-6 of theirs, the rest
+            # of the polarised response within 6.1e-5 to 1.2e-4 of theirs (ranges up to 0.2 at the
+            # corners of the valid range).  The 1-D factors go in pairs into 64-bit words.  With
+            # gradients, or tables="float32", both stay float32 (smooth in the parameters to float32
+            # rounding, which finite differences with small steps need).
+            self.table = PackedTetraTable(self.table, PACKING)
+            self.factors = self.factors.paired()
         with dr.suspend_grad():
             self.sampler = MicrofacetSampler(self.dist)
-        tables = [self.primary.values] + ([self.secondary.values] if self.secondary else [])
-        dr.eval(self.dist.p_tab, self.dist.norm, *tables)
+        dr.eval(self.dist.p_tab, self.dist.norm, self.table.values, self.factors.values)
 
     def _rebuild_scalar(self):
         """Scalar variants: the tables are built with Dr.Jit's LLVM backend, then
@@ -333,9 +338,9 @@ class _FMBRDFMethods:
         from drjit.llvm.ad import Float
 
         dist = Distribution(Float, Float(self.alpha), Float(self.beta))
-        primary, _ = body_tables(dist, Float(self.eta), Float(self.kappa), self.grid, polarized=False)
+        table, factors = body_tables(dist, Float(self.eta), Float(self.kappa), self.grid, polarized=False)
         self.dist = dist.scalar_copy()
-        self.primary, self.secondary = primary.scalar_copy(), None
+        self.table, self.factors = table.scalar_copy(), factors.scalar_copy()
         self.sampler = MicrofacetSampler(dist).scalar_copy(self.dist)
 
     # ------------------------------------------------------------ evaluation
@@ -354,10 +359,23 @@ class _FMBRDFMethods:
 
     def table_coords(self, cos_l, cos_v, phi):
         """Coordinates in [0, 1]^3 of the body tables, in their axis order
-        (phi / pi, x(theta_L), x(theta_V)), for (cos theta_L, cos theta_V, |phi|)."""
+        (x(phi), x(theta_L), x(theta_V)), for (cos theta_L, cos theta_V, |phi|)."""
         x_l = table_x_of_theta(dr.acos(dr.clip(cos_l, 0.0, 1.0)))
         x_v = table_x_of_theta(dr.acos(dr.clip(cos_v, 0.0, 1.0)))
-        return phi * (1.0 / math.pi), x_l, x_v
+        return table_x_of_phi(phi), x_l, x_v
+
+    def body_ratios(self, cos_l, cos_v, phi):
+        """The body matrix over k_b cos(theta_L) from the tables, in their bases (body.py):
+        (M00, [M10, M20] / M00, [M01, M02, M11, M12, M21, M22] / M00), for
+        (cos theta_L, cos theta_V, |phi|); the ratios are None when not polarised."""
+        u = self.table_coords(cos_l, cos_v, phi)
+        log_fl, d_l = self.factors.eval(u[1])
+        log_fv, d_v = self.factors.eval(u[2])
+        c = self.table.eval(*u)  # the channels of body.CHANNELS
+        m00 = dr.exp(c[0] + log_fl + log_fv)
+        if not self.polarized:
+            return m00, None, None
+        return m00, [c[3] + d_v, c[6]], [c[1] + d_l, c[2], c[4] + d_v * d_l, c[5], c[7], c[8]]
 
     def _surface(self, L, V, cos_o):
         """Surface reflection (eq:Torrance-Sparrow, sec. 4.2) times ``cos_o``: (scale, 3x3 block, M33)."""
@@ -382,13 +400,11 @@ class _FMBRDFMethods:
         vx, vy = _unit_xy(V)
         sin_phi = lx * vy - ly * vx  # phi = phi_V - phi_L
         phi = dr.acos(dr.clip(lx * vx + ly * vy, -1.0, 1.0))
-        u = self.table_coords(L.z, V.z, phi)
-        primary = self.primary.eval(*u)
-        m00 = dr.exp(primary[0])
+        m00, column, rest = self.body_ratios(L.z, V.z, phi)
         if not self.polarized:
             return cos_o * m00, None
-        r10, r20 = primary[1], primary[2]
-        r01, r02, r11, r12, r21, r22 = self.secondary.eval(*u)
+        r10, r20 = column
+        r01, r02, r11, r12, r21, r22 = rest
         flip = dr.select(sin_phi < 0, -1.0, 1.0)  # mirror image: s2 changes sign on one side
         M = [[1.0, r01, flip * r02], [r10, r11, flip * r12], [flip * r20, flip * r21, r22]]
         # table bases: s axes of the planes of incidence and exit

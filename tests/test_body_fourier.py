@@ -122,7 +122,7 @@ def test_off_grid_azimuths_interpolate_the_series(jit):
 
 # ------------------------------------------------------------------ derivatives
 BASE = {"eta": 1.6, "alpha": 0.4, "beta": 1.7, "kappa": 20.0}
-PICK = np.array([0, 7, 1234, 40000, 123456, 300001, 545000])  # flat indices into each table
+PICK = np.array([0, 7, 1234, 40000, 123456, 300001, 545000, 1000003, 1700000])  # flat indices into each table
 
 
 def _tables(Float, p):
@@ -135,17 +135,22 @@ def _tables(Float, p):
 
 def _picked(dr, Float, tables):
     from drjit.llvm.ad import UInt32
-    prim, sec = tables
-    return dr.concat([dr.gather(Float, prim.values, UInt32(PICK * 3 % dr.width(prim.values))),
-                      dr.gather(Float, sec.values, UInt32(PICK % dr.width(sec.values)))])
+    table, fac = tables
+    n = dr.width(table.values)
+    return dr.concat([dr.gather(Float, table.values, UInt32(PICK * 9 % n)),  # the log channel
+                      dr.gather(Float, table.values, UInt32(PICK % n)),  # every kind of channel
+                      dr.gather(Float, fac.values, UInt32(PICK % dr.width(fac.values)))])
 
 
 @pytest.mark.parametrize("name", sorted(BASE))
 def test_table_gradients_match_central_differences(jit, name):
-    """Forward- and reverse-mode derivatives of table entries (both tables,
-    every kind of channel) against central differences: h = 1e-2 x value, so
-    float32 noise (~1e-5 relative) and truncation (~1e-4) stay far below the 2 %
-    tolerance, which any missing or wrong derivative path exceeds."""
+    """Forward- and reverse-mode derivatives of table entries (every kind of
+    channel of the body table, and the 1-D grazing factors) against central differences of the same tables
+    built in float64: h = 1e-2 x value, truncation ~1e-4 relative, far below
+    the 2 % tolerance, which any missing or wrong derivative path exceeds.
+    (The channels are ratios and logarithms less their kappa = 0 factors:
+    float32 cancellation there leaves differences with noise of a few 1e-5
+    of the largest derivative, too close to the tolerance.)"""
     dr, Float = jit
     p = {k: Float(v) for k, v in BASE.items()}
     dr.enable_grad(p[name])
@@ -159,12 +164,58 @@ def test_table_gradients_match_central_differences(jit, name):
     dr.backward(dr.sum(vals * Float(weights)))
     rev = float(dr.grad(p[name])[0])
 
+    from drjit.llvm.ad import Float64
     h = 1e-2 * BASE[name]
-    f = lambda x: np.asarray(_picked(dr, Float, _tables(Float, {**{k: Float(v) for k, v in BASE.items()},
-                                                                 name: Float(x)})), dtype=np.float64)
+    f = lambda x: np.asarray(_picked(dr, Float64, _tables(Float64, {**{k: Float64(v) for k, v in BASE.items()},
+                                                                     name: Float64(x)})), dtype=np.float64)
     fd = (f(BASE[name] + h) - f(BASE[name] - h)) / (2 * h)
     big = np.abs(fd) > 1e-3 * np.abs(fd).max()
     assert big.sum() >= 5
     np.testing.assert_allclose(fwd[big], fd[big], rtol=2e-2, atol=2e-3 * np.abs(fd).max())
     assert rev == pytest.approx(float(weights @ fd), rel=2e-2)
     assert rev == pytest.approx(float(weights @ fwd), rel=1e-4)
+
+
+# ------------------------------------------------------------------ grazing factors
+@pytest.mark.parametrize("mat", [(1.01, 0.01, 5.0), (3.0, math.pi / 2, 0.4), (1.5, 0.3, 2.0), (2.5, 0.05, 0.6)])
+def test_grazing_factors_are_the_kappa0_factorisation(jit, mat):
+    """At kappa = 0 the dense double sum (float64 NumPy, independent code path)
+    factorises as A(V) A(L)^T / Z: its M00 over theta_V is F(theta_V) P(theta_V)
+    up to one constant, M10/M00 is d(theta_V) and M01/M00 is d(theta_L).
+    Tolerance: float32 sums over 2048 nodes, ~1e-6 relative; 2e-5 (of F, and
+    absolute for d, which is at most 1) is far inside what a wrong factor of P,
+    a lost Fresnel term or a sign produces (1e-2 and more)."""
+    dr, Float = jit
+    from fmbrdf_mi.model.body import BodyGrid, grazing_factors
+
+    eta, alpha, beta = mat
+    grid = BodyGrid()
+    dist, eta_ = _material(Float, eta, alpha, beta)
+    theta = np.array([0.0, 0.3, 0.9, 1.2, 1.45, 1.55, 0.5 * math.pi])
+    F, d = (np.asarray(x, dtype=np.float64) for x in grazing_factors(dist, eta_, grid, theta))
+    P = np.asarray(dist.projected_area(Float(theta)), dtype=np.float64)
+    dense = dense_sum(dist, grid, eta, 0.0, theta[[1]], theta, np.array([0.7]))[0, :, 0]  # (v, 3, 3)
+    ratio = F * P / dense[:, 0, 0]
+    np.testing.assert_allclose(ratio / ratio[0], 1.0, atol=2e-5)
+    np.testing.assert_allclose(d, dense[:, 1, 0] / dense[:, 0, 0], atol=2e-5)
+    dense_l = dense_sum(dist, grid, eta, 0.0, theta, theta[[2]], np.array([2.1]))[:, 0, 0]  # (l, 3, 3)
+    np.testing.assert_allclose(d, dense_l[:, 0, 1] / dense_l[:, 0, 0], atol=2e-5)
+    if eta >= 1.5 and alpha < 1:  # not trivial: grazing light is transmitted less, and polarised
+        assert F[0] - F[-1] > 0.05 and d[-1] < -0.01
+
+
+def test_tables_are_constant_at_kappa0(jit):
+    """With the grazing factors divided out, every tabulated channel is constant
+    (the first) or zero (the others) at kappa = 0: the tables hold only the
+    coupling between the two directions (to float32 rounding of the log and the
+    ratios, 1e-5; a channel whose factor were not removed varies by 1e-1 or more)."""
+    dr, Float = jit
+    from fmbrdf_mi.model.body import BodyGrid, body_tables
+
+    dist, eta_ = _material(Float, 1.7, 0.4, 1.5)
+    table, fac = body_tables(dist, eta_, Float(0.0), BodyGrid())
+    t = np.asarray(table.values, dtype=np.float64).reshape(-1, 9)
+    assert np.ptp(t[:, 0]) < 1e-4
+    assert np.abs(t[:, 1:]).max() < 1e-5
+    f = np.asarray(fac.values, dtype=np.float64).reshape(-1, 2)
+    assert np.ptp(f[:, 0]) > 0.1 and np.ptp(f[:, 1]) > 0.1  # the factors themselves are not flat

@@ -46,43 +46,57 @@ def test_interpolation_is_continuous_across_tetrahedra(Float):
     assert np.abs(np.diff(v)).max() < 1e-3
 
 
-@pytest.mark.parametrize("n_float", [0, 1])
-def test_packed_table_equals_float_table_to_its_step(variant, n_float):
-    """PackedTetraTable stores packed channels as 16-bit fixed point (step
-    2/32767): each node value is within half a step, so an interpolated value
-    (a convex combination) is within 3.06e-5 of the float32 table's; float
-    channels are bit-identical.  Values outside [-2, 2] are clipped."""
+def test_packed_table_equals_float_table_to_its_step(variant):
+    """PackedTetraTable stores each channel in fixed point over its own range,
+    step_c = range_c / (2^bits - 1): each node value is within half a step, so
+    an interpolated value (a convex combination) is within step_c / 2 of the
+    float32 table's, plus float32 rounding of the sums (1e-6 of the largest
+    value).  Channels of very different ranges (a log channel over [-30, 5], a
+    ratio in [-1, 1], a constant) keep their own precision."""
     import mitsuba as mi
     if not mi.variant().startswith(("llvm", "cuda")):
         pytest.skip("packed tables are for the JIT variants")
     from fmbrdf_mi.model.interp import PackedTetraTable
     Float = mi.Float
     rng = np.random.default_rng(3)
-    data = rng.uniform(-2, 2, size=(6, 5, 7, 6 + n_float))
-    data[..., 0] *= 50 if n_float else 1  # a float channel far outside [-2, 2]
+    data = rng.uniform(-1, 1, size=(6, 5, 7, 5))
+    data[..., 0] = rng.uniform(-30, 5, size=(6, 5, 7))
+    data[..., 3] = 0.25  # constant: range 0
+    data[..., 4] *= 1e-3  # small values keep a small step
     t = _table(Float, data)
-    p = PackedTetraTable(t, n_float=n_float, bound=2.0)
-    assert p.shape[3] == n_float + 3
+    words = [[(0, 16), (1, 16), (3, 16), (4, 16)], [(2, 13)]]
+    p = PackedTetraTable(t, words)
+    assert p.shape[3] == 2 and dr_width(p.values) == 6 * 5 * 7 * 2
     u = [Float(x) for x in rng.uniform(-0.1, 1.1, (3, 20000))]
-    a = [np.asarray(x) for x in t.eval(*u)]
-    b = [np.asarray(x) for x in p.eval(*u)]
+    a = [np.asarray(x, dtype=np.float64) for x in t.eval(*u)]
+    b = [np.asarray(x, dtype=np.float64) for x in p.eval(*u)]
+    bits = {ch: b_ for w in words for ch, b_ in w}
     for k, (x, y) in enumerate(zip(a, b)):
-        if k < n_float:
-            assert np.array_equal(x, y)
-        else:
-            err = np.abs(x - y).max()
-            assert err <= 0.5 * p.scale + 1e-6, (k, err)
-            assert err > 1e-7  # it is really quantised
-    clipped = PackedTetraTable(_table(Float, np.full((2, 2, 2, 2), 3.0)))
-    assert np.allclose(np.asarray(clipped.eval(Float(0.3), Float(0.3), Float(0.3))[0]), 2.0, atol=1e-4)
+        step = np.ptp(data[..., k]) / (2 ** bits[k] - 1)
+        err = np.abs(x - y).max()
+        assert err <= 0.5 * step + 1e-6 * np.abs(data[..., k]).max() + 1e-12, (k, err, step)
+        if step > 0:
+            assert err > 0.05 * step  # it is really quantised
+    with pytest.raises(ValueError, match="every channel once"):
+        PackedTetraTable(t, [[(0, 16), (1, 16)], [(2, 13)]])  # channels 3, 4 missing
+    with pytest.raises(ValueError, match="64 bits"):
+        PackedTetraTable(t, [[(0, 20), (1, 20), (2, 20), (3, 20)], [(4, 13)]])
+
+
+def dr_width(x):
+    import drjit as dr
+    return dr.width(x)
 
 
 def test_compact_and_float32_tables_agree(variant):
-    """The plugin's default tables ("compact": ratios in 16-bit fixed point when
-    no gradients are wanted) against tables="float32": each ratio within 3.06e-5,
-    so each Mueller element of the body term within 4 x 3.06e-5 x M00 after the
-    two Stokes-frame rotations (each output element mixes at most 4 ratios with
-    coefficients of modulus <= 1); the surface term is not tabulated and equal."""
+    """The plugin's default tables ("compact": every channel in 12-16-bit fixed
+    point when no gradients are wanted) against tables="float32": the log
+    channel within h0 = step_0 / 2, so M00 within relative e^h0 - 1; each ratio
+    within h = max step_c / 2; so each Mueller element of the body term within
+    (4 h + (e^h0 - 1)(1 + 4 h)) M00 after the two Stokes-frame rotations (each
+    output element mixes at most 4 ratios with coefficients of modulus <= 1,
+    and the ratios of a Mueller matrix are at most 1); plus float32 rounding.
+    The surface term is not tabulated and equal."""
     from _common import directions, eval_mueller
     from conftest import make, make_float32
     import fmbrdf_mi
@@ -97,9 +111,13 @@ def test_compact_and_float32_tables_agree(variant):
     a, _, _ = eval_mueller(compact, L, V, component=1)
     b, _, _ = eval_mueller(f32, L, V, component=1)
     err = np.abs(a - b).max(axis=(1, 2)) / b[:, 0, 0]
-    assert err.max() <= 4 * 3.06e-5 + 1e-6
+    steps = [float(x[0]) for x in compact.table.step]
+    h0, h = 0.5 * steps[0], 0.5 * max(steps[1:])
+    assert h0 < 1e-4 and h < 2e-4  # 16 bits over a log range below 13, 12 bits over a ratio range below 2
+    bound = 4 * h + np.expm1(h0) * (1 + 4 * h)
+    assert err.max() <= bound + 1e-6
     assert err.max() > 1e-7  # the default really is the compact table
-    np.testing.assert_array_equal(a[:, 0, 0], b[:, 0, 0])  # log M00 stays float32
+    assert np.abs(a[:, 0, 0] / b[:, 0, 0] - 1).max() <= np.expm1(h0) + 1e-6
     s1, _, _ = eval_mueller(compact, L, V, component=0)
     s2, _, _ = eval_mueller(f32, L, V, component=0)
     np.testing.assert_array_equal(s1, s2)

@@ -45,13 +45,13 @@ def dolp(M):
     return np.hypot(M[:, 1, 0], M[:, 2, 0]) / M[:, 0, 0]
 
 
-def set_body_grid(bsdf, n_phi=None, primary=None, secondary=None):
+def set_body_grid(bsdf, n_phi=None, table=None):
     """Rebuild ``bsdf``'s tables with ``n_phi`` node azimuths and the given
-    (n_theta, n_phi) table resolutions (None: keep the package's)."""
-    if n_phi is None and primary is None and secondary is None:
+    (n_theta, n_phi) table resolution (None: keep the package's)."""
+    if n_phi is None and table is None:
         return bsdf
     from fmbrdf_mi.model.body import BodyGrid
     g = bsdf.grid
-    bsdf.grid = BodyGrid(g.n_theta, n_phi or g.n_phi, tuple(primary or g.primary), tuple(secondary or g.secondary))
+    bsdf.grid = BodyGrid(g.n_theta, n_phi or g.n_phi, tuple(table or g.table), g.n_factor)
     bsdf._rebuild()
     return bsdf

@@ -20,9 +20,9 @@ def main():
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--variant", default="llvm_ad_spectral_polarized")
-    ap.add_argument("--grid", type=int, nargs=4, action="append", default=[],
-                    metavar=("NT", "NP", "NT2", "NP2"),
-                    help="also time fmbrdf with primary table (NT, NP) and secondary (NT2, NP2) nodes "
+    ap.add_argument("--grid", type=int, nargs=2, action="append", default=[],
+                    metavar=("NT", "NP"),
+                    help="also time fmbrdf with a body table of (NT, NP) nodes "
                          "(repeatable): how eval's cost depends on the tables' size")
     args = ap.parse_args()
 
@@ -58,17 +58,17 @@ def main():
     from fmbrdf_mi.model.body import BodyGrid
 
     def table_kib(b):
-        return sum(dr.width(t.values) * 4 for t in (b.primary, b.secondary)) / 1024
+        return sum(dr.width(t.values) * dr.itemsize_v(t.values) for t in (b.table, b.factors)) / 1024
 
     g = bsdfs["fmbrdf"].grid
-    print(f"fmbrdf's tables: {g.primary[0]}x{g.primary[0]}x{g.primary[1]} + {g.secondary[0]}x{g.secondary[0]}x"
-          f"{g.secondary[1]} nodes, {table_kib(bsdfs['fmbrdf']):.0f} KiB")
-    for nt, nph, nt2, nph2 in args.grid:
+    print(f"fmbrdf's tables: {g.table[0]}x{g.table[0]}x{g.table[1]} nodes + {g.n_factor} 1-D factors, "
+          f"{table_kib(bsdfs['fmbrdf']):.0f} KiB")
+    for nt, nph in args.grid:
         b = mi.load_dict({"type": "fmbrdf", "eta": 1.5, "alpha": 0.3, "beta": 2.0, "kappa": 10.0,
                           "k_s": 1.0, "r_k": 1.0})
-        b.grid = BodyGrid(b.grid.n_theta, b.grid.n_phi, (nt, nph), (nt2, nph2))
+        b.grid = BodyGrid(b.grid.n_theta, b.grid.n_phi, (nt, nph), b.grid.n_factor)
         b.parameters_changed(["alpha"])
-        bsdfs[f"fmbrdf {nt}x{nt}x{nph}/{nt2}x{nt2}x{nph2} ({table_kib(b):.0f} KiB)"] = b
+        bsdfs[f"fmbrdf {nt}x{nt}x{nph} ({table_kib(b):.0f} KiB)"] = b
     for bsdf in bsdfs.values():
         dr.eval(bsdf.eval(ctx, si, wo))  # compile
     times = {name: np.inf for name in bsdfs}

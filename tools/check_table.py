@@ -43,10 +43,10 @@ def main():
                     help="sample the whole valid parameter range instead of the issue's box")
     ap.add_argument("--n-phi", type=int, default=None,
                     help="microfacet node azimuths of the body quadrature (default: the package's)")
-    ap.add_argument("--primary", type=int, nargs=2, default=None, metavar=("N_THETA", "N_PHI"),
-                    help="table nodes of the primary table (default: the package's)")
-    ap.add_argument("--secondary", type=int, nargs=2, default=None, metavar=("N_THETA", "N_PHI"),
-                    help="table nodes of the secondary table (default: the package's)")
+    ap.add_argument("--table", type=int, nargs=2, default=None, metavar=("N_THETA", "N_PHI"),
+                    help="nodes of the body table (default: the package's)")
+    ap.add_argument("--float32", action="store_true",
+                    help="read the float32 table instead of the compact (fixed-point) one eval uses")
     args = ap.parse_args()
 
     import drjit as dr
@@ -60,8 +60,9 @@ def main():
     t0 = time.time()
     for eta, alpha, beta, kappa in random_materials(rng, args.materials, full_box() if args.full_range else BOX):
         bsdf = set_body_grid(mi.load_dict({"type": "fmbrdf", "eta": eta, "alpha": alpha, "beta": beta,
-                                           "kappa": kappa}), args.n_phi,
-                              args.primary, args.secondary)
+                                           "kappa": kappa, "tables": "float32" if args.float32 else "compact"}),
+                              args.n_phi,
+                              args.table)
         thL, thV, ph = random_angles(rng, args.points)
         # direct quadrature, one light angle per point (diagonal of the (n_L, n_V) product)
         n = args.points
@@ -72,13 +73,11 @@ def main():
             Y = np.asarray(Y).reshape(Y.shape[0], Y.shape[1], 9)
             k = np.arange(Y.shape[0])
             direct[sl] = Y[k, k]
-        u = bsdf.table_coords(mi.Float(np.cos(thL)), mi.Float(np.cos(thV)), mi.Float(ph))
-        prim = [np.asarray(c) for c in bsdf.primary.eval(*u)]
-        sec = [np.asarray(c) for c in bsdf.secondary.eval(*u)]
-        m00 = np.exp(prim[0])
-        # (log M00, M10, M20) and (M01, M02, M11, M12, M21, M22) over M00 -> row-major 3x3
-        look = m00[:, None] * np.stack([np.ones_like(m00), sec[0], sec[1], prim[1], sec[2], sec[3],
-                                        prim[2], sec[4], sec[5]], axis=1)
+        m00, col, sec = bsdf.body_ratios(mi.Float(np.cos(thL)), mi.Float(np.cos(thV)), mi.Float(ph))
+        m00, col, sec = np.asarray(m00), [np.asarray(c) for c in col], [np.asarray(c) for c in sec]
+        # M00, (M10, M20) and (M01, M02, M11, M12, M21, M22) over M00 -> row-major 3x3
+        look = m00[:, None] * np.stack([np.ones_like(m00), sec[0], sec[1], col[0], sec[2], sec[3],
+                                        col[1], sec[4], sec[5]], axis=1)
         eM = np.abs(look - direct).max(axis=1) / direct[:, 0]
         eI = np.abs(look[:, 0] / direct[:, 0] - 1)
         dol = lambda M: np.hypot(M[:, 3], M[:, 6]) / M[:, 0]

@@ -51,25 +51,25 @@ import drjit as dr
 import numpy as np
 
 from .fresnel import transmission_mueller_terms
-from .interp import TetraTable
+from .interp import LineTable, TetraTable
 from .quadrature import constant, gauss_legendre_array, gennormal_unnormalised
 
 
 class BodyGrid:
     """Resolution of the body quadrature and of its tables.
 
-    ``n_theta`` polar x ``n_phi`` azimuthal microfacet nodes (n_phi even).
-    The primary table (column 0 of the matrix: what unpolarised light sees)
-    is finer than the secondary one (the response to polarised light); both
-    resolutions come from tools/check_table.py.  The secondary table's nodes
-    are every other node of the primary one.
+    ``n_theta`` polar x ``n_phi`` azimuthal microfacet nodes (n_phi even);
+    ``table``: (n_theta, n_phi) nodes of the body table (README, Measured
+    accuracy, for how they were chosen).
     """
 
-    def __init__(self, n_theta=32, n_phi=64, primary=(65, 129), secondary=(33, 65)):
+    def __init__(self, n_theta=32, n_phi=64, table=(49, 81), n_factor=257):
         if n_phi % 2:
             raise ValueError("BodyGrid: n_phi must be even")
         self.n_theta, self.n_phi = n_theta, n_phi
-        self.primary, self.secondary = primary, secondary
+        self.table = tuple(table)
+        #: nodes of the 1-D table of the grazing factors (:func:`grazing_factors`)
+        self.n_factor = n_factor
 
 
 def polar_nodes(dist, grid):
@@ -305,50 +305,117 @@ def table_x_of_theta(theta):
     return dr.asin(theta * (math.sin(TABLE_WARP) / (0.5 * math.pi))) * (1.0 / TABLE_WARP)
 
 
+#: Table azimuths are phi = pi sin(B x) / sin(B), x uniform in [0, 1]: near
+#: forward scattering (phi = pi), where a large kappa makes the body term of
+#: grazing directions fall steeply (light must leave through a facet near the
+#: one it entered by, and the facets that both grazing directions see shrink to
+#: a band), the spacing is cos(B) = 0.12 times the spacing at phi = 0.
+PHI_WARP = 1.45
+
+
+def table_phi_of_x(x):
+    return (math.pi / math.sin(PHI_WARP)) * np.sin(PHI_WARP * np.asarray(x))
+
+
+def table_x_of_phi(phi):
+    """Inverse of :func:`table_phi_of_x` (Dr.Jit arrays)."""
+    return dr.asin(phi * (math.sin(PHI_WARP) / math.pi)) * (1.0 / PHI_WARP)
+
+
 def table_angles(n_theta, n_phi):
-    """Table nodes: theta in [0, pi/2] (both ends, warped), phi in [0, pi] (both ends)."""
-    return table_theta_of_x(np.linspace(0.0, 1.0, n_theta)), np.linspace(0.0, math.pi, n_phi)
+    """Table nodes: theta in [0, pi/2] (both ends, warped), phi in [0, pi] (both ends, warped)."""
+    x = lambda n: np.linspace(0.0, 1.0, n)
+    return table_theta_of_x(x(n_theta)), table_phi_of_x(x(n_phi))
+
+
+def grazing_factors(dist, eta, grid, theta):
+    """(F, d) at polar angles ``theta``: the body matrix at kappa = 0, per direction.
+
+    At kappa = 0 the coupling is constant and the body matrix factorises:
+    M = A(V) A(L)^T / Z with A(w) = sum_p a_p(w) / P(w) (the incident side
+    b_q gives the same two non-zero channels as the exit side a_p; the third
+    sums to zero over the mirror-symmetric node azimuths).  F = A_0 is the
+    microfacet-averaged Fresnel transmittance over the projected area, which
+    carries the steep fall of the body term towards grazing (Fresnel
+    transmission, masking); d = A_1 / A_0 is the DoLP of light leaving at
+    that angle (Fresnel transmission's T-/T+, averaged).  :func:`body_tables`
+    divides these 1-D factors out of what it tabulates, so that the 3-D tables
+    hold only the smooth coupling between the two directions.
+    """
+    Float = dist.Float
+    UInt = dr.uint32_array_t(Float)
+    th_j, w_j = polar_nodes(dist, grid)
+    J, K = grid.n_theta, grid.n_phi // 2  # the azimuths phi_k and -phi_k give the same channels 0, 1
+    theta = Float(theta)
+    n = dr.width(theta)
+    idx = dr.arange(UInt, n * J * K)
+    i, j, k = idx // (J * K), (idx // K) % J, idx % K
+    thn = dr.gather(Float, th_j, j)
+    phn = (Float(k) + 0.5) * (2.0 * math.pi / grid.n_phi)
+    stn = dr.sin(thn)
+    node = (stn * dr.cos(phn), stn * dr.sin(phn), dr.cos(thn))
+    a = transmitted(Float, eta, dr.gather(Float, theta, i), Float(0.0), node, dr.gather(Float, w_j, j), False)
+    s0, s1 = dr.block_sum(a[0], J * K), dr.block_sum(a[1], J * K)
+    return 2.0 * s0 / dist.projected_area(theta), s1 / dr.maximum(s0, 1e-30)
+
+
+#: The tabulated channels, in the order of :func:`body_tables`: log M00 less
+#: the grazing factors, then the other elements of the 3 x 3 block row by row,
+#: as ratios to M00 less their kappa = 0 values.
+CHANNELS = ("log_m00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22")
 
 
 def body_tables(dist, eta, kappa, grid, polarized=True):
-    """The body term as interpolation tables over (phi / pi, x(theta_L), x(theta_V)).
+    """The body term as an interpolation table over (x(phi), x(theta_L), x(theta_V)).
 
-    primary: (log M00, M10 / M00, M20 / M00) on ``grid.primary``: everything
-    unpolarised incident light sees (only log M00 when not ``polarized``);
-    secondary: (M01, M02, M11, M12, M21, M22) / M00 on ``grid.secondary``, the
-    response to polarised incident light.  Logarithm and ratios vary more
-    smoothly than the elements (a large kappa makes M00 peaked); M is divided by
-    k_b cos(theta_L) and expressed in the bases of :func:`body_grid_matrices`.
-    Returns (primary, secondary or None) as :class:`TetraTable`.
+    M is divided by k_b cos(theta_L) and expressed in the bases of
+    :func:`body_grid_matrices`; then the 1-D grazing factors of
+    :func:`grazing_factors` (F and d, the kappa = 0 factorisation) are taken
+    out, so that what is tabulated stays smooth where M itself falls steeply:
+
+    factors: (log F, d) on ``grid.n_factor`` nodes of x(theta);
+    table: on ``grid.table`` nodes, the nine channels of :data:`CHANNELS`:
+    log M00 - log F(theta_L) - log F(theta_V), and M_ij / M00 for the other
+    eight elements less their kappa = 0 values (d(theta_L) for M01,
+    d(theta_V) for M10, d(theta_V) d(theta_L) for M11, zero for the rest);
+    only the first channel when not ``polarized``.  At kappa = 0 the first
+    channel is a constant and all the others vanish.  Logarithm and ratios vary
+    more smoothly than the elements (a large kappa makes M00 peaked).  One table
+    for all nine channels: eval computes one set of interpolation weights and
+    reads each corner's texel from one place (interp.py).
+    Returns (table, factors): :class:`TetraTable` and :class:`LineTable`.
     """
     Float = dist.Float
     UInt = dr.uint32_array_t(Float)
     nodes = polar_nodes(dist, grid)
     khat = coupling_modes(dist, kappa, grid, *nodes)
-    th, ph = table_angles(*grid.primary)
-    shape = (grid.primary[1], grid.primary[0], grid.primary[0])
-    rows = (0, 1, 2) if polarized else (0,)
-    p = dist.projected_area(Float(th))
-    Y = body_grid_matrices(dist, eta, kappa, grid, th, th, ph, rows, (0,), nodes, khat, (p, p)).array
-    if not polarized:
-        return TetraTable(dr.log(dr.maximum(Y, 1e-30)), shape + (1,)), None
-    # (t, l, v, r): elements k = 3 texel + c: channel 0 -> log M00, channels 1, 2 -> M10, M20 over M00
-    k = dr.arange(UInt, dr.width(Y))
-    m00 = dr.maximum(dr.gather(Float, Y, k - k % 3), 1e-30)
-    primary = dr.select(k % 3 == 0, dr.log(m00), Y / m00)
+    th, ph = table_angles(*grid.table)
+    th_f = table_theta_of_x(np.linspace(0.0, 1.0, grid.n_factor))
+    # the grazing factors at the 1-D nodes and at the table's polar nodes, in one pass
+    f_all, d_all = grazing_factors(dist, eta, grid, np.concatenate([th_f, th]))
+    nf, n1 = len(th_f), len(th)
+    logf_all = dr.log(dr.maximum(f_all, 1e-30))
+    pick = lambda x, start, n: dr.gather(Float, x, dr.arange(UInt, n) + start)
+    k = dr.arange(UInt, 2 * nf)
+    factors = LineTable(dr.select(k % 2 == 0, dr.gather(Float, logf_all, k // 2), dr.gather(Float, d_all, k // 2)),
+                        (nf, 2))
+    logf1, d1 = pick(logf_all, nf, n1), pick(d_all, nf, n1)
 
-    th2, ph2 = table_angles(*grid.secondary)
-    shape2 = (grid.secondary[1], grid.secondary[0], grid.secondary[0])
-    step = (len(th) - 1) // (len(th2) - 1)
-    if len(th) == step * (len(th2) - 1) + 1 and np.array_equal(th[::step], th2):  # every other node
-        p2 = dr.gather(Float, p, dr.arange(UInt, len(th2)) * step)
-    else:
-        p2 = dist.projected_area(Float(th2))
-    Y2 = body_grid_matrices(dist, eta, kappa, grid, th2, th2, ph2, (0, 1, 2), (0, 1, 2), nodes, khat,
-                            (p2, p2)).array
-    dr.eval(Y2)  # gathered twice below
-    k = dr.arange(UInt, dr.width(Y2) // 9 * 6)
-    cell, ch = k // 6, k % 6
-    elem = ch + 1 + ch // 2  # (M01, M02, M11, M12, M21, M22) -> row-major indices 1, 2, 4, 5, 7, 8
-    secondary = dr.gather(Float, Y2, cell * 9 + elem) / dr.maximum(dr.gather(Float, Y2, cell * 9), 1e-30)
-    return TetraTable(primary, shape + (3,)), TetraTable(secondary, shape2 + (6,))
+    shape = (grid.table[1], n1, n1)
+    rows = cols = (0, 1, 2) if polarized else (0,)
+    p = dist.projected_area(Float(th))
+    Y = body_grid_matrices(dist, eta, kappa, grid, th, th, ph, rows, cols, nodes, khat, (p, p)).array
+    nc = len(rows) * len(cols)
+    if polarized:
+        dr.eval(Y)  # gathered twice below
+    # (t, l, v, c): element k = nc texel + c, c = 3 row + column
+    k = dr.arange(UInt, dr.width(Y))
+    l, v, c = (k // (n1 * nc)) % n1, (k // nc) % n1, k % nc
+    m00 = dr.maximum(dr.gather(Float, Y, k - c), 1e-30)
+    log_part = dr.log(m00) - dr.gather(Float, logf1, l) - dr.gather(Float, logf1, v)
+    if not polarized:
+        return TetraTable(log_part, shape + (1,)), factors
+    dl, dv = dr.gather(Float, d1, l), dr.gather(Float, d1, v)
+    kappa0 = dr.select(c == 1, dl, dr.select(c == 3, dv, dr.select(c == 4, dl * dv, 0.0)))
+    table = dr.select(c == 0, log_part, Y / m00 - kappa0)
+    return TetraTable(table, shape + (9,)), factors
