@@ -63,7 +63,9 @@ def test_fit_cli_colour_joint_manifest(tmp_path, capsys):
     """`fmbrdf-mi fit --manifest` on three rendered colour mosaics of one sphere (lights left, right, top;
     one held out), eta, beta, kappa fixed as in the single-image CLI test.  Truth: the renders' parameters
     (Mitsuba's spectral path tracer, independent of the fit's per-pixel model).  Checks: estimates within 4
-    standard errors inflated by sqrt(chi2/dof) (render noise); channel ratios of k_s within 3 %; the held-out
+    standard errors inflated by sqrt(chi2/dof) (render noise); the channel ratios of k_s too (their relative
+    SE from the two channels' as if independent: about 1.7 %, an overestimate, since alpha correlates the
+    channels positively; a swapped or mixed channel is off by 30 % and more); the held-out
     image's raw-sample RMSE / mean within 2.5x what shot and read noise alone give (the render's Monte Carlo
     noise adds ~1.5x at 256 spp); per-image plots; --from reruns to the same estimates; mixing in a mono
     image is refused in one line."""
@@ -95,8 +97,9 @@ def test_fit_cli_colour_joint_manifest(tmp_path, capsys):
     for c, ks in zip("RGB", (0.6, 0.4, 0.5)):
         assert abs(p["k_s"][c] - ks) < 4 * infl * se["k_s"][c], (c, p["k_s"], se["k_s"])
         assert abs(p["r_k"][c] - 0.7) < 4 * infl * se["r_k"][c], (c, p["r_k"], se["r_k"])
-    assert abs(p["k_s"]["R"] / p["k_s"]["G"] / 1.5 - 1) < 0.03
-    assert abs(p["k_s"]["B"] / p["k_s"]["G"] / 1.25 - 1) < 0.03
+    for c, ratio in (("R", 1.5), ("B", 1.25)):  # the ratio's relative SE, channels taken as independent
+        rel_se = np.hypot(se["k_s"][c] / p["k_s"][c], se["k_s"]["G"] / p["k_s"]["G"])
+        assert abs(p["k_s"][c] / p["k_s"]["G"] / ratio - 1) < 4 * infl * rel_se, (c, p["k_s"], rel_se)
     # held-out image: its error against what the camera noise alone gives at its own samples
     from fmbrdf_mi.fit.colour_cli import read_colour_input
 
