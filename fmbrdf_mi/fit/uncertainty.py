@@ -194,9 +194,11 @@ def summarise(problem, st, J, r, n_independent=None):
             lo = max(lo, 0.0)
         out["std_errors"][n] = float(sd[i])
         out["ci95"][n] = [float(lo), float(hi)]
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         corr = cov / np.outer(sd, sd)
-    out["correlation"] = {"names": names, "matrix": np.round(np.nan_to_num(corr), 4).tolist()}
+    # a degenerate covariance (a noise-free fit: sd ~ 1e-160) can give inf/nan; a correlation is in [-1, 1]
+    corr = np.clip(np.nan_to_num(corr, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
+    out["correlation"] = {"names": names, "matrix": np.round(corr, 4).tolist()}
     return out
 
 
