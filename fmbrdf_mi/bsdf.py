@@ -316,9 +316,11 @@ class _FMBRDFMethods:
         # opaque: a new parameter value must not be baked into (and recompile) every kernel
         dr.make_opaque(self.eta, self.alpha, self.beta, self.kappa)
         self.dist = Distribution(mi.Float, self.alpha, self.beta)
-        self.table, self.factors = body_tables(self.dist, self.eta, self.kappa, self.grid, self.polarized)
-        if (self.table_mode == "compact" and self.polarized
-                and not dr.grad_enabled(self.eta, self.alpha, self.beta, self.kappa)):
+        compact = (self.table_mode == "compact" and self.polarized
+                   and not dr.grad_enabled(self.eta, self.alpha, self.beta, self.kappa))
+        self.table, self.factors = body_tables(self.dist, self.eta, self.kappa, self.grid, self.polarized,
+                                               planar=compact)
+        if compact:
             # No derivatives wanted: the nine channels in fixed point over their own range, 16 bytes
             # a texel (interp.py): log M00 within 4.8e-7 of its range (up to 8 in the materials
             # measured, among them the corners of the valid range: 3.8e-6 relative in M00), M10 and
@@ -331,7 +333,7 @@ class _FMBRDFMethods:
             self.factors = self.factors.paired()
         with dr.suspend_grad():
             self.sampler = MicrofacetSampler(self.dist)
-        dr.eval(self.dist.p_tab, self.dist.norm, self.table.values, self.factors.values)
+        dr.eval(self.dist.p_tab, self.dist.norm, self.table.values, self.table.orient, self.factors.values)
 
     def _rebuild_scalar(self):
         """Scalar variants: the tables are built with Dr.Jit's LLVM backend, then

@@ -219,3 +219,42 @@ def test_tables_are_constant_at_kappa0(jit):
     assert np.abs(t[:, 1:]).max() < 1e-5
     f = np.asarray(fac.values, dtype=np.float64).reshape(-1, 2)
     assert np.ptp(f[:, 0]) > 0.1 and np.ptp(f[:, 1]) > 0.1  # the factors themselves are not flat
+
+
+@pytest.mark.parametrize("mat", [(1.01, 0.01, 5.0, 100.0), (3.0, math.pi / 2, 0.4, 100.0), (1.5, 0.3, 2.0, 10.0)])
+def test_table_channels_at_the_nodes(jit, mat):
+    """Every texel of the body table, in both layouts (a texel's channels side
+    by side; one array per channel, what the compact copy is packed from),
+    against the body matrices at the table's nodes from body_grid_matrices
+    (checked against the dense sum above) and the grazing factors at the same
+    angles, transformed here in float64 NumPy as body.CHANNELS says: log M00
+    less log F(theta_L) + log F(theta_V), the other elements over M00 less
+    d(theta_L) (M01), d(theta_V) (M10), their product (M11).  Tolerance 2e-5:
+    float32 rounding of a log of order 10 and of ratios of order 1; a swapped
+    row and column, a wrong texel order or a missing factor moves channels by
+    1e-2 or more.  Both layouts pick the same triangulation."""
+    dr, Float = jit
+    from fmbrdf_mi.model.body import (BodyGrid, body_grid_matrices, body_tables, grazing_factors,
+                                      table_angles)
+
+    eta, alpha, beta, kappa = mat
+    grid = BodyGrid()
+    dist, eta_ = _material(Float, eta, alpha, beta)
+    th, ph = table_angles(*grid.table)
+    M = body_grid_matrices(dist, eta_, Float(kappa), grid, th, th, ph).numpy().astype(np.float64)  # (t, l, v, 3, 3)
+    F, d = (np.asarray(x, dtype=np.float64) for x in grazing_factors(dist, eta_, grid, th))
+    m00 = M[..., 0, 0]
+    want = M / m00[..., None, None]
+    want[..., 0, 0] = np.log(m00) - np.log(F)[None, :, None] - np.log(F)[None, None, :]
+    want[..., 0, 1] -= d[None, :, None]
+    want[..., 1, 0] -= d[None, None, :]
+    want[..., 1, 1] -= d[None, :, None] * d[None, None, :]
+    want = want.reshape(-1, 9)
+    inter, _ = body_tables(dist, eta_, Float(kappa), grid)
+    planar, _ = body_tables(dist, eta_, Float(kappa), grid, planar=True)
+    got_i = np.asarray(inter.values, dtype=np.float64).reshape(-1, 9)
+    got_p = np.stack([np.asarray(x, dtype=np.float64) for x in planar.values], axis=1)
+    for got in (got_i, got_p):
+        err = np.abs(got - want)
+        assert err.max() < 2e-5, (mat, np.unravel_index(np.argmax(err), err.shape), err.max())
+    assert int(inter.orient[0]) == int(planar.orient[0])

@@ -10,6 +10,7 @@ intensity, absolute error of the DoLP for unpolarised light, and the largest
 error of any Mueller element relative to M00 (what polarised light sees).
 
     python tools/check_table.py --materials 12 --points 4000 --seed 0 [--full-range]
+    python tools/check_table.py --triangulations   # each of the four triangulations, and the one picked
 """
 import argparse
 import math
@@ -47,6 +48,9 @@ def main():
                     help="nodes of the body table (default: the package's)")
     ap.add_argument("--float32", action="store_true",
                     help="read the float32 table instead of the compact (fixed-point) one eval uses")
+    ap.add_argument("--triangulations", action="store_true",
+                    help="also the intensity error with each of the four triangulations of the cells "
+                         "(interp.orientation), the one the table picked marked *")
     args = ap.parse_args()
 
     import drjit as dr
@@ -59,10 +63,11 @@ def main():
     worst = {"I": (0.0, None), "dolp": (0.0, None), "M": (0.0, None)}
     t0 = time.time()
     for eta, alpha, beta, kappa in random_materials(rng, args.materials, full_box() if args.full_range else BOX):
-        bsdf = set_body_grid(mi.load_dict({"type": "fmbrdf", "eta": eta, "alpha": alpha, "beta": beta,
-                                           "kappa": kappa, "tables": "float32" if args.float32 else "compact"}),
-                              args.n_phi,
-                              args.table)
+        def build(tables):
+            return set_body_grid(mi.load_dict({"type": "fmbrdf", "eta": eta, "alpha": alpha, "beta": beta,
+                                               "kappa": kappa, "tables": tables}), args.n_phi, args.table)
+
+        bsdf = build("float32" if args.float32 else "compact")
         thL, thV, ph = random_angles(rng, args.points)
         # direct quadrature, one light angle per point (diagonal of the (n_L, n_V) product)
         n = args.points
@@ -73,7 +78,20 @@ def main():
             Y = np.asarray(Y).reshape(Y.shape[0], Y.shape[1], 9)
             k = np.arange(Y.shape[0])
             direct[sl] = Y[k, k]
-        m00, col, sec = bsdf.body_ratios(mi.Float(np.cos(thL)), mi.Float(np.cos(thV)), mi.Float(ph))
+        coords = (mi.Float(np.cos(thL)), mi.Float(np.cos(thV)), mi.Float(ph))
+        line = ""
+        if args.triangulations:
+            from fmbrdf_mi.model.interp import orientation
+            picked = bsdf.table.orient
+            # the estimated sums of squared errors, from the float32 table (the packed one holds bits)
+            _, cost = orientation((bsdf if args.float32 else build("float32")).table, costs=True)
+            cost = [float(c[0]) for c in cost]
+            for p in range(4):
+                bsdf.table.orient = mi.UInt32(p)
+                e = np.abs(np.asarray(bsdf.body_ratios(*coords)[0]) / direct[:, 0] - 1)
+                line += f"{'*' if p == picked[0] else ' '}{p}: {e.max():.2e} (cost {cost[p]:.2f}) "
+            bsdf.table.orient = picked
+        m00, col, sec = bsdf.body_ratios(*coords)
         m00, col, sec = np.asarray(m00), [np.asarray(c) for c in col], [np.asarray(c) for c in sec]
         # M00, (M10, M20) and (M01, M02, M11, M12, M21, M22) over M00 -> row-major 3x3
         look = m00[:, None] * np.stack([np.ones_like(m00), sec[0], sec[1], col[0], sec[2], sec[3],
@@ -89,6 +107,8 @@ def main():
         print(f"eta={eta:.2f} alpha={alpha:.3f} beta={beta:.2f} kappa={kappa:5.1f}: "
               f"I max {eI.max():.2e} p99 {np.quantile(eI, 0.99):.2e} | DoLP max {eD.max():.2e} "
               f"p99 {np.quantile(eD, 0.99):.2e} | M {eM.max():.2e}  ({time.time() - t0:.0f} s)", flush=True)
+        if line:
+            print("    I max by triangulation " + line, flush=True)
     for key, (e, where) in worst.items():
         print(f"worst {key:4s} {e:.2e} at eta={where[0]:.2f} alpha={where[1]:.3f} beta={where[2]:.2f} "
               f"kappa={where[3]:.1f} theta_L={where[4]:.1f} theta_V={where[5]:.1f} phi={where[6]:.1f}")

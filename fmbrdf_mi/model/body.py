@@ -365,7 +365,7 @@ def grazing_factors(dist, eta, grid, theta):
 CHANNELS = ("log_m00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22")
 
 
-def body_tables(dist, eta, kappa, grid, polarized=True):
+def body_tables(dist, eta, kappa, grid, polarized=True, planar=False):
     """The body term as an interpolation table over (x(phi), x(theta_L), x(theta_V)).
 
     M is divided by k_b cos(theta_L) and expressed in the bases of
@@ -382,7 +382,8 @@ def body_tables(dist, eta, kappa, grid, polarized=True):
     channel is a constant and all the others vanish.  Logarithm and ratios vary
     more smoothly than the elements (a large kappa makes M00 peaked).  One table
     for all nine channels: eval computes one set of interpolation weights and
-    reads each corner's texel from one place (interp.py).
+    reads each corner's texel from one place (interp.py).  ``planar``: the
+    table channel-major, which is what the compact copy is packed from fastest.
     Returns (table, factors): :class:`TetraTable` and :class:`LineTable`.
     """
     Float = dist.Float
@@ -401,21 +402,30 @@ def body_tables(dist, eta, kappa, grid, polarized=True):
                         (nf, 2))
     logf1, d1 = pick(logf_all, nf, n1), pick(d_all, nf, n1)
 
-    shape = (grid.table[1], n1, n1)
-    rows = cols = (0, 1, 2) if polarized else (0,)
+    n3 = 3 if polarized else 1
+    nc, nt = n3 * n3, len(ph)
     p = dist.projected_area(Float(th))
-    Y = body_grid_matrices(dist, eta, kappa, grid, th, th, ph, rows, cols, nodes, khat, (p, p)).array
-    nc = len(rows) * len(cols)
+    series = body_series(dist, eta, kappa, grid, th, th, tuple(range(n3)), tuple(range(n3)), nodes, khat, (p, p))
+    Y = synthesise(Float, grid, series, ph).array  # (t, l, s, v, r): rows r, columns s of the 3 x 3 block
+    # texel by texel, all its channels at once (its elements lie in one (t, l) block of Y)
+    n = nt * n1 * n1
+    texel = dr.arange(UInt, n)
+    tl, v = texel // n1, texel % n1
+    l = tl % n1
+    block = tl * (n3 * n1 * n3) + v * n3
+    y = [dr.gather(Float, Y, block + s * (n1 * n3) + r) for r in range(n3) for s in range(n3)]  # c = 3 r + s
+    m00 = dr.maximum(y[0], 1e-30)
+    channels = [dr.log(m00) - dr.gather(Float, logf1, l) - dr.gather(Float, logf1, v)]
     if polarized:
-        dr.eval(Y)  # gathered twice below
-    # (t, l, v, c): element k = nc texel + c, c = 3 row + column
-    k = dr.arange(UInt, dr.width(Y))
-    l, v, c = (k // (n1 * nc)) % n1, (k // nc) % n1, k % nc
-    m00 = dr.maximum(dr.gather(Float, Y, k - c), 1e-30)
-    log_part = dr.log(m00) - dr.gather(Float, logf1, l) - dr.gather(Float, logf1, v)
-    if not polarized:
-        return TetraTable(log_part, shape + (1,)), factors
-    dl, dv = dr.gather(Float, d1, l), dr.gather(Float, d1, v)
-    kappa0 = dr.select(c == 1, dl, dr.select(c == 3, dv, dr.select(c == 4, dl * dv, 0.0)))
-    table = dr.select(c == 0, log_part, Y / m00 - kappa0)
-    return TetraTable(table, shape + (9,)), factors
+        dl, dv = dr.gather(Float, d1, l), dr.gather(Float, d1, v)
+        inv = 1.0 / m00
+        kappa0 = {1: dl, 3: dv, 4: dl * dv}
+        channels += [y[c] * inv - kappa0[c] if c in kappa0 else y[c] * inv for c in range(1, nc)]
+    shape = (nt, n1, n1, nc)
+    if planar or nc == 1:
+        dr.eval(*channels)  # in one kernel; read several times when packed
+        return TetraTable(channels if nc > 1 else channels[0], shape), factors
+    out = dr.empty(Float, n * nc)  # interleaved: a texel's channels side by side
+    for c, x in enumerate(channels):
+        dr.scatter(out, x, texel * nc + c)
+    return TetraTable(out, shape), factors
