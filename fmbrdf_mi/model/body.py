@@ -407,25 +407,38 @@ def body_tables(dist, eta, kappa, grid, polarized=True, planar=False):
     p = dist.projected_area(Float(th))
     series = body_series(dist, eta, kappa, grid, th, th, tuple(range(n3)), tuple(range(n3)), nodes, khat, (p, p))
     Y = synthesise(Float, grid, series, ph).array  # (t, l, s, v, r): rows r, columns s of the 3 x 3 block
-    # texel by texel, all its channels at once (its elements lie in one (t, l) block of Y)
     n = nt * n1 * n1
-    texel = dr.arange(UInt, n)
-    tl, v = texel // n1, texel % n1
-    l = tl % n1
-    block = tl * (n3 * n1 * n3) + v * n3
-    y = [dr.gather(Float, Y, block + s * (n1 * n3) + r) for r in range(n3) for s in range(n3)]  # c = 3 r + s
-    m00 = dr.maximum(y[0], 1e-30)
-    channels = [dr.log(m00) - dr.gather(Float, logf1, l) - dr.gather(Float, logf1, v)]
-    if polarized:
+
+    def value(c, y, m00, l, v):
+        """Channel c (an int, or an array) from element y and M00 of texels (., l, v)."""
+        log_part = dr.log(m00) - dr.gather(Float, logf1, l) - dr.gather(Float, logf1, v)
+        if not polarized:
+            return log_part
         dl, dv = dr.gather(Float, d1, l), dr.gather(Float, d1, v)
-        inv = 1.0 / m00
-        kappa0 = {1: dl, 3: dv, 4: dl * dv}
-        channels += [y[c] * inv - kappa0[c] if c in kappa0 else y[c] * inv for c in range(1, nc)]
+        kappa0 = dr.select(c == 1, dl, dr.select(c == 3, dv, dr.select(c == 4, dl * dv, 0.0)))
+        return dr.select(c == 0, log_part, y / m00 - kappa0)
+
+    def planar_channel(c):
+        """Channel c = 3 r + s of every texel (t, l, v), read from Y in its own order."""
+        texel = dr.arange(UInt, n)
+        tl, v = texel // n1, texel % n1
+        block = tl * (n3 * n1 * n3) + v * n3  # element (0, 0); the texel's others lie in one (t, l) block
+        m00 = dr.maximum(dr.gather(Float, Y, block), 1e-30)
+        y = dr.gather(Float, Y, block + (c % n3) * (n1 * n3) + c // n3) if c else m00
+        return value(c, y, m00, tl % n1, v)
+
     shape = (nt, n1, n1, nc)
-    if planar or nc == 1:
-        dr.eval(*channels)  # in one kernel; read several times when packed
+    if nc == 1 or planar:  # one array per channel, in one kernel
+        channels = [planar_channel(c) for c in range(nc)]
+        dr.eval(*channels)
         return TetraTable(channels if nc > 1 else channels[0], shape), factors
-    out = dr.empty(Float, n * nc)  # interleaved: a texel's channels side by side
-    for c, x in enumerate(channels):
-        dr.scatter(out, x, texel * nc + c)
-    return TetraTable(out, shape), factors
+    # a texel's channels side by side: the elements' transpose inside each (t, l) block, then the
+    # channels element by element (gathers only, which forward-mode AD differentiates cheaply)
+    orient = TetraTable(planar_channel(0), shape[:3] + (1,)).orient  # from channel 0's own array
+    k = dr.arange(UInt, n * nc)
+    tl, v, c = k // (n1 * nc), (k // nc) % n1, k % nc
+    r, s = c // n3, c % n3
+    y = dr.gather(Float, Y, (tl * n3 + s) * (n1 * n3) + v * n3 + r)
+    dr.eval(y)  # read twice below
+    m00 = dr.maximum(dr.gather(Float, y, k - c), 1e-30)
+    return TetraTable(value(c, y, m00, tl % n1, v), shape, orient), factors

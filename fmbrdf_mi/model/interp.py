@@ -66,6 +66,7 @@ def orientation(table, channel=0, costs=False):
     """
     values, offset = table.channel(channel)
     values = dr.detach(values)
+    dr.eval(values)  # gathered 11 times a cell: not to be recomputed in each
     Float = type(values)
     UInt = dr.uint32_array_t(Float)
     n0, n1, n2 = table.shape[:3]
