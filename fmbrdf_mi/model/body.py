@@ -272,22 +272,26 @@ def body_grid_matrices(dist, eta, kappa, grid, theta_l, theta_v, phi, rows=(0, 1
     columns[s]) of the 3x3 linear block divided by k_b cos(theta_L), in the
     bases of the module docstring."""
     Float = dist.Float
-    UInt = dr.uint32_array_t(Float)
     Tensor = dr.tensor_t(Float)
     theta_l, theta_v = (np.asarray(x, dtype=np.float64) for x in (theta_l, theta_v))
     nl, nv, nt, nr, nc = len(theta_l), len(theta_v), len(phi), len(rows), len(columns)
     series = body_series(dist, eta, kappa, grid, theta_l, theta_v, rows, columns, nodes, khat, proj)
     Y = synthesise(Float, grid, series, phi).array  # (t, l, s, v, r)
+    return Tensor(_grid_order(Float, Y, nv, nr, nc), shape=(nt, nl, nv, nr, nc))
+
+
+def _grid_order(Float, Y, nv, nr, nc):
+    """:func:`synthesise`'s output, (t, l, s, v, r) flat, in the order (t, l, v, r, s):
+    a transpose inside each (t, l) block, which stays in cache."""
     if nc == 1:
-        return Tensor(Y, shape=(nt, nl, nv, nr, nc))
-    # to (t, l, v, r, s): a transpose inside each (t, l) block, which stays in cache
-    idx = dr.arange(UInt, nt * nl * nv * nr * nc)
+        return Y
+    UInt = dr.uint32_array_t(Float)
+    idx = dr.arange(UInt, dr.width(Y))
     block = idx // (nv * nr * nc)
     v = (idx // (nr * nc)) % nv
     r = (idx // nc) % nr
     s = idx % nc
-    Y = dr.gather(Float, Y, block * (nv * nr * nc) + (s * nv + v) * nr + r)
-    return Tensor(Y, shape=(nt, nl, nv, nr, nc))
+    return dr.gather(Float, Y, block * (nv * nr * nc) + (s * nv + v) * nr + r)
 
 
 #: Table polar angles are theta = (pi/2) sin(A x) / sin(A), x uniform in [0, 1]:
@@ -435,10 +439,9 @@ def body_tables(dist, eta, kappa, grid, polarized=True, planar=False):
     # a texel's channels side by side: the elements' transpose inside each (t, l) block, then the
     # channels element by element (gathers only, which forward-mode AD differentiates cheaply)
     orient = TetraTable(planar_channel(0), shape[:3] + (1,)).orient  # from channel 0's own array
+    y = _grid_order(Float, Y, n1, n3, n3)
+    dr.eval(y)  # read twice below
     k = dr.arange(UInt, n * nc)
     tl, v, c = k // (n1 * nc), (k // nc) % n1, k % nc
-    r, s = c // n3, c % n3
-    y = dr.gather(Float, Y, (tl * n3 + s) * (n1 * n3) + v * n3 + r)
-    dr.eval(y)  # read twice below
     m00 = dr.maximum(dr.gather(Float, y, k - c), 1e-30)
     return TetraTable(value(c, y, m00, tl % n1, v), shape, orient), factors
