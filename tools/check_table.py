@@ -11,6 +11,7 @@ error of any Mueller element relative to M00 (what polarised light sees).
 
     python tools/check_table.py --materials 12 --points 4000 --seed 0 [--full-range]
     python tools/check_table.py --triangulations   # each of the four triangulations, and the one picked
+    python tools/check_table.py --materials 0 --forward-grazing   # the box's corners, near grazing, forward
 """
 import argparse
 import math
@@ -35,6 +36,13 @@ def random_angles(rng, n):
     return thL, thV, ph
 
 
+def forward_grazing_angles(rng, n):
+    """theta_L, theta_V in [75, 85] deg and phi in [160, 180] deg: the corner
+    where a large kappa makes the body term vary fastest in phi."""
+    return (np.radians(rng.uniform(75, 85, n)), np.radians(rng.uniform(75, 85, n)),
+            np.radians(rng.uniform(160, 180, n)))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--materials", type=int, default=12)
@@ -48,6 +56,8 @@ def main():
                     help="nodes of the body table (default: the package's)")
     ap.add_argument("--float32", action="store_true",
                     help="read the float32 table instead of the compact (fixed-point) one eval uses")
+    ap.add_argument("--forward-grazing", action="store_true",
+                    help="every point near grazing and near forward scattering")
     ap.add_argument("--triangulations", action="store_true",
                     help="also the intensity error with each of the four triangulations of the cells "
                          "(interp.orientation), the one the table picked marked *")
@@ -68,7 +78,7 @@ def main():
                                                "kappa": kappa, "tables": tables}), args.n_phi, args.table)
 
         bsdf = build("float32" if args.float32 else "compact")
-        thL, thV, ph = random_angles(rng, args.points)
+        thL, thV, ph = (forward_grazing_angles if args.forward_grazing else random_angles)(rng, args.points)
         # direct quadrature, one light angle per point (diagonal of the (n_L, n_V) product)
         n = args.points
         direct = np.empty((n, 9))
