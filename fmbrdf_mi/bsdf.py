@@ -77,7 +77,7 @@ class _Watch(dr.CustomOp):
         return "fmbrdf_watch"
 
 
-def _texture_values(tex):
+def texture_values(tex):
     """Values of an albedo texture, for validation.
 
     The texture is evaluated on a 32 x 32 grid of uv (and, in spectral
@@ -306,8 +306,8 @@ class _FMBRDFMethods:
         self.parameters_changed(list(_SCALARS))
 
     def _check_albedos(self):
-        P.check_albedo("k_s", _texture_values(self.k_s))
-        P.check_albedo(self.body_key, _texture_values(self.body))
+        P.check_albedo("k_s", texture_values(self.k_s))
+        P.check_albedo(self.body_key, texture_values(self.body))
 
     def _rebuild(self):
         """Everything that depends on (eta, alpha, beta, kappa) only (paper sec. 3-4)."""

@@ -151,7 +151,7 @@ def fit_oren_nayar(angles, obs, light_angle, form="full"):
 
 def fit_fmbrdf(angles, obs, light_angle, kappa=None, progress=None):
     """FMBRDF on the intensities; ``kappa``: None (free) or a fixed value."""
-    from .brdf_fit.fitting import _albedos, levenberg_marquardt
+    from .brdf_fit.fitting import closed_form_albedos, levenberg_marquardt
     from .brdf_fit.values import FMBRDFValues
     from .fit.models import FMBRDF, Bounds
 
@@ -178,7 +178,7 @@ def fit_fmbrdf(angles, obs, light_angle, kappa=None, progress=None):
                 for k in ((0.0, 10.0, 50.0) if kappa is None else (kappa,)):
                     sh = {"eta": eta, "alpha": alpha, "beta": beta, "kappa": k}
                     S, B = parts(sh)
-                    ks, kb = _albedos(S, B, obs[:, None])
+                    ks, kb = closed_form_albedos(S, B, obs[:, None])
                     e = float(np.sum(((ks[0] * S + kb[0] * B) - obs) ** 2))
                     grid.append((e, sh, ks[0], kb[0]))
     grid.sort(key=lambda g: g[0])

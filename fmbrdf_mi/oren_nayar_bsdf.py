@@ -18,7 +18,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import params as P
-from .bsdf import _texture_values
+from .bsdf import texture_values
 from .model.oren_nayar import FORMS, oren_nayar_terms
 
 _PROPERTIES = ("reflectance", "sigma", "form")
@@ -65,7 +65,7 @@ class _OrenNayarMethods:
         self.sigma = mi.Float(check_sigma(sigma))
         self.reflectance = props.get_texture("reflectance", 0.5) if "reflectance" in props else \
             mi.load_dict({"type": "uniform", "value": 0.5})
-        _check_reflectance(_texture_values(self.reflectance))
+        _check_reflectance(texture_values(self.reflectance))
         self.polarized = mi.is_polarized
         self.m_components = [mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide]
         self.m_flags = self.m_components[0]

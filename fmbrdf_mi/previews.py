@@ -35,7 +35,7 @@ DEFAULT_PREVIEWS = ("intensity", "dolp", "aolp")
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
-def _plt():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -74,7 +74,7 @@ def _tone_map(img, exposure):
 
 
 def _imsave(path, img):
-    plt = _plt()
+    plt = pyplot()
     if img.ndim == 2:
         plt.imsave(path, img, cmap="gray", vmin=0.0, vmax=1.0)
     else:
@@ -99,7 +99,7 @@ def _figure(h, w, title, colorbar=True):
 
     Returns (plt, fig, ax, cax): cax is the colour bar's axes (None without one).
     """
-    plt = _plt()
+    plt = pyplot()
     dpi, k = 100, _scale(h, w)
     iw, ih = w * k, h * k
     top, bottom, left = 26, 6, 6
@@ -185,7 +185,7 @@ def save_angle_images(path, stokes, exposure=None, angles=polcam.ANGLES):
     for i, img in enumerate(imgs):
         r, c = divmod(i, 2)
         grid[r * (hh + gap):r * (hh + gap) + hh, c * (ww + gap):c * (ww + gap) + ww] = img
-    plt = _plt()
+    plt = pyplot()
     gh, gw = grid.shape[:2]
     fig = plt.figure(figsize=(gw / 100, gh / 100), dpi=100)
     ax = fig.add_axes([0, 0, 1, 1])

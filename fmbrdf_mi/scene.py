@@ -181,14 +181,14 @@ def material_bsdf(material=None):
     return d
 
 
-def _half_width(fov, distance):
+def half_width(fov, distance):
     return distance * math.tan(math.radians(fov) / 2)
 
 
 def _sensor(mi, camera, width, height, n_cells, fov, distance, spp, seed):
     T = mi.ScalarTransform4f
     look = T().look_at(origin=[0, 0, distance], target=[0, 0, 0], up=[0, 1, 0])
-    half_w = n_cells * _half_width(fov, distance)  # along x, at z = 0
+    half_w = n_cells * half_width(fov, distance)  # along x, at z = 0
     if camera == "orthographic":
         sensor = {"type": "orthographic", "to_world": look @ T().scale([half_w, half_w, 1.0])}
     else:
@@ -234,7 +234,7 @@ def sphere_scene(material=None, *, light_dir=DEFAULT_LIGHT_DIR, irradiance=DEFAU
 
 def sphere_centres(n, fov=DEFAULT_FOV, distance=DEFAULT_DISTANCE):
     """x coordinates of the centres of :func:`spheres_scene`'s ``n`` spheres (left to right)."""
-    cell = 2 * _half_width(fov, distance)
+    cell = 2 * half_width(fov, distance)
     return [(i - (n - 1) / 2) * cell for i in range(n)]
 
 
@@ -268,7 +268,7 @@ def spheres_scene(materials, *, light_dir=DEFAULT_LIGHT_DIR, irradiance=DEFAULT_
 # ---------------------------------------------------------------- geometry
 def _pixel_rays(width, height, n_cells, camera, fov, distance):
     """Ray origins and unit directions (H, W, 3) through the pixel centres."""
-    half_w = n_cells * _half_width(fov, distance)
+    half_w = n_cells * half_width(fov, distance)
     half_h = half_w * height / width
     x = (2 * (np.arange(width) + 0.5) / width - 1) * half_w
     y = (1 - 2 * (np.arange(height) + 0.5) / height) * half_h

@@ -272,10 +272,10 @@ def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys):
     # a changed image: refused, one line naming it, nothing written
     from PIL import Image
 
-    from fmbrdf_mi.fit.observations import _read_array
+    from fmbrdf_mi.fit.observations import read_array
 
     original = open(img1, "rb").read()
-    im = _read_array(img1, "image").astype(np.uint16)
+    im = read_array(img1, "image").astype(np.uint16)
     im[0, 0] ^= 1                                       # one raw sample one DN off
     Image.fromarray(im).save(img1)
     for run in ("a", "b"):

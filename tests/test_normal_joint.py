@@ -34,7 +34,7 @@ def test_normal_block_and_schur_step_match_dense_algebra(prior):
     and the material's sandwich covariance against [H^-1 F H^-1]_mm formed densely.
     CG stops at a relative residual of 1e-10 on a system of condition < 1e4: 1e-6 relative is generous."""
     from fmbrdf_mi.fit.normal_joint import stencils
-    from fmbrdf_mi.fit.normal_refine import _tangents
+    from fmbrdf_mi.fit.normal_refine import tangent_bases
     from fmbrdf_mi.fit.normal_system import NormalBlock, data_products, material_covariance, schur, solve_step
 
     rng = np.random.default_rng(4)
@@ -50,7 +50,7 @@ def test_normal_block_and_schur_step_match_dense_algebra(prior):
     n = rng.normal(size=(N, 3))
     n[:, 2] = np.abs(n[:, 2]) + 1
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    t1, t2 = _tangents(n)
+    t1, t2 = tangent_bases(n)
     m, p = 60, 6
     pix = rng.integers(-1, N, size=(m, 4))
     val = rng.normal(size=(m, 4, 2))

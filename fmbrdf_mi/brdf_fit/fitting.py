@@ -106,7 +106,7 @@ def log_residuals(pred, obs):
     return np.log10(pred + EPS) - np.log10(obs + EPS)
 
 
-def _albedos(S, B, f):
+def closed_form_albedos(S, B, f):
     """Per channel (k_s, k_b) >= 0 minimising sum ((k_s S + k_b B) / f - 1)^2."""
     ks, kb = np.zeros(f.shape[1]), np.zeros(f.shape[1])
     for c in range(f.shape[1]):
@@ -191,7 +191,7 @@ def fit_brdf(brdf, options=None, progress=None):
                                            for b in o.beta_grid):
         shape = {"eta": eta, "alpha": min(alpha, ALPHA_MAX), "beta": beta, "kappa": o.kappa_start}
         S, B = ev.parts(shape)
-        ks, kb = _albedos(S, B, obs)
+        ks, kb = closed_form_albedos(S, B, obs)
         err = float(np.sqrt(np.mean(log_residuals(_predict(S, B, ks, kb), obs) ** 2)))
         grid.append((err, shape, ks, kb))
         if (i + 1) % 40 == 0:
@@ -248,7 +248,7 @@ def fit_brdf(brdf, options=None, progress=None):
         for kappa in o.kappa_scan:
             trial = dict(shape, kappa=kappa)
             S, B = ev.parts(trial)
-            ks_t, kb_t = _albedos(S, B, obs)
+            ks_t, kb_t = closed_form_albedos(S, B, obs)
             e = float(np.sqrt(np.mean(log_residuals(_predict(S, B, ks_t, kb_t), obs) ** 2)))
             if e < err0:
                 err0, shape, ks, kb = e, trial, ks_t, kb_t

@@ -337,9 +337,9 @@ def make_label(cfg, index, draw, geometry):
               "elevation": draw["elevation"], "azimuth": draw["azimuth"], "resolution": [w, h],
               "position": g["camera"]["position"], "to_world": g["camera"]["to_world"]}
     if draw["camera"] == "orthographic":
-        from ..scene import _half_width
+        from ..scene import half_width
 
-        camera["half_width"] = _half_width(draw["fov"], draw["distance"])
+        camera["half_width"] = half_width(draw["fov"], draw["distance"])
     return {
         "format": FORMAT, "index": index, "id": sample_id(index, cfg.samples), "dataset_seed": cfg.seed,
         "files": sample_files(index, cfg.samples),

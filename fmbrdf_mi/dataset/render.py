@@ -233,7 +233,7 @@ class SampleRenderer:
         import drjit as dr
 
         mi = _mi()
-        from ..scene import _half_width, render_stokes
+        from ..scene import half_width, render_stokes
 
         t0 = time.perf_counter()
         key = (draw["shape"], draw["camera"])
@@ -258,7 +258,7 @@ class SampleRenderer:
         look = mi.ScalarTransform4f().look_at(origin=pos.tolist(), target=(pos - axes[:, 2]).tolist(),
                                               up=axes[:, 1].tolist())
         if draw["camera"] == "orthographic":
-            hw = _half_width(draw["fov"], draw["distance"])
+            hw = half_width(draw["fov"], draw["distance"])
             look = look @ mi.ScalarTransform4f().scale([hw, hw, 1.0])
         else:
             p["sensor.x_fov"] = float(draw["fov"])

@@ -22,7 +22,7 @@ OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stok
 RELIGHT_OUTPUTS = ("relight.png",)
 
 
-def _vec(text, name, n=3):
+def parse_vector(text, name, n=3):
     if text is None:
         return None
     if isinstance(text, str):
@@ -182,7 +182,7 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                 raise InputError("--sphere auto: needs --mask to find the sphere in")
             centre = radius = None
         else:
-            cx, cy, radius = _vec(sphere, "sphere (cx,cy,r in pixels)")
+            cx, cy, radius = parse_vector(sphere, "sphere (cx,cy,r in pixels)")
             centre = (cx, cy)
         mk = None
         if mask is not None:
@@ -375,11 +375,11 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     stokes_io.write_stokes_exr(outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
                                force=True)
     with open(outs["fit.json"], "w") as f:
-        json.dump(report, f, indent=2, default=_json_default)
+        json.dump(report, f, indent=2, default=json_default)
     return report
 
 
-def _json_default(x):
+def json_default(x):
     if isinstance(x, (np.floating, np.integer)):
         return x.item()
     if isinstance(x, np.ndarray):
@@ -543,7 +543,7 @@ def _colour_sidecar(path):
     return colour_sidecar(path)
 
 
-def _check_colour_args(args):
+def check_colour_args(args):
     """Options the colour path does not take: one line naming them."""
     bad = [flag for flag, on in (("--baselines", args.baselines), ("--relight", args.relight),
                                  ("--path render", args.path != "pixel"), ("--optimizer adam", args.optimizer != "lm"),
@@ -606,10 +606,10 @@ def run_fit(args):
     elif len(args.inputs or []) == 1 and _colour_sidecar(args.inputs[0]) is not None:
         from .colour_cli import fit_colour_files, print_colour
 
-        _check_colour_args(args)
+        check_colour_args(args)
         report = fit_colour_files(args.inputs[0], args.out, normals=args.normals, mask=args.mask, view=args.view,
                                   sphere=args.sphere, camera=args.camera, fov=args.fov,
-                                  light=_vec(lights[0] if lights else None, "--light"), irradiance=args.irradiance,
+                                  light=parse_vector(lights[0] if lights else None, "--light"), irradiance=args.irradiance,
                                   black_level=args.black_level, white_level=args.white_level,
                                   conversion_gain=args.conversion_gain, read_noise=args.read_noise,
                                   model=args.model, bounds=args.bounds, fixed=args.fix, max_time=args.max_time,
@@ -624,7 +624,7 @@ def run_fit(args):
         relight = None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0])
         report = fit_files(inputs, args.out, normals=args.normals, mask=args.mask, view=args.view,
                            sphere=args.sphere, camera=args.camera, fov=args.fov,
-                           light=_vec(lights[0] if lights else None, "--light"),
+                           light=parse_vector(lights[0] if lights else None, "--light"),
                            irradiance=args.irradiance, layout=args.layout, black_level=args.black_level,
                            channel=args.channel, demosaic=args.demosaic, conversion_gain=args.conversion_gain,
                            read_noise=args.read_noise, footprint=args.footprint, model=args.model,
@@ -634,7 +634,7 @@ def run_fit(args):
                            max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit,
                            max_time=args.max_time, max_pixels=args.max_pixels or None, erode=args.erode,
                            seed=args.seed, relight=relight,
-                           relight_light=_vec(args.relight_light, "--relight-light"),
+                           relight_light=parse_vector(args.relight_light, "--relight-light"),
                            relight_irradiance=args.relight_irradiance, force=args.force,
                            progress=not args.quiet, command=command)
     if report.get("refine_normals"):

@@ -93,9 +93,9 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
                 raise InputError("--sphere auto: needs --mask to find the sphere in")
             centre, radius = ob.find_sphere(mk)
         else:
-            from .cli import _vec
+            from .cli import parse_vector
 
-            cx, cy, radius = _vec(sphere, "--sphere (cx,cy,r in 4x4 periods)")
+            cx, cy, radius = parse_vector(sphere, "--sphere (cx,cy,r in 4x4 periods)")
             centre = (cx, cy)
         n, m, v = ob.geometry_from_sphere(shape, centre, radius, mk, camera, fov)
         meta["sphere"] = {"centre": [float(c) for c in centre], "radius": float(radius),
@@ -161,7 +161,7 @@ def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, 
     if side is None:
         raise InputError(f"{path}: no colour capture sidecar ({os.path.splitext(path)[0]}.json with \"cfa\")")
     cam = side["sensor"]
-    raw = ob._read_array(path, "raw colour mosaic")
+    raw = ob.read_array(path, "raw colour mosaic")
     if raw.ndim != 2 or not np.issubdtype(raw.dtype, np.number):
         raise InputError(f"{path}: expected a single-channel raw mosaic, got an array of shape {raw.shape}")
     black = cam.black_level if black_level is None else float(black_level)
@@ -231,7 +231,7 @@ def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=
 
     from .._paths import check_output_dir
     from . import record
-    from .cli import _json_default, parse_bounds, parse_fixed
+    from .cli import json_default, parse_bounds, parse_fixed
     from .colour import fit_colour, format_result, predict_samples
     from .models import get_model
 
@@ -265,11 +265,11 @@ def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=
               "models": {model: model_entry(model, res, bounds, fixed, ci.truth)}}
     pred = predict_samples(obs, smp, res)
     os.makedirs(out, exist_ok=True)
-    _plot(smp, pred, obs.mask & smp.usable, cam, outs["colour_fit.png"],
+    plot_colour_fit(smp, pred, obs.mask & smp.usable, cam, outs["colour_fit.png"],
           title=f"{model}: " + format_result(res).replace("\n", "; "))
     tmp = outs["fit.json"] + ".part"
     with open(tmp, "w") as f:
-        json.dump(report, f, indent=2, default=_json_default)
+        json.dump(report, f, indent=2, default=json_default)
     os.replace(tmp, outs["fit.json"])
     report["outputs"] = list(outs.values())
     report["wall_s"] = time.time() - t0
@@ -291,13 +291,13 @@ def _channel_stokes(values, cam):
     return polcam.stokes_from_colour_mosaic(raw, cam.layout, cam.cfa)[:, :3]
 
 
-def _plot(smp, pred, sel, cam, path, title=""):
+def plot_colour_fit(smp, pred, sel, cam, path, title=""):
     """Observed vs fitted intensity and DoLP per channel, cropped to the fitted periods; errors beside."""
     from .. import stokes_io
     from .colour import CHANNELS
-    from .plots import _plt, scale_from
+    from .plots import pyplot, scale_from
 
-    plt = _plt()
+    plt = pyplot()
     obs_s = _channel_stokes(np.where(sel, smp.values, np.nan), cam)
     fit_s = _channel_stokes(pred, cam)
     rows, cols = np.nonzero(sel)

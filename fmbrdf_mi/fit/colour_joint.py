@@ -50,22 +50,22 @@ def outputs(out, names, holdout):
 
 
 def _read(specs, erode):
-    from .cli import _vec
+    from .cli import parse_vector
     from .colour_cli import read_colour_input
-    from .manifest import _stem
+    from .manifest import file_stem
 
     out = []
     for k, s in enumerate(specs):
         opts = {x: v for x, v in s.options.items() if not (x in _UNSET and v == _UNSET[x])}
         bad = [x for x in opts if x not in COLOUR_KEYS]
         if bad:
-            raise InputError(f"image {k} ({_stem(s.input)}): {', '.join(bad)} not supported for a colour mosaic "
+            raise InputError(f"image {k} ({file_stem(s.input)}): {', '.join(bad)} not supported for a colour mosaic "
                              f"(valid: {', '.join(COLOUR_KEYS)}; layout and cfa come from the sidecar)")
         try:
-            light = _vec(s.light, f"image {k}: light") if s.light is not None else None
+            light = parse_vector(s.light, f"image {k}: light") if s.light is not None else None
             out.append(read_colour_input(s.input, light=light, power=s.power, erode=erode, **opts))
         except InputError as exc:
-            raise InputError(f"image {k} ({_stem(s.input)}): {exc}") from None
+            raise InputError(f"image {k} ({file_stem(s.input)}): {exc}") from None
     cams = [(c.camera.layout, c.camera.cfa, c.noise.gain, c.noise.read_noise) for c in out]
     for k, c in enumerate(cams[1:], 1):
         if c != cams[0]:
@@ -100,9 +100,9 @@ def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True,
     """
     import time
 
-    from .cli import _json_default
+    from .cli import json_default
     from .colour import fit_colour, format_result, predict_samples
-    from .colour_cli import _plot, model_entry
+    from .colour_cli import plot_colour_fit, model_entry
     from .manifest import prepare_outputs
     from .models import get_model
 
@@ -143,13 +143,13 @@ def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True,
         if h:
             err = sample_rmse(c.samples, pred, sel, c.samples.channel)
             report["relight"][n] = {model: err}
-            _plot(c.samples, pred, sel, c.camera, os.path.join(out, f"relight_{n}.png"),
+            plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"relight_{n}.png"),
                   title=f"{n}: relit with the joint estimates, raw-sample RMSE/mean {err['rel_rmse']:.4f}")
         else:
-            _plot(c.samples, pred, sel, c.camera, os.path.join(out, f"colour_fit_{n}.png"), title=f"{n}: {title}")
+            plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"colour_fit_{n}.png"), title=f"{n}: {title}")
     tmp = os.path.join(out, "fit.json.part")
     with open(tmp, "w") as f:
-        json.dump(report, f, indent=2, default=_json_default)
+        json.dump(report, f, indent=2, default=json_default)
     os.replace(tmp, os.path.join(out, "fit.json"))
     report["outputs"], report["wall_s"] = files, time.time() - t0
     return report

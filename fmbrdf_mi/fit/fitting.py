@@ -84,10 +84,10 @@ class FitResult:
         d = self.to_json()
         d.update(extra or {})
         with open(path, "w") as f:
-            json.dump(d, f, indent=2, default=_json_default)
+            json.dump(d, f, indent=2, default=json_default)
 
 
-def _json_default(x):
+def json_default(x):
     if isinstance(x, (np.floating, np.integer)):
         return x.item()
     if isinstance(x, np.ndarray):

@@ -74,7 +74,7 @@ class JointResult:
         return d
 
 
-def _same_noise(observations):
+def same_noise(observations):
     """One camera: the images' noise models must agree (or all be unknown)."""
     noises = [o.noise for o in observations]
     known = [n is not None and n.known for n in noises]
@@ -129,7 +129,7 @@ def prepare(observations, opts, loss):
                 n, v, _ = o.sample_geometry(idx, footprint=None)
             geo.append((n, v))
             ys.append(s.at(idx))
-        noise = _same_noise(observations) or NoiseModel(step=smps[0].step)
+        noise = same_noise(observations) or NoiseModel(step=smps[0].step)
         objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof)
         smp = smps[0]
         weights = None

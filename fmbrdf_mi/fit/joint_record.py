@@ -31,7 +31,7 @@ from __future__ import annotations
 import os
 
 from .observations import InputError
-from .record import _jsonable, load, sha256, versions
+from .record import jsonable, load, sha256, versions
 
 #: fit_images keywords that define a joint fit (not where it writes or how it talks).
 FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
@@ -124,7 +124,7 @@ def block(kind, specs, names, observations, fit_kw, command, *, manifest=None, a
         joint["manifest"] = _abs(manifest)
     if kind == "authors":
         joint["authors"] = {"root": info["root"], **authors}
-    return _jsonable({"command": command, "cwd": os.getcwd(), "arguments": {k: fit_kw.get(k) for k in FIT_KEYS
+    return jsonable({"command": command, "cwd": os.getcwd(), "arguments": {k: fit_kw.get(k) for k in FIT_KEYS
                                                                             if k in fit_kw},
                       "joint": joint, "files_sha256": _hashes(files), "versions": versions()})
 
@@ -145,7 +145,7 @@ def is_joint(path):
 
 def rerun(path, out, *, force=False, progress=True, command=None):
     """Rerun the joint fit recorded in ``path`` into ``out``; returns the dict written to fit.json."""
-    from .manifest import ImageSpec, fitter, _names
+    from .manifest import ImageSpec, fitter, image_names
 
     rep = load(path)
     joint = rep.get("joint")
@@ -165,7 +165,7 @@ def rerun(path, out, *, force=False, progress=True, command=None):
     except (KeyError, TypeError) as exc:
         raise InputError(f"--from {path}: the joint-fit record is incomplete ({exc})") from None
     authors = {k: v for k, v in (joint.get("authors") or {}).items() if k != "root"}
-    names = _names(specs)
+    names = image_names(specs)
     recorded = [im["name"] for im in joint["images"]]
     if names != recorded:
         raise InputError(f"--from {path}: the images are now {names}, the fit had {recorded}")

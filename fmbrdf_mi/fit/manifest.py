@@ -71,7 +71,7 @@ class ImageSpec:
     options: dict = dataclasses.field(default_factory=dict)
 
 
-def _stem(p):
+def file_stem(p):
     p = p[0] if isinstance(p, (list, tuple)) else p
     return os.path.splitext(os.path.basename(os.fspath(p)))[0]
 
@@ -139,10 +139,10 @@ def parse_manifest(d, base=".", where="manifest"):
     return specs
 
 
-def _names(specs):
+def image_names(specs):
     names, seen = [], {}
     for k, s in enumerate(specs):
-        n = s.name or (_stem(s.input) if not hasattr(s.input, "stokes") else f"image{k}")
+        n = s.name or (file_stem(s.input) if not hasattr(s.input, "stokes") else f"image{k}")
         n = re.sub(r"[^A-Za-z0-9_.-]", "_", str(n)) or f"image{k}"
         if n in seen:
             n = f"{n}_{k}"
@@ -153,7 +153,7 @@ def _names(specs):
 
 def build_observations(specs):
     """Observations of the specs (each with irradiance x power)."""
-    from .cli import _vec, build_observation
+    from .cli import parse_vector, build_observation
 
     out = []
     for k, s in enumerate(specs):
@@ -164,10 +164,10 @@ def build_observations(specs):
             opts.setdefault("layout", None)        # None: the capture sidecar's, else IMX250MZR
             opts.setdefault("black_level", None)
             try:
-                light = _vec(s.light, f"image {k}: light") if s.light is not None else None
+                light = parse_vector(s.light, f"image {k}: light") if s.light is not None else None
                 o = build_observation(s.input, light=light, **opts)
             except InputError as exc:
-                raise InputError(f"image {k} ({_stem(s.input)}): {exc}") from None
+                raise InputError(f"image {k} ({file_stem(s.input)}): {exc}") from None
         if s.power != 1.0:
             o = dataclasses.replace(o, irradiance=o.irradiance * s.power)
         out.append(o)
@@ -186,7 +186,7 @@ def prepare_outputs(specs, out, outputs_fn, force):
     and, without ``force``, existing outputs (before anything is read or written)."""
     from .._paths import check_output_dir
 
-    names = _names(specs)
+    names = image_names(specs)
     holdout = [s.holdout for s in specs]
     if all(holdout):
         raise InputError("joint fit: every image is held out; fit at least one")
@@ -280,10 +280,10 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
                               title=f"{n}: joint {model} fit (per-pixel re-render){power}",
                               lin_variance=o.lin_variance, pixels=idx)
     plots.plot_loss_history({n: r.fit.history for n, r in results.items()}, os.path.join(out, "history.png"))
-    from .cli import _json_default
+    from .cli import json_default
 
     with open(os.path.join(out, "fit.json"), "w") as f:
-        json.dump(report, f, indent=2, default=_json_default)
+        json.dump(report, f, indent=2, default=json_default)
     return report
 
 
@@ -320,7 +320,7 @@ def _cli_input_options(args):
 
 def run_joint(args, command):
     """``fmbrdf-mi fit --manifest M | --authors DIR | IMG1 IMG2 ... --light L1 --light L2 ...``."""
-    from .cli import _vec, parse_bounds, parse_fixed, parse_init
+    from .cli import parse_vector, parse_bounds, parse_fixed, parse_init
 
     if args.from_json:
         raise InputError("--from: give no --manifest, --authors or INPUT files (they come from the fit.json)")
@@ -358,19 +358,19 @@ def run_joint(args, command):
             raise InputError(f"--light given {len(args.light or [])} times for {len(args.inputs)} INPUT images: a joint "
                              "fit takes one light per image (four angle images of one light: use a (4, H, W) "
                              ".npy, or a manifest)")
-        specs = [ImageSpec(inp, _vec(li, f"--light {k + 1}"), options=dict(cli_opts))
+        specs = [ImageSpec(inp, parse_vector(li, f"--light {k + 1}"), options=dict(cli_opts))
                  for k, (inp, li) in enumerate(zip(args.inputs, args.light))]
-    names = _names(specs)
+    names = image_names(specs)
     fit_fn, outputs_fn = fitter(specs)
     if fit_fn is not fit_images:
-        from .cli import _check_colour_args
+        from .cli import check_colour_args
 
-        _check_colour_args(args)
+        check_colour_args(args)
     files = outputs_fn(args.out, names, [s.holdout for s in specs])
     if not args.authors:   # the record names files by absolute path (a rerun may start elsewhere)
         for s in specs:
-            s.input = _abs_paths(s.input)
-            s.options.update({k: _abs_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
+            s.input = absolute_paths(s.input)
+            s.options.update({k: absolute_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
     fit_kw = dict(model=args.model, baselines=args.baselines, loss=args.loss, fixed=parse_fixed(args.fix),
                   bounds=parse_bounds(args.bounds), init=parse_init(args.init), starts=args.starts,
                   max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
@@ -397,11 +397,11 @@ def run_joint(args, command):
     return report
 
 
-def _abs_paths(v):
+def absolute_paths(v):
     if isinstance(v, str):
         return os.path.abspath(v)
     if isinstance(v, list):
-        return [_abs_paths(x) for x in v]
+        return [absolute_paths(x) for x in v]
     return v
 
 

@@ -123,8 +123,8 @@ def stencils(mask, prior="curvature"):
     return np.concatenate(out).astype(np.int64), np.array(coef)
 
 
-def _tangents(n):
-    from .normal_refine import _tangents as t
+def tangent_bases(n):
+    from .normal_refine import tangent_bases as t
 
     return t(n)
 
@@ -143,7 +143,7 @@ class _JointProblem:
     """
 
     def __init__(self, obs, m, model, bounds, fixed, lam, prior="curvature"):
-        from .joint import _same_noise
+        from .joint import same_noise
         from .optimise import Problem
         from .pixel_model import PixelEvaluator
 
@@ -164,7 +164,7 @@ class _JointProblem:
         self.lights = np.repeat(np.stack([o.light_dir for o in obs]), N * 4, axis=0)
         irr = np.repeat(np.array([o.irradiance for o in obs], float), N * 4)
         y = np.concatenate([s.at(self.idx) for s in smps])                  # (K N, 4), image-major
-        noise = _same_noise(obs) or NoiseModel(step=smps[0].step)
+        noise = same_noise(obs) or NoiseModel(step=smps[0].step)
         self.obj = LikelihoodObjective(y, A, noise, smps[0].dof)
         self.model = model
         self.ev = PixelEvaluator(model, self.sample_views, self.sample_views, self.lights, irr)
@@ -238,7 +238,7 @@ class _JointProblem:
         z = self.problem.to_z(st)
         r, Jm = self.problem.residuals_and_jacobian(parts, st, z)
         ns, ln = self.sample_normals(nmap)
-        ta, tb = _tangents(ns.reshape(-1, 3))
+        ta, tb = tangent_bases(ns.reshape(-1, 3))
         g = np.zeros((len(r), 2))     # d r / d (tangent step of the row's own sample normal)
         for j, t in enumerate((ta, tb)):
             rr = []
@@ -249,7 +249,7 @@ class _JointProblem:
             g[:, j] = (rr[0] - rr[1]) / (2 * h)
         g[~np.isfinite(g)] = 0.0
         n = nmap[self.idx]
-        t1, t2 = _tangents(n)
+        t1, t2 = tangent_bases(n)
         # chain rule: d n_s / d u_q = (w_q / |m_s|) (I - n_s n_s^T) t1_q; the sample tangents are orthogonal
         # to n_s, so d r / d u_q = (w_q / |m_s|) (g_a T_a + g_b T_b) . t1_q
         N, K = self.n, self.K

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .plots import _plt
+from .plots import pyplot
 
 
 def _crop(mask, pad=2):
@@ -26,7 +26,7 @@ def angle_deg(a, b):
 
 
 def plot_normal_map(n, mask, path, title=""):
-    plt = _plt()
+    plt = pyplot()
     ys, xs = _crop(mask)
     fig, ax = plt.subplots(figsize=(5, 5))
     ax.imshow(rgb(n, mask)[ys, xs], interpolation="nearest")
@@ -38,7 +38,7 @@ def plot_normal_map(n, mask, path, title=""):
 
 def plot_change(n0, n1, mask, path, gt=None):
     """Start | refined | angle between them; with ``gt``, a second row: angle to gt before | after."""
-    plt = _plt()
+    plt = pyplot()
     ys, xs = _crop(mask)
     rows = 2 if gt is not None else 1
     fig, axes = plt.subplots(rows, 3, figsize=(13, 4.2 * rows), squeeze=False)

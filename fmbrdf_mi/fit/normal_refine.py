@@ -53,7 +53,7 @@ class RefineResult:
     mask: np.ndarray
 
 
-def _tangents(n):
+def tangent_bases(n):
     a = np.where(np.abs(n[:, 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
     t1 = np.cross(n, a)
     t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
@@ -174,7 +174,7 @@ def refine_normals(observations, normals, *, mask=None, lam=0.5, rounds=3, steps
         for _ in range(steps):
             nbv = np.where((nb >= 0)[..., None], n[np.maximum(nb, 0)], 0.0)
             data, prior, pred = energy(n, nbv)
-            t1, t2 = _tangents(n)
+            t1, t2 = tangent_bases(n)
             r = ((pred - sbar) / scale).transpose(2, 0, 1).reshape(len(n), -1)   # (n, 3K)
             J = np.zeros((len(n), r.shape[1], 2))
             for j, t in enumerate((t1, t2)):

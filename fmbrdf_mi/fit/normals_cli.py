@@ -185,10 +185,10 @@ def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=0, model="fmbrdf"
     np.save(files[1], joint.normals.astype(np.float32))
     normal_plots.plot_normal_map(joint.normals, m, files[2], title=f"refined normals ({start} start)")
     normal_plots.plot_change(n0, joint.normals, m, files[3], gt=gt)
-    from .cli import _json_default
+    from .cli import json_default
 
     with open(files[0], "w") as f:
-        json.dump(report, f, indent=2, default=_json_default)
+        json.dump(report, f, indent=2, default=json_default)
     return report
 
 

@@ -194,7 +194,7 @@ def check_direction(v, name):
 
 
 # ---------------------------------------------------------------- polarimetric images
-def _read_array(path, what):
+def read_array(path, what):
     """A 2-D or 3-D numeric array from .npy, .png or .tif(f)."""
     path = os.fspath(path)
     if not os.path.isfile(path):
@@ -339,7 +339,7 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
         if len(paths) == 1:
             paths = paths[0]
         elif len(paths) == 4:
-            imgs = [_read_array(p, f"angle image {a} deg") for p, a in zip(paths, polcam.ANGLES)]
+            imgs = [read_array(p, f"angle image {a} deg") for p, a in zip(paths, polcam.ANGLES)]
             for p, im in zip(paths, imgs):
                 if im.ndim != 2:
                     raise InputError(f"angle image {p}: expected a 2-D single-channel image, got {im.shape}")
@@ -357,7 +357,7 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
         except stokes_io.StokesFileError as exc:
             raise InputError(str(exc)) from None
         return select_channel(stokes, channel), meta
-    a = _read_array(path, "polarisation image")
+    a = read_array(path, "polarisation image")
     if a.ndim == 2:
         return (stokes_from_raw(a, layout, black_level, demosaic),
                 {"source": "raw mosaic", "layout": layout, "demosaic": demosaic, "_array": a})
@@ -370,7 +370,7 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
 # ---------------------------------------------------------------- geometry
 def read_mask(path_or_array, shape=None):
     """A boolean mask from an array or a .npy / .png file (non-zero = object)."""
-    m = _read_array(path_or_array, "mask") if isinstance(path_or_array, (str, os.PathLike)) \
+    m = read_array(path_or_array, "mask") if isinstance(path_or_array, (str, os.PathLike)) \
         else np.asarray(path_or_array)
     if m.ndim == 3:
         m = m[..., 0]
@@ -383,7 +383,7 @@ def read_mask(path_or_array, shape=None):
 
 def read_vectors(path_or_array, name, shape=None):
     """(H, W, 3) float64 vectors from an array or a .npy file."""
-    a = _read_array(path_or_array, name) if isinstance(path_or_array, (str, os.PathLike)) \
+    a = read_array(path_or_array, name) if isinstance(path_or_array, (str, os.PathLike)) \
         else np.asarray(path_or_array)
     a = np.asarray(a, dtype=np.float64)
     if a.ndim != 3 or a.shape[2] != 3:

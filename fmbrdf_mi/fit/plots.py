@@ -7,7 +7,7 @@ from .. import stokes_io
 from . import rice
 
 
-def _plt():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -47,7 +47,7 @@ def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_poi
     further models (baselines) drawn as binned means; ``pixels``: flat indices
     (default: the mask).
     """
-    plt = _plt()
+    plt = pyplot()
     idx = np.flatnonzero(obs.mask.ravel()) if pixels is None else np.asarray(pixels)
     n = obs.normals.reshape(-1, 3)[idx]
     ang_v = np.degrees(np.arccos(np.clip(np.sum(n * obs.view_dirs.reshape(-1, 3)[idx], 1), -1, 1)))
@@ -102,7 +102,7 @@ def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_v
     Colour scales and error ranges come from the 99th percentile over
     ``pixels`` (flat indices of the fitted pixels; default the mask).
     """
-    plt = _plt()
+    plt = pyplot()
     m = np.asarray(mask, bool)
     sel = m.copy()
     if pixels is not None:
@@ -134,7 +134,7 @@ def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_v
 
 def plot_loss_history(histories, path):
     """Loss against wall time for each fitted model."""
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
     for label, hist in histories.items():
         if hist:

@@ -34,13 +34,13 @@ def sha256(path):
     return h.hexdigest()
 
 
-def _jsonable(v):
+def jsonable(v):
     if v is None or isinstance(v, (bool, int, float, str)):
         return v
     if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
+        return [jsonable(x) for x in v]
     if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
+        return {str(k): jsonable(x) for k, x in v.items()}
     if hasattr(v, "tolist") and getattr(v, "size", 1000) <= 16:
         return v.tolist()
     if isinstance(v, os.PathLike):
@@ -78,10 +78,10 @@ def reproduce_block(arguments, inputs, command, obs, relight=None):
     return {
         "command": command,
         "cwd": os.getcwd(),
-        "arguments": _jsonable(arguments),
+        "arguments": jsonable(arguments),
         "files_sha256": {os.path.abspath(p): sha256(p) for p in files},
-        "settings": _jsonable(obs.meta.get("settings")),
-        "sphere": _jsonable(obs.meta.get("sphere")),
+        "settings": jsonable(obs.meta.get("settings")),
+        "sphere": jsonable(obs.meta.get("sphere")),
         "sidecar": obs.meta.get("sidecar"),
         "versions": versions(),
     }

@@ -101,7 +101,7 @@ def microfacet_nodes(dist, grid):
     return (st * dr.cos(ph), st * dr.sin(ph), dr.cos(th)), weight
 
 
-def _dot(a, b):
+def dot3(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
@@ -110,15 +110,15 @@ def _cross(a, b):
 
 
 def _normalize(a, fallback):
-    n2 = _dot(a, a)
+    n2 = dot3(a, a)
     ok = n2 > 1e-14
     inv = dr.rsqrt(dr.select(ok, n2, 1.0))
     return tuple(dr.select(ok, a[i] * inv, fallback[i]) for i in range(3))
 
 
 def _rotation(forward, x_cur, x_new):
-    c = _dot(x_cur, x_new)
-    s = _dot(forward, _cross(x_cur, x_new))
+    c = dot3(x_cur, x_new)
+    s = dot3(forward, _cross(x_cur, x_new))
     return c * c - s * s, 2.0 * c * s
 
 
@@ -136,7 +136,7 @@ def transmitted(Float, eta, theta_dir, phi_dir, n, w, incident):
     sph, cph = dr.sin(phi_dir), dr.cos(phi_dir)
     d = (sth * cph, sth * sph, cth)
     x_dir = (-sph, cph, dr.zeros(Float, dr.width(sph)))
-    cos_t = _dot(d, n)
+    cos_t = dot3(d, n)
     tp, tm = transmission_mueller_terms(cos_t, eta)
     one, zero = Float(1.0), Float(0.0)
     scale = w * dr.maximum(cos_t, 0.0)

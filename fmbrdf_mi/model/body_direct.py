@@ -12,7 +12,7 @@ import math
 import drjit as dr
 import numpy as np
 
-from .body import _dot, microfacet_nodes, transmitted
+from .body import dot3, microfacet_nodes, transmitted
 
 
 def body_matrices(dist, eta, kappa, grid, theta_l, theta_v, phi, columns=(0, 1, 2)):
@@ -36,7 +36,7 @@ def body_matrices(dist, eta, kappa, grid, theta_l, theta_v, phi, columns=(0, 1, 
     # vMF coupling K (N x N), normalised per column (eq:energy conservation2)
     idx = dr.arange(UInt, N * N)
     p, q = idx // N, idx % N
-    e = dr.exp(kappa * (_dot([dr.gather(Float, c, p) for c in n], [dr.gather(Float, c, q) for c in n]) - 1.0))
+    e = dr.exp(kappa * (dot3([dr.gather(Float, c, p) for c in n], [dr.gather(Float, c, q) for c in n]) - 1.0))
     Z = dr.block_sum(dr.gather(Float, w, q) * e, N)  # Z[p] = sum_q W_q exp(kappa n_q.n_p)
     K = Tensor(e / dr.gather(Float, Z, q), shape=(N, N))
 
