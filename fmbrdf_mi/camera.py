@@ -72,7 +72,7 @@ class CameraModel:
         if not (0 <= self.black_level < self.levels):
             raise ValueError(f"camera: black_level must be in [0, {self.levels}), got {self.black_level}")
         self.layout = tuple(tuple(int(a) for a in row) for row in self.layout)
-        polcam._check_layout(self.layout)
+        polcam.check_layout(self.layout)
         if self.cfa is not None:
             self.cfa = polcam.check_cfa(self.cfa)
 

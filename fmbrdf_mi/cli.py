@@ -30,7 +30,7 @@ from . import scene as S
 from ._llvm import LLVMTooOldError
 from .dataset.command import HELP as DATASET_HELP, add_dataset_arguments, run_dataset
 from .brdf_fit.command import HELP as FIT_BRDF_HELP, add_fit_brdf_arguments, run_fit_brdf
-from .fit.cli import add_fit_arguments, run_fit
+from fmbrdf_mi.fit.cli.command import add_fit_arguments, run_fit
 from .params import ParameterError
 
 PROG = "fmbrdf-mi"
@@ -498,7 +498,8 @@ def run_render(args):
 
 def _raw_camera(args):
     from .camera import CameraModel
-    from .fit.observations import InputError, parse_layout
+    from fmbrdf_mi.fit.errors import InputError
+    from fmbrdf_mi.fit.inputs.parse import parse_layout
     from .polcam import parse_cfa
 
     try:

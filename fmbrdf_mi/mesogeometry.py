@@ -74,7 +74,7 @@ def render_oren_nayar_plane(sigma, rho, light_angle_deg, camera_angles_deg, irra
                             form="full"):
     """Mean intensity of a large plane of ``orennayar`` (Mitsuba render, ``direct`` integrator,
     orthographic camera filled by the plane at every angle) under a directional light."""
-    from .fit.pixel_model import set_variant
+    from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 
     mi = set_variant()
     tl = math.radians(light_angle_deg)
@@ -153,7 +153,7 @@ def fit_fmbrdf(angles, obs, light_angle, kappa=None, progress=None):
     """FMBRDF on the intensities; ``kappa``: None (free) or a fixed value."""
     from .brdf_fit.fitting import closed_form_albedos, levenberg_marquardt
     from .brdf_fit.values import FMBRDFValues
-    from .fit.models import FMBRDF, Bounds
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
 
     L, V = directions(light_angle, angles)
     ev = FMBRDFValues(L, V)

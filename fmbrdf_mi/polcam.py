@@ -50,7 +50,7 @@ def stokes_from_angle_images(images, angles=ANGLES):
     return out.astype(np.result_type(imgs.dtype, np.float32), copy=False)
 
 
-def _check_layout(layout):
+def check_layout(layout):
     flat = [a for row in layout for a in row]
     if len(layout) != 2 or any(len(r) != 2 for r in layout) or sorted(flat) != sorted(ANGLES):
         raise ValueError(f"layout: expected a 2x2 arrangement of the angles {ANGLES}, got {layout}")
@@ -62,7 +62,7 @@ def mosaic_from_angle_images(images, layout=IMX250MZR_LAYOUT):
     imgs = np.asarray(images)
     if imgs.ndim != 3 or imgs.shape[0] != 4:
         raise ValueError(f"images: expected shape (4, H, W), got {imgs.shape}")
-    flat = _check_layout(layout)
+    flat = check_layout(layout)
     _, h, w = imgs.shape
     raw = np.empty((2 * h, 2 * w), dtype=imgs.dtype)
     for pos, angle in enumerate(flat):
@@ -75,7 +75,7 @@ def angle_images_from_mosaic(raw, layout=IMX250MZR_LAYOUT):
     raw = np.asarray(raw)
     if raw.ndim != 2 or raw.shape[0] % 2 or raw.shape[1] % 2:
         raise ValueError(f"raw: expected a 2-D mosaic with even height and width, got shape {raw.shape}")
-    flat = _check_layout(layout)
+    flat = check_layout(layout)
     out = [None] * 4
     for pos, angle in enumerate(flat):
         out[ANGLES.index(angle)] = raw[pos // 2::2, pos % 2::2]

@@ -44,8 +44,8 @@ def small_sphere_paths(light, spp, res=24, seed=3):
 
     from fmbrdf_mi import scene as S
     from fmbrdf_mi.fit import FitOptions, Observation, usable_pixels
-    from fmbrdf_mi.fit.models import FMBRDF
-    from fmbrdf_mi.fit.pixel_model import PixelEvaluator, RenderEvaluator, set_variant
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF
+    from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator, RenderEvaluator, set_variant
 
     set_variant()
     scene = mi.load_dict(S.sphere_scene({"k_s": 1.0, "k_b": 1.0}, light_dir=light, irradiance=1.0,

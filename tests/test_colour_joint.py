@@ -17,9 +17,9 @@ def _cli(*argv):
 
 
 def _sphere_capture(R, light, seed, noiseless=False):
-    from fmbrdf_mi.fit import observations as ob
-    from fmbrdf_mi.fit.colour import colour_samples
-    from fmbrdf_mi.fit.synthetic import ideal_sphere
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
+    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
 
     shape = dict(eta=1.5, alpha=0.25, beta=0.4, kappa=1.0)
     alb = {"R": (0.6, 0.8), "G": (0.4, 1.5), "B": (0.5, 0.4)}
@@ -41,8 +41,8 @@ def test_joint_colour_fit_of_one_image_twice_halves_the_variance():
     Independent of the fit's internals: it fails if the images' samples are not all counted, or counted
     with the wrong geometry.  Tolerances: both fits stop within ~0.1 SE of the same optimum (LM decrement
     < 0.01), so estimates agree to 0.15 SE; SE ratios to 2 % (the two stop at slightly different points)."""
-    from fmbrdf_mi.fit.colour import fit_colour
-    from fmbrdf_mi.fit.objective import NoiseModel
+    from fmbrdf_mi.fit.api.colour import fit_colour
+    from fmbrdf_mi.fit.camera.noise import NoiseModel
 
     obs, smp, cam = _sphere_capture(12, (0.45, 0.35, 1.0), seed=3)
     noise = NoiseModel(cam.conversion_gain, cam.read_noise, 1.0)
@@ -101,7 +101,7 @@ def test_fit_cli_colour_joint_manifest(tmp_path, capsys):
         rel_se = np.hypot(se["k_s"][c] / p["k_s"][c], se["k_s"]["G"] / p["k_s"]["G"])
         assert abs(p["k_s"][c] / p["k_s"]["G"] / ratio - 1) < 4 * infl * rel_se, (c, p["k_s"], rel_se)
     # held-out image: its error against what the camera noise alone gives at its own samples
-    from fmbrdf_mi.fit.colour_cli import read_colour_input
+    from fmbrdf_mi.fit.inputs.colour import read_colour_input
 
     ci = read_colour_input(raws[2], light=lights[2], erode=1)
     sel = ci.obs.mask & ci.samples.usable

@@ -41,14 +41,14 @@ def test_their_negated_aolp_is_ours_measured_with_y_down(psi_deg):
     np.testing.assert_allclose(theirs, ours * np.array([1, 1, -1]), atol=2e-3)
     assert abs(math.remainder(aolp + psi, math.pi)) < 2e-3
     # and the package's own reading of that mosaic is ours, unchanged
-    from fmbrdf_mi.fit.observations import stokes_from_raw
+    from fmbrdf_mi.fit.camera.demosaic import stokes_from_raw
 
     s = stokes_from_raw(cap["raw"], ((90, 45), (135, 0)), 0.0, "superpixel")[:, 2, 2] / 2000.0
     np.testing.assert_allclose(s, ours, atol=2e-3)
 
 
 def test_opencv_axes_conversion():
-    from fmbrdf_mi.fit.authors_layout import cv_to_ours, rays_from_intrinsics
+    from fmbrdf_mi.fit.inputs.authors import cv_to_ours, rays_from_intrinsics
 
     # a normal facing an OpenCV camera (towards -z), tilted to image right and image top (-y in OpenCV)
     n_cv = np.array([0.3, -0.4, -math.sqrt(0.75)])
@@ -67,7 +67,7 @@ def test_opencv_axes_conversion():
 
 @pytest.fixture(scope="module")
 def blob(tmp_path_factory):
-    from fmbrdf_mi.fit.synthetic_object import write_authors_object
+    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
 
     root = tmp_path_factory.mktemp("authors") / "blob"
     truth = write_authors_object(root, TRUE, LIGHTS, res=40, fov=12.0, powers=POWERS, seed=11)
@@ -75,7 +75,7 @@ def blob(tmp_path_factory):
 
 
 def test_read_object_geometry_lights_and_powers(blob):
-    from fmbrdf_mi.fit.authors_layout import read_object
+    from fmbrdf_mi.fit.inputs.authors import read_object
 
     root, truth = blob
     specs, info = read_object(root, holdout=[3])
@@ -102,7 +102,7 @@ def test_read_object_errors(blob, tmp_path):
     import shutil
 
     from fmbrdf_mi.fit import InputError
-    from fmbrdf_mi.fit.authors_layout import read_object
+    from fmbrdf_mi.fit.inputs.authors import read_object
 
     root, _ = blob
     with pytest.raises(InputError, match="no such directory"):
@@ -197,8 +197,8 @@ def test_normal_refinement_on_the_mesh_object(blob):
     one round of per-pixel Gauss-Newton with the smoothness prior at least halves the mean angular error
     against the ray-cast normals and moves 80 % of the pixels closer.  (Material and normals together, from
     a sphere: tools/bench_normal_refine.py, README.)"""
-    from fmbrdf_mi.fit.authors_layout import read_object
-    from fmbrdf_mi.fit.normal_refine import angular_error_deg, refine_normals
+    from fmbrdf_mi.fit.inputs.authors import read_object
+    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, refine_normals
 
     root, truth = blob
     specs, _ = read_object(root, conversion_gain=truth["camera"]["conversion_gain"], read_noise=2.5)
@@ -228,7 +228,7 @@ def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys):
     import shutil
 
     from fmbrdf_mi.cli import main
-    from fmbrdf_mi.fit.record import sha256
+    from fmbrdf_mi.fit.outputs.record import sha256
 
     src, truth = blob
     root = tmp_path / "obj"             # a copy: the test changes an image
@@ -272,7 +272,7 @@ def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys):
     # a changed image: refused, one line naming it, nothing written
     from PIL import Image
 
-    from fmbrdf_mi.fit.observations import read_array
+    from fmbrdf_mi.fit.inputs.observations import read_array
 
     original = open(img1, "rb").read()
     im = read_array(img1, "image").astype(np.uint16)
@@ -294,7 +294,7 @@ def _write_manifest(tmp_path, root, truth, image_dir):
     """m.toml in tmp_path for the object at ``root`` (images under ``image_dir``, as the manifest
     names them), its first view's geometry as n.npy, v.npy, m.npy; returns (conversion gain,
     an --init near the truth: no coarse search, a quick test)."""
-    from fmbrdf_mi.fit.authors_layout import read_object
+    from fmbrdf_mi.fit.inputs.authors import read_object
 
     specs, _ = read_object(root)
     o = specs[0].input

@@ -1,4 +1,4 @@
-"""Relative light powers as free parameters of a joint fit (fmbrdf_mi.fit.free_power, ``--free-power``).
+"""Relative light powers as free parameters of a joint fit (fmbrdf_mi.fit.problem.free_power, ``--free-power``).
 
 References independent of the code under test: synthetic captures whose true
 powers are known (the sphere rendered with each image's light scaled by its
@@ -19,7 +19,7 @@ NEAR = {"eta": 1.5, "alpha": 0.22, "beta": 1.2, "kappa": 14.0, "k_s": 0.8, "r_k"
 
 @pytest.fixture(scope="module")
 def variant():
-    from fmbrdf_mi.fit.pixel_model import set_variant
+    from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 
     set_variant()
 
@@ -28,7 +28,7 @@ def _captures(res=16, powers=POWERS, seed=0):
     """(observations, raw captures): one exposure for all images, image k's light ``powers[k]`` times as
     bright; every observation's irradiance is the same (the fit is told power 1 for all)."""
     from fmbrdf_mi.camera import CameraModel, capture
-    from fmbrdf_mi.fit.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     cam = CameraModel()
     ideals = [ideal_sphere(TRUE, res=res, light=l) for l in LIGHTS]
@@ -49,11 +49,11 @@ def test_free_powers_are_recovered_and_fixed_powers_bias_the_fit(variant):
     calibration over seeds is measured by tools/bench_fit_lights.py --free-power), the reference's
     power exactly its given value.  Without: from the truth itself the fit moves many standard errors
     away and chi^2 / dof is far above 1 (the data are not explained)."""
-    from fmbrdf_mi.fit.joint import fit_joint
+    from fmbrdf_mi.fit.api.joint import fit_joint
 
     obs, _, _ = _captures()
     res = fit_joint(obs, free_power=True, progress=False, names=["a", "b", "c"])
-    f = res.fit
+    f = res
     assert f.converged and f.objective == "likelihood"
     assert set(f.params) == set(TRUE)          # the powers are reported apart from the material
     p = res.powers
@@ -81,14 +81,14 @@ def test_free_powers_are_recovered_and_fixed_powers_bias_the_fit(variant):
 def test_power_start_given_converges_to_the_same_estimate(variant):
     """Starting the powers at the given (wrong) values instead of the closed form reaches the same optimum
     (to 0.05 standard errors: the likelihood's stopping rule is ~0.1 SE)."""
-    from fmbrdf_mi.fit.joint import fit_joint
+    from fmbrdf_mi.fit.api.joint import fit_joint
 
     obs, _, _ = _captures(res=12, seed=10)
     a = fit_joint(obs, free_power=True, init=NEAR, progress=False)
     b = fit_joint(obs, free_power=True, init=NEAR, power_start="given", progress=False)
-    assert a.fit.converged and b.fit.converged
+    assert a.converged and b.converged
     for k in TRUE:
-        assert abs(a.params[k] - b.params[k]) < 0.1 * a.fit.std_errors[k], k
+        assert abs(a.params[k] - b.params[k]) < 0.1 * a.std_errors[k], k
     for k in (1, 2):
         assert abs(a.powers["values"][k] - b.powers["values"][k]) < 0.1 * a.powers["std_errors"][k]
 
@@ -101,22 +101,25 @@ def test_power_columns_of_the_jacobian_are_the_derivative(variant):
     import dataclasses
 
     from fmbrdf_mi.fit import FitOptions
-    from fmbrdf_mi.fit import free_power as FP
-    from fmbrdf_mi.fit import optimise as O, uncertainty as U
-    from fmbrdf_mi.fit.joint import prepare
-    from fmbrdf_mi.fit.models import FMBRDF, Bounds
+    from fmbrdf_mi.fit.problem import free_power as FP
+    from fmbrdf_mi.fit import uncertainty as U
+    from fmbrdf_mi.fit.evaluate.models import State
+    from fmbrdf_mi.fit.problem.problem import Problem
+    from fmbrdf_mi.fit.api.joint import prepare
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
 
     obs, _, _ = _captures(res=12)
     opts = FitOptions(loss="likelihood", max_pixels=None)
     given = [1.0, 0.8, 1.3]
     obs = [dataclasses.replace(o, irradiance=o.irradiance * g) for o, g in zip(obs, given)]
-    prepared, idxs, slices = prepare(obs, opts, "likelihood")
+    data = prepare(obs, opts, "likelihood")
+    slices = data.slices
     pm = FP.PowerModel(FMBRDF, given)
-    pev = FP.PowerEvaluator(prepared[5], pm, [b - a for a, b in slices])
-    pb = FP.problem_factory(pm, pev, slices)(FMBRDF, pev, prepared[3], None, None, None, None)
+    pev = FP.PowerEvaluator(data.evaluator, pm, [b - a for a, b in slices])
+    pb = FP.problem_factory(pm, pev, slices)(FMBRDF, pev, data.objective, None, None, None, None)
     powers = {"power_1": 0.7, "power_2": 1.9}
     shape, a_s, a_b = pm.split({**NEAR, **powers})
-    st = O.State(shape, a_s, a_b)
+    st = State(shape, a_s, a_b)
     pb.obj.refresh(pb.parts(st), st)
     var = pb.obj.var.copy()
     r, J = pb.residuals_and_jacobian(pb.parts(st, jac=True), st, pb.to_z(st))
@@ -124,10 +127,10 @@ def test_power_columns_of_the_jacobian_are_the_derivative(variant):
 
     def plain_residuals(p):   # the unwrapped joint path at irradiance x P_k / G_k
         scaled = [dataclasses.replace(o, irradiance=o.irradiance * pk / g) for o, pk, g in zip(obs, p, given)]
-        prep, _, _ = prepare(scaled, opts, "likelihood")
-        plain = O.Problem(FMBRDF, prep[5], prep[3], Bounds(FMBRDF))
+        prep = prepare(scaled, opts, "likelihood")
+        plain = Problem(FMBRDF, prep.evaluator, prep.objective, Bounds(FMBRDF))
         plain.obj.var = var
-        s = O.State(*FMBRDF.split(NEAR))
+        s = State(*FMBRDF.split(NEAR))
         return plain.obj.residuals(plain.parts(s), s)
 
     p0 = [1.0, powers["power_1"], powers["power_2"]]
@@ -148,8 +151,8 @@ def test_power_columns_of_the_jacobian_are_the_derivative(variant):
 
 def test_free_power_input_errors(variant):
     from fmbrdf_mi.fit import InputError
-    from fmbrdf_mi.fit.fitting import fit
-    from fmbrdf_mi.fit.joint import fit_joint
+    from fmbrdf_mi.fit.api.fitting import fit
+    from fmbrdf_mi.fit.api.joint import fit_joint
 
     obs, _, _ = _captures(res=12)
     with pytest.raises(InputError, match="free_power: needs two or more"):

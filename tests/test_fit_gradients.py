@@ -7,7 +7,7 @@ observation comes from other parameters, so the loss is far from zero;
 steps of 1 % of each value keep float32 round-off (~1e-6 relative in the
 loss) and truncation well below the 2 % tolerance.  Each check runs without
 and with a known camera noise (the DoLP term then compares with the mean
-DoLP a noisy camera measures, fmbrdf_mi.fit.rice).
+DoLP a noisy camera measures, fmbrdf_mi.fit.camera.rice).
 """
 import numpy as np
 import pytest
@@ -22,10 +22,11 @@ NAMES = list(AT)
 @pytest.fixture(scope="module", params=["noise-free", "known noise"])
 def problem(request):
     from fmbrdf_mi.fit import FitOptions, Observation, predict_image, usable_pixels
-    from fmbrdf_mi.fit import loss as L, observations as ob
-    from fmbrdf_mi.fit.models import FMBRDF
-    from fmbrdf_mi.fit.optimise import Problem
-    from fmbrdf_mi.fit.pixel_model import PixelEvaluator
+    from fmbrdf_mi.fit.objectives import loss as L
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF
+    from fmbrdf_mi.fit.problem.problem import Problem
+    from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 
     n, m, v = ob.sphere_normals((32, 32), (16, 16), 15)
     light = [0.4, 0.3, 1.0]
@@ -39,7 +40,7 @@ def problem(request):
     ev = PixelEvaluator(FMBRDF, n.reshape(-1, 3)[idx], v.reshape(-1, 3)[idx], light)
     pb = Problem(FMBRDF, ev, target)
     shape, a_s, a_b = FMBRDF.split(AT)
-    from fmbrdf_mi.fit.optimise import State
+    from fmbrdf_mi.fit.evaluate.models import State
 
     st = State(shape, a_s, a_b)
     pb.set_weights(pb.parts(st), st)
@@ -48,7 +49,7 @@ def problem(request):
 
 
 def _loss_at(pb, params):
-    from fmbrdf_mi.fit.optimise import State
+    from fmbrdf_mi.fit.evaluate.models import State
 
     st = State(*pb.model.split(params))
     return pb.loss(pb.parts(st), st)
@@ -74,7 +75,8 @@ def finite_differences(problem):
 
 
 def test_reverse_mode_gradient_matches_finite_differences(variant, problem, finite_differences):
-    from fmbrdf_mi.fit.optimise import State, loss_and_grad_reverse
+    from fmbrdf_mi.fit.evaluate.models import State
+    from fmbrdf_mi.fit.solve.optimise import loss_and_grad_reverse
 
     st = State(*problem.model.split(AT))
     f, g = loss_and_grad_reverse(problem, st)
@@ -86,7 +88,7 @@ def test_reverse_mode_gradient_matches_finite_differences(variant, problem, fini
 
 
 def test_forward_mode_jacobian_gradient_matches_finite_differences(variant, problem, finite_differences):
-    from fmbrdf_mi.fit.optimise import State
+    from fmbrdf_mi.fit.evaluate.models import State
 
     st = State(*problem.model.split(AT))
     z = problem.to_z(st)

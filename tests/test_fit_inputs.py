@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 
 from fmbrdf_mi import polcam, stokes_io
-from fmbrdf_mi.fit import camera_noise as cn
-from fmbrdf_mi.fit import observations as ob
-from fmbrdf_mi.fit.observations import InputError, Observation
+from fmbrdf_mi.fit.camera import noise as cn
+from fmbrdf_mi.fit.inputs import observations as ob
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.observations import Observation
+from fmbrdf_mi.fit.inputs.parse import parse_layout
 
 
 def _stokes(rng, h, w):
@@ -154,7 +156,7 @@ def test_unreadable_and_malformed_files(tmp_path):
     with pytest.raises(InputError, match=r"\(4, H, W\) angle images"):
         ob.load_polarisation(str(tmp_path / "rgb.npy"))
     with pytest.raises(InputError, match="four angles"):
-        ob.parse_layout("90,45,135")
+        parse_layout("90,45,135")
     np.save(tmp_path / "raw0.npy", np.zeros((4, 6)))
     with pytest.raises(InputError, match="2x2 arrangement"):
         ob.load_polarisation(str(tmp_path / "raw0.npy"), layout=((90, 45), (45, 0)))
@@ -205,7 +207,7 @@ def test_model_dolp_with_known_variance_matches_the_noisy_measurement():
     (the Rice mean of pure noise) to a DoLP ten times the noise; the standard
     error of each mean is below 1e-4, the tolerance 5e-4 absolute.
     """
-    from fmbrdf_mi.fit.loss import Target, predict
+    from fmbrdf_mi.fit.objectives.loss import Target, predict
 
     rng = np.random.default_rng(4)
     n, sigma = 400000, 0.02
@@ -224,7 +226,7 @@ def test_model_dolp_with_known_variance_matches_the_noisy_measurement():
 
 def test_sphere_auto_accepts_a_mask_at_raw_mosaic_resolution(tmp_path):
     """`--sphere auto` with the mask of the raw mosaic: pooled to super-pixels, the same sphere is found."""
-    from fmbrdf_mi.fit.cli import build_observation
+    from fmbrdf_mi.fit.inputs.files import build_observation
 
     raw = np.full((80, 96), 1000, np.uint16)
     np.save(tmp_path / "raw.npy", raw)

@@ -1,4 +1,4 @@
-"""Joint fits of several images of one object (fmbrdf_mi.fit.joint) and the loss variants (loss_variants.py).
+"""Joint fits of several images of one object (fmbrdf_mi.fit.api.joint) and the loss variants (loss_variants.py).
 
 References are independent of the code under test: per-image problems built
 by the single-image fit (whose Jacobian is checked against finite
@@ -17,15 +17,15 @@ NEAR = {"eta": 1.5, "alpha": 0.22, "beta": 1.2, "kappa": 14.0, "k_s": 0.8, "r_k"
 
 @pytest.fixture(scope="module")
 def variant():
-    from fmbrdf_mi.fit.pixel_model import set_variant
+    from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 
     set_variant()
 
 
 def _clean(res=24, lights=LIGHTS, params=TRUE, irradiances=None):
     """Noise-free Stokes images at the pixel centres of an orthographic sphere, one per light."""
-    from fmbrdf_mi.fit import observations as ob
-    from fmbrdf_mi.fit.fitting import predict_image
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.fit.evaluate.predict import predict_image
 
     n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
     out = []
@@ -38,7 +38,7 @@ def _clean(res=24, lights=LIGHTS, params=TRUE, irradiances=None):
 
 def _captures(res=16, seed=0, lights=LIGHTS):
     from fmbrdf_mi.camera import CameraModel
-    from fmbrdf_mi.fit.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     return [capture_observation(ideal_sphere(TRUE, res=res, light=l), CameraModel(), seed=seed + k)[0]
             for k, l in enumerate(lights)]
@@ -48,12 +48,12 @@ def test_joint_fit_of_noise_free_images_recovers_the_truth(variant):
     """Three lights, different relative powers, from a start 10-40 % off: the optimum of noise-free
     data is the truth, to the float32 precision of the BSDF (1e-4 relative).  (The likelihood on
     noisy captures: test_joint_fit_per_image_diagnostics_and_errors.)"""
-    from fmbrdf_mi.fit.joint import fit_joint
+    from fmbrdf_mi.fit.api.joint import fit_joint
 
     obs = _clean(res=16, irradiances=[1.0, 0.5, 2.0])
     for loss in ("paper",):
         res = fit_joint(obs, loss=loss, init=NEAR, progress=False, max_pixels=None)
-        assert res.fit.converged, loss
+        assert res.converged, loss
         for k, v in TRUE.items():
             assert abs(res.params[k] - v) <= 1e-4 * max(v, 1.0), (loss, k, res.params[k])
         assert len(res.images) == 3 and all(im["intensity_rel_rmse"] < 1e-4 for im in res.images)
@@ -64,26 +64,28 @@ def test_joint_fisher_information_is_the_sum_of_the_images(variant):
     single-image J^T J at the same parameters (each built by the one-image code path), so the
     reported joint covariance is the inverse of that sum (to float32 noise, 1e-6 relative)."""
     from fmbrdf_mi.fit import FitOptions
-    from fmbrdf_mi.fit import optimise as O, uncertainty as U
-    from fmbrdf_mi.fit.fitting import _objective, make_evaluator, select_pixels
-    from fmbrdf_mi.fit.joint import prepare
-    from fmbrdf_mi.fit.models import FMBRDF, Bounds
+    from fmbrdf_mi.fit import uncertainty as U
+    from fmbrdf_mi.fit.evaluate.models import State
+    from fmbrdf_mi.fit.problem.problem import Problem
+    from fmbrdf_mi.fit.api.fitting import _objective, make_evaluator, select_pixels
+    from fmbrdf_mi.fit.api.joint import prepare
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
 
     obs = _captures(res=12)
     opts = FitOptions(loss="likelihood", max_pixels=None)
-    st = O.State(*FMBRDF.split(NEAR))
+    st = State(*FMBRDF.split(NEAR))
     F = []
     for o in obs:
         idx, _ = select_pixels(o, opts)
         obj, smp = _objective(o, idx, opts, "likelihood")
-        pb = O.Problem(FMBRDF, make_evaluator(FMBRDF, o, idx, opts, samples=smp), obj, Bounds(FMBRDF))
+        pb = Problem(FMBRDF, make_evaluator(FMBRDF, o, idx, opts, samples=smp), obj, Bounds(FMBRDF))
         obj.refresh(pb.parts(st), st)
         r, J = pb.residuals_and_jacobian(pb.parts(st, jac=True), st, pb.to_z(st))
         F.append(U.jacobian_in_reported(pb, st, J)[1])
     F_sum = sum(j.T @ j for j in F)
-    prepared, _, _ = prepare(obs, opts, "likelihood")
-    _, _, _, obj, _, ev = prepared
-    pb = O.Problem(FMBRDF, ev, obj, Bounds(FMBRDF))
+    data = prepare(obs, opts, "likelihood")
+    obj, ev = data.objective, data.evaluator
+    pb = Problem(FMBRDF, ev, obj, Bounds(FMBRDF))
     obj.refresh(pb.parts(st), st)
     r, J = pb.residuals_and_jacobian(pb.parts(st, jac=True), st, pb.to_z(st))
     names, Jt = U.jacobian_in_reported(pb, st, J)
@@ -97,20 +99,20 @@ def test_joint_fisher_information_is_the_sum_of_the_images(variant):
 
 def test_joint_fit_per_image_diagnostics_and_errors(variant):
     from fmbrdf_mi.fit import InputError
-    from fmbrdf_mi.fit.joint import fit_joint
-    from fmbrdf_mi.fit.objective import NoiseModel
+    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.camera.noise import NoiseModel
 
     obs = _captures(res=12)
     res = fit_joint(obs, init=NEAR, progress=False, names=["a", "b", "c"])
-    assert res.fit.objective == "likelihood" and res.fit.converged
+    assert res.objective == "likelihood" and res.converged
     # the camera noise is right: every image's chi^2 / dof is ~1 (4 n samples: sd sqrt(2 / 4n) < 0.06)
     for im in res.images:
         assert abs(im["chi2_per_dof"] - 1.0) < 0.3, im
     assert [im["name"] for im in res.images] == ["a", "b", "c"]
     # the estimate within 4.5 reported standard errors of the truth (two-sided 7e-6 per parameter)
     for k, v in TRUE.items():
-        assert abs(res.params[k] - v) < 4.5 * res.fit.std_errors[k], (k, res.params[k], res.fit.std_errors[k])
-    assert sum(im["n_pixels"] for im in res.images) == res.fit.n_pixels
+        assert abs(res.params[k] - v) < 4.5 * res.std_errors[k], (k, res.params[k], res.std_errors[k])
+    assert sum(im["n_pixels"] for im in res.images) == res.n_pixels
     obs[1].noise = NoiseModel(gain=obs[0].noise.gain * 2, read_noise=obs[0].noise.read_noise)
     with pytest.raises(InputError, match="one camera"):
         fit_joint(obs, progress=False)
@@ -125,23 +127,24 @@ def test_joint_fit_per_image_diagnostics_and_errors(variant):
 def test_loss_variants_values_against_numpy(variant):
     """intensity: (1/M) sum ((I - Ibar) / mean Ibar)^2; dolp: the paper's weighted DoLP MSE plus
     ((mean I - mean Ibar) / mean Ibar)^2; both computed here from predicted Stokes by hand."""
-    from fmbrdf_mi.fit import loss as L
-    from fmbrdf_mi.fit import optimise as O
-    from fmbrdf_mi.fit.fitting import FitOptions, _objective, make_evaluator, select_pixels
-    from fmbrdf_mi.fit.models import FMBRDF, Bounds
+    from fmbrdf_mi.fit.objectives import loss as L
+    from fmbrdf_mi.fit.evaluate.models import State
+    from fmbrdf_mi.fit.problem.problem import Problem
+    from fmbrdf_mi.fit.api.fitting import FitOptions, _objective, make_evaluator, select_pixels
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
 
     o = _clean(res=16)[0]
     rng = np.random.default_rng(1)
     o.stokes = o.stokes * (1 + 0.05 * rng.standard_normal(o.stokes.shape))
     opts = FitOptions(max_pixels=None)
     idx, _ = select_pixels(o, opts)
-    st = O.State(*FMBRDF.split(NEAR))
+    st = State(*FMBRDF.split(NEAR))
     obs_s = o.stokes.reshape(3, -1)[:, idx]
     ibar = obs_s[0]
     rhobar = np.hypot(obs_s[1], obs_s[2]) / ibar
     for loss in ("intensity", "dolp"):
         obj, _ = _objective(o, idx, opts, loss)
-        pb = O.Problem(FMBRDF, make_evaluator(FMBRDF, o, idx, opts), obj, Bounds(FMBRDF))
+        pb = Problem(FMBRDF, make_evaluator(FMBRDF, o, idx, opts), obj, Bounds(FMBRDF))
         parts = pb.parts(st)
         obj.refresh(parts, st)
         s = st.a_s * parts.surface + st.a_b * parts.body
@@ -185,7 +188,7 @@ def test_loss_variants_recover_noise_free_truth_and_dolp_ignores_the_intensity_s
 
 def test_loss_variant_options_are_checked():
     from fmbrdf_mi.fit import InputError
-    from fmbrdf_mi.fit.options import check_fit_options
+    from fmbrdf_mi.fit.api.options import check_fit_options
 
     check_fit_options(loss="dolp")
     with pytest.raises(InputError, match="loss"):
@@ -195,9 +198,9 @@ def test_loss_variant_options_are_checked():
 def test_joint_fit_of_different_views(variant):
     """Each image its own view (pixel grid, sphere position and size, orthographic or perspective view
     directions): noise-free images give back the truth (float32 precision of the BSDF, 1e-4)."""
-    from fmbrdf_mi.fit import observations as ob
-    from fmbrdf_mi.fit.fitting import predict_image
-    from fmbrdf_mi.fit.joint import fit_joint
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.fit.evaluate.predict import predict_image
+    from fmbrdf_mi.fit.api.joint import fit_joint
 
     views = [((16, 16), (8, 8), 7, "orthographic", None, LIGHTS[0]),
              ((14, 20), (11, 6.5), 6, "orthographic", None, LIGHTS[1]),
@@ -209,7 +212,7 @@ def test_joint_fit_of_different_views(variant):
         o.stokes = predict_image("fmbrdf", TRUE, o)
         obs.append(o)
     res = fit_joint(obs, loss="paper", init=NEAR, progress=False, max_pixels=None)
-    assert res.fit.converged
+    assert res.converged
     for k, v in TRUE.items():
         assert abs(res.params[k] - v) <= 1e-4 * max(v, 1.0), (k, res.params[k])
     assert [im["n_pixels"] for im in res.images] == [len(p) for p in res.pixels]

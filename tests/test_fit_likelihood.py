@@ -1,4 +1,4 @@
-"""The likelihood fit (fmbrdf_mi.fit.objective / uncertainty / samples) and the camera model (fmbrdf_mi.camera).
+"""The likelihood fit (fmbrdf_mi.fit.objectives.objective / uncertainty / samples) and the camera model (fmbrdf_mi.camera).
 
 Statistical tests state their tolerance from the number of Monte Carlo draws
 (false-alarm probability per check below ~1e-4), so that a wrong variance
@@ -64,8 +64,9 @@ def test_sidecar_round_trip_and_white_level(tmp_path):
 # ---------------------------------------------------------------- saturation
 def test_saturated_and_dark_superpixels_are_excluded_and_counted():
     from fmbrdf_mi.fit import FitOptions, InputError
-    from fmbrdf_mi.fit import observations as ob, samples as SM
-    from fmbrdf_mi.fit.fitting import select_pixels
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.fit.camera import samples as SM
+    from fmbrdf_mi.fit.api.fitting import select_pixels
 
     res = 20
     n, m, v = ob.sphere_normals((res, res), (10, 10), 9)
@@ -91,7 +92,7 @@ def test_saturated_and_dark_superpixels_are_excluded_and_counted():
 
 # ---------------------------------------------------------------- likelihood derivatives
 def _small_capture(res=10, seed=0, camera=None, params=TRUE):
-    from fmbrdf_mi.fit.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     ideal = ideal_sphere(params, res=res, light=LIGHT)
     return capture_observation(ideal, camera, seed=seed)[0], ideal
@@ -102,17 +103,19 @@ def test_likelihood_jacobian_and_fisher_information_against_finite_differences(v
     reported parameters, against central differences of mu / sd in those parameters; hence the
     gradient 2 J^T r of chi^2 and the Fisher information J^T J too."""
     from fmbrdf_mi.fit import FitOptions
-    from fmbrdf_mi.fit import optimise as O, uncertainty as U
-    from fmbrdf_mi.fit.fitting import _objective, make_evaluator, select_pixels
-    from fmbrdf_mi.fit.models import FMBRDF, Bounds
+    from fmbrdf_mi.fit import uncertainty as U
+    from fmbrdf_mi.fit.evaluate.models import State
+    from fmbrdf_mi.fit.problem.problem import Problem
+    from fmbrdf_mi.fit.api.fitting import _objective, make_evaluator, select_pixels
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
 
     obs, _ = _small_capture(res=12)
     opts = FitOptions(loss="likelihood")
     idx, _ = select_pixels(obs, opts)
     obj, smp = _objective(obs, idx, opts, "likelihood")
-    pb = O.Problem(FMBRDF, make_evaluator(FMBRDF, obs, idx, opts, samples=smp), obj, Bounds(FMBRDF))
+    pb = Problem(FMBRDF, make_evaluator(FMBRDF, obs, idx, opts, samples=smp), obj, Bounds(FMBRDF))
     start = {"eta": 1.5, "alpha": 0.3, "beta": 1.6, "kappa": 20.0, "k_s": 0.8, "r_k": 1.5}
-    st = O.State(*FMBRDF.split(start))
+    st = State(*FMBRDF.split(start))
     obj.refresh(pb.parts(st), st)   # variances frozen from here on (IRLS)
     r, J = pb.residuals_and_jacobian(pb.parts(st, jac=True), st, pb.to_z(st))
     names, Jt = U.jacobian_in_reported(pb, st, J)
@@ -121,7 +124,7 @@ def test_likelihood_jacobian_and_fisher_information_against_finite_differences(v
         h = 1e-2 * start[name]  # tables in kappa, beta: a step over several interpolation cells
         rr = []
         for d in (1, -1):
-            s2 = O.State(*FMBRDF.split({**start, name: start[name] + d * h}))
+            s2 = State(*FMBRDF.split({**start, name: start[name] + d * h}))
             rr.append(obj.residuals(pb.parts(s2), s2))
         Jfd[:, j] = (rr[0] - rr[1]) / (2 * h)
     for j, name in enumerate(names):
@@ -162,9 +165,9 @@ def test_likelihood_intervals_cover_the_truth(variant):
     """
     from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
-    from fmbrdf_mi.fit.fitting import FitOptions, _objective, make_evaluator, select_pixels
-    from fmbrdf_mi.fit.models import FMBRDF
-    from fmbrdf_mi.fit.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.fit.api.fitting import FitOptions, _objective, make_evaluator, select_pixels
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     cam = CameraModel(full_well=3000.0, read_noise=6.0, bits=12)
     ideal = ideal_sphere(TRUE, res=12, light=LIGHT)
@@ -195,7 +198,7 @@ def test_likelihood_intervals_cover_the_truth(variant):
 # ---------------------------------------------------------------- command line
 def _raw_files(tmp_path, seed=4):
     from fmbrdf_mi.camera import CameraModel, capture, write_sidecar
-    from fmbrdf_mi.fit.synthetic import ideal_sphere
+    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
     from PIL import Image
 
     ideal = ideal_sphere(TRUE, res=16, light=LIGHT)
@@ -257,7 +260,7 @@ def test_likelihood_on_a_stokes_image_recovers_noise_free_albedos(variant):
     """A Stokes image (no raw samples): the likelihood uses the four angle intensities computed from it;
     noise-free, with the noise level estimated from the (float32-sized) residuals, the albedos come back."""
     from fmbrdf_mi.fit import Observation, fit, predict_image
-    from fmbrdf_mi.fit import observations as ob
+    from fmbrdf_mi.fit.inputs import observations as ob
 
     n, m, v = ob.sphere_normals((16, 16), (8, 8), 7)
     obs = Observation(np.ones((3, 16, 16)), m, n, v, LIGHT)
@@ -285,9 +288,9 @@ def test_paper_loss_sandwich_intervals_cover_the_truth(variant):
     """
     from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
-    from fmbrdf_mi.fit.fitting import FitOptions, make_evaluator, select_pixels
-    from fmbrdf_mi.fit.models import FMBRDF
-    from fmbrdf_mi.fit.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.fit.api.fitting import FitOptions, make_evaluator, select_pixels
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     cam = CameraModel(full_well=3000.0, read_noise=6.0, bits=12)
     ideal = ideal_sphere(TRUE, res=16, light=LIGHT)

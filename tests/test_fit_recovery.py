@@ -20,7 +20,7 @@ LIGHT = (0.45, 0.35, 1.0)
 
 def _sphere_obs(params, res=40, model="fmbrdf", light=LIGHT):
     from fmbrdf_mi.fit import Observation, predict_image
-    from fmbrdf_mi.fit import observations as ob
+    from fmbrdf_mi.fit.inputs import observations as ob
 
     n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
     obs = Observation(np.ones((3, res, res)), m, n, v, light)
@@ -66,10 +66,11 @@ def test_render_path_agrees_with_pixel_path(render_setup):
 
 def _render_problem(render_setup):
     from fmbrdf_mi.fit import Observation
-    from fmbrdf_mi.fit import loss as L
-    from fmbrdf_mi.fit.models import FMBRDF
-    from fmbrdf_mi.fit.optimise import Problem, State
-    from fmbrdf_mi.fit.pixel_model import RenderEvaluator
+    from fmbrdf_mi.fit.objectives import loss as L
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF
+    from fmbrdf_mi.fit.evaluate.models import State
+    from fmbrdf_mi.fit.problem.problem import Problem
+    from fmbrdf_mi.fit.evaluate.pixel_model import RenderEvaluator
 
     scene, obs, idx, rev, _ = render_setup
     # observation: the same scene rendered at the true parameters with other samples
@@ -87,7 +88,8 @@ def _render_problem(render_setup):
 
 
 def test_render_path_reverse_gradient_matches_finite_differences(render_setup):
-    from fmbrdf_mi.fit.optimise import State, loss_and_grad_reverse
+    from fmbrdf_mi.fit.evaluate.models import State
+    from fmbrdf_mi.fit.solve.optimise import loss_and_grad_reverse
 
     pb, st, start, _, _ = _render_problem(render_setup)
     f, g = loss_and_grad_reverse(pb, st)
@@ -144,9 +146,10 @@ def test_cli_writes_estimates_plots_and_relighting(tmp_path, capsys):
 
 def test_footprint_average_equals_averaged_evaluations(variant):
     from fmbrdf_mi.fit import Observation
-    from fmbrdf_mi.fit import camera_noise as cn, observations as ob
-    from fmbrdf_mi.fit.models import FMBRDF
-    from fmbrdf_mi.fit.pixel_model import PixelEvaluator
+    from fmbrdf_mi.fit.camera import noise as cn
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF
+    from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 
     n, m, v = ob.sphere_normals((20, 20), (10, 10), 9)
     obs = Observation(np.ones((3, 20, 20)), m, n, v, LIGHT, footprint=cn.demosaic_footprint())
@@ -169,7 +172,7 @@ def test_footprint_average_equals_averaged_evaluations(variant):
 def test_cli_raw_mosaic_with_camera_noise(tmp_path, capsys):
     """Raw 12-bit mosaic in, geometry at raw resolution, the noisy-DoLP model and the demosaicking footprint."""
     from fmbrdf_mi.cli import main
-    from fmbrdf_mi.fit import camera_noise as cn
+    from fmbrdf_mi.fit.camera import noise as cn
 
     true = {"eta": 1.5, "alpha": 0.25, "specular_reflectance": 0.8, "diffuse_reflectance": 0.5}
     raw_obs = _sphere_obs(true, res=96, model="pplastic")
@@ -194,7 +197,7 @@ def test_oren_nayar_ts_baseline_recovers_its_own_render(variant):
     mi = variant
     from fmbrdf_mi import scene as S
     from fmbrdf_mi.fit import Observation, fit
-    from fmbrdf_mi.fit.models import OREN_NAYAR_TS as M
+    from fmbrdf_mi.fit.evaluate.models import OREN_NAYAR_TS as M
 
     true = {"eta": 1.6, "alpha": 0.2, "sigma": 0.6, "k_s": 0.7, "k_d": 0.9}  # sigma off the search grid
     shape, a_s, a_b = M.split(true)

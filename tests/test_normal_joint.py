@@ -33,9 +33,10 @@ def test_normal_block_and_schur_step_match_dense_algebra(prior):
     dense NumPy on a 4 x 5 mask with a hole (random Jacobians; 2 x 2 bilinear stencils with fixed pixels),
     and the material's sandwich covariance against [H^-1 F H^-1]_mm formed densely.
     CG stops at a relative residual of 1e-10 on a system of condition < 1e4: 1e-6 relative is generous."""
-    from fmbrdf_mi.fit.normal_joint import stencils
-    from fmbrdf_mi.fit.normal_refine import tangent_bases
-    from fmbrdf_mi.fit.normal_system import NormalBlock, data_products, material_covariance, schur, solve_step
+    from fmbrdf_mi.fit.api.normal_joint import stencils
+    from fmbrdf_mi.fit.api.normal_refine import tangent_bases
+    from fmbrdf_mi.fit.solve.normal_system import (
+        NormalBlock, data_products, material_covariance, schur, solve_step)
 
     rng = np.random.default_rng(4)
     mask = np.ones((4, 5), bool)
@@ -92,7 +93,7 @@ def test_normal_block_and_schur_step_match_dense_algebra(prior):
 def test_curvature_prior_is_zero_on_a_linear_normal_field():
     """Second differences vanish where the normal changes linearly across the image (a cylinder-like
     slope field before normalisation); first differences do not."""
-    from fmbrdf_mi.fit.normal_joint import stencils
+    from fmbrdf_mi.fit.api.normal_joint import stencils
 
     mask = np.ones((5, 6), bool)
     y, x = np.mgrid[0:5, 0:6]
@@ -108,7 +109,7 @@ def test_curvature_prior_is_zero_on_a_linear_normal_field():
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     """A 16 x 16 super-pixel mesh object (137 refined pixels), 3 lights, raw 16-bit mosaics, authors' layout."""
-    from fmbrdf_mi.fit.synthetic_object import write_authors_object
+    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
 
     root = tmp_path_factory.mktemp("tiny") / "blob"
     truth = write_authors_object(root, TRUE, LIGHTS, res=16, fov=12.0, powers=POWERS, seed=3)
@@ -116,7 +117,7 @@ def tiny(tmp_path_factory):
 
 
 def _observations(tiny):
-    from fmbrdf_mi.fit.authors_layout import read_object
+    from fmbrdf_mi.fit.inputs.authors import read_object
 
     root, truth = tiny
     specs, _ = read_object(root, conversion_gain=truth["camera"]["conversion_gain"], read_noise=2.5)
@@ -134,10 +135,10 @@ def test_normal_jacobian_matches_brute_force(tiny):
     (corners outside it replaced by itself).  Both are central differences of float32 renders: the model's
     samples are ~1e4 DN with sd ~60 DN, so residual rounding is ~1e-5 and h = 1e-3 gives ~1e-2 absolute
     noise on derivatives of size ~100: 1e-3 relative to the largest entry is 10x that."""
-    from fmbrdf_mi.fit.models import Bounds, get_model
-    from fmbrdf_mi.fit.normal_joint import _JointProblem
-    from fmbrdf_mi.fit.normal_refine import photometric_stereo
-    from fmbrdf_mi.fit.observations import erode
+    from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+    from fmbrdf_mi.fit.api.normal_joint import _JointProblem
+    from fmbrdf_mi.fit.api.normal_refine import photometric_stereo
+    from fmbrdf_mi.fit.inputs.observations import erode
 
     obs, ks = _observations(tiny)
     m = erode(obs[0].mask, 1)
@@ -168,9 +169,9 @@ def test_joint_lowers_the_energy_monotonically_and_beats_the_alternation(tiny):
     held, refreshes=0), the normals end closer to the ray-cast ones, and the final energy is below that of the
     alternation's normal step run to its fixed point with the joint's final material (the same energy,
     evaluated by an independently built problem)."""
-    from fmbrdf_mi.fit.models import Bounds, get_model
-    from fmbrdf_mi.fit.normal_joint import _JointProblem, refine_joint
-    from fmbrdf_mi.fit.normal_refine import angular_error_deg, photometric_stereo, refine_normals
+    from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+    from fmbrdf_mi.fit.api.normal_joint import _JointProblem, refine_joint
+    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, photometric_stereo, refine_normals
 
     obs, ks = _observations(tiny)
     gt = obs[0].normals.copy()
@@ -185,9 +186,9 @@ def test_joint_lowers_the_energy_monotonically_and_beats_the_alternation(tiny):
     jp = _JointProblem(obs, res.mask, mdl, Bounds(mdl), None, 0.3)
     st = jp.problem.state(*mdl.split(res.params))
     ed, ep, _ = jp.energy(st, res.normals.reshape(-1, 3))
-    assert abs(ed + ep - res.energy) < 1e-6 * res.energy     # the same energy, rebuilt
+    assert abs(ed + ep - res.loss) < 1e-6 * res.loss     # the same energy, rebuilt
     ea, pa, _ = jp.energy(st, alt.normals.reshape(-1, 3))
-    assert res.energy < ea + pa, (res.energy, ea + pa)
+    assert res.loss < ea + pa, (res.loss, ea + pa)
 
 
 def test_refine_normals_command(tiny, tmp_path, capsys):

@@ -165,7 +165,7 @@ def test_fit_output_under_a_file(capsys, tmp_path, a_file):
 ])
 def test_fit_api_options(kw, words):
     from fmbrdf_mi.fit import fit
-    from fmbrdf_mi.fit.observations import InputError
+    from fmbrdf_mi.fit.errors import InputError
 
     with pytest.raises(InputError) as e:
         fit(None, progress=False, **kw)

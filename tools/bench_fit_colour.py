@@ -8,11 +8,11 @@ One material (eta 1.5, alpha 0.25, beta 0.4, kappa 1; k_s / r_k 0.6 / 0.8, 0.4 /
 sphere filling PERIODS x PERIODS 4x4 periods of an IMX250MYR-type colour
 polarisation mosaic (RGGB), light (0.45, 0.35, 1).  The data are each
 channel's model Stokes image evaluated at every raw pixel's centre
-(:func:`fmbrdf_mi.fit.synthetic.ideal_sphere`) captured by
+(:func:`fmbrdf_mi.fit.evaluate.synthetic.ideal_sphere`) captured by
 :func:`fmbrdf_mi.camera.capture` (full well 10 000 e-, read noise 2.5 e-,
 12 bits, brightest raw pixel at 80 %; seed = the noise seed), so only the
 camera's noise separates data and model.  Each capture is fitted by
-:func:`fmbrdf_mi.fit.colour.fit_colour` with the gain and read noise known.
+:func:`fmbrdf_mi.fit.api.colour.fit_colour` with the gain and read noise known.
 Per parameter (per channel for the albedos): mean relative error +- its
 standard error, spread, mean reported SE, coverage of the reported 95 %
 intervals (with its binomial 95 % interval), fit time.
@@ -123,10 +123,11 @@ def main():
     import mitsuba as mi  # noqa: F401  (the package sets its variant)
     from fmbrdf_mi import polcam
     from fmbrdf_mi.camera import CameraModel, capture
-    from fmbrdf_mi.fit import observations as ob
-    from fmbrdf_mi.fit.colour import colour_samples, fit_colour
-    from fmbrdf_mi.fit.objective import NoiseModel
-    from fmbrdf_mi.fit.synthetic import ideal_sphere
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
+    from fmbrdf_mi.fit.api.colour import fit_colour
+    from fmbrdf_mi.fit.camera.noise import NoiseModel
+    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
     from bench_rebuild import cpu_name
 
     R = args.periods
@@ -150,11 +151,11 @@ def main():
         t = time.time() - t
         flat = lambda d: {**{k: d[k] for k in SHAPE},  # noqa: E731
                           **{f"{a}[{c}]": d[a][c] for a in ("k_s", "r_k") for c in "RGB"}}
-        est = flat(res["params"])
-        se = flat(res["std_errors"]) if res["converged"] else None
-        runs.append({"seed": seed, "converged": bool(res["converged"]), "time": t, "params": est,
-                     "std_errors": se, "chi2_per_dof": res.get("chi2_per_dof")})
-        print(f"seed {seed:3d}: {t:5.1f} s {'ok' if res['converged'] else 'NC'}  "
+        est = flat(res.params)
+        se = flat(res.std_errors) if res.converged else None
+        runs.append({"seed": seed, "converged": bool(res.converged), "time": t, "params": est,
+                     "std_errors": se, "chi2_per_dof": res["chi2_per_dof"]})
+        print(f"seed {seed:3d}: {t:5.1f} s {'ok' if res.converged else 'NC'}  "
               + " ".join(f"{k}={est[k]:.4g}" for k in est), flush=True)
 
     rows = summarise(runs, truth, fixed)

@@ -1,4 +1,4 @@
-"""What more lights buy: joint likelihood fits of K = 1, 3, 6 images of one object (fmbrdf_mi.fit.joint).
+"""What more lights buy: joint likelihood fits of K = 1, 3, 6 images of one object (fmbrdf_mi.fit.api.joint).
 
     python tools/bench_fit_lights.py [--materials glossy,rough] [--lights 1,3,6] [--seeds 10] [--size 40]
                                      [--json out.json]
@@ -16,7 +16,7 @@ within 0.3 degrees of the noise bench's (-0.5, 0.5, 1) direction); K = 1 fits li
 lights 0, 2, 4, K = 6 all.  Image j of seed s has camera-noise seed
 1000 s + j, so the K = 1 data are part of the K = 3 data, which are part of
 the K = 6 data (nested: the comparison is between designs, not noise draws).
-Every fit: :func:`fmbrdf_mi.fit.joint.fit_joint` with the defaults (coarse
+Every fit: :func:`fmbrdf_mi.fit.api.joint.fit_joint` with the defaults (coarse
 search from no prior, 2 starts, LM, likelihood, all six parameters free,
 20 000 super-pixels at most).
 
@@ -34,7 +34,7 @@ still exposed to 80 % of full scale, and the fit is told the exposure but
 power 1 for every image, so the powers relative to the first image are
 unknown.  Each seed is fitted once per ``--power-start`` mode: ``ratio`` and
 ``given`` (``fit_joint(free_power=True, power_start=...)``:
-fmbrdf_mi.fit.free_power), and ``fixed`` (the powers held at the wrong
+fmbrdf_mi.fit.problem.free_power), and ``fixed`` (the powers held at the wrong
 given values: what ignoring them costs).  The table gains the fitted powers
 (``power_j``: image j of the subset; truth its power over image 0's) and a
 ``start`` column; the JSON keeps the evaluations and the final objective of
@@ -70,8 +70,8 @@ def subsets(ks, n=6):
 
 
 def _fits(args, obs, k, sets):
-    """(start mode, JointResult) of the fits of one seed's K images."""
-    from fmbrdf_mi.fit.joint import fit_joint
+    """(start mode, FitResult) of the fits of one seed's K images."""
+    from fmbrdf_mi.fit.api.joint import fit_joint
 
     sub = [obs[j] for j in sets[k]]
     if not args.free_power:
@@ -84,7 +84,7 @@ def _fits(args, obs, k, sets):
 
 def run(args):
     from fmbrdf_mi.camera import CameraModel
-    from fmbrdf_mi.fit.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     cam = CameraModel(full_well=args.full_well, read_noise=args.read_noise, bits=args.bits)
     lights = light_ring(6)
@@ -102,7 +102,7 @@ def run(args):
             obs = [capture_observation(i, cam, seed=1000 * seed + j)[0] for j, i in enumerate(ideals)]
             for k in args.lights:
                 for mode, r in _fits(args, obs, k, sets):
-                    f = r.fit
+                    f = r
                     corr = (f.uncertainty or {}).get("correlation")
                     c_ks_rk = None
                     if corr:

@@ -9,7 +9,7 @@ kappa 0 to 50) x object size (an orthographic sphere filling a SIZE x SIZE
 super-pixel image, radius SIZE/2 - 1) x camera-noise seed x loss:
 
 * data: the model evaluated at every raw pixel's centre (the per-pixel path
-  of :mod:`fmbrdf_mi.fit.pixel_model`, exact sphere geometry), captured by
+  of :mod:`fmbrdf_mi.fit.evaluate.pixel_model`, exact sphere geometry), captured by
   :func:`fmbrdf_mi.camera.capture` (IMX250MZR layout, full well 10 000 e-,
   read noise 2.5 e-, 12-bit ADC, brightest raw pixel at 80 % of full
   scale; seed = the noise seed).  The data thus follow the fitted model up
@@ -58,10 +58,10 @@ LIGHT = (-0.5, 0.5, 1.0)
 def run(args):
     from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
-    from fmbrdf_mi.fit.cli import parse_fixed
-    from fmbrdf_mi.fit.fitting import FitOptions, _objective, make_evaluator, select_pixels
-    from fmbrdf_mi.fit.models import get_model
-    from fmbrdf_mi.fit.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.fit.inputs.parse import parse_fixed
+    from fmbrdf_mi.fit.api.fitting import FitOptions, _objective, make_evaluator, select_pixels
+    from fmbrdf_mi.fit.evaluate.models import get_model
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     cam = CameraModel(full_well=args.full_well, read_noise=args.read_noise, bits=args.bits)
     fixed = parse_fixed(args.fix) or {}

@@ -1,14 +1,14 @@
-"""Normal refinement (fmbrdf_mi.fit.normal_refine) on a synthetic non-spherical object: angular errors before and after.
+"""Normal refinement (fmbrdf_mi.fit.api.normal_refine) on a synthetic non-spherical object: angular errors before and after.
 
     python tools/bench_normal_refine.py [--res 40] [--lights 4] [--method joint] [--rounds 0] [--lam 0.3]
                                         [--prior curvature] [--starts ps,sphere]
 
-The object (:mod:`fmbrdf_mi.fit.synthetic_object`): a smooth mesh (ellipsoid
+The object (:mod:`fmbrdf_mi.fit.evaluate.synthetic_object`): a smooth mesh (ellipsoid
 with a three-lobed bump, rotated), a pinhole camera (12 degree field of
 view), RES x RES super-pixels, K lights of unequal power (the first K of
 LIGHTS), the `medium` material of the noise bench, raw 16-bit mosaics with
 shot and read noise (20 000 e- full well), written in the authors' layout
-and read back with :func:`fmbrdf_mi.fit.authors_layout.read_object` (gain and
+and read back with :func:`fmbrdf_mi.fit.inputs.authors.read_object` (gain and
 read noise known).  Starting normal maps:
 
 * ``ps``: Lambertian photometric stereo from the K images (as the authors'
@@ -17,12 +17,12 @@ read noise known).  Starting normal maps:
   sphere: a user's crude prior).
 
 ``--method alternation``: ROUNDS rounds of
-:func:`fmbrdf_mi.fit.normal_refine.refine_normals` (material by a joint
+:func:`fmbrdf_mi.fit.api.normal_refine.refine_normals` (material by a joint
 likelihood fit, then 4 Gauss-Newton steps on the normals, membrane prior
 with weight LAM).  ``--method joint`` (what ``fmbrdf-mi fit --refine-normals``
 does): ROUNDS rounds of that alternation (0: one joint fit of the material on
 the start normals), then the joint Levenberg-Marquardt on material and
-normals (:func:`fmbrdf_mi.fit.normal_joint.refine_joint`, prior PRIOR with
+normals (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`, prior PRIOR with
 weight LAM).  Reported: mean and median angle to the ray-cast normals over the refined
 pixels (the mask eroded by one super-pixel), before and after, the final
 material and the wall time.
@@ -58,13 +58,13 @@ def main(argv=None):
     args = p.parse_args(argv)
     if args.rounds is None:
         args.rounds = 6 if args.method == "alternation" else 0
-    from fmbrdf_mi.fit.authors_layout import read_object
-    from fmbrdf_mi.fit.joint import fit_joint
-    from fmbrdf_mi.fit.normal_joint import refine_joint
-    from fmbrdf_mi.fit.normal_refine import angular_error_deg, photometric_stereo, refine_normals
-    from fmbrdf_mi.fit.optimise import default_progress
-    from fmbrdf_mi.fit.observations import erode, find_sphere, sphere_normals
-    from fmbrdf_mi.fit.synthetic_object import write_authors_object
+    from fmbrdf_mi.fit.inputs.authors import read_object
+    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.normal_joint import refine_joint
+    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, photometric_stereo, refine_normals
+    from fmbrdf_mi.fit.solve.optimise import default_progress
+    from fmbrdf_mi.fit.inputs.observations import erode, find_sphere, sphere_normals
+    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
 
     K = args.lights
     out = []
@@ -91,7 +91,7 @@ def main(argv=None):
             t = time.time()
             if args.method == "alternation":
                 res = refine_normals(obs, n0, rounds=args.rounds, lam=args.lam, progress=True)
-                n1, params, mask, hist = res.normals, res.params, res.mask, res.history
+                n1, params, mask, hist = res.normals, res.params, res.mask, res["alternation"]
             else:
                 if args.rounds:
                     res = refine_normals(obs, n0, rounds=args.rounds, lam=args.lam, progress=True)
@@ -103,7 +103,7 @@ def main(argv=None):
                 j = refine_joint(obs, n_mid, p_mid, lam=args.lam, prior=args.prior, progress=default_progress)
                 n1, params, mask, hist = j.normals, j.params, j.mask, j.history
                 se = {k: v / (ks_scale if k == "k_s" else 1.0) for k, v in j.std_errors.items()}
-                stop = {"converged": j.converged, "reason": j.reason, "iterations": len(hist),
+                stop = {"converged": j.converged, "reason": j.stop_reason, "iterations": len(hist),
                         "chi2_per_dof": j.uncertainty.get("chi2_per_dof")}
             e0 = angular_error_deg(n0, gt, mask)
             e1 = angular_error_deg(n1, gt, mask)

@@ -5,7 +5,7 @@
 The object and camera of tools/bench_normal_refine.py (the same mesh, lights
 and `medium` material); each seed draws new shot and read noise.  Each seed:
 photometric stereo, a joint fit of the material on it, then
-:func:`fmbrdf_mi.fit.normal_joint.refine_joint` (what ``fmbrdf-mi fit
+:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint` (what ``fmbrdf-mi fit
 --refine-normals`` does).  Reported per parameter (k_s relative to the
 truth's scale): the mean error over seeds with its standard error, the
 standard deviation of the estimates, the mean reported standard error (their
@@ -37,11 +37,11 @@ def main(argv=None):
     p.add_argument("--lam", type=float, default=0.3)
     p.add_argument("--json", metavar="OUT.json")
     args = p.parse_args(argv)
-    from fmbrdf_mi.fit.authors_layout import read_object
-    from fmbrdf_mi.fit.joint import fit_joint
-    from fmbrdf_mi.fit.normal_joint import refine_joint
-    from fmbrdf_mi.fit.normal_refine import angular_error_deg, photometric_stereo
-    from fmbrdf_mi.fit.synthetic_object import write_authors_object
+    from fmbrdf_mi.fit.inputs.authors import read_object
+    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.normal_joint import refine_joint
+    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, photometric_stereo
+    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
 
     K = args.lights
     runs = []

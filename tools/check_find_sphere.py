@@ -25,7 +25,7 @@ def disc(shape, centre, r):
 
 
 def measure(radii, n_centres, seed=0, cut=False):
-    from fmbrdf_mi.fit.observations import find_sphere
+    from fmbrdf_mi.fit.inputs.observations import find_sphere
 
     rng = np.random.default_rng(seed)
     rows = []

@@ -10,9 +10,9 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from fmbrdf_mi.camera import CameraModel
 from fmbrdf_mi.fit import fit
-from fmbrdf_mi.fit.fitting import FitOptions, _objective, make_evaluator, select_pixels
-from fmbrdf_mi.fit.models import FMBRDF
-from fmbrdf_mi.fit.synthetic import capture_observation, ideal_sphere
+from fmbrdf_mi.fit.api.fitting import FitOptions, _objective, make_evaluator, select_pixels
+from fmbrdf_mi.fit.evaluate.models import FMBRDF
+from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 TRUE = {"eta": 1.55, "alpha": 0.35, "beta": 1.4, "kappa": 30.0, "k_s": 0.9, "r_k": 1.7}
 SHAPE = {k: TRUE[k] for k in ("eta", "alpha", "beta", "kappa")}
 LIGHT = (0.45, 0.35, 1.0)

@@ -28,7 +28,7 @@ def main():
 
     import bench_fit as B
 
-    from fmbrdf_mi.fit.pixel_model import set_variant
+    from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 
     set_variant()
     from fmbrdf_mi import scene as S

@@ -83,7 +83,7 @@ class BRDFFitResult:
 
 def _shape_model():
     """The bounded reparameterisation of the image fits, with alpha up to pi/2."""
-    from ..fit.models import FMBRDF
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF
 
     shape = tuple(dataclasses.replace(p, hi=ALPHA_MAX) if p.name == "alpha" else p for p in FMBRDF.shape)
     return dataclasses.replace(FMBRDF, shape=shape)
@@ -164,7 +164,7 @@ def levenberg_marquardt(fun, jac, x0, max_evals=60, rtol=1e-9, max_step=1.0):
 
 def fit_brdf(brdf, options=None, progress=None):
     """Fit FMBRDF to a (90, 90, 180, 3) BRDF (1/sr, NaN = not measured): :class:`BRDFFitResult`."""
-    from ..fit.models import Bounds
+    from fmbrdf_mi.fit.evaluate.models import Bounds
     from .values import FMBRDFValues
 
     o = options or BRDFFitOptions()

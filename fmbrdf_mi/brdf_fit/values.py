@@ -26,7 +26,7 @@ class FMBRDFValues:
     def __init__(self, w_in, w_out):
         import drjit as dr
 
-        from ..fit.pixel_model import set_variant
+        from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 
         mi = self.mi = set_variant()
         w_in = np.asarray(w_in, dtype=np.float64)

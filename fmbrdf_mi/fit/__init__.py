@@ -1,10 +1,42 @@
-"""Inverse rendering: estimate FMBRDF parameters from one polarimetric image (paper section 5).
+"""Inverse rendering: estimate FMBRDF parameters from polarimetric images (paper section 5).
 
     from fmbrdf_mi.fit import Observation, fit
-    result = fit(obs)                     # obs: Observation (see observations.py)
+    result = fit(obs)                     # obs: Observation (inputs/observations.py)
     result.params                         # eta, alpha, beta, kappa, k_s, r_k
-"""
-from .fitting import FitOptions, FitResult, fit, predict_image, usable_pixels
-from .observations import InputError, Observation
 
-__all__ = ["fit", "FitOptions", "FitResult", "predict_image", "usable_pixels", "Observation", "InputError"]
+One pipeline in layers; each sub-package imports only from the ones listed
+before it (``tests/test_layers.py`` enforces it):
+
+=================  ===========================================================================
+``errors``         :class:`InputError`, the one-line error of every input check
+``camera``         noise model, raw samples (mono 2x2, colour 4x4), demosaicking, footprints
+``inputs``         :class:`Observation`, loaders of every input kind (files, sidecars,
+                   manifests, the authors' layout, colour mosaics), values given as text
+``evaluate``       the models and their pixel / render evaluators, predictions, synthetic data
+``objectives``     the likelihood of the camera's samples, the paper's loss and its variants
+``problem``        a fit's problem (model, evaluator, objective, bounds, clock; free powers)
+``solve``          coarse search, Levenberg-Marquardt, Adam; the normal refinement's system
+``uncertainty``    covariances (Fisher, sandwich), intervals, flags
+``result``         :class:`FitResult` and the JSON encoder of every output
+``api``            :func:`fit`, :func:`fit_joint`, :func:`fit_colour`, normal refinement
+``outputs``        the writer (overwrite refusal, atomic JSON), ``reproduce`` records and
+                   reruns, plots, summaries, and the fit-and-write functions of the command
+``cli``            ``fmbrdf-mi fit``: arguments, their checks, dispatch
+=================  ===========================================================================
+"""
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.observations import Observation
+from fmbrdf_mi.fit.inputs.manifest import ImageSpec, read_manifest
+from fmbrdf_mi.fit.evaluate.predict import predict_image
+from fmbrdf_mi.fit.result import FitResult
+from fmbrdf_mi.fit.api.fitting import FitOptions, fit, usable_pixels
+from fmbrdf_mi.fit.api.joint import fit_joint
+from fmbrdf_mi.fit.api.colour import fit_colour
+from fmbrdf_mi.fit.api.normal_refine import refine_normals
+from fmbrdf_mi.fit.api.normal_joint import refine_joint
+from fmbrdf_mi.fit.outputs.single import fit_files
+from fmbrdf_mi.fit.outputs.joint import fit_images
+
+__all__ = ["fit", "fit_joint", "fit_colour", "refine_normals", "refine_joint", "fit_files", "fit_images",
+           "FitOptions", "FitResult", "predict_image", "usable_pixels", "Observation", "ImageSpec",
+           "read_manifest", "InputError"]

@@ -1,6 +1,6 @@
 """Standard errors, 95 % intervals and correlations of the estimates.
 
-* **likelihood** (:class:`fmbrdf_mi.fit.objective.LikelihoodObjective`): the
+* **likelihood** (:class:`fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`): the
   inverse Fisher information.  The residuals are standardised,
   r = (y - mu) / sd, so with J their Jacobian the Fisher information is
   J^T J (Gauss-Newton, exact for a Gaussian with known variances at the
@@ -35,15 +35,18 @@ a parameter within 1e-3 (relative to its range) of a bound is listed in
 from __future__ import annotations
 
 import math
-
 import numpy as np
 
+
 Z95 = 1.959963984540054
+
 
 #: A parameter is weakly identified when its standard error exceeds this
 #: fraction of max(|value|, WEAK_FLOOR[name]) (the image does not pin it
 #: down to 5 %), or when it ended at a bound.
 WEAK_REL = 0.05
+
+
 WEAK_FLOOR = {"kappa": 10.0}
 
 

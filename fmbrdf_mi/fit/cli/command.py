@@ -1,0 +1,273 @@
+"""``fmbrdf-mi fit``: files in, estimates, plots and relighting errors out.
+
+:func:`fit_files` is the Python function behind the command; it takes the
+same options (names with underscores).  :func:`add_fit_arguments` and
+:func:`run_fit` plug into :mod:`fmbrdf_mi.cli`.
+"""
+from __future__ import annotations
+
+import time
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.models import MODELS
+from fmbrdf_mi.fit.inputs.parse import parse_vector
+from fmbrdf_mi.fit.outputs.single import fit_files, output_files
+from fmbrdf_mi.fit.outputs.summary import EXIT_NOT_CONVERGED
+from fmbrdf_mi.fit.cli.checks import check_args, check_colour_args
+from fmbrdf_mi.fit.inputs.colour import colour_sidecar
+
+
+# ---------------------------------------------------------------- command line
+def add_fit_arguments(p):
+    g = p.add_argument_group("polarimetric image")
+    g.add_argument("inputs", nargs="*", metavar="INPUT",
+                   help="Stokes .exr; raw quad-Bayer mosaic (.npy, 16-bit .png/.tif); (4,H,W) .npy of "
+                        "angle images; or four angle images in the order 0 45 90 135 deg")
+    g.add_argument("--layout", default=None,
+                   help="mosaic polariser angles, 2x2 row-major from the top left (default: the capture "
+                        "sidecar's, else IMX250MZR 90,45,135,0)")
+    g.add_argument("--black-level", type=float, default=None,
+                   help="subtracted from raw / angle images (default: the sidecar's, else 0)")
+    g.add_argument("--white-level", type=float, metavar="DN",
+                   help="raw samples at or above this are clipped: their super-pixel is left out (default: "
+                        "the sidecar's, else the smallest 2^b - 1, b in 8,10,12,14,16, holding the data)")
+    g.add_argument("--dark-level", type=float, metavar="DN",
+                   help="raw samples at or below this (raw value, black level included) are clipped: their "
+                        "super-pixel is left out (default: 0 when the black level is 0, else none)")
+    g.add_argument("--demosaic", default="bilinear", choices=("bilinear", "superpixel"),
+                   help="raw mosaics: interpolate each angle to the super-pixel centre (default) or take "
+                        "the 2x2 pixels as they are")
+    g.add_argument("--channel", default="mean", help="colour channel of an RGB Stokes EXR: mean, R, G or B")
+    g.add_argument("--conversion-gain", type=float, metavar="E_PER_UNIT",
+                   help="camera gain in electrons per image unit (e-/DN for raw images); with --read-noise, "
+                        "the DoLP term accounts for the noise bias of the observed DoLP")
+    g.add_argument("--read-noise", type=float, metavar="E", help="read noise in electrons rms")
+    g.add_argument("--loss", default="auto", choices=("auto", "likelihood", "paper", "intensity", "dolp"),
+                   help="likelihood of the camera's samples (Poisson-Gaussian noise), or the paper's loss "
+                        "(intensity MSE + weighted DoLP MSE); auto: likelihood when the camera noise is "
+                        "known (--conversion-gain / a capture sidecar), else paper.  The paper's comparison: "
+                        "intensity (its intensity term alone: radiometric fits) or dolp (its DoLP term "
+                        "alone, overall albedo from the mean intensity); for the baselines too")
+    g.add_argument("--footprint", default="auto", choices=("auto", "point", "box", "demosaic"),
+                   help="what a pixel integrates over, modelled by averaging the BSDF over it: the pixel "
+                        "centre, a 3x3 box, or the demosaicking's raw pixels (auto: demosaic for raw "
+                        "mosaics, point otherwise)")
+    g = p.add_argument_group("geometry and light (camera frame: x image right, y image up, z towards the camera)")
+    g.add_argument("--normals", metavar="N.npy", help="normal map, H x W x 3 unit vectors")
+    g.add_argument("--mask", metavar="M", help="object mask (.npy or .png, non-zero = object)")
+    g.add_argument("--sphere", metavar="CX,CY,R|auto",
+                   help="a sphere: centre and radius in pixels (pixel centres at +0.5), or auto (from --mask)")
+    g.add_argument("--view", metavar="V.npy", help="view directions, H x W x 3 (default: from --camera)")
+    g.add_argument("--camera", default="orthographic", choices=("orthographic", "perspective"))
+    g.add_argument("--fov", type=float, help="horizontal field of view (degrees) of a perspective camera")
+    g.add_argument("--light", metavar="X,Y,Z", action="append",
+                   help="direction from the surface towards the light; repeated, one per INPUT: a joint fit of "
+                        "several images of the object (one raw mosaic or Stokes EXR each)")
+    g.add_argument("--irradiance", type=float, help="light irradiance in image units (default 1: absorbed by k_s)")
+    g = p.add_argument_group("fit")
+    g.add_argument("--model", default="fmbrdf", choices=tuple(MODELS))
+    g.add_argument("--baselines", action="store_true",
+                   help="also fit pplastic, Lambertian + Torrance-Sparrow and Oren-Nayar + Torrance-Sparrow "
+                        "the same way")
+    g.add_argument("--optimizer", default="lm", choices=("lm", "adam"),
+                   help="Levenberg-Marquardt (forward-mode AD Jacobian) or Adam (reverse-mode gradient); "
+                        "the render path needs adam")
+    g.add_argument("--path", default="pixel", choices=("pixel", "render"),
+                   help="per-pixel BSDF evaluation, or rendering the scene (synthetic EXRs of the built-in sphere)")
+    g.add_argument("--bounds", action="append", metavar="NAME=LO:HI", help="narrow a parameter's bounds (repeatable)")
+    g.add_argument("--init", metavar="NAME=V,...", help="start from these parameters instead of the coarse search")
+    g.add_argument("--max-iter", type=int, default=40)
+    g.add_argument("--tol", type=float, default=1e-4, help="stop when the loss falls by less than this (relative) twice")
+    g.add_argument("--time-limit", type=float, help="seconds per refinement round")
+    g.add_argument("--max-time", type=float, default=None,
+                   help="hard wall-clock limit in seconds for each model's fit (default: none, the fit runs "
+                        "until it converges); a fit it stops exits with status 3")
+    g.add_argument("--fix", action="append", metavar="NAME=VALUE",
+                   help="hold a shape parameter fixed, e.g. --fix kappa=0 (repeatable)")
+    g.add_argument("--starts", type=int, default=2,
+                   help="refine from this many of the best distinct coarse-search points and keep the best "
+                        "(default %(default)s)")
+    g.add_argument("--max-pixels", type=int, default=20000, help="random subset of usable pixels (0: all)")
+    g.add_argument("--erode", type=int, default=2, help="pixels removed from the mask border")
+    g.add_argument("--seed", type=int, default=0)
+    g = p.add_argument_group("several images of one object (joint fit: shared material, one light each)")
+    g.add_argument("--manifest", metavar="FILE.toml|json",
+                   help="images, lights, relative powers, geometry and held-out images (fmbrdf_mi.fit.outputs.joint)")
+    g.add_argument("--authors", metavar="OBJECT_DIR",
+                   help="an object in the paper authors' captured-data layout (calibration/L.txt, "
+                        "image/img_ud/*.png, normal/normal_GT.npy, ...: fmbrdf_mi.fit.inputs.authors)")
+    g.add_argument("--holdout", metavar="I,J,...",
+                   help="with --authors: image indices not fitted but predicted (relighting check)")
+    g.add_argument("--free-power", action="store_true",
+                   help="estimate the relative light power of every fitted image but the first (the "
+                        "reference, held at its given power; the given powers are then starting values): "
+                        "fmbrdf_mi.fit.problem.free_power")
+    g.add_argument("--power-start", default="ratio", choices=("ratio", "given"),
+                   help="with --free-power: start the powers in closed form at every coarse-search point "
+                        "(ratio, default) or at the given powers")
+    from fmbrdf_mi.fit.cli.normals import add_arguments as add_normal_arguments
+
+    add_normal_arguments(p)
+    g = p.add_argument_group("relighting check")
+    g.add_argument("--relight", nargs="+", metavar="INPUT", help="a second image of the object under another light")
+    g.add_argument("--relight-light", metavar="X,Y,Z", help="its light direction")
+    g.add_argument("--relight-irradiance", type=float)
+    g = p.add_argument_group("output")
+    g.add_argument("-o", "--out", required=True, metavar="DIR", help="output directory")
+    g.add_argument("--from", dest="from_json", metavar="FIT.json",
+                   help="rerun the fit recorded in a fit.json (same inputs, checked by SHA-256, and options)")
+    g.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    g.add_argument("-q", "--quiet", action="store_true")
+
+
+def run_fit(args):
+    import shlex
+    import sys
+
+    t0 = time.time()
+    check_args(args)
+    command = shlex.join(["fmbrdf-mi", "fit", *getattr(args, "argv", [])])
+    lights = args.light or []
+    n_in = len(args.inputs or [])
+    joint = bool(args.manifest or args.authors or len(lights) > 1 or n_in not in (0, 1, 4))
+    if getattr(args, "free_power", False) and not joint:
+        raise InputError("--free-power: with --from the fit.json's options apply (give none)" if args.from_json
+                         else "--free-power: needs a joint fit of two or more images (--manifest, --authors, "
+                              "or several INPUTs with one --light each)")
+    from fmbrdf_mi.fit.cli.normals import check as check_normal_args
+
+    check_normal_args(args, joint and not args.from_json)
+    if joint:
+        from fmbrdf_mi.fit.cli.joint import run_joint
+
+        report = run_joint(args, command)
+        if report.get("sensor") == "colour":
+            from fmbrdf_mi.fit.outputs.summary import print_colour
+
+            return print_colour(report)
+    elif args.from_json:
+        from fmbrdf_mi.fit.outputs import record
+
+        if args.inputs:
+            raise InputError("--from: give no INPUT files (they come from the fit.json)")
+        from fmbrdf_mi.fit.outputs import joint_record
+
+        from fmbrdf_mi.fit.outputs.colour import fit_colour_files, is_colour_record
+        from fmbrdf_mi.fit.outputs.summary import print_colour
+
+        if joint_record.is_joint(args.from_json):
+            report = joint_record.rerun(args.from_json, args.out, force=args.force, progress=not args.quiet,
+                                        command=command)
+            if report.get("sensor") == "colour":
+                return print_colour(report)
+        elif is_colour_record(args.from_json):
+            kw = record.rerun_arguments(args.from_json)
+            report = fit_colour_files(out=args.out, force=args.force, progress=not args.quiet, command=command,
+                                      **kw)
+            return print_colour(report)
+        else:
+            kw = record.rerun_arguments(args.from_json)
+            report = fit_files(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
+    elif len(args.inputs or []) == 1 and colour_sidecar(args.inputs[0]) is not None:
+        from fmbrdf_mi.fit.outputs.colour import fit_colour_files
+        from fmbrdf_mi.fit.outputs.summary import print_colour
+
+        check_colour_args(args)
+        report = fit_colour_files(args.inputs[0], args.out, normals=args.normals, mask=args.mask, view=args.view,
+                                  sphere=args.sphere, camera=args.camera, fov=args.fov,
+                                  light=parse_vector(lights[0] if lights else None, "--light"), irradiance=args.irradiance,
+                                  black_level=args.black_level, white_level=args.white_level,
+                                  conversion_gain=args.conversion_gain, read_noise=args.read_noise,
+                                  model=args.model, bounds=args.bounds, fixed=args.fix, max_time=args.max_time,
+                                  max_iter=args.max_iter, max_pixels=args.max_pixels or None, erode=args.erode,
+                                  seed=args.seed, starts=args.starts, force=args.force, progress=not args.quiet,
+                                  command=command)
+        return print_colour(report)
+    else:
+        if not args.inputs:
+            raise InputError("no INPUT given: a Stokes .exr, a raw mosaic, angle images, or --from fit.json")
+        inputs = args.inputs if len(args.inputs) > 1 else args.inputs[0]
+        relight = None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0])
+        report = fit_files(inputs, args.out, normals=args.normals, mask=args.mask, view=args.view,
+                           sphere=args.sphere, camera=args.camera, fov=args.fov,
+                           light=parse_vector(lights[0] if lights else None, "--light"),
+                           irradiance=args.irradiance, layout=args.layout, black_level=args.black_level,
+                           channel=args.channel, demosaic=args.demosaic, conversion_gain=args.conversion_gain,
+                           read_noise=args.read_noise, footprint=args.footprint, model=args.model,
+                           baselines=args.baselines, optimizer=args.optimizer, path=args.path, bounds=args.bounds,
+                           init=args.init, loss=args.loss, white_level=args.white_level,
+                           dark_level=args.dark_level, fixed=args.fix, starts=args.starts,
+                           max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit,
+                           max_time=args.max_time, max_pixels=args.max_pixels or None, erode=args.erode,
+                           seed=args.seed, relight=relight,
+                           relight_light=parse_vector(args.relight_light, "--relight-light"),
+                           relight_irradiance=args.relight_irradiance, force=args.force,
+                           progress=not args.quiet, command=command)
+    if report.get("refine_normals"):
+        from fmbrdf_mi.fit.outputs.summary import print_report
+
+        print_report(report)
+        print(f"wrote {', '.join(report['refine_normals']['outputs'])} ({time.time() - t0:.1f} s)")
+        return 0 if report["refine_normals"]["converged"] else EXIT_NOT_CONVERGED
+    from fmbrdf_mi.fit.uncertainty import WEAK_REL
+
+    status = 0
+    for name, m in report["models"].items():
+        unc = m.get("uncertainty") or {}
+        print(f"{name}: {m['objective']} {m['loss']:.6e}  ({'converged' if m['converged'] else 'NOT converged'}: "
+              f"{m['stop_reason']})")
+        if m.get("noise"):
+            print(f"  camera noise {m['noise']['description']}")
+        ex = m.get("pixels_excluded") or {}
+        if ex.get("saturated") or ex.get("dark"):
+            print(f"  excluded {ex['saturated']} saturated and {ex['dark']} dark super-pixels of "
+                  f"{ex['candidates']}; fitted {ex['used']}")
+        std, ci = unc.get("std_errors", {}), unc.get("ci95", {})
+        for k, v in m["params"].items():
+            line = f"  {k:<6} {v:10.5g}"
+            if k in std:
+                line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]"
+            if "relative_error" in m and k in m["relative_error"]:
+                line += f"  (vs metadata {m['relative_error'][k]:+.2%})"
+            print(line)
+        if unc.get("method"):
+            print(f"  uncertainty: {unc['method']}"
+                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
+                  + (" (the model or the stated noise does not explain the data: errors too small)"
+                     if unc.get("misfit") else ""))
+        if unc.get("correlation"):
+            c = unc["correlation"]
+            big = [(c["names"][i], c["names"][j], c["matrix"][i][j]) for i in range(len(c["names"]))
+                   for j in range(i + 1, len(c["names"])) if abs(c["matrix"][i][j]) > 0.9]
+            if big:
+                print("  strongly correlated: " + ", ".join(f"{a}/{b} {x:+.2f}" for a, b, x in big))
+        if m.get("weakly_identified"):
+            print(f"  weakly identified (standard error > {WEAK_REL:.0%} of the value, or at a bound): "
+                  f"{', '.join(m['weakly_identified'])}")
+        if not m["converged"]:
+            print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
+                  f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
+                  file=sys.stderr)
+            status = EXIT_NOT_CONVERGED
+    if report.get("joint"):
+        from fmbrdf_mi.fit.outputs.summary import print_joint
+
+        print_joint(report)
+        print(f"wrote {', '.join(report['joint']['outputs'])} ({time.time() - t0:.1f} s)")
+        return status
+    if "relight" in report:
+        for name, r in report["relight"].items():
+            if isinstance(r, dict):
+                print(f"relighting {name}: RMSE / mean intensity = {r['rel_rmse']:.4f}")
+    print(f"wrote {', '.join(output_files(args.out, report.get('reproduce', {}).get('arguments', {}).get('relight')))} "
+          f"({time.time() - t0:.1f} s)")
+    return status
+
+
+def main(argv=None):
+    """Stand-alone entry: ``python -m fmbrdf_mi.fit ...`` (same as ``fmbrdf-mi fit``)."""
+    import argparse
+
+    p = argparse.ArgumentParser(prog="fmbrdf-mi fit", description=__doc__)
+    add_fit_arguments(p)
+    return run_fit(p.parse_args(argv))

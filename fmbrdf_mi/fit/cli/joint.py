@@ -1,0 +1,98 @@
+"""The command line of joint fits (``--manifest``, ``--authors``, repeated ``--light``)."""
+from __future__ import annotations
+
+import os
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.manifest import (
+    ImageSpec, PATH_KEYS, absolute_paths, build_observations, image_names, read_manifest)
+from fmbrdf_mi.fit.outputs.joint import fit_images, fitter
+
+
+# ---------------------------------------------------------------- the command
+def _cli_input_options(args):
+    keys = {"normals": "normals", "mask": "mask", "view": "view", "sphere": "sphere", "camera": "camera",
+            "fov": "fov", "irradiance": "irradiance", "layout": "layout", "black_level": "black_level",
+            "white_level": "white_level", "dark_level": "dark_level", "channel": "channel",
+            "demosaic": "demosaic", "footprint": "footprint", "conversion_gain": "conversion_gain",
+            "read_noise": "read_noise"}
+    return {k: getattr(args, a) for k, a in keys.items() if getattr(args, a, None) is not None}
+
+
+def run_joint(args, command):
+    """``fmbrdf-mi fit --manifest M | --authors DIR | IMG1 IMG2 ... --light L1 --light L2 ...``."""
+    from fmbrdf_mi.fit.inputs.parse import parse_vector, parse_bounds, parse_fixed, parse_init
+
+    if args.from_json:
+        raise InputError("--from: give no --manifest, --authors or INPUT files (they come from the fit.json)")
+    if args.relight:
+        raise InputError("--relight: in a joint fit, mark held-out images instead (holdout = true in the "
+                         "manifest, --holdout with --authors)")
+    if args.optimizer != "lm" or args.path != "pixel":
+        raise InputError("joint fits use --optimizer lm and --path pixel")
+    cli_opts = _cli_input_options(args)
+    info = authors = None
+    if args.manifest:
+        if args.inputs:
+            raise InputError("--manifest: give no INPUT files (the manifest lists them)")
+        specs = read_manifest(args.manifest)
+        for s in specs:
+            for k, v in cli_opts.items():
+                s.options.setdefault(k, v)
+    elif args.authors:
+        if args.inputs:
+            raise InputError("--authors: give no INPUT files (they are the directory's image/img_ud/*.png)")
+        from fmbrdf_mi.fit.inputs.authors import read_object
+
+        try:
+            hold = [int(x) for x in str(args.holdout).split(",") if x.strip()] if args.holdout else []
+        except ValueError:
+            raise InputError(f"--holdout {args.holdout!r}: expected image indices such as 3,7") from None
+        authors = dict(mask=None if args.mask is None else os.path.abspath(args.mask), holdout=hold,
+                       conversion_gain=args.conversion_gain, read_noise=args.read_noise,
+                       white_level=65535.0 if args.white_level is None else args.white_level,
+                       dark_level=args.dark_level, black_level=0.0 if args.black_level is None else args.black_level,
+                       demosaic=args.demosaic, footprint=args.footprint)
+        specs, info = read_object(args.authors, **authors)
+    else:
+        if len(args.light or []) != len(args.inputs):
+            raise InputError(f"--light given {len(args.light or [])} times for {len(args.inputs)} INPUT images: a joint "
+                             "fit takes one light per image (four angle images of one light: use a (4, H, W) "
+                             ".npy, or a manifest)")
+        specs = [ImageSpec(inp, parse_vector(li, f"--light {k + 1}"), options=dict(cli_opts))
+                 for k, (inp, li) in enumerate(zip(args.inputs, args.light))]
+    names = image_names(specs)
+    fit_fn, outputs_fn = fitter(specs)
+    if fit_fn is not fit_images:
+        from fmbrdf_mi.fit.cli.checks import check_colour_args
+
+        check_colour_args(args)
+    files = outputs_fn(args.out, names, [s.holdout for s in specs])
+    if not args.authors:   # the record names files by absolute path (a rerun may start elsewhere)
+        for s in specs:
+            s.input = absolute_paths(s.input)
+            s.options.update({k: absolute_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
+    fit_kw = dict(model=args.model, baselines=args.baselines, loss=args.loss, fixed=parse_fixed(args.fix),
+                  bounds=parse_bounds(args.bounds), init=parse_init(args.init), starts=args.starts,
+                  max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
+                  max_pixels=args.max_pixels or None, erode=args.erode, seed=args.seed,
+                  free_power=getattr(args, "free_power", False), power_start=getattr(args, "power_start", "ratio"))
+    kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
+    if getattr(args, "refine_normals", False):
+        from fmbrdf_mi.fit.outputs.normals import run as refine
+
+        obs = build_observations(specs)
+        # the authors' layout carries the ground truth (normal/normal_GT.npy): it is the geometry read
+        gt = obs[0].normals.copy() if args.authors else None
+        return refine(specs, names, obs, args.out, start=args.normals_start, lam=args.smooth, rounds=args.rounds,
+                      model=args.model, fit_kw={k: v for k, v in fit_kw.items() if k not in ("model", "baselines")},
+                      ground_truth=gt, force=args.force, progress=not args.quiet, command=command)
+
+    def reproduce(obs):
+        from fmbrdf_mi.fit.outputs.joint_record import block
+
+        return block(kind, specs, names, obs, fit_kw, command, manifest=args.manifest, authors=authors, info=info)
+
+    report = fit_fn(specs, args.out, force=args.force, progress=not args.quiet, command=command,
+                    extra={"joint": {"outputs": files, "authors_layout": info}}, reproduce=reproduce, **fit_kw)
+    return report

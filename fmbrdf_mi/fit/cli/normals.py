@@ -1,0 +1,48 @@
+"""The command line of normal refinement (``--refine-normals``): its options and their checks."""
+from __future__ import annotations
+
+import numpy as np
+import os
+
+from fmbrdf_mi.fit.errors import InputError
+
+
+def add_arguments(p):
+    g = p.add_argument_group("normal refinement (a joint fit of K >= 3 images of one view)")
+    g.add_argument("--refine-normals", action="store_true",
+                   help="refine per-pixel normals and the material together (outputs normals.npy and plots)")
+    g.add_argument("--normals-start", default="ps", metavar="ps|sphere|FILE.npy",
+                   help="start map: photometric stereo (default), the mask's sphere, or a normal map file")
+    g.add_argument("--smooth", type=float, default=0.3, metavar="LAMBDA",
+                   help="smoothness weight (units of Stokes residuals / image mean; default %(default)s)")
+    g.add_argument("--rounds", type=int, default=0,
+                   help="alternation rounds (material fit, then normals) before the joint step (default %(default)s)")
+
+
+def check(args, joint):
+    """One line per mistake, before any file is read."""
+    if not getattr(args, "refine_normals", False):
+        for flag, given in (("--normals-start", args.normals_start != "ps"), ("--smooth", args.smooth != 0.3),
+                            ("--rounds", args.rounds != 0)):
+            if given:
+                raise InputError(f"{flag} needs --refine-normals")
+        return
+    if args.from_json:
+        raise InputError("--refine-normals: --from is not supported (rerun the command instead)")
+    if not joint:
+        raise InputError("--refine-normals: needs K >= 3 images of one view under different lights (--manifest, "
+                         "--authors, or INPUT files with one --light each)")
+    if not (np.isfinite(args.smooth) and args.smooth >= 0):
+        raise InputError(f"--smooth: expected a finite value >= 0, got {args.smooth!r}")
+    if args.rounds < 0:
+        raise InputError(f"--rounds: expected an integer >= 0, got {args.rounds}")
+    bad = [f for f, on in (("--baselines", args.baselines),
+                           ("--free-power", getattr(args, "free_power", False)),
+                           ("--loss " + str(args.loss), args.loss not in ("auto", "likelihood")))
+           if on]
+    if bad:
+        raise InputError(f"--refine-normals: {', '.join(bad)} not supported (the refinement is the likelihood "
+                         "of the camera samples, one model, the given light powers)")
+    start = args.normals_start
+    if start not in ("ps", "sphere") and not (start.endswith(".npy") and os.path.isfile(start)):
+        raise InputError(f"--normals-start {start!r}: expected ps, sphere or an existing .npy file")

@@ -1,0 +1,290 @@
+"""The reflectance models a fit can use, described as Mitsuba BSDFs with named parameters.
+
+Every model is a Mitsuba BSDF that is linear in two albedos, a *surface*
+(specular) one and a *body* (diffuse) one, and depends non-linearly on a few
+*shape* parameters.  The fit works on that structure (closed-form albedos in
+the coarse search, analytic albedo derivatives); the BSDF itself is only ever
+evaluated through Mitsuba, so the per-pixel and the rendering paths run the
+same code.
+
+* ``fmbrdf``: this package's FMBRDF; reported as the paper's six parameters
+  (eta, alpha, beta, kappa, k_s, r_k = k_b / k_s).
+* ``pplastic``: Mitsuba's polarised plastic (Baek et al. 2018 pBRDF: GGX
+  specular with Fresnel reflection, Fresnel-transmitted depolarised diffuse).
+* ``lambert_ts``: Lambertian + Torrance-Sparrow (Beckmann distribution,
+  Smith shadowing, dielectric Fresnel reflectance through Mitsuba's
+  ``roughconductor`` with k = 0), added as a ``blendbsdf`` with weight 1/2
+  (its albedos are reported as the effective ones, k_d and k_s).
+* ``oren_nayar_ts``: Oren-Nayar + Torrance-Sparrow, the paper's third
+  comparison: this package's ``orennayar`` BSDF in its qualitative form
+  (Oren & Nayar, SIGGRAPH 1994; linear in the albedo, which the fit's
+  closed-form albedos need: the full form's interreflection term is
+  quadratic in it) in place of the Lambertian of ``lambert_ts``, the same
+  Torrance-Sparrow term, the same blend; shape parameters eta, alpha and
+  sigma (facet slope deviation, radians).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class ShapeParam:
+    """A non-linear parameter, its traverse key, bounds and coarse-search values.
+
+    ``scale``: the bounded reparameterisation works on ``log`` (for
+    parameters spanning decades), ``log1p`` (from 0) or ``linear`` values.
+    """
+
+    name: str
+    key: str
+    lo: float
+    hi: float
+    scale: str
+    grid: tuple
+
+
+@dataclasses.dataclass(frozen=True)
+class Model:
+    name: str
+    description: str
+    shape: tuple            # ShapeParam, ...
+    surface_key: str        # traverse key of the surface albedo
+    body_key: str           # traverse key of the body albedo
+    albedo_factor: float    # reported albedo = factor * BSDF albedo
+    base_dict: dict         # BSDF dict with placeholders filled by bsdf_dict()
+    surface_name: str = "k_s"
+    body_name: str = "k_b"
+
+    @property
+    def shape_names(self):
+        return tuple(p.name for p in self.shape)
+
+    def param(self, name):
+        for p in self.shape:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+    def bsdf_dict(self, shape_values=None):
+        """The BSDF dict at ``shape_values`` (defaults: middle of the grid), unit albedos."""
+        vals = {p.name: p.grid[len(p.grid) // 2] for p in self.shape}
+        vals.update(shape_values or {})
+        return _fill(self.base_dict, vals)
+
+    def report(self, shape_values, a_s, a_b):
+        """The parameters as reported to the user (the paper's six for fmbrdf)."""
+        out = {n: float(shape_values[n]) for n in self.shape_names}
+        ks, kb = self.albedo_factor * a_s, self.albedo_factor * a_b
+        if self.name == "fmbrdf":
+            out["k_s"] = float(ks)
+            out["r_k"] = float(kb / ks) if ks > 0 else float("inf")
+        else:
+            out[self.surface_name] = float(ks)
+            out[self.body_name] = float(kb)
+        return out
+
+    def split(self, reported):
+        """Inverse of :meth:`report`: (shape values, a_s, a_b) from reported parameters."""
+        shape = {n: float(reported[n]) for n in self.shape_names}
+        if self.name == "fmbrdf":
+            ks = float(reported["k_s"])
+            kb = ks * float(reported["r_k"])
+        else:
+            ks, kb = float(reported[self.surface_name]), float(reported[self.body_name])
+        return shape, ks / self.albedo_factor, kb / self.albedo_factor
+
+
+def _fill(template, vals):
+    if isinstance(template, dict):
+        return {k: _fill(v, vals) for k, v in template.items()}
+    if isinstance(template, str) and template.startswith("$"):
+        return float(vals[template[1:]])
+    return template
+
+
+FMBRDF = Model(
+    name="fmbrdf",
+    description="Fresnel Microfacet BRDF (this package)",
+    shape=(
+        ShapeParam("eta", "eta", 1.01, 3.0, "log_minus_1", (1.2, 1.4, 1.6, 1.9, 2.3)),
+        ShapeParam("alpha", "alpha", 0.01, 1.5, "log", (0.03, 0.06, 0.12, 0.25, 0.5, 1.0)),
+        ShapeParam("beta", "beta", 0.4, 5.0, "log", (0.8, 1.6, 3.2)),
+        ShapeParam("kappa", "kappa", 0.0, 100.0, "log1p", (0.0, 10.0, 40.0)),
+    ),
+    surface_key="k_s.value",
+    body_key="k_b.value",
+    albedo_factor=1.0,
+    # float32 tables: residuals and their forward-mode derivatives come from the same
+    # tables, smooth in the parameters (the compact ones round the ratios to 3e-5)
+    base_dict={"type": "fmbrdf", "eta": "$eta", "alpha": "$alpha", "beta": "$beta",
+               "kappa": "$kappa", "k_s": 1.0, "k_b": 1.0, "tables": "float32"},
+)
+
+
+PPLASTIC = Model(
+    name="pplastic",
+    description="Mitsuba pplastic (Baek et al. 2018 pBRDF, GGX)",
+    shape=(
+        ShapeParam("eta", "eta.value", 1.01, 3.0, "log_minus_1", (1.2, 1.35, 1.5, 1.7, 2.0, 2.4)),
+        ShapeParam("alpha", "alpha.value", 0.01, 1.0, "log", (0.02, 0.04, 0.08, 0.15, 0.3, 0.6)),
+    ),
+    surface_key="specular_reflectance.value",
+    body_key="diffuse_reflectance.value",
+    albedo_factor=1.0,
+    base_dict={"type": "pplastic", "eta": "$eta", "alpha": "$alpha", "distribution": "ggx",
+               "specular_reflectance": 1.0, "diffuse_reflectance": 1.0},
+    surface_name="specular_reflectance",
+    body_name="diffuse_reflectance",
+)
+
+
+LAMBERT_TS = Model(
+    name="lambert_ts",
+    description="Lambertian + Torrance-Sparrow (Beckmann, Smith, dielectric Fresnel)",
+    shape=(
+        ShapeParam("eta", "bsdf_1.eta.value", 1.01, 3.0, "log_minus_1", (1.2, 1.5, 2.0)),
+        ShapeParam("alpha", "bsdf_1.alpha.value", 0.01, 1.0, "log", (0.02, 0.04, 0.08, 0.15, 0.3, 0.6)),
+    ),
+    surface_key="bsdf_1.specular_reflectance.value",
+    body_key="bsdf_0.reflectance.value",
+    albedo_factor=0.5,
+    base_dict={"type": "blendbsdf", "weight": 0.5,
+               "bsdf_0": {"type": "diffuse", "reflectance": 1.0},
+               "bsdf_1": {"type": "roughconductor", "distribution": "beckmann", "alpha": "$alpha",
+                          "eta": "$eta", "k": 0.0, "specular_reflectance": 1.0}},
+    surface_name="k_s",
+    body_name="k_d",
+)
+
+
+OREN_NAYAR_TS = Model(
+    name="oren_nayar_ts",
+    description="Oren-Nayar (qualitative form) + Torrance-Sparrow (Beckmann, Smith, dielectric Fresnel)",
+    shape=(
+        ShapeParam("eta", "bsdf_1.eta.value", 1.01, 3.0, "log_minus_1", (1.2, 1.5, 2.0)),
+        ShapeParam("alpha", "bsdf_1.alpha.value", 0.01, 1.0, "log", (0.02, 0.04, 0.08, 0.15, 0.3, 0.6)),
+        ShapeParam("sigma", "bsdf_0.sigma", 0.0, 1.5, "linear", (0.0, 0.25, 0.5, 0.9)),
+    ),
+    surface_key="bsdf_1.specular_reflectance.value",
+    body_key="bsdf_0.reflectance.value",
+    albedo_factor=0.5,
+    base_dict={"type": "blendbsdf", "weight": 0.5,
+               "bsdf_0": {"type": "orennayar", "form": "qualitative", "sigma": "$sigma", "reflectance": 1.0},
+               "bsdf_1": {"type": "roughconductor", "distribution": "beckmann", "alpha": "$alpha",
+                          "eta": "$eta", "k": 0.0, "specular_reflectance": 1.0}},
+    surface_name="k_s",
+    body_name="k_d",
+)
+
+
+MODELS = {m.name: m for m in (FMBRDF, PPLASTIC, LAMBERT_TS, OREN_NAYAR_TS)}
+
+
+#: The models fitted beside the chosen one by ``--baselines``.
+BASELINES = ("pplastic", "lambert_ts", "oren_nayar_ts")
+
+
+def get_model(name):
+    try:
+        return MODELS[name]
+    except KeyError:
+        raise ValueError(f"model: expected one of {sorted(MODELS)}, got {name!r}") from None
+
+
+# ---------------------------------------------------------------- bounded reparameterisation
+def _fwd(scale, x):
+    if scale == "log":
+        return math.log(x)
+    if scale == "log1p":
+        return math.log1p(x)
+    if scale == "log_minus_1":
+        return math.log(x - 1.0)
+    return x
+
+
+def _inv(scale, t):
+    if scale == "log":
+        return np.exp(t)
+    if scale == "log1p":
+        return np.expm1(t)
+    if scale == "log_minus_1":
+        return 1.0 + np.exp(t)
+    return t
+
+
+def _dinv(scale, t):
+    if scale in ("log", "log_minus_1"):
+        return np.exp(t)
+    if scale == "log1p":
+        return np.exp(t)
+    return 1.0
+
+
+#: |z| is kept below this so that sigmoid(z) stays away from 0 and 1 in float32.
+Z_MAX = 12.0
+
+
+class Bounds:
+    """Maps unconstrained z to parameters inside [lo, hi] (sigmoid on the parameter's scale).
+
+    ``overrides``: {name: (lo, hi)} narrowing the model's default bounds.
+    """
+
+    def __init__(self, model, overrides=None):
+        self.model = model
+        self.lims = {}
+        for p in model.shape:
+            lo, hi = p.lo, p.hi
+            if overrides and p.name in overrides:
+                lo, hi = (float(x) for x in overrides[p.name])
+                if not (p.lo <= lo < hi <= p.hi):
+                    raise ValueError(f"bounds of {p.name}: need {p.lo:g} <= lo < hi <= {p.hi:g}, "
+                                     f"got ({lo:g}, {hi:g})")
+            self.lims[p.name] = (_fwd(p.scale, lo), _fwd(p.scale, hi), lo, hi)
+        for name in (overrides or {}):
+            if name not in self.lims:
+                raise ValueError(f"bounds: {model.name} has no shape parameter {name!r} "
+                                 f"(it has {', '.join(self.lims)})")
+
+    def to_value(self, name, z):
+        tlo, thi, lo, hi = self.lims[name]
+        z = float(np.clip(z, -Z_MAX, Z_MAX))
+        s = 1.0 / (1.0 + math.exp(-z))
+        v = float(_inv(self.model.param(name).scale, tlo + (thi - tlo) * s))
+        return min(max(v, lo), hi)
+
+    def derivative(self, name, z):
+        """d value / d z."""
+        tlo, thi, _, _ = self.lims[name]
+        z = float(np.clip(z, -Z_MAX, Z_MAX))
+        s = 1.0 / (1.0 + math.exp(-z))
+        return float(_dinv(self.model.param(name).scale, tlo + (thi - tlo) * s)) * (thi - tlo) * s * (1 - s)
+
+    def to_z(self, name, value):
+        tlo, thi, lo, hi = self.lims[name]
+        v = min(max(float(value), lo), hi)
+        s = (_fwd(self.model.param(name).scale, v) - tlo) / (thi - tlo)
+        s = min(max(s, 1e-5), 1 - 1e-5)
+        return math.log(s / (1 - s))
+
+    def clip_grid(self, name, grid):
+        _, _, lo, hi = self.lims[name]
+        g = sorted({min(max(float(x), lo), hi) for x in grid})
+        if len(g) == 1 and lo < hi:
+            g = [g[0]]
+        return g
+
+
+@dataclasses.dataclass
+class State:
+    """A point of the search: shape values and albedos."""
+
+    shape: dict
+    a_s: float
+    a_b: float
+
+    def copy(self):
+        return State(dict(self.shape), self.a_s, self.a_b)

@@ -1,0 +1,61 @@
+"""Synthetic raw captures of a sphere for tests and benchmarks (the camera model of :mod:`fmbrdf_mi.camera`).
+
+    ideal = ideal_sphere(params, res=40, light=(0.45, 0.35, 1.0))   # noise-free, per raw pixel
+    obs = capture_observation(ideal, CameraModel(), seed=3)        # one noisy capture -> Observation
+
+The sphere is orthographic, centred, radius ``res/2 - 1`` super-pixels; the
+Stokes image is the model evaluated at every raw pixel's centre (so each raw
+sample sees its own point, as a real mosaic does).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fmbrdf_mi.camera import CameraModel, capture
+from fmbrdf_mi.fit.camera import samples as SM
+from fmbrdf_mi.fit.inputs import observations as ob
+
+
+def ideal_sphere(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf"):
+    """Noise-free Stokes (3, 2 res, 2 res) at the raw pixels, and the super-pixel geometry."""
+    from fmbrdf_mi.fit.evaluate.predict import predict_image
+
+    r2 = 2 * res
+    n2, m2, v2 = ob.sphere_normals((r2, r2), (r2 / 2, r2 / 2), r2 / 2 - 2)
+    obs2 = ob.Observation(np.ones((3, r2, r2)), m2, n2, v2, light)
+    stokes = predict_image(model, params, obs2)
+    n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
+    geom = ob.SphereGeometry((res, res), (res / 2, res / 2), res / 2 - 1)
+    return {"stokes": stokes, "normals": n, "mask": m, "view_dirs": v, "light": np.asarray(light, float),
+            "geometry": geom,
+            "params": dict(params), "model": model}
+
+
+def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fraction=0.8, known_noise=True,
+                        demosaic="bilinear"):
+    """One noisy raw capture of ``ideal`` as an :class:`Observation` (samples, noise model, Stokes image).
+
+    The likelihood uses the raw samples; the paper's loss the Stokes image demosaicked with ``demosaic``
+    (default bilinear, with the matching footprint: the fit command's default for raw mosaics; with
+    ``superpixel`` the four samples' different points make false polarisation at highlights that the
+    footprint average does not model).
+    """
+    from fmbrdf_mi.fit.camera.noise import NoiseModel
+
+    cam = camera or CameraModel()
+    cap = capture(ideal["stokes"], cam, exposure=exposure, peak_fraction=peak_fraction, seed=seed)
+    smp = SM.from_raw(cap["raw"], cam.layout, cam.black_level, cam.white_level)
+    stokes = ob.stokes_from_raw(cap["raw"], cam.layout, cam.black_level, demosaic)
+    noise = NoiseModel(cam.conversion_gain, cam.read_noise, 1.0) if known_noise else None
+    # irradiance in DN: the albedos come back in the units of ``ideal`` (DN = input * exposure / gain)
+    irr = cap["exposure"] / cam.conversion_gain
+    meta = {"truth": ideal["params"], "demosaic": demosaic, "capture": {"exposure": cap["exposure"], "saturated": cap["saturated"],
+                                                  "seed": seed}}
+    from fmbrdf_mi.fit.camera.noise import demosaic_footprint, linear_stokes_variance
+
+    # the paper's loss gets what it can use of the known noise: the Rice mean of the DoLP
+    var = (linear_stokes_variance(stokes[0], cam.conversion_gain, cam.read_noise, demosaic,
+                                  adc_step_e=cam.conversion_gain) if known_noise else None)
+    return ob.Observation(stokes, ideal["mask"], ideal["normals"], ideal["view_dirs"], ideal["light"], irr,
+                          meta, samples=smp, noise=noise, geometry=ideal["geometry"], lin_variance=var,
+                          footprint=demosaic_footprint(demosaic)), cap

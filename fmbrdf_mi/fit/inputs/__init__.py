@@ -1,0 +1,2 @@
+"""What a fit is given: :class:`~fmbrdf_mi.fit.inputs.observations.Observation` and the loaders of every input
+kind (no argument parsing)."""

@@ -1,0 +1,182 @@
+"""The captured-data layout of the paper's authors (kyotovision-public/fmbrdf), read directly.
+
+Per object directory ``OBJ/`` their scripts (``DoLP_fitting``,
+``intensity_fitting``, ``shape_reconstruction``) read:
+
+=================================  ===========================================================
+``calibration/L.txt``              one light direction per image, comma-separated x,y,z (towards the light)
+``calibration/vpL_img.npy``        (h, w, 3) per-super-pixel viewing rays, camera -> surface; v = -vpL
+``calibration/IntrinsicL.npy``     3 x 3 camera matrix (raw-sensor pixels); used here only when
+                                   vpL_img.npy is missing, for the rays through the super-pixel centres
+``calibration/intensities.npy``    optional (K,) light power per image; the scripts divide image k by
+                                   intensities[k] / max: here it is the image's relative light power
+``normal/normal_GT.npy``           (h, w, 3) unit normals
+``image/img_ud/*.png``             K undistorted 16-bit raw polarisation mosaics (2h, 2w), sorted by name =
+                                   image index; 2 x 2 layout 90 45 / 135 0 (IMX250MZR: this package's default)
+``mask_ud.npy``                    (2h, 2w) object mask at the raw resolution (or ``mask.npy`` / ``mask.png``,
+                                   at either resolution)
+=================================  ===========================================================
+
+**Frames.**  Their vectors are in OpenCV camera axes: x right, y down, z
+forward (into the scene).  This package's camera frame is x right, y up, z
+towards the camera, so every direction converts as (x, y, z) -> (x, -y, -z)
+(a rotation by 180 degrees about x; handedness is kept).  A normal facing the
+camera has z < 0 in theirs (their shape reconstruction flips normals with
+z > 0 as back-facing) and z > 0 here.
+
+**AoLP.**  Their ``PBayer`` computes s1 = I0 - I90, s2 = I45 - I135 and
+AoLP = atan2(s2, s1) / 2 from the mosaic, and the fitting scripts build the
+observed Stokes vector from **-AoLP**: (S0, S1, -S2).  The sensor's angles run
+counter-clockwise as the image is displayed (x right, y up: this package's
+Stokes frame, :mod:`fmbrdf_mi.polcam`), so their negated AoLP is the same
+angle measured in the OpenCV image frame (x right, y down), i.e. clockwise as
+displayed: theirs = -ours, S2 theirs = -S2 ours, S1 and S0 equal
+(``tests/test_fit_authors.py`` checks it on a mosaic made by the camera
+model).  This module reads the raw mosaics itself, so nothing is negated here.
+
+Their scripts also erode the mask (5 x 5, once), drop super-pixels with a
+sample at 65535 and those with I_DC = S0 / 2 below 1 % of full scale; here
+the fit's own pixel selection applies (``erode``, white level 65535 by
+default, and the likelihood keeps dim pixels, whose noise it models).
+"""
+from __future__ import annotations
+
+import glob
+import numpy as np
+import os
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.manifest import ImageSpec
+from fmbrdf_mi.fit.inputs.observations import UNIT_TOL, read_mask
+
+
+#: OpenCV camera axes (x right, y down, z forward) -> this package's (x right, y up, z towards the camera)
+CV_TO_OURS = np.array([1.0, -1.0, -1.0])
+
+
+AUTHORS_LAYOUT = ((90, 45), (135, 0))
+
+
+def cv_to_ours(v):
+    """Directions (..., 3) in OpenCV camera axes -> this package's camera frame."""
+    return np.asarray(v, dtype=np.float64) * CV_TO_OURS
+
+
+def _load(path, what):
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{what} {path}: not a readable .npy file ({exc})") from None
+
+
+def rays_from_intrinsics(K, shape):
+    """Unit view directions (h, w, 3), ours, through the super-pixel centres of a (2h, 2w) sensor.
+
+    OpenCV pixel (u, v) has its centre at integer coordinates; super-pixel
+    (i, j) covers raw pixels 2i..2i+1, 2j..2j+1, centre (2j + 0.5, 2i + 0.5).
+    """
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3):
+        raise InputError(f"IntrinsicL.npy: expected a 3 x 3 camera matrix, got shape {K.shape}")
+    h, w = shape
+    u, v = np.meshgrid(2 * np.arange(w) + 0.5, 2 * np.arange(h) + 0.5)
+    d = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T   # camera -> surface, OpenCV
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    return cv_to_ours(-d)
+
+
+def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise=None, white_level=65535.0,
+                dark_level=None, black_level=0.0, demosaic="bilinear", footprint="auto"):
+    """(specs, info) for the object in ``root``: one :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` per image.
+
+    ``holdout``: image indices kept out of the fit (relighting check).
+    ``info``: what was read (files, K, intensities, intrinsics, pixels whose
+    ground-truth normal was not unit length and were left out of the mask).
+    """
+    from fmbrdf_mi.fit.inputs.files import build_observation
+
+    root = os.fspath(root)
+    if not os.path.isdir(root):
+        raise InputError(f"authors' object directory {root}: no such directory")
+    cal = os.path.join(root, "calibration")
+    lfile = os.path.join(cal, "L.txt")
+    if not os.path.isfile(lfile):
+        raise InputError(f"{lfile}: no such file (one comma-separated light direction per image)")
+    try:
+        L = np.loadtxt(lfile, delimiter=",", ndmin=2)
+    except ValueError as exc:
+        raise InputError(f"{lfile}: expected rows of three comma-separated numbers ({exc})") from None
+    if L.ndim != 2 or L.shape[1] != 3 or not np.all(np.isfinite(L)):
+        raise InputError(f"{lfile}: expected rows x,y,z, got shape {L.shape}")
+    files = sorted(glob.glob(os.path.join(root, "image", "img_ud", "*.png")))
+    if len(files) != len(L):
+        raise InputError(f"{root}/image/img_ud: {len(files)} .png images but {len(L)} lights in L.txt")
+    nfile = os.path.join(root, "normal", "normal_GT.npy")
+    if not os.path.isfile(nfile):
+        raise InputError(f"{nfile}: no such file (ground-truth normals, h x w x 3)")
+    n = _load(nfile, "normals")
+    if n.ndim != 3 or n.shape[2] != 3:
+        raise InputError(f"{nfile}: expected shape (h, w, 3), got {n.shape}")
+    h, w = n.shape[:2]
+    n = cv_to_ours(n)
+    vfile, kfile = os.path.join(cal, "vpL_img.npy"), os.path.join(cal, "IntrinsicL.npy")
+    K = _load(kfile, "intrinsics") if os.path.isfile(kfile) else None
+    if os.path.isfile(vfile):
+        vp = _load(vfile, "viewing rays")
+        if vp.shape != (h, w, 3):
+            raise InputError(f"{vfile}: shape {vp.shape} differs from the normals' ({h}, {w}, 3)")
+        v = cv_to_ours(-vp)
+        norm = np.linalg.norm(v, axis=-1, keepdims=True)
+        v = np.where(norm > 0, v / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
+        view_src = "vpL_img.npy"
+    elif K is not None:
+        v, view_src = rays_from_intrinsics(K, (h, w)), "IntrinsicL.npy"
+    else:
+        raise InputError(f"{cal}: neither vpL_img.npy nor IntrinsicL.npy (the viewing rays)")
+    if mask is None:
+        for cand in ("mask_ud.npy", "mask.npy", "mask.png"):
+            if os.path.isfile(os.path.join(root, cand)):
+                mask = os.path.join(root, cand)
+                break
+        else:
+            raise InputError(f"{root}: no mask (mask_ud.npy, mask.npy or mask.png; or give one)")
+    m = read_mask(mask)
+    if m.shape == (2 * h, 2 * w):
+        m = m.reshape(h, 2, w, 2).all(axis=(1, 3))   # super-pixels entirely on the object
+    elif m.shape != (h, w):
+        raise InputError(f"mask {mask}: shape {m.shape} matches neither the normals ({h}, {w}) nor the raw "
+                         f"images ({2 * h}, {2 * w})")
+    unit = np.abs(np.linalg.norm(n, axis=-1) - 1.0) <= UNIT_TOL
+    bad_normals = int((m & ~unit).sum())
+    m = m & unit
+    n = np.where(m[..., None], n, np.array([0.0, 0.0, 1.0]))
+    ifile = os.path.join(cal, "intensities.npy")
+    power = np.ones(len(L))
+    if os.path.isfile(ifile):
+        p = _load(ifile, "light intensities").astype(np.float64).ravel()
+        if p.shape != (len(L),) or not np.all(np.isfinite(p) & (p > 0)):
+            raise InputError(f"{ifile}: expected {len(L)} positive light intensities, got {p.shape}")
+        power = p / p.max()
+    holdout = {int(k) for k in holdout}
+    bad = [k for k in holdout if not 0 <= k < len(L)]
+    if bad:
+        raise InputError(f"holdout: image index {bad[0]} outside 0..{len(L) - 1}")
+    specs = []
+    for k, f in enumerate(files):
+        try:
+            o = build_observation(f, geometry=(n, m, v), light=cv_to_ours(L[k]), irradiance=float(power[k]),
+                                  layout=AUTHORS_LAYOUT, black_level=black_level, white_level=white_level,
+                                  dark_level=dark_level, conversion_gain=conversion_gain, read_noise=read_noise,
+                                  demosaic=demosaic, footprint=footprint)
+        except InputError as exc:
+            raise InputError(f"{f}: {exc}") from None
+        o.meta["authors_layout"] = {"index": k, "light_opencv": L[k].tolist(), "file": os.path.abspath(f),
+                                    "power": float(power[k])}
+        specs.append(ImageSpec(o, o.light_dir, 1.0, k in holdout,
+                               os.path.splitext(os.path.basename(f))[0]))
+    info = {"root": os.path.abspath(root), "images": len(files), "view_rays": view_src,
+            "intensities": power.tolist() if os.path.isfile(ifile) else None,
+            "intrinsics": None if K is None else np.asarray(K).tolist(), "mask": os.fspath(mask),
+            "mask_pixels": int(m.sum()), "non_unit_normals_left_out": bad_normals,
+            "frames": "OpenCV camera axes converted to x right, y up, z towards the camera: (x, y, z) -> (x, -y, -z)"}
+    return specs, info

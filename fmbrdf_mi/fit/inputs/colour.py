@@ -1,0 +1,205 @@
+"""Colour polarisation mosaics read for a fit: sidecar, geometry on the 4x4-period grid, samples."""
+from __future__ import annotations
+
+import math
+import numpy as np
+import os
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs import observations as ob
+
+
+def colour_sidecar(inputs):
+    """The capture sidecar of a single raw input when it describes a colour sensor, else None."""
+    from fmbrdf_mi import camera as C
+
+    if isinstance(inputs, (list, tuple)):
+        if len(inputs) != 1:
+            return None
+        inputs = inputs[0]
+    if not isinstance(inputs, (str, os.PathLike)) or os.fspath(inputs).lower().endswith(".exr"):
+        return None
+    try:
+        side = C.read_sidecar(inputs)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    return side if side is not None and side["sensor"].cfa is not None else None
+
+
+def _pool4(n, m, v):
+    """Raw-resolution maps -> 4x4-period maps (two 2x2 poolings: the mean of 16, mask = all 16)."""
+    return ob.downsample_geometry(*ob.downsample_geometry(n, m, v))
+
+
+def _mask_at(mask, shape):
+    mk = ob.read_mask(mask)
+    if mk.shape == (4 * shape[0], 4 * shape[1]):      # mask of the raw mosaic: periods wholly inside it
+        return mk.reshape(shape[0], 4, shape[1], 4).all(axis=(1, 3))
+    if mk.shape != tuple(shape):
+        raise InputError(f"mask: shape {mk.shape} matches neither the mosaic's 4x4 periods {tuple(shape)} nor the "
+                         f"raw mosaic {(4 * shape[0], 4 * shape[1])}")
+    return mk
+
+
+def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
+                    fov=None):
+    """(normals, mask, view_dirs, exact geometry or None, meta) on the period grid ``shape``."""
+    meta = {}
+    params = side.get("parameters") if side.get("scene") == "builtin:sphere" else None
+    if normals is not None:
+        if mask is None:
+            raise InputError("normals: give the object mask too (--mask, .npy or .png, non-zero = object)")
+        n = ob.read_vectors(normals, "normals")
+        m = ob.read_mask(mask)
+        v = ob.read_vectors(view, "view") if view is not None else ob.pixel_rays(n.shape[:2], camera, fov)
+        if n.shape[:2] == (4 * shape[0], 4 * shape[1]):
+            n, m, v = _pool4(n, m, v)
+        for name, a in (("normals", n), ("mask", m), ("view", v)):
+            if a.shape[:2] != tuple(shape):
+                raise InputError(f"{name}: shape {a.shape[:2]} matches neither the mosaic's 4x4 periods "
+                                 f"{tuple(shape)} nor the raw mosaic {(4 * shape[0], 4 * shape[1])}")
+        return n, m, v, None, meta
+    if sphere is not None:
+        mk = _mask_at(mask, shape) if mask is not None else None
+        if isinstance(sphere, str) and sphere == "auto":
+            if mk is None:
+                raise InputError("--sphere auto: needs --mask to find the sphere in")
+            centre, radius = ob.find_sphere(mk)
+        else:
+            from fmbrdf_mi.fit.inputs.parse import parse_vector
+
+            cx, cy, radius = parse_vector(sphere, "--sphere (cx,cy,r in 4x4 periods)")
+            centre = (cx, cy)
+        n, m, v = ob.geometry_from_sphere(shape, centre, radius, mk, camera, fov)
+        meta["sphere"] = {"centre": [float(c) for c in centre], "radius": float(radius),
+                          "found_from_mask": sphere == "auto", "units": "4x4 periods"}
+        if view is not None:
+            return n, m, ob.read_vectors(view, "view", shape), None, meta
+        return n, m, v, ob.SphereGeometry(shape, centre, radius, camera, fov), meta
+    if params is not None:
+        from fmbrdf_mi import scene as S
+
+        w, h = int(params["width"]), int(params["height"])
+        if (h, w) != (4 * shape[0], 4 * shape[1]):
+            raise InputError(f"{side['path']}: describes a {w}x{h} render, the mosaic is "
+                             f"{4 * shape[1]}x{4 * shape[0]}")
+        if params["camera"] == "orthographic":
+            # the built-in scene: unit sphere at the origin, image half-width distance * tan(fov / 2)
+            r = w / 2 / (params["distance"] * math.tan(math.radians(params["fov"]) / 2)) / 4
+            centre = (shape[1] / 2, shape[0] / 2)
+            n, m, v = ob.sphere_normals(shape, centre, r)
+            meta["sphere"] = {"centre": list(centre), "radius": r, "from": "sidecar (built-in sphere)",
+                              "units": "4x4 periods"}
+            return n, m, v, ob.SphereGeometry(shape, centre, r), meta
+        n, v, m = S.sphere_geometry((w, h), camera=params["camera"], fov=params["fov"],
+                                    distance=params["distance"])
+        n, m, v = _pool4(n, m, v)
+        return n, m, v, None, meta
+    raise InputError("geometry: give a normal map (--normals N.npy --mask M.png) or a sphere (--sphere cx,cy,r in "
+                     "4x4 periods, or --sphere auto --mask M.png)")
+
+
+class ColourInput:
+    """One colour mosaic read for a fit: its Observation on the period grid, samples, camera, noise and metadata."""
+
+    def __init__(self, obs, samples, camera, noise, truth, side):
+        self.obs, self.samples, self.camera, self.noise, self.truth, self.side = obs, samples, camera, noise, truth, side
+
+
+def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic", fov=None,
+                      light=None, irradiance=None, power=1.0, black_level=None, white_level=None,
+                      conversion_gain=None, read_noise=None, erode=2):
+    """A :class:`ColourInput` of the raw colour mosaic ``path`` (its capture sidecar gives the camera).
+
+    Light and irradiance default to the sidecar's built-in scene; the
+    irradiance is multiplied by ``power`` (a joint fit's relative light power).
+    The Observation's ``meta`` holds ``settings``, ``sphere``, ``sidecar`` and
+    ``truth`` (the built-in scene's parameters) as the mono path's do.
+    """
+    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
+    from fmbrdf_mi.fit.camera.noise import NoiseModel
+
+    path = os.fspath(path)
+    side = colour_sidecar(path)
+    if side is None:
+        raise InputError(f"{path}: no colour capture sidecar ({os.path.splitext(path)[0]}.json with \"cfa\")")
+    cam = side["sensor"]
+    raw = ob.read_array(path, "raw colour mosaic")
+    if raw.ndim != 2 or not np.issubdtype(raw.dtype, np.number):
+        raise InputError(f"{path}: expected a single-channel raw mosaic, got an array of shape {raw.shape}")
+    black = cam.black_level if black_level is None else float(black_level)
+    white = cam.white_level if white_level is None else float(white_level)
+    smp = colour_samples(raw, cam.layout, cam.cfa, black, white)
+    shape = smp.values.shape[1:]
+    n, m, v, exact, gmeta = colour_geometry(shape, side, normals=normals, mask=mask, view=view, sphere=sphere,
+                                            camera=camera, fov=fov)
+    params = side.get("parameters") if side.get("scene") == "builtin:sphere" else {}
+    if light is None:
+        light = params.get("light_dir") if params else None
+    if light is None:
+        raise InputError("light: give the light direction (--light x,y,z, from the surface towards the light; "
+                         "x image right, y image up, z towards the camera)")
+    light = ob.check_direction(light, "light")
+    if irradiance is None and params:
+        # the raw DN are the render's units times the capture's DN per unit
+        irradiance = params["irradiance"] * float(side.get("capture", {}).get("dn_per_input_unit", 1.0))
+    irradiance = (1.0 if irradiance is None else float(irradiance)) * float(power)
+    gain = cam.conversion_gain if conversion_gain is None else float(conversion_gain)
+    rn = cam.read_noise if read_noise is None else float(read_noise)
+    if not (gain > 0 and rn >= 0):
+        raise InputError(f"noise: --conversion-gain must be > 0 and --read-noise >= 0, got {gain}, {rn}")
+    truth = {k: params[k] for k in ("eta", "alpha", "beta", "kappa", "k_s", "r_k") if k in params} or None
+    settings = {"layout": [list(r) for r in cam.layout], "cfa": [list(r) for r in cam.cfa], "black_level": black,
+                "white_level": white, "conversion_gain": gain, "read_noise": rn,
+                "light": [float(x) for x in light], "irradiance": irradiance, "erode": int(erode),
+                "grid": "4x4 periods", "geometry": "exact sphere" if exact is not None else "maps"}
+    meta = {"settings": settings, "sphere": gmeta.get("sphere"), "sidecar": side["path"], "truth": truth}
+    obs = ob.Observation(np.ones((3,) + tuple(shape)), ob.erode(m, int(erode)), n, v, light, irradiance,
+                         geometry=exact, meta=meta)
+    return ColourInput(obs, smp, cam, NoiseModel(gain, rn, 1.0), truth, side)
+
+
+#: Manifest / command-line options a colour image may take (read_colour_input's).
+COLOUR_KEYS = ("normals", "mask", "view", "sphere", "camera", "fov", "irradiance", "black_level", "white_level",
+               "conversion_gain", "read_noise")
+
+
+#: Mono-only options at the values that mean "not given" (the command's defaults): ignored for colour mosaics.
+_UNSET = {"channel": "mean", "demosaic": "bilinear", "footprint": "auto", "layout": None, "dark_level": None}
+
+
+def is_colour(specs):
+    """Whether the images of ``specs`` are colour mosaics (all of them); mixed sets are refused in one line."""
+    from fmbrdf_mi.fit.inputs.colour import colour_sidecar
+
+    flags = [not hasattr(s.input, "stokes") and colour_sidecar(s.input) is not None for s in specs]
+    if any(flags) and not all(flags):
+        k = flags.index(not flags[0])
+        raise InputError(f"joint fit: image {k} is {'a colour' if flags[k] else 'not a colour'} mosaic and "
+                         f"image 0 is {'one' if flags[0] else 'not'}; a joint fit takes images of one camera")
+    return bool(flags) and all(flags)
+
+
+def read_colour_inputs(specs, erode):
+    from fmbrdf_mi.fit.inputs.parse import parse_vector
+    from fmbrdf_mi.fit.inputs.colour import read_colour_input
+    from fmbrdf_mi.fit.inputs.manifest import file_stem
+
+    out = []
+    for k, s in enumerate(specs):
+        opts = {x: v for x, v in s.options.items() if not (x in _UNSET and v == _UNSET[x])}
+        bad = [x for x in opts if x not in COLOUR_KEYS]
+        if bad:
+            raise InputError(f"image {k} ({file_stem(s.input)}): {', '.join(bad)} not supported for a colour mosaic "
+                             f"(valid: {', '.join(COLOUR_KEYS)}; layout and cfa come from the sidecar)")
+        try:
+            light = parse_vector(s.light, f"image {k}: light") if s.light is not None else None
+            out.append(read_colour_input(s.input, light=light, power=s.power, erode=erode, **opts))
+        except InputError as exc:
+            raise InputError(f"image {k} ({file_stem(s.input)}): {exc}") from None
+    cams = [(c.camera.layout, c.camera.cfa, c.noise.gain, c.noise.read_noise) for c in out]
+    for k, c in enumerate(cams[1:], 1):
+        if c != cams[0]:
+            raise InputError(f"joint fit: image {k}'s camera (layout, cfa, gain, read noise) differs from image "
+                             "0's; a joint fit assumes one camera")
+    return out

@@ -1,0 +1,181 @@
+"""An :class:`Observation` from files: polarisation images, geometry, light, the camera's sidecar."""
+from __future__ import annotations
+
+import numpy as np
+import os
+
+from fmbrdf_mi import polcam
+from fmbrdf_mi.fit.inputs.parse import parse_layout
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.observations import (
+    Observation, check_direction, downsample_geometry, geometry_from_sphere, load_polarisation, pixel_rays,
+    read_mask, read_vectors)
+from fmbrdf_mi.fit.inputs.parse import parse_vector
+
+
+def _builtin_sphere(meta):
+    """Geometry, light, irradiance and true material of an EXR from ``fmbrdf-mi render`` (built-in scene)."""
+    if meta.get("scene") != "builtin:sphere" or "parameters" not in meta:
+        return None
+    from fmbrdf_mi import scene as S
+
+    p = meta["parameters"]
+    n, v, m = S.sphere_geometry((int(p["width"]), int(p["height"])), camera=p["camera"],
+                                fov=p["fov"], distance=p["distance"])
+    truth = {k: p[k] for k in ("eta", "alpha", "beta", "kappa", "k_s", "r_k", "k_b") if k in p}
+    return {"normals": n, "view_dirs": v, "mask": m, "light_dir": p["light_dir"],
+            "irradiance": p["irradiance"], "truth": truth}
+
+
+def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
+                      fov=None, light=None, irradiance=None, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0,
+                      channel="mean", geometry=None, demosaic="bilinear", conversion_gain=None,
+                      read_noise=None, footprint="auto", white_level=None, dark_level=None):
+    """An :class:`Observation` from files (see :func:`fit_files` for the options).
+
+    ``geometry``: (normals, mask, view_dirs) reused from another observation of the same object.
+    A raw mosaic with a capture sidecar (:func:`fmbrdf_mi.camera.read_sidecar`,
+    written by ``fmbrdf-mi render --raw``) supplies the layout, black level,
+    gain, read noise and white level that were not given, and the scene's
+    geometry and light.  ``meta["settings"]`` records what was used.
+    """
+    from fmbrdf_mi import camera as C
+    from fmbrdf_mi.fit.camera import samples as SM
+    from fmbrdf_mi.fit.camera.noise import NoiseModel
+
+    sidecar = None
+    if isinstance(inputs, (str, os.PathLike)) and not os.fspath(inputs).lower().endswith(".exr"):
+        try:
+            sidecar = C.read_sidecar(inputs)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+    if sidecar is not None:
+        cam = sidecar["sensor"]
+        if cam.cfa is not None:
+            raise InputError(f"{inputs}: a colour polarisation mosaic (sidecar {sidecar['path']}: cfa "
+                             f"{''.join(c for r in cam.cfa for c in r)}); the fit command takes monochrome "
+                             "mosaics only so far: fit it with fmbrdf_mi.fit.api.colour.fit_colour (README, "
+                             "'Colour polarisation sensors')")
+        layout = cam.layout if layout is None else layout
+        black_level = cam.black_level if black_level is None else black_level
+        if conversion_gain is None:
+            conversion_gain, read_noise = cam.conversion_gain, cam.read_noise if read_noise is None else read_noise
+        white_level = cam.white_level if white_level is None else white_level
+    layout = polcam.IMX250MZR_LAYOUT if layout is None else layout
+    black_level = 0.0 if black_level is None else float(black_level)
+    if isinstance(layout, str):
+        layout = parse_layout(layout)
+    stokes, meta = load_polarisation(inputs, layout=layout, channel=channel, black_level=black_level,
+                                     demosaic=demosaic)
+    array = meta.pop("_array", None)
+    if sidecar is not None:
+        meta.update({k: v for k, v in sidecar.items() if k not in ("sensor", "path", C.SIDECAR_KEY)})
+        meta["sidecar"] = sidecar["path"]
+    shape = stokes.shape[1:]
+    builtin = _builtin_sphere(meta) if (normals is None and sphere is None and geometry is None) else None
+    exact = None
+    if builtin is not None:
+        n, m, v = builtin["normals"], builtin["mask"], builtin["view_dirs"]
+        if meta.get("source") == "raw mosaic" and n.shape[:2] == (2 * shape[0], 2 * shape[1]):
+            n, m, v = downsample_geometry(n, m, v)
+        light = builtin["light_dir"] if light is None else light
+        if irradiance is None:
+            # a raw capture's DN are the Stokes image's units times the capture's DN per unit
+            irradiance = builtin["irradiance"] * float(meta.get("capture", {}).get("dn_per_input_unit", 1.0))
+        meta = dict(meta, truth=builtin["truth"])
+        if n.shape[:2] != shape:
+            raise InputError(f"{inputs}: metadata describe a {n.shape[1]}x{n.shape[0]} image, the file is "
+                             f"{shape[1]}x{shape[0]}")
+    elif geometry is not None:
+        n, m, v = geometry
+    elif normals is not None:
+        if mask is None:
+            raise InputError("normals: give the object mask too (--mask, .npy or .png, non-zero = object)")
+        n = read_vectors(normals, "normals")
+        m = read_mask(mask)
+        if view is not None:
+            v = read_vectors(view, "view")
+        else:
+            v = pixel_rays(n.shape[:2], camera, fov)
+        if n.shape[:2] == (2 * shape[0], 2 * shape[1]):  # geometry at raw-sensor resolution
+            n, m, v = downsample_geometry(n, m, v)
+        for name, a in (("normals", n), ("mask", m), ("view", v)):
+            if a.shape[:2] != shape:
+                raise InputError(f"{name}: shape {a.shape[:2]} does not match the polarisation image "
+                                 f"{shape} (a raw mosaic gives half its resolution)")
+    elif sphere is not None:
+        if isinstance(sphere, str) and sphere == "auto":
+            if mask is None:
+                raise InputError("--sphere auto: needs --mask to find the sphere in")
+            centre = radius = None
+        else:
+            cx, cy, radius = parse_vector(sphere, "sphere (cx,cy,r in pixels)")
+            centre = (cx, cy)
+        mk = None
+        if mask is not None:
+            mk = read_mask(mask)
+            if mk.shape == (2 * shape[0], 2 * shape[1]):  # mask of the raw mosaic: super-pixels inside it
+                mk = mk.reshape(shape[0], 2, shape[1], 2).all(axis=(1, 3))
+            elif mk.shape != tuple(shape):
+                raise InputError(f"mask: shape {mk.shape} matches neither the polarisation image {tuple(shape)} "
+                                 f"nor its raw mosaic {(2 * shape[0], 2 * shape[1])}")
+        if centre is None:
+            from fmbrdf_mi.fit.inputs.observations import find_sphere
+
+            centre, radius = find_sphere(mk)
+        n, m, v = geometry_from_sphere(shape, centre, radius, mk, camera, fov)
+        meta["sphere"] = {"centre": [float(c) for c in centre], "radius": float(radius),
+                          "found_from_mask": sphere == "auto"}
+        if view is not None:
+            v = read_vectors(view, "view", shape)
+        else:
+            from fmbrdf_mi.fit.inputs.observations import SphereGeometry
+
+            exact = SphereGeometry(shape, centre, radius, camera, fov)
+    else:
+        raise InputError("geometry: give a normal map (--normals N.npy --mask M.png) or a sphere "
+                         "(--sphere cx,cy,r or --sphere auto --mask M.png)")
+    if light is None:
+        raise InputError("light: give the light direction (--light x,y,z, from the surface towards the light; "
+                         "x image right, y image up, z towards the camera)")
+    light = check_direction(light, "light")
+    var = None
+    if conversion_gain is not None:
+        from fmbrdf_mi.fit.camera.noise import linear_stokes_variance
+
+        if not (conversion_gain > 0) or read_noise is None or not (read_noise >= 0):
+            raise InputError(f"noise: --conversion-gain must be > 0 and --read-noise >= 0 given with it, got "
+                             f"{conversion_gain}, {read_noise}")
+        src = meta.get("source")
+        var = linear_stokes_variance(stokes[0], float(conversion_gain), float(read_noise),
+                                     demosaic if src == "raw mosaic" else "superpixel",
+                                     adc_step_e=float(conversion_gain) if src in ("raw mosaic", "angle images")
+                                     else None)
+    from fmbrdf_mi.fit.camera.noise import box_footprint, demosaic_footprint
+
+    if footprint == "auto":
+        footprint = "demosaic" if meta.get("source") == "raw mosaic" else "point"
+    fp = {"point": lambda: None, "box": lambda: box_footprint(3),
+          "demosaic": lambda: demosaic_footprint(demosaic)}.get(footprint)
+    if fp is None:
+        raise InputError(f"footprint: expected auto, point, box or demosaic, got {footprint!r}")
+    src = meta.get("source")
+    samples = None
+    if src == "raw mosaic":
+        samples = SM.from_raw(array, layout, black_level, white_level, dark_level)
+    elif src == "angle images":
+        integer = np.issubdtype(np.asarray(array).dtype, np.integer)
+        samples = SM.from_angle_images(array, black_level, white_level, dark_level, integer=integer)
+    noise = None
+    if conversion_gain is not None:
+        noise = NoiseModel(float(conversion_gain), float(read_noise),
+                           samples.step if samples is not None else 0.0)
+    meta["settings"] = {"layout": [list(r) for r in layout], "black_level": black_level,
+                        "demosaic": demosaic if src == "raw mosaic" else None, "footprint": footprint,
+                        "white_level": None if samples is None else samples.white_level,
+                        "dark_level": None if samples is None else samples.dark_level,
+                        "conversion_gain": conversion_gain, "read_noise": read_noise,
+                        "light": [float(x) for x in light],
+                        "irradiance": 1.0 if irradiance is None else float(irradiance)}
+    return Observation(stokes, m, n, v, light, 1.0 if irradiance is None else float(irradiance), meta,
+                       lin_variance=var, footprint=fp(), samples=samples, noise=noise, geometry=exact)

@@ -1,0 +1,80 @@
+"""Values given as text (command line, manifests): vectors, bounds, start values, fixed parameters, polariser layouts."""
+from __future__ import annotations
+
+from fmbrdf_mi.fit.camera.demosaic import check_layout
+from fmbrdf_mi.fit.errors import InputError
+
+
+def parse_vector(text, name, n=3):
+    if text is None:
+        return None
+    if isinstance(text, str):
+        try:
+            vals = [float(x) for x in text.replace(" ", "").split(",") if x]
+        except ValueError:
+            raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}") from None
+    else:
+        vals = [float(x) for x in text]
+    if len(vals) != n:
+        raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}")
+    return vals
+
+
+def parse_bounds(items):
+    """``["alpha=0.05:0.5", ...]`` -> {"alpha": (0.05, 0.5)}."""
+    if isinstance(items, dict) or items is None:
+        return items
+    out = {}
+    for item in items:
+        name, sep, rng = str(item).partition("=")
+        lo, sep2, hi = rng.partition(":")
+        try:
+            out[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            raise InputError(f"--bounds {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5") from None
+        if not (sep and sep2):
+            raise InputError(f"--bounds {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5")
+    return out
+
+
+def parse_init(text):
+    """``"eta=1.5,alpha=0.3,..."`` -> dict (all reported parameters of the model)."""
+    if isinstance(text, dict) or text is None:
+        return text
+    out = {}
+    for item in str(text).split(","):
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise InputError(f"--init {text!r}: expected NAME=VALUE,..., e.g. eta=1.5,alpha=0.3,beta=2,"
+                             "kappa=10,k_s=1,r_k=1") from None
+    return out
+
+
+def parse_fixed(items):
+    """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (shape parameters held fixed)."""
+    if isinstance(items, dict) or items is None:
+        return items
+    items = [items] if isinstance(items, str) else list(items)
+    out = {}
+    for item in ",".join(items).split(","):
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise InputError(f"--fix {item!r}: expected NAME=VALUE, e.g. kappa=0") from None
+        if not sep:
+            raise InputError(f"--fix {item!r}: expected NAME=VALUE, e.g. kappa=0")
+    return out
+
+
+def parse_layout(text):
+    """``"90,45,135,0"`` (row-major 2x2, top row first) -> ((90, 45), (135, 0))."""
+    try:
+        a = [int(x) for x in str(text).replace(" ", "").split(",")]
+    except ValueError:
+        raise InputError(f"layout: expected four comma-separated angles such as 90,45,135,0, got {text!r}") from None
+    if len(a) != 4:
+        raise InputError(f"layout: expected four angles (row-major 2x2), got {text!r}")
+    return check_layout(((a[0], a[1]), (a[2], a[3])))

@@ -1,0 +1,144 @@
+"""The paper's loss (eq:optimization) and its residual form.
+
+    loss = 1/M sum_i (Ibar_i - I_i)^2  +  sum_i w_i (rhobar_i - rho_i)^2 / sum_i w_i
+
+over the M fitted pixels, I the intensity and rho the DoLP (observed: bar),
+AoLP not used.  Choices this implementation makes where the paper is silent:
+
+* **units**: intensities are divided by the mean observed intensity of the
+  fitted pixels (``scale``), so both terms are dimensionless and the loss
+  does not depend on exposure;
+* **inliers / outliers**: the paper weighs a pixel by (number of inliers) /
+  (number of outliers) when it is an outlier and by 1 otherwise, "to account
+  for the imbalance in the surface areas dominated with surface or body
+  reflection".  Here a pixel is an *outlier* when the model at the current
+  estimate says surface reflection dominates its intensity
+  (a_s * S0_surface > a_b * S0_body), an *inlier* otherwise; the classification
+  is fixed while the optimiser runs and refreshed between its rounds
+  (:mod:`fmbrdf_mi.fit.solve.optimise`).  Outliers and inliers then carry equal
+  total weight in the DoLP term;
+* **DoLP term pixels**: only pixels whose observed intensity exceeds
+  ``dolp_min_intensity`` times the 99th percentile enter the DoLP term (the
+  DoLP of a dark pixel is noise); all fitted pixels enter the intensity term;
+* **noise bias of the DoLP**: a camera's DoLP sqrt(S1^2 + S2^2) / S0 is
+  biased upwards by noise (the length of a noisy 2-vector follows a Rice
+  distribution); for dim, weakly polarised pixels -- the body of rough
+  dielectrics, DoLP ~ 0.01 -- the bias is as large as the signal, and a
+  rough material can trade body for surface albedo to explain it.  When the
+  per-pixel variance sigma^2 of S1 and S2 is known (a camera model, e.g.
+  :func:`fmbrdf_mi.fit.camera.noise.linear_stokes_variance`) the model side
+  of the DoLP term is the DoLP such a camera measures on average,
+  E[|(S1, S2) + noise|] / S0 (:mod:`fmbrdf_mi.fit.camera.rice`), and the observed
+  DoLP is left as measured.  Both sides then have the same expectation;
+  subtracting 2 sigma^2 from the observed S1^2 + S2^2 instead (and clipping
+  at 0) leaves a bias of the same order for DoLP ~ sigma / S0.
+"""
+from __future__ import annotations
+
+import dataclasses
+import numpy as np
+
+from fmbrdf_mi.fit.camera import rice
+
+
+DOLP_EPS = 1e-12
+
+
+@dataclasses.dataclass
+class Target:
+    """The observed side of the loss at the fitted pixels."""
+
+    intensity: np.ndarray      # (n,) observed S0, image units
+    dolp: np.ndarray           # (n,) observed DoLP, as measured
+    dolp_valid: np.ndarray     # (n,) bool: pixel enters the DoLP term
+    scale: float               # intensity unit (mean observed intensity)
+    lin_sigma: np.ndarray = None  # (n,) noise standard deviation of S1 and S2, if known
+
+    @classmethod
+    def from_stokes(cls, stokes_px, dolp_min_intensity=0.02, lin_variance=None):
+        """From observed (3, n) Stokes values of the fitted pixels (and var(S1) = var(S2), (n,), if known)."""
+        s = np.asarray(stokes_px, dtype=np.float64)
+        i = s[0]
+        rho = np.sqrt(s[1] ** 2 + s[2] ** 2) / np.where(i > 0, i, 1.0)
+        rho = np.where(i > 0, rho, 0.0)
+        scale = float(np.mean(i))
+        if not scale > 0:
+            raise ValueError("observation: the fitted pixels are black (mean intensity <= 0)")
+        valid = i > dolp_min_intensity * np.percentile(i, 99)
+        if not valid.any():
+            raise ValueError("observation: no pixel is bright enough for the DoLP term")
+        sigma = None
+        if lin_variance is not None:
+            sigma = np.sqrt(np.clip(np.broadcast_to(np.asarray(lin_variance, dtype=np.float64), i.shape),
+                                    0.0, None))
+        return cls(i, rho, valid, scale, sigma)
+
+
+def predict(parts_surface, parts_body, a_s, a_b, lin_sigma=None):
+    """Intensity and DoLP (n,) of a_s * surface + a_b * body (arrays (3, n)).
+
+    With ``lin_sigma`` the DoLP is the one a camera with that noise in S1
+    and S2 measures on average (module docstring).
+    """
+    s = a_s * parts_surface + a_b * parts_body
+    i = s[0]
+    lin = np.sqrt(s[1] ** 2 + s[2] ** 2 + DOLP_EPS ** 2)
+    if lin_sigma is not None:
+        lin = rice.mean_length(lin, lin_sigma)
+    return i, lin / np.where(i > 0, i, 1.0)
+
+
+def outlier_mask(surface_i, body_i, a_s, a_b):
+    """Pixels where surface reflection dominates the predicted intensity."""
+    return a_s * np.asarray(surface_i) > a_b * np.asarray(body_i)
+
+
+def weights(outliers, dolp_valid):
+    """The paper's w_i over the DoLP-term pixels (0 elsewhere)."""
+    out = np.asarray(outliers, bool) & dolp_valid
+    inl = ~np.asarray(outliers, bool) & dolp_valid
+    n_out, n_in = int(out.sum()), int(inl.sum())
+    w = dolp_valid.astype(np.float64)
+    if n_out and n_in:
+        w[out] = n_in / n_out
+    return w
+
+
+def residuals(target, w, i_pred, rho_pred):
+    """Vector r with r . r = loss: intensity part first, then DoLP part (zeros where w = 0)."""
+    m = len(target.intensity)
+    r_i = (i_pred - target.intensity) / (target.scale * np.sqrt(m))
+    r_rho = np.sqrt(w / w.sum()) * (rho_pred - target.dolp)
+    return np.concatenate([r_i, r_rho])
+
+
+def loss_terms(target, w, i_pred, rho_pred):
+    """(intensity term, DoLP term) of the loss."""
+    m = len(target.intensity)
+    li = float(np.sum(((i_pred - target.intensity) / target.scale) ** 2) / m)
+    lr = float(np.sum(w * (rho_pred - target.dolp) ** 2) / w.sum())
+    return li, lr
+
+
+def loss(target, w, i_pred, rho_pred):
+    li, lr = loss_terms(target, w, i_pred, rho_pred)
+    return li + lr
+
+
+def loss_dr(target, w, s0, s1, s2):
+    """The same loss as a Dr.Jit expression of predicted Dr.Jit (S0, S1, S2) (for reverse-mode AD)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    m = len(target.intensity)
+    i_obs = mi.Float(target.intensity.astype(np.float32))
+    rho_obs = mi.Float(target.dolp.astype(np.float32))
+    wt = mi.Float((w / w.sum()).astype(np.float32))
+    safe_i = dr.select(s0 > 0, s0, 1.0)
+    lin = dr.sqrt(s1 * s1 + s2 * s2 + DOLP_EPS ** 2)
+    if target.lin_sigma is not None:
+        lin = rice.mean_length_dr(lin, mi.Float(target.lin_sigma.astype(np.float32)))
+    rho = lin / safe_i
+    li = dr.sum(dr.square((s0 - i_obs) * (1.0 / target.scale))) * (1.0 / m)
+    lr = dr.sum(wt * dr.square(rho - rho_obs))
+    return li + lr

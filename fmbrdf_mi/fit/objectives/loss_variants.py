@@ -1,0 +1,147 @@
+"""The loss variants of the paper's comparison (its relighting figure): intensity only, DoLP only.
+
+The paper fits FMBRDF and its baselines with the polarimetric loss
+(eq:optimization: intensity MSE + weighted DoLP MSE; here also the default
+likelihood of the raw samples) and compares against fits that use less of
+the measurement:
+
+* ``intensity`` (:class:`IntensityObjective`): the intensity term of
+  eq:optimization alone, (1/M) sum_i ((Ibar_i - I_i) / scale)^2 -- what a
+  radiometric method fits ("radiometric baselines");
+* ``dolp`` (:class:`DolpObjective`): the DoLP term alone, with the paper's
+  inlier / outlier weights and, when the camera noise is known, the Rice
+  mean of the measured DoLP (:mod:`fmbrdf_mi.fit.objectives.loss`) -- "ours without
+  radiance".  The DoLP does not change when both albedos are scaled
+  together, so it leaves the overall albedo undetermined; one extra
+  residual, (mean predicted intensity - mean observed intensity) / scale
+  over the fitted pixels, fixes it.  That direction (both albedos times a
+  common factor) changes nothing else, so at the optimum this residual is
+  exactly 0 and the shape parameters and r_k are those of the DoLP term
+  alone; k_s is then the value that reproduces the mean intensity
+  (what a relighting check needs), not an intensity fit.
+
+Both are sums of squares of a subset of :class:`PaperObjective`'s
+residuals (the same Jacobian code), so the same optimiser, coarse search
+and sandwich covariance apply (:mod:`fmbrdf_mi.fit.uncertainty`; the scale
+residual is counted with the first pixel, and is 0 at the optimum).
+"""
+from __future__ import annotations
+
+import math
+import numpy as np
+
+from fmbrdf_mi.fit.objectives import loss as L
+from fmbrdf_mi.fit.objectives.objective import PaperObjective
+
+
+#: Loss names a fit accepts: the polarimetric ones and the two variants.
+VARIANTS = ("intensity", "dolp")
+
+
+class IntensityObjective(PaperObjective):
+    """Intensity MSE of eq:optimization alone (no DoLP term, no inlier / outlier weights)."""
+
+    name = "intensity"
+
+    def refresh(self, parts, st):  # nothing to reweight
+        pass
+
+    def settled(self, old, parts, st, **_):
+        return True
+
+    def describe_round(self):
+        return "intensity only"
+
+    def _m(self):
+        return len(self.target.intensity)
+
+    def residuals(self, parts, st, w=None):
+        return super().residuals(parts, st, self.w)[: self._m()]
+
+    def value(self, parts, st, w=None):
+        r = self.residuals(parts, st)
+        return float(r @ r)
+
+    def score(self, parts, st):
+        return self.value(parts, st)
+
+    def loss_terms(self, parts, st):
+        return {"intensity": self.value(parts, st)}
+
+    def row_pixels(self, n_rows):
+        return np.arange(n_rows)
+
+    def residuals_and_jacobian(self, parts, st, z, names, bounds):
+        r, J, bad = super().residuals_and_jacobian(parts, st, z, names, bounds)
+        m = self._m()
+        return r[:m], J[:m], (None if bad is None else bad[:m])
+
+
+class DolpObjective(PaperObjective):
+    """DoLP term of eq:optimization alone, plus one residual that sets the overall albedo (module docstring)."""
+
+    name = "dolp"
+    #: albedo ratios a_b / a_s tried by the coarse search (log grid)
+    RATIOS = np.logspace(-3, 3, 37)
+
+    def describe_round(self):
+        return super().describe_round() + " (DoLP only)"
+
+    def _m(self):
+        return len(self.target.intensity)
+
+    def _split(self, r):
+        m = self._m()
+        return r[:m], r[m:]
+
+    def residuals(self, parts, st, w=None):
+        r = super().residuals(parts, st, self.w if w is None else w)
+        r_i, r_rho = self._split(r)
+        return np.concatenate([r_rho, [r_i.sum() / math.sqrt(self._m())]])
+
+    def value(self, parts, st, w=None):
+        r = self.residuals(parts, st, w)
+        return float(r @ r)
+
+    def score(self, parts, st):
+        out = L.outlier_mask(parts.surface[0], parts.body[0], st.a_s, st.a_b)
+        return self.value(parts, st, L.weights(out, self.target.dolp_valid))
+
+    def loss_terms(self, parts, st):
+        r = self.residuals(parts, st)
+        return {"dolp": float(r[:-1] @ r[:-1]), "scale": float(r[-1] ** 2)}
+
+    def row_pixels(self, n_rows):
+        return np.concatenate([np.arange(n_rows - 1) % self._m(), [0]])
+
+    def albedos(self, parts):
+        """Ratio a_b / a_s minimising the DoLP term (a log grid), overall scale from the mean intensity."""
+        from fmbrdf_mi.fit.evaluate.models import State
+
+        best = None
+        for t in self.RATIOS:
+            st = State({}, 1.0, float(t))
+            v = self.score(parts, st)
+            if best is None or v < best[0]:
+                best = (v, float(t))
+        t = best[1]
+        i = parts.surface[0] + t * parts.body[0]
+        c = float(np.mean(self.target.intensity)) / max(float(np.mean(i)), 1e-300)
+        return c, c * t
+
+    def residuals_and_jacobian(self, parts, st, z, names, bounds):
+        r, J, bad = super().residuals_and_jacobian(parts, st, z, names, bounds)
+        m = self._m()
+        s = 1.0 / math.sqrt(m)
+        r2 = np.concatenate([r[m:], [r[:m].sum() * s]])
+        J2 = np.concatenate([J[m:], J[:m].sum(axis=0, keepdims=True) * s])
+        bad2 = None if bad is None else np.concatenate([bad[m:], [False]])
+        if bad is not None and bad[:m].any():
+            # a pixel with a non-finite derivative: keep it out of the scale row too
+            J2[-1] = (J[:m][~bad[:m]]).sum(axis=0) * s
+        return r2, J2, bad2
+
+
+def make(name, target):
+    """The objective for loss ``name`` ('intensity' or 'dolp') on ``target`` (:class:`fmbrdf_mi.fit.objectives.loss.Target`)."""
+    return {"intensity": IntensityObjective, "dolp": DolpObjective}[name](target)

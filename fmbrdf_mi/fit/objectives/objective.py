@@ -1,0 +1,274 @@
+"""What a fit minimises: the likelihood of the camera's samples, or the paper's loss.
+
+Both objectives are sums of squared residuals r(theta) . r(theta), so the
+same Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.optimise`) minimises either, and
+both state which residual rows belong to which pixel (for the sandwich
+covariance, :mod:`fmbrdf_mi.fit.uncertainty`).  The model is linear in its
+two albedos; :class:`Parts` (unit-albedo surface and body Stokes vectors and
+their shape derivatives) are what an evaluator gives.
+
+**Likelihood** (:class:`LikelihoodObjective`, ``--loss likelihood``).  Sample
+k of super-pixel i (a raw mosaic pixel, or an angle-image pixel) is
+
+    y_ik ~ N(mu_ik, v(mu_ik)),   mu_ik = 1/2 (S0 + S1 cos 2 phi_k + S2 sin 2 phi_k),
+
+with (S0, S1, S2) the model's Stokes vector at that sample's own point
+(paper eq:optimization replaced by the likelihood of what was measured) and
+v the camera's Poisson-Gaussian variance in image units,
+v(mu) = mu / g + sigma_read^2 + Delta^2 / 12 (:class:`NoiseModel`).
+It is minimised by **iteratively reweighted least squares**: with the
+variances v_ik held at the current model's prediction, LM minimises
+sum (y - mu)^2 / v; the variances are then recomputed from the new
+prediction and the fit repeated until the estimate moves by less than a few
+hundredths of its standard error.  Why not the full negative log-likelihood
+sum [(y - mu)^2 / v(mu) + log v(mu)]: its fixed point differs from IRLS's
+only by terms of relative size 1 / (electrons per sample) (the information
+the variance's own dependence on mu carries), while IRLS's estimating
+equation sum (y - mu) / v * dmu/dtheta = 0 has zero mean whenever the mean
+model is right, whether or not the variance model is exact: it stays
+consistent if gain or read noise are a little off, and it keeps the
+Gauss-Newton structure, so J^T J of the standardised residuals is the
+Fisher information.  The full NLL (with log v) is used to compare
+candidates from different starts.
+
+**Unknown noise.**  Without the camera's gain the variance is modelled as
+v = a mu + b, with (a, b) fitted to the squared residuals of the previous
+round (first round: equal weights), and the residual chi^2 / dof is
+reported; the fit says which it did.
+
+**Paper** (:class:`PaperObjective`, ``--loss paper``): :mod:`fmbrdf_mi.fit.objectives.loss`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import numpy as np
+
+from fmbrdf_mi.fit.camera import rice
+from fmbrdf_mi.fit.objectives import loss as L
+
+
+# ---------------------------------------------------------------- closed-form albedos
+def nnls2(S, B, I, w=None):
+    """Non-negative weighted least squares of I ~ a_s S + a_b B; returns (a_s, a_b), both > 0."""
+    w = np.ones_like(I) if w is None else w
+    A = np.array([[np.sum(w * S * S), np.sum(w * S * B)], [np.sum(w * S * B), np.sum(w * B * B)]])
+    b = np.array([np.sum(w * S * I), np.sum(w * B * I)])
+    cands = []
+    try:
+        x = np.linalg.solve(A, b)
+        if np.all(x >= 0):
+            cands.append(x)
+    except np.linalg.LinAlgError:
+        pass
+    if A[0, 0] > 0:
+        cands.append(np.array([max(b[0] / A[0, 0], 0.0), 0.0]))
+    if A[1, 1] > 0:
+        cands.append(np.array([0.0, max(b[1] / A[1, 1], 0.0)]))
+    if not cands:
+        return 1e-6, 1e-6
+    best = min(cands, key=lambda x: float(x @ A @ x - 2 * x @ b))
+    floor = 1e-6 * max(best.max(), 1e-12)
+    return float(max(best[0], floor)), float(max(best[1], floor))
+
+
+# ---------------------------------------------------------------- objectives
+class PaperObjective:
+    """The paper's loss (eq:optimization, :mod:`fmbrdf_mi.fit.objectives.loss`): intensity MSE + weighted DoLP MSE."""
+
+    name = "paper"
+    is_likelihood = False
+
+    def __init__(self, target):
+        self.target = target
+        self.w = target.dolp_valid.astype(np.float64)
+        self.outliers = np.zeros(len(target.intensity), bool)
+        self.grid = None    # (rows, cols) of the pixels when neighbours are correlated (uncertainty.py)
+
+    # weights of the DoLP term: the paper's inlier / outlier balance
+    def refresh(self, parts, st):
+        self.outliers = L.outlier_mask(parts.surface[0], parts.body[0], st.a_s, st.a_b)
+        self.w = L.weights(self.outliers, self.target.dolp_valid)
+
+    def save(self):
+        return (self.outliers.copy(), self.w.copy())
+
+    def restore(self, saved):
+        self.outliers, self.w = saved
+
+    def settled(self, old, parts, st, **_):
+        """After a refresh: has the weighting stopped changing?"""
+        valid = self.target.dolp_valid
+        changed = int(((old[0] != self.outliers) & valid).sum())
+        smaller = min(int((self.outliers & valid).sum()), int((~self.outliers & valid).sum()))
+        return changed <= max(5, 0.1 * smaller)
+
+    def describe_round(self):
+        v = self.target.dolp_valid
+        return (f"{int((self.outliers & v).sum())} outliers (surface-dominated) / "
+                f"{int((~self.outliers & v).sum())} inliers")
+
+    def _predict(self, parts, st):
+        return L.predict(parts.surface, parts.body, st.a_s, st.a_b, self.target.lin_sigma)
+
+    def residuals(self, parts, st, w=None):
+        i, rho = self._predict(parts, st)
+        return L.residuals(self.target, self.w if w is None else w, i, rho)
+
+    def value(self, parts, st, w=None):
+        i, rho = self._predict(parts, st)
+        return L.loss(self.target, self.w if w is None else w, i, rho)
+
+    def score(self, parts, st):
+        """Loss with the candidate's own inlier / outlier split (coarse search, comparing starts)."""
+        out = L.outlier_mask(parts.surface[0], parts.body[0], st.a_s, st.a_b)
+        return self.value(parts, st, L.weights(out, self.target.dolp_valid))
+
+    def albedos(self, parts):
+        return nnls2(parts.surface[0], parts.body[0], self.target.intensity)
+
+    def small_decrease(self, f_old, f_new, tol):
+        return (f_old - f_new) / max(f_old, 1e-300) < tol
+
+    def loss_terms(self, parts, st):
+        i, rho = self._predict(parts, st)
+        li, lr = L.loss_terms(self.target, self.w, i, rho)
+        return {"intensity": li, "dolp": lr}
+
+    def row_pixels(self, n_rows):
+        n = len(self.target.intensity)
+        return np.arange(n_rows) % n
+
+    def residuals_and_jacobian(self, parts, st, z, names, bounds):
+        """r (m,) and dr/dz (m, k + 2)."""
+        S, B = parts.surface, parts.body
+        a_s, a_b = st.a_s, st.a_b
+        s = a_s * S + a_b * B
+        i = s[0]
+        nu = np.sqrt(s[1] ** 2 + s[2] ** 2 + L.DOLP_EPS ** 2)
+        sigma = self.target.lin_sigma
+        lin = nu if sigma is None else rice.mean_length(nu, sigma)
+        dlin = 1.0 if sigma is None else rice.mean_length_derivative(nu, sigma)
+        safe_i = np.where(i > 0, i, 1.0)
+        rho = lin / safe_i
+        r = L.residuals(self.target, self.w, i, rho)
+        m = len(i)
+        ci = 1.0 / (self.target.scale * math.sqrt(m))
+        cr = np.sqrt(self.w / self.w.sum())
+
+        def cols(ds):
+            d_i = ds[0]
+            d_rho = dlin * (s[1] * ds[1] + s[2] * ds[2]) / (nu * safe_i) - rho * d_i / safe_i
+            return np.concatenate([ci * d_i, cr * d_rho])
+
+        J = _jacobian(cols, parts, st, z, names, bounds, len(r))
+        bad = None if parts.nonfinite is None else np.concatenate([parts.nonfinite, parts.nonfinite])
+        return r, J, bad
+
+
+def _jacobian(cols, parts, st, z, names, bounds, m):
+    J = np.empty((m, len(z)))
+    for j, n in enumerate(names):
+        J[:, j] = cols(st.a_s * parts.d_surface[n] + st.a_b * parts.d_body[n]) * bounds.derivative(n, z[j])
+    k = len(names)
+    J[:, k] = cols(st.a_s * parts.surface)      # d / d log a_s
+    J[:, k + 1] = cols(st.a_b * parts.body)     # d / d log a_b
+    return J
+
+
+class LikelihoodObjective:
+    """Gaussian likelihood of the polariser samples with Poisson-Gaussian variance (module docstring).
+
+    ``y``: (n, 4) observed samples of the fitted super-pixels; ``analyser``
+    (4, 3); parts come from an evaluator at the samples' own points, (3, 4 n)
+    pixel-major.  The residuals are r_ik = (y_ik - mu_ik) / sqrt(v_ik) with
+    v_ik frozen between :meth:`refresh` calls (IRLS).
+    """
+
+    name = "likelihood"
+    is_likelihood = True
+
+    def __init__(self, y, analyser, noise, dof=4):
+        self.y = np.asarray(y, dtype=np.float64)
+        self.A = np.asarray(analyser, dtype=np.float64)
+        self.noise = noise
+        self.dof = int(dof)
+        self.n = len(self.y)
+        # start: variance from the observations themselves (only for the first round / coarse search)
+        self.var = np.maximum(noise.variance(self.y), 1e-300)
+        self.rounds = 0
+
+    def _mu_of(self, stokes):  # (3, 4n) or (3, n) (all samples at the centre) -> (n, 4)
+        s = stokes.reshape(3, self.n, -1)
+        if s.shape[2] == 1:
+            return np.einsum("kc,ci->ik", self.A, s[:, :, 0])
+        return np.einsum("kc,cik->ik", self.A, s)
+
+    def mu(self, parts, st):
+        return self._mu_of(st.a_s * parts.surface + st.a_b * parts.body)
+
+    def refresh(self, parts, st):
+        mu = self.mu(parts, st)
+        if not self.noise.known:
+            # 4 samples carry self.dof independent values: correct the residual variance for it
+            self.noise.estimate(mu, (self.y - mu) ** 2, self.dof / 4.0)
+        self.var = np.maximum(self.noise.variance(mu), 1e-300)
+        self.rounds += 1
+
+    def save(self):
+        return (self.var.copy(), dataclasses.replace(self.noise))
+
+    def restore(self, saved):
+        self.var, self.noise = saved[0], saved[1]
+
+    def settled(self, old, parts, st, step_se=None):
+        """The IRLS weights have settled when the last round moved the estimate by < 0.05 standard errors."""
+        return step_se is not None and step_se < 0.05
+
+    def describe_round(self):
+        return f"variances from the model ({self.noise.describe()})"
+
+    def residuals(self, parts, st):
+        return ((self.y - self.mu(parts, st)) / np.sqrt(self.var)).ravel()
+
+    def value(self, parts, st):
+        r = self.residuals(parts, st)
+        return float(r @ r)
+
+    def nll(self, parts, st):
+        """Negative log-likelihood (up to a constant) with the variance from this prediction."""
+        mu = self.mu(parts, st)
+        v = np.maximum(self.noise.variance(mu), 1e-300)
+        return 0.5 * float(np.sum((self.y - mu) ** 2 / v + np.log(v)))
+
+    def score(self, parts, st):
+        return self.nll(parts, st)
+
+    def albedos(self, parts):
+        S = self._mu_of(parts.surface).ravel()
+        B = self._mu_of(parts.body).ravel()
+        return nnls2(S, B, self.y.ravel(), 1.0 / self.var.ravel())
+
+    def small_decrease(self, f_old, f_new, tol):
+        # chi^2 units: a decrease of 0.01 moves the estimate by ~0.1 standard error
+        return f_old - f_new < 0.01
+
+    def loss_terms(self, parts, st):
+        r = self.residuals(parts, st)
+        chi2 = float(r @ r)
+        return {"chi2": chi2, "samples": int(r.size), "nll": self.nll(parts, st)}
+
+    def row_pixels(self, n_rows):
+        return np.arange(n_rows) // 4
+
+    def residuals_and_jacobian(self, parts, st, z, names, bounds):
+        r = self.residuals(parts, st)
+        inv_sd = 1.0 / np.sqrt(self.var)
+
+        def cols(ds):  # d residual = -d mu / sd
+            return (-self._mu_of(ds) * inv_sd).ravel()
+
+        J = _jacobian(cols, parts, st, z, names, bounds, len(r))
+        bad = None if parts.nonfinite is None else np.repeat(
+            parts.nonfinite.reshape(self.n, -1).any(axis=1), 4)
+        return r, J, bad

@@ -1,0 +1,108 @@
+"""Joint fits of several colour polarisation mosaics of one object (``--manifest`` / repeated ``--light``).
+
+The colour counterpart of :func:`fmbrdf_mi.fit.outputs.joint.fit_images`: the
+images (each its own light, relative power, geometry; one camera) share
+eta, alpha, beta, kappa and the per-channel k_s, r_k, fitted by
+:func:`fmbrdf_mi.fit.api.colour.fit_colour` on all their raw samples at once.
+Held-out images are predicted from the estimates (relighting check).
+
+Outputs in ``out``: ``fit.json`` (the shared estimate and its standard
+errors from the joint Fisher information, per image its light, power,
+irradiance and chi^2 per raw sample, relighting errors, the ``reproduce``
+block of :func:`fmbrdf_mi.fit.outputs.joint_record.block`, so ``--from`` reruns
+it), ``colour_fit_NAME.png`` per fitted image and ``relight_NAME.png`` per
+held-out image (observed, predicted and their difference in intensity and
+DoLP per channel).
+"""
+from __future__ import annotations
+
+import numpy as np
+import os
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.colour import read_colour_inputs
+
+
+def outputs(out, names, holdout):
+    files = ["fit.json"]
+    for n, h in zip(names, holdout):
+        files.append(f"relight_{n}.png" if h else f"colour_fit_{n}.png")
+    return [os.path.join(out, f) for f in files]
+
+
+def sample_rmse(smp, pred, sel, channel):
+    """RMSE / mean of the raw samples in ``sel`` (all, and per colour channel): the held-out images' error."""
+    from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
+
+    o, p = smp.values[:, sel], pred[:, sel]
+    out = {"rel_rmse": float(np.sqrt(np.mean((p - o) ** 2)) / np.mean(o)), "n_periods": int(sel.sum())}
+    for c, name in enumerate(CHANNELS):
+        m = np.asarray(channel) == c
+        out[f"rel_rmse_{name}"] = float(np.sqrt(np.mean((p[m] - o[m]) ** 2)) / np.mean(o[m]))
+    return out
+
+
+def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True, command=None, extra=None,
+                      reproduce=None, baselines=False, loss="auto", init=None, fixed=None, bounds=None, starts=2,
+                      max_iter=40, max_time=None, max_pixels=None, erode=2, seed=0, tol=None, time_limit=None,
+                      free_power=False, power_start=None):
+    """Joint colour fit of the non-held-out images of ``specs`` (module docstring); returns fit.json's dict.
+
+    ``specs``: :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` s of colour
+    mosaics.  Keywords as :func:`~fmbrdf_mi.fit.outputs.joint.fit_images`'s;
+    ``baselines``, ``init`` and losses other than the likelihood are refused
+    (the colour fit has none of them), as is ``free_power`` (not yet for colour
+    mosaics: give the powers); ``tol`` and ``time_limit`` do not apply.
+    """
+    import time
+
+    from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
+    from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
+    from fmbrdf_mi.fit.outputs.colour import model_entry
+    from fmbrdf_mi.fit.outputs.writer import prepare_outputs, write_json
+    from fmbrdf_mi.fit.evaluate.models import get_model
+
+    t0 = time.time()
+    refused = [f for f, on in (("baselines", baselines), ("init", init), ("free_power (--free-power)", free_power),
+                               (f"loss {loss}", loss not in ("auto", "likelihood", None))) if on]
+    if refused:
+        raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
+                         "of the raw samples)")
+    get_model(model)
+    names, holdout, files = prepare_outputs(specs, out, outputs, force)
+    inputs = read_colour_inputs(specs, erode)
+    fit_in = [c for c, h in zip(inputs, holdout) if not h]
+    say = (lambda s: print(s, flush=True)) if progress else None
+    if progress:
+        print(f"colour joint fit: {len(fit_in)} image(s) fitted, {sum(holdout)} held out; "
+              + ", ".join(f"{n}: {int((c.obs.mask & c.samples.usable).sum())} periods"
+                          for n, c, h in zip(names, inputs, holdout) if not h), flush=True)
+    res = fit_colour([c.obs for c in fit_in], [c.samples for c in fit_in], fit_in[0].noise, model=model,
+                     fixed=fixed, bounds=bounds, max_pixels=max_pixels or None, seed=seed, progress=say,
+                     max_time=max_time, max_iter=max_iter, starts=int(starts))
+    truth = next((c.truth for c in inputs if c.truth), None)
+    entry = model_entry(model, res, bounds, fixed, truth)
+    entry["chi2_per_sample"] = dict(zip([n for n, h in zip(names, holdout) if not h], res["chi2_per_sample"]))
+    report = {"sensor": "colour", "truth": truth,
+              "images": [{"name": n, "input": s.input if isinstance(s.input, (str, list)) else None,
+                          "light_dir": c.obs.light_dir.tolist(), "irradiance": c.obs.irradiance, "power": s.power,
+                          "holdout": s.holdout} for n, s, c in zip(names, specs, inputs)],
+              "models": {model: entry}, "relight": {}}
+    if reproduce is not None:
+        report["reproduce"] = reproduce([c.obs for c in inputs])
+    report.update(extra or {})
+    os.makedirs(out, exist_ok=True)
+    title = f"{model}: " + format_result(res).replace("\n", "; ")
+    for n, c, h in zip(names, inputs, holdout):
+        pred = predict_samples(c.obs, c.samples, res)
+        sel = c.obs.mask & c.samples.usable
+        if h:
+            err = sample_rmse(c.samples, pred, sel, c.samples.channel)
+            report["relight"][n] = {model: err}
+            plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"relight_{n}.png"),
+                  title=f"{n}: relit with the joint estimates, raw-sample RMSE/mean {err['rel_rmse']:.4f}")
+        else:
+            plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"colour_fit_{n}.png"), title=f"{n}: {title}")
+    write_json(os.path.join(out, "fit.json"), report)
+    report["outputs"], report["wall_s"] = files, time.time() - t0
+    return report

@@ -1,0 +1,163 @@
+"""Several images of one object from files: a manifest, the command's outputs per image.
+
+A **manifest** (JSON or TOML; paths relative to it) lists the images of a
+joint fit (:mod:`fmbrdf_mi.fit.api.joint`) and the options they share::
+
+    # capture.toml
+    [defaults]                 # any input option of `fmbrdf-mi fit`, shared by every image
+    normals = "normal.npy"     # geometry (camera frame), or sphere = "auto" with mask
+    mask = "mask.png"
+    conversion_gain = 2.44     # the camera (one camera for all images)
+    read_noise = 2.5
+
+    [[image]]
+    input = "light0.png"       # raw mosaic, Stokes EXR, (4, H, W) .npy, or a list of four angle images
+    light = [-0.42, 0.31, 0.85]
+    power = 1.0                # relative light power (default 1): multiplies the irradiance
+
+    [[image]]
+    input = "light1.png"
+    light = [0.5, 0.1, 0.86]
+    power = 0.8
+    normals = "view2_normal.npy"   # per-image geometry: another view of the object
+    mask = "view2_mask.png"
+
+    [[image]]
+    input = "light2.png"
+    light = [0.1, -0.6, 0.8]
+    holdout = true             # not fitted: predicted from the estimates (relighting check)
+
+Keys of an image entry: ``input`` (required), ``light`` (required unless
+the input carries it), ``power``, ``holdout``, ``name`` (default: the input's
+file stem) and any key of ``[defaults]``, which it overrides: ``normals``,
+``mask``, ``view``, ``sphere``, ``camera``, ``fov``, ``irradiance``,
+``layout``, ``black_level``, ``white_level``, ``dark_level``, ``channel``,
+``demosaic``, ``footprint``, ``conversion_gain``, ``read_noise``.  Unknown
+keys are refused, naming them.
+
+:func:`fit_images` fits the images (optionally the baselines too, with the
+same loss) and writes ``fit.json`` (the shared estimate, its uncertainty
+from the joint Fisher information, per-image diagnostics and relighting
+errors), ``images_NAME.png`` and ``profiles_NAME.png`` per fitted image,
+``relight_NAME.png`` per held-out image and ``history.png``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power
+from fmbrdf_mi.fit.outputs import writer
+from fmbrdf_mi.fit.outputs.writer import prepare_outputs
+
+
+def outputs(out, names, holdout):
+    files = ["fit.json", "history.png"]
+    for n, h in zip(names, holdout):
+        files += [f"relight_{n}.png"] if h else [f"images_{n}.png", f"profiles_{n}.png"]
+    return [os.path.join(out, f) for f in files]
+
+
+
+
+def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, progress=True, command=None,
+               observations=None, extra=None, reproduce=None, **fit_kw):
+    """Joint fit of the non-held-out images of ``specs``, relighting check on the held-out ones; write outputs.
+
+    ``fit_kw``: :class:`~fmbrdf_mi.fit.api.fitting.FitOptions` fields (loss,
+    fixed, bounds, init, max_pixels, ...).  ``reproduce``: called with the
+    observations, returns fit.json's ``reproduce`` block (the command's:
+    :func:`fmbrdf_mi.fit.outputs.joint_record.block`).  Returns the dict written to fit.json.
+    """
+    from fmbrdf_mi.fit.outputs import plots
+    from fmbrdf_mi.fit.api.fitting import FitOptions
+    from fmbrdf_mi.fit.evaluate.predict import predict_image
+    from fmbrdf_mi.fit.api.joint import fit_joint, fitted_observation, power_text
+    from fmbrdf_mi.fit.api.options import check_fit_options
+    from fmbrdf_mi.fit.evaluate.predict import relight_error
+
+    check_fit_options(model=model, **fit_kw)
+    names, holdout, files = prepare_outputs(specs, out, outputs, force)
+    obs = observations if observations is not None else build_observations(specs)
+    fit_obs = [o for o, h in zip(obs, holdout) if not h]
+    fit_names = [n for n, h in zip(names, holdout) if not h]
+    opts = FitOptions(model=model, **fit_kw)
+    if opts.free_power and len(fit_obs) < 2:
+        raise InputError(f"--free-power (free_power): needs two or more fitted images, got {len(fit_obs)} (one "
+                         "image's light power is not separable from k_s and k_b)")
+    given = [given_power(s, o) for s, o, h in zip(specs, obs, holdout) if not h]
+    models = [model] + ([m for m in ("pplastic", "lambert_ts") if m != model] if baselines else [])
+    results = {}
+    for name in models:
+        o = opts if name == model else dataclasses.replace(opts, model=name, bounds=None, init=None, fixed=None)
+        results[name] = fit_joint(fit_obs, o, names=fit_names, progress=progress, powers=given)
+    main = results[model]
+    truth = next((o.meta.get("truth") for o in obs if o.meta.get("truth")), None)
+    report = {"images": [{"name": n, "input": (s.input if isinstance(s.input, (str, list)) else None),
+                          "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance,
+                          "power": given_power(s, o), "holdout": s.holdout} for n, s, o in zip(names, specs, obs)],
+              "truth": truth, "models": {}, "relight": {}}
+    if main.powers is not None:
+        for im in report["images"]:
+            fitted = next((x for x in main.images if x["name"] == im["name"]), None)
+            if fitted is not None:
+                im.update({"power_fitted": fitted["power"], "power_se": fitted["power_se"],
+                           "power_reference": fitted["power_reference"]})
+    if reproduce is not None:
+        report["reproduce"] = reproduce(obs)
+    elif command is not None:
+        from fmbrdf_mi.fit.outputs.record import versions
+
+        report["reproduce"] = {"command": command, "cwd": os.getcwd(), "versions": versions()}
+    report.update(extra or {})
+    os.makedirs(out, exist_ok=True)
+    for name, res in results.items():
+        entry = res.to_json()
+        if name == model and truth:
+            entry["relative_error"] = {k: (res.params[k] - truth[k]) / truth[k] for k in res.params
+                                       if isinstance(truth.get(k), (int, float)) and truth[k] != 0}
+        report["models"][name] = entry
+    for n, o, h, idx in zip(names, obs, holdout, _pixels_of(main, holdout)):
+        if h:
+            errs, relit = {}, None
+            for name, res in results.items():
+                e = relight_error(name, res.params, o, erode=opts.erode)
+                errs[name] = {k: v for k, v in e.items() if k != "predicted"}
+                if name == model:
+                    relit = e["predicted"]
+            report["relight"][n] = errs
+            plots.plot_images(o.stokes, relit, o.mask, os.path.join(out, f"relight_{n}.png"),
+                              title=f"{n}: relit with the {model} estimates, RMSE/mean = "
+                                    f"{errs[model]['rel_rmse']:.4f}", label="relit", lin_variance=o.lin_variance)
+        else:
+            im = {m: next(x for x in r.images if x["name"] == n) for m, r in results.items()}
+            pred = predict_image(model, main.params, fitted_observation(o, im[model]))
+            others = {f"{m} (baseline)": predict_image(m, r.params, fitted_observation(o, im[m]))
+                      for m, r in results.items() if m != model}
+            power = "" if main.powers is None else "; " + power_text(im[model])
+            plots.plot_profiles(o, pred, os.path.join(out, f"profiles_{n}.png"), pixels=idx,
+                                title=f"{n}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()) + power,
+                                others=others)
+            plots.plot_images(o.stokes, pred, o.mask, os.path.join(out, f"images_{n}.png"),
+                              title=f"{n}: joint {model} fit (per-pixel re-render){power}",
+                              lin_variance=o.lin_variance, pixels=idx)
+    plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
+    writer.write_json(os.path.join(out, "fit.json"), report)
+    return report
+
+
+def fitter(specs):
+    """(fit function, outputs function) for the images of ``specs``: :func:`fit_images` and :func:`outputs`, or
+    their colour counterparts in :mod:`fmbrdf_mi.fit.outputs.colour_joint` when the images are colour mosaics."""
+    from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images, outputs as colour_outputs
+    from fmbrdf_mi.fit.inputs.colour import is_colour
+
+    if is_colour(specs):
+        return fit_colour_images, colour_outputs
+    return fit_images, outputs
+
+
+def _pixels_of(res, holdout):
+    it = iter(res.pixels)
+    return [None if h else next(it) for h in holdout]

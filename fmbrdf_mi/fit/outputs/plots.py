@@ -1,0 +1,199 @@
+"""Figures of a fit: DoLP and intensity profiles (as in the paper's figures) and image comparisons."""
+from __future__ import annotations
+
+import numpy as np
+
+from fmbrdf_mi import stokes_io
+from fmbrdf_mi.fit.camera import rice
+
+
+def _channel_stokes(values, cam):
+    """Per-channel Stokes (3, 3, H, W) of (16, H, W) samples, demosaicked as polcam.stokes_from_colour_mosaic."""
+    from fmbrdf_mi import polcam
+
+    h, w = values.shape[1:]
+    raw = np.empty((4 * h, 4 * w))
+    k = 0
+    for cr, cc, _ in polcam.colour_cells(cam.cfa):
+        for dr in range(2):
+            for dc in range(2):
+                raw[2 * cr + dr::4, 2 * cc + dc::4] = values[k]
+                k += 1
+    return polcam.stokes_from_colour_mosaic(raw, cam.layout, cam.cfa)[:, :3]
+
+
+def plot_colour_fit(smp, pred, sel, cam, path, title=""):
+    """Observed vs fitted intensity and DoLP per channel, cropped to the fitted periods; errors beside."""
+    from fmbrdf_mi import stokes_io
+    from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
+    from fmbrdf_mi.fit.outputs.plots import pyplot, scale_from
+
+    plt = pyplot()
+    obs_s = _channel_stokes(np.where(sel, smp.values, np.nan), cam)
+    fit_s = _channel_stokes(pred, cam)
+    rows, cols = np.nonzero(sel)
+    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    fig, axes = plt.subplots(6, 3, figsize=(10, 17))
+    for c, ch in enumerate(CHANNELS):
+        for q, (name, f) in enumerate((("intensity", lambda s: s[0]), ("DoLP", stokes_io.dolp))):
+            o = np.where(sel, f(obs_s[c]), np.nan)[r0:r1, c0:c1]
+            p = np.where(sel, f(fit_s[c]), np.nan)[r0:r1, c0:c1]
+            s = sel[r0:r1, c0:c1]
+            vmax = scale_from(o, s)
+            emax = scale_from(p - o, s)
+            row = 2 * c + q
+            for k, (img, t, kw) in enumerate(((o, f"{ch} observed {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
+                                              (p, f"{ch} fitted {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
+                                              (p - o, f"{ch} fitted - observed",
+                                               dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
+                im = axes[row, k].imshow(img, **kw)
+                axes[row, k].set_title(t, fontsize=9)
+                axes[row, k].axis("off")
+                fig.colorbar(im, ax=axes[row, k], fraction=0.046)
+    if title:
+        fig.suptitle(title, fontsize=8, wrap=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def model_dolp(stokes, lin_variance=None):
+    """DoLP of a model's Stokes image; with the camera's var(S1) = var(S2), the DoLP it measures on average.
+
+    That is what the fit compares with a noisy observation (loss.py); the
+    noise-free DoLP of a dim, weakly polarised pixel lies below the observed one.
+    """
+    if lin_variance is None:
+        return stokes_io.dolp(stokes)
+    s = np.asarray(stokes, dtype=np.float64)
+    lin = rice.mean_length(np.hypot(s[1], s[2]) + 1e-30, np.sqrt(np.clip(lin_variance, 0, None)))
+    return np.where(s[0] > 1e-12, lin / np.where(s[0] > 1e-12, s[0], 1.0), 0.0)
+
+
+def _binned(x, y, bins):
+    idx = np.digitize(x, bins) - 1
+    centres, means = [], []
+    for b in range(len(bins) - 1):
+        sel = idx == b
+        if sel.sum() >= 3:
+            centres.append(0.5 * (bins[b] + bins[b + 1]))
+            means.append(np.mean(y[sel]))
+    return np.array(centres), np.array(means)
+
+
+def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_points=4000, seed=0):
+    """DoLP against the angle between normal and view, intensity against the angle between normal and light.
+
+    ``fitted``: predicted Stokes (3, H, W); ``others``: {label: Stokes} of
+    further models (baselines) drawn as binned means; ``pixels``: flat indices
+    (default: the mask).
+    """
+    plt = pyplot()
+    idx = np.flatnonzero(obs.mask.ravel()) if pixels is None else np.asarray(pixels)
+    n = obs.normals.reshape(-1, 3)[idx]
+    ang_v = np.degrees(np.arccos(np.clip(np.sum(n * obs.view_dirs.reshape(-1, 3)[idx], 1), -1, 1)))
+    ang_l = np.degrees(np.arccos(np.clip(n @ obs.light_dir, -1, 1)))
+    series = {"observed": obs.stokes, "fitted": fitted}
+    series.update(others or {})
+    var = obs.lin_variance
+    vals = {k: ((stokes_io.dolp(s) if k == "observed" else model_dolp(s, var)).ravel()[idx], s[0].ravel()[idx])
+            for k, s in series.items()}
+    rng = np.random.default_rng(seed)
+    sub = rng.choice(len(idx), min(max_points, len(idx)), replace=False)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, x, j, xl, yl in ((axes[0], ang_v, 0, "angle between normal and view (deg)", "DoLP"),
+                             (axes[1], ang_l, 1, "angle between normal and light (deg)", "intensity")):
+        bins = np.linspace(0, max(90.0, float(x.max())), 46)
+        ax.scatter(x[sub], vals["observed"][j][sub], s=2, c="0.6", label="observed", rasterized=True)
+        ax.scatter(x[sub], vals["fitted"][j][sub], s=2, c="C3", alpha=0.5, label="fitted (per pixel)",
+                   rasterized=True)
+        for k, (label, v) in enumerate(vals.items()):
+            c, m = _binned(x, v[j], bins)
+            ax.plot(c, m, lw=1.5, c="k" if label == "observed" else f"C{(k + 1) % 10}",
+                    ls="-" if label in ("observed", "fitted") else "--", label=f"{label} (binned mean)")
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl + (" (models: as measured with the camera's noise)" if j == 0 and var is not None else ""))
+        ax.grid(alpha=0.3)
+    rmse_d = np.sqrt(np.mean((vals["fitted"][0] - vals["observed"][0]) ** 2))
+    rmse_i = np.sqrt(np.mean((vals["fitted"][1] - vals["observed"][1]) ** 2)) / np.mean(vals["observed"][1])
+    axes[0].set_title(f"DoLP RMSE {rmse_d:.4f}")
+    axes[1].set_title(f"intensity RMSE / mean {rmse_i:.4f}")
+    axes[1].legend(fontsize=7, loc="upper right")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def scale_from(values, sel, q=99.0, floor=1e-6):
+    """Colour-scale maximum: the ``q``-th percentile of |values| over the selected (fitted) pixels.
+
+    Unlit pixels (whose DoLP is noise) and the one-pixel rim (whose DoLP and
+    error are extreme) are not fitted, so they no longer set the scale.
+    """
+    v = np.abs(np.asarray(values, dtype=np.float64)[sel])
+    v = v[np.isfinite(v)]
+    return max(float(np.percentile(v, q)), floor) if v.size else 1.0
+
+
+def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_variance=None, pixels=None):
+    """Intensity and DoLP: observed | predicted | error, masked (``lin_variance``: see :func:`model_dolp`).
+
+    Colour scales and error ranges come from the 99th percentile over
+    ``pixels`` (flat indices of the fitted pixels; default the mask).
+    """
+    plt = pyplot()
+    m = np.asarray(mask, bool)
+    sel = m.copy()
+    if pixels is not None:
+        sel = np.zeros(m.size, bool)
+        sel[np.asarray(pixels)] = True
+        sel = sel.reshape(m.shape)
+    rows = (("intensity", observed[0], predicted[0]),
+            ("DoLP", stokes_io.dolp(observed), model_dolp(predicted, lin_variance)))
+    fig, axes = plt.subplots(2, 3, figsize=(11, 7))
+    for r, (name, o, p) in enumerate(rows):
+        o = np.where(m, o, np.nan)
+        p = np.where(m, p, np.nan)
+        vmax = scale_from(o, sel, 99.0)
+        err = p - o
+        emax = scale_from(err, sel, 99.0)
+        for c, (img, t, kw) in enumerate(((o, f"observed {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
+                                          (p, f"{label} {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
+                                          (err, f"{label} - observed", dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
+            im = axes[r, c].imshow(img, **kw)
+            axes[r, c].set_title(t)
+            axes[r, c].axis("off")
+            fig.colorbar(im, ax=axes[r, c], fraction=0.046)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_loss_history(histories, path):
+    """Loss against wall time for each fitted model."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for label, hist in histories.items():
+        if hist:
+            ax.semilogy([h["time"] for h in hist], [h["loss"] for h in hist], "o-", ms=3, label=label)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("objective (chi^2 for the likelihood; eq:optimization for the paper's loss)")
+    ax.grid(alpha=0.3)
+    if any(histories.values()):
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

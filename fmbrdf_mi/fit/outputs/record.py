@@ -1,0 +1,127 @@
+"""What fit.json records so that a fit can be rerun: ``fmbrdf-mi fit --from fit.json -o DIR``.
+
+The ``reproduce`` block holds the command line, every argument of
+:func:`fmbrdf_mi.fit.outputs.single.fit_files` as resolved (so defaults that change in a
+later version do not change the rerun), the SHA-256 of every input file, the
+settings the inputs implied (layout, black and white level, demosaicking,
+footprint, gain and read noise, possibly from a capture sidecar), the light
+and irradiance, the sphere that ``--sphere auto`` found, and the versions of
+this package, Mitsuba and Dr.Jit.  A rerun checks the hashes first and
+refuses files that changed.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+
+from fmbrdf_mi.fit.errors import InputError
+
+
+#: Arguments of fit_files that define a fit (not where it writes or how it talks).
+ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "light", "irradiance", "layout",
+             "black_level", "channel", "demosaic", "conversion_gain", "read_noise", "footprint", "model",
+             "baselines", "optimizer", "path", "bounds", "init", "loss", "white_level", "dark_level", "fixed",
+             "starts", "max_iter", "tol", "time_limit", "max_time", "max_pixels", "erode", "seed", "relight",
+             "relight_light", "relight_irradiance")
+
+
+def sha256(path):
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def jsonable(v):
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    if isinstance(v, (list, tuple)):
+        return [jsonable(x) for x in v]
+    if isinstance(v, dict):
+        return {str(k): jsonable(x) for k, x in v.items()}
+    if hasattr(v, "tolist") and getattr(v, "size", 1000) <= 16:
+        return v.tolist()
+    if isinstance(v, os.PathLike):
+        return os.fspath(v)
+    return {"not_recorded": type(v).__name__}
+
+
+def _files(arguments):
+    out = []
+    for key in ("inputs", "normals", "mask", "view", "relight"):
+        v = arguments.get(key)
+        for p in (v if isinstance(v, (list, tuple)) else [v]):
+            if isinstance(p, (str, os.PathLike)) and os.path.isfile(p):
+                out.append(os.fspath(p))
+                side = os.path.splitext(os.fspath(p))[0] + ".json"
+                if key in ("inputs", "relight") and os.path.isfile(side) and not p.lower().endswith(".json"):
+                    out.append(side)
+    return out
+
+
+def versions():
+    from fmbrdf_mi import __version__
+
+    v = {"fmbrdf_mi": __version__, "python": sys.version.split()[0]}
+    for mod in ("mitsuba", "drjit", "numpy"):
+        try:
+            v[mod] = __import__(mod).__version__
+        except Exception:  # pragma: no cover
+            v[mod] = None
+    return v
+
+
+def reproduce_block(arguments, inputs, command, obs, relight=None):
+    files = _files(arguments)
+    return {
+        "command": command,
+        "cwd": os.getcwd(),
+        "arguments": jsonable(arguments),
+        "files_sha256": {os.path.abspath(p): sha256(p) for p in files},
+        "settings": jsonable(obs.meta.get("settings")),
+        "sphere": jsonable(obs.meta.get("sphere")),
+        "sidecar": obs.meta.get("sidecar"),
+        "versions": versions(),
+    }
+
+
+def load(path):
+    """The ``reproduce`` block of a fit.json."""
+    try:
+        with open(path) as f:
+            d = json.load(f)
+    except OSError as exc:
+        raise InputError(f"--from {path}: cannot read it ({exc.strerror})") from None
+    except ValueError as exc:
+        raise InputError(f"--from {path}: not a JSON file ({exc})") from None
+    rep = d.get("reproduce") if isinstance(d, dict) else None
+    if not isinstance(rep, dict) or "arguments" not in rep:
+        raise InputError(f"--from {path}: no 'reproduce' block (written by an older fmbrdf-mi?)")
+    return rep
+
+
+def rerun_arguments(path):
+    """fit_files arguments recorded in ``path``; checks that the input files are unchanged."""
+    rep = load(path)
+    args = dict(rep["arguments"])
+    bad = [k for k, v in args.items() if isinstance(v, dict) and "not_recorded" in v]
+    if bad:
+        raise InputError(f"--from {path}: arguments {', '.join(bad)} were arrays, not files; cannot rerun")
+    cwd = rep.get("cwd")
+    for p, digest in rep.get("files_sha256", {}).items():
+        if not os.path.isfile(p):
+            raise InputError(f"--from {path}: input {p} no longer exists")
+        if sha256(p) != digest:
+            raise InputError(f"--from {path}: input {p} has changed since the fit (SHA-256 differs)")
+    # relative paths were relative to the directory the fit ran in
+    if cwd:
+        for key in ("inputs", "normals", "mask", "view", "relight"):
+            v = args.get(key)
+            if isinstance(v, str) and not os.path.isabs(v):
+                args[key] = os.path.join(cwd, v)
+            elif isinstance(v, list):
+                args[key] = [os.path.join(cwd, x) if isinstance(x, str) and not os.path.isabs(x) else x for x in v]
+    return args

@@ -1,0 +1,154 @@
+"""``fmbrdf-mi fit`` on one image as a function: :func:`fit_files` reads, fits and writes."""
+from __future__ import annotations
+
+import numpy as np
+import os
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.models import BASELINES
+from fmbrdf_mi.fit.inputs.files import build_observation
+from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
+
+
+OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stokes.exr")
+
+
+RELIGHT_OUTPUTS = ("relight.png",)
+
+
+def output_files(out, relight):
+    names = OUTPUTS + (RELIGHT_OUTPUTS if relight else ())
+    return {n: os.path.join(out, n) for n in names}
+
+
+def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
+              fov=None, light=None, irradiance=None, layout=None, black_level=None, channel="mean",
+              demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf",
+              baselines=False, optimizer="lm", path="pixel", bounds=None, init=None, loss="auto",
+              white_level=None, dark_level=None, fixed=None, starts=2,
+              max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
+              relight_light=None, relight_irradiance=None, force=False, progress=True, command=None):
+    """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
+
+    Inputs: ``inputs`` a Stokes EXR, a raw mosaic (.npy / 16-bit .png / .tif,
+    ``layout`` row-major 2x2 polariser angles, default IMX250MZR ``90,45,135,0``),
+    a (4, H, W) .npy of angle images or four angle-image files (0, 45, 90, 135).
+    Geometry: ``normals`` (.npy, H x W x 3, unit, camera frame) with ``mask``,
+    or ``sphere`` ``"cx,cy,r"`` (pixels) or ``"auto"`` (found from ``mask``);
+    view directions from ``view`` (.npy) or ``camera`` (``orthographic``, or
+    ``perspective`` with ``fov`` degrees).  ``light`` x,y,z towards the light.
+    An EXR written by ``fmbrdf-mi render`` (built-in sphere) brings its own
+    geometry, light and true parameters.  ``conversion_gain`` (electrons per
+    image unit) and ``read_noise`` (electrons): the DoLP term then compares the
+    observed DoLP with the mean DoLP a camera with that noise measures.
+    ``footprint``: ``point`` (pixel centres), ``box`` (3 x 3 over the pixel),
+    ``demosaic`` (the raw pixels a demosaicked super-pixel comes from) or
+    ``auto``.  ``relight``: a second image of the same object under
+    ``relight_light`` for the relighting check.
+
+    Writes ``out``/fit.json, profiles.png, images.png, history.png,
+    fitted_stokes.exr (and relight.png); refuses to overwrite them without
+    ``force``.  Returns the dict written to fit.json.
+    """
+    from fmbrdf_mi.fit.outputs import plots, record
+    from fmbrdf_mi.fit.api.fitting import FitOptions, fit
+    from fmbrdf_mi.fit.evaluate.predict import predict_image
+
+    arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
+    from fmbrdf_mi.fit.evaluate.models import get_model
+    from fmbrdf_mi.fit.evaluate.predict import relight_error
+    from fmbrdf_mi import stokes_io
+
+    from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
+    from fmbrdf_mi.fit.outputs.writer import prepare, write_json
+
+    get_model(model)
+    check_input_options(black_level=black_level, conversion_gain=conversion_gain, read_noise=read_noise,
+                        irradiance=irradiance, fov=fov, relight_irradiance=relight_irradiance)
+    check_fit_options(model=model, optimizer=optimizer, path=path, bounds=parse_bounds(bounds),
+                      init=parse_init(init), max_iter=max_iter, tol=tol, time_limit=time_limit,
+                      max_time=max_time, max_pixels=max_pixels, erode=erode, seed=seed)
+    outs = output_files(out, relight)
+    prepare(out, outs.values(), force)
+    obs = build_observation(inputs, normals=normals, mask=mask, view=view, sphere=sphere, camera=camera,
+                            fov=fov, light=light, irradiance=irradiance, layout=layout,
+                            black_level=black_level, channel=channel, demosaic=demosaic,
+                            conversion_gain=conversion_gain, read_noise=read_noise, footprint=footprint,
+                            white_level=white_level, dark_level=dark_level)
+    obs2 = None
+    if relight is not None:
+        geom = None if (normals is None and sphere is None and "truth" in obs.meta) \
+            else (obs.normals, obs.mask, obs.view_dirs)
+        obs2 = build_observation(relight, light=relight_light, irradiance=relight_irradiance,
+                                 layout=layout, black_level=black_level, channel=channel, geometry=geom,
+                                 demosaic=demosaic, conversion_gain=conversion_gain, read_noise=read_noise,
+                                 footprint=footprint)
+        if obs2.shape != obs.shape:
+            raise InputError(f"relight image: shape {obs2.shape} differs from the fitted image {obs.shape}")
+    opts = FitOptions(model=model, path="pixel", optimizer=optimizer, bounds=parse_bounds(bounds),
+                      init=parse_init(init), max_iter=int(max_iter), tol=float(tol), time_limit=time_limit,
+                      max_time=max_time or None, loss=loss, fixed=parse_fixed(fixed), starts=int(starts),
+                      max_pixels=max_pixels, erode=int(erode), seed=int(seed))
+    scene = None
+    if path == "render":
+        scene, opts.path = _render_scene(obs, model), "render"
+    elif path != "pixel":
+        raise InputError(f"path: expected 'pixel' or 'render', got {path!r}")
+    os.makedirs(out, exist_ok=True)
+    models = [model] + ([m for m in BASELINES if m != model] if baselines else [])
+    results, preds = {}, {}
+    report = {"inputs": inputs if isinstance(inputs, str) else list(inputs), "truth": obs.meta.get("truth"),
+              "reproduce": record.reproduce_block(arguments, inputs, command, obs, relight), "models": {}}
+    for name in models:
+        o = opts if name == model else FitOptions(**{**opts.__dict__, "model": name, "bounds": None,
+                                                      "init": None, "path": "pixel", "fixed": None})
+        res = fit(obs, o, scene=scene if name == model else None, progress=progress)
+        results[name] = res
+        preds[name] = predict_image(name, res.params, obs)
+        entry = res.to_json()
+        if name == model and obs.meta.get("truth"):
+            t = obs.meta["truth"]
+            entry["relative_error"] = {k: (res.params[k] - t[k]) / t[k] for k in res.params
+                                       if k in t and isinstance(t[k], (int, float)) and t[k] != 0}
+        report["models"][name] = entry
+    if obs2 is not None:
+        report["relight"] = {"light_dir": obs2.light_dir.tolist()}
+        relit = {}
+        for name, res in results.items():
+            err = relight_error(name, res.params, obs2, erode=opts.erode)
+            relit[name] = err["predicted"]
+            report["relight"][name] = {k: v for k, v in err.items() if k != "predicted"}
+        plots.plot_images(obs2.stokes, relit[model], obs2.mask, outs["relight.png"],
+                          title=f"relighting with the {model} estimates: RMSE/mean = "
+                                f"{report['relight'][model]['rel_rmse']:.4f}", label="relit",
+                          lin_variance=obs2.lin_variance)
+    main = results[model]
+    fitted = preds[model]
+    plots.plot_profiles(obs, fitted, outs["profiles.png"], pixels=main.pixels,
+                        title=f"{model}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()),
+                        others={f"{n} (baseline)": preds[n] for n in models[1:]})
+    plots.plot_images(obs.stokes, fitted, obs.mask, outs["images.png"], title=f"{model} fit (per-pixel re-render)",
+                      lin_variance=obs.lin_variance, pixels=main.pixels)
+    plots.plot_loss_history({n: r.history for n, r in results.items()}, outs["history.png"])
+    s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
+    stokes_io.write_stokes_exr(outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
+                               force=True)
+    write_json(outs["fit.json"], report)
+    return report
+
+
+def _render_scene(obs, model):
+    """The built-in sphere scene of a synthetic EXR, with the model's BSDF, for the render path."""
+    meta = obs.meta
+    if model != "fmbrdf" or meta.get("scene") != "builtin:sphere":
+        raise InputError("path 'render' needs a Stokes EXR written by `fmbrdf-mi render` for the built-in "
+                         "sphere (the scene is rebuilt from its metadata) and the fmbrdf model")
+    from fmbrdf_mi import scene as S
+    from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
+
+    mi = set_variant()
+    p = meta["parameters"]
+    d = S.sphere_scene({"k_s": 1.0, "k_b": 1.0}, light_dir=p["light_dir"], irradiance=p["irradiance"],
+                       resolution=(int(p["width"]), int(p["height"])), spp=int(p.get("spp", 16)),
+                       camera=p["camera"], fov=p["fov"], distance=p["distance"])
+    return mi.load_dict(d)

@@ -1,0 +1,103 @@
+"""The text summaries a fit prints to stdout, and the exit status they imply."""
+from __future__ import annotations
+
+import numpy as np
+
+
+#: Exit status of a fit that stopped before it converged (time limit, iteration limit).
+EXIT_NOT_CONVERGED = 3
+
+
+def print_colour(report):
+    """The stdout summary of a colour fit; returns the exit status (3: stopped before convergence)."""
+    import sys
+
+    from fmbrdf_mi.fit.outputs.summary import EXIT_NOT_CONVERGED
+
+    status = 0
+    for name, m in report["models"].items():
+        print(f"{name} (colour, per-channel albedos): chi2/dof {m['chi2_per_dof']:.4f} over {m['n_samples']} raw "
+              f"samples of {m['n_pixels']} periods  ({'converged' if m['converged'] else 'NOT converged'}: "
+              f"{m['stop_reason']})")
+        print(f"  camera noise {m['noise'].get('description', m['noise'])}")
+        std, ci = m["std_errors"] or {}, m["ci95"] or {}
+        rel = m.get("relative_error") or {}
+        for k, v in m["params"].items():
+            if isinstance(v, dict):
+                for c, x in v.items():
+                    line = f"  {k + '[' + c + ']':<8} {x:10.5g}"
+                    if k in std:
+                        line += f"  +- {std[k][c]:.3g}  95% [{ci[k][c][0]:.5g}, {ci[k][c][1]:.5g}]"
+                    if isinstance(rel.get(k), dict) and c in rel[k]:
+                        line += f"  (vs metadata {rel[k][c]:+.2%})"
+                    print(line)
+            else:
+                line = f"  {k:<8} {v:10.5g}"
+                if k in (m.get("fixed") or {}):
+                    line += "  (fixed)"
+                elif std.get(k) is not None:
+                    line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]"
+                if isinstance(rel.get(k), float):
+                    line += f"  (vs metadata {rel[k]:+.2%})"
+                print(line)
+        if std:
+            print("  uncertainty: inverse Fisher information of the raw samples (delta method)")
+        for img, c2 in (m.get("chi2_per_sample") or {}).items():
+            print(f"  {img}: chi2 per raw sample {c2:.3f}")
+        if not m["converged"]:
+            print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
+                  f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
+                  file=sys.stderr)
+            status = EXIT_NOT_CONVERGED
+    for img, errs in report.get("relight", {}).items():
+        for name, e in errs.items():
+            print(f"relighting {img} ({name}): raw-sample RMSE / mean = {e['rel_rmse']:.4f} (R "
+                  f"{e['rel_rmse_R']:.4f}, G {e['rel_rmse_G']:.4f}, B {e['rel_rmse_B']:.4f})")
+    print(f"wrote {', '.join(report['outputs'])} ({report['wall_s']:.1f} s)")
+    return status
+
+
+def print_joint(report):
+    for name, m in report["models"].items():
+        for im in m.get("images", []):
+            line = f"  {im['name']}: {im['n_pixels']} px, light {np.round(im['light_dir'], 3).tolist()}"
+            if im.get("chi2_per_dof") is not None:
+                line += f", chi2/dof {im['chi2_per_dof']:.3f}"
+            line += f", intensity RMSE/mean {im['intensity_rel_rmse']:.4f}"
+            if im.get("power") is not None:
+                from fmbrdf_mi.fit.api.joint import power_text
+
+                line += ", " + power_text(im)
+            print(f"{name}{line}" if len(report["models"]) > 1 else line)
+    for img, errs in report.get("relight", {}).items():
+        for name, e in errs.items():
+            print(f"relighting {img} ({name}): RMSE / mean intensity = {e['rel_rmse']:.4f}")
+
+
+def print_report(report):
+    rn = report["refine_normals"]
+    for name, mdl in report["models"].items():
+        unc = mdl.get("uncertainty") or {}
+        std, ci = unc.get("std_errors", {}), unc.get("ci95", {})
+        print(f"{name}: normal refinement ({'converged' if rn['converged'] else 'NOT converged'}: {rn['stop_reason']})"
+              f", {rn['pixels']} pixels, start {rn['start']}, smoothness {rn['smooth']:g}")
+        for k, v in mdl["params"].items():
+            line = f"  {k:<6} {v:10.5g}"
+            if k in std:
+                line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]"
+            print(line)
+        if mdl.get("uncertainty_uncalibrated"):
+            print("  no standard errors: the refinement's curvature-based ones were 1.5-3.1 times too small over "
+                  "noise seeds (fit.json: uncertainty_uncalibrated; README, Normal refinement)")
+        if unc.get("method"):
+            print(f"  uncertainty: {unc['method']}"
+                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
+                  + (" (the model or the stated noise does not explain the data: errors too small)"
+                     if unc.get("misfit") else ""))
+    ch = rn["angle_change"]
+    print(f"  normals moved from the start by {ch['mean']:.2f} deg mean, {ch['median']:.2f} deg median")
+    ae = rn.get("angular_error")
+    if ae:
+        b, a = ae["before"], ae["after"]
+        print(f"  angle to the ground truth: before {b['mean']:.2f} / {b['median']:.2f} deg, after "
+              f"{a['mean']:.2f} / {a['median']:.2f} deg (mean / median, {a['pixels']} pixels)")

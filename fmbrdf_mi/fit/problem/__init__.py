@@ -1,0 +1,1 @@
+"""A fit's problem: model, evaluator, objective, bounds and clock over unconstrained z; free light powers."""

@@ -1,0 +1,160 @@
+"""A fit's problem: the data it runs on (:class:`FitData`) and the problem over the unconstrained z
+(:class:`Problem`: model, evaluator, objective, bounds, clock)."""
+from __future__ import annotations
+
+import dataclasses
+
+import math
+import numpy as np
+import time
+
+from fmbrdf_mi.fit.evaluate.models import Bounds, State
+from fmbrdf_mi.fit.objectives import loss as L
+
+
+class TimeUp(Exception):
+    """The fit's wall-clock limit would be passed by the next model evaluation."""
+
+
+class Problem:
+    """A model, an evaluator at the fitted pixels, the objective, the bounds, the clock.
+
+    ``objective``: :class:`fmbrdf_mi.fit.objectives.objective.PaperObjective` or
+    :class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective` (a
+    :class:`fmbrdf_mi.fit.objectives.loss.Target` is wrapped in the former).
+    ``fixed``: {shape name: value} held fixed (not estimated).  ``deadline``:
+    absolute ``time.time()`` after which no model evaluation may end: each
+    evaluation first checks that the slowest one of its kind so far would
+    still finish in time, else raises :class:`TimeUp` (so the limit holds
+    inside every loop, coarse search included).
+    """
+
+    def __init__(self, model, evaluator, objective, bounds=None, progress=None, fixed=None, deadline=None):
+        from fmbrdf_mi.fit.objectives.objective import PaperObjective
+
+        self.model, self.ev = model, evaluator
+        self.obj = PaperObjective(objective) if isinstance(objective, L.Target) else objective
+        self.bounds = bounds if isinstance(bounds, Bounds) else Bounds(model, bounds)
+        self.progress = progress or (lambda msg: None)
+        self.fixed = dict(fixed or {})
+        unknown = [k for k in self.fixed if k not in model.shape_names]
+        if unknown:
+            raise ValueError(f"fixed: {model.name} has no shape parameter {', '.join(unknown)} "
+                             f"(it has {', '.join(model.shape_names)})")
+        self.names = tuple(n for n in model.shape_names if n not in self.fixed)
+        self.n_evals = 0
+        self.n_nonfinite = 0
+        self.t0 = time.time()
+        self.deadline = deadline
+        self._cost = {False: 0.0, True: 0.0}
+        self._cache = []
+        self.current = None     # latest accepted state (what a fit stopped by the clock reports)
+        self.both_lobes = {}    # coarse-search point -> both albedos switched on
+
+    # the paper objective's weights, as before (tests and Adam use them)
+    @property
+    def target(self):
+        return self.obj.target
+
+    @property
+    def w(self):
+        return self.obj.w
+
+    @property
+    def outliers(self):
+        return self.obj.outliers
+
+    # ---- z <-> state
+    def to_z(self, st):
+        return np.array([self.bounds.to_z(n, st.shape[n]) for n in self.names]
+                        + [math.log(max(st.a_s, 1e-30)), math.log(max(st.a_b, 1e-30))])
+
+    def from_z(self, z):
+        shape = dict(self.fixed)
+        shape.update({n: self.bounds.to_value(n, z[i]) for i, n in enumerate(self.names)})
+        shape = {n: shape[n] for n in self.model.shape_names}
+        k = len(self.names)
+        return State(shape, math.exp(np.clip(z[k], -60, 60)), math.exp(np.clip(z[k + 1], -60, 60)))
+
+    def state(self, shape, a_s, a_b):
+        """A State with the fixed values imposed."""
+        return State({n: float(self.fixed.get(n, shape[n])) for n in self.model.shape_names}, a_s, a_b)
+
+    # ---- evaluation
+    def time_left(self):
+        return None if self.deadline is None else self.deadline - time.time()
+
+    def check_time(self, jac=False):
+        if self.deadline is not None and time.time() + self._cost[jac] > self.deadline:
+            raise TimeUp()
+
+    def parts(self, st, jac=False):
+        key = tuple(round(float(st.shape[n]), 12) for n in self.model.shape_names)
+        for k, j, p in self._cache:
+            if k == key and (j or not jac):
+                return p
+        self.check_time(jac)
+        t = time.time()
+        self.n_evals += 1
+        p = self.ev.parts(st.shape, self.names if jac else ())
+        self._cost[jac] = max(self._cost[jac], time.time() - t)
+        self._cache = [(key, jac, p)] + self._cache[:1]
+        return p
+
+    def closed_form(self, shape):
+        """(State, parts) of a coarse-search point: the shape values with the albedos in closed form."""
+        parts = self.parts(State(shape, 1.0, 1.0))
+        a_s, a_b = self.obj.albedos(parts)
+        return State(dict(shape), a_s, a_b), parts
+
+    def set_weights(self, parts, st):
+        self.obj.refresh(parts, st)
+
+    def loss(self, parts, st, w=None):
+        return self.obj.value(parts, st) if w is None else self.obj.value(parts, st, w)
+
+    def residuals_and_jacobian(self, parts, st, z):
+        """r (m,) and dr/dz (m, k + 2) of the objective's residuals."""
+        r, J, bad = self.obj.residuals_and_jacobian(parts, st, z, self.names, self.bounds)
+        if bad is not None and bad.any():
+            # a few directions where the BSDF's forward-mode derivative is NaN: those rows are
+            # left out of the Jacobian (their residuals still count in the loss)
+            J[bad] = 0.0
+            self.n_nonfinite = max(self.n_nonfinite, int(parts.nonfinite.sum()))
+        J[~np.isfinite(J)] = 0.0
+        return r, J
+
+
+@dataclasses.dataclass
+class FitData:
+    """What one fit runs on, for one image or several: the data made into an objective at chosen pixels.
+
+    ``loss``: the objective's name; ``pixels``: flat indices of the fitted
+    (super-)pixels (several images: concatenated, image by image);
+    ``excluded``: what pixel selection left out and why; ``objective``: the
+    likelihood of the samples or the paper's loss over them; ``samples``: the
+    camera's :class:`~fmbrdf_mi.fit.camera.samples.Samples` (likelihood) or
+    None; ``evaluator``: the model at those pixels' points.  Several images:
+    ``image_pixels`` (each image's flat indices) and ``slices`` ((start, stop)
+    of each image among the pixels).  ``make_problem``: builds the problem
+    when it is not a plain :class:`Problem` (free light powers:
+    :func:`fmbrdf_mi.fit.problem.free_power.problem_factory`).
+    """
+
+    loss: str
+    pixels: np.ndarray
+    excluded: dict
+    objective: object
+    samples: object
+    evaluator: object
+    image_pixels: list = None
+    slices: list = None
+    make_problem: object = None
+
+    def problem(self, model, bounds, progress, fixed, deadline):
+        """The :class:`Problem` of these data (the free-power one when ``make_problem`` says so)."""
+        if self.make_problem is None:
+            return Problem(model, self.evaluator, self.objective, Bounds(model, bounds), progress, fixed=fixed,
+                           deadline=deadline)
+        return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
+

@@ -1,0 +1,294 @@
+"""Minimising an objective (:mod:`fmbrdf_mi.fit.objectives.objective`): bounded reparameterisation, coarse search, LM or Adam.
+
+Unknowns: the model's free shape parameters (for FMBRDF eta, alpha, beta,
+kappa, less any held fixed) and its two albedos a_s, a_b (FMBRDF: k_s and
+k_b = r_k k_s).  The optimiser works on unconstrained z: shape parameters
+through a sigmoid onto their bounds (on a log scale for those spanning
+decades, :class:`models.Bounds`), albedos through exp.  So every iterate is
+a valid material.
+
+1. **Coarse search** (needs no answer): shape parameters on a grid over the
+   box; at each grid point the albedos follow in closed form (the model is
+   linear in them: a two-unknown non-negative weighted least squares), and
+   the objective decides.  The grid is searched in stages to bound the
+   number of BSDF table rebuilds.
+2. **Refinement** on the same objective:
+   * ``lm`` (default): Levenberg-Marquardt on the objective's residuals, the
+     Jacobian from forward-mode Dr.Jit AD through the BSDF for each shape
+     parameter and analytic for the albedos;
+   * ``adam`` (paper's loss only): Adam (the paper's optimiser) on the
+     reverse-mode Dr.Jit gradient of the loss.
+3. **Stopping rule** (:func:`levenberg_marquardt`): converged when the
+   decrease falls below tolerance twice in a row (the paper's loss:
+   relative ``tol``; the likelihood: 0.01 in chi^2) or the Gauss-Newton
+   decrement says the optimum is within ~0.1 standard error; *not*
+   converged at ``max_iter`` or a time limit.  The wall-clock deadline of
+   :class:`Problem` is checked before every model evaluation.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+import numpy as np
+import sys
+import time
+
+from fmbrdf_mi.fit.objectives import loss as L
+from fmbrdf_mi.fit.solve import lm as LM
+
+
+# ---------------------------------------------------------------- closed-form albedos
+def solve_albedos(parts, target):
+    """Non-negative least squares of the intensities over (a_s, a_b); returns (a_s, a_b)."""
+    from fmbrdf_mi.fit.objectives.objective import nnls2
+
+    return nnls2(parts.surface[0], parts.body[0], target.intensity)
+
+
+def _score(problem, parts, st):
+    """Objective of a candidate with its own weights (the paper's split; the likelihood's variances)."""
+    return problem.obj.score(parts, st)
+
+
+#: An albedo whose lobe contributes less than this fraction of the other's
+#: mean intensity over the fitted pixels counts as switched off.
+ALBEDO_BOUND = 1e-3
+
+
+def search_grids(model, bounds, fixed, names):
+    """The coarse search's grids: ({shape parameter: its grid values (one if fixed)},
+    the stage-1 parameters, the later ones (eta, kappa, when free), their middle values)."""
+    grids = {n: ([fixed[n]] if n in fixed else bounds.clip_grid(n, model.param(n).grid))
+             for n in model.shape_names}
+    later = [n for n in ("eta", "kappa") if n in names]
+    first = [n for n in model.shape_names if n not in later]
+    return grids, first, later, {n: grids[n][len(grids[n]) // 2] for n in later}
+
+
+def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of, keep=2, on_point=None,
+                  progress=None):
+    """The coarse search's stages over any point evaluation; returns [(score, point)] best first.
+
+    Stage 1: the ``first`` parameters on their grids, the ``later`` ones at
+    their middle values ``mids``; then each ``later`` parameter on its grid
+    for the ``keep`` best points so far.  ``evaluate(shape)`` returns
+    (score, point) (a model evaluation with the linear unknowns in closed
+    form), ``shape_of(point)`` its shape values; each grid point is
+    evaluated once.  ``on_point(key, results)`` follows every new point;
+    ``progress(message)`` gets a line every 6 points of stage 1 and after
+    each later stage.
+    """
+    results = {}
+
+    def try_point(shape):
+        key = tuple(round(shape[n], 9) for n in shape_names)
+        if key in results:
+            return
+        results[key] = evaluate(shape)
+        if on_point is not None:
+            on_point(key, results)
+
+    def best():
+        return min(results.values(), key=lambda x: x[0])
+
+    say = progress or (lambda m: None)
+    t = time.time()
+    combos = list(itertools.product(*[grids[n] for n in first]))
+    for j, combo in enumerate(combos):
+        try_point({**mids, **dict(zip(first, combo))})
+        if (j + 1) % 6 == 0 or j + 1 == len(combos):
+            say(f"[search] stage 1 ({', '.join(first)}): {j + 1}/{len(combos)} grid points, "
+                f"best {best()[0]:.6e} ({time.time() - t:.1f} s)")
+    for stage, name in enumerate(later, start=2):
+        top = sorted(results.values(), key=lambda x: x[0])[:keep]
+        for _, point in top:
+            for value in grids[name]:
+                try_point({**shape_of(point), name: value})
+        say(f"[search] stage {stage} ({name}): best {best()[0]:.6e} "
+            f"({time.time() - t:.1f} s, {len(results)} grid points)")
+    return sorted(results.values(), key=lambda x: x[0])
+
+
+def coarse_search(problem, keep=2):
+    """Grid search in stages (:func:`staged_search`); returns candidates [(score, State)] best first.
+
+    Stage 1: every free shape parameter but eta and kappa on its grid, eta
+    and kappa at their middle grid values; stage 2: eta on its grid for the
+    ``keep`` best; stage 3: kappa on its grid for the ``keep`` best (kappa
+    changes the body term least, and is often weakly identifiable: README).
+    Each grid point costs one BSDF table rebuild; the albedos follow in
+    closed form (the objective's weighted least squares) and the objective
+    with the candidate's own weights decides.
+    """
+    model = problem.model
+    grids, first, later, mids = search_grids(model, problem.bounds, problem.fixed, problem.names)
+    lobes = {}
+
+    def evaluate(shape):
+        st, parts = problem.closed_form(shape)
+        c_s, c_b = st.a_s * float(np.mean(parts.surface[0])), st.a_b * float(np.mean(parts.body[0]))
+        lobes["last"] = min(c_s, c_b) >= ALBEDO_BOUND * max(c_s, c_b)
+        return problem.obj.score(parts, st), st
+
+    def on_point(key, results):
+        problem.both_lobes[key] = lobes["last"]
+        problem.current = min(results.values(), key=lambda x: x[0])[1]
+
+    return staged_search(model.shape_names, grids, first, later, mids, evaluate, shape_of=lambda st: st.shape,
+                         keep=keep, on_point=on_point, progress=problem.progress)
+
+
+# ---------------------------------------------------------------- refinement
+def format_state(problem, st):
+    rep = problem.model.report(st.shape, st.a_s, st.a_b)
+    return " ".join(f"{k}={v:.4g}" for k, v in rep.items())
+
+
+def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, history=None,
+                        round_no=0, refresh=3):
+    """Minimise the objective from ``st`` with its current weights (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`).
+
+    The Jacobian comes from forward-mode AD at the start and at least every
+    ``refresh`` accepted steps; in between it is kept current with Broyden's
+    rank-one secant update from every trial point (each AD Jacobian costs one
+    table rebuild with AD per shape parameter, a trial point one without).
+    A step that fails on a secant Jacobian triggers a fresh AD Jacobian
+    before the damping is raised.  Converged: the objective's small-decrease
+    test twice in a row, or (likelihood) a Gauss-Newton decrement below
+    :data:`~fmbrdf_mi.fit.solve.lm.DECREMENT_TOL` on a fresh Jacobian, or no step lowers the
+    objective at float32 precision.  Returns (State, value, stop reason,
+    converged, J, r) with an AD Jacobian at the result.
+    """
+    obj = problem.obj
+
+    def linearise(x):
+        st, z = x
+        return problem.residuals_and_jacobian(problem.parts(st, jac=True), st, z)
+
+    def trial(x, delta, lin):
+        z_new = np.clip(x[1] + delta, -40, 40)
+        st_new = problem.from_z(z_new)
+        r_new = obj.residuals(problem.parts(st_new), st_new)
+        return (st_new, z_new), float(r_new @ r_new), r_new
+
+    def secant(lin, x, x_new, r_new):   # Broyden's update with what the trial taught
+        r, J = lin
+        dz = x_new[1] - x[1]
+        if np.all(np.isfinite(r_new)) and dz @ dz > 0:
+            J = J + np.outer(r_new - r - J @ dz, dz) / (dz @ dz)
+        return r, J
+
+    def on_accept(it, x, f):
+        st = x[0]
+        problem.current = st
+        if history is not None:
+            history.append({"stage": f"lm{round_no}", "iter": it, "loss": f,
+                            "time": time.time() - problem.t0,
+                            "params": problem.model.report(st.shape, st.a_s, st.a_b)})
+        problem.progress(f"[lm {round_no}] iter {it:2d}  {obj.name} {f:.6e}  {format_state(problem, st)}  "
+                         f"({time.time() - problem.t0:.1f} s)")
+
+    z = problem.to_z(st)
+    lin = linearise((st, z))
+    problem.current = st
+    t0 = time.time()
+    res = LM.levenberg_marquardt(
+        (st, z), float(lin[0] @ lin[0]), linearise, lambda lin, lam: LM.dense_step(lin[1], lin[0], lam), trial,
+        max_iter=max_iter, lin=lin, refresh=refresh, secant=secant, moved=lambda lin, x_new, r_new: (r_new, lin[1]),
+        decrement=(lambda lin: LM.gn_decrement(lin[1], lin[0])) if obj.is_likelihood else None,
+        small=lambda f, f_new: obj.small_decrease(f, f_new, tol),
+        step_small=None if obj.is_likelihood else (lambda x, x_new: float(np.max(np.abs(x_new[1] - x[1]))) < 1e-4),
+        time_up=None if time_limit is None else (lambda: time.time() - t0 > time_limit),
+        on_accept=on_accept)
+    reason = {"decrement": f"Gauss-Newton decrement < {LM.DECREMENT_TOL:g}",
+              "no_step": "no step lowers the objective (converged to float32 precision)",
+              "small_decrease": "objective decrease below tolerance twice in a row",
+              "small_step": "step in z < 1e-4",
+              "time_limit": "time limit {:g} s per round reached".format(time_limit or 0),
+              "max_iter": f"max_iter ({max_iter}) reached"}[res.reason]
+    r, J = res.lin
+    return res.x[0], res.f, reason, res.converged, J, r
+
+
+def loss_and_grad_reverse(problem, st):
+    """Loss and its gradient (dict over shape names, 'a_s', 'a_b') by reverse-mode AD through the BSDF."""
+    import drjit as dr
+    import mitsuba as mi
+
+    ev = problem.ev
+    xs = {}
+    for p in problem.model.shape:
+        x = mi.Float(float(st.shape[p.name]))
+        dr.enable_grad(x)
+        ev._assign(p.key, x)
+        xs[p.name] = x
+    for name, key, v in (("a_s", problem.model.surface_key, st.a_s), ("a_b", problem.model.body_key, st.a_b)):
+        x = mi.Float(float(v))
+        dr.enable_grad(x)
+        ev._assign(key, x)
+        xs[name] = x
+    ev.params.update()
+    s0, s1, s2 = ev._stokes()
+    val = L.loss_dr(problem.obj.target, problem.obj.w, s0, s1, s2)
+    dr.backward(val)
+    grad = {k: float(dr.grad(x)[0]) for k, x in xs.items()}
+    f = float(val[0])
+    # restore detached values
+    for p in problem.model.shape:
+        ev._assign(p.key, float(st.shape[p.name]))
+        ev._current[p.name] = float(st.shape[p.name])
+    ev.set_albedos(st.a_s, st.a_b)
+    return f, grad
+
+
+def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limit=None, history=None,
+         round_no=0):
+    """Adam on z with the reverse-mode gradient; returns (best State, loss, reason, converged)."""
+    z = problem.to_z(st)
+    m = np.zeros_like(z)
+    v = np.zeros_like(z)
+    b1, b2, eps = 0.9, 0.999, 1e-8
+    best = (math.inf, st)
+    since, reason, t0 = 0, "max_iter", time.time()
+    converged = False
+    for it in range(1, max_iter + 1):
+        st = problem.from_z(z)
+        problem.check_time(True)
+        t_it = time.time()
+        f, g = loss_and_grad_reverse(problem, st)
+        problem._cost[True] = max(problem._cost[True], time.time() - t_it)
+        gz = np.array([g[n] * problem.bounds.derivative(n, z[j]) for j, n in enumerate(problem.names)]
+                      + [g["a_s"] * st.a_s, g["a_b"] * st.a_b])
+        if not np.all(np.isfinite(gz)):
+            reason = "non-finite gradient"
+            break
+        if f < best[0] * (1 - tol):
+            since = 0
+        else:
+            since += 1
+        if f < best[0]:
+            best = (f, st.copy())
+            problem.current = best[1]
+        if history is not None:
+            history.append({"stage": f"adam{round_no}", "iter": it, "loss": f,
+                            "time": time.time() - problem.t0,
+                            "params": problem.model.report(st.shape, st.a_s, st.a_b)})
+        if it % 5 == 0 or it == 1:
+            problem.progress(f"[adam {round_no}] iter {it:3d}  loss {f:.6e}  {format_state(problem, st)}  "
+                             f"({time.time() - problem.t0:.1f} s)")
+        if since >= patience:
+            reason = f"best loss not improved by {tol:g} (relative) in {patience} iterations"
+            converged = True
+            break
+        if time_limit is not None and time.time() - t0 > time_limit:
+            reason = f"time limit {time_limit:g} s"
+            break
+        m = b1 * m + (1 - b1) * gz
+        v = b2 * v + (1 - b2) * gz * gz
+        mh, vh = m / (1 - b1 ** it), v / (1 - b2 ** it)
+        z = np.clip(z - lr * mh / (np.sqrt(vh) + eps), -40, 40)
+    return best[1], best[0], reason, converged
+
+
+def default_progress(msg):
+    print(msg, file=sys.stderr, flush=True)
