@@ -4,7 +4,7 @@
     python tools/bench_fit_colour.py --table a.json b.json      # saved runs of one configuration, pooled
 
 One material (eta 1.5, alpha 0.25, beta 0.4, kappa 1; k_s / r_k 0.6 / 0.8, 0.4 / 1.5,
-0.5 / 0.4 for R, G, B: the material of tests/test_colour.py), an orthographic
+0.5 / 0.4 for R, G, B: the material of tests/fit/test_api_colour.py), an orthographic
 sphere filling PERIODS x PERIODS 4x4 periods of an IMX250MYR-type colour
 polarisation mosaic (RGGB), light (0.45, 0.35, 1).  The data are each
 channel's model Stokes image evaluated at every raw pixel's centre

@@ -3,7 +3,7 @@
     python tools/check_paper_coverage.py N RES SEED0 [paper|likelihood]
 
 IMX250MZR-like camera (full well 3000 e-, read noise 6 e-, 12 bits), the material of
-tests/test_fit_likelihood.py; prints the mean error +- its SE, the spread, the mean reported SE and the coverage.
+tests/fit/test_objectives_likelihood.py; prints the mean error +- its SE, the spread, the mean reported SE and the coverage.
 """
 import os, sys, time
 import numpy as np

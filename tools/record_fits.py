@@ -86,7 +86,7 @@ MATERIALS = {
 JOINT = {"material": {"eta": 1.45, "alpha": 0.25, "beta": 1.0, "kappa": 10.0, "k_s": 1.0, "r_k": 0.5},
          "lights": [(-0.5, 0.5, 1.0), (0.6, 0.2, 1.0), (0.1, -0.6, 0.8)],
          "irradiance": [3.0, 1.8, 4.2], "raw_exposure": 2500.0}
-#: the mesh objects of cases e and f (the material and lights of tests/test_fit_authors.py)
+#: the mesh objects of cases e and f (the material and lights of tests/fit/test_inputs_authors.py)
 OBJECT_MATERIAL = {"eta": 1.45, "alpha": 0.25, "beta": 1.0, "kappa": 10.0, "k_s": 1.0, "r_k": 0.5}
 OBJECT_LIGHTS = [(-0.5, 0.5, 1.0), (0.6, 0.2, 1.0), (0.1, -0.6, 0.8), (0.0, 0.1, 1.0)]
 OBJECT_POWERS = [1.0, 0.7, 1.2, 0.9]

@@ -21,22 +21,61 @@ def check_args(args):
                       tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
                       max_pixels=args.max_pixels, erode=args.erode, seed=args.seed, loss=args.loss,
                       starts=args.starts, fixed=parse_fixed(args.fix), flag=flag)
-    if args.relight_light is not None and not args.relight:
-        raise InputError("--relight-light needs --relight IMAGE")
-    if args.holdout is not None and not args.authors:
-        raise InputError("--holdout needs --authors (in a manifest, mark images with holdout = true)")
+    check_needs(args, ("--relight-light", "--holdout"))
     if args.manifest and args.authors:
         raise InputError("--manifest and --authors: give one of them")
 
 
+#: Options that only some modes take: flag -> (given?, how a message names it).
+OPTIONS = {
+    "--baselines": (lambda a: a.baselines, lambda a: "--baselines"),
+    "--relight": (lambda a: a.relight, lambda a: "--relight"),
+    "--path": (lambda a: a.path != "pixel", lambda a: "--path render"),
+    "--optimizer": (lambda a: a.optimizer != "lm", lambda a: "--optimizer adam"),
+    "--init": (lambda a: a.init, lambda a: "--init"),
+    "--loss": (lambda a: a.loss not in ("auto", "likelihood"), lambda a: "--loss " + str(a.loss)),
+    "--layout": (lambda a: a.layout, lambda a: "--layout"),
+    "--dark-level": (lambda a: a.dark_level is not None, lambda a: "--dark-level"),
+    "--footprint": (lambda a: a.footprint != "auto", lambda a: "--footprint " + str(a.footprint)),
+    "--free-power": (lambda a: getattr(a, "free_power", False), lambda a: "--free-power"),
+}
+
+#: The one table of which options a mode refuses: mode -> (options, the message's head, why).
+REFUSED = {
+    "colour": (("--baselines", "--relight", "--path", "--optimizer", "--init", "--loss", "--layout", "--dark-level",
+                "--footprint"), "colour polarisation mosaic",
+               "the colour fit is the likelihood of the raw samples, layout and cfa from the sidecar, pixel path, LM"),
+    "refine": (("--baselines", "--free-power", "--loss"), "--refine-normals",
+               "the refinement is the likelihood of the camera samples, one model, the given light powers"),
+}
+
+#: Options that need another one: flag -> (given?, what it needs).
+NEEDS = {
+    "--relight-light": (lambda a: a.relight_light is not None and not a.relight, "--relight IMAGE"),
+    "--holdout": (lambda a: a.holdout is not None and not a.authors,
+                  "--authors (in a manifest, mark images with holdout = true)"),
+    "--normals-start": (lambda a: a.normals_start != "ps" and not a.refine_normals, "--refine-normals"),
+    "--smooth": (lambda a: a.smooth != 0.3 and not a.refine_normals, "--refine-normals"),
+    "--rounds": (lambda a: a.rounds != 0 and not a.refine_normals, "--refine-normals"),
+}
+
+
+def refuse(args, mode):
+    """One line naming every option ``mode`` does not take (:data:`REFUSED`)."""
+    flags, head, why = REFUSED[mode]
+    bad = [OPTIONS[f][1](args) for f in flags if OPTIONS[f][0](args)]
+    if bad:
+        raise InputError(f"{head}: {', '.join(bad)} not supported ({why})")
+
+
+def check_needs(args, flags=None):
+    """One line for the first option given without the one it needs (:data:`NEEDS`)."""
+    for flag in (flags or NEEDS):
+        given, needs = NEEDS[flag]
+        if given(args):
+            raise InputError(f"{flag} needs {needs}")
+
+
 def check_colour_args(args):
     """Options the colour path does not take: one line naming them."""
-    bad = [flag for flag, on in (("--baselines", args.baselines), ("--relight", args.relight),
-                                 ("--path render", args.path != "pixel"), ("--optimizer adam", args.optimizer != "lm"),
-                                 ("--init", args.init), ("--loss " + str(args.loss), args.loss not in ("auto", "likelihood")),
-                                 ("--layout", args.layout), ("--dark-level", args.dark_level is not None),
-                                 ("--footprint " + str(args.footprint), args.footprint != "auto"))
-           if on]
-    if bad:
-        raise InputError(f"colour polarisation mosaic: {', '.join(bad)} not supported (the colour fit is the "
-                         "likelihood of the raw samples, layout and cfa from the sidecar, pixel path, LM)")
+    refuse(args, "colour")

@@ -11,8 +11,8 @@ import time
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import MODELS
 from fmbrdf_mi.fit.inputs.parse import parse_vector
-from fmbrdf_mi.fit.outputs.single import fit_files, output_files
-from fmbrdf_mi.fit.outputs.summary import EXIT_NOT_CONVERGED
+from fmbrdf_mi.fit.outputs.single import fit_files
+from fmbrdf_mi.fit.outputs.summary import print_summary
 from fmbrdf_mi.fit.cli.checks import check_args, check_colour_args
 from fmbrdf_mi.fit.inputs.colour import colour_sidecar
 
@@ -122,7 +122,6 @@ def add_fit_arguments(p):
 
 def run_fit(args):
     import shlex
-    import sys
 
     t0 = time.time()
     check_args(args)
@@ -141,10 +140,6 @@ def run_fit(args):
         from fmbrdf_mi.fit.cli.joint import run_joint
 
         report = run_joint(args, command)
-        if report.get("sensor") == "colour":
-            from fmbrdf_mi.fit.outputs.summary import print_colour
-
-            return print_colour(report)
     elif args.from_json:
         from fmbrdf_mi.fit.outputs import record
 
@@ -153,24 +148,19 @@ def run_fit(args):
         from fmbrdf_mi.fit.outputs import joint_record
 
         from fmbrdf_mi.fit.outputs.colour import fit_colour_files, is_colour_record
-        from fmbrdf_mi.fit.outputs.summary import print_colour
 
         if joint_record.is_joint(args.from_json):
             report = joint_record.rerun(args.from_json, args.out, force=args.force, progress=not args.quiet,
                                         command=command)
-            if report.get("sensor") == "colour":
-                return print_colour(report)
         elif is_colour_record(args.from_json):
             kw = record.rerun_arguments(args.from_json)
             report = fit_colour_files(out=args.out, force=args.force, progress=not args.quiet, command=command,
                                       **kw)
-            return print_colour(report)
         else:
             kw = record.rerun_arguments(args.from_json)
             report = fit_files(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
     elif len(args.inputs or []) == 1 and colour_sidecar(args.inputs[0]) is not None:
         from fmbrdf_mi.fit.outputs.colour import fit_colour_files
-        from fmbrdf_mi.fit.outputs.summary import print_colour
 
         check_colour_args(args)
         report = fit_colour_files(args.inputs[0], args.out, normals=args.normals, mask=args.mask, view=args.view,
@@ -182,7 +172,6 @@ def run_fit(args):
                                   max_iter=args.max_iter, max_pixels=args.max_pixels or None, erode=args.erode,
                                   seed=args.seed, starts=args.starts, force=args.force, progress=not args.quiet,
                                   command=command)
-        return print_colour(report)
     else:
         if not args.inputs:
             raise InputError("no INPUT given: a Stokes .exr, a raw mosaic, angle images, or --from fit.json")
@@ -203,65 +192,7 @@ def run_fit(args):
                            relight_light=parse_vector(args.relight_light, "--relight-light"),
                            relight_irradiance=args.relight_irradiance, force=args.force,
                            progress=not args.quiet, command=command)
-    if report.get("refine_normals"):
-        from fmbrdf_mi.fit.outputs.summary import print_report
-
-        print_report(report)
-        print(f"wrote {', '.join(report['refine_normals']['outputs'])} ({time.time() - t0:.1f} s)")
-        return 0 if report["refine_normals"]["converged"] else EXIT_NOT_CONVERGED
-    from fmbrdf_mi.fit.uncertainty import WEAK_REL
-
-    status = 0
-    for name, m in report["models"].items():
-        unc = m.get("uncertainty") or {}
-        print(f"{name}: {m['objective']} {m['loss']:.6e}  ({'converged' if m['converged'] else 'NOT converged'}: "
-              f"{m['stop_reason']})")
-        if m.get("noise"):
-            print(f"  camera noise {m['noise']['description']}")
-        ex = m.get("pixels_excluded") or {}
-        if ex.get("saturated") or ex.get("dark"):
-            print(f"  excluded {ex['saturated']} saturated and {ex['dark']} dark super-pixels of "
-                  f"{ex['candidates']}; fitted {ex['used']}")
-        std, ci = unc.get("std_errors", {}), unc.get("ci95", {})
-        for k, v in m["params"].items():
-            line = f"  {k:<6} {v:10.5g}"
-            if k in std:
-                line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]"
-            if "relative_error" in m and k in m["relative_error"]:
-                line += f"  (vs metadata {m['relative_error'][k]:+.2%})"
-            print(line)
-        if unc.get("method"):
-            print(f"  uncertainty: {unc['method']}"
-                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
-                  + (" (the model or the stated noise does not explain the data: errors too small)"
-                     if unc.get("misfit") else ""))
-        if unc.get("correlation"):
-            c = unc["correlation"]
-            big = [(c["names"][i], c["names"][j], c["matrix"][i][j]) for i in range(len(c["names"]))
-                   for j in range(i + 1, len(c["names"])) if abs(c["matrix"][i][j]) > 0.9]
-            if big:
-                print("  strongly correlated: " + ", ".join(f"{a}/{b} {x:+.2f}" for a, b, x in big))
-        if m.get("weakly_identified"):
-            print(f"  weakly identified (standard error > {WEAK_REL:.0%} of the value, or at a bound): "
-                  f"{', '.join(m['weakly_identified'])}")
-        if not m["converged"]:
-            print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
-                  f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
-                  file=sys.stderr)
-            status = EXIT_NOT_CONVERGED
-    if report.get("joint"):
-        from fmbrdf_mi.fit.outputs.summary import print_joint
-
-        print_joint(report)
-        print(f"wrote {', '.join(report['joint']['outputs'])} ({time.time() - t0:.1f} s)")
-        return status
-    if "relight" in report:
-        for name, r in report["relight"].items():
-            if isinstance(r, dict):
-                print(f"relighting {name}: RMSE / mean intensity = {r['rel_rmse']:.4f}")
-    print(f"wrote {', '.join(output_files(args.out, report.get('reproduce', {}).get('arguments', {}).get('relight')))} "
-          f"({time.time() - t0:.1f} s)")
-    return status
+    return print_summary(report, args.out, t0)
 
 
 def main(argv=None):

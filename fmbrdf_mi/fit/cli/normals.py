@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import os
 
+from fmbrdf_mi.fit.cli.checks import check_needs, refuse
 from fmbrdf_mi.fit.errors import InputError
 
 
@@ -22,10 +23,7 @@ def add_arguments(p):
 def check(args, joint):
     """One line per mistake, before any file is read."""
     if not getattr(args, "refine_normals", False):
-        for flag, given in (("--normals-start", args.normals_start != "ps"), ("--smooth", args.smooth != 0.3),
-                            ("--rounds", args.rounds != 0)):
-            if given:
-                raise InputError(f"{flag} needs --refine-normals")
+        check_needs(args, ("--normals-start", "--smooth", "--rounds"))
         return
     if args.from_json:
         raise InputError("--refine-normals: --from is not supported (rerun the command instead)")
@@ -36,13 +34,7 @@ def check(args, joint):
         raise InputError(f"--smooth: expected a finite value >= 0, got {args.smooth!r}")
     if args.rounds < 0:
         raise InputError(f"--rounds: expected an integer >= 0, got {args.rounds}")
-    bad = [f for f, on in (("--baselines", args.baselines),
-                           ("--free-power", getattr(args, "free_power", False)),
-                           ("--loss " + str(args.loss), args.loss not in ("auto", "likelihood")))
-           if on]
-    if bad:
-        raise InputError(f"--refine-normals: {', '.join(bad)} not supported (the refinement is the likelihood "
-                         "of the camera samples, one model, the given light powers)")
+    refuse(args, "refine")
     start = args.normals_start
     if start not in ("ps", "sphere") and not (start.endswith(".npy") and os.path.isfile(start)):
         raise InputError(f"--normals-start {start!r}: expected ps, sphere or an existing .npy file")

@@ -23,7 +23,7 @@ path therefore rotates each Stokes vector from the BSDF's outgoing basis
 (x = image right projected perpendicular to the view direction, y = image up,
 light travelling towards the camera), the frame of the ``stokes`` integrator
 and of :mod:`fmbrdf_mi.polcam` (checked against a render in
-``tests/test_fit_likelihood.py``).
+``tests/fit/test_objectives_likelihood.py``).
 """
 from __future__ import annotations
 

@@ -31,7 +31,7 @@ counter-clockwise as the image is displayed (x right, y up: this package's
 Stokes frame, :mod:`fmbrdf_mi.polcam`), so their negated AoLP is the same
 angle measured in the OpenCV image frame (x right, y down), i.e. clockwise as
 displayed: theirs = -ours, S2 theirs = -S2 ours, S1 and S0 equal
-(``tests/test_fit_authors.py`` checks it on a mosaic made by the camera
+(``tests/fit/test_inputs_authors.py`` checks it on a mosaic made by the camera
 model).  This module reads the raw mosaics itself, so nothing is negated here.
 
 Their scripts also erode the mask (5 x 5, once), drop super-pixels with a

@@ -107,9 +107,9 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     if reproduce is not None:
         report["reproduce"] = reproduce(obs)
     elif command is not None:
-        from fmbrdf_mi.fit.outputs.record import versions
+        from fmbrdf_mi.fit.outputs.record import command_block
 
-        report["reproduce"] = {"command": command, "cwd": os.getcwd(), "versions": versions()}
+        report["reproduce"] = command_block(command)
     report.update(extra or {})
     os.makedirs(out, exist_ok=True)
     for name, res in results.items():

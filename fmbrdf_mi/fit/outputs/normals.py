@@ -75,7 +75,7 @@ def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=0, model="fmbrdf"
     from fmbrdf_mi.fit.api.normal_joint import refine_joint
     from fmbrdf_mi.fit.api.normal_refine import check_views, refine_normals
     from fmbrdf_mi.fit.solve.optimise import default_progress
-    from fmbrdf_mi.fit.outputs.record import versions
+    from fmbrdf_mi.fit.outputs.record import command_block
     from fmbrdf_mi.fit.outputs import normal_plots
 
     say = default_progress if progress else (lambda m: None)
@@ -133,7 +133,7 @@ def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=0, model="fmbrdf"
         report["refine_normals"]["angular_error"] = {"before": _errors(n0, gt, m),
                                                     "after": _errors(joint.normals, gt, m),
                                                     "reference": "normal/normal_GT.npy"}
-    report["reproduce"] = {"command": command, "cwd": os.getcwd(), "versions": versions()}
+    report["reproduce"] = command_block(command)
     os.makedirs(out, exist_ok=True)
     np.save(files[1], joint.normals.astype(np.float32))
     normal_plots.plot_normal_map(joint.normals, m, files[2], title=f"refined normals ({start} start)")

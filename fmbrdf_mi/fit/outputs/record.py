@@ -74,7 +74,13 @@ def versions():
     return v
 
 
+def command_block(command):
+    """The part of every ``reproduce`` block that says how the fit was run: command line, directory, versions."""
+    return {"command": command, "cwd": os.getcwd(), "versions": versions()}
+
+
 def reproduce_block(arguments, inputs, command, obs, relight=None):
+    """The ``reproduce`` block of a single-image fit (module docstring); ``--from`` reruns it."""
     files = _files(arguments)
     return {
         "command": command,

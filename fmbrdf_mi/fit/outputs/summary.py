@@ -12,8 +12,6 @@ def print_colour(report):
     """The stdout summary of a colour fit; returns the exit status (3: stopped before convergence)."""
     import sys
 
-    from fmbrdf_mi.fit.outputs.summary import EXIT_NOT_CONVERGED
-
     status = 0
     for name, m in report["models"].items():
         print(f"{name} (colour, per-channel albedos): chi2/dof {m['chi2_per_dof']:.4f} over {m['n_samples']} raw "
@@ -101,3 +99,70 @@ def print_report(report):
         b, a = ae["before"], ae["after"]
         print(f"  angle to the ground truth: before {b['mean']:.2f} / {b['median']:.2f} deg, after "
               f"{a['mean']:.2f} / {a['median']:.2f} deg (mean / median, {a['pixels']} pixels)")
+
+
+def print_summary(report, out, t0):
+    """The stdout summary of any fit's report (single image, joint, colour, normal refinement); returns the exit
+    status: 0, or :data:`EXIT_NOT_CONVERGED` when a fit stopped before it converged."""
+    import sys
+    import time
+
+    from fmbrdf_mi.fit.outputs.single import output_files
+
+    if report.get("sensor") == "colour":
+        return print_colour(report)
+    if report.get("refine_normals"):
+        print_report(report)
+        print(f"wrote {', '.join(report['refine_normals']['outputs'])} ({time.time() - t0:.1f} s)")
+        return 0 if report["refine_normals"]["converged"] else EXIT_NOT_CONVERGED
+    from fmbrdf_mi.fit.uncertainty import WEAK_REL
+
+    status = 0
+    for name, m in report["models"].items():
+        unc = m.get("uncertainty") or {}
+        print(f"{name}: {m['objective']} {m['loss']:.6e}  ({'converged' if m['converged'] else 'NOT converged'}: "
+              f"{m['stop_reason']})")
+        if m.get("noise"):
+            print(f"  camera noise {m['noise']['description']}")
+        ex = m.get("pixels_excluded") or {}
+        if ex.get("saturated") or ex.get("dark"):
+            print(f"  excluded {ex['saturated']} saturated and {ex['dark']} dark super-pixels of "
+                  f"{ex['candidates']}; fitted {ex['used']}")
+        std, ci = unc.get("std_errors", {}), unc.get("ci95", {})
+        for k, v in m["params"].items():
+            line = f"  {k:<6} {v:10.5g}"
+            if k in std:
+                line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]"
+            if "relative_error" in m and k in m["relative_error"]:
+                line += f"  (vs metadata {m['relative_error'][k]:+.2%})"
+            print(line)
+        if unc.get("method"):
+            print(f"  uncertainty: {unc['method']}"
+                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
+                  + (" (the model or the stated noise does not explain the data: errors too small)"
+                     if unc.get("misfit") else ""))
+        if unc.get("correlation"):
+            c = unc["correlation"]
+            big = [(c["names"][i], c["names"][j], c["matrix"][i][j]) for i in range(len(c["names"]))
+                   for j in range(i + 1, len(c["names"])) if abs(c["matrix"][i][j]) > 0.9]
+            if big:
+                print("  strongly correlated: " + ", ".join(f"{a}/{b} {x:+.2f}" for a, b, x in big))
+        if m.get("weakly_identified"):
+            print(f"  weakly identified (standard error > {WEAK_REL:.0%} of the value, or at a bound): "
+                  f"{', '.join(m['weakly_identified'])}")
+        if not m["converged"]:
+            print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
+                  f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
+                  file=sys.stderr)
+            status = EXIT_NOT_CONVERGED
+    if report.get("joint"):
+        print_joint(report)
+        print(f"wrote {', '.join(report['joint']['outputs'])} ({time.time() - t0:.1f} s)")
+        return status
+    if "relight" in report:
+        for name, r in report["relight"].items():
+            if isinstance(r, dict):
+                print(f"relighting {name}: RMSE / mean intensity = {r['rel_rmse']:.4f}")
+    print(f"wrote {', '.join(output_files(out, report.get('reproduce', {}).get('arguments', {}).get('relight')))} "
+          f"({time.time() - t0:.1f} s)")
+    return status

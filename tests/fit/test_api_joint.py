@@ -2,7 +2,7 @@
 
 References are independent of the code under test: per-image problems built
 by the single-image fit (whose Jacobian is checked against finite
-differences in test_fit_likelihood.py), brute-force NumPy losses, and
+differences in test_objectives_likelihood.py), brute-force NumPy losses, and
 noise-free images whose optimum is the truth.
 """
 import math

@@ -1,0 +1,72 @@
+"""The command line's one table of which options each mode refuses or needs (fmbrdf_mi/fit/cli/checks.py).
+
+Every row of the table is exercised: each refused option, given alone, is
+named in a one-line error for its mode, and the options that are not given
+are not named; each option that needs another is refused without it.  End
+to end, a refused combination stops ``fmbrdf-mi fit`` before any file is read
+(the input named does not exist) with exit status 1 and no output directory.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+
+import pytest
+
+from fmbrdf_mi.fit.cli.checks import NEEDS, OPTIONS, REFUSED, check_needs, refuse
+from fmbrdf_mi.fit.cli.command import add_fit_arguments
+from fmbrdf_mi.fit.errors import InputError
+
+#: how to give each option of OPTIONS on the command line
+GIVE = {"--baselines": ["--baselines"], "--relight": ["--relight", "b.exr"], "--path": ["--path", "render"],
+        "--optimizer": ["--optimizer", "adam"], "--init": ["--init", "eta=1.5"], "--loss": ["--loss", "paper"],
+        "--layout": ["--layout", "0,45,90,135"], "--dark-level": ["--dark-level", "3"],
+        "--footprint": ["--footprint", "box"], "--free-power": ["--free-power"]}
+NEED_GIVE = {"--relight-light": ["--relight-light", "0,0,1"], "--holdout": ["--holdout", "1"],
+             "--normals-start": ["--normals-start", "sphere"], "--smooth": ["--smooth", "0.5"],
+             "--rounds": ["--rounds", "2"]}
+
+
+def parse(argv):
+    p = argparse.ArgumentParser()
+    add_fit_arguments(p)
+    return p.parse_args(["-o", "out", *argv])
+
+
+def test_every_option_of_the_table_can_be_given():
+    assert set(GIVE) == set(OPTIONS) and set(NEED_GIVE) == set(NEEDS)
+    none = parse(["a.png"])
+    for flag, (given, _) in OPTIONS.items():
+        assert not given(none), flag
+        assert given(parse(["a.png", *GIVE[flag]])), flag
+
+
+@pytest.mark.parametrize("mode", sorted(REFUSED))
+def test_each_refused_option_is_named_alone(mode):
+    flags, head, _ = REFUSED[mode]
+    refuse(parse(["a.png"]), mode)          # nothing refused given: no error
+    for flag in flags:
+        with pytest.raises(InputError) as e:
+            refuse(parse(["a.png", *GIVE[flag]]), mode)
+        msg = str(e.value)
+        assert msg.startswith(head + ": ") and "\n" not in msg
+        assert OPTIONS[flag][1](parse(["a.png", *GIVE[flag]])) in msg
+        assert all(OPTIONS[o][1](parse(["a.png", *GIVE[o]])) not in msg for o in flags if o != flag)
+
+
+@pytest.mark.parametrize("flag", sorted(NEEDS))
+def test_options_that_need_another(flag):
+    check_needs(parse(["a.png"]))
+    with pytest.raises(InputError, match=f"^{flag} needs "):
+        check_needs(parse(["a.png", *NEED_GIVE[flag]]))
+
+
+def test_refused_before_any_file_is_read(tmp_path, capsys):
+    from fmbrdf_mi.cli import main
+
+    out = tmp_path / "out"
+    code = main(["fit", "--manifest", str(tmp_path / "missing.toml"), "--refine-normals", "--baselines", "-o",
+                 str(out)])
+    err = capsys.readouterr().err
+    assert code == 1 and "--refine-normals: --baselines not supported" in err and "missing.toml" not in err
+    assert not os.path.exists(out)
