@@ -59,13 +59,12 @@ def run(args):
     from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.inputs.parse import parse_fixed
-    from fmbrdf_mi.fit.api.fitting import FitOptions, _objective, make_evaluator, select_pixels
-    from fmbrdf_mi.fit.evaluate.models import get_model
+    from fmbrdf_mi.fit.api.fitting import FitOptions
+    from fmbrdf_mi.fit.problem.data import prepare, select_pixels
     from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     cam = CameraModel(full_well=args.full_well, read_noise=args.read_noise, bits=args.bits)
     fixed = parse_fixed(args.fix) or {}
-    model = get_model("fmbrdf")
     runs = []
     for mat in args.materials:
         truth = MATERIALS[mat]
@@ -82,8 +81,7 @@ def run(args):
                     idx, _ = select_pixels(obs, opts)
                     key = (loss, tuple(idx))
                     if key not in evs:
-                        smp = _objective(obs, idx, opts, loss)[1]
-                        evs = {key: make_evaluator(model, obs, idx, opts, samples=smp)}
+                        evs = {key: prepare([obs], opts, loss, single=True).evaluator}
                     r = fit(obs, opts, evaluator=evs[key], progress=False)
                     rec = {"material": mat, "size": size, "seed": seed, "loss": loss, "truth": truth,
                            "params": r.params, "std_errors": r.std_errors,

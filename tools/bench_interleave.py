@@ -8,7 +8,7 @@
 ``--old DIR``: a checkout of the other version (``git worktree add --detach ../old COMMIT``).  Each round
 runs the bench once with ``DIR`` first on ``PYTHONPATH`` (its ``tools/`` script, its package) and once with
 this checkout, alternating which goes first, each writing ``--json``.  From every JSON it sums the fits' own
-times (every number under a key ``time`` or ``fit_time``: the fit, not the data's rendering), and reports
+times (every number under a key ``time`` or ``fit_time`` of its runs: the fit, not the data's rendering), and reports
 per version the best round (the least disturbed by other load) and the ratio new / old of the best rounds,
 with the date and CPU.  Timings on this 2-core machine move 2-3x with load: only the ratio in one run means
 something, and only on a quiet machine.
@@ -54,7 +54,8 @@ def run(tree, script, args, work, tag):
                    check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wall = time.time() - t
     with open(path) as f:
-        times = fit_times(json.load(f))
+        d = json.load(f)
+    times = fit_times(d["runs"] if isinstance(d, dict) and "runs" in d else d)   # not the tables' means
     return {"fits": len(times), "fit_total": sum(times), "fit_max": max(times) if times else None, "wall": wall}
 
 

@@ -10,8 +10,8 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from fmbrdf_mi.camera import CameraModel
 from fmbrdf_mi.fit import fit
-from fmbrdf_mi.fit.api.fitting import FitOptions, _objective, make_evaluator, select_pixels
-from fmbrdf_mi.fit.evaluate.models import FMBRDF
+from fmbrdf_mi.fit.api.fitting import FitOptions
+from fmbrdf_mi.fit.problem.data import prepare, select_pixels
 from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 TRUE = {"eta": 1.55, "alpha": 0.35, "beta": 1.4, "kappa": 30.0, "k_s": 0.9, "r_k": 1.7}
 SHAPE = {k: TRUE[k] for k in ("eta", "alpha", "beta", "kappa")}
@@ -29,7 +29,7 @@ for s in range(seed0, seed0 + N):
     idx, _ = select_pixels(obs, opts)
     key = tuple(idx)
     if key not in evs:
-        evs[key] = make_evaluator(FMBRDF, obs, idx, opts, samples=_objective(obs, idx, opts, loss)[1])
+        evs[key] = prepare([obs], opts, loss, single=True).evaluator
     r = fit(obs, opts, evaluator=evs[key], progress=False)
     if not r.converged:
         nc += 1; continue

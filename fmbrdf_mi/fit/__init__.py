@@ -3,6 +3,7 @@
     from fmbrdf_mi.fit import Observation, fit
     result = fit(obs)                     # obs: Observation (inputs/observations.py)
     result.params                         # eta, alpha, beta, kappa, k_s, r_k
+    joint = fit([obs_1, obs_2, obs_3])    # several images of one object: one material (= fit_joint)
 
 One pipeline in layers; each sub-package imports only from the ones listed
 before it (``tests/test_layers.py`` enforces it):
@@ -14,7 +15,8 @@ before it (``tests/test_layers.py`` enforces it):
                    manifests, the authors' layout, colour mosaics), values given as text
 ``evaluate``       the models and their pixel / render evaluators, predictions, synthetic data
 ``objectives``     the likelihood of the camera's samples, the paper's loss and its variants
-``problem``        a fit's problem (model, evaluator, objective, bounds, clock; free powers)
+``problem``        what a fit runs on (pixels, objective, evaluator: one builder for one image
+                   or K) and its problem (model, bounds, clock; free powers)
 ``solve``          coarse search, Levenberg-Marquardt, Adam; the normal refinement's system
 ``uncertainty``    covariances (Fisher, sandwich), intervals, flags
 ``result``         :class:`FitResult` and the JSON encoder of every output

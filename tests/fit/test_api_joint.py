@@ -67,8 +67,7 @@ def test_joint_fisher_information_is_the_sum_of_the_images(variant):
     from fmbrdf_mi.fit import uncertainty as U
     from fmbrdf_mi.fit.evaluate.models import State
     from fmbrdf_mi.fit.problem.problem import Problem
-    from fmbrdf_mi.fit.api.fitting import _objective, make_evaluator, select_pixels
-    from fmbrdf_mi.fit.api.joint import prepare
+    from fmbrdf_mi.fit.problem.data import prepare
     from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
 
     obs = _captures(res=12)
@@ -76,9 +75,9 @@ def test_joint_fisher_information_is_the_sum_of_the_images(variant):
     st = State(*FMBRDF.split(NEAR))
     F = []
     for o in obs:
-        idx, _ = select_pixels(o, opts)
-        obj, smp = _objective(o, idx, opts, "likelihood")
-        pb = Problem(FMBRDF, make_evaluator(FMBRDF, o, idx, opts, samples=smp), obj, Bounds(FMBRDF))
+        one = prepare([o], opts, "likelihood", single=True)    # each image as a single-image fit has it
+        obj = one.objective
+        pb = Problem(FMBRDF, one.evaluator, obj, Bounds(FMBRDF))
         obj.refresh(pb.parts(st), st)
         r, J = pb.residuals_and_jacobian(pb.parts(st, jac=True), st, pb.to_z(st))
         F.append(U.jacobian_in_reported(pb, st, J)[1])
@@ -130,7 +129,8 @@ def test_loss_variants_values_against_numpy(variant):
     from fmbrdf_mi.fit.objectives import loss as L
     from fmbrdf_mi.fit.evaluate.models import State
     from fmbrdf_mi.fit.problem.problem import Problem
-    from fmbrdf_mi.fit.api.fitting import FitOptions, _objective, make_evaluator, select_pixels
+    from fmbrdf_mi.fit.api.fitting import FitOptions
+    from fmbrdf_mi.fit.problem.data import prepare, select_pixels
     from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
 
     o = _clean(res=16)[0]
@@ -143,8 +143,9 @@ def test_loss_variants_values_against_numpy(variant):
     ibar = obs_s[0]
     rhobar = np.hypot(obs_s[1], obs_s[2]) / ibar
     for loss in ("intensity", "dolp"):
-        obj, _ = _objective(o, idx, opts, loss)
-        pb = Problem(FMBRDF, make_evaluator(FMBRDF, o, idx, opts), obj, Bounds(FMBRDF))
+        one = prepare([o], opts, loss, single=True)
+        obj = one.objective
+        pb = Problem(FMBRDF, one.evaluator, obj, Bounds(FMBRDF))
         parts = pb.parts(st)
         obj.refresh(parts, st)
         s = st.a_s * parts.surface + st.a_b * parts.body
@@ -216,3 +217,19 @@ def test_joint_fit_of_different_views(variant):
     for k, v in TRUE.items():
         assert abs(res.params[k] - v) <= 1e-4 * max(v, 1.0), (k, res.params[k])
     assert [im["n_pixels"] for im in res.images] == [len(p) for p in res.pixels]
+
+
+def test_one_image_is_the_list_of_one():
+    """fit(obs) and fit([obs]) run the same data path (problem.data.prepare): the same estimate, standard
+    errors and chi^2 to the last bit, on a noisy capture (likelihood) and a noise-free Stokes image (paper's loss);
+    the list's result adds the per-image block."""
+    from fmbrdf_mi.fit import fit
+
+    cases = [(_captures(res=12)[0], {}), (_clean(res=16, lights=LIGHTS[:1])[0], {"loss": "paper"})]
+    for o, kw in cases:
+        a = fit(o, progress=False, init=NEAR, **kw)
+        b = fit([o], progress=False, init=NEAR, **kw)
+        assert a.converged and b.converged
+        assert a.params == b.params and a.std_errors == b.std_errors and a.loss == b.loss, kw
+        assert a.images is None and len(b.images) == 1 and b.images[0]["n_pixels"] == a.n_pixels
+        assert list(b.pixels[0]) == list(a.pixels)

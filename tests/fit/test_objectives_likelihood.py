@@ -106,14 +106,14 @@ def test_likelihood_jacobian_and_fisher_information_against_finite_differences(v
     from fmbrdf_mi.fit import uncertainty as U
     from fmbrdf_mi.fit.evaluate.models import State
     from fmbrdf_mi.fit.problem.problem import Problem
-    from fmbrdf_mi.fit.api.fitting import _objective, make_evaluator, select_pixels
+    from fmbrdf_mi.fit.problem.data import prepare
     from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
 
     obs, _ = _small_capture(res=12)
     opts = FitOptions(loss="likelihood")
-    idx, _ = select_pixels(obs, opts)
-    obj, smp = _objective(obs, idx, opts, "likelihood")
-    pb = Problem(FMBRDF, make_evaluator(FMBRDF, obs, idx, opts, samples=smp), obj, Bounds(FMBRDF))
+    data = prepare([obs], opts, "likelihood", single=True)
+    obj = data.objective
+    pb = Problem(FMBRDF, data.evaluator, obj, Bounds(FMBRDF))
     start = {"eta": 1.5, "alpha": 0.3, "beta": 1.6, "kappa": 20.0, "k_s": 0.8, "r_k": 1.5}
     st = State(*FMBRDF.split(start))
     obj.refresh(pb.parts(st), st)   # variances frozen from here on (IRLS)
@@ -165,8 +165,8 @@ def test_likelihood_intervals_cover_the_truth(variant):
     """
     from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
-    from fmbrdf_mi.fit.api.fitting import FitOptions, _objective, make_evaluator, select_pixels
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF
+    from fmbrdf_mi.fit.api.fitting import FitOptions
+    from fmbrdf_mi.fit.problem.data import prepare, select_pixels
     from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     cam = CameraModel(full_well=3000.0, read_noise=6.0, bits=12)
@@ -174,7 +174,7 @@ def test_likelihood_intervals_cover_the_truth(variant):
     obs0, _ = capture_observation(ideal, cam, seed=0)
     opts = FitOptions(loss="likelihood", fixed=SHAPE, starts=1)
     idx, _ = select_pixels(obs0, opts)
-    ev = make_evaluator(FMBRDF, obs0, idx, opts, samples=_objective(obs0, idx, opts, "likelihood")[1])
+    ev = prepare([obs0], opts, "likelihood", single=True).evaluator
     est, se, cover = {k: [] for k in ("k_s", "r_k")}, {k: [] for k in ("k_s", "r_k")}, {k: 0 for k in ("k_s", "r_k")}
     N = 150
     t0 = time.time()
@@ -288,8 +288,8 @@ def test_paper_loss_sandwich_intervals_cover_the_truth(variant):
     """
     from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
-    from fmbrdf_mi.fit.api.fitting import FitOptions, make_evaluator, select_pixels
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF
+    from fmbrdf_mi.fit.api.fitting import FitOptions
+    from fmbrdf_mi.fit.problem.data import prepare, select_pixels
     from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     cam = CameraModel(full_well=3000.0, read_noise=6.0, bits=12)
@@ -304,7 +304,7 @@ def test_paper_loss_sandwich_intervals_cover_the_truth(variant):
         idx, _ = select_pixels(obs, opts)
         key = tuple(idx)
         if key not in evs:
-            evs[key] = make_evaluator(FMBRDF, obs, idx, opts)
+            evs[key] = prepare([obs], opts, "paper", single=True).evaluator
         r = fit(obs, opts, evaluator=evs[key], progress=False)
         assert r.converged and "CR3" in r.uncertainty["method"] and "neighbouring" in r.uncertainty["method"]
         for k in names:

@@ -105,7 +105,7 @@ def test_power_columns_of_the_jacobian_are_the_derivative(variant):
     from fmbrdf_mi.fit import uncertainty as U
     from fmbrdf_mi.fit.evaluate.models import State
     from fmbrdf_mi.fit.problem.problem import Problem
-    from fmbrdf_mi.fit.api.joint import prepare
+    from fmbrdf_mi.fit.problem.data import prepare
     from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
 
     obs, _, _ = _captures(res=12)

@@ -10,19 +10,15 @@ from fmbrdf_mi.fit import uncertainty as U
 from fmbrdf_mi.fit.api.options import check_fit_options
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
-from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator, RenderEvaluator
-from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
-from fmbrdf_mi.fit.objectives import loss as L, loss_variants as LV
-from fmbrdf_mi.fit.problem.problem import FitData, TimeUp
+from fmbrdf_mi.fit.evaluate.pixel_model import RenderEvaluator
+from fmbrdf_mi.fit.objectives import loss_variants as LV
+from fmbrdf_mi.fit.evaluate.models import State
+from fmbrdf_mi.fit.problem.data import prepare, resolve_loss, select_pixels
+from fmbrdf_mi.fit.problem.free_power import power_text
+from fmbrdf_mi.fit.problem.problem import TimeUp
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import optimise as O
 from fmbrdf_mi.fit.uncertainty import WEAK_REL
-
-
-#: Pixels whose view or light direction is within this angle (degrees) of the
-#: normal are left out of the fit: the BSDF's reverse-mode derivative with
-#: respect to alpha is NaN there for some alpha (see the README).
-POLE_EXCLUSION_DEG = 3.0
 
 
 @dataclasses.dataclass
@@ -58,103 +54,20 @@ def weakly_identified(params, std, at_bound=()):
     return U.weakly_identified(params, std, at_bound)
 
 
-#: Fewest super-pixels a fit accepts.
-MIN_PIXELS = 20
-
-
-def select_pixels(obs, opts, use_samples=True):
-    """Flat indices of the pixels a fit uses, and what was excluded (see :class:`FitOptions`).
-
-    With raw samples (:attr:`Observation.samples`), super-pixels with a
-    sample at or above the white level or at or below the dark level are
-    excluded (:mod:`fmbrdf_mi.fit.camera.samples`) and counted.
-    """
-    m = erode_mask(obs.mask, opts.erode)
-    n = obs.normals
-    cos_v = np.sum(n * obs.view_dirs, axis=-1)
-    cos_l = n @ obs.light_dir
-    pole = math.cos(math.radians(POLE_EXCLUSION_DEG))
-    m = m & (cos_v > opts.min_cos_view) & (cos_l > opts.min_cos_light) & (cos_v < pole) & (cos_l < pole)
-    m &= np.all(np.isfinite(obs.stokes), axis=0)
-    excluded = {"candidates": int(m.sum()), "saturated": 0, "dark": 0}
-    smp = obs.samples if use_samples else None
-    if smp is not None:
-        excluded["saturated"] = int((m & smp.saturated).sum())
-        excluded["dark"] = int((m & smp.dark & ~smp.saturated).sum())
-        excluded["white_level"], excluded["dark_level"] = smp.white_level, smp.dark_level
-        m &= smp.usable
-    idx = np.flatnonzero(m.ravel())
-    if len(idx) < MIN_PIXELS:
-        why = ""
-        if excluded["saturated"] or excluded["dark"]:
-            why = (f" after excluding {excluded['saturated']} super-pixels with a sample at or above the white "
-                   f"level {smp.white_level:g} and {excluded['dark']} with a sample at or below the dark level "
-                   f"{smp.dark_level} (lower the exposure, or set --white-level / --dark-level)")
-        raise InputError(f"only {len(idx)} usable pixels (mask eroded by {opts.erode}, n.v > "
-                         f"{opts.min_cos_view}, n.l > {opts.min_cos_light}){why}; need at least {MIN_PIXELS}")
-    if opts.max_pixels and len(idx) > opts.max_pixels:
-        rng = np.random.default_rng(opts.seed)
-        idx = np.sort(rng.choice(idx, opts.max_pixels, replace=False))
-    excluded["used"] = int(len(idx))
-    return idx, excluded
-
-
 def usable_pixels(obs, opts):
     """Flat indices of the pixels a fit uses (:func:`select_pixels`)."""
     return select_pixels(obs, opts)[0]
 
 
-def resolve_loss(obs, opts):
-    """``auto`` -> ``likelihood`` when the camera noise is known (gain given or in a sidecar) and the fit
-    runs LM on the pixel path (what the likelihood needs), else ``paper``."""
-    if opts.loss == "auto":
-        ok = opts.path == "pixel" and opts.optimizer == "lm"
-        return "likelihood" if (ok and obs.noise is not None and obs.noise.known) else "paper"
-    if opts.loss not in ("likelihood", "paper") + LV.VARIANTS:
-        raise InputError(f"loss: expected 'likelihood', 'paper', 'intensity', 'dolp' or 'auto', got {opts.loss!r}")
-    return opts.loss
-
-
-def make_evaluator(model, obs, idx, opts, scene=None, samples=None):
-    """The model evaluated at the pixels ``idx``: over their footprint, or (``samples``) at each sample's point."""
-    if opts.path == "pixel":
-        if samples is not None:
-            off = samples.offsets
-            if not np.any(off):  # all four samples at the pixel centre: evaluate once
-                n, v, _ = obs.sample_geometry(idx, footprint=None)
-            else:
-                n, v, _ = obs.sample_geometry(idx, footprint=samples.footprint())
-            return PixelEvaluator(model, n, v, obs.light_dir, obs.irradiance)
-        n, v, w = obs.sample_geometry(idx)
-        return PixelEvaluator(model, n, v, obs.light_dir, obs.irradiance, weights=None if len(w) == 1 else w)
-    if opts.path == "render":
-        if scene is None:
-            raise InputError("path 'render' needs a Mitsuba scene (scene=...) containing the model's BSDF")
-        ev = RenderEvaluator(model, scene, opts.bsdf_prefix, idx, spp=opts.spp, seed=opts.seed)
-        if ev.shape != obs.shape:
-            raise InputError(f"scene renders {ev.shape[1]}x{ev.shape[0]} pixels but the observation "
-                             f"is {obs.shape[1]}x{obs.shape[0]}")
-        return ev
-    raise InputError(f"path: expected 'pixel' or 'render', got {opts.path!r}")
-
-
-def _objective(obs, idx, opts, loss):
-    """(objective, samples or None) for the pixels ``idx``."""
-    from fmbrdf_mi.fit.camera import samples as SM
-    from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective, PaperObjective
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
-
-    if loss != "likelihood":
-        var = None if obs.lin_variance is None else obs.lin_variance.ravel()[idx]
-        target = L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx], opts.dolp_min_intensity, var)
-        obj = PaperObjective(target) if loss == "paper" else LV.make(loss, target)
-        if obs.samples is not None and obs.samples.source == "raw mosaic" and obs.meta.get("demosaic") != "superpixel":
-            # bilinear demosaicking: neighbours share raw samples (the sandwich covariance accounts for it)
-            obj.grid = np.divmod(np.asarray(idx), obs.shape[1])
-        return obj, None
-    smp = obs.samples if obs.samples is not None else SM.from_stokes(obs.stokes)
-    noise = dataclasses.replace(obs.noise) if obs.noise is not None else NoiseModel(step=smp.step)
-    return LikelihoodObjective(smp.at(idx), smp.analyser(), noise, smp.dof), smp
+def render_evaluator(model, obs, idx, opts, scene):
+    """The render path's evaluator: the scene rendered, the pixels ``idx`` read off."""
+    if scene is None:
+        raise InputError("path 'render' needs a Mitsuba scene (scene=...) containing the model's BSDF")
+    ev = RenderEvaluator(model, scene, opts.bsdf_prefix, idx, spp=opts.spp, seed=opts.seed)
+    if ev.shape != obs.shape:
+        raise InputError(f"scene renders {ev.shape[1]}x{ev.shape[0]} pixels but the observation "
+                         f"is {obs.shape[1]}x{obs.shape[0]}")
+    return ev
 
 
 def _distinct_starts(problem, cands, n):
@@ -179,24 +92,32 @@ def _distinct_starts(problem, cands, n):
     return chosen
 
 
-def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=None, **kw):
+def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=None, names=None, powers=None,
+        **kw):
     """Estimate the parameters of ``options.model`` from ``obs``; returns a :class:`FitResult`.
+
+    ``obs``: one :class:`~fmbrdf_mi.fit.inputs.observations.Observation`, or
+    a list of them: several images of one object sharing the material (a
+    joint fit, :func:`fmbrdf_mi.fit.api.joint.fit_joint`: ``names``,
+    ``powers`` and the ``free_power`` option are for lists).  One image is the
+    list of one: both run on :func:`~fmbrdf_mi.fit.problem.data.prepare`.
 
     Keyword arguments override fields of :class:`FitOptions` (the CLI's
     options have the same names).  ``progress``: True prints to stderr, a
     callable receives each progress line, False is silent.  ``evaluator``:
-    a pixel evaluator built by :func:`make_evaluator` for the same geometry,
-    pixels and objective (reused across noise seeds by the benchmarks).
+    the evaluator of :func:`~fmbrdf_mi.fit.problem.data.prepare` for the same
+    geometry, pixels and objective (reused across noise seeds by the benchmarks).
     ``data``: a :class:`~fmbrdf_mi.fit.problem.problem.FitData` built by
     the caller for data that are not one observation (several images of one
-    object: :func:`fmbrdf_mi.fit.api.joint.fit_joint`, which builds it with
-    :func:`~fmbrdf_mi.fit.api.joint.prepare`); ``obs`` is then only used for
-    its noise model.
+    object, which :func:`~fmbrdf_mi.fit.problem.data.prepare` builds); ``obs`` is
+    then only used for its noise model.
 
     A fit stopped by ``max_time`` (a hard wall-clock limit, checked before
     every model evaluation) returns the latest accepted estimate with
     ``converged=False`` and no standard errors.
     """
+    if isinstance(obs, (list, tuple)):
+        return _fit_images(obs, options, names=names, progress=progress, powers=powers, **kw)
     opts = dataclasses.replace(options or FitOptions(), **kw)
     check_fit_options(**dataclasses.asdict(opts))
     if opts.optimizer not in ("lm", "adam"):
@@ -218,11 +139,13 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     model = get_model(opts.model)
     t0 = time.time()
     deadline = None if not opts.max_time else t0 + float(opts.max_time)
+    if data is None and opts.path == "render":
+        idx, _ = select_pixels(obs, opts)
+        evaluator = render_evaluator(model, obs, idx, opts, scene)
+    elif opts.path not in ("pixel", "render"):
+        raise InputError(f"path: expected 'pixel' or 'render', got {opts.path!r}")
     if data is None:
-        idx, excluded = select_pixels(obs, opts)
-        objective, smp = _objective(obs, idx, opts, loss)
-        ev = evaluator if evaluator is not None else make_evaluator(model, obs, idx, opts, scene, smp)
-        data = FitData(loss, idx, excluded, objective, smp, ev)
+        data = prepare([obs], opts, loss, single=True, evaluator=evaluator)
     loss, idx, excluded, objective, smp = data.loss, data.pixels, data.excluded, data.objective, data.samples
     if excluded.get("saturated") or excluded.get("dark"):
         report(f"[fit] excluded {excluded['saturated']} super-pixels with a sample at or above the white level "
@@ -315,6 +238,115 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                      objective=loss, uncertainty=unc,
                      noise=objective.noise.to_dict() if loss == "likelihood" else None,
                      pixels_excluded=excluded, starts=starts_log, pixels=idx)
+
+
+def _fit_images(observations, options=None, *, names=None, progress=True, powers=None, **kw):
+    """:func:`fit` of a list of observations (:func:`fmbrdf_mi.fit.api.joint.fit_joint` says what it does).
+
+    Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with ``images``
+    (per-image diagnostics) and ``pixels`` (one array per image).
+
+    ``options`` / keywords: :class:`~fmbrdf_mi.fit.api.fitting.FitOptions` (the
+    pixel path and the Levenberg-Marquardt optimiser).  ``names``: labels of
+    the images in the result (default ``image0``, ...).
+
+    ``free_power=True`` (an option) estimates the light powers of images
+    1 .. K-1 relative to image 0's (:mod:`fmbrdf_mi.fit.problem.free_power`);
+    ``powers``: the relative powers the observations' irradiances already
+    include (default 1 each): image 0's stays fixed, the others are where
+    the search starts (``power_start="given"``) and what the fitted powers
+    are reported against.  The result's ``powers`` and each
+    image's ``power`` / ``power_se`` then hold them.
+    """
+    observations = list(observations)
+    if not observations:
+        raise InputError("joint fit: no images")
+    opts = dataclasses.replace(options or FitOptions(), **kw)
+    if opts.path != "pixel" or opts.optimizer != "lm":
+        raise InputError("joint fit: works with the pixel path and optimizer 'lm'")
+    names = list(names) if names is not None else [f"image{k}" for k in range(len(observations))]
+    if len(names) != len(observations):
+        raise InputError(f"joint fit: {len(names)} names for {len(observations)} images")
+    losses = {resolve_loss(o, opts) for o in observations}
+    if len(losses) != 1:
+        raise InputError("joint fit: the camera noise is known for some images and not for others "
+                         f"(loss 'auto' resolves to {sorted(losses)}); give it for all, or choose --loss")
+    loss = losses.pop()
+    if opts.free_power and len(observations) < 2:
+        raise InputError("free_power: needs two or more fitted images (one image's power is not separable "
+                         "from k_s and k_b)")
+    try:
+        given = [1.0] * len(observations) if powers is None else [float(p) for p in powers]
+    except (TypeError, ValueError):
+        given = []
+    if len(given) != len(observations) or not all(math.isfinite(p) and p > 0 for p in given):
+        raise InputError(f"powers: expected {len(observations)} positive numbers, got {powers!r}")
+    check_fit_options(**dataclasses.asdict(opts))
+    data = prepare(observations, opts, loss)
+    idxs, slices = data.image_pixels, data.slices
+    pmodel = None
+    if opts.free_power:
+        from fmbrdf_mi.fit.problem import free_power as FP
+
+        pmodel = FP.PowerModel(get_model(opts.model), given)
+        pev = FP.PowerEvaluator(data.evaluator, pmodel, [b - a for a, b in slices])
+        data = dataclasses.replace(data, evaluator=pev,
+                                   make_problem=FP.problem_factory(pmodel, pev, slices, opts.power_start))
+    report = progress
+    if progress is True:
+        from fmbrdf_mi.fit.solve.optimise import default_progress as report
+    say = report or (lambda m: None)
+    say(f"[joint] {len(observations)} images, " + ", ".join(
+        f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
+        for n, o, (a, b) in zip(names, observations, slices)))
+    res = fit(observations[0], opts, progress=progress, data=data)
+    images = diagnose(res, data, observations, names, pmodel)
+    block = None
+    if pmodel is not None:
+        from fmbrdf_mi.fit.problem.free_power import split_result
+
+        block = split_result(res, pmodel, names)
+        for k, im in enumerate(images):
+            im.update({"power": block["values"][k], "power_given": given[k], "power_se": block["std_errors"][k],
+                       "power_ci95": block["ci95"][k], "power_reference": k == 0})
+    for im in images:
+        say(f"[joint] {im['name']}: " + ", ".join(f"{k} {im[k]:.4g}" for k in ("chi2_per_dof", "intensity_rel_rmse",
+                                                                             "dolp_rmse") if im.get(k) is not None)
+            + ("" if pmodel is None else ", " + power_text(im)))
+    res.images, res.powers, res.pixels = images, block, idxs
+    return res
+
+
+def diagnose(res, data, observations, names, power_model=None):
+    """Per image: pixels, light, irradiance, and how well the shared estimate explains it."""
+    loss, excluded, objective, ev = data.loss, data.excluded, data.objective, data.evaluator
+    idxs, slices = data.image_pixels, data.slices
+    model = power_model or get_model(res.model)
+    shape, a_s, a_b = model.split(res.params)
+    parts = ev.parts(shape)
+    st = State(shape, a_s, a_b)
+    pred = a_s * parts.surface + a_b * parts.body  # (3, points)
+    pts = pred.shape[1] // max(sum(len(i) for i in idxs), 1)
+    out = []
+    for k, (o, idx, (a, b)) in enumerate(zip(observations, idxs, slices)):
+        s = pred[:, a * pts:b * pts]
+        if pts > 1 and loss == "likelihood":
+            s = s.reshape(3, b - a, pts).mean(axis=2)  # the super-pixel's mean Stokes (for the summaries)
+        obs_s = o.stokes.reshape(3, -1)[:, idx]
+        i_obs, i_pred = obs_s[0], s[0]
+        d_obs = np.hypot(obs_s[1], obs_s[2]) / np.where(i_obs > 0, i_obs, 1.0)
+        d_pred = np.hypot(s[1], s[2]) / np.where(i_pred > 0, i_pred, 1.0)
+        bright = i_obs > 0.02 * np.percentile(i_obs, 99)
+        im = {"name": names[k], "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance,
+              "n_pixels": int(b - a), "pixels_excluded": excluded["per_image"][k],
+              "intensity_rel_rmse": float(np.sqrt(np.mean((i_pred - i_obs) ** 2)) / np.mean(i_obs)),
+              "dolp_rmse": float(np.sqrt(np.mean((d_pred - d_obs)[bright] ** 2))) if bright.any() else None}
+        if loss == "likelihood":
+            r = objective.residuals(parts, st).reshape(-1, 4)[a:b]
+            im["chi2"] = float(np.sum(r ** 2))
+            im["chi2_per_dof"] = im["chi2"] / max((b - a) * objective.dof, 1)
+        out.append(im)
+    return out
 
 
 def _step_in_se(problem, st_old, st_new, J):

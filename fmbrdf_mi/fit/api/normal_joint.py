@@ -128,7 +128,7 @@ class _JointProblem:
     """
 
     def __init__(self, obs, m, model, bounds, fixed, lam, prior="curvature"):
-        from fmbrdf_mi.fit.api.joint import same_noise
+        from fmbrdf_mi.fit.problem.data import same_noise
         from fmbrdf_mi.fit.problem.problem import Problem
         from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 

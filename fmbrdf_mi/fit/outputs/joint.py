@@ -73,7 +73,8 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     from fmbrdf_mi.fit.outputs import plots
     from fmbrdf_mi.fit.api.fitting import FitOptions
     from fmbrdf_mi.fit.evaluate.predict import predict_image
-    from fmbrdf_mi.fit.api.joint import fit_joint, fitted_observation, power_text
+    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
     from fmbrdf_mi.fit.api.options import check_fit_options
     from fmbrdf_mi.fit.evaluate.predict import relight_error
 

@@ -63,7 +63,7 @@ def print_joint(report):
                 line += f", chi2/dof {im['chi2_per_dof']:.3f}"
             line += f", intensity RMSE/mean {im['intensity_rel_rmse']:.4f}"
             if im.get("power") is not None:
-                from fmbrdf_mi.fit.api.joint import power_text
+                from fmbrdf_mi.fit.problem.free_power import power_text
 
                 line += ", " + power_text(im)
             print(f"{name}{line}" if len(report["models"]) > 1 else line)

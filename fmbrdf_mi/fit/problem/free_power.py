@@ -39,6 +39,7 @@ Both are measured in ``tools/bench_fit_lights.py --free-power`` (README).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import numpy as np
 
@@ -242,3 +243,18 @@ def split_result(res, model, names):
     return {"reference": names[0], "names": list(names), "given": list(model.given), "values": values,
             "std_errors": ses, "ci95": cis,
             "parameters": {nm: pn for nm, pn in zip(names[1:], model.power_names)}}
+
+
+def power_text(im):
+    """``power 0.61 +- 0.004 (given 1)`` of one image of a free-power fit (its entry of ``images``)."""
+    if im.get("power_reference"):
+        return f"power {im['power']:.4g} (reference, fixed)"
+    se = im.get("power_se")
+    return f"power {im['power']:.4g}" + ("" if se is None else f" +- {se:.2g}") + f" (given {im['power_given']:.4g})"
+
+
+def fitted_observation(obs, im):
+    """``obs`` with the irradiance of the fitted light power (``im``: its entry of ``images``), else itself."""
+    if im.get("power") is None or im["power"] == im["power_given"]:
+        return obs
+    return dataclasses.replace(obs, irradiance=obs.irradiance * im["power"] / im["power_given"])

@@ -1,0 +1,201 @@
+"""What a fit runs on: the pixels it uses and the data made into an objective and an evaluator at them.
+
+One builder (:func:`prepare`) for one image or several: a single-image fit
+is the list of its one image, a joint fit the list of K.  The samples of
+every image's fitted super-pixels are stacked into one objective (the
+likelihood of all images is the product of theirs; the paper's loss is
+computed over the union of their pixels) and the model is evaluated for all
+of them in one BSDF evaluation.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from fmbrdf_mi.fit.camera import samples as SM
+from fmbrdf_mi.fit.camera.noise import NoiseModel
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
+from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
+from fmbrdf_mi.fit.objectives import loss as L, loss_variants as LV
+from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective, PaperObjective
+from fmbrdf_mi.fit.problem.problem import FitData
+
+
+#: Pixels whose view or light direction is within this angle (degrees) of the
+#: normal are left out of the fit: the BSDF's reverse-mode derivative with
+#: respect to alpha is NaN there for some alpha (see the README).
+POLE_EXCLUSION_DEG = 3.0
+
+
+#: Fewest super-pixels a fit accepts.
+MIN_PIXELS = 20
+
+
+def select_pixels(obs, opts, use_samples=True):
+    """Flat indices of the pixels a fit uses, and what was excluded (see :class:`FitOptions`).
+
+    With raw samples (:attr:`Observation.samples`), super-pixels with a
+    sample at or above the white level or at or below the dark level are
+    excluded (:mod:`fmbrdf_mi.fit.camera.samples`) and counted.
+    """
+    m = erode_mask(obs.mask, opts.erode)
+    n = obs.normals
+    cos_v = np.sum(n * obs.view_dirs, axis=-1)
+    cos_l = n @ obs.light_dir
+    pole = math.cos(math.radians(POLE_EXCLUSION_DEG))
+    m = m & (cos_v > opts.min_cos_view) & (cos_l > opts.min_cos_light) & (cos_v < pole) & (cos_l < pole)
+    m &= np.all(np.isfinite(obs.stokes), axis=0)
+    excluded = {"candidates": int(m.sum()), "saturated": 0, "dark": 0}
+    smp = obs.samples if use_samples else None
+    if smp is not None:
+        excluded["saturated"] = int((m & smp.saturated).sum())
+        excluded["dark"] = int((m & smp.dark & ~smp.saturated).sum())
+        excluded["white_level"], excluded["dark_level"] = smp.white_level, smp.dark_level
+        m &= smp.usable
+    idx = np.flatnonzero(m.ravel())
+    if len(idx) < MIN_PIXELS:
+        why = ""
+        if excluded["saturated"] or excluded["dark"]:
+            why = (f" after excluding {excluded['saturated']} super-pixels with a sample at or above the white "
+                   f"level {smp.white_level:g} and {excluded['dark']} with a sample at or below the dark level "
+                   f"{smp.dark_level} (lower the exposure, or set --white-level / --dark-level)")
+        raise InputError(f"only {len(idx)} usable pixels (mask eroded by {opts.erode}, n.v > "
+                         f"{opts.min_cos_view}, n.l > {opts.min_cos_light}){why}; need at least {MIN_PIXELS}")
+    if opts.max_pixels and len(idx) > opts.max_pixels:
+        rng = np.random.default_rng(opts.seed)
+        idx = np.sort(rng.choice(idx, opts.max_pixels, replace=False))
+    excluded["used"] = int(len(idx))
+    return idx, excluded
+
+
+def resolve_loss(obs, opts):
+    """``auto`` -> ``likelihood`` when the camera noise is known (gain given or in a sidecar) and the fit
+    runs LM on the pixel path (what the likelihood needs), else ``paper``."""
+    if opts.loss == "auto":
+        ok = opts.path == "pixel" and opts.optimizer == "lm"
+        return "likelihood" if (ok and obs.noise is not None and obs.noise.known) else "paper"
+    if opts.loss not in ("likelihood", "paper") + LV.VARIANTS:
+        raise InputError(f"loss: expected 'likelihood', 'paper', 'intensity', 'dolp' or 'auto', got {opts.loss!r}")
+    return opts.loss
+
+
+def same_noise(observations):
+    """One camera: the images' noise models must agree (or all be unknown)."""
+    noises = [o.noise for o in observations]
+    known = [n is not None and n.known for n in noises]
+    if any(known) and not all(known):
+        raise InputError("joint fit: the camera noise (gain, read noise) is known for some images and not for "
+                         "others; give it for all or none")
+    if all(known):
+        ref = noises[0]
+        for k, n in enumerate(noises[1:], 1):
+            if not (math.isclose(n.gain, ref.gain, rel_tol=1e-9) and math.isclose(n.read_noise, ref.read_noise,
+                                                                                   rel_tol=1e-9, abs_tol=1e-12)
+                    and n.step == ref.step):
+                raise InputError(f"joint fit: image {k} has camera noise {n.describe()}, image 0 {ref.describe()}; "
+                                 "a joint fit assumes one camera (scale a different exposure into the light "
+                                 "power instead)")
+        return dataclasses.replace(ref)
+    return None
+
+
+def prepare(observations, opts, loss, *, single=False, evaluator=None):
+    """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images: one objective over all their
+    pixels, one evaluator, each image's pixels and slice.
+
+    A single-image fit is the list of its one image (``single=True``: its
+    messages name no image and ``excluded`` is that image's own block).
+    ``evaluator``: the model's evaluator at these pixels, if the caller has
+    one (reused across noise seeds by the benchmarks; the render path's);
+    else a :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`.
+    """
+    K = len(observations)
+    per_image = None if not opts.max_pixels else max(1, int(math.ceil(opts.max_pixels / K)))
+    idxs, excl = [], []
+    for k, o in enumerate(observations):
+        try:
+            idx, ex = select_pixels(o, dataclasses.replace(opts, max_pixels=per_image, seed=opts.seed + k))
+        except InputError as exc:
+            if single:
+                raise
+            raise InputError(f"image {k}: {exc}") from None
+        idxs.append(idx)
+        excl.append(ex)
+    starts = np.cumsum([0] + [len(i) for i in idxs])
+    slices = [(int(starts[k]), int(starts[k + 1])) for k in range(K)]
+    excluded = excl[0] if single else {
+        "candidates": sum(e["candidates"] for e in excl), "saturated": sum(e["saturated"] for e in excl),
+        "dark": sum(e["dark"] for e in excl), "used": int(starts[-1]), "per_image": excl,
+        "white_level": excl[0].get("white_level"), "dark_level": excl[0].get("dark_level")}
+    geo = []  # (normals, views, lights, irradiances) per image
+    if loss == "likelihood":
+        smps = [o.samples if o.samples is not None else SM.from_stokes(o.stokes) for o in observations]
+        A = smps[0].analyser()
+        for k, s in enumerate(smps[1:], 1):
+            if not np.allclose(s.analyser(), A) or s.dof != smps[0].dof:
+                raise InputError(f"joint fit: image {k} ({s.source}, polariser order {s.angles}) and image 0 "
+                                 f"({smps[0].source}, {smps[0].angles}) differ in their samples; a joint "
+                                 "likelihood needs one layout (or use --loss paper)")
+        per_point = any(np.any(s.offsets) for s in smps)
+        ys = []
+        for o, s, idx in zip(observations, smps, idxs):
+            if per_point:
+                n, v, _ = o.sample_geometry(idx, footprint=s.footprint())  # 4 points per super-pixel
+            else:
+                n, v, _ = o.sample_geometry(idx, footprint=None)
+            geo.append((n, v))
+            ys.append(s.at(idx))
+        noise = same_noise(observations)
+        if noise is None:
+            o0 = observations[0]
+            noise = dataclasses.replace(o0.noise) if single and o0.noise is not None else NoiseModel(step=smps[0].step)
+        objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof)
+        smp = smps[0]
+        weights = None
+    else:
+        fps = [o.footprint for o in observations]
+        for k, f in enumerate(fps[1:], 1):
+            same = (f is None and fps[0] is None) or (f is not None and fps[0] is not None and
+                                                     np.allclose(f[0], fps[0][0]) and np.allclose(f[1], fps[0][1]))
+            if not same:
+                raise InputError(f"joint fit: image {k}'s pixel footprint differs from image 0's; give all "
+                                 "images the same kind (raw mosaics with one demosaicking, or all Stokes images)")
+        stokes, var = [], []
+        for o, idx in zip(observations, idxs):
+            n, v, w = o.sample_geometry(idx)
+            geo.append((n, v))
+            stokes.append(o.stokes.reshape(3, -1)[:, idx])
+            var.append(None if o.lin_variance is None else o.lin_variance.ravel()[idx])
+        if any(x is None for x in var) and not all(x is None for x in var):
+            raise InputError("joint fit: the camera noise is known for some images and not for others")
+        target = L.Target.from_stokes(np.concatenate(stokes, axis=1), opts.dolp_min_intensity,
+                                      None if var[0] is None else np.concatenate(var))
+        objective = PaperObjective(target) if loss == "paper" else LV.make(loss, target)
+        # neighbouring super-pixels of a bilinear-demosaicked mosaic are correlated (uncertainty.py):
+        # stack the images' pixel grids one below the other, apart, so no two images are neighbours
+        if all(o.samples is not None and o.samples.source == "raw mosaic" and o.meta.get("demosaic") != "superpixel"
+               for o in observations):
+            rows, cols, off = [], [], 0
+            for o, idx in zip(observations, idxs):
+                r, c = np.divmod(np.asarray(idx), o.shape[1])
+                rows.append(r + off)
+                cols.append(c)
+                off += o.shape[0] + 2
+            objective.grid = (np.concatenate(rows), np.concatenate(cols))
+        smp = None
+        w = observations[0].sample_geometry(idxs[0][:1])[2]
+        weights = None if len(w) == 1 else w
+    normals = np.concatenate([g[0] for g in geo])
+    views = np.concatenate([g[1] for g in geo])
+    lights = np.concatenate([np.tile(o.light_dir, (len(g[0]), 1)) for o, g in zip(observations, geo)])
+    irr = np.concatenate([np.full(len(g[0]), o.irradiance) for o, g in zip(observations, geo)])
+    if evaluator is None:
+        if np.allclose(irr, irr[0]):
+            irr = float(irr[0])
+        evaluator = PixelEvaluator(get_model(opts.model), normals, views, lights, irr, weights=weights)
+    flat_idx = np.concatenate(idxs)
+    return FitData(loss, flat_idx, excluded, objective, smp, evaluator, image_pixels=idxs, slices=slices)
