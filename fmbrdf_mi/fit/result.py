@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import numpy as np
 
+import numpy as np
 
 
 def json_default(x):

@@ -35,8 +35,8 @@ a parameter within 1e-3 (relative to its range) of a bound is listed in
 from __future__ import annotations
 
 import math
-import numpy as np
 
+import numpy as np
 
 Z95 = 1.959963984540054
 

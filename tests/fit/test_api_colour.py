@@ -174,11 +174,11 @@ def test_colour_fit_recovers_per_channel_albedos(R):
     16-bit rounding (<< 1 SE).  So |error| < 0.3 SE (the SEs are those of a real capture with this camera's
     shot and read noise), and the SEs themselves must be small enough for that to mean something (< 25 %
     for the albedos, < 50 % for the shape parameters)."""
-    from fmbrdf_mi.fit.inputs import observations as ob
-    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
     from fmbrdf_mi.fit.api.colour import fit_colour
+    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
     from fmbrdf_mi.fit.camera.noise import NoiseModel
     from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.fit.inputs import observations as ob
 
     shape = dict(eta=1.5, alpha=0.25, beta=0.4, kappa=1.0)
     alb = {"R": (0.6, 0.8), "G": (0.4, 1.5), "B": (0.5, 0.4)}

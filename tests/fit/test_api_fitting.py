@@ -66,11 +66,10 @@ def test_render_path_agrees_with_pixel_path(render_setup):
 
 def _render_problem(render_setup):
     from fmbrdf_mi.fit import Observation
-    from fmbrdf_mi.fit.objectives import loss as L
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF
-    from fmbrdf_mi.fit.evaluate.models import State
-    from fmbrdf_mi.fit.problem.problem import Problem
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, State
     from fmbrdf_mi.fit.evaluate.pixel_model import RenderEvaluator
+    from fmbrdf_mi.fit.objectives import loss as L
+    from fmbrdf_mi.fit.problem.problem import Problem
 
     scene, obs, idx, rev, _ = render_setup
     # observation: the same scene rendered at the true parameters with other samples
@@ -120,8 +119,8 @@ def test_short_adam_fit_through_the_renderer(render_setup):
 
 
 def test_cli_writes_estimates_plots_and_relighting(tmp_path, capsys):
-    from fmbrdf_mi.cli import main
     from fmbrdf_mi import stokes_io
+    from fmbrdf_mi.cli import main
 
     true = {"eta": 1.6, "alpha": 0.2, "specular_reflectance": 0.7, "diffuse_reflectance": 0.5}
     a = _sphere_obs(true, res=32, model="pplastic")
@@ -147,9 +146,9 @@ def test_cli_writes_estimates_plots_and_relighting(tmp_path, capsys):
 def test_footprint_average_equals_averaged_evaluations(variant):
     from fmbrdf_mi.fit import Observation
     from fmbrdf_mi.fit.camera import noise as cn
-    from fmbrdf_mi.fit.inputs import observations as ob
     from fmbrdf_mi.fit.evaluate.models import FMBRDF
     from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
+    from fmbrdf_mi.fit.inputs import observations as ob
 
     n, m, v = ob.sphere_normals((20, 20), (10, 10), 9)
     obs = Observation(np.ones((3, 20, 20)), m, n, v, LIGHT, footprint=cn.demosaic_footprint())

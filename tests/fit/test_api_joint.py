@@ -24,8 +24,8 @@ def variant():
 
 def _clean(res=24, lights=LIGHTS, params=TRUE, irradiances=None):
     """Noise-free Stokes images at the pixel centres of an orthographic sphere, one per light."""
-    from fmbrdf_mi.fit.inputs import observations as ob
     from fmbrdf_mi.fit.evaluate.predict import predict_image
+    from fmbrdf_mi.fit.inputs import observations as ob
 
     n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
     out = []
@@ -65,10 +65,9 @@ def test_joint_fisher_information_is_the_sum_of_the_images(variant):
     reported joint covariance is the inverse of that sum (to float32 noise, 1e-6 relative)."""
     from fmbrdf_mi.fit import FitOptions
     from fmbrdf_mi.fit import uncertainty as U
-    from fmbrdf_mi.fit.evaluate.models import State
-    from fmbrdf_mi.fit.problem.problem import Problem
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
     from fmbrdf_mi.fit.problem.data import prepare
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
+    from fmbrdf_mi.fit.problem.problem import Problem
 
     obs = _captures(res=12)
     opts = FitOptions(loss="likelihood", max_pixels=None)
@@ -126,12 +125,11 @@ def test_joint_fit_per_image_diagnostics_and_errors(variant):
 def test_loss_variants_values_against_numpy(variant):
     """intensity: (1/M) sum ((I - Ibar) / mean Ibar)^2; dolp: the paper's weighted DoLP MSE plus
     ((mean I - mean Ibar) / mean Ibar)^2; both computed here from predicted Stokes by hand."""
-    from fmbrdf_mi.fit.objectives import loss as L
-    from fmbrdf_mi.fit.evaluate.models import State
-    from fmbrdf_mi.fit.problem.problem import Problem
     from fmbrdf_mi.fit.api.fitting import FitOptions
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
+    from fmbrdf_mi.fit.objectives import loss as L
     from fmbrdf_mi.fit.problem.data import prepare, select_pixels
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
+    from fmbrdf_mi.fit.problem.problem import Problem
 
     o = _clean(res=16)[0]
     rng = np.random.default_rng(1)
@@ -199,9 +197,9 @@ def test_loss_variant_options_are_checked():
 def test_joint_fit_of_different_views(variant):
     """Each image its own view (pixel grid, sphere position and size, orthographic or perspective view
     directions): noise-free images give back the truth (float32 precision of the BSDF, 1e-4)."""
-    from fmbrdf_mi.fit.inputs import observations as ob
-    from fmbrdf_mi.fit.evaluate.predict import predict_image
     from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.evaluate.predict import predict_image
+    from fmbrdf_mi.fit.inputs import observations as ob
 
     views = [((16, 16), (8, 8), 7, "orthographic", None, LIGHTS[0]),
              ((14, 20), (11, 6.5), 6, "orthographic", None, LIGHTS[1]),

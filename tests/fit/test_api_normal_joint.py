@@ -35,8 +35,8 @@ def test_normal_block_and_schur_step_match_dense_algebra(prior):
     CG stops at a relative residual of 1e-10 on a system of condition < 1e4: 1e-6 relative is generous."""
     from fmbrdf_mi.fit.api.normal_joint import stencils
     from fmbrdf_mi.fit.api.normal_refine import tangent_bases
-    from fmbrdf_mi.fit.solve.normal_system import (
-        NormalBlock, data_products, material_covariance, schur, solve_step)
+    from fmbrdf_mi.fit.solve.normal_system import (NormalBlock, data_products, material_covariance, schur,
+                                                   solve_step)
 
     rng = np.random.default_rng(4)
     mask = np.ones((4, 5), bool)
@@ -135,9 +135,9 @@ def test_normal_jacobian_matches_brute_force(tiny):
     (corners outside it replaced by itself).  Both are central differences of float32 renders: the model's
     samples are ~1e4 DN with sd ~60 DN, so residual rounding is ~1e-5 and h = 1e-3 gives ~1e-2 absolute
     noise on derivatives of size ~100: 1e-3 relative to the largest entry is 10x that."""
-    from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
     from fmbrdf_mi.fit.api.normal_joint import _JointProblem
     from fmbrdf_mi.fit.api.normal_refine import photometric_stereo
+    from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
     from fmbrdf_mi.fit.inputs.observations import erode
 
     obs, ks = _observations(tiny)
@@ -169,9 +169,9 @@ def test_joint_lowers_the_energy_monotonically_and_beats_the_alternation(tiny):
     held, refreshes=0), the normals end closer to the ray-cast ones, and the final energy is below that of the
     alternation's normal step run to its fixed point with the joint's final material (the same energy,
     evaluated by an independently built problem)."""
-    from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
     from fmbrdf_mi.fit.api.normal_joint import _JointProblem, refine_joint
     from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, photometric_stereo, refine_normals
+    from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
 
     obs, ks = _observations(tiny)
     gt = obs[0].normals.copy()

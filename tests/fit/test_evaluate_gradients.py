@@ -22,11 +22,11 @@ NAMES = list(AT)
 @pytest.fixture(scope="module", params=["noise-free", "known noise"])
 def problem(request):
     from fmbrdf_mi.fit import FitOptions, Observation, predict_image, usable_pixels
-    from fmbrdf_mi.fit.objectives import loss as L
-    from fmbrdf_mi.fit.inputs import observations as ob
     from fmbrdf_mi.fit.evaluate.models import FMBRDF
-    from fmbrdf_mi.fit.problem.problem import Problem
     from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.fit.objectives import loss as L
+    from fmbrdf_mi.fit.problem.problem import Problem
 
     n, m, v = ob.sphere_normals((32, 32), (16, 16), 15)
     light = [0.4, 0.3, 1.0]

@@ -7,8 +7,8 @@ import pytest
 
 from fmbrdf_mi import polcam, stokes_io
 from fmbrdf_mi.fit.camera import noise as cn
-from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.fit.inputs.observations import Observation
 from fmbrdf_mi.fit.inputs.parse import parse_layout
 

@@ -197,8 +197,8 @@ def test_normal_refinement_on_the_mesh_object(blob):
     one round of per-pixel Gauss-Newton with the smoothness prior at least halves the mean angular error
     against the ray-cast normals and moves 80 % of the pixels closer.  (Material and normals together, from
     a sphere: tools/bench_normal_refine.py, README.)"""
-    from fmbrdf_mi.fit.inputs.authors import read_object
     from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, refine_normals
+    from fmbrdf_mi.fit.inputs.authors import read_object
 
     root, truth = blob
     specs, _ = read_object(root, conversion_gain=truth["camera"]["conversion_gain"], read_noise=2.5)

@@ -64,9 +64,9 @@ def test_sidecar_round_trip_and_white_level(tmp_path):
 # ---------------------------------------------------------------- saturation
 def test_saturated_and_dark_superpixels_are_excluded_and_counted():
     from fmbrdf_mi.fit import FitOptions, InputError
-    from fmbrdf_mi.fit.inputs import observations as ob
-    from fmbrdf_mi.fit.camera import samples as SM
     from fmbrdf_mi.fit.api.fitting import select_pixels
+    from fmbrdf_mi.fit.camera import samples as SM
+    from fmbrdf_mi.fit.inputs import observations as ob
 
     res = 20
     n, m, v = ob.sphere_normals((res, res), (10, 10), 9)
@@ -104,10 +104,9 @@ def test_likelihood_jacobian_and_fisher_information_against_finite_differences(v
     gradient 2 J^T r of chi^2 and the Fisher information J^T J too."""
     from fmbrdf_mi.fit import FitOptions
     from fmbrdf_mi.fit import uncertainty as U
-    from fmbrdf_mi.fit.evaluate.models import State
-    from fmbrdf_mi.fit.problem.problem import Problem
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
     from fmbrdf_mi.fit.problem.data import prepare
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
+    from fmbrdf_mi.fit.problem.problem import Problem
 
     obs, _ = _small_capture(res=12)
     opts = FitOptions(loss="likelihood")
@@ -166,8 +165,8 @@ def test_likelihood_intervals_cover_the_truth(variant):
     from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.api.fitting import FitOptions
-    from fmbrdf_mi.fit.problem.data import prepare, select_pixels
     from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.fit.problem.data import prepare, select_pixels
 
     cam = CameraModel(full_well=3000.0, read_noise=6.0, bits=12)
     ideal = ideal_sphere(TRUE, res=12, light=LIGHT)
@@ -197,9 +196,10 @@ def test_likelihood_intervals_cover_the_truth(variant):
 
 # ---------------------------------------------------------------- command line
 def _raw_files(tmp_path, seed=4):
+    from PIL import Image
+
     from fmbrdf_mi.camera import CameraModel, capture, write_sidecar
     from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
-    from PIL import Image
 
     ideal = ideal_sphere(TRUE, res=16, light=LIGHT)
     cam = CameraModel(black_level=32.0)
@@ -289,8 +289,8 @@ def test_paper_loss_sandwich_intervals_cover_the_truth(variant):
     from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.api.fitting import FitOptions
-    from fmbrdf_mi.fit.problem.data import prepare, select_pixels
     from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.fit.problem.data import prepare, select_pixels
 
     cam = CameraModel(full_well=3000.0, read_noise=6.0, bits=12)
     ideal = ideal_sphere(TRUE, res=16, light=LIGHT)

@@ -17,9 +17,9 @@ def _cli(*argv):
 
 
 def _sphere_capture(R, light, seed, noiseless=False):
-    from fmbrdf_mi.fit.inputs import observations as ob
     from fmbrdf_mi.fit.camera.colour_samples import colour_samples
     from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.fit.inputs import observations as ob
 
     shape = dict(eta=1.5, alpha=0.25, beta=0.4, kappa=1.0)
     alb = {"R": (0.6, 0.8), "G": (0.4, 1.5), "B": (0.5, 0.4)}

@@ -101,12 +101,11 @@ def test_power_columns_of_the_jacobian_are_the_derivative(variant):
     import dataclasses
 
     from fmbrdf_mi.fit import FitOptions
-    from fmbrdf_mi.fit.problem import free_power as FP
     from fmbrdf_mi.fit import uncertainty as U
-    from fmbrdf_mi.fit.evaluate.models import State
-    from fmbrdf_mi.fit.problem.problem import Problem
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
+    from fmbrdf_mi.fit.problem import free_power as FP
     from fmbrdf_mi.fit.problem.data import prepare
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds
+    from fmbrdf_mi.fit.problem.problem import Problem
 
     obs, _, _ = _captures(res=12)
     opts = FitOptions(loss="likelihood", max_pixels=None)

@@ -32,13 +32,15 @@ information), mapped to the reported parameters by the delta method.
 from __future__ import annotations
 
 import math
-import numpy as np
 import time
+
+import numpy as np
 
 from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
 from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.objectives.objective import nnls2
 from fmbrdf_mi.fit.problem.problem import TimeUp
 from fmbrdf_mi.fit.result import FitResult
@@ -262,7 +264,6 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     evaluations, time_s, chi2_per_sample (chi^2 / samples, per image for
     lists), internal (shape and unit albedos for :func:`predict_samples`).
     """
-    from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 
     say = progress or (lambda m: None)
     t0 = time.time()
@@ -369,7 +370,6 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
 
 def predict_samples(obs, samples, res):
     """The fitted model's 16 samples (16, H, W) per period (image units, NaN outside mask & usable)."""
-    from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 
     m = get_model(res["model"])
     idx = np.flatnonzero((obs.mask & samples.usable).ravel())

@@ -3,18 +3,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numpy as np
 import time
+
+import numpy as np
 
 from fmbrdf_mi.fit import uncertainty as U
 from fmbrdf_mi.fit.api.options import check_fit_options
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.evaluate.models import State, get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import RenderEvaluator
 from fmbrdf_mi.fit.objectives import loss_variants as LV
-from fmbrdf_mi.fit.evaluate.models import State
+from fmbrdf_mi.fit.problem import free_power as FP
 from fmbrdf_mi.fit.problem.data import prepare, resolve_loss, select_pixels
-from fmbrdf_mi.fit.problem.free_power import power_text
+from fmbrdf_mi.fit.problem.free_power import power_text, split_result
 from fmbrdf_mi.fit.problem.problem import TimeUp
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import optimise as O
@@ -286,15 +287,12 @@ def _fit_images(observations, options=None, *, names=None, progress=True, powers
     idxs, slices = data.image_pixels, data.slices
     pmodel = None
     if opts.free_power:
-        from fmbrdf_mi.fit.problem import free_power as FP
 
         pmodel = FP.PowerModel(get_model(opts.model), given)
         pev = FP.PowerEvaluator(data.evaluator, pmodel, [b - a for a, b in slices])
         data = dataclasses.replace(data, evaluator=pev,
                                    make_problem=FP.problem_factory(pmodel, pev, slices, opts.power_start))
-    report = progress
-    if progress is True:
-        from fmbrdf_mi.fit.solve.optimise import default_progress as report
+    report = O.default_progress if progress is True else progress
     say = report or (lambda m: None)
     say(f"[joint] {len(observations)} images, " + ", ".join(
         f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
@@ -303,7 +301,6 @@ def _fit_images(observations, options=None, *, names=None, progress=True, powers
     images = diagnose(res, data, observations, names, pmodel)
     block = None
     if pmodel is not None:
-        from fmbrdf_mi.fit.problem.free_power import split_result
 
         block = split_result(res, pmodel, names)
         for k, im in enumerate(images):

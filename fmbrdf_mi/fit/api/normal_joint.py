@@ -63,17 +63,24 @@ camera noise it is scaled by chi^2 / (N - p - 2 n).  Only after convergence.
 from __future__ import annotations
 
 import math
-import numpy as np
 import time
 
+import numpy as np
+
+from fmbrdf_mi.fit import uncertainty as U
+from fmbrdf_mi.fit.api.normal_refine import check_views, tangent_bases
 from fmbrdf_mi.fit.camera import samples as SM
 from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
+from fmbrdf_mi.fit.inputs.observations import erode
 from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective
+from fmbrdf_mi.fit.problem.data import same_noise
+from fmbrdf_mi.fit.problem.problem import Problem
 from fmbrdf_mi.fit.result import FitResult
-from fmbrdf_mi.fit.solve import lm as LM, normal_system as NS
-
+from fmbrdf_mi.fit.solve import lm as LM
+from fmbrdf_mi.fit.solve import normal_system as NS
 
 #: The smoothness priors: stencil coefficients along image rows and columns.
 PRIORS = {"curvature": (1.0, -2.0, 1.0), "membrane": (1.0, -1.0)}
@@ -108,12 +115,6 @@ def stencils(mask, prior="curvature"):
     return np.concatenate(out).astype(np.int64), np.array(coef)
 
 
-def tangent_bases(n):
-    from fmbrdf_mi.fit.api.normal_refine import tangent_bases as t
-
-    return t(n)
-
-
 class _JointProblem:
     """Data, evaluator, objective and prior of one joint refinement.
 
@@ -128,9 +129,6 @@ class _JointProblem:
     """
 
     def __init__(self, obs, m, model, bounds, fixed, lam, prior="curvature"):
-        from fmbrdf_mi.fit.problem.data import same_noise
-        from fmbrdf_mi.fit.problem.problem import Problem
-        from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 
         self.K = len(obs)
         self.shape = obs[0].shape
@@ -277,9 +275,6 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     and ``mask``; ``loss`` is the energy, ``loss_terms`` its data (chi^2) and prior parts; the standard
     errors are curvature-based and NOT calibrated (``uncertainty["warning"]``: 1.5-3x too small).
     """
-    from fmbrdf_mi.fit import uncertainty as U
-    from fmbrdf_mi.fit.api.normal_refine import check_views
-    from fmbrdf_mi.fit.inputs.observations import erode
 
     say = progress or (lambda msg: None)
     obs = list(observations)

@@ -35,15 +35,18 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numpy as np
 import time
 
+import numpy as np
+
 from fmbrdf_mi.fit.api.fitting import FitOptions
+from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode
 from fmbrdf_mi.fit.result import FitResult
+from fmbrdf_mi.fit.solve.optimise import default_progress
 
 
 def tangent_bases(n):
@@ -123,8 +126,6 @@ def refine_normals(observations, normals, *, mask=None, lam=0.5, rounds=3, steps
     ``normals`` and ``mask`` (``material`` given: one with those and the material), the rounds in
     ``res["alternation"]``.
     """
-    from fmbrdf_mi.fit.api.joint import fit_joint
-    from fmbrdf_mi.fit.solve.optimise import default_progress
 
     say = default_progress if progress is True else (progress or (lambda m: None))
     obs = list(observations)

@@ -10,6 +10,7 @@ import math
 import numbers
 
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
 
 
 def _num(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True, integer=False, none_ok=True):
@@ -46,7 +47,6 @@ def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=No
                       power_start="ratio", flag=lambda name: name, **_ignored):
     """Raise InputError for the first invalid fit option.  ``flag`` maps an option name to
     how the user wrote it (``--max-pixels`` on the command line)."""
-    from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
 
     if not isinstance(model, str):
         raise InputError(f"{flag('model')}: expected fmbrdf, pplastic, lambert_ts or oren_nayar_ts, got {model!r}")

@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 
 from fmbrdf_mi import polcam
+from fmbrdf_mi.camera import default_white_level
 from fmbrdf_mi.fit.camera.samples import Samples
 from fmbrdf_mi.fit.errors import InputError
-
 
 CHANNELS = polcam.COLOURS
 
@@ -15,7 +15,6 @@ def colour_samples(raw, layout=polcam.IMX250MZR_LAYOUT, cfa=polcam.BAYER_RGGB, b
                    white_level=None):
     """The :class:`~fmbrdf_mi.fit.camera.samples.Samples` (16 per 4x4 period, with their colour channels) of a raw
     colour mosaic (4H, 4W) in DN; a period with a clipped sample is unusable."""
-    from fmbrdf_mi.camera import default_white_level
 
     raw = np.asarray(raw)
     if raw.ndim != 2 or raw.shape[0] % 4 or raw.shape[1] % 4:

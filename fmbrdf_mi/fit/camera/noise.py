@@ -23,9 +23,12 @@ recovered from the mosaic is comparable with the input.
 from __future__ import annotations
 
 import dataclasses
+
 import numpy as np
 
 from fmbrdf_mi import polcam
+from fmbrdf_mi.camera import CameraModel, capture, intensity_at_each_pixel
+from fmbrdf_mi.fit.camera.demosaic import stokes_from_raw
 
 
 @dataclasses.dataclass
@@ -47,13 +50,11 @@ class CameraNoise:
 
 
 def _angle_at_each_pixel(stokes3, layout):
-    from fmbrdf_mi.camera import intensity_at_each_pixel
 
     return intensity_at_each_pixel(stokes3, layout)
 
 
 def _camera(noise):
-    from fmbrdf_mi.camera import CameraModel
 
     return CameraModel(full_well=noise.full_well, read_noise=noise.read_noise, bits=noise.bits,
                        layout=noise.layout)
@@ -72,7 +73,6 @@ def simulate_capture(stokes, noise=None, *, seed=0, gain=None, noiseless=False):
 
     ``noiseless=True`` skips shot and read noise (quantisation and clipping stay).
     """
-    from fmbrdf_mi.camera import capture
 
     noise = noise or CameraNoise()
     cap = capture(stokes, _camera(noise), exposure=gain, peak_fraction=noise.peak_fraction, seed=seed,
@@ -87,7 +87,6 @@ def noisy_stokes(stokes, noise=None, *, seed=0, gain=None, noiseless=False, demo
     ``demosaic`` as in :func:`fmbrdf_mi.fit.camera.demosaic.stokes_from_raw`.
     Returns ``(stokes (3, H, W), info)`` with ``info`` the dict of :func:`simulate_capture`.
     """
-    from fmbrdf_mi.fit.camera.demosaic import stokes_from_raw
 
     noise = noise or CameraNoise()
     cap = simulate_capture(stokes, noise, seed=seed, gain=gain, noiseless=noiseless)

@@ -22,8 +22,8 @@ on NumPy arrays and on Dr.Jit arrays (which differentiate through it).
 from __future__ import annotations
 
 import math
-import numpy as np
 
+import numpy as np
 
 _SMALL_I0 = (1.0, 3.5156229, 3.0899424, 1.2067492, 0.2659732, 0.0360768, 0.0045813)
 

@@ -34,9 +34,11 @@ without the selection; not implemented.)
 from __future__ import annotations
 
 import dataclasses
+
 import numpy as np
 
 from fmbrdf_mi import polcam
+from fmbrdf_mi.camera import default_white_level
 from fmbrdf_mi.fit.errors import InputError
 
 
@@ -93,7 +95,6 @@ def from_raw(raw, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0, white_level=N
     be clipped), else no dark test (an offset keeps the noise of dark pixels
     measurable; use ``dark_level`` to exclude dim super-pixels anyway).
     """
-    from fmbrdf_mi.camera import default_white_level
 
     raw = np.asarray(raw)
     if raw.ndim != 2 or raw.shape[0] % 2 or raw.shape[1] % 2:
@@ -115,7 +116,6 @@ def from_raw(raw, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0, white_level=N
 
 def from_angle_images(images, black_level=0.0, white_level=None, dark_level=None, integer=True):
     """:class:`Samples` of four angle images (4, H, W) in the order 0, 45, 90, 135 degrees."""
-    from fmbrdf_mi.camera import default_white_level
 
     imgs = np.asarray(images, dtype=np.float64)
     white = (default_white_level(imgs) if integer else None) if white_level is None else float(white_level)

@@ -1,13 +1,13 @@
 """Checks of the ``fmbrdf-mi fit`` command line made before any file is read: one line per mistake."""
 from __future__ import annotations
 
+from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
 
 
 def check_args(args):
     """Validate the command line's options before any file is read (one line per mistake)."""
-    from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
 
     def flag(name):
         return "--" + name.replace("_", "-")

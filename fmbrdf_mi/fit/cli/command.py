@@ -8,13 +8,18 @@ from __future__ import annotations
 
 import time
 
+from fmbrdf_mi.fit.cli.checks import check_args, check_colour_args
+from fmbrdf_mi.fit.cli.joint import run_joint
+from fmbrdf_mi.fit.cli.normals import add_arguments as add_normal_arguments
+from fmbrdf_mi.fit.cli.normals import check as check_normal_args
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import MODELS
+from fmbrdf_mi.fit.inputs.colour import colour_sidecar
 from fmbrdf_mi.fit.inputs.parse import parse_vector
+from fmbrdf_mi.fit.outputs import joint_record, record
+from fmbrdf_mi.fit.outputs.colour import fit_colour_files, is_colour_record
 from fmbrdf_mi.fit.outputs.single import fit_files
 from fmbrdf_mi.fit.outputs.summary import print_summary
-from fmbrdf_mi.fit.cli.checks import check_args, check_colour_args
-from fmbrdf_mi.fit.inputs.colour import colour_sidecar
 
 
 # ---------------------------------------------------------------- command line
@@ -105,7 +110,6 @@ def add_fit_arguments(p):
     g.add_argument("--power-start", default="ratio", choices=("ratio", "given"),
                    help="with --free-power: start the powers in closed form at every coarse-search point "
                         "(ratio, default) or at the given powers")
-    from fmbrdf_mi.fit.cli.normals import add_arguments as add_normal_arguments
 
     add_normal_arguments(p)
     g = p.add_argument_group("relighting check")
@@ -133,21 +137,16 @@ def run_fit(args):
         raise InputError("--free-power: with --from the fit.json's options apply (give none)" if args.from_json
                          else "--free-power: needs a joint fit of two or more images (--manifest, --authors, "
                               "or several INPUTs with one --light each)")
-    from fmbrdf_mi.fit.cli.normals import check as check_normal_args
 
     check_normal_args(args, joint and not args.from_json)
     if joint:
-        from fmbrdf_mi.fit.cli.joint import run_joint
 
         report = run_joint(args, command)
     elif args.from_json:
-        from fmbrdf_mi.fit.outputs import record
 
         if args.inputs:
             raise InputError("--from: give no INPUT files (they come from the fit.json)")
-        from fmbrdf_mi.fit.outputs import joint_record
 
-        from fmbrdf_mi.fit.outputs.colour import fit_colour_files, is_colour_record
 
         if joint_record.is_joint(args.from_json):
             report = joint_record.rerun(args.from_json, args.out, force=args.force, progress=not args.quiet,
@@ -160,7 +159,6 @@ def run_fit(args):
             kw = record.rerun_arguments(args.from_json)
             report = fit_files(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
     elif len(args.inputs or []) == 1 and colour_sidecar(args.inputs[0]) is not None:
-        from fmbrdf_mi.fit.outputs.colour import fit_colour_files
 
         check_colour_args(args)
         report = fit_colour_files(args.inputs[0], args.out, normals=args.normals, mask=args.mask, view=args.view,

@@ -3,10 +3,15 @@ from __future__ import annotations
 
 import os
 
+from fmbrdf_mi.fit.cli.checks import check_colour_args
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.manifest import (
-    ImageSpec, PATH_KEYS, absolute_paths, build_observations, image_names, read_manifest)
+from fmbrdf_mi.fit.inputs.authors import read_object
+from fmbrdf_mi.fit.inputs.manifest import (PATH_KEYS, ImageSpec, absolute_paths, build_observations, image_names,
+                                           read_manifest)
+from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_vector
 from fmbrdf_mi.fit.outputs.joint import fit_images, fitter
+from fmbrdf_mi.fit.outputs.joint_record import block
+from fmbrdf_mi.fit.outputs.normals import run as refine
 
 
 # ---------------------------------------------------------------- the command
@@ -21,7 +26,6 @@ def _cli_input_options(args):
 
 def run_joint(args, command):
     """``fmbrdf-mi fit --manifest M | --authors DIR | IMG1 IMG2 ... --light L1 --light L2 ...``."""
-    from fmbrdf_mi.fit.inputs.parse import parse_vector, parse_bounds, parse_fixed, parse_init
 
     if args.from_json:
         raise InputError("--from: give no --manifest, --authors or INPUT files (they come from the fit.json)")
@@ -42,7 +46,6 @@ def run_joint(args, command):
     elif args.authors:
         if args.inputs:
             raise InputError("--authors: give no INPUT files (they are the directory's image/img_ud/*.png)")
-        from fmbrdf_mi.fit.inputs.authors import read_object
 
         try:
             hold = [int(x) for x in str(args.holdout).split(",") if x.strip()] if args.holdout else []
@@ -64,7 +67,6 @@ def run_joint(args, command):
     names = image_names(specs)
     fit_fn, outputs_fn = fitter(specs)
     if fit_fn is not fit_images:
-        from fmbrdf_mi.fit.cli.checks import check_colour_args
 
         check_colour_args(args)
     files = outputs_fn(args.out, names, [s.holdout for s in specs])
@@ -79,7 +81,6 @@ def run_joint(args, command):
                   free_power=getattr(args, "free_power", False), power_start=getattr(args, "power_start", "ratio"))
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
     if getattr(args, "refine_normals", False):
-        from fmbrdf_mi.fit.outputs.normals import run as refine
 
         obs = build_observations(specs)
         # the authors' layout carries the ground truth (normal/normal_GT.npy): it is the geometry read
@@ -89,7 +90,6 @@ def run_joint(args, command):
                       ground_truth=gt, force=args.force, progress=not args.quiet, command=command)
 
     def reproduce(obs):
-        from fmbrdf_mi.fit.outputs.joint_record import block
 
         return block(kind, specs, names, obs, fit_kw, command, manifest=args.manifest, authors=authors, info=info)
 

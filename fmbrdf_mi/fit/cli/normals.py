@@ -1,8 +1,9 @@
 """The command line of normal refinement (``--refine-normals``): its options and their checks."""
 from __future__ import annotations
 
-import numpy as np
 import os
+
+import numpy as np
 
 from fmbrdf_mi.fit.cli.checks import check_needs, refuse
 from fmbrdf_mi.fit.errors import InputError

@@ -28,8 +28,8 @@ and of :mod:`fmbrdf_mi.polcam` (checked against a render in
 from __future__ import annotations
 
 import dataclasses
-import numpy as np
 
+import numpy as np
 
 #: Variant in which fits run: monochrome (channels are averaged before the fit), polarised, AD.
 FIT_VARIANT = "llvm_ad_mono_polarized"

@@ -13,12 +13,13 @@ import numpy as np
 
 from fmbrdf_mi.camera import CameraModel, capture
 from fmbrdf_mi.fit.camera import samples as SM
+from fmbrdf_mi.fit.camera.noise import NoiseModel, demosaic_footprint, linear_stokes_variance
+from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs import observations as ob
 
 
 def ideal_sphere(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf"):
     """Noise-free Stokes (3, 2 res, 2 res) at the raw pixels, and the super-pixel geometry."""
-    from fmbrdf_mi.fit.evaluate.predict import predict_image
 
     r2 = 2 * res
     n2, m2, v2 = ob.sphere_normals((r2, r2), (r2 / 2, r2 / 2), r2 / 2 - 2)
@@ -40,7 +41,6 @@ def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fract
     ``superpixel`` the four samples' different points make false polarisation at highlights that the
     footprint average does not model).
     """
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
 
     cam = camera or CameraModel()
     cap = capture(ideal["stokes"], cam, exposure=exposure, peak_fraction=peak_fraction, seed=seed)
@@ -51,7 +51,6 @@ def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fract
     irr = cap["exposure"] / cam.conversion_gain
     meta = {"truth": ideal["params"], "demosaic": demosaic, "capture": {"exposure": cap["exposure"], "saturated": cap["saturated"],
                                                   "seed": seed}}
-    from fmbrdf_mi.fit.camera.noise import demosaic_footprint, linear_stokes_variance
 
     # the paper's loss gets what it can use of the known noise: the Rice mean of the DoLP
     var = (linear_stokes_variance(stokes[0], cam.conversion_gain, cam.read_noise, demosaic,

@@ -18,10 +18,14 @@ camera axes, as the authors' scripts expect
 from __future__ import annotations
 
 import json
-import numpy as np
 import os
 
+import numpy as np
+
 from fmbrdf_mi.camera import CameraModel, capture
+from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
+from fmbrdf_mi.fit.evaluate.predict import predict_image
+from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.fit.inputs.authors import cv_to_ours
 
 
@@ -61,7 +65,6 @@ def blob_mesh(n_theta=48, n_phi=96, axes=(1.0, 0.75, 0.85), bump=0.12, rotation_
 def _scene(mesh):
     import mitsuba as mi
 
-    from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 
     set_variant()
     pos, faces, vn = mesh
@@ -115,8 +118,6 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
     """
     from PIL import Image
 
-    from fmbrdf_mi.fit.inputs import observations as ob
-    from fmbrdf_mi.fit.evaluate.predict import predict_image
 
     cam = camera or CameraModel(full_well=20000.0, read_noise=2.5, bits=16)
     scene = _scene(mesh or blob_mesh())

@@ -42,13 +42,14 @@ default, and the likelihood keeps dim pixels, whose noise it models).
 from __future__ import annotations
 
 import glob
-import numpy as np
 import os
 
+import numpy as np
+
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.files import build_observation
 from fmbrdf_mi.fit.inputs.manifest import ImageSpec
 from fmbrdf_mi.fit.inputs.observations import UNIT_TOL, read_mask
-
 
 #: OpenCV camera axes (x right, y down, z forward) -> this package's (x right, y up, z towards the camera)
 CV_TO_OURS = np.array([1.0, -1.0, -1.0])
@@ -93,7 +94,6 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
     ``info``: what was read (files, K, intensities, intrinsics, pixels whose
     ground-truth normal was not unit length and were left out of the mask).
     """
-    from fmbrdf_mi.fit.inputs.files import build_observation
 
     root = os.fspath(root)
     if not os.path.isdir(root):

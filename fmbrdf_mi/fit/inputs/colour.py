@@ -2,16 +2,22 @@
 from __future__ import annotations
 
 import math
-import numpy as np
 import os
 
+import numpy as np
+
+from fmbrdf_mi import camera as C
+from fmbrdf_mi import scene as S
+from fmbrdf_mi.fit.camera.colour_samples import colour_samples
+from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs import observations as ob
+from fmbrdf_mi.fit.inputs.manifest import file_stem
+from fmbrdf_mi.fit.inputs.parse import parse_vector
 
 
 def colour_sidecar(inputs):
     """The capture sidecar of a single raw input when it describes a colour sensor, else None."""
-    from fmbrdf_mi import camera as C
 
     if isinstance(inputs, (list, tuple)):
         if len(inputs) != 1:
@@ -66,7 +72,6 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
                 raise InputError("--sphere auto: needs --mask to find the sphere in")
             centre, radius = ob.find_sphere(mk)
         else:
-            from fmbrdf_mi.fit.inputs.parse import parse_vector
 
             cx, cy, radius = parse_vector(sphere, "--sphere (cx,cy,r in 4x4 periods)")
             centre = (cx, cy)
@@ -77,7 +82,6 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
             return n, m, ob.read_vectors(view, "view", shape), None, meta
         return n, m, v, ob.SphereGeometry(shape, centre, radius, camera, fov), meta
     if params is not None:
-        from fmbrdf_mi import scene as S
 
         w, h = int(params["width"]), int(params["height"])
         if (h, w) != (4 * shape[0], 4 * shape[1]):
@@ -116,8 +120,6 @@ def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, 
     The Observation's ``meta`` holds ``settings``, ``sphere``, ``sidecar`` and
     ``truth`` (the built-in scene's parameters) as the mono path's do.
     """
-    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
 
     path = os.fspath(path)
     side = colour_sidecar(path)
@@ -181,9 +183,7 @@ def is_colour(specs):
 
 
 def read_colour_inputs(specs, erode):
-    from fmbrdf_mi.fit.inputs.parse import parse_vector
     from fmbrdf_mi.fit.inputs.colour import read_colour_input
-    from fmbrdf_mi.fit.inputs.manifest import file_stem
 
     out = []
     for k, s in enumerate(specs):

@@ -1,23 +1,26 @@
 """An :class:`Observation` from files: polarisation images, geometry, light, the camera's sidecar."""
 from __future__ import annotations
 
-import numpy as np
 import os
 
+import numpy as np
+
+from fmbrdf_mi import camera as C
 from fmbrdf_mi import polcam
-from fmbrdf_mi.fit.inputs.parse import parse_layout
+from fmbrdf_mi import scene as S
+from fmbrdf_mi.fit.camera import samples as SM
+from fmbrdf_mi.fit.camera.noise import NoiseModel, box_footprint, demosaic_footprint, linear_stokes_variance
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.observations import (
-    Observation, check_direction, downsample_geometry, geometry_from_sphere, load_polarisation, pixel_rays,
-    read_mask, read_vectors)
-from fmbrdf_mi.fit.inputs.parse import parse_vector
+from fmbrdf_mi.fit.inputs.observations import (Observation, SphereGeometry, check_direction, downsample_geometry,
+                                               find_sphere, geometry_from_sphere, load_polarisation, pixel_rays,
+                                               read_mask, read_vectors)
+from fmbrdf_mi.fit.inputs.parse import parse_layout, parse_vector
 
 
 def _builtin_sphere(meta):
     """Geometry, light, irradiance and true material of an EXR from ``fmbrdf-mi render`` (built-in scene)."""
     if meta.get("scene") != "builtin:sphere" or "parameters" not in meta:
         return None
-    from fmbrdf_mi import scene as S
 
     p = meta["parameters"]
     n, v, m = S.sphere_geometry((int(p["width"]), int(p["height"])), camera=p["camera"],
@@ -39,9 +42,6 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     gain, read noise and white level that were not given, and the scene's
     geometry and light.  ``meta["settings"]`` records what was used.
     """
-    from fmbrdf_mi import camera as C
-    from fmbrdf_mi.fit.camera import samples as SM
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
 
     sidecar = None
     if isinstance(inputs, (str, os.PathLike)) and not os.fspath(inputs).lower().endswith(".exr"):
@@ -120,7 +120,6 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                 raise InputError(f"mask: shape {mk.shape} matches neither the polarisation image {tuple(shape)} "
                                  f"nor its raw mosaic {(2 * shape[0], 2 * shape[1])}")
         if centre is None:
-            from fmbrdf_mi.fit.inputs.observations import find_sphere
 
             centre, radius = find_sphere(mk)
         n, m, v = geometry_from_sphere(shape, centre, radius, mk, camera, fov)
@@ -129,7 +128,6 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
         if view is not None:
             v = read_vectors(view, "view", shape)
         else:
-            from fmbrdf_mi.fit.inputs.observations import SphereGeometry
 
             exact = SphereGeometry(shape, centre, radius, camera, fov)
     else:
@@ -141,7 +139,6 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     light = check_direction(light, "light")
     var = None
     if conversion_gain is not None:
-        from fmbrdf_mi.fit.camera.noise import linear_stokes_variance
 
         if not (conversion_gain > 0) or read_noise is None or not (read_noise >= 0):
             raise InputError(f"noise: --conversion-gain must be > 0 and --read-noise >= 0 given with it, got "
@@ -151,7 +148,6 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                                      demosaic if src == "raw mosaic" else "superpixel",
                                      adc_step_e=float(conversion_gain) if src in ("raw mosaic", "angle images")
                                      else None)
-    from fmbrdf_mi.fit.camera.noise import box_footprint, demosaic_footprint
 
     if footprint == "auto":
         footprint = "demosaic" if meta.get("source") == "raw mosaic" else "point"

@@ -3,12 +3,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import numpy as np
 import os
 import re
 
-from fmbrdf_mi.fit.errors import InputError
+import numpy as np
 
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.files import build_observation
+from fmbrdf_mi.fit.inputs.parse import parse_vector
 
 #: Options an image entry (or [defaults]) may give: :func:`fmbrdf_mi.fit.inputs.files.build_observation`'s.
 INPUT_KEYS = ("normals", "mask", "view", "sphere", "camera", "fov", "irradiance", "layout", "black_level",
@@ -115,8 +117,6 @@ def image_names(specs):
 
 def build_observations(specs):
     """Observations of the specs (each with irradiance x power)."""
-    from fmbrdf_mi.fit.inputs.parse import parse_vector
-    from fmbrdf_mi.fit.inputs.files import build_observation
 
     out = []
     for k, s in enumerate(specs):

@@ -17,13 +17,13 @@ expected shape or range and what was found (:class:`InputError`).
 from __future__ import annotations
 
 import dataclasses
-import numpy as np
 import os
+
+import numpy as np
 
 from fmbrdf_mi import polcam, stokes_io
 from fmbrdf_mi.fit.camera.demosaic import stokes_from_angles, stokes_from_raw
 from fmbrdf_mi.fit.errors import InputError
-
 
 #: Largest accepted deviation of a normal / view vector from unit length.
 UNIT_TOL = 1e-3

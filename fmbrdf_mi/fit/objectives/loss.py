@@ -36,10 +36,10 @@ AoLP not used.  Choices this implementation makes where the paper is silent:
 from __future__ import annotations
 
 import dataclasses
+
 import numpy as np
 
 from fmbrdf_mi.fit.camera import rice
-
 
 DOLP_EPS = 1e-12
 

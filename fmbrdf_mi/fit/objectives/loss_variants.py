@@ -28,11 +28,12 @@ residual is counted with the first pixel, and is 0 at the optimum).
 from __future__ import annotations
 
 import math
+
 import numpy as np
 
+from fmbrdf_mi.fit.evaluate.models import State
 from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.objectives.objective import PaperObjective
-
 
 #: Loss names a fit accepts: the polarimetric ones and the two variants.
 VARIANTS = ("intensity", "dolp")
@@ -116,7 +117,6 @@ class DolpObjective(PaperObjective):
 
     def albedos(self, parts):
         """Ratio a_b / a_s minimising the DoLP term (a log grid), overall scale from the mean intensity."""
-        from fmbrdf_mi.fit.evaluate.models import State
 
         best = None
         for t in self.RATIOS:

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+
 import numpy as np
 
 from fmbrdf_mi.fit.camera import rice

@@ -18,17 +18,20 @@ from __future__ import annotations
 import json
 import os
 
+from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
 from fmbrdf_mi.fit.inputs.colour import colour_sidecar, read_colour_input
+from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed
+from fmbrdf_mi.fit.outputs import record
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
-
+from fmbrdf_mi.fit.outputs.writer import prepare, write_json
 
 OUTPUTS = ("fit.json", "colour_fit.png")
 
 
 def is_colour_record(path):
     """Whether ``path`` (a fit.json with a ``reproduce`` block) records a colour fit (``--from`` reruns it)."""
-    from fmbrdf_mi.fit.outputs import record
 
     record.load(path)      # refuses files that are not fit.json records, in one line
     with open(path) as f:
@@ -37,7 +40,6 @@ def is_colour_record(path):
 
 def _ci95(model, name, value, se, bounds=None):
     """value +- 1.96 SE, cut at the parameter's bounds (albedos: at 0), as fit.json's mono intervals."""
-    from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
 
     if isinstance(value, dict):
         return {c: [max(0.0, value[c] - 1.96 * se[c]), value[c] + 1.96 * se[c]] for c in value}
@@ -78,11 +80,6 @@ def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=
     """
     import time
 
-    from fmbrdf_mi.fit.outputs.writer import prepare, write_json
-    from fmbrdf_mi.fit.outputs import record
-    from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed
-    from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
-    from fmbrdf_mi.fit.evaluate.models import get_model
 
     t0 = time.time()
     arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}

@@ -16,11 +16,18 @@ DoLP per channel).
 """
 from __future__ import annotations
 
-import numpy as np
 import os
 
+import numpy as np
+
+from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
+from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.inputs.colour import read_colour_inputs
+from fmbrdf_mi.fit.outputs.colour import model_entry
+from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
+from fmbrdf_mi.fit.outputs.writer import prepare_outputs, write_json
 
 
 def outputs(out, names, holdout):
@@ -32,7 +39,6 @@ def outputs(out, names, holdout):
 
 def sample_rmse(smp, pred, sel, channel):
     """RMSE / mean of the raw samples in ``sel`` (all, and per colour channel): the held-out images' error."""
-    from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
 
     o, p = smp.values[:, sel], pred[:, sel]
     out = {"rel_rmse": float(np.sqrt(np.mean((p - o) ** 2)) / np.mean(o)), "n_periods": int(sel.sum())}
@@ -56,11 +62,6 @@ def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True,
     """
     import time
 
-    from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
-    from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
-    from fmbrdf_mi.fit.outputs.colour import model_entry
-    from fmbrdf_mi.fit.outputs.writer import prepare_outputs, write_json
-    from fmbrdf_mi.fit.evaluate.models import get_model
 
     t0 = time.time()
     refused = [f for f, on in (("baselines", baselines), ("init", init), ("free_power (--free-power)", free_power),

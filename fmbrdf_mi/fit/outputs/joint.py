@@ -46,10 +46,19 @@ from __future__ import annotations
 import dataclasses
 import os
 
+from fmbrdf_mi.fit.api.fitting import FitOptions
+from fmbrdf_mi.fit.api.joint import fit_joint
+from fmbrdf_mi.fit.api.options import check_fit_options
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
+from fmbrdf_mi.fit.inputs.colour import is_colour
 from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power
-from fmbrdf_mi.fit.outputs import writer
+from fmbrdf_mi.fit.outputs import plots, writer
+from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
+from fmbrdf_mi.fit.outputs.colour_joint import outputs as colour_outputs
+from fmbrdf_mi.fit.outputs.record import command_block
 from fmbrdf_mi.fit.outputs.writer import prepare_outputs
+from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
 
 
 def outputs(out, names, holdout):
@@ -57,8 +66,6 @@ def outputs(out, names, holdout):
     for n, h in zip(names, holdout):
         files += [f"relight_{n}.png"] if h else [f"images_{n}.png", f"profiles_{n}.png"]
     return [os.path.join(out, f) for f in files]
-
-
 
 
 def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, progress=True, command=None,
@@ -70,13 +77,6 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     observations, returns fit.json's ``reproduce`` block (the command's:
     :func:`fmbrdf_mi.fit.outputs.joint_record.block`).  Returns the dict written to fit.json.
     """
-    from fmbrdf_mi.fit.outputs import plots
-    from fmbrdf_mi.fit.api.fitting import FitOptions
-    from fmbrdf_mi.fit.evaluate.predict import predict_image
-    from fmbrdf_mi.fit.api.joint import fit_joint
-    from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
-    from fmbrdf_mi.fit.api.options import check_fit_options
-    from fmbrdf_mi.fit.evaluate.predict import relight_error
 
     check_fit_options(model=model, **fit_kw)
     names, holdout, files = prepare_outputs(specs, out, outputs, force)
@@ -108,7 +108,6 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     if reproduce is not None:
         report["reproduce"] = reproduce(obs)
     elif command is not None:
-        from fmbrdf_mi.fit.outputs.record import command_block
 
         report["reproduce"] = command_block(command)
     report.update(extra or {})
@@ -151,8 +150,6 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
 def fitter(specs):
     """(fit function, outputs function) for the images of ``specs``: :func:`fit_images` and :func:`outputs`, or
     their colour counterparts in :mod:`fmbrdf_mi.fit.outputs.colour_joint` when the images are colour mosaics."""
-    from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images, outputs as colour_outputs
-    from fmbrdf_mi.fit.inputs.colour import is_colour
 
     if is_colour(specs):
         return fit_colour_images, colour_outputs

@@ -30,9 +30,12 @@ from __future__ import annotations
 
 import os
 
+from fmbrdf_mi.camera import sidecar_path
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.authors import read_object
+from fmbrdf_mi.fit.inputs.manifest import ImageSpec, image_names
+from fmbrdf_mi.fit.outputs.joint import fitter
 from fmbrdf_mi.fit.outputs.record import jsonable, load, sha256, versions
-
 
 #: fit_images keywords that define a joint fit (not where it writes or how it talks).
 FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
@@ -54,7 +57,6 @@ def _abs(v):
 
 def _with_sidecar(paths):
     """The files of an input (a path or a list) and the capture sidecar beside each, if there is one."""
-    from fmbrdf_mi.camera import sidecar_path
 
     out = []
     for p in (paths if isinstance(paths, (list, tuple)) else [paths]):
@@ -148,8 +150,6 @@ def is_joint(path):
 
 def rerun(path, out, *, force=False, progress=True, command=None):
     """Rerun the joint fit recorded in ``path`` into ``out``; returns the dict written to fit.json."""
-    from fmbrdf_mi.fit.inputs.manifest import ImageSpec, image_names
-    from fmbrdf_mi.fit.outputs.joint import fitter
 
     rep = load(path)
     joint = rep.get("joint")
@@ -160,7 +160,6 @@ def rerun(path, out, *, force=False, progress=True, command=None):
     info = None
     try:
         if joint["kind"] == "authors":
-            from fmbrdf_mi.fit.inputs.authors import read_object
 
             a = dict(joint["authors"])
             specs, info = read_object(a.pop("root"), **a)

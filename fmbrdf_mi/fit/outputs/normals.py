@@ -23,20 +23,27 @@ input has one: the authors' ``normal/normal_GT.npy``) and ``fit.json``
 """
 from __future__ import annotations
 
-import numpy as np
 import os
 import time
 
-from fmbrdf_mi.fit.errors import InputError
+import numpy as np
 
+from fmbrdf_mi.fit.api.fitting import FitOptions
+from fmbrdf_mi.fit.api.joint import fit_joint
+from fmbrdf_mi.fit.api.normal_joint import refine_joint
+from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, check_views, photometric_stereo, refine_normals
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.observations import erode, find_sphere, read_vectors, sphere_normals
+from fmbrdf_mi.fit.outputs import normal_plots
+from fmbrdf_mi.fit.outputs.record import command_block
+from fmbrdf_mi.fit.outputs.writer import prepare, write_json
+from fmbrdf_mi.fit.solve.optimise import default_progress
 
 OUTPUTS = ("fit.json", "normals.npy", "normals.png", "normals_change.png")
 
 
 def start_normals(obs, start):
     """(H, W, 3) start map and the mask of pixels it covers."""
-    from fmbrdf_mi.fit.api.normal_refine import photometric_stereo
-    from fmbrdf_mi.fit.inputs.observations import find_sphere, read_vectors, sphere_normals
 
     m = obs[0].mask.copy()
     if start == "ps":
@@ -60,7 +67,6 @@ def start_normals(obs, start):
 
 
 def _errors(n, gt, mask):
-    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg
 
     e = angular_error_deg(n, gt, mask)
     return {"mean": float(e.mean()), "median": float(np.median(e)), "p90": float(np.percentile(e, 90)),
@@ -70,13 +76,6 @@ def _errors(n, gt, mask):
 def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=0, model="fmbrdf", fit_kw=None, ground_truth=None,
         force=False, progress=True, command=None):
     """Refine the normals of the non-held-out images; write the outputs; returns the fit.json dict."""
-    from fmbrdf_mi.fit.outputs.writer import prepare, write_json
-    from fmbrdf_mi.fit.api.fitting import FitOptions
-    from fmbrdf_mi.fit.api.normal_joint import refine_joint
-    from fmbrdf_mi.fit.api.normal_refine import check_views, refine_normals
-    from fmbrdf_mi.fit.solve.optimise import default_progress
-    from fmbrdf_mi.fit.outputs.record import command_block
-    from fmbrdf_mi.fit.outputs import normal_plots
 
     say = default_progress if progress else (lambda m: None)
     keep = [k for k, s in enumerate(specs) if not s.holdout]
@@ -101,13 +100,11 @@ def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=0, model="fmbrdf"
         res = refine_normals(fit_obs, n0, rounds=rounds, lam=lam, fit_options=opts, progress=say)
         n1, params, alt = res.normals, res.params, res["alternation"]
     else:
-        from fmbrdf_mi.fit.api.joint import fit_joint
 
         for o in fit_obs:
             o.normals = n0
             o.geometry = None
         params = fit_joint(fit_obs, opts, progress=False).params
-    from fmbrdf_mi.fit.inputs.observations import erode
 
     joint = refine_joint(fit_obs, n1, params, mask=erode(fit_obs[0].mask, max(int(opts.erode), 1)), lam=lam,
                          model=model, bounds=opts.bounds, fixed=opts.fixed, max_iter=opts.max_iter, progress=say)

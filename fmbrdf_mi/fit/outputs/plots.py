@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from fmbrdf_mi import stokes_io
+from fmbrdf_mi import polcam, stokes_io
 from fmbrdf_mi.fit.camera import rice
+from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
 
 
 def _channel_stokes(values, cam):
     """Per-channel Stokes (3, 3, H, W) of (16, H, W) samples, demosaicked as polcam.stokes_from_colour_mosaic."""
-    from fmbrdf_mi import polcam
 
     h, w = values.shape[1:]
     raw = np.empty((4 * h, 4 * w))
@@ -24,8 +24,6 @@ def _channel_stokes(values, cam):
 
 def plot_colour_fit(smp, pred, sel, cam, path, title=""):
     """Observed vs fitted intensity and DoLP per channel, cropped to the fitted periods; errors beside."""
-    from fmbrdf_mi import stokes_io
-    from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
     from fmbrdf_mi.fit.outputs.plots import pyplot, scale_from
 
     plt = pyplot()

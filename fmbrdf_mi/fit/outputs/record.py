@@ -16,8 +16,8 @@ import json
 import os
 import sys
 
+from fmbrdf_mi import __version__
 from fmbrdf_mi.fit.errors import InputError
-
 
 #: Arguments of fit_files that define a fit (not where it writes or how it talks).
 ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "light", "irradiance", "layout",
@@ -63,7 +63,6 @@ def _files(arguments):
 
 
 def versions():
-    from fmbrdf_mi import __version__
 
     v = {"fmbrdf_mi": __version__, "python": sys.version.split()[0]}
     for mod in ("mitsuba", "drjit", "numpy"):

@@ -1,14 +1,22 @@
 """``fmbrdf-mi fit`` on one image as a function: :func:`fit_files` reads, fits and writes."""
 from __future__ import annotations
 
-import numpy as np
 import os
 
+import numpy as np
+
+from fmbrdf_mi import scene as S
+from fmbrdf_mi import stokes_io
+from fmbrdf_mi.fit.api.fitting import FitOptions, fit
+from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.models import BASELINES
+from fmbrdf_mi.fit.evaluate.models import BASELINES, get_model
+from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
+from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
 from fmbrdf_mi.fit.inputs.files import build_observation
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
-
+from fmbrdf_mi.fit.outputs import plots, record
+from fmbrdf_mi.fit.outputs.writer import prepare, write_json
 
 OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stokes.exr")
 
@@ -50,17 +58,9 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     fitted_stokes.exr (and relight.png); refuses to overwrite them without
     ``force``.  Returns the dict written to fit.json.
     """
-    from fmbrdf_mi.fit.outputs import plots, record
-    from fmbrdf_mi.fit.api.fitting import FitOptions, fit
-    from fmbrdf_mi.fit.evaluate.predict import predict_image
 
     arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
-    from fmbrdf_mi.fit.evaluate.models import get_model
-    from fmbrdf_mi.fit.evaluate.predict import relight_error
-    from fmbrdf_mi import stokes_io
 
-    from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
-    from fmbrdf_mi.fit.outputs.writer import prepare, write_json
 
     get_model(model)
     check_input_options(black_level=black_level, conversion_gain=conversion_gain, read_noise=read_noise,
@@ -143,8 +143,6 @@ def _render_scene(obs, model):
     if model != "fmbrdf" or meta.get("scene") != "builtin:sphere":
         raise InputError("path 'render' needs a Stokes EXR written by `fmbrdf-mi render` for the built-in "
                          "sphere (the scene is rebuilt from its metadata) and the fmbrdf model")
-    from fmbrdf_mi import scene as S
-    from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 
     mi = set_variant()
     p = meta["parameters"]

@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from fmbrdf_mi.fit.outputs.single import output_files
+from fmbrdf_mi.fit.problem.free_power import power_text
+from fmbrdf_mi.fit.uncertainty import WEAK_REL
 
 #: Exit status of a fit that stopped before it converged (time limit, iteration limit).
 EXIT_NOT_CONVERGED = 3
@@ -63,7 +66,6 @@ def print_joint(report):
                 line += f", chi2/dof {im['chi2_per_dof']:.3f}"
             line += f", intensity RMSE/mean {im['intensity_rel_rmse']:.4f}"
             if im.get("power") is not None:
-                from fmbrdf_mi.fit.problem.free_power import power_text
 
                 line += ", " + power_text(im)
             print(f"{name}{line}" if len(report["models"]) > 1 else line)
@@ -107,7 +109,6 @@ def print_summary(report, out, t0):
     import sys
     import time
 
-    from fmbrdf_mi.fit.outputs.single import output_files
 
     if report.get("sensor") == "colour":
         return print_colour(report)
@@ -115,7 +116,6 @@ def print_summary(report, out, t0):
         print_report(report)
         print(f"wrote {', '.join(report['refine_normals']['outputs'])} ({time.time() - t0:.1f} s)")
         return 0 if report["refine_normals"]["converged"] else EXIT_NOT_CONVERGED
-    from fmbrdf_mi.fit.uncertainty import WEAK_REL
 
     status = 0
     for name, m in report["models"].items():

@@ -20,10 +20,10 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
-from fmbrdf_mi.fit.objectives import loss as L, loss_variants as LV
+from fmbrdf_mi.fit.objectives import loss as L
+from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective, PaperObjective
 from fmbrdf_mi.fit.problem.problem import FitData
-
 
 #: Pixels whose view or light direction is within this angle (degrees) of the
 #: normal are left out of the fit: the BSDF's reverse-mode derivative with

@@ -41,13 +41,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+
 import numpy as np
 
-from fmbrdf_mi.fit.evaluate.models import ShapeParam
+from fmbrdf_mi.fit.evaluate.models import Bounds, ShapeParam, State
 from fmbrdf_mi.fit.evaluate.pixel_model import Parts
-from fmbrdf_mi.fit.evaluate.models import State
 from fmbrdf_mi.fit.problem.problem import Problem
-
 
 #: The free powers are searched in [G / POWER_RANGE, G * POWER_RANGE].
 POWER_RANGE = 1000.0
@@ -218,7 +217,6 @@ def problem_factory(model, evaluator, pixel_slices, start="ratio"):
     (``model``: a :class:`PowerModel`, ``evaluator``: its :class:`PowerEvaluator`)."""
 
     def make(_base, _ev, objective, bounds, progress, fixed, deadline):
-        from fmbrdf_mi.fit.evaluate.models import Bounds
 
         return PowerProblem(model, evaluator, objective, Bounds(model, bounds), progress, fixed=fixed,
                             deadline=deadline, pixel_slices=pixel_slices, start=start)

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
-
 import math
-import numpy as np
 import time
+
+import numpy as np
 
 from fmbrdf_mi.fit.evaluate.models import Bounds, State
 from fmbrdf_mi.fit.objectives import loss as L
+from fmbrdf_mi.fit.objectives.objective import PaperObjective
 
 
 class TimeUp(Exception):
@@ -30,7 +31,6 @@ class Problem:
     """
 
     def __init__(self, model, evaluator, objective, bounds=None, progress=None, fixed=None, deadline=None):
-        from fmbrdf_mi.fit.objectives.objective import PaperObjective
 
         self.model, self.ev = model, evaluator
         self.obj = PaperObjective(objective) if isinstance(objective, L.Target) else objective

@@ -29,18 +29,19 @@ from __future__ import annotations
 
 import itertools
 import math
-import numpy as np
 import sys
 import time
 
+import numpy as np
+
 from fmbrdf_mi.fit.objectives import loss as L
+from fmbrdf_mi.fit.objectives.objective import nnls2
 from fmbrdf_mi.fit.solve import lm as LM
 
 
 # ---------------------------------------------------------------- closed-form albedos
 def solve_albedos(parts, target):
     """Non-negative least squares of the intensities over (a_s, a_b); returns (a_s, a_b)."""
-    from fmbrdf_mi.fit.objectives.objective import nnls2
 
     return nnls2(parts.surface[0], parts.body[0], target.intensity)
 
