@@ -17,7 +17,8 @@ before it (``tests/test_layers.py`` enforces it):
 ``objectives``     the likelihood of the camera's samples, the paper's loss and its variants
 ``problem``        what a fit runs on (pixels, objective, evaluator: one builder for one image
                    or K) and its problem (model, bounds, clock; free powers)
-``solve``          coarse search, Levenberg-Marquardt, Adam; the normal refinement's system
+``solve``          coarse search, Levenberg-Marquardt, the reweighting loop, Adam; the normal
+                   refinement's system
 ``uncertainty``    covariances (Fisher, sandwich), intervals, flags
 ``result``         :class:`FitResult` and the JSON encoder of every output
 ``api``            :func:`fit`, :func:`fit_joint`, :func:`fit_colour`, normal refinement

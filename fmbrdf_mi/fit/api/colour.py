@@ -45,6 +45,7 @@ from fmbrdf_mi.fit.objectives.objective import nnls2
 from fmbrdf_mi.fit.problem.problem import TimeUp
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import lm as LM
+from fmbrdf_mi.fit.solve.irls import reweighted
 from fmbrdf_mi.fit.solve.optimise import search_grids, staged_search
 
 
@@ -302,29 +303,36 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     if max_time is not None:
         prob.deadline = t0 + float(max_time)
     converged, stop = False, "iteration limit"
-    r = J = None
+    r = None
     try:
         cands = _coarse(prob, say)
         z = prob.floored_z(*cands[0])      # the grid's albedos are already the closed-form ones
         prob.last = z
-        for rnd in range(irls_rounds):
-            z_old = z.copy()
-            if rnd == 0:      # LM from the best `starts` grid points; the lowest chi2 goes on
-                ends = [_lm(prob, prob.floored_z(*c), say, max_iter=max_iter, tag=f" {rnd}.{j}")
+        last = {}
+
+        def minimise(z, k):
+            last["z_old"] = z.copy()
+            if k == 0:      # LM from the best `starts` grid points; the lowest chi2 goes on
+                ends = [_lm(prob, prob.floored_z(*c), say, max_iter=max_iter, tag=f" {k}.{j}")
                         for j, c in enumerate(cands[:max(1, int(starts))])]
-                z, r, J, converged = min(ends, key=lambda e: float(e[1] @ e[1]))
+                z, _, _, converged = min(ends, key=lambda e: float(e[1] @ e[1]))
             else:
-                z, r, J, converged = _lm(prob, z, say, max_iter=max_iter, tag=f" {rnd}")
+                z, _, _, converged = _lm(prob, z, say, max_iter=max_iter, tag=f" {k}")
+            return z, converged
+
+        def after(z, k):    # variances (and an unknown noise model) from the fit; settled: a step < 0.05 SE
             shape, a_s, a_b = prob.from_z(z)
             mu = prob.mu(prob.parts(shape), a_s, a_b)
             if not known:
                 noise.estimate(mu, (y - mu) ** 2)
             prob.var = np.maximum(noise.variance(mu), 1e-300)
-            r, J = prob.jacobian(z)
-            cov_z = np.linalg.pinv(J.T @ J)
-            step = np.abs(z - z_old) / np.sqrt(np.maximum(np.diag(cov_z), 1e-300))
-            if rnd > 0 and float(np.max(step)) < 0.05:
-                break
+            last["r"], last["J"] = prob.jacobian(z)
+            last["cov_z"] = np.linalg.pinv(last["J"].T @ last["J"])
+            step = np.abs(z - last["z_old"]) / np.sqrt(np.maximum(np.diag(last["cov_z"]), 1e-300))
+            return k > 0 and float(np.max(step)) < 0.05
+
+        z, converged, _, _ = reweighted(z, minimise, rounds=irls_rounds, after=after, stop_unconverged=False)
+        r, cov_z = last["r"], last["cov_z"]
         stop = "converged" if converged else f"iteration limit ({max_iter} LM iterations)"
     except TimeUp:
         converged, stop = False, f"time limit (max_time {float(max_time):g} s)"

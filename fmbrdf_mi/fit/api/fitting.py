@@ -19,6 +19,7 @@ from fmbrdf_mi.fit.problem.free_power import power_text, split_result
 from fmbrdf_mi.fit.problem.problem import TimeUp
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import optimise as O
+from fmbrdf_mi.fit.solve.irls import reweighted
 from fmbrdf_mi.fit.uncertainty import WEAK_REL
 
 
@@ -364,35 +365,36 @@ def _refine(problem, st, opts, t0, history, report):
     errors.  Returns (State, stop reason, converged, Jacobian or None, residuals or None).
     """
     obj = problem.obj
-    reason, converged, J, r = "", False, None, None
     n_rounds = max(1, opts.rounds) + (2 if obj.is_likelihood else 0)
-    step_se = None
-    settled = False
-    for rnd in range(1, n_rounds + 1):
+    last = {"reason": "", "J": None, "r": None, "step_se": None}
+
+    def before(st, k):      # the weights from the current estimate; settled when they no longer move it
         parts = problem.parts(st)
         saved = obj.save()
-        if rnd > 1 and obj.is_likelihood and obj.settled(saved, parts, st, step_se=step_se):
-            settled = True
-            break
+        if k > 0 and obj.is_likelihood and obj.settled(saved, parts, st, step_se=last["step_se"]):
+            return True
         obj.refresh(parts, st)
-        if rnd > 1 and not obj.is_likelihood and obj.settled(saved, parts, st):
+        if k > 0 and not obj.is_likelihood and obj.settled(saved, parts, st):
             obj.restore(saved)  # the weighting is settled
-            settled = True
-            break
-        report(f"[fit] round {rnd}: {obj.describe_round()}")
-        limit = opts.time_limit
-        st_old = st
+            return True
+        report(f"[fit] round {k + 1}: {obj.describe_round()}")
+        return False
+
+    def minimise(st_old, k):
         if opts.optimizer == "lm":
-            st, f, reason, converged, J, r = O.levenberg_marquardt(
-                problem, st, max_iter=opts.max_iter, tol=opts.tol, time_limit=limit, history=history,
-                round_no=rnd)
-            step_se = _step_in_se(problem, st_old, st, J) if J is not None else None
+            st, f, last["reason"], converged, last["J"], last["r"] = O.levenberg_marquardt(
+                problem, st_old, max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit, history=history,
+                round_no=k + 1)
+            last["step_se"] = _step_in_se(problem, st_old, st, last["J"]) if last["J"] is not None else None
         else:
-            st, f, reason, converged = O.adam(problem, st, max_iter=opts.max_iter, lr=opts.lr, tol=opts.tol,
-                                             time_limit=limit, history=history, round_no=rnd)
-            J = r = None
-        if not converged:
-            break
+            st, f, last["reason"], converged = O.adam(problem, st_old, max_iter=opts.max_iter, lr=opts.lr,
+                                                      tol=opts.tol, time_limit=opts.time_limit, history=history,
+                                                      round_no=k + 1)
+            last["J"] = last["r"] = None
+        return st, converged
+
+    st, converged, settled, _ = reweighted(st, minimise, rounds=n_rounds, before=before)
+    reason, J, r, step_se = last["reason"], last["J"], last["r"], last["step_se"]
     if obj.is_likelihood and converged and not settled:
         if step_se is not None and step_se < 0.05:
             settled = True

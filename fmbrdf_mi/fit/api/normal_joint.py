@@ -81,6 +81,7 @@ from fmbrdf_mi.fit.problem.problem import Problem
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import lm as LM
 from fmbrdf_mi.fit.solve import normal_system as NS
+from fmbrdf_mi.fit.solve.irls import reweighted
 
 #: The smoothness priors: stencil coefficients along image rows and columns.
 PRIORS = {"curvature": (1.0, -2.0, 1.0), "membrane": (1.0, -1.0)}
@@ -294,38 +295,42 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     nmap = n_map.reshape(-1, 3).copy()     # flat; the refined pixels change, the others are held
     t0 = time.time()
     history = []
-    reason, converged = f"max_iter ({max_iter}) reached", False
-    for rnd in range(refreshes + 1):
+    last = {}
+
+    def before(x, rnd):     # from the second round: the variances (and the prior's scale) from the model
+        st, nmap = x
         if rnd:
-            jp.obj.refresh(jp.parts(st, nmap), st)      # IRLS: variances from the current model
+            jp.obj.refresh(jp.parts(st, nmap), st)
             jp.set_scale()
         ed, ep, _ = jp.energy(st, nmap)
-        f = ed + ep
-        say(f"[joint-normals] round {rnd}: energy {f:.6e} (data {ed:.6e}, prior {ep:.6e}), {jp.n} pixels, "
+        last.update(ed=ed, ep=ep)
+        say(f"[joint-normals] round {rnd}: energy {ed + ep:.6e} (data {ed:.6e}, prior {ep:.6e}), {jp.n} pixels, "
             f"variances {'from the data' if rnd == 0 else 'from the model'} ({time.time() - t0:.1f} s)")
+        return False
 
-        def linearise(x):
-            st, nmap = x[0], x[1]
-            r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
-            n = nmap[jp.idx]
-            return (jp.system(r, Jm, Jn, t, n), Jn, t, z, n)
+    def linearise(x):
+        st, nmap = x[0], x[1]
+        r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
+        n = nmap[jp.idx]
+        return (jp.system(r, Jm, Jn, t, n), Jn, t, z, n)
 
-        def solve(lin, mu):
-            (Hmm, Hmn, gm, gn), Jn, t, _, _ = lin
-            return NS.solve_step(Hmm, Hmn, jp.block(Jn, t, mu), gm, gn, mu)
+    def solve(lin, mu):
+        (Hmm, Hmn, gm, gn), Jn, t, _, _ = lin
+        return NS.solve_step(Hmm, Hmn, jp.block(Jn, t, mu), gm, gn, mu)
 
-        def trial(x, step, lin):
-            dm, dn = step
-            _, _, t, z, n = lin
-            st_new = jp.problem.from_z(np.clip(z + dm, -40, 40))
-            n_new = n + dn[:, :1] * t[0] + dn[:, 1:] * t[1]
-            n_new /= np.linalg.norm(n_new, axis=1, keepdims=True)
-            away = np.sum(n_new * jp.views, 1) < 0.05
-            n_new[away] = n[away]
-            nmap_new = jp.full(x[1], n_new)
-            ed_new, ep_new, _ = jp.energy(st_new, nmap_new)
-            return (st_new, nmap_new, ed_new, ep_new), ed_new + ep_new, None
+    def trial(x, step, lin):
+        dm, dn = step
+        _, _, t, z, n = lin
+        st_new = jp.problem.from_z(np.clip(z + dm, -40, 40))
+        n_new = n + dn[:, :1] * t[0] + dn[:, 1:] * t[1]
+        n_new /= np.linalg.norm(n_new, axis=1, keepdims=True)
+        away = np.sum(n_new * jp.views, 1) < 0.05
+        n_new[away] = n[away]
+        nmap_new = jp.full(x[1], n_new)
+        ed_new, ep_new, _ = jp.energy(st_new, nmap_new)
+        return (st_new, nmap_new, ed_new, ep_new), ed_new + ep_new, None
 
+    def minimise(x, rnd):
         def on_accept(it, x, f):
             st = x[0]
             rep = mdl.report(st.shape, st.a_s, st.a_b)
@@ -335,18 +340,21 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
                 + " ".join(f"{k}={v:.4g}" for k, v in rep.items()) + f"  ({time.time() - t0:.1f} s)")
 
         res = LM.levenberg_marquardt(
-            (st, nmap, ed, ep), f, linearise, solve, trial, max_iter=max_iter, refresh=1,
+            (x[0], x[1], last["ed"], last["ep"]), last["ed"] + last["ep"], linearise, solve, trial,
+            max_iter=max_iter, refresh=1,
             small=lambda f_old, f_new: f_old - f_new < 0.01 or f_old - f_new < 1e-9 * f_new,
             time_up=None if time_limit is None else (lambda: time.time() - t0 > time_limit),
             on_accept=on_accept, final_linearise=False)
         st, nmap, ed, ep = res.x
-        f, converged = res.f, res.converged
-        reason = {"no_step": "no step lowers the energy (converged to float32 precision)",
-                  "small_decrease": "energy decrease below 0.01 twice in a row",
-                  "time_limit": "time limit {:g} s reached".format(time_limit or 0),
-                  "max_iter": f"max_iter ({max_iter}) reached"}[res.reason]
-        if not converged:
-            break
+        last.update(f=res.f, ed=ed, ep=ep, reason={
+            "no_step": "no step lowers the energy (converged to float32 precision)",
+            "small_decrease": "energy decrease below 0.01 twice in a row",
+            "time_limit": "time limit {:g} s reached".format(time_limit or 0),
+            "max_iter": f"max_iter ({max_iter}) reached"}[res.reason])
+        return (st, nmap), res.converged
+
+    (st, nmap), converged, _, _ = reweighted((st, nmap), minimise, rounds=refreshes + 1, before=before)
+    f, ed, ep, reason = last["f"], last["ed"], last["ep"], last["reason"]
     # uncertainty of the material with the normals free (module docstring)
     r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
     unc = {"std_errors": {}, "method": "not computed: the refinement did not converge"}
