@@ -124,72 +124,94 @@ def add_fit_arguments(p):
     g.add_argument("-q", "--quiet", action="store_true")
 
 
+def is_joint(args):
+    """Whether the arguments give several images of one object (a manifest, an authors' object, several lights
+    or inputs that are not one image or four angle images)."""
+    n_in = len(args.inputs or [])
+    return bool(args.manifest or args.authors or len(args.light or []) > 1 or n_in not in (0, 1, 4))
+
+
+def fit_mode(args):
+    """The mode the arguments ask for: ``joint``, ``rerun`` (``--from``), ``colour`` (a colour mosaic) or
+    ``single``; a colour sidecar is read only to tell the last two apart."""
+    if is_joint(args):
+        return "joint"
+    if args.from_json:
+        return "rerun"
+    if len(args.inputs or []) == 1 and colour_sidecar(args.inputs[0]) is not None:
+        return "colour"
+    return "single"
+
+
+def run_rerun(args, command):
+    """``--from fit.json``: the recorded fit again (single image, colour or joint)."""
+    if args.inputs:
+        raise InputError("--from: give no INPUT files (they come from the fit.json)")
+    if joint_record.is_joint(args.from_json):
+        return joint_record.rerun(args.from_json, args.out, force=args.force, progress=not args.quiet,
+                                  command=command)
+    kw = record.rerun_arguments(args.from_json)
+    run = fit_colour_files if is_colour_record(args.from_json) else fit_files
+    return run(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
+
+
+def run_colour(args, command):
+    """A colour polarisation mosaic (its capture sidecar says so)."""
+    check_colour_args(args)
+    lights = args.light or []
+    return fit_colour_files(args.inputs[0], args.out, normals=args.normals, mask=args.mask, view=args.view,
+                            sphere=args.sphere, camera=args.camera, fov=args.fov,
+                            light=parse_vector(lights[0] if lights else None, "--light"),
+                            irradiance=args.irradiance, black_level=args.black_level,
+                            white_level=args.white_level, conversion_gain=args.conversion_gain,
+                            read_noise=args.read_noise, model=args.model, bounds=args.bounds, fixed=args.fix,
+                            max_time=args.max_time, max_iter=args.max_iter, max_pixels=args.max_pixels or None,
+                            erode=args.erode, seed=args.seed, starts=args.starts, force=args.force,
+                            progress=not args.quiet, command=command)
+
+
+def run_single(args, command):
+    """One polarimetric image (a Stokes EXR, a raw mosaic, angle images)."""
+    if not args.inputs:
+        raise InputError("no INPUT given: a Stokes .exr, a raw mosaic, angle images, or --from fit.json")
+    lights = args.light or []
+    inputs = args.inputs if len(args.inputs) > 1 else args.inputs[0]
+    relight = None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0])
+    return fit_files(inputs, args.out, normals=args.normals, mask=args.mask, view=args.view,
+                     sphere=args.sphere, camera=args.camera, fov=args.fov,
+                     light=parse_vector(lights[0] if lights else None, "--light"),
+                     irradiance=args.irradiance, layout=args.layout, black_level=args.black_level,
+                     channel=args.channel, demosaic=args.demosaic, conversion_gain=args.conversion_gain,
+                     read_noise=args.read_noise, footprint=args.footprint, model=args.model,
+                     baselines=args.baselines, optimizer=args.optimizer, path=args.path, bounds=args.bounds,
+                     init=args.init, loss=args.loss, white_level=args.white_level,
+                     dark_level=args.dark_level, fixed=args.fix, starts=args.starts,
+                     max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit,
+                     max_time=args.max_time, max_pixels=args.max_pixels or None, erode=args.erode,
+                     seed=args.seed, relight=relight,
+                     relight_light=parse_vector(args.relight_light, "--relight-light"),
+                     relight_irradiance=args.relight_irradiance, force=args.force,
+                     progress=not args.quiet, command=command)
+
+
+#: The function that runs each mode: (arguments, command line) -> the report written to fit.json.
+RUN = {"joint": run_joint, "rerun": run_rerun, "colour": run_colour, "single": run_single}
+
+
 def run_fit(args):
+    """``fmbrdf-mi fit``: the option checks (before any file is read), the mode, its run, the summary."""
     import shlex
 
     t0 = time.time()
     check_args(args)
     command = shlex.join(["fmbrdf-mi", "fit", *getattr(args, "argv", [])])
-    lights = args.light or []
-    n_in = len(args.inputs or [])
-    joint = bool(args.manifest or args.authors or len(lights) > 1 or n_in not in (0, 1, 4))
+    joint = is_joint(args)
     if getattr(args, "free_power", False) and not joint:
         raise InputError("--free-power: with --from the fit.json's options apply (give none)" if args.from_json
                          else "--free-power: needs a joint fit of two or more images (--manifest, --authors, "
                               "or several INPUTs with one --light each)")
-
     check_normal_args(args, joint and not args.from_json)
-    if joint:
-
-        report = run_joint(args, command)
-    elif args.from_json:
-
-        if args.inputs:
-            raise InputError("--from: give no INPUT files (they come from the fit.json)")
-
-
-        if joint_record.is_joint(args.from_json):
-            report = joint_record.rerun(args.from_json, args.out, force=args.force, progress=not args.quiet,
-                                        command=command)
-        elif is_colour_record(args.from_json):
-            kw = record.rerun_arguments(args.from_json)
-            report = fit_colour_files(out=args.out, force=args.force, progress=not args.quiet, command=command,
-                                      **kw)
-        else:
-            kw = record.rerun_arguments(args.from_json)
-            report = fit_files(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
-    elif len(args.inputs or []) == 1 and colour_sidecar(args.inputs[0]) is not None:
-
-        check_colour_args(args)
-        report = fit_colour_files(args.inputs[0], args.out, normals=args.normals, mask=args.mask, view=args.view,
-                                  sphere=args.sphere, camera=args.camera, fov=args.fov,
-                                  light=parse_vector(lights[0] if lights else None, "--light"), irradiance=args.irradiance,
-                                  black_level=args.black_level, white_level=args.white_level,
-                                  conversion_gain=args.conversion_gain, read_noise=args.read_noise,
-                                  model=args.model, bounds=args.bounds, fixed=args.fix, max_time=args.max_time,
-                                  max_iter=args.max_iter, max_pixels=args.max_pixels or None, erode=args.erode,
-                                  seed=args.seed, starts=args.starts, force=args.force, progress=not args.quiet,
-                                  command=command)
-    else:
-        if not args.inputs:
-            raise InputError("no INPUT given: a Stokes .exr, a raw mosaic, angle images, or --from fit.json")
-        inputs = args.inputs if len(args.inputs) > 1 else args.inputs[0]
-        relight = None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0])
-        report = fit_files(inputs, args.out, normals=args.normals, mask=args.mask, view=args.view,
-                           sphere=args.sphere, camera=args.camera, fov=args.fov,
-                           light=parse_vector(lights[0] if lights else None, "--light"),
-                           irradiance=args.irradiance, layout=args.layout, black_level=args.black_level,
-                           channel=args.channel, demosaic=args.demosaic, conversion_gain=args.conversion_gain,
-                           read_noise=args.read_noise, footprint=args.footprint, model=args.model,
-                           baselines=args.baselines, optimizer=args.optimizer, path=args.path, bounds=args.bounds,
-                           init=args.init, loss=args.loss, white_level=args.white_level,
-                           dark_level=args.dark_level, fixed=args.fix, starts=args.starts,
-                           max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit,
-                           max_time=args.max_time, max_pixels=args.max_pixels or None, erode=args.erode,
-                           seed=args.seed, relight=relight,
-                           relight_light=parse_vector(args.relight_light, "--relight-light"),
-                           relight_irradiance=args.relight_irradiance, force=args.force,
-                           progress=not args.quiet, command=command)
+    report = RUN[fit_mode(args)](args, command)
     return print_summary(report, args.out, t0)
 
 

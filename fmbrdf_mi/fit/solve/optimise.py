@@ -35,20 +35,7 @@ import time
 import numpy as np
 
 from fmbrdf_mi.fit.objectives import loss as L
-from fmbrdf_mi.fit.objectives.objective import nnls2
 from fmbrdf_mi.fit.solve import lm as LM
-
-
-# ---------------------------------------------------------------- closed-form albedos
-def solve_albedos(parts, target):
-    """Non-negative least squares of the intensities over (a_s, a_b); returns (a_s, a_b)."""
-
-    return nnls2(parts.surface[0], parts.body[0], target.intensity)
-
-
-def _score(problem, parts, st):
-    """Objective of a candidate with its own weights (the paper's split; the likelihood's variances)."""
-    return problem.obj.score(parts, st)
 
 
 #: An albedo whose lobe contributes less than this fraction of the other's
