@@ -1,8 +1,10 @@
 """``fmbrdf-mi fit``: files in, estimates, plots and relighting errors out.
 
-:func:`fit_files` is the Python function behind the command; it takes the
-same options (names with underscores).  :func:`add_fit_arguments` and
-:func:`run_fit` plug into :mod:`fmbrdf_mi.cli`.
+:func:`fmbrdf_mi.fit.outputs.single.fit_files` (``fmbrdf_mi.fit.fit_files``) is the
+Python function behind the command for one image; it takes the same options
+(names with underscores).  :func:`add_fit_arguments` and :func:`run_fit` plug
+into :mod:`fmbrdf_mi.cli`: the option checks (:mod:`fmbrdf_mi.fit.cli.checks`),
+the mode (:func:`fit_mode`), its run (:data:`RUN`), the summary.
 """
 from __future__ import annotations
 

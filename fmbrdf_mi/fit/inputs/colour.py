@@ -172,8 +172,6 @@ _UNSET = {"channel": "mean", "demosaic": "bilinear", "footprint": "auto", "layou
 
 def is_colour(specs):
     """Whether the images of ``specs`` are colour mosaics (all of them); mixed sets are refused in one line."""
-    from fmbrdf_mi.fit.inputs.colour import colour_sidecar
-
     flags = [not hasattr(s.input, "stokes") and colour_sidecar(s.input) is not None for s in specs]
     if any(flags) and not all(flags):
         k = flags.index(not flags[0])
@@ -183,8 +181,8 @@ def is_colour(specs):
 
 
 def read_colour_inputs(specs, erode):
-    from fmbrdf_mi.fit.inputs.colour import read_colour_input
-
+    """:class:`ColourInput` s of a joint fit's colour images (options a colour mosaic does not take refused,
+    one camera for all)."""
     out = []
     for k, s in enumerate(specs):
         opts = {x: v for x, v in s.options.items() if not (x in _UNSET and v == _UNSET[x])}

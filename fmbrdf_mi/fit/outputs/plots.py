@@ -24,8 +24,6 @@ def _channel_stokes(values, cam):
 
 def plot_colour_fit(smp, pred, sel, cam, path, title=""):
     """Observed vs fitted intensity and DoLP per channel, cropped to the fitted periods; errors beside."""
-    from fmbrdf_mi.fit.outputs.plots import pyplot, scale_from
-
     plt = pyplot()
     obs_s = _channel_stokes(np.where(sel, smp.values, np.nan), cam)
     fit_s = _channel_stokes(pred, cam)

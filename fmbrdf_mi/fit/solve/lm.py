@@ -82,8 +82,8 @@ def broyden(J, dz, dr):
 
 
 def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None, refresh=1, secant=None,
-                        moved=None, decrement=None, decrement_tol=DECREMENT_TOL, small=None, step_small=None, time_up=None,
-                        on_accept=None, final_linearise=True, lam=1e-3):
+                        moved=None, decrement=None, decrement_tol=DECREMENT_TOL, small=None, step_small=None,
+                        time_up=None, on_accept=None, final_linearise=True, lam=1e-3):
     """Minimise from ``x`` (objective ``f``); returns :class:`LMResult` (module docstring).
 
     ``lin``: the linearisation at ``x`` if the caller has it (else made here).

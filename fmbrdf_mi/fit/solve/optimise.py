@@ -161,10 +161,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
 
     def secant(lin, x, x_new, r_new):   # Broyden's update with what the trial taught
         r, J = lin
-        dz = x_new[1] - x[1]
-        if np.all(np.isfinite(r_new)) and dz @ dz > 0:
-            J = J + np.outer(r_new - r - J @ dz, dz) / (dz @ dz)
-        return r, J
+        return r, LM.broyden(J, x_new[1] - x[1], r_new - r)
 
     def on_accept(it, x, f):
         st = x[0]
