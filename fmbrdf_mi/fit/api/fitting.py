@@ -243,23 +243,8 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
 
 
 def _fit_images(observations, options=None, *, names=None, progress=True, powers=None, **kw):
-    """:func:`fit` of a list of observations (:func:`fmbrdf_mi.fit.api.joint.fit_joint` says what it does).
-
-    Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with ``images``
-    (per-image diagnostics) and ``pixels`` (one array per image).
-
-    ``options`` / keywords: :class:`~fmbrdf_mi.fit.api.fitting.FitOptions` (the
-    pixel path and the Levenberg-Marquardt optimiser).  ``names``: labels of
-    the images in the result (default ``image0``, ...).
-
-    ``free_power=True`` (an option) estimates the light powers of images
-    1 .. K-1 relative to image 0's (:mod:`fmbrdf_mi.fit.problem.free_power`);
-    ``powers``: the relative powers the observations' irradiances already
-    include (default 1 each): image 0's stays fixed, the others are where
-    the search starts (``power_start="given"``) and what the fitted powers
-    are reported against.  The result's ``powers`` and each
-    image's ``power`` / ``power_se`` then hold them.
-    """
+    """:func:`fit` of a list of observations: the arguments and the result are
+    :func:`fmbrdf_mi.fit.api.joint.fit_joint`'s."""
     observations = list(observations)
     if not observations:
         raise InputError("joint fit: no images")
