@@ -273,7 +273,6 @@ def _fit_images(observations, options=None, *, names=None, progress=True, powers
     idxs, slices = data.image_pixels, data.slices
     pmodel = None
     if opts.free_power:
-
         pmodel = FP.PowerModel(get_model(opts.model), given)
         pev = FP.PowerEvaluator(data.evaluator, pmodel, [b - a for a, b in slices])
         data = dataclasses.replace(data, evaluator=pev,
@@ -287,7 +286,6 @@ def _fit_images(observations, options=None, *, names=None, progress=True, powers
     images = diagnose(res, data, observations, names, pmodel)
     block = None
     if pmodel is not None:
-
         block = split_result(res, pmodel, names)
         for k, im in enumerate(images):
             im.update({"power": block["values"][k], "power_given": given[k], "power_se": block["std_errors"][k],

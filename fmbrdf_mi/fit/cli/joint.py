@@ -67,7 +67,6 @@ def run_joint(args, command):
     names = image_names(specs)
     fit_fn, outputs_fn = fitter(specs)
     if fit_fn is not fit_images:
-
         check_colour_args(args)
     files = outputs_fn(args.out, names, [s.holdout for s in specs])
     if not args.authors:   # the record names files by absolute path (a rerun may start elsewhere)
@@ -81,7 +80,6 @@ def run_joint(args, command):
                   free_power=getattr(args, "free_power", False), power_start=getattr(args, "power_start", "ratio"))
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
     if getattr(args, "refine_normals", False):
-
         obs = build_observations(specs)
         # the authors' layout carries the ground truth (normal/normal_GT.npy): it is the geometry read
         gt = obs[0].normals.copy() if args.authors else None

@@ -72,7 +72,6 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
                 raise InputError("--sphere auto: needs --mask to find the sphere in")
             centre, radius = ob.find_sphere(mk)
         else:
-
             cx, cy, radius = parse_vector(sphere, "--sphere (cx,cy,r in 4x4 periods)")
             centre = (cx, cy)
         n, m, v = ob.geometry_from_sphere(shape, centre, radius, mk, camera, fov)
@@ -82,7 +81,6 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
             return n, m, ob.read_vectors(view, "view", shape), None, meta
         return n, m, v, ob.SphereGeometry(shape, centre, radius, camera, fov), meta
     if params is not None:
-
         w, h = int(params["width"]), int(params["height"])
         if (h, w) != (4 * shape[0], 4 * shape[1]):
             raise InputError(f"{side['path']}: describes a {w}x{h} render, the mosaic is "

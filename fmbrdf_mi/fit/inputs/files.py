@@ -120,7 +120,6 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                 raise InputError(f"mask: shape {mk.shape} matches neither the polarisation image {tuple(shape)} "
                                  f"nor its raw mosaic {(2 * shape[0], 2 * shape[1])}")
         if centre is None:
-
             centre, radius = find_sphere(mk)
         n, m, v = geometry_from_sphere(shape, centre, radius, mk, camera, fov)
         meta["sphere"] = {"centre": [float(c) for c in centre], "radius": float(radius),
@@ -128,7 +127,6 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
         if view is not None:
             v = read_vectors(view, "view", shape)
         else:
-
             exact = SphereGeometry(shape, centre, radius, camera, fov)
     else:
         raise InputError("geometry: give a normal map (--normals N.npy --mask M.png) or a sphere "
@@ -139,7 +137,6 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     light = check_direction(light, "light")
     var = None
     if conversion_gain is not None:
-
         if not (conversion_gain > 0) or read_noise is None or not (read_noise >= 0):
             raise InputError(f"noise: --conversion-gain must be > 0 and --read-noise >= 0 given with it, got "
                              f"{conversion_gain}, {read_noise}")

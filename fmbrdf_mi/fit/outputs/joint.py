@@ -108,7 +108,6 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     if reproduce is not None:
         report["reproduce"] = reproduce(obs)
     elif command is not None:
-
         report["reproduce"] = command_block(command)
     report.update(extra or {})
     os.makedirs(out, exist_ok=True)

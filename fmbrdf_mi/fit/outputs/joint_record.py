@@ -160,7 +160,6 @@ def rerun(path, out, *, force=False, progress=True, command=None):
     info = None
     try:
         if joint["kind"] == "authors":
-
             a = dict(joint["authors"])
             specs, info = read_object(a.pop("root"), **a)
         else:

@@ -100,7 +100,6 @@ def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=0, model="fmbrdf"
         res = refine_normals(fit_obs, n0, rounds=rounds, lam=lam, fit_options=opts, progress=say)
         n1, params, alt = res.normals, res.params, res["alternation"]
     else:
-
         for o in fit_obs:
             o.normals = n0
             o.geometry = None

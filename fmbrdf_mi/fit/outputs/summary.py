@@ -66,7 +66,6 @@ def print_joint(report):
                 line += f", chi2/dof {im['chi2_per_dof']:.3f}"
             line += f", intensity RMSE/mean {im['intensity_rel_rmse']:.4f}"
             if im.get("power") is not None:
-
                 line += ", " + power_text(im)
             print(f"{name}{line}" if len(report["models"]) > 1 else line)
     for img, errs in report.get("relight", {}).items():
