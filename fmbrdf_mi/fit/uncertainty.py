@@ -193,7 +193,7 @@ def summarise(problem, st, J, r, n_independent=None):
         if n in problem.names:
             _, _, blo, bhi = problem.bounds.lims[n]
             lo, hi = max(lo, blo), min(hi, bhi)
-        elif n == "r_k" or n in ("k_s", "k_b", "k_d", "specular_reflectance", "diffuse_reflectance"):
+        elif n.split("[")[0] in ("r_k", "k_s", "k_b", "k_d", "specular_reflectance", "diffuse_reflectance"):
             lo = max(lo, 0.0)
         out["std_errors"][n] = float(sd[i])
         out["ci95"][n] = [float(lo), float(hi)]

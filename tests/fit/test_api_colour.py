@@ -1,5 +1,6 @@
 """Colour polarisation sensors (IMX250MYR type): mosaic layout, simulated capture, demosaicking, colour fit."""
 import json
+import statistics
 
 import numpy as np
 import pytest
@@ -237,7 +238,12 @@ def test_fit_cli_colour_recovers_per_channel_albedos(tmp_path, capsys):
         assert abs(p["r_k"][c] - 0.7) < 4 * infl * se["r_k"][c], (c, p["r_k"], se["r_k"])
         assert se["k_s"][c] < 0.05 * ks and se["r_k"][c] < 0.05 * 0.7
         lo, hi = ci["k_s"][c]
-        assert abs((lo + hi) / 2 - p["k_s"][c]) < 1e-9 and abs((hi - lo) / 2 - 1.96 * se["k_s"][c]) < 1e-9
+        z95 = statistics.NormalDist().inv_cdf(0.975)
+        assert abs((lo + hi) / 2 - p["k_s"][c]) < 1e-9 and abs((hi - lo) / 2 - z95 * se["k_s"][c]) < 1e-9
+    # the one uncertainty path: Fisher information, correlations in the flat per-channel names
+    assert m["uncertainty"]["method"].startswith("inverse Fisher information")
+    names = m["uncertainty"]["correlation"]["names"]
+    assert names == ["alpha", "k_s[R]", "k_s[G]", "k_s[B]", "r_k[R]", "r_k[G]", "r_k[B]"], names
     assert abs(p["k_s"]["R"] / p["k_s"]["G"] / 1.5 - 1) < 0.03
     assert abs(p["k_s"]["B"] / p["k_s"]["G"] / 1.25 - 1) < 0.03
     assert (out / "colour_fit.png").stat().st_size > 10000

@@ -46,31 +46,8 @@ import math
 import numpy as np
 
 from fmbrdf_mi.fit.camera import rice
+from fmbrdf_mi.fit.evaluate.albedos import nnls2
 from fmbrdf_mi.fit.objectives import loss as L
-
-
-# ---------------------------------------------------------------- closed-form albedos
-def nnls2(S, B, I, w=None):
-    """Non-negative weighted least squares of I ~ a_s S + a_b B; returns (a_s, a_b), both > 0."""
-    w = np.ones_like(I) if w is None else w
-    A = np.array([[np.sum(w * S * S), np.sum(w * S * B)], [np.sum(w * S * B), np.sum(w * B * B)]])
-    b = np.array([np.sum(w * S * I), np.sum(w * B * I)])
-    cands = []
-    try:
-        x = np.linalg.solve(A, b)
-        if np.all(x >= 0):
-            cands.append(x)
-    except np.linalg.LinAlgError:
-        pass
-    if A[0, 0] > 0:
-        cands.append(np.array([max(b[0] / A[0, 0], 0.0), 0.0]))
-    if A[1, 1] > 0:
-        cands.append(np.array([0.0, max(b[1] / A[1, 1], 0.0)]))
-    if not cands:
-        return 1e-6, 1e-6
-    best = min(cands, key=lambda x: float(x @ A @ x - 2 * x @ b))
-    floor = 1e-6 * max(best.max(), 1e-12)
-    return float(max(best[0], floor)), float(max(best[1], floor))
 
 
 # ---------------------------------------------------------------- objectives
@@ -180,21 +157,26 @@ def _jacobian(cols, parts, st, z, names, bounds, m):
 class LikelihoodObjective:
     """Gaussian likelihood of the polariser samples with Poisson-Gaussian variance (module docstring).
 
-    ``y``: (n, 4) observed samples of the fitted super-pixels; ``analyser``
-    (4, 3); parts come from an evaluator at the samples' own points, (3, 4 n)
-    pixel-major.  The residuals are r_ik = (y_ik - mu_ik) / sqrt(v_ik) with
-    v_ik frozen between :meth:`refresh` calls (IRLS).
+    ``y``: (n, m) observed samples of the fitted cells (a mono super-pixel:
+    m = 4; a colour period: 16); ``analyser`` (m, 3); parts come from an
+    evaluator at the samples' own points, (3, m n) pixel-major, or at the
+    cells' centres, (3, n).  ``dof``: independent values among a cell's m
+    samples.  ``layout``: the albedo layout (:mod:`fmbrdf_mi.fit.evaluate.albedos`;
+    None: one pair shared by every sample).  The residuals are
+    r_ik = (y_ik - mu_ik) / sqrt(v_ik) with v_ik frozen between
+    :meth:`refresh` calls (IRLS).
     """
 
     name = "likelihood"
     is_likelihood = True
 
-    def __init__(self, y, analyser, noise, dof=4):
+    def __init__(self, y, analyser, noise, dof=4, layout=None):
         self.y = np.asarray(y, dtype=np.float64)
         self.A = np.asarray(analyser, dtype=np.float64)
         self.noise = noise
         self.dof = int(dof)
-        self.n = len(self.y)
+        self.layout = layout
+        self.n, self.m = self.y.shape
         # start: variance from the observations themselves (only for the first round / coarse search)
         self.var = np.maximum(noise.variance(self.y), 1e-300)
         self.rounds = 0
@@ -206,13 +188,15 @@ class LikelihoodObjective:
         return np.einsum("kc,cik->ik", self.A, s)
 
     def mu(self, parts, st):
-        return self._mu_of(st.a_s * parts.surface + st.a_b * parts.body)
+        if self.layout is None:
+            return self._mu_of(st.a_s * parts.surface + st.a_b * parts.body)
+        return self.layout.mu(self._mu_of(parts.surface), self._mu_of(parts.body), st.a_s, st.a_b)
 
     def refresh(self, parts, st):
         mu = self.mu(parts, st)
         if not self.noise.known:
-            # 4 samples carry self.dof independent values: correct the residual variance for it
-            self.noise.estimate(mu, (self.y - mu) ** 2, self.dof / 4.0)
+            # m samples carry self.dof independent values: correct the residual variance for it
+            self.noise.estimate(mu, (self.y - mu) ** 2, self.dof / self.m)
         self.var = np.maximum(self.noise.variance(mu), 1e-300)
         self.rounds += 1
 
@@ -246,6 +230,8 @@ class LikelihoodObjective:
         return self.nll(parts, st)
 
     def albedos(self, parts):
+        if self.layout is not None:
+            return self.layout.solve(self._mu_of(parts.surface), self._mu_of(parts.body), self.y, 1.0 / self.var)
         S = self._mu_of(parts.surface).ravel()
         B = self._mu_of(parts.body).ravel()
         return nnls2(S, B, self.y.ravel(), 1.0 / self.var.ravel())
@@ -260,16 +246,24 @@ class LikelihoodObjective:
         return {"chi2": chi2, "samples": int(r.size), "nll": self.nll(parts, st)}
 
     def row_pixels(self, n_rows):
-        return np.arange(n_rows) // 4
+        return np.arange(n_rows) // self.m
 
     def residuals_and_jacobian(self, parts, st, z, names, bounds):
         r = self.residuals(parts, st)
-        inv_sd = 1.0 / np.sqrt(self.var)
-
-        def cols(ds):  # d residual = -d mu / sd
-            return (-self._mu_of(ds) * inv_sd).ravel()
-
-        J = _jacobian(cols, parts, st, z, names, bounds, len(r))
         bad = None if parts.nonfinite is None else np.repeat(
-            parts.nonfinite.reshape(self.n, -1).any(axis=1), 4)
+            parts.nonfinite.reshape(self.n, -1).any(axis=1), self.m)
+        if self.layout is None:
+            inv_sd = 1.0 / np.sqrt(self.var)
+
+            def cols(ds):  # d residual = -d mu / sd
+                return (-self._mu_of(ds) * inv_sd).ravel()
+
+            return r, _jacobian(cols, parts, st, z, names, bounds, len(r)), bad
+        lay, U, sd = self.layout, self._mu_of, np.sqrt(self.var)
+        J = np.empty((len(r), len(z)))
+        for j, n in enumerate(names):
+            dmu = lay.mu(U(parts.d_surface[n]), U(parts.d_body[n]), st.a_s, st.a_b)
+            J[:, j] = (-dmu / sd).ravel() * bounds.derivative(n, z[j])
+        for j, col in enumerate(lay.columns(U(parts.surface), U(parts.body), st.a_s, st.a_b), len(names)):
+            J[:, j] = (-col / sd).ravel()
         return r, J, bad

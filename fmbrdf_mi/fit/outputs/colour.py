@@ -20,7 +20,7 @@ import os
 
 from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.inputs.colour import colour_sidecar, read_colour_input
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed
 from fmbrdf_mi.fit.outputs import record
@@ -38,22 +38,15 @@ def is_colour_record(path):
         return json.load(f).get("sensor") == "colour"
 
 
-def _ci95(model, name, value, se, bounds=None):
-    """value +- 1.96 SE, cut at the parameter's bounds (albedos: at 0), as fit.json's mono intervals."""
-
-    if isinstance(value, dict):
-        return {c: [max(0.0, value[c] - 1.96 * se[c]), value[c] + 1.96 * se[c]] for c in value}
-    lo, hi = Bounds(get_model(model), bounds).lims[name][2:]
-    return [max(lo, value - 1.96 * se), min(hi, value + 1.96 * se)]
-
-
 def model_entry(model, res, bounds, fixed, truth):
     """fit.json's ``models[model]`` of a :func:`~fmbrdf_mi.fit.api.colour.fit_colour` result (intervals, errors)."""
     std = res["std_errors"]
     entry = {k: res[k] for k in ("model", "params", "std_errors", "chi2", "chi2_per_dof", "n_pixels", "n_samples",
                                  "noise", "evaluations", "time_s", "channels", "converged", "stop_reason")}
-    entry["ci95"] = None if std is None else {k: _ci95(model, k, val, std.get(k), bounds)
-                                              for k, val in res["params"].items() if std.get(k) is not None}
+    unc = res.uncertainty or {}
+    entry["ci95"] = None if std is None else unc.get("ci95")
+    entry["uncertainty"] = {k: v for k, v in unc.items() if k not in ("std_errors", "ci95")}
+    entry["weakly_identified"] = res.weakly_identified
     entry["fixed"] = fixed or {}
     if truth:
         rel = {}

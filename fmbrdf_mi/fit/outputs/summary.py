@@ -41,8 +41,14 @@ def print_colour(report):
                 if isinstance(rel.get(k), float):
                     line += f"  (vs metadata {rel[k]:+.2%})"
                 print(line)
+        unc = m.get("uncertainty") or {}
         if std:
-            print("  uncertainty: inverse Fisher information of the raw samples (delta method)")
+            print(f"  uncertainty: {unc.get('method', 'inverse Fisher information of the raw samples')}")
+        if unc.get("misfit"):
+            print(f"  warning: chi^2/dof = {unc['chi2_per_dof']:.3g} with the stated camera noise: the model or the "
+                  "noise settings do not explain the data; the standard errors are too small")
+        if m.get("weakly_identified"):
+            print(f"  weakly identified (standard error > 5% or at a bound): {', '.join(m['weakly_identified'])}")
         for img, c2 in (m.get("chi2_per_sample") or {}).items():
             print(f"  {img}: chi2 per raw sample {c2:.3f}")
         if not m["converged"]:

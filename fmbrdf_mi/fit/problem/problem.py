@@ -64,16 +64,26 @@ class Problem:
     def outliers(self):
         return self.obj.outliers
 
-    # ---- z <-> state
+    # ---- z <-> state: z = (free shape parameters through the bounds, log a_s, log a_b), with an albedo
+    # layout (objective.layout: per channel) log a_s[0 ..], then log a_b[0 ..]
+    @property
+    def layout(self):
+        return getattr(self.obj, "layout", None)
+
     def to_z(self, st):
-        return np.array([self.bounds.to_z(n, st.shape[n]) for n in self.names]
-                        + [math.log(max(st.a_s, 1e-30)), math.log(max(st.a_b, 1e-30))])
+        z = [self.bounds.to_z(n, st.shape[n]) for n in self.names]
+        if self.layout is not None:
+            return np.array(z + list(np.log(st.a_s)) + list(np.log(st.a_b)))
+        return np.array(z + [math.log(max(st.a_s, 1e-30)), math.log(max(st.a_b, 1e-30))])
 
     def from_z(self, z):
         shape = dict(self.fixed)
         shape.update({n: self.bounds.to_value(n, z[i]) for i, n in enumerate(self.names)})
         shape = {n: shape[n] for n in self.model.shape_names}
         k = len(self.names)
+        if self.layout is not None:
+            g = self.layout.size
+            return State(shape, np.exp(np.clip(z[k:k + g], -60, 60)), np.exp(np.clip(z[k + g:k + 2 * g], -60, 60)))
         return State(shape, math.exp(np.clip(z[k], -60, 60)), math.exp(np.clip(z[k + 1], -60, 60)))
 
     def state(self, shape, a_s, a_b):
