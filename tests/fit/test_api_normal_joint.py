@@ -33,8 +33,8 @@ def test_normal_block_and_schur_step_match_dense_algebra(prior):
     dense NumPy on a 4 x 5 mask with a hole (random Jacobians; 2 x 2 bilinear stencils with fixed pixels),
     and the material's sandwich covariance against [H^-1 F H^-1]_mm formed densely.
     CG stops at a relative residual of 1e-10 on a system of condition < 1e4: 1e-6 relative is generous."""
-    from fmbrdf_mi.fit.api.normal_joint import stencils
-    from fmbrdf_mi.fit.api.normal_refine import tangent_bases
+    from fmbrdf_mi.fit.problem.normals import stencils
+    from fmbrdf_mi.fit.problem.normals import tangent_bases
     from fmbrdf_mi.fit.solve.normal_system import (NormalBlock, data_products, material_covariance, schur,
                                                    solve_step)
 
@@ -93,7 +93,7 @@ def test_normal_block_and_schur_step_match_dense_algebra(prior):
 def test_curvature_prior_is_zero_on_a_linear_normal_field():
     """Second differences vanish where the normal changes linearly across the image (a cylinder-like
     slope field before normalisation); first differences do not."""
-    from fmbrdf_mi.fit.api.normal_joint import stencils
+    from fmbrdf_mi.fit.problem.normals import stencils
 
     mask = np.ones((5, 6), bool)
     y, x = np.mgrid[0:5, 0:6]
@@ -135,7 +135,7 @@ def test_normal_jacobian_matches_brute_force(tiny):
     (corners outside it replaced by itself).  Both are central differences of float32 renders: the model's
     samples are ~1e4 DN with sd ~60 DN, so residual rounding is ~1e-5 and h = 1e-3 gives ~1e-2 absolute
     noise on derivatives of size ~100: 1e-3 relative to the largest entry is 10x that."""
-    from fmbrdf_mi.fit.api.normal_joint import _JointProblem
+    from fmbrdf_mi.fit.problem.normals import NormalProblem
     from fmbrdf_mi.fit.api.normal_refine import photometric_stereo
     from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
     from fmbrdf_mi.fit.inputs.observations import erode
@@ -143,8 +143,8 @@ def test_normal_jacobian_matches_brute_force(tiny):
     obs, ks = _observations(tiny)
     m = erode(obs[0].mask, 1)
     mdl = get_model("fmbrdf")
-    jp = _JointProblem(obs, m, mdl, Bounds(mdl), None, 0.3)
-    st = jp.problem.state(*mdl.split(_start(ks)))
+    jp = NormalProblem(obs, m, mdl, Bounds(mdl), None, 0.3)
+    st = jp.state(*mdl.split(_start(ks)))
     nmap = photometric_stereo(obs).reshape(-1, 3)
     r, _, (pix, val), (t1, t2), _ = jp.linearise(st, nmap)
     nb = jp.cpix
@@ -157,7 +157,7 @@ def test_normal_jacobian_matches_brute_force(tiny):
                 nm = nmap.copy()
                 v = nm[jp.idx[q]] + d * t
                 nm[jp.idx[q]] = v / np.linalg.norm(v)
-                cols.append(jp.obj.residuals(jp.parts(st, nm), st))
+                cols.append(jp.obj.residuals(jp.parts_at(st, nm), st))
             brute = (cols[0] - cols[1]) / 2e-3
             ours = np.sum(np.where(pix == q, val[:, :, a], 0.0), axis=1)
             assert np.abs(brute).max() > 1.0
@@ -169,7 +169,8 @@ def test_joint_lowers_the_energy_monotonically_and_beats_the_alternation(tiny):
     held, refreshes=0), the normals end closer to the ray-cast ones, and the final energy is below that of the
     alternation's normal step run to its fixed point with the joint's final material (the same energy,
     evaluated by an independently built problem)."""
-    from fmbrdf_mi.fit.api.normal_joint import _JointProblem, refine_joint
+    from fmbrdf_mi.fit.api.normal_joint import refine_joint
+    from fmbrdf_mi.fit.problem.normals import NormalProblem
     from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, photometric_stereo, refine_normals
     from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
 
@@ -183,8 +184,8 @@ def test_joint_lowers_the_energy_monotonically_and_beats_the_alternation(tiny):
     assert e1.mean() < 0.85 * e0.mean(), (e0.mean(), e1.mean())
     alt = refine_normals(obs, n0, mask=res.mask, rounds=3, lam=0.3, material=res.params, progress=False)
     mdl = get_model("fmbrdf")
-    jp = _JointProblem(obs, res.mask, mdl, Bounds(mdl), None, 0.3)
-    st = jp.problem.state(*mdl.split(res.params))
+    jp = NormalProblem(obs, res.mask, mdl, Bounds(mdl), None, 0.3)
+    st = jp.state(*mdl.split(res.params))
     ed, ep, _ = jp.energy(st, res.normals.reshape(-1, 3))
     assert abs(ed + ep - res.loss) < 1e-6 * res.loss     # the same energy, rebuilt
     ea, pa, _ = jp.energy(st, alt.normals.reshape(-1, 3))

@@ -45,15 +45,9 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode
+from fmbrdf_mi.fit.problem.normals import tangent_bases
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve.optimise import default_progress
-
-
-def tangent_bases(n):
-    a = np.where(np.abs(n[:, 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
-    t1 = np.cross(n, a)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    return t1, np.cross(n, t1)
 
 
 class _Predictor:
