@@ -29,8 +29,11 @@ onto the bounds, log albedos); the covariance is computed for the reported
 parameters directly: J_theta = J_z (d theta / d z)^-1, so the standard
 errors are those of the reported parameters at the optimum (delta method),
 not of z.  Intervals are theta +- 1.96 SE, cut at the parameter's bounds;
-a parameter within 1e-3 (relative to its range) of a bound is listed in
-``at_bound``: its interval is not a confidence interval there.
+a parameter within 1e-3 of its range of a bound (on the scale the optimiser
+works on: log for log-scale parameters), or closer to a bound than 1.96 SE,
+is listed in ``at_bound``: its interval is not a confidence interval there.
+``bound_distance_se`` gives each free shape parameter's distance from its
+nearest bound in standard errors.
 """
 from __future__ import annotations
 
@@ -73,12 +76,27 @@ def dtheta_dz(problem, st, names):
     return G
 
 
-def at_bound(problem, st):
-    out = []
+def bound_distance(problem, st):
+    """{free shape parameter: (distance from its nearest bound in its own units, the same as a fraction of its
+    range on the scale the optimiser works on: log for log-scale parameters, linear for linear ones)}."""
+    out = {}
     for n in problem.names:
-        _, _, lo, hi = problem.bounds.lims[n]
+        tlo, thi, lo, hi = problem.bounds.lims[n]
         v = st.shape[n]
-        if min(v - lo, hi - v) <= 1e-3 * (hi - lo):
+        t = problem.bounds.to_scale(n, v)
+        out[n] = (min(v - lo, hi - v), min(t - tlo, thi - t) / (thi - tlo))
+    return out
+
+
+def at_bound(problem, st, sd=None):
+    """Free shape parameters whose interval is not a confidence interval because of a bound: those within 1e-3
+    of their range of a bound on the optimiser's scale (:func:`bound_distance`: a light power, searched over
+    six decades, is at its bound near G / 1000, not anywhere below 1.001 G), and, given the standard errors
+    ``sd`` {name: SE}, those closer to a bound than 1.96 SE (the 95 % interval is cut there)."""
+    out = []
+    for n, (d, frac) in bound_distance(problem, st).items():
+        se = (sd or {}).get(n)
+        if frac <= 1e-3 or (se is not None and math.isfinite(se) and d < Z95 * se):
             out.append(n)
     return out
 
@@ -183,11 +201,15 @@ def summarise(problem, st, J, r, n_independent=None):
     """The uncertainty block of fit.json: std_errors, ci95, correlation, at_bound, method."""
     names, cov, info = covariance(problem, st, J, r, n_independent)
     rep = problem.model.report(st.shape, st.a_s, st.a_b)
-    bound = at_bound(problem, st)
-    out = {"std_errors": {}, "ci95": {}, "correlation": None, "at_bound": bound, **info}
+    out = {"std_errors": {}, "ci95": {}, "correlation": None, "at_bound": at_bound(problem, st), **info}
     if cov is None:
         return out
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    se = dict(zip(names, sd.tolist()))
+    out["at_bound"] = at_bound(problem, st, se)
+    # each free shape parameter's distance from its nearest bound in standard errors
+    out["bound_distance_se"] = {n: (float(d / se[n]) if se.get(n, 0.0) > 0 else math.inf)
+                                for n, (d, _) in bound_distance(problem, st).items()}
     for i, n in enumerate(names):
         lo, hi = rep[n] - Z95 * sd[i], rep[n] + Z95 * sd[i]
         if n in problem.names:

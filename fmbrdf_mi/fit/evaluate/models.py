@@ -271,6 +271,10 @@ class Bounds:
         s = min(max(s, 1e-5), 1 - 1e-5)
         return math.log(s / (1 - s))
 
+    def to_scale(self, name, value):
+        """``value`` on the parameter's scale (log, log1p, ...: where the sigmoid of :meth:`to_value` is linear)."""
+        return float(_fwd(self.model.param(name).scale, float(value)))
+
     def clip_grid(self, name, grid):
         _, _, lo, hi = self.lims[name]
         g = sorted({min(max(float(x), lo), hi) for x in grid})
