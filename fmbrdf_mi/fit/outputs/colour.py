@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 
 from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
 from fmbrdf_mi.fit.errors import InputError
@@ -24,8 +25,8 @@ from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.inputs.colour import colour_sidecar, read_colour_input
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed
 from fmbrdf_mi.fit.outputs import record
+from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
-from fmbrdf_mi.fit.outputs.writer import prepare, write_json
 
 OUTPUTS = ("fit.json", "colour_fit.png")
 
@@ -71,38 +72,64 @@ def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=
     Returns the dict written to fit.json (``models[model]``: params with
     per-channel k_s and r_k, std_errors, ci95, converged, stop_reason ...).
     """
-    import time
-
-
-    t0 = time.time()
     arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
-    path = inputs[0] if isinstance(inputs, (list, tuple)) else inputs
-    path = os.fspath(path)
-    if colour_sidecar(path) is None:
-        raise InputError(f"{path}: no colour capture sidecar ({os.path.splitext(path)[0]}.json with \"cfa\")")
-    get_model(model)
-    bounds, fixed = parse_bounds(bounds), parse_fixed(fixed)
-    outs = {n: os.path.join(out, n) for n in OUTPUTS}
-    prepare(out, outs.values(), force)
-    ci = read_colour_input(path, normals=normals, mask=mask, view=view, sphere=sphere, camera=camera, fov=fov,
-                           light=light, irradiance=irradiance, black_level=black_level, white_level=white_level,
-                           conversion_gain=conversion_gain, read_noise=read_noise, erode=erode)
-    obs, smp, cam = ci.obs, ci.samples, ci.camera
-    say = (lambda s: print(s, flush=True)) if progress else None
-    if progress:
-        print(f"colour fit of {path}: {obs.shape[1]}x{obs.shape[0]} periods, {int((obs.mask & smp.usable).sum())} "
-              f"usable in the mask (eroded by {erode}), cfa {''.join(c for r in cam.cfa for c in r)}", flush=True)
-    res = fit_colour(obs, smp, ci.noise, model=model, fixed=fixed, bounds=bounds, max_pixels=max_pixels or None,
-                     seed=seed, progress=say, max_time=max_time, max_iter=max_iter, starts=int(starts))
-    meta = {k: obs.meta[k] for k in ("settings", "sphere", "sidecar")}
-    report = {"inputs": path, "sensor": "colour", "truth": ci.truth,
-              "reproduce": record.reproduce_block(arguments, path, command, type("O", (), {"meta": meta})),
-              "models": {model: model_entry(model, res, bounds, fixed, ci.truth)}}
-    pred = predict_samples(obs, smp, res)
-    os.makedirs(out, exist_ok=True)
-    plot_colour_fit(smp, pred, obs.mask & smp.usable, cam, outs["colour_fit.png"],
-          title=f"{model}: " + format_result(res).replace("\n", "; "))
-    write_json(outs["fit.json"], report)
-    report["outputs"] = list(outs.values())
-    report["wall_s"] = time.time() - t0
-    return report
+    return Colour(arguments, out, force=force, progress=progress, command=command).run()
+
+
+class Colour(FitJob):
+    """:func:`fit_colour_files` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob` (``a``: its arguments by name)."""
+
+    def __init__(self, arguments, out, **kw):
+        super().__init__(out, **kw)
+        self.a = dict(arguments)
+        inputs = self.a["inputs"]
+        self.path = os.fspath(inputs[0] if isinstance(inputs, (list, tuple)) else inputs)
+
+    def check(self):
+        if colour_sidecar(self.path) is None:
+            raise InputError(f"{self.path}: no colour capture sidecar ({os.path.splitext(self.path)[0]}.json "
+                             "with \"cfa\")")
+        get_model(self.a["model"])
+        self.bounds, self.fixed = parse_bounds(self.a["bounds"]), parse_fixed(self.a["fixed"])
+
+    def files(self):
+        self.outs = {n: os.path.join(self.out, n) for n in OUTPUTS}
+        return list(self.outs.values())
+
+    def read(self):
+        a = self.a
+        self.ci = ci = read_colour_input(
+            self.path, normals=a["normals"], mask=a["mask"], view=a["view"], sphere=a["sphere"], camera=a["camera"],
+            fov=a["fov"], light=a["light"], irradiance=a["irradiance"], black_level=a["black_level"],
+            white_level=a["white_level"], conversion_gain=a["conversion_gain"], read_noise=a["read_noise"],
+            erode=a["erode"])
+        if self.progress:
+            obs, smp = ci.obs, ci.samples
+            print(f"colour fit of {self.path}: {obs.shape[1]}x{obs.shape[0]} periods, "
+                  f"{int((obs.mask & smp.usable).sum())} usable in the mask (eroded by {a['erode']}), "
+                  f"cfa {''.join(c for r in ci.camera.cfa for c in r)}", flush=True)
+
+    def fit(self):
+        a, ci = self.a, self.ci
+        say = (lambda s: print(s, flush=True)) if self.progress else None
+        self.res = fit_colour(ci.obs, ci.samples, ci.noise, model=a["model"], fixed=self.fixed, bounds=self.bounds,
+                              max_pixels=a["max_pixels"] or None, seed=a["seed"], progress=say,
+                              max_time=a["max_time"], max_iter=a["max_iter"], starts=int(a["starts"]))
+
+    def report(self):
+        obs, model = self.ci.obs, self.a["model"]
+        meta = {k: obs.meta[k] for k in ("settings", "sphere", "sidecar")}
+        return {"inputs": self.path, "sensor": "colour", "truth": self.ci.truth,
+                "reproduce": record.reproduce_block(self.a, self.path, self.command, type("O", (), {"meta": meta})),
+                "models": {model: model_entry(model, self.res, self.bounds, self.fixed, self.ci.truth)}}
+
+    def write(self, report):
+        ci, res = self.ci, self.res
+        pred = predict_samples(ci.obs, ci.samples, res)
+        plot_colour_fit(ci.samples, pred, ci.obs.mask & ci.samples.usable, ci.camera, self.outs["colour_fit.png"],
+                        title=f"{self.a['model']}: " + format_result(res).replace("\n", "; "))
+
+    def finish(self, report):
+        report["outputs"] = list(self.outs.values())
+        report["wall_s"] = time.time() - self.t0
+        return report

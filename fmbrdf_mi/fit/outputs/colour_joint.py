@@ -17,6 +17,7 @@ DoLP per channel).
 from __future__ import annotations
 
 import os
+import time
 
 import numpy as np
 
@@ -27,7 +28,8 @@ from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.inputs.colour import read_colour_inputs
 from fmbrdf_mi.fit.outputs.colour import model_entry
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
-from fmbrdf_mi.fit.outputs.writer import prepare_outputs, write_json
+from fmbrdf_mi.fit.outputs.job import FitJob
+from fmbrdf_mi.fit.outputs.writer import prepare_outputs
 
 
 def outputs(out, names, holdout):
@@ -60,50 +62,77 @@ def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True,
     (the colour fit has none of them), as is ``free_power`` (not yet for colour
     mosaics: give the powers); ``tol`` and ``time_limit`` do not apply.
     """
-    import time
-
-
-    t0 = time.time()
     refused = [f for f, on in (("baselines", baselines), ("init", init), ("free_power (--free-power)", free_power),
                                (f"loss {loss}", loss not in ("auto", "likelihood", None))) if on]
     if refused:
         raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
                          "of the raw samples)")
-    get_model(model)
-    names, holdout, files = prepare_outputs(specs, out, outputs, force)
-    inputs = read_colour_inputs(specs, erode)
-    fit_in = [c for c, h in zip(inputs, holdout) if not h]
-    say = (lambda s: print(s, flush=True)) if progress else None
-    if progress:
-        print(f"colour joint fit: {len(fit_in)} image(s) fitted, {sum(holdout)} held out; "
-              + ", ".join(f"{n}: {int((c.obs.mask & c.samples.usable).sum())} periods"
-                          for n, c, h in zip(names, inputs, holdout) if not h), flush=True)
-    res = fit_colour([c.obs for c in fit_in], [c.samples for c in fit_in], fit_in[0].noise, model=model,
-                     fixed=fixed, bounds=bounds, max_pixels=max_pixels or None, seed=seed, progress=say,
-                     max_time=max_time, max_iter=max_iter, starts=int(starts))
-    truth = next((c.truth for c in inputs if c.truth), None)
-    entry = model_entry(model, res, bounds, fixed, truth)
-    entry["chi2_per_sample"] = dict(zip([n for n, h in zip(names, holdout) if not h], res["chi2_per_sample"]))
-    report = {"sensor": "colour", "truth": truth,
-              "images": [{"name": n, "input": s.input if isinstance(s.input, (str, list)) else None,
-                          "light_dir": c.obs.light_dir.tolist(), "irradiance": c.obs.irradiance, "power": s.power,
-                          "holdout": s.holdout} for n, s, c in zip(names, specs, inputs)],
-              "models": {model: entry}, "relight": {}}
-    if reproduce is not None:
-        report["reproduce"] = reproduce([c.obs for c in inputs])
-    report.update(extra or {})
-    os.makedirs(out, exist_ok=True)
-    title = f"{model}: " + format_result(res).replace("\n", "; ")
-    for n, c, h in zip(names, inputs, holdout):
-        pred = predict_samples(c.obs, c.samples, res)
-        sel = c.obs.mask & c.samples.usable
-        if h:
-            err = sample_rmse(c.samples, pred, sel, c.samples.channel)
-            report["relight"][n] = {model: err}
-            plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"relight_{n}.png"),
-                  title=f"{n}: relit with the joint estimates, raw-sample RMSE/mean {err['rel_rmse']:.4f}")
-        else:
-            plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"colour_fit_{n}.png"), title=f"{n}: {title}")
-    write_json(os.path.join(out, "fit.json"), report)
-    report["outputs"], report["wall_s"] = files, time.time() - t0
-    return report
+    return ColourJoint(specs, out, force=force, progress=progress, command=command, extra=extra,
+                       reproduce=reproduce, model=model, fixed=fixed, bounds=bounds, starts=starts,
+                       max_iter=max_iter, max_time=max_time, max_pixels=max_pixels, erode=erode, seed=seed).run()
+
+
+class ColourJoint(FitJob):
+    """:func:`fit_colour_images` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob` (``fit_kw``: fit_colour's options)."""
+
+    def __init__(self, specs, out, *, force, progress, command, extra, reproduce, model, erode, **fit_kw):
+        super().__init__(out, force=force, progress=progress, command=command)
+        self.specs, self.extra, self.reproduce, self.model, self.erode, self.fit_kw = (
+            specs, extra, reproduce, model, erode, fit_kw)
+
+    def check(self):
+        get_model(self.model)
+
+    def files(self):
+        self.names, self.holdout, files = prepare_outputs(self.specs, self.out, outputs, self.force)
+        return files
+
+    def read(self):
+        self.inputs = read_colour_inputs(self.specs, self.erode)
+
+    def fit(self):
+        names, holdout, kw = self.names, self.holdout, self.fit_kw
+        fit_in = [c for c, h in zip(self.inputs, holdout) if not h]
+        say = (lambda s: print(s, flush=True)) if self.progress else None
+        if self.progress:
+            print(f"colour joint fit: {len(fit_in)} image(s) fitted, {sum(holdout)} held out; "
+                  + ", ".join(f"{n}: {int((c.obs.mask & c.samples.usable).sum())} periods"
+                              for n, c, h in zip(names, self.inputs, holdout) if not h), flush=True)
+        self.res = fit_colour([c.obs for c in fit_in], [c.samples for c in fit_in], fit_in[0].noise,
+                              model=self.model, fixed=kw["fixed"], bounds=kw["bounds"],
+                              max_pixels=kw["max_pixels"] or None, seed=kw["seed"], progress=say,
+                              max_time=kw["max_time"], max_iter=kw["max_iter"], starts=int(kw["starts"]))
+
+    def report(self):
+        names, holdout, inputs, res = self.names, self.holdout, self.inputs, self.res
+        truth = next((c.truth for c in inputs if c.truth), None)
+        entry = model_entry(self.model, res, self.fit_kw["bounds"], self.fit_kw["fixed"], truth)
+        entry["chi2_per_sample"] = dict(zip([n for n, h in zip(names, holdout) if not h], res["chi2_per_sample"]))
+        report = {"sensor": "colour", "truth": truth,
+                  "images": [{"name": n, "input": s.input if isinstance(s.input, (str, list)) else None,
+                              "light_dir": c.obs.light_dir.tolist(), "irradiance": c.obs.irradiance,
+                              "power": s.power, "holdout": s.holdout} for n, s, c in zip(names, self.specs, inputs)],
+                  "models": {self.model: entry}, "relight": {}}
+        if self.reproduce is not None:
+            report["reproduce"] = self.reproduce([c.obs for c in inputs])
+        report.update(self.extra or {})
+        return report
+
+    def write(self, report):
+        out, model, res = self.out, self.model, self.res
+        title = f"{model}: " + format_result(res).replace("\n", "; ")
+        for n, c, h in zip(self.names, self.inputs, self.holdout):
+            pred = predict_samples(c.obs, c.samples, res)
+            sel = c.obs.mask & c.samples.usable
+            if h:
+                err = sample_rmse(c.samples, pred, sel, c.samples.channel)
+                report["relight"][n] = {model: err}
+                plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"relight_{n}.png"),
+                                title=f"{n}: relit with the joint estimates, raw-sample RMSE/mean {err['rel_rmse']:.4f}")
+            else:
+                plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"colour_fit_{n}.png"),
+                                title=f"{n}: {title}")
+
+    def finish(self, report):
+        report["outputs"], report["wall_s"] = self.paths, time.time() - self.t0
+        return report

@@ -53,9 +53,10 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
 from fmbrdf_mi.fit.inputs.colour import is_colour
 from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power
-from fmbrdf_mi.fit.outputs import plots, writer
+from fmbrdf_mi.fit.outputs import plots
 from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
 from fmbrdf_mi.fit.outputs.colour_joint import outputs as colour_outputs
+from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.record import command_block
 from fmbrdf_mi.fit.outputs.writer import prepare_outputs
 from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
@@ -78,72 +79,101 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     :func:`fmbrdf_mi.fit.outputs.joint_record.block`).  Returns the dict written to fit.json.
     """
 
-    check_fit_options(model=model, **fit_kw)
-    names, holdout, files = prepare_outputs(specs, out, outputs, force)
-    obs = observations if observations is not None else build_observations(specs)
-    fit_obs = [o for o, h in zip(obs, holdout) if not h]
-    fit_names = [n for n, h in zip(names, holdout) if not h]
-    opts = FitOptions(model=model, **fit_kw)
-    if opts.free_power and len(fit_obs) < 2:
-        raise InputError(f"--free-power (free_power): needs two or more fitted images, got {len(fit_obs)} (one "
-                         "image's light power is not separable from k_s and k_b)")
-    given = [given_power(s, o) for s, o, h in zip(specs, obs, holdout) if not h]
-    models = [model] + ([m for m in ("pplastic", "lambert_ts") if m != model] if baselines else [])
-    results = {}
-    for name in models:
-        o = opts if name == model else dataclasses.replace(opts, model=name, bounds=None, init=None, fixed=None)
-        results[name] = fit_joint(fit_obs, o, names=fit_names, progress=progress, powers=given)
-    main = results[model]
-    truth = next((o.meta.get("truth") for o in obs if o.meta.get("truth")), None)
-    report = {"images": [{"name": n, "input": (s.input if isinstance(s.input, (str, list)) else None),
-                          "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance,
-                          "power": given_power(s, o), "holdout": s.holdout} for n, s, o in zip(names, specs, obs)],
-              "truth": truth, "models": {}, "relight": {}}
-    if main.powers is not None:
-        for im in report["images"]:
-            fitted = next((x for x in main.images if x["name"] == im["name"]), None)
-            if fitted is not None:
-                im.update({"power_fitted": fitted["power"], "power_se": fitted["power_se"],
-                           "power_reference": fitted["power_reference"]})
-    if reproduce is not None:
-        report["reproduce"] = reproduce(obs)
-    elif command is not None:
-        report["reproduce"] = command_block(command)
-    report.update(extra or {})
-    os.makedirs(out, exist_ok=True)
-    for name, res in results.items():
-        entry = res.to_json()
-        if name == model and truth:
-            entry["relative_error"] = {k: (res.params[k] - truth[k]) / truth[k] for k in res.params
-                                       if isinstance(truth.get(k), (int, float)) and truth[k] != 0}
-        report["models"][name] = entry
-    for n, o, h, idx in zip(names, obs, holdout, _pixels_of(main, holdout)):
-        if h:
-            errs, relit = {}, None
-            for name, res in results.items():
-                e = relight_error(name, res.params, o, erode=opts.erode)
-                errs[name] = {k: v for k, v in e.items() if k != "predicted"}
-                if name == model:
-                    relit = e["predicted"]
-            report["relight"][n] = errs
-            plots.plot_images(o.stokes, relit, o.mask, os.path.join(out, f"relight_{n}.png"),
-                              title=f"{n}: relit with the {model} estimates, RMSE/mean = "
-                                    f"{errs[model]['rel_rmse']:.4f}", label="relit", lin_variance=o.lin_variance)
-        else:
-            im = {m: next(x for x in r.images if x["name"] == n) for m, r in results.items()}
-            pred = predict_image(model, main.params, fitted_observation(o, im[model]))
-            others = {f"{m} (baseline)": predict_image(m, r.params, fitted_observation(o, im[m]))
-                      for m, r in results.items() if m != model}
-            power = "" if main.powers is None else "; " + power_text(im[model])
-            plots.plot_profiles(o, pred, os.path.join(out, f"profiles_{n}.png"), pixels=idx,
-                                title=f"{n}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()) + power,
-                                others=others)
-            plots.plot_images(o.stokes, pred, o.mask, os.path.join(out, f"images_{n}.png"),
-                              title=f"{n}: joint {model} fit (per-pixel re-render){power}",
-                              lin_variance=o.lin_variance, pixels=idx)
-    plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
-    writer.write_json(os.path.join(out, "fit.json"), report)
-    return report
+    return Joint(specs, out, model=model, baselines=baselines, force=force, progress=progress, command=command,
+                 observations=observations, extra=extra, reproduce=reproduce, **fit_kw).run()
+
+
+class Joint(FitJob):
+    """:func:`fit_images` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob`."""
+
+    def __init__(self, specs, out, *, model, baselines, observations, extra, reproduce, **kw):
+        fit_kw = {k: kw.pop(k) for k in list(kw) if k not in ("force", "progress", "command")}
+        super().__init__(out, **kw)
+        self.specs, self.model, self.baselines, self.fit_kw = specs, model, baselines, fit_kw
+        self.obs, self.extra, self.reproduce = observations, extra, reproduce
+
+    def check(self):
+        check_fit_options(model=self.model, **self.fit_kw)
+
+    def files(self):
+        self.names, self.holdout, files = prepare_outputs(self.specs, self.out, outputs, self.force)
+        return files
+
+    def read(self):
+        if self.obs is None:
+            self.obs = build_observations(self.specs)
+
+    def fit(self):
+        specs, obs, holdout, model = self.specs, self.obs, self.holdout, self.model
+        fit_obs = [o for o, h in zip(obs, holdout) if not h]
+        fit_names = [n for n, h in zip(self.names, holdout) if not h]
+        self.opts = opts = FitOptions(model=model, **self.fit_kw)
+        if opts.free_power and len(fit_obs) < 2:
+            raise InputError(f"--free-power (free_power): needs two or more fitted images, got {len(fit_obs)} "
+                             "(one image's light power is not separable from k_s and k_b)")
+        given = [given_power(s, o) for s, o, h in zip(specs, obs, holdout) if not h]
+        models = [model] + ([m for m in ("pplastic", "lambert_ts") if m != model] if self.baselines else [])
+        self.results = {}
+        for name in models:
+            o = opts if name == model else dataclasses.replace(opts, model=name, bounds=None, init=None, fixed=None)
+            self.results[name] = fit_joint(fit_obs, o, names=fit_names, progress=self.progress, powers=given)
+
+    def report(self):
+        specs, obs, model = self.specs, self.obs, self.model
+        main = self.results[model]
+        truth = next((o.meta.get("truth") for o in obs if o.meta.get("truth")), None)
+        report = {"images": [{"name": n, "input": (s.input if isinstance(s.input, (str, list)) else None),
+                              "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance,
+                              "power": given_power(s, o), "holdout": s.holdout}
+                             for n, s, o in zip(self.names, specs, obs)],
+                  "truth": truth, "models": {}, "relight": {}}
+        if main.powers is not None:
+            for im in report["images"]:
+                fitted = next((x for x in main.images if x["name"] == im["name"]), None)
+                if fitted is not None:
+                    im.update({"power_fitted": fitted["power"], "power_se": fitted["power_se"],
+                               "power_reference": fitted["power_reference"]})
+        if self.reproduce is not None:
+            report["reproduce"] = self.reproduce(obs)
+        elif self.command is not None:
+            report["reproduce"] = command_block(self.command)
+        report.update(self.extra or {})
+        for name, res in self.results.items():
+            entry = res.to_json()
+            if name == model and truth:
+                entry["relative_error"] = {k: (res.params[k] - truth[k]) / truth[k] for k in res.params
+                                           if isinstance(truth.get(k), (int, float)) and truth[k] != 0}
+            report["models"][name] = entry
+        return report
+
+    def write(self, report):
+        out, model, results = self.out, self.model, self.results
+        main = results[model]
+        for n, o, h, idx in zip(self.names, self.obs, self.holdout, _pixels_of(main, self.holdout)):
+            if h:
+                errs, relit = {}, None
+                for name, res in results.items():
+                    e = relight_error(name, res.params, o, erode=self.opts.erode)
+                    errs[name] = {k: v for k, v in e.items() if k != "predicted"}
+                    if name == model:
+                        relit = e["predicted"]
+                report["relight"][n] = errs
+                plots.plot_images(o.stokes, relit, o.mask, os.path.join(out, f"relight_{n}.png"),
+                                  title=f"{n}: relit with the {model} estimates, RMSE/mean = "
+                                        f"{errs[model]['rel_rmse']:.4f}", label="relit", lin_variance=o.lin_variance)
+            else:
+                im = {m: next(x for x in r.images if x["name"] == n) for m, r in results.items()}
+                pred = predict_image(model, main.params, fitted_observation(o, im[model]))
+                others = {f"{m} (baseline)": predict_image(m, r.params, fitted_observation(o, im[m]))
+                          for m, r in results.items() if m != model}
+                power = "" if main.powers is None else "; " + power_text(im[model])
+                plots.plot_profiles(o, pred, os.path.join(out, f"profiles_{n}.png"), pixels=idx,
+                                    title=f"{n}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items())
+                                    + power, others=others)
+                plots.plot_images(o.stokes, pred, o.mask, os.path.join(out, f"images_{n}.png"),
+                                  title=f"{n}: joint {model} fit (per-pixel re-render){power}",
+                                  lin_variance=o.lin_variance, pixels=idx)
+        plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
 
 
 def fitter(specs):

@@ -36,7 +36,7 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.observations import erode, find_sphere, read_vectors, sphere_normals
 from fmbrdf_mi.fit.outputs import normal_plots
 from fmbrdf_mi.fit.outputs.record import command_block
-from fmbrdf_mi.fit.outputs.writer import prepare, write_json
+from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.solve.optimise import default_progress
 
 OUTPUTS = ("fit.json", "normals.npy", "normals.png", "normals_change.png")
@@ -77,65 +77,91 @@ def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=0, model="fmbrdf"
         force=False, progress=True, command=None):
     """Refine the normals of the non-held-out images; write the outputs; returns the fit.json dict."""
 
-    say = default_progress if progress else (lambda m: None)
-    keep = [k for k, s in enumerate(specs) if not s.holdout]
-    fit_obs = [obs[k] for k in keep]
-    if len(fit_obs) < 3:
-        raise InputError(f"--refine-normals: needs K >= 3 images under different lights, got {len(fit_obs)}"
-                         + (" (held-out images do not count)" if len(keep) < len(specs) else ""))
-    files = prepare(out, [os.path.join(out, f) for f in OUTPUTS], force)
-    gt = None if ground_truth is None else np.asarray(ground_truth, float).copy()
-    n0, m0 = start_normals(fit_obs, start)
-    check_views(fit_obs, n0)
-    for o in fit_obs:
-        o.mask = o.mask & m0
-    t0 = time.time()
-    kw = dict(fit_kw or {})
-    opts = FitOptions(model=model, **{k: v for k, v in kw.items() if k in FitOptions.__dataclass_fields__})
-    say(f"[normals] start {start}; {len(fit_obs)} images; {rounds} alternation round(s), then the joint step; "
-        f"smoothness {lam:g}")
-    n1, params = n0, None
-    alt = []
-    if rounds > 0:
-        res = refine_normals(fit_obs, n0, rounds=rounds, lam=lam, fit_options=opts, progress=say)
-        n1, params, alt = res.normals, res.params, res["alternation"]
-    else:
-        for o in fit_obs:
-            o.normals = n0
-            o.geometry = None
-        params = fit_joint(fit_obs, opts, progress=False).params
+    return NormalRefinement(specs, names, obs, out, start=start, lam=lam, rounds=rounds, model=model, fit_kw=fit_kw,
+                            ground_truth=ground_truth, force=force, progress=progress, command=command).run()
 
-    joint = refine_joint(fit_obs, n1, params, mask=erode(fit_obs[0].mask, max(int(opts.erode), 1)), lam=lam,
-                         model=model, bounds=opts.bounds, fixed=opts.fixed, max_iter=opts.max_iter, progress=say)
-    m = joint.mask
-    report = {"images": [{"name": names[k], "light_dir": obs[k].light_dir.tolist(),
-                          "irradiance": obs[k].irradiance, "holdout": specs[k].holdout} for k in range(len(specs))],
-              "truth": next((o.meta.get("truth") for o in obs if o.meta.get("truth")), None),
-              "refine_normals": {"start": start, "smooth": lam, "rounds": rounds, "pixels": int(m.sum()),
-                                 "frame": "x image right, y image up, z towards the camera",
-                                 "converged": joint.converged, "stop_reason": joint.stop_reason,
-                                 "energy": {"total": joint.loss, "data_chi2": joint.loss_terms["data_chi2"],
-                                            "prior": joint.loss_terms["prior"]},
-                                 "alternation": [{k: v for k, v in h.items()} for h in alt],
-                                 "joint_history": joint.history, "time": time.time() - t0,
-                                 "angle_change": _errors(joint.normals, n0, m),
-                                 "angular_error": None, "outputs": files},
-              # Not reported as standard errors: over noise seeds (tools/bench_normal_refine_seeds.py) the
-              # material's spread was 1.5-3.1x these for eta, alpha, beta, kappa (README, Normal refinement).
-              "models": {model: {"params": joint.params, "uncertainty": None,
-                                 "uncertainty_uncalibrated": dict(joint.uncertainty or {}, note=UNCALIBRATED),
-                                 "converged": joint.converged, "stop_reason": joint.stop_reason}}}
-    if gt is not None:
-        report["refine_normals"]["angular_error"] = {"before": _errors(n0, gt, m),
-                                                    "after": _errors(joint.normals, gt, m),
-                                                    "reference": "normal/normal_GT.npy"}
-    report["reproduce"] = command_block(command)
-    os.makedirs(out, exist_ok=True)
-    np.save(files[1], joint.normals.astype(np.float32))
-    normal_plots.plot_normal_map(joint.normals, m, files[2], title=f"refined normals ({start} start)")
-    normal_plots.plot_change(n0, joint.normals, m, files[3], gt=gt)
-    write_json(files[0], report)
-    return report
+
+class NormalRefinement(FitJob):
+    """:func:`run` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob` (the observations are read by the caller)."""
+
+    def __init__(self, specs, names, obs, out, *, start, lam, rounds, model, fit_kw, ground_truth, **kw):
+        super().__init__(out, **kw)
+        self.specs, self.names, self.obs = specs, names, obs
+        self.start, self.lam, self.rounds, self.model, self.fit_kw = start, lam, rounds, model, dict(fit_kw or {})
+        self.gt = None if ground_truth is None else np.asarray(ground_truth, float).copy()
+        self.keep = [k for k, s in enumerate(specs) if not s.holdout]
+        self.say = default_progress if self.progress else (lambda m: None)
+
+    def check(self):
+        if len(self.keep) < 3:
+            raise InputError(f"--refine-normals: needs K >= 3 images under different lights, got {len(self.keep)}"
+                             + (" (held-out images do not count)" if len(self.keep) < len(self.specs) else ""))
+
+    def files(self):
+        return [os.path.join(self.out, f) for f in OUTPUTS]
+
+    def read(self):
+        self.fit_obs = fit_obs = [self.obs[k] for k in self.keep]
+        self.n0, m0 = start_normals(fit_obs, self.start)
+        check_views(fit_obs, self.n0)
+        for o in fit_obs:
+            o.mask = o.mask & m0
+
+    def fit(self):
+        fit_obs, n0, say, kw = self.fit_obs, self.n0, self.say, self.fit_kw
+        self.t_fit = time.time()
+        opts = FitOptions(model=self.model, **{k: v for k, v in kw.items() if k in FitOptions.__dataclass_fields__})
+        say(f"[normals] start {self.start}; {len(fit_obs)} images; {self.rounds} alternation round(s), then the "
+            f"joint step; smoothness {self.lam:g}")
+        n1, params = n0, None
+        self.alt = []
+        if self.rounds > 0:
+            res = refine_normals(fit_obs, n0, rounds=self.rounds, lam=self.lam, fit_options=opts, progress=say)
+            n1, params, self.alt = res.normals, res.params, res["alternation"]
+        else:
+            for o in fit_obs:
+                o.normals = n0
+                o.geometry = None
+            params = fit_joint(fit_obs, opts, progress=False).params
+        self.joint = refine_joint(fit_obs, n1, params, mask=erode(fit_obs[0].mask, max(int(opts.erode), 1)),
+                                  lam=self.lam, model=self.model, bounds=opts.bounds, fixed=opts.fixed,
+                                  max_iter=opts.max_iter, progress=say)
+
+    def report(self):
+        joint, obs, specs, names, n0 = self.joint, self.obs, self.specs, self.names, self.n0
+        m = joint.mask
+        report = {"images": [{"name": names[k], "light_dir": obs[k].light_dir.tolist(),
+                              "irradiance": obs[k].irradiance, "holdout": specs[k].holdout}
+                             for k in range(len(specs))],
+                  "truth": next((o.meta.get("truth") for o in obs if o.meta.get("truth")), None),
+                  "refine_normals": {"start": self.start, "smooth": self.lam, "rounds": self.rounds,
+                                     "pixels": int(m.sum()),
+                                     "frame": "x image right, y image up, z towards the camera",
+                                     "converged": joint.converged, "stop_reason": joint.stop_reason,
+                                     "energy": {"total": joint.loss, "data_chi2": joint.loss_terms["data_chi2"],
+                                                "prior": joint.loss_terms["prior"]},
+                                     "alternation": [{k: v for k, v in h.items()} for h in self.alt],
+                                     "joint_history": joint.history, "time": time.time() - self.t_fit,
+                                     "angle_change": _errors(joint.normals, n0, m),
+                                     "angular_error": None, "outputs": self.files()},
+                  # Not reported as standard errors: over noise seeds (tools/bench_normal_refine_seeds.py) the
+                  # material's spread was 1.5-3.1x these for eta, alpha, beta, kappa (README, Normal refinement).
+                  "models": {self.model: {"params": joint.params, "uncertainty": None,
+                                          "uncertainty_uncalibrated": dict(joint.uncertainty or {},
+                                                                           note=UNCALIBRATED),
+                                          "converged": joint.converged, "stop_reason": joint.stop_reason}}}
+        if self.gt is not None:
+            report["refine_normals"]["angular_error"] = {"before": _errors(n0, self.gt, m),
+                                                        "after": _errors(joint.normals, self.gt, m),
+                                                        "reference": "normal/normal_GT.npy"}
+        report["reproduce"] = command_block(self.command)
+        return report
+
+    def write(self, report):
+        files, joint, m = self.files(), self.joint, self.joint.mask
+        np.save(files[1], joint.normals.astype(np.float32))
+        normal_plots.plot_normal_map(joint.normals, m, files[2], title=f"refined normals ({self.start} start)")
+        normal_plots.plot_change(self.n0, joint.normals, m, files[3], gt=self.gt)
 
 
 UNCALIBRATED = ("curvature-based standard errors of the material with the normals free; over noise seeds "

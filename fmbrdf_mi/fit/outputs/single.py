@@ -16,7 +16,7 @@ from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
 from fmbrdf_mi.fit.inputs.files import build_observation
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
 from fmbrdf_mi.fit.outputs import plots, record
-from fmbrdf_mi.fit.outputs.writer import prepare, write_json
+from fmbrdf_mi.fit.outputs.job import FitJob
 
 OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stokes.exr")
 
@@ -60,81 +60,110 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     """
 
     arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
+    return SingleImage(arguments, out, force=force, progress=progress, command=command).run()
 
 
-    get_model(model)
-    check_input_options(black_level=black_level, conversion_gain=conversion_gain, read_noise=read_noise,
-                        irradiance=irradiance, fov=fov, relight_irradiance=relight_irradiance)
-    check_fit_options(model=model, optimizer=optimizer, path=path, bounds=parse_bounds(bounds),
-                      init=parse_init(init), max_iter=max_iter, tol=tol, time_limit=time_limit,
-                      max_time=max_time, max_pixels=max_pixels, erode=erode, seed=seed)
-    outs = output_files(out, relight)
-    prepare(out, outs.values(), force)
-    obs = build_observation(inputs, normals=normals, mask=mask, view=view, sphere=sphere, camera=camera,
-                            fov=fov, light=light, irradiance=irradiance, layout=layout,
-                            black_level=black_level, channel=channel, demosaic=demosaic,
-                            conversion_gain=conversion_gain, read_noise=read_noise, footprint=footprint,
-                            white_level=white_level, dark_level=dark_level)
-    obs2 = None
-    if relight is not None:
-        geom = None if (normals is None and sphere is None and "truth" in obs.meta) \
-            else (obs.normals, obs.mask, obs.view_dirs)
-        obs2 = build_observation(relight, light=relight_light, irradiance=relight_irradiance,
-                                 layout=layout, black_level=black_level, channel=channel, geometry=geom,
-                                 demosaic=demosaic, conversion_gain=conversion_gain, read_noise=read_noise,
-                                 footprint=footprint)
-        if obs2.shape != obs.shape:
-            raise InputError(f"relight image: shape {obs2.shape} differs from the fitted image {obs.shape}")
-    opts = FitOptions(model=model, path="pixel", optimizer=optimizer, bounds=parse_bounds(bounds),
-                      init=parse_init(init), max_iter=int(max_iter), tol=float(tol), time_limit=time_limit,
-                      max_time=max_time or None, loss=loss, fixed=parse_fixed(fixed), starts=int(starts),
-                      max_pixels=max_pixels, erode=int(erode), seed=int(seed))
-    scene = None
-    if path == "render":
-        scene, opts.path = _render_scene(obs, model), "render"
-    elif path != "pixel":
-        raise InputError(f"path: expected 'pixel' or 'render', got {path!r}")
-    os.makedirs(out, exist_ok=True)
-    models = [model] + ([m for m in BASELINES if m != model] if baselines else [])
-    results, preds = {}, {}
-    report = {"inputs": inputs if isinstance(inputs, str) else list(inputs), "truth": obs.meta.get("truth"),
-              "reproduce": record.reproduce_block(arguments, inputs, command, obs, relight), "models": {}}
-    for name in models:
-        o = opts if name == model else FitOptions(**{**opts.__dict__, "model": name, "bounds": None,
-                                                      "init": None, "path": "pixel", "fixed": None})
-        res = fit(obs, o, scene=scene if name == model else None, progress=progress)
-        results[name] = res
-        preds[name] = predict_image(name, res.params, obs)
-        entry = res.to_json()
-        if name == model and obs.meta.get("truth"):
-            t = obs.meta["truth"]
-            entry["relative_error"] = {k: (res.params[k] - t[k]) / t[k] for k in res.params
-                                       if k in t and isinstance(t[k], (int, float)) and t[k] != 0}
-        report["models"][name] = entry
-    if obs2 is not None:
-        report["relight"] = {"light_dir": obs2.light_dir.tolist()}
-        relit = {}
-        for name, res in results.items():
-            err = relight_error(name, res.params, obs2, erode=opts.erode)
-            relit[name] = err["predicted"]
-            report["relight"][name] = {k: v for k, v in err.items() if k != "predicted"}
-        plots.plot_images(obs2.stokes, relit[model], obs2.mask, outs["relight.png"],
-                          title=f"relighting with the {model} estimates: RMSE/mean = "
-                                f"{report['relight'][model]['rel_rmse']:.4f}", label="relit",
-                          lin_variance=obs2.lin_variance)
-    main = results[model]
-    fitted = preds[model]
-    plots.plot_profiles(obs, fitted, outs["profiles.png"], pixels=main.pixels,
-                        title=f"{model}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()),
-                        others={f"{n} (baseline)": preds[n] for n in models[1:]})
-    plots.plot_images(obs.stokes, fitted, obs.mask, outs["images.png"], title=f"{model} fit (per-pixel re-render)",
-                      lin_variance=obs.lin_variance, pixels=main.pixels)
-    plots.plot_loss_history({n: r.history for n, r in results.items()}, outs["history.png"])
-    s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
-    stokes_io.write_stokes_exr(outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
-                               force=True)
-    write_json(outs["fit.json"], report)
-    return report
+class SingleImage(FitJob):
+    """:func:`fit_files` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob` (``a``: its arguments by name)."""
+
+    def __init__(self, arguments, out, **kw):
+        super().__init__(out, **kw)
+        self.a = dict(arguments)
+
+    def check(self):
+        a = self.a
+        get_model(a["model"])
+        check_input_options(black_level=a["black_level"], conversion_gain=a["conversion_gain"],
+                            read_noise=a["read_noise"], irradiance=a["irradiance"], fov=a["fov"],
+                            relight_irradiance=a["relight_irradiance"])
+        check_fit_options(model=a["model"], optimizer=a["optimizer"], path=a["path"], bounds=parse_bounds(a["bounds"]),
+                          init=parse_init(a["init"]), max_iter=a["max_iter"], tol=a["tol"],
+                          time_limit=a["time_limit"], max_time=a["max_time"], max_pixels=a["max_pixels"],
+                          erode=a["erode"], seed=a["seed"])
+
+    def files(self):
+        self.outs = output_files(self.out, self.a["relight"])
+        return list(self.outs.values())
+
+    def read(self):
+        a = self.a
+        files = {k: a[k] for k in ("layout", "black_level", "channel", "demosaic", "conversion_gain", "read_noise",
+                                   "footprint")}
+        self.obs = obs = build_observation(
+            a["inputs"], normals=a["normals"], mask=a["mask"], view=a["view"], sphere=a["sphere"],
+            camera=a["camera"], fov=a["fov"], light=a["light"], irradiance=a["irradiance"],
+            white_level=a["white_level"], dark_level=a["dark_level"], **files)
+        self.obs2 = None
+        if a["relight"] is not None:
+            geom = None if (a["normals"] is None and a["sphere"] is None and "truth" in obs.meta) \
+                else (obs.normals, obs.mask, obs.view_dirs)
+            self.obs2 = build_observation(a["relight"], light=a["relight_light"], irradiance=a["relight_irradiance"],
+                                          geometry=geom, **files)
+            if self.obs2.shape != obs.shape:
+                raise InputError(f"relight image: shape {self.obs2.shape} differs from the fitted image {obs.shape}")
+
+    def fit(self):
+        a, obs = self.a, self.obs
+        model = a["model"]
+        opts = FitOptions(model=model, path="pixel", optimizer=a["optimizer"], bounds=parse_bounds(a["bounds"]),
+                          init=parse_init(a["init"]), max_iter=int(a["max_iter"]), tol=float(a["tol"]),
+                          time_limit=a["time_limit"], max_time=a["max_time"] or None, loss=a["loss"],
+                          fixed=parse_fixed(a["fixed"]), starts=int(a["starts"]), max_pixels=a["max_pixels"],
+                          erode=int(a["erode"]), seed=int(a["seed"]))
+        scene = None
+        if a["path"] == "render":
+            scene, opts.path = _render_scene(obs, model), "render"
+        elif a["path"] != "pixel":
+            raise InputError(f"path: expected 'pixel' or 'render', got {a['path']!r}")
+        self.opts = opts
+        self.models = [model] + ([m for m in BASELINES if m != model] if a["baselines"] else [])
+        self.results, self.preds = {}, {}
+        for name in self.models:
+            o = opts if name == model else FitOptions(**{**opts.__dict__, "model": name, "bounds": None,
+                                                          "init": None, "path": "pixel", "fixed": None})
+            res = fit(obs, o, scene=scene if name == model else None, progress=self.progress)
+            self.results[name] = res
+            self.preds[name] = predict_image(name, res.params, obs)
+
+    def report(self):
+        a, obs, model = self.a, self.obs, self.a["model"]
+        inputs = a["inputs"]
+        report = {"inputs": inputs if isinstance(inputs, str) else list(inputs), "truth": obs.meta.get("truth"),
+                  "reproduce": record.reproduce_block(self.a, inputs, self.command, obs, a["relight"]), "models": {}}
+        for name, res in self.results.items():
+            entry = res.to_json()
+            if name == model and obs.meta.get("truth"):
+                t = obs.meta["truth"]
+                entry["relative_error"] = {k: (res.params[k] - t[k]) / t[k] for k in res.params
+                                           if k in t and isinstance(t[k], (int, float)) and t[k] != 0}
+            report["models"][name] = entry
+        return report
+
+    def write(self, report):
+        obs, obs2, outs, model = self.obs, self.obs2, self.outs, self.a["model"]
+        if obs2 is not None:
+            report["relight"] = {"light_dir": obs2.light_dir.tolist()}
+            relit = {}
+            for name, res in self.results.items():
+                err = relight_error(name, res.params, obs2, erode=self.opts.erode)
+                relit[name] = err["predicted"]
+                report["relight"][name] = {k: v for k, v in err.items() if k != "predicted"}
+            plots.plot_images(obs2.stokes, relit[model], obs2.mask, outs["relight.png"],
+                              title=f"relighting with the {model} estimates: RMSE/mean = "
+                                    f"{report['relight'][model]['rel_rmse']:.4f}", label="relit",
+                              lin_variance=obs2.lin_variance)
+        main = self.results[model]
+        fitted = self.preds[model]
+        plots.plot_profiles(obs, fitted, outs["profiles.png"], pixels=main.pixels,
+                            title=f"{model}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()),
+                            others={f"{n} (baseline)": self.preds[n] for n in self.models[1:]})
+        plots.plot_images(obs.stokes, fitted, obs.mask, outs["images.png"],
+                          title=f"{model} fit (per-pixel re-render)", lin_variance=obs.lin_variance,
+                          pixels=main.pixels)
+        plots.plot_loss_history({n: r.history for n, r in self.results.items()}, outs["history.png"])
+        s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
+        stokes_io.write_stokes_exr(outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
+                                   force=True)
 
 
 def _render_scene(obs, model):
