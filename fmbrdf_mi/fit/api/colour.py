@@ -42,6 +42,7 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.objectives.objective import nnls2
+from fmbrdf_mi.fit.problem.data import RAW_AREA_POINTS
 from fmbrdf_mi.fit.problem.problem import TimeUp
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import lm as LM
@@ -242,7 +243,7 @@ def _reported_jacobian(prob, z):
 
 
 def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=None, max_pixels=None, seed=0,
-               irls_rounds=4, progress=None, max_time=None, max_iter=40, starts=2):
+               irls_rounds=4, progress=None, max_time=None, max_iter=40, starts=2, area_points=RAW_AREA_POINTS):
     """Fit one material with per-channel albedos to a colour mosaic's samples (module docstring).
 
     ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` whose grid is
@@ -257,6 +258,9 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     standard errors (as does one that runs out of ``max_iter`` LM iterations).
     ``starts``: Levenberg-Marquardt runs from this many of the best grid
     points (as the one-channel fit's ``--starts``); the lowest chi^2 wins.
+    ``area_points``: each raw sample is the mean of the model over this
+    many points squared of its pixel (as a sensor pixel integrates; 1: its
+    centre), as in the one-channel likelihood.
     Returns a :class:`~fmbrdf_mi.fit.result.FitResult`: params, std_errors
     (per-channel entries as {"R", "G", "B"} dicts; None when not converged),
     loss (chi^2), n_pixels, noise, converged, stop_reason, pixels (the fitted
@@ -288,13 +292,13 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
             idx = np.sort(np.random.default_rng(seed + k).choice(idx, per_image, replace=False))
         if len(idx) < 4:
             raise InputError(f"{tag}: only {len(idx)} usable periods inside the mask (need >= 4)")
-        n, v, _ = o.sample_geometry(idx, footprint=(smp.offsets, np.full(16, 1 / 16)))
+        n, v, w = o.sample_geometry(idx, footprint=smp.footprint(area_points))
         geo.append((n, v, np.tile(np.asarray(o.light_dir, float), (len(n), 1)), np.full(len(n), o.irradiance)))
         ys.append(smp.values.reshape(16, -1)[:, idx].T)
         idxs.append(idx)
     n, v, lights, irr = (np.concatenate([g[j] for g in geo]) for j in range(4))
     ev = PixelEvaluator(m, n, v, lights if joint else obs_l[0].light_dir,
-                        irr if joint else obs_l[0].irradiance)
+                        irr if joint else obs_l[0].irradiance, weights=None if len(w) == 1 else w)
     y = np.concatenate(ys)
     samples = smp_l[0]
     known = noise is not None and noise.known
@@ -363,7 +367,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
                     n_outliers=0, timings={"total": t_total, "evaluations": prob.evals},
                     options={"model": model, "fixed": fixed, "bounds": bounds, "max_pixels": max_pixels, "seed": seed,
                              "irls_rounds": irls_rounds, "max_time": max_time, "max_iter": max_iter,
-                             "starts": starts},
+                             "starts": starts, "area_points": int(area_points)},
                     converged=bool(converged), objective="likelihood", noise=noise.to_dict(),
                     pixels=idxs if joint else idxs[0], channels=list(CHANNELS),
                     details={"chi2": chi2, "chi2_per_dof": chi2 / dof, "n_samples": int(r.size),
@@ -384,8 +388,9 @@ def predict_samples(obs, samples, res):
     out = np.full(samples.values.shape, np.nan)
     if len(idx) == 0:
         return out
-    n, v, _ = obs.sample_geometry(idx, footprint=(samples.offsets, np.full(16, 1 / 16)))
-    p = PixelEvaluator(m, n, v, obs.light_dir, obs.irradiance).parts(res["internal"]["shape"], ())
+    n, v, w = obs.sample_geometry(idx, footprint=samples.footprint((res.options or {}).get("area_points", 1)))
+    p = PixelEvaluator(m, n, v, obs.light_dir, obs.irradiance,
+                       weights=None if len(w) == 1 else w).parts(res["internal"]["shape"], ())
     A, chan = samples.analyser(), samples.channel
     a_s, a_b = np.asarray(res["internal"]["a_s"]), np.asarray(res["internal"]["a_b"])
     mu = a_s[chan] * _unit_mu(A, p.surface, len(idx)) + a_b[chan] * _unit_mu(A, p.body, len(idx))

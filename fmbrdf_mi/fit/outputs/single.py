@@ -33,7 +33,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
               fov=None, light=None, irradiance=None, layout=None, black_level=None, channel="mean",
               demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf",
               baselines=False, optimizer="lm", path="pixel", bounds=None, init=None, loss="auto",
-              white_level=None, dark_level=None, fixed=None, starts=2,
+              white_level=None, dark_level=None, fixed=None, starts=2, area_points=None,
               max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
               relight_light=None, relight_irradiance=None, force=False, progress=True, command=None):
     """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
@@ -51,7 +51,9 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     observed DoLP with the mean DoLP a camera with that noise measures.
     ``footprint``: ``point`` (pixel centres), ``box`` (3 x 3 over the pixel),
     ``demosaic`` (the raw pixels a demosaicked super-pixel comes from) or
-    ``auto``.  ``relight``: a second image of the same object under
+    ``auto`` (the paper's loss).  ``area_points``: the likelihood models each
+    raw sample as the mean over that many points squared of its pixel (None: 2
+    for raw mosaics, 1 otherwise).  ``relight``: a second image of the same object under
     ``relight_light`` for the relighting check.
 
     Writes ``out``/fit.json, profiles.png, images.png, history.png,
@@ -67,7 +69,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
                         irradiance=irradiance, fov=fov, relight_irradiance=relight_irradiance)
     check_fit_options(model=model, optimizer=optimizer, path=path, bounds=parse_bounds(bounds),
                       init=parse_init(init), max_iter=max_iter, tol=tol, time_limit=time_limit,
-                      max_time=max_time, max_pixels=max_pixels, erode=erode, seed=seed)
+                      max_time=max_time, max_pixels=max_pixels, erode=erode, seed=seed, area_points=area_points)
     outs = output_files(out, relight)
     prepare(out, outs.values(), force)
     obs = build_observation(inputs, normals=normals, mask=mask, view=view, sphere=sphere, camera=camera,
@@ -88,7 +90,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     opts = FitOptions(model=model, path="pixel", optimizer=optimizer, bounds=parse_bounds(bounds),
                       init=parse_init(init), max_iter=int(max_iter), tol=float(tol), time_limit=time_limit,
                       max_time=max_time or None, loss=loss, fixed=parse_fixed(fixed), starts=int(starts),
-                      max_pixels=max_pixels, erode=int(erode), seed=int(seed))
+                      max_pixels=max_pixels, erode=int(erode), seed=int(seed), area_points=area_points)
     scene = None
     if path == "render":
         scene, opts.path = _render_scene(obs, model), "render"
