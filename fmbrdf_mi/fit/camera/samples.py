@@ -7,9 +7,10 @@ the units of the image (raw DN minus the black level), the polariser angle of
 each and where on the super-pixel each was taken:
 
 * **raw mosaic**: the 2x2 raw pixels themselves, at offsets (+-1/4, +-1/4)
-  super-pixels from the centre (each sample is modelled at its own point,
-  so the instantaneous-field-of-view error of a mosaic is part of the model
-  rather than of the noise).  The samples of different super-pixels are
+  super-pixels from the centre, each 1/2 x 1/2 super-pixel in size (each
+  sample is modelled over its own pixel, the mean of the model over m x m
+  points of it, :meth:`Samples.footprint`; so the instantaneous-field-of-view
+  error of a mosaic is part of the model rather than of the noise).  The samples of different super-pixels are
   independent; bilinear demosaicking would correlate neighbours, which is
   why the likelihood never uses demosaicked values whatever ``--demosaic``
   says (that option shapes the Stokes image of the paper's loss and plots);
