@@ -21,7 +21,8 @@ from fmbrdf_mi.fit.errors import InputError
 GIVE = {"--baselines": ["--baselines"], "--relight": ["--relight", "b.exr"], "--path": ["--path", "render"],
         "--optimizer": ["--optimizer", "adam"], "--init": ["--init", "eta=1.5"], "--loss": ["--loss", "paper"],
         "--layout": ["--layout", "0,45,90,135"], "--dark-level": ["--dark-level", "3"],
-        "--footprint": ["--footprint", "box"], "--free-power": ["--free-power"]}
+        "--footprint": ["--footprint", "box"], "--free-power": ["--free-power"],
+        "--area-points": ["--area-points", "3"]}
 NEED_GIVE = {"--relight-light": ["--relight-light", "0,0,1"], "--holdout": ["--holdout", "1"],
              "--normals-start": ["--normals-start", "sphere"], "--smooth": ["--smooth", "0.5"],
              "--rounds": ["--rounds", "2"]}

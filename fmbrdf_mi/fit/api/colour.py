@@ -49,6 +49,7 @@ from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, ChannelModel, floored
 from fmbrdf_mi.fit.evaluate.models import Bounds, State, get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective
+from fmbrdf_mi.fit.problem.data import RAW_AREA_POINTS
 from fmbrdf_mi.fit.problem.problem import Problem, TimeUp
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import lm as LM
@@ -129,7 +130,7 @@ def _lm(problem, z, say, max_iter=40, tag=""):
 
 
 def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=None, max_pixels=None, seed=0,
-               irls_rounds=4, progress=None, max_time=None, max_iter=40, starts=2):
+               irls_rounds=4, progress=None, max_time=None, max_iter=40, starts=2, area_points=RAW_AREA_POINTS):
     """Fit one material with per-channel albedos to a colour mosaic's samples (module docstring).
 
     ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` whose grid is
@@ -144,6 +145,9 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     standard errors (as does one that runs out of ``max_iter`` LM iterations).
     ``starts``: Levenberg-Marquardt runs from this many of the best grid
     points (as the one-channel fit's ``--starts``); the lowest chi^2 wins.
+    ``area_points``: each raw sample is the mean of the model over this
+    many points squared of its pixel (as a sensor pixel integrates; 1: its
+    centre), as in the one-channel likelihood.
     Returns a :class:`~fmbrdf_mi.fit.result.FitResult`: params, std_errors
     (per-channel entries as {"R", "G", "B"} dicts; None when not converged),
     loss (chi^2), n_pixels, noise, converged, stop_reason, pixels (the fitted
@@ -175,13 +179,13 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
             idx = np.sort(np.random.default_rng(seed + k).choice(idx, per_image, replace=False))
         if len(idx) < 4:
             raise InputError(f"{tag}: only {len(idx)} usable periods inside the mask (need >= 4)")
-        n, v, _ = o.sample_geometry(idx, footprint=(smp.offsets, np.full(16, 1 / 16)))
+        n, v, w = o.sample_geometry(idx, footprint=smp.footprint(area_points))
         geo.append((n, v, np.tile(np.asarray(o.light_dir, float), (len(n), 1)), np.full(len(n), o.irradiance)))
         ys.append(smp.values.reshape(16, -1)[:, idx].T)
         idxs.append(idx)
     n, v, lights, irr = (np.concatenate([g[j] for g in geo]) for j in range(4))
     ev = PixelEvaluator(m, n, v, lights if joint else obs_l[0].light_dir,
-                        irr if joint else obs_l[0].irradiance)
+                        irr if joint else obs_l[0].irradiance, weights=None if len(w) == 1 else w)
     y = np.concatenate(ys)
     samples = smp_l[0]
     noise = noise if noise is not None else NoiseModel(step=1.0)
@@ -252,7 +256,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
                     n_outliers=0, timings={"total": t_total, "evaluations": problem.n_evals},
                     options={"model": model, "fixed": fixed, "bounds": bounds, "max_pixels": max_pixels, "seed": seed,
                              "irls_rounds": irls_rounds, "max_time": max_time, "max_iter": max_iter,
-                             "starts": starts},
+                             "starts": starts, "area_points": int(area_points)},
                     weakly_identified=weak, converged=bool(converged), objective="likelihood", uncertainty=unc,
                     noise=noise.to_dict(), pixels=idxs if joint else idxs[0], channels=list(CHANNELS),
                     details={"chi2": chi2, "chi2_per_dof": chi2 / dof, "n_samples": int(r.size),
@@ -273,8 +277,9 @@ def predict_samples(obs, samples, res):
     out = np.full(samples.values.shape, np.nan)
     if len(idx) == 0:
         return out
-    n, v, _ = obs.sample_geometry(idx, footprint=(samples.offsets, np.full(16, 1 / 16)))
-    p = PixelEvaluator(m, n, v, obs.light_dir, obs.irradiance).parts(res["internal"]["shape"], ())
+    n, v, w = obs.sample_geometry(idx, footprint=samples.footprint((res.options or {}).get("area_points", 1)))
+    p = PixelEvaluator(m, n, v, obs.light_dir, obs.irradiance,
+                       weights=None if len(w) == 1 else w).parts(res["internal"]["shape"], ())
     A, n = samples.analyser(), len(idx)
     unit = [np.einsum("kc,cik->ik", A, s.reshape(3, n, -1)) for s in (p.surface, p.body)]
     mu = ChannelAlbedos(samples.channel).mu(*unit, res["internal"]["a_s"], res["internal"]["a_b"])

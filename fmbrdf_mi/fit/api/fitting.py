@@ -50,6 +50,8 @@ class FitOptions:
     bsdf_prefix: str = "sphere.bsdf"  # render path: traverse prefix of the object's BSDF
     free_power: bool = False          # joint fits: estimate the relative light powers (free_power.py)
     power_start: str = "ratio"        # ... starting from "ratio" (closed form) or "given"
+    area_points: int = None           # likelihood: each sample the mean of the model over m x m points of its
+                                      # pixel (None: 2 for raw mosaics, 1 = the pixel's centre otherwise)
 
 
 def weakly_identified(params, std, at_bound=()):

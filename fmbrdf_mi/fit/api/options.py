@@ -44,7 +44,7 @@ def reported_names(model):
 def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=None, init=None, max_iter=40,
                       tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0,
                       lr=0.02, spp=16, rounds=3, loss="auto", starts=2, fixed=None, free_power=False,
-                      power_start="ratio", flag=lambda name: name, **_ignored):
+                      power_start="ratio", area_points=None, flag=lambda name: name, **_ignored):
     """Raise InputError for the first invalid fit option.  ``flag`` maps an option name to
     how the user wrote it (``--max-pixels`` on the command line)."""
 
@@ -69,6 +69,7 @@ def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=No
         raise InputError(f"{flag('loss')}: expected 'auto', 'likelihood', 'paper', 'intensity' or 'dolp', "
                          f"got {loss!r}")
     _num(flag("starts"), starts, lo=1, integer=True, none_ok=False)
+    _num(flag("area_points"), area_points, lo=1, hi=16, integer=True)
     if not isinstance(free_power, bool):
         raise InputError(f"{flag('free_power')}: expected True or False, got {free_power!r}")
     if free_power and loss == "dolp":

@@ -35,4 +35,5 @@ def colour_samples(raw, layout=polcam.IMX250MZR_LAYOUT, cfa=polcam.BAYER_RGGB, b
     saturated = np.any(v >= white, axis=0)
     dark = np.any(v <= 0, axis=0) if float(black_level) == 0 else np.zeros(v.shape[1:], bool)
     return Samples(v - float(black_level), tuple(angles), np.asarray(offs, float), saturated, dark,
-                   "colour raw mosaic", white, 0.0 if float(black_level) == 0 else None, 1.0, 16, np.asarray(chans))
+                   "colour raw mosaic", white, 0.0 if float(black_level) == 0 else None, 1.0, 16, np.asarray(chans),
+                   pixel=0.25)

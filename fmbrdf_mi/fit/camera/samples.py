@@ -7,9 +7,10 @@ the units of the image (raw DN minus the black level), the polariser angle of
 each and where on the super-pixel each was taken:
 
 * **raw mosaic**: the 2x2 raw pixels themselves, at offsets (+-1/4, +-1/4)
-  super-pixels from the centre (each sample is modelled at its own point,
-  so the instantaneous-field-of-view error of a mosaic is part of the model
-  rather than of the noise).  The samples of different super-pixels are
+  super-pixels from the centre, each 1/2 x 1/2 super-pixel in size (each
+  sample is modelled over its own pixel, the mean of the model over m x m
+  points of it, :meth:`Samples.footprint`; so the instantaneous-field-of-view
+  error of a mosaic is part of the model rather than of the noise).  The samples of different super-pixels are
   independent; bilinear demosaicking would correlate neighbours, which is
   why the likelihood never uses demosaicked values whatever ``--demosaic``
   says (that option shapes the Stokes image of the paper's loss and plots);
@@ -57,6 +58,7 @@ class Samples:
     step: float = 1.0           # quantisation step in image units (0: not quantised)
     dof: int = 4                # independent samples per cell
     channel: np.ndarray = None  # (n,) colour channel of each sample (colour mosaics: 0 R, 1 G, 2 B), else None
+    pixel: float = 1.0          # side of each sample's own pixel, in cells (a mono raw mosaic: 1/2)
 
     @property
     def usable(self):
@@ -72,9 +74,26 @@ class Samples:
         t = np.radians(np.asarray(self.angles, dtype=np.float64))
         return 0.5 * np.stack([np.ones_like(t), np.cos(2 * t), np.sin(2 * t)], axis=1)
 
-    def footprint(self):
-        """(offsets (n, 2), weights) for :meth:`Observation.sample_geometry`: one point per sample."""
-        return self.offsets, np.full(self.n, 1.0 / self.n)
+    def footprint(self, points=1):
+        """Where each sample is modelled, for :meth:`Observation.sample_geometry`: (offsets, weights).
+
+        ``points`` = m: each sample is the mean over an m x m grid of points
+        at the centres of equal sub-squares of its own pixel (side
+        :attr:`pixel` cells, centred on its offset), as a sensor pixel
+        integrates over its area (and ``render --raw`` box-filters).
+        Offsets (n m^2, 2) run sample by sample, m^2 per sample; weights
+        (m^2,) = 1 / m^2 are those of one sample's points (an evaluator with
+        these weights averages each consecutive m^2 points into one sample).
+        ``points=1``: one point per sample, at its offset, weight 1.
+        """
+        m = int(points)
+        if m < 1:
+            raise ValueError(f"points: expected an integer >= 1, got {points!r}")
+        g = ((np.arange(m) + 0.5) / m - 0.5) * self.pixel
+        X, Y = np.meshgrid(g, g)
+        sub = np.stack([X.ravel(), Y.ravel()], 1)  # (m^2, 2)
+        offsets = (np.asarray(self.offsets, dtype=np.float64)[:, None, :] + sub[None]).reshape(-1, 2)
+        return offsets, np.full(m * m, 1.0 / (m * m))
 
     def at(self, idx):
         """(cells, n) sample values of the cells with flat indices ``idx``."""
@@ -111,7 +130,7 @@ def from_raw(raw, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0, white_level=N
     raw4 = np.stack(vals)
     sat, drk = _flags(raw4, white, dark)
     return Samples(raw4 - float(black_level), tuple(angles), np.array(offs), sat, drk, "raw mosaic",
-                   white, dark, 1.0, 4)
+                   white, dark, 1.0, 4, pixel=0.5)
 
 
 def from_angle_images(images, black_level=0.0, white_level=None, dark_level=None, integer=True):

@@ -20,7 +20,7 @@ def check_args(args):
                       bounds=parse_bounds(args.bounds), init=parse_init(args.init), max_iter=args.max_iter,
                       tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
                       max_pixels=args.max_pixels, erode=args.erode, seed=args.seed, loss=args.loss,
-                      starts=args.starts, fixed=parse_fixed(args.fix), flag=flag)
+                      starts=args.starts, fixed=parse_fixed(args.fix), area_points=args.area_points, flag=flag)
     check_needs(args, ("--relight-light", "--holdout"))
     if args.manifest and args.authors:
         raise InputError("--manifest and --authors: give one of them")
@@ -37,13 +37,14 @@ OPTIONS = {
     "--layout": (lambda a: a.layout, lambda a: "--layout"),
     "--dark-level": (lambda a: a.dark_level is not None, lambda a: "--dark-level"),
     "--footprint": (lambda a: a.footprint != "auto", lambda a: "--footprint " + str(a.footprint)),
+    "--area-points": (lambda a: a.area_points is not None, lambda a: "--area-points"),
     "--free-power": (lambda a: getattr(a, "free_power", False), lambda a: "--free-power"),
 }
 
 #: The one table of which options a mode refuses: mode -> (options, the message's head, why).
 REFUSED = {
     "colour": (("--baselines", "--relight", "--path", "--optimizer", "--init", "--loss", "--layout", "--dark-level",
-                "--footprint"), "colour polarisation mosaic",
+                "--footprint", "--area-points"), "colour polarisation mosaic",
                "the colour fit is the likelihood of the raw samples, layout and cfa from the sidecar, pixel path, LM"),
     "refine": (("--baselines", "--free-power", "--loss"), "--refine-normals",
                "the refinement is the likelihood of the camera samples, one model, the given light powers"),

@@ -94,6 +94,10 @@ def add_fit_arguments(p):
     g.add_argument("--starts", type=int, default=2,
                    help="refine from this many of the best distinct coarse-search points and keep the best "
                         "(default %(default)s)")
+    g.add_argument("--area-points", type=int, metavar="M",
+                   help="likelihood: model each raw sample as the mean of the BSDF over M x M points of its "
+                        "pixel, as a sensor pixel integrates over its area (default: 2 for raw mosaics, 1 = the "
+                        "pixel's centre for angle images and Stokes images)")
     g.add_argument("--max-pixels", type=int, default=20000, help="random subset of usable pixels (0: all)")
     g.add_argument("--erode", type=int, default=2, help="pixels removed from the mask border")
     g.add_argument("--seed", type=int, default=0)
@@ -187,7 +191,7 @@ def run_single(args, command):
                      read_noise=args.read_noise, footprint=args.footprint, model=args.model,
                      baselines=args.baselines, optimizer=args.optimizer, path=args.path, bounds=args.bounds,
                      init=args.init, loss=args.loss, white_level=args.white_level,
-                     dark_level=args.dark_level, fixed=args.fix, starts=args.starts,
+                     dark_level=args.dark_level, fixed=args.fix, starts=args.starts, area_points=args.area_points,
                      max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit,
                      max_time=args.max_time, max_pixels=args.max_pixels or None, erode=args.erode,
                      seed=args.seed, relight=relight,

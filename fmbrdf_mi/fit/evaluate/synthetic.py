@@ -4,8 +4,8 @@
     obs = capture_observation(ideal, CameraModel(), seed=3)        # one noisy capture -> Observation
 
 The sphere is orthographic, centred, radius ``res/2 - 1`` super-pixels; the
-Stokes image is the model evaluated at every raw pixel's centre (so each raw
-sample sees its own point, as a real mosaic does).
+Stokes image is the model averaged over each raw pixel's area (4 x 4 points:
+each raw sample sees its own pixel, as a real mosaic does).
 """
 from __future__ import annotations
 
@@ -18,13 +18,19 @@ from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs import observations as ob
 
 
-def ideal_sphere(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf"):
-    """Noise-free Stokes (3, 2 res, 2 res) at the raw pixels, and the super-pixel geometry."""
+def ideal_sphere(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4):
+    """Noise-free Stokes (3, 2 res, 2 res) of the raw pixels, and the super-pixel geometry.
 
+    Each raw pixel is the mean of the model over ``area`` x ``area`` points
+    of its area (sub-pixel centres; points off the sphere count 0), as a
+    sensor pixel integrates and ``render --raw``'s box filter does;
+    ``area=1``: the model at the pixel's centre.
+    """
+    a = int(area)
     r2 = 2 * res
-    n2, m2, v2 = ob.sphere_normals((r2, r2), (r2 / 2, r2 / 2), r2 / 2 - 2)
-    obs2 = ob.Observation(np.ones((3, r2, r2)), m2, n2, v2, light)
-    stokes = predict_image(model, params, obs2)
+    n2, m2, v2 = ob.sphere_normals((r2 * a, r2 * a), (r2 * a / 2, r2 * a / 2), (r2 / 2 - 2) * a)
+    obs2 = ob.Observation(np.ones((3, r2 * a, r2 * a)), m2, n2, v2, light)
+    stokes = predict_image(model, params, obs2).reshape(3, r2, a, r2, a).mean(axis=(2, 4))
     n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
     geom = ob.SphereGeometry((res, res), (res / 2, res / 2), res / 2 - 1)
     return {"stokes": stokes, "normals": n, "mask": m, "view_dirs": v, "light": np.asarray(light, float),

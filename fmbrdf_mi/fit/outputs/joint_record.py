@@ -39,7 +39,7 @@ from fmbrdf_mi.fit.outputs.record import jsonable, load, sha256, versions
 
 #: fit_images keywords that define a joint fit (not where it writes or how it talks).
 FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
-            "max_time", "max_pixels", "erode", "seed", "free_power", "power_start")
+            "max_time", "max_pixels", "erode", "seed", "free_power", "power_start", "area_points")
 
 
 #: read_object keywords recorded for an authors' object.

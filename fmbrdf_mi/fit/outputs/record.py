@@ -24,7 +24,7 @@ ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "li
              "black_level", "channel", "demosaic", "conversion_gain", "read_noise", "footprint", "model",
              "baselines", "optimizer", "path", "bounds", "init", "loss", "white_level", "dark_level", "fixed",
              "starts", "max_iter", "tol", "time_limit", "max_time", "max_pixels", "erode", "seed", "relight",
-             "relight_light", "relight_irradiance")
+             "relight_light", "relight_irradiance", "area_points")
 
 
 def sha256(path):

@@ -33,7 +33,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
               fov=None, light=None, irradiance=None, layout=None, black_level=None, channel="mean",
               demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf",
               baselines=False, optimizer="lm", path="pixel", bounds=None, init=None, loss="auto",
-              white_level=None, dark_level=None, fixed=None, starts=2,
+              white_level=None, dark_level=None, fixed=None, starts=2, area_points=None,
               max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
               relight_light=None, relight_irradiance=None, force=False, progress=True, command=None):
     """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
@@ -51,7 +51,9 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     observed DoLP with the mean DoLP a camera with that noise measures.
     ``footprint``: ``point`` (pixel centres), ``box`` (3 x 3 over the pixel),
     ``demosaic`` (the raw pixels a demosaicked super-pixel comes from) or
-    ``auto``.  ``relight``: a second image of the same object under
+    ``auto`` (the paper's loss).  ``area_points``: the likelihood models each
+    raw sample as the mean over that many points squared of its pixel (None: 2
+    for raw mosaics, 1 otherwise).  ``relight``: a second image of the same object under
     ``relight_light`` for the relighting check.
 
     Writes ``out``/fit.json, profiles.png, images.png, history.png,
@@ -79,7 +81,7 @@ class SingleImage(FitJob):
         check_fit_options(model=a["model"], optimizer=a["optimizer"], path=a["path"], bounds=parse_bounds(a["bounds"]),
                           init=parse_init(a["init"]), max_iter=a["max_iter"], tol=a["tol"],
                           time_limit=a["time_limit"], max_time=a["max_time"], max_pixels=a["max_pixels"],
-                          erode=a["erode"], seed=a["seed"])
+                          erode=a["erode"], seed=a["seed"], area_points=a["area_points"])
 
     def files(self):
         self.outs = output_files(self.out, self.a["relight"])
@@ -109,7 +111,7 @@ class SingleImage(FitJob):
                           init=parse_init(a["init"]), max_iter=int(a["max_iter"]), tol=float(a["tol"]),
                           time_limit=a["time_limit"], max_time=a["max_time"] or None, loss=a["loss"],
                           fixed=parse_fixed(a["fixed"]), starts=int(a["starts"]), max_pixels=a["max_pixels"],
-                          erode=int(a["erode"]), seed=int(a["seed"]))
+                          erode=int(a["erode"]), seed=int(a["seed"]), area_points=a["area_points"])
         scene = None
         if a["path"] == "render":
             scene, opts.path = _render_scene(obs, model), "render"

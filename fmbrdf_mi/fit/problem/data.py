@@ -103,6 +103,22 @@ def same_noise(observations):
     return None
 
 
+#: Likelihood of a raw mosaic: points per axis over which each raw sample's model value is averaged
+#: (:meth:`~fmbrdf_mi.fit.camera.samples.Samples.footprint`; ``FitOptions.area_points`` None).
+#: Chosen by ``tools/bench_raw_kappa.py``.
+RAW_AREA_POINTS = 2
+
+
+def area_points(samples, opts):
+    """m of the likelihood's m x m points per sample: ``opts.area_points``, or when None
+    :data:`RAW_AREA_POINTS` for a raw mosaic (a sensor pixel integrates over its area) and 1 (the
+    pixel's centre) for angle images and Stokes images."""
+    m = getattr(opts, "area_points", None)
+    if m is None:
+        m = RAW_AREA_POINTS if samples.source in ("raw mosaic", "colour raw mosaic") else 1
+    return int(m)
+
+
 def prepare(observations, opts, loss, *, single=False, evaluator=None):
     """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images: one objective over all their
     pixels, one evaluator, each image's pixels and slice.
@@ -140,13 +156,14 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None):
                 raise InputError(f"joint fit: image {k} ({s.source}, polariser order {s.angles}) and image 0 "
                                  f"({smps[0].source}, {smps[0].angles}) differ in their samples; a joint "
                                  "likelihood needs one layout (or use --loss paper)")
-        per_point = any(np.any(s.offsets) for s in smps)
+        m = area_points(smps[0], opts)
+        per_point = m > 1 or any(np.any(s.offsets) for s in smps)
         ys = []
         for o, s, idx in zip(observations, smps, idxs):
-            if per_point:
-                n, v, _ = o.sample_geometry(idx, footprint=s.footprint())  # 4 points per super-pixel
+            if per_point:  # n m^2 points per super-pixel: each sample the mean over m x m points of its pixel
+                n, v, w = o.sample_geometry(idx, footprint=s.footprint(m))
             else:
-                n, v, _ = o.sample_geometry(idx, footprint=None)
+                n, v, w = o.sample_geometry(idx, footprint=None)
             geo.append((n, v))
             ys.append(s.at(idx))
         noise = same_noise(observations)
@@ -155,7 +172,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None):
             noise = dataclasses.replace(o0.noise) if single and o0.noise is not None else NoiseModel(step=smps[0].step)
         objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof)
         smp = smps[0]
-        weights = None
+        weights = None if len(w) == 1 else w
     else:
         fps = [o.footprint for o in observations]
         for k, f in enumerate(fps[1:], 1):
