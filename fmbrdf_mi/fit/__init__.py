@@ -13,17 +13,20 @@ before it (``tests/test_layers.py`` enforces it):
 ``camera``         noise model, raw samples (mono 2x2, colour 4x4), demosaicking, footprints
 ``inputs``         :class:`Observation`, loaders of every input kind (files, sidecars,
                    manifests, the authors' layout, colour mosaics), values given as text
-``evaluate``       the models and their pixel / render evaluators, predictions, synthetic data
+``evaluate``       the models and their pixel / render evaluators, the albedo layouts (shared,
+                   per colour channel), predictions, synthetic data
 ``objectives``     the likelihood of the camera's samples, the paper's loss and its variants
 ``problem``        what a fit runs on (pixels, objective, evaluator: one builder for one image
-                   or K) and its problem (model, bounds, clock; free powers)
+                   or K) and its one problem (model, bounds, clock), with free light powers or
+                   per-pixel normals and their prior as extra unknowns
 ``solve``          coarse search, Levenberg-Marquardt, the reweighting loop, Adam; the normal
                    refinement's system
 ``uncertainty``    covariances (Fisher, sandwich), intervals, flags
 ``result``         :class:`FitResult` and the JSON encoder of every output
 ``api``            :func:`fit`, :func:`fit_joint`, :func:`fit_colour`, normal refinement
-``outputs``        the writer (overwrite refusal, atomic JSON), ``reproduce`` records and
-                   reruns, plots, summaries, and the fit-and-write functions of the command
+``outputs``        the one skeleton of every run that writes a fit (:class:`~fmbrdf_mi.fit.outputs.job.FitJob`:
+                   checks, overwrite refusal, atomic JSON), ``reproduce`` records and reruns,
+                   plots, summaries
 ``cli``            ``fmbrdf-mi fit``: arguments, their checks, dispatch
 =================  ===========================================================================
 """
