@@ -6,7 +6,10 @@
   J^T J (Gauss-Newton, exact for a Gaussian with known variances at the
   IRLS fixed point).  When the noise level was estimated from the residuals
   the covariance is multiplied by chi^2 / (N - p) (N the independent
-  samples), which is then ~1 by construction;
+  samples), which is then ~1 by construction; with the camera noise known,
+  the same factor is applied when chi^2 / (N - p) is far above 1 (more
+  than 5 of its standard deviations sqrt(2 / (N - p)), and at least 0.1:
+  ``misfit``), in every mode, and the fit warns (:func:`misfit_text`);
 * **paper's loss**: it is not a likelihood, so J^T J says nothing about the
   spread of its minimiser.  A sandwich estimate H^-1 M H^-1 with H = J^T J
   and M the covariance of the estimating equation J^T r, summed over pixel
@@ -129,8 +132,12 @@ def covariance(problem, st, J, r, n_independent=None):
         if obj.noise.known:
             scale, info["method"] = 1.0, "inverse Fisher information (known camera noise)"
             # chi^2 / dof has standard deviation sqrt(2 / dof): far above 1, the model or the stated
-            # noise does not explain the data, and these errors are too small
+            # noise does not explain the data, and the Fisher errors are too small: they are inflated
+            # by chi^2 / dof (the quasi-likelihood scale, as when the noise level is estimated)
             info["misfit"] = bool(info["chi2_per_dof"] > 1.0 + max(0.1, 5.0 * math.sqrt(2.0 / max(n - p, 1))))
+            if info["misfit"]:
+                scale = info["chi2_per_dof"]
+                info["method"] += ", inflated by chi^2/dof (misfit)"
         else:
             scale = info["chi2_per_dof"]
             info["method"] = "inverse Fisher information, noise level estimated from the residuals"
@@ -225,6 +232,14 @@ def summarise(problem, st, J, r, n_independent=None):
     corr = np.clip(np.nan_to_num(corr, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
     out["correlation"] = {"names": names, "matrix": np.round(corr, 4).tolist()}
     return out
+
+
+def misfit_text(unc):
+    """The one-line warning of a misfit (``unc["misfit"]``: chi^2/dof far above 1 with the stated camera noise)."""
+    c = unc["chi2_per_dof"]
+    return (f"chi^2/dof = {c:.3g} with the stated camera noise: the model (geometry, light, BSDF) or the noise "
+            f"settings do not explain the data; the standard errors are inflated by sqrt(chi^2/dof) = "
+            f"{math.sqrt(c):.3g}")
 
 
 def weakly_identified(params, std, at_bound_=()):

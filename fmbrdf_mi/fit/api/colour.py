@@ -241,9 +241,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
         std.update(problem.model.nest(unc["std_errors"]))
         unc["ci95"] = problem.model.nest(unc["ci95"])
         if unc.get("misfit"):
-            say(f"[colour] warning: chi^2/dof = {unc['chi2_per_dof']:.3g} with the stated camera noise: the model "
-                "(geometry, light, BSDF) or the noise settings do not explain the data; the standard errors "
-                "are too small")
+            say("[colour] warning: " + U.misfit_text(unc))
     chi2 = float(r @ r)
     dof = max(r.size - len(z), 1)
     bounds_k = np.cumsum([0] + [len(i) for i in idxs])

@@ -211,9 +211,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         n_ind = None if loss != "likelihood" else len(idx) * objective.dof
         unc = U.summarise(problem, st, J, r, n_ind)
         if unc.get("misfit"):
-            report(f"[fit] warning: chi^2/dof = {unc['chi2_per_dof']:.3g} with the stated camera noise: the model "
-                   "(geometry, light, BSDF) or the noise settings do not explain the data; the standard errors "
-                   "are too small")
+            report("[fit] warning: " + U.misfit_text(unc))
     elif not converged:
         unc = {"std_errors": {}, "method": "not computed: the fit did not converge"}
     if parts is None:

@@ -5,7 +5,7 @@ import numpy as np
 
 from fmbrdf_mi.fit.outputs.single import output_files
 from fmbrdf_mi.fit.problem.free_power import power_text
-from fmbrdf_mi.fit.uncertainty import WEAK_REL
+from fmbrdf_mi.fit.uncertainty import WEAK_REL, misfit_text
 
 #: Exit status of a fit that stopped before it converged (time limit, iteration limit).
 EXIT_NOT_CONVERGED = 3
@@ -45,8 +45,7 @@ def print_colour(report):
         if std:
             print(f"  uncertainty: {unc.get('method', 'inverse Fisher information of the raw samples')}")
         if unc.get("misfit"):
-            print(f"  warning: chi^2/dof = {unc['chi2_per_dof']:.3g} with the stated camera noise: the model or the "
-                  "noise settings do not explain the data; the standard errors are too small")
+            print("  warning: " + misfit_text(unc))
         if m.get("weakly_identified"):
             print(f"  weakly identified (standard error > 5% or at a bound): {', '.join(m['weakly_identified'])}")
         for img, c2 in (m.get("chi2_per_sample") or {}).items():
@@ -97,8 +96,7 @@ def print_report(report):
         if unc.get("method"):
             print(f"  uncertainty: {unc['method']}"
                   + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
-                  + (" (the model or the stated noise does not explain the data: errors too small)"
-                     if unc.get("misfit") else ""))
+                  + ("\n  warning: " + misfit_text(unc) if unc.get("misfit") else ""))
     ch = rn["angle_change"]
     print(f"  normals moved from the start by {ch['mean']:.2f} deg mean, {ch['median']:.2f} deg median")
     ae = rn.get("angular_error")
@@ -144,8 +142,7 @@ def print_summary(report, out, t0):
         if unc.get("method"):
             print(f"  uncertainty: {unc['method']}"
                   + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
-                  + (" (the model or the stated noise does not explain the data: errors too small)"
-                     if unc.get("misfit") else ""))
+                  + ("\n  warning: " + misfit_text(unc) if unc.get("misfit") else ""))
         if unc.get("correlation"):
             c = unc["correlation"]
             big = [(c["names"][i], c["names"][j], c["matrix"][i][j]) for i in range(len(c["names"]))
