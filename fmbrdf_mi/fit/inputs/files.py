@@ -168,6 +168,8 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                                      adc_step_e=float(conversion_gain) if src in ("raw mosaic", "angle images")
                                      else None)
 
+    if not isinstance(footprint, str):
+        raise InputError(f"footprint: expected auto, point, box or demosaic, got {footprint!r}")
     if footprint == "auto":
         footprint = "demosaic" if meta.get("source") == "raw mosaic" else "point"
     fp = {"point": lambda: None, "box": lambda: box_footprint(3),

@@ -110,6 +110,16 @@ def check_light(v, where):
     return check_direction(parse_vector(v, f"{where}: light"), f"{where}: light")
 
 
+def check_entry(power, holdout, name, where):
+    """An image's ``power`` (a positive number), ``holdout`` (true or false) and ``name`` (text or None)."""
+    if isinstance(power, bool) or not isinstance(power, (int, float)) or not (np.isfinite(power) and power > 0):
+        raise InputError(f"{where}: power must be a positive number, got {power!r}")
+    if not isinstance(holdout, bool):
+        raise InputError(f"{where}: holdout must be true or false")
+    if name is not None and (isinstance(name, bool) or not isinstance(name, (str, int))):
+        raise InputError(f"{where}: name: expected text, got {name!r}")
+
+
 @dataclasses.dataclass
 class ImageSpec:
     """One image of a joint fit: its input and the options that build its Observation."""
@@ -179,17 +189,12 @@ def parse_manifest(d, base=".", where="manifest"):
             raise InputError(f"{where}: image {k}: unknown key(s) {', '.join(bad)} (valid: {', '.join(ENTRY_KEYS)})")
         check_input(e["input"], f"{where}: image {k}")
         check_light(e.get("light"), f"{where}: image {k}")
-        if e.get("name") is not None and (isinstance(e["name"], bool) or not isinstance(e["name"], (str, int))):
-            raise InputError(f"{where}: image {k}: name: expected text, got {e['name']!r}")
+        check_entry(e.get("power", 1.0), e.get("holdout", False), e.get("name"), f"{where}: image {k}")
         opts = {**defaults, **check_options({x: e[x] for x in INPUT_KEYS if x in e}, f"{where}: image {k}")}
         for x in PATH_KEYS[1:]:
             if x in opts and isinstance(opts[x], (str, list)):
                 opts[x] = rel(opts[x])
         power = e.get("power", 1.0)
-        if isinstance(power, bool) or not isinstance(power, (int, float)) or not (np.isfinite(power) and power > 0):
-            raise InputError(f"{where}: image {k}: power must be a positive number, got {power!r}")
-        if not isinstance(e.get("holdout", False), bool):
-            raise InputError(f"{where}: image {k}: holdout must be true or false")
         specs.append(ImageSpec(rel(e["input"]), e.get("light"), float(power), bool(e.get("holdout", False)),
                                e.get("name"), opts))
     return specs

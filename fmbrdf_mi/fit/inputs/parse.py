@@ -49,6 +49,10 @@ def parse_bounds(items):
     """``["alpha=0.05:0.5", ...]`` -> {"alpha": (0.05, 0.5)}."""
     if isinstance(items, dict) or items is None:
         return items
+    if isinstance(items, str):
+        items = [items]
+    if not isinstance(items, (list, tuple)):
+        raise InputError(f"--bounds: expected NAME=LO:HI items, e.g. alpha=0.05:0.5, got {items!r}")
     out = {}
     for item in items:
         name, sep, rng = str(item).partition("=")
@@ -81,7 +85,9 @@ def parse_fixed(items):
     """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (shape parameters held fixed)."""
     if isinstance(items, dict) or items is None:
         return items
-    items = [items] if isinstance(items, str) else list(items)
+    if not isinstance(items, (str, list, tuple)):
+        raise InputError(f"--fix: expected NAME=VALUE items, e.g. kappa=0, got {items!r}")
+    items = [items] if isinstance(items, str) else [str(x) for x in items]
     out = {}
     for item in ",".join(items).split(","):
         name, sep, value = item.partition("=")

@@ -67,7 +67,8 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
                         irradiance=irradiance, fov=fov, relight_irradiance=relight_irradiance)
     check_fit_options(model=model, optimizer=optimizer, path=path, bounds=parse_bounds(bounds),
                       init=parse_init(init), max_iter=max_iter, tol=tol, time_limit=time_limit,
-                      max_time=max_time, max_pixels=max_pixels, erode=erode, seed=seed)
+                      max_time=max_time, max_pixels=max_pixels, erode=erode, seed=seed, starts=starts, loss=loss,
+                      fixed=parse_fixed(fixed))
     outs = output_files(out, relight)
     prepare(out, outs.values(), force)
     obs = build_observation(inputs, normals=normals, mask=mask, view=view, sphere=sphere, camera=camera,
