@@ -401,3 +401,27 @@ def test_sidecar_values_of_the_wrong_type_are_one_line(tmp_path, capsys, change,
     rc, err = _fit_cli(capsys, str(raw), "-o", str(tmp_path / "out"), "--max-iter", "1")
     _one_line(rc, err, "cap_raw.json", *words)
     assert not (tmp_path / "out" / "fit.json").exists()
+
+
+@pytest.mark.parametrize("how", ["cli", "manifest", "sidecar"])
+def test_black_level_above_every_sample_is_refused(tmp_path, capsys, how):
+    """Before: --black-level 70000 (every sample below it) fitted nonsense and exited 0."""
+    import json
+
+    raw = _capture(tmp_path, builtin=True)
+    out = tmp_path / "out"
+    if how == "cli":
+        argv = [str(raw), "--black-level", "70000"]
+    elif how == "manifest":
+        (tmp_path / "m.json").write_text(json.dumps({"defaults": {"black_level": 70000},
+                                                     "image": [{"input": str(raw)}, {"input": str(raw)}]}))
+        argv = ["--manifest", str(tmp_path / "m.json")]
+    else:
+        side = tmp_path / "cap_raw.json"
+        d = json.loads(side.read_text())
+        d["sensor"].update(bits=16, black_level=65000)
+        side.write_text(json.dumps(d))
+        argv = [str(raw)]
+    rc, err = _fit_cli(capsys, *argv, "-o", str(out), "--max-iter", "1")
+    _one_line(rc, err, "black_level", "at or above every sample", "no usable samples")
+    assert not (out / "fit.json").exists()

@@ -78,6 +78,11 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     stokes, meta = load_polarisation(inputs, layout=layout, channel=channel, black_level=black_level,
                                      demosaic=demosaic)
     array = meta.pop("_array", None)
+    if array is not None and np.size(array) and black_level >= float(np.max(array)):
+        name = os.fspath(inputs) if isinstance(inputs, (str, os.PathLike)) else "the angle images"
+        raise InputError(f"black_level {black_level:g}: at or above every sample of {name} (the largest is "
+                         f"{float(np.max(array)):g}): no usable samples; the black level is the raw value of no "
+                         "light (--black-level, the manifest's or the capture sidecar's black_level)")
     if sidecar is not None:
         meta.update({k: v for k, v in sidecar.items() if k not in ("sensor", "path", C.SIDECAR_KEY)})
         meta["sidecar"] = sidecar["path"]
