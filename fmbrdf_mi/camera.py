@@ -64,7 +64,8 @@ class CameraModel:
     def __post_init__(self):
         for name in ("full_well", "read_noise", "bits", "conversion_gain", "black_level"):
             v = getattr(self, name)
-            if (v is not None or name != "conversion_gain") and (isinstance(v, bool) or not isinstance(v, numbers.Real)):
+            optional = v is None and name == "conversion_gain"
+            if not optional and (isinstance(v, bool) or not isinstance(v, numbers.Real)):
                 raise ValueError(f"camera: {name} must be a number, got {v!r}")
         if not (np.isfinite(self.full_well) and self.full_well > 0 and np.isfinite(self.read_noise)
                 and self.read_noise >= 0 and 1 <= int(self.bits) <= 16):
@@ -129,7 +130,8 @@ class CameraModel:
             v = d.get(k)
             if v is not None and not (isinstance(v, (list, tuple)) and len(v) == 2 and all(
                     isinstance(r, (list, tuple)) and len(r) == 2 for r in v)):
-                raise ValueError(f"{k}: expected a 2x2 list such as {[[90, 45], [135, 0]] if k == 'layout' else [['R', 'G'], ['G', 'B']]}, got {v!r}")
+                example = [[90, 45], [135, 0]] if k == "layout" else [["R", "G"], ["G", "B"]]
+                raise ValueError(f"{k}: expected a 2x2 list such as {example}, got {v!r}")
         wl = d.get("white_level")
         if wl is not None and (isinstance(wl, bool) or not isinstance(wl, numbers.Real) or not np.isfinite(wl)
                                or wl <= 0):

@@ -33,7 +33,8 @@ import os
 from fmbrdf_mi.camera import sidecar_path
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.authors import read_object
-from fmbrdf_mi.fit.inputs.manifest import INPUT_KEYS, ImageSpec, check_entry, check_input, check_light, check_options, image_names
+from fmbrdf_mi.fit.inputs.manifest import (INPUT_KEYS, ImageSpec, check_entry, check_input, check_light,
+                                           check_options, image_names)
 from fmbrdf_mi.fit.outputs.joint import fitter
 from fmbrdf_mi.fit.outputs.record import jsonable, load, sha256, versions
 
