@@ -109,16 +109,75 @@ def _parameter_error(exc, where=None):
     return ParameterError(f"{where}: {msg}" if where else msg)
 
 
+_ALBEDOS = {"fmbrdf": ("k_s", "k_b", "r_k"), "orennayar": ("reflectance",)}
+_NUMBERS = {"fmbrdf": ("eta", "alpha", "beta", "kappa"), "orennayar": ("sigma",)}
+_WORDS = {"fmbrdf": ("tables",), "orennayar": ("form",)}
+
+
+def check_dict(d, where=""):
+    """Raise :class:`ParameterError` for a value Mitsuba would crash on or report with a traceback.
+
+    Anywhere in ``d`` (a scene or plugin dict): a ``None`` value (``mi.load_dict`` segfaults on it).
+    In an ``fmbrdf`` or ``orennayar`` dict: a scalar parameter that is not a number (a list, a word,
+    True) or NaN, an albedo that is not a number >= 0, a nested dict (texture, spectrum, rgb) or a
+    Mitsuba object, an option (``tables``, ``form``) that is not text.
+    """
+    import math
+    import numbers
+
+    from .params import check_albedo, check_scalar
+
+    if not isinstance(d, dict):
+        return
+    kind = d.get("type")
+    name = kind if isinstance(kind, str) else "load_dict"
+    at = f"{where}: " if where else ""
+    for k, v in d.items():
+        if v is None:
+            raise ParameterError(f"{at}{name}: '{k}' is None; give a value or leave the key out")
+        if isinstance(v, dict):
+            check_dict(v, f"{where}.{k}" if where else str(k))
+            continue
+        if kind in _NUMBERS and k in _NUMBERS[kind]:
+            if isinstance(v, (bool, list, tuple, dict)):
+                raise ParameterError(f"{at}{kind}: '{k}' must be a number, got {v!r}")
+            if kind == "fmbrdf" and isinstance(v, (numbers.Real, str)):
+                try:
+                    check_scalar(k, v)
+                except ParameterError as e:
+                    raise ParameterError(f"{at}{e}") from None
+            elif isinstance(v, (numbers.Real, str)):
+                try:
+                    x = float(v)
+                except ValueError:
+                    raise ParameterError(f"{at}{kind}: '{k}' must be a number, got {v!r}") from None
+                if not math.isfinite(x):
+                    raise ParameterError(f"{at}{kind}: '{k}' must be finite, got {v!r}")
+        elif kind in _ALBEDOS and k in _ALBEDOS[kind]:
+            if isinstance(v, (bool, str, list, tuple)):
+                raise ParameterError(f"{at}{kind}: '{k}' must be a number >= 0, {{'type': 'rgb', 'value': "
+                                     f"[r, g, b]}} or a texture, got {v!r}")
+            if isinstance(v, numbers.Real):
+                try:
+                    check_albedo(k, [float(v)])
+                except ParameterError as e:
+                    raise ParameterError(f"{at}{str(e).replace('fmbrdf:', f'{kind}:', 1)}") from None
+        elif kind in _WORDS and k in _WORDS[kind] and not isinstance(v, str):
+            raise ParameterError(f"{at}{kind}: '{k}' must be text, got {v!r}")
+
+
 def load_dict(d, *args, **kwargs):
     """``mi.load_dict`` that raises :class:`ParameterError` (one line) for a bad fmbrdf value.
 
     Mitsuba wraps every exception a plugin's constructor raises in a
     ``RuntimeError`` whose message holds the Python traceback, so a plain
     ``mi.load_dict`` cannot raise the documented type; this one unwraps it.
-    Other errors are passed on as Mitsuba raised them.
+    Values Mitsuba would crash on (None anywhere, which segfaults) or report
+    with a traceback are refused first (:func:`check_dict`).  Other errors are passed on as Mitsuba raised them.
     """
     import mitsuba as mi
 
+    check_dict(d)
     _register_current()
     try:
         return mi.load_dict(d, *args, **kwargs)

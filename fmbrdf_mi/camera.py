@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import numbers
 import os
 
 import numpy as np
@@ -61,6 +62,11 @@ class CameraModel:
     cfa: tuple = None                # colour filter per 2x2 polariser block (None: monochrome sensor)
 
     def __post_init__(self):
+        for name in ("full_well", "read_noise", "bits", "conversion_gain", "black_level"):
+            v = getattr(self, name)
+            optional = v is None and name == "conversion_gain"
+            if not optional and (isinstance(v, bool) or not isinstance(v, numbers.Real)):
+                raise ValueError(f"camera: {name} must be a number, got {v!r}")
         if not (np.isfinite(self.full_well) and self.full_well > 0 and np.isfinite(self.read_noise)
                 and self.read_noise >= 0 and 1 <= int(self.bits) <= 16):
             raise ValueError(f"camera: need full_well > 0, read_noise >= 0, bits in [1, 16]; got {self}")
@@ -69,9 +75,13 @@ class CameraModel:
             self.conversion_gain = self.full_well / self.levels
         if not (np.isfinite(self.conversion_gain) and self.conversion_gain > 0):
             raise ValueError(f"camera: conversion_gain must be > 0 electrons per DN, got {self.conversion_gain}")
-        if not (0 <= self.black_level < self.levels):
+        if not (np.isfinite(self.black_level) and 0 <= self.black_level < self.levels):
             raise ValueError(f"camera: black_level must be in [0, {self.levels}), got {self.black_level}")
-        self.layout = tuple(tuple(int(a) for a in row) for row in self.layout)
+        try:
+            self.layout = tuple(tuple(int(a) for a in row) for row in self.layout)
+        except (TypeError, ValueError):
+            raise ValueError(f"camera: layout: expected a 2x2 arrangement of the angles {polcam.ANGLES}, "
+                             f"got {self.layout!r}") from None
         polcam.check_layout(self.layout)
         if self.cfa is not None:
             self.cfa = polcam.check_cfa(self.cfa)
@@ -112,7 +122,20 @@ class CameraModel:
 
     @classmethod
     def from_dict(cls, d):
+        """A CameraModel from :meth:`to_dict`'s form; ValueError naming the key for a malformed one."""
         keys = {f.name for f in dataclasses.fields(cls)}
+        if not isinstance(d, dict):
+            raise ValueError(f"expected a table of camera settings ({', '.join(sorted(keys))}), got {d!r}")
+        for k in ("layout", "cfa"):
+            v = d.get(k)
+            if v is not None and not (isinstance(v, (list, tuple)) and len(v) == 2 and all(
+                    isinstance(r, (list, tuple)) and len(r) == 2 for r in v)):
+                example = [[90, 45], [135, 0]] if k == "layout" else [["R", "G"], ["G", "B"]]
+                raise ValueError(f"{k}: expected a 2x2 list such as {example}, got {v!r}")
+        wl = d.get("white_level")
+        if wl is not None and (isinstance(wl, bool) or not isinstance(wl, numbers.Real) or not np.isfinite(wl)
+                               or wl <= 0):
+            raise ValueError(f"white_level: expected a positive number (DN), got {wl!r}")
         return cls(**{k: (tuple(tuple(r) for r in v) if k in ("layout", "cfa") and v is not None else v) for k, v in d.items() if k in keys})
 
 
@@ -229,10 +252,12 @@ def read_sidecar(raw_path):
         raise ValueError(f"{path}: not a readable JSON sidecar ({exc})") from None
     if not isinstance(d, dict) or SIDECAR_KEY not in d:
         return None
+    if "sensor" not in d:
+        raise ValueError(f"{path}: sensor: missing (the camera settings of the capture)")
     try:
         d["sensor"] = CameraModel.from_dict(d["sensor"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: camera settings are malformed ({exc})") from None
+        raise ValueError(f"{path}: sensor: {str(exc).removeprefix('camera: ')}") from None
     d["path"] = path
     return d
 

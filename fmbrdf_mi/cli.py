@@ -183,6 +183,11 @@ BUILTIN_PARAMS = {
 }
 
 
+#: What an XML scene without a camera is told.
+NO_SENSOR = ("no <sensor> to render from; add a camera with a film, e.g. <sensor type=\"orthographic\"> "
+             "... <film type=\"hdrfilm\"> ... </sensor> (see scenes/sphere.xml)")
+
+
 def xml_parameters(path):
     """``({name: default text or None}, xml text)`` of an XML scene's parameters.
 
@@ -200,6 +205,8 @@ def xml_parameters(path):
         root = ET.fromstring(text)
     except ET.ParseError as e:
         raise CLIError(f"scene file {path}: not valid XML ({e})") from None
+    if next(root.iter("sensor"), None) is None and next(root.iter("include"), None) is None:
+        raise CLIError(f"scene file {path}: {NO_SENSOR}")
     found = {}
     for el in root.iter():
         for value in el.attrib.values():
@@ -448,6 +455,8 @@ def run_render(args):
             raise
         except Exception as e:
             raise CLIError(f"{args.scene}: {_mitsuba_message(e)}") from None
+        if not scene.sensors():
+            raise CLIError(f"scene file {args.scene}: {NO_SENSOR}")
         resolved = {}
         for k, v in declared.items():
             try:
@@ -591,6 +600,13 @@ def main(argv=None):
         print(f"{PROG} {args.command}: error: {_error_text(e)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
+        print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except RuntimeError as e:
+        from .interrupt import interrupted
+
+        if not interrupted(e) or os.environ.get("FMBRDF_MI_TRACEBACK"):
+            raise
         print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
         return 130
 

@@ -51,7 +51,11 @@ def stokes_from_angle_images(images, angles=ANGLES):
 
 
 def check_layout(layout):
-    flat = [a for row in layout for a in row]
+    try:
+        flat = [a for row in layout for a in row]
+        len(layout), [len(r) for r in layout]
+    except TypeError:
+        raise ValueError(f"layout: expected a 2x2 arrangement of the angles {ANGLES}, got {layout!r}") from None
     if len(layout) != 2 or any(len(r) != 2 for r in layout) or sorted(flat) != sorted(ANGLES):
         raise ValueError(f"layout: expected a 2x2 arrangement of the angles {ANGLES}, got {layout}")
     return flat

@@ -426,6 +426,8 @@ def render_stokes(scene, spp=None, seed=0, progress=True):
                          "use e.g. llvm_ad_spectral_polarized or llvm_ad_mono_polarized")
     from ._paths import check_render_size
 
+    if not scene.sensors():
+        raise ValueError("render_stokes: the scene has no sensor (camera) to render from")
     sensor = scene.sensors()[0]
     film = sensor.film()
     width, height = (int(x) for x in film.crop_size())

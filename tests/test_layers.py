@@ -30,7 +30,7 @@ FIT_LAYERS = ["errors", "camera", "inputs", "evaluate", "objectives", "problem",
 
 #: The package's top level, bottom first; a module or sub-package not listed fails the test.
 TOP_LAYERS = [
-    {"model", "params", "polcam", "stokes_io", "_llvm", "_paths"},
+    {"model", "params", "polcam", "stokes_io", "_llvm", "_paths", "interrupt"},
     {"bsdf", "oren_nayar_bsdf"},
     {"scene", "camera", "previews"},
     {"fit"},

@@ -404,8 +404,11 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
                              "not a loaded DatasetConfig")
         raw = None
         cfg = config
-    else:
+    elif isinstance(config, dict):
         raw = dict(config)
+    else:
+        raise DatasetConfigError(f"config: expected a .toml or .json file name, a dict or a DatasetConfig, "
+                                 f"got {config!r}")
     if raw is not None:
         if seed is not None:
             raw["seed"] = seed
@@ -413,6 +416,8 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
             raw["samples"] = samples
         cfg = load_config(raw, base_dir=base_dir)
     k, n_shards = parse_shard(shard)
+    if not isinstance(out, (str, os.PathLike)) or not os.fspath(out):
+        raise ValueError(f"out: expected a directory name, got {out!r}")
     out = os.fspath(out)
     from .._paths import check_output_dir
 
@@ -474,12 +479,16 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
             t_write += time.perf_counter() - t
             bar.step()
         t_render = time.perf_counter() - t_render
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, RuntimeError) as e:
+        from ..interrupt import interrupted
+
+        if not interrupted(e):
+            raise
         if progress:
             stream.write("\ndataset: interrupted; run the same command again to resume "
                          "(finished samples are kept)\n")
             stream.flush()
-        raise
+        raise KeyboardInterrupt from None
     finally:
         renderer.close()
         if lock is not None:

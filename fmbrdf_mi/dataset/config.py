@@ -366,6 +366,8 @@ class DatasetConfig:
     """A validated dataset configuration (see :func:`load_config`)."""
 
     def __init__(self, raw, base_dir="."):
+        if not isinstance(base_dir, (str, os.PathLike)):
+            raise DatasetConfigError(f"base_dir: expected a directory name, got {base_dir!r}")
         self.base_dir = os.path.abspath(base_dir)
         raw = _table("", raw, TOP_KEYS)
         if "samples" not in raw:
@@ -482,6 +484,8 @@ def _quat_matrix(q):
 
 def read_config_file(path):
     """The raw configuration data of a .toml or .json file."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise DatasetConfigError(f"config: expected a .toml or .json file name, got {path!r}")
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise DatasetConfigError(f"config {path}: no such file")
@@ -513,5 +517,8 @@ def load_config(config, base_dir=None):
         return config
     if isinstance(config, dict):
         return DatasetConfig(config, base_dir or ".")
+    if not isinstance(config, (str, os.PathLike)):
+        raise DatasetConfigError(f"config: expected a .toml or .json file name, a dict or a DatasetConfig, "
+                                 f"got {config!r}")
     path = os.fspath(config)
     return DatasetConfig(read_config_file(path), base_dir or os.path.dirname(os.path.abspath(path)))

@@ -211,3 +211,43 @@ def test_oren_nayar_ts_baseline_recovers_its_own_render(variant):
     for k, t in true.items():
         # render (pixel-area average, 32 spp) vs the fit's pixel centres: measured within 0.6 %
         assert est[k] == pytest.approx(t, rel=0.03), (k, est)
+
+
+# ---------------------------------------------------------------- issue 24: nonsense fitted with exit 0
+def _plain_obs(res=24):
+    from fmbrdf_mi.fit import Observation
+    from fmbrdf_mi.fit.inputs import observations as ob
+
+    n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
+    s = np.zeros((3, res, res))
+    s[0] = 0.1 + np.clip(n[..., 2], 0, None)
+    return Observation(s, m, n, v, LIGHT)
+
+
+@pytest.mark.parametrize("change,match", [
+    (lambda o: setattr(o, "irradiance", -1.0), "irradiance: must be a positive number"),
+    (lambda o: setattr(o, "irradiance", float("nan")), "irradiance"),
+    (lambda o: setattr(o, "normals", (o.normals + 1) / 2), r"unit length.*\[0, 1\]"),
+    (lambda o: setattr(o, "light_dir", np.array([0.0, 0.0, -1.0])), "below the horizon"),
+])
+def test_fit_refuses_an_observation_changed_after_it_was_built(change, match):
+    """Before: fit() fitted an Observation whose irradiance was set to -1 or whose normals were
+    replaced by their [0, 1] colours after construction, and returned estimates."""
+    from fmbrdf_mi.fit import fit
+    from fmbrdf_mi.fit.errors import InputError
+
+    obs = _plain_obs()
+    change(obs)
+    with pytest.raises(InputError, match=match):
+        fit(obs, max_iter=1, starts=1, progress=False)
+    with pytest.raises(InputError, match=r"image 1: .*" + match):
+        fit([_plain_obs(), obs], max_iter=1, starts=1, progress=False)
+
+
+def test_fit_refuses_options_that_are_not_fit_options():
+    """Before: TypeError from FitOptions' constructor (fit(obs, irradiance=-1))."""
+    from fmbrdf_mi.fit import fit
+    from fmbrdf_mi.fit.errors import InputError
+
+    with pytest.raises(InputError, match="unknown option.*irradiance.*Observation"):
+        fit(_plain_obs(), irradiance=-1, progress=False)

@@ -267,3 +267,161 @@ def test_find_sphere_radius_is_unbiased_over_subpixel_centres():
         assert worst_r < 0.25 and worst_c < 0.35, (r, worst_r, worst_c)
     for r, mean, se, worst_r, worst_c in measure([7, 20], 100, seed=12, cut=True):
         assert abs(mean) < 0.02 and worst_r < 0.25 and worst_c < 0.35, (r, mean, worst_r, worst_c)
+
+
+# ---------------------------------------------------------------- issue 24: bad values in manifests and sidecars
+def _fit_cli(capsys, *argv):
+    """``fmbrdf-mi fit ...`` in-process: (exit status, stderr)."""
+    from fmbrdf_mi.cli import main
+
+    rc = main(["fit", *argv])
+    return rc, capsys.readouterr().err
+
+
+def _one_line(rc, err, *words):
+    assert rc == 1, err
+    assert "Traceback" not in err, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("fmbrdf-mi fit: error: "), err
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+
+
+@pytest.mark.parametrize("where,entry,words", [
+    ("image", {"conversion_gain": "2.4", "read_noise": 2.5}, ["image 0: conversion_gain", "'2.4'", "(0, inf)"]),
+    ("image", {"conversion_gain": 2.4, "read_noise": "low"}, ["image 0: read_noise", "'low'"]),
+    ("image", {"light": [[0, 0, 1]]}, ["image 0: light", "3"]),
+    ("image", {"light": [0, 0, 0]}, ["image 0: light", "non-zero"]),
+    ("image", {"light": True}, ["image 0: light"]),
+    ("image", {"input": 5}, ["image 0: input", "file name"]),
+    ("image", {"input": ["a.png", "b.png"]}, ["image 0: input", "four"]),
+    ("image", {"irradiance": "bright"}, ["image 0: irradiance"]),
+    ("image", {"irradiance": -1}, ["image 0: irradiance", "(0, inf)"]),
+    ("image", {"irradiance": float("inf")}, ["image 0: irradiance", "finite"]),
+    ("image", {"power": "1"}, ["image 0: power"]),
+    ("image", {"power": float("nan")}, ["image 0: power"]),
+    ("image", {"white_level": float("nan")}, ["image 0: white_level", "finite"]),
+    ("image", {"black_level": -5}, ["image 0: black_level", "[0, inf)"]),
+    ("image", {"dark_level": "x"}, ["image 0: dark_level"]),
+    ("image", {"white_level": 100, "dark_level": 200}, ["dark_level 200 must be below white_level 100"]),
+    ("image", {"sphere": [1, 2]}, ["image 0: sphere", "3"]),
+    ("image", {"sphere": [8, 8, -3]}, ["image 0: sphere", "radius > 0"]),
+    ("image", {"sphere": 5}, ["image 0: sphere", "auto"]),
+    ("image", {"camera": 3}, ["image 0: camera", "orthographic, perspective"]),
+    ("image", {"camera": "perspective", "fov": "wide"}, ["image 0: fov", "(0, 180)"]),
+    ("image", {"fov": 180}, ["image 0: fov", "(0, 180)"]),
+    ("image", {"layout": [1, 2]}, ["image 0: layout", "four angles"]),
+    ("image", {"layout": [90, 45, 135, 10]}, ["image 0: layout", "2x2 arrangement"]),
+    ("image", {"demosaic": 5}, ["image 0: demosaic", "bilinear, superpixel"]),
+    ("image", {"footprint": [1]}, ["image 0: footprint", "auto, point, box, demosaic"]),
+    ("image", {"channel": 5}, ["image 0: channel"]),
+    ("image", {"normals": 5, "mask": "m.png"}, ["image 0: normals", "file name"]),
+    ("image", {"holdout": "yes"}, ["image 0: holdout"]),
+    ("image", {"name": [1]}, ["image 0: name"]),
+    ("defaults", {"conversion_gain": "2.4"}, ["defaults: conversion_gain", "'2.4'"]),
+    ("defaults", {"read_noise": float("nan")}, ["defaults: read_noise", "finite"]),
+    ("defaults", {"mask": ["m.png"]}, ["defaults: mask", "file name"]),
+])
+def test_manifest_values_of_the_wrong_type_or_range_are_one_line(tmp_path, capsys, where, entry, words):
+    """Before: TypeError tracebacks from inside the fit (conversion_gain "2.4", light [[0, 0, 1]],
+    input 5, layout [1, 2], footprint [1]) or a fit of nonsense with exit 0 (white_level nan,
+    black_level -5)."""
+    import json
+
+    image = {"input": "a.png", "light": [0, 0, 1]}
+    d = {"image": [dict(image, **entry), image]} if where == "image" else {"defaults": entry, "image": [image]}
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(d))
+    from fmbrdf_mi.fit.inputs.manifest import read_manifest
+
+    with pytest.raises(InputError) as e:
+        read_manifest(path)
+    assert str(e.value).startswith(f"{path}: ")
+    rc, err = _fit_cli(capsys, "--manifest", str(path), "-o", str(tmp_path / "out"))
+    _one_line(rc, err, str(path), *words)
+    assert not (tmp_path / "out").exists()
+
+
+def test_manifest_layout_as_a_list_is_accepted(tmp_path):
+    from fmbrdf_mi.fit.inputs.manifest import parse_manifest
+
+    d = {"defaults": {"layout": [[0, 45], [135, 90]]}, "image": [{"input": "a.png", "layout": [90, 45, 135, 0]}]}
+    spec, = parse_manifest(d, str(tmp_path))
+    assert spec.options["layout"] == "90,45,135,0"
+    spec, = parse_manifest({"defaults": d["defaults"], "image": [{"input": "a.png"}]}, str(tmp_path))
+    assert spec.options["layout"] == "0,45,135,90"
+
+
+def _capture(tmp_path, builtin=False):
+    """A 16 x 16 raw PNG with its capture sidecar (what ``fmbrdf-mi render --raw`` writes)."""
+    from PIL import Image
+
+    from fmbrdf_mi import camera as C
+
+    raw = np.random.default_rng(0).integers(100, 3000, (16, 16)).astype(np.uint16)
+    path = tmp_path / "cap_raw.png"
+    Image.fromarray(raw).save(path)
+    extra = {}
+    if builtin:
+        extra = {"scene": "builtin:sphere", "capture": {"dn_per_input_unit": 100.0},
+                 "parameters": {"width": 16, "height": 16, "camera": "orthographic", "fov": 25.0,
+                                "distance": 5.0, "light_dir": [0.0, 0.0, 1.0], "irradiance": 3.14}}
+    C.write_sidecar(path, C.CameraModel(), extra)
+    return path
+
+
+@pytest.mark.parametrize("change,words", [
+    (lambda d: d.update(sensor=[1, 2]), ["sensor", "table of camera settings"]),
+    (lambda d: d.pop("sensor"), ["sensor", "missing"]),
+    (lambda d: d["sensor"].update(full_well="big"), ["sensor", "full_well", "number"]),
+    (lambda d: d["sensor"].update(read_noise=None), ["sensor", "read_noise", "number"]),
+    (lambda d: d["sensor"].update(conversion_gain="2.4"), ["sensor", "conversion_gain", "number"]),
+    (lambda d: d["sensor"].update(bits=[12]), ["sensor", "bits"]),
+    (lambda d: d["sensor"].update(black_level=float("nan")), ["sensor", "black_level"]),
+    (lambda d: d["sensor"].update(white_level="max"), ["sensor", "white_level", "positive number"]),
+    (lambda d: d["sensor"].update(layout=5), ["sensor", "layout", "2x2"]),
+    (lambda d: d["sensor"].update(layout=[["a", "b"], ["c", "d"]]), ["sensor", "layout", "2x2"]),
+    (lambda d: d["parameters"].update(width="x"), ["metadata", "malformed"]),
+    (lambda d: d.update(parameters=5), ["metadata", "malformed"]),
+    (lambda d: d["parameters"].pop("camera"), ["metadata", "missing 'camera'"]),
+    (lambda d: d["parameters"].update(irradiance=-1), ["parameters.irradiance"]),
+    (lambda d: d.update(capture=[1]), ["capture", "table"]),
+    (lambda d: d["capture"].update(dn_per_input_unit="x"), ["capture.dn_per_input_unit"]),
+])
+def test_sidecar_values_of_the_wrong_type_are_one_line(tmp_path, capsys, change, words):
+    """Before: AttributeError (sensor [1, 2]), ValueError texts naming no file, TypeError
+    tracebacks (parameters 5, capture [1]); sidecar white_level "max" was ignored."""
+    import json
+
+    raw = _capture(tmp_path, builtin=True)
+    side = tmp_path / "cap_raw.json"
+    d = json.loads(side.read_text())
+    change(d)
+    side.write_text(json.dumps(d))
+    rc, err = _fit_cli(capsys, str(raw), "-o", str(tmp_path / "out"), "--max-iter", "1")
+    _one_line(rc, err, "cap_raw.json", *words)
+    assert not (tmp_path / "out" / "fit.json").exists()
+
+
+@pytest.mark.parametrize("how", ["cli", "manifest", "sidecar"])
+def test_black_level_above_every_sample_is_refused(tmp_path, capsys, how):
+    """Before: --black-level 70000 (every sample below it) fitted nonsense and exited 0."""
+    import json
+
+    raw = _capture(tmp_path, builtin=True)
+    out = tmp_path / "out"
+    if how == "cli":
+        argv = [str(raw), "--black-level", "70000"]
+    elif how == "manifest":
+        (tmp_path / "m.json").write_text(json.dumps({"defaults": {"black_level": 70000},
+                                                     "image": [{"input": str(raw)}, {"input": str(raw)}]}))
+        argv = ["--manifest", str(tmp_path / "m.json")]
+    else:
+        side = tmp_path / "cap_raw.json"
+        d = json.loads(side.read_text())
+        d["sensor"].update(bits=16, black_level=65000)
+        side.write_text(json.dumps(d))
+        argv = [str(raw)]
+    rc, err = _fit_cli(capsys, *argv, "-o", str(out), "--max-iter", "1")
+    _one_line(rc, err, "black_level", "at or above every sample", "no usable samples")
+    assert not (out / "fit.json").exists()

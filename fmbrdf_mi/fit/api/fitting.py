@@ -120,6 +120,11 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     every model evaluation) returns the latest accepted estimate with
     ``converged=False`` and no standard errors.
     """
+    fields = [f.name for f in dataclasses.fields(FitOptions)]
+    unknown = [k for k in kw if k not in fields]
+    if unknown:
+        raise InputError(f"fit(): unknown option(s) {', '.join(unknown)} (FitOptions: {', '.join(fields)}; the "
+                         "light, irradiance, geometry and noise are the Observation's)")
     if isinstance(obs, (list, tuple)):
         return _fit_images(obs, options, names=names, progress=progress, powers=powers, **kw)
     opts = dataclasses.replace(options or FitOptions(), **kw)

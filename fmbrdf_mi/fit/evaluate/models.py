@@ -189,6 +189,8 @@ BASELINES = ("pplastic", "lambert_ts", "oren_nayar_ts")
 
 
 def get_model(name):
+    if not isinstance(name, str):
+        raise ValueError(f"model: expected one of {sorted(MODELS)}, got {name!r}")
     try:
         return MODELS[name]
     except KeyError:

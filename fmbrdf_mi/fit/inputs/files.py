@@ -14,7 +14,13 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.observations import (Observation, SphereGeometry, check_direction, downsample_geometry,
                                                find_sphere, geometry_from_sphere, load_polarisation, pixel_rays,
                                                read_mask, read_vectors)
-from fmbrdf_mi.fit.inputs.parse import parse_layout, parse_vector
+from fmbrdf_mi.fit.inputs.parse import check_number, parse_layout, parse_vector
+
+#: Ranges of the numeric options of :func:`build_observation`: (low, low included, high, high included).
+NUMBER_OPTIONS = {"irradiance": (0.0, False, None, True), "black_level": (0.0, True, None, True),
+                  "white_level": (0.0, False, None, True), "dark_level": (0.0, True, None, True),
+                  "conversion_gain": (0.0, False, None, True), "read_noise": (0.0, True, None, True),
+                  "fov": (0.0, False, 180.0, False)}
 
 
 def _builtin_sphere(meta):
@@ -65,6 +71,10 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     geometry and light.  ``meta["settings"]`` records what was used.
     """
 
+    given = {"irradiance": irradiance, "black_level": black_level, "white_level": white_level,
+             "dark_level": dark_level, "conversion_gain": conversion_gain, "read_noise": read_noise, "fov": fov}
+    for key, (lo, lo_incl, hi, hi_incl) in NUMBER_OPTIONS.items():
+        check_number(key, given[key], lo=lo, lo_incl=lo_incl, hi=hi, hi_incl=hi_incl)
     sidecar = None
     if isinstance(inputs, (str, os.PathLike)) and not os.fspath(inputs).lower().endswith(".exr"):
         try:
@@ -90,11 +100,28 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     stokes, meta = load_polarisation(inputs, layout=layout, channel=channel, black_level=black_level,
                                      demosaic=demosaic)
     array = meta.pop("_array", None)
+    if array is not None and np.size(array) and black_level >= float(np.max(array)):
+        name = os.fspath(inputs) if isinstance(inputs, (str, os.PathLike)) else "the angle images"
+        raise InputError(f"black_level {black_level:g}: at or above every sample of {name} (the largest is "
+                         f"{float(np.max(array)):g}): no usable samples; the black level is the raw value of no "
+                         "light (--black-level, the manifest's or the capture sidecar's black_level)")
     if sidecar is not None:
         meta.update({k: v for k, v in sidecar.items() if k not in ("sensor", "path", C.SIDECAR_KEY)})
         meta["sidecar"] = sidecar["path"]
     shape = stokes.shape[1:]
-    builtin = _builtin_sphere(meta) if (normals is None and sphere is None and geometry is None) else None
+    source = meta.get("sidecar") or (os.fspath(inputs) if isinstance(inputs, (str, os.PathLike)) else "input")
+    try:
+        builtin = _builtin_sphere(meta) if (normals is None and sphere is None and geometry is None) else None
+        capture = meta.get("capture", {})
+        dn_per_unit = check_number("capture.dn_per_input_unit", capture.get("dn_per_input_unit", 1.0),
+                                   lo=0.0, lo_incl=False) if isinstance(capture, dict) else None
+        if dn_per_unit is None:
+            raise InputError(f"capture: expected a table, got {capture!r}")
+        if builtin is not None:
+            check_number("parameters.irradiance", builtin["irradiance"], lo=0.0, lo_incl=False)
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise InputError(f"{source}: the metadata of fmbrdf-mi render are malformed ({what})") from None
     exact = None
     if builtin is not None:
         n, m, v = builtin["normals"], builtin["mask"], builtin["view_dirs"]
@@ -104,7 +131,7 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
         light = builtin["light_dir"] if light is None else light
         if irradiance is None:
             # a raw capture's DN are the Stokes image's units times the capture's DN per unit
-            irradiance = builtin["irradiance"] * float(meta.get("capture", {}).get("dn_per_input_unit", 1.0))
+            irradiance = builtin["irradiance"] * dn_per_unit
         meta = dict(meta, truth=builtin["truth"])
         if n.shape[:2] != shape:
             raise InputError(f"{inputs}: metadata describe a {n.shape[1]}x{n.shape[0]} image, the file is "
@@ -169,6 +196,8 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                                      adc_step_e=float(conversion_gain) if src in ("raw mosaic", "angle images")
                                      else None)
 
+    if not isinstance(footprint, str):
+        raise InputError(f"footprint: expected auto, point, box or demosaic, got {footprint!r}")
     if footprint == "auto":
         footprint = "demosaic" if meta.get("source") == "raw mosaic" else "point"
     fp = {"point": lambda: None, "box": lambda: box_footprint(3),

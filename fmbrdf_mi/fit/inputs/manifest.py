@@ -10,7 +10,8 @@ import numpy as np
 
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.files import build_observation
-from fmbrdf_mi.fit.inputs.parse import parse_vector
+from fmbrdf_mi.fit.inputs.observations import check_direction
+from fmbrdf_mi.fit.inputs.parse import check_number, parse_layout, parse_vector
 
 #: Options an image entry (or [defaults]) may give: :func:`fmbrdf_mi.fit.inputs.files.build_observation`'s.
 INPUT_KEYS = ("normals", "mask", "view", "sphere", "camera", "fov", "irradiance", "layout", "black_level",
@@ -21,6 +22,102 @@ PATH_KEYS = ("input", "normals", "mask", "view")
 
 
 ENTRY_KEYS = ("input", "light", "power", "holdout", "name") + INPUT_KEYS
+
+
+#: Numeric options: (low, low included, high, high included).
+NUMBER_KEYS = {"irradiance": (0.0, False, None, True), "black_level": (0.0, True, None, True),
+               "white_level": (0.0, False, None, True), "dark_level": (0.0, True, None, True),
+               "conversion_gain": (0.0, False, None, True), "read_noise": (0.0, True, None, True),
+               "fov": (0.0, False, 180.0, False)}
+
+#: Options that take one of a few words.
+CHOICE_KEYS = {"camera": ("orthographic", "perspective"), "demosaic": ("bilinear", "superpixel"),
+               "footprint": ("auto", "point", "box", "demosaic")}
+
+
+def _is_path(v):
+    return isinstance(v, str) and v != ""
+
+
+def check_options(opts, where):
+    """The input options of one image (or of [defaults]) with their types and ranges checked.
+
+    Raises :class:`InputError` naming ``where`` and the key, with what is valid, for a value of the
+    wrong type (``conversion_gain = "2.4"``), NaN, an infinity or one out of range; returns the options
+    with a layout given as a list turned into its text form (``"90,45,135,0"``).
+    """
+    out = dict(opts)
+    for key, v in opts.items():
+        if v is None:
+            continue
+        name = f"{where}: {key}"
+        if key in NUMBER_KEYS:
+            lo, lo_incl, hi, hi_incl = NUMBER_KEYS[key]
+            check_number(name, v, lo=lo, lo_incl=lo_incl, hi=hi, hi_incl=hi_incl)
+        elif key in CHOICE_KEYS:
+            if not isinstance(v, str) or v not in CHOICE_KEYS[key]:
+                raise InputError(f"{name}: expected one of {', '.join(CHOICE_KEYS[key])}, got {v!r}")
+        elif key in ("normals", "mask", "view"):
+            if not _is_path(v):
+                raise InputError(f"{name}: expected a file name (text), got {v!r}")
+        elif key == "channel":
+            if not isinstance(v, str):
+                raise InputError(f"{name}: expected mean, R, G or B, got {v!r}")
+        elif key == "sphere":
+            if v != "auto":
+                if isinstance(v, bool) or not isinstance(v, (str, list, tuple)):
+                    raise InputError(f"{name}: expected auto, \"cx,cy,r\" or [cx, cy, r] (pixels), got {v!r}")
+                cx, cy, r = parse_vector(v, f"{name} (cx,cy,r in pixels)")
+                if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r) and r > 0):
+                    raise InputError(f"{name}: expected a finite centre and a radius > 0 (pixels), got {v!r}")
+        elif key == "layout":
+            flat = v
+            if isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(r, (list, tuple)) for r in v):
+                flat = [a for r in v for a in r]
+            if isinstance(flat, (list, tuple)):
+                if len(flat) != 4 or any(isinstance(a, bool) or not isinstance(a, int) for a in flat):
+                    raise InputError(f"{name}: expected four angles in degrees (row-major 2x2) such as "
+                                     f"\"90,45,135,0\" or [90, 45, 135, 0], got {v!r}")
+                flat = ",".join(str(a) for a in flat)
+            if not isinstance(flat, str):
+                raise InputError(f"{name}: expected four angles in degrees (row-major 2x2) such as "
+                                 f"\"90,45,135,0\", got {v!r}")
+            try:
+                parse_layout(flat)
+            except InputError as exc:
+                raise InputError(f"{where}: {exc}") from None
+            out[key] = flat
+    if opts.get("white_level") is not None and opts.get("dark_level") is not None \
+            and not opts["dark_level"] < opts["white_level"]:
+        raise InputError(f"{where}: dark_level {opts['dark_level']:g} must be below white_level "
+                         f"{opts['white_level']:g}")
+    return out
+
+
+def check_input(v, where):
+    """An image's ``input``: a file name or a list of one or four (angle images 0, 45, 90, 135)."""
+    if _is_path(v) or (isinstance(v, list) and len(v) in (1, 4) and all(_is_path(x) for x in v)):
+        return v
+    raise InputError(f"{where}: input: expected a file name or a list of four angle-image file names, got {v!r}")
+
+
+def check_light(v, where):
+    """An image's ``light``: three numbers (a list or \"x,y,z\"), or None (from the input's metadata)."""
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (str, list, tuple)):
+        raise InputError(f"{where}: light: expected [x, y, z] (towards the light, camera frame), got {v!r}")
+    return check_direction(parse_vector(v, f"{where}: light"), f"{where}: light")
+
+
+def check_entry(power, holdout, name, where):
+    """An image's ``power`` (a positive number), ``holdout`` (true or false) and ``name`` (text or None)."""
+    if isinstance(power, bool) or not isinstance(power, (int, float)) or not (np.isfinite(power) and power > 0):
+        raise InputError(f"{where}: power must be a positive number, got {power!r}")
+    if not isinstance(holdout, bool):
+        raise InputError(f"{where}: holdout must be true or false")
+    if name is not None and (isinstance(name, bool) or not isinstance(name, (str, int))):
+        raise InputError(f"{where}: name: expected text, got {name!r}")
 
 
 @dataclasses.dataclass
@@ -71,6 +168,7 @@ def parse_manifest(d, base=".", where="manifest"):
     bad = [k for k in defaults if k not in INPUT_KEYS]
     if bad:
         raise InputError(f"{where}: defaults: unknown key(s) {', '.join(bad)} (valid: {', '.join(INPUT_KEYS)})")
+    defaults = check_options(defaults, f"{where}: defaults")
     entries = d.get("image", d.get("images"))
     if not isinstance(entries, list) or not entries:
         raise InputError(f"{where}: no images (give [[image]] entries with input and light)")
@@ -89,15 +187,14 @@ def parse_manifest(d, base=".", where="manifest"):
         bad = [x for x in e if x not in ENTRY_KEYS]
         if bad:
             raise InputError(f"{where}: image {k}: unknown key(s) {', '.join(bad)} (valid: {', '.join(ENTRY_KEYS)})")
-        opts = {**defaults, **{x: e[x] for x in INPUT_KEYS if x in e}}
+        check_input(e["input"], f"{where}: image {k}")
+        check_light(e.get("light"), f"{where}: image {k}")
+        check_entry(e.get("power", 1.0), e.get("holdout", False), e.get("name"), f"{where}: image {k}")
+        opts = {**defaults, **check_options({x: e[x] for x in INPUT_KEYS if x in e}, f"{where}: image {k}")}
         for x in PATH_KEYS[1:]:
             if x in opts and isinstance(opts[x], (str, list)):
                 opts[x] = rel(opts[x])
         power = e.get("power", 1.0)
-        if isinstance(power, bool) or not isinstance(power, (int, float)) or not (np.isfinite(power) and power > 0):
-            raise InputError(f"{where}: image {k}: power must be a positive number, got {power!r}")
-        if not isinstance(e.get("holdout", False), bool):
-            raise InputError(f"{where}: image {k}: holdout must be true or false")
         specs.append(ImageSpec(rel(e["input"]), e.get("light"), float(power), bool(e.get("holdout", False)),
                                e.get("name"), opts))
     return specs

@@ -14,16 +14,45 @@ def parse_vector(text, name, n=3):
         except ValueError:
             raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}") from None
     else:
-        vals = [float(x) for x in text]
+        try:
+            vals = [float(x) for x in text]
+        except (TypeError, ValueError):  # nested lists, None, words: not n numbers
+            raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}") from None
     if len(vals) != n:
         raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}")
     return vals
+
+
+def check_number(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True):
+    """``value`` as a float if it is a finite real number in the range, else InputError naming ``name``.
+
+    Refuses what arrives as text or a list from a manifest, a sidecar or a fit.json (``"2.4"``,
+    ``[1]``, ``true``) as well as NaN and infinities; None is passed through.
+    """
+    import math
+    import numbers
+
+    if value is None:
+        return None
+    rng = (f"{'[' if lo_incl else '('}{'-inf' if lo is None else f'{lo:g}'}, "
+           f"{'inf' if hi is None else f'{hi:g}'}{']' if hi_incl and hi is not None else ')'}")
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise InputError(f"{name}: expected a number in {rng}, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v) or (lo is not None and (v < lo if lo_incl else v <= lo)) \
+            or (hi is not None and (v > hi if hi_incl else v >= hi)):
+        raise InputError(f"{name}: expected a finite number in {rng}, got {value!r}")
+    return v
 
 
 def parse_bounds(items):
     """``["alpha=0.05:0.5", ...]`` -> {"alpha": (0.05, 0.5)}."""
     if isinstance(items, dict) or items is None:
         return items
+    if isinstance(items, str):
+        items = [items]
+    if not isinstance(items, (list, tuple)):
+        raise InputError(f"--bounds: expected NAME=LO:HI items, e.g. alpha=0.05:0.5, got {items!r}")
     out = {}
     for item in items:
         name, sep, rng = str(item).partition("=")
@@ -56,7 +85,9 @@ def parse_fixed(items):
     """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (shape parameters held fixed)."""
     if isinstance(items, dict) or items is None:
         return items
-    items = [items] if isinstance(items, str) else list(items)
+    if not isinstance(items, (str, list, tuple)):
+        raise InputError(f"--fix: expected NAME=VALUE items, e.g. kappa=0, got {items!r}")
+    items = [items] if isinstance(items, str) else [str(x) for x in items]
     out = {}
     for item in ",".join(items).split(","):
         name, sep, value = item.partition("=")

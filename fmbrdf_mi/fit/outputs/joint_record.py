@@ -33,7 +33,8 @@ import os
 from fmbrdf_mi.camera import sidecar_path
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.authors import read_object
-from fmbrdf_mi.fit.inputs.manifest import ImageSpec, image_names
+from fmbrdf_mi.fit.inputs.manifest import (INPUT_KEYS, ImageSpec, check_entry, check_input, check_light,
+                                           check_options, image_names)
 from fmbrdf_mi.fit.outputs.joint import fitter
 from fmbrdf_mi.fit.outputs.record import jsonable, load, sha256, versions
 
@@ -157,14 +158,36 @@ def rerun(path, out, *, force=False, progress=True, command=None):
         raise InputError(f"--from {path}: not the record of a joint fit")
     check_files(path, rep)
     fit_kw = dict(rep["arguments"])
+    unknown = [k for k in fit_kw if k not in FIT_KEYS]
+    if unknown:
+        raise InputError(f"--from {path}: reproduce.arguments: unknown key(s) {', '.join(map(str, unknown))} "
+                         f"(valid for a joint fit: {', '.join(FIT_KEYS)})")
     info = None
     try:
         if joint["kind"] == "authors":
             a = dict(joint["authors"])
+            bad = [k for k in a if k not in AUTHORS_KEYS + ("root",)]
+            if bad:
+                raise InputError(f"--from {path}: reproduce.joint.authors: unknown key(s) {', '.join(bad)} "
+                                 f"(valid: root, {', '.join(AUTHORS_KEYS)})")
             specs, info = read_object(a.pop("root"), **a)
         else:
-            specs = [ImageSpec(**im["spec"]) for im in joint["images"]]
-    except (KeyError, TypeError) as exc:
+            specs = []
+            for k, im in enumerate(joint["images"]):
+                where = f"--from {path}: reproduce.joint.images[{k}].spec"
+                spec = ImageSpec(**im["spec"])
+                check_input(spec.input, where)
+                check_light(spec.light, where)
+                check_entry(spec.power, spec.holdout, spec.name, where)
+                if not isinstance(spec.options, dict):
+                    raise InputError(f"{where}: options: expected a table, got {spec.options!r}")
+                bad = [x for x in spec.options if x not in INPUT_KEYS]
+                if bad:
+                    raise InputError(f"{where}: options: unknown key(s) {', '.join(map(str, bad))} "
+                                     f"(valid: {', '.join(INPUT_KEYS)})")
+                spec.options = check_options(spec.options, f"{where}: options")
+                specs.append(spec)
+    except (KeyError, TypeError, AttributeError) as exc:
         raise InputError(f"--from {path}: the joint-fit record is incomplete ({exc})") from None
     authors = {k: v for k, v in (joint.get("authors") or {}).items() if k != "root"}
     names = image_names(specs)

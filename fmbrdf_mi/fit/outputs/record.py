@@ -27,6 +27,12 @@ ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "li
              "relight_light", "relight_irradiance", "area_points")
 
 
+#: The arguments of :func:`fmbrdf_mi.fit.outputs.colour.fit_colour_files` among them (a colour fit's record).
+COLOUR_ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "light", "irradiance",
+                    "black_level", "white_level", "conversion_gain", "read_noise", "model", "bounds", "fixed",
+                    "max_time", "max_iter", "max_pixels", "erode", "seed", "starts")
+
+
 def sha256(path):
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -105,6 +111,11 @@ def load(path):
     rep = d.get("reproduce") if isinstance(d, dict) else None
     if not isinstance(rep, dict) or "arguments" not in rep:
         raise InputError(f"--from {path}: no 'reproduce' block (written by an older fmbrdf-mi?)")
+    if not isinstance(rep["arguments"], dict):
+        raise InputError(f"--from {path}: reproduce.arguments: expected a table of the fit's options, "
+                         f"got {rep['arguments']!r}")
+    if not isinstance(rep.get("files_sha256", {}), dict):
+        raise InputError(f"--from {path}: reproduce.files_sha256: expected a table of file: SHA-256")
     return rep
 
 
@@ -112,10 +123,29 @@ def rerun_arguments(path):
     """fit_files arguments recorded in ``path``; checks that the input files are unchanged."""
     rep = load(path)
     args = dict(rep["arguments"])
+    with open(path) as f:
+        colour = json.load(f).get("sensor") == "colour"
+    valid = COLOUR_ARGUMENTS if colour else ARGUMENTS
+    if "inputs" not in args and "joint" not in rep:
+        raise InputError(f"--from {path}: reproduce has no 'joint' block (a joint fit) and no arguments.inputs "
+                         "(a single-image fit): the record is incomplete")
+    unknown = [k for k in args if k not in valid]
+    if unknown:
+        raise InputError(f"--from {path}: reproduce.arguments: unknown key(s) {', '.join(map(str, unknown))} "
+                         f"(valid: {', '.join(valid)})")
     bad = [k for k, v in args.items() if isinstance(v, dict) and "not_recorded" in v]
     if bad:
         raise InputError(f"--from {path}: arguments {', '.join(bad)} were arrays, not files; cannot rerun")
+    for key in ("inputs", "normals", "mask", "view", "relight"):
+        v = args.get(key)
+        paths = v if isinstance(v, list) else [v]
+        if (v is None and key != "inputs") or (paths and all(isinstance(p, str) and p for p in paths)):
+            continue
+        raise InputError(f"--from {path}: reproduce.arguments.{key}: expected a file name or a list of file "
+                         f"names, got {v!r}")
     cwd = rep.get("cwd")
+    if cwd is not None and not isinstance(cwd, str):
+        raise InputError(f"--from {path}: reproduce.cwd: expected the directory the fit ran in, got {cwd!r}")
     for p, digest in rep.get("files_sha256", {}).items():
         if not os.path.isfile(p):
             raise InputError(f"--from {path}: input {p} no longer exists")

@@ -81,7 +81,8 @@ class SingleImage(FitJob):
         check_fit_options(model=a["model"], optimizer=a["optimizer"], path=a["path"], bounds=parse_bounds(a["bounds"]),
                           init=parse_init(a["init"]), max_iter=a["max_iter"], tol=a["tol"],
                           time_limit=a["time_limit"], max_time=a["max_time"], max_pixels=a["max_pixels"],
-                          erode=a["erode"], seed=a["seed"], area_points=a["area_points"])
+                          erode=a["erode"], seed=a["seed"], area_points=a["area_points"], starts=a["starts"],
+                          loss=a["loss"], fixed=parse_fixed(a["fixed"]))
 
     def files(self):
         self.outs = output_files(self.out, self.a["relight"])

@@ -20,6 +20,7 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
+from fmbrdf_mi.fit.inputs.observations import validate
 from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective, PaperObjective
@@ -41,7 +42,11 @@ def select_pixels(obs, opts, use_samples=True):
     With raw samples (:attr:`Observation.samples`), super-pixels with a
     sample at or above the white level or at or below the dark level are
     excluded (:mod:`fmbrdf_mi.fit.camera.samples`) and counted.
+
+    The observation is validated again first: one changed after it was built
+    (``obs.irradiance = -1``, ``obs.normals = colours``) is refused as at construction.
     """
+    validate(obs)
     m = erode_mask(obs.mask, opts.erode)
     n = obs.normals
     cos_v = np.sum(n * obs.view_dirs, axis=-1)

@@ -1,0 +1,80 @@
+"""Issue 24: an edited fit.json given to ``fmbrdf-mi fit --from fit.json -o DIR`` is refused in one line
+naming the file and the key (record.rerun_arguments, joint_record.rerun); before, unknown keys, wrong
+types and a removed ``joint`` block ended in TypeError tracebacks.  No fit runs here: every record is
+refused before one would start."""
+import json
+
+import numpy as np
+import pytest
+
+from fmbrdf_mi.cli import main
+
+
+def _record(tmp_path, joint=False):
+    np.save(tmp_path / "raw.npy", np.full((16, 16), 100.0))
+    if not joint:
+        args = {"inputs": str(tmp_path / "raw.npy"), "sphere": "8,8,6", "light": [0, 0, 1], "model": "fmbrdf",
+                "max_iter": 1, "starts": 1}
+        return {"reproduce": {"command": "fmbrdf-mi fit ...", "cwd": str(tmp_path), "arguments": args,
+                              "files_sha256": {}}}
+    spec = {"input": str(tmp_path / "raw.npy"), "light": [0, 0, 1], "power": 1.0, "holdout": False, "name": "a",
+            "options": {"sphere": "8,8,6"}}
+    images = [{"name": n, "spec": dict(spec, name=n)} for n in ("a", "b")]
+    return {"reproduce": {"command": "fmbrdf-mi fit ...", "cwd": str(tmp_path),
+                          "arguments": {"model": "fmbrdf", "max_iter": 1, "free_power": False},
+                          "joint": {"kind": "manifest", "images": images}, "files_sha256": {}}}
+
+
+def _set(d, key, value):
+    *path, last = key.split(".")
+    for p in path:
+        d = d[int(p)] if p.isdigit() else d[p]
+    if value is KeyError:
+        del d[last]
+    else:
+        d[last] = value
+
+
+@pytest.mark.parametrize("joint,key,value,words", [
+    (False, "reproduce.arguments.bogus", 1, ["reproduce.arguments: unknown key(s) bogus", "valid: inputs"]),
+    (False, "reproduce.arguments.inputs", 5, ["reproduce.arguments.inputs", "file name", "5"]),
+    (False, "reproduce.arguments.inputs", KeyError, ["no 'joint' block", "arguments.inputs"]),
+    (False, "reproduce.arguments.mask", [1], ["reproduce.arguments.mask", "file name"]),
+    (False, "reproduce.arguments", 5, ["reproduce.arguments: expected a table"]),
+    (False, "reproduce.cwd", 5, ["reproduce.cwd"]),
+    (False, "reproduce.files_sha256", [1], ["reproduce.files_sha256"]),
+    (False, "reproduce.arguments.model", [1], ["model", "fmbrdf"]),
+    (False, "reproduce.arguments.starts", [1], ["starts", "integer"]),
+    (False, "reproduce.arguments.bounds", 5, ["--bounds", "NAME=LO:HI"]),
+    (False, "reproduce.arguments.fixed", 5, ["--fix", "NAME=VALUE"]),
+    (False, "reproduce.arguments.layout", 5, ["layout", "2x2"]),
+    (False, "reproduce.arguments.conversion_gain", "2.4", ["conversion_gain"]),
+    (True, "reproduce.joint", KeyError, ["no 'joint' block", "arguments.inputs"]),
+    (True, "reproduce.arguments.bogus", 1, ["reproduce.arguments: unknown key(s) bogus", "joint fit"]),
+    (True, "reproduce.joint.images", 5, ["joint-fit record is incomplete"]),
+    (True, "reproduce.joint.images.0.spec.input", 5, ["reproduce.joint.images[0].spec: input", "file name"]),
+    (True, "reproduce.joint.images.0.spec.light", [[0, 0, 1]], ["reproduce.joint.images[0].spec: light"]),
+    (True, "reproduce.joint.images.0.spec.power", "x", ["reproduce.joint.images[0].spec: power"]),
+    (True, "reproduce.joint.images.0.spec.holdout", "no", ["reproduce.joint.images[0].spec: holdout"]),
+    (True, "reproduce.joint.images.0.spec.options", 5, ["reproduce.joint.images[0].spec: options"]),
+    (True, "reproduce.joint.images.0.spec.options.bogus", 1, ["options: unknown key(s) bogus"]),
+    (True, "reproduce.joint.images.0.spec.options.conversion_gain", "2.4",
+     ["reproduce.joint.images[0].spec: options: conversion_gain", "'2.4'"]),
+])
+def test_edited_fit_json_is_refused_in_one_line(tmp_path, capsys, joint, key, value, words):
+    d = _record(tmp_path, joint)
+    _set(d, key, value)
+    path = tmp_path / "fit.json"
+    path.write_text(json.dumps(d))
+    rc = main(["fit", "--from", str(path), "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 1, err
+    assert "Traceback" not in err, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("fmbrdf-mi fit: error: "), err
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+    if key.startswith("reproduce.arguments") and key.split(".")[-1] in ("bogus", "inputs", "mask", "arguments") \
+            or "joint" in key or key in ("reproduce.cwd", "reproduce.files_sha256"):
+        assert str(path) in lines[0]
+    assert not (tmp_path / "out" / "fit.json").exists()
