@@ -91,7 +91,10 @@ def test_joint_fisher_information_is_the_sum_of_the_images(variant):
     d = np.sqrt(np.outer(np.diag(F_sum), np.diag(F_sum)))
     assert np.abs(F_joint - F_sum).max() / d.max() < 1e-5
     _, cov, info = U.covariance(pb, st, J, r)
-    np.testing.assert_allclose(np.diag(cov), np.diag(np.linalg.inv(F_sum)), rtol=1e-4)
+    # NEAR is not the optimum of these captures: chi^2/dof is far above 1 there, so the covariance is the
+    # inverse information inflated by chi^2/dof (the misfit rule), and says so
+    assert info["misfit"] and "inflated" in info["method"]
+    np.testing.assert_allclose(np.diag(cov) / info["chi2_per_dof"], np.diag(np.linalg.inv(F_sum)), rtol=1e-4)
     assert "Fisher" in info["method"]
 
 
