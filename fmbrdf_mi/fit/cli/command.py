@@ -8,6 +8,7 @@ the mode (:func:`fit_mode`), its run (:data:`RUN`), the summary.
 """
 from __future__ import annotations
 
+import inspect
 import time
 
 from fmbrdf_mi.fit.cli.checks import check_args, check_colour_args
@@ -161,19 +162,29 @@ def run_rerun(args, command):
     return run(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
 
 
+#: Options of the command whose entry-point keyword has another name.
+ALIASES = {"fixed": "fix"}
+
+
+def request(entry, args, **converted):
+    """The one request of a run: ``entry``'s keyword arguments, each from the parsed option of the same name
+    (:data:`ALIASES`), then ``converted`` (the values the command turns into another form: one input or
+    several, a parsed vector, ``--max-pixels 0`` for all).  ``--from`` builds the same request from a
+    fit.json (:func:`fmbrdf_mi.fit.outputs.record.rerun_arguments`)."""
+    params = inspect.signature(entry).parameters
+    kw = {n: getattr(args, ALIASES.get(n, n)) for n in params if hasattr(args, ALIASES.get(n, n))}
+    kw.update(converted)
+    return kw
+
+
 def run_colour(args, command):
     """A colour polarisation mosaic (its capture sidecar says so)."""
     check_colour_args(args)
     lights = args.light or []
-    return fit_colour_files(args.inputs[0], args.out, normals=args.normals, mask=args.mask, view=args.view,
-                            sphere=args.sphere, camera=args.camera, fov=args.fov,
-                            light=parse_vector(lights[0] if lights else None, "--light"),
-                            irradiance=args.irradiance, black_level=args.black_level,
-                            white_level=args.white_level, conversion_gain=args.conversion_gain,
-                            read_noise=args.read_noise, model=args.model, bounds=args.bounds, fixed=args.fix,
-                            max_time=args.max_time, max_iter=args.max_iter, max_pixels=args.max_pixels or None,
-                            erode=args.erode, seed=args.seed, starts=args.starts, force=args.force,
-                            progress=not args.quiet, command=command)
+    return fit_colour_files(**request(fit_colour_files, args, inputs=args.inputs[0],
+                                      light=parse_vector(lights[0] if lights else None, "--light"),
+                                      max_pixels=args.max_pixels or None, progress=not args.quiet,
+                                      command=command))
 
 
 def run_single(args, command):
@@ -181,23 +192,12 @@ def run_single(args, command):
     if not args.inputs:
         raise InputError("no INPUT given: a Stokes .exr, a raw mosaic, angle images, or --from fit.json")
     lights = args.light or []
-    inputs = args.inputs if len(args.inputs) > 1 else args.inputs[0]
-    relight = None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0])
-    return fit_files(inputs, args.out, normals=args.normals, mask=args.mask, view=args.view,
-                     sphere=args.sphere, camera=args.camera, fov=args.fov,
-                     light=parse_vector(lights[0] if lights else None, "--light"),
-                     irradiance=args.irradiance, layout=args.layout, black_level=args.black_level,
-                     channel=args.channel, demosaic=args.demosaic, conversion_gain=args.conversion_gain,
-                     read_noise=args.read_noise, footprint=args.footprint, model=args.model,
-                     baselines=args.baselines, optimizer=args.optimizer, path=args.path, bounds=args.bounds,
-                     init=args.init, loss=args.loss, white_level=args.white_level,
-                     dark_level=args.dark_level, fixed=args.fix, starts=args.starts, area_points=args.area_points,
-                     max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit,
-                     max_time=args.max_time, max_pixels=args.max_pixels or None, erode=args.erode,
-                     seed=args.seed, relight=relight,
-                     relight_light=parse_vector(args.relight_light, "--relight-light"),
-                     relight_irradiance=args.relight_irradiance, force=args.force,
-                     progress=not args.quiet, command=command)
+    return fit_files(**request(
+        fit_files, args, inputs=args.inputs if len(args.inputs) > 1 else args.inputs[0],
+        light=parse_vector(lights[0] if lights else None, "--light"),
+        relight=None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0]),
+        relight_light=parse_vector(args.relight_light, "--relight-light"), max_pixels=args.max_pixels or None,
+        progress=not args.quiet, command=command))
 
 
 #: The function that runs each mode: (arguments, command line) -> the report written to fit.json.
