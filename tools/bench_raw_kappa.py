@@ -28,7 +28,6 @@ import argparse
 import datetime
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -39,20 +38,12 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, ROOT)
+sys.path.insert(0, HERE)
+
+from bench_rebuild import cpu_name  # noqa: E402
 
 NAMES = ("eta", "alpha", "beta", "kappa", "k_s", "r_k")
 CONFIGS = {"before": (False, 1), "geometry": (True, 1), "after": (True, 2), "m3": (True, 3)}
-
-
-def cpu_name():
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def render(tmp, res, seed, render_seed, alpha):
