@@ -290,9 +290,9 @@ def add_render_arguments(p):
                         "channels); colour: colour polarisation sensor (IMX250MYR type: a Bayer colour filter "
                         "over 2x2 polariser blocks, 4x4 period, each colour seeing its own channel; needs a "
                         "colour variant) (default %(default)s)")
-    g.add_argument("--cfa", default="RGGB",
+    g.add_argument("--cfa", default=None,
                    help="--sensor colour: Bayer arrangement of the 2x2 polariser blocks, row-major "
-                        "(default %(default)s)")
+                        "(default RGGB)")
     g.add_argument("--raw-exposure", type=float, metavar="E_PER_UNIT",
                    help="electrons per unit of the Stokes image (default: the brightest raw pixel at 80%% "
                         "of the full well)")
@@ -386,6 +386,26 @@ def _warn_if_black(given):
     return False
 
 
+def _check_camera_options(args):
+    """Options of the raw capture that would be ignored: one line naming them."""
+    if args.sensor != "mono" and not args.raw:
+        raise CLIError(f"--sensor {args.sensor}: a setting of the raw capture; give --raw too (without it "
+                       "only the Stokes EXR is written)")
+    if args.cfa is not None and args.sensor != "colour":
+        raise CLIError(f"--cfa {args.cfa}: the colour filter of a colour sensor; give --sensor colour (and --raw), "
+                       "or drop --cfa for the mono quad-Bayer sensor")
+
+
+def _check_rgb_values(args, given):
+    """An RGB albedo (-D k_s=r,g,b) in a monochrome variant would be averaged silently: refuse it."""
+    if "mono" not in args.variant:
+        return
+    for name, value in given.items():
+        if isinstance(value, tuple) and re.sub(r"_\d+$", "", name) in ("k_s", "r_k", "k_b"):
+            raise CLIError(f"-D {name}={','.join(f'{v:g}' for v in value)}: an RGB value needs a spectral or RGB "
+                           f"variant, --variant {args.variant} takes one number")
+
+
 def run_render(args):
     kinds = [] if args.no_previews else ["intensity", "dolp", "aolp"]
     kinds += (["angles"] if args.angles else []) + (["mosaic"] if args.mosaic else [])
@@ -395,12 +415,14 @@ def run_render(args):
         raise CLIError(f"--exposure {args.exposure}: expected a positive number")
     if args.dolp_max is not None and not (0 < args.dolp_max <= 1):
         raise CLIError(f"--dolp-max {args.dolp_max}: expected a number in (0, 1]")
+    _check_camera_options(args)
     kind, declared, xml_text = _scene_params(args)
     if args.list_params:
         return _list_params(kind, declared, args)
     if args.output is None:
         raise CLIError("no output file given, e.g. fmbrdf-mi render out/sphere.exr")
     given = _resolve(args, kind, declared)
+    _check_rgb_values(args, given)
     previews = _check_output(args.output, args.force, kinds)
     _check_size(kind, declared, given)
     warned_black = kind == "builtin" and _warn_if_black(given)
@@ -515,7 +537,7 @@ def _raw_camera(args):
         cfa = None
         if args.sensor == "colour":
             try:
-                cfa = parse_cfa(args.cfa)
+                cfa = parse_cfa(args.cfa or "RGGB")
             except ValueError:
                 raise ValueError(f"--cfa: expected four letters with one R, two G and one B, such as RGGB; "
                                  f"got {args.cfa!r}") from None

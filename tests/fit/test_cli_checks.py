@@ -22,10 +22,10 @@ GIVE = {"--baselines": ["--baselines"], "--relight": ["--relight", "b.exr"], "--
         "--optimizer": ["--optimizer", "adam"], "--init": ["--init", "eta=1.5"], "--loss": ["--loss", "paper"],
         "--layout": ["--layout", "0,45,90,135"], "--dark-level": ["--dark-level", "3"],
         "--footprint": ["--footprint", "box"], "--free-power": ["--free-power"],
-        "--area-points": ["--area-points", "3"]}
+        "--area-points": ["--area-points", "3"], "--channel": ["--channel", "R"], "--light": ["--light", "0,0,1"]}
 NEED_GIVE = {"--relight-light": ["--relight-light", "0,0,1"], "--holdout": ["--holdout", "1"],
              "--normals-start": ["--normals-start", "sphere"], "--smooth": ["--smooth", "0.5"],
-             "--rounds": ["--rounds", "2"]}
+             "--rounds": ["--rounds", "2"], "--power-start": ["--power-start", "given"]}
 
 
 def parse(argv):
@@ -71,3 +71,17 @@ def test_refused_before_any_file_is_read(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 1 and "--refine-normals: --baselines not supported" in err and "missing.toml" not in err
     assert not os.path.exists(out)
+
+
+def test_defaults_table_matches_the_parser():
+    """checks.DEFAULTS (what --from tells given options by) is the parser's: no option is 'given' by
+    default, and each option given is named."""
+    from fmbrdf_mi.fit.cli.checks import DEFAULTS, given_options
+
+    p = argparse.ArgumentParser()
+    add_fit_arguments(p)
+    defaults = {a.dest: a.default for a in p._actions if a.dest != "help"}
+    assert {k: v for k, v in defaults.items() if k in DEFAULTS} == DEFAULTS
+    assert all(v in (None, False) for k, v in defaults.items() if k not in DEFAULTS), defaults
+    assert given_options(parse([])) == []
+    assert given_options(parse(["--max-pixels", "0", "--seed", "0", "--channel", "R"])) == ["--channel", "--max-pixels"]

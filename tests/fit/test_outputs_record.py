@@ -2,6 +2,7 @@
 naming the file and the key (record.rerun_arguments, joint_record.rerun); before, unknown keys, wrong
 types and a removed ``joint`` block ended in TypeError tracebacks.  No fit runs here: every record is
 refused before one would start."""
+import hashlib
 import json
 
 import numpy as np
@@ -12,17 +13,18 @@ from fmbrdf_mi.cli import main
 
 def _record(tmp_path, joint=False):
     np.save(tmp_path / "raw.npy", np.full((16, 16), 100.0))
+    hashes = {str(tmp_path / "raw.npy"): hashlib.sha256((tmp_path / "raw.npy").read_bytes()).hexdigest()}
     if not joint:
         args = {"inputs": str(tmp_path / "raw.npy"), "sphere": "8,8,6", "light": [0, 0, 1], "model": "fmbrdf",
                 "max_iter": 1, "starts": 1}
         return {"reproduce": {"command": "fmbrdf-mi fit ...", "cwd": str(tmp_path), "arguments": args,
-                              "files_sha256": {}}}
+                              "files_sha256": hashes}}
     spec = {"input": str(tmp_path / "raw.npy"), "light": [0, 0, 1], "power": 1.0, "holdout": False, "name": "a",
             "options": {"sphere": "8,8,6"}}
     images = [{"name": n, "spec": dict(spec, name=n)} for n in ("a", "b")]
     return {"reproduce": {"command": "fmbrdf-mi fit ...", "cwd": str(tmp_path),
                           "arguments": {"model": "fmbrdf", "max_iter": 1, "free_power": False},
-                          "joint": {"kind": "manifest", "images": images}, "files_sha256": {}}}
+                          "joint": {"kind": "manifest", "images": images}, "files_sha256": hashes}}
 
 
 def _set(d, key, value):

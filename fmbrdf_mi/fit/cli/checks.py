@@ -21,9 +21,58 @@ def check_args(args):
                       tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
                       max_pixels=args.max_pixels, erode=args.erode, seed=args.seed, loss=args.loss,
                       starts=args.starts, fixed=parse_fixed(args.fix), area_points=args.area_points, flag=flag)
-    check_needs(args, ("--relight-light", "--holdout"))
+    if getattr(args, "from_json", None):
+        check_rerun_args(args)
+    check_needs(args, ("--relight-light", "--holdout", "--power-start"))
     if args.manifest and args.authors:
         raise InputError("--manifest and --authors: give one of them")
+    for mode in ("manifest", "authors"):
+        if getattr(args, mode, None):
+            refuse(args, mode)
+    check_footprint_args(args)
+
+
+#: The fit options' defaults that are not None, False or empty (an option differs from its default: given).
+#: tests/fit/test_cli_checks.py checks this against the parser.
+DEFAULTS = {"demosaic": "bilinear", "channel": "mean", "loss": "auto", "footprint": "auto",
+            "camera": "orthographic", "model": "fmbrdf", "optimizer": "lm", "path": "pixel", "max_iter": 40,
+            "tol": 1e-4, "starts": 2, "max_pixels": 20000, "erode": 2, "seed": 0, "power_start": "ratio",
+            "normals_start": "ps", "smooth": 0.3, "rounds": 0}
+
+#: What goes with ``--from``: the output directory, --force, -q (and the command's own bookkeeping).
+RERUN_TAKES = ("out", "force", "quiet", "from_json", "argv", "command", "run")
+
+
+def given_options(args, keep=RERUN_TAKES):
+    """The options of ``args`` given on the command line (their value is not the default), as flags."""
+    bad = []
+    for dest, value in vars(args).items():
+        empty = value is None or value is False or (isinstance(value, (list, tuple)) and not value)
+        if dest in keep or empty or (dest in DEFAULTS and value == DEFAULTS[dest]):
+            continue
+        bad.append("INPUT files" if dest == "inputs" else "--" + dest.replace("_", "-"))
+    return bad
+
+
+def check_rerun_args(args):
+    """``--from fit.json`` reruns the recorded inputs and options: any other option would be ignored."""
+    bad = given_options(args)
+    if bad:
+        raise InputError(f"--from: give no {', '.join(bad)} (the fit.json's inputs and options are rerun as "
+                         "recorded; only -o/--out, --force and -q go with --from)")
+
+
+def check_footprint_args(args):
+    """``--footprint`` shapes only the paper's loss: refused when the loss is (or resolves to) the likelihood
+    from the command line alone (a capture sidecar's noise: :func:`fmbrdf_mi.fit.problem.data.check_footprint`)."""
+    if args.footprint == "auto":
+        return
+    auto = args.loss == "auto" and args.conversion_gain is not None and args.path == "pixel" \
+        and args.optimizer == "lm"
+    if args.loss == "likelihood" or auto:
+        why = "--loss likelihood" if args.loss == "likelihood" else "--loss auto with --conversion-gain"
+        raise InputError(f"--footprint {args.footprint}: only the paper's loss uses it; the likelihood ({why}) "
+                         "models each sample over its own pixel with --area-points (or give --loss paper)")
 
 
 #: Options that only some modes take: flag -> (given?, how a message names it).
@@ -39,13 +88,17 @@ OPTIONS = {
     "--footprint": (lambda a: a.footprint != "auto", lambda a: "--footprint " + str(a.footprint)),
     "--area-points": (lambda a: a.area_points is not None, lambda a: "--area-points"),
     "--free-power": (lambda a: getattr(a, "free_power", False), lambda a: "--free-power"),
+    "--channel": (lambda a: a.channel != "mean", lambda a: "--channel " + str(a.channel)),
+    "--light": (lambda a: bool(a.light), lambda a: "--light"),
 }
 
 #: The one table of which options a mode refuses: mode -> (options, the message's head, why).
 REFUSED = {
     "colour": (("--baselines", "--relight", "--path", "--optimizer", "--init", "--loss", "--layout", "--dark-level",
-                "--footprint", "--area-points"), "colour polarisation mosaic",
+                "--footprint", "--area-points", "--channel"), "colour polarisation mosaic",
                "the colour fit is the likelihood of the raw samples, layout and cfa from the sidecar, pixel path, LM"),
+    "manifest": (("--light",), "--manifest", "the manifest gives each image's light"),
+    "authors": (("--light",), "--authors", "the lights are the object's calibration/L.txt"),
     "refine": (("--baselines", "--free-power", "--loss"), "--refine-normals",
                "the refinement is the likelihood of the camera samples, one model, the given light powers"),
 }
@@ -58,6 +111,8 @@ NEEDS = {
     "--normals-start": (lambda a: a.normals_start != "ps" and not a.refine_normals, "--refine-normals"),
     "--smooth": (lambda a: a.smooth != 0.3 and not a.refine_normals, "--refine-normals"),
     "--rounds": (lambda a: a.rounds != 0 and not a.refine_normals, "--refine-normals"),
+    "--power-start": (lambda a: getattr(a, "power_start", "ratio") != "ratio" and not getattr(a, "free_power", False),
+                      "--free-power"),
 }
 
 

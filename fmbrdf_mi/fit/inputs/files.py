@@ -124,6 +124,12 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
         raise InputError(f"{source}: the metadata of fmbrdf-mi render are malformed ({what})") from None
     exact = None
     if builtin is not None:
+        ignored = [f for f, given in (("--view", view is not None), (f"--camera {camera}", camera != "orthographic"),
+                                      ("--fov", fov is not None)) if given]
+        if ignored:
+            raise InputError(f"{', '.join(ignored)}: {source} is a render of the built-in sphere whose metadata give "
+                             "its exact geometry (camera, field of view, view directions); drop them, or give "
+                             "--normals/--mask or --sphere to use your own geometry")
         n, m, v = builtin["normals"], builtin["mask"], builtin["view_dirs"]
         if meta.get("source") == "raw mosaic" and n.shape[:2] == (2 * shape[0], 2 * shape[1]):
             n, m, v = downsample_geometry(n, m, v)

@@ -59,6 +59,7 @@ from fmbrdf_mi.fit.outputs.colour_joint import outputs as colour_outputs
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.record import command_block
 from fmbrdf_mi.fit.outputs.writer import prepare_outputs
+from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
 
 
@@ -111,6 +112,10 @@ class Joint(FitJob):
         if opts.free_power and len(fit_obs) < 2:
             raise InputError(f"--free-power (free_power): needs two or more fitted images, got {len(fit_obs)} "
                              "(one image's light power is not separable from k_s and k_b)")
+        for s, o in zip(specs, obs):
+            fp = (s.options or {}).get("footprint") if isinstance(getattr(s, "options", None), dict) else None
+            check_footprint(fp, resolve_loss(o, opts), "--loss likelihood" if opts.loss == "likelihood" else
+                            f"the camera noise from {o.meta.get('sidecar') or 'conversion_gain'}")
         given = [given_power(s, o) for s, o, h in zip(specs, obs, holdout) if not h]
         models = [model] + ([m for m in ("pplastic", "lambert_ts") if m != model] if self.baselines else [])
         self.results = {}

@@ -36,7 +36,7 @@ from fmbrdf_mi.fit.inputs.authors import read_object
 from fmbrdf_mi.fit.inputs.manifest import (INPUT_KEYS, ImageSpec, check_entry, check_input, check_light,
                                            check_options, image_names)
 from fmbrdf_mi.fit.outputs.joint import fitter
-from fmbrdf_mi.fit.outputs.record import jsonable, load, sha256, versions
+from fmbrdf_mi.fit.outputs.record import check_recorded, jsonable, load, sha256, versions
 
 #: fit_images keywords that define a joint fit (not where it writes or how it talks).
 FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
@@ -144,6 +144,24 @@ def check_files(path, rep):
             raise InputError(f"--from {path}: input {p} has changed since the fit (SHA-256 differs)")
 
 
+def read_files(kind, specs, info):
+    """The files a rerun of these images reads: images with their sidecars, geometry files, and for an
+    authors' object its calibration, normal map, mask and images."""
+    files = []
+    if kind == "authors":
+        cal = os.path.join(info["root"], "calibration")
+        files += [os.path.join(cal, f) for f in ("L.txt", "vpL_img.npy", "IntrinsicL.npy", "intensities.npy")
+                  if os.path.isfile(os.path.join(cal, f))]
+        files += [os.path.join(info["root"], "normal", "normal_GT.npy"), _abs(info["mask"])]
+        files += [s.input.meta["authors_layout"]["file"] for s in specs]
+        return files
+    for s in specs:
+        files += [p for p in (s.input if isinstance(s.input, list) else [s.input]) if isinstance(p, str)]
+        files += _with_sidecar(s.input)
+        files += [s.options[k] for k in ("normals", "mask", "view") if isinstance(s.options.get(k), str)]
+    return files
+
+
 def is_joint(path):
     """Whether ``path`` (a fit.json) records a joint fit; refuses files without a ``reproduce`` block."""
     return "joint" in load(path)
@@ -189,6 +207,7 @@ def rerun(path, out, *, force=False, progress=True, command=None):
                 specs.append(spec)
     except (KeyError, TypeError, AttributeError) as exc:
         raise InputError(f"--from {path}: the joint-fit record is incomplete ({exc})") from None
+    check_recorded(path, rep, read_files(joint["kind"], specs, info))
     authors = {k: v for k, v in (joint.get("authors") or {}).items() if k != "root"}
     names = image_names(specs)
     recorded = [im["name"] for im in joint["images"]]

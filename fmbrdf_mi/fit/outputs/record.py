@@ -109,14 +109,31 @@ def load(path):
     except ValueError as exc:
         raise InputError(f"--from {path}: not a JSON file ({exc})") from None
     rep = d.get("reproduce") if isinstance(d, dict) else None
+    if isinstance(d, dict) and "refine_normals" in d:
+        cmd = rep.get("command") if isinstance(rep, dict) else None
+        raise InputError(f"--from {path}: reruns of --refine-normals are not supported: rerun the command in its "
+                         f"reproduce.command{f' ({cmd})' if isinstance(cmd, str) else ''}")
     if not isinstance(rep, dict) or "arguments" not in rep:
         raise InputError(f"--from {path}: no 'reproduce' block (written by an older fmbrdf-mi?)")
     if not isinstance(rep["arguments"], dict):
         raise InputError(f"--from {path}: reproduce.arguments: expected a table of the fit's options, "
                          f"got {rep['arguments']!r}")
-    if not isinstance(rep.get("files_sha256", {}), dict):
+    if "files_sha256" not in rep:
+        raise InputError(f"--from {path}: reproduce.files_sha256 is missing: the record cannot be verified (no "
+                         "SHA-256 of its input files); rerun the command in its reproduce.command instead")
+    if not isinstance(rep["files_sha256"], dict) or not all(isinstance(k, str) and isinstance(v, str)
+                                                            for k, v in rep["files_sha256"].items()):
         raise InputError(f"--from {path}: reproduce.files_sha256: expected a table of file: SHA-256")
     return rep
+
+
+def check_recorded(path, rep, files):
+    """Refuse (one line naming the file) an input the rerun would read whose SHA-256 the record lacks."""
+    recorded = rep.get("files_sha256", {})
+    for p in files:
+        if os.path.abspath(os.fspath(p)) not in recorded:
+            raise InputError(f"--from {path}: input {p} has no recorded SHA-256 (reproduce.files_sha256): the "
+                             "record cannot be verified for it")
 
 
 def rerun_arguments(path):
@@ -159,4 +176,8 @@ def rerun_arguments(path):
                 args[key] = os.path.join(cwd, v)
             elif isinstance(v, list):
                 args[key] = [os.path.join(cwd, x) if isinstance(x, str) and not os.path.isabs(x) else x for x in v]
+    # every file the rerun reads (inputs, geometry, the capture sidecars beside them) must have been hashed
+    given = [p for key in ("inputs", "normals", "mask", "view", "relight")
+             for p in (args.get(key) if isinstance(args.get(key), list) else [args.get(key)]) if isinstance(p, str)]
+    check_recorded(path, rep, given + _files(args))
     return args

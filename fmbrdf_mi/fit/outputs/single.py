@@ -1,6 +1,7 @@
 """``fmbrdf-mi fit`` on one image as a function: :func:`fit_files` reads, fits and writes."""
 from __future__ import annotations
 
+import dataclasses
 import os
 
 import numpy as np
@@ -17,6 +18,7 @@ from fmbrdf_mi.fit.inputs.files import build_observation
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
 from fmbrdf_mi.fit.outputs import plots, record
 from fmbrdf_mi.fit.outputs.job import FitJob
+from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 
 OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stokes.exr")
 
@@ -113,6 +115,9 @@ class SingleImage(FitJob):
                           time_limit=a["time_limit"], max_time=a["max_time"] or None, loss=a["loss"],
                           fixed=parse_fixed(a["fixed"]), starts=int(a["starts"]), max_pixels=a["max_pixels"],
                           erode=int(a["erode"]), seed=int(a["seed"]), area_points=a["area_points"])
+        loss = resolve_loss(obs, dataclasses.replace(opts, path=a["path"]))
+        check_footprint(a["footprint"], loss, "--loss likelihood" if a["loss"] == "likelihood" else
+                        f"the camera noise from {obs.meta.get('sidecar') or '--conversion-gain'}")
         scene = None
         if a["path"] == "render":
             scene, opts.path = _render_scene(obs, model), "render"
