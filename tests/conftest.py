@@ -65,3 +65,24 @@ def fresnel_T(theta, eta):
     rs = (c - eta * ct) / (c + eta * ct)
     rp = (eta * c - ct) / (eta * c + ct)
     return 1 - rs ** 2, 1 - rp ** 2
+
+
+# ---------------------------------------------------------------- the commands' one-line errors
+def run(capsys, *argv):
+    """``fmbrdf-mi ARGV`` in this process: (exit status, stdout, stderr)."""
+    from fmbrdf_mi import cli
+
+    rc = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def one_line_error(rc, err, command, *words):
+    """A user error as the project promises it: exit status 1, one line ``fmbrdf-mi COMMAND: error: ...``
+    naming each of ``words``, no traceback."""
+    assert rc == 1, err
+    assert "Traceback" not in err, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"fmbrdf-mi {command}: error: "), err
+    for w in words:
+        assert w in lines[0], (w, lines[0])

@@ -8,22 +8,8 @@ import sys
 
 import pytest
 
-from fmbrdf_mi import cli
+from conftest import one_line_error, run
 
-
-def run(capsys, *argv):
-    rc = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
-def one_line_error(rc, err, command, *words):
-    assert rc == 1, err
-    assert "Traceback" not in err, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"fmbrdf-mi {command}: error: "), err
-    for w in words:
-        assert w in lines[0], (w, lines[0])
 
 
 # ------------------------------------------------------------------ render

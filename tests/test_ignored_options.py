@@ -7,22 +7,9 @@ import os
 
 import pytest
 
+from conftest import one_line_error, run
+
 from fmbrdf_mi import cli
-
-
-def run(capsys, *argv):
-    rc = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
-def one_line_error(rc, err, command, *words):
-    assert rc == 1, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith(f"fmbrdf-mi {command}: error: ") and "Traceback" not in err
-    for w in words:
-        assert w in lines[0], (w, lines[0])
 
 
 # ------------------------------------------------------------------ render

@@ -12,24 +12,10 @@ import sys
 import numpy as np
 import pytest
 
-from fmbrdf_mi import cli
+from conftest import one_line_error, run
+
 
 HUGE = 100000  # 100000 x 100000 pixels: terabytes, more than any machine here
-
-
-def run(capsys, *argv):
-    rc = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return rc, out, err
-
-
-def one_line_error(rc, err, command, *words):
-    assert rc == 1, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith(f"fmbrdf-mi {command}: error: ") and "Traceback" not in err
-    for w in words:
-        assert w in lines[0], (w, lines[0])
 
 
 @pytest.fixture
