@@ -86,3 +86,24 @@ def one_line_error(rc, err, command, *words):
     assert len(lines) == 1 and lines[0].startswith(f"fmbrdf-mi {command}: error: "), err
     for w in words:
         assert w in lines[0], (w, lines[0])
+
+
+def fit_record(tmp_path, joint=False):
+    """A fit.json record (single image, or a 2-image manifest when ``joint``) of a fit of raw.npy with its
+    SHA-256 recorded; other.npy lies beside it, never hashed (the ``--from`` checks' test inputs)."""
+    import hashlib
+
+    np.save(tmp_path / "raw.npy", np.full((16, 16), 100.0))
+    np.save(tmp_path / "other.npy", np.full((16, 16), 200.0))
+    hashes = {str(tmp_path / "raw.npy"): hashlib.sha256((tmp_path / "raw.npy").read_bytes()).hexdigest()}
+    if not joint:
+        args = {"inputs": str(tmp_path / "raw.npy"), "sphere": "8,8,6", "light": [0, 0, 1], "model": "fmbrdf",
+                "max_iter": 1, "starts": 1}
+        return {"reproduce": {"command": "fmbrdf-mi fit ...", "cwd": str(tmp_path), "arguments": args,
+                              "files_sha256": hashes}}
+    spec = {"input": str(tmp_path / "raw.npy"), "light": [0, 0, 1], "power": 1.0, "holdout": False, "name": "a",
+            "options": {"sphere": "8,8,6"}}
+    images = [{"name": n, "spec": dict(spec, name=n)} for n in ("a", "b")]
+    return {"reproduce": {"command": "fmbrdf-mi fit ...", "cwd": str(tmp_path),
+                          "arguments": {"model": "fmbrdf", "max_iter": 1, "free_power": False},
+                          "joint": {"kind": "manifest", "images": images}, "files_sha256": hashes}}

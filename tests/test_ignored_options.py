@@ -7,7 +7,7 @@ import os
 
 import pytest
 
-from conftest import one_line_error, run
+from conftest import fit_record, one_line_error, run
 
 from fmbrdf_mi import cli
 
@@ -102,32 +102,6 @@ def test_fit_footprint_with_the_paper_loss_still_runs(capsys, tmp_path, captures
 
 
 # ------------------------------------------------------------------ fit --from: integrity
-def _sha(p):
-    import hashlib
-
-    return hashlib.sha256(p.read_bytes()).hexdigest()
-
-
-def _record(tmp_path, joint=False):
-    """A record of a fit of raw.npy (its hash recorded); other.npy lies beside it, never hashed."""
-    import numpy as np
-
-    np.save(tmp_path / "raw.npy", np.full((16, 16), 100.0))
-    np.save(tmp_path / "other.npy", np.full((16, 16), 200.0))
-    hashes = {str(tmp_path / "raw.npy"): _sha(tmp_path / "raw.npy")}
-    if not joint:
-        args = {"inputs": str(tmp_path / "raw.npy"), "sphere": "8,8,6", "light": [0, 0, 1], "model": "fmbrdf",
-                "max_iter": 1, "starts": 1}
-        return {"reproduce": {"command": "fmbrdf-mi fit ...", "cwd": str(tmp_path), "arguments": args,
-                              "files_sha256": hashes}}
-    spec = {"input": str(tmp_path / "raw.npy"), "light": [0, 0, 1], "power": 1.0, "holdout": False, "name": "a",
-            "options": {"sphere": "8,8,6"}}
-    images = [{"name": n, "spec": dict(spec, name=n)} for n in ("a", "b")]
-    return {"reproduce": {"command": "fmbrdf-mi fit ...", "cwd": str(tmp_path),
-                          "arguments": {"model": "fmbrdf", "max_iter": 1, "free_power": False},
-                          "joint": {"kind": "manifest", "images": images}, "files_sha256": hashes}}
-
-
 def _edit(d, tmp_path, what):
     rep = d["reproduce"]
     if what == "inputs":
@@ -165,7 +139,7 @@ def test_from_record_that_cannot_be_verified_is_refused(capsys, tmp_path, joint,
     import json
 
     path = tmp_path / "fit.json"
-    path.write_text(json.dumps(_edit(_record(tmp_path, joint), tmp_path, what)))
+    path.write_text(json.dumps(_edit(fit_record(tmp_path, joint), tmp_path, what)))
     rc, _, err = run(capsys, "fit", "--from", str(path), "-o", str(tmp_path / "out"))
     one_line_error(rc, err, "fit", str(path), *words)
     assert not (tmp_path / "out").exists()

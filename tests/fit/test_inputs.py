@@ -4,6 +4,7 @@ No Mitsuba here: these run in well under a second.
 """
 import numpy as np
 import pytest
+from conftest import one_line_error
 
 from fmbrdf_mi import polcam, stokes_io
 from fmbrdf_mi.fit.camera import noise as cn
@@ -279,12 +280,7 @@ def _fit_cli(capsys, *argv):
 
 
 def _one_line(rc, err, *words):
-    assert rc == 1, err
-    assert "Traceback" not in err, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("fmbrdf-mi fit: error: "), err
-    for w in words:
-        assert w in lines[0], (w, lines[0])
+    one_line_error(rc, err, "fit", *words)
 
 
 @pytest.mark.parametrize("where,entry,words", [
