@@ -19,7 +19,7 @@ from fmbrdf_mi.fit.problem.free_power import power_text, split_result
 from fmbrdf_mi.fit.problem.problem import TimeUp
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import optimise as O
-from fmbrdf_mi.fit.solve.irls import reweighted
+from fmbrdf_mi.fit.solve.driver import solve
 from fmbrdf_mi.fit.uncertainty import WEAK_REL
 
 
@@ -72,28 +72,6 @@ def render_evaluator(model, obs, idx, opts, scene):
         raise InputError(f"scene renders {ev.shape[1]}x{ev.shape[0]} pixels but the observation "
                          f"is {obs.shape[1]}x{obs.shape[0]}")
     return ev
-
-
-def _distinct_starts(problem, cands, n):
-    """Up to ``n`` starts: the best candidate, then the best ones differing from all chosen in a
-    shape parameter other than eta and kappa (those the coarse search tuned last), preferring
-    candidates with both lobes switched on."""
-    material = getattr(problem.model, "base", problem.model).shape_names   # not the free light powers
-    first = [k for k in problem.names if k in material and k not in ("eta", "kappa")] or list(problem.names)
-    chosen = [cands[0][1]]
-    pool = [c for _, c in cands[1:]]
-
-    def off(c):  # from the coarse search's own evaluation (no new table rebuild)
-        key = tuple(round(c.shape[n], 9) for n in problem.model.shape_names)
-        return not problem.both_lobes.get(key, True)
-
-    pool.sort(key=off)  # stable: keeps the score order otherwise
-    for c in pool:
-        if len(chosen) >= n:
-            break
-        if all(any(abs(c.shape[k] - o.shape[k]) > 1e-9 for k in first) for o in chosen):
-            chosen.append(c)
-    return chosen
 
 
 def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=None, names=None, powers=None,
@@ -170,42 +148,17 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                + ("" if objective.target.lin_sigma is None else
                   ", DoLP term with the given noise variance (Rice mean)"))
     else:
-        report(f"[fit] {model.name} on {len(idx)} super-pixels x 4 {smp.source} samples, likelihood; "
+        report(f"[fit] {model.name} on {len(idx)} super-pixels x {objective.m} {smp.source} samples, likelihood; "
                f"camera noise {objective.noise.describe()}")
-    history, cands, t_search = [], [], 0.0
-    converged, reason, J, r, st = False, "", None, None, None
-    starts_log = []
-    try:
-        if opts.init:
-            shape, a_s, a_b = model.split(opts.init)
-            starts = [problem.state(shape, a_s, a_b)]
-        else:
-            cands = O.coarse_search(problem)
-            t_search = time.time() - t0
-            history.append({"stage": "search", "iter": 0, "loss": cands[0][0], "time": t_search,
-                            "params": model.report(cands[0][1].shape, cands[0][1].a_s, cands[0][1].a_b)})
-            starts = _distinct_starts(problem, cands, max(1, int(opts.starts)))
-        best = None
-        for k, st0 in enumerate(starts):
-            report(f"[fit] start {k + 1}/{len(starts)}: {O.format_state(problem, st0)}")
-            saved = problem.obj.save()
-            res = _refine(problem, st0, opts, t0, history, report)
-            score = problem.obj.score(problem.parts(res[0]), res[0])
-            starts_log.append({"start": model.report(st0.shape, st0.a_s, st0.a_b),
-                               "end": model.report(res[0].shape, res[0].a_s, res[0].a_b),
-                               "score": score, "converged": res[2], "reason": res[1]})
-            report(f"[fit] start {k + 1} ended at score {score:.6e} ({res[1]})")
-            if best is None or score < best[0]:
-                best = (score, res, problem.obj.save())
-            if k + 1 < len(starts):
-                problem.obj.restore(saved)
-        _, (st, reason, converged, J, r), state = best
-        problem.obj.restore(state)
-    except TimeUp:
-        st = problem.current
-        if st is None:
-            raise InputError(f"max_time {opts.max_time:g} s: no model evaluation fits in that time") from None
-        reason, converged, J, r = f"max_time {opts.max_time:g} s reached", False, None, None
+    history = []
+    init = None
+    if opts.init:
+        shape, a_s, a_b = model.split(opts.init)
+        init = problem.state(shape, a_s, a_b)
+    sol = solve(problem, init=init, starts=opts.starts, rounds=max(1, opts.rounds) + (2 if loss == "likelihood" else 0),
+                optimizer=opts.optimizer, max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit,
+                lr=opts.lr, max_time=opts.max_time, history=history, report=report)
+    st, reason, converged, J, r = sol.state, sol.reason, sol.converged, sol.J, sol.r
     can_jac = opts.path == "pixel"
     unc = {}
     parts = None
@@ -239,12 +192,12 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     n_out = int((objective.outliers & objective.target.dolp_valid).sum()) if loss != "likelihood" else 0
     return FitResult(model=model.name, params=params, loss=value, loss_terms=terms, std_errors=std,
                      history=history, stop_reason=reason, n_pixels=len(idx), n_outliers=n_out,
-                     timings={"search": t_search, "total": t_total, "evaluations": problem.n_evals,
+                     timings={"search": sol.t_search, "total": t_total, "evaluations": problem.n_evals,
                               "nonfinite_derivative_pixels": problem.n_nonfinite},
                      options=dataclasses.asdict(opts), weakly_identified=weak, converged=bool(converged),
                      objective=loss, uncertainty=unc,
                      noise=objective.noise.to_dict() if loss == "likelihood" else None,
-                     pixels_excluded=excluded, starts=starts_log, pixels=idx)
+                     pixels_excluded=excluded, starts=sol.starts, pixels=idx)
 
 
 def _fit_images(observations, options=None, *, names=None, progress=True, powers=None, **kw):
@@ -333,64 +286,6 @@ def diagnose(res, data, observations, names, power_model=None):
             im["chi2_per_dof"] = im["chi2"] / max((b - a) * objective.dof, 1)
         out.append(im)
     return out
-
-
-def _step_in_se(problem, st_old, st_new, J):
-    """Largest |change| of z between two states in units of its standard error (from J^T J)."""
-    try:
-        cov = np.linalg.pinv(J.T @ J)
-    except np.linalg.LinAlgError:
-        return math.inf
-    sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
-    return float(np.max(np.abs(problem.to_z(st_new) - problem.to_z(st_old)) / sd))
-
-
-def _refine(problem, st, opts, t0, history, report):
-    """Refinement rounds from ``st``: the objective's weights are refreshed between rounds until they settle.
-
-    Paper's loss: the inlier/outlier split; likelihood: the variances from
-    the model (IRLS), until a round moves the estimate by < 0.05 standard
-    errors.  Returns (State, stop reason, converged, Jacobian or None, residuals or None).
-    """
-    obj = problem.obj
-    n_rounds = max(1, opts.rounds) + (2 if obj.is_likelihood else 0)
-    last = {"reason": "", "J": None, "r": None, "step_se": None}
-
-    def before(st, k):      # the weights from the current estimate; settled when they no longer move it
-        parts = problem.parts(st)
-        saved = obj.save()
-        if k > 0 and obj.is_likelihood and obj.settled(saved, parts, st, step_se=last["step_se"]):
-            return True
-        obj.refresh(parts, st)
-        if k > 0 and not obj.is_likelihood and obj.settled(saved, parts, st):
-            obj.restore(saved)  # the weighting is settled
-            return True
-        report(f"[fit] round {k + 1}: {obj.describe_round()}")
-        return False
-
-    def minimise(st_old, k):
-        if opts.optimizer == "lm":
-            st, f, last["reason"], converged, last["J"], last["r"] = O.levenberg_marquardt(
-                problem, st_old, max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit, history=history,
-                round_no=k + 1)
-            last["step_se"] = _step_in_se(problem, st_old, st, last["J"]) if last["J"] is not None else None
-        else:
-            st, f, last["reason"], converged = O.adam(problem, st_old, max_iter=opts.max_iter, lr=opts.lr,
-                                                      tol=opts.tol, time_limit=opts.time_limit, history=history,
-                                                      round_no=k + 1)
-            last["J"] = last["r"] = None
-        return st, converged
-
-    st, converged, settled, _ = reweighted(st, minimise, rounds=n_rounds, before=before)
-    reason, J, r, step_se = last["reason"], last["J"], last["r"], last["step_se"]
-    if obj.is_likelihood and converged and not settled:
-        if step_se is not None and step_se < 0.05:
-            settled = True
-        else:
-            converged = False
-            reason = (f"IRLS weights not settled after {n_rounds} rounds (last round moved the estimate "
-                      f"by {step_se:.2g} standard errors)")
-    return st, reason, converged, J, r
 
 
 ALBEDO_BOUND = O.ALBEDO_BOUND

@@ -1,0 +1,179 @@
+"""The one solver of every fit: coarse search, multistart, reweighting rounds, deadline, the one LM (or Adam).
+
+:func:`solve` minimises a :class:`~fmbrdf_mi.fit.problem.problem.Problem`
+(one image or K, shared or per-channel albedos, free light powers):
+
+1. **start**: a given state (``init``), or the coarse search's grid
+   (:func:`~fmbrdf_mi.fit.solve.optimise.coarse_search`, each point's
+   albedos in closed form, ranked by the objective's own score) and up to
+   ``starts`` distinct points of it (:func:`distinct_starts`);
+2. **refinement** from each start (:func:`refine`): rounds of the one
+   reweighting loop (:mod:`fmbrdf_mi.fit.solve.irls`), each the one
+   Levenberg-Marquardt (:func:`~fmbrdf_mi.fit.solve.optimise.levenberg_marquardt`)
+   or Adam with the objective's weights frozen, until a round moves the
+   estimate by less than 0.05 standard errors (likelihood) or the
+   inlier / outlier split stops changing (paper's loss);
+3. the start whose end scores best wins (the objective's weights with it);
+4. a wall-clock deadline (:class:`~fmbrdf_mi.fit.problem.problem.TimeUp`,
+   checked before every model evaluation) ends the fit at its latest
+   accepted estimate, not converged.
+
+The caller (:func:`fmbrdf_mi.fit.api.fitting.fit`) turns the
+:class:`Solution` into a result with its uncertainty.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.problem.problem import TimeUp
+from fmbrdf_mi.fit.solve import optimise as O
+from fmbrdf_mi.fit.solve.irls import reweighted
+
+
+@dataclasses.dataclass
+class Solution:
+    """Where :func:`solve` ended: the state, why it stopped, whether that counts as converged, the Jacobian
+    and residuals there (None after a deadline or Adam), the log of each start, the coarse search's time."""
+
+    state: object
+    reason: str
+    converged: bool
+    J: object = None
+    r: object = None
+    starts: list = dataclasses.field(default_factory=list)
+    t_search: float = 0.0
+
+
+def distinct_starts(problem, cands, n):
+    """Up to ``n`` starts: the best candidate, then the best ones differing from all chosen in a
+    shape parameter other than eta and kappa (those the coarse search tuned last), preferring
+    candidates with both lobes switched on."""
+    material = getattr(problem.model, "base", problem.model).shape_names   # not the free light powers
+    first = [k for k in problem.names if k in material and k not in ("eta", "kappa")] or list(problem.names)
+    chosen = [cands[0][1]]
+    pool = [c for _, c in cands[1:]]
+
+    def off(c):  # from the coarse search's own evaluation (no new table rebuild)
+        key = tuple(round(c.shape[n], 9) for n in problem.model.shape_names)
+        return not problem.both_lobes.get(key, True)
+
+    pool.sort(key=off)  # stable: keeps the score order otherwise
+    for c in pool:
+        if len(chosen) >= n:
+            break
+        if all(any(abs(c.shape[k] - o.shape[k]) > 1e-9 for k in first) for o in chosen):
+            chosen.append(c)
+    return chosen
+
+
+def step_in_se(problem, st_old, st_new, J):
+    """Largest |change| of z between two states in units of its standard error (from J^T J)."""
+    try:
+        cov = np.linalg.pinv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return math.inf
+    sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+    return float(np.max(np.abs(problem.to_z(st_new) - problem.to_z(st_old)) / sd))
+
+
+def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02, history=None,
+           report=None):
+    """Refinement rounds from ``st``: the objective's weights are refreshed between rounds until they settle.
+
+    Paper's loss: the inlier/outlier split; likelihood: the variances from
+    the model (IRLS), until a round moves the estimate by < 0.05 standard
+    errors.  At most ``rounds`` rounds.  Returns (State, stop reason,
+    converged, Jacobian or None, residuals or None).
+    """
+    obj = problem.obj
+    say = report or (lambda m: None)
+    last = {"reason": "", "J": None, "r": None, "step_se": None}
+
+    def before(st, k):      # the weights from the current estimate; settled when they no longer move it
+        parts = problem.parts(st)
+        saved = obj.save()
+        if k > 0 and obj.is_likelihood and obj.settled(saved, parts, st, step_se=last["step_se"]):
+            return True
+        obj.refresh(parts, st)
+        if k > 0 and not obj.is_likelihood and obj.settled(saved, parts, st):
+            obj.restore(saved)  # the weighting is settled
+            return True
+        say(f"[fit] round {k + 1}: {obj.describe_round()}")
+        return False
+
+    def minimise(st_old, k):
+        if optimizer == "lm":
+            st, f, last["reason"], converged, last["J"], last["r"] = O.levenberg_marquardt(
+                problem, st_old, max_iter=max_iter, tol=tol, time_limit=time_limit, history=history, round_no=k + 1)
+            last["step_se"] = step_in_se(problem, st_old, st, last["J"]) if last["J"] is not None else None
+        else:
+            st, f, last["reason"], converged = O.adam(problem, st_old, max_iter=max_iter, lr=lr, tol=tol,
+                                                      time_limit=time_limit, history=history, round_no=k + 1)
+            last["J"] = last["r"] = None
+        return st, converged
+
+    st, converged, settled, _ = reweighted(st, minimise, rounds=rounds, before=before)
+    reason, J, r, step_se = last["reason"], last["J"], last["r"], last["step_se"]
+    if obj.is_likelihood and converged and not settled:
+        if step_se is not None and step_se < 0.05:
+            settled = True
+        else:
+            converged = False
+            reason = (f"IRLS weights not settled after {rounds} rounds (last round moved the estimate "
+                      f"by {step_se:.2g} standard errors)")
+    return st, reason, converged, J, r
+
+
+def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02,
+          max_time=None, history=None, report=None):
+    """Minimise ``problem`` (module docstring); returns a :class:`Solution`.
+
+    ``init``: a State to start from (no coarse search); ``starts``: refine
+    from this many distinct coarse-search points; ``rounds``: reweighting
+    rounds of each refinement; ``max_time``: the deadline's length in
+    seconds, for the message of a fit it stops (the deadline itself is the
+    problem's).  ``history`` (a list) gets the coarse search's best point and
+    every accepted step.
+    """
+    say = report or (lambda m: None)
+    model = problem.model
+    history = [] if history is None else history
+    out = Solution(None, "", False)
+    t0 = time.time()
+    try:
+        if init is not None:
+            chosen = [init]
+        else:
+            cands = O.coarse_search(problem)
+            out.t_search = time.time() - t0
+            history.append({"stage": "search", "iter": 0, "loss": cands[0][0], "time": out.t_search,
+                            "params": model.report(cands[0][1].shape, cands[0][1].a_s, cands[0][1].a_b)})
+            chosen = distinct_starts(problem, cands, max(1, int(starts)))
+        best = None
+        for k, st0 in enumerate(chosen):
+            say(f"[fit] start {k + 1}/{len(chosen)}: {O.format_state(problem, st0)}")
+            saved = problem.obj.save()
+            res = refine(problem, st0, rounds=rounds, optimizer=optimizer, max_iter=max_iter, tol=tol,
+                         time_limit=time_limit, lr=lr, history=history, report=say)
+            score = problem.obj.score(problem.parts(res[0]), res[0])
+            out.starts.append({"start": model.report(st0.shape, st0.a_s, st0.a_b),
+                               "end": model.report(res[0].shape, res[0].a_s, res[0].a_b),
+                               "score": score, "converged": res[2], "reason": res[1]})
+            say(f"[fit] start {k + 1} ended at score {score:.6e} ({res[1]})")
+            if best is None or score < best[0]:
+                best = (score, res, problem.obj.save())
+            if k + 1 < len(chosen):
+                problem.obj.restore(saved)
+        _, (out.state, out.reason, out.converged, out.J, out.r), state = best
+        problem.obj.restore(state)
+    except TimeUp:
+        if problem.current is None:
+            raise InputError(f"max_time {max_time:g} s: no model evaluation fits in that time") from None
+        out.state, out.reason, out.converged, out.J, out.r = (problem.current, f"max_time {max_time:g} s reached",
+                                                              False, None, None)
+    return out
