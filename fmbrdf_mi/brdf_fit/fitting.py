@@ -43,6 +43,8 @@ import time
 
 import numpy as np
 
+from fmbrdf_mi.fit.solve import lm as LM
+
 from . import merl
 
 CHANNELS = ("r", "g", "b")
@@ -129,37 +131,47 @@ def _predict(S, B, ks, kb):
 
 
 def levenberg_marquardt(fun, jac, x0, max_evals=60, rtol=1e-9, max_step=1.0):
-    """Minimise |fun(x)|^2: (x, residuals, evaluations of fun, stop reason).
+    """Minimise |fun(x)|^2 with the one Levenberg-Marquardt (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`):
+    (x, residuals, evaluations of fun, stop reason).
 
-    A step is shortened to at most ``max_step`` in every coordinate: where a
-    parameter barely moves the residuals (kappa near 0 on its sigmoid scale)
-    the Gauss-Newton step is huge, and one such step was seen to throw kappa
-    onto the flat end of its reparameterisation, where it stayed."""
-    x = np.asarray(x0, dtype=np.float64).copy()
-    r = fun(x)
-    cost, lam, nfev = float(r @ r), 1e-3, 1
-    while nfev < max_evals:
-        J = jac(x)
+    What this fit adds through the LM's hooks: a budget of ``max_evals``
+    evaluations of ``fun``; a Jacobian ``jac(x)`` after every accepted step;
+    converged at the first relative decrease below ``rtol`` or an RMS
+    residual below 1e-6; and a step shortened to at most ``max_step`` in every
+    coordinate: where a parameter barely moves the residuals (kappa near 0 on
+    its sigmoid scale) the Gauss-Newton step is huge, and one such step was
+    seen to throw kappa onto the flat end of its reparameterisation, where it
+    stayed."""
+    x0 = np.asarray(x0, dtype=np.float64).copy()
+    r0 = fun(x0)
+    state = {"nfev": 1, "r": r0, "why": ""}
+
+    def solve(lin, lam):     # Marquardt's scaling, then the step clipped to max_step
+        r, J = lin
         A, g = J.T @ J, J.T @ r
-        d = np.maximum(np.diag(A), 1e-12)
-        while nfev < max_evals:
-            step = -np.linalg.solve(A + lam * np.diag(d), g)
-            step *= min(1.0, max_step / max(np.abs(step).max(), 1e-300))
-            r_new = fun(x + step)
-            nfev += 1
-            cost_new = float(r_new @ r_new)
-            if cost_new < cost:
-                x, r, lam = x + step, r_new, max(lam / 3.0, 1e-9)
-                if cost - cost_new <= rtol * cost:
-                    return x, r, nfev, "converged: relative decrease below 1e-9"
-                if cost_new <= 1e-12 * len(r):
-                    return x, r, nfev, "converged: RMS residual below 1e-6"
-                cost = cost_new
-                break
-            lam *= 4.0
-            if lam > 1e10:
-                return x, r, nfev, "converged: no step lowers the error"
-    return x, r, nfev, f"stopped after {max_evals} evaluations"
+        step = -np.linalg.solve(A + lam * np.diag(np.maximum(np.diag(A), 1e-12)), g)
+        return step * min(1.0, max_step / max(np.abs(step).max(), 1e-300))
+
+    def trial(x, step, lin):
+        r_new = fun(x + step)
+        state["nfev"] += 1
+        return x + step, float(r_new @ r_new), r_new
+
+    def moved(lin, x_new, r_new):
+        state["r"] = r_new
+        return lin
+
+    def small(cost, cost_new):
+        state["why"] = ("relative decrease below 1e-9" if cost - cost_new <= rtol * cost else
+                        "RMS residual below 1e-6" if cost_new <= 1e-12 * len(r0) else "")
+        return bool(state["why"])
+
+    res = LM.levenberg_marquardt(x0, float(r0 @ r0), lambda x: (state["r"], jac(x)), solve, trial,
+                                 max_iter=max_evals + 1, refresh=1, moved=moved, small=small, small_count=1,
+                                 budget=lambda: state["nfev"] >= max_evals, final_linearise=False)
+    status = {"small_decrease": f"converged: {state['why']}", "no_step": "converged: no step lowers the error"}.get(
+        res.reason, f"stopped after {max_evals} evaluations")
+    return res.x, state["r"], state["nfev"], status
 
 
 def fit_brdf(brdf, options=None, progress=None):

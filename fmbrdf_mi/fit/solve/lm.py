@@ -17,9 +17,11 @@ Each fit supplies what differs and nothing else:
   r_new)``: the linearisation carried to an accepted point (its residuals
   there), so that ``refresh`` > 1 accepted steps can share one Jacobian;
 * stopping rules: a Gauss-Newton ``decrement(lin)`` below ``decrement_tol``
-  on a fresh linearisation, ``small(f_old, f_new)`` twice in a row,
-  ``step_small(x_old, x_new)``, ``time_up()``, ``max_iter``; and no step
-  lowering the objective at any damping (converged to rounding).
+  on a fresh linearisation, ``small(f_old, f_new)`` ``small_count`` times in
+  a row (2), ``step_small(x_old, x_new)``, ``time_up()``, ``max_iter``, a
+  spent ``budget()`` (checked before every linearisation and trial: a
+  budget of objective evaluations); and no step lowering the objective at
+  any damping (converged to rounding).
 
 The damping starts at ``lam``, falls by 3 after an accepted step (not
 below 1e-9) and rises by 4 after a rejected one (giving up at 1e10).  A
@@ -40,7 +42,7 @@ DECREMENT_TOL = 0.01
 
 #: Why the iteration stopped: code -> converged.
 REASONS = {"decrement": True, "no_step": True, "small_decrease": True, "small_step": True, "time_limit": False,
-           "max_iter": False}
+           "max_iter": False, "budget": False}
 
 
 @dataclasses.dataclass
@@ -82,8 +84,8 @@ def broyden(J, dz, dr):
 
 
 def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None, refresh=1, secant=None,
-                        moved=None, decrement=None, decrement_tol=DECREMENT_TOL, small=None, step_small=None,
-                        time_up=None, on_accept=None, final_linearise=True, lam=1e-3):
+                        moved=None, decrement=None, decrement_tol=DECREMENT_TOL, small=None, small_count=2,
+                        step_small=None, time_up=None, budget=None, on_accept=None, final_linearise=True, lam=1e-3):
     """Minimise from ``x`` (objective ``f``); returns :class:`LMResult` (module docstring).
 
     ``lin``: the linearisation at ``x`` if the caller has it (else made here).
@@ -96,6 +98,9 @@ def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None,
     fresh, since, n_small = True, 0, 0
     reason, it = "max_iter", 0
     for it in range(1, max_iter + 1):
+        if budget is not None and budget():
+            reason = "budget"
+            break
         if not fresh and since >= refresh:
             lin = linearise(x)
             fresh, since = True, 0
@@ -104,8 +109,11 @@ def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None,
         if decrement is not None and fresh and decrement(lin) < decrement_tol:
             reason = "decrement"
             break
-        accepted = False
+        accepted = spent = False
         while lam < 1e10:
+            if budget is not None and budget():
+                spent = True
+                break
             try:
                 step = solve(lin, lam)
             except np.linalg.LinAlgError:
@@ -123,7 +131,7 @@ def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None,
             else:
                 lam *= 4
         if not accepted:
-            reason = "no_step"
+            reason = "budget" if spent else "no_step"
             break
         was_small = small is not None and small(f, f_new)
         tiny = step_small is not None and step_small(x, x_new)
@@ -136,7 +144,7 @@ def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None,
         if on_accept is not None:
             on_accept(it, x, f)
         n_small = n_small + 1 if was_small else 0
-        if n_small >= 2:
+        if n_small >= small_count:
             reason = "small_decrease"
             break
         if tiny:
