@@ -19,8 +19,9 @@ before it (``tests/test_layers.py`` enforces it):
 ``problem``        what a fit runs on (pixels, objective, evaluator: one builder for one image
                    or K) and its one problem (model, bounds, clock), with free light powers or
                    per-pixel normals and their prior as extra unknowns
-``solve``          coarse search, Levenberg-Marquardt, the reweighting loop, Adam; the normal
-                   refinement's system
+``solve``          the one solver (``driver.solve``: coarse search, starts, reweighting rounds,
+                   deadline) over the one Levenberg-Marquardt or Adam; the normal refinement's
+                   system
 ``uncertainty``    covariances (Fisher, sandwich), intervals, flags
 ``result``         :class:`FitResult` and the JSON encoder of every output
 ``api``            :func:`fit`, :func:`fit_joint`, :func:`fit_colour`, normal refinement

@@ -225,7 +225,7 @@ def test_fit_cli_colour_recovers_per_channel_albedos(tmp_path, capsys):
     assert _cli("fit", raw, "-o", str(out), "--fix", "eta=1.5", "--fix", "beta=2", "--fix", "kappa=10",
                 "--erode", "1") == 0
     text = capsys.readouterr().out
-    assert "coarse search" in text and "k_s[G]" in text   # progress and summary
+    assert "[search] stage 1" in text and "k_s[G]" in text   # progress and summary
     rep = json.load(open(out / "fit.json"))
     m = rep["models"]["fmbrdf"]
     assert m["converged"] and rep["sensor"] == "colour"
@@ -264,7 +264,7 @@ def test_fit_cli_colour_recovers_per_channel_albedos(tmp_path, capsys):
     assert _cli("fit", raw, "-o", str(out), "--fix", "eta=1.5,beta=2,kappa=10", "--max-time", "0.05", "-q",
                 "--force") == 3
     m = json.load(open(out / "fit.json"))["models"]["fmbrdf"]
-    assert not m["converged"] and "time limit" in m["stop_reason"] and m["std_errors"] is None
+    assert not m["converged"] and "max_time 0.05 s reached" in m["stop_reason"] and m["std_errors"] is None
 
 
 @pytest.mark.parametrize("extra,msg", [(("--sphere", "1,2"), "--sphere"), (("--mask", "nope.png", "--sphere", "auto"),

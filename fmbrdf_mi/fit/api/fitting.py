@@ -197,7 +197,10 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                      options=dataclasses.asdict(opts), weakly_identified=weak, converged=bool(converged),
                      objective=loss, uncertainty=unc,
                      noise=objective.noise.to_dict() if loss == "likelihood" else None,
-                     pixels_excluded=excluded, starts=sol.starts, pixels=idx)
+                     pixels_excluded=excluded, starts=sol.starts, pixels=idx,
+                     details={"internal": {"shape": dict(st.shape), "a_s": np.asarray(st.a_s).tolist(),
+                                           "a_b": np.asarray(st.a_b).tolist()},
+                              "residuals": problem.obj.residuals(parts, st), "n_free": len(problem.to_z(st))})
 
 
 def _fit_images(observations, options=None, *, names=None, progress=True, powers=None, **kw):

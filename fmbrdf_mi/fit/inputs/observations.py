@@ -163,8 +163,9 @@ def validate(obs):
             raise InputError("footprint: expected (offsets (K, 2) within one pixel of the centre, "
                              f"weights (K,) summing to 1), got shapes {off.shape}, {wt.shape}")
         obs.footprint = (off, wt)
-    if obs.samples is not None and obs.samples.values.shape != (4, h, w):
-        raise InputError(f"samples: expected shape (4, {h}, {w}) to match the image, got {obs.samples.values.shape}")
+    if obs.samples is not None and obs.samples.values.shape != (obs.samples.n, h, w):
+        raise InputError(f"samples: expected shape ({obs.samples.n}, {h}, {w}) ({obs.samples.n} samples per cell, "
+                         f"{obs.samples.source}) to match the image, got {obs.samples.values.shape}")
     obs.light_dir = check_direction(obs.light_dir, "light_dir")
     obs.irradiance = float(obs.irradiance)
     if not (np.isfinite(obs.irradiance) and obs.irradiance > 0):

@@ -17,6 +17,7 @@ import numpy as np
 from fmbrdf_mi.fit.camera import samples as SM
 from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
@@ -166,10 +167,13 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None):
         smps = [o.samples if o.samples is not None else SM.from_stokes(o.stokes) for o in observations]
         A = smps[0].analyser()
         for k, s in enumerate(smps[1:], 1):
-            if not np.allclose(s.analyser(), A) or s.dof != smps[0].dof:
+            if (s.analyser().shape != A.shape or not np.allclose(s.analyser(), A) or s.dof != smps[0].dof
+                    or not np.array_equal(s.channel if s.channel is not None else [],
+                                          smps[0].channel if smps[0].channel is not None else [])):
                 raise InputError(f"joint fit: image {k} ({s.source}, polariser order {s.angles}) and image 0 "
                                  f"({smps[0].source}, {smps[0].angles}) differ in their samples; a joint "
-                                 "likelihood needs one layout (or use --loss paper)")
+                                 "likelihood needs one camera: one polariser layout and colour filter (or use "
+                                 "--loss paper)")
         m = area_points(smps[0], opts)
         per_point = m > 1 or any(np.any(s.offsets) for s in smps)
         ys = []
@@ -184,7 +188,9 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None):
         if noise is None:
             o0 = observations[0]
             noise = dataclasses.replace(o0.noise) if single and o0.noise is not None else NoiseModel(step=smps[0].step)
-        objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof)
+        # a colour mosaic's samples carry their colour channels: one pair of albedos per channel
+        layout = None if smps[0].channel is None else ChannelAlbedos(smps[0].channel)
+        objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof, layout=layout)
         smp = smps[0]
         weights = None if len(w) == 1 else w
     else:

@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 
+from fmbrdf_mi.fit.evaluate.albedos import ChannelModel, floored
 from fmbrdf_mi.fit.evaluate.models import Bounds, State
 from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.objectives.objective import PaperObjective
@@ -117,6 +118,19 @@ class Problem:
         a_s, a_b = self.obj.albedos(parts)
         return State(dict(shape), a_s, a_b), parts
 
+    @property
+    def projects(self):
+        """Whether the one LM re-solves the albedos in closed form at every trial point (variable
+        projection): with per-channel albedos (a layout), whose log-albedo column vanishes with a
+        channel's albedo, so that without it a channel the first steps drive towards 0 stays there."""
+        return self.layout is not None
+
+    def projected(self, shape):
+        """(State, parts) at ``shape`` with the albedos at their closed-form optimum (:meth:`closed_form`),
+        those at 0 raised to 1e-9 of the largest so that z stays finite.  One model evaluation."""
+        st, parts = self.closed_form(shape)
+        return State(st.shape, *floored(st.a_s, st.a_b)), parts
+
     def set_weights(self, parts, st):
         self.obj.refresh(parts, st)
 
@@ -164,7 +178,8 @@ class FitData:
     def problem(self, model, bounds, progress, fixed, deadline):
         """The :class:`Problem` of these data (the free-power one when ``make_problem`` says so)."""
         if self.make_problem is None:
-            return Problem(model, self.evaluator, self.objective, Bounds(model, bounds), progress, fixed=fixed,
-                           deadline=deadline)
+            layout = getattr(self.objective, "layout", None)   # per-channel albedos: a model that reports them
+            return Problem(model if layout is None else ChannelModel(model, layout), self.evaluator, self.objective,
+                           Bounds(model, bounds), progress, fixed=fixed, deadline=deadline)
         return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
 

@@ -115,7 +115,7 @@ def coarse_search(problem, keep=2):
     def evaluate(shape):
         st, parts = problem.closed_form(shape)
         c_s, c_b = st.a_s * float(np.mean(parts.surface[0])), st.a_b * float(np.mean(parts.body[0]))
-        lobes["last"] = min(c_s, c_b) >= ALBEDO_BOUND * max(c_s, c_b)
+        lobes["last"] = bool(np.all(np.minimum(c_s, c_b) >= ALBEDO_BOUND * np.maximum(c_s, c_b)))  # every channel
         return problem.obj.score(parts, st), st
 
     def on_point(key, results):
@@ -144,10 +144,15 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
     before the damping is raised.  Converged: the objective's small-decrease
     test twice in a row, or (likelihood) a Gauss-Newton decrement below
     :data:`~fmbrdf_mi.fit.solve.lm.DECREMENT_TOL` on a fresh Jacobian, or no step lowers the
-    objective at float32 precision.  Returns (State, value, stop reason,
-    converged, J, r) with an AD Jacobian at the result.
+    objective at float32 precision.  A problem that projects its albedos
+    (:attr:`~fmbrdf_mi.fit.problem.problem.Problem.projects`: per-channel
+    albedos) re-solves them in closed form at the start and at every trial
+    point (variable projection) and takes an AD Jacobian at every step (no
+    secant: the albedo coordinates jump).  Returns (State, value, stop
+    reason, converged, J, r) with an AD Jacobian at the result.
     """
     obj = problem.obj
+    project = problem.projects   # per-channel albedos: re-solved at every trial point, AD Jacobian every step
 
     def linearise(x):
         st, z = x
@@ -156,7 +161,12 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
     def trial(x, delta, lin):
         z_new = np.clip(x[1] + delta, -40, 40)
         st_new = problem.from_z(z_new)
-        r_new = obj.residuals(problem.parts(st_new), st_new)
+        if project:
+            st_new, parts = problem.projected(st_new.shape)
+            z_new = problem.to_z(st_new)
+        else:
+            parts = problem.parts(st_new)
+        r_new = obj.residuals(parts, st_new)
         return (st_new, z_new), float(r_new @ r_new), r_new
 
     def secant(lin, x, x_new, r_new):   # Broyden's update with what the trial taught
@@ -173,13 +183,16 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         problem.progress(f"[lm {round_no}] iter {it:2d}  {obj.name} {f:.6e}  {format_state(problem, st)}  "
                          f"({time.time() - problem.t0:.1f} s)")
 
+    if project:
+        st = problem.projected(st.shape)[0]
     z = problem.to_z(st)
     lin = linearise((st, z))
     problem.current = st
     t0 = time.time()
     res = LM.levenberg_marquardt(
         (st, z), float(lin[0] @ lin[0]), linearise, lambda lin, lam: LM.dense_step(lin[1], lin[0], lam), trial,
-        max_iter=max_iter, lin=lin, refresh=refresh, secant=secant, moved=lambda lin, x_new, r_new: (r_new, lin[1]),
+        max_iter=max_iter, lin=lin, refresh=1 if project else refresh, secant=None if project else secant,
+        moved=None if project else (lambda lin, x_new, r_new: (r_new, lin[1])),
         decrement=(lambda lin: LM.gn_decrement(lin[1], lin[0])) if obj.is_likelihood else None,
         small=lambda f, f_new: obj.small_decrease(f, f_new, tol),
         step_small=None if obj.is_likelihood else (lambda x, x_new: float(np.max(np.abs(x_new[1] - x[1]))) < 1e-4),
