@@ -37,6 +37,20 @@ works on: log for log-scale parameters), or closer to a bound than 1.96 SE,
 is listed in ``at_bound``: its interval is not a confidence interval there.
 ``bound_distance_se`` gives each free shape parameter's distance from its
 nearest bound in standard errors.
+
+**Where the quadratic approximation fails** (likelihood fits,
+:func:`profile_intervals`).  A Fisher interval assumes chi^2 is quadratic
+over it; kappa's effect saturates, parameters sit near bounds, pairs are
+strongly correlated.  So each free shape parameter's interval is checked:
+at both its ends chi^2 along the covariance's own path (the other unknowns
+at their regression on the parameter: one model evaluation each) must have
+risen by the 95 % threshold 1.96^2 (times the covariance's scale) to within
+:data:`PROFILE_TOL`.  Where it has not, that end is replaced by the
+profile likelihood's (refits with the parameter held fixed, the other
+unknowns free, the variances frozen at the fit's): ``interval_kind`` says
+per parameter which kind each interval is, and the standard errors stay the
+Fisher ones.  Problems with extra unknowns (free light powers, per-pixel
+normals) keep Fisher intervals.
 """
 from __future__ import annotations
 
@@ -232,6 +246,146 @@ def summarise(problem, st, J, r, n_independent=None):
     corr = np.clip(np.nan_to_num(corr, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
     out["correlation"] = {"names": names, "matrix": np.round(corr, 4).tolist()}
     return out
+
+
+#: A shape parameter's Fisher interval is kept when, at each of its ends, chi^2 along the covariance's path
+#: (the other unknowns at their regression on it) rises by the 95 % threshold to within this fraction;
+#: otherwise the profile likelihood gives that end (:func:`profile_intervals`).
+PROFILE_TOL = 0.15
+
+#: A profile end is found when its chi^2 rise is within this fraction of the threshold.
+PROFILE_ROOT_TOL = 0.1
+
+
+def interval_scale(problem, unc):
+    """The factor the covariance was scaled by (chi^2/dof when inflated or when the noise level was
+    estimated, else 1): the 95 % threshold of a chi^2 rise is 1.96^2 times it."""
+    inflated = unc.get("misfit") or not getattr(problem.obj.noise, "known", True)
+    return float(unc["chi2_per_dof"]) if inflated and unc.get("chi2_per_dof") else 1.0
+
+
+def chi2_along_covariance(problem, st, J, scale):
+    """f(name, value): chi^2 (the objective's current weights) with shape parameter ``name`` at ``value`` and
+    every other unknown at its regression on it under the covariance scale (J^T J)^-1 in z: the path a
+    quadratic likelihood's profile would follow.  One model evaluation per call; >= the profile."""
+    z0 = problem.to_z(st)
+    cz = np.linalg.pinv(J.T @ J) * scale
+
+    def state(name, value):
+        j = problem.names.index(name)
+        zt = problem.bounds.to_z(name, value)
+        s = problem.from_z(z0 + cz[:, j] / cz[j, j] * (zt - z0[j]))
+        s.shape[name] = float(value)   # exactly (z is clipped to +-Z_MAX)
+        return s
+
+    def f(name, value):
+        s = state(name, value)
+        return problem.obj.value(problem.parts(s), s)
+
+    f.state = state      # the path's point: where a refit of the profile starts
+    return f
+
+
+def profile_end(problem, name, value, side, start, delta, chi2_min, refit, max_refits=3):
+    """One end of ``name``'s profile-likelihood 95 % interval: where the best chi^2 with ``name`` held fixed
+    (``refit(name, v)`` -> that chi^2) rises by ``delta`` above ``chi2_min``, on ``side`` (-1 or +1) of the estimate
+    ``value``, from a first guess ``start``.  The search runs on the parameter's own scale (log for
+    log-scale parameters), by the square root of the rise, which is linear in the distance for a quadratic
+    likelihood: a step to where that line meets sqrt(delta), then false position once the end is
+    bracketed.  Returns (end, kind, points): kind "profile", or "profile, open at the bound" when even
+    the bound does not raise chi^2 by ``delta``; points: [(value, rise)] tried."""
+    b = problem.bounds
+    _, _, lo, hi = b.lims[name]
+    bound = lo if side < 0 else hi
+    t0, tb = b.to_scale(name, value), b.to_scale(name, bound)
+    room = abs(tb - t0)
+    u = min(abs(b.to_scale(name, start) - t0), room)
+    pts, inside, outside = [], (0.0, 0.0), None    # (|u|, sqrt(rise)) below and above the threshold
+    g_target = math.sqrt(delta)
+    for _ in range(max_refits):
+        u = min(max(u, 1e-9 * max(room, 1.0)), room)
+        v = b.from_scale(name, t0 + side * u) if u < room else bound
+        rise = refit(name, v) - chi2_min
+        pts.append((float(v), float(rise)))
+        g = math.sqrt(max(rise, 0.0))
+        if abs(rise / delta - 1.0) < PROFILE_ROOT_TOL:
+            return float(v), "profile", pts
+        if g < g_target:
+            if u >= room:
+                return float(bound), "profile, open at the bound", pts
+            inside = (u, g)
+        else:
+            outside = (u, g)
+        if outside is None:      # not bracketed: extrapolate the line through 0 and the point (at most x4)
+            u = min(u * (g_target / g if g > 0 else 4.0), 4.0 * u, room)
+        else:                    # false position between the bracketing points
+            (ua, ga), (ub, gb) = inside, outside
+            u = ua + (g_target - ga) * (ub - ua) / (gb - ga) if gb > ga else 0.5 * (ua + ub)
+    # not within tolerance after max_refits: the bracket's interpolation, or the farthest point tried
+    if outside is not None:
+        (ua, ga), (ub, gb) = inside, outside
+        u = ua + (g_target - ga) * (ub - ua) / (gb - ga) if gb > ga else ub
+        return float(b.from_scale(name, t0 + side * u)), "profile", pts
+    return float(pts[-1][0]), "profile, at least", pts
+
+
+def profile_intervals(problem, st, unc, J, r, refit):
+    """Check every free shape parameter's Fisher 95 % interval against the likelihood; where it fails,
+    replace that end by the profile likelihood's (issue: intervals that mean what they say).
+
+    The measured criterion: at each end of the Fisher interval (cut at a bound), chi^2 along the
+    covariance's path (:func:`chi2_along_covariance`, one model evaluation) must rise by the 95 %
+    threshold delta = 1.96^2 x the covariance's scale to within :data:`PROFILE_TOL` (a quadratic
+    likelihood's rise is exactly delta there); at a bound, by at most delta (1 + tol): the bound is then
+    inside the interval.  Where it does not, that end is the profile likelihood's
+    (:func:`profile_end`: refits with the parameter held fixed, ``refit(name, value, start)`` -> chi^2,
+    ``start`` the path's State there).
+    Adds ``interval_kind`` {name: "fisher" | "profile" | ...} and ``profile`` {name: the rises tried} to
+    ``unc`` and replaces the profiled ends in ``unc["ci95"]``; the standard errors stay Fisher's.
+    Likelihood fits only (the paper's loss is not a likelihood); parameters without a finite
+    standard error are left alone.
+    """
+    if not problem.obj.is_likelihood or not unc.get("ci95") or problem.with_fixed({}) is None:
+        return unc
+    chi2_min = float(r @ r)
+    scale = interval_scale(problem, unc)
+    delta = Z95 ** 2 * scale
+    try:
+        path = chi2_along_covariance(problem, st, J, scale)
+    except np.linalg.LinAlgError:
+        return unc
+
+    def refit_near(name, v):     # each refit starts from the covariance path's point
+        return refit(name, v, path.state(name, v))
+
+    kinds, details, fisher = {}, {}, {n: list(v) for n, v in unc["ci95"].items()}
+    for n in problem.names:
+        se = unc["std_errors"].get(n)
+        if se is None or not math.isfinite(se) or se <= 0:
+            continue
+        _, _, lo, hi = problem.bounds.lims[n]
+        v = st.shape[n]
+        ends, kind, tried = list(unc["ci95"][n]), [], {}
+        for i, side in enumerate((-1, 1)):
+            end = ends[i]
+            at_bound = end <= lo or end >= hi
+            rise = path(n, end) - chi2_min
+            ok = rise <= delta * (1 + PROFILE_TOL) if at_bound else abs(rise / delta - 1) <= PROFILE_TOL
+            tried["fisher_end_rise" if i else "fisher_start_rise"] = float(rise)
+            if ok:
+                kind.append("fisher")
+                continue
+            ends[i], k, pts = profile_end(problem, n, v, side, end, delta, chi2_min, refit_near)
+            kind.append(k)
+            tried["lower" if side < 0 else "upper"] = pts
+        kinds[n] = kind[0] if kind[0] == kind[1] else f"lower {kind[0]}, upper {kind[1]}"
+        details[n] = tried
+        unc["ci95"][n] = [float(min(ends[0], v)), float(max(ends[1], v))]
+    unc["interval_kind"] = kinds
+    unc["profile"] = {"threshold": delta, "rises": details, "fisher_ci95": fisher}
+    if any(k != "fisher" for k in kinds.values()):
+        unc["method"] += "; profile-likelihood 95 % intervals where the Fisher ones fail (interval_kind)"
+    return unc
 
 
 def misfit_text(unc):

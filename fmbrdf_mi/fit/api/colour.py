@@ -53,7 +53,8 @@ from fmbrdf_mi.fit.problem.data import RAW_AREA_POINTS, prepare
 
 
 def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=None, max_pixels=None, seed=0,
-               irls_rounds=4, progress=None, max_time=None, max_iter=40, starts=2, area_points=RAW_AREA_POINTS):
+               irls_rounds=4, progress=None, max_time=None, max_iter=40, starts=2, area_points=RAW_AREA_POINTS,
+               intervals="auto"):
     """Fit one material with per-channel albedos to a colour mosaic's samples (module docstring).
 
     ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` whose grid is
@@ -71,7 +72,8 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     ``irls_rounds``: at most this many reweighting rounds (at least 3).
     ``area_points``: each raw sample is the mean of the model over this
     many points squared of its pixel (as a sensor pixel integrates; 1: its
-    centre), as in the one-channel likelihood.
+    centre), as in the one-channel likelihood.  ``intervals``: as
+    :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`' (profile-likelihood ends where the Fisher ones fail).
 
     The fit is :func:`~fmbrdf_mi.fit.api.fitting.fit` of the observations
     with these samples: the same pixel selection (grazing and polar periods
@@ -101,7 +103,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     obs_l = [dataclasses.replace(o, samples=smp, noise=noise) for o, smp in zip(obs_l, smp_l)]
     opts = FitOptions(model=model, loss="likelihood", fixed=fixed, bounds=bounds, max_pixels=max_pixels, seed=seed,
                       rounds=max(1, int(irls_rounds) - 2), max_time=max_time, max_iter=max_iter, starts=starts,
-                      area_points=area_points, erode=0)
+                      area_points=area_points, erode=0, intervals=intervals)
     data = prepare(obs_l, opts, "likelihood", single=not joint)
     res = fit(obs_l[0], opts, progress=progress or False, data=data)
     layout, m = data.objective.layout, get_model(model)
@@ -118,7 +120,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     res.pixels = data.image_pixels if joint else data.image_pixels[0]
     res.options = {"model": model, "fixed": fixed, "bounds": bounds, "max_pixels": max_pixels, "seed": seed,
                    "irls_rounds": irls_rounds, "max_time": max_time, "max_iter": max_iter, "starts": starts,
-                   "area_points": int(area_points)}
+                   "area_points": int(area_points), "intervals": intervals}
     res.details.update({"chi2": res.loss, "chi2_per_dof": res.loss / max(r.size - res.details.pop("n_free"), 1),
                         "n_samples": int(r.size), "evaluations": res.timings["evaluations"],
                         "time_s": time.time() - t0, "chi2_per_sample": per_chi2 if joint else per_chi2[0]})

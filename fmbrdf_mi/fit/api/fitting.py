@@ -19,7 +19,7 @@ from fmbrdf_mi.fit.problem.free_power import power_text, split_result
 from fmbrdf_mi.fit.problem.problem import TimeUp
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import optimise as O
-from fmbrdf_mi.fit.solve.driver import solve
+from fmbrdf_mi.fit.solve.driver import refit_fixed, solve
 from fmbrdf_mi.fit.uncertainty import WEAK_REL
 
 
@@ -52,6 +52,9 @@ class FitOptions:
     power_start: str = "ratio"        # ... starting from "ratio" (closed form) or "given"
     area_points: int = None           # likelihood: each sample the mean of the model over m x m points of its
                                       # pixel (None: 2 for raw mosaics, 1 = the pixel's centre otherwise)
+    intervals: str = "auto"           # likelihood: "auto" checks each shape parameter's Fisher 95 % interval
+                                      # against the likelihood and takes the profile likelihood's ends where it
+                                      # fails (uncertainty.profile_intervals); "fisher": Fisher intervals only
 
 
 def weakly_identified(params, std, at_bound=()):
@@ -116,6 +119,8 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         raise InputError("free_power: the relative light powers are estimated in joint fits of two or more "
                          "images (fit_joint; fmbrdf-mi fit --free-power with --manifest, --authors or several "
                          "--light)")
+    if opts.intervals not in ("auto", "fisher"):
+        raise InputError(f"intervals: expected 'auto' or 'fisher', got {opts.intervals!r}")
     loss = resolve_loss(obs, opts)
     if loss == "likelihood" and (opts.optimizer != "lm" or opts.path != "pixel"):
         raise InputError("loss 'likelihood' works with the pixel path and optimizer 'lm' (use --loss paper "
@@ -168,6 +173,15 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
         n_ind = None if loss != "likelihood" else len(idx) * objective.dof
         unc = U.summarise(problem, st, J, r, n_ind)
+        if loss == "likelihood" and opts.intervals == "auto":
+            if deadline is not None and time.time() > deadline:
+                unc["method"] += "; intervals not checked against the profile likelihood (max_time reached)"
+            else:
+                unc = U.profile_intervals(problem, st, unc, J, r, lambda n, v, s: refit_fixed(problem, st, n, v, s))
+                prof = {n: k for n, k in unc.get("interval_kind", {}).items() if k != "fisher"}
+                if prof:
+                    report("[fit] profile-likelihood 95 % intervals (the Fisher ones fail there): "
+                           + ", ".join(f"{n} ({k})" for n, k in prof.items()))
         if unc.get("misfit"):
             report("[fit] warning: " + U.misfit_text(unc))
     elif not converged:

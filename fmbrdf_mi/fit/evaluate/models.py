@@ -277,6 +277,10 @@ class Bounds:
         """``value`` on the parameter's scale (log, log1p, ...: where the sigmoid of :meth:`to_value` is linear)."""
         return float(_fwd(self.model.param(name).scale, float(value)))
 
+    def from_scale(self, name, t):
+        """Inverse of :meth:`to_scale`."""
+        return float(_inv(self.model.param(name).scale, float(t)))
+
     def clip_grid(self, name, grid):
         _, _, lo, hi = self.lims[name]
         g = sorted({min(max(float(x), lo), hi) for x in grid})

@@ -52,6 +52,14 @@ class Problem:
         self.current = None     # latest accepted state (what a fit stopped by the clock reports)
         self.both_lobes = {}    # coarse-search point -> both albedos switched on
 
+    def with_fixed(self, values):
+        """The same problem (model, evaluator, objective with its current weights, bounds) with the shape
+        parameters ``values`` ({name: value}) held fixed too, and no deadline; None for problems with extra
+        unknowns (subclasses), which do not support it."""
+        if type(self) is not Problem:
+            return None
+        return Problem(self.model, self.ev, self.obj, self.bounds, self.progress, fixed={**self.fixed, **values})
+
     # the paper objective's weights, as before (tests and Adam use them)
     @property
     def target(self):

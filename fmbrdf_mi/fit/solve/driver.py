@@ -177,3 +177,28 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
         out.state, out.reason, out.converged, out.J, out.r = (problem.current, f"max_time {max_time:g} s reached",
                                                               False, None, None)
     return out
+
+
+def refit_fixed(problem, st, name, value, start=None, max_iter=10):
+    """chi^2 of the best fit with shape parameter ``name`` held at ``value`` and every other unknown free,
+    with the objective's current weights: one point of the profile likelihood
+    (:func:`fmbrdf_mi.fit.uncertainty.profile_intervals`).  From ``start`` (a State: the covariance path's
+    point there) or ``st`` with ``name`` moved (the albedos then from their closed form); at most
+    ``max_iter`` LM iterations (the profile needs chi^2 to ~0.1, not the optimum to 0.1 SE).  None for
+    problems that cannot hold a parameter fixed (:meth:`~fmbrdf_mi.fit.problem.problem.Problem.with_fixed`)."""
+    sub = problem.with_fixed({name: float(value)})
+    if sub is None:
+        return None
+    if start is not None:
+        start = sub.state(start.shape, start.a_s, start.a_b)
+        if sub.projects:
+            start = sub.projected(start.shape)[0]
+    else:
+        shape = dict(st.shape, **{name: float(value)})
+        start = (sub.projected(shape) if sub.projects else sub.closed_form(shape))[0]
+    if not sub.names and not sub.projects:   # only the albedos free: the closed form is the fit
+        start = sub.closed_form(start.shape)[0]
+        r = sub.obj.residuals(sub.parts(start), start)
+        return float(r @ r)
+    end, f, *_ = O.levenberg_marquardt(sub, start, max_iter=max_iter, final_jacobian=False)
+    return float(f)

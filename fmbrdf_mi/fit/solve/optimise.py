@@ -133,7 +133,7 @@ def format_state(problem, st):
 
 
 def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, history=None,
-                        round_no=0, refresh=3):
+                        round_no=0, refresh=3, final_jacobian=True):
     """Minimise the objective from ``st`` with its current weights (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`).
 
     The Jacobian comes from forward-mode AD at the start and at least every
@@ -144,7 +144,9 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
     before the damping is raised.  Converged: the objective's small-decrease
     test twice in a row, or (likelihood) a Gauss-Newton decrement below
     :data:`~fmbrdf_mi.fit.solve.lm.DECREMENT_TOL` on a fresh Jacobian, or no step lowers the
-    objective at float32 precision.  A problem that projects its albedos
+    objective at float32 precision.  ``final_jacobian`` False: no AD
+    Jacobian at the result (J, r are then those of the last linearisation).
+    A problem that projects its albedos
     (:attr:`~fmbrdf_mi.fit.problem.problem.Problem.projects`: per-channel
     albedos) re-solves them in closed form at the start and at every trial
     point (variable projection) and takes an AD Jacobian at every step (no
@@ -197,7 +199,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         small=lambda f, f_new: obj.small_decrease(f, f_new, tol),
         step_small=None if obj.is_likelihood else (lambda x, x_new: float(np.max(np.abs(x_new[1] - x[1]))) < 1e-4),
         time_up=None if time_limit is None else (lambda: time.time() - t0 > time_limit),
-        on_accept=on_accept)
+        on_accept=on_accept, final_linearise=final_jacobian)
     reason = {"decrement": f"Gauss-Newton decrement < {LM.DECREMENT_TOL:g}",
               "no_step": "no step lowers the objective (converged to float32 precision)",
               "small_decrease": "objective decrease below tolerance twice in a row",

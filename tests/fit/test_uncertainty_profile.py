@@ -1,0 +1,121 @@
+"""Profile-likelihood intervals (fmbrdf_mi.fit.uncertainty.profile_intervals) against a brute-force profile.
+
+The reference does not use the package's optimiser: the profile chi^2 at a kappa is the minimum over
+alpha by golden-section search on alpha's log scale (14 steps over +-0.4: alpha to 0.2 %), with the two
+albedos at their exact optimum for each (alpha, kappa) (the model is linear in them: non-negative weighted
+least squares), the likelihood's variances frozen at the fit's (the profile of the IRLS objective).  eta
+and beta are held fixed so that alpha is the only other non-linear unknown.  The package finds each end to
+within 10 % of the threshold in the chi^2 rise, about 5 % of the distance for a near-quadratic profile;
+the test requires the brute-force profile to cross the threshold within 8 % of the Fisher half-width of
+the package's end (below it 8 % inside, above it 8 % outside).
+"""
+import math
+
+import numpy as np
+import pytest
+
+from fmbrdf_mi.camera import CameraModel
+from fmbrdf_mi.fit import uncertainty as U
+from fmbrdf_mi.fit.api.fitting import FitOptions, fit
+from fmbrdf_mi.fit.evaluate.models import State, get_model
+from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+from fmbrdf_mi.fit.problem.data import prepare
+from fmbrdf_mi.fit.solve.driver import refit_fixed, solve
+
+TRUE = {"eta": 1.5, "alpha": 0.15, "beta": 0.8, "kappa": 10.0, "k_s": 0.6, "r_k": 1.0}
+FIXED = {"eta": 1.5, "beta": 0.8}
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    cam = CameraModel(full_well=10000.0, read_noise=2.5, bits=12)
+    obs = capture_observation(ideal_sphere(TRUE, res=16, light=(0.45, 0.35, 1.0)), cam, seed=2)[0]
+    opts = FitOptions(loss="likelihood", fixed=FIXED, starts=1)
+    data = prepare([obs], opts, "likelihood", single=True)
+    problem = data.problem(get_model("fmbrdf"), None, None, FIXED, None)
+    sol = solve(problem, starts=1, rounds=5)
+    assert sol.converged
+    st = sol.state
+    r, J = problem.residuals_and_jacobian(problem.parts(st, jac=True), st, problem.to_z(st))
+    unc = U.summarise(problem, st, J, r, len(data.pixels) * 4)
+    return problem, st, J, r, unc
+
+
+def brute_profile(problem, st, kappa):
+    """min over alpha of chi^2 at (alpha, kappa), the albedos in closed form: golden section on log alpha."""
+    def chi2(log_a):
+        shape = dict(st.shape, alpha=math.exp(log_a), kappa=kappa)
+        parts = problem.parts(State(shape, 1.0, 1.0))
+        a_s, a_b = problem.obj.albedos(parts)
+        return problem.obj.value(parts, State(shape, a_s, a_b))
+
+    a, b = math.log(st.shape["alpha"]) - 0.4, math.log(st.shape["alpha"]) + 0.4
+    g = (math.sqrt(5) - 1) / 2
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = chi2(c), chi2(d)
+    for _ in range(14):
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = chi2(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = chi2(d)
+    return min(fc, fd)
+
+
+def test_profile_ends_match_a_brute_force_profile(fitted):
+    problem, st, J, r, unc = fitted
+    chi2_min = float(r @ r)
+    delta = U.Z95 ** 2 * U.interval_scale(problem, unc)
+    k0, se = st.shape["kappa"], unc["std_errors"]["kappa"]
+    path = U.chi2_along_covariance(problem, st, J, U.interval_scale(problem, unc))
+    refit = lambda n, v: refit_fixed(problem, st, n, v, path.state(n, v))          # noqa: E731
+    for side in (-1, 1):
+        end, kind, pts = U.profile_end(problem, "kappa", k0, side, k0 + side * U.Z95 * se, delta, chi2_min, refit)
+        assert kind == "profile", (kind, pts)
+        # the brute-force profile crosses the threshold within 8 % of the Fisher half-width of the package's end
+        hw = U.Z95 * se
+        inner = brute_profile(problem, st, end - side * 0.08 * hw) - chi2_min
+        outer = brute_profile(problem, st, end + side * 0.08 * hw) - chi2_min
+        assert inner < delta < outer, (side, end, se, inner, outer, delta, pts)
+
+
+def test_the_path_screen_bounds_the_profile_from_above(fitted):
+    """chi^2 along the covariance's path (the screen, one evaluation) is a feasible point of the profile's
+    minimisation, so it is never below the refitted profile (up to the refit's tolerance, 0.01 in chi^2)."""
+    problem, st, J, r, unc = fitted
+    path = U.chi2_along_covariance(problem, st, J, U.interval_scale(problem, unc))
+    for name in ("alpha", "kappa"):
+        v, se = st.shape[name], unc["std_errors"][name]
+        for f in (-1.5, 1.6):
+            x = v + f * U.Z95 * se
+            assert refit_fixed(problem, st, name, x) <= path(name, x) + 0.01, (name, f)
+
+
+def test_fit_reports_the_kind_of_every_interval():
+    """A fit says per shape parameter which interval it gives; where it keeps the Fisher one, the chi^2 rise
+    along the path at both ends is within PROFILE_TOL of the threshold (recorded in ``profile``)."""
+    cam = CameraModel(full_well=10000.0, read_noise=2.5, bits=12)
+    obs = capture_observation(ideal_sphere(TRUE, res=16, light=(0.45, 0.35, 1.0)), cam, seed=5)[0]
+    lines = []
+    res = fit(obs, FitOptions(loss="likelihood", starts=1, fixed=FIXED), progress=lines.append)
+    u = res.uncertainty
+    assert set(u["interval_kind"]) == {"alpha", "kappa"}
+    thr = u["profile"]["threshold"]
+    for n, kind in u["interval_kind"].items():
+        rises = u["profile"]["rises"][n]
+        if kind == "fisher":
+            assert u["ci95"][n] == u["profile"]["fisher_ci95"][n]
+            for k in ("fisher_start_rise", "fisher_end_rise"):
+                assert abs(rises[k] / thr - 1) <= U.PROFILE_TOL or rises[k] <= thr * (1 + U.PROFILE_TOL)
+        else:
+            assert "profile" in kind and ("lower" in rises or "upper" in rises)
+            assert any("profile-likelihood" in s for s in lines)
+    fisher = fit(obs, FitOptions(loss="likelihood", starts=1, fixed=FIXED, intervals="fisher"), progress=False)
+    assert "interval_kind" not in fisher.uncertainty
+    assert fisher.params == res.params and fisher.std_errors == res.std_errors   # only intervals change
+    with pytest.raises(Exception, match="intervals: expected 'auto' or 'fisher'"):
+        fit(obs, FitOptions(loss="likelihood", intervals="wald"), progress=False)
+    assert np.isfinite([v for ab in u["ci95"].values() for v in ab]).all()
