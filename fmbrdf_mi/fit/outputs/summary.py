@@ -11,6 +11,13 @@ from fmbrdf_mi.fit.uncertainty import WEAK_REL, misfit_text
 EXIT_NOT_CONVERGED = 3
 
 
+
+def kind_text(model_entry, name):
+    """`` (profile likelihood ...)`` after an interval that is not the Fisher one (uncertainty.profile_intervals)."""
+    unc = model_entry.get("uncertainty") or {}
+    kind = (unc.get("interval_kind") or {}).get(name, "fisher")
+    return "" if kind == "fisher" else f" ({kind.replace('profile', 'profile likelihood')})"
+
 def print_colour(report):
     """The stdout summary of a colour fit; returns the exit status (3: stopped before convergence)."""
     import sys
@@ -37,7 +44,7 @@ def print_colour(report):
                 if k in (m.get("fixed") or {}):
                     line += "  (fixed)"
                 elif std.get(k) is not None:
-                    line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]"
+                    line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]{kind_text(m, k)}"
                 if isinstance(rel.get(k), float):
                     line += f"  (vs metadata {rel[k]:+.2%})"
                 print(line)
@@ -135,7 +142,7 @@ def print_summary(report, out, t0):
         for k, v in m["params"].items():
             line = f"  {k:<6} {v:10.5g}"
             if k in std:
-                line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]"
+                line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]{kind_text(m, k)}"
             if "relative_error" in m and k in m["relative_error"]:
                 line += f"  (vs metadata {m['relative_error'][k]:+.2%})"
             print(line)
