@@ -188,6 +188,24 @@ NO_SENSOR = ("no <sensor> to render from; add a camera with a film, e.g. <sensor
              "... <film type=\"hdrfilm\"> ... </sensor> (see scenes/sphere.xml)")
 
 
+def check_meshes(root, path):
+    """CLIError for a .ply / .obj shape of the XML scene ``path`` whose file exists but holds no mesh (Mitsuba's
+    own message is an I/O error or "Could not map"); names with $parameters and missing files are Mitsuba's."""
+    for shape in root.iter("shape"):
+        if shape.get("type") not in ("ply", "obj"):
+            continue
+        for el in shape.findall("string"):
+            name = el.get("value", "")
+            if el.get("name") != "filename" or "$" in name:
+                continue
+            full = name if os.path.isabs(name) else os.path.join(os.path.dirname(os.path.abspath(path)), name)
+            if os.path.exists(full):
+                try:
+                    S.check_mesh_file(full)
+                except (OSError, ValueError) as e:
+                    raise CLIError(f"scene file {path}: shape '{shape.get('id') or shape.get('type')}': {e}") from None
+
+
 def xml_parameters(path):
     """``({name: default text or None}, xml text)`` of an XML scene's parameters.
 
@@ -201,12 +219,16 @@ def xml_parameters(path):
             text = f.read()
     except OSError as e:
         raise CLIError(f"scene file {path}: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise CLIError(f"scene file {path}: not a text (UTF-8) XML file: byte {e.start} is 0x{e.object[e.start]:02x} "
+                       "(a binary file?); a Mitsuba scene is XML text") from None
     try:
         root = ET.fromstring(text)
     except ET.ParseError as e:
         raise CLIError(f"scene file {path}: not valid XML ({e})") from None
     if next(root.iter("sensor"), None) is None and next(root.iter("include"), None) is None:
         raise CLIError(f"scene file {path}: {NO_SENSOR}")
+    check_meshes(root, path)
     found = {}
     for el in root.iter():
         for value in el.attrib.values():
@@ -311,6 +333,8 @@ def _scene_params(args):
     """(kind, {name: default}, xml text or None) of the chosen scene."""
     if args.scene is None:
         return "builtin", {k: v for k, (v, _) in BUILTIN_PARAMS.items()}, None
+    if os.path.isdir(args.scene):
+        raise CLIError(f"scene file {args.scene}: is a directory, expected a Mitsuba XML file")
     if not os.path.isfile(args.scene):
         raise CLIError(f"scene file {args.scene} not found")
     params, text = xml_parameters(args.scene)

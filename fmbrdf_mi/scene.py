@@ -160,6 +160,48 @@ def _check_irradiance(irradiance):
     return v
 
 
+def check_mesh_file(path):
+    """ValueError unless ``path`` is a .ply or .obj mesh with vertices and faces (Mitsuba reports an empty one
+    as an I/O error, "No such file or directory", or a failed memory map).
+
+    Reads only what tells: a PLY's header (``element vertex N`` / ``element face N``), an OBJ's ``v`` and
+    ``f`` lines.
+    """
+    import os
+
+    name = os.fspath(path)
+    if os.path.isdir(name):
+        raise ValueError(f"mesh file {name}: is a directory, expected a .ply or .obj file")
+    size = os.path.getsize(name)
+    if size == 0:
+        raise ValueError(f"mesh file {name}: empty (0 bytes); a .ply or .obj mesh needs vertices and faces")
+    if name.lower().endswith(".ply"):
+        with open(name, "rb") as f:
+            head = f.read(65536)
+        if not head.startswith(b"ply"):
+            raise ValueError(f"mesh file {name}: not a PLY file (it does not start with 'ply')")
+        if b"end_header" not in head:
+            raise ValueError(f"mesh file {name}: a PLY header without end_header (truncated or not a mesh)")
+        counts = dict(re.findall(rb"^element\s+(\w+)\s+(\d+)", head.split(b"end_header")[0], re.M))
+        for key, what in ((b"vertex", "vertices"), (b"face", "faces")):
+            if int(counts.get(key, 0)) == 0:
+                raise ValueError(f"mesh file {name}: no {what} (its header says element {key.decode()} "
+                                 f"{int(counts.get(key, 0))}); a mesh needs vertices and faces")
+    elif name.lower().endswith(".obj"):
+        seen = set()
+        with open(name, "rb") as f:
+            for line in f:
+                tag = line.split(None, 1)[0] if line.strip() else b""
+                if tag in (b"v", b"f"):
+                    seen.add(tag)
+                    if len(seen) == 2:
+                        break
+        for key, what in ((b"v", "vertices ('v' lines)"), (b"f", "faces ('f' lines)")):
+            if key not in seen:
+                raise ValueError(f"mesh file {name}: no {what}; a mesh needs vertices and faces")
+    return name
+
+
 # ---------------------------------------------------------------- scene dicts
 def _mi():
     import mitsuba as mi

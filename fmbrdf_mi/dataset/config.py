@@ -331,6 +331,10 @@ def _shape_name(path, x, base_dir):
         full = os.path.join(base_dir, x)
         if not os.path.isfile(full):
             raise _err(path, f"mesh file {x!r} not found (looked for {os.path.abspath(full)})")
+        try:
+            S.check_mesh_file(full)
+        except (OSError, ValueError) as e:
+            raise _err(path, str(e)) from None
         return x
     raise _err(path, f"unknown shape {x!r}; expected one of {', '.join(BUILTIN_SHAPES)} "
                      f"or a mesh file ending in .ply or .obj")
