@@ -28,6 +28,7 @@ import numpy as np
 from . import __version__
 from . import scene as S
 from ._llvm import LLVMTooOldError
+from ._paths import resolve_builtin
 from .dataset.command import HELP as DATASET_HELP, add_dataset_arguments, run_dataset
 from .brdf_fit.command import HELP as FIT_BRDF_HELP, add_fit_brdf_arguments, run_fit_brdf
 from fmbrdf_mi.fit.cli.command import add_fit_arguments, run_fit
@@ -185,7 +186,7 @@ BUILTIN_PARAMS = {
 
 #: What an XML scene without a camera is told.
 NO_SENSOR = ("no <sensor> to render from; add a camera with a film, e.g. <sensor type=\"orthographic\"> "
-             "... <film type=\"hdrfilm\"> ... </sensor> (see scenes/sphere.xml)")
+             "... <film type=\"hdrfilm\"> ... </sensor> (see builtin:sphere, fmbrdf_mi/scenes/sphere.xml)")
 
 
 def check_meshes(root, path):
@@ -281,7 +282,8 @@ def add_render_arguments(p):
     p.add_argument("output", nargs="?", help="Stokes EXR to write (previews go beside it: "
                    "NAME_intensity.png, NAME_dolp.png, NAME_aolp.png, ...)")
     p.add_argument("-s", "--scene", metavar="FILE",
-                   help="Mitsuba XML scene (e.g. scenes/spheres.xml); default: the built-in sphere")
+                   help="Mitsuba XML scene, or one shipped with the package: builtin:sphere, builtin:spheres, "
+                        "builtin:sphere_perspective (fmbrdf_mi/scenes/); default: the built-in sphere")
     p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
                    help="set a scene parameter, e.g. -D eta=1.6 -D light_dir=0,0.5,1 (repeatable)")
     p.add_argument("--spp", type=int, help="samples per pixel (default: the scene's, 64)")
@@ -333,6 +335,7 @@ def _scene_params(args):
     """(kind, {name: default}, xml text or None) of the chosen scene."""
     if args.scene is None:
         return "builtin", {k: v for k, (v, _) in BUILTIN_PARAMS.items()}, None
+    args.scene = resolve_builtin(args.scene, (".xml",), "scene file")  # builtin:spheres -> the shipped file
     if os.path.isdir(args.scene):
         raise CLIError(f"scene file {args.scene}: is a directory, expected a Mitsuba XML file")
     if not os.path.isfile(args.scene):

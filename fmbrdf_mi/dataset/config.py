@@ -29,6 +29,7 @@ import os
 import numpy as np
 
 from .. import params as P
+from .._paths import resolve_builtin
 from .. import scene as S
 
 FORMAT = "fmbrdf-mi-dataset/1"
@@ -486,11 +487,19 @@ def _quat_matrix(q):
     return [[float(v) for v in row] for row in m]
 
 
+def config_path(path):
+    """The file of a config path: ``builtin:dataset_example`` is the example shipped with the package."""
+    try:
+        return resolve_builtin(os.fspath(path), (".toml", ".json"), "config")
+    except ValueError as e:
+        raise DatasetConfigError(str(e)) from None
+
+
 def read_config_file(path):
     """The raw configuration data of a .toml or .json file."""
     if not isinstance(path, (str, os.PathLike)):
         raise DatasetConfigError(f"config: expected a .toml or .json file name, got {path!r}")
-    path = os.fspath(path)
+    path = config_path(path)
     if not os.path.isfile(path):
         raise DatasetConfigError(f"config {path}: no such file")
     ext = os.path.splitext(path)[1].lower()
@@ -524,5 +533,5 @@ def load_config(config, base_dir=None):
     if not isinstance(config, (str, os.PathLike)):
         raise DatasetConfigError(f"config: expected a .toml or .json file name, a dict or a DatasetConfig, "
                                  f"got {config!r}")
-    path = os.fspath(config)
+    path = config_path(config)
     return DatasetConfig(read_config_file(path), base_dir or os.path.dirname(os.path.abspath(path)))
