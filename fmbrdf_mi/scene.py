@@ -112,9 +112,13 @@ def check_light_dir(light_dir):
         raise ValueError(f"light_dir: expected three numbers x, y, z, got {light_dir!r}") from None
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise ValueError(f"light_dir: expected three finite numbers x, y, z, got {light_dir!r}")
-    n = np.linalg.norm(v)
-    if n < 1e-12:
+    if not np.any(v):
         raise ValueError("light_dir: must not be the zero vector")
+    with np.errstate(over="ignore", under="ignore"):
+        n = np.linalg.norm(v)
+    if not 1e-150 < n < 1e150:     # (1e308, 0, 0): normalised without overflow (others exactly as before)
+        v = v / np.abs(v).max()
+        n = np.linalg.norm(v)
     return tuple(float(x) for x in v / n)
 
 

@@ -93,6 +93,15 @@ def test_huge_and_tiny_directions_are_normalised(v, want):
     np.testing.assert_allclose(check_direction(v, "light"), want, atol=1e-15)
 
 
+def test_render_light_dir_of_1e308():
+    """Before: the norm overflowed and the light became (0, 0, 0)."""
+    from fmbrdf_mi import scene as S
+
+    assert S.check_light_dir([1e308, 0, 0]) == (1.0, 0.0, 0.0)
+    v = np.array([0.1, -0.6, 0.8])
+    assert S.check_light_dir(v) == tuple(v / np.linalg.norm(v))      # ordinary vectors: exactly as before
+
+
 @pytest.mark.parametrize("v", [np.zeros(3), np.array([np.nan, 0, 1])])
 def test_direction_message_shows_the_value_not_numpy(v):
     from fmbrdf_mi.fit import InputError

@@ -199,11 +199,12 @@ def check_direction(v, name):
     if a.shape != (3,) or not np.all(np.isfinite(a)) or not np.any(a):
         raise InputError(f"{name}: expected a finite non-zero 3-vector (x right, y up, z towards "
                          f"the camera), got {shown!r}")
-    a = a / np.abs(a).max()        # a huge or tiny vector (1e308, 0, 0) normalised without overflow
-    if np.linalg.norm(a) < 1e-9:
-        raise InputError(f"{name}: expected a finite non-zero 3-vector (x right, y up, z towards "
-                         f"the camera), got {shown!r}")
-    return a / np.linalg.norm(a)
+    with np.errstate(over="ignore", under="ignore"):
+        n = np.linalg.norm(a)
+    if not 1e-150 < n < 1e150:     # (1e308, 0, 0): normalised without overflow (others exactly as before)
+        a = a / np.abs(a).max()
+        n = np.linalg.norm(a)
+    return a / n
 
 
 def check_mask(mask, shape, name="mask"):
