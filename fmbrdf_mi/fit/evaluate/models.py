@@ -99,7 +99,6 @@ class Model:
 
         InputError naming what is missing or not a number (``dict(eta=9)`` for fmbrdf).
         """
-        import numbers
         from collections.abc import Mapping
 
         names = self.reported_names
@@ -109,7 +108,17 @@ class Model:
         if missing:
             raise InputError(f"{self.name} parameters: missing {', '.join(missing)} (give all of "
                              f"{', '.join(names)}), got {reported!r:.80}")
-        bad = [n for n in names if isinstance(reported[n], bool) or not isinstance(reported[n], numbers.Real)]
+
+        def number(v):
+            if isinstance(v, (bool, str, bytes)):
+                return False
+            try:
+                float(v)
+            except (TypeError, ValueError):
+                return False
+            return True
+
+        bad = [n for n in names if not number(reported[n])]
         if bad:
             raise InputError(f"{self.name} parameters: {bad[0]} must be a number, got {reported[bad[0]]!r}")
         shape = {n: float(reported[n]) for n in self.shape_names}
