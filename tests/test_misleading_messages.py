@@ -156,6 +156,19 @@ def test_input_that_is_not_a_regular_file(capsys, tmp_path, which):
     one_line_error(rc, err, "fit", *words)
 
 
+def test_stokes_exr_that_is_a_directory(capsys, tmp_path):
+    os.mkdir(tmp_path / "s.exr")
+    rc, _, err = run(capsys, "fit", str(tmp_path / "s.exr"), "--sphere", "8,8,6", "--light", "0,0,1",
+                     "-o", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "fit", "s.exr", "is a directory")
+
+
+def test_authors_directory_that_is_a_file(capsys, tmp_path):
+    (tmp_path / "obj").write_text("x")
+    rc, _, err = run(capsys, "fit", "--authors", str(tmp_path / "obj"), "-o", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "fit", "obj", "not a directory")
+
+
 def test_manifest_that_is_a_directory(capsys, tmp_path):
     os.mkdir(tmp_path / "m.toml")
     rc, _, err = run(capsys, "fit", "--manifest", str(tmp_path / "m.toml"), "-o", str(tmp_path / "out"), "-q")

@@ -104,7 +104,8 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
 
     root = os.fspath(root)
     if not os.path.isdir(root):
-        raise InputError(f"authors' object directory {root}: no such directory")
+        raise InputError(f"authors' object directory {root}: " + ("not a directory" if os.path.exists(root)
+                                                                    else "no such directory"))
     cal = os.path.join(root, "calibration")
     lfile = os.path.join(cal, "L.txt")
     if not os.path.isfile(lfile):
