@@ -15,7 +15,7 @@ import os
 import sys
 import tempfile
 
-from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.interrupt import interrupted
 
 #: chi^2 per raw sample from which a misfit (or an unconverged fit) is checked against the mirrored layout:
 #: fits of the right layout sit near 1 (1.17 on a render of 16 spp, its Monte Carlo noise), a mirrored
@@ -77,7 +77,9 @@ def mirrored_layout_hint(report, kw, fit_files, progress=True):
                    baselines=False, relight=None, relight_light=None, relight_irradiance=None)
         try:
             other_report = fit_files(**run)
-        except (InputError, ValueError, ArithmeticError):
+        except Exception as e:   # an optional check: its failure leaves the fit as it is (Ctrl-C stops)
+            if interrupted(e):
+                raise
             return None
     m1 = (other_report.get("models") or {}).get(model)
     c1 = chi2_per_sample(m1) if m1 else None
