@@ -38,6 +38,38 @@ def check_output_file(path, what="output"):
     check_output_dir(os.path.dirname(os.path.abspath(path)), f"{what} {path}: directory")
 
 
+#: How a file shipped with the package (fmbrdf_mi/scenes/) is named on the command line: ``builtin:NAME``.
+BUILTIN = "builtin:"
+
+
+def builtin_dir():
+    """The directory of the scenes and configs shipped with the package (installed by pip as package data)."""
+    from importlib.resources import files
+
+    return files("fmbrdf_mi") / "scenes"
+
+
+def builtin_names(suffixes):
+    """``builtin:NAME`` of every shipped file ending in one of ``suffixes`` (e.g. ``(".xml",)``), sorted."""
+    return sorted(BUILTIN + os.path.splitext(p.name)[0] for p in builtin_dir().iterdir()
+                  if p.name.endswith(tuple(suffixes)))
+
+
+def resolve_builtin(path, suffixes, what):
+    """``builtin:NAME`` (or ``builtin:NAME.ext``) -> the path of the shipped file; any other path unchanged.
+
+    ValueError naming ``what`` and listing the valid names for an unknown one.
+    """
+    if not isinstance(path, str) or not path.startswith(BUILTIN):
+        return path
+    name = path[len(BUILTIN):]
+    for suffix in ("",) + tuple(suffixes):
+        entry = builtin_dir() / (name + suffix)
+        if (name + suffix).endswith(tuple(suffixes)) and os.path.basename(name) == name and entry.is_file():
+            return os.fspath(entry)
+    raise ValueError(f"{what} {path}: no such built-in; valid: {', '.join(builtin_names(suffixes))}")
+
+
 def available_memory():
     """Bytes of memory available to a new allocation (MemAvailable), or None if unknown."""
     try:

@@ -28,6 +28,7 @@ import numpy as np
 from . import __version__
 from . import scene as S
 from ._llvm import LLVMTooOldError
+from ._paths import resolve_builtin
 from .dataset.command import HELP as DATASET_HELP, add_dataset_arguments, run_dataset
 from .brdf_fit.command import HELP as FIT_BRDF_HELP, add_fit_brdf_arguments, run_fit_brdf
 from fmbrdf_mi.fit.cli.command import add_fit_arguments, run_fit
@@ -185,7 +186,25 @@ BUILTIN_PARAMS = {
 
 #: What an XML scene without a camera is told.
 NO_SENSOR = ("no <sensor> to render from; add a camera with a film, e.g. <sensor type=\"orthographic\"> "
-             "... <film type=\"hdrfilm\"> ... </sensor> (see scenes/sphere.xml)")
+             "... <film type=\"hdrfilm\"> ... </sensor> (see builtin:sphere, fmbrdf_mi/scenes/sphere.xml)")
+
+
+def check_meshes(root, path):
+    """CLIError for a .ply / .obj shape of the XML scene ``path`` whose file exists but holds no mesh (Mitsuba's
+    own message is an I/O error or "Could not map"); names with $parameters and missing files are Mitsuba's."""
+    for shape in root.iter("shape"):
+        if shape.get("type") not in ("ply", "obj"):
+            continue
+        for el in shape.findall("string"):
+            name = el.get("value", "")
+            if el.get("name") != "filename" or "$" in name:
+                continue
+            full = name if os.path.isabs(name) else os.path.join(os.path.dirname(os.path.abspath(path)), name)
+            if os.path.exists(full):
+                try:
+                    S.check_mesh_file(full)
+                except (OSError, ValueError) as e:
+                    raise CLIError(f"scene file {path}: shape '{shape.get('id') or shape.get('type')}': {e}") from None
 
 
 def xml_parameters(path):
@@ -201,12 +220,16 @@ def xml_parameters(path):
             text = f.read()
     except OSError as e:
         raise CLIError(f"scene file {path}: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise CLIError(f"scene file {path}: not a text (UTF-8) XML file: byte {e.start} is 0x{e.object[e.start]:02x} "
+                       "(a binary file?); a Mitsuba scene is XML text") from None
     try:
         root = ET.fromstring(text)
     except ET.ParseError as e:
         raise CLIError(f"scene file {path}: not valid XML ({e})") from None
     if next(root.iter("sensor"), None) is None and next(root.iter("include"), None) is None:
         raise CLIError(f"scene file {path}: {NO_SENSOR}")
+    check_meshes(root, path)
     found = {}
     for el in root.iter():
         for value in el.attrib.values():
@@ -259,7 +282,8 @@ def add_render_arguments(p):
     p.add_argument("output", nargs="?", help="Stokes EXR to write (previews go beside it: "
                    "NAME_intensity.png, NAME_dolp.png, NAME_aolp.png, ...)")
     p.add_argument("-s", "--scene", metavar="FILE",
-                   help="Mitsuba XML scene (e.g. scenes/spheres.xml); default: the built-in sphere")
+                   help="Mitsuba XML scene, or one shipped with the package: builtin:sphere, builtin:spheres, "
+                        "builtin:sphere_perspective (fmbrdf_mi/scenes/); default: the built-in sphere")
     p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
                    help="set a scene parameter, e.g. -D eta=1.6 -D light_dir=0,0.5,1 (repeatable)")
     p.add_argument("--spp", type=int, help="samples per pixel (default: the scene's, 64)")
@@ -311,6 +335,9 @@ def _scene_params(args):
     """(kind, {name: default}, xml text or None) of the chosen scene."""
     if args.scene is None:
         return "builtin", {k: v for k, (v, _) in BUILTIN_PARAMS.items()}, None
+    args.scene = resolve_builtin(args.scene, (".xml",), "scene file")  # builtin:spheres -> the shipped file
+    if os.path.isdir(args.scene):
+        raise CLIError(f"scene file {args.scene}: is a directory, expected a Mitsuba XML file")
     if not os.path.isfile(args.scene):
         raise CLIError(f"scene file {args.scene} not found")
     params, text = xml_parameters(args.scene)

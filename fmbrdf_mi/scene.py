@@ -112,9 +112,13 @@ def check_light_dir(light_dir):
         raise ValueError(f"light_dir: expected three numbers x, y, z, got {light_dir!r}") from None
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise ValueError(f"light_dir: expected three finite numbers x, y, z, got {light_dir!r}")
-    n = np.linalg.norm(v)
-    if n < 1e-12:
+    if not np.any(v):
         raise ValueError("light_dir: must not be the zero vector")
+    with np.errstate(over="ignore", under="ignore"):
+        n = np.linalg.norm(v)
+    if not 1e-150 < n < 1e150:     # (1e308, 0, 0): normalised without overflow (others exactly as before)
+        v = v / np.abs(v).max()
+        n = np.linalg.norm(v)
     return tuple(float(x) for x in v / n)
 
 
@@ -158,6 +162,48 @@ def _check_irradiance(irradiance):
     if not math.isfinite(v) or v < 0:
         raise ValueError(f"irradiance: expected a finite number >= 0, got {irradiance!r}")
     return v
+
+
+def check_mesh_file(path):
+    """ValueError unless ``path`` is a .ply or .obj mesh with vertices and faces (Mitsuba reports an empty one
+    as an I/O error, "No such file or directory", or a failed memory map).
+
+    Reads only what tells: a PLY's header (``element vertex N`` / ``element face N``), an OBJ's ``v`` and
+    ``f`` lines.
+    """
+    import os
+
+    name = os.fspath(path)
+    if os.path.isdir(name):
+        raise ValueError(f"mesh file {name}: is a directory, expected a .ply or .obj file")
+    size = os.path.getsize(name)
+    if size == 0:
+        raise ValueError(f"mesh file {name}: empty (0 bytes); a .ply or .obj mesh needs vertices and faces")
+    if name.lower().endswith(".ply"):
+        with open(name, "rb") as f:
+            head = f.read(65536)
+        if not head.startswith(b"ply"):
+            raise ValueError(f"mesh file {name}: not a PLY file (it does not start with 'ply')")
+        if b"end_header" not in head:
+            raise ValueError(f"mesh file {name}: a PLY header without end_header (truncated or not a mesh)")
+        counts = dict(re.findall(rb"^element\s+(\w+)\s+(\d+)", head.split(b"end_header")[0], re.M))
+        for key, what in ((b"vertex", "vertices"), (b"face", "faces")):
+            if int(counts.get(key, 0)) == 0:
+                raise ValueError(f"mesh file {name}: no {what} (its header says element {key.decode()} "
+                                 f"{int(counts.get(key, 0))}); a mesh needs vertices and faces")
+    elif name.lower().endswith(".obj"):
+        seen = set()
+        with open(name, "rb") as f:
+            for line in f:
+                tag = line.split(None, 1)[0] if line.strip() else b""
+                if tag in (b"v", b"f"):
+                    seen.add(tag)
+                    if len(seen) == 2:
+                        break
+        for key, what in ((b"v", "vertices ('v' lines)"), (b"f", "faces ('f' lines)")):
+            if key not in seen:
+                raise ValueError(f"mesh file {name}: no {what}; a mesh needs vertices and faces")
+    return name
 
 
 # ---------------------------------------------------------------- scene dicts

@@ -96,8 +96,11 @@ def read_stokes_exr(path):
     import OpenEXR
 
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise StokesFileError(f"{path}: is a directory, expected a Stokes .exr file")
     if not os.path.isfile(path):
-        raise StokesFileError(f"{path}: no such file")
+        raise StokesFileError(f"{path}: not a regular file (a device or a pipe), expected a Stokes .exr file"
+                              if os.path.exists(path) else f"{path}: no such file")
     try:
         with OpenEXR.File(path, separate_channels=True) as f:
             header = dict(f.header())

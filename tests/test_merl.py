@@ -224,3 +224,42 @@ def test_command_writes_outputs_and_keeps_existing_ones(tmp_path, capsys, fmbrdf
     assert "--force" in capsys.readouterr().err
     assert main(["fit-brdf", str(path), "-q", "--samples", "5"]) == 1
     assert "--samples" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("where", ["a file", "under a file"])
+def test_output_directory_is_checked_before_the_fit(tmp_path, capsys, fmbrdf_table, monkeypatch, where):
+    """Issue 24: an -o that cannot be a directory was found only when writing, after the fit (80 s)."""
+    from conftest import one_line_error, run
+
+    from fmbrdf_mi.brdf_fit import fitting
+
+    def no_fit(*a, **k):
+        raise AssertionError("the fit ran before the output directory was checked")
+
+    monkeypatch.setattr(fitting, "fit_brdf", no_fit)
+    path = merl.write_merl(tmp_path / "m.binary", fmbrdf_table)
+    (tmp_path / "f").write_text("x")
+    out = tmp_path / "f" if where == "a file" else tmp_path / "f" / "sub"
+    rc, _, err = run(capsys, "fit-brdf", str(path), "-q", "-o", str(out))
+    one_line_error(rc, err, "fit-brdf", str(tmp_path / "f"))
+
+
+def test_a_fit_stopped_before_convergence_says_so_and_exits_3(tmp_path, capsys, fmbrdf_table, monkeypatch):
+    """Issue 24: "stopped after 60 evaluations" exited 0 with no `converged` in params.json; the image fits'
+    convention is exit status 3 (fmbrdf_mi.fit.outputs.summary.EXIT_NOT_CONVERGED) and converged: false."""
+    from fmbrdf_mi.brdf_fit import fitting
+    from fmbrdf_mi.cli import main
+
+    cls = fitting.BRDFFitOptions
+    monkeypatch.setattr(fitting, "BRDFFitOptions",
+                        lambda **kw: _small_options(cls, **{k: v for k, v in kw.items() if k != "starts"}))
+    path = merl.write_merl(tmp_path / "m.binary", fmbrdf_table)
+    assert main(["fit-brdf", str(path), "-q", "--samples", "2000", "--max-evals", "2", "-o",
+                 str(tmp_path / "a")]) == 3
+    err = capsys.readouterr().err
+    assert "NOT converged (stopped after 2 evaluations)" in err and "--max-evals" in err
+    rep = json.loads((tmp_path / "a" / "params.json").read_text())
+    assert rep["converged"] is False and rep["stop_reason"] == "stopped after 2 evaluations"
+    assert main(["fit-brdf", str(path), "-q", "--samples", "2000", "-o", str(tmp_path / "b")]) == 0
+    rep = json.loads((tmp_path / "b" / "params.json").read_text())
+    assert rep["converged"] is True and rep["stop_reason"].startswith("converged")

@@ -47,7 +47,11 @@ def run_fit_brdf(args):
                         ("--max-evals", args.max_evals, 1)):
         if v < lo:
             raise ValueError(f"{name}: must be an integer >= {lo}, got {v}")
+    from fmbrdf_mi._paths import check_output_dir
+    from fmbrdf_mi.fit.outputs.summary import EXIT_NOT_CONVERGED
+
     out = args.out or os.path.splitext(args.file)[0] + "_fit"
+    check_output_dir(out)   # before the fit (minutes), as the overwrite refusal below
     existing = [os.path.join(out, f) for f in OUTPUTS if os.path.exists(os.path.join(out, f))]
     if existing and not args.force:
         raise FileExistsError(f"{existing[0]} exists; pass --force to overwrite it")
@@ -63,6 +67,7 @@ def run_fit_brdf(args):
     report = {"file": os.path.abspath(args.file), "params": res.params,
               "log10_rmse": {"fitted_samples": res.log_rmse, "all_usable_bins": res.log_rmse_all,
                              "per_channel_fitted_samples": dict(zip("rgb", res.log_rmse_channels))},
+              "converged": res.converged, "stop_reason": res.stop_reason,
               "n_samples": res.n_samples, "n_usable_bins": res.n_usable, "at_bound": res.at_bound,
               "options": opts.__dict__, "history": res.history, "timings": res.timings}
     tmp = os.path.join(out, "params.json.part")
@@ -74,4 +79,8 @@ def run_fit_brdf(args):
           f"k_s {', '.join(f'{v:.4g}' for v in p['k_s'])}, k_b {', '.join(f'{v:.4g}' for v in p['k_b'])}; "
           f"log10 RMSE {res.log_rmse_all:.4f} over {res.n_usable} bins"
           + (f"; at the bound: {', '.join(res.at_bound)}" if res.at_bound else "") + f" -> {out}")
+    if not res.converged:
+        print(f"fmbrdf-mi fit-brdf: NOT converged ({res.stop_reason}): the parameters are the last accepted ones; "
+              f"raise --max-evals (exit status {EXIT_NOT_CONVERGED})", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     return 0

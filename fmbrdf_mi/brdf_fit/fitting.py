@@ -81,6 +81,8 @@ class BRDFFitResult:
     at_bound: list
     history: list
     timings: dict
+    converged: bool = True  # the best start's refinement converged (else it stopped at max_evals)
+    stop_reason: str = ""   # why the best start's refinement stopped
 
 
 def _shape_model():
@@ -273,8 +275,8 @@ def fit_brdf(brdf, options=None, progress=None):
         say(f"[fit-brdf] start {s + 1}: log10 RMSE {err0:.4f} -> {err:.4f} ({nfev} evaluations, "
             f"{time.time() - t1:.1f} s, {status})")
         if best is None or err < best[0]:
-            best = (err, xs)
-    err, x = best
+            best = (err, xs, status)
+    err, x, status = best
     shape = {n: bounds.to_value(n, x[k]) for k, n in enumerate(SHAPE)}
     ks, kb = unpack(x)
     S, B = ev.parts(shape)
@@ -294,7 +296,8 @@ def fit_brdf(brdf, options=None, progress=None):
                          log_rmse_channels=[float(np.sqrt(np.mean(res[:, c] ** 2))) for c in range(3)],
                          log_rmse_all=err_all, n_samples=len(pick), n_usable=len(idx_all), at_bound=at_bound,
                          history=history, timings={"grid": t_grid, "total": time.time() - t0,
-                                                   "error_all": time.time() - t2})
+                                                   "error_all": time.time() - t2},
+                         converged=status.startswith("converged"), stop_reason=status)
 
 
 def model_brdf(params):

@@ -40,7 +40,7 @@ import zlib
 
 import numpy as np
 
-from .config import (BUILTIN_SHAPES, FORMAT, DatasetConfig, DatasetConfigError, load_config,
+from .config import (BUILTIN_SHAPES, FORMAT, DatasetConfig, DatasetConfigError, config_path, load_config,
                      read_config_file)
 
 __all__ = ["generate", "load_config", "read_sample", "DatasetConfig", "DatasetConfigError",
@@ -397,7 +397,7 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
     t_start = time.perf_counter()
     if isinstance(config, (str, os.PathLike)):
         raw = read_config_file(config)
-        base_dir = base_dir or os.path.dirname(os.path.abspath(os.fspath(config)))
+        base_dir = base_dir or os.path.dirname(os.path.abspath(config_path(config)))
     elif isinstance(config, DatasetConfig):
         if seed is not None or samples is not None:
             raise ValueError("generate(): seed= and samples= override a config given as a path or a dict, "

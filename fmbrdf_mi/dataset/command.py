@@ -26,7 +26,9 @@ The config format is documented in scenes/dataset_example.toml."""
 def add_dataset_arguments(p):
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.epilog = EPILOG
-    p.add_argument("--config", required=True, metavar="CONFIG", help="dataset configuration, .toml or .json")
+    p.add_argument("--config", required=True, metavar="CONFIG",
+                   help="dataset configuration, .toml or .json (builtin:dataset_example: the documented example "
+                        "shipped with the package)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory (created; resumed if it exists)")
     p.add_argument("--shard", metavar="I/N", default=None,
                    help="render only shard I of N (0 <= I < N): samples with index %% N == I")
@@ -36,9 +38,10 @@ def add_dataset_arguments(p):
 
 
 def run_dataset(args):
-    from . import generate, load_config, parse_shard, read_config_file
+    from . import config_path, generate, load_config, parse_shard, read_config_file
 
     parse_shard(args.shard)  # report argument mistakes before importing Mitsuba
+    args.config = config_path(args.config)  # builtin:dataset_example -> the shipped example
     raw = read_config_file(args.config)
     if args.seed is not None:
         raw["seed"] = args.seed

@@ -29,6 +29,7 @@ import os
 import numpy as np
 
 from .. import params as P
+from .._paths import resolve_builtin
 from .. import scene as S
 
 FORMAT = "fmbrdf-mi-dataset/1"
@@ -331,6 +332,10 @@ def _shape_name(path, x, base_dir):
         full = os.path.join(base_dir, x)
         if not os.path.isfile(full):
             raise _err(path, f"mesh file {x!r} not found (looked for {os.path.abspath(full)})")
+        try:
+            S.check_mesh_file(full)
+        except (OSError, ValueError) as e:
+            raise _err(path, str(e)) from None
         return x
     raise _err(path, f"unknown shape {x!r}; expected one of {', '.join(BUILTIN_SHAPES)} "
                      f"or a mesh file ending in .ply or .obj")
@@ -482,11 +487,19 @@ def _quat_matrix(q):
     return [[float(v) for v in row] for row in m]
 
 
+def config_path(path):
+    """The file of a config path: ``builtin:dataset_example`` is the example shipped with the package."""
+    try:
+        return resolve_builtin(os.fspath(path), (".toml", ".json"), "config")
+    except ValueError as e:
+        raise DatasetConfigError(str(e)) from None
+
+
 def read_config_file(path):
     """The raw configuration data of a .toml or .json file."""
     if not isinstance(path, (str, os.PathLike)):
         raise DatasetConfigError(f"config: expected a .toml or .json file name, got {path!r}")
-    path = os.fspath(path)
+    path = config_path(path)
     if not os.path.isfile(path):
         raise DatasetConfigError(f"config {path}: no such file")
     ext = os.path.splitext(path)[1].lower()
@@ -520,5 +533,5 @@ def load_config(config, base_dir=None):
     if not isinstance(config, (str, os.PathLike)):
         raise DatasetConfigError(f"config: expected a .toml or .json file name, a dict or a DatasetConfig, "
                                  f"got {config!r}")
-    path = os.fspath(config)
+    path = config_path(config)
     return DatasetConfig(read_config_file(path), base_dir or os.path.dirname(os.path.abspath(path)))

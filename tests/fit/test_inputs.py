@@ -292,7 +292,7 @@ def _one_line(rc, err, *words):
     ("image", {"input": 5}, ["image 0: input", "file name"]),
     ("image", {"input": ["a.png", "b.png"]}, ["image 0: input", "four"]),
     ("image", {"irradiance": "bright"}, ["image 0: irradiance"]),
-    ("image", {"irradiance": -1}, ["image 0: irradiance", "(0, inf)"]),
+    ("image", {"irradiance": -1}, ["image 0: irradiance", "[1e-20, 1e+20]"]),
     ("image", {"irradiance": float("inf")}, ["image 0: irradiance", "finite"]),
     ("image", {"power": "1"}, ["image 0: power"]),
     ("image", {"power": float("nan")}, ["image 0: power"]),

@@ -12,6 +12,7 @@ from fmbrdf_mi.fit.api.options import check_fit_options
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import State, get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import RenderEvaluator
+from fmbrdf_mi.fit.inputs.observations import check_observations
 from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.problem import free_power as FP
 from fmbrdf_mi.fit.problem.data import prepare, resolve_loss, select_pixels
@@ -107,9 +108,11 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         raise InputError(f"fit(): unknown option(s) {', '.join(unknown)} (FitOptions: {', '.join(fields)}; the "
                          "light, irradiance, geometry and noise are the Observation's)")
     if isinstance(obs, (list, tuple)):
-        return _fit_images(obs, options, names=names, progress=progress, powers=powers, **kw)
+        return _fit_images(check_observations(obs, "fit()", least=0), options, names=names, progress=progress,
+                           powers=powers, **kw)
     opts = dataclasses.replace(options or FitOptions(), **kw)
     check_fit_options(**dataclasses.asdict(opts))
+    check_observations(obs, "fit()")
     if opts.optimizer not in ("lm", "adam"):
         raise ValueError(f"optimizer: expected 'lm' or 'adam', got {opts.optimizer!r}")
     if opts.path == "render" and opts.optimizer != "adam":

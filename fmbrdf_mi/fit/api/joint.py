@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from fmbrdf_mi.fit.api.fitting import fit
 from fmbrdf_mi.fit.evaluate.predict import predict_image
+from fmbrdf_mi.fit.inputs.observations import check_observations
 
 
 def fit_joint(observations, options=None, *, names=None, progress=True, powers=None, **kw):
@@ -57,7 +58,8 @@ def fit_joint(observations, options=None, *, names=None, progress=True, powers=N
     are reported against.  The result's ``powers`` and each
     image's ``power`` / ``power_se`` then hold them.
     """
-    return fit(list(observations), options, names=names, progress=progress, powers=powers, **kw)
+    return fit(check_observations(observations, "fit_joint()", least=0), options, names=names, progress=progress,
+               powers=powers, **kw)
 
 
 def predict(model_name, params, obs):

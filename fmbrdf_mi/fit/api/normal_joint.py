@@ -71,7 +71,7 @@ from fmbrdf_mi.fit import uncertainty as U
 from fmbrdf_mi.fit.api.normal_refine import check_views
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
-from fmbrdf_mi.fit.inputs.observations import erode
+from fmbrdf_mi.fit.inputs.observations import check_mask, erode
 from fmbrdf_mi.fit.problem.normals import NormalProblem
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import lm as LM
@@ -95,7 +95,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     say = progress or (lambda msg: None)
     obs = list(observations)
     n_map = check_views(obs, normals)
-    m = erode(obs[0].mask, 1) if mask is None else np.asarray(mask, bool).copy()
+    m = erode(obs[0].mask, 1) if mask is None else check_mask(mask, obs[0].shape).copy()
     for o in obs:
         if o.samples is not None:
             m &= o.samples.usable

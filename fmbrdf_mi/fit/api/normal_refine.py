@@ -44,7 +44,7 @@ from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
-from fmbrdf_mi.fit.inputs.observations import erode
+from fmbrdf_mi.fit.inputs.observations import check_mask, check_observations, erode
 from fmbrdf_mi.fit.problem.normals import tangent_bases
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve.optimise import default_progress
@@ -92,6 +92,7 @@ def _neighbours(mask):
 
 def check_views(obs, normals):
     """K >= 3 observations of one view; returns the normal map as a float64 copy (H, W, 3)."""
+    obs = check_observations(obs, "normal refinement", least=0)
     if len(obs) < 3:
         raise InputError(f"normal refinement: needs K >= 3 images under different lights, got {len(obs)}")
     shape = obs[0].shape
@@ -124,7 +125,7 @@ def refine_normals(observations, normals, *, mask=None, lam=0.5, rounds=3, steps
     say = default_progress if progress is True else (progress or (lambda m: None))
     obs = list(observations)
     n_map = check_views(obs, normals)
-    m = erode(obs[0].mask, 1) if mask is None else np.asarray(mask, bool)
+    m = erode(obs[0].mask, 1) if mask is None else check_mask(mask, obs[0].shape)
     idx = np.flatnonzero(m.ravel())
     nb = _neighbours(m)
     views = obs[0].view_dirs.reshape(-1, 3)[idx]
@@ -237,10 +238,10 @@ def photometric_stereo(observations, mask=None):
     the camera when it points away.  The authors' shape reconstruction starts
     from the same; specular highlights bias it, which the refinement corrects.
     """
-    obs = list(observations)
+    obs = check_observations(observations, "photometric stereo", least=0)
     if len(obs) < 3:
         raise InputError(f"photometric stereo: needs K >= 3 images, got {len(obs)}")
-    m = obs[0].mask if mask is None else np.asarray(mask, bool)
+    m = obs[0].mask if mask is None else check_mask(mask, obs[0].shape)
     Lm = np.stack([o.light_dir for o in obs])                                  # (K, 3)
     I = np.stack([o.stokes[0][m] / o.irradiance for o in obs])                 # (K, n)
     b = np.linalg.lstsq(Lm, I, rcond=None)[0].T                                 # (n, 3)

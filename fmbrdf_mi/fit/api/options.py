@@ -11,6 +11,7 @@ import numbers
 
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+from fmbrdf_mi.fit.inputs.observations import IRRADIANCE_RANGE
 
 
 def _num(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True, integer=False, none_ok=True):
@@ -141,6 +142,6 @@ def check_input_options(*, black_level=0.0, conversion_gain=None, read_noise=Non
             ("conversion_gain", "read_noise")
         raise InputError(f"{flag(given)} needs {flag(other)} too: the camera noise is known only "
                          "with both (electrons per image unit and read noise in electrons)")
-    _num(flag("irradiance"), irradiance, lo=0.0, lo_incl=False)
-    _num(flag("relight_irradiance"), relight_irradiance, lo=0.0, lo_incl=False)
+    _num(flag("irradiance"), irradiance, lo=IRRADIANCE_RANGE[0], hi=IRRADIANCE_RANGE[1])
+    _num(flag("relight_irradiance"), relight_irradiance, lo=IRRADIANCE_RANGE[0], hi=IRRADIANCE_RANGE[1])
     _num(flag("fov"), fov, lo=0.0, lo_incl=False, hi=180.0, hi_incl=False)

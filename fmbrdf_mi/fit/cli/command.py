@@ -9,10 +9,12 @@ the mode (:func:`fit_mode`), its run (:data:`RUN`), the summary.
 from __future__ import annotations
 
 import inspect
+import sys
 import time
 
 from fmbrdf_mi.fit.cli.checks import check_args, check_colour_args
 from fmbrdf_mi.fit.cli.joint import run_joint
+from fmbrdf_mi.fit.cli.layout_check import mirrored_layout_hint
 from fmbrdf_mi.fit.cli.normals import add_arguments as add_normal_arguments
 from fmbrdf_mi.fit.cli.normals import check as check_normal_args
 from fmbrdf_mi.fit.errors import InputError
@@ -192,12 +194,17 @@ def run_single(args, command):
     if not args.inputs:
         raise InputError("no INPUT given: a Stokes .exr, a raw mosaic, angle images, or --from fit.json")
     lights = args.light or []
-    return fit_files(**request(
+    kw = request(
         fit_files, args, inputs=args.inputs if len(args.inputs) > 1 else args.inputs[0],
         light=parse_vector(lights[0] if lights else None, "--light"),
         relight=None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0]),
         relight_light=parse_vector(args.relight_light, "--relight-light"), max_pixels=args.max_pixels or None,
-        progress=not args.quiet, command=command))
+        progress=not args.quiet, command=command)
+    report = fit_files(**kw)
+    hint = mirrored_layout_hint(report, kw, fit_files, progress=not args.quiet)
+    if hint:
+        print(f"fmbrdf-mi fit: {hint}", file=sys.stderr, flush=True)
+    return report
 
 
 #: The function that runs each mode: (arguments, command line) -> the report written to fit.json.

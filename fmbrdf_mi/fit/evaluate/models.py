@@ -30,6 +30,8 @@ import math
 
 import numpy as np
 
+from fmbrdf_mi.fit.errors import InputError
+
 
 @dataclasses.dataclass(frozen=True)
 class ShapeParam:
@@ -87,8 +89,38 @@ class Model:
             out[self.body_name] = float(kb)
         return out
 
+    @property
+    def reported_names(self):
+        """The names of :meth:`report`'s parameters (the paper's six for fmbrdf)."""
+        return self.shape_names + (("k_s", "r_k") if self.name == "fmbrdf" else (self.surface_name, self.body_name))
+
     def split(self, reported):
-        """Inverse of :meth:`report`: (shape values, a_s, a_b) from reported parameters."""
+        """Inverse of :meth:`report`: (shape values, a_s, a_b) from reported parameters.
+
+        InputError naming what is missing or not a number (``dict(eta=9)`` for fmbrdf).
+        """
+        from collections.abc import Mapping
+
+        names = self.reported_names
+        if not isinstance(reported, Mapping):
+            raise InputError(f"{self.name} parameters: expected a dict of {', '.join(names)}, got {reported!r:.80}")
+        missing = [n for n in names if n not in reported]
+        if missing:
+            raise InputError(f"{self.name} parameters: missing {', '.join(missing)} (give all of "
+                             f"{', '.join(names)}), got {reported!r:.80}")
+
+        def number(v):
+            if isinstance(v, (bool, str, bytes)):
+                return False
+            try:
+                float(v)
+            except (TypeError, ValueError):
+                return False
+            return True
+
+        bad = [n for n in names if not number(reported[n])]
+        if bad:
+            raise InputError(f"{self.name} parameters: {bad[0]} must be a number, got {reported[bad[0]]!r}")
         shape = {n: float(reported[n]) for n in self.shape_names}
         if self.name == "fmbrdf":
             ks = float(reported["k_s"])

@@ -70,15 +70,22 @@ def _load(path, what):
         raise InputError(f"{what} {path}: not a readable .npy file ({exc})") from None
 
 
-def rays_from_intrinsics(K, shape):
+def rays_from_intrinsics(K, shape, path=None):
     """Unit view directions (h, w, 3), ours, through the super-pixel centres of a (2h, 2w) sensor.
 
     OpenCV pixel (u, v) has its centre at integer coordinates; super-pixel
     (i, j) covers raw pixels 2i..2i+1, 2j..2j+1, centre (2j + 0.5, 2i + 0.5).
     """
-    K = np.asarray(K, dtype=np.float64)
+    name = "IntrinsicL.npy" if path is None else path
+    try:
+        K = np.asarray(K, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: expected a 3 x 3 camera matrix of numbers") from None
     if K.shape != (3, 3):
-        raise InputError(f"IntrinsicL.npy: expected a 3 x 3 camera matrix, got shape {K.shape}")
+        raise InputError(f"{name}: expected a 3 x 3 camera matrix, got shape {K.shape}")
+    if not np.all(np.isfinite(K)) or not np.linalg.cond(K) < 1e12:
+        raise InputError(f"{name}: the camera matrix must be finite and invertible (focal lengths > 0, "
+                         f"last row 0 0 1), got {K.round(6).tolist()}")
     h, w = shape
     u, v = np.meshgrid(2 * np.arange(w) + 0.5, 2 * np.arange(h) + 0.5)
     d = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T   # camera -> surface, OpenCV
@@ -97,7 +104,8 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
 
     root = os.fspath(root)
     if not os.path.isdir(root):
-        raise InputError(f"authors' object directory {root}: no such directory")
+        raise InputError(f"authors' object directory {root}: " + ("not a directory" if os.path.exists(root)
+                                                                    else "no such directory"))
     cal = os.path.join(root, "calibration")
     lfile = os.path.join(cal, "L.txt")
     if not os.path.isfile(lfile):
@@ -106,8 +114,12 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
         L = np.loadtxt(lfile, delimiter=",", ndmin=2)
     except ValueError as exc:
         raise InputError(f"{lfile}: expected rows of three comma-separated numbers ({exc})") from None
-    if L.ndim != 2 or L.shape[1] != 3 or not np.all(np.isfinite(L)):
+    if L.ndim != 2 or L.shape[1] != 3:
         raise InputError(f"{lfile}: expected rows x,y,z, got shape {L.shape}")
+    bad = [k for k in range(len(L)) if not (np.all(np.isfinite(L[k])) and np.any(L[k]))]
+    if bad:
+        raise InputError(f"{lfile}: row {bad[0] + 1} (image {bad[0]}) is {L[bad[0]].tolist()}: each light "
+                         "must be three finite numbers, not all zero")
     files = sorted(glob.glob(os.path.join(root, "image", "img_ud", "*.png")))
     if len(files) != len(L):
         raise InputError(f"{root}/image/img_ud: {len(files)} .png images but {len(L)} lights in L.txt")
@@ -119,6 +131,10 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
         raise InputError(f"{nfile}: expected shape (h, w, 3), got {n.shape}")
     h, w = n.shape[:2]
     n = cv_to_ours(n)
+    if not np.any(np.abs(np.linalg.norm(np.nan_to_num(n, nan=0.0, posinf=0.0, neginf=0.0), axis=-1) - 1.0)
+                  <= UNIT_TOL):
+        raise InputError(f"{nfile}: no unit normal in the map (every vector is NaN, zero or not of length 1); "
+                         "expected (h, w, 3) unit normals in OpenCV camera axes")
     vfile, kfile = os.path.join(cal, "vpL_img.npy"), os.path.join(cal, "IntrinsicL.npy")
     K = _load(kfile, "intrinsics") if os.path.isfile(kfile) else None
     if os.path.isfile(vfile):
@@ -130,7 +146,7 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
         v = np.where(norm > 0, v / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
         view_src = "vpL_img.npy"
     elif K is not None:
-        v, view_src = rays_from_intrinsics(K, (h, w)), "IntrinsicL.npy"
+        v, view_src = rays_from_intrinsics(K, (h, w), kfile), "IntrinsicL.npy"
     else:
         raise InputError(f"{cal}: neither vpL_img.npy nor IntrinsicL.npy (the viewing rays)")
     if mask is None:
@@ -148,14 +164,25 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
                          f"images ({2 * h}, {2 * w})")
     unit = np.abs(np.linalg.norm(n, axis=-1) - 1.0) <= UNIT_TOL
     bad_normals = int((m & ~unit).sum())
+    if m.any() and not (m & unit).any():
+        raise InputError(f"{nfile}: no unit normal inside the mask {os.fspath(mask)} ({bad_normals} pixels, each "
+                         "NaN, zero or not of length 1); expected (h, w, 3) unit normals in OpenCV camera axes")
     m = m & unit
     n = np.where(m[..., None], n, np.array([0.0, 0.0, 1.0]))
     ifile = os.path.join(cal, "intensities.npy")
     power = np.ones(len(L))
     if os.path.isfile(ifile):
-        p = _load(ifile, "light intensities").astype(np.float64).ravel()
-        if p.shape != (len(L),) or not np.all(np.isfinite(p) & (p > 0)):
-            raise InputError(f"{ifile}: expected {len(L)} positive light intensities, got {p.shape}")
+        p = _load(ifile, "light intensities")
+        if not np.issubdtype(p.dtype, np.number):
+            raise InputError(f"{ifile}: expected {len(L)} positive light intensities, got an array of {p.dtype}")
+        p = p.astype(np.float64).ravel()
+        if p.shape != (len(L),):
+            raise InputError(f"{ifile}: expected {len(L)} positive light intensities (one per image), got "
+                             f"shape {p.shape}")
+        bad = [k for k in range(len(p)) if not (np.isfinite(p[k]) and p[k] > 0)]
+        if bad:
+            raise InputError(f"{ifile}: entry {bad[0]} is {p[bad[0]]:g}: expected {len(L)} finite light "
+                             "intensities > 0 (one per image)")
         power = p / p.max()
     holdout = {int(k) for k in holdout}
     bad = [k for k in holdout if not 0 <= k < len(L)]

@@ -13,7 +13,7 @@ from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.fit.inputs.manifest import file_stem
-from fmbrdf_mi.fit.inputs.parse import parse_vector
+from fmbrdf_mi.fit.inputs.parse import check_render_parameters, parse_vector
 
 
 def colour_sidecar(inputs):
@@ -81,6 +81,7 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
             return n, m, ob.read_vectors(view, "view", shape), None, meta
         return n, m, v, ob.SphereGeometry(shape, centre, radius, camera, fov), meta
     if params is not None:
+        check_render_parameters(params, side["path"])
         w, h = int(params["width"]), int(params["height"])
         if (h, w) != (4 * shape[0], 4 * shape[1]):
             raise InputError(f"{side['path']}: describes a {w}x{h} render, the mosaic is "

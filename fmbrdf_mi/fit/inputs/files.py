@@ -11,13 +11,14 @@ from fmbrdf_mi import scene as S
 from fmbrdf_mi.fit.camera import samples as SM
 from fmbrdf_mi.fit.camera.noise import NoiseModel, box_footprint, demosaic_footprint, linear_stokes_variance
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.observations import (Observation, SphereGeometry, check_direction, downsample_geometry,
-                                               find_sphere, geometry_from_sphere, load_polarisation, pixel_rays,
-                                               read_mask, read_vectors)
-from fmbrdf_mi.fit.inputs.parse import check_number, parse_layout, parse_vector
+from fmbrdf_mi.fit.inputs.observations import (IRRADIANCE_RANGE, Observation, SphereGeometry, check_direction,
+                                               downsample_geometry, find_sphere, geometry_from_sphere,
+                                               load_polarisation, pixel_rays, read_mask, read_vectors)
+from fmbrdf_mi.fit.inputs.parse import check_number, check_render_parameters, parse_layout, parse_vector
 
 #: Ranges of the numeric options of :func:`build_observation`: (low, low included, high, high included).
-NUMBER_OPTIONS = {"irradiance": (0.0, False, None, True), "black_level": (0.0, True, None, True),
+NUMBER_OPTIONS = {"irradiance": (IRRADIANCE_RANGE[0], True, IRRADIANCE_RANGE[1], True),
+                  "black_level": (0.0, True, None, True),
                   "white_level": (0.0, False, None, True), "dark_level": (0.0, True, None, True),
                   "conversion_gain": (0.0, False, None, True), "read_noise": (0.0, True, None, True),
                   "fov": (0.0, False, 180.0, False)}
@@ -28,7 +29,7 @@ def _builtin_sphere(meta):
     if meta.get("scene") != "builtin:sphere" or "parameters" not in meta:
         return None
 
-    p = meta["parameters"]
+    p = check_render_parameters(meta["parameters"], "")
     n, v, m = S.sphere_geometry((int(p["width"]), int(p["height"])), camera=p["camera"],
                                 fov=p["fov"], distance=p["distance"])
     truth = {k: p[k] for k in ("eta", "alpha", "beta", "kappa", "k_s", "r_k", "k_b") if k in p}

@@ -10,7 +10,7 @@ import numpy as np
 
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.files import build_observation
-from fmbrdf_mi.fit.inputs.observations import check_direction
+from fmbrdf_mi.fit.inputs.observations import IRRADIANCE_RANGE, check_direction, check_file
 from fmbrdf_mi.fit.inputs.parse import check_number, parse_layout, parse_vector
 
 #: Options an image entry (or [defaults]) may give: :func:`fmbrdf_mi.fit.inputs.files.build_observation`'s.
@@ -25,7 +25,8 @@ ENTRY_KEYS = ("input", "light", "power", "holdout", "name") + INPUT_KEYS
 
 
 #: Numeric options: (low, low included, high, high included).
-NUMBER_KEYS = {"irradiance": (0.0, False, None, True), "black_level": (0.0, True, None, True),
+NUMBER_KEYS = {"irradiance": (IRRADIANCE_RANGE[0], True, IRRADIANCE_RANGE[1], True),
+               "black_level": (0.0, True, None, True),
                "white_level": (0.0, False, None, True), "dark_level": (0.0, True, None, True),
                "conversion_gain": (0.0, False, None, True), "read_noise": (0.0, True, None, True),
                "fov": (0.0, False, 180.0, False)}
@@ -112,8 +113,9 @@ def check_light(v, where):
 
 def check_entry(power, holdout, name, where):
     """An image's ``power`` (a positive number), ``holdout`` (true or false) and ``name`` (text or None)."""
-    if isinstance(power, bool) or not isinstance(power, (int, float)) or not (np.isfinite(power) and power > 0):
-        raise InputError(f"{where}: power must be a positive number, got {power!r}")
+    lo, hi = IRRADIANCE_RANGE
+    if isinstance(power, bool) or not isinstance(power, (int, float)) or not (np.isfinite(power) and lo <= power <= hi):
+        raise InputError(f"{where}: power must be a positive number in [{lo:g}, {hi:g}], got {power!r}")
     if not isinstance(holdout, bool):
         raise InputError(f"{where}: holdout must be true or false")
     if name is not None and (isinstance(name, bool) or not isinstance(name, (str, int))):
@@ -140,19 +142,23 @@ def file_stem(p):
 def read_manifest(path):
     """[ImageSpec] from a JSON or TOML manifest (paths made relative to the manifest's directory)."""
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise InputError(f"manifest {path}: no such file")
+    check_file(path, "manifest")
+    ext = os.path.splitext(path)[1].lower()
+    if ext in (".yaml", ".yml", ".ini", ".cfg", ".xml", ".csv"):
+        raise InputError(f"manifest {path}: a {ext} file; manifests are TOML (.toml) or JSON (.json or any other "
+                         "name)")
     try:
-        if path.lower().endswith(".toml"):
+        if ext == ".toml":
             import tomllib
 
             with open(path, "rb") as f:
                 d = tomllib.load(f)
         else:
-            with open(path) as f:
+            with open(path, encoding="utf-8") as f:
                 d = json.load(f)
     except (ValueError, OSError) as exc:
-        raise InputError(f"manifest {path}: not readable ({exc})") from None
+        kind = "TOML" if ext == ".toml" else "JSON" + (" (its name does not end in .toml)" if ext != ".json" else "")
+        raise InputError(f"manifest {path}: not readable as {kind} ({exc})") from None
     return parse_manifest(d, os.path.dirname(os.path.abspath(path)), path)
 
 
@@ -229,6 +235,11 @@ def build_observations(specs):
             except InputError as exc:
                 raise InputError(f"image {k} ({file_stem(s.input)}): {exc}") from None
         if s.power != 1.0:
+            lo, hi = IRRADIANCE_RANGE
+            if not lo <= o.irradiance * s.power <= hi:
+                raise InputError(f"image {k} ({image_names(specs)[k]}): power {s.power:g} x irradiance "
+                                 f"{o.irradiance:g} = {o.irradiance * s.power:g} is outside [{lo:g}, {hi:g}] (what "
+                                 "a fit can work with, image units)")
             o = dataclasses.replace(o, irradiance=o.irradiance * s.power)
         out.append(o)
     return out

@@ -28,6 +28,11 @@ from fmbrdf_mi.fit.errors import InputError
 #: Largest accepted deviation of a normal / view vector from unit length.
 UNIT_TOL = 1e-3
 
+#: The irradiances (light power x irradiance, image units) a fit can work with: beyond them the albedos
+#: (image / irradiance) leave the range of the fit's arithmetic (1e40 ended in NaN parameters, 1e-200 in
+#: a Dr.Jit error).
+IRRADIANCE_RANGE = (1e-20, 1e20)
+
 
 # ---------------------------------------------------------------- the container
 @dataclasses.dataclass
@@ -80,7 +85,7 @@ class Observation:
     def with_light(self, stokes, light_dir, irradiance=None, meta=None, lin_variance=None):
         """The same object and camera under another light (for relighting)."""
         return Observation(np.asarray(stokes, dtype=np.float64), self.mask, self.normals,
-                           self.view_dirs, np.asarray(light_dir, dtype=np.float64),
+                           self.view_dirs, light_dir,
                            self.irradiance if irradiance is None else float(irradiance),
                            dict(meta or {}), lin_variance, self.footprint)
 
@@ -126,10 +131,7 @@ def validate(obs):
     if s.ndim != 3 or s.shape[0] != 3:
         raise InputError(f"stokes: expected shape (3, H, W) (S0, S1, S2 of one channel), got {s.shape}")
     h, w = s.shape[1:]
-    mask = np.asarray(obs.mask)
-    if mask.shape != (h, w):
-        raise InputError(f"mask: shape {mask.shape} does not match the image ({h}, {w})")
-    mask = mask.astype(bool)
+    mask = check_mask(obs.mask, (h, w))
     if not mask.any():
         raise InputError("mask: no pixel is selected (empty mask)")
     for name in ("normals", "view_dirs"):
@@ -167,9 +169,14 @@ def validate(obs):
         raise InputError(f"samples: expected shape ({obs.samples.n}, {h}, {w}) ({obs.samples.n} samples per cell, "
                          f"{obs.samples.source}) to match the image, got {obs.samples.values.shape}")
     obs.light_dir = check_direction(obs.light_dir, "light_dir")
-    obs.irradiance = float(obs.irradiance)
-    if not (np.isfinite(obs.irradiance) and obs.irradiance > 0):
-        raise InputError(f"irradiance: must be a positive number, got {obs.irradiance}")
+    lo, hi = IRRADIANCE_RANGE
+    try:
+        obs.irradiance = float(obs.irradiance)
+    except (TypeError, ValueError):
+        raise InputError(f"irradiance: expected a number in [{lo:g}, {hi:g}], got {obs.irradiance!r}") from None
+    if not (np.isfinite(obs.irradiance) and lo <= obs.irradiance <= hi):
+        raise InputError(f"irradiance: must be a positive number in [{lo:g}, {hi:g}] (light power x irradiance, image "
+                         f"units), got {obs.irradiance:g}")
     n = obs.normals[mask]
     if not np.any(n @ obs.light_dir > 0.0):
         raise InputError(f"light_dir {obs.light_dir.round(4).tolist()}: the light is below the horizon "
@@ -182,22 +189,76 @@ def validate(obs):
 
 def check_direction(v, name):
     """A finite, non-zero 3-vector, normalised (directions typed by hand need not be unit)."""
+    shown = v.tolist() if isinstance(v, np.ndarray) else v
+    if isinstance(v, (str, bytes)):
+        raise InputError(f"{name}: expected three numbers x, y, z (x right, y up, z towards the camera), "
+                         f"got {shown!r}")
     try:
         a = np.asarray(v, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
-        raise InputError(f"{name}: expected three numbers, got {v!r}") from None
-    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-9:
+        raise InputError(f"{name}: expected three numbers x, y, z, got {shown!r}") from None
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or not np.any(a):
         raise InputError(f"{name}: expected a finite non-zero 3-vector (x right, y up, z towards "
-                         f"the camera), got {v!r}")
-    return a / np.linalg.norm(a)
+                         f"the camera), got {shown!r}")
+    with np.errstate(over="ignore", under="ignore"):
+        n = np.linalg.norm(a)
+    if not 1e-150 < n < 1e150:     # (1e308, 0, 0): normalised without overflow (others exactly as before)
+        a = a / np.abs(a).max()
+        n = np.linalg.norm(a)
+    return a / n
+
+
+def check_mask(mask, shape, name="mask"):
+    """``mask`` as a boolean (H, W) array of ``shape``: booleans or numbers (non-zero = object), no NaN."""
+    try:
+        m = np.asarray(mask)
+    except Exception:
+        m = None
+    if m is None or m.dtype == object or not (m.dtype == bool or np.issubdtype(m.dtype, np.number)):
+        raise InputError(f"{name}: expected a 2-D array of booleans or numbers (non-zero = object) of shape "
+                         f"{tuple(shape)}, got {type(mask).__name__}")
+    if m.shape != tuple(shape):
+        raise InputError(f"{name}: shape {m.shape} does not match the image {tuple(shape)}")
+    if m.dtype != bool and not np.all(np.isfinite(m)):
+        raise InputError(f"{name}: {int(np.sum(~np.isfinite(m)))} value(s) NaN or infinite; a mask "
+                         "is 0 outside the object and non-zero on it")
+    return m != 0
+
+
+def check_observations(observations, where, least=1):
+    """A list of :class:`Observation` s (an :class:`Observation` alone is a list of one), else InputError
+    naming ``where`` and what was given (a file name: read it with build_observation / fit_files)."""
+    items = [observations] if isinstance(observations, Observation) else observations
+    if isinstance(items, (str, bytes, os.PathLike)) or not isinstance(items, (list, tuple)):
+        items = [observations]
+    for k, o in enumerate(items):
+        if not isinstance(o, Observation):
+            hint = (" (a file name: read it with fmbrdf_mi.fit.fit_files, or build the Observation with "
+                    "fmbrdf_mi.fit.inputs.files.build_observation)") if isinstance(o, (str, os.PathLike)) else ""
+            at = f" item {k}:" if len(items) > 1 else ""
+            raise InputError(f"{where}:{at} expected an Observation, got {type(o).__name__} {o!r:.60}{hint}")
+    if len(items) < least:
+        raise InputError(f"{where}: expected at least {least} Observations, got {len(items)}")
+    return list(items)
 
 
 # ---------------------------------------------------------------- polarimetric images
+def check_file(path, what):
+    """InputError unless ``path`` is a regular file: a directory or a device is said to be one."""
+    path = os.fspath(path)
+    if os.path.isfile(path):
+        return path
+    if os.path.isdir(path):
+        raise InputError(f"{what} {path}: is a directory, expected a file")
+    if os.path.exists(path):
+        raise InputError(f"{what} {path}: not a regular file (a device or a pipe), expected a file")
+    raise InputError(f"{what} {path}: no such file")
+
+
 def read_array(path, what):
     """A 2-D or 3-D numeric array from .npy, .png or .tif(f)."""
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise InputError(f"{what} {path}: no such file")
+    check_file(path, what)
     ext = os.path.splitext(path)[1].lower()
     try:
         if ext == ".npy":
@@ -286,15 +347,14 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
 # ---------------------------------------------------------------- geometry
 def read_mask(path_or_array, shape=None):
     """A boolean mask from an array or a .npy / .png file (non-zero = object)."""
+    name = f"mask {os.fspath(path_or_array)}" if isinstance(path_or_array, (str, os.PathLike)) else "mask"
     m = read_array(path_or_array, "mask") if isinstance(path_or_array, (str, os.PathLike)) \
         else np.asarray(path_or_array)
     if m.ndim == 3:
         m = m[..., 0]
     if m.ndim != 2:
-        raise InputError(f"mask: expected a 2-D array, got shape {m.shape}")
-    if shape is not None and m.shape != tuple(shape):
-        raise InputError(f"mask: shape {m.shape} does not match the image {tuple(shape)}")
-    return m != 0
+        raise InputError(f"{name}: expected a 2-D array, got shape {m.shape}")
+    return check_mask(m, m.shape if shape is None else shape, name)
 
 
 def read_vectors(path_or_array, name, shape=None):
@@ -324,14 +384,23 @@ def pixel_rays(shape, camera="orthographic", fov=None):
         return v
     if camera != "perspective":
         raise InputError(f"camera: expected 'orthographic' or 'perspective', got {camera!r}")
-    if fov is None or not (0.0 < float(fov) < 180.0):
-        raise InputError(f"fov: a perspective camera needs a horizontal field of view in (0, 180) degrees, got {fov!r}")
+    fov = check_fov(fov)
     f = 0.5 * w / np.tan(np.radians(float(fov)) / 2)
     x = np.arange(w) + 0.5 - 0.5 * w
     y = np.arange(h) + 0.5 - 0.5 * h
     X, Y = np.meshgrid(x, y)
     d = np.stack([-X, Y, np.full_like(X, f)], axis=-1)  # towards the camera: -(ray direction)
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def check_fov(fov, name="fov"):
+    """A perspective camera's horizontal field of view: a number in (0, 180) degrees."""
+    import numbers
+
+    if isinstance(fov, bool) or not isinstance(fov, numbers.Real) or not (0.0 < float(fov) < 180.0):
+        raise InputError(f"{name}: a perspective camera needs a horizontal field of view in (0, 180) degrees, "
+                         f"got {fov!r}")
+    return float(fov)
 
 
 def _rays_at(X, Y, shape, camera="orthographic", fov=None):
@@ -388,8 +457,8 @@ def sphere_normals(shape, centre, radius, camera="orthographic", fov=None):
         raise InputError(f"sphere: centre must be finite and radius > 0, got centre {centre}, radius {radius}")
     if camera not in ("orthographic", "perspective"):
         raise InputError(f"camera: expected 'orthographic' or 'perspective', got {camera!r}")
-    if camera == "perspective" and (fov is None or not (0.0 < float(fov) < 180.0)):
-        raise InputError(f"fov: a perspective camera needs a horizontal field of view in (0, 180) degrees, got {fov!r}")
+    if camera == "perspective":
+        fov = check_fov(fov)
     X, Y = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
     n, mask, view = _sphere_at(X, Y, shape, (cx, cy), r, camera, fov)
     if not mask.any():

@@ -109,3 +109,23 @@ def parse_layout(text):
     if len(a) != 4:
         raise InputError(f"layout: expected four angles (row-major 2x2), got {text!r}")
     return check_layout(((a[0], a[1]), (a[2], a[3])))
+
+
+def check_render_parameters(p, where):
+    """The built-in scene's parameters in a render's metadata (an EXR's or a capture sidecar's): ``width``,
+    ``height``, ``camera``, ``fov`` and ``distance`` checked, else InputError naming ``where`` and the key."""
+    at = f"{where}: " if where else ""
+    if not isinstance(p, dict):
+        raise InputError(f"{at}parameters: expected a table, got {p!r:.60}")
+    for key in ("width", "height", "camera", "fov", "distance"):
+        if key not in p:
+            raise InputError(f"{at}parameters: missing '{key}'")
+    for key in ("width", "height"):
+        v = p[key]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise InputError(f"{at}parameters.{key}: expected a whole number of pixels >= 1, got {v!r}")
+    if p["camera"] not in ("orthographic", "perspective"):
+        raise InputError(f"{at}parameters.camera: expected orthographic or perspective, got {p['camera']!r}")
+    check_number(f"{at}parameters.fov", p["fov"], lo=0.0, lo_incl=False, hi=180.0, hi_incl=False)
+    check_number(f"{at}parameters.distance", p["distance"], lo=0.0, lo_incl=False)
+    return p

@@ -1,0 +1,346 @@
+"""Issue 24, "messages that mislead": each bad input below was refused, but with a message that pointed
+elsewhere (an 'eta' = nan from the optimiser, "got array([0., 0., 0.])", a shape error for NaN, "empty mask",
+"Singular matrix" with no file, "no such file" for a directory, a codec error, Mitsuba's internals, a NumPy or
+attribute error) or was accepted (a NaN mask as all object, a .yaml manifest read as JSON).  Now: one line
+naming the parameter or file and what is valid, exit status 1.  Each test failed on the code before the fix."""
+import os
+
+import numpy as np
+import pytest
+
+from conftest import one_line_error, run
+
+
+# ------------------------------------------------------------------ helpers
+def raw_input(tmp_path):
+    """A flat 32 x 32 raw mosaic (16 x 16 super-pixels) fitted with --sphere 8,8,6."""
+    np.save(tmp_path / "raw.npy", np.full((32, 32), 100.0))
+    return str(tmp_path / "raw.npy")
+
+
+def authors_object(root, *, lights="0,0,-1\n0.3,0,-1\n", intensities=None, normals=None, intrinsics=None,
+                   view_rays=True):
+    """A minimal object in the authors' layout (2 flat 16 x 16 mosaics, normals facing the camera)."""
+    from PIL import Image
+
+    for d in ("calibration", "normal", "image/img_ud"):
+        os.makedirs(root / d, exist_ok=True)
+    (root / "calibration" / "L.txt").write_text(lights)
+    for k in range(2):
+        Image.fromarray(np.full((16, 16), 1000, np.uint16)).save(root / "image" / "img_ud" / f"{k:03d}.png")
+    n = np.zeros((8, 8, 3))
+    n[..., 2] = -1.0                      # OpenCV axes: facing the camera is z < 0
+    np.save(root / "normal" / "normal_GT.npy", n if normals is None else normals)
+    if view_rays:
+        vp = np.zeros((8, 8, 3))
+        vp[..., 2] = 1.0
+        np.save(root / "calibration" / "vpL_img.npy", vp)
+    if intrinsics is not None:
+        np.save(root / "calibration" / "IntrinsicL.npy", intrinsics)
+    if intensities is not None:
+        np.save(root / "calibration" / "intensities.npy", np.asarray(intensities, float))
+    np.save(root / "mask_ud.npy", np.ones((16, 16)))
+    return str(root)
+
+
+# ------------------------------------------------------------------ light powers and irradiances
+@pytest.mark.parametrize("extra,words", [
+    (["--irradiance", "1e200"], ["--irradiance", "1e+200", "[1e-20, 1e+20]"]),
+    (["--irradiance", "1e-200"], ["--irradiance", "[1e-20, 1e+20]"]),
+])
+def test_extreme_irradiance_is_refused(capsys, tmp_path, extra, words):
+    """Before: "'eta' (index of refraction mu) = nan is outside its valid range" (1e200) or a Dr.Jit
+    traceback (1e-200), after the fit had run."""
+    rc, _, err = run(capsys, "fit", raw_input(tmp_path), "--sphere", "8,8,6", "--light", "0,0,1", *extra,
+                     "-o", str(tmp_path / "out"), "-q", "--max-iter", "2")
+    one_line_error(rc, err, "fit", *words)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("image0,words", [
+    ("power = 1e308", ["image 0", "power", "1e+308", "[1e-20, 1e+20]"]),
+    ("power = 1e15\nirradiance = 1e10", ["image 0", "power 1e+15", "irradiance 1e+10", "[1e-20, 1e+20]"]),
+])
+def test_huge_manifest_power_is_refused(capsys, tmp_path, image0, words):
+    """Before: "'eta' (index of refraction mu) = nan is outside its valid range (1, 3]"."""
+    raw_input(tmp_path)
+    (tmp_path / "m.toml").write_text(f'[defaults]\nsphere = "8,8,6"\n[[image]]\ninput = "raw.npy"\nlight = [0, 0, 1]\n'
+                                     f'{image0}\n[[image]]\ninput = "raw.npy"\nlight = [0, 0.3, 1]\n')
+    rc, _, err = run(capsys, "fit", "--manifest", str(tmp_path / "m.toml"), "-o", str(tmp_path / "out"), "-q",
+                     "--max-iter", "2")
+    one_line_error(rc, err, "fit", *words)
+    assert not (tmp_path / "out").exists()
+
+
+def test_observation_irradiance_out_of_range():
+    from fmbrdf_mi.fit import InputError, Observation
+    from fmbrdf_mi.fit.inputs import observations as ob
+
+    n, m, v = ob.sphere_normals((16, 16), (8, 8), 6)
+    s = np.stack([np.ones((16, 16)), np.zeros((16, 16)), np.zeros((16, 16))])
+    for e in (1e40, 1e-200):
+        with pytest.raises(InputError, match=r"irradiance: must be a positive number in \[1e-20, 1e\+20\]"):
+            Observation(s, m, n, v, [0, 0, 1], irradiance=e)
+
+
+# ------------------------------------------------------------------ directions
+@pytest.mark.parametrize("v,want", [([1e308, 0, 0], [1, 0, 0]), ([0, 1e-320, 0], [0, 1, 0]),
+                                    ([1e308, 1e308, 0], [2 ** -0.5, 2 ** -0.5, 0])])
+def test_huge_and_tiny_directions_are_normalised(v, want):
+    """Before: the norm overflowed (1e308 -> "got array([0., 0., 0.])") or underflowed (zero vector)."""
+    from fmbrdf_mi.fit.inputs.observations import check_direction
+
+    np.testing.assert_allclose(check_direction(v, "light"), want, atol=1e-15)
+
+
+def test_render_light_dir_of_1e308():
+    """Before: the norm overflowed and the light became (0, 0, 0)."""
+    from fmbrdf_mi import scene as S
+
+    assert S.check_light_dir([1e308, 0, 0]) == (1.0, 0.0, 0.0)
+    v = np.array([0.1, -0.6, 0.8])
+    assert S.check_light_dir(v) == tuple(v / np.linalg.norm(v))      # ordinary vectors: exactly as before
+
+
+@pytest.mark.parametrize("v", [np.zeros(3), np.array([np.nan, 0, 1])])
+def test_direction_message_shows_the_value_not_numpy(v):
+    from fmbrdf_mi.fit import InputError
+    from fmbrdf_mi.fit.inputs.observations import check_direction
+
+    with pytest.raises(InputError) as e:
+        check_direction(v, "light")
+    assert "array(" not in str(e.value) and "light:" in str(e.value)
+
+
+# ------------------------------------------------------------------ the authors' layout
+@pytest.mark.parametrize("kw,words", [
+    (dict(lights="0,0,-1\nnan,0,-1\n"), ["L.txt", "row 2", "finite"]),
+    (dict(lights="0,0,-1\n0,0,0\n"), ["L.txt", "row 2", "not all zero"]),
+    (dict(intensities=[1.0, 0.0]), ["intensities.npy", "entry 1 is 0", "> 0"]),
+    (dict(intensities=[1.0, -2.0]), ["intensities.npy", "entry 1 is -2", "> 0"]),
+    (dict(intensities=[np.nan, 1.0]), ["intensities.npy", "entry 0 is nan"]),
+    (dict(normals=np.full((8, 8, 3), np.nan)), ["normal_GT.npy", "no unit normal"]),
+    (dict(normals=np.zeros((8, 8, 3))), ["normal_GT.npy", "no unit normal"]),
+    (dict(view_rays=False, intrinsics=np.zeros((3, 3))), ["IntrinsicL.npy", "invertible"]),
+    (dict(view_rays=False, intrinsics=np.array([[1.0, 0, 4], [2.0, 0, 8], [0, 0, 1]])), ["IntrinsicL.npy", "invertible"]),
+])
+def test_authors_layout_files_are_named(capsys, tmp_path, kw, words):
+    """Before: NaN in L.txt and bad intensities were shape errors ("got (2,)"), broken normals an "empty
+    mask", a singular camera matrix "Singular matrix" with no file named."""
+    root = authors_object(tmp_path / "obj", **kw)
+    rc, _, err = run(capsys, "fit", "--authors", root, "-o", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "fit", *words)
+    assert not (tmp_path / "out").exists()
+
+
+def test_authors_object_helper_is_valid(tmp_path):
+    """The object above reads (so the refusals are the files' doing)."""
+    from fmbrdf_mi.fit.inputs.authors import read_object
+
+    specs, info = read_object(authors_object(tmp_path / "obj", intensities=[1.0, 2.0]))
+    assert info["images"] == 2 and info["mask_pixels"] == 64
+
+
+# ------------------------------------------------------------------ files that are not files
+@pytest.mark.parametrize("which", ["directory", "/dev/null"])
+def test_input_that_is_not_a_regular_file(capsys, tmp_path, which):
+    """Before: "polarisation image ...: no such file" for a directory or /dev/null that exist."""
+    if which == "directory":
+        path, words = str(tmp_path / "adir"), ["adir", "is a directory"]
+        os.mkdir(path)
+    else:
+        if not os.path.exists("/dev/null"):
+            pytest.skip("no /dev/null")
+        path, words = "/dev/null", ["/dev/null", "not a regular file"]
+    rc, _, err = run(capsys, "fit", path, "--sphere", "8,8,6", "--light", "0,0,1", "-o", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "fit", *words)
+
+
+def test_stokes_exr_that_is_a_directory(capsys, tmp_path):
+    os.mkdir(tmp_path / "s.exr")
+    rc, _, err = run(capsys, "fit", str(tmp_path / "s.exr"), "--sphere", "8,8,6", "--light", "0,0,1",
+                     "-o", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "fit", "s.exr", "is a directory")
+
+
+def test_authors_directory_that_is_a_file(capsys, tmp_path):
+    (tmp_path / "obj").write_text("x")
+    rc, _, err = run(capsys, "fit", "--authors", str(tmp_path / "obj"), "-o", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "fit", "obj", "not a directory")
+
+
+def test_manifest_that_is_a_directory(capsys, tmp_path):
+    os.mkdir(tmp_path / "m.toml")
+    rc, _, err = run(capsys, "fit", "--manifest", str(tmp_path / "m.toml"), "-o", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "fit", "m.toml", "is a directory")
+
+
+@pytest.mark.parametrize("name", ["m.yaml", "m.yml"])
+def test_yaml_manifest_is_refused_by_name(capsys, tmp_path, name):
+    """Before: parsed as JSON: "not readable (Expecting value: line 1 column 1 (char 0))"."""
+    (tmp_path / name).write_text("image:\n  - input: raw.npy\n    light: [0, 0, 1]\n")
+    rc, _, err = run(capsys, "fit", "--manifest", str(tmp_path / name), "-o", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "fit", name, "TOML", "JSON")
+
+
+def test_manifest_of_another_name_says_it_was_read_as_json(capsys, tmp_path):
+    (tmp_path / "m.txt").write_text("[[image]]\n")
+    rc, _, err = run(capsys, "fit", "--manifest", str(tmp_path / "m.txt"), "-o", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "fit", "m.txt", "as JSON", ".toml")
+
+
+# ------------------------------------------------------------------ masks
+def test_nan_mask_file_is_refused(capsys, tmp_path):
+    """Before: NaN != 0, so a NaN mask pixel was object."""
+    m = np.ones((16, 16))
+    m[3, 4] = np.nan
+    np.save(tmp_path / "mask.npy", m)
+    rc, _, err = run(capsys, "fit", raw_input(tmp_path), "--sphere", "8,8,6", "--mask", str(tmp_path / "mask.npy"),
+                     "--light", "0,0,1", "-o", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "fit", "mask.npy", "NaN")
+
+
+# ------------------------------------------------------------------ render scenes
+def test_binary_xml_scene_names_the_file(capsys, tmp_path):
+    """Before: "'utf-8' codec can't decode byte 0x80 in position 128" with no file named."""
+    p = tmp_path / "bin.xml"
+    p.write_bytes(bytes(range(256)) * 4)
+    rc, _, err = run(capsys, "render", "-s", str(p), "--variant", "llvm_ad_mono_polarized", "-q",
+                     str(tmp_path / "x.exr"))
+    one_line_error(rc, err, "render", "bin.xml", "UTF-8")
+
+
+def test_scene_that_is_a_directory(capsys, tmp_path):
+    os.mkdir(tmp_path / "s.xml")
+    rc, _, err = run(capsys, "render", "-s", str(tmp_path / "s.xml"), "-q", str(tmp_path / "x.exr"))
+    one_line_error(rc, err, "render", "s.xml", "is a directory")
+
+
+EMPTY_PLY_HEADER = "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nelement face 0\n" \
+                   "property list uchar int vertex_indices\nend_header\n"
+
+
+@pytest.mark.parametrize("name,text,words", [
+    ("m.ply", "", ["m.ply", "empty (0 bytes)"]),
+    ("m.obj", "", ["m.obj", "empty (0 bytes)"]),
+    ("m.ply", EMPTY_PLY_HEADER, ["m.ply", "no vertices"]),
+    ("m.obj", "# nothing\nvn 0 0 1\n", ["m.obj", "no vertices"]),
+])
+def test_empty_mesh_in_an_xml_scene(capsys, tmp_path, name, text, words):
+    """Before: Mitsuba's "I/O error ... No such file or directory" (the file exists) or "Could not map"."""
+    (tmp_path / name).write_text(text)
+    kind = name[-3:]
+    (tmp_path / "s.xml").write_text(f"""<scene version="3.0.0">
+  <integrator type="stokes"><integrator type="direct"/></integrator>
+  <sensor type="orthographic"><film type="hdrfilm"><integer name="width" value="8"/>
+    <integer name="height" value="8"/></film></sensor>
+  <shape type="{kind}" id="mesh"><string name="filename" value="{name}"/><bsdf type="fmbrdf"/></shape>
+  <emitter type="directional"><vector name="direction" value="0,0,-1"/></emitter>
+</scene>""")
+    rc, _, err = run(capsys, "render", "-s", str(tmp_path / "s.xml"), "--variant", "llvm_ad_mono_polarized", "-q",
+                     str(tmp_path / "x.exr"))
+    one_line_error(rc, err, "render", "s.xml", *words)
+
+
+@pytest.mark.parametrize("name,text,words", [
+    ("m.ply", "", ["shape.type", "m.ply", "empty (0 bytes)"]),
+    ("m.obj", "v 0 0 0\nv 1 0 0\n", ["shape.type", "m.obj", "no faces"]),
+])
+def test_empty_mesh_in_a_dataset_config(capsys, tmp_path, name, text, words):
+    """Before: "cannot load mesh ... [parser.cpp:1718] At dictionary node "root": ...", from Mitsuba."""
+    (tmp_path / name).write_text(text)
+    (tmp_path / "c.toml").write_text(f'samples = 1\n[render]\nresolution = 8\nspp = 1\n'
+                                     f'variant = "llvm_ad_mono_polarized"\n[shape]\ntype = "{name}"\n')
+    rc, _, err = run(capsys, "dataset", "--config", str(tmp_path / "c.toml"), "--out", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "dataset", *words)
+    assert not (tmp_path / "out").exists()
+
+
+def test_valid_meshes_pass_the_check(tmp_path):
+    from fmbrdf_mi import scene as S
+
+    (tmp_path / "t.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "t.ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                                    "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+                                    "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    for f in ("t.obj", "t.ply"):
+        assert S.check_mesh_file(tmp_path / f) == str(tmp_path / f)
+
+
+# ------------------------------------------------------------------ render metadata and fov
+@pytest.mark.parametrize("call", [
+    lambda ob: ob.pixel_rays((4, 4), "perspective", "wide"),
+    lambda ob: ob.sphere_normals((16, 16), (8, 8), 6, camera="perspective", fov="wide"),
+])
+def test_fov_as_a_word_is_named(call):
+    """Before: "could not convert string to float: 'wide'" with no key."""
+    from fmbrdf_mi.fit import InputError
+    from fmbrdf_mi.fit.inputs import observations as ob
+
+    with pytest.raises(InputError, match=r"fov: a perspective camera needs .* \(0, 180\) degrees, got 'wide'"):
+        call(ob)
+
+
+def test_render_metadata_fov_is_named():
+    from fmbrdf_mi.fit import InputError
+    from fmbrdf_mi.fit.inputs.parse import check_render_parameters
+
+    p = {"width": 8, "height": 8, "camera": "perspective", "fov": "wide", "distance": 5}
+    with pytest.raises(InputError, match=r"^x.json: parameters.fov: expected a number in \(0, 180\), got 'wide'$"):
+        check_render_parameters(p, "x.json")
+    assert check_render_parameters(dict(p, fov=30), "x.json")["fov"] == 30
+
+
+# ------------------------------------------------------------------ API misuse
+def _obs():
+    from fmbrdf_mi.fit import Observation
+    from fmbrdf_mi.fit.inputs import observations as ob
+
+    n, m, v = ob.sphere_normals((16, 16), (8, 8), 6)
+    s = np.stack([np.ones((16, 16)), np.zeros((16, 16)), np.zeros((16, 16))])
+    return Observation(s, m, n, v, [0, 0, 1]), (s, m, n, v)
+
+
+PARAMS = dict(eta=1.5, alpha=0.3, beta=2.0, kappa=1.0, k_s=1.0, r_k=1.0)
+
+
+def _refine_normals(obs, mask):
+    from fmbrdf_mi.fit import refine_normals
+
+    return refine_normals([obs] * 3, obs.normals, mask=mask, progress=False)
+
+
+def _photometric_stereo(obs, mask):
+    from fmbrdf_mi.fit.api.normal_refine import photometric_stereo
+
+    return photometric_stereo([obs] * 3, mask=mask)
+
+
+@pytest.mark.parametrize("call,words", [
+    (lambda f, o, a: f.Observation(a[0], np.full((16, 16), np.nan), *a[2:], [0, 0, 1]), ["mask", "NaN"]),
+    (lambda f, o, a: o.with_light(a[0], "up"), ["light_dir", "three numbers", "'up'"]),
+    (lambda f, o, a: f.fit("image.png", progress=False), ["fit()", "Observation", "'image.png'", "fit_files"]),
+    (lambda f, o, a: f.fit_joint([o, "x"], progress=False), ["fit_joint()", "item 1", "Observation", "'x'"]),
+    (lambda f, o, a: f.fit_joint("x", progress=False), ["fit_joint()", "Observation", "'x'"]),
+    (lambda f, o, a: f.refine_joint([o] * 3, o.normals, dict(eta=9)), ["parameters", "missing alpha", "r_k"]),
+    (lambda f, o, a: f.refine_joint([o] * 3, o.normals, dict(PARAMS, k_s="1")), ["k_s must be a number"]),
+    (lambda f, o, a: f.refine_joint([o] * 3, o.normals, PARAMS, mask=a[1][:8]), ["mask", "(8, 16)"]),
+    (lambda f, o, a: f.refine_joint([o, o, "x"], o.normals, PARAMS), ["item 2", "Observation"]),
+    (lambda f, o, a: _refine_normals(o, a[1][:8]), ["mask", "(8, 16)"]),
+    (lambda f, o, a: _photometric_stereo(o, a[1][:, :8]), ["mask", "(16, 8)"]),
+    (lambda f, o, a: f.predict_image("fmbrdf", dict(eta=9), o), ["parameters", "missing alpha"]),
+])
+def test_api_misuse_is_one_clear_error(call, words):
+    """Before: AttributeError ('str' object has no attribute 'noise'), KeyError 'alpha', NumPy's
+    "could not convert string to float" / boolean index errors, or nothing (a NaN mask, a mask of the wrong
+    shape given to the normal refinement)."""
+    import fmbrdf_mi.fit as f
+    from fmbrdf_mi.fit import InputError
+
+    obs, arrays = _obs()
+    with pytest.raises(InputError) as e:
+        call(f, obs, arrays)
+    msg = str(e.value)
+    assert "\n" not in msg
+    for w in words:
+        assert w in msg, (w, msg)
