@@ -1,7 +1,7 @@
 """The camera model: how a division-of-focal-plane polarisation sensor turns a Stokes image into raw numbers.
 
 One home for what rendering (``fmbrdf-mi render --raw``) simulates and what
-fitting (the likelihood of :mod:`fmbrdf_mi.fit.likelihood`) assumes:
+fitting (the likelihood of ``fmbrdf_mi/fit/objectives/objective.py``) assumes:
 
 1. **sampling** (:mod:`fmbrdf_mi.polcam`): raw pixel (r, c) sits behind the
    polariser of its position in the 2x2 ``layout`` and sees
