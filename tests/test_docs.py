@@ -1,6 +1,6 @@
 """The documentation stays true: its Python code blocks and tutorials run.
 
-* Every ```python block of ``docs/**/*.md`` runs.  The blocks of one page run
+* Every ```python block of ``docs/**/*.md`` and of the README runs.  The blocks of one page run
   in order in one fresh Python process (a page is read like a notebook: later
   blocks see the names of earlier ones), in a temporary directory holding a
   copy of ``scenes/``; the code keeps its Markdown line numbers, so a failure's
@@ -69,7 +69,7 @@ def page_script(path):
     return "\n".join(out) + "\n", skipped
 
 
-PAGES = sorted(p for p in DOCS.rglob("*.md") if "_build" not in p.parts and python_blocks(p))
+PAGES = [ROOT / "README.md"] + sorted(p for p in DOCS.rglob("*.md") if "_build" not in p.parts and python_blocks(p))
 TUTORIALS = sorted((DOCS / "tutorials").glob("*.py"))
 
 
@@ -87,12 +87,13 @@ def run_python(args, cwd, timeout=600):
 
 def test_the_docs_have_code_and_tutorials():
     """The runner finds what it should (a wrong fence pattern would make every page pass)."""
-    names = {p.relative_to(DOCS).as_posix() for p in PAGES}
-    assert {"getting-started.md", "bsdf.md", "howto/render.md", "howto/fit.md", "howto/dataset.md"} <= names
+    names = {p.relative_to(ROOT).as_posix() for p in PAGES}
+    assert {"README.md", "docs/getting-started.md", "docs/bsdf.md", "docs/howto/render.md", "docs/howto/fit.md",
+            "docs/howto/dataset.md"} <= names
     assert {t.name for t in TUTORIALS} >= {"differentiable_rendering.py", "raw_capture_fit.py"}
 
 
-@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(DOCS).as_posix())
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
 def test_page_code_blocks_run(page, tmp_path):
     script, skipped = page_script(page)
     rel = page.relative_to(ROOT).as_posix()
