@@ -2,9 +2,12 @@
 
 The parameter table of a plugin lives in its class docstring (as Mitsuba's
 plugins do); this directive renders that docstring (reStructuredText) into the
-page, so the reference cannot drift from the code.  In MyST::
+page, so the reference cannot drift from the code.  The docstring is parsed
+with the state of the document it sits in, so in a MyST page put the directive
+in an ``eval-rst`` block (a MyST directive would parse it as Markdown)::
 
-    ```{plugin-docstring} fmbrdf
+    ```{eval-rst}
+    .. plugin-docstring:: fmbrdf
     ```
 """
 import inspect
