@@ -8,7 +8,7 @@ the degree of polarisation too.
 
     python docs/tutorials/differentiable_rendering.py
 
-(about 3-10 s on 2 CPU cores).  Notes:
+(seconds on a laptop; under a minute on 2 shared CPU cores).  Notes:
 
 * ``stokes`` over ``direct``: Mitsuba's ``prb`` integrators do not support
   polarisation; ``direct`` is differentiable with the default (detached)

@@ -18,7 +18,7 @@ recovers the material from it, all through the command line:
 
     python docs/tutorials/raw_capture_fit.py [OUTDIR]
 
-A 64 x 64 render (32 x 32 super-pixels) keeps it to about 20 s on 2 CPU cores;
+A 64 x 64 render (32 x 32 super-pixels) keeps it well under a minute on 2 CPU cores;
 larger images give smaller standard errors (see the benchmarks page).
 """
 import json
