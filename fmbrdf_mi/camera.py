@@ -15,7 +15,7 @@ fitting (the likelihood of ``fmbrdf_mi/fit/objectives/objective.py``) assumes:
    clipped to [0, 2^bits - 1], stored as uint16.
 
 In digital numbers above the black level, a raw sample of mean mu (DN) then
-has, to the accuracy of the Gaussian approximation of the Poisson law,
+has, to the accuracy of the Gaussian approximation of the Poisson law::
 
     var = mu / g + (read_noise / g)^2 + 1 / 12                     (DN^2)
 
