@@ -1,5 +1,7 @@
 """fmbrdf-mi: the Fresnel Microfacet BRDF as a polarised Mitsuba 3 BSDF.
 
+::
+
     import mitsuba as mi
     mi.set_variant("llvm_ad_spectral_polarized")
     import fmbrdf_mi              # registers "fmbrdf" (and "orennayar") now and for every variant set later

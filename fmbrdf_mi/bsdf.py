@@ -160,7 +160,58 @@ def _unit_xy(v):
 
 
 class _FMBRDFMethods:
-    """Fresnel Microfacet BRDF (Ichikawa et al., CVPR 2023); see the README for parameters.
+    """Fresnel Microfacet BRDF (``fmbrdf``; Ichikawa et al., CVPR 2023).
+
+    Surface and body reflection from the same mirror microfacets: a polarimetric
+    Torrance-Sparrow surface lobe with a generalised-normal facet distribution,
+    and the body term (Fresnel transmission, depolarising subsurface scattering,
+    re-transmission over vMF-correlated facets) by quadrature, tabulated once
+    per parameter change.  ``eval`` returns the Mueller matrix in polarised
+    variants and its intensity element in the others.
+
+    .. list-table:: Parameters
+       :header-rows: 1
+       :widths: 12 48 12 18
+
+       * - name
+         - meaning
+         - default
+         - valid range
+       * - ``eta``
+         - index of refraction μ (float)
+         - 1.5
+         - (1, 3]
+       * - ``alpha``
+         - roughness α of D(θ) ∝ exp(−(θ/α)^β), radians (float)
+         - 0.3
+         - [0.01, π/2]
+       * - ``beta``
+         - shape β of the generalised normal distribution (float)
+         - 2.0
+         - [0.4, 5]
+       * - ``kappa``
+         - von Mises–Fisher microfacet correlation κ (float)
+         - 10
+         - [0, 100]
+       * - ``k_s``
+         - surface albedo: float, spectrum or texture
+         - 1.0
+         - ≥ 0
+       * - ``r_k`` *or* ``k_b``
+         - body albedo as the ratio k_b / k_s (the paper's r_k), or directly
+         - r_k = 1.0
+         - ≥ 0
+       * - ``tables``
+         - storage of the body tables: ``compact`` or ``float32`` (a string, not a
+           material parameter)
+         - ``compact``
+         -
+
+    Every parameter but ``tables`` is differentiable and exposed by
+    ``mi.traverse`` (``eta``, ``alpha``, ``beta``, ``kappa``, ``k_s.value``,
+    ``r_k.value`` or ``k_b.value``).  A bad value raises
+    :class:`fmbrdf_mi.ParameterError`, at load time and in ``params.update()``,
+    which then restores the last valid state.
 
     Its methods become a subclass of the ``mi.BSDF`` of the
     current variant in :func:`make_plugin_class`: each variant has its own base

@@ -1,7 +1,7 @@
 """The camera model: how a division-of-focal-plane polarisation sensor turns a Stokes image into raw numbers.
 
 One home for what rendering (``fmbrdf-mi render --raw``) simulates and what
-fitting (the likelihood of :mod:`fmbrdf_mi.fit.likelihood`) assumes:
+fitting (the likelihood of ``fmbrdf_mi/fit/objectives/objective.py``) assumes:
 
 1. **sampling** (:mod:`fmbrdf_mi.polcam`): raw pixel (r, c) sits behind the
    polariser of its position in the 2x2 ``layout`` and sees
@@ -15,7 +15,7 @@ fitting (the likelihood of :mod:`fmbrdf_mi.fit.likelihood`) assumes:
    clipped to [0, 2^bits - 1], stored as uint16.
 
 In digital numbers above the black level, a raw sample of mean mu (DN) then
-has, to the accuracy of the Gaussian approximation of the Poisson law,
+has, to the accuracy of the Gaussian approximation of the Poisson law::
 
     var = mu / g + (read_noise / g)^2 + 1 / 12                     (DN^2)
 

@@ -1,7 +1,7 @@
 """Division-of-focal-plane polarisation cameras: polariser-angle images and mosaics.
 
 An ideal linear polariser at angle theta (measured like the AoLP, from image
-right counter-clockwise, see :mod:`fmbrdf_mi.stokes_io`) passes
+right counter-clockwise, see :mod:`fmbrdf_mi.stokes_io`) passes::
 
     I(theta) = (S0 + S1 cos 2 theta + S2 sin 2 theta) / 2.
 

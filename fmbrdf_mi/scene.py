@@ -46,6 +46,7 @@ import numpy as np
 from . import params as P
 from .params import ParameterError
 
+#: The default sphere's material: the plugin's own defaults.
 DEFAULT_MATERIAL = dict(eta=1.5, alpha=0.3, beta=2.0, kappa=10.0, k_s=1.0, r_k=1.0)
 #: From the upper left, in front: 35 degrees from the view direction.
 DEFAULT_LIGHT_DIR = (-0.5, 0.5, 1.0)
@@ -72,7 +73,7 @@ EXAMPLE_MATERIALS = (
 def check_material(material=None):
     """Full material dict (defaults filled in) after validation.
 
-    Raises :class:`ParameterError` naming the parameter for unknown names and
+    Raises :class:`~fmbrdf_mi.ParameterError` naming the parameter for unknown names and
     out-of-range values.  ``k_b`` replaces the default ``r_k``; giving both is an error.
     """
     material = dict(material or {})

@@ -296,7 +296,7 @@ def cv_to_ours(v):
 
 
 def write_authors_object(root, params, lights, powers, *, res, fov=12.0, distance=8.0, seed=0):
-    """An object in the paper authors' layout (README, "The paper authors' captured-data layout"): a mesh seen by
+    """An object in the paper authors' layout (docs/howto/fit-joint.md, "The paper authors' captured-data layout"): a mesh seen by
     a pinhole camera, geometry by ray casts (per raw pixel for the data, per super-pixel for normal_GT.npy),
     the model at every raw pixel, 16-bit raw mosaics through fmbrdf_mi.camera (seed + k for image k), one
     exposure (the brightest raw pixel of all images at 80 % of full scale).  Returns the camera's gain."""

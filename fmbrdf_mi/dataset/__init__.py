@@ -1,5 +1,7 @@
 """Synthetic polarimetric datasets: N rendered samples from a configuration file.
 
+::
+
     from fmbrdf_mi.dataset import generate
     generate("scenes/dataset_example.toml", "out/ds")              # the whole set
     generate("scenes/dataset_example.toml", "out/ds", shard="1/4")  # a quarter of it

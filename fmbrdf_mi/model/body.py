@@ -59,7 +59,7 @@ class BodyGrid:
     """Resolution of the body quadrature and of its tables.
 
     ``n_theta`` polar x ``n_phi`` azimuthal microfacet nodes (n_phi even);
-    ``table``: (n_theta, n_phi) nodes of the body table (README, Measured
+    ``table``: (n_theta, n_phi) nodes of the body table (docs/benchmarks.md, Measured
     accuracy, for how they were chosen).
     """
 
