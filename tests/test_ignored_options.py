@@ -143,3 +143,14 @@ def test_from_record_that_cannot_be_verified_is_refused(capsys, tmp_path, joint,
     rc, _, err = run(capsys, "fit", "--from", str(path), "-o", str(tmp_path / "out"))
     one_line_error(rc, err, "fit", str(path), *words)
     assert not (tmp_path / "out").exists()
+
+
+def test_manifest_footprint_is_named_as_the_manifest_gave_it(capsys, tmp_path, captures):
+    """A manifest's footprint key with a likelihood fit: the line names the image and the key (it said
+    '--footprint point', an option the user never gave)."""
+    m = tmp_path / "m.toml"
+    m.write_text(f'[[image]]\ninput = "{captures / "m_raw.png"}"\nfootprint = "point"\n'
+                 f'[[image]]\ninput = "{captures / "m_raw.png"}"\n')
+    rc, _, err = run(capsys, "fit", "--manifest", str(m), "-o", str(tmp_path / "out"), "--max-iter", "1", "-q")
+    one_line_error(rc, err, "fit", "image m_raw", "manifest's", "footprint point", "--area-points")
+    assert not (tmp_path / "out").exists()

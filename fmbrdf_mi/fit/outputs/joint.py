@@ -112,10 +112,11 @@ class Joint(FitJob):
         if opts.free_power and len(fit_obs) < 2:
             raise InputError(f"--free-power (free_power): needs two or more fitted images, got {len(fit_obs)} "
                              "(one image's light power is not separable from k_s and k_b)")
-        for s, o in zip(specs, obs):
+        for n, s, o in zip(self.names, specs, obs):
             fp = (s.options or {}).get("footprint") if isinstance(getattr(s, "options", None), dict) else None
             check_footprint(fp, resolve_loss(o, opts), "--loss likelihood" if opts.loss == "likelihood" else
-                            f"the camera noise from {o.meta.get('sidecar') or 'conversion_gain'}")
+                            f"the camera noise from {o.meta.get('sidecar') or 'conversion_gain'}",
+                            name=f"image {n}: the manifest's (or --footprint's) footprint")
         given = [given_power(s, o) for s, o, h in zip(specs, obs, holdout) if not h]
         models = [model] + ([m for m in ("pplastic", "lambert_ts") if m != model] if self.baselines else [])
         self.results = {}

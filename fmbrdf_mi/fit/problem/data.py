@@ -89,12 +89,12 @@ def resolve_loss(obs, opts):
     return opts.loss
 
 
-def check_footprint(footprint, loss, why="the camera noise is known"):
+def check_footprint(footprint, loss, why="the camera noise is known", name="--footprint"):
     """A footprint (``--footprint point|box|demosaic``) shapes only the paper's loss: refuse it in one line
     when ``loss`` (resolved) is the likelihood, which models each raw sample over its own pixel with
-    ``area_points`` (``--area-points``)."""
+    ``area_points`` (``--area-points``).  ``name``: how the user gave it."""
     if footprint not in (None, "auto") and loss == "likelihood":
-        raise InputError(f"--footprint {footprint}: only the paper's loss uses it; the likelihood ({why}) models "
+        raise InputError(f"{name} {footprint}: only the paper's loss uses it; the likelihood ({why}) models "
                          "each sample over its own pixel with --area-points (or give --loss paper)")
 
 
