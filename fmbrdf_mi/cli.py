@@ -418,6 +418,14 @@ def _check_camera_options(args):
     if args.sensor != "mono" and not args.raw:
         raise CLIError(f"--sensor {args.sensor}: a setting of the raw capture; give --raw too (without it "
                        "only the Stokes EXR is written)")
+    raw_only = [flag for flag, given in (
+        ("--full-well", args.full_well != 10000.0), ("--conversion-gain", args.conversion_gain is not None),
+        ("--read-noise", args.read_noise != 2.5), ("--bits", args.bits != 12),
+        ("--black-level", args.black_level != 0.0), ("--layout", args.layout != "90,45,135,0"),
+        ("--raw-exposure", args.raw_exposure is not None), ("--raw-seed", args.raw_seed != 0)) if given]
+    if raw_only and not args.raw:   # (the --mosaic preview has the IMX250MZR layout, not --layout)
+        raise CLIError(f"{', '.join(raw_only)}: setting(s) of the raw capture; give --raw too (without it no raw "
+                       "mosaic is captured and they would be ignored)")
     if args.cfa is not None and args.sensor != "colour":
         raise CLIError(f"--cfa {args.cfa}: the colour filter of a colour sensor; give --sensor colour (and --raw), "
                        "or drop --cfa for the mono quad-Bayer sensor")

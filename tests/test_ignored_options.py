@@ -19,6 +19,10 @@ from fmbrdf_mi import cli
     (["--cfa", "RGGB"], ["--cfa RGGB", "--sensor colour"]),
     (["--variant", "llvm_ad_mono_polarized", "-D", "k_s=1,0.5,0.2"], ["k_s=1,0.5,0.2", "RGB", "mono"]),
     (["--variant", "llvm_ad_mono_polarized", "-D", "r_k=0.2,0.5,1"], ["r_k=0.2,0.5,1", "RGB"]),
+    (["--raw-seed", "3"], ["--raw-seed", "--raw"]),
+    (["--full-well", "5000", "--bits", "10"], ["--full-well, --bits", "--raw"]),
+    (["--layout", "90,135,45,0", "--mosaic"], ["--layout", "--raw"]),
+    (["--conversion-gain", "2", "--raw-exposure", "100"], ["--conversion-gain, --raw-exposure", "--raw"]),
 ])
 def test_render_ignored_options_refused(capsys, tmp_path, argv, words):
     """Before: the EXR was written, the option dropped (no raw mosaic, the mono sensor, the RGB
@@ -30,6 +34,7 @@ def test_render_ignored_options_refused(capsys, tmp_path, argv, words):
 
 @pytest.mark.parametrize("argv", [
     ["--raw", "--sensor", "colour", "--cfa", "BGGR"],
+    ["--raw", "--raw-seed", "3", "--full-well", "5000"],
     ["--variant", "llvm_ad_mono_polarized", "-D", "k_s=0.5"],
     ["-D", "k_s=1,0.5,0.2"],
 ])
@@ -153,4 +158,12 @@ def test_manifest_footprint_is_named_as_the_manifest_gave_it(capsys, tmp_path, c
                  f'[[image]]\ninput = "{captures / "m_raw.png"}"\n')
     rc, _, err = run(capsys, "fit", "--manifest", str(m), "-o", str(tmp_path / "out"), "--max-iter", "1", "-q")
     one_line_error(rc, err, "fit", "image m_raw", "manifest's", "footprint point", "--area-points")
+    assert not (tmp_path / "out").exists()
+
+
+def test_fit_channel_of_a_one_channel_input_refused(capsys, tmp_path, captures):
+    """Before: --channel R on a mono raw mosaic was dropped and the fit ran on the mosaic as it is."""
+    rc, _, err = run(capsys, "fit", str(captures / "m_raw.png"), "-o", str(tmp_path / "out"), "--channel", "R",
+                     "-q", "--max-iter", "1")
+    one_line_error(rc, err, "fit", "--channel R", "m_raw.png", "one channel")
     assert not (tmp_path / "out").exists()

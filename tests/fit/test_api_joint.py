@@ -232,5 +232,6 @@ def test_one_image_is_the_list_of_one():
         b = fit([o], progress=False, init=NEAR, **kw)
         assert a.converged and b.converged
         assert a.params == b.params and a.std_errors == b.std_errors and a.loss == b.loss, kw
+        assert a.uncertainty.get("ci95") == b.uncertainty.get("ci95"), kw     # profile intervals included
         assert a.images is None and len(b.images) == 1 and b.images[0]["n_pixels"] == a.n_pixels
         assert list(b.pixels[0]) == list(a.pixels)

@@ -310,8 +310,16 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
     * four polariser-angle images: a ``.npy`` of shape (4, H, W) in the order
       0, 45, 90, 135 degrees, or a list of four 2-D image files in that order.
 
-    ``black_level`` is subtracted from raw and angle images.
+    ``black_level`` is subtracted from raw and angle images.  ``channel``
+    (``R``, ``G``, ``B``) picks a channel of an RGB Stokes EXR: refused for
+    every input that has only one.
     """
+    picked = channel not in (None, "mean")
+
+    def one_channel(what):
+        if picked:
+            raise InputError(f"--channel {channel}: picks a colour channel of an RGB Stokes EXR; {what} has one "
+                             "channel (a colour polarisation mosaic takes its channels from its sidecar)")
     if isinstance(paths, (list, tuple)):
         if len(paths) == 1:
             paths = paths[0]
@@ -322,6 +330,7 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
                     raise InputError(f"angle image {p}: expected a 2-D single-channel image, got {im.shape}")
             if len({im.shape for im in imgs}) != 1:
                 raise InputError(f"angle images: shapes differ: {[im.shape for im in imgs]}")
+            one_channel("four angle images")
             return stokes_from_angles(np.stack(imgs), black_level), {"source": "angle images",
                                                                       "_array": np.stack(imgs)}
         else:
@@ -333,8 +342,12 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
             stokes, meta = stokes_io.read_stokes_exr(path)
         except stokes_io.StokesFileError as exc:
             raise InputError(str(exc)) from None
+        if np.ndim(stokes) == 3:
+            one_channel(f"the Stokes EXR {path}")
         return select_channel(stokes, channel), meta
     a = read_array(path, "polarisation image")
+    if a.ndim in (2, 3):
+        one_channel(f"{path} ({'a raw mosaic' if a.ndim == 2 else 'angle images'})")
     if a.ndim == 2:
         return (stokes_from_raw(a, layout, black_level, demosaic),
                 {"source": "raw mosaic", "layout": layout, "demosaic": demosaic, "_array": a})
