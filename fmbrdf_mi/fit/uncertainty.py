@@ -26,7 +26,7 @@
   estimate), which is unbiased to first order and slightly conservative for
   small objects; for large ones P_gg -> 0 and it is the plain sandwich.  It
   describes the spread of the estimate, not its bias (the DoLP of a noisy
-  pixel is biased: README).
+  pixel is biased: docs/computed.md).
 **Transforms and bounds.**  The optimiser works in unconstrained z (sigmoid
 onto the bounds, log albedos); the covariance is computed for the reported
 parameters directly: J_theta = J_z (d theta / d z)^-1, so the standard

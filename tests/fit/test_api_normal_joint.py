@@ -217,7 +217,7 @@ def test_refine_normals_command(tiny, tmp_path, capsys):
     assert set(rep["models"]["fmbrdf"]["params"]) == set(TRUE)
     assert "stdout" not in rep and capsys.readouterr().out.count("angle to the ground truth") == 1
     if rn["converged"]:
-        assert rep["models"]["fmbrdf"]["uncertainty"] is None   # withheld: uncalibrated (README)
+        assert rep["models"]["fmbrdf"]["uncertainty"] is None   # withheld: uncalibrated (docs: fit-joint how-to)
         assert set(rep["models"]["fmbrdf"]["uncertainty_uncalibrated"]["std_errors"]) == set(TRUE)
     before = (out / "normals.npy").read_bytes()
     assert main(["fit", *common, "-o", str(out)]) != 0

@@ -54,7 +54,7 @@ than 0.01 twice in a row (chi^2 units), or no step lowers it.
 J^T J: :func:`fmbrdf_mi.fit.solve.normal_system.material_covariance`), the normals
 free, not held fixed; the inverse Schur complement alone would count the
 prior as information.  Measured over noise seeds
-(tools/bench_normal_refine_seeds.py, README) both are 1.5-3x smaller than
+(tools/bench_normal_refine_seeds.py, docs/benchmarks.md) both are 1.5-3x smaller than
 the actual spread of eta, alpha, beta, kappa: not yet trustworthy intervals.
 It is mapped to the reported
 parameters as the fit does (:mod:`fmbrdf_mi.fit.uncertainty`); with unknown
@@ -197,7 +197,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         # 1.5-3.1x these; say so wherever the block goes (the command withholds them)
         unc["calibrated"] = False
         unc["warning"] = ("too small: over noise seeds the spread of eta, alpha, beta, kappa was 1.5-3.1 times "
-                          "these (README, Normal refinement)")
+                          "these (docs: how-to 'Fit several images of one object', Normal refinement)")
     out = nmap.reshape(n_map.shape)
     params_out = mdl.report(st.shape, st.a_s, st.a_b)
     say(f"[joint-normals] done in {time.time() - t0:.1f} s ({reason}): "

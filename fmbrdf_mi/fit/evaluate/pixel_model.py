@@ -55,7 +55,7 @@ class Parts:
     body: np.ndarray
     d_surface: dict = dataclasses.field(default_factory=dict)
     d_body: dict = dataclasses.field(default_factory=dict)
-    #: pixels where some derivative came out NaN / inf (the BSDF's AD has a few such directions: README)
+    #: pixels where some derivative came out NaN / inf (the BSDF's AD has a few such directions: docs/computed.md)
     nonfinite: np.ndarray = None
 
 

@@ -87,7 +87,7 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
         if cam.cfa is not None:
             raise InputError(f"{inputs}: a colour polarisation mosaic (sidecar {sidecar['path']}: cfa "
                              f"{''.join(c for r in cam.cfa for c in r)}); the fit command takes monochrome "
-                             "mosaics only so far: fit it with fmbrdf_mi.fit.api.colour.fit_colour (README, "
+                             "mosaics only so far: fit it with fmbrdf_mi.fit.api.colour.fit_colour (docs: how-to "
                              "'Colour polarisation sensors')")
         layout = cam.layout if layout is None else layout
         black_level = cam.black_level if black_level is None else black_level

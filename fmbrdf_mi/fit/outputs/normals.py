@@ -145,7 +145,7 @@ class NormalRefinement(FitJob):
                                      "angle_change": _errors(joint.normals, n0, m),
                                      "angular_error": None, "outputs": self.files()},
                   # Not reported as standard errors: over noise seeds (tools/bench_normal_refine_seeds.py) the
-                  # material's spread was 1.5-3.1x these for eta, alpha, beta, kappa (README, Normal refinement).
+                  # material's spread was 1.5-3.1x these for eta, alpha, beta, kappa (docs/howto/fit-joint.md, Normal refinement).
                   "models": {self.model: {"params": joint.params, "uncertainty": None,
                                           "uncertainty_uncalibrated": dict(joint.uncertainty or {},
                                                                            note=UNCALIBRATED),

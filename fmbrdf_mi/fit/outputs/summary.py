@@ -99,7 +99,7 @@ def print_report(report):
             print(line)
         if mdl.get("uncertainty_uncalibrated"):
             print("  no standard errors: the refinement's curvature-based ones were 1.5-3.1 times too small over "
-                  "noise seeds (fit.json: uncertainty_uncalibrated; README, Normal refinement)")
+                  "noise seeds (fit.json: uncertainty_uncalibrated; docs: how-to 'Fit several images of one object', Normal refinement)")
         if unc.get("method"):
             print(f"  uncertainty: {unc['method']}"
                   + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")

@@ -29,7 +29,7 @@ from fmbrdf_mi.fit.problem.problem import FitData
 
 #: Pixels whose view or light direction is within this angle (degrees) of the
 #: normal are left out of the fit: the BSDF's reverse-mode derivative with
-#: respect to alpha is NaN there for some alpha (see the README).
+#: respect to alpha is NaN there for some alpha (docs/computed.md).
 POLE_EXCLUSION_DEG = 3.0
 
 

@@ -35,7 +35,7 @@ closed form -- alternating the two-albedo non-negative least squares and,
 per image, the least-squares ratio of the observed intensities (the
 likelihood: the samples, weighted by 1 / variance) to the prediction at
 unit power -- so the search ranks shapes with the powers that suit them.
-Both are measured in ``tools/bench_fit_lights.py --free-power`` (README).
+Both are measured in ``tools/bench_fit_lights.py --free-power`` (docs/benchmarks.md).
 """
 from __future__ import annotations
 

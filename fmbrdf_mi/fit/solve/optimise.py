@@ -103,7 +103,7 @@ def coarse_search(problem, keep=2):
     Stage 1: every free shape parameter but eta and kappa on its grid, eta
     and kappa at their middle grid values; stage 2: eta on its grid for the
     ``keep`` best; stage 3: kappa on its grid for the ``keep`` best (kappa
-    changes the body term least, and is often weakly identifiable: README).
+    changes the body term least, and is often weakly identifiable: docs/benchmarks.md).
     Each grid point costs one BSDF table rebuild; the albedos follow in
     closed form (the objective's weighted least squares) and the objective
     with the candidate's own weights decides.
