@@ -119,3 +119,30 @@ def test_fit_reports_the_kind_of_every_interval():
     with pytest.raises(Exception, match="intervals: expected 'auto' or 'fisher'"):
         fit(obs, FitOptions(loss="likelihood", intervals="wald"), progress=False)
     assert np.isfinite([v for ab in u["ci95"].values() for v in ab]).all()
+
+
+def test_cli_intervals_option_is_recorded_and_rerun(tmp_path, capsys):
+    """``fmbrdf-mi fit --intervals fisher`` skips the profile check, says so in fit.json's record, and a rerun
+    with ``--from`` does the same; the default checks (``interval_kind`` per free shape parameter)."""
+    import json
+
+    from conftest import run
+
+    src = str(tmp_path / "s.exr")
+    assert run(capsys, "render", src, "--variant", "llvm_ad_mono_polarized", "--res", "32", "--spp", "4", "--raw",
+               "-q", "-D", "alpha=0.15")[0] == 0
+    raw = src[:-4] + "_raw.png"
+    fix = ["--fix", "eta=1.5", "--fix", "beta=2"]
+    assert run(capsys, "fit", raw, "-o", str(tmp_path / "a"), "-q", "--starts", "1", *fix)[0] in (0, 3)
+    assert run(capsys, "fit", raw, "-o", str(tmp_path / "f"), "-q", "--starts", "1", "--intervals", "fisher",
+               *fix)[0] in (0, 3)
+    a = json.load(open(tmp_path / "a" / "fit.json"))
+    f = json.load(open(tmp_path / "f" / "fit.json"))
+    assert set(a["models"]["fmbrdf"]["uncertainty"]["interval_kind"]) == {"alpha", "kappa"}
+    assert "interval_kind" not in f["models"]["fmbrdf"]["uncertainty"]
+    assert f["reproduce"]["arguments"]["intervals"] == "fisher"
+    assert a["models"]["fmbrdf"]["params"] == f["models"]["fmbrdf"]["params"]     # only the intervals differ
+    assert run(capsys, "fit", "--from", str(tmp_path / "f" / "fit.json"), "-o", str(tmp_path / "r"), "-q")[0] in (0, 3)
+    r = json.load(open(tmp_path / "r" / "fit.json"))
+    assert "interval_kind" not in r["models"]["fmbrdf"]["uncertainty"]
+    assert r["models"]["fmbrdf"]["params"] == f["models"]["fmbrdf"]["params"]

@@ -37,7 +37,7 @@ def check_args(args):
 DEFAULTS = {"demosaic": "bilinear", "channel": "mean", "loss": "auto", "footprint": "auto",
             "camera": "orthographic", "model": "fmbrdf", "optimizer": "lm", "path": "pixel", "max_iter": 40,
             "tol": 1e-4, "starts": 2, "max_pixels": 20000, "erode": 2, "seed": 0, "power_start": "ratio",
-            "normals_start": "ps", "smooth": 0.3, "rounds": 0}
+            "normals_start": "ps", "smooth": 0.3, "rounds": 0, "intervals": "auto"}
 
 #: What goes with ``--from``: the output directory, --force, -q (and the command's own bookkeeping).
 RERUN_TAKES = ("out", "force", "quiet", "from_json", "argv", "command", "run")

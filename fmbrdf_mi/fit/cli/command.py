@@ -97,6 +97,10 @@ def add_fit_arguments(p):
     g.add_argument("--starts", type=int, default=2,
                    help="refine from this many of the best distinct coarse-search points and keep the best "
                         "(default %(default)s)")
+    g.add_argument("--intervals", default="auto", choices=("auto", "fisher"),
+                   help="likelihood fits: auto checks each shape parameter's Fisher 95 %% interval against the "
+                        "likelihood and gives the profile likelihood's ends where it fails (refits: slower on "
+                        "weakly identified parameters); fisher: Fisher intervals only (default %(default)s)")
     g.add_argument("--area-points", type=int, metavar="M",
                    help="likelihood: model each raw sample as the mean of the BSDF over M x M points of its "
                         "pixel, as a sensor pixel integrates over its area (default: 2 for raw mosaics, 1 = the "

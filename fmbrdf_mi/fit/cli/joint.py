@@ -77,7 +77,8 @@ def run_joint(args, command):
                   bounds=parse_bounds(args.bounds), init=parse_init(args.init), starts=args.starts,
                   max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
                   max_pixels=args.max_pixels or None, erode=args.erode, seed=args.seed,
-                  free_power=getattr(args, "free_power", False), power_start=getattr(args, "power_start", "ratio"))
+                  free_power=getattr(args, "free_power", False), power_start=getattr(args, "power_start", "ratio"),
+                  intervals=getattr(args, "intervals", "auto"))
     if getattr(args, "area_points", None) is not None:  # the colour fit refuses it (check_colour_args)
         fit_kw["area_points"] = args.area_points
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"

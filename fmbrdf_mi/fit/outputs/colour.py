@@ -65,7 +65,8 @@ def model_entry(model, res, bounds, fixed, truth):
 def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
                      fov=None, light=None, irradiance=None, black_level=None, white_level=None,
                      conversion_gain=None, read_noise=None, model="fmbrdf", bounds=None, fixed=None,
-                     max_time=None, max_iter=40, max_pixels=20000, erode=2, seed=0, starts=2, force=False,
+                     max_time=None, max_iter=40, max_pixels=20000, erode=2, seed=0, starts=2, intervals="auto",
+                     force=False,
                      progress=True, command=None):
     """Fit a colour polarisation mosaic (module docstring); write ``out``/fit.json and colour_fit.png.
 
@@ -114,7 +115,8 @@ class Colour(FitJob):
         say = (lambda s: print(s, flush=True)) if self.progress else None
         self.res = fit_colour(ci.obs, ci.samples, ci.noise, model=a["model"], fixed=self.fixed, bounds=self.bounds,
                               max_pixels=a["max_pixels"] or None, seed=a["seed"], progress=say,
-                              max_time=a["max_time"], max_iter=a["max_iter"], starts=int(a["starts"]))
+                              max_time=a["max_time"], max_iter=a["max_iter"], starts=int(a["starts"]),
+                              intervals=a["intervals"])
 
     def report(self):
         obs, model = self.ci.obs, self.a["model"]

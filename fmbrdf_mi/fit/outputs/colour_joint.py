@@ -53,7 +53,7 @@ def sample_rmse(smp, pred, sel, channel):
 def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True, command=None, extra=None,
                       reproduce=None, baselines=False, loss="auto", init=None, fixed=None, bounds=None, starts=2,
                       max_iter=40, max_time=None, max_pixels=None, erode=2, seed=0, tol=None, time_limit=None,
-                      free_power=False, power_start=None):
+                      free_power=False, power_start=None, intervals="auto"):
     """Joint colour fit of the non-held-out images of ``specs`` (module docstring); returns fit.json's dict.
 
     ``specs``: :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` s of colour
@@ -69,7 +69,8 @@ def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True,
                          "of the raw samples)")
     return ColourJoint(specs, out, force=force, progress=progress, command=command, extra=extra,
                        reproduce=reproduce, model=model, fixed=fixed, bounds=bounds, starts=starts,
-                       max_iter=max_iter, max_time=max_time, max_pixels=max_pixels, erode=erode, seed=seed).run()
+                       max_iter=max_iter, max_time=max_time, max_pixels=max_pixels, erode=erode, seed=seed,
+                       intervals=intervals).run()
 
 
 class ColourJoint(FitJob):
@@ -101,7 +102,8 @@ class ColourJoint(FitJob):
         self.res = fit_colour([c.obs for c in fit_in], [c.samples for c in fit_in], fit_in[0].noise,
                               model=self.model, fixed=kw["fixed"], bounds=kw["bounds"],
                               max_pixels=kw["max_pixels"] or None, seed=kw["seed"], progress=say,
-                              max_time=kw["max_time"], max_iter=kw["max_iter"], starts=int(kw["starts"]))
+                              max_time=kw["max_time"], max_iter=kw["max_iter"], starts=int(kw["starts"]),
+                              intervals=kw["intervals"])
 
     def report(self):
         names, holdout, inputs, res = self.names, self.holdout, self.inputs, self.res

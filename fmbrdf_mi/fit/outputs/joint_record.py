@@ -40,7 +40,7 @@ from fmbrdf_mi.fit.outputs.record import check_recorded, jsonable, load, sha256,
 
 #: fit_images keywords that define a joint fit (not where it writes or how it talks).
 FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
-            "max_time", "max_pixels", "erode", "seed", "free_power", "power_start", "area_points")
+            "max_time", "max_pixels", "erode", "seed", "free_power", "power_start", "area_points", "intervals")
 
 
 #: read_object keywords recorded for an authors' object.

@@ -24,13 +24,13 @@ ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "li
              "black_level", "channel", "demosaic", "conversion_gain", "read_noise", "footprint", "model",
              "baselines", "optimizer", "path", "bounds", "init", "loss", "white_level", "dark_level", "fixed",
              "starts", "max_iter", "tol", "time_limit", "max_time", "max_pixels", "erode", "seed", "relight",
-             "relight_light", "relight_irradiance", "area_points")
+             "relight_light", "relight_irradiance", "area_points", "intervals")
 
 
 #: The arguments of :func:`fmbrdf_mi.fit.outputs.colour.fit_colour_files` among them (a colour fit's record).
 COLOUR_ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "light", "irradiance",
                     "black_level", "white_level", "conversion_gain", "read_noise", "model", "bounds", "fixed",
-                    "max_time", "max_iter", "max_pixels", "erode", "seed", "starts")
+                    "max_time", "max_iter", "max_pixels", "erode", "seed", "starts", "intervals")
 
 
 def sha256(path):

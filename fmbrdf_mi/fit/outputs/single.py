@@ -35,7 +35,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
               fov=None, light=None, irradiance=None, layout=None, black_level=None, channel="mean",
               demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf",
               baselines=False, optimizer="lm", path="pixel", bounds=None, init=None, loss="auto",
-              white_level=None, dark_level=None, fixed=None, starts=2, area_points=None,
+              white_level=None, dark_level=None, fixed=None, starts=2, area_points=None, intervals="auto",
               max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
               relight_light=None, relight_irradiance=None, force=False, progress=True, command=None):
     """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
@@ -55,7 +55,8 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     ``demosaic`` (the raw pixels a demosaicked super-pixel comes from) or
     ``auto`` (the paper's loss).  ``area_points``: the likelihood models each
     raw sample as the mean over that many points squared of its pixel (None: 2
-    for raw mosaics, 1 otherwise).  ``relight``: a second image of the same object under
+    for raw mosaics, 1 otherwise).  ``intervals``: ``auto`` or ``fisher``
+    (:class:`~fmbrdf_mi.fit.api.fitting.FitOptions`).  ``relight``: a second image of the same object under
     ``relight_light`` for the relighting check.
 
     Writes ``out``/fit.json, profiles.png, images.png, history.png,
@@ -114,7 +115,8 @@ class SingleImage(FitJob):
                           init=parse_init(a["init"]), max_iter=int(a["max_iter"]), tol=float(a["tol"]),
                           time_limit=a["time_limit"], max_time=a["max_time"] or None, loss=a["loss"],
                           fixed=parse_fixed(a["fixed"]), starts=int(a["starts"]), max_pixels=a["max_pixels"],
-                          erode=int(a["erode"]), seed=int(a["seed"]), area_points=a["area_points"])
+                          erode=int(a["erode"]), seed=int(a["seed"]), area_points=a["area_points"],
+                          intervals=a["intervals"])
         loss = resolve_loss(obs, dataclasses.replace(opts, path=a["path"]))
         check_footprint(a["footprint"], loss, "--loss likelihood" if a["loss"] == "likelihood" else
                         f"the camera noise from {obs.meta.get('sidecar') or '--conversion-gain'}")
