@@ -10,31 +10,11 @@ in an ``eval-rst`` block (a MyST directive would parse it as Markdown)::
     .. plugin-docstring:: fmbrdf
     ```
 """
-import inspect
-
 from docutils import nodes
 from docutils.statemachine import StringList
 from sphinx.util.docutils import SphinxDirective
 
-#: plugin name -> (module, class holding the methods and docstring)
-PLUGINS = {
-    "fmbrdf": ("fmbrdf_mi.bsdf", "_FMBRDFMethods"),
-    "orennayar": ("fmbrdf_mi.oren_nayar_bsdf", "_OrenNayarMethods"),
-}
-
-
-def plugin_doc(name):
-    """The cleaned docstring of plugin ``name``, without its implementation notes
-    (the paragraph that starts "Its methods become")."""
-    import importlib
-
-    import mitsuba as mi
-
-    if mi.variant() is None:
-        mi.set_variant("llvm_ad_rgb")
-    module, cls = PLUGINS[name]
-    doc = inspect.cleandoc(getattr(importlib.import_module(module), cls).__doc__ or "")
-    return doc.split("\n\nIts methods become")[0]
+from plugin_docs_source import PLUGINS, plugin_doc  # noqa: F401  (PLUGINS: the names the directive takes)
 
 
 class PluginDocstring(SphinxDirective):
