@@ -138,18 +138,24 @@ class NormalRefinement(FitJob):
                                      "pixels": int(m.sum()),
                                      "frame": "x image right, y image up, z towards the camera",
                                      "converged": joint.converged, "stop_reason": joint.stop_reason,
+                                     # the material's estimate: one more run with the prior weakened (refine_joint)
+                                     "material_stage": joint.options.get("material_stage"),
                                      "energy": {"total": joint.loss, "data_chi2": joint.loss_terms["data_chi2"],
                                                 "prior": joint.loss_terms["prior"]},
                                      "alternation": [{k: v for k, v in h.items()} for h in self.alt],
                                      "joint_history": joint.history, "time": time.time() - self.t_fit,
                                      "angle_change": _errors(joint.normals, n0, m),
                                      "angular_error": None, "outputs": self.files()},
-                  # Not reported as standard errors: over noise seeds (tools/bench_normal_refine_seeds.py) the
-                  # material's spread was 1.5-3.1x these for eta, alpha, beta, kappa (docs/howto/fit-joint.md, Normal refinement).
                   "models": {self.model: {"params": joint.params, "uncertainty": None,
-                                          "uncertainty_uncalibrated": dict(joint.uncertainty or {},
-                                                                           note=UNCALIBRATED),
                                           "converged": joint.converged, "stop_reason": joint.stop_reason}}}
+        unc = joint.uncertainty or {}
+        if unc.get("calibrated"):
+            # the material at the weakened prior (refine_joint's lam_material): measured over noise seeds
+            # (tools/bench_normal_refine_seeds.py, docs/benchmarks.md)
+            report["models"][self.model]["uncertainty"] = unc
+        elif unc.get("std_errors"):
+            # not reported as standard errors (unc["warning"] says why)
+            report["models"][self.model]["uncertainty_uncalibrated"] = dict(unc, note=UNCALIBRATED)
         if self.gt is not None:
             report["refine_normals"]["angular_error"] = {"before": _errors(n0, self.gt, m),
                                                         "after": _errors(joint.normals, self.gt, m),
@@ -164,6 +170,5 @@ class NormalRefinement(FitJob):
         normal_plots.plot_change(self.n0, joint.normals, m, files[3], gt=self.gt)
 
 
-UNCALIBRATED = ("curvature-based standard errors of the material with the normals free; over noise seeds "
-               "(tools/bench_normal_refine_seeds.py) the spread of eta, alpha, beta, kappa was 1.5-3.1 times "
-               "these, so they are not reported as standard errors")
+UNCALIBRATED = ("curvature-based standard errors of the material with the normals free, estimated with a "
+                "smoothness prior that biases it (see warning), so they are not reported as standard errors")

@@ -91,15 +91,17 @@ def print_report(report):
         unc = mdl.get("uncertainty") or {}
         std, ci = unc.get("std_errors", {}), unc.get("ci95", {})
         print(f"{name}: normal refinement ({'converged' if rn['converged'] else 'NOT converged'}: {rn['stop_reason']})"
-              f", {rn['pixels']} pixels, start {rn['start']}, smoothness {rn['smooth']:g}")
+              f", {rn['pixels']} pixels, start {rn['start']}, smoothness {rn['smooth']:g}"
+              + (f" (material at {rn['material_stage']['lam']:g})" if rn.get("material_stage") else ""))
         for k, v in mdl["params"].items():
             line = f"  {k:<6} {v:10.5g}"
             if k in std:
                 line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]"
             print(line)
         if mdl.get("uncertainty_uncalibrated"):
-            print("  no standard errors: the refinement's curvature-based ones were 1.5-3.1 times too small over "
-                  "noise seeds (fit.json: uncertainty_uncalibrated; docs: how-to 'Fit several images of one object', Normal refinement)")
+            print("  no standard errors: " + mdl["uncertainty_uncalibrated"].get("warning", "not calibrated")
+                  + " (fit.json: uncertainty_uncalibrated; docs: how-to 'Fit several images of one object', "
+                  "Normal refinement)")
         if unc.get("method"):
             print(f"  uncertainty: {unc['method']}"
                   + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
