@@ -20,8 +20,9 @@ The energy is
   polariser sample s, variances frozen between IRLS refreshes), with mu
   the model at the sample's own point, as the fit has it: its normal is
   the bilinear interpolation of the normal map there (a corner outside the
-  refined pixels takes the pixel's own normal), so a sample's prediction
-  depends on up to 4 pixels' normals;
+  refined pixels is extrapolated linearly from the inside, 2 n_i - n_o:
+  :class:`~fmbrdf_mi.fit.problem.normals.NormalProblem`), so a sample's
+  prediction depends on up to 4 pixels' normals (6 on the region's border);
 * the second is the smoothness prior (:func:`fmbrdf_mi.fit.problem.normals.stencils`): ``curvature``
   (default) sums the squared second differences n_a - 2 n_b + n_c along
   rows and columns, which vanish where the normal changes linearly across
@@ -53,11 +54,21 @@ than 0.01 twice in a row (chi^2 units), or no step lowers it.
 [H^-1 F H^-1]_mm of the penalised likelihood (H with the prior, F the data's
 J^T J: :func:`fmbrdf_mi.fit.solve.normal_system.material_covariance`), the normals
 free, not held fixed; the inverse Schur complement alone would count the
-prior as information.  Measured over noise seeds
-(tools/bench_normal_refine_seeds.py, docs/benchmarks.md) both are 1.5-3x smaller than
-the actual spread of eta, alpha, beta, kappa: not yet trustworthy intervals.
-It is mapped to the reported
-parameters as the fit does (:mod:`fmbrdf_mi.fit.uncertainty`); with unknown
+prior as information.  It measures the spread over noise, but not the
+prior's bias: the prior pulls the normals, and through them the material,
+by an amount that grows with lam (measured on a well-specified simulation,
+24^2 object, 12 seeds from the truth: beta and kappa -1.6 and -1.9 standard
+errors at lam 0.3, -6 and -12 at lam 3, within 0.4 at lam 0.03 and at 0; the
+spread matched the standard errors at every lam).  So the material, and its
+covariance, come from one more Levenberg-Marquardt run from the refinement's
+result with the prior weakened to ``lam_material`` (0.03); the normals
+returned are those of the requested lam.  Over noise seeds
+(tools/bench_normal_refine_seeds.py, docs/benchmarks.md) these standard
+errors are calibrated (``uncertainty["calibrated"]``); with
+``lam_material=None`` and lam > 0.03 they are not, and
+``uncertainty["warning"]`` says so.  It is mapped to the reported
+parameters as the fit does (:mod:`fmbrdf_mi.fit.uncertainty`), inflated by
+chi^2/dof where that is far above 1 (the fit's misfit rule); with unknown
 camera noise it is scaled by chi^2 / (N - p - 2 n).  Only after convergence.
 """
 from __future__ import annotations
@@ -96,8 +107,12 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     super-pixels with a clipped sample in any image).  ``lam``: smoothness
     weight (module docstring).  ``refreshes``: IRLS rounds (variances from the
     model, then LM again).  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with ``normals``
-    and ``mask``; ``loss`` is the energy, ``loss_terms`` its data (chi^2) and prior parts; the standard
-    errors are curvature-based and NOT calibrated (``uncertainty["warning"]``: 1.5-3x too small).
+    and ``mask``; ``loss`` is the energy, ``loss_terms`` its data (chi^2) and prior parts (at ``lam``, the
+    returned normals' state).  ``lam_material``: the smoothness weight of the material's estimate and
+    standard errors (one more run from the refinement's result, when below ``lam``; None: the material at
+    ``lam``); ``options["material_stage"]`` its energy and stop reason.  The standard errors are the sandwich
+    of the penalised likelihood, calibrated (``uncertainty["calibrated"]``) when the material's weight is
+    at most :data:`LAM_MATERIAL` (module docstring).
     """
 
     say = progress or (lambda msg: None)

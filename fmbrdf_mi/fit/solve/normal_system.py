@@ -11,7 +11,9 @@ smoothness prior's rows), the Gauss-Newton system of (1/2) r.r is
 * J_n: a polariser sample of pixel i is modelled at its own point, whose
   normal is the bilinear interpolation of the normal map there, so its row
   depends on the normals of at most 4 pixels (i and 3 neighbours; only i
-  for samples at the centre; -1 in ``pix`` marks a corner held fixed): 8 non-zeros per row, kept as (pixel, value)
+  for samples at the centre; on the region's border a corner outside it is
+  extrapolated from i and the pixel opposite, so a row lists Q = 8 terms,
+  repeated pixels summed; -1 in ``pix`` marks a corner held fixed): kept as (pixel, value)
   lists, never as a matrix;
 * H_nn = J_n^T J_n + w P: the data's part couples 8-neighbours, P is the
   prior's (first or second differences along rows and columns, projected
