@@ -101,6 +101,10 @@ def add_fit_arguments(p):
                    help="likelihood fits: auto checks each shape parameter's Fisher 95 %% interval against the "
                         "likelihood and gives the profile likelihood's ends where it fails (refits: slower on "
                         "weakly identified parameters); fisher: Fisher intervals only (default %(default)s)")
+    g.add_argument("--albedo", default="shared", choices=("shared", "per-pixel"),
+                   help="likelihood fits: one k_s, r_k for the whole object (default), or per-pixel k_s and k_b "
+                        "maps (a textured object: written as k_s.exr, k_b.exr with their standard errors, the "
+                        "shape parameters shared; --max-pixels 0 maps every pixel)")
     g.add_argument("--area-points", type=int, metavar="M",
                    help="likelihood: model each raw sample as the mean of the BSDF over M x M points of its "
                         "pixel, as a sensor pixel integrates over its area (default: 2 for raw mosaics, 1 = the "

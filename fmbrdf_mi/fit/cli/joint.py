@@ -66,7 +66,7 @@ def run_joint(args, command):
         specs = [ImageSpec(inp, parse_vector(li, f"--light {k + 1}"), options=dict(cli_opts))
                  for k, (inp, li) in enumerate(zip(args.inputs, args.light))]
     names = image_names(specs)
-    fit_fn, outputs_fn = fitter(specs)
+    fit_fn, outputs_fn = fitter(specs, getattr(args, "albedo", "shared"))
     if fit_fn is not fit_images:
         check_colour_args(args)
     files = outputs_fn(args.out, names, [s.holdout for s in specs])

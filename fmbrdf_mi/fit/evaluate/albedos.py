@@ -117,3 +117,150 @@ class ChannelModel:
             else:
                 out[k] = v
         return out
+
+
+def nnls2_groups(S, B, y, w, groups, n_groups):
+    """:func:`nnls2` of every group at once: ``groups`` (same shape as S) the group of each sample.
+
+    Returns (a_s, a_b) arrays (n_groups,) >= 0 (a group without samples or signal gets 0).  Per group: the
+    unconstrained 2 x 2 solution when both albedos are >= 0, else the better of the two one-albedo
+    solutions (clipped at 0).
+    """
+    g = np.asarray(groups).ravel()
+    S, B, y, w = (np.asarray(a, dtype=np.float64).ravel() for a in (S, B, y, w))
+
+    def total(v):
+        return np.bincount(g, weights=v, minlength=n_groups)
+
+    ass, asb, abb = total(w * S * S), total(w * S * B), total(w * B * B)
+    bs, bb = total(w * S * y), total(w * B * y)
+    det = ass * abb - asb * asb
+    ok = det > 1e-12 * np.maximum(ass * abb, 1e-300)
+    safe = np.where(ok, det, 1.0)
+    a_s = np.where(ok, (abb * bs - asb * bb) / safe, -1.0)
+    a_b = np.where(ok, (ass * bb - asb * bs) / safe, -1.0)
+    both = ok & (a_s >= 0) & (a_b >= 0)
+    # one albedo only: cost x^T A x - 2 x^T b at the clipped one-column solutions
+    s_only = np.where(ass > 0, np.maximum(bs / np.where(ass > 0, ass, 1.0), 0.0), 0.0)
+    b_only = np.where(abb > 0, np.maximum(bb / np.where(abb > 0, abb, 1.0), 0.0), 0.0)
+    take_s = s_only * s_only * ass - 2 * s_only * bs <= b_only * b_only * abb - 2 * b_only * bb
+    a_s = np.where(both, a_s, np.where(take_s, s_only, 0.0))
+    a_b = np.where(both, a_b, np.where(take_s, 0.0, b_only))
+    return a_s, a_b
+
+
+class PixelAlbedos:
+    """One (a_s, a_b) per pixel of the object (per pixel and colour channel for colour mosaics): the
+    albedo maps of a textured object (issue: textured objects).
+
+    ``groups`` (cells, n): the albedo group of each of a cell's n samples;
+    ``n_groups`` how many there are; ``pixels`` (n_groups,) the flat pixel
+    index of each group and ``channel_of`` (n_groups,) its colour channel
+    (None: mono).  A joint fit of several images of one view gives the same
+    group to the same pixel in every image.
+
+    Unlike the shared and per-channel layouts, these albedos are not unknowns
+    of the optimiser: they are *eliminated* (variable projection, Golub and
+    Pereyra): at every shape point each group's pair is its own non-negative
+    weighted least squares (:func:`nnls2_groups`, closed form), the optimiser
+    sees the shape parameters only, and its Jacobian is Kaufman's,
+    (I - P) J_theta, with P the projection onto the free albedos' columns
+    (block diagonal: one 2 x 2 block per group; an albedo at 0 is held
+    there).  At the optimum (I - P) J_theta gives exactly the shape
+    parameters' Fisher information with the albedos free (the Schur
+    complement), and each group's covariance follows in closed form
+    (:meth:`covariance`).
+    """
+
+    eliminates = True
+
+    def __init__(self, groups, n_groups, pixels, channel_of=None, labels=None):
+        self.groups = np.asarray(groups, dtype=np.int64)
+        self.n_groups = int(n_groups)
+        self.size = self.n_groups
+        self.pixels = np.asarray(pixels, dtype=np.int64)
+        self.channel_of = None if channel_of is None else np.asarray(channel_of, dtype=np.int64)
+        self.labels = labels
+
+    def mu(self, S, B, a_s, a_b):
+        """(cells, n) predictions from the unit-albedo intensities S, B (cells, n)."""
+        return np.asarray(a_s)[self.groups] * S + np.asarray(a_b)[self.groups] * B
+
+    def solve(self, S, B, y, w):
+        """Every group's (a_s, a_b) (:func:`nnls2_groups`): two arrays (n_groups,)."""
+        return nnls2_groups(S, B, y, w, self.groups, self.n_groups)
+
+    def free(self, a_s, a_b):
+        """How many albedos are free (> 0): the unknowns the data spent on them (degrees of freedom)."""
+        return int(np.count_nonzero(np.asarray(a_s) > 0) + np.count_nonzero(np.asarray(a_b) > 0))
+
+    def _gram(self, us, ub):
+        """Per group the Gram matrix U^T U of its two albedo columns (n_groups, 2, 2)."""
+        g = self.groups.ravel()
+        G = np.zeros((self.n_groups, 2, 2))
+        for i, u in enumerate((us, ub)):
+            for j, v in enumerate((us, ub)):
+                G[:, i, j] = np.bincount(g, weights=u * v, minlength=self.n_groups)
+        return G
+
+    def _blocks(self, us, ub, a_s, a_b):
+        """Per group the inverse Gram matrix of its free albedo columns, zero rows and columns for an albedo
+        held at 0 (the projection of the fit's own active set)."""
+        G = self._gram(us, ub)
+        on = np.stack([np.asarray(a_s) > 0, np.asarray(a_b) > 0], 1).astype(float)
+        G = G * on[:, :, None] * on[:, None, :] + np.eye(2)[None] * (1.0 - on)[:, :, None]
+        Gi = np.linalg.pinv(G, hermitian=True)
+        return Gi * on[:, :, None] * on[:, None, :]
+
+    def project(self, J, us, ub, a_s, a_b):
+        """Kaufman's Jacobian (I - P) J: ``J`` (N, p) the residuals' derivatives with respect to the shape
+        unknowns, ``us``, ``ub`` (N,) those with respect to each sample's group's a_s and a_b; P projects
+        onto the free albedos' columns (an albedo held at 0 is not free).  Returns (J_projected, K), K
+        (n_groups, 2, p) = G^-1 U^T J per group (the albedos' regression on the shape unknowns)."""
+        g = self.groups.ravel()
+        Gi = self._blocks(us, ub, a_s, a_b)
+        K = np.einsum("gij,gjp->gip", Gi, self._cross(us, ub, J))
+        return J - us[:, None] * K[g, 0] - ub[:, None] * K[g, 1], K
+
+    def _cross(self, us, ub, J):
+        """U^T J per group (n_groups, 2, p)."""
+        g = self.groups.ravel()
+        c = np.zeros((self.n_groups, 2, J.shape[1]))
+        for i, u in enumerate((us, ub)):
+            for k in range(J.shape[1]):
+                c[:, i, k] = np.bincount(g, weights=u * J[:, k], minlength=self.n_groups)
+        return c
+
+    def covariance(self, us, ub, J, cov_z, scale=1.0):
+        """(n_groups, 2, 2) covariance of each group's (a_s, a_b) with the shape unknowns free and both
+        albedos free (an albedo the fit holds at 0 included: how well the data bound it):
+        scale G^-1 + K cov_z K^T, K = G^-1 U^T J (the block inverse of the full information matrix;
+        ``J`` (N, p) the residuals' unprojected shape derivatives, ``cov_z`` their covariance, already
+        scaled).  A group whose two columns are parallel (G singular to 1e-10: the data fix one
+        combination of a_s and a_b, not the split) gets infinite variances."""
+        G = self._gram(us, ub)
+        det = G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] ** 2
+        ok = det > 1e-10 * np.maximum(G[:, 0, 0] * G[:, 1, 1], 1e-300)
+        Gi = np.zeros_like(G)
+        d = np.where(ok, det, 1.0)
+        Gi[:, 0, 0], Gi[:, 1, 1] = G[:, 1, 1] / d, G[:, 0, 0] / d
+        Gi[:, 0, 1] = Gi[:, 1, 0] = -G[:, 0, 1] / d
+        K = np.einsum("gij,gjp->gip", Gi, self._cross(us, ub, J))
+        C = scale * Gi + np.einsum("gip,pq,gjq->gij", K, cov_z, K)
+        C[~ok] = np.inf
+        return C
+
+
+class PixelModel:
+    """A model whose albedos are maps (``layout``: :class:`PixelAlbedos`): :meth:`report` gives the shape
+    parameters only (the albedo maps are reported as maps: :func:`fmbrdf_mi.fit.api.fitting.fit`'s
+    ``res.maps``); everything else is the base model's."""
+
+    def __init__(self, base, layout):
+        self.base, self.layout = base, layout
+
+    def __getattr__(self, name):
+        return getattr(self.base, name)
+
+    def report(self, shape_values, a_s, a_b):
+        return {n: float(shape_values[n]) for n in self.base.shape_names}

@@ -40,7 +40,7 @@ ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "li
              "black_level", "channel", "demosaic", "conversion_gain", "read_noise", "footprint", "model",
              "baselines", "optimizer", "path", "bounds", "init", "loss", "white_level", "dark_level", "fixed",
              "starts", "max_iter", "tol", "time_limit", "max_time", "max_pixels", "erode", "seed", "relight",
-             "relight_light", "relight_irradiance", "area_points", "intervals")
+             "relight_light", "relight_irradiance", "area_points", "intervals", "albedo")
 
 
 #: The arguments of :func:`fmbrdf_mi.fit.outputs.colour.fit_colour_files` among them (a colour fit's record).
@@ -117,7 +117,8 @@ def reproduce_block(arguments, inputs, command, obs, relight=None):
 
 #: fit_images keywords that define a joint fit (not where it writes or how it talks).
 FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
-            "max_time", "max_pixels", "erode", "seed", "free_power", "power_start", "area_points", "intervals")
+            "max_time", "max_pixels", "erode", "seed", "free_power", "power_start", "area_points", "intervals",
+            "albedo")
 
 
 #: read_object keywords recorded for an authors' object.

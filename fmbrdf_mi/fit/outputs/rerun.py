@@ -168,7 +168,7 @@ def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
     recorded = [im["name"] for im in joint["images"]]
     if names != recorded:
         raise InputError(f"--from {path}: the images are now {names}, the fit had {recorded}")
-    fit_fn, outputs_fn = fitter(specs)
+    fit_fn, outputs_fn = fitter(specs, fit_kw.get("albedo", "shared"))
     files = outputs_fn(out, names, [s.holdout for s in specs])
     return fit_fn(specs, out, force=force, progress=progress, command=command,
                       extra={"joint": {"outputs": files, "authors_layout": info, "rerun_of": os.path.abspath(path)}},
