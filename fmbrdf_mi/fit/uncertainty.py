@@ -419,9 +419,10 @@ def pixel_albedos(problem, st, parts, J, unc):
     of arrays (n_groups,): ``k_s``, ``k_b`` (the model's reported albedos: the albedo factor times a_s,
     a_b), ``k_s_se``, ``k_b_se``, ``correlation`` of the two, and ``identified``: False where the split
     is not identified, i.e. where the standard error of the surface's or the body's contribution to the
-    pixel's mean brightness (a_s mean S, a_b mean B over the group's samples) exceeds :data:`SPLIT_REL`
-    of their sum (both parts' signatures alike behind the polarisers, or too little light); a group with
-    no signal is not identified either.
+    pixel's brightness (a_s mean S, a_b mean B over the group's samples) exceeds :data:`SPLIT_REL` of
+    the pixel's mean predicted brightness (both parts' signatures alike behind the polarisers, or too
+    little light); a group with no signal is not identified either; parallel signatures give infinite
+    standard errors.  The albedos are unconstrained estimates (a poorly determined one can be below 0).
     """
     obj, lay = problem.obj, problem.layout
     z = problem.to_z(st)
@@ -443,7 +444,7 @@ def pixel_albedos(problem, st, parts, J, unc):
     S, B = obj.unit_samples(parts)
     mean_s = np.bincount(g, weights=np.abs(S).ravel(), minlength=lay.n_groups) / n
     mean_b = np.bincount(g, weights=np.abs(B).ravel(), minlength=lay.n_groups) / n
-    total = a_s * mean_s + a_b * mean_b
+    total = np.bincount(g, weights=np.abs(lay.mu(S, B, a_s, a_b)).ravel(), minlength=lay.n_groups) / n
     ident = (total > 0) & (se_s * mean_s <= SPLIT_REL * total) & (se_b * mean_b <= SPLIT_REL * total)
     return {"k_s": f * a_s, "k_b": f * a_b, "k_s_se": f * se_s, "k_b_se": f * se_b,
             "correlation": np.clip(corr, -1.0, 1.0), "identified": ident}
