@@ -1,7 +1,6 @@
 """Albedo textures on the built-in sphere (issue: textured objects): the true maps a textured render writes
 are the albedos the renderer used (checked through the renderer itself), and the command's texture option."""
 import numpy as np
-import pytest
 
 from conftest import one_line_error
 
