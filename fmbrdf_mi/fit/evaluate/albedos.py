@@ -150,7 +150,7 @@ class PixelAlbedos:
     Unlike the shared and per-channel layouts, these albedos are not unknowns
     of the optimiser: they are *eliminated* (variable projection, Golub and
     Pereyra): at every shape point each group's pair is its own weighted least
-    squares (:func:`ls2_groups`, closed form), the optimiser sees the shape
+    squares (``ls2_groups``, closed form), the optimiser sees the shape
     parameters only, and its Jacobian is Kaufman's, (I - P) J_theta, with P
     the projection onto the albedos' columns (block diagonal: one 2 x 2 block
     per group).  At the optimum (I - P) J_theta gives exactly the shape
@@ -180,7 +180,7 @@ class PixelAlbedos:
         return np.asarray(a_s)[self.groups] * S + np.asarray(a_b)[self.groups] * B
 
     def solve(self, S, B, y, w):
-        """Every group's (a_s, a_b) (:func:`ls2_groups`): two arrays (n_groups,)."""
+        """Every group's (a_s, a_b) (``ls2_groups``): two arrays (n_groups,)."""
         return ls2_groups(S, B, y, w, self.groups, self.n_groups)
 
     def free(self, a_s, a_b):

@@ -68,7 +68,7 @@ def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fract
 
 
 def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4):
-    """:func:`ideal_sphere` of a textured object: the shape parameters ``shape_params`` (eta, alpha, beta,
+    """``ideal_sphere`` of a textured object: the shape parameters ``shape_params`` (eta, alpha, beta,
     kappa) everywhere and per super-pixel albedos ``k_s_map``, ``k_b_map`` (res, res) (each super-pixel's
     four raw pixels share them: the cells of the per-pixel albedo layout).  The truth is in
     ``params`` (the shape) and ``k_s_map``, ``k_b_map``."""
