@@ -77,7 +77,7 @@ def wilson(k, n, z=1.959963984540054):
     return (c - h, c + h)
 
 
-def one(tex, K, seed, res):
+def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "uniform")):
     from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.evaluate.predict import relight_error
@@ -100,13 +100,14 @@ def one(tex, K, seed, res):
     uni = [capture_observation(textured_sphere(TRUTH, np.full_like(ks, ks.mean()), np.full_like(kb, kb.mean()),
                                                res=res, light=light), cam, seed=1000 * seed + j,
                                exposure=obs[j].meta["capture"]["exposure"])[0] for j, light in enumerate(fitted)]
-    t = time.time()
-    u = fit(uni if K > 1 else uni[0], max_pixels=None, intervals="fisher", progress=False)
-    out["uniform_time"], out["uniform_converged"] = time.time() - t, u.converged
-    for mode in ("per-pixel", "shared"):
+    if "uniform" in modes:
+        t = time.time()
+        u = fit(uni if K > 1 else uni[0], max_pixels=None, intervals="fisher", progress=False, area_points=area_points)
+        out["uniform_time"], out["uniform_converged"] = time.time() - t, u.converged
+    for mode in [m for m in ("per-pixel", "shared") if m in modes]:
         t = time.time()
         res_ = fit(fit_obs if K > 1 else fit_obs[0], albedo=mode, max_pixels=None, intervals="fisher",
-                   progress=False)
+                   progress=False, area_points=area_points)
         dt = time.time() - t
         e = relight_error(res_.model, res_.params, held_obs, maps=res_.maps)
         rec = {"time": dt, "converged": res_.converged, "params": res_.params, "se": res_.std_errors,
@@ -144,10 +145,9 @@ def summarise(runs):
         mp = [r["maps"] for r in pp if "maps" in r]
         row["maps"] = {k: float(np.mean([m[k] for m in mp])) for k in mp[0]} if mp else {}
         row["relight_per_pixel"] = float(np.mean([r["per-pixel"]["relight"] for r in rs]))
-        row["relight_shared"] = float(np.mean([r["shared"]["relight"] for r in rs]))
+        row["relight_shared"] = float(np.mean([r["shared"]["relight"] for r in rs])) if "shared" in rs[0] else math.nan
         row["time_per_pixel"] = float(np.mean([r["per-pixel"]["time"] for r in rs]))
-        row["time_shared"] = float(np.mean([r["shared"]["time"] for r in rs]))
-        row["time_uniform"] = float(np.mean([r["uniform_time"] for r in rs]))
+        row["time_uniform"] = float(np.mean([r["uniform_time"] for r in rs])) if "uniform_time" in rs[0] else math.nan
         rows.append(row)
     return rows
 
@@ -181,6 +181,9 @@ def main(argv=None):
     p.add_argument("--seed0", type=int, default=0)
     p.add_argument("--textures", default="smooth,high")
     p.add_argument("--lights", default="1,3", help="numbers of fitted lights (1 or 3)")
+    p.add_argument("--area-points", type=int, default=None,
+                   help="the fits' points per raw pixel side (default: the fit's, 2; the data average 4 x 4)")
+    p.add_argument("--per-pixel-only", action="store_true", help="skip the shared and uniform-object fits")
     p.add_argument("--json", metavar="OUT.json", help="runs and summary, written after every fit (resumed)")
     p.add_argument("--table", metavar="IN.json")
     a = p.parse_args(argv)
@@ -197,13 +200,14 @@ def main(argv=None):
             for seed in range(a.seed0, a.seed0 + a.seeds):
                 if (tex, K, seed) in done:
                     continue
-                r = one(tex, K, seed, a.res)
+                r = one(tex, K, seed, a.res, a.area_points,
+                        ("per-pixel",) if a.per_pixel_only else ("per-pixel", "shared", "uniform"))
                 r.update(texture=tex, K=K, res=a.res)
                 runs.append(r)
                 pp = r["per-pixel"]
                 print(f"[{time.time() - t0:.0f} s] {tex} K={K} seed {seed}: "
                       + " ".join(f"{n}={pp['params'][n]:.4g}" for n in SHAPE)
-                      + f" ({pp['time']:.1f} s; shared {r['shared']['time']:.1f} s)", file=sys.stderr, flush=True)
+                      + f" ({pp['time']:.1f} s)", file=sys.stderr, flush=True)
                 if a.json:
                     with open(a.json + ".tmp", "w") as f:
                         json.dump({"runs": runs}, f)
