@@ -19,7 +19,8 @@ captured by :func:`fmbrdf_mi.camera.capture` (IMX250MZR, 10 000 e- full well,
 the view at azimuths 60 and 300 degrees), one more light held out (azimuth
 180 degrees) for relighting.  Per seed, the same pixels are fitted twice:
 ``albedo="per-pixel"`` and the uniform (shared) fit, both with the camera's
-gain and read noise known, every usable pixel, Fisher intervals; and the same
+gain and read noise known, every usable pixel, Fisher intervals (``--intervals auto``: the
+per-pixel fit's profile-likelihood check); and the same
 object with its textures' mean albedos everywhere is fitted uniformly (the
 time of a uniform fit of the same pixels).
 
@@ -77,7 +78,7 @@ def wilson(k, n, z=1.959963984540054):
     return (c - h, c + h)
 
 
-def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "uniform")):
+def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "uniform"), intervals="fisher"):
     from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.evaluate.predict import relight_error
@@ -106,11 +107,12 @@ def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "unif
         out["uniform_time"], out["uniform_converged"] = time.time() - t, u.converged
     for mode in [m for m in ("per-pixel", "shared") if m in modes]:
         t = time.time()
-        res_ = fit(fit_obs if K > 1 else fit_obs[0], albedo=mode, max_pixels=None, intervals="fisher",
-                   progress=False, area_points=area_points)
+        res_ = fit(fit_obs if K > 1 else fit_obs[0], albedo=mode, max_pixels=None,
+                   intervals=intervals if mode == "per-pixel" else "fisher", progress=False, area_points=area_points)
         dt = time.time() - t
         e = relight_error(res_.model, res_.params, held_obs, maps=res_.maps)
         rec = {"time": dt, "converged": res_.converged, "params": res_.params, "se": res_.std_errors,
+               "interval_kind": (res_.uncertainty or {}).get("interval_kind"),
                "ci95": (res_.uncertainty or {}).get("ci95", {}), "relight": e["rel_rmse"]}
         if mode == "per-pixel" and res_.maps is not None:
             m = res_.maps
@@ -184,6 +186,8 @@ def main(argv=None):
     p.add_argument("--area-points", type=int, default=None,
                    help="the fits' points per raw pixel side (default: the fit's, 2; the data average 4 x 4)")
     p.add_argument("--per-pixel-only", action="store_true", help="skip the shared and uniform-object fits")
+    p.add_argument("--intervals", default="fisher", choices=("fisher", "auto"),
+                   help="the per-pixel fits' intervals (auto: profile likelihood where the Fisher ones fail)")
     p.add_argument("--json", metavar="OUT.json", help="runs and summary, written after every fit (resumed)")
     p.add_argument("--table", metavar="IN.json")
     a = p.parse_args(argv)
@@ -201,7 +205,7 @@ def main(argv=None):
                 if (tex, K, seed) in done:
                     continue
                 r = one(tex, K, seed, a.res, a.area_points,
-                        ("per-pixel",) if a.per_pixel_only else ("per-pixel", "shared", "uniform"))
+                        ("per-pixel",) if a.per_pixel_only else ("per-pixel", "shared", "uniform"), a.intervals)
                 r.update(texture=tex, K=K, res=a.res)
                 runs.append(r)
                 pp = r["per-pixel"]
