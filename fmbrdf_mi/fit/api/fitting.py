@@ -331,20 +331,19 @@ def diagnose(res, data, observations, names, power_model=None):
     loss, excluded, objective, ev = data.loss, data.excluded, data.objective, data.evaluator
     idxs, slices = data.image_pixels, data.slices
     model = power_model or get_model(res.model)
-    pts = None
-    if res.maps is not None:    # per-pixel albedos: each cell's own pair (a colour mosaic's first channel's)
+    if res.maps is not None:    # per-pixel albedos: the fitted state (its albedos per group)
         internal = res.details["internal"]
         shape, a_s, a_b = internal["shape"], np.asarray(internal["a_s"]), np.asarray(internal["a_b"])
-        parts = ev.parts(shape)
-        pts = parts.surface.shape[1] // max(sum(len(i) for i in idxs), 1)
+    else:
+        shape, a_s, a_b = model.split(res.params)
+    parts = ev.parts(shape)
+    pts = parts.surface.shape[1] // max(sum(len(i) for i in idxs), 1)
+    st = State(shape, a_s, a_b)
+    if res.maps is not None:    # each cell's own pair (mono: one group per cell)
         cell = objective.layout.groups[:, 0]
         pred = np.repeat(a_s[cell], pts) * parts.surface + np.repeat(a_b[cell], pts) * parts.body
     else:
-        shape, a_s, a_b = model.split(res.params)
-        parts = ev.parts(shape)
         pred = a_s * parts.surface + a_b * parts.body  # (3, points)
-    st = State(shape, a_s, a_b)
-    pts = pred.shape[1] // max(sum(len(i) for i in idxs), 1)
     out = []
     for k, (o, idx, (a, b)) in enumerate(zip(observations, idxs, slices)):
         s = pred[:, a * pts:b * pts]
