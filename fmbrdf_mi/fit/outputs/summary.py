@@ -18,6 +18,14 @@ def kind_text(model_entry, name):
     kind = (unc.get("interval_kind") or {}).get(name, "fisher")
     return "" if kind == "fisher" else f" ({kind.replace('profile', 'profile likelihood')})"
 
+def albedo_text(a):
+    """One line on a per-pixel albedo fit's maps (fit.json's ``albedo`` block)."""
+    return (f"albedo maps: {a['pixels']} pixels, median k_s {a['k_s_median']:.4g}, k_b {a['k_b_median']:.4g}; "
+            f"relative standard error <= 0.5 for k_s in {a['k_s_determined_fraction']:.0%}, for k_b in "
+            f"{a['k_b_determined_fraction']:.0%} of them; surface / body split identified in "
+            f"{a['identified_fraction']:.0%}")
+
+
 def print_colour(report):
     """The stdout summary of a colour fit; returns the exit status (3: stopped before convergence)."""
     import sys
@@ -57,12 +65,6 @@ def print_colour(report):
             print(f"  weakly identified (standard error > 5% or at a bound): {', '.join(m['weakly_identified'])}")
         for img, c2 in (m.get("chi2_per_sample") or {}).items():
             print(f"  {img}: chi2 per raw sample {c2:.3f}")
-        if m.get("albedo"):
-            a = m["albedo"]
-            print(f"  albedo maps: {a['pixels']} pixels, median k_s {a['k_s_median']:.4g}, k_b {a['k_b_median']:.4g}; "
-                  f"relative standard error <= 0.5 for k_s in {a['k_s_determined_fraction']:.0%}, for k_b in "
-                  f"{a['k_b_determined_fraction']:.0%} of them; surface / body split identified in "
-                  f"{a['identified_fraction']:.0%}")
         if not m["converged"]:
             print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
                   f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
@@ -166,11 +168,7 @@ def print_summary(report, out, t0):
             print(f"  weakly identified (standard error > {WEAK_REL:.0%} of the value, or at a bound): "
                   f"{', '.join(m['weakly_identified'])}")
         if m.get("albedo"):
-            a = m["albedo"]
-            print(f"  albedo maps: {a['pixels']} pixels, median k_s {a['k_s_median']:.4g}, k_b {a['k_b_median']:.4g}; "
-                  f"relative standard error <= 0.5 for k_s in {a['k_s_determined_fraction']:.0%}, for k_b in "
-                  f"{a['k_b_determined_fraction']:.0%} of them; surface / body split identified in "
-                  f"{a['identified_fraction']:.0%}")
+            print("  " + albedo_text(m["albedo"]))
         if not m["converged"]:
             print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
                   f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
