@@ -183,7 +183,7 @@ class PixelAlbedos:
         """Every group's (a_s, a_b) (``ls2_groups``): two arrays (n_groups,)."""
         return ls2_groups(S, B, y, w, self.groups, self.n_groups)
 
-    def free(self, a_s, a_b):
+    def free(self):
         """How many albedos the data spent unknowns on (degrees of freedom): two per group, one where a
         group's columns are parallel (the last :meth:`project`'s ranks; before one: two per group)."""
         return int(2 * self.n_groups if self._rank is None else self._rank.sum())
@@ -204,7 +204,7 @@ class PixelAlbedos:
         self._rank = np.linalg.matrix_rank(G, rtol=1e-10, hermitian=True)
         return np.linalg.pinv(G, rcond=1e-10, hermitian=True)
 
-    def project(self, J, us, ub, a_s, a_b):
+    def project(self, J, us, ub):
         """Kaufman's Jacobian (I - P) J: ``J`` (N, p) the residuals' derivatives with respect to the shape
         unknowns, ``us``, ``ub`` (N,) those with respect to each sample's group's a_s and a_b; P projects
         onto the albedos' columns.  Returns (J_projected, K), K (n_groups, 2, p) = G^+ U^T J per group (the
@@ -224,8 +224,7 @@ class PixelAlbedos:
         return c
 
     def covariance(self, us, ub, J, cov_z, scale=1.0):
-        """(n_groups, 2, 2) covariance of each group's (a_s, a_b) with the shape unknowns free and both
-        albedos free (an albedo the fit holds at 0 included: how well the data bound it):
+        """(n_groups, 2, 2) covariance of each group's (a_s, a_b) with the shape unknowns free:
         scale G^-1 + K cov_z K^T, K = G^-1 U^T J (the block inverse of the full information matrix;
         ``J`` (N, p) the residuals' unprojected shape derivatives, ``cov_z`` their covariance, already
         scaled).  A group whose two columns are parallel (G singular to 1e-10: the data fix one

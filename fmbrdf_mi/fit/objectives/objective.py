@@ -262,7 +262,7 @@ class LikelihoodObjective:
         lay, U, sd = self.layout, self._mu_of, np.sqrt(self.var)
         if getattr(lay, "eliminates", False):   # per-pixel albedos: Kaufman's projected Jacobian
             J = self.shape_jacobian(parts, st, z, names, bounds)
-            return r, lay.project(J, *self.albedo_columns(parts), st.a_s, st.a_b)[0], bad
+            return r, lay.project(J, *self.albedo_columns(parts))[0], bad
         J = np.empty((len(r), len(z)))
         J[:, :len(names)] = self.shape_jacobian(parts, st, z, names, bounds)
         for j, col in enumerate(lay.columns(U(parts.surface), U(parts.body), st.a_s, st.a_b), len(names)):

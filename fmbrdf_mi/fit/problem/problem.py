@@ -90,7 +90,7 @@ class Problem:
 
     def n_eliminated(self, st):
         """How many albedos the data spent unknowns on outside z (free albedos of an eliminating layout)."""
-        return self.layout.free(st.a_s, st.a_b) if self.eliminates else 0
+        return self.layout.free() if self.eliminates else 0
 
     def to_z(self, st):
         z = [self.bounds.to_z(n, st.shape[n]) for n in self.names]
