@@ -276,6 +276,10 @@ def chi2_along_covariance(problem, st, J, scale):
 
     def path_cov(j):
         keep = [i for i in range(len(z0)) if i == j or i not in pinned]
+        if len(keep) == len(z0):        # nothing pinned: the whole covariance (as before, bit for bit)
+            if "all" not in cz:
+                cz["all"] = np.linalg.pinv(J.T @ J) * scale
+            return cz["all"]
         if j not in cz:
             c = np.zeros((len(z0), len(z0)))
             c[np.ix_(keep, keep)] = np.linalg.pinv(J[:, keep].T @ J[:, keep]) * scale
