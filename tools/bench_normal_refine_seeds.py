@@ -29,6 +29,38 @@ sys.path.insert(0, os.path.join(ROOT, "tools"))
 from bench_normal_refine import LIGHTS, POWERS, TRUTH  # noqa: E402
 
 
+def normal_fit(seed, res=40, lights=4, lam=0.3):
+    """One noise seed: the object written and read back, photometric stereo, a joint fit, then
+    :func:`refine_joint`; returns its record (k_s and its SE relative to the truth's scale)."""
+    from fmbrdf_mi.fit.inputs.authors import read_object
+    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.normal_joint import refine_joint
+    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, photometric_stereo
+    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+
+    K = lights
+    t = time.time()
+    with tempfile.TemporaryDirectory() as tmp:
+        root = os.path.join(tmp, "blob")
+        truth = write_authors_object(root, TRUTH, LIGHTS[:K], res=res, fov=12.0, powers=POWERS[:K], seed=seed)
+        specs, _ = read_object(root, conversion_gain=truth["camera"]["conversion_gain"], read_noise=2.5)
+    scale = truth["irradiance_dn"] * max(POWERS[:K])
+    obs = [s.input for s in specs]
+    gt = obs[0].normals.copy()
+    n0 = photometric_stereo(obs)
+    for o in obs:
+        o.normals, o.geometry = n0, None
+    params = fit_joint(obs, progress=False).params
+    j = refine_joint(obs, n0, params, lam=lam)
+    e = angular_error_deg(j.normals, gt, j.mask)
+    est = {k: v / (scale if k == "k_s" else 1.0) for k, v in j.params.items()}
+    se = {k: v / (scale if k == "k_s" else 1.0) for k, v in j.std_errors.items()}
+    ci = {k: [x / (scale if k == "k_s" else 1.0) for x in v] for k, v in j.uncertainty.get("ci95", {}).items()}
+    return {"seed": seed, "params": est, "std_errors": se, "ci95": ci, "converged": j.converged,
+            "chi2_per_dof": j.uncertainty.get("chi2_per_dof"), "calibrated": j.uncertainty.get("calibrated"),
+            "normal_mean": float(e.mean()), "normal_median": float(np.median(e)), "time": time.time() - t}
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--seeds", type=int, default=6)
@@ -37,38 +69,13 @@ def main(argv=None):
     p.add_argument("--lam", type=float, default=0.3)
     p.add_argument("--json", metavar="OUT.json")
     args = p.parse_args(argv)
-    from fmbrdf_mi.fit.inputs.authors import read_object
-    from fmbrdf_mi.fit.api.joint import fit_joint
-    from fmbrdf_mi.fit.api.normal_joint import refine_joint
-    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, photometric_stereo
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
-
-    K = args.lights
     runs = []
     t_all = time.time()
     for seed in range(args.seeds):
-        t = time.time()
-        with tempfile.TemporaryDirectory() as tmp:
-            root = os.path.join(tmp, "blob")
-            truth = write_authors_object(root, TRUTH, LIGHTS[:K], res=args.res, fov=12.0, powers=POWERS[:K],
-                                         seed=100 + seed)
-            specs, _ = read_object(root, conversion_gain=truth["camera"]["conversion_gain"], read_noise=2.5)
-        scale = truth["irradiance_dn"] * max(POWERS[:K])
-        obs = [s.input for s in specs]
-        gt = obs[0].normals.copy()
-        n0 = photometric_stereo(obs)
-        for o in obs:
-            o.normals, o.geometry = n0, None
-        params = fit_joint(obs, progress=False).params
-        j = refine_joint(obs, n0, params, lam=args.lam)
-        e = angular_error_deg(j.normals, gt, j.mask)
-        est = {k: v / (scale if k == "k_s" else 1.0) for k, v in j.params.items()}
-        se = {k: v / (scale if k == "k_s" else 1.0) for k, v in j.std_errors.items()}
-        runs.append({"seed": 100 + seed, "params": est, "std_errors": se, "converged": j.converged,
-                     "chi2_per_dof": j.uncertainty.get("chi2_per_dof"), "normal_mean": float(e.mean()),
-                     "normal_median": float(np.median(e)), "time": time.time() - t})
-        print(f"# seed {100 + seed}: normals {e.mean():.2f} / {np.median(e):.2f} deg, "
-              + ", ".join(f"{k} {v:.4g}" for k, v in est.items()) + f" ({time.time() - t:.0f} s)",
+        rec = normal_fit(100 + seed, res=args.res, lights=args.lights, lam=args.lam)
+        runs.append(rec)
+        print(f"# seed {100 + seed}: normals {rec['normal_mean']:.2f} / {rec['normal_median']:.2f} deg, "
+              + ", ".join(f"{k} {v:.4g}" for k, v in rec["params"].items()) + f" ({rec['time']:.0f} s)",
               file=sys.stderr, flush=True)
     ok = [r for r in runs if r["converged"] and r["std_errors"]]
     n = len(ok)

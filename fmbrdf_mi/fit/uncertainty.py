@@ -269,12 +269,28 @@ def chi2_along_covariance(problem, st, J, scale):
     every other unknown at its regression on it under the covariance scale (J^T J)^-1 in z: the path a
     quadratic likelihood's profile would follow.  One model evaluation per call; >= the profile."""
     z0 = problem.to_z(st)
-    cz = np.linalg.pinv(J.T @ J) * scale
+    # a shape parameter at a bound (its z clipped, its Jacobian column ~0, its z-variance huge) stays there:
+    # the regression on it would throw it to its other bound for a small step of the parameter profiled
+    pinned = [i for i, (n, (_, frac)) in enumerate(bound_distance(problem, st).items()) if frac <= 1e-3]
+    cz = {}
+
+    def path_cov(j):
+        keep = [i for i in range(len(z0)) if i == j or i not in pinned]
+        if len(keep) == len(z0):        # nothing pinned: the whole covariance (as before, bit for bit)
+            if "all" not in cz:
+                cz["all"] = np.linalg.pinv(J.T @ J) * scale
+            return cz["all"]
+        if j not in cz:
+            c = np.zeros((len(z0), len(z0)))
+            c[np.ix_(keep, keep)] = np.linalg.pinv(J[:, keep].T @ J[:, keep]) * scale
+            cz[j] = c
+        return cz[j]
 
     def state(name, value):
         j = problem.names.index(name)
         zt = problem.bounds.to_z(name, value)
-        s = problem.from_z(z0 + cz[:, j] / cz[j, j] * (zt - z0[j]))
+        c = path_cov(j)
+        s = problem.from_z(z0 + c[:, j] / c[j, j] * (zt - z0[j]))
         s.shape[name] = float(value)   # exactly (z is clipped to +-Z_MAX)
         if getattr(problem, "eliminates", False):   # albedo maps: re-solved at the point (the profile over them)
             s = problem.projected(s.shape)[0]
