@@ -102,6 +102,10 @@ def _positive(name, text):
     return v
 
 
+#: Albedo texture files that ``-D k_s=FILE`` (k_b, r_k) takes: Mitsuba's bitmap formats.
+TEXTURE_EXTENSIONS = (".exr", ".png", ".jpg", ".jpeg", ".hdr", ".pfm", ".ppm", ".tga", ".bmp")
+
+
 def parse_value(name, text):
     """Typed value of scene parameter ``name`` given as text, validated.
 
@@ -125,6 +129,12 @@ def parse_value(name, text):
     if base in ("k_s", "r_k", "k_b"):
         from .params import check_albedo
 
+        path = str(text).strip()
+        if os.path.splitext(path)[1].lower() in TEXTURE_EXTENSIONS:
+            if not os.path.isfile(path):
+                raise CLIError(f"{name}={text}: no such texture file (an albedo is a number, r,g,b, or an image "
+                               f"file: {', '.join(TEXTURE_EXTENSIONS)})")
+            return S.texture_file_dict(path)
         vals = _numbers(name, text, (1, 3))
         check_albedo(name, vals)
         return vals[0] if len(vals) == 1 else tuple(vals)
@@ -441,6 +451,35 @@ def _check_rgb_values(args, given):
                            f"variant, --variant {args.variant} takes one number")
 
 
+def true_map_paths(output, raw):
+    """The files of the true albedo maps a textured render writes beside ``output`` (:func:`_write_true_maps`)."""
+    stem = str(output)[:-4]
+    out = {f"true_{k}": f"{stem}_{k}.exr" for k in ("k_s", "k_b")}
+    if raw:
+        out.update({f"true_raw_{k}": f"{stem}_raw_{k}.exr" for k in ("k_s", "k_b")})
+    return out
+
+
+def _write_true_maps(args, scene, material, meta):
+    """A render with albedo textures (``-D k_s=FILE``): the albedos at each pixel's centre, OUT_k_s.exr and
+    OUT_k_b.exr (the render's pixels), and with ``--raw`` OUT_raw_k_s.exr, OUT_raw_k_b.exr on the grid a
+    fit of the mosaic works on (the mean over each 2 x 2 super-pixel, 4 x 4 colour period): what
+    ``fmbrdf-mi fit --albedo per-pixel`` estimates."""
+    from .stokes_io import write_map_exr
+
+    maps = S.true_albedo_maps(scene, material)
+    paths = true_map_paths(args.output, args.raw)
+    info = {"generator": meta["generator"], "command": meta["command"], "what": "true albedo at each pixel's centre"}
+    for k in ("k_s", "k_b"):
+        write_map_exr(paths[f"true_{k}"], maps[k], dict(info, map=k), force=args.force)
+        if args.raw:
+            p = 4 if args.sensor == "colour" else 2
+            h, w = maps[k].shape
+            grid = maps[k].reshape(h // p, p, w // p, p).mean(axis=(1, 3))
+            write_map_exr(paths[f"true_raw_{k}"], grid, dict(info, map=k, grid=f"{p}x{p} mean"), force=args.force)
+    return paths
+
+
 def run_render(args):
     kinds = [] if args.no_previews else ["intensity", "dolp", "aolp"]
     kinds += (["angles"] if args.angles else []) + (["mosaic"] if args.mosaic else [])
@@ -459,6 +498,13 @@ def run_render(args):
     given = _resolve(args, kind, declared)
     _check_rgb_values(args, given)
     previews = _check_output(args.output, args.force, kinds)
+    if any(isinstance(v, dict) for v in given.values()):
+        if kind != "builtin":
+            raise CLIError("-D k_s=FILE (an albedo texture): the built-in sphere's parameter; in an XML scene put a "
+                           "bitmap texture in the scene file")
+        for p in true_map_paths(args.output, args.raw).values():
+            if os.path.exists(p) and not args.force:
+                raise FileExistsError(f"{p} exists; pass --force to overwrite it")
     _check_size(kind, declared, given)
     warned_black = kind == "builtin" and _warn_if_black(given)
     if args.raw:
@@ -502,6 +548,7 @@ def run_render(args):
                                     seed=seed)
         scene = fmbrdf_mi.load_dict(scene_dict)
         resolved = dict(values, seed=seed)
+        textured = any(isinstance(material.get(k), dict) for k in ("k_s", "k_b", "r_k"))
     else:
         if "pixel_format" in declared and "pixel_format" not in given and mi.is_monochromatic:
             given["pixel_format"] = "luminance"  # avoids Mitsuba's warning that it switches
@@ -514,6 +561,7 @@ def run_render(args):
             raise CLIError(f"{args.scene}: {_mitsuba_message(e)}") from None
         if not scene.sensors():
             raise CLIError(f"scene file {args.scene}: {NO_SENSOR}")
+        textured, material = False, None
         resolved = {}
         for k, v in declared.items():
             try:
@@ -554,6 +602,8 @@ def run_render(args):
                              dolp_max=args.dolp_max, modulate_aolp=args.aolp_dolp, force=args.force) if kinds else {}
     if args.raw:
         written["raw"], written["raw_sidecar"] = _write_raw(args, stokes, meta)
+    if textured:
+        written.update(_write_true_maps(args, scene, material, meta))
     cols = "Y" if c == 1 else "R,G,B"
     print(f"wrote {args.output}: Stokes S0-S3 x {cols}, {w}x{h}, {spp_used} spp, {args.variant}, "
           f"{time.perf_counter() - t0:.1f} s")

@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 import re
 import numbers
+import os
 import sys
 import threading
 import time
@@ -563,3 +564,45 @@ def scene_camera(scene):
         out["fov_x"] = _plain(params["x_fov"])
     out["resolution"] = [int(x) for x in sensor.film().crop_size()]
     return out
+
+
+def texture_file_dict(path):
+    """The Mitsuba texture dict of an albedo map file (a bitmap: .exr, .png, .jpg, ...): its values used as
+    they are (``raw``: no sRGB decoding), bilinear between texels, over the shape's uv."""
+    return {"type": "bitmap", "filename": os.path.abspath(os.fspath(path)), "raw": True}
+
+
+def true_albedo_maps(scene, material):
+    """The albedos the camera sees at each pixel's centre of ``scene``'s first sensor: {"k_s": (H, W),
+    "k_b": (H, W)} (0 where no object is hit), for a ``material`` (:func:`check_material`'s keys) whose
+    k_s, k_b or r_k may be textures: each pixel's ray is intersected with the scene and the textures
+    evaluated at the hit's uv (k_b = r_k k_s when the body is given as r_k).  Monochrome values (an RGB
+    texture: the mean of its channels).  A pixel whose footprint straddles a texture edge renders the
+    mean over its area; these maps are the centre's value."""
+    mi = _mi()
+    sensor = scene.sensors()[0]
+    w, h = (int(v) for v in sensor.film().crop_size())
+    ys, xs = np.mgrid[0:h, 0:w]
+    pos = mi.Point2f(((xs.ravel() + 0.5) / w).astype(np.float32), ((ys.ravel() + 0.5) / h).astype(np.float32))
+    n = w * h
+    ray, _ = sensor.sample_ray(mi.Float(np.zeros(n, np.float32)), mi.Float(np.full(n, 0.5, np.float32)), pos,
+                               mi.Point2f(np.full(n, 0.5, np.float32), np.full(n, 0.5, np.float32)))
+    si = scene.ray_intersect(ray)
+    hit = np.asarray(si.is_valid(), bool)
+    m = check_material(material)
+
+    def values(key, default):
+        v = m.get(key, default)
+        if isinstance(v, dict):
+            tex = mi.load_dict(v)
+            if mi.is_monochromatic:
+                out = np.asarray(tex.eval_1(si), dtype=np.float64)
+            else:
+                out = np.asarray(tex.eval_3(si), dtype=np.float64).reshape(3, -1).mean(axis=0) \
+                    if hasattr(tex, "eval_3") else np.asarray(tex.eval_1(si), dtype=np.float64)
+            return np.where(hit, out.ravel(), 0.0)
+        return np.where(hit, float(np.mean(v)), 0.0)
+
+    ks = values("k_s", P.DEFAULT_K_S)
+    kb = values("k_b", 0.0) if "k_b" in m else values("r_k", P.DEFAULT_R_K) * ks
+    return {"k_s": ks.reshape(h, w), "k_b": kb.reshape(h, w)}

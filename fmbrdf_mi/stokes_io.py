@@ -66,15 +66,33 @@ def write_stokes_exr(path, stokes, metadata=None, force=False):
     ``metadata`` (JSON-serialisable dict) goes into the header attribute
     ``fmbrdf_mi``.  An existing file is only replaced with ``force=True``.
     """
+    s = _check_stokes(stokes).astype(np.float32)
+    cols = COLOUR_CHANNELS[s.shape[3]]
+    _write_exr(path, {f"S{k}.{c}": np.ascontiguousarray(s[k, :, :, i]) for k in range(4) for i, c in enumerate(cols)},
+               metadata, force)
+
+
+def write_map_exr(path, image, metadata=None, force=False):
+    """Write a map (an albedo map, its standard errors): ``image`` (H, W) as a float32 EXR with channel Y, or
+    (3, H, W) with channels R, G, B (NaN where there is no value).  ``metadata`` and ``force`` as
+    :func:`write_stokes_exr`."""
+    a = np.asarray(image, dtype=np.float32)
+    if a.ndim == 2:
+        channels = {"Y": np.ascontiguousarray(a)}
+    elif a.ndim == 3 and a.shape[0] == 3:
+        channels = {c: np.ascontiguousarray(a[i]) for i, c in enumerate(("R", "G", "B"))}
+    else:
+        raise ValueError(f"image: expected shape (H, W) or (3, H, W), got {a.shape}")
+    _write_exr(path, channels, metadata, force)
+
+
+def _write_exr(path, channels, metadata, force):
+    """Write float32 ``channels`` {name: (H, W)} atomically (a temporary file, then renamed)."""
     import OpenEXR
 
-    s = _check_stokes(stokes).astype(np.float32)
     path = os.fspath(path)
     if os.path.exists(path) and not force:
         raise FileExistsError(f"{path} exists; pass force=True (--force) to overwrite it")
-    cols = COLOUR_CHANNELS[s.shape[3]]
-    channels = {f"S{k}.{c}": np.ascontiguousarray(s[k, :, :, i])
-                for k in range(4) for i, c in enumerate(cols)}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     if metadata is not None:
         header[META_KEY] = json.dumps(metadata, sort_keys=True)

@@ -98,6 +98,56 @@ def table(paths):
     summarise(runs, _truth(fixed), fixed)
 
 
+def colour_case(periods):
+    """The noise-free data of the bench: a sphere of ``periods`` x ``periods`` colour periods (module docstring)."""
+    import mitsuba as mi  # noqa: F401  (the package sets its variant)
+    from fmbrdf_mi import polcam
+    from fmbrdf_mi.camera import CameraModel
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+
+    R = periods
+    st = np.stack([ideal_sphere({**SHAPE, "k_s": ks, "r_k": rk}, res=2 * R, light=LIGHT)["stokes"]
+                   for ks, rk in ALBEDOS.values()])
+    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=12, full_well=10000.0, read_noise=2.5)
+    centre, radius = (R / 2, R / 2), R / 2 - 0.5
+    n, m, v = ob.sphere_normals((R, R), centre, radius)
+    return {"periods": R, "stokes": st, "camera": cam, "normals": n, "mask": m, "view_dirs": v,
+            "geometry": ob.SphereGeometry((R, R), centre, radius)}
+
+
+def colour_fit(case, seed, fixed=None, noiseless=False, intervals="auto"):
+    """One noise seed of ``case`` (:func:`colour_case`) captured and fitted; returns its record: params,
+    std_errors and ci95 flattened to ``k_s[R]``, ..., converged, time, chi2_per_dof."""
+    from fmbrdf_mi.camera import capture
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
+    from fmbrdf_mi.fit.api.colour import fit_colour
+    from fmbrdf_mi.fit.camera.noise import NoiseModel
+
+    cam, R = case["camera"], case["periods"]
+    cap = capture(case["stokes"], cam, peak_fraction=0.8, seed=seed, noiseless=noiseless)
+    smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
+    obs = ob.Observation(np.ones((3, R, R)), ob.erode(case["mask"], 1), case["normals"], case["view_dirs"],
+                         np.asarray(LIGHT, float), cap["exposure"] / cam.conversion_gain, geometry=case["geometry"])
+    t = time.time()
+    res = fit_colour(obs, smp, NoiseModel(cam.conversion_gain, cam.read_noise, 1.0), fixed=fixed or None,
+                     intervals=intervals)
+    t = time.time() - t
+    flat = lambda d: {**{k: d[k] for k in SHAPE if k in d},  # noqa: E731
+                      **{f"{a}[{c}]": d[a][c] for a in ("k_s", "r_k") for c in "RGB"}}
+    est = flat(res.params)
+    se = flat(res.std_errors) if res.converged else None
+    ci = flat(res.uncertainty["ci95"]) if res.converged else None
+    fis = None
+    if ci is not None:   # the Fisher intervals before the profile-likelihood check (shape parameters only)
+        fis = dict(ci, **{k: v for k, v in res.uncertainty.get("profile", {}).get("fisher_ci95", {}).items()
+                          if k in SHAPE})
+    return {"seed": seed, "converged": bool(res.converged), "time": t, "params": est,
+            "std_errors": se, "ci95": ci, "ci95_fisher": fis,
+            "interval_kind": dict(res.uncertainty.get("interval_kind", {})), "chi2_per_dof": res["chi2_per_dof"]}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--periods", type=int, default=16, help="sphere diameter in 4x4 periods (>= 8)")
@@ -120,43 +170,19 @@ def main():
             sys.exit(f"bench_fit_colour: --fix: {name!r} is not one of {', '.join(SHAPE)}")
         fixed[name] = float(value) if value else SHAPE[name]
 
-    import mitsuba as mi  # noqa: F401  (the package sets its variant)
-    from fmbrdf_mi import polcam
-    from fmbrdf_mi.camera import CameraModel, capture
-    from fmbrdf_mi.fit.inputs import observations as ob
-    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
-    from fmbrdf_mi.fit.api.colour import fit_colour
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
     from bench_rebuild import cpu_name
 
     R = args.periods
     print(f"bench_fit_colour: {time.strftime('%Y-%m-%d')}, {cpu_name()}, {os.cpu_count()} cores; "
           f"{R}x{R} periods, {args.seeds} seeds, fixed {fixed or 'none'}", flush=True)
-    st = np.stack([ideal_sphere({**SHAPE, "k_s": ks, "r_k": rk}, res=2 * R, light=LIGHT)["stokes"]
-                   for ks, rk in ALBEDOS.values()])
-    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=12, full_well=10000.0, read_noise=2.5)
-    centre, radius = (R / 2, R / 2), R / 2 - 0.5
-    n, m, v = ob.sphere_normals((R, R), centre, radius)
-    geom = ob.SphereGeometry((R, R), centre, radius)
+    case = colour_case(R)
     truth = _truth(fixed)
     runs = []
     for seed in range(args.seed0, args.seed0 + args.seeds):
-        cap = capture(st, cam, peak_fraction=0.8, seed=seed, noiseless=args.noiseless)
-        smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
-        obs = ob.Observation(np.ones((3, R, R)), ob.erode(m, 1), n, v, np.asarray(LIGHT, float),
-                             cap["exposure"] / cam.conversion_gain, geometry=geom)
-        t = time.time()
-        res = fit_colour(obs, smp, NoiseModel(cam.conversion_gain, cam.read_noise, 1.0), fixed=fixed or None)
-        t = time.time() - t
-        flat = lambda d: {**{k: d[k] for k in SHAPE},  # noqa: E731
-                          **{f"{a}[{c}]": d[a][c] for a in ("k_s", "r_k") for c in "RGB"}}
-        est = flat(res.params)
-        se = flat(res.std_errors) if res.converged else None
-        runs.append({"seed": seed, "converged": bool(res.converged), "time": t, "params": est,
-                     "std_errors": se, "chi2_per_dof": res["chi2_per_dof"]})
-        print(f"seed {seed:3d}: {t:5.1f} s {'ok' if res.converged else 'NC'}  "
-              + " ".join(f"{k}={est[k]:.4g}" for k in est), flush=True)
+        rec = colour_fit(case, seed, fixed, noiseless=args.noiseless)
+        runs.append(rec)
+        print(f"seed {seed:3d}: {rec['time']:5.1f} s {'ok' if rec['converged'] else 'NC'}  "
+              + " ".join(f"{k}={v:.4g}" for k, v in rec["params"].items()), flush=True)
 
     rows = summarise(runs, truth, fixed)
     if args.json:

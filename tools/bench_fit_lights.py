@@ -69,62 +69,79 @@ def subsets(ks, n=6):
     return {k: list(range(0, n, n // k)) if n % k == 0 else list(range(k)) for k in ks}
 
 
-def _fits(args, obs, k, sets):
-    """(start mode, FitResult) of the fits of one seed's K images."""
+def ideal_images(truth, size, powers=(1.0,) * 6):
+    """The six ring lights' noise-free images of the sphere, light j ``powers[j]`` times as bright."""
+    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+
+    ideals = [ideal_sphere(truth, res=size, light=l) for l in light_ring(6)]
+    for i, p in zip(ideals, powers):   # the capture's exposure (what the fit is told) ignores p
+        i["stokes"] = i["stokes"] * p
+    return ideals
+
+
+def capture_seed(ideals, cam, seed):
+    """Seed ``seed``'s captures of the six images (image j: camera-noise seed 1000 seed + j)."""
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation
+
+    return [capture_observation(i, cam, seed=1000 * seed + j)[0] for j, i in enumerate(ideals)]
+
+
+def lights_fits(obs, k, sets, *, material, seed, truth, powers=(1.0,) * 6, free_power=False,
+                power_start=("ratio", "given", "fixed"), max_time=None, intervals="auto"):
+    """Yield (record, FitResult) of the fits of one seed's K images (with ``free_power``: one per start mode)."""
     from fmbrdf_mi.fit.api.joint import fit_joint
 
     sub = [obs[j] for j in sets[k]]
-    if not args.free_power:
-        yield None, fit_joint(sub, progress=False, max_time=args.max_time)
-        return
-    for mode in args.power_start:
-        kw = {} if mode == "fixed" else {"free_power": True, "power_start": mode}
-        yield mode, fit_joint(sub, progress=False, max_time=args.max_time, **kw)
+    modes = list(power_start) if free_power else [None]
+    for mode in modes:
+        kw = {} if mode in (None, "fixed") else {"free_power": True, "power_start": mode}
+        f = r = fit_joint(sub, progress=False, max_time=max_time, intervals=intervals, **kw)
+        corr = (f.uncertainty or {}).get("correlation")
+        c_ks_rk = None
+        if corr:
+            nm = corr["names"]
+            c_ks_rk = corr["matrix"][nm.index("k_s")][nm.index("r_k")]
+        rec = {"material": material, "K": k, "lights": sets[k], "seed": seed, "truth": dict(truth),
+               "params": dict(f.params), "std_errors": dict(f.std_errors),
+               "ci95": dict(f.uncertainty.get("ci95", {})),
+               "ci95_fisher": dict(f.uncertainty.get("profile", {}).get("fisher_ci95", f.uncertainty.get("ci95", {}))),
+               "interval_kind": dict(f.uncertainty.get("interval_kind", {})),
+               "converged": f.converged, "stop_reason": f.stop_reason, "time": f.timings["total"],
+               "n_pixels": f.n_pixels, "corr_ks_rk": c_ks_rk,
+               "chi2_per_dof": f.uncertainty.get("chi2_per_dof"), "start": mode,
+               "evaluations": f.timings["evaluations"], "loss": f.loss}
+        if free_power:
+            for j in range(1, k):
+                rec["truth"][f"power_{j}"] = powers[sets[k][j]] / powers[sets[k][0]]
+                if r.powers is not None:
+                    rec["params"][f"power_{j}"] = r.powers["values"][j]
+                    if r.powers["std_errors"][j] is not None:
+                        rec["std_errors"][f"power_{j}"] = r.powers["std_errors"][j]
+                    if r.powers["ci95"][j] is not None:
+                        rec["ci95"][f"power_{j}"] = r.powers["ci95"][j]
+        yield rec, r
 
 
 def run(args):
     from fmbrdf_mi.camera import CameraModel
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     cam = CameraModel(full_well=args.full_well, read_noise=args.read_noise, bits=args.bits)
-    lights = light_ring(6)
     sets = subsets(args.lights)
     powers = args.true_powers if args.free_power else [1.0] * 6
     runs = []
     for mat in args.materials:
         truth = MATERIALS[mat]
         t = time.time()
-        ideals = [ideal_sphere(truth, res=args.size, light=l) for l in lights]
-        for i, p in zip(ideals, powers):   # the capture's exposure (what the fit is told) ignores p
-            i["stokes"] = i["stokes"] * p
+        ideals = ideal_images(truth, args.size, powers)
         print(f"# {mat}: 6 ideal images {time.time() - t:.1f} s", file=sys.stderr, flush=True)
         for seed in range(args.seed0, args.seed0 + args.seeds):
-            obs = [capture_observation(i, cam, seed=1000 * seed + j)[0] for j, i in enumerate(ideals)]
+            obs = capture_seed(ideals, cam, seed)
             for k in args.lights:
-                for mode, r in _fits(args, obs, k, sets):
-                    f = r
-                    corr = (f.uncertainty or {}).get("correlation")
-                    c_ks_rk = None
-                    if corr:
-                        nm = corr["names"]
-                        c_ks_rk = corr["matrix"][nm.index("k_s")][nm.index("r_k")]
-                    rec = {"material": mat, "K": k, "lights": sets[k], "seed": seed, "truth": dict(truth),
-                           "params": dict(f.params), "std_errors": dict(f.std_errors),
-                           "ci95": dict(f.uncertainty.get("ci95", {})),
-                           "converged": f.converged, "stop_reason": f.stop_reason, "time": f.timings["total"],
-                           "n_pixels": f.n_pixels, "corr_ks_rk": c_ks_rk,
-                           "chi2_per_dof": f.uncertainty.get("chi2_per_dof"), "start": mode,
-                           "evaluations": f.timings["evaluations"], "loss": f.loss}
-                    if args.free_power:
-                        for j in range(1, k):
-                            rec["truth"][f"power_{j}"] = powers[sets[k][j]] / powers[sets[k][0]]
-                            if r.powers is not None:
-                                rec["params"][f"power_{j}"] = r.powers["values"][j]
-                                if r.powers["std_errors"][j] is not None:
-                                    rec["std_errors"][f"power_{j}"] = r.powers["std_errors"][j]
-                                if r.powers["ci95"][j] is not None:
-                                    rec["ci95"][f"power_{j}"] = r.powers["ci95"][j]
+                for rec, f in lights_fits(obs, k, sets, material=mat, seed=seed, truth=truth, powers=powers,
+                                          free_power=args.free_power, power_start=args.power_start,
+                                          max_time=args.max_time):
                     runs.append(rec)
+                    mode = rec["start"]
                     print(f"{mat:7s} K={k} {mode or ''} seed {seed:3d} {f.timings['total']:6.1f} s "
                           f"{'ok ' if f.converged else 'NC '}"
                           + " ".join(f"{n}={v:.4g}" for n, v in rec["params"].items()), file=sys.stderr, flush=True)

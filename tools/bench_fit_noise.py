@@ -55,12 +55,38 @@ NAMES = ("eta", "alpha", "beta", "kappa", "k_s", "r_k")
 LIGHT = (-0.5, 0.5, 1.0)
 
 
-def run(args):
-    from fmbrdf_mi.camera import CameraModel
+def noise_fit(obs, cap, *, material, size, seed, loss, truth, fixed=None, max_time=None, starts=2, cache=None,
+              intervals="auto"):
+    """One fit of the bench: ``obs`` (a :func:`capture_observation` of the ideal sphere) fitted with ``loss``;
+    returns (its record, as kept in the JSON, the FitResult).  ``cache``: a dict that keeps the evaluator
+    across noise seeds (the same geometry, pixels and objective)."""
     from fmbrdf_mi.fit import fit
-    from fmbrdf_mi.fit.inputs.parse import parse_fixed
     from fmbrdf_mi.fit.api.fitting import FitOptions
     from fmbrdf_mi.fit.problem.data import prepare, select_pixels
+
+    opts = FitOptions(loss=loss, fixed=fixed or None, max_time=max_time, starts=starts, intervals=intervals)
+    idx, _ = select_pixels(obs, opts)
+    key = (loss, tuple(idx))
+    cache = {} if cache is None else cache
+    if key not in cache:
+        cache.clear()
+        cache[key] = prepare([obs], opts, loss, single=True).evaluator
+    r = fit(obs, opts, evaluator=cache[key], progress=False)
+    rec = {"material": material, "size": size, "seed": seed, "loss": loss, "truth": truth,
+           "params": r.params, "std_errors": r.std_errors,
+           "ci95": r.uncertainty.get("ci95", {}), "converged": r.converged,
+           "ci95_fisher": r.uncertainty.get("profile", {}).get("fisher_ci95", r.uncertainty.get("ci95", {})),
+           "interval_kind": r.uncertainty.get("interval_kind", {}),
+           "stop_reason": r.stop_reason, "time": r.timings["total"], "n_pixels": r.n_pixels,
+           "evaluations": r.timings["evaluations"],
+           "saturated": cap["saturated"], "fixed": fixed or {},
+           "chi2_per_dof": r.uncertainty.get("chi2_per_dof")}
+    return rec, r
+
+
+def run(args):
+    from fmbrdf_mi.camera import CameraModel
+    from fmbrdf_mi.fit.inputs.parse import parse_fixed
     from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
 
     cam = CameraModel(full_well=args.full_well, read_noise=args.read_noise, bits=args.bits)
@@ -77,22 +103,8 @@ def run(args):
             for seed in range(args.seed0, args.seed0 + args.seeds):
                 obs, cap = capture_observation(ideal, cam, seed=seed)
                 for loss in args.losses:
-                    opts = FitOptions(loss=loss, fixed=fx or None, max_time=args.max_time, starts=args.starts)
-                    idx, _ = select_pixels(obs, opts)
-                    key = (loss, tuple(idx))
-                    if key not in evs:
-                        evs = {key: prepare([obs], opts, loss, single=True).evaluator}
-                    r = fit(obs, opts, evaluator=evs[key], progress=False)
-                    rec = {"material": mat, "size": size, "seed": seed, "loss": loss, "truth": truth,
-                           "params": r.params, "std_errors": r.std_errors,
-                           "ci95": r.uncertainty.get("ci95", {}), "converged": r.converged,
-                           "ci95_fisher": r.uncertainty.get("profile", {}).get("fisher_ci95",
-                                                                               r.uncertainty.get("ci95", {})),
-                           "interval_kind": r.uncertainty.get("interval_kind", {}),
-                           "stop_reason": r.stop_reason, "time": r.timings["total"], "n_pixels": r.n_pixels,
-                           "evaluations": r.timings["evaluations"],
-                           "saturated": cap["saturated"], "fixed": fx,
-                           "chi2_per_dof": r.uncertainty.get("chi2_per_dof")}
+                    rec, r = noise_fit(obs, cap, material=mat, size=size, seed=seed, loss=loss, truth=truth,
+                                       fixed=fx, max_time=args.max_time, starts=args.starts, cache=evs)
                     runs.append(rec)
                     print(f"{mat:7s} {size:4d} seed {seed:3d} {loss:10s} {r.timings['total']:7.1f} s "
                           f"{'ok ' if r.converged else 'NC '} "

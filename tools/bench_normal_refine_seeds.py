@@ -32,6 +32,55 @@ sys.path.insert(0, os.path.join(ROOT, "tools"))
 from bench_normal_refine import LIGHTS, POWERS, TRUTH  # noqa: E402
 
 
+def normal_fits(seed, res=40, lights=4, lams=(0.3,), threads=0):
+    """One noise seed: the object written and read back, photometric stereo, a joint fit, then
+    :func:`refine_joint` at each smoothness weight in ``lams`` from the same start; returns one record per
+    weight (k_s and its SE relative to the truth's scale)."""
+    from fmbrdf_mi.fit.inputs.authors import read_object
+    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.normal_joint import refine_joint
+    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, photometric_stereo
+    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+
+    if threads:
+        import drjit as dr
+        dr.set_thread_count(threads)
+    K = lights
+    t = time.time()
+    with tempfile.TemporaryDirectory() as tmp:
+        root = os.path.join(tmp, "blob")
+        truth = write_authors_object(root, TRUTH, LIGHTS[:K], res=res, fov=12.0, powers=POWERS[:K], seed=seed)
+        specs, _ = read_object(root, conversion_gain=truth["camera"]["conversion_gain"], read_noise=2.5)
+    scale = truth["irradiance_dn"] * max(POWERS[:K])
+    obs = [s.input for s in specs]
+    gt = obs[0].normals.copy()
+    n0 = photometric_stereo(obs)
+    for o in obs:
+        o.normals, o.geometry = n0, None
+    # the start's estimate; its intervals are not used (Fisher ones: no profile-likelihood refits)
+    params = fit_joint(obs, progress=False, intervals="fisher").params
+    t_start = time.time() - t
+    out = []
+    for lam in lams:
+        t = time.time()
+        j = refine_joint(obs, n0, params, lam=lam)
+        e = angular_error_deg(j.normals, gt, j.mask)
+        u = j.uncertainty or {}
+        rel = lambda k: scale if k == "k_s" else 1.0  # noqa: E731
+        out.append({"seed": seed, "lam": lam, "params": {k: v / rel(k) for k, v in j.params.items()},
+                    "std_errors": {k: v / rel(k) for k, v in j.std_errors.items()},
+                    "ci95": {k: [x / rel(k) for x in v] for k, v in u.get("ci95", {}).items()},
+                    "converged": j.converged, "chi2_per_dof": u.get("chi2_per_dof"), "misfit": u.get("misfit"),
+                    "calibrated": u.get("calibrated"), "normal_mean": float(e.mean()),
+                    "normal_median": float(np.median(e)), "time": time.time() - t + t_start})
+    return out
+
+
+def normal_fit(seed, res=40, lights=4, lam=0.3):
+    """:func:`normal_fits` at one smoothness weight (the bench over modes, tools/bench_modes.py)."""
+    return normal_fits(seed, res=res, lights=lights, lams=(lam,))[0]
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--seeds", type=int, default=6)
@@ -41,50 +90,16 @@ def main(argv=None):
     p.add_argument("--json", metavar="OUT.json")
     p.add_argument("--threads", type=int, default=0, help="Dr.Jit threads (default: all)")
     args = p.parse_args(argv)
-    from fmbrdf_mi.fit.inputs.authors import read_object
-    from fmbrdf_mi.fit.api.joint import fit_joint
-    from fmbrdf_mi.fit.api.normal_joint import refine_joint
-    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, photometric_stereo
-    import drjit as dr
-
-    if args.threads:
-        dr.set_thread_count(args.threads)
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
-
-    K = args.lights
     lams = [float(v) for v in str(args.lam).split(",")]
     runs = {lam: [] for lam in lams}
     t_all = time.time()
     for seed in range(args.seeds):
-        t = time.time()
-        with tempfile.TemporaryDirectory() as tmp:
-            root = os.path.join(tmp, "blob")
-            truth = write_authors_object(root, TRUTH, LIGHTS[:K], res=args.res, fov=12.0, powers=POWERS[:K],
-                                         seed=100 + seed)
-            specs, _ = read_object(root, conversion_gain=truth["camera"]["conversion_gain"], read_noise=2.5)
-        scale = truth["irradiance_dn"] * max(POWERS[:K])
-        obs = [s.input for s in specs]
-        gt = obs[0].normals.copy()
-        n0 = photometric_stereo(obs)
-        for o in obs:
-            o.normals, o.geometry = n0, None
-        # the start's estimate; its intervals are not used (Fisher ones: no profile-likelihood refits)
-        params = fit_joint(obs, progress=False, intervals="fisher").params
-        t_start = time.time() - t
-        for lam in lams:
-            t = time.time()
-            j = refine_joint(obs, n0, params, lam=lam)
-            e = angular_error_deg(j.normals, gt, j.mask)
-            est = {k: v / (scale if k == "k_s" else 1.0) for k, v in j.params.items()}
-            se = {k: v / (scale if k == "k_s" else 1.0) for k, v in j.std_errors.items()}
-            runs[lam].append({"seed": 100 + seed, "params": est, "std_errors": se, "converged": j.converged,
-                              "chi2_per_dof": j.uncertainty.get("chi2_per_dof"), "misfit": j.uncertainty.get("misfit"),
-                              "normal_mean": float(e.mean()), "normal_median": float(np.median(e)),
-                              "time": time.time() - t + t_start})
-            print(f"# seed {100 + seed}, lam {lam:g}: normals {e.mean():.2f} / {np.median(e):.2f} deg, "
-                  + ", ".join(f"{k} {v:.4g}" for k, v in est.items())
-                  + f", chi2/dof {j.uncertainty.get('chi2_per_dof') or math.nan:.3f} ({time.time() - t:.0f} s + start "
-                  f"{t_start:.0f} s)", file=sys.stderr, flush=True)
+        for rec in normal_fits(100 + seed, res=args.res, lights=args.lights, lams=lams, threads=args.threads):
+            runs[rec["lam"]].append(rec)
+            print(f"# seed {100 + seed}, lam {rec['lam']:g}: normals {rec['normal_mean']:.2f} / "
+                  f"{rec['normal_median']:.2f} deg, " + ", ".join(f"{k} {v:.4g}" for k, v in rec["params"].items())
+                  + f", chi2/dof {rec['chi2_per_dof'] or math.nan:.3f} ({rec['time']:.0f} s)", file=sys.stderr,
+                  flush=True)
         if args.json:
             with open(args.json, "w") as f:
                 json.dump({"config": vars(args), "runs": {str(k): v for k, v in runs.items()}}, f, indent=1)

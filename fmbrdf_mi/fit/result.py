@@ -65,13 +65,21 @@ class FitResult:
     #: normal refinement: the refined normal map (H, W, 3) and the pixels refined (H, W); not in :meth:`to_json`
     normals: np.ndarray = dataclasses.field(repr=False, default=None)
     mask: np.ndarray = dataclasses.field(repr=False, default=None)
+    #: per-pixel albedos (``FitOptions.albedo="per-pixel"``): what the maps hold, in numbers (pixels, how many
+    #: have their surface / body split identified, medians); in :meth:`to_json`
+    albedo: dict = None
+    #: ... and the maps themselves (:func:`fmbrdf_mi.fit.api.fitting.albedo_maps`): ``k_s``, ``k_b``, their
+    #: standard errors ``k_s_se``, ``k_b_se``, ``identified`` (H, W), or (C, H, W) per colour channel
+    #: ``channels``; NaN (``identified``: False) where no pixel was fitted; not in :meth:`to_json`
+    maps: dict = dataclasses.field(repr=False, default=None)
 
     #: written by :meth:`to_json` only when set
-    OPTIONAL = ("images", "powers", "channels")
+    OPTIONAL = ("images", "powers", "channels", "albedo")
 
     def to_json(self):
-        d = dataclasses.asdict(dataclasses.replace(self, pixels=None, details=None, normals=None, mask=None))
-        for k in ("pixels", "details", "normals", "mask"):
+        d = dataclasses.asdict(dataclasses.replace(self, pixels=None, details=None, normals=None, mask=None,
+                                                   maps=None))
+        for k in ("pixels", "details", "normals", "mask", "maps"):
             d.pop(k)
         for k in self.OPTIONAL:
             if d[k] is None:

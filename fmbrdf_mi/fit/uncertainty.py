@@ -269,13 +269,31 @@ def chi2_along_covariance(problem, st, J, scale):
     every other unknown at its regression on it under the covariance scale (J^T J)^-1 in z: the path a
     quadratic likelihood's profile would follow.  One model evaluation per call; >= the profile."""
     z0 = problem.to_z(st)
-    cz = np.linalg.pinv(J.T @ J) * scale
+    # a shape parameter at a bound (its z clipped, its Jacobian column ~0, its z-variance huge) stays there:
+    # the regression on it would throw it to its other bound for a small step of the parameter profiled
+    pinned = [i for i, (n, (_, frac)) in enumerate(bound_distance(problem, st).items()) if frac <= 1e-3]
+    cz = {}
+
+    def path_cov(j):
+        keep = [i for i in range(len(z0)) if i == j or i not in pinned]
+        if len(keep) == len(z0):        # nothing pinned: the whole covariance (as before, bit for bit)
+            if "all" not in cz:
+                cz["all"] = np.linalg.pinv(J.T @ J) * scale
+            return cz["all"]
+        if j not in cz:
+            c = np.zeros((len(z0), len(z0)))
+            c[np.ix_(keep, keep)] = np.linalg.pinv(J[:, keep].T @ J[:, keep]) * scale
+            cz[j] = c
+        return cz[j]
 
     def state(name, value):
         j = problem.names.index(name)
         zt = problem.bounds.to_z(name, value)
-        s = problem.from_z(z0 + cz[:, j] / cz[j, j] * (zt - z0[j]))
+        c = path_cov(j)
+        s = problem.from_z(z0 + c[:, j] / c[j, j] * (zt - z0[j]))
         s.shape[name] = float(value)   # exactly (z is clipped to +-Z_MAX)
+        if getattr(problem, "eliminates", False):   # albedo maps: re-solved at the point (the profile over them)
+            s = problem.projected(s.shape)[0]
         return s
 
     def f(name, value):
@@ -400,3 +418,49 @@ def weakly_identified(params, std, at_bound_=()):
     return [k for k, v in params.items()
             if (k in std and (not math.isfinite(std[k]) or std[k] > WEAK_REL * max(abs(v), WEAK_FLOOR.get(k, 0.0))))
             or k in at_bound_]
+
+
+#: A pixel's surface / body split is *not identified* when the standard error of either part's share of
+#: the pixel's brightness exceeds this fraction of the pixel's brightness (:func:`pixel_albedos`).
+SPLIT_REL = 0.5
+
+
+def pixel_albedos(problem, st, parts, J, unc):
+    """The albedo maps' values and uncertainty per group of an eliminating layout (per-pixel albedos,
+    :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`), the shape parameters free.
+
+    ``J``: the projected Jacobian at ``st`` (z: the free shape parameters); ``unc``: the fit's
+    uncertainty block (its covariance scale: misfit inflation or an estimated noise level).  Each group's
+    (a_s, a_b) covariance is scale (U^T U)^-1 + K C_z K^T (:meth:`PixelAlbedos.covariance`).  Returns a dict
+    of arrays (n_groups,): ``k_s``, ``k_b`` (the model's reported albedos: the albedo factor times a_s,
+    a_b), ``k_s_se``, ``k_b_se``, ``correlation`` of the two, and ``identified``: False where the split
+    is not identified, i.e. where the standard error of the surface's or the body's contribution to the
+    pixel's brightness (a_s mean S, a_b mean B over the group's samples) exceeds :data:`SPLIT_REL` of
+    the pixel's mean predicted brightness (both parts' signatures alike behind the polarisers, or too
+    little light); a group with no signal is not identified either; parallel signatures give infinite
+    standard errors.  The albedos are unconstrained estimates (a poorly determined one can be below 0).
+    """
+    obj, lay = problem.obj, problem.layout
+    z = problem.to_z(st)
+    us, ub = obj.albedo_columns(parts)
+    Jt = obj.shape_jacobian(parts, st, z, problem.names, problem.bounds)
+    scale = interval_scale(problem, unc) if unc.get("chi2_per_dof") is not None else 1.0
+    try:
+        cov_z = np.linalg.pinv(J.T @ J) * scale if J.shape[1] else np.zeros((0, 0))
+    except np.linalg.LinAlgError:
+        cov_z = np.full((J.shape[1], J.shape[1]), np.nan)
+    C = lay.covariance(us, ub, Jt, cov_z, scale)
+    f = float(problem.model.albedo_factor)
+    a_s, a_b = np.asarray(st.a_s, float), np.asarray(st.a_b, float)
+    se_s, se_b = np.sqrt(np.clip(C[:, 0, 0], 0, None)), np.sqrt(np.clip(C[:, 1, 1], 0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = np.where(np.isfinite(se_s * se_b) & (se_s * se_b > 0), C[:, 0, 1] / (se_s * se_b), np.nan)
+    g = lay.groups.ravel()
+    n = np.maximum(np.bincount(g, minlength=lay.n_groups), 1)
+    S, B = obj.unit_samples(parts)
+    mean_s = np.bincount(g, weights=np.abs(S).ravel(), minlength=lay.n_groups) / n
+    mean_b = np.bincount(g, weights=np.abs(B).ravel(), minlength=lay.n_groups) / n
+    total = np.bincount(g, weights=np.abs(lay.mu(S, B, a_s, a_b)).ravel(), minlength=lay.n_groups) / n
+    ident = (total > 0) & (se_s * mean_s <= SPLIT_REL * total) & (se_b * mean_b <= SPLIT_REL * total)
+    return {"k_s": f * a_s, "k_b": f * a_b, "k_s_se": f * se_s, "k_b_se": f * se_b,
+            "correlation": np.clip(corr, -1.0, 1.0), "identified": ident}

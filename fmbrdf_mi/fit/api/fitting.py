@@ -56,6 +56,8 @@ class FitOptions:
     intervals: str = "auto"           # likelihood: "auto" checks each shape parameter's Fisher 95 % interval
                                       # against the likelihood and takes the profile likelihood's ends where it
                                       # fails (uncertainty.profile_intervals); "fisher": Fisher intervals only
+    albedo: str = "shared"            # likelihood: "shared" (one k_s, r_k) or "per-pixel" (albedo maps: a textured
+                                      # object; evaluate.albedos.PixelAlbedos)
 
 
 def weakly_identified(params, std, at_bound=()):
@@ -169,12 +171,12 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     st, reason, converged, J, r = sol.state, sol.reason, sol.converged, sol.J, sol.r
     can_jac = opts.path == "pixel"
     unc = {}
-    parts = None
+    parts = groups = None
     if converged and can_jac:
         problem.deadline = None  # the fit is done; its uncertainty is part of the answer
         parts = problem.parts(st, jac=True)
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
-        n_ind = None if loss != "likelihood" else len(idx) * objective.dof
+        n_ind = None if loss != "likelihood" else len(idx) * objective.dof - problem.n_eliminated(st)
         unc = U.summarise(problem, st, J, r, n_ind)
         if loss == "likelihood" and opts.intervals == "auto":
             if deadline is not None and time.time() > deadline:
@@ -187,6 +189,8 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                            + ", ".join(f"{n} ({k})" for n, k in prof.items()))
         if unc.get("misfit"):
             report("[fit] warning: " + U.misfit_text(unc))
+        if problem.eliminates:
+            groups = U.pixel_albedos(problem, st, parts, J, unc)
     elif not converged:
         unc = {"std_errors": {}, "method": "not computed: the fit did not converge"}
     if parts is None:
@@ -201,6 +205,16 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     if problem.n_nonfinite:
         report(f"[fit] {problem.n_nonfinite} pixels had non-finite BSDF derivatives; their Jacobian rows were zeroed")
     params = model.report(st.shape, st.a_s, st.a_b)
+    albedo = maps = None
+    if problem.eliminates:
+        if groups is None:     # not converged: the maps' values without standard errors
+            f, nan = float(model.albedo_factor), np.full(problem.layout.n_groups, np.nan)
+            groups = {"k_s": f * np.asarray(st.a_s), "k_b": f * np.asarray(st.a_b), "k_s_se": nan, "k_b_se": nan,
+                      "correlation": nan, "identified": np.zeros(problem.layout.n_groups, bool)}
+        albedo, maps = albedo_maps(problem.layout, obs.shape, groups)
+        report(f"[fit] albedo maps: {albedo['pixels']} pixels, surface / body split identified in "
+               f"{albedo['identified_fraction']:.0%} (median k_s {albedo['k_s_median']:.4g}, k_b "
+               f"{albedo['k_b_median']:.4g})")
     weak = weakly_identified(params, std, unc.get("at_bound", ()))
     if weak:
         report(f"[fit] weakly identified (standard error > {WEAK_REL:.0%} or at a bound): {', '.join(weak)}")
@@ -214,10 +228,46 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                      options=dataclasses.asdict(opts), weakly_identified=weak, converged=bool(converged),
                      objective=loss, uncertainty=unc,
                      noise=objective.noise.to_dict() if loss == "likelihood" else None,
-                     pixels_excluded=excluded, starts=sol.starts, pixels=idx,
+                     pixels_excluded=excluded, starts=sol.starts, pixels=idx, albedo=albedo, maps=maps,
                      details={"internal": {"shape": dict(st.shape), "a_s": np.asarray(st.a_s).tolist(),
                                            "a_b": np.asarray(st.a_b).tolist()},
-                              "residuals": problem.obj.residuals(parts, st), "n_free": len(problem.to_z(st))})
+                              "residuals": problem.obj.residuals(parts, st),
+                              "n_free": len(problem.to_z(st)) + problem.n_eliminated(st)})
+
+
+def albedo_maps(layout, shape, groups):
+    """(summary, maps) of per-pixel albedos: ``groups`` (:func:`fmbrdf_mi.fit.uncertainty.pixel_albedos`, one
+    entry per group of ``layout``) put on the image grid ``shape`` (H, W): arrays (H, W), or (C, H, W) for a
+    colour mosaic's channels, NaN where no pixel was fitted (``identified``: False); the summary is
+    fit.json's ``albedo`` block."""
+    H, W = shape
+    C = 1 if layout.channel_of is None else len(layout.labels)
+    ch = np.zeros(layout.n_groups, int) if layout.channel_of is None else layout.channel_of
+    maps = {}
+    for key, v in groups.items():
+        img = np.zeros((C, H * W), bool) if key == "identified" else np.full((C, H * W), np.nan)
+        img[ch, layout.pixels] = v
+        maps[key] = img.reshape(C, H, W) if C > 1 else img.reshape(H, W)
+    maps["channels"] = None if C == 1 else list(layout.labels)
+    ident = np.asarray(groups["identified"], bool)
+    n_pix = len(np.unique(layout.pixels))
+    summary = {"layout": "per-pixel", "pixels": int(n_pix), "groups": int(layout.n_groups),
+               "identified_fraction": float(ident.mean()) if ident.size else 0.0,
+               "split_rule": f"identified where the standard error of the surface's and of the body's share of "
+                             f"the pixel's brightness are at most {U.SPLIT_REL:g} of it",
+               "k_s_median": float(np.nanmedian(groups["k_s"])), "k_b_median": float(np.nanmedian(groups["k_b"])),
+               "k_s_determined_fraction": _determined(groups["k_s"], groups["k_s_se"]),
+               "k_b_determined_fraction": _determined(groups["k_b"], groups["k_b_se"]),
+               "channels": maps["channels"]}
+    return summary, maps
+
+
+def _determined(value, se, rel=0.5):
+    """Fraction of the groups whose albedo has a relative standard error of at most ``rel``."""
+    value, se = np.asarray(value, float), np.asarray(se, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ok = np.isfinite(se) & (se <= rel * value)
+    return float(ok.mean()) if ok.size else 0.0
 
 
 def _fit_images(observations, options=None, *, names=None, progress=True, powers=None, **kw):
@@ -281,11 +331,19 @@ def diagnose(res, data, observations, names, power_model=None):
     loss, excluded, objective, ev = data.loss, data.excluded, data.objective, data.evaluator
     idxs, slices = data.image_pixels, data.slices
     model = power_model or get_model(res.model)
-    shape, a_s, a_b = model.split(res.params)
+    if res.maps is not None:    # per-pixel albedos: the fitted state (its albedos per group)
+        internal = res.details["internal"]
+        shape, a_s, a_b = internal["shape"], np.asarray(internal["a_s"]), np.asarray(internal["a_b"])
+    else:
+        shape, a_s, a_b = model.split(res.params)
     parts = ev.parts(shape)
+    pts = parts.surface.shape[1] // max(sum(len(i) for i in idxs), 1)
     st = State(shape, a_s, a_b)
-    pred = a_s * parts.surface + a_b * parts.body  # (3, points)
-    pts = pred.shape[1] // max(sum(len(i) for i in idxs), 1)
+    if res.maps is not None:    # each cell's own pair (mono: one group per cell)
+        cell = objective.layout.groups[:, 0]
+        pred = np.repeat(a_s[cell], pts) * parts.surface + np.repeat(a_b[cell], pts) * parts.body
+    else:
+        pred = a_s * parts.surface + a_b * parts.body  # (3, points)
     out = []
     for k, (o, idx, (a, b)) in enumerate(zip(observations, idxs, slices)):
         s = pred[:, a * pts:b * pts]

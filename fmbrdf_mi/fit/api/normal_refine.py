@@ -19,12 +19,13 @@ normals; so does this, with the package's own pieces:
    pixel centre, Sbar_ik the observed (demosaicked) Stokes vector, s_k image
    k's mean observed intensity over the pixels, N(i) the 4-neighbours in
    the mask and ``lam`` the smoothness weight.  Pixels are coupled only
-   through the prior, so each Gauss-Newton step solves a 2 x 2 system per
-   pixel with the neighbours at their current values (Jacobi); the data
-   Jacobian comes from central differences taken for all pixels at once
-   (one BSDF evaluation per perturbation: a pixel's prediction depends on its
-   own normal only).  A pixel's step is kept when it lowers its E_i, halved
-   otherwise (up to 4 times).
+   through the prior, so ``steps`` iterations of the one Levenberg-Marquardt
+   (:mod:`fmbrdf_mi.fit.solve.lm`) solve a damped 2 x 2 system per pixel
+   with the neighbours at their current values (Jacobi); the data Jacobian
+   comes from central differences taken for all pixels at once (one BSDF
+   evaluation per perturbation: a pixel's prediction depends on its own
+   normal only).  A trial keeps a pixel's step where it lowers its E_i; a
+   trial that lowers none raises the damping (:func:`_normal_step`).
 
 Normals that turn away from the camera (n . v < 0.05) are not accepted.
 The polarisation pins the normal's azimuth (AoLP) and the intensity and
@@ -36,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import types
 
 import numpy as np
 
@@ -47,6 +49,7 @@ from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import check_mask, check_observations, erode
 from fmbrdf_mi.fit.problem.normals import tangent_bases
 from fmbrdf_mi.fit.result import FitResult
+from fmbrdf_mi.fit.solve import lm as LM
 from fmbrdf_mi.fit.solve.optimise import default_progress
 
 
@@ -88,6 +91,61 @@ def _neighbours(mask):
         ok = (y2 >= 0) & (y2 < h) & (x2 >= 0) & (x2 < w)
         nb[ok, j] = pos[y2[ok], x2[ok]]
     return nb
+
+
+def _normal_step(n, energy, predict, sbar, scale, nb, views, lam, steps, h):
+    """Up to ``steps`` iterations of the one Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.lm`) on the normals
+    ``n`` (n, 3), the material held: returns (normals, pixel steps accepted).
+
+    Pixels are coupled only through the prior, so the linear solve is one damped 2 x 2 system per pixel
+    (its tangent-plane unknowns, the neighbours at their current values: Jacobi), and the trial keeps each
+    pixel's step only where it lowers that pixel's E_i (and keeps the normal facing the camera): the
+    objective, the sum of the E_i, falls whenever one pixel's does.  A trial in which no pixel improves
+    raises the damping, which shortens every pixel's step.  The data Jacobian is central differences for
+    all pixels at once (one BSDF evaluation per perturbation).
+    """
+    has = (nb >= 0)[..., None]
+
+    def linearise(n):
+        nbv = np.where(has, n[np.maximum(nb, 0)], 0.0)
+        data, prior, pred = energy(n, nbv)
+        t1, t2 = tangent_bases(n)
+        r = ((pred - sbar) / scale).transpose(2, 0, 1).reshape(len(n), -1)   # (n, 3K)
+        J = np.zeros((len(n), r.shape[1], 2))
+        for j, t in enumerate((t1, t2)):
+            cols = []
+            for d in (h, -h):
+                nn = n + d * t
+                nn /= np.linalg.norm(nn, axis=1, keepdims=True)
+                cols.append(((predict(nn) - sbar) / scale).transpose(2, 0, 1).reshape(len(n), -1))
+            J[:, :, j] = (cols[0] - cols[1]) / (2 * h)
+        # prior: lam sum_j |n_i - n_j|^2, gradient 2 lam sum_j (n_i - n_j) projected on (t1, t2)
+        cnt = (nb >= 0).sum(axis=1)
+        g_prior = np.sum(np.where(has, n[:, None, :] - nbv, 0.0), axis=1)
+        A = np.einsum("nri,nrj->nij", J, J) + (lam * cnt)[:, None, None] * np.eye(2)
+        b = -(np.einsum("nri,nr->ni", J, r) + lam * np.stack([np.sum(g_prior * t1, 1), np.sum(g_prior * t2, 1)], 1))
+        e = data + prior
+        return types.SimpleNamespace(A=A, b=b, t1=t1, t2=t2, nbv=nbv, e=e, f=float(e.sum()))
+
+    def solve(lin, mu):     # per pixel (A + mu diag(A)) delta = b
+        D = np.einsum("nii->ni", lin.A)
+        A = lin.A + (mu * D + 1e-9)[:, :, None] * np.eye(2)
+        return np.linalg.solve(A, lin.b[..., None])[..., 0]
+
+    def trial(n, delta, lin):
+        cand = n + delta[:, :1] * lin.t1 + delta[:, 1:] * lin.t2
+        cand /= np.linalg.norm(cand, axis=1, keepdims=True)
+        d2, p2, _ = energy(cand, lin.nbv)
+        ok = (d2 + p2 < lin.e) & (np.sum(cand * views, 1) > 0.05)
+        count[0] = int(ok.sum())
+        return np.where(ok[:, None], cand, n), float(np.where(ok, d2 + p2, lin.e).sum()), None
+
+    count, accepted = [0], [0]
+    lin = linearise(n)
+    res = LM.levenberg_marquardt(n, lin.f, linearise, solve, trial, lin=lin, max_iter=steps, refresh=1,
+                                 final_linearise=False, on_accept=lambda it, x, f: accepted.__setitem__(
+                                     0, accepted[0] + count[0]))
+    return res.x, accepted[0]
 
 
 def check_views(obs, normals):
@@ -161,45 +219,8 @@ def refine_normals(observations, normals, *, mask=None, lam=0.5, rounds=3, steps
             prior = lam * np.sum(np.where((nb >= 0)[..., None], diff ** 2, 0.0), axis=(1, 2))
             return data, prior, pred
 
-        accepted = 0
-        for _ in range(steps):
-            nbv = np.where((nb >= 0)[..., None], n[np.maximum(nb, 0)], 0.0)
-            data, prior, pred = energy(n, nbv)
-            t1, t2 = tangent_bases(n)
-            r = ((pred - sbar) / scale).transpose(2, 0, 1).reshape(len(n), -1)   # (n, 3K)
-            J = np.zeros((len(n), r.shape[1], 2))
-            for j, t in enumerate((t1, t2)):
-                cols = []
-                for d in (h, -h):
-                    nn = n + d * t
-                    nn /= np.linalg.norm(nn, axis=1, keepdims=True)
-                    cols.append(((_predict(pred_fn, sh, a_s, a_b, nn) - sbar) / scale)
-                                .transpose(2, 0, 1).reshape(len(n), -1))
-                J[:, :, j] = (cols[0] - cols[1]) / (2 * h)
-            # prior: lam sum_j |n_i - n_j|^2, gradient 2 lam sum_j (n_i - n_j) projected on (t1, t2)
-            cnt = (nb >= 0).sum(axis=1)
-            g_prior = np.sum(np.where((nb >= 0)[..., None], n[:, None, :] - nbv, 0.0), axis=1)
-            A = np.einsum("nri,nrj->nij", J, J) + (lam * cnt)[:, None, None] * np.eye(2)
-            b = -(np.einsum("nri,nr->ni", J, r)
-                  + lam * np.stack([np.sum(g_prior * t1, 1), np.sum(g_prior * t2, 1)], 1))
-            A += 1e-9 * np.eye(2)
-            delta = np.linalg.solve(A, b[..., None])[..., 0]
-            e_old = data + prior
-            step = np.ones(len(n))
-            done = np.zeros(len(n), bool)
-            n_new = n.copy()
-            for _half in range(5):
-                trial = n + step[:, None] * (delta[:, :1] * t1 + delta[:, 1:] * t2)
-                trial /= np.linalg.norm(trial, axis=1, keepdims=True)
-                d2, p2, _ = energy(trial, nbv)
-                ok = ~done & (d2 + p2 < e_old) & (np.sum(trial * views, 1) > 0.05)
-                n_new[ok] = trial[ok]
-                done |= ok
-                step[~done] *= 0.5
-                if done.all():
-                    break
-            accepted += int(done.sum())
-            n = n_new
+        n, accepted = _normal_step(n, energy, lambda nn: _predict(pred_fn, sh, a_s, a_b, nn), sbar, scale, nb, views,
+                                   lam, steps, h)
         n_map = n_map.copy()
         n_map.reshape(-1, 3)[idx] = n
         nbv = np.where((nb >= 0)[..., None], n[np.maximum(nb, 0)], 0.0)

@@ -42,10 +42,14 @@ def reported_names(model):
     return tuple(model.shape_names) + (model.surface_name, model.body_name)
 
 
+#: The albedo layouts a fit can be asked for (``FitOptions.albedo``, ``--albedo``).
+ALBEDO_LAYOUTS = ("shared", "per-pixel")
+
+
 def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=None, init=None, max_iter=40,
                       tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0,
                       lr=0.02, spp=16, rounds=3, loss="auto", starts=2, fixed=None, free_power=False,
-                      power_start="ratio", area_points=None, flag=lambda name: name, **_ignored):
+                      power_start="ratio", area_points=None, albedo="shared", flag=lambda name: name, **_ignored):
     """Raise InputError for the first invalid fit option.  ``flag`` maps an option name to
     how the user wrote it (``--max-pixels`` on the command line)."""
 
@@ -76,6 +80,15 @@ def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=No
     if free_power and loss == "dolp":
         raise InputError(f"{flag('free_power')}: not with {flag('loss')} dolp (the DoLP does not depend on the "
                          "light's power, so the powers would be undetermined)")
+    if albedo not in ALBEDO_LAYOUTS:
+        raise InputError(f"{flag('albedo')}: expected {' or '.join(map(repr, ALBEDO_LAYOUTS))}, got {albedo!r}")
+    if albedo == "per-pixel" and (loss not in ("auto", "likelihood") or optimizer != "lm" or path != "pixel"):
+        raise InputError(f"{flag('albedo')} per-pixel: needs the likelihood of the camera's samples ("
+                         f"{flag('loss')} likelihood or auto with the camera noise known, the pixel path, optimizer "
+                         "lm): the albedo maps are solved per pixel from its raw samples")
+    if albedo == "per-pixel" and free_power:
+        raise InputError(f"{flag('albedo')} per-pixel: not with {flag('free_power')} (give the relative light "
+                         "powers)")
     if power_start not in ("ratio", "given"):
         raise InputError(f"{flag('power_start')}: expected 'ratio' or 'given', got {power_start!r}")
     if fixed is not None:

@@ -20,7 +20,9 @@ def check_args(args):
                       bounds=parse_bounds(args.bounds), init=parse_init(args.init), max_iter=args.max_iter,
                       tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
                       max_pixels=args.max_pixels, erode=args.erode, seed=args.seed, loss=args.loss,
-                      starts=args.starts, fixed=parse_fixed(args.fix), area_points=args.area_points, flag=flag)
+                      starts=args.starts, fixed=parse_fixed(args.fix), area_points=args.area_points,
+                      albedo=getattr(args, "albedo", "shared"), free_power=getattr(args, "free_power", False),
+                      flag=flag)
     if getattr(args, "from_json", None):
         check_rerun_args(args)
     check_needs(args, ("--relight-light", "--holdout", "--power-start"))
@@ -37,7 +39,7 @@ def check_args(args):
 DEFAULTS = {"demosaic": "bilinear", "channel": "mean", "loss": "auto", "footprint": "auto",
             "camera": "orthographic", "model": "fmbrdf", "optimizer": "lm", "path": "pixel", "max_iter": 40,
             "tol": 1e-4, "starts": 2, "max_pixels": 20000, "erode": 2, "seed": 0, "power_start": "ratio",
-            "normals_start": "ps", "smooth": 0.3, "rounds": 0, "intervals": "auto"}
+            "normals_start": "ps", "smooth": 0.3, "rounds": 0, "intervals": "auto", "albedo": "shared"}
 
 #: What goes with ``--from``: the output directory, --force, -q (and the command's own bookkeeping).
 RERUN_TAKES = ("out", "force", "quiet", "from_json", "argv", "command", "run")
@@ -90,17 +92,20 @@ OPTIONS = {
     "--free-power": (lambda a: getattr(a, "free_power", False), lambda a: "--free-power"),
     "--channel": (lambda a: a.channel != "mean", lambda a: "--channel " + str(a.channel)),
     "--light": (lambda a: bool(a.light), lambda a: "--light"),
+    "--albedo": (lambda a: getattr(a, "albedo", "shared") != "shared", lambda a: "--albedo " + str(a.albedo)),
 }
 
 #: The one table of which options a mode refuses: mode -> (options, the message's head, why).
 REFUSED = {
     "colour": (("--baselines", "--relight", "--path", "--optimizer", "--init", "--loss", "--layout", "--dark-level",
-                "--footprint", "--area-points", "--channel"), "colour polarisation mosaic",
-               "the colour fit is the likelihood of the raw samples, layout and cfa from the sidecar, pixel path, LM"),
+                "--footprint", "--area-points", "--channel", "--albedo"), "colour polarisation mosaic",
+               "the colour fit is the likelihood of the raw samples, layout and cfa from the sidecar, pixel path, LM; "
+               "per-pixel albedos are for mono captures so far"),
     "manifest": (("--light",), "--manifest", "the manifest gives each image's light"),
     "authors": (("--light",), "--authors", "the lights are the object's calibration/L.txt"),
-    "refine": (("--baselines", "--free-power", "--loss"), "--refine-normals",
-               "the refinement is the likelihood of the camera samples, one model, the given light powers"),
+    "refine": (("--baselines", "--free-power", "--loss", "--albedo"), "--refine-normals",
+               "the refinement is the likelihood of the camera samples, one model, the given light powers, "
+               "one pair of albedos"),
 }
 
 #: Options that need another one: flag -> (given?, what it needs).

@@ -8,7 +8,6 @@ the mode (:func:`fit_mode`), its run (:data:`RUN`), the summary.
 """
 from __future__ import annotations
 
-import inspect
 import sys
 import time
 
@@ -17,12 +16,13 @@ from fmbrdf_mi.fit.cli.joint import run_joint
 from fmbrdf_mi.fit.cli.layout_check import mirrored_layout_hint
 from fmbrdf_mi.fit.cli.normals import add_arguments as add_normal_arguments
 from fmbrdf_mi.fit.cli.normals import check as check_normal_args
+from fmbrdf_mi.fit.cli.request import request
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import MODELS
 from fmbrdf_mi.fit.inputs.colour import colour_sidecar
 from fmbrdf_mi.fit.inputs.parse import parse_vector
-from fmbrdf_mi.fit.outputs import joint_record, record
-from fmbrdf_mi.fit.outputs.colour import fit_colour_files, is_colour_record
+from fmbrdf_mi.fit.outputs.colour import fit_colour_files
+from fmbrdf_mi.fit.outputs.rerun import rerun
 from fmbrdf_mi.fit.outputs.single import fit_files
 from fmbrdf_mi.fit.outputs.summary import print_summary
 
@@ -101,6 +101,10 @@ def add_fit_arguments(p):
                    help="likelihood fits: auto checks each shape parameter's Fisher 95 %% interval against the "
                         "likelihood and gives the profile likelihood's ends where it fails (refits: slower on "
                         "weakly identified parameters); fisher: Fisher intervals only (default %(default)s)")
+    g.add_argument("--albedo", default="shared", choices=("shared", "per-pixel"),
+                   help="likelihood fits: one k_s, r_k for the whole object (default), or per-pixel k_s and k_b "
+                        "maps (a textured object: written as k_s.exr, k_b.exr with their standard errors, the "
+                        "shape parameters shared; --max-pixels 0 maps every pixel)")
     g.add_argument("--area-points", type=int, metavar="M",
                    help="likelihood: model each raw sample as the mean of the BSDF over M x M points of its "
                         "pixel, as a sensor pixel integrates over its area (default: 2 for raw mosaics, 1 = the "
@@ -160,27 +164,7 @@ def run_rerun(args, command):
     """``--from fit.json``: the recorded fit again (single image, colour or joint)."""
     if args.inputs:
         raise InputError("--from: give no INPUT files (they come from the fit.json)")
-    if joint_record.is_joint(args.from_json):
-        return joint_record.rerun(args.from_json, args.out, force=args.force, progress=not args.quiet,
-                                  command=command)
-    kw = record.rerun_arguments(args.from_json)
-    run = fit_colour_files if is_colour_record(args.from_json) else fit_files
-    return run(out=args.out, force=args.force, progress=not args.quiet, command=command, **kw)
-
-
-#: Options of the command whose entry-point keyword has another name.
-ALIASES = {"fixed": "fix"}
-
-
-def request(entry, args, **converted):
-    """The one request of a run: ``entry``'s keyword arguments, each from the parsed option of the same name
-    (:data:`ALIASES`), then ``converted`` (the values the command turns into another form: one input or
-    several, a parsed vector, ``--max-pixels 0`` for all).  ``--from`` builds the same request from a
-    fit.json (:func:`fmbrdf_mi.fit.outputs.record.rerun_arguments`)."""
-    params = inspect.signature(entry).parameters
-    kw = {n: getattr(args, ALIASES.get(n, n)) for n in params if hasattr(args, ALIASES.get(n, n))}
-    kw.update(converted)
-    return kw
+    return rerun(args.from_json, args.out, force=args.force, progress=not args.quiet, command=command)
 
 
 def run_colour(args, command):

@@ -4,13 +4,14 @@ from __future__ import annotations
 import os
 
 from fmbrdf_mi.fit.cli.checks import check_colour_args
+from fmbrdf_mi.fit.cli.request import request
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.authors import read_object
 from fmbrdf_mi.fit.inputs.manifest import (PATH_KEYS, ImageSpec, absolute_paths, build_observations, image_names,
                                            read_manifest)
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_vector
 from fmbrdf_mi.fit.outputs.joint import fit_images, fitter
-from fmbrdf_mi.fit.outputs.joint_record import block
+from fmbrdf_mi.fit.outputs.record import FIT_KEYS, joint_block
 from fmbrdf_mi.fit.outputs.normals import run as refine
 
 
@@ -65,7 +66,7 @@ def run_joint(args, command):
         specs = [ImageSpec(inp, parse_vector(li, f"--light {k + 1}"), options=dict(cli_opts))
                  for k, (inp, li) in enumerate(zip(args.inputs, args.light))]
     names = image_names(specs)
-    fit_fn, outputs_fn = fitter(specs)
+    fit_fn, outputs_fn = fitter(specs, getattr(args, "albedo", "shared"))
     if fit_fn is not fit_images:
         check_colour_args(args)
     files = outputs_fn(args.out, names, [s.holdout for s in specs])
@@ -73,14 +74,12 @@ def run_joint(args, command):
         for s in specs:
             s.input = absolute_paths(s.input)
             s.options.update({k: absolute_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
-    fit_kw = dict(model=args.model, baselines=args.baselines, loss=args.loss, fixed=parse_fixed(args.fix),
-                  bounds=parse_bounds(args.bounds), init=parse_init(args.init), starts=args.starts,
-                  max_iter=args.max_iter, tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
-                  max_pixels=args.max_pixels or None, erode=args.erode, seed=args.seed,
-                  free_power=getattr(args, "free_power", False), power_start=getattr(args, "power_start", "ratio"),
-                  intervals=getattr(args, "intervals", "auto"))
-    if getattr(args, "area_points", None) is not None:  # the colour fit refuses it (check_colour_args)
-        fit_kw["area_points"] = args.area_points
+    fit_kw = request(FIT_KEYS, args, fixed=parse_fixed(args.fix),
+                     bounds=parse_bounds(args.bounds), init=parse_init(args.init), max_pixels=args.max_pixels or None)
+    if fit_kw.get("area_points") is None:   # the default (the colour fit refuses the option: check_colour_args)
+        fit_kw.pop("area_points", None)
+    if fit_fn is not fit_images:            # colour mosaics: shared albedos per channel (check_colour_args)
+        fit_kw.pop("albedo", None)
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
     if getattr(args, "refine_normals", False):
         obs = build_observations(specs)
@@ -92,7 +91,7 @@ def run_joint(args, command):
 
     def reproduce(obs):
 
-        return block(kind, specs, names, obs, fit_kw, command, manifest=args.manifest, authors=authors, info=info)
+        return joint_block(kind, specs, names, obs, fit_kw, command, manifest=args.manifest, authors=authors, info=info)
 
     report = fit_fn(specs, args.out, force=args.force, progress=not args.quiet, command=command,
                     extra={"joint": {"outputs": files, "authors_layout": info}}, reproduce=reproduce, **fit_kw)

@@ -14,14 +14,21 @@ from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
 
 
-def predict_image(model_name, params, obs, pixels=None):
+def predict_image(model_name, params, obs, pixels=None, maps=None):
     """Predicted Stokes (3, H, W) of ``obs``'s geometry and light with reported ``params`` (pixel path).
 
-    Pixels outside ``pixels`` (flat indices; default: the mask) are 0.
+    Pixels outside ``pixels`` (flat indices; default: the mask) are 0.  ``maps``: per-pixel albedos (a fit
+    with ``albedo="per-pixel"``: its ``res.maps``, ``k_s`` and ``k_b`` (H, W)); ``params`` then hold the
+    shape parameters only, and pixels without a value in the maps (not fitted) are NaN.
     """
     model = get_model(model_name)
-    shape, a_s, a_b = model.split(params)
     idx = np.flatnonzero(obs.mask.ravel()) if pixels is None else np.asarray(pixels)
+    if maps is None:
+        shape, a_s, a_b = model.split(params)
+    else:
+        shape = {n: float(params[n]) for n in model.shape_names}
+        a_s, a_b = (np.asarray(maps[k], dtype=np.float64).ravel()[idx] / model.albedo_factor
+                    for k in ("k_s", "k_b"))
     n, v, w = obs.sample_geometry(idx)
     ev = PixelEvaluator(model, n, v, obs.light_dir, obs.irradiance, weights=None if len(w) == 1 else w)
     parts = ev.parts(shape)
@@ -37,14 +44,17 @@ def relight_pixels(obs, erode=2, min_cos_view=0.1):
     return np.flatnonzero(m.ravel())
 
 
-def relight_error(model_name, params, obs, erode=2, min_cos_view=0.1):
+def relight_error(model_name, params, obs, erode=2, min_cos_view=0.1, maps=None):
     """Predict ``obs`` (the object under a second light) and compare intensities.
 
     Returns a dict: ``rel_rmse`` (RMSE / mean observed intensity), ``rmse``,
     ``mean_observed``, ``n_pixels`` and ``predicted`` (3, H, W) Stokes.
+    ``maps``: per-pixel albedos (:func:`predict_image`); the error is then over the pixels that have them.
     """
     idx = relight_pixels(obs, erode, min_cos_view)
-    pred = predict_image(model_name, params, obs, idx)
+    if maps is not None:
+        idx = idx[np.isfinite(np.asarray(maps["k_s"]).ravel()[idx])]
+    pred = predict_image(model_name, params, obs, idx, maps=maps)
     i_obs = obs.stokes[0].ravel()[idx]
     i_pred = pred[0].ravel()[idx]
     rmse = float(np.sqrt(np.mean((i_pred - i_obs) ** 2)))

@@ -39,17 +39,18 @@ def ideal_sphere(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4
 
 
 def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fraction=0.8, known_noise=True,
-                        demosaic="bilinear"):
+                        demosaic="bilinear", noiseless=False):
     """One noisy raw capture of ``ideal`` as an :class:`Observation` (samples, noise model, Stokes image).
 
     The likelihood uses the raw samples; the paper's loss the Stokes image demosaicked with ``demosaic``
     (default bilinear, with the matching footprint: the fit command's default for raw mosaics; with
     ``superpixel`` the four samples' different points make false polarisation at highlights that the
-    footprint average does not model).
+    footprint average does not model).  ``noiseless``: no shot or read noise (rounding and clipping stay).
     """
 
     cam = camera or CameraModel()
-    cap = capture(ideal["stokes"], cam, exposure=exposure, peak_fraction=peak_fraction, seed=seed)
+    cap = capture(ideal["stokes"], cam, exposure=exposure, peak_fraction=peak_fraction, seed=seed,
+                  noiseless=noiseless)
     smp = SM.from_raw(cap["raw"], cam.layout, cam.black_level, cam.white_level)
     stokes = ob.stokes_from_raw(cap["raw"], cam.layout, cam.black_level, demosaic)
     noise = NoiseModel(cam.conversion_gain, cam.read_noise, 1.0) if known_noise else None
@@ -64,3 +65,21 @@ def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fract
     return ob.Observation(stokes, ideal["mask"], ideal["normals"], ideal["view_dirs"], ideal["light"], irr,
                           meta, samples=smp, noise=noise, geometry=ideal["geometry"], lin_variance=var,
                           footprint=demosaic_footprint(demosaic)), cap
+
+
+def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4):
+    """``ideal_sphere`` of a textured object: the shape parameters ``shape_params`` (eta, alpha, beta,
+    kappa) everywhere and per super-pixel albedos ``k_s_map``, ``k_b_map`` (res, res) (each super-pixel's
+    four raw pixels share them: the cells of the per-pixel albedo layout).  The truth is in
+    ``params`` (the shape) and ``k_s_map``, ``k_b_map``."""
+    k_s_map, k_b_map = (np.asarray(m, dtype=np.float64) for m in (k_s_map, k_b_map))
+    if k_s_map.shape != (res, res) or k_b_map.shape != (res, res):
+        raise ValueError(f"k_s_map, k_b_map: expected ({res}, {res}), got {k_s_map.shape} and {k_b_map.shape}")
+    base = {k: v for k, v in shape_params.items() if k not in ("k_s", "r_k")}
+    surface = ideal_sphere(dict(base, k_s=1.0, r_k=0.0), res=res, light=light, model=model, area=area)
+    both = ideal_sphere(dict(base, k_s=1.0, r_k=1.0), res=res, light=light, model=model, area=area)
+    up = (lambda m: np.repeat(np.repeat(m, 2, axis=0), 2, axis=1))
+    S, B = surface["stokes"], both["stokes"] - surface["stokes"]
+    out = dict(surface)
+    out.update(stokes=up(k_s_map) * S + up(k_b_map) * B, params=dict(base), k_s_map=k_s_map, k_b_map=k_b_map)
+    return out

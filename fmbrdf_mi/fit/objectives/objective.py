@@ -260,10 +260,31 @@ class LikelihoodObjective:
 
             return r, _jacobian(cols, parts, st, z, names, bounds, len(r)), bad
         lay, U, sd = self.layout, self._mu_of, np.sqrt(self.var)
+        if getattr(lay, "eliminates", False):   # per-pixel albedos: Kaufman's projected Jacobian
+            J = self.shape_jacobian(parts, st, z, names, bounds)
+            return r, lay.project(J, *self.albedo_columns(parts))[0], bad
         J = np.empty((len(r), len(z)))
-        for j, n in enumerate(names):
-            dmu = lay.mu(U(parts.d_surface[n]), U(parts.d_body[n]), st.a_s, st.a_b)
-            J[:, j] = (-dmu / sd).ravel() * bounds.derivative(n, z[j])
+        J[:, :len(names)] = self.shape_jacobian(parts, st, z, names, bounds)
         for j, col in enumerate(lay.columns(U(parts.surface), U(parts.body), st.a_s, st.a_b), len(names)):
             J[:, j] = (-col / sd).ravel()
         return r, J, bad
+
+    def shape_jacobian(self, parts, st, z, names, bounds):
+        """d r / d z of the free shape parameters ``names`` (N, len(names)), the albedos held (a layout)."""
+        lay, U, sd = self.layout, self._mu_of, np.sqrt(self.var)
+        J = np.empty((self.y.size, len(names)))
+        for j, n in enumerate(names):
+            dmu = lay.mu(U(parts.d_surface[n]), U(parts.d_body[n]), st.a_s, st.a_b)
+            J[:, j] = (-dmu / sd).ravel() * bounds.derivative(n, z[j])
+        return J
+
+    def albedo_columns(self, parts):
+        """(us, ub): each residual's derivative with respect to its own group's a_s and a_b (N,) (an
+        eliminating layout: :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`)."""
+        sd = np.sqrt(self.var)
+        S, B = self.unit_samples(parts)
+        return (-S / sd).ravel(), (-B / sd).ravel()
+
+    def unit_samples(self, parts):
+        """(S, B) (cells, n): each sample's unit-albedo surface and body intensity behind its polariser."""
+        return self._mu_of(parts.surface), self._mu_of(parts.body)

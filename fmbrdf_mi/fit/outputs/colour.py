@@ -15,7 +15,6 @@ either, a sidecar written by ``fmbrdf-mi render --raw --sensor colour``
 """
 from __future__ import annotations
 
-import json
 import os
 import time
 
@@ -29,14 +28,6 @@ from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
 
 OUTPUTS = ("fit.json", "colour_fit.png")
-
-
-def is_colour_record(path):
-    """Whether ``path`` (a fit.json with a ``reproduce`` block) records a colour fit (``--from`` reruns it)."""
-
-    record.load(path)      # refuses files that are not fit.json records, in one line
-    with open(path) as f:
-        return json.load(f).get("sensor") == "colour"
 
 
 def model_entry(model, res, bounds, fixed, truth):

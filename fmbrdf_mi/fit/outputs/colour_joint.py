@@ -9,7 +9,7 @@ Held-out images are predicted from the estimates (relighting check).
 Outputs in ``out``: ``fit.json`` (the shared estimate and its standard
 errors from the joint Fisher information, per image its light, power,
 irradiance and chi^2 per raw sample, relighting errors, the ``reproduce``
-block of :func:`fmbrdf_mi.fit.outputs.joint_record.block`, so ``--from`` reruns
+block of :func:`fmbrdf_mi.fit.outputs.record.joint_block`, so ``--from`` reruns
 it), ``colour_fit_NAME.png`` per fitted image and ``relight_NAME.png`` per
 held-out image (observed, predicted and their difference in intensity and
 DoLP per channel).

@@ -58,15 +58,18 @@ from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
 from fmbrdf_mi.fit.outputs.colour_joint import outputs as colour_outputs
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.record import command_block
+from fmbrdf_mi.fit.outputs.single import MAP_OUTPUTS, write_albedo_maps
 from fmbrdf_mi.fit.outputs.writer import prepare_outputs
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
 
 
-def outputs(out, names, holdout):
+def outputs(out, names, holdout, albedo="shared"):
     files = ["fit.json", "history.png"]
     for n, h in zip(names, holdout):
         files += [f"relight_{n}.png"] if h else [f"images_{n}.png", f"profiles_{n}.png"]
+    if albedo == "per-pixel":
+        files += list(MAP_OUTPUTS)
     return [os.path.join(out, f) for f in files]
 
 
@@ -77,7 +80,7 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     ``fit_kw``: :class:`~fmbrdf_mi.fit.api.fitting.FitOptions` fields (loss,
     fixed, bounds, init, max_pixels, ...).  ``reproduce``: called with the
     observations, returns fit.json's ``reproduce`` block (the command's:
-    :func:`fmbrdf_mi.fit.outputs.joint_record.block`).  Returns the dict written to fit.json.
+    :func:`fmbrdf_mi.fit.outputs.record.joint_block`).  Returns the dict written to fit.json.
     """
 
     return Joint(specs, out, model=model, baselines=baselines, force=force, progress=progress, command=command,
@@ -97,7 +100,9 @@ class Joint(FitJob):
         check_fit_options(model=self.model, **self.fit_kw)
 
     def files(self):
-        self.names, self.holdout, files = prepare_outputs(self.specs, self.out, outputs, self.force)
+        albedo = self.fit_kw.get("albedo", "shared")
+        self.names, self.holdout, files = prepare_outputs(
+            self.specs, self.out, lambda out, names, holdout: outputs(out, names, holdout, albedo), self.force)
         return files
 
     def read(self):
@@ -159,7 +164,7 @@ class Joint(FitJob):
             if h:
                 errs, relit = {}, None
                 for name, res in results.items():
-                    e = relight_error(name, res.params, o, erode=self.opts.erode)
+                    e = relight_error(name, res.params, o, erode=self.opts.erode, maps=res.maps)
                     errs[name] = {k: v for k, v in e.items() if k != "predicted"}
                     if name == model:
                         relit = e["predicted"]
@@ -169,8 +174,8 @@ class Joint(FitJob):
                                         f"{errs[model]['rel_rmse']:.4f}", label="relit", lin_variance=o.lin_variance)
             else:
                 im = {m: next(x for x in r.images if x["name"] == n) for m, r in results.items()}
-                pred = predict_image(model, main.params, fitted_observation(o, im[model]))
-                others = {f"{m} (baseline)": predict_image(m, r.params, fitted_observation(o, im[m]))
+                pred = predict_image(model, main.params, fitted_observation(o, im[model]), maps=main.maps)
+                others = {f"{m} (baseline)": predict_image(m, r.params, fitted_observation(o, im[m]), maps=r.maps)
                           for m, r in results.items() if m != model}
                 power = "" if main.powers is None else "; " + power_text(im[model])
                 plots.plot_profiles(o, pred, os.path.join(out, f"profiles_{n}.png"), pixels=idx,
@@ -180,15 +185,20 @@ class Joint(FitJob):
                                   title=f"{n}: joint {model} fit (per-pixel re-render){power}",
                                   lin_variance=o.lin_variance, pixels=idx)
         plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
+        if main.maps is not None:
+            outs = {f: os.path.join(out, f) for f in MAP_OUTPUTS}
+            write_albedo_maps(main, outs, model)
+            report["albedo_maps"] = outs
 
 
-def fitter(specs):
-    """(fit function, outputs function) for the images of ``specs``: :func:`fit_images` and :func:`outputs`, or
-    their colour counterparts in :mod:`fmbrdf_mi.fit.outputs.colour_joint` when the images are colour mosaics."""
+def fitter(specs, albedo="shared"):
+    """(fit function, outputs function) for the images of ``specs``: :func:`fit_images` and :func:`outputs`
+    (with the albedo maps' files when ``albedo`` is ``per-pixel``), or their colour counterparts in
+    :mod:`fmbrdf_mi.fit.outputs.colour_joint` when the images are colour mosaics."""
 
     if is_colour(specs):
         return fit_colour_images, colour_outputs
-    return fit_images, outputs
+    return fit_images, (lambda out, names, holdout: outputs(out, names, holdout, albedo))
 
 
 def _pixels_of(res, holdout):

@@ -193,3 +193,43 @@ def plot_loss_history(histories, path):
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_albedo_maps(maps, path, title=""):
+    """Per-pixel albedos (a fit with ``albedo="per-pixel"``): k_s, k_b, their relative standard errors and
+    where the surface / body split is identified, cropped to the fitted pixels (mono maps; a colour fit's
+    maps show their mean over the channels)."""
+    plt = pyplot()
+
+    def mono(a):
+        a = np.asarray(a, dtype=np.float64)
+        return np.nanmean(a, axis=0) if a.ndim == 3 else a
+
+    ks, kb = mono(maps["k_s"]), mono(maps["k_b"])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rs, rb = mono(maps["k_s_se"]) / ks, mono(maps["k_b_se"]) / kb
+    ident = np.asarray(maps["identified"], dtype=float)
+    ident = ident.mean(axis=0) if ident.ndim == 3 else ident
+    fitted = np.isfinite(ks)
+    ys, xs = np.nonzero(fitted)
+    if ys.size:
+        crop = (slice(max(ys.min() - 1, 0), ys.max() + 2), slice(max(xs.min() - 1, 0), xs.max() + 2))
+    else:
+        crop = (slice(None), slice(None))
+    ident = np.where(fitted, ident, np.nan)
+    panels = (("k_s", ks, dict(vmin=0, vmax=scale_from(ks, fitted), cmap="gray")),
+              ("k_b", kb, dict(vmin=0, vmax=scale_from(kb, fitted), cmap="gray")),
+              ("SE(k_s) / k_s", rs, dict(vmin=0, vmax=min(scale_from(rs, fitted, 95.0), 1.0), cmap="magma")),
+              ("SE(k_b) / k_b", rb, dict(vmin=0, vmax=min(scale_from(rb, fitted, 95.0), 1.0), cmap="magma")),
+              ("split identified", ident, dict(vmin=0, vmax=1, cmap="RdYlGn")))
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.6))
+    for ax, (name, img, kw) in zip(axes, panels):
+        im = ax.imshow(img[crop], **kw)
+        ax.set_title(name)
+        ax.axis("off")
+        fig.colorbar(im, ax=ax, fraction=0.046)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,30 +1,46 @@
-"""What fit.json records so that a fit can be rerun: ``fmbrdf-mi fit --from fit.json -o DIR``.
+"""What fit.json records so that a fit can be rerun (``fmbrdf-mi fit --from fit.json -o DIR``,
+:mod:`fmbrdf_mi.fit.outputs.rerun`): its ``reproduce`` block.
 
-The ``reproduce`` block holds the command line, every argument of
-:func:`fmbrdf_mi.fit.outputs.single.fit_files` as resolved (so defaults that change in a
-later version do not change the rerun), the SHA-256 of every input file, the
-settings the inputs implied (layout, black and white level, demosaicking,
-footprint, gain and read noise, possibly from a capture sidecar), the light
-and irradiance, the sphere that ``--sphere auto`` found, and the versions of
-this package, Mitsuba and Dr.Jit.  A rerun checks the hashes first and
-refuses files that changed.
+Every block holds ``command``, ``cwd`` and ``versions`` (this package,
+Mitsuba, Dr.Jit, NumPy, Python), the options as resolved in ``arguments``
+(so defaults that change in a later version do not change the rerun) and
+the SHA-256 of every file the fit read in ``files_sha256``.
+
+* A single-image or colour fit (:func:`reproduce_block`): ``arguments`` are
+  :func:`fmbrdf_mi.fit.outputs.single.fit_files`'s (:data:`ARGUMENTS`; a colour
+  fit's: :data:`COLOUR_ARGUMENTS`); ``settings`` are those the input implied
+  (layout, black and white level, demosaicking, footprint, gain and read
+  noise, possibly from a capture sidecar), ``sphere`` what ``--sphere auto``
+  found, ``sidecar`` the capture sidecar read.
+* A joint fit (:func:`joint_block`: ``--manifest``, ``--authors`` or
+  repeated ``--light``): ``arguments`` are the fit options (:data:`FIT_KEYS`);
+  ``joint`` says how the images were given (``kind`` ``manifest``,
+  ``authors`` or ``lights``) and, per image, its name, input file(s) with
+  SHA-256 (and the capture sidecar's), the light (this package's camera
+  frame), the relative power, the irradiance used, the held-out flag, the
+  geometry source (normal / mask / view files, a sphere and what ``--sphere
+  auto`` found, the built-in scene's metadata, or the authors' calibration
+  files) and the settings the input implied; ``files_sha256`` also holds
+  the manifest and the authors' ``calibration/*``.
+
+A rerun checks every hash first and refuses, in one line naming the file,
+an input that changed or disappeared.
 """
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import sys
 
 from fmbrdf_mi import __version__
-from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.camera import sidecar_path
 
 #: Arguments of fit_files that define a fit (not where it writes or how it talks).
 ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "light", "irradiance", "layout",
              "black_level", "channel", "demosaic", "conversion_gain", "read_noise", "footprint", "model",
              "baselines", "optimizer", "path", "bounds", "init", "loss", "white_level", "dark_level", "fixed",
              "starts", "max_iter", "tol", "time_limit", "max_time", "max_pixels", "erode", "seed", "relight",
-             "relight_light", "relight_irradiance", "area_points", "intervals")
+             "relight_light", "relight_irradiance", "area_points", "intervals", "albedo")
 
 
 #: The arguments of :func:`fmbrdf_mi.fit.outputs.colour.fit_colour_files` among them (a colour fit's record).
@@ -55,7 +71,7 @@ def jsonable(v):
     return {"not_recorded": type(v).__name__}
 
 
-def _files(arguments):
+def single_files(arguments):
     out = []
     for key in ("inputs", "normals", "mask", "view", "relight"):
         v = arguments.get(key)
@@ -86,7 +102,7 @@ def command_block(command):
 
 def reproduce_block(arguments, inputs, command, obs, relight=None):
     """The ``reproduce`` block of a single-image fit (module docstring); ``--from`` reruns it."""
-    files = _files(arguments)
+    files = single_files(arguments)
     return {
         "command": command,
         "cwd": os.getcwd(),
@@ -99,85 +115,117 @@ def reproduce_block(arguments, inputs, command, obs, relight=None):
     }
 
 
-def load(path):
-    """The ``reproduce`` block of a fit.json."""
-    try:
-        with open(path) as f:
-            d = json.load(f)
-    except OSError as exc:
-        raise InputError(f"--from {path}: cannot read it ({exc.strerror})") from None
-    except ValueError as exc:
-        raise InputError(f"--from {path}: not a JSON file ({exc})") from None
-    rep = d.get("reproduce") if isinstance(d, dict) else None
-    if isinstance(d, dict) and "refine_normals" in d:
-        cmd = rep.get("command") if isinstance(rep, dict) else None
-        raise InputError(f"--from {path}: reruns of --refine-normals are not supported: rerun the command in its "
-                         f"reproduce.command{f' ({cmd})' if isinstance(cmd, str) else ''}")
-    if not isinstance(rep, dict) or "arguments" not in rep:
-        raise InputError(f"--from {path}: no 'reproduce' block (written by an older fmbrdf-mi?)")
-    if not isinstance(rep["arguments"], dict):
-        raise InputError(f"--from {path}: reproduce.arguments: expected a table of the fit's options, "
-                         f"got {rep['arguments']!r}")
-    if "files_sha256" not in rep:
-        raise InputError(f"--from {path}: reproduce.files_sha256 is missing: the record cannot be verified (no "
-                         "SHA-256 of its input files); rerun the command in its reproduce.command instead")
-    if not isinstance(rep["files_sha256"], dict) or not all(isinstance(k, str) and isinstance(v, str)
-                                                            for k, v in rep["files_sha256"].items()):
-        raise InputError(f"--from {path}: reproduce.files_sha256: expected a table of file: SHA-256")
-    return rep
+#: fit_images keywords that define a joint fit (not where it writes or how it talks).
+FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
+            "max_time", "max_pixels", "erode", "seed", "free_power", "power_start", "area_points", "intervals",
+            "albedo")
 
 
-def check_recorded(path, rep, files):
-    """Refuse (one line naming the file) an input the rerun would read whose SHA-256 the record lacks."""
-    recorded = rep.get("files_sha256", {})
-    for p in files:
-        if os.path.abspath(os.fspath(p)) not in recorded:
-            raise InputError(f"--from {path}: input {p} has no recorded SHA-256 (reproduce.files_sha256): the "
-                             "record cannot be verified for it")
+#: read_object keywords recorded for an authors' object.
+AUTHORS_KEYS = ("mask", "holdout", "conversion_gain", "read_noise", "white_level", "dark_level", "black_level",
+                "demosaic", "footprint")
 
 
-def rerun_arguments(path):
-    """fit_files arguments recorded in ``path``; checks that the input files are unchanged."""
-    rep = load(path)
-    args = dict(rep["arguments"])
-    with open(path) as f:
-        colour = json.load(f).get("sensor") == "colour"
-    valid = COLOUR_ARGUMENTS if colour else ARGUMENTS
-    if "inputs" not in args and "joint" not in rep:
-        raise InputError(f"--from {path}: reproduce has no 'joint' block (a joint fit) and no arguments.inputs "
-                         "(a single-image fit): the record is incomplete")
-    unknown = [k for k in args if k not in valid]
-    if unknown:
-        raise InputError(f"--from {path}: reproduce.arguments: unknown key(s) {', '.join(map(str, unknown))} "
-                         f"(valid: {', '.join(valid)})")
-    bad = [k for k, v in args.items() if isinstance(v, dict) and "not_recorded" in v]
-    if bad:
-        raise InputError(f"--from {path}: arguments {', '.join(bad)} were arrays, not files; cannot rerun")
-    for key in ("inputs", "normals", "mask", "view", "relight"):
-        v = args.get(key)
-        paths = v if isinstance(v, list) else [v]
-        if (v is None and key != "inputs") or (paths and all(isinstance(p, str) and p for p in paths)):
-            continue
-        raise InputError(f"--from {path}: reproduce.arguments.{key}: expected a file name or a list of file "
-                         f"names, got {v!r}")
-    cwd = rep.get("cwd")
-    if cwd is not None and not isinstance(cwd, str):
-        raise InputError(f"--from {path}: reproduce.cwd: expected the directory the fit ran in, got {cwd!r}")
-    for p, digest in rep.get("files_sha256", {}).items():
-        if not os.path.isfile(p):
-            raise InputError(f"--from {path}: input {p} no longer exists")
-        if sha256(p) != digest:
-            raise InputError(f"--from {path}: input {p} has changed since the fit (SHA-256 differs)")
-    # relative paths were relative to the directory the fit ran in
-    if cwd:
-        for key in ("inputs", "normals", "mask", "view", "relight"):
-            v = args.get(key)
-            if isinstance(v, str) and not os.path.isabs(v):
-                args[key] = os.path.join(cwd, v)
-            elif isinstance(v, list):
-                args[key] = [os.path.join(cwd, x) if isinstance(x, str) and not os.path.isabs(x) else x for x in v]
-    # every file the rerun reads (inputs, geometry, the capture sidecars beside them) must have been hashed
-    given = [p for key in ("inputs", "normals", "mask", "view", "relight")
-             for p in (args.get(key) if isinstance(args.get(key), list) else [args.get(key)]) if isinstance(p, str)]
-    check_recorded(path, rep, given + _files(args))
-    return args
+def _abs(v):
+    if isinstance(v, (str, os.PathLike)):
+        return os.path.abspath(os.fspath(v))
+    if isinstance(v, (list, tuple)):
+        return [_abs(x) for x in v]
+    return v
+
+
+def _with_sidecar(paths):
+    """The files of an input (a path or a list) and the capture sidecar beside each, if there is one."""
+
+    out = []
+    for p in (paths if isinstance(paths, (list, tuple)) else [paths]):
+        if isinstance(p, str) and os.path.isfile(p):
+            out.append(p)
+            side = sidecar_path(p)
+            if side != p and os.path.isfile(side) and not p.lower().endswith(".exr"):
+                out.append(side)
+    return out
+
+
+def _hashes(paths):
+    return {os.path.abspath(p): sha256(p) for p in paths if isinstance(p, str) and os.path.isfile(p)}
+
+
+def _geometry(spec, obs):
+    """Where image ``spec``'s normals, mask and view directions came from."""
+    o = spec.options
+    if o.get("normals") is not None:
+        g = {"source": "normal map", "normals": o.get("normals"), "mask": o.get("mask")}
+        g.update({"view": o["view"]} if o.get("view") is not None else
+                 {"camera": o.get("camera", "orthographic"), "fov": o.get("fov")})
+        return g
+    if o.get("sphere") is not None:
+        return {"source": "sphere", "sphere": o["sphere"], "mask": o.get("mask"), "view": o.get("view"),
+                "camera": o.get("camera", "orthographic"), "fov": o.get("fov"), "found": obs.meta.get("sphere")}
+    if obs.meta.get("truth") is not None:
+        return {"source": "the input's metadata (fmbrdf-mi render, built-in sphere)"}
+    return {"source": "unknown"}
+
+
+def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=None, authors=None, info=None):
+    """The ``reproduce`` block of a joint fit (see the module docstring).
+
+    ``specs``: the :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` s as fitted
+    (paths resolved); ``observations``: the Observations built from them;
+    ``authors``: read_object's keywords for ``kind == "authors"`` with
+    ``info`` its description of what it read.
+    """
+    images, files = [], []
+    if kind == "authors":
+        root = info["root"]
+        cal = os.path.join(root, "calibration")
+        files += [os.path.join(cal, f) for f in ("L.txt", "vpL_img.npy", "IntrinsicL.npy", "intensities.npy")]
+        files += [os.path.join(root, "normal", "normal_GT.npy"), _abs(info["mask"])]
+    if manifest is not None:
+        files.append(_abs(manifest))
+    for k, (s, n, o) in enumerate(zip(specs, names, observations)):
+        if kind == "authors":
+            inp = o.meta["authors_layout"]["file"]
+            geo = {"source": "authors' layout", "normals": os.path.join(root, "normal", "normal_GT.npy"),
+                   "view": os.path.join(cal, info["view_rays"]), "mask": _abs(info["mask"])}
+            entry = {}
+            power = info["intensities"][k] if info.get("intensities") else 1.0   # intensities.npy / max
+        else:
+            inp = s.input
+            geo = _geometry(s, o)
+            entry = {"spec": {"input": inp, "light": s.light, "power": s.power, "holdout": s.holdout,
+                              "name": s.name, "options": s.options}}
+            power = s.power
+        mine = _with_sidecar(inp)
+        geo_files = [geo.get(x) for x in ("normals", "mask", "view") if isinstance(geo.get(x), str)]
+        files += mine + geo_files
+        images.append({"name": n, "input": inp, "files_sha256": _hashes(mine + geo_files),
+                       "light": [float(x) for x in o.light_dir], "power": float(power),
+                       "irradiance": float(o.irradiance), "holdout": bool(s.holdout), "geometry": geo,
+                       "settings": o.meta.get("settings"), "sidecar": o.meta.get("sidecar"), **entry})
+    joint = {"kind": kind, "images": images}
+    if manifest is not None:
+        joint["manifest"] = _abs(manifest)
+    if kind == "authors":
+        joint["authors"] = {"root": info["root"], **authors}
+    return jsonable({"command": command, "cwd": os.getcwd(), "arguments": {k: fit_kw.get(k) for k in FIT_KEYS
+                                                                            if k in fit_kw},
+                      "joint": joint, "files_sha256": _hashes(files), "versions": versions()})
+
+
+def read_files(kind, specs, info):
+    """The files a rerun of these images reads: images with their sidecars, geometry files, and for an
+    authors' object its calibration, normal map, mask and images."""
+    files = []
+    if kind == "authors":
+        cal = os.path.join(info["root"], "calibration")
+        files += [os.path.join(cal, f) for f in ("L.txt", "vpL_img.npy", "IntrinsicL.npy", "intensities.npy")
+                  if os.path.isfile(os.path.join(cal, f))]
+        files += [os.path.join(info["root"], "normal", "normal_GT.npy"), _abs(info["mask"])]
+        files += [s.input.meta["authors_layout"]["file"] for s in specs]
+        return files
+    for s in specs:
+        files += [p for p in (s.input if isinstance(s.input, list) else [s.input]) if isinstance(p, str)]
+        files += _with_sidecar(s.input)
+        files += [s.options[k] for k in ("normals", "mask", "view") if isinstance(s.options.get(k), str)]
+    return files

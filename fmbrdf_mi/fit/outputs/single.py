@@ -26,8 +26,12 @@ OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stok
 RELIGHT_OUTPUTS = ("relight.png",)
 
 
-def output_files(out, relight):
-    names = OUTPUTS + (RELIGHT_OUTPUTS if relight else ())
+#: A fit with per-pixel albedos (``albedo="per-pixel"``) writes the maps too.
+MAP_OUTPUTS = ("k_s.exr", "k_b.exr", "k_s_se.exr", "k_b_se.exr", "albedo_maps.png")
+
+
+def output_files(out, relight, albedo="shared"):
+    names = OUTPUTS + (RELIGHT_OUTPUTS if relight else ()) + (MAP_OUTPUTS if albedo == "per-pixel" else ())
     return {n: os.path.join(out, n) for n in names}
 
 
@@ -36,7 +40,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
               demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf",
               baselines=False, optimizer="lm", path="pixel", bounds=None, init=None, loss="auto",
               white_level=None, dark_level=None, fixed=None, starts=2, area_points=None, intervals="auto",
-              max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
+              albedo="shared", max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
               relight_light=None, relight_irradiance=None, force=False, progress=True, command=None):
     """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
 
@@ -56,11 +60,13 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     ``auto`` (the paper's loss).  ``area_points``: the likelihood models each
     raw sample as the mean over that many points squared of its pixel (None: 2
     for raw mosaics, 1 otherwise).  ``intervals``: ``auto`` or ``fisher``
-    (:class:`~fmbrdf_mi.fit.api.fitting.FitOptions`).  ``relight``: a second image of the same object under
-    ``relight_light`` for the relighting check.
+    (:class:`~fmbrdf_mi.fit.api.fitting.FitOptions`).  ``albedo``: ``shared`` (one k_s, r_k) or
+    ``per-pixel`` (albedo maps of a textured object, the likelihood only).  ``relight``: a second image of
+    the same object under ``relight_light`` for the relighting check.
 
     Writes ``out``/fit.json, profiles.png, images.png, history.png,
-    fitted_stokes.exr (and relight.png); refuses to overwrite them without
+    fitted_stokes.exr (and relight.png; per-pixel albedos: k_s.exr, k_b.exr, their standard errors
+    k_s_se.exr, k_b_se.exr and albedo_maps.png); refuses to overwrite them without
     ``force``.  Returns the dict written to fit.json.
     """
 
@@ -85,10 +91,10 @@ class SingleImage(FitJob):
                           init=parse_init(a["init"]), max_iter=a["max_iter"], tol=a["tol"],
                           time_limit=a["time_limit"], max_time=a["max_time"], max_pixels=a["max_pixels"],
                           erode=a["erode"], seed=a["seed"], area_points=a["area_points"], starts=a["starts"],
-                          loss=a["loss"], fixed=parse_fixed(a["fixed"]))
+                          loss=a["loss"], fixed=parse_fixed(a["fixed"]), albedo=a["albedo"])
 
     def files(self):
-        self.outs = output_files(self.out, self.a["relight"])
+        self.outs = output_files(self.out, self.a["relight"], self.a["albedo"])
         return list(self.outs.values())
 
     def read(self):
@@ -116,7 +122,7 @@ class SingleImage(FitJob):
                           time_limit=a["time_limit"], max_time=a["max_time"] or None, loss=a["loss"],
                           fixed=parse_fixed(a["fixed"]), starts=int(a["starts"]), max_pixels=a["max_pixels"],
                           erode=int(a["erode"]), seed=int(a["seed"]), area_points=a["area_points"],
-                          intervals=a["intervals"])
+                          intervals=a["intervals"], albedo=a["albedo"])
         loss = resolve_loss(obs, dataclasses.replace(opts, path=a["path"]))
         check_footprint(a["footprint"], loss, "--loss likelihood" if a["loss"] == "likelihood" else
                         f"the camera noise from {obs.meta.get('sidecar') or '--conversion-gain'}")
@@ -133,7 +139,7 @@ class SingleImage(FitJob):
                                                           "init": None, "path": "pixel", "fixed": None})
             res = fit(obs, o, scene=scene if name == model else None, progress=self.progress)
             self.results[name] = res
-            self.preds[name] = predict_image(name, res.params, obs)
+            self.preds[name] = predict_image(name, res.params, obs, maps=res.maps)
 
     def report(self):
         a, obs, model = self.a, self.obs, self.a["model"]
@@ -155,7 +161,7 @@ class SingleImage(FitJob):
             report["relight"] = {"light_dir": obs2.light_dir.tolist()}
             relit = {}
             for name, res in self.results.items():
-                err = relight_error(name, res.params, obs2, erode=self.opts.erode)
+                err = relight_error(name, res.params, obs2, erode=self.opts.erode, maps=res.maps)
                 relit[name] = err["predicted"]
                 report["relight"][name] = {k: v for k, v in err.items() if k != "predicted"}
             plots.plot_images(obs2.stokes, relit[model], obs2.mask, outs["relight.png"],
@@ -174,6 +180,22 @@ class SingleImage(FitJob):
         s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
         stokes_io.write_stokes_exr(outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
                                    force=True)
+        if main.maps is not None:
+            write_albedo_maps(main, outs, model)
+            report["albedo_maps"] = {k: outs[k] for k in MAP_OUTPUTS}
+
+
+def write_albedo_maps(res, outs, model):
+    """k_s.exr, k_b.exr, k_s_se.exr, k_b_se.exr and albedo_maps.png of a per-pixel albedo fit ``res`` (NaN
+    where no pixel was fitted; the shape parameters in each EXR's metadata)."""
+    meta = {"fit": res.params, "model": model, "albedo": res.albedo}
+    for key in ("k_s", "k_b", "k_s_se", "k_b_se"):
+        stokes_io.write_map_exr(outs[f"{key}.exr"], res.maps[key], dict(meta, map=key), force=True)
+    a = res.albedo
+    plots.plot_albedo_maps(res.maps, outs["albedo_maps.png"],
+                           title=f"{model} per-pixel albedos: {a['pixels']} pixels, split identified in "
+                                 f"{a['identified_fraction']:.0%}; " + ", ".join(f"{k}={v:.3g}"
+                                                                                 for k, v in res.params.items()))
 
 
 def _render_scene(obs, model):

@@ -18,6 +18,14 @@ def kind_text(model_entry, name):
     kind = (unc.get("interval_kind") or {}).get(name, "fisher")
     return "" if kind == "fisher" else f" ({kind.replace('profile', 'profile likelihood')})"
 
+def albedo_text(a):
+    """One line on a per-pixel albedo fit's maps (fit.json's ``albedo`` block)."""
+    return (f"albedo maps: {a['pixels']} pixels, median k_s {a['k_s_median']:.4g}, k_b {a['k_b_median']:.4g}; "
+            f"relative standard error <= 0.5 for k_s in {a['k_s_determined_fraction']:.0%}, for k_b in "
+            f"{a['k_b_determined_fraction']:.0%} of them; surface / body split identified in "
+            f"{a['identified_fraction']:.0%}")
+
+
 def print_colour(report):
     """The stdout summary of a colour fit; returns the exit status (3: stopped before convergence)."""
     import sys
@@ -161,6 +169,8 @@ def print_summary(report, out, t0):
         if m.get("weakly_identified"):
             print(f"  weakly identified (standard error > {WEAK_REL:.0%} of the value, or at a bound): "
                   f"{', '.join(m['weakly_identified'])}")
+        if m.get("albedo"):
+            print("  " + albedo_text(m["albedo"]))
         if not m["converged"]:
             print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
                   f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
@@ -174,6 +184,7 @@ def print_summary(report, out, t0):
         for name, r in report["relight"].items():
             if isinstance(r, dict):
                 print(f"relighting {name}: RMSE / mean intensity = {r['rel_rmse']:.4f}")
-    print(f"wrote {', '.join(output_files(out, report.get('reproduce', {}).get('arguments', {}).get('relight')))} "
+    args = report.get("reproduce", {}).get("arguments", {})
+    print(f"wrote {', '.join(output_files(out, args.get('relight'), args.get('albedo', 'shared')))} "
           f"({time.time() - t0:.1f} s)")
     return status

@@ -17,7 +17,8 @@ import numpy as np
 from fmbrdf_mi.fit.camera import samples as SM
 from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos
+from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
+from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
@@ -134,6 +135,36 @@ def area_points(samples, opts):
     return int(m)
 
 
+#: Per-pixel albedos of colour mosaics (per pixel and channel): the layout supports them; the outputs and
+#: tests do not yet, so the fit refuses them.
+COLOUR_PER_PIXEL = False
+
+
+def pixel_layout(observations, idxs, samples):
+    """The per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) of the fitted cells
+    ``idxs`` (one flat index array per image): one group per pixel of the view (per pixel and colour
+    channel for a colour mosaic), the same pixel in every image sharing it.  Several images must be of
+    one view (one pixel grid and the same view directions), else a pixel is not one point of the object."""
+    o0 = observations[0]
+    for k, o in enumerate(observations[1:], 1):
+        if o.shape != o0.shape or not np.allclose(o.view_dirs, o0.view_dirs):
+            raise InputError(f"albedo per-pixel: image {k} is not of the same view as image 0 (pixel grid and "
+                             "view directions must agree: a pixel's albedo is that of one point of the object)")
+    flat = np.concatenate(idxs)
+    pixels = np.unique(flat)
+    cell = np.searchsorted(pixels, flat)                               # (cells,) the pixel's group
+    m = samples.n
+    if samples.channel is None:
+        return PixelAlbedos(np.repeat(cell[:, None], m, axis=1), len(pixels), pixels)
+    if not COLOUR_PER_PIXEL:
+        raise InputError("albedo per-pixel: not yet for colour mosaics (mono captures, raw or angle images)")
+    C = len(CHANNELS)
+    ch = np.asarray(samples.channel, dtype=np.int64)
+    groups = cell[:, None] * C + ch[None, :]
+    return PixelAlbedos(groups, len(pixels) * C, np.repeat(pixels, C), np.tile(np.arange(C), len(pixels)),
+                        labels=CHANNELS)
+
+
 def prepare(observations, opts, loss, *, single=False, evaluator=None):
     """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images: one objective over all their
     pixels, one evaluator, each image's pixels and slice.
@@ -190,6 +221,8 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None):
             noise = dataclasses.replace(o0.noise) if single and o0.noise is not None else NoiseModel(step=smps[0].step)
         # a colour mosaic's samples carry their colour channels: one pair of albedos per channel
         layout = None if smps[0].channel is None else ChannelAlbedos(smps[0].channel)
+        if getattr(opts, "albedo", "shared") == "per-pixel":
+            layout = pixel_layout(observations, idxs, smps[0])
         objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof, layout=layout)
         smp = smps[0]
         weights = None if len(w) == 1 else w

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from fmbrdf_mi.fit.evaluate.albedos import ChannelModel, floored
+from fmbrdf_mi.fit.evaluate.albedos import ChannelModel, PixelModel, floored
 from fmbrdf_mi.fit.evaluate.models import Bounds, State
 from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.objectives.objective import PaperObjective
@@ -51,6 +51,7 @@ class Problem:
         self._cache = []
         self.current = None     # latest accepted state (what a fit stopped by the clock reports)
         self.both_lobes = {}    # coarse-search point -> both albedos switched on
+        self.albedos_now = (1.0, 1.0)   # an eliminating layout's last albedos (from_z)
 
     def with_fixed(self, values):
         """The same problem (model, evaluator, objective with its current weights, bounds) with the shape
@@ -79,8 +80,23 @@ class Problem:
     def layout(self):
         return getattr(self.obj, "layout", None)
 
+    @property
+    def eliminates(self):
+        """Whether the albedos are not unknowns of the optimiser but solved at every shape point (per-pixel
+        albedo maps: :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`); z is then the free shape
+        parameters only, and a State from :meth:`from_z` carries the last solved albedos (re-solve them
+        with :meth:`projected` before evaluating the objective)."""
+        return bool(getattr(self.layout, "eliminates", False))
+
+    def n_eliminated(self, st):
+        """How many albedos the data spent unknowns on outside z (free albedos of an eliminating layout)."""
+        return self.layout.free() if self.eliminates else 0
+
     def to_z(self, st):
         z = [self.bounds.to_z(n, st.shape[n]) for n in self.names]
+        if self.eliminates:
+            self.albedos_now = (st.a_s, st.a_b)
+            return np.array(z)
         if self.layout is not None:
             return np.array(z + list(np.log(st.a_s)) + list(np.log(st.a_b)))
         return np.array(z + [math.log(max(st.a_s, 1e-30)), math.log(max(st.a_b, 1e-30))])
@@ -90,6 +106,8 @@ class Problem:
         shape.update({n: self.bounds.to_value(n, z[i]) for i, n in enumerate(self.names)})
         shape = {n: shape[n] for n in self.model.shape_names}
         k = len(self.names)
+        if self.eliminates:
+            return State(shape, *self.albedos_now)
         if self.layout is not None:
             g = self.layout.size
             return State(shape, np.exp(np.clip(z[k:k + g], -60, 60)), np.exp(np.clip(z[k + g:k + 2 * g], -60, 60)))
@@ -137,6 +155,8 @@ class Problem:
         """(State, parts) at ``shape`` with the albedos at their closed-form optimum (:meth:`closed_form`),
         those at 0 raised to 1e-9 of the largest so that z stays finite.  One model evaluation."""
         st, parts = self.closed_form(shape)
+        if self.eliminates:      # albedos at 0 stay there: they are not in z
+            return st, parts
         return State(st.shape, *floored(st.a_s, st.a_b)), parts
 
     def set_weights(self, parts, st):
@@ -187,7 +207,9 @@ class FitData:
         """The :class:`Problem` of these data (the free-power one when ``make_problem`` says so)."""
         if self.make_problem is None:
             layout = getattr(self.objective, "layout", None)   # per-channel albedos: a model that reports them
-            return Problem(model if layout is None else ChannelModel(model, layout), self.evaluator, self.objective,
-                           Bounds(model, bounds), progress, fixed=fixed, deadline=deadline)
+            wrap = (model if layout is None else PixelModel(model, layout) if getattr(layout, "eliminates", False)
+                    else ChannelModel(model, layout))
+            return Problem(wrap, self.evaluator, self.objective, Bounds(model, bounds), progress, fixed=fixed,
+                           deadline=deadline)
         return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
 

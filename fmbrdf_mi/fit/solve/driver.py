@@ -146,8 +146,8 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
     out = Solution(None, "", False)
     t0 = time.time()
     try:
-        if init is not None:
-            chosen = [init]
+        if init is not None:    # a problem that projects its albedos solves them at the start's shape
+            chosen = [problem.projected(init.shape)[0] if problem.projects else init]
         else:
             cands = O.coarse_search(problem)
             out.t_search = time.time() - t0

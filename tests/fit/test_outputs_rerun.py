@@ -1,5 +1,5 @@
 """Issue 24: an edited fit.json given to ``fmbrdf-mi fit --from fit.json -o DIR`` is refused in one line
-naming the file and the key (record.rerun_arguments, joint_record.rerun); before, unknown keys, wrong
+naming the file and the key (fmbrdf_mi.fit.outputs.rerun); before, unknown keys, wrong
 types and a removed ``joint`` block ended in TypeError tracebacks.  No fit runs here: every record is
 refused before one would start."""
 import json

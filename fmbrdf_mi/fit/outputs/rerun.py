@@ -1,0 +1,177 @@
+"""``fmbrdf-mi fit --from fit.json -o DIR``: the one rerun of a recorded fit (single image, colour or joint).
+
+:func:`rerun` reads the ``reproduce`` block (:mod:`fmbrdf_mi.fit.outputs.record`),
+checks every recorded input's SHA-256 and refuses, in one line naming the
+file and the key, an input that changed or disappeared and a record that
+was edited into something the fit does not take; then it rebuilds the
+request (a single-image or colour fit: the recorded arguments with paths
+made absolute; a joint fit: the manifest's images with the options they
+resolved to, or an authors' object read again with the recorded options)
+and runs it with the recorded options: same data, same pixel subsets (same
+seed), same estimates.
+"""
+from __future__ import annotations
+
+import json
+import os
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.authors import read_object
+from fmbrdf_mi.fit.inputs.manifest import (INPUT_KEYS, ImageSpec, check_entry, check_input, check_light,
+                                           check_options, image_names)
+from fmbrdf_mi.fit.outputs.colour import fit_colour_files
+from fmbrdf_mi.fit.outputs.joint import fitter
+from fmbrdf_mi.fit.outputs.record import (ARGUMENTS, AUTHORS_KEYS, COLOUR_ARGUMENTS, FIT_KEYS, joint_block,
+                                          read_files, sha256, single_files)
+from fmbrdf_mi.fit.outputs.single import fit_files
+
+
+def rerun(path, out, *, force=False, progress=True, command=None):
+    """Rerun the fit recorded in ``path`` (a fit.json) into ``out``; returns the dict written to fit.json."""
+    rep = load(path)
+    if "joint" in rep:
+        return joint_rerun(path, rep, out, force=force, progress=progress, command=command)
+    with open(path) as f:
+        colour = json.load(f).get("sensor") == "colour"
+    run = fit_colour_files if colour else fit_files
+    return run(out=out, force=force, progress=progress, command=command, **single_arguments(path, rep, colour))
+
+
+def load(path):
+    """The ``reproduce`` block of a fit.json."""
+    try:
+        with open(path) as f:
+            d = json.load(f)
+    except OSError as exc:
+        raise InputError(f"--from {path}: cannot read it ({exc.strerror})") from None
+    except ValueError as exc:
+        raise InputError(f"--from {path}: not a JSON file ({exc})") from None
+    rep = d.get("reproduce") if isinstance(d, dict) else None
+    if isinstance(d, dict) and "refine_normals" in d:
+        cmd = rep.get("command") if isinstance(rep, dict) else None
+        raise InputError(f"--from {path}: reruns of --refine-normals are not supported: rerun the command in its "
+                         f"reproduce.command{f' ({cmd})' if isinstance(cmd, str) else ''}")
+    if not isinstance(rep, dict) or "arguments" not in rep:
+        raise InputError(f"--from {path}: no 'reproduce' block (written by an older fmbrdf-mi?)")
+    if not isinstance(rep["arguments"], dict):
+        raise InputError(f"--from {path}: reproduce.arguments: expected a table of the fit's options, "
+                         f"got {rep['arguments']!r}")
+    if "files_sha256" not in rep:
+        raise InputError(f"--from {path}: reproduce.files_sha256 is missing: the record cannot be verified (no "
+                         "SHA-256 of its input files); rerun the command in its reproduce.command instead")
+    if not isinstance(rep["files_sha256"], dict) or not all(isinstance(k, str) and isinstance(v, str)
+                                                            for k, v in rep["files_sha256"].items()):
+        raise InputError(f"--from {path}: reproduce.files_sha256: expected a table of file: SHA-256")
+    return rep
+
+
+def check_recorded(path, rep, files):
+    """Refuse (one line naming the file) an input the rerun would read whose SHA-256 the record lacks."""
+    recorded = rep.get("files_sha256", {})
+    for p in files:
+        if os.path.abspath(os.fspath(p)) not in recorded:
+            raise InputError(f"--from {path}: input {p} has no recorded SHA-256 (reproduce.files_sha256): the "
+                             "record cannot be verified for it")
+
+
+def single_arguments(path, rep, colour):
+    """fit_files (``colour``: fit_colour_files) arguments recorded in ``rep``, the ``reproduce`` block of
+    ``path``; checks that the input files are unchanged."""
+    args = dict(rep["arguments"])
+    valid = COLOUR_ARGUMENTS if colour else ARGUMENTS
+    if "inputs" not in args and "joint" not in rep:
+        raise InputError(f"--from {path}: reproduce has no 'joint' block (a joint fit) and no arguments.inputs "
+                         "(a single-image fit): the record is incomplete")
+    unknown = [k for k in args if k not in valid]
+    if unknown:
+        raise InputError(f"--from {path}: reproduce.arguments: unknown key(s) {', '.join(map(str, unknown))} "
+                         f"(valid: {', '.join(valid)})")
+    bad = [k for k, v in args.items() if isinstance(v, dict) and "not_recorded" in v]
+    if bad:
+        raise InputError(f"--from {path}: arguments {', '.join(bad)} were arrays, not files; cannot rerun")
+    for key in ("inputs", "normals", "mask", "view", "relight"):
+        v = args.get(key)
+        paths = v if isinstance(v, list) else [v]
+        if (v is None and key != "inputs") or (paths and all(isinstance(p, str) and p for p in paths)):
+            continue
+        raise InputError(f"--from {path}: reproduce.arguments.{key}: expected a file name or a list of file "
+                         f"names, got {v!r}")
+    cwd = rep.get("cwd")
+    if cwd is not None and not isinstance(cwd, str):
+        raise InputError(f"--from {path}: reproduce.cwd: expected the directory the fit ran in, got {cwd!r}")
+    check_files(path, rep)
+    # relative paths were relative to the directory the fit ran in
+    if cwd:
+        for key in ("inputs", "normals", "mask", "view", "relight"):
+            v = args.get(key)
+            if isinstance(v, str) and not os.path.isabs(v):
+                args[key] = os.path.join(cwd, v)
+            elif isinstance(v, list):
+                args[key] = [os.path.join(cwd, x) if isinstance(x, str) and not os.path.isabs(x) else x for x in v]
+    # every file the rerun reads (inputs, geometry, the capture sidecars beside them) must have been hashed
+    given = [p for key in ("inputs", "normals", "mask", "view", "relight")
+             for p in (args.get(key) if isinstance(args.get(key), list) else [args.get(key)]) if isinstance(p, str)]
+    check_recorded(path, rep, given + single_files(args))
+    return args
+
+
+def check_files(path, rep):
+    """Refuse (one line naming the file) when a recorded input changed or disappeared."""
+    for p, digest in rep.get("files_sha256", {}).items():
+        if not os.path.isfile(p):
+            raise InputError(f"--from {path}: input {p} no longer exists")
+        if sha256(p) != digest:
+            raise InputError(f"--from {path}: input {p} has changed since the fit (SHA-256 differs)")
+
+
+def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
+    """Rerun the joint fit recorded in ``rep``, the ``reproduce`` block of ``path``, into ``out``."""
+    joint = rep.get("joint")
+    if not isinstance(joint, dict) or joint.get("kind") not in ("manifest", "authors", "lights"):
+        raise InputError(f"--from {path}: not the record of a joint fit")
+    check_files(path, rep)
+    fit_kw = dict(rep["arguments"])
+    unknown = [k for k in fit_kw if k not in FIT_KEYS]
+    if unknown:
+        raise InputError(f"--from {path}: reproduce.arguments: unknown key(s) {', '.join(map(str, unknown))} "
+                         f"(valid for a joint fit: {', '.join(FIT_KEYS)})")
+    info = None
+    try:
+        if joint["kind"] == "authors":
+            a = dict(joint["authors"])
+            bad = [k for k in a if k not in AUTHORS_KEYS + ("root",)]
+            if bad:
+                raise InputError(f"--from {path}: reproduce.joint.authors: unknown key(s) {', '.join(bad)} "
+                                 f"(valid: root, {', '.join(AUTHORS_KEYS)})")
+            specs, info = read_object(a.pop("root"), **a)
+        else:
+            specs = []
+            for k, im in enumerate(joint["images"]):
+                where = f"--from {path}: reproduce.joint.images[{k}].spec"
+                spec = ImageSpec(**im["spec"])
+                check_input(spec.input, where)
+                check_light(spec.light, where)
+                check_entry(spec.power, spec.holdout, spec.name, where)
+                if not isinstance(spec.options, dict):
+                    raise InputError(f"{where}: options: expected a table, got {spec.options!r}")
+                bad = [x for x in spec.options if x not in INPUT_KEYS]
+                if bad:
+                    raise InputError(f"{where}: options: unknown key(s) {', '.join(map(str, bad))} "
+                                     f"(valid: {', '.join(INPUT_KEYS)})")
+                spec.options = check_options(spec.options, f"{where}: options")
+                specs.append(spec)
+    except (KeyError, TypeError, AttributeError) as exc:
+        raise InputError(f"--from {path}: the joint-fit record is incomplete ({exc})") from None
+    check_recorded(path, rep, read_files(joint["kind"], specs, info))
+    authors = {k: v for k, v in (joint.get("authors") or {}).items() if k != "root"}
+    names = image_names(specs)
+    recorded = [im["name"] for im in joint["images"]]
+    if names != recorded:
+        raise InputError(f"--from {path}: the images are now {names}, the fit had {recorded}")
+    fit_fn, outputs_fn = fitter(specs, fit_kw.get("albedo", "shared"))
+    files = outputs_fn(out, names, [s.holdout for s in specs])
+    return fit_fn(specs, out, force=force, progress=progress, command=command,
+                      extra={"joint": {"outputs": files, "authors_layout": info, "rerun_of": os.path.abspath(path)}},
+                      reproduce=lambda obs: joint_block(joint["kind"], specs, names, obs, fit_kw, command,
+                                                  manifest=joint.get("manifest"), authors=authors, info=info),
+                      **fit_kw)

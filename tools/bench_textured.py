@@ -1,0 +1,224 @@
+"""Textured objects: per-pixel albedo fits (``albedo="per-pixel"``) over camera-noise seeds.
+
+    python tools/bench_textured.py [--res 32] [--seeds 16] [--textures smooth,high] [--lights 1,3]
+                                   [--json out.json]
+    python tools/bench_textured.py --table out.json
+
+Data, as a camera makes them: an orthographic sphere filling a RES x RES
+super-pixel image (:func:`fmbrdf_mi.fit.evaluate.synthetic.textured_sphere`: each raw pixel the mean of
+the model over 4 x 4 points of its area; the fit models it with 2 x 2), the
+`medium` material's eta, alpha, beta, kappa, and albedo maps per super-pixel:
+
+* ``smooth``: k_s = 0.6 + 0.4 sin(6x) cos(4y), k_b = 0.4 + 0.1 cos(5x + 3y) (x, y in [0, 1));
+* ``high``: a checkerboard of 3 x 3 super-pixel squares, k_s in {0.4, 1.0}, k_b in {0.25, 0.55}
+  (uncorrelated with k_s: the squares of k_b are offset by one),
+
+captured by :func:`fmbrdf_mi.camera.capture` (IMX250MZR, 10 000 e- full well,
+2.5 e- read noise, 12 bits, brightest raw pixel at 80 % of full scale); K = 1
+(light (-0.5, 0.5, 1)) or 3 lights (that one and two more, 35 degrees from
+the view at azimuths 60 and 300 degrees), one more light held out (azimuth
+180 degrees) for relighting.  Per seed, the same pixels are fitted twice:
+``albedo="per-pixel"`` and the uniform (shared) fit, both with the camera's
+gain and read noise known, every usable pixel, Fisher intervals (``--intervals auto``: the
+per-pixel fit's profile-likelihood check); and the same
+object with its textures' mean albedos everywhere is fitted uniformly (the
+time of a uniform fit of the same pixels).
+
+Reported per texture x K: for eta, alpha, beta, kappa the mean relative
+error +- its standard error, spread / mean reported SE, coverage of the 95 %
+intervals (Wilson interval); for the maps the RMS over pixels of
+(estimate - truth) / reported SE for k_s and k_b (1 when the SEs are right),
+and the median relative error; the held-out light's relighting error
+(RMSE / mean intensity) of the per-pixel fit and of the uniform fit of the
+same data; the mean time of the per-pixel fit against the uniform object's.
+"""
+import argparse
+import json
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+TRUTH = dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0)
+SHAPE = ("eta", "alpha", "beta", "kappa")
+LIGHT0 = (-0.5, 0.5, 1.0)
+
+
+def lights(k):
+    """K fitted lights and the held-out one (directions towards the light)."""
+    t = math.radians(35.0)
+    ring = [(math.sin(t) * math.cos(math.radians(a)), math.sin(t) * math.sin(math.radians(a)), math.cos(t))
+            for a in (60.0, 300.0)]
+    held = (math.sin(t) * math.cos(math.pi), 0.0, math.cos(t))
+    return [LIGHT0] + ring[:k - 1], held
+
+
+def texture(name, res):
+    y, x = np.mgrid[0:res, 0:res] / res
+    if name == "smooth":
+        return 0.6 + 0.4 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.1 * np.cos(5 * x + 3 * y)
+    if name == "high":
+        iy, ix = np.mgrid[0:res, 0:res] // 3
+        return np.where((iy + ix) % 2, 1.0, 0.4), np.where((iy + ix + 1) % 2 == 0, 0.55, 0.25)
+    raise SystemExit(f"--textures: unknown {name!r} (smooth, high)")
+
+
+def wilson(k, n, z=1.959963984540054):
+    if n == 0:
+        return (math.nan, math.nan)
+    p = k / n
+    d = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / d
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    return (c - h, c + h)
+
+
+def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "uniform"), intervals="fisher"):
+    from fmbrdf_mi.camera import CameraModel
+    from fmbrdf_mi.fit import fit
+    from fmbrdf_mi.fit.evaluate.predict import relight_error
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured_sphere
+
+    ks, kb = texture(tex, res)
+    fitted, held = lights(K)
+    cam = CameraModel()
+    obs = []
+    for j, light in enumerate(fitted + [held]):
+        ideal = textured_sphere(TRUTH, ks, kb, res=res, light=light)
+        # one exposure for all images (the brightest of the first), so the albedos are in one unit
+        o, cap = capture_observation(ideal, cam, seed=1000 * seed + j,
+                                     exposure=None if j == 0 else obs[0].meta["capture"]["exposure"])
+        obs.append(o)
+    fit_obs, held_obs = obs[:K], obs[K]
+    scale = 1.0     # the albedos come back in the units of the truth (the fit knows each exposure)
+    out = {"seed": seed}
+    # the time of a uniform fit of the same pixels: the object with its textures' mean albedos
+    uni = [capture_observation(textured_sphere(TRUTH, np.full_like(ks, ks.mean()), np.full_like(kb, kb.mean()),
+                                               res=res, light=light), cam, seed=1000 * seed + j,
+                               exposure=obs[j].meta["capture"]["exposure"])[0] for j, light in enumerate(fitted)]
+    if "uniform" in modes:
+        t = time.time()
+        u = fit(uni if K > 1 else uni[0], max_pixels=None, intervals="fisher", progress=False, area_points=area_points)
+        out["uniform_time"], out["uniform_converged"] = time.time() - t, u.converged
+    for mode in [m for m in ("per-pixel", "shared") if m in modes]:
+        t = time.time()
+        res_ = fit(fit_obs if K > 1 else fit_obs[0], albedo=mode, max_pixels=None,
+                   intervals=intervals if mode == "per-pixel" else "fisher", progress=False, area_points=area_points)
+        dt = time.time() - t
+        e = relight_error(res_.model, res_.params, held_obs, maps=res_.maps)
+        rec = {"time": dt, "converged": res_.converged, "params": res_.params, "se": res_.std_errors,
+               "interval_kind": (res_.uncertainty or {}).get("interval_kind"),
+               "ci95": (res_.uncertainty or {}).get("ci95", {}), "relight": e["rel_rmse"]}
+        if mode == "per-pixel" and res_.maps is not None:
+            m = res_.maps
+            f = np.isfinite(m["k_s"]) & np.isfinite(m["k_s_se"]) & np.isfinite(m["k_b_se"])
+            zs = (m["k_s"][f] / scale - ks[f]) / (m["k_s_se"][f] / scale)
+            zb = (m["k_b"][f] / scale - kb[f]) / (m["k_b_se"][f] / scale)
+            rec["maps"] = {"pixels": int(f.sum()), "z_rms_k_s": float(np.sqrt(np.mean(zs ** 2))),
+                           "z_rms_k_b": float(np.sqrt(np.mean(zb ** 2))),
+                           "med_rel_k_s": float(np.median(np.abs(m["k_s"][f] / scale / ks[f] - 1))),
+                           "med_rel_k_b": float(np.median(np.abs(m["k_b"][f] / scale / kb[f] - 1))),
+                           "cover_k_s": float(np.mean(np.abs(zs) <= 1.96)),
+                           "cover_k_b": float(np.mean(np.abs(zb) <= 1.96)),
+                           "identified": float(np.mean(m["identified"][f]))}
+        out[mode] = rec
+    return out
+
+
+def summarise(runs):
+    rows = []
+    for key in sorted({(r["texture"], r["K"]) for r in runs}):
+        rs = [r for r in runs if (r["texture"], r["K"]) == key]
+        pp = [r["per-pixel"] for r in rs if r["per-pixel"]["converged"]]
+        row = {"texture": key[0], "K": key[1], "n": len(pp), "not_converged": len(rs) - len(pp), "params": {}}
+        for n in SHAPE:
+            err = np.array([(r["params"][n] - TRUTH[n]) / TRUTH[n] for r in pp])
+            se = np.array([r["se"][n] / TRUTH[n] for r in pp])
+            cov = sum(r["ci95"][n][0] <= TRUTH[n] <= r["ci95"][n][1] for r in pp)
+            row["params"][n] = {"bias": float(err.mean()), "bias_se": float(err.std(ddof=1) / math.sqrt(len(err))),
+                                "spread": float(err.std(ddof=1)), "se": float(se.mean()),
+                                "spread_over_se": float(err.std(ddof=1) / se.mean()), "cover": int(cov),
+                                "wilson": wilson(cov, len(pp))}
+        mp = [r["maps"] for r in pp if "maps" in r]
+        row["maps"] = {k: float(np.mean([m[k] for m in mp])) for k in mp[0]} if mp else {}
+        row["relight_per_pixel"] = float(np.mean([r["per-pixel"]["relight"] for r in rs]))
+        row["relight_shared"] = float(np.mean([r["shared"]["relight"] for r in rs])) if "shared" in rs[0] else math.nan
+        row["time_per_pixel"] = float(np.mean([r["per-pixel"]["time"] for r in rs]))
+        row["time_uniform"] = float(np.mean([r["uniform_time"] for r in rs])) if "uniform_time" in rs[0] else math.nan
+        rows.append(row)
+    return rows
+
+
+def table(rows):
+    lines = ["| texture | K | parameter | bias ± SE | spread / SE | coverage (Wilson 95 %) |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        for n, p in r["params"].items():
+            lo, hi = p["wilson"]
+            lines.append(f"| {r['texture']} | {r['K']} | {n} | {100 * p['bias']:+.2f} ± {100 * p['bias_se']:.2f} % "
+                         f"| {p['spread_over_se']:.2f} | {p['cover']}/{r['n']} ({100 * lo:.0f}–{100 * hi:.0f} %) |")
+    lines += ["", "| texture | K | fits (not converged) | maps: RMS z k_s, k_b | maps: 95 % cover k_s, k_b | "
+                  "median rel. error k_s, k_b | split identified | relight per-pixel / shared | time per-pixel / "
+                  "uniform object (ratio) |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        m = r["maps"]
+        lines.append(f"| {r['texture']} | {r['K']} | {r['n']} ({r['not_converged']}) | {m.get('z_rms_k_s', math.nan):.2f}, "
+                     f"{m.get('z_rms_k_b', math.nan):.2f} | {100 * m.get('cover_k_s', math.nan):.0f} %, "
+                     f"{100 * m.get('cover_k_b', math.nan):.0f} % | {100 * m.get('med_rel_k_s', math.nan):.1f} %, "
+                     f"{100 * m.get('med_rel_k_b', math.nan):.1f} % | {100 * m.get('identified', math.nan):.0f} % | "
+                     f"{r['relight_per_pixel']:.4f} / {r['relight_shared']:.4f} | {r['time_per_pixel']:.1f} s / "
+                     f"{r['time_uniform']:.1f} s ({r['time_per_pixel'] / r['time_uniform']:.2f}) |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--res", type=int, default=32)
+    p.add_argument("--seeds", type=int, default=16)
+    p.add_argument("--seed0", type=int, default=0)
+    p.add_argument("--textures", default="smooth,high")
+    p.add_argument("--lights", default="1,3", help="numbers of fitted lights (1 or 3)")
+    p.add_argument("--area-points", type=int, default=None,
+                   help="the fits' points per raw pixel side (default: the fit's, 2; the data average 4 x 4)")
+    p.add_argument("--per-pixel-only", action="store_true", help="skip the shared and uniform-object fits")
+    p.add_argument("--intervals", default="fisher", choices=("fisher", "auto"),
+                   help="the per-pixel fits' intervals (auto: profile likelihood where the Fisher ones fail)")
+    p.add_argument("--json", metavar="OUT.json", help="runs and summary, written after every fit (resumed)")
+    p.add_argument("--table", metavar="IN.json")
+    a = p.parse_args(argv)
+    if a.table:
+        print(table(summarise(json.load(open(a.table))["runs"])))
+        return 0
+    runs = []
+    if a.json and os.path.exists(a.json):
+        runs = json.load(open(a.json))["runs"]
+    done = {(r["texture"], r["K"], r["seed"]) for r in runs}
+    t0 = time.time()
+    for tex in a.textures.split(","):
+        for K in (int(k) for k in a.lights.split(",")):
+            for seed in range(a.seed0, a.seed0 + a.seeds):
+                if (tex, K, seed) in done:
+                    continue
+                r = one(tex, K, seed, a.res, a.area_points,
+                        ("per-pixel",) if a.per_pixel_only else ("per-pixel", "shared", "uniform"), a.intervals)
+                r.update(texture=tex, K=K, res=a.res)
+                runs.append(r)
+                pp = r["per-pixel"]
+                print(f"[{time.time() - t0:.0f} s] {tex} K={K} seed {seed}: "
+                      + " ".join(f"{n}={pp['params'][n]:.4g}" for n in SHAPE)
+                      + f" ({pp['time']:.1f} s)", file=sys.stderr, flush=True)
+                if a.json:
+                    with open(a.json + ".tmp", "w") as f:
+                        json.dump({"runs": runs}, f)
+                    os.replace(a.json + ".tmp", a.json)
+    print(table(summarise(runs)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
