@@ -123,3 +123,17 @@ def test_fit_cli_colour_joint_manifest(tmp_path, capsys):
     err_lines = capsys.readouterr().err.strip().splitlines()
     assert len(err_lines) == 1 and "colour" in err_lines[0] and "image 1" in err_lines[0]
     assert not (tmp_path / "mixed").exists()
+
+
+def test_colour_joint_fit_takes_the_shared_albedo_layout_only(tmp_path):
+    """The joint command passes every fit key to the colour joint fit (one request, FIT_KEYS): 'shared' is its
+    layout and is taken; any other is refused in one line naming the option, before anything is read or written
+    (the specs are not looked at)."""
+    import pytest
+
+    from fmbrdf_mi.fit.errors import InputError
+    from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
+
+    with pytest.raises(InputError, match=r"albedo 'per-pixel' \(--albedo\)"):
+        fit_colour_images([], str(tmp_path / "out"), albedo="per-pixel")
+    assert not (tmp_path / "out").exists()

@@ -78,8 +78,6 @@ def run_joint(args, command):
                      bounds=parse_bounds(args.bounds), init=parse_init(args.init), max_pixels=args.max_pixels or None)
     if fit_kw.get("area_points") is None:   # the default (the colour fit refuses the option: check_colour_args)
         fit_kw.pop("area_points", None)
-    if fit_fn is not fit_images:            # colour mosaics: shared albedos per channel (check_colour_args)
-        fit_kw.pop("albedo", None)
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
     if getattr(args, "refine_normals", False):
         obs = build_observations(specs)

@@ -53,17 +53,20 @@ def sample_rmse(smp, pred, sel, channel):
 def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True, command=None, extra=None,
                       reproduce=None, baselines=False, loss="auto", init=None, fixed=None, bounds=None, starts=2,
                       max_iter=40, max_time=None, max_pixels=None, erode=2, seed=0, tol=None, time_limit=None,
-                      free_power=False, power_start=None, intervals="auto"):
+                      free_power=False, power_start=None, intervals="auto", albedo="shared"):
     """Joint colour fit of the non-held-out images of ``specs`` (module docstring); returns fit.json's dict.
 
     ``specs``: :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` s of colour
     mosaics.  Keywords as :func:`~fmbrdf_mi.fit.outputs.joint.fit_images`'s;
     ``baselines``, ``init`` and losses other than the likelihood are refused
     (the colour fit has none of them), as is ``free_power`` (not yet for colour
-    mosaics: give the powers); ``tol`` and ``time_limit`` do not apply.
+    mosaics: give the powers) and an ``albedo`` layout other than ``"shared"``
+    (per-channel albedos shared by the pixels; per-pixel ones are for mono
+    captures so far); ``tol`` and ``time_limit`` do not apply.
     """
     refused = [f for f, on in (("baselines", baselines), ("init", init), ("free_power (--free-power)", free_power),
-                               (f"loss {loss}", loss not in ("auto", "likelihood", None))) if on]
+                               (f"loss {loss}", loss not in ("auto", "likelihood", None)),
+                               (f"albedo {albedo!r} (--albedo)", albedo != "shared")) if on]
     if refused:
         raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
                          "of the raw samples)")
