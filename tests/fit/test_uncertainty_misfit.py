@@ -62,3 +62,107 @@ def test_no_misfit_leaves_the_fisher_errors_alone():
     assert abs(u["chi2_per_dof"] - 1) < 5 * math.sqrt(2 / n) + 0.1 and not u["misfit"]
     assert u["method"] == "inverse Fisher information (known camera noise)"
     assert np.isfinite([r.std_errors["k_s"], r.std_errors["r_k"]]).all()
+
+
+def _check_inflated(honest, wrong, keys, u_wrong, u_honest):
+    """The honest fit is not flagged; the misstated one is, says so in its method, and its inflated errors of
+    ``keys`` are the honest ones within 0.8-1.25 (without the inflation: about 1/3)."""
+    assert not u_honest["misfit"] and "inflated" not in u_honest["method"]
+    assert u_wrong["misfit"] and u_wrong["chi2_per_dof"] > 4 and "inflated by chi^2/dof" in u_wrong["method"]
+    for k in keys:
+        ratio = wrong[k] / honest[k]
+        assert 0.8 < ratio < 1.25, (k, ratio)
+
+
+def test_misfit_with_free_powers_and_per_pixel_albedos():
+    """The same rule where the unknowns differ: a joint fit with its light powers free (the powers' errors come
+    through the same inflation), and a per-pixel albedo fit (chi^2/dof counts every pixel's two albedos, which
+    the projection eliminates: without that count the honest fit would read as a misfit, chi^2/dof ~ 1.5 here)."""
+    from fmbrdf_mi.fit.api.joint import fit_joint
+
+    cam = CameraModel(full_well=3000.0, read_noise=2.0, bits=12)
+    obs = [capture_observation(ideal_sphere(TRUE, res=16, light=l), cam, seed=7 + k)[0] for k, l in enumerate(LIGHTS)]
+    fixed = {k: SHAPE[k] for k in ("beta", "kappa")}
+    lines = []
+    honest = fit_joint(obs, free_power=True, fixed=fixed, starts=1, progress=False)
+    wrong = fit_joint([_misstated(o) for o in obs], free_power=True, fixed=fixed, starts=1, progress=lines.append)
+    assert honest.converged and wrong.converged
+    _check_inflated(honest.std_errors, wrong.std_errors, ["eta", "alpha", "r_k"], wrong.uncertainty,
+                    honest.uncertainty)
+    ratio = wrong.powers["std_errors"][1] / honest.powers["std_errors"][1]   # image 0 is the reference
+    assert 0.8 < ratio < 1.25, ratio
+    assert any("warning: chi^2/dof" in s for s in lines), lines
+
+    opts = FitOptions(loss="likelihood", fixed=fixed, starts=1, albedo="per-pixel")
+    honest = fit(obs[0], opts, progress=False)
+    lines = []
+    wrong = fit(_misstated(obs[0]), opts, progress=lines.append)
+    assert honest.converged and wrong.converged
+    _check_inflated(honest.std_errors, wrong.std_errors, ["eta", "alpha"], wrong.uncertainty, honest.uncertainty)
+    assert any("warning: chi^2/dof" in s for s in lines), lines
+    # the per-pixel albedo maps' errors are inflated by the same factor
+    sel = np.isfinite(honest.maps["k_b_se"]) & np.isfinite(wrong.maps["k_b_se"])
+    ratio = np.median(wrong.maps["k_b_se"][sel] / honest.maps["k_b_se"][sel])
+    assert 0.8 < ratio < 1.25, ratio
+
+
+def test_misfit_of_a_colour_fit():
+    """A colour mosaic (per-channel albedos) fitted with its gain stated 9 times too high: flagged and inflated
+    to the honest errors, as the mono fit (the colour path once reported chi^2/dof 6 with no warning)."""
+    from fmbrdf_mi import polcam
+    from fmbrdf_mi.fit.api.colour import fit_colour
+    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
+    from fmbrdf_mi.fit.camera.noise import NoiseModel
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.camera import capture
+
+    R, light = 12, (0.45, 0.35, 1.0)
+    shape = dict(eta=1.5, alpha=0.25, beta=0.4, kappa=1.0)
+    st = np.stack([ideal_sphere({**shape, "k_s": ks, "r_k": rk}, res=2 * R, light=light)["stokes"]
+                   for ks, rk in ((0.6, 0.8), (0.4, 1.5), (0.5, 0.4))])
+    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=12, full_well=3000, read_noise=2.0)
+    cap = capture(st, cam, peak_fraction=0.8, seed=5)
+    smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
+    n, m, v = ob.sphere_normals((R, R), (R / 2, R / 2), R / 2 - 0.5)
+    geom = ob.SphereGeometry((R, R), (R / 2, R / 2), R / 2 - 0.5)
+    obs = ob.Observation(np.ones((3, R, R)), ob.erode(m, 1), n, v, np.asarray(light, float),
+                         cap["exposure"] / cam.conversion_gain, geometry=geom)
+    kw = dict(fixed={"beta": 0.4, "kappa": 1.0}, intervals="fisher")
+    honest = fit_colour(obs, smp, NoiseModel(cam.conversion_gain, cam.read_noise, 1.0), **kw)
+    wrong = fit_colour(obs, smp, NoiseModel(9 * cam.conversion_gain, cam.read_noise, 1.0), **kw)
+    flat = lambda se: {f"{k}[{c}]" if isinstance(v, dict) else k: (v[c] if isinstance(v, dict) else v)  # noqa: E731
+                       for k, v in se.items() for c in (v if isinstance(v, dict) else [None])}
+    _check_inflated(flat(honest["std_errors"]), flat(wrong["std_errors"]), ["eta", "k_s[G]", "r_k[R]"],
+                    wrong["uncertainty"], honest["uncertainty"])
+
+
+def test_misfit_of_the_normal_refinement():
+    """The joint refinement of material and normals (its covariance the sandwich of the penalised likelihood):
+    the same flag and inflation, on a 16^2 mesh object read with its gain stated 9 times too high."""
+    from fmbrdf_mi.fit.api.normal_joint import refine_joint
+    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.fit.inputs.authors import read_object
+    import tempfile
+
+    true = {"eta": 1.45, "alpha": 0.25, "beta": 1.0, "kappa": 10.0, "k_s": 1.0, "r_k": 0.5}
+    lights, powers = [(-0.5, 0.5, 1.0), (0.6, 0.2, 1.0), (0.1, -0.6, 0.8)], [1.0, 0.7, 1.2]
+    res = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        truth = write_authors_object(tmp + "/o", true, lights, res=16, fov=12.0, powers=powers, seed=3)
+        for name, factor in (("honest", 1.0), ("wrong", 9.0)):
+            specs, _ = read_object(tmp + "/o", conversion_gain=factor * truth["camera"]["conversion_gain"],
+                                   read_noise=2.5)
+            obs = [s.input for s in specs]
+            gt = obs[0].normals.copy()
+            start = dict(true, k_s=truth["irradiance_dn"] * max(powers))
+            res[name] = refine_joint(obs, gt, start, lam=0.3, max_iter=15)
+    honest, wrong = res["honest"], res["wrong"]
+    assert honest.converged and wrong.converged
+    u_w = wrong.uncertainty
+    # the honest refinement's chi^2/dof is 1.1-1.5 (the normals' bilinear model on this strongly curved 16^2
+    # object), so only the misstated one is required to be flagged, and the ratio is to the honest errors
+    # inflated by the honest fit's own factor where it has one
+    assert u_w["misfit"] and u_w["chi2_per_dof"] > 4 and "inflated by chi^2/dof" in u_w["method"]
+    for k in ("k_s", "r_k", "eta"):
+        ratio = wrong.std_errors[k] / honest.std_errors[k]
+        assert 0.8 < ratio < 1.25, (k, ratio)
