@@ -6,6 +6,8 @@ import numpy as np
 from . import merl
 
 CHANNEL_NAMES = ("red", "green", "blue")
+#: The phi_d index of the slices (90 deg): the only bins :func:`slice_plot` reads.
+PHI_D_INDEX = merl.DIMS[2] // 2
 
 
 def slice_plot(measured, fitted, path, title=""):
@@ -18,7 +20,7 @@ def slice_plot(measured, fitted, path, title=""):
     import matplotlib.pyplot as plt
 
     th, td, pd = merl.bin_angles()
-    k = merl.DIMS[2] // 2  # phi_d = 90 deg
+    k = PHI_D_INDEX  # phi_d = 90 deg
     fig, axes = plt.subplots(2, 3, figsize=(13, 7.5), constrained_layout=True)
     cmap = plt.get_cmap("viridis")
     j_sel = [1, 30, 60, 80]
