@@ -16,7 +16,13 @@ Procedure:
    0.01 rad to the upper bound, beta log-spaced in [0.5, 4], kappa 0; at each
    point the per-channel albedos minimise the relative squared error
    sum ((k_s S + k_b B) / f - 1)^2, k_s, k_b >= 0 (closed form; the authors
-   grid them instead), and the grid points are ranked by the log error;
+   grid them instead), and the grid points are ranked by the log error.
+   Searched coarse to fine by default (:func:`grid_search`: every other
+   index, then the neighbourhoods of the best points until they are all
+   evaluated; 130-150 of the 320 points, and the same best three as the full
+   grid on the 16 synthetic cases tried, docs/benchmarks.md); each point is
+   one table build (values.py: unpolarised tables) and one evaluation of all
+   samples at once;
    for the ``starts`` best, kappa is then scanned over ``kappa_scan`` (the
    image fits' coarse search does the same; a start at kappa = 0 sits where
    the bounded reparameterisation is flat, and from there the refinement was
