@@ -280,12 +280,12 @@ def _run_batch(args, files):
             f.write(text)
         os.replace(tmp, os.path.join(args.out, SUMMARY))
     sys.stdout.write(text)
+    if not_converged:
+        print(f"fmbrdf-mi fit-brdf: {len(not_converged)} of {len(files)} materials NOT converged (raise "
+              f"--max-evals): {', '.join(not_converged)}" + ("" if errors else f" (exit status {EXIT_NOT_CONVERGED})"),
+              file=sys.stderr)
     if errors:
         print(f"fmbrdf-mi fit-brdf: {len(errors)} of {len(files)} materials failed:\n"
               + "\n".join(f"  {e}" for e in errors), file=sys.stderr)
         return 1
-    if not_converged:
-        print(f"fmbrdf-mi fit-brdf: {len(not_converged)} of {len(files)} materials NOT converged (raise "
-              f"--max-evals): {', '.join(not_converged)} (exit status {EXIT_NOT_CONVERGED})", file=sys.stderr)
-        return EXIT_NOT_CONVERGED
-    return 0
+    return EXIT_NOT_CONVERGED if not_converged else 0
