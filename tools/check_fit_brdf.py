@@ -5,8 +5,10 @@
 1. FMBRDF with eta 1.55, alpha 0.23, beta 1.7, kappa 15, k_s (0.5, 0.6, 0.7), k_b (0.3, 0.1, 0.05),
    tabulated on the MERL grid by the package's evaluator and written as a MERL binary;
 2. Lambert (k_d 0.4, 0.2, 0.1) + GGX (alpha 0.15, Schlick F0 0.04, separable Smith G, k_s 1), in NumPy.
-Both are fitted with fit-brdf's defaults (start grid of 320 points, 2 starts, log10 error), and the
-parameters, the log10 RMSE over every usable bin and the time are printed; --plot saves the slices of 2.
+Both are fitted with fit-brdf's defaults (start grid of 320 points searched coarse to fine, 2 starts, log10
+error), and the parameters, the log10 RMSE over every usable bin and the time are printed; --plot saves the
+slices of 2.  tools/bench_fit_brdf.py times the same two fits for two versions of the package, interleaved, and
+prints both versions' parameters side by side.
 """
 import argparse
 import math
@@ -60,7 +62,7 @@ def main():
                   f"kappa {p['kappa']:.5g}, k_s {np.round(p['k_s'], 5).tolist()}, k_b {np.round(p['k_b'], 5).tolist()}")
             print(f"  log10 RMSE {res.log_rmse_all:.4g} over {res.n_usable} bins (fitted samples {res.log_rmse:.4g}, "
                   f"per channel {np.round(res.log_rmse_channels, 4).tolist()}); at bound: {res.at_bound or 'none'}; "
-                  f"{dt:.0f} s (start grid {res.timings['grid']:.0f} s)")
+                  f"{dt:.1f} s (start grid {res.timings['grid']:.1f} s, {res.history[0].get('points', 320)} points)")
             if name == "fmbrdf":
                 for k in ("eta", "alpha", "beta", "kappa"):
                     print(f"  {k}: relative error {(p[k] - TRUE[k]) / TRUE[k]:+.2e}")

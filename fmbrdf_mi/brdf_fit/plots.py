@@ -6,6 +6,8 @@ import numpy as np
 from . import merl
 
 CHANNEL_NAMES = ("red", "green", "blue")
+#: The phi_d index of the slices (90 deg): the only bins :func:`slice_plot` reads.
+PHI_D_INDEX = merl.DIMS[2] // 2
 
 
 def slice_plot(measured, fitted, path, title=""):
@@ -18,8 +20,10 @@ def slice_plot(measured, fitted, path, title=""):
     import matplotlib.pyplot as plt
 
     th, td, pd = merl.bin_angles()
-    k = merl.DIMS[2] // 2  # phi_d = 90 deg
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7.5), constrained_layout=True)
+    k = PHI_D_INDEX  # phi_d = 90 deg
+    # fixed margins: constrained layout took about 1 s of a few-second fit-brdf run
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7.5))
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.07, top=0.9 if title else 0.95, wspace=0.2, hspace=0.3)
     cmap = plt.get_cmap("viridis")
     j_sel = [1, 30, 60, 80]
     i_sel = [0, 20, 45, 70]
