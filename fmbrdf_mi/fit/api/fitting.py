@@ -15,7 +15,7 @@ from fmbrdf_mi.fit.evaluate.pixel_model import RenderEvaluator
 from fmbrdf_mi.fit.inputs.observations import check_observations
 from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.problem import free_power as FP
-from fmbrdf_mi.fit.problem.data import material_labels, prepare, resolve_loss, select_pixels
+from fmbrdf_mi.fit.problem.data import prepare, resolve_loss, select_pixels
 from fmbrdf_mi.fit.problem.materials import material_block
 from fmbrdf_mi.fit.problem.free_power import power_text, split_result
 from fmbrdf_mi.fit.problem.problem import TimeUp
@@ -153,15 +153,8 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         evaluator = render_evaluator(model, obs, idx, opts, scene)
     elif opts.path not in ("pixel", "render"):
         raise InputError(f"path: expected 'pixel' or 'render', got {opts.path!r}")
-    one = None   # one material: the ordinary fit over the labelled pixels
-    if materials is not None and data is None:
-        (obs,), lab, count = one_material([obs], materials, loss, opts, evaluator)
-        if count == 1:
-            one = lab
-        else:
-            data = prepare([obs], opts, loss, single=True, materials=lab)
     if data is None:
-        data = prepare([obs], opts, loss, single=True, evaluator=evaluator)
+        data = prepare([obs], opts, loss, single=True, evaluator=evaluator, materials=materials)
     loss, idx, excluded, objective, smp = data.loss, data.pixels, data.excluded, data.objective, data.samples
     if excluded.get("saturated") or excluded.get("dark"):
         report(f"[fit] excluded {excluded['saturated']} super-pixels with a sample at or above the white level "
@@ -243,7 +236,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     block = None
     if data.materials is not None:
         block = material_block(params, std, unc.get("ci95"), data.materials["count"], data.materials["pixels"])
-    elif one is not None:
+    elif materials is not None:     # one material: the ordinary fit of the labelled pixels
         block = material_block(params, std, unc.get("ci95"), 1, [len(idx)], base_names=tuple(params))
     if block is not None:
         for m, p in enumerate(block["parameters"]):
@@ -299,16 +292,6 @@ def _determined(value, se, rel=0.5):
     return float(ok.mean()) if ok.size else 0.0
 
 
-def one_material(observations, materials, loss, opts, evaluator=None):
-    """(observations, labels, M) of a fit with a label image: with M = 1 the observations' masks keep only the
-    labelled pixels (the ordinary fit runs on them), else they are as given (:func:`prepare` applies the
-    labels)."""
-    lab, count = material_labels(observations, materials, loss, opts, evaluator)
-    if count == 1:
-        observations = [dataclasses.replace(o, mask=o.mask & (lab >= 0)) for o in observations]
-    return observations, lab, count
-
-
 def _fit_images(observations, options=None, *, names=None, progress=True, powers=None, materials=None, **kw):
     """:func:`fit` of a list of observations: the arguments and the result are
     :func:`fmbrdf_mi.fit.api.joint.fit_joint`'s."""
@@ -336,11 +319,7 @@ def _fit_images(observations, options=None, *, names=None, progress=True, powers
     if len(given) != len(observations) or not all(math.isfinite(p) and p > 0 for p in given):
         raise InputError(f"powers: expected {len(observations)} positive numbers, got {powers!r}")
     check_fit_options(**dataclasses.asdict(opts))
-    lab = None
-    if materials is not None:
-        observations, lab, count = one_material(observations, materials, loss, opts)
-        lab = lab if count > 1 else None
-    data = prepare(observations, opts, loss, materials=lab)
+    data = prepare(observations, opts, loss, materials=materials)
     idxs, slices = data.image_pixels, data.slices
     pmodel = None
     if opts.free_power:
@@ -353,7 +332,7 @@ def _fit_images(observations, options=None, *, names=None, progress=True, powers
     say(f"[joint] {len(observations)} images, " + ", ".join(
         f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
         for n, o, (a, b) in zip(names, observations, slices)))
-    res = fit(observations[0], opts, progress=progress, data=data)
+    res = fit(observations[0], opts, progress=progress, data=data, materials=materials)
     images = diagnose(res, data, observations, names, pmodel)
     block = None
     if pmodel is not None:

@@ -41,18 +41,24 @@ POLE_EXCLUSION_DEG = 3.0
 MIN_PIXELS = 20
 
 
-def select_pixels(obs, opts, use_samples=True):
+def select_pixels(obs, opts, use_samples=True, keep=None):
     """Flat indices of the pixels a fit uses, and what was excluded (see :class:`FitOptions`).
 
     With raw samples (:attr:`Observation.samples`), super-pixels with a
     sample at or above the white level or at or below the dark level are
     excluded (:mod:`fmbrdf_mi.fit.camera.samples`) and counted.
 
+    ``keep``: (H, W) bool, the pixels a label image keeps (several materials: labels >= 0); applied after
+    the mask's erosion, so that the borders between materials are not eroded (a label image can mark
+    the pixels it is not sure of with -1).
+
     The observation is validated again first: one changed after it was built
     (``obs.irradiance = -1``, ``obs.normals = colours``) is refused as at construction.
     """
     validate(obs)
     m = erode_mask(obs.mask, opts.erode)
+    if keep is not None:
+        m = m & keep
     n = obs.normals
     cos_v = np.sum(n * obs.view_dirs, axis=-1)
     cos_l = n @ obs.light_dir
@@ -179,13 +185,15 @@ def material_labels(observations, materials, loss, opts, evaluator=None):
     if loss != "likelihood":
         raise InputError("materials: needs the likelihood of the camera's samples (loss likelihood, or auto with "
                          f"the camera noise known; got loss {loss!r})")
-    if evaluator is not None or opts.path != "pixel":
-        raise InputError("materials: works on the pixel path (one evaluator per material), not with a given "
-                         "evaluator or the render path")
-    if getattr(opts, "free_power", False):
-        raise InputError("materials: not with free_power (give the relative light powers)")
+    if opts.path != "pixel":
+        raise InputError("materials: works on the pixel path (one evaluator per material), not the render path")
     lab = check_labels(materials, o0.shape)
-    return lab, material_count(lab)
+    count = material_count(lab)
+    if count > 1 and evaluator is not None:
+        raise InputError("materials: the fit builds one evaluator per material; give no evaluator")
+    if count > 1 and getattr(opts, "free_power", False):
+        raise InputError("materials: not with free_power (give the relative light powers)")
+    return lab, count
 
 
 def material_evaluators(model, count, cell_material, normals, views, lights, irr, weights):
@@ -221,15 +229,18 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     (:mod:`fmbrdf_mi.fit.evaluate.materials`) and, with shared albedos, its own pair.
     """
     K = len(observations)
-    lab = count = None
+    lab = count = keep = None
     if materials is not None:
         lab, count = material_labels(observations, materials, loss, opts, evaluator)
-        observations = [dataclasses.replace(o, mask=o.mask & (lab >= 0)) for o in observations]
+        keep = lab >= 0
+        if count == 1:      # one material: the ordinary fit of the labelled pixels
+            lab = None
     per_image = None if not opts.max_pixels else max(1, int(math.ceil(opts.max_pixels / K)))
     idxs, excl = [], []
     for k, o in enumerate(observations):
         try:
-            idx, ex = select_pixels(o, dataclasses.replace(opts, max_pixels=per_image, seed=opts.seed + k))
+            idx, ex = select_pixels(o, dataclasses.replace(opts, max_pixels=per_image, seed=opts.seed + k),
+                                    keep=keep)
         except InputError as exc:
             if single:
                 raise
