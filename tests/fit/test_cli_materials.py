@@ -108,6 +108,11 @@ def test_manifest_with_materials(tmp_path, capsys, albedo, relit):
     for f in maps + ("materials.png", "relight_l2.png"):
         assert (out / f).is_file(), f
     assert str(tmp_path / "labels.npy") in rep["reproduce"]["files_sha256"]
+    if albedo == "shared":      # the joint record reruns to the same numbers
+        assert main(["fit", "--from", str(out / "fit.json"), "-o", str(tmp_path / "again"), "-q"]) == 0
+        again = json.loads((tmp_path / "again" / "fit.json").read_text())["models"]["fmbrdf"]
+        assert again["params"] == m["params"] and again["materials"] == m["materials"]
+        assert (tmp_path / "again" / "materials.png").is_file()
 
 
 @pytest.mark.parametrize("make, words", [
