@@ -308,6 +308,13 @@ def add_render_arguments(p):
                    help="also write the four polariser-angle images (0, 45, 90, 135 deg)")
     p.add_argument("--mosaic", action="store_true",
                    help="also write the raw mosaic of a quad-Bayer polarisation sensor (IMX250MZR layout)")
+    p.add_argument("--materials", metavar="UV_LABELS.png|npy",
+                   help="built-in sphere: several materials; a label image over the sphere's uv (one-channel PNG or "
+                        "integer .npy, 0 .. M-1 in every texel; the sphere's pole faces the camera: u is the azimuth around "
+                        "the view axis, v in [0, 0.5] the visible hemisphere): material 0 takes -D NAME=..., material m also "
+                        "-D NAME_m=... (e.g. -D eta_1=1.8); writes OUTPUT_labels.png (the material at each "
+                        "pixel's centre, 255 off the object) and with --raw OUTPUT_raw_labels.png (super-pixels, "
+                        "255 where the four raw pixels differ): fmbrdf-mi fit --materials takes either")
     g = p.add_argument_group("raw capture (--raw): the camera model of fmbrdf_mi.camera")
     g.add_argument("--raw", action="store_true",
                    help="also write OUTPUT_raw.png, a linear 16-bit quad-Bayer mosaic through the camera model "
@@ -358,7 +365,14 @@ def _resolve(args, kind, declared):
     """The user's parameters (typed), after checking names and values."""
     where = "the built-in scene" if kind == "builtin" else args.scene
     given = parse_defines(args.defines)
+    count = material_count_of(args, kind)
     for name in given:
+        mat = re.fullmatch(r"(\w+?)_(\d+)", name)
+        if count and mat and mat.group(1) in S.MATERIAL_KEYS:
+            if not 1 <= int(mat.group(2)) < count:
+                raise CLIError(f"-D {name}: --materials has materials 0 .. {count - 1}; material 0 takes "
+                               f"-D {mat.group(1)}=..., material m -D {mat.group(1)}_m=... (m = 1 .. {count - 1})")
+            continue
         if name not in declared:
             raise CLIError(f"unknown parameter '{name}' for {where}; known: {', '.join(sorted(declared))}")
     if args.res is not None:
@@ -373,6 +387,57 @@ def _resolve(args, kind, declared):
     if missing:
         raise CLIError(f"{args.scene} needs a value for '{missing[0]}': pass -D {missing[0]}=...")
     return {name: parse_value(name, text) for name, text in given.items()}
+
+
+def material_count_of(args, kind):
+    """M of ``render --materials`` (its uv label image read and checked: :func:`read_uv_labels`), else 0."""
+    if getattr(args, "materials", None) is None:
+        return 0
+    if kind != "builtin":
+        raise CLIError("--materials: the built-in sphere's option; in an XML scene give the shape a blendbsdf")
+    if getattr(args, "sensor", "mono") == "colour":
+        raise CLIError("--materials: not with --sensor colour (the fit of several materials takes mono captures)")
+    labels = read_uv_labels(args.materials)
+    args.uv_labels = labels
+    return int(labels.max()) + 1
+
+
+def read_uv_labels(path):
+    """The uv label image of ``render --materials``: every texel a material 0 .. M-1."""
+    from fmbrdf_mi.fit.errors import InputError
+    from fmbrdf_mi.fit.inputs.labels import read_labels
+
+    try:
+        labels = read_labels(path)
+    except InputError as e:
+        raise CLIError(str(e)) from None
+    if labels.min() < 0:
+        raise CLIError(f"--materials {path}: every texel of the sphere's uv needs a material (0 .. M-1); "
+                       "found texels marked not fitted")
+    if labels.max() >= 255:
+        raise CLIError(f"--materials {path}: at most 255 materials (the label PNGs written are 8-bit)")
+    return labels
+
+
+def label_paths(output, raw):
+    """The label images ``render --materials`` writes beside ``output``."""
+    stem = str(output)[:-4]
+    return {"labels": f"{stem}_labels.png", **({"raw_labels": f"{stem}_raw_labels.png"} if raw else {})}
+
+
+def _write_labels(args, scene):
+    """OUTPUT_labels.png (each pixel centre's material, 255 off the object) and with --raw
+    OUTPUT_raw_labels.png on the super-pixel grid (255 where the four raw pixels' labels differ)."""
+    from fmbrdf_mi.fit.evaluate.materials import check_labels
+    from fmbrdf_mi.fit.inputs.labels import write_labels
+
+    lab = S.true_label_map(scene, args.uv_labels, int(args.uv_labels.max()) + 1)
+    paths = label_paths(args.output, args.raw)
+    write_labels(paths["labels"], lab)
+    if args.raw:
+        h, w = lab.shape
+        write_labels(paths["raw_labels"], check_labels(lab, (h // 2, w // 2)))
+    return paths
 
 
 def _list_params(kind, declared, args):
@@ -497,7 +562,13 @@ def run_render(args):
         raise CLIError("no output file given, e.g. fmbrdf-mi render out/sphere.exr")
     given = _resolve(args, kind, declared)
     _check_rgb_values(args, given)
-    previews = _check_output(args.output, args.force, kinds)
+    _check_output(args.output, args.force, kinds)
+    if getattr(args, "materials", None) is not None:
+        if any(isinstance(v, dict) for v in given.values()):
+            raise CLIError("--materials: not with albedo textures (-D k_s=FILE) yet")
+        for p in label_paths(args.output, args.raw).values():
+            if os.path.exists(p) and not args.force:
+                raise FileExistsError(f"{p} exists; pass --force to overwrite it")
     if any(isinstance(v, dict) for v in given.values()):
         if kind != "builtin":
             raise CLIError("-D k_s=FILE (an albedo texture): the built-in sphere's parameter; in an XML scene put a "
@@ -546,6 +617,15 @@ def run_render(args):
                                     resolution=(values["width"], values["height"]), spp=values["spp"],
                                     camera=values["camera"], fov=values["fov"], distance=values["distance"],
                                     seed=seed)
+        if getattr(args, "materials", None) is not None:   # material m: material 0 with its own -D NAME_m
+            mats = []
+            for m in range(int(args.uv_labels.max()) + 1):
+                mine = dict(material, **{k: given[f"{k}_{m}"] for k in S.MATERIAL_KEYS if f"{k}_{m}" in given})
+                if f"k_b_{m}" in given and f"r_k_{m}" not in given:
+                    mine.pop("r_k", None)
+                mats.append(mine)
+            scene_dict["sphere"]["bsdf"] = S.materials_bsdf(mats, args.uv_labels)
+            values["materials"] = [{k: (list(v) if isinstance(v, tuple) else v) for k, v in x.items()} for x in mats]
         scene = fmbrdf_mi.load_dict(scene_dict)
         resolved = dict(values, seed=seed)
         textured = any(isinstance(material.get(k), dict) for k in ("k_s", "k_b", "r_k"))
@@ -604,6 +684,8 @@ def run_render(args):
         written["raw"], written["raw_sidecar"] = _write_raw(args, stokes, meta)
     if textured:
         written.update(_write_true_maps(args, scene, material, meta))
+    if getattr(args, "materials", None) is not None:
+        written.update(_write_labels(args, scene))
     cols = "Y" if c == 1 else "R,G,B"
     print(f"wrote {args.output}: Stokes S0-S3 x {cols}, {w}x{h}, {spp_used} spp, {args.variant}, "
           f"{time.perf_counter() - t0:.1f} s")

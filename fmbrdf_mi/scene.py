@@ -606,3 +606,46 @@ def true_albedo_maps(scene, material):
     ks = values("k_s", P.DEFAULT_K_S)
     kb = values("k_b", 0.0) if "k_b" in m else values("r_k", P.DEFAULT_R_K) * ks
     return {"k_s": ks.reshape(h, w), "k_b": kb.reshape(h, w)}
+
+
+def label_texture(labels, m):
+    """The Mitsuba texture dict of material ``m``'s indicator over the shape's uv: 1 where the uv label image
+    ``labels`` (H, W ints) is ``m``, else 0, nearest texel (no blending between materials)."""
+    mi = _mi()
+    ind = (np.asarray(labels) == m).astype(np.float32)[..., None]
+    return {"type": "bitmap", "bitmap": mi.Bitmap(ind), "raw": True, "filter_type": "nearest"}
+
+
+def materials_bsdf(materials, labels):
+    """The BSDF dict of a shape made of several materials: ``materials`` a list of M material dicts
+    (:func:`material_bsdf`), ``labels`` (H, W) the material of each texel of the shape's uv (0 .. M-1).
+    Material m > 0 is blended over the ones before it with its indicator as the weight (``blendbsdf``), so
+    a point inside material m's texels is material m's BSDF exactly; a pixel whose footprint straddles
+    a boundary renders the mix over its area."""
+    labels = np.asarray(labels)
+    bsdf = material_bsdf(materials[0])
+    for m in range(1, len(materials)):
+        bsdf = {"type": "blendbsdf", "weight": label_texture(labels, m), "bsdf_0": bsdf,
+                "bsdf_1": material_bsdf(materials[m])}
+    return bsdf
+
+
+def true_label_map(scene, labels, count):
+    """The material the camera sees at each pixel's centre of ``scene``'s first sensor (H, W): 0 .. count-1
+    where the ray hits the shape, -1 elsewhere (``labels``: the uv label image of :func:`materials_bsdf`)."""
+    mi = _mi()
+    sensor = scene.sensors()[0]
+    w, h = (int(v) for v in sensor.film().crop_size())
+    ys, xs = np.mgrid[0:h, 0:w]
+    pos = mi.Point2f(((xs.ravel() + 0.5) / w).astype(np.float32), ((ys.ravel() + 0.5) / h).astype(np.float32))
+    n = w * h
+    ray, _ = sensor.sample_ray(mi.Float(np.zeros(n, np.float32)), mi.Float(np.full(n, 0.5, np.float32)), pos,
+                               mi.Point2f(np.full(n, 0.5, np.float32), np.full(n, 0.5, np.float32)))
+    si = scene.ray_intersect(ray)
+    hit = np.asarray(si.is_valid(), bool)
+    out = np.where(hit, 0, -1)
+    for m in range(1, count):
+        tex = mi.load_dict(label_texture(labels, m))
+        v = np.asarray(tex.eval_1(si), dtype=np.float64).ravel()
+        out[hit & (v > 0.5)] = m
+    return out.reshape(h, w)

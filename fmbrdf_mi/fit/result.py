@@ -73,8 +73,13 @@ class FitResult:
     #: ``channels``; NaN (``identified``: False) where no pixel was fitted; not in :meth:`to_json`
     maps: dict = dataclasses.field(repr=False, default=None)
 
+    #: several materials (``fit(..., materials=labels)``): the ``materials`` block of
+    #: :func:`fmbrdf_mi.fit.problem.materials.material_block` (per material: pixels, parameters, standard
+    #: errors, 95 % intervals); in :meth:`to_json`
+    materials: dict = None
+
     #: written by :meth:`to_json` only when set
-    OPTIONAL = ("images", "powers", "channels", "albedo")
+    OPTIONAL = ("images", "powers", "channels", "albedo", "materials")
 
     def to_json(self):
         d = dataclasses.asdict(dataclasses.replace(self, pixels=None, details=None, normals=None, mask=None,

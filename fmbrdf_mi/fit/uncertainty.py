@@ -416,7 +416,7 @@ def misfit_text(unc):
 
 def weakly_identified(params, std, at_bound_=()):
     return [k for k, v in params.items()
-            if (k in std and (not math.isfinite(std[k]) or std[k] > WEAK_REL * max(abs(v), WEAK_FLOOR.get(k, 0.0))))
+            if (k in std and (not math.isfinite(std[k]) or std[k] > WEAK_REL * max(abs(v), WEAK_FLOOR.get(k.split("[")[0], 0.0))))
             or k in at_bound_]
 
 

@@ -16,6 +16,7 @@ from fmbrdf_mi.fit.inputs.observations import check_observations
 from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.problem import free_power as FP
 from fmbrdf_mi.fit.problem.data import prepare, resolve_loss, select_pixels
+from fmbrdf_mi.fit.problem.materials import material_block
 from fmbrdf_mi.fit.problem.free_power import power_text, split_result
 from fmbrdf_mi.fit.problem.problem import TimeUp
 from fmbrdf_mi.fit.result import FitResult
@@ -81,7 +82,7 @@ def render_evaluator(model, obs, idx, opts, scene):
 
 
 def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=None, names=None, powers=None,
-        **kw):
+        materials=None, **kw):
     """Estimate the parameters of ``options.model`` from ``obs``; returns a :class:`FitResult`.
 
     ``obs``: one :class:`~fmbrdf_mi.fit.inputs.observations.Observation`, or
@@ -100,6 +101,17 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     object, which :func:`~fmbrdf_mi.fit.problem.data.prepare` builds); ``obs`` is
     then only used for its noise model.
 
+    ``materials``: a label image assigning each pixel to one of M materials
+    (:mod:`fmbrdf_mi.fit.evaluate.materials`): an integer array on the fit's
+    pixel grid (``obs.shape``: for a raw mosaic the super-pixel grid; its
+    sensor grid, twice as large, is accepted too:
+    :func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`), 0 .. M-1 the
+    materials, < 0 pixels not fitted.  Each material gets its own shape
+    parameters (``eta[m]``, ...) and, with ``albedo="shared"``, its own
+    ``k_s[m]``, ``r_k[m]``; ``params`` holds them flat, ``materials`` (and
+    fit.json) per material.  One camera noise model for all: the likelihood
+    is needed.  M = 1 is the ordinary fit over the labelled pixels.
+
     A fit stopped by ``max_time`` (a hard wall-clock limit, checked before
     every model evaluation) returns the latest accepted estimate with
     ``converged=False`` and no standard errors.
@@ -111,7 +123,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                          "light, irradiance, geometry and noise are the Observation's)")
     if isinstance(obs, (list, tuple)):
         return _fit_images(check_observations(obs, "fit()", least=0), options, names=names, progress=progress,
-                           powers=powers, **kw)
+                           powers=powers, materials=materials, **kw)
     opts = dataclasses.replace(options or FitOptions(), **kw)
     check_fit_options(**dataclasses.asdict(opts))
     check_observations(obs, "fit()")
@@ -142,7 +154,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     elif opts.path not in ("pixel", "render"):
         raise InputError(f"path: expected 'pixel' or 'render', got {opts.path!r}")
     if data is None:
-        data = prepare([obs], opts, loss, single=True, evaluator=evaluator)
+        data = prepare([obs], opts, loss, single=True, evaluator=evaluator, materials=materials)
     loss, idx, excluded, objective, smp = data.loss, data.pixels, data.excluded, data.objective, data.samples
     if excluded.get("saturated") or excluded.get("dark"):
         report(f"[fit] excluded {excluded['saturated']} super-pixels with a sample at or above the white level "
@@ -221,6 +233,15 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     t_total = time.time() - t0
     report(f"[fit] done in {t_total:.1f} s: {loss} {value:.6e} ({reason})  {O.format_state(problem, st)}")
     n_out = int((objective.outliers & objective.target.dolp_valid).sum()) if loss != "likelihood" else 0
+    block = None
+    if data.materials is not None:
+        block = material_block(params, std, unc.get("ci95"), data.materials["count"], data.materials["pixels"])
+    elif materials is not None:     # one material: the ordinary fit of the labelled pixels
+        block = material_block(params, std, unc.get("ci95"), 1, [len(idx)], base_names=tuple(params))
+    if block is not None:
+        for m, p in enumerate(block["parameters"]):
+            report(f"[fit] material {m} ({block['pixels'][m]} px): "
+                   + " ".join(f"{k}={v:.4g}" for k, v in p.items()))
     return FitResult(model=model.name, params=params, loss=value, loss_terms=terms, std_errors=std,
                      history=history, stop_reason=reason, n_pixels=len(idx), n_outliers=n_out,
                      timings={"search": sol.t_search, "total": t_total, "evaluations": problem.n_evals,
@@ -229,6 +250,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                      objective=loss, uncertainty=unc,
                      noise=objective.noise.to_dict() if loss == "likelihood" else None,
                      pixels_excluded=excluded, starts=sol.starts, pixels=idx, albedo=albedo, maps=maps,
+                     materials=block,
                      details={"internal": {"shape": dict(st.shape), "a_s": np.asarray(st.a_s).tolist(),
                                            "a_b": np.asarray(st.a_b).tolist()},
                               "residuals": problem.obj.residuals(parts, st),
@@ -270,7 +292,7 @@ def _determined(value, se, rel=0.5):
     return float(ok.mean()) if ok.size else 0.0
 
 
-def _fit_images(observations, options=None, *, names=None, progress=True, powers=None, **kw):
+def _fit_images(observations, options=None, *, names=None, progress=True, powers=None, materials=None, **kw):
     """:func:`fit` of a list of observations: the arguments and the result are
     :func:`fmbrdf_mi.fit.api.joint.fit_joint`'s."""
     observations = list(observations)
@@ -297,7 +319,7 @@ def _fit_images(observations, options=None, *, names=None, progress=True, powers
     if len(given) != len(observations) or not all(math.isfinite(p) and p > 0 for p in given):
         raise InputError(f"powers: expected {len(observations)} positive numbers, got {powers!r}")
     check_fit_options(**dataclasses.asdict(opts))
-    data = prepare(observations, opts, loss)
+    data = prepare(observations, opts, loss, materials=materials)
     idxs, slices = data.image_pixels, data.slices
     pmodel = None
     if opts.free_power:
@@ -310,7 +332,7 @@ def _fit_images(observations, options=None, *, names=None, progress=True, powers
     say(f"[joint] {len(observations)} images, " + ", ".join(
         f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
         for n, o, (a, b) in zip(names, observations, slices)))
-    res = fit(observations[0], opts, progress=progress, data=data)
+    res = fit(observations[0], opts, progress=progress, data=data, materials=materials)
     images = diagnose(res, data, observations, names, pmodel)
     block = None
     if pmodel is not None:
@@ -331,7 +353,7 @@ def diagnose(res, data, observations, names, power_model=None):
     loss, excluded, objective, ev = data.loss, data.excluded, data.objective, data.evaluator
     idxs, slices = data.image_pixels, data.slices
     model = power_model or get_model(res.model)
-    if res.maps is not None:    # per-pixel albedos: the fitted state (its albedos per group)
+    if res.maps is not None or data.materials is not None:    # the fitted state (albedos per group / material)
         internal = res.details["internal"]
         shape, a_s, a_b = internal["shape"], np.asarray(internal["a_s"]), np.asarray(internal["a_b"])
     else:
@@ -339,7 +361,7 @@ def diagnose(res, data, observations, names, power_model=None):
     parts = ev.parts(shape)
     pts = parts.surface.shape[1] // max(sum(len(i) for i in idxs), 1)
     st = State(shape, a_s, a_b)
-    if res.maps is not None:    # each cell's own pair (mono: one group per cell)
+    if res.maps is not None or data.materials is not None:    # each cell's own pair (its pixel's, its material's)
         cell = objective.layout.groups[:, 0]
         pred = np.repeat(a_s[cell], pts) * parts.surface + np.repeat(a_b[cell], pts) * parts.body
     else:

@@ -93,19 +93,20 @@ OPTIONS = {
     "--channel": (lambda a: a.channel != "mean", lambda a: "--channel " + str(a.channel)),
     "--light": (lambda a: bool(a.light), lambda a: "--light"),
     "--albedo": (lambda a: getattr(a, "albedo", "shared") != "shared", lambda a: "--albedo " + str(a.albedo)),
+    "--materials": (lambda a: getattr(a, "materials", None) is not None, lambda a: "--materials"),
 }
 
 #: The one table of which options a mode refuses: mode -> (options, the message's head, why).
 REFUSED = {
     "colour": (("--baselines", "--relight", "--path", "--optimizer", "--init", "--loss", "--layout", "--dark-level",
-                "--footprint", "--area-points", "--channel", "--albedo"), "colour polarisation mosaic",
+                "--footprint", "--area-points", "--channel", "--albedo", "--materials"), "colour polarisation mosaic",
                "the colour fit is the likelihood of the raw samples, layout and cfa from the sidecar, pixel path, LM; "
-               "per-pixel albedos are for mono captures so far"),
+               "per-pixel albedos and several materials are for mono captures so far"),
     "manifest": (("--light",), "--manifest", "the manifest gives each image's light"),
     "authors": (("--light",), "--authors", "the lights are the object's calibration/L.txt"),
-    "refine": (("--baselines", "--free-power", "--loss", "--albedo"), "--refine-normals",
+    "refine": (("--baselines", "--free-power", "--loss", "--albedo", "--materials"), "--refine-normals",
                "the refinement is the likelihood of the camera samples, one model, the given light powers, "
-               "one pair of albedos"),
+               "one pair of albedos, one material"),
 }
 
 #: Options that need another one: flag -> (given?, what it needs).

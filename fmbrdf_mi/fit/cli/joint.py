@@ -66,7 +66,7 @@ def run_joint(args, command):
         specs = [ImageSpec(inp, parse_vector(li, f"--light {k + 1}"), options=dict(cli_opts))
                  for k, (inp, li) in enumerate(zip(args.inputs, args.light))]
     names = image_names(specs)
-    fit_fn, outputs_fn = fitter(specs, getattr(args, "albedo", "shared"))
+    fit_fn, outputs_fn = fitter(specs, getattr(args, "albedo", "shared"), getattr(args, "materials", None))
     if fit_fn is not fit_images:
         check_colour_args(args)
     files = outputs_fn(args.out, names, [s.holdout for s in specs])
@@ -76,6 +76,8 @@ def run_joint(args, command):
             s.options.update({k: absolute_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
     fit_kw = request(FIT_KEYS, args, fixed=parse_fixed(args.fix),
                      bounds=parse_bounds(args.bounds), init=parse_init(args.init), max_pixels=args.max_pixels or None)
+    if fit_kw.get("materials") is None:     # the default (a colour fit refuses the option: check_colour_args)
+        fit_kw.pop("materials", None)
     if fit_kw.get("area_points") is None:   # the default (the colour fit refuses the option: check_colour_args)
         fit_kw.pop("area_points", None)
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"

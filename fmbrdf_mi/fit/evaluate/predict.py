@@ -14,15 +14,33 @@ from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
 
 
-def predict_image(model_name, params, obs, pixels=None, maps=None):
+def material_params(params, m):
+    """Material ``m``'s parameters under the model's names from a fit of several materials' flat ``eta[m]``
+    names (:mod:`fmbrdf_mi.fit.evaluate.materials`)."""
+    tail = f"[{m}]"
+    return {k[:-len(tail)]: v for k, v in params.items() if k.endswith(tail)}
+
+
+def predict_image(model_name, params, obs, pixels=None, maps=None, labels=None):
     """Predicted Stokes (3, H, W) of ``obs``'s geometry and light with reported ``params`` (pixel path).
 
     Pixels outside ``pixels`` (flat indices; default: the mask) are 0.  ``maps``: per-pixel albedos (a fit
     with ``albedo="per-pixel"``: its ``res.maps``, ``k_s`` and ``k_b`` (H, W)); ``params`` then hold the
-    shape parameters only, and pixels without a value in the maps (not fitted) are NaN.
+    shape parameters only, and pixels without a value in the maps (not fitted) are NaN.  ``labels``: the
+    label image (H, W) of a fit of several materials, whose ``params`` are per material (``eta[0]``, ...):
+    each pixel is predicted with its material's, those with a label < 0 are 0.
     """
-    model = get_model(model_name)
     idx = np.flatnonzero(obs.mask.ravel()) if pixels is None else np.asarray(pixels)
+    if labels is not None:
+        lab = np.asarray(labels).ravel()
+        out = np.zeros((3, obs.shape[0] * obs.shape[1]))
+        for m in range(int(lab.max()) + 1):
+            sub = idx[lab[idx] == m]
+            if len(sub):
+                out[:, sub] = predict_image(model_name, material_params(params, m), obs, sub,
+                                            maps).reshape(3, -1)[:, sub]
+        return out.reshape(3, *obs.shape)
+    model = get_model(model_name)
     if maps is None:
         shape, a_s, a_b = model.split(params)
     else:
@@ -44,17 +62,20 @@ def relight_pixels(obs, erode=2, min_cos_view=0.1):
     return np.flatnonzero(m.ravel())
 
 
-def relight_error(model_name, params, obs, erode=2, min_cos_view=0.1, maps=None):
+def relight_error(model_name, params, obs, erode=2, min_cos_view=0.1, maps=None, labels=None):
     """Predict ``obs`` (the object under a second light) and compare intensities.
 
     Returns a dict: ``rel_rmse`` (RMSE / mean observed intensity), ``rmse``,
     ``mean_observed``, ``n_pixels`` and ``predicted`` (3, H, W) Stokes.
     ``maps``: per-pixel albedos (:func:`predict_image`); the error is then over the pixels that have them.
+    ``labels``: several materials (:func:`predict_image`); the error is over the labelled pixels.
     """
     idx = relight_pixels(obs, erode, min_cos_view)
     if maps is not None:
         idx = idx[np.isfinite(np.asarray(maps["k_s"]).ravel()[idx])]
-    pred = predict_image(model_name, params, obs, idx, maps=maps)
+    if labels is not None:
+        idx = idx[np.asarray(labels).ravel()[idx] >= 0]
+    pred = predict_image(model_name, params, obs, idx, maps=maps, labels=labels)
     i_obs = obs.stokes[0].ravel()[idx]
     i_pred = pred[0].ravel()[idx]
     rmse = float(np.sqrt(np.mean((i_pred - i_obs) ** 2)))

@@ -83,3 +83,28 @@ def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1
     out = dict(surface)
     out.update(stokes=up(k_s_map) * S + up(k_b_map) * B, params=dict(base), k_s_map=k_s_map, k_b_map=k_b_map)
     return out
+
+
+def half_labels(res, count=2):
+    """A (res, res) label image of ``count`` materials in vertical bands, left to right (two: left half 0,
+    right half 1)."""
+    col = np.arange(res) * count // res
+    return np.broadcast_to(col[None, :], (res, res)).astype(np.int64).copy()
+
+
+def material_sphere(params, labels, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4):
+    """``ideal_sphere`` of several materials: ``params`` a list of M parameter dicts, ``labels`` (res, res)
+    the material of each super-pixel (its four raw pixels share it; a label < 0 shows material 0, and is
+    not fitted when the labels are given to the fit).  Each raw pixel is its material's model averaged over
+    the pixel's area.  The truth is ``params`` (the list) and ``labels``."""
+    labels = np.asarray(labels, dtype=np.int64)
+    if labels.shape != (res, res):
+        raise ValueError(f"labels: expected ({res}, {res}), got {labels.shape}")
+    if labels.max() >= len(params):
+        raise ValueError(f"labels: {int(labels.max())} is not one of the {len(params)} materials")
+    ideals = [ideal_sphere(p, res=res, light=light, model=model, area=area) for p in params]
+    up = np.repeat(np.repeat(np.maximum(labels, 0), 2, axis=0), 2, axis=1)
+    out = dict(ideals[0])
+    out.update(stokes=np.choose(up[None], [i["stokes"] for i in ideals]), params=[dict(p) for p in params],
+               labels=labels)
+    return out

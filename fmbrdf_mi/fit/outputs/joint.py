@@ -58,18 +58,21 @@ from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
 from fmbrdf_mi.fit.outputs.colour_joint import outputs as colour_outputs
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.record import command_block
-from fmbrdf_mi.fit.outputs.single import MAP_OUTPUTS, write_albedo_maps
+from fmbrdf_mi.fit.inputs.labels import read_labels
+from fmbrdf_mi.fit.outputs.single import MAP_OUTPUTS, MATERIAL_OUTPUTS, labels_of, write_albedo_maps, write_materials
 from fmbrdf_mi.fit.outputs.writer import prepare_outputs
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
 
 
-def outputs(out, names, holdout, albedo="shared"):
+def outputs(out, names, holdout, albedo="shared", materials=None):
     files = ["fit.json", "history.png"]
     for n, h in zip(names, holdout):
         files += [f"relight_{n}.png"] if h else [f"images_{n}.png", f"profiles_{n}.png"]
     if albedo == "per-pixel":
         files += list(MAP_OUTPUTS)
+    if materials is not None:
+        files += list(MATERIAL_OUTPUTS)
     return [os.path.join(out, f) for f in files]
 
 
@@ -100,12 +103,15 @@ class Joint(FitJob):
         check_fit_options(model=self.model, **self.fit_kw)
 
     def files(self):
-        albedo = self.fit_kw.get("albedo", "shared")
+        albedo, labels = self.fit_kw.get("albedo", "shared"), self.fit_kw.get("materials")
         self.names, self.holdout, files = prepare_outputs(
-            self.specs, self.out, lambda out, names, holdout: outputs(out, names, holdout, albedo), self.force)
+            self.specs, self.out, lambda out, names, holdout: outputs(out, names, holdout, albedo, labels),
+            self.force)
         return files
 
     def read(self):
+        path = self.fit_kw.get("materials")
+        self.labels = None if path is None else read_labels(path)
         if self.obs is None:
             self.obs = build_observations(self.specs)
 
@@ -113,7 +119,7 @@ class Joint(FitJob):
         specs, obs, holdout, model = self.specs, self.obs, self.holdout, self.model
         fit_obs = [o for o, h in zip(obs, holdout) if not h]
         fit_names = [n for n, h in zip(self.names, holdout) if not h]
-        self.opts = opts = FitOptions(model=model, **self.fit_kw)
+        self.opts = opts = FitOptions(model=model, **{k: v for k, v in self.fit_kw.items() if k != "materials"})
         if opts.free_power and len(fit_obs) < 2:
             raise InputError(f"--free-power (free_power): needs two or more fitted images, got {len(fit_obs)} "
                              "(one image's light power is not separable from k_s and k_b)")
@@ -127,7 +133,8 @@ class Joint(FitJob):
         self.results = {}
         for name in models:
             o = opts if name == model else dataclasses.replace(opts, model=name, bounds=None, init=None, fixed=None)
-            self.results[name] = fit_joint(fit_obs, o, names=fit_names, progress=self.progress, powers=given)
+            self.results[name] = fit_joint(fit_obs, o, names=fit_names, progress=self.progress, powers=given,
+                                           materials=self.labels)
 
     def report(self):
         specs, obs, model = self.specs, self.obs, self.model
@@ -164,7 +171,8 @@ class Joint(FitJob):
             if h:
                 errs, relit = {}, None
                 for name, res in results.items():
-                    e = relight_error(name, res.params, o, erode=self.opts.erode, maps=res.maps)
+                    e = relight_error(name, res.params, o, erode=self.opts.erode, maps=res.maps,
+                                      labels=labels_of(res, self.labels, o.shape))
                     errs[name] = {k: v for k, v in e.items() if k != "predicted"}
                     if name == model:
                         relit = e["predicted"]
@@ -174,8 +182,10 @@ class Joint(FitJob):
                                         f"{errs[model]['rel_rmse']:.4f}", label="relit", lin_variance=o.lin_variance)
             else:
                 im = {m: next(x for x in r.images if x["name"] == n) for m, r in results.items()}
-                pred = predict_image(model, main.params, fitted_observation(o, im[model]), maps=main.maps)
-                others = {f"{m} (baseline)": predict_image(m, r.params, fitted_observation(o, im[m]), maps=r.maps)
+                pred = predict_image(model, main.params, fitted_observation(o, im[model]), maps=main.maps,
+                                     labels=labels_of(main, self.labels, o.shape))
+                others = {f"{m} (baseline)": predict_image(m, r.params, fitted_observation(o, im[m]), maps=r.maps,
+                                                           labels=labels_of(r, self.labels, o.shape))
                           for m, r in results.items() if m != model}
                 power = "" if main.powers is None else "; " + power_text(im[model])
                 plots.plot_profiles(o, pred, os.path.join(out, f"profiles_{n}.png"), pixels=idx,
@@ -189,16 +199,18 @@ class Joint(FitJob):
             outs = {f: os.path.join(out, f) for f in MAP_OUTPUTS}
             write_albedo_maps(main, outs, model)
             report["albedo_maps"] = outs
+        if main.materials is not None:
+            write_materials(main, self.labels, self.obs[0].shape, os.path.join(out, "materials.png"), model)
 
 
-def fitter(specs, albedo="shared"):
+def fitter(specs, albedo="shared", materials=None):
     """(fit function, outputs function) for the images of ``specs``: :func:`fit_images` and :func:`outputs`
     (with the albedo maps' files when ``albedo`` is ``per-pixel``), or their colour counterparts in
     :mod:`fmbrdf_mi.fit.outputs.colour_joint` when the images are colour mosaics."""
 
     if is_colour(specs):
         return fit_colour_images, colour_outputs
-    return fit_images, (lambda out, names, holdout: outputs(out, names, holdout, albedo))
+    return fit_images, (lambda out, names, holdout: outputs(out, names, holdout, albedo, materials))
 
 
 def _pixels_of(res, holdout):

@@ -233,3 +233,39 @@ def plot_albedo_maps(maps, path, title=""):
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_materials(labels, pixels, block, path, title=""):
+    """The label map a fit of several materials used (``materials.png``): each material in its colour
+    (grey: not fitted), its fitted pixels opaque and its labelled but unused pixels (eroded border, pole,
+    saturated, subset) faint; the legend gives each material's pixels and parameters (``block``: fit.json's
+    ``materials`` block)."""
+    plt = pyplot()
+    from matplotlib import colors
+
+    lab = np.asarray(labels)
+    M = int(block["count"])
+    cmap = plt.get_cmap("tab10" if M <= 10 else "tab20")
+    rgb = np.full(lab.shape + (3,), 0.85)
+    used = np.zeros(lab.size, bool)
+    used[np.asarray(pixels, dtype=np.int64)] = True
+    used = used.reshape(lab.shape)
+    for m in range(M):
+        c = np.asarray(colors.to_rgb(cmap(m % cmap.N)))
+        rgb[(lab == m) & used] = c
+        rgb[(lab == m) & ~used] = 0.35 * c + 0.65
+    fig, ax = plt.subplots(figsize=(5.5, 4.8))
+    ax.imshow(rgb, interpolation="nearest")
+    ax.axis("off")
+    from matplotlib.patches import Patch
+
+    handles = []
+    for m in range(M):
+        p = block["parameters"][m]
+        text = ", ".join(f"{k}={v:.3g}" for k, v in p.items())
+        handles.append(Patch(color=cmap(m % cmap.N), label=f"{m}: {block['pixels'][m]} px; {text}"))
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02), fontsize=7, frameon=False)
+    ax.set_title(title or f"{M} materials (faint: labelled, not fitted; grey: no material)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -40,7 +40,7 @@ ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "li
              "black_level", "channel", "demosaic", "conversion_gain", "read_noise", "footprint", "model",
              "baselines", "optimizer", "path", "bounds", "init", "loss", "white_level", "dark_level", "fixed",
              "starts", "max_iter", "tol", "time_limit", "max_time", "max_pixels", "erode", "seed", "relight",
-             "relight_light", "relight_irradiance", "area_points", "intervals", "albedo")
+             "relight_light", "relight_irradiance", "area_points", "intervals", "albedo", "materials")
 
 
 #: The arguments of :func:`fmbrdf_mi.fit.outputs.colour.fit_colour_files` among them (a colour fit's record).
@@ -73,7 +73,7 @@ def jsonable(v):
 
 def single_files(arguments):
     out = []
-    for key in ("inputs", "normals", "mask", "view", "relight"):
+    for key in ("inputs", "normals", "mask", "view", "relight", "materials"):
         v = arguments.get(key)
         for p in (v if isinstance(v, (list, tuple)) else [v]):
             if isinstance(p, (str, os.PathLike)) and os.path.isfile(p):
@@ -118,7 +118,7 @@ def reproduce_block(arguments, inputs, command, obs, relight=None):
 #: fit_images keywords that define a joint fit (not where it writes or how it talks).
 FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
             "max_time", "max_pixels", "erode", "seed", "free_power", "power_start", "area_points", "intervals",
-            "albedo")
+            "albedo", "materials")
 
 
 #: read_object keywords recorded for an authors' object.
@@ -183,6 +183,8 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
         files += [os.path.join(root, "normal", "normal_GT.npy"), _abs(info["mask"])]
     if manifest is not None:
         files.append(_abs(manifest))
+    if fit_kw.get("materials") is not None:      # the label image (several materials)
+        files.append(_abs(fit_kw["materials"]))
     for k, (s, n, o) in enumerate(zip(specs, names, observations)):
         if kind == "authors":
             inp = o.meta["authors_layout"]["file"]
@@ -208,8 +210,10 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
         joint["manifest"] = _abs(manifest)
     if kind == "authors":
         joint["authors"] = {"root": info["root"], **authors}
-    return jsonable({"command": command, "cwd": os.getcwd(), "arguments": {k: fit_kw.get(k) for k in FIT_KEYS
-                                                                            if k in fit_kw},
+    arguments = {k: fit_kw.get(k) for k in FIT_KEYS if k in fit_kw}
+    if arguments.get("materials") is not None:
+        arguments["materials"] = _abs(arguments["materials"])
+    return jsonable({"command": command, "cwd": os.getcwd(), "arguments": arguments,
                       "joint": joint, "files_sha256": _hashes(files), "versions": versions()})
 
 

@@ -89,7 +89,7 @@ def single_arguments(path, rep, colour):
     bad = [k for k, v in args.items() if isinstance(v, dict) and "not_recorded" in v]
     if bad:
         raise InputError(f"--from {path}: arguments {', '.join(bad)} were arrays, not files; cannot rerun")
-    for key in ("inputs", "normals", "mask", "view", "relight"):
+    for key in ("inputs", "normals", "mask", "view", "relight", "materials"):
         v = args.get(key)
         paths = v if isinstance(v, list) else [v]
         if (v is None and key != "inputs") or (paths and all(isinstance(p, str) and p for p in paths)):
@@ -102,14 +102,14 @@ def single_arguments(path, rep, colour):
     check_files(path, rep)
     # relative paths were relative to the directory the fit ran in
     if cwd:
-        for key in ("inputs", "normals", "mask", "view", "relight"):
+        for key in ("inputs", "normals", "mask", "view", "relight", "materials"):
             v = args.get(key)
             if isinstance(v, str) and not os.path.isabs(v):
                 args[key] = os.path.join(cwd, v)
             elif isinstance(v, list):
                 args[key] = [os.path.join(cwd, x) if isinstance(x, str) and not os.path.isabs(x) else x for x in v]
     # every file the rerun reads (inputs, geometry, the capture sidecars beside them) must have been hashed
-    given = [p for key in ("inputs", "normals", "mask", "view", "relight")
+    given = [p for key in ("inputs", "normals", "mask", "view", "relight", "materials")
              for p in (args.get(key) if isinstance(args.get(key), list) else [args.get(key)]) if isinstance(p, str)]
     check_recorded(path, rep, given + single_files(args))
     return args
@@ -162,13 +162,16 @@ def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
                 specs.append(spec)
     except (KeyError, TypeError, AttributeError) as exc:
         raise InputError(f"--from {path}: the joint-fit record is incomplete ({exc})") from None
-    check_recorded(path, rep, read_files(joint["kind"], specs, info))
+    labels = fit_kw.get("materials")
+    if labels is not None and not (isinstance(labels, str) and labels):
+        raise InputError(f"--from {path}: reproduce.arguments.materials: expected a file name, got {labels!r}")
+    check_recorded(path, rep, read_files(joint["kind"], specs, info) + ([labels] if labels else []))
     authors = {k: v for k, v in (joint.get("authors") or {}).items() if k != "root"}
     names = image_names(specs)
     recorded = [im["name"] for im in joint["images"]]
     if names != recorded:
         raise InputError(f"--from {path}: the images are now {names}, the fit had {recorded}")
-    fit_fn, outputs_fn = fitter(specs, fit_kw.get("albedo", "shared"))
+    fit_fn, outputs_fn = fitter(specs, fit_kw.get("albedo", "shared"), fit_kw.get("materials"))
     files = outputs_fn(out, names, [s.holdout for s in specs])
     return fit_fn(specs, out, force=force, progress=progress, command=command,
                       extra={"joint": {"outputs": files, "authors_layout": info, "rerun_of": os.path.abspath(path)}},

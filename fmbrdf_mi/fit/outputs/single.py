@@ -11,10 +11,12 @@ from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit
 from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.materials import check_labels
 from fmbrdf_mi.fit.evaluate.models import BASELINES, get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
 from fmbrdf_mi.fit.inputs.files import build_observation
+from fmbrdf_mi.fit.inputs.labels import read_labels
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
 from fmbrdf_mi.fit.outputs import plots, record
 from fmbrdf_mi.fit.outputs.job import FitJob
@@ -30,9 +32,30 @@ RELIGHT_OUTPUTS = ("relight.png",)
 MAP_OUTPUTS = ("k_s.exr", "k_b.exr", "k_s_se.exr", "k_b_se.exr", "albedo_maps.png")
 
 
-def output_files(out, relight, albedo="shared"):
-    names = OUTPUTS + (RELIGHT_OUTPUTS if relight else ()) + (MAP_OUTPUTS if albedo == "per-pixel" else ())
+#: A fit of several materials (``materials``: a label image) writes the label map it used.
+MATERIAL_OUTPUTS = ("materials.png",)
+
+
+def output_files(out, relight, albedo="shared", materials=None):
+    names = OUTPUTS + (RELIGHT_OUTPUTS if relight else ()) + (MAP_OUTPUTS if albedo == "per-pixel" else ()) \
+        + (MATERIAL_OUTPUTS if materials is not None else ())
     return {n: os.path.join(out, n) for n in names}
+
+
+def labels_of(res, labels, shape):
+    """The label image (on the fit's grid ``shape``) to predict a result ``res`` with: per material when the fit
+    had several, else None (one material's parameters are the model's own)."""
+    if labels is None or res.materials is None or res.materials["count"] < 2:
+        return None
+    return check_labels(labels, shape)
+
+
+def write_materials(res, labels, shape, path, model):
+    """materials.png: the label map a fit used (:func:`fmbrdf_mi.fit.outputs.plots.plot_materials`)."""
+    lab = check_labels(labels, shape)
+    pixels = res.pixels if not isinstance(res.pixels, list) else res.pixels[0]
+    plots.plot_materials(lab, pixels, res.materials, path,
+                         title=f"{model}: {res.materials['count']} material(s) (faint: labelled, not fitted)")
 
 
 def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
@@ -40,7 +63,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
               demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf",
               baselines=False, optimizer="lm", path="pixel", bounds=None, init=None, loss="auto",
               white_level=None, dark_level=None, fixed=None, starts=2, area_points=None, intervals="auto",
-              albedo="shared", max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
+              albedo="shared", materials=None, max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
               relight_light=None, relight_irradiance=None, force=False, progress=True, command=None):
     """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
 
@@ -61,7 +84,9 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     raw sample as the mean over that many points squared of its pixel (None: 2
     for raw mosaics, 1 otherwise).  ``intervals``: ``auto`` or ``fisher``
     (:class:`~fmbrdf_mi.fit.api.fitting.FitOptions`).  ``albedo``: ``shared`` (one k_s, r_k) or
-    ``per-pixel`` (albedo maps of a textured object, the likelihood only).  ``relight``: a second image of
+    ``per-pixel`` (albedo maps of a textured object, the likelihood only).  ``materials``: a label image
+    (.png / .npy: :mod:`fmbrdf_mi.fit.inputs.labels`) giving each pixel's material, each fitted with its own
+    parameters (the likelihood only); writes materials.png.  ``relight``: a second image of
     the same object under ``relight_light`` for the relighting check.
 
     Writes ``out``/fit.json, profiles.png, images.png, history.png,
@@ -94,11 +119,12 @@ class SingleImage(FitJob):
                           loss=a["loss"], fixed=parse_fixed(a["fixed"]), albedo=a["albedo"])
 
     def files(self):
-        self.outs = output_files(self.out, self.a["relight"], self.a["albedo"])
+        self.outs = output_files(self.out, self.a["relight"], self.a["albedo"], self.a.get("materials"))
         return list(self.outs.values())
 
     def read(self):
         a = self.a
+        self.labels = None if a.get("materials") is None else read_labels(a["materials"])
         files = {k: a[k] for k in ("layout", "black_level", "channel", "demosaic", "conversion_gain", "read_noise",
                                    "footprint")}
         self.obs = obs = build_observation(
@@ -137,9 +163,11 @@ class SingleImage(FitJob):
         for name in self.models:
             o = opts if name == model else FitOptions(**{**opts.__dict__, "model": name, "bounds": None,
                                                           "init": None, "path": "pixel", "fixed": None})
-            res = fit(obs, o, scene=scene if name == model else None, progress=self.progress)
+            res = fit(obs, o, scene=scene if name == model else None, progress=self.progress,
+                      materials=self.labels)
             self.results[name] = res
-            self.preds[name] = predict_image(name, res.params, obs, maps=res.maps)
+            self.preds[name] = predict_image(name, res.params, obs, maps=res.maps,
+                                             labels=labels_of(res, self.labels, obs.shape))
 
     def report(self):
         a, obs, model = self.a, self.obs, self.a["model"]
@@ -161,7 +189,8 @@ class SingleImage(FitJob):
             report["relight"] = {"light_dir": obs2.light_dir.tolist()}
             relit = {}
             for name, res in self.results.items():
-                err = relight_error(name, res.params, obs2, erode=self.opts.erode, maps=res.maps)
+                err = relight_error(name, res.params, obs2, erode=self.opts.erode, maps=res.maps,
+                                    labels=labels_of(res, self.labels, obs.shape))
                 relit[name] = err["predicted"]
                 report["relight"][name] = {k: v for k, v in err.items() if k != "predicted"}
             plots.plot_images(obs2.stokes, relit[model], obs2.mask, outs["relight.png"],
@@ -183,6 +212,8 @@ class SingleImage(FitJob):
         if main.maps is not None:
             write_albedo_maps(main, outs, model)
             report["albedo_maps"] = {k: outs[k] for k in MAP_OUTPUTS}
+        if main.materials is not None:
+            write_materials(main, self.labels, obs.shape, outs["materials.png"], model)
 
 
 def write_albedo_maps(res, outs, model):

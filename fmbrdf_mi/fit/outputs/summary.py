@@ -171,6 +171,10 @@ def print_summary(report, out, t0):
                   f"{', '.join(m['weakly_identified'])}")
         if m.get("albedo"):
             print("  " + albedo_text(m["albedo"]))
+        if m.get("materials"):
+            b = m["materials"]
+            print(f"  {b['count']} material(s), fitted pixels " + ", ".join(f"{k}: {n}" for k, n in enumerate(b["pixels"]))
+                  + ("; parameter[m] is material m's" if b["count"] > 1 else ""))
         if not m["converged"]:
             print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
                   f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
@@ -185,6 +189,6 @@ def print_summary(report, out, t0):
             if isinstance(r, dict):
                 print(f"relighting {name}: RMSE / mean intensity = {r['rel_rmse']:.4f}")
     args = report.get("reproduce", {}).get("arguments", {})
-    print(f"wrote {', '.join(output_files(out, args.get('relight'), args.get('albedo', 'shared')))} "
+    print(f"wrote {', '.join(output_files(out, args.get('relight'), args.get('albedo', 'shared'), args.get('materials')))} "
           f"({time.time() - t0:.1f} s)")
     return status

@@ -18,7 +18,9 @@ from fmbrdf_mi.fit.camera import samples as SM
 from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
-from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos
+from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos, PixelModel
+from fmbrdf_mi.fit.evaluate.materials import (MIN_MATERIAL_PIXELS, MaterialAlbedos, MaterialEvaluator,
+                                              MaterialModel, check_labels, material_count)
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
@@ -26,6 +28,7 @@ from fmbrdf_mi.fit.inputs.observations import validate
 from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective, PaperObjective
+from fmbrdf_mi.fit.problem import materials as MT
 from fmbrdf_mi.fit.problem.problem import FitData
 
 #: Pixels whose view or light direction is within this angle (degrees) of the
@@ -38,18 +41,24 @@ POLE_EXCLUSION_DEG = 3.0
 MIN_PIXELS = 20
 
 
-def select_pixels(obs, opts, use_samples=True):
+def select_pixels(obs, opts, use_samples=True, keep=None):
     """Flat indices of the pixels a fit uses, and what was excluded (see :class:`FitOptions`).
 
     With raw samples (:attr:`Observation.samples`), super-pixels with a
     sample at or above the white level or at or below the dark level are
     excluded (:mod:`fmbrdf_mi.fit.camera.samples`) and counted.
 
+    ``keep``: (H, W) bool, the pixels a label image keeps (several materials: labels >= 0); applied after
+    the mask's erosion, so that the borders between materials are not eroded (a label image can mark
+    the pixels it is not sure of with -1).
+
     The observation is validated again first: one changed after it was built
     (``obs.irradiance = -1``, ``obs.normals = colours``) is refused as at construction.
     """
     validate(obs)
     m = erode_mask(obs.mask, opts.erode)
+    if keep is not None:
+        m = m & keep
     n = obs.normals
     cos_v = np.sum(n * obs.view_dirs, axis=-1)
     cos_l = n @ obs.light_dir
@@ -165,7 +174,48 @@ def pixel_layout(observations, idxs, samples):
                         labels=CHANNELS)
 
 
-def prepare(observations, opts, loss, *, single=False, evaluator=None):
+def material_labels(observations, materials, loss, opts, evaluator=None):
+    """The checked label image of a fit of several materials (:func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`
+    on the images' pixel grid, one view) and M; InputError in one line for what the materials do not work with."""
+    o0 = observations[0]
+    for k, o in enumerate(observations[1:], 1):
+        if o.shape != o0.shape or not np.allclose(o.view_dirs, o0.view_dirs):
+            raise InputError(f"materials: image {k} is not of the same view as image 0 (one label image labels "
+                             "the pixels of one view: pixel grid and view directions must agree)")
+    if loss != "likelihood":
+        raise InputError("materials: needs the likelihood of the camera's samples (loss likelihood, or auto with "
+                         f"the camera noise known; got loss {loss!r})")
+    if opts.path != "pixel":
+        raise InputError("materials: works on the pixel path (one evaluator per material), not the render path")
+    lab = check_labels(materials, o0.shape)
+    count = material_count(lab)
+    if count > 1 and evaluator is not None:
+        raise InputError("materials: the fit builds one evaluator per material; give no evaluator")
+    if count > 1 and getattr(opts, "free_power", False):
+        raise InputError("materials: not with free_power (give the relative light powers)")
+    return lab, count
+
+
+def material_evaluators(model, count, cell_material, normals, views, lights, irr, weights):
+    """:class:`~fmbrdf_mi.fit.evaluate.materials.MaterialEvaluator`: one
+    :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator` per material over its cells' points (the
+    directions pixel-major: each cell's directions, then the next cell's)."""
+    cells = len(cell_material)
+    dirs = len(normals) // cells                         # directions per cell
+    outs = dirs // (1 if weights is None else len(weights))   # evaluator outputs per cell
+    irr = np.broadcast_to(np.asarray(irr, dtype=np.float64), (len(normals),))
+    evs, cols = [], []
+    for m in range(count):
+        c = np.flatnonzero(cell_material == m)
+        rows = (c[:, None] * dirs + np.arange(dirs)).ravel()
+        cols.append((c[:, None] * outs + np.arange(outs)).ravel())
+        i = irr[rows]
+        evs.append(PixelEvaluator(model, normals[rows], views[rows], lights[rows],
+                                  float(i[0]) if np.allclose(i, i[0]) else i, weights=weights))
+    return MaterialEvaluator(MaterialModel(model, count), evs, cols, cells * outs)
+
+
+def prepare(observations, opts, loss, *, single=False, evaluator=None, materials=None):
     """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images: one objective over all their
     pixels, one evaluator, each image's pixels and slice.
 
@@ -174,19 +224,38 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None):
     ``evaluator``: the model's evaluator at these pixels, if the caller has
     one (reused across noise seeds by the benchmarks; the render path's);
     else a :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`.
+    ``materials``: a label image (:func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`) of two or more
+    materials: pixels with a label < 0 are not fitted, each material has its own shape parameters
+    (:mod:`fmbrdf_mi.fit.evaluate.materials`) and, with shared albedos, its own pair.
     """
     K = len(observations)
+    lab = count = keep = None
+    if materials is not None:
+        lab, count = material_labels(observations, materials, loss, opts, evaluator)
+        keep = lab >= 0
+        if count == 1:      # one material: the ordinary fit of the labelled pixels
+            lab = None
     per_image = None if not opts.max_pixels else max(1, int(math.ceil(opts.max_pixels / K)))
     idxs, excl = [], []
     for k, o in enumerate(observations):
         try:
-            idx, ex = select_pixels(o, dataclasses.replace(opts, max_pixels=per_image, seed=opts.seed + k))
+            idx, ex = select_pixels(o, dataclasses.replace(opts, max_pixels=per_image, seed=opts.seed + k),
+                                    keep=keep)
         except InputError as exc:
             if single:
                 raise
             raise InputError(f"image {k}: {exc}") from None
         idxs.append(idx)
         excl.append(ex)
+    cell_material = None
+    if lab is not None:
+        cell_material = np.concatenate([lab.ravel()[i] for i in idxs])
+        n_mat = np.bincount(cell_material, minlength=count)
+        few = [m for m in range(count) if n_mat[m] < MIN_MATERIAL_PIXELS]
+        if few:
+            raise InputError(f"materials: label {few[0]} has {n_mat[few[0]]} fitted pixels, need at least "
+                             f"{MIN_MATERIAL_PIXELS} per material (labels 0 .. {count - 1}; each material's shape "
+                             "is estimated from its own pixels): merge it, or mark its pixels -1 (not fitted)")
     starts = np.cumsum([0] + [len(i) for i in idxs])
     slices = [(int(starts[k]), int(starts[k + 1])) for k in range(K)]
     excluded = excl[0] if single else {
@@ -221,8 +290,12 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None):
             noise = dataclasses.replace(o0.noise) if single and o0.noise is not None else NoiseModel(step=smps[0].step)
         # a colour mosaic's samples carry their colour channels: one pair of albedos per channel
         layout = None if smps[0].channel is None else ChannelAlbedos(smps[0].channel)
+        if lab is not None and layout is not None:
+            raise InputError("materials: not yet for colour mosaics (mono captures, raw or angle images)")
         if getattr(opts, "albedo", "shared") == "per-pixel":
             layout = pixel_layout(observations, idxs, smps[0])
+        elif lab is not None:
+            layout = MaterialAlbedos(cell_material, smps[0].n, count)
         objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof, layout=layout)
         smp = smps[0]
         weights = None if len(w) == 1 else w
@@ -263,9 +336,18 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None):
     views = np.concatenate([g[1] for g in geo])
     lights = np.concatenate([np.tile(o.light_dir, (len(g[0]), 1)) for o, g in zip(observations, geo)])
     irr = np.concatenate([np.full(len(g[0]), o.irradiance) for o, g in zip(observations, geo)])
+    make_problem = mat = None
+    if lab is not None:
+        evaluator = material_evaluators(get_model(opts.model), count, cell_material, normals, views, lights, irr,
+                                        weights)
+        wrap = (lambda mm: PixelModel(mm, layout)) if getattr(layout, "eliminates", False) else (lambda mm: mm)
+        make_problem = MT.problem_factory(cell_material, count, wrap)
+        mat = {"labels": lab, "count": count, "cell_material": cell_material,
+               "pixels": np.bincount(cell_material, minlength=count).tolist()}
     if evaluator is None:
         if np.allclose(irr, irr[0]):
             irr = float(irr[0])
         evaluator = PixelEvaluator(get_model(opts.model), normals, views, lights, irr, weights=weights)
     flat_idx = np.concatenate(idxs)
-    return FitData(loss, flat_idx, excluded, objective, smp, evaluator, image_pixels=idxs, slices=slices)
+    return FitData(loss, flat_idx, excluded, objective, smp, evaluator, image_pixels=idxs, slices=slices,
+                   make_problem=make_problem, materials=mat)

@@ -190,7 +190,8 @@ class FitData:
     ``image_pixels`` (each image's flat indices) and ``slices`` ((start, stop)
     of each image among the pixels).  ``make_problem``: builds the problem
     when it is not a plain :class:`Problem` (free light powers:
-    :func:`fmbrdf_mi.fit.problem.free_power.problem_factory`).
+    :func:`fmbrdf_mi.fit.problem.free_power.problem_factory`; several materials:
+    :func:`fmbrdf_mi.fit.problem.materials.problem_factory`).
     """
 
     loss: str
@@ -202,6 +203,8 @@ class FitData:
     image_pixels: list = None
     slices: list = None
     make_problem: object = None
+    #: several materials: ``{"labels": (H, W), "count": M, "cell_material": (cells,), "pixels": [per material]}``
+    materials: dict = None
 
     def problem(self, model, bounds, progress, fixed, deadline):
         """The :class:`Problem` of these data (the free-power one when ``make_problem`` says so)."""

@@ -108,6 +108,8 @@ def coarse_search(problem, keep=2):
     closed form (the objective's weighted least squares) and the objective
     with the candidate's own weights decides.
     """
+    if getattr(problem, "materials", None) is not None:
+        return material_search(problem, keep)
     model = problem.model
     grids, first, later, mids = search_grids(model, problem.bounds, problem.fixed, problem.names)
     lobes = {}
@@ -124,6 +126,66 @@ def coarse_search(problem, keep=2):
 
     return staged_search(model.shape_names, grids, first, later, mids, evaluate, shape_of=lambda st: st.shape,
                          keep=keep, on_point=on_point, progress=problem.progress)
+
+
+#: How many combined candidates the search of several materials returns (each costs one evaluation).
+MATERIAL_CANDIDATES = 6
+
+
+class _FirstMaterialBounds:
+    """The bounds of material 0's parameters under the base model's names (every material has the same:
+    ``bounds`` and ``fixed`` are given per model parameter)."""
+
+    def __init__(self, bounds):
+        self.bounds = bounds
+
+    def clip_grid(self, name, grid):
+        return self.bounds.clip_grid(f"{name}[0]", grid)
+
+
+def material_search(problem, keep=2):
+    """The coarse search of a fit of several materials
+    (:class:`~fmbrdf_mi.fit.problem.materials.MaterialProblem`); returns candidates [(score, State)].
+
+    Every grid point of the one-material search (:func:`staged_search`) is
+    evaluated once with all materials at it (one evaluation per material,
+    the albedos in closed form per material or pixel), and scored on each
+    material's own pixels (:meth:`material_scores`); each material's stages
+    then run on those scores, so each material gets the best grid point for
+    its own pixels at about the cost of one search.  Candidate j combines
+    every material's j-th best point.
+    """
+    mm = problem.materials
+    base, M = mm.base, mm.count
+    fixed0 = {n: problem.fixed[f"{n}[0]"] for n in base.shape_names if f"{n}[0]" in problem.fixed}
+    names0 = [n for n in base.shape_names if f"{n}[0]" in problem.names]
+    grids, first, later, mids = search_grids(base, _FirstMaterialBounds(problem.bounds), fixed0, names0)
+    scores = {}
+
+    def full(shape):
+        return {f"{n}[{m}]": shape[n] for m in range(M) for n in base.shape_names}
+
+    def tied(shape):
+        key = tuple(round(shape[n], 9) for n in base.shape_names)
+        if key not in scores:
+            st, parts = problem.closed_form(full(shape))
+            scores[key] = problem.material_scores(parts, st)
+            if problem.current is None:
+                problem.current = st
+        return scores[key]
+
+    ranked = [staged_search(base.shape_names, grids, first, later, mids,
+                            lambda s, m=m: (float(tied(s)[m]), dict(s)), shape_of=lambda s: s, keep=keep,
+                            progress=problem.progress if m == 0 else None)
+              for m in range(M)]
+    out = []
+    for j in range(min(MATERIAL_CANDIDATES, min(len(r) for r in ranked))):
+        shape = {f"{n}[{m}]": ranked[m][j][1][n] for m in range(M) for n in base.shape_names}
+        st, parts = problem.closed_form(shape)
+        out.append((problem.obj.score(parts, st), st))
+    out.sort(key=lambda x: x[0])
+    problem.current = out[0][1]
+    return out
 
 
 # ---------------------------------------------------------------- refinement

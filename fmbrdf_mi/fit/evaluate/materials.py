@@ -1,0 +1,223 @@
+"""Several materials in one fit: a label image assigns each fitted pixel to one of M materials (issue 25).
+
+Pixel i with label m(i) is predicted with its material's own shape parameters
+and albedos (paper eq:fmbrdf, one BRDF per material):
+
+    S(x_i) = E (k_s[m] f_s(x_i; eta[m], alpha[m], beta[m]) + k_b[m] f_b(x_i; eta[m], kappa[m])),
+
+and every pixel of every material enters the one objective (one camera noise
+model: :mod:`fmbrdf_mi.fit.objectives.objective`).  Three pieces, each a
+wrapper of what one material already has:
+
+* :class:`MaterialModel`: the model with per-material shape parameters
+  ``eta[0] .. kappa[0], eta[1] ..`` (the bracket names of the per-channel
+  albedos, :class:`~fmbrdf_mi.fit.evaluate.albedos.ChannelModel`); with
+  shared albedos it reports ``k_s[m]``, ``r_k[m]`` per material;
+* :class:`MaterialEvaluator`: one evaluator per material over that
+  material's points, assembled into the :class:`Parts` of all points (the
+  derivative with respect to ``eta[m]`` is material m's derivative on its
+  points and 0 elsewhere); a material whose parameters did not change is
+  not evaluated again;
+* :class:`MaterialAlbedos`: the albedo layout with one (a_s, a_b) per
+  material (the groups of the per-channel layout are the materials).  Per-pixel
+  albedo maps (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) need
+  nothing new: each pixel has its own pair whatever its material.
+
+A fit of one material (every label 0) is the ordinary fit and runs on the
+ordinary pipeline (:func:`fmbrdf_mi.fit.api.fitting.fit`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, nnls2
+from fmbrdf_mi.fit.evaluate.models import ShapeParam
+from fmbrdf_mi.fit.evaluate.pixel_model import Parts
+
+#: Fewest fitted (super-)pixels a material must have: as many as a whole fit
+#: needs (:data:`fmbrdf_mi.fit.problem.data.MIN_PIXELS`), since each material's
+#: shape parameters are estimated from its own pixels.
+MIN_MATERIAL_PIXELS = 20
+
+
+def material_name(name, m):
+    """``eta[1]``: parameter ``name`` of material ``m``."""
+    return f"{name}[{m}]"
+
+
+def check_labels(labels, shape, what="materials"):
+    """The label image ``labels`` on the fit's pixel grid ``shape`` (H, W): an int array (H, W).
+
+    Accepted: (H, W) (the grid the fit runs on: the super-pixel grid of a raw
+    mosaic), or (2H, 2W) (a raw mosaic's sensor pixels: a super-pixel takes
+    its 2 x 2 block's label when the four agree, else it is not fitted).
+    Integer values; 0 .. M-1 are materials, any value < 0 is not fitted.
+    InputError in one line naming ``what`` otherwise.
+    """
+    H, W = shape
+    try:
+        lab = np.asarray(labels)
+    except Exception:   # noqa: BLE001 - anything that is not an array
+        raise InputError(f"{what}: expected an integer array of shape ({H}, {W}), got {type(labels).__name__}") \
+            from None
+    if lab.ndim != 2 or lab.shape not in ((H, W), (2 * H, 2 * W)):
+        raise InputError(f"{what}: shape {lab.shape} is neither the fit's pixel grid ({H}, {W}) nor the raw "
+                         f"sensor's ({2 * H}, {2 * W}); give one integer label per pixel")
+    if lab.dtype.kind == "b" or lab.dtype.kind not in "iuf":
+        raise InputError(f"{what}: expected integer labels, got dtype {lab.dtype}")
+    if lab.dtype.kind == "f":
+        if not np.all(np.isfinite(lab)) or np.any(lab != np.round(lab)):
+            raise InputError(f"{what}: labels must be integers (0 .. M-1, < 0 for pixels not fitted)")
+    lab = lab.astype(np.int64)
+    if lab.shape == (2 * H, 2 * W):
+        b = lab.reshape(H, 2, W, 2).transpose(0, 2, 1, 3).reshape(H, W, 4)
+        agree = np.all(b == b[..., :1], axis=-1)
+        lab = np.where(agree, b[..., 0], -1)
+    return lab
+
+
+def material_count(labels, what="materials"):
+    """M: the number of materials of a checked label image (its largest label + 1); InputError when no
+    pixel has a label >= 0."""
+    top = int(labels.max()) if labels.size else -1
+    if top < 0:
+        raise InputError(f"{what}: no pixel has a label >= 0 (0 .. M-1 are the materials)")
+    return top + 1
+
+
+class MaterialModel:
+    """A model with ``count`` materials: per-material shape parameters (``eta[m]`` ...) and, with the shared
+    layout, per-material albedos (:meth:`report`: ``k_s[m]``, ``r_k[m]`` for fmbrdf)."""
+
+    def __init__(self, base, count):
+        self.base = base
+        self.count = int(count)
+        self.shape = tuple(ShapeParam(material_name(p.name, m), p.key, p.lo, p.hi, p.scale, p.grid)
+                           for m in range(self.count) for p in base.shape)
+        self._params = {p.name: p for p in self.shape}
+
+    def __getattr__(self, name):  # name, surface_key, body_key, albedo_factor, bsdf_dict, ...
+        return getattr(self.base, name)
+
+    @property
+    def shape_names(self):
+        return tuple(p.name for p in self.shape)
+
+    def param(self, name):
+        return self._params[name]
+
+    def of(self, values, m):
+        """Material ``m``'s shape values under the base model's names."""
+        return {n: values[material_name(n, m)] for n in self.base.shape_names}
+
+    def expand(self, values):
+        """{name: v} of the base model's names (``bounds``, ``fixed``) -> the same for every material; names
+        that already carry a material (``eta[1]``) are kept."""
+        if not values:
+            return values
+        out = {}
+        for k, v in values.items():
+            if k in self.base.shape_names:
+                out.update({material_name(k, m): v for m in range(self.count)})
+            else:
+                out[k] = v
+        return out
+
+    def report(self, shape_values, a_s, a_b):
+        a_s = np.broadcast_to(np.asarray(a_s, dtype=np.float64), (self.count,))
+        a_b = np.broadcast_to(np.asarray(a_b, dtype=np.float64), (self.count,))
+        out = {}
+        for m in range(self.count):
+            out.update({material_name(k, m): v for k, v in self.base.report(self.of(shape_values, m), a_s[m],
+                                                                           a_b[m]).items()})
+        return out
+
+    @property
+    def reported_names(self):
+        return tuple(material_name(k, m) for m in range(self.count) for k in self.base.reported_names)
+
+    def split(self, reported):
+        """(shape values, a_s (M,), a_b (M,)) from reported parameters: the base model's names (every material
+        starts there) or per material (``eta[0]`` ...)."""
+        if all(n in reported for n in self.base.reported_names) and not any("[" in k for k in reported):
+            shape, a_s, a_b = self.base.split(reported)
+            return {material_name(n, m): v for m in range(self.count) for n, v in shape.items()}, \
+                np.full(self.count, a_s), np.full(self.count, a_b)
+        shape, a_s, a_b = {}, np.zeros(self.count), np.zeros(self.count)
+        for m in range(self.count):
+            sub = {k: reported.get(material_name(k, m)) for k in self.base.reported_names}
+            missing = [material_name(k, m) for k, v in sub.items() if v is None]
+            if missing:
+                raise InputError(f"{self.base.name} parameters of {self.count} materials: missing "
+                                 f"{', '.join(missing)} (give the model's names for all, or each with [m])")
+            s, a_s[m], a_b[m] = self.base.split(sub)
+            shape.update({material_name(n, m): v for n, v in s.items()})
+        return shape, a_s, a_b
+
+    def nest(self, flat):
+        """``{"eta[0]": x, ...}`` -> ``[{"eta": x, ...}, ...]`` one dict per material."""
+        out = [{} for _ in range(self.count)]
+        for k, v in flat.items():
+            if k.endswith("]") and "[" in k:
+                name, label = k[:-1].split("[", 1)
+                if label.isdigit() and int(label) < self.count:
+                    out[int(label)][name] = v
+        return out
+
+
+class MaterialAlbedos(ChannelAlbedos):
+    """One (a_s, a_b) per material: ``material`` (cells,) the material of each cell, ``n`` samples per cell
+    (the per-channel layout with the material as each sample's group)."""
+
+    def __init__(self, material, n, count):
+        material = np.asarray(material, dtype=np.int64)
+        super().__init__(np.repeat(material[:, None], int(n), axis=1), labels=[str(m) for m in range(count)])
+        self.groups = self.channel      # (cells, n): each sample's material
+
+    def solve(self, S, B, y, w):
+        """Each material's (a_s, a_b) by :func:`~fmbrdf_mi.fit.evaluate.albedos.nnls2` of its samples."""
+        out = [nnls2(S[m], B[m], y[m], w[m]) for m in self.masks]
+        return np.array([o[0] for o in out]), np.array([o[1] for o in out])
+
+
+class MaterialEvaluator:
+    """:class:`Parts` of all points from one evaluator per material.
+
+    ``evaluators``: material m's evaluator over its own points (the base
+    model's shape names); ``columns``: for each material the indices of its
+    points among all ``n_points`` (the order of the objective's points).
+    """
+
+    def __init__(self, model, evaluators, columns, n_points):
+        self.model = model
+        self.evaluators = list(evaluators)
+        self.columns = [np.asarray(c, dtype=np.int64) for c in columns]
+        self.n_points = int(n_points)
+        self._cache = [None] * len(self.evaluators)   # (shape key, wrt, Parts) per material
+
+    def _material_parts(self, m, values, wrt):
+        key = tuple(round(float(values[n]), 12) for n in self.model.base.shape_names)
+        c = self._cache[m]
+        if c is not None and c[0] == key and set(wrt) <= set(c[1]):
+            return c[2]
+        p = self.evaluators[m].parts(values, tuple(wrt))
+        self._cache[m] = (key, tuple(wrt), p)
+        return p
+
+    def parts(self, shape_values, wrt=()):
+        N = self.n_points
+        surface, body = np.zeros((3, N)), np.zeros((3, N))
+        d_s, d_b, bad = {}, {}, None
+        for m, cols in enumerate(self.columns):
+            sub_wrt = [n for n in self.model.base.shape_names if material_name(n, m) in wrt]
+            p = self._material_parts(m, self.model.of(shape_values, m), sub_wrt)
+            surface[:, cols], body[:, cols] = p.surface, p.body
+            for n in sub_wrt:
+                ds, db = np.zeros((3, N)), np.zeros((3, N))
+                ds[:, cols], db[:, cols] = p.d_surface[n], p.d_body[n]
+                d_s[material_name(n, m)], d_b[material_name(n, m)] = ds, db
+            if p.nonfinite is not None and sub_wrt:
+                bad = np.zeros(N, bool) if bad is None else bad
+                bad[cols] |= p.nonfinite
+        return Parts(surface, body, d_s, d_b, bad)

@@ -1,0 +1,73 @@
+"""Label images of a fit of several materials (``fmbrdf-mi fit --materials LABELS``).
+
+A label image holds one integer per pixel: 0 .. M-1 the material, and a
+pixel that is not fitted is
+
+* ``.npy``: any value < 0 (an integer array, or floats with integer values);
+* ``.png``: one channel (grey ``L``, 16-bit ``I;16`` or a palette image,
+  whose palette indices are the labels): 255 in an 8-bit image, 65535 in a
+  16-bit one (so that 0 stays a material).
+
+Its size is the fit's pixel grid: for a raw mosaic the super-pixel grid
+(half the sensor's in each direction), or the sensor's own (a super-pixel
+then takes its 2 x 2 block's label when the four agree, else it is not
+fitted: :func:`fmbrdf_mi.fit.evaluate.materials.check_labels`).
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.observations import check_file
+
+#: The value of a pixel that is not fitted, by the PNG's bit depth.
+PNG_NOT_FITTED = {8: 255, 16: 65535}
+
+
+def read_labels(path, what="--materials"):
+    """The label image in ``path`` as int64 (H, W), pixels not fitted -1 (module docstring); InputError in
+    one line naming ``what`` and the file otherwise."""
+    path = os.fspath(path)
+    check_file(path, what)
+    ext = os.path.splitext(path)[1].lower()
+    name = f"{what} {path}"
+    if ext == ".npy":
+        try:
+            a = np.load(path, allow_pickle=False)
+        except Exception as exc:  # noqa: BLE001 - any unreadable file is the user's to fix
+            raise InputError(f"{name}: not a readable .npy file ({exc})") from None
+        if a.ndim != 2 or a.dtype.kind not in "iuf":
+            raise InputError(f"{name}: expected a 2-D integer array of labels (0 .. M-1, < 0 not fitted), got "
+                             f"{a.dtype} of shape {a.shape}")
+        if a.dtype.kind == "f" and (not np.all(np.isfinite(a)) or np.any(a != np.round(a))):
+            raise InputError(f"{name}: labels must be integers (0 .. M-1, < 0 not fitted)")
+        a = a.astype(np.int64)
+        return np.where(a < 0, -1, a)
+    if ext == ".png":
+        from PIL import Image
+
+        try:
+            with Image.open(path) as im:
+                mode = im.mode
+                a = np.asarray(im)
+        except Exception as exc:  # noqa: BLE001
+            raise InputError(f"{name}: not a readable .png file ({exc})") from None
+        if mode not in ("L", "P", "I;16", "I;16B", "I;16L", "I"):
+            raise InputError(f"{name}: expected a one-channel PNG (grey, 16-bit grey or palette) of labels "
+                             f"0 .. M-1, got mode {mode}")
+        bits = 16 if mode.startswith("I") else 8
+        a = a.astype(np.int64)
+        return np.where((a == PNG_NOT_FITTED[bits]) | (a < 0), -1, a)
+    raise InputError(f"{name}: unsupported file type '{ext}' (labels: .npy or a one-channel .png)")
+
+
+def write_labels(path, labels):
+    """``labels`` (H, W) (< 0 not fitted) as an 8-bit grey PNG (255 not fitted; M <= 255)."""
+    from PIL import Image
+
+    lab = np.asarray(labels, dtype=np.int64)
+    if lab.max() >= 255:
+        raise InputError(f"labels: {int(lab.max()) + 1} materials do not fit an 8-bit PNG (at most 255)")
+    Image.fromarray(np.where(lab < 0, 255, lab).astype(np.uint8), mode="L").save(path)
