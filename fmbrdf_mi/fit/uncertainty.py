@@ -289,8 +289,16 @@ def chi2_along_covariance(problem, st, J, scale):
     def state(name, value):
         j = problem.names.index(name)
         zt = problem.bounds.to_z(name, value)
-        c = path_cov(j)
-        s = problem.from_z(z0 + c[:, j] / c[j, j] * (zt - z0[j]))
+        if j in pinned:
+            # the parameter profiled is itself at a bound: the others' regression on it is not defined (its
+            # Jacobian column ~0: it threw them to chi^2 ~ 1e49, and the profile's end collapsed onto the
+            # estimate); they stay at the estimate and the refit starts from there
+            z = z0.copy()
+            z[j] = zt
+        else:
+            c = path_cov(j)
+            z = z0 + c[:, j] / c[j, j] * (zt - z0[j])
+        s = problem.from_z(z)
         s.shape[name] = float(value)   # exactly (z is clipped to +-Z_MAX)
         if getattr(problem, "eliminates", False):   # albedo maps: re-solved at the point (the profile over them)
             s = problem.projected(s.shape)[0]
