@@ -59,6 +59,8 @@ def test_noise_free_textured_sphere_is_recovered():
     assert np.all(np.abs(m["k_s"][f] - ks[f]) < 0.05 * m["k_s_se"][f])
     assert np.all(np.abs(m["k_b"][f] - kb[f]) < 0.05 * m["k_b_se"][f])
     assert res.albedo["identified_fraction"] == 1.0
+    # one image of each pixel: the shared parameters' bias is measured and said (fit.json, progress, summary)
+    assert res.albedo["images_per_pixel"] == 1.0 and "fewer than 3 images" in res.albedo["warning"]
 
 
 def test_pixel_albedo_fit_is_refused_where_it_cannot_run():
@@ -140,8 +142,10 @@ def test_joint_manifest_with_maps_relights_the_held_out_image(tmp_path, capsys):
                  "--intervals", "fisher", "-o", str(out), "-q"]) == 0
     text = capsys.readouterr().out
     assert "albedo maps:" in text and "relighting l3" in text
+    assert "fewer than 3 images" not in text     # three images of each pixel: no bias warning
     rep = json.loads((out / "fit.json").read_text())
     m = rep["models"]["fmbrdf"]
+    assert m["albedo"]["images_per_pixel"] == 3.0 and "warning" not in m["albedo"]
     assert m["converged"] and set(m["params"]) == set(SHAPE)
     for k, v in SHAPE.items():
         assert abs(m["params"][k] - v) < 4 * m["std_errors"][k], (k, m["params"], m["std_errors"])

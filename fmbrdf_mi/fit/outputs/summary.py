@@ -23,7 +23,7 @@ def albedo_text(a):
     return (f"albedo maps: {a['pixels']} pixels, median k_s {a['k_s_median']:.4g}, k_b {a['k_b_median']:.4g}; "
             f"relative standard error <= 0.5 for k_s in {a['k_s_determined_fraction']:.0%}, for k_b in "
             f"{a['k_b_determined_fraction']:.0%} of them; surface / body split identified in "
-            f"{a['identified_fraction']:.0%}")
+            f"{a['identified_fraction']:.0%}" + (f"\n  warning: {a['warning']}" if a.get("warning") else ""))
 
 
 def print_colour(report):
