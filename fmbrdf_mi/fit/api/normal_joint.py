@@ -112,7 +112,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     standard errors (one more run from the refinement's result, when below ``lam``; None: the material at
     ``lam``); ``options["material_stage"]`` its energy and stop reason.  The standard errors are the sandwich
     of the penalised likelihood, calibrated (``uncertainty["calibrated"]``) when the material's weight is
-    at most :data:`LAM_MATERIAL` (module docstring).
+    at most ``LAM_MATERIAL`` (0.03) (module docstring).
     """
 
     say = progress or (lambda msg: None)
