@@ -2,7 +2,7 @@
 interleaved on the same core: this tree against another (e.g. an older commit's worktree).
 
     python tools/bench_normal_refine_speed.py --old /path/to/old/worktree [--new ROOT] [--res 40] [--reps 2]
-                                             [--lights 4] [--seed 11] [--lam 0.3]
+                                             [--lights 4] [--seed 11] [--lam 0.3] [--json OUT.json]
 
 Each run is a fresh process with ``PYTHONPATH`` set to the tree (checked: ``fmbrdf_mi.__file__`` must lie in it)
 and one Dr.Jit thread (``dr.set_thread_count(1)``; pin the whole command to one core with ``taskset -c N``).
@@ -54,7 +54,9 @@ p = dict(j.params)
 p["k_s"] /= ks_scale
 print("RESULT " + json.dumps({"file": fmbrdf_mi.__file__, "time": dt, "iterations": len(j.history),
                               "pixels": j.n_pixels, "converged": j.converged, "mean": float(e1.mean()),
-                              "median": float(np.median(e1)), "params": p, "energy": j.loss}))
+                              "median": float(np.median(e1)), "params": p, "energy": j.loss,
+                              "stop_reason": j.stop_reason, "material_stage": j.options.get("material_stage"),
+                              "history": [[h["round"], h["iter"], h["energy"]] for h in j.history]}))
 """
 
 
@@ -67,6 +69,7 @@ def main(argv=None):
     ap.add_argument("--lights", type=int, default=4)
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--lam", type=float, default=0.3)
+    ap.add_argument("--json", metavar="OUT.json", help="every run's record, with the LM history (round, iter, energy)")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.join(HERE, "tools"))
     from bench_normal_refine import LIGHTS, POWERS, TRUTH
@@ -91,6 +94,9 @@ def main(argv=None):
     for name in ("old", "new"):
         ts = [r["time"] for r in rows if r["tree"] == name]
         print(f"{name}: {min(ts):.1f} s best of {len(ts)} (all: {', '.join(f'{t:.1f}' for t in ts)})")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"config": vars(args), "runs": rows}, f, indent=1)
     return 0
 
 
