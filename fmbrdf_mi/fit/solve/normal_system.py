@@ -41,6 +41,13 @@ from __future__ import annotations
 import numpy as np
 
 
+def _sums(idx, w, n):
+    """(n, C) sums of the rows of ``w`` (k, C) by ``idx`` (k,): one bincount per column, in the rows' order (as a
+    sequential scatter-add would; float also when k is 0)."""
+    out = np.stack([np.bincount(idx, weights=w[:, c], minlength=n) for c in range(w.shape[1])], 1)
+    return out.astype(float, copy=False)
+
+
 def data_products(pix, val, Jm, r, N):
     """H_mm, H_mn (p, N, 2), g_m, g_n (N, 2) of the data rows.
 
@@ -53,11 +60,8 @@ def data_products(pix, val, Jm, r, N):
     q = np.where(ok, pix, 0).ravel()
     v = np.where(ok[..., None], val, 0.0)
     m, Q = pix.shape
-    # per-pixel sums by bincount (in the rows' order, as a sequential scatter-add would)
-    vJ = (v[:, :, :, None] * Jm[:, None, None, :]).reshape(m * Q, 2 * p)
-    Hmn = np.stack([np.bincount(q, weights=vJ[:, c], minlength=N) for c in range(2 * p)], 1).reshape(N, 2, p)
-    vr = (v * r[:, None, None]).reshape(m * Q, 2)
-    gn = np.stack([np.bincount(q, weights=vr[:, a], minlength=N) for a in range(2)], 1)
+    Hmn = _sums(q, (v[:, :, :, None] * Jm[:, None, None, :]).reshape(m * Q, 2 * p), N).reshape(N, 2, p)
+    gn = _sums(q, (v * r[:, None, None]).reshape(m * Q, 2), N)
     return Jm.T @ Jm, np.ascontiguousarray(Hmn.transpose(2, 0, 1)), Jm.T @ r, gn
 
 
@@ -69,8 +73,8 @@ def _pairs(pix, stencils, N):
     stencils only; the last one is kept, as the refinement builds many blocks on one pattern).
 
     Returns ``G``, the number of distinct pixel lists (-1: left out) and ``groups``: (lists (n,), their rows
-    (n, c)) for each number c of rows per list; ``dsel``: the valid entries of the (G, Q, Q) term pairs; ``inv``: the pair
-    index of each valid term pair, then of each pixel's diagonal (the ridge), then of each (E, S, S) stencil
+    (n, c)) for each number c of rows per list; ``dsel``: the valid entries of the (G, Q, Q) term pairs (None:
+    all); ``inv``: the pair index of each valid term pair, then of each pixel's diagonal (the ridge), then of each (E, S, S) stencil
     pair; ``rows``, ``pos`` (P,): each pair's pixel i and place in the (N, ``qmax``) neighbour list ``nbr``
     (pairs sorted by i then j; every i has its diagonal; the padding points at pixel 0 with a zero block).
     """
@@ -127,9 +131,9 @@ class NormalBlock:
         qf = self.q.ravel()
         self.csum = np.zeros(N)
         if len(stencils):
-            self.csum = np.bincount(stencils.ravel(), weights=np.tile(self.coef ** 2, len(stencils)), minlength=N)
+            self.csum = _sums(stencils.ravel(), np.tile(self.coef ** 2, len(stencils))[:, None], N)[:, 0]
         vv = np.einsum("mqa,mqb->mqab", self.v, self.v).reshape(m * Q, 4)
-        diag = np.stack([np.bincount(qf, weights=vv[:, c], minlength=N) for c in range(4)], 1).reshape(N, 2, 2)
+        diag = _sums(qf, vv, N).reshape(N, 2, 2)
         diag[:, 0, 0] += self.w * self.csum      # the tangent bases are orthonormal
         diag[:, 1, 1] += self.w * self.csum
         d = np.stack([diag[:, 0, 0], diag[:, 1, 1]], 1)
@@ -168,7 +172,7 @@ class NormalBlock:
             vals.append((cc[None, :, :, None, None] * TT).reshape(-1, 4))
         vals = np.concatenate(vals)
         P, inv = len(sp["rows"]), sp["inv"]
-        blocks = np.stack([np.bincount(inv, weights=vals[:, c], minlength=P) for c in range(4)], 1)
+        blocks = _sums(inv, vals, P)
         B = np.zeros((N, sp["qmax"], 2, 2))
         B[sp["rows"], sp["pos"]] = blocks.reshape(P, 2, 2)
         self.nbr = sp["nbr"]
