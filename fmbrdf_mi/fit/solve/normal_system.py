@@ -74,9 +74,10 @@ def _pairs(pix, stencils, N):
 
     Returns ``G``, the number of distinct pixel lists (-1: left out) and ``groups``: (lists (n,), their rows
     (n, c)) for each number c of rows per list; ``dsel``: the valid entries of the (G, Q, Q) term pairs (None:
-    all); ``inv``: the pair index of each valid term pair, then of each pixel's diagonal (the ridge), then of each (E, S, S) stencil
-    pair; ``rows``, ``pos`` (P,): each pair's pixel i and place in the (N, ``qmax``) neighbour list ``nbr``
-    (pairs sorted by i then j; every i has its diagonal; the padding points at pixel 0 with a zero block).
+    all); ``inv``: the pair index of each valid term pair, then of each pixel's diagonal (the ridge), then of
+    each (E, S, S) stencil pair; ``rows``, ``pos`` (P,): each pair's pixel i and place in the (N, ``qmax``)
+    neighbour list ``nbr`` (pairs sorted by i then j; every i has its diagonal; the padding points at pixel 0
+    with a zero block).
     """
     c = _PAIRS.get("key")
     if c is not None and c[0] == N and np.array_equal(c[1], pix) and np.array_equal(c[2], stencils):
