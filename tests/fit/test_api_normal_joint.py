@@ -90,6 +90,95 @@ def test_normal_block_and_schur_step_match_dense_algebra(prior):
                                atol=1e-8)
 
 
+def _apply_matrix_free(pix, val, st, coef, t1, t2, w, ridge, x):
+    """H_nn x as NormalBlock.apply computed it before H_nn was assembled (commit 6dab7a8): matrix-free, with
+    scatter-adds (np.add.at) over the data rows' terms and the prior's stencils."""
+    ok = pix >= 0
+    q = np.where(ok, pix, 0)
+    v = np.where(ok[..., None], val, 0.0)
+    jx = np.einsum("mqa,mqar->mr", v, x[q])
+    y = np.zeros_like(x)
+    np.add.at(y, q.ravel(), (v[:, :, :, None] * jx[:, None, None, :]).reshape(-1, 2, x.shape[2]))
+    y += ridge[:, :, None] * x
+    if len(st) and w:
+        d = 0.0
+        for s, c in enumerate(coef):
+            k = st[:, s]
+            d = d + c * (t1[k][:, :, None] * x[k, 0][:, None, :] + t2[k][:, :, None] * x[k, 1][:, None, :])
+        d = w * d
+        for s, c in enumerate(coef):
+            k = st[:, s]
+            g = np.stack([np.einsum("ec,ecr->er", t1[k], d), np.einsum("ec,ecr->er", t2[k], d)], 1)
+            np.add.at(y, k, c * g)
+    return y
+
+
+@pytest.mark.parametrize("prior", ["curvature", "membrane"])
+def test_assembled_normal_block_matches_the_matrix_free_product(prior):
+    """NormalBlock.apply (H_nn assembled as 2 x 2 pair blocks) equals the matrix-free product it replaced, to
+    rounding, on a 7 x 9 mask with holes: rows shaped like the refinement's (bilinear 2 x 2 corners, centre
+    samples with one pixel 8 times, border rows with extrapolation terms i and the pixel opposite, -1 fixed
+    corners), several right-hand sides; also without the prior, with a second block on the same pattern (the
+    kept pattern) and on another.  data_products against its scatter-add definition."""
+    from fmbrdf_mi.fit.problem.normals import stencils, tangent_bases
+    from fmbrdf_mi.fit.solve.normal_system import NormalBlock, data_products
+
+    rng = np.random.default_rng(7)
+    mask = np.ones((7, 9), bool)
+    mask[2, 3] = mask[4, 6] = mask[0, 0] = False
+    st, coef = stencils(mask, prior)
+    N = int(mask.sum())
+    pos = -np.ones(mask.shape, int)
+    pos[mask] = np.arange(N)
+    ys, xs = np.nonzero(mask)
+
+    def rows(kind):
+        out = []
+        for y, x in zip(ys, xs):
+            i = pos[y, x]
+            dy, dx = rng.choice([-1, 1], 2)
+            corners = [pos[y + a, x + b] if 0 <= y + a < 7 and 0 <= x + b < 9 else -1
+                       for a, b in ((0, 0), (0, dx), (dy, 0), (dy, dx))]
+            out.append([i] * 8)                                          # a sample at the centre
+            r = []
+            for a, b, c in zip((0, 0, dy, dy), (0, dx, 0, dx), corners):
+                if c >= 0 or kind == "fixed":
+                    r += [c, c]
+                else:                                                    # extrapolated: i and the pixel opposite
+                    yo, xo = y - a, x - b
+                    r += [i, pos[yo, xo] if 0 <= yo < 7 and 0 <= xo < 9 else -1]
+            out.append(r)
+        return np.array(out)
+
+    for kind in ("extrapolated", "fixed"):
+        pix = rows(kind)
+        pix = np.concatenate([pix, pix])                                 # two lights: the same pixel lists
+        assert (pix < 0).any() and any(len(set(r)) < 8 for r in pix)
+        n = rng.normal(size=(N, 3))
+        n[:, 2] = np.abs(n[:, 2]) + 1
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        t1, t2 = tangent_bases(n)
+        for w, mu in ((0.7, 0.05), (3.0, 0.0), (0.0, 0.0)):      # the 2nd on the 1st one's pattern
+            val = rng.normal(size=pix.shape + (2,))
+            blk = NormalBlock(pix, val, st, coef, t1, t2, w, mu)
+            for R in (1, 4):
+                x = rng.normal(size=(N, 2, R))
+                ref = _apply_matrix_free(pix, val, st, coef, t1, t2, w, blk.ridge, x)
+                np.testing.assert_allclose(blk.apply(x), ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+        m, p = len(pix), 6
+        Jm, r = rng.normal(size=(m, p)), rng.normal(size=m)
+        Hmm, Hmn, gm, gn = data_products(pix, val, Jm, r, N)
+        ok = pix >= 0
+        q, v = np.where(ok, pix, 0), np.where(ok[..., None], val, 0.0)
+        Hmn_ref, gn_ref = np.zeros((N, 2, p)), np.zeros((N, 2))
+        np.add.at(Hmn_ref, q.ravel(), (v[:, :, :, None] * Jm[:, None, None, :]).reshape(-1, 2, p))
+        np.add.at(gn_ref, q.ravel(), (v * r[:, None, None]).reshape(-1, 2))
+        np.testing.assert_allclose(Hmn, Hmn_ref.transpose(2, 0, 1), rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(gn, gn_ref, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(Hmm, Jm.T @ Jm)
+        np.testing.assert_allclose(gm, Jm.T @ r)
+
+
 def test_curvature_prior_is_zero_on_a_linear_normal_field():
     """Second differences vanish where the normal changes linearly across the image (a cylinder-like
     slope field before normalisation); first differences do not."""

@@ -19,8 +19,14 @@ smoothness prior's rows), the Gauss-Newton system of (1/2) r.r is
   prior's (first or second differences along rows and columns, projected
   on each pixel's tangent plane), w the prior's weight.
 
-H_nn is never formed: :class:`NormalBlock` applies it (O(pixels) per
-product) and solves with it by conjugate gradients preconditioned by its
+H_nn is assembled once per :class:`NormalBlock` as 2 x 2 blocks of the coupled
+pixel pairs (at most a few tens per pixel: the data's 8-neighbours and
+border extrapolation terms, the prior's stencils), each pixel's row of blocks
+in a padded neighbour list, so that a product is a gather and a batched
+2 x (2 Qmax) times (2 Qmax) x R product, O(pixels) with no scatter-add; the
+sparsity pattern depends on the rows' pixel lists and the stencils only and
+is kept across the blocks of one refinement.  :class:`NormalBlock` solves
+with it by conjugate gradients preconditioned by its
 2 x 2 diagonal blocks (the data's own block + the prior's, a multiple of I:
 the tangent bases are orthonormal),
 several right-hand sides at once.  The full system is solved by the Schur
@@ -35,6 +41,13 @@ from __future__ import annotations
 import numpy as np
 
 
+def _sums(idx, w, n):
+    """(n, C) sums of the rows of ``w`` (k, C) by ``idx`` (k,): one bincount per column, in the rows' order (as a
+    sequential scatter-add would; float also when k is 0)."""
+    out = np.stack([np.bincount(idx, weights=w[:, c], minlength=n) for c in range(w.shape[1])], 1)
+    return out.astype(float, copy=False)
+
+
 def data_products(pix, val, Jm, r, N):
     """H_mm, H_mn (p, N, 2), g_m, g_n (N, 2) of the data rows.
 
@@ -44,13 +57,58 @@ def data_products(pix, val, Jm, r, N):
     """
     p = Jm.shape[1]
     ok = pix >= 0
-    q = np.where(ok, pix, 0)
+    q = np.where(ok, pix, 0).ravel()
     v = np.where(ok[..., None], val, 0.0)
-    Hmn = np.zeros((N, 2, p))
-    np.add.at(Hmn, q.ravel(), (v[:, :, :, None] * Jm[:, None, None, :]).reshape(-1, 2, p))
-    gn = np.zeros((N, 2))
-    np.add.at(gn, q.ravel(), (v * r[:, None, None]).reshape(-1, 2))
+    m, Q = pix.shape
+    Hmn = _sums(q, (v[:, :, :, None] * Jm[:, None, None, :]).reshape(m * Q, 2 * p), N).reshape(N, 2, p)
+    gn = _sums(q, (v * r[:, None, None]).reshape(m * Q, 2), N)
     return Jm.T @ Jm, np.ascontiguousarray(Hmn.transpose(2, 0, 1)), Jm.T @ r, gn
+
+
+_PAIRS = {}
+
+
+def _pairs(pix, stencils, N):
+    """The pixel pairs coupled by H_nn (the sparsity pattern, which depends on the rows' pixel lists and the
+    stencils only; the last one is kept, as the refinement builds many blocks on one pattern).
+
+    Returns ``G``, the number of distinct pixel lists (-1: left out) and ``groups``: (lists (n,), their rows
+    (n, c)) for each number c of rows per list; ``dsel``: the valid entries of the (G, Q, Q) term pairs (None:
+    all); ``inv``: the pair index of each valid term pair, then of each pixel's diagonal (the ridge), then of
+    each (E, S, S) stencil pair; ``rows``, ``pos`` (P,): each pair's pixel i and place in the (N, ``qmax``)
+    neighbour list ``nbr`` (pairs sorted by i then j; every i has its diagonal; the padding points at pixel 0
+    with a zero block).
+    """
+    c = _PAIRS.get("key")
+    if c is not None and c[0] == N and np.array_equal(c[1], pix) and np.array_equal(c[2], stencils):
+        return _PAIRS["value"]
+    m, Q = pix.shape
+    u, g = np.unique(pix, axis=0, return_inverse=True)
+    g = g.ravel()
+    order = np.argsort(g, kind="stable")
+    cnt = np.bincount(g, minlength=len(u))
+    rows_of = np.split(order, np.cumsum(cnt)[:-1])
+    groups = []
+    for c in np.unique(cnt):
+        gs = np.nonzero(cnt == c)[0]
+        groups.append((gs, np.stack([rows_of[i] for i in gs])))
+    dsel = ((u[:, :, None] >= 0) & (u[:, None, :] >= 0)).ravel()
+    ar = np.arange(N)
+    keys = [(u[:, :, None] * N + u[:, None, :]).ravel()[dsel], ar * N + ar]
+    if len(stencils):
+        keys.append((stencils[:, :, None] * N + stencils[:, None, :]).ravel())
+    keys, inv = np.unique(np.concatenate(keys), return_inverse=True)
+    rows, cols = keys // N, keys % N
+    pos = np.arange(len(keys)) - np.searchsorted(rows, ar)[rows]
+    qmax = int(pos.max()) + 1
+    nbr = np.zeros((N, qmax), np.int64)
+    nbr[rows, pos] = cols
+    if dsel.all():
+        dsel = None
+    value = {"G": len(u), "groups": groups, "dsel": dsel, "inv": inv.ravel(), "rows": rows, "pos": pos,
+             "qmax": qmax, "nbr": nbr}
+    _PAIRS.update(key=(N, pix.copy(), stencils.copy()), value=value)
+    return value
 
 
 class NormalBlock:
@@ -64,17 +122,19 @@ class NormalBlock:
     """
 
     def __init__(self, pix, val, stencils, coef, t1, t2, w, mu=0.0):
-        self.N = len(t1)
+        self.N = N = len(t1)
         ok = pix >= 0
         self.q = np.where(ok, pix, 0)
         self.v = np.where(ok[..., None], val, 0.0)
         self.st, self.coef = stencils, np.asarray(coef, float)
         self.t1, self.t2, self.w = t1, t2, float(w)
-        self.csum = np.zeros(self.N)
+        m, Q = pix.shape
+        qf = self.q.ravel()
+        self.csum = np.zeros(N)
         if len(stencils):
-            np.add.at(self.csum, stencils.ravel(), np.tile(self.coef ** 2, len(stencils)))
-        diag = np.zeros((self.N, 2, 2))
-        np.add.at(diag, self.q.ravel(), np.einsum("mqa,mqb->mqab", self.v, self.v).reshape(-1, 2, 2))
+            self.csum = _sums(stencils.ravel(), np.tile(self.coef ** 2, len(stencils))[:, None], N)[:, 0]
+        vv = np.einsum("mqa,mqb->mqab", self.v, self.v).reshape(m * Q, 4)
+        diag = _sums(qf, vv, N).reshape(N, 2, 2)
         diag[:, 0, 0] += self.w * self.csum      # the tangent bases are orthonormal
         diag[:, 1, 1] += self.w * self.csum
         d = np.stack([diag[:, 0, 0], diag[:, 1, 1]], 1)
@@ -84,30 +144,49 @@ class NormalBlock:
         diag[:, 0, 0] += self.ridge[:, 0]
         diag[:, 1, 1] += self.ridge[:, 1]
         self.pre = np.linalg.inv(diag)
+        self._assemble(ok)
+
+    def _assemble(self, ok):
+        """H_nn as 2 x 2 blocks B_ij of the coupled pixel pairs (i, j) (:func:`_pairs`), in a padded (N, Qmax)
+        neighbour list for :meth:`apply`.
+
+        Data: each row contributes v_a v_b^T to the pair of its terms a, b (Q x Q pairs, repeated pixels
+        summed, -1 terms left out; the rows with the same pixel list are summed first); prior: each stencil
+        e contributes w c_s c_s' T_{k_s}^T T_{k_s'} to the pair of its pixels s, s' (T_k = [t1_k t2_k],
+        3 x 2); the ridge: diag(ridge_i) to (i, i).
+        """
+        N, (m, Q) = self.N, self.q.shape
+        prior = bool(len(self.st) and self.w)
+        sp = _pairs(np.where(ok, self.q, -1), self.st if prior else self.st[:0], N)
+        V = self.v.reshape(m, 2 * Q)
+        W = np.empty((sp["G"], 2 * Q, 2 * Q))                   # sum over a list's rows of V_r V_r^T
+        for gs, rs in sp["groups"]:
+            Vg = V[rs]                                          # (groups, rows each, 2Q)
+            W[gs] = np.matmul(Vg.transpose(0, 2, 1), Vg)
+        W = W.reshape(-1, Q, 2, Q, 2).transpose(0, 1, 3, 2, 4).reshape(-1, 4)              # (G Q Q, 4)
+        vals = [W if sp["dsel"] is None else W[sp["dsel"]]]
+        vals.append(np.stack([self.ridge[:, 0], np.zeros(N), np.zeros(N), self.ridge[:, 1]], 1))
+        if prior:
+            T = np.stack([self.t1, self.t2], 1)[self.st]                                # (E, S, 2, 3)
+            cc = self.w * self.coef[:, None] * self.coef[None, :]
+            TT = np.matmul(T[:, :, None], T[:, None].transpose(0, 1, 2, 4, 3))        # (E, S, S, 2, 2)
+            vals.append((cc[None, :, :, None, None] * TT).reshape(-1, 4))
+        vals = np.concatenate(vals)
+        P, inv = len(sp["rows"]), sp["inv"]
+        blocks = _sums(inv, vals, P)
+        B = np.zeros((N, sp["qmax"], 2, 2))
+        B[sp["rows"], sp["pos"]] = blocks.reshape(P, 2, 2)
+        self.nbr = sp["nbr"]
+        self.B = np.ascontiguousarray(B.transpose(0, 2, 1, 3).reshape(N, 2, -1))   # [B_i,j1 B_i,j2 ...]
 
     def data_product(self, x):
         """J_n x (data rows only), x (N, 2, R) -> (m, R)."""
         return np.einsum("mqa,mqar->mr", self.v, x[self.q])
 
     def apply(self, x):
-        """H_nn x for x (N, 2, R)."""
-        jx = np.einsum("mqa,mqar->mr", self.v, x[self.q])                       # J_n x, (m, R)
-        y = np.zeros_like(x)
-        np.add.at(y, self.q.ravel(), (self.v[:, :, :, None] * jx[:, None, None, :]).reshape(-1, 2, x.shape[2]))
-        y += self.ridge[:, :, None] * x
-        if len(self.st) and self.w:
-            # the prior's residual change: sum_s coef_s (tangent displacement of pixel s), a 3-vector
-            d = 0.0
-            for s, c in enumerate(self.coef):
-                k = self.st[:, s]
-                d = d + c * (self.t1[k][:, :, None] * x[k, 0][:, None, :]
-                             + self.t2[k][:, :, None] * x[k, 1][:, None, :])
-            d = self.w * d                                                   # (E, 3, R)
-            for s, c in enumerate(self.coef):
-                k = self.st[:, s]
-                g = np.stack([np.einsum("ec,ecr->er", self.t1[k], d), np.einsum("ec,ecr->er", self.t2[k], d)], 1)
-                np.add.at(y, k, c * g)
-        return y
+        """H_nn x for x (N, 2, R): y_i = sum_j B_ij x_j over the stored pairs (a gather and a batched product)."""
+        N, R = x.shape[0], x.shape[2]
+        return np.matmul(self.B, x[self.nbr].reshape(N, -1, R))
 
     def solve(self, b, rtol=1e-10, max_iter=5000):
         """x with H_nn x = b, b (N, 2, R): preconditioned conjugate gradients, column by column in parallel."""
