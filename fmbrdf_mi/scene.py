@@ -572,13 +572,9 @@ def texture_file_dict(path):
     return {"type": "bitmap", "filename": os.path.abspath(os.fspath(path)), "raw": True}
 
 
-def true_albedo_maps(scene, material):
-    """The albedos the camera sees at each pixel's centre of ``scene``'s first sensor: {"k_s": (H, W),
-    "k_b": (H, W)} (0 where no object is hit), for a ``material`` (:func:`check_material`'s keys) whose
-    k_s, k_b or r_k may be textures: each pixel's ray is intersected with the scene and the textures
-    evaluated at the hit's uv (k_b = r_k k_s when the body is given as r_k).  Monochrome values (an RGB
-    texture: the mean of its channels).  A pixel whose footprint straddles a texture edge renders the
-    mean over its area; these maps are the centre's value."""
+def _centre_hits(scene):
+    """The surface interactions of the rays through each pixel's centre of ``scene``'s first sensor, which
+    of them hit, and the film's (H, W)."""
     mi = _mi()
     sensor = scene.sensors()[0]
     w, h = (int(v) for v in sensor.film().crop_size())
@@ -588,7 +584,18 @@ def true_albedo_maps(scene, material):
     ray, _ = sensor.sample_ray(mi.Float(np.zeros(n, np.float32)), mi.Float(np.full(n, 0.5, np.float32)), pos,
                                mi.Point2f(np.full(n, 0.5, np.float32), np.full(n, 0.5, np.float32)))
     si = scene.ray_intersect(ray)
-    hit = np.asarray(si.is_valid(), bool)
+    return si, np.asarray(si.is_valid(), bool), (h, w)
+
+
+def true_albedo_maps(scene, material):
+    """The albedos the camera sees at each pixel's centre of ``scene``'s first sensor: {"k_s": (H, W),
+    "k_b": (H, W)} (0 where no object is hit), for a ``material`` (:func:`check_material`'s keys) whose
+    k_s, k_b or r_k may be textures: each pixel's ray is intersected with the scene and the textures
+    evaluated at the hit's uv (k_b = r_k k_s when the body is given as r_k).  Monochrome values (an RGB
+    texture: the mean of its channels).  A pixel whose footprint straddles a texture edge renders the
+    mean over its area; these maps are the centre's value."""
+    mi = _mi()
+    si, hit, (h, w) = _centre_hits(scene)
     m = check_material(material)
 
     def values(key, default):
@@ -634,15 +641,7 @@ def true_label_map(scene, labels, count):
     """The material the camera sees at each pixel's centre of ``scene``'s first sensor (H, W): 0 .. count-1
     where the ray hits the shape, -1 elsewhere (``labels``: the uv label image of :func:`materials_bsdf`)."""
     mi = _mi()
-    sensor = scene.sensors()[0]
-    w, h = (int(v) for v in sensor.film().crop_size())
-    ys, xs = np.mgrid[0:h, 0:w]
-    pos = mi.Point2f(((xs.ravel() + 0.5) / w).astype(np.float32), ((ys.ravel() + 0.5) / h).astype(np.float32))
-    n = w * h
-    ray, _ = sensor.sample_ray(mi.Float(np.zeros(n, np.float32)), mi.Float(np.full(n, 0.5, np.float32)), pos,
-                               mi.Point2f(np.full(n, 0.5, np.float32), np.full(n, 0.5, np.float32)))
-    si = scene.ray_intersect(ray)
-    hit = np.asarray(si.is_valid(), bool)
+    si, hit, (h, w) = _centre_hits(scene)
     out = np.where(hit, 0, -1)
     for m in range(1, count):
         tex = mi.load_dict(label_texture(labels, m))

@@ -155,16 +155,6 @@ class MaterialModel:
             shape.update({material_name(n, m): v for n, v in s.items()})
         return shape, a_s, a_b
 
-    def nest(self, flat):
-        """``{"eta[0]": x, ...}`` -> ``[{"eta": x, ...}, ...]`` one dict per material."""
-        out = [{} for _ in range(self.count)]
-        for k, v in flat.items():
-            if k.endswith("]") and "[" in k:
-                name, label = k[:-1].split("[", 1)
-                if label.isdigit() and int(label) < self.count:
-                    out[int(label)][name] = v
-        return out
-
 
 class MaterialAlbedos(ChannelAlbedos):
     """One (a_s, a_b) per material: ``material`` (cells,) the material of each cell, ``n`` samples per cell
