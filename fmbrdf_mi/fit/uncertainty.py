@@ -253,6 +253,9 @@ def summarise(problem, st, J, r, n_independent=None):
 #: otherwise the profile likelihood gives that end (:func:`profile_intervals`).
 PROFILE_TOL = 0.15
 
+#: The kinds of 95 % interval a likelihood fit can give (``FitOptions.intervals``, ``fit --intervals``).
+INTERVALS = ("auto", "profile", "fisher")
+
 #: A profile end is found when its chi^2 rise is within this fraction of the threshold.
 PROFILE_ROOT_TOL = 0.1
 
@@ -355,7 +358,7 @@ def profile_end(problem, name, value, side, start, delta, chi2_min, refit, max_r
     return float(pts[-1][0]), "profile, at least", pts
 
 
-def profile_intervals(problem, st, unc, J, r, refit):
+def profile_intervals(problem, st, unc, J, r, refit, every=False):
     """Check every free shape parameter's Fisher 95 % interval against the likelihood; where it fails,
     replace that end by the profile likelihood's (issue: intervals that mean what they say).
 
@@ -369,7 +372,9 @@ def profile_intervals(problem, st, unc, J, r, refit):
     Adds ``interval_kind`` {name: "fisher" | "profile" | ...} and ``profile`` {name: the rises tried} to
     ``unc`` and replaces the profiled ends in ``unc["ci95"]``; the standard errors stay Fisher's.
     Likelihood fits only (the paper's loss is not a likelihood); parameters without a finite
-    standard error are left alone.
+    standard error are left alone.  ``every``: both ends of every such parameter from the profile
+    likelihood, whatever the criterion says (``intervals="profile"``; the criterion's rises are still
+    recorded).
     """
     if not problem.obj.is_likelihood or not unc.get("ci95") or problem.with_fixed({}) is None:
         return unc
@@ -398,7 +403,7 @@ def profile_intervals(problem, st, unc, J, r, refit):
             rise = path(n, end) - chi2_min
             ok = rise <= delta * (1 + PROFILE_TOL) if at_bound else abs(rise / delta - 1) <= PROFILE_TOL
             tried["fisher_end_rise" if i else "fisher_start_rise"] = float(rise)
-            if ok:
+            if ok and not every:
                 kind.append("fisher")
                 continue
             ends[i], k, pts = profile_end(problem, n, v, side, end, delta, chi2_min, refit_near)

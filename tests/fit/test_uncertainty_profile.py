@@ -110,6 +110,30 @@ def test_a_parameter_at_its_bound_gets_a_profile_end_an_independent_fit_confirms
         assert 0.5 * delta < rise < 1.5 * delta, (hi, rise, delta)
 
 
+def test_intervals_profile_gives_every_end_from_the_profile_a_brute_force_profile_confirms(fitted):
+    """``intervals="profile"``: both ends of every free shape parameter from the profile likelihood, even
+    where the check would keep Fisher's; kappa's ends cross the brute-force profile's threshold (as in
+    :func:`test_profile_ends_match_a_brute_force_profile`), and the estimates and standard errors are the
+    ``auto`` fit's."""
+    problem, st, J, r, unc = fitted
+    cam = CameraModel(full_well=10000.0, read_noise=2.5, bits=12)
+    obs = capture_observation(ideal_sphere(TRUE, res=16, light=(0.45, 0.35, 1.0)), cam, seed=2)[0]
+    auto = fit(obs, FitOptions(loss="likelihood", fixed=FIXED, starts=1), progress=False)
+    res = fit(obs, FitOptions(loss="likelihood", fixed=FIXED, starts=1, intervals="profile"), progress=False)
+    assert res.params == auto.params and res.std_errors == auto.std_errors
+    u = res.uncertainty
+    assert set(u["interval_kind"]) == {"alpha", "kappa"}
+    assert all("profile" in k and "fisher" not in k for k in u["interval_kind"].values()), u["interval_kind"]
+    assert all("lower" in u["profile"]["rises"][n] and "upper" in u["profile"]["rises"][n] for n in ("alpha", "kappa"))
+    chi2_min = res.loss_terms["chi2"]
+    delta = u["profile"]["threshold"]
+    hw = U.Z95 * res.std_errors["kappa"]
+    for side, end in zip((-1, 1), u["ci95"]["kappa"]):
+        inner = brute_profile(problem, st, end - side * 0.08 * hw) - chi2_min
+        outer = brute_profile(problem, st, end + side * 0.08 * hw) - chi2_min
+        assert inner < delta < outer, (side, end, inner, outer, delta)
+
+
 def test_the_path_screen_bounds_the_profile_from_above(fitted):
     """chi^2 along the covariance's path (the screen, one evaluation) is a feasible point of the profile's
     minimisation, so it is never below the refitted profile (up to the refit's tolerance, 0.01 in chi^2)."""
@@ -144,7 +168,7 @@ def test_fit_reports_the_kind_of_every_interval():
     fisher = fit(obs, FitOptions(loss="likelihood", starts=1, fixed=FIXED, intervals="fisher"), progress=False)
     assert "interval_kind" not in fisher.uncertainty
     assert fisher.params == res.params and fisher.std_errors == res.std_errors   # only intervals change
-    with pytest.raises(Exception, match="intervals: expected 'auto' or 'fisher'"):
+    with pytest.raises(Exception, match="intervals: expected one of auto, profile, fisher"):
         fit(obs, FitOptions(loss="likelihood", intervals="wald"), progress=False)
     assert np.isfinite([v for ab in u["ci95"].values() for v in ab]).all()
 

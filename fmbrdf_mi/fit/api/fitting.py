@@ -56,7 +56,8 @@ class FitOptions:
                                       # pixel (None: 2 for raw mosaics, 1 = the pixel's centre otherwise)
     intervals: str = "auto"           # likelihood: "auto" checks each shape parameter's Fisher 95 % interval
                                       # against the likelihood and takes the profile likelihood's ends where it
-                                      # fails (uncertainty.profile_intervals); "fisher": Fisher intervals only
+                                      # fails (uncertainty.profile_intervals); "profile": the profile likelihood's
+                                      # ends for every shape parameter; "fisher": Fisher intervals only
     albedo: str = "shared"            # likelihood: "shared" (one k_s, r_k) or "per-pixel" (albedo maps: a textured
                                       # object; evaluate.albedos.PixelAlbedos)
 
@@ -136,8 +137,8 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         raise InputError("free_power: the relative light powers are estimated in joint fits of two or more "
                          "images (fit_joint; fmbrdf-mi fit --free-power with --manifest, --authors or several "
                          "--light)")
-    if opts.intervals not in ("auto", "fisher"):
-        raise InputError(f"intervals: expected 'auto' or 'fisher', got {opts.intervals!r}")
+    if opts.intervals not in U.INTERVALS:
+        raise InputError(f"intervals: expected one of {', '.join(U.INTERVALS)}, got {opts.intervals!r}")
     loss = resolve_loss(obs, opts)
     if loss == "likelihood" and (opts.optimizer != "lm" or opts.path != "pixel"):
         raise InputError("loss 'likelihood' works with the pixel path and optimizer 'lm' (use --loss paper "
@@ -190,11 +191,12 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
         n_ind = None if loss != "likelihood" else len(idx) * objective.dof - problem.n_eliminated(st)
         unc = U.summarise(problem, st, J, r, n_ind)
-        if loss == "likelihood" and opts.intervals == "auto":
+        if loss == "likelihood" and opts.intervals in ("auto", "profile"):
             if deadline is not None and time.time() > deadline:
                 unc["method"] += "; intervals not checked against the profile likelihood (max_time reached)"
             else:
-                unc = U.profile_intervals(problem, st, unc, J, r, lambda n, v, s: refit_fixed(problem, st, n, v, s))
+                unc = U.profile_intervals(problem, st, unc, J, r, lambda n, v, s: refit_fixed(problem, st, n, v, s),
+                                          every=opts.intervals == "profile")
                 prof = {n: k for n, k in unc.get("interval_kind", {}).items() if k != "fisher"}
                 if prof:
                     report("[fit] profile-likelihood 95 % intervals (the Fisher ones fail there): "

@@ -25,6 +25,7 @@ from fmbrdf_mi.fit.outputs.colour import fit_colour_files
 from fmbrdf_mi.fit.outputs.rerun import rerun
 from fmbrdf_mi.fit.outputs.single import fit_files
 from fmbrdf_mi.fit.outputs.summary import print_summary
+from fmbrdf_mi.fit.uncertainty import INTERVALS
 
 
 # ---------------------------------------------------------------- command line
@@ -97,10 +98,12 @@ def add_fit_arguments(p):
     g.add_argument("--starts", type=int, default=2,
                    help="refine from this many of the best distinct coarse-search points and keep the best "
                         "(default %(default)s)")
-    g.add_argument("--intervals", default="auto", choices=("auto", "fisher"),
+    g.add_argument("--intervals", default="auto", choices=INTERVALS,
                    help="likelihood fits: auto checks each shape parameter's Fisher 95 %% interval against the "
                         "likelihood and gives the profile likelihood's ends where it fails (refits: slower on "
-                        "weakly identified parameters); fisher: Fisher intervals only (default %(default)s)")
+                        "weakly identified parameters); profile: the profile likelihood's ends for every shape "
+                        "parameter (two or more refits per end); fisher: Fisher intervals only "
+                        "(default %(default)s)")
     g.add_argument("--albedo", default="shared", choices=("shared", "per-pixel"),
                    help="likelihood fits: one k_s, r_k for the whole object (default), or per-pixel k_s and k_b "
                         "maps (a textured object: written as k_s.exr, k_b.exr with their standard errors, the "

@@ -82,7 +82,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     ``demosaic`` (the raw pixels a demosaicked super-pixel comes from) or
     ``auto`` (the paper's loss).  ``area_points``: the likelihood models each
     raw sample as the mean over that many points squared of its pixel (None: 2
-    for raw mosaics, 1 otherwise).  ``intervals``: ``auto`` or ``fisher``
+    for raw mosaics, 1 otherwise).  ``intervals``: ``auto``, ``profile`` or ``fisher``
     (:class:`~fmbrdf_mi.fit.api.fitting.FitOptions`).  ``albedo``: ``shared`` (one k_s, r_k) or
     ``per-pixel`` (albedo maps of a textured object, the likelihood only).  ``materials``: a label image
     (.png / .npy: :mod:`fmbrdf_mi.fit.inputs.labels`) giving each pixel's material, each fitted with its own
