@@ -50,23 +50,27 @@ MATERIALS = {
     "rough": dict(eta=1.60, alpha=0.60, beta=2.0, kappa=0.0, k_s=0.7, r_k=2.0),
     "medium": dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0, k_s=1.0, r_k=0.5),
     "dense": dict(eta=2.00, alpha=0.15, beta=3.0, kappa=50.0, k_s=0.6, r_k=3.0),
+    # the render command's default sphere at -D alpha=0.15 (tools/bench_raw_kappa.py's captures)
+    "render": dict(eta=1.50, alpha=0.15, beta=2.0, kappa=10.0, k_s=1.0, r_k=1.0),
 }
 NAMES = ("eta", "alpha", "beta", "kappa", "k_s", "r_k")
 LIGHT = (-0.5, 0.5, 1.0)
 
 
 def noise_fit(obs, cap, *, material, size, seed, loss, truth, fixed=None, max_time=None, starts=2, cache=None,
-              intervals="auto"):
+              intervals="auto", area_points=None):
     """One fit of the bench: ``obs`` (a :func:`capture_observation` of the ideal sphere) fitted with ``loss``;
     returns (its record, as kept in the JSON, the FitResult).  ``cache``: a dict that keeps the evaluator
-    across noise seeds (the same geometry, pixels and objective)."""
+    across noise seeds (the same geometry, pixels and objective).  ``area_points``: the likelihood's m x m
+    points per raw sample (None: the fit's default)."""
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.api.fitting import FitOptions
     from fmbrdf_mi.fit.problem.data import prepare, select_pixels
 
-    opts = FitOptions(loss=loss, fixed=fixed or None, max_time=max_time, starts=starts, intervals=intervals)
+    opts = FitOptions(loss=loss, fixed=fixed or None, max_time=max_time, starts=starts, intervals=intervals,
+                      area_points=area_points)
     idx, _ = select_pixels(obs, opts)
-    key = (loss, tuple(idx))
+    key = (loss, area_points, tuple(idx))
     cache = {} if cache is None else cache
     if key not in cache:
         cache.clear()
@@ -80,7 +84,7 @@ def noise_fit(obs, cap, *, material, size, seed, loss, truth, fixed=None, max_ti
            "stop_reason": r.stop_reason, "time": r.timings["total"], "n_pixels": r.n_pixels,
            "evaluations": r.timings["evaluations"],
            "saturated": cap["saturated"], "fixed": fixed or {},
-           "chi2_per_dof": r.uncertainty.get("chi2_per_dof")}
+           "chi2_per_dof": r.uncertainty.get("chi2_per_dof"), "area_points": area_points}
     return rec, r
 
 
@@ -232,7 +236,7 @@ def _save(args, runs):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--materials", default=",".join(MATERIALS), help=f"comma-separated of {', '.join(MATERIALS)}")
+    p.add_argument("--materials", default="glossy,rough,medium,dense", help=f"comma-separated of {', '.join(MATERIALS)}")
     p.add_argument("--sizes", default="40,100,256", help="image sizes in super-pixels (default %(default)s)")
     p.add_argument("--seeds", type=int, default=16, help="camera-noise seeds per case (default %(default)s)")
     p.add_argument("--seed0", type=int, default=0)

@@ -71,7 +71,8 @@ class Runner:
             return {"periods": a.periods}
         if mode == "normals":
             return {"res": a.normal_res, "lights": 4, "lam": 0.3}
-        return {"material": a.material, "size": a.size}
+        extra = {"area_points": a.area_points} if a.area_points and mode == "single" else {}
+        return {"material": a.material, "size": a.size, **extra}
 
     def _get(self, key, make):
         if key not in self._cache:
@@ -89,7 +90,8 @@ class Runner:
             ideal = self._get("single", lambda: ideal_sphere(self.truth, res=a.size, light=LIGHT))
             obs, cap = capture_observation(ideal, self.cam, seed=seed)
             rec, _ = noise_fit(obs, cap, material=a.material, size=a.size, seed=seed, loss="likelihood",
-                               truth=self.truth, cache=self._cache.setdefault("single_ev", {}))
+                               truth=self.truth, cache=self._cache.setdefault("single_ev", {}),
+                               area_points=a.area_points)
             return rec
         if mode in ("joint1", "joint3", "joint6", "free_power"):
             from bench_fit_lights import capture_seed, ideal_images, lights_fits, subsets
@@ -249,6 +251,9 @@ def main(argv=None):
     p.add_argument("--size", type=int, default=40, help="super-pixels across the sphere's image (default 40)")
     p.add_argument("--periods", type=int, default=16, help="colour: 4x4 periods across (default 16)")
     p.add_argument("--normal-res", type=int, default=24, help="normals: super-pixels across (default 24)")
+    p.add_argument("--area-points", type=int, default=None, metavar="M",
+                   help="single: the likelihood's M x M points per raw sample (default: the fit's, 2; the data "
+                        "average 4 x 4)")
     p.add_argument("--threads", type=int, default=1, help="Dr.Jit threads (default 1)")
     p.add_argument("--json", metavar="OUT.json", help="runs, saved after every fit; seeds in it are skipped")
     p.add_argument("--table", metavar="IN.json", help="print the table of a saved run and exit")

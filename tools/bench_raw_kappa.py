@@ -15,7 +15,11 @@ in each configuration:
 * ``geometry``: the exact sphere at each raw sample's centre, ``area_points=1``;
 * ``after``: the exact sphere, each raw sample the mean of the model over 2 x 2 points of its pixel
   (the default since issue 23);
-* ``m3``: the exact sphere, 3 x 3 points.
+* ``m3``, ``m4``: the exact sphere, 3 x 3 or 4 x 4 points.
+
+``--spp N`` and ``--render-args "..."`` (more ``render`` options, e.g. ``--full-well 1e8 --read-noise 0
+--bits 16`` for an almost noise-free capture) change the render: where the bias of kappa comes from
+(a model difference stays without noise; a noise-driven bias goes).
 
 Printed per configuration and parameter: mean estimate - truth, its standard error over seeds
 (std / sqrt(seeds)), the mean of the fits' own standard errors, the fraction of 95 % intervals
@@ -28,6 +32,7 @@ import argparse
 import datetime
 import json
 import os
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -43,14 +48,14 @@ sys.path.insert(0, HERE)
 from bench_rebuild import cpu_name  # noqa: E402
 
 NAMES = ("eta", "alpha", "beta", "kappa", "k_s", "r_k")
-CONFIGS = {"before": (False, 1), "geometry": (True, 1), "after": (True, 2), "m3": (True, 3)}
+CONFIGS = {"before": (False, 1), "geometry": (True, 1), "after": (True, 2), "m3": (True, 3), "m4": (True, 4)}
 
 
-def render(tmp, res, seed, render_seed, alpha):
+def render(tmp, res, seed, render_seed, alpha, extra=()):
     out = os.path.join(tmp, f"r{res}_{seed}.exr")
     cmd = [sys.executable, "-m", "fmbrdf_mi", "render", out, "--variant", "llvm_ad_mono_polarized",
            "-D", f"alpha={alpha}", "--res", str(res), "--raw", "--raw-seed", str(seed),
-           "--seed", str(seed if render_seed is None else render_seed), "--no-previews", "-q", "--force"]
+           "--seed", str(seed if render_seed is None else render_seed), "--no-previews", "-q", "--force", *extra]
     subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
     return out[:-4] + "_raw.png"
 
@@ -78,6 +83,8 @@ def main():
     ap.add_argument("--alpha", type=float, default=0.15)
     ap.add_argument("--render-seed", type=int, help="one render seed for all (default: the seed itself)")
     ap.add_argument("--configs", default="before,geometry,after", help=f"of {', '.join(CONFIGS)}")
+    ap.add_argument("--spp", type=int, help="render samples per pixel (default: the scene's)")
+    ap.add_argument("--render-args", default="", help="more render options, one string")
     ap.add_argument("--json", help="write every fit here")
     args = ap.parse_args()
     configs = args.configs.split(",")
@@ -93,10 +100,13 @@ def main():
           f"({os.cpu_count()} cores)  commit {commit}")
     print(f"# render --res {args.res} -D alpha={args.alpha} --raw, seeds 1..{args.seeds}, render seed "
           f"{'= seed' if args.render_seed is None else args.render_seed}")
+    extra = shlex.split(args.render_args) + (["--spp", str(args.spp)] if args.spp else [])
+    if extra:
+        print(f"# render options: {' '.join(extra)}")
     runs = {c: [] for c in configs}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(1, args.seeds + 1):
-            path = render(tmp, args.res, seed, args.render_seed, args.alpha)
+            path = render(tmp, args.res, seed, args.render_seed, args.alpha, extra)
             for c in configs:
                 r = fit_one(path, *CONFIGS[c])
                 r["seed"] = seed
