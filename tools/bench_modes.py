@@ -72,6 +72,8 @@ class Runner:
         if mode == "normals":
             return {"res": a.normal_res, "lights": 4, "lam": 0.3}
         extra = {"area_points": a.area_points} if a.area_points and mode == "single" else {}
+        if a.intervals != "auto" and mode == "single":
+            extra["intervals"] = a.intervals
         return {"material": a.material, "size": a.size, **extra}
 
     def _get(self, key, make):
@@ -91,7 +93,7 @@ class Runner:
             obs, cap = capture_observation(ideal, self.cam, seed=seed)
             rec, _ = noise_fit(obs, cap, material=a.material, size=a.size, seed=seed, loss="likelihood",
                                truth=self.truth, cache=self._cache.setdefault("single_ev", {}),
-                               area_points=a.area_points)
+                               area_points=a.area_points, intervals=a.intervals)
             return rec
         if mode in ("joint1", "joint3", "joint6", "free_power"):
             from bench_fit_lights import capture_seed, ideal_images, lights_fits, subsets
@@ -254,6 +256,8 @@ def main(argv=None):
     p.add_argument("--area-points", type=int, default=None, metavar="M",
                    help="single: the likelihood's M x M points per raw sample (default: the fit's, 2; the data "
                         "average 4 x 4)")
+    p.add_argument("--intervals", default="auto", choices=("auto", "profile", "fisher"),
+                   help="single: the fit's intervals option (default %(default)s)")
     p.add_argument("--threads", type=int, default=1, help="Dr.Jit threads (default 1)")
     p.add_argument("--json", metavar="OUT.json", help="runs, saved after every fit; seeds in it are skipped")
     p.add_argument("--table", metavar="IN.json", help="print the table of a saved run and exit")

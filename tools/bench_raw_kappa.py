@@ -15,7 +15,10 @@ in each configuration:
 * ``geometry``: the exact sphere at each raw sample's centre, ``area_points=1``;
 * ``after``: the exact sphere, each raw sample the mean of the model over 2 x 2 points of its pixel
   (the default since issue 23);
-* ``m3``, ``m4``: the exact sphere, 3 x 3 or 4 x 4 points.
+* ``m3``, ``m4``: the exact sphere, 3 x 3 or 4 x 4 points;
+* ``erode0``, ``erode4``: ``after`` keeping every super-pixel of the mask, or leaving out those within 4
+  of its edge (the fit's default leaves out 2: the silhouette, where the render's samples estimate each
+  pixel's coverage).
 
 ``--spp N`` and ``--render-args "..."`` (more ``render`` options, e.g. ``--full-well 1e8 --read-noise 0
 --bits 16`` for an almost noise-free capture) change the render: where the bias of kappa comes from
@@ -48,7 +51,8 @@ sys.path.insert(0, HERE)
 from bench_rebuild import cpu_name  # noqa: E402
 
 NAMES = ("eta", "alpha", "beta", "kappa", "k_s", "r_k")
-CONFIGS = {"before": (False, 1), "geometry": (True, 1), "after": (True, 2), "m3": (True, 3), "m4": (True, 4)}
+CONFIGS = {"before": (False, 1), "geometry": (True, 1), "after": (True, 2), "m3": (True, 3), "m4": (True, 4),
+           "erode0": (True, 2, 0), "erode4": (True, 2, 4)}
 
 
 def render(tmp, res, seed, render_seed, alpha, extra=()):
@@ -60,7 +64,7 @@ def render(tmp, res, seed, render_seed, alpha, extra=()):
     return out[:-4] + "_raw.png"
 
 
-def fit_one(path, exact, m):
+def fit_one(path, exact, m, erode=None):
     from fmbrdf_mi.fit.api.fitting import fit
     from fmbrdf_mi.fit.inputs.files import build_observation
 
@@ -68,18 +72,19 @@ def fit_one(path, exact, m):
     if not exact:
         obs.geometry = None  # interpolate the pooled normal map (the package before issue 23)
     t0 = time.perf_counter()
-    r = fit(obs, progress=False, area_points=m)
+    r = fit(obs, progress=False, area_points=m, **({} if erode is None else {"erode": erode}))
     dt = time.perf_counter() - t0
     return {"params": {k: float(r.params[k]) for k in NAMES},
             "std": {k: float(r.std_errors.get(k, float("nan"))) for k in NAMES},
             "truth": {k: float(obs.meta["truth"][k]) for k in NAMES}, "time": dt,
-            "n_pixels": int(r.n_pixels)}
+            "n_pixels": int(r.n_pixels), "chi2_per_dof": r.uncertainty.get("chi2_per_dof")}
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--res", type=int, default=128)
-    ap.add_argument("--seeds", type=int, default=8, help="seeds 1..N")
+    ap.add_argument("--seeds", type=int, default=8, help="seeds 1..N (from --seed0 on)")
+    ap.add_argument("--seed0", type=int, default=1, help="first seed (default 1)")
     ap.add_argument("--alpha", type=float, default=0.15)
     ap.add_argument("--render-seed", type=int, help="one render seed for all (default: the seed itself)")
     ap.add_argument("--configs", default="before,geometry,after", help=f"of {', '.join(CONFIGS)}")
@@ -98,14 +103,15 @@ def main():
         commit = "?"
     print(f"# {datetime.datetime.now().isoformat(timespec='seconds')}  {cpu_name()}  "
           f"({os.cpu_count()} cores)  commit {commit}")
-    print(f"# render --res {args.res} -D alpha={args.alpha} --raw, seeds 1..{args.seeds}, render seed "
+    print(f"# render --res {args.res} -D alpha={args.alpha} --raw, seeds {args.seed0}..{args.seed0 + args.seeds - 1}, "
+          f"render seed "
           f"{'= seed' if args.render_seed is None else args.render_seed}")
     extra = shlex.split(args.render_args) + (["--spp", str(args.spp)] if args.spp else [])
     if extra:
         print(f"# render options: {' '.join(extra)}")
     runs = {c: [] for c in configs}
     with tempfile.TemporaryDirectory() as tmp:
-        for seed in range(1, args.seeds + 1):
+        for seed in range(args.seed0, args.seed0 + args.seeds):
             path = render(tmp, args.res, seed, args.render_seed, args.alpha, extra)
             for c in configs:
                 r = fit_one(path, *CONFIGS[c])
