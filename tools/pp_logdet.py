@@ -8,7 +8,14 @@ inverse variances, frozen between reweighting rounds like the chi^2's).  Carried
 rho = sqrt(K + L(theta) - L_ref) (L_ref: L when the weights were last refreshed, K a constant that keeps
 rho^2 > 0), so rho^2 moves exactly as L does and d(rho^2)/dz = dL/dz: the Levenberg-Marquardt's fixed
 point is the adjusted likelihood's stationary point.  Kept out of the package: the adjustment did not
-pass its test (docs: issue 23 item 3 report).
+pass its test.  With the variances fixed, E chi^2_p(theta) = sum (n_i - 2) + mu0^T W (I - P_theta) mu0 is
+already minimal at the truth (the profile's estimating equation has zero mean), and L(theta) is not
+flat: det(A^T W A) scales with the unit-albedo intensities, which the shape parameters rescale (a flat
+prior on k_s, k_b is a different prior at every theta), so L adds a pull of O(1) per pixel.
+tools/diag_pp_logdet_bias.py: linearised shift at the truth eta -67, beta +49, kappa +65 SE (24², one
+light), -214, +132, +200 SE (48²); -0.5 to -6.6 SE with three lights.  Fitted (tools/diag_pp_bias.py
+--adjust logdet, camera noise, 24², seeds 0-3): all four end at the same point, eta 1.200, alpha 0.060,
+beta 1.60, kappa 52, whatever the data.
 """
 from __future__ import annotations
 
