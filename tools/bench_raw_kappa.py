@@ -4,7 +4,8 @@
     python tools/bench_raw_kappa.py --res 256 --seeds 4 --configs before,after
 
 For each seed S: ``fmbrdf-mi render OUT.exr --variant llvm_ad_mono_polarized -D alpha=0.15 --res RES
---raw --raw-seed S --seed S`` (a new Mitsuba sample set and a new camera noise per seed;
+--raw --raw-seed S --seed S`` (``render --raw``'s samples per pixel: 1024 since 2026-11-26, 64 before:
+``--spp 64`` repeats the older rows) (a new Mitsuba sample set and a new camera noise per seed;
 ``--render-seed 0`` keeps the render of the issue's runs and varies only the camera noise), then the
 likelihood fit of ``OUT_raw.png`` (its JSON sidecar: gain, read noise, white level, geometry, light)
 in each configuration:
