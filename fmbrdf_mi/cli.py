@@ -410,20 +410,14 @@ def material_count_of(args, kind):
 
 
 def read_uv_labels(path):
-    """The uv label image of ``render --materials``: every texel a material 0 .. M-1."""
+    """The uv label image of ``render --materials`` (:func:`fmbrdf_mi.fit.inputs.labels.read_uv_labels`)."""
     from fmbrdf_mi.fit.errors import InputError
-    from fmbrdf_mi.fit.inputs.labels import read_labels
+    from fmbrdf_mi.fit.inputs.labels import read_uv_labels as read
 
     try:
-        labels = read_labels(path)
+        return read(path)
     except InputError as e:
         raise CLIError(str(e)) from None
-    if labels.min() < 0:
-        raise CLIError(f"--materials {path}: every texel of the sphere's uv needs a material (0 .. M-1); "
-                       "found texels marked not fitted")
-    if labels.max() >= 255:
-        raise CLIError(f"--materials {path}: at most 255 materials (the label PNGs written are 8-bit)")
-    return labels
 
 
 def label_paths(output, raw):

@@ -626,25 +626,46 @@ def label_texture(labels, m):
 def materials_bsdf(materials, labels):
     """The BSDF dict of a shape made of several materials: ``materials`` a list of M material dicts
     (:func:`material_bsdf`), ``labels`` (H, W) the material of each texel of the shape's uv (0 .. M-1).
-    Material m > 0 is blended over the ones before it with its indicator as the weight (``blendbsdf``), so
-    a point inside material m's texels is material m's BSDF exactly; a pixel whose footprint straddles
-    a boundary renders the mix over its area."""
+    See :func:`blend_bsdfs`."""
+    return blend_bsdfs([material_bsdf(m) for m in materials], labels)
+
+
+def blend_bsdfs(bsdfs, labels):
+    """One BSDF dict from M BSDFs (dicts or loaded objects), ``labels`` (H, W) the index of the BSDF at
+    each texel of the shape's uv (0 .. M-1).  BSDF m > 0 is blended over the ones before it with its
+    indicator as the weight (``blendbsdf``), so a point inside material m's texels is material m's BSDF
+    exactly; a pixel whose footprint straddles a boundary renders the mix over its area.
+    :func:`blend_paths` names each BSDF's place in the result (for ``mi.traverse``)."""
     labels = np.asarray(labels)
-    bsdf = material_bsdf(materials[0])
-    for m in range(1, len(materials)):
-        bsdf = {"type": "blendbsdf", "weight": label_texture(labels, m), "bsdf_0": bsdf,
-                "bsdf_1": material_bsdf(materials[m])}
+    bsdf = bsdfs[0]
+    for m in range(1, len(bsdfs)):
+        bsdf = {"type": "blendbsdf", "weight": label_texture(labels, m), "bsdf_0": bsdf, "bsdf_1": bsdfs[m]}
     return bsdf
 
 
-def true_label_map(scene, labels, count):
-    """The material the camera sees at each pixel's centre of ``scene``'s first sensor (H, W): 0 .. count-1
-    where the ray hits the shape, -1 elsewhere (``labels``: the uv label image of :func:`materials_bsdf`)."""
+def blend_paths(count):
+    """The ``mi.traverse`` key prefix of each of the ``count`` BSDFs of :func:`blend_bsdfs` under the
+    blend's own key, e.g. ``["bsdf_0.bsdf_0", "bsdf_0.bsdf_1", "bsdf_1"]`` for 3 ("" for one BSDF)."""
+    if count == 1:
+        return [""]
+    inner = blend_paths(count - 1)
+    return [f"bsdf_0.{p}" if p else "bsdf_0" for p in inner] + ["bsdf_1"]
+
+
+def labels_at(si, hit, labels, count):
+    """The material (0 .. count-1) of :func:`blend_bsdfs`'s uv label image ``labels`` at the surface
+    interactions ``si`` (flat, as NumPy ints), -1 where ``hit`` (flat bool) is false."""
     mi = _mi()
-    si, hit, (h, w) = _centre_hits(scene)
     out = np.where(hit, 0, -1)
     for m in range(1, count):
         tex = mi.load_dict(label_texture(labels, m))
         v = np.asarray(tex.eval_1(si), dtype=np.float64).ravel()
         out[hit & (v > 0.5)] = m
-    return out.reshape(h, w)
+    return out
+
+
+def true_label_map(scene, labels, count):
+    """The material the camera sees at each pixel's centre of ``scene``'s first sensor (H, W): 0 .. count-1
+    where the ray hits the shape, -1 elsewhere (``labels``: the uv label image of :func:`materials_bsdf`)."""
+    si, hit, (h, w) = _centre_hits(scene)
+    return labels_at(si, hit, labels, count).reshape(h, w)

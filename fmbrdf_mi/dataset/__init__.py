@@ -52,6 +52,8 @@ SAMPLES_DIR = "samples"
 DATASET_FILE = "dataset.json"
 MANIFEST = "manifest.jsonl"
 SUFFIXES = {"stokes": ".exr", "normal": ".normal.npy", "mask": ".mask.png", "label": ".json"}
+#: A sample of several materials (shape.labels) also has its true label map.
+LABELS_SUFFIX = ".labels.png"
 _TMP = re.compile(r"^\.(\d+)\..*\.tmp\d+")
 
 
@@ -164,14 +166,18 @@ def sample_id(index, n):
     return f"{index:0{max(6, len(str(n - 1)))}d}"
 
 
-def sample_files(index, n):
-    """{kind: path relative to the dataset directory} of sample ``index``."""
+def sample_files(index, n, several=False):
+    """{kind: path relative to the dataset directory} of sample ``index`` (``several``: a dataset of
+    several materials, whose samples also have ``labels``)."""
     sid = sample_id(index, n)
-    return {k: f"{SAMPLES_DIR}/{sid}{suffix}" for k, suffix in SUFFIXES.items()}
+    out = {k: f"{SAMPLES_DIR}/{sid}{suffix}" for k, suffix in SUFFIXES.items()}
+    if several:
+        out["labels"] = f"{SAMPLES_DIR}/{sid}{LABELS_SUFFIX}"
+    return out
 
 
-def is_complete(out, index, n):
-    return all(os.path.isfile(os.path.join(out, p)) for p in sample_files(index, n).values())
+def is_complete(out, index, n, several=False):
+    return all(os.path.isfile(os.path.join(out, p)) for p in sample_files(index, n, several).values())
 
 
 def _dataset_record(cfg):
@@ -184,6 +190,9 @@ def _dataset_record(cfg):
                 "stokes": "stokes integrator frame: x = image right, y = image up (fmbrdf_mi.stokes_io)",
                 "normal": "unit shading normals in the camera frame at the pixel centres, float32 (H, W, 3)",
                 "mask": "255 where the ray through the pixel centre hits the shape on a face turned towards the camera",
+                **({"labels": "8-bit grey: the material (0 .. M-1, the index in material) the ray through the "
+                              "pixel centre hits, 255 outside the mask; shape.labels is the uv label image"}
+                   if cfg.several else {}),
                 "light.direction": "camera frame, from the surface towards the light",
                 "render.seed": "the seed given to fmbrdf_mi.scene.render_stokes; the image is rendered "
                                "with irradiance 1 and multiplied by light.irradiance",
@@ -218,11 +227,11 @@ def _clean_temporaries(samples_dir, indices):
     return removed
 
 
-def write_manifest(out, indices, n, name=MANIFEST):
+def write_manifest(out, indices, n, name=MANIFEST, several=False):
     """Write the manifest ``name`` listing ``indices`` (their labels, one JSON line each)."""
     lines = []
     for i in sorted(indices):
-        with open(os.path.join(out, sample_files(i, n)["label"]), encoding="utf-8") as f:
+        with open(os.path.join(out, sample_files(i, n, several)["label"]), encoding="utf-8") as f:
             lines.append(dumps(json.load(f)) + "\n")
     path = os.path.join(out, name)
     _atomic_write(path, "".join(lines).encode())
@@ -344,8 +353,9 @@ def make_label(cfg, index, draw, geometry):
         camera["half_width"] = half_width(draw["fov"], draw["distance"])
     return {
         "format": FORMAT, "index": index, "id": sample_id(index, cfg.samples), "dataset_seed": cfg.seed,
-        "files": sample_files(index, cfg.samples),
-        "material": dict(draw["material"]),
+        "files": sample_files(index, cfg.samples, cfg.several),
+        **({"materials": [dict(m) for m in draw["materials"]]} if cfg.several
+           else {"material": dict(draw["material"])}),
         "light": {"type": "directional", "direction": draw["light_dir"],
                   "direction_world": g["light"]["direction_world"], "irradiance": draw["irradiance"]},
         "camera": camera,
@@ -356,31 +366,41 @@ def make_label(cfg, index, draw, geometry):
     }
 
 
-def write_sample(out, label, stokes, normals, mask):
-    """Write a sample's files, each atomically; the label last (it marks the sample complete)."""
+def write_sample(out, label, stokes, normals, mask, labels=None):
+    """Write a sample's files, each atomically; the label last (it marks the sample complete).
+    ``labels``: the true label map of several materials (H, W), -1 off the mask (written 255)."""
     from ..stokes_io import write_stokes_exr
 
     f = {k: os.path.join(out, p) for k, p in label["files"].items()}
     write_stokes_exr(f["stokes"], stokes, metadata=label, force=True)
     _atomic_write(f["normal"], _npy_bytes(np.ascontiguousarray(normals, dtype=np.float32)))
     _atomic_write(f["mask"], png_grey8(np.where(mask, 255, 0)))
+    if labels is not None:
+        _atomic_write(f["labels"], png_grey8(np.where(labels < 0, 255, labels)))
     _atomic_write(f["label"], (dumps(label, indent=1) + "\n").encode())
 
 
 def read_sample(out, index):
-    """A sample as a dict: ``stokes`` (4, H, W, C), ``normal`` (H, W, 3), ``mask`` (H, W) bool, ``label``."""
+    """A sample as a dict: ``stokes`` (4, H, W, C), ``normal`` (H, W, 3), ``mask`` (H, W) bool, ``label``;
+    a sample of several materials also ``labels`` (H, W) int, the material at each pixel, -1 off the mask."""
     from matplotlib.image import imread
 
     from ..stokes_io import read_stokes_exr
 
     with open(os.path.join(out, DATASET_FILE), encoding="utf-8") as f:
-        n = json.load(f)["config"]["samples"]
-    files = {k: os.path.join(out, p) for k, p in sample_files(index, n).items()}
+        config = json.load(f)["config"]
+    n, several = config["samples"], "labels" in config["shape"]
+    files = {k: os.path.join(out, p) for k, p in sample_files(index, n, several).items()}
     with open(files["label"], encoding="utf-8") as f:
         label = json.load(f)
     stokes, _ = read_stokes_exr(files["stokes"])
-    return {"stokes": stokes, "normal": np.load(files["normal"]), "mask": imread(files["mask"]) > 0.5,
-            "label": label}
+    out = {"stokes": stokes, "normal": np.load(files["normal"]), "mask": imread(files["mask"]) > 0.5,
+           "label": label}
+    if several:
+        from ..fit.inputs.labels import read_labels
+
+        out["labels"] = read_labels(files["labels"], "labels")
+    return out
 
 
 # ------------------------------------------------------------------ the run
@@ -444,7 +464,7 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
         _check_dataset_file(out, cfg)
         mine = [i for i in range(cfg.samples) if i % n_shards == k]
         removed = _clean_temporaries(os.path.join(out, SAMPLES_DIR), set(mine))
-        todo = [i for i in mine if not is_complete(out, i, cfg.samples)]
+        todo = [i for i in mine if not is_complete(out, i, cfg.samples, cfg.several)]
         skipped = len(mine) - len(todo)
         what = f"shard {k}/{n_shards}: {len(mine)} of {cfg.samples} samples" if n_shards > 1 \
             else f"{cfg.samples} samples"
@@ -477,7 +497,10 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
             if not mask.any() or not np.any(stokes[0] > 0):
                 black.append(i)
             t = time.perf_counter()
-            write_sample(out, label, stokes, normals, mask)
+            if cfg.several:
+                label["labels"] = {"uv_labels": cfg.labels_file,
+                                   "pixels": [int(np.sum(renderer.labels == m)) for m in range(len(cfg.materials))]}
+            write_sample(out, label, stokes, normals, mask, renderer.labels if cfg.several else None)
             t_write += time.perf_counter() - t
             bar.step()
         t_render = time.perf_counter() - t_render
@@ -506,10 +529,11 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
 
     manifests = []
     if n_shards > 1:
-        manifests.append(write_manifest(out, mine, cfg.samples, f"manifest.shard-{k}-of-{n_shards}.jsonl"))
-    complete = all(is_complete(out, i, cfg.samples) for i in range(cfg.samples))
+        manifests.append(write_manifest(out, mine, cfg.samples, f"manifest.shard-{k}-of-{n_shards}.jsonl",
+                                        cfg.several))
+    complete = all(is_complete(out, i, cfg.samples, cfg.several) for i in range(cfg.samples))
     if complete:
-        manifests.append(write_manifest(out, range(cfg.samples), cfg.samples))
+        manifests.append(write_manifest(out, range(cfg.samples), cfg.samples, several=cfg.several))
     elapsed = time.perf_counter() - t_start
     rendered = len(todo)
     summary = {"out": out, "samples": cfg.samples, "shard": f"{k}/{n_shards}", "rendered": rendered,
@@ -519,7 +543,7 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
                "phase_seconds": dict(renderer.seconds, write=t_write)}
     if progress:
         tail = (f"{MANIFEST} lists all {cfg.samples}" if complete
-                else f"{sum(is_complete(out, i, cfg.samples) for i in range(cfg.samples))} of "
+                else f"{sum(is_complete(out, i, cfg.samples, cfg.several) for i in range(cfg.samples))} of "
                      f"{cfg.samples} samples exist; {MANIFEST} is written once all do")
         stream.write(f"dataset: done: rendered {rendered} samples ({skipped} already done) in "
                      f"{_duration(elapsed)} ({elapsed:.1f} s), {summary['samples_per_second']:.2f} samples/s; "

@@ -55,7 +55,7 @@ DEFAULTS = {
 DEFAULT_R_K = S.DEFAULT_MATERIAL["r_k"]
 SECTIONS = {
     "render": ("resolution", "spp", "variant"),
-    "shape": ("type", "rotate"),
+    "shape": ("type", "rotate", "labels"),
     "camera": ("type", "distance", "fov", "elevation", "azimuth"),
     "light": ("direction", "irradiance"),
     "material": ("eta", "alpha", "beta", "kappa", "k_s", "r_k", "k_b"),
@@ -63,6 +63,7 @@ SECTIONS = {
 TOP_KEYS = ("samples", "seed", "description") + tuple(SECTIONS)
 
 INF = math.inf
+MATERIAL_KEYS = SECTIONS["material"]
 
 
 class DatasetConfigError(ValueError):
@@ -267,9 +268,9 @@ def scalar_dist(path, x, rng=None):
                      f"{{loguniform = [lo, hi]}}, {{choice = [...]}}), got {x!r}")
 
 
-def albedo_dist(path, x, allow_rgb):
+def albedo_dist(path, x, allow_rgb, rng=None):
     """An albedo: a scalar distribution (grey), three of them (R, G, B), or a choice of RGB triples."""
-    rng = RANGES[path]
+    rng = RANGES[path] if rng is None else rng
     if isinstance(x, list):
         if len(x) != 3:
             raise _err(path, f"expected three values (R, G, B), got {len(x)}")
@@ -385,7 +386,8 @@ class DatasetConfig:
         if not isinstance(desc, str):
             raise _err("description", f"expected a string, got {desc!r}")
         self.description = desc
-        sec = {name: dict(_table(name, raw.get(name, {}), keys)) for name, keys in SECTIONS.items()}
+        sec = {name: dict(_table(name, raw.get(name, {}), keys)) for name, keys in SECTIONS.items()
+               if name != "material"}  # material: a table, or a list of them (read below)
 
         r = sec["render"]
         self.resolution = _resolution("render.resolution", r.get("resolution", DEFAULTS["render"]["resolution"]))
@@ -418,16 +420,69 @@ class DatasetConfig:
         self.irradiance = scalar_dist("light.irradiance", li.get("irradiance", DEFAULTS["light"]["irradiance"]),
                                       RANGES["light.irradiance"])
 
-        m = sec["material"]
+        self.labels_file = sec["shape"].get("labels")
+        self.uv_labels = None
+        if self.labels_file is not None:
+            self.uv_labels = self._read_labels(self.labels_file)
+        mats = raw.get("material", {})
+        self.several = self.uv_labels is not None
+        if isinstance(mats, list):
+            if not self.several:
+                raise _err("material", "several materials ([[material]] tables, a list) need shape.labels, "
+                                       "a uv label image saying which material is where")
+            count = int(self.uv_labels.max()) + 1
+            if len(mats) != count:
+                raise _err("shape.labels", f"{self.labels_file} has {count} materials (labels 0 .. {count - 1}) "
+                                           f"but material lists {len(mats)}; give one [[material]] table per label")
+            paths = [f"material[{i}]" for i in range(count)]
+        else:
+            if self.several:
+                count = int(self.uv_labels.max()) + 1
+                raise _err("material", f"shape.labels {self.labels_file} has {count} materials (labels 0 .. "
+                                       f"{count - 1}): give material as {count} [[material]] tables (a list), "
+                                       "one per label")
+            mats, paths = [mats], ["material"]
+        #: per material: {name: distribution}, and its body key ("k_b" or "r_k")
+        self.materials, self.body_keys = [], []
+        for path, m in zip(paths, mats):
+            dists, body = self._material(path, dict(_table(path, m, MATERIAL_KEYS)))
+            self.materials.append(dists)
+            self.body_keys.append(body)
+        self.material = self.materials[0]   # the one material of a scene without shape.labels
+        self.body_key = self.body_keys[0]
+
+    def _material(self, path, m):
         if "r_k" in m and "k_b" in m:
-            raise _err("material", "give the body albedo as k_b or as r_k (= k_b / k_s), not both")
-        self.body_key = "k_b" if "k_b" in m else "r_k"
-        self.material = {}
+            raise _err(path, "give the body albedo as k_b or as r_k (= k_b / k_s), not both")
+        body = "k_b" if "k_b" in m else "r_k"
+        out = {}
         for k in ("eta", "alpha", "beta", "kappa"):
-            self.material[k] = scalar_dist(f"material.{k}", m.get(k, DEFAULTS["material"][k]), RANGES[f"material.{k}"])
-        self.material["k_s"] = albedo_dist("material.k_s", m.get("k_s", DEFAULTS["material"]["k_s"]), self.spectral)
-        self.material[self.body_key] = albedo_dist(f"material.{self.body_key}", m.get(self.body_key, DEFAULT_R_K),
-                                                   self.spectral)
+            out[k] = scalar_dist(f"{path}.{k}", m.get(k, DEFAULTS["material"][k]), RANGES[f"material.{k}"])
+        out["k_s"] = albedo_dist(f"{path}.k_s", m.get("k_s", DEFAULTS["material"]["k_s"]), self.spectral,
+                                 RANGES["material.k_s"])
+        out[body] = albedo_dist(f"{path}.{body}", m.get(body, DEFAULT_R_K), self.spectral, RANGES[f"material.{body}"])
+        return out, body
+
+    def _read_labels(self, name):
+        """shape.labels: the uv label image (relative to the config's directory), every material present."""
+        from ..fit.errors import InputError
+        from ..fit.inputs.labels import read_uv_labels
+
+        if not isinstance(name, str) or not name.lower().endswith((".png", ".npy")):
+            raise _err("shape.labels", f"expected a uv label image file name (.png or .npy, relative to the "
+                                       f"config), got {name!r}")
+        full = os.path.join(self.base_dir, name)
+        if not os.path.isfile(full):
+            raise _err("shape.labels", f"label image {name!r} not found (looked for {os.path.abspath(full)})")
+        try:
+            labels = read_uv_labels(full, what="shape.labels")
+        except InputError as e:
+            raise DatasetConfigError(str(e)) from None
+        missing = sorted(set(range(int(labels.max()) + 1)) - set(np.unique(labels).tolist()))
+        if missing:
+            raise _err("shape.labels", f"{name} has no texel of material {missing[0]} (labels 0 .. "
+                                       f"{int(labels.max())} must all be used)")
+        return labels
 
     # ---------------------------------------------------------------- canonical form
     def mesh_files(self):
@@ -447,12 +502,21 @@ class DatasetConfig:
         return {
             "samples": self.samples, "seed": self.seed, "description": self.description,
             "render": {"resolution": list(self.resolution), "spp": self.spp, "variant": self.variant},
-            "shape": {"type": self.shape.canonical(), "rotate": self.rotate, "mesh_sha256": meshes},
+            "shape": dict({"type": self.shape.canonical(), "rotate": self.rotate, "mesh_sha256": meshes},
+                          **self._labels_canonical()),
             "camera": dict({"type": self.camera.canonical()},
                            **{k: d.canonical() for k, d in self.camera_dists.items()}),
             "light": {"direction": self.light_dir.canonical(), "irradiance": self.irradiance.canonical()},
-            "material": {k: d.canonical() for k, d in self.material.items()},
+            "material": ([{k: d.canonical() for k, d in m.items()} for m in self.materials] if self.several
+                         else {k: d.canonical() for k, d in self.material.items()}),
         }
+
+    def _labels_canonical(self):
+        if not self.several:
+            return {}
+        with open(os.path.join(self.base_dir, self.labels_file), "rb") as f:
+            sha = hashlib.sha256(f.read()).hexdigest()
+        return {"labels": self.labels_file, "labels_sha256": sha}
 
     # ---------------------------------------------------------------- drawing
     def draw(self, index):
@@ -474,7 +538,10 @@ class DatasetConfig:
             out[k] = d.draw(rng)
         out["light_dir"] = self.light_dir.draw(rng)
         out["irradiance"] = self.irradiance.draw(rng)
-        out["material"] = {k: d.draw(rng) for k, d in self.material.items()}
+        if self.several:  # material 0's values, then material 1's, ...
+            out["materials"] = [{k: d.draw(rng) for k, d in m.items()} for m in self.materials]
+        else:
+            out["material"] = {k: d.draw(rng) for k, d in self.material.items()}
         out["render_seed"] = int(rng.integers(0, 2 ** 32))
         return out
 

@@ -165,7 +165,13 @@ class SampleRenderer:
         self.params = None
         self._scalars = None
         self._normalisations = {}
-        self.rgb = {k: _is_rgb(d) for k, d in cfg.material.items()}
+        #: per material: {albedo name: whether it is RGB}
+        self.rgb = [{k: _is_rgb(d) for k, d in m.items() if k in ("k_s", "k_b", "r_k")} for m in cfg.materials]
+        #: per material: the traverse key prefix of its BSDF (inside the blend of several materials)
+        from ..scene import blend_paths
+
+        self.prefixes = ["shape.bsdf" + (f".{q}" if q else "") for q in blend_paths(len(cfg.materials))]
+        self.labels = None  # with shape.labels: the last sample's label map (H, W), -1 off the mask
         self.seconds = {"load": 0.0, "update": 0.0, "render": 0.0, "geometry": 0.0}
 
     def normalisation(self, shape):
@@ -178,8 +184,13 @@ class SampleRenderer:
                 mesh = mi.load_dict({"type": plugin, "filename": self.cfg.mesh_path(shape)})
             except Exception as e:
                 raise ValueError(f"shape.type: cannot load mesh {shape!r}: {str(e).splitlines()[-1]}") from None
-            positions = np.asarray(mi.traverse(mesh)["vertex_positions"])
-            del mesh
+            params = mi.traverse(mesh)
+            positions = np.asarray(params["vertex_positions"])
+            has_uv = "vertex_texcoords" in params and len(np.asarray(params["vertex_texcoords"])) > 0
+            del mesh, params
+            if self.cfg.several and not has_uv:
+                raise ValueError(f"shape.labels: mesh {shape!r} has no uv coordinates (texcoords), which the uv "
+                                 f"label image needs; give the mesh uvs or use a built-in shape")
             try:
                 self._normalisations[shape] = mesh_normalisation(positions)
             except ValueError as e:
@@ -199,12 +210,14 @@ class SampleRenderer:
             shape_dict = {"type": "ply" if shape.lower().endswith(".ply") else "obj",
                           "filename": cfg.mesh_path(shape)}
         shape_dict["to_world"] = _T(self.normalisation(shape))
-        bsdf = {"type": "fmbrdf"}
-        for k, rgb in self.rgb.items():
-            if k in ("k_s", "k_b", "r_k"):
+        bsdfs = []
+        for rgbs in self.rgb:
+            bsdf = {"type": "fmbrdf"}
+            for k, rgb in rgbs.items():
                 # loaded as objects of their own: in a dict, Mitsuba would merge two equal textures
                 bsdf[k] = mi.load_dict(_albedo_texture([1.0] * 3 if rgb else 1.0, rgb))
-        shape_dict["bsdf"] = bsdf
+            bsdfs.append(bsdf)
+        shape_dict["bsdf"] = S.blend_bsdfs(bsdfs, cfg.uv_labels) if cfg.several else bsdfs[0]
         w, h = cfg.resolution
         sensor = S._sensor(mi, camera, w, h, 1, S.DEFAULT_FOV, S.DEFAULT_DISTANCE, cfg.spp, 0)
         # irradiance 1: the image is scaled by the sample's irradiance
@@ -219,7 +232,7 @@ class SampleRenderer:
         self.scene = mi.load_dict(self._scene_dict(*key))
         self.params = mi.traverse(self.scene)
         self.key = key
-        self._scalars = None  # (eta, alpha, beta, kappa) last set
+        self._scalars = [None] * len(self.prefixes)  # per material: (eta, alpha, beta, kappa) last set
 
     def close(self):
         import gc
@@ -242,18 +255,18 @@ class SampleRenderer:
         t1 = time.perf_counter()
         p = self.params
         g = geometry["render"]
-        m = draw["material"]
-        scalars = tuple(m[name] for name in _SCALARS)
-        if scalars != self._scalars:  # a change rebuilds the BSDF's tables (most of a sample's time)
-            for name, value in zip(_SCALARS, scalars):
-                p[f"shape.bsdf.{name}"] = dr.opaque(mi.Float, value)
-            self._scalars = scalars
-        for name, rgb in self.rgb.items():
-            if name in ("k_s", "k_b", "r_k"):
+        for i, (m, prefix, rgbs) in enumerate(zip(draw["materials"] if self.cfg.several else [draw["material"]],
+                                                  self.prefixes, self.rgb)):
+            scalars = tuple(m[name] for name in _SCALARS)
+            if scalars != self._scalars[i]:  # a change rebuilds the BSDF's tables (most of a sample's time)
+                for name, value in zip(_SCALARS, scalars):
+                    p[f"{prefix}.{name}"] = dr.opaque(mi.Float, value)
+                self._scalars[i] = scalars
+            for name, rgb in rgbs.items():
                 if rgb:
-                    p[f"shape.bsdf.{name}.values"] = mi.Float(srgb_spectrum(m[name]).astype(np.float32))
+                    p[f"{prefix}.{name}.values"] = mi.Float(srgb_spectrum(m[name]).astype(np.float32))
                 else:
-                    p[f"shape.bsdf.{name}.value"] = dr.opaque(mi.Float, m[name])
+                    p[f"{prefix}.{name}.value"] = dr.opaque(mi.Float, m[name])
         pos, axes = g["position"], g["axes"]
         look = mi.ScalarTransform4f().look_at(origin=pos.tolist(), target=(pos - axes[:, 2]).tolist(),
                                               up=axes[:, 1].tolist())
@@ -297,6 +310,10 @@ class SampleRenderer:
         front = np.asarray(si.wi.z).reshape(h, w) > 0  # wi: towards the camera, shading frame
         mask = hit & front
         self.back_face_pixels = int(np.sum(hit & ~front))
+        if self.cfg.several:  # the material at each pixel centre in the mask (fmbrdf_mi.scene: as render's)
+            from ..scene import labels_at
+
+            self.labels = labels_at(si, mask.ravel(), self.cfg.uv_labels, len(self.prefixes)).reshape(h, w)
         n[~mask] = 0.0
         return n.astype(np.float32), mask
 

@@ -32,6 +32,7 @@ before it (``tests/test_layers.py`` enforces it):
 =================  ===========================================================================
 """
 from fmbrdf_mi.fit.api.colour import fit_colour
+from fmbrdf_mi.fit.api.find_materials import FoundMaterials, MaterialsNotSeparated, find_materials
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit, usable_pixels
 from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.api.normal_joint import refine_joint
@@ -46,4 +47,4 @@ from fmbrdf_mi.fit.result import FitResult
 
 __all__ = ["fit", "fit_joint", "fit_colour", "refine_normals", "refine_joint", "fit_files", "fit_images",
            "FitOptions", "FitResult", "predict_image", "usable_pixels", "Observation", "ImageSpec",
-           "read_manifest", "InputError"]
+           "read_manifest", "InputError", "find_materials", "FoundMaterials", "MaterialsNotSeparated"]

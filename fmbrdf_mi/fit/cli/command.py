@@ -108,11 +108,13 @@ def add_fit_arguments(p):
                    help="likelihood fits: one k_s, r_k for the whole object (default), or per-pixel k_s and k_b "
                         "maps (a textured object: written as k_s.exr, k_b.exr with their standard errors, the "
                         "shape parameters shared; --max-pixels 0 maps every pixel)")
-    g.add_argument("--materials", metavar="LABELS.png|npy",
+    g.add_argument("--materials", metavar="LABELS.png|npy|auto:M",
                    help="likelihood fits: a label image giving each pixel's material, each with its own eta, "
                         "alpha, beta, kappa (and, with --albedo shared, k_s, r_k): one integer per pixel of the "
                         "fit's grid (a raw mosaic's super-pixels, or its sensor pixels), 0 .. M-1; not fitted: "
-                        "255 in an 8-bit PNG, 65535 in a 16-bit one, < 0 in a .npy (docs: how-to 'Fit a textured "
+                        "255 in an 8-bit PNG, 65535 in a 16-bit one, < 0 in a .npy; or auto:M: find M materials "
+                        "from the image (per-pixel albedos clustered, refined on the model; refused when they "
+                        "do not separate; writes labels.png; single-image fits) (docs: how-to 'Fit a textured "
                         "object')")
     g.add_argument("--area-points", type=int, metavar="M",
                    help="likelihood: model each raw sample as the mean of the BSDF over M x M points of its "

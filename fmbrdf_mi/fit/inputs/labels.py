@@ -63,6 +63,19 @@ def read_labels(path, what="--materials"):
     raise InputError(f"{name}: unsupported file type '{ext}' (labels: .npy or a one-channel .png)")
 
 
+def read_uv_labels(path, what="--materials"):
+    """A uv label image of several materials on one shape (``render --materials``, the dataset's
+    ``shape.labels``): :func:`read_labels` with every texel a material 0 .. M-1, M <= 255 (the label
+    PNGs written are 8-bit); InputError in one line naming ``what`` otherwise."""
+    labels = read_labels(path, what)
+    if labels.min() < 0:
+        raise InputError(f"{what} {os.fspath(path)}: every texel of the shape's uv needs a material (0 .. M-1); "
+                         "found texels marked not fitted")
+    if labels.max() >= 255:
+        raise InputError(f"{what} {os.fspath(path)}: at most 255 materials (the label PNGs written are 8-bit)")
+    return labels
+
+
 def write_labels(path, labels):
     """``labels`` (H, W) (< 0 not fitted) as an 8-bit grey PNG (255 not fitted; M <= 255)."""
     from PIL import Image

@@ -59,6 +59,7 @@ from fmbrdf_mi.fit.outputs.colour_joint import outputs as colour_outputs
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.record import command_block
 from fmbrdf_mi.fit.inputs.labels import read_labels
+from fmbrdf_mi.fit.api.find_materials import parse_auto
 from fmbrdf_mi.fit.outputs.single import MAP_OUTPUTS, MATERIAL_OUTPUTS, labels_of, write_albedo_maps, write_materials
 from fmbrdf_mi.fit.outputs.writer import prepare_outputs
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
@@ -100,6 +101,10 @@ class Joint(FitJob):
         self.obs, self.extra, self.reproduce = observations, extra, reproduce
 
     def check(self):
+        if parse_auto(self.fit_kw.get("materials")):
+            raise InputError(f"--materials {self.fit_kw['materials']}: finding the materials is for single-image "
+                             "fits so far; for several images give a label image (e.g. the labels.png of a "
+                             "single-image fit with auto:M)")
         check_fit_options(model=self.model, **self.fit_kw)
 
     def files(self):

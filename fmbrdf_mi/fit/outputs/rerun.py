@@ -16,6 +16,7 @@ import json
 import os
 
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.api.find_materials import parse_auto
 from fmbrdf_mi.fit.inputs.authors import read_object
 from fmbrdf_mi.fit.inputs.manifest import (INPUT_KEYS, ImageSpec, check_entry, check_input, check_light,
                                            check_options, image_names)
@@ -100,6 +101,10 @@ def single_arguments(path, rep, colour):
     if cwd is not None and not isinstance(cwd, str):
         raise InputError(f"--from {path}: reproduce.cwd: expected the directory the fit ran in, got {cwd!r}")
     check_files(path, rep)
+    if parse_auto(args.get("materials")):     # --materials auto:M: found again, not a file
+        auto = args.pop("materials")
+    else:
+        auto = None
     # relative paths were relative to the directory the fit ran in
     if cwd:
         for key in ("inputs", "normals", "mask", "view", "relight", "materials"):
@@ -112,6 +117,8 @@ def single_arguments(path, rep, colour):
     given = [p for key in ("inputs", "normals", "mask", "view", "relight", "materials")
              for p in (args.get(key) if isinstance(args.get(key), list) else [args.get(key)]) if isinstance(p, str)]
     check_recorded(path, rep, given + single_files(args))
+    if auto is not None:
+        args["materials"] = auto
     return args
 
 

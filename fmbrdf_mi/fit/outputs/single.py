@@ -8,6 +8,7 @@ import numpy as np
 
 from fmbrdf_mi import scene as S
 from fmbrdf_mi import stokes_io
+from fmbrdf_mi.fit.api.find_materials import find_materials, parse_auto
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit
 from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
 from fmbrdf_mi.fit.errors import InputError
@@ -16,7 +17,7 @@ from fmbrdf_mi.fit.evaluate.models import BASELINES, get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
 from fmbrdf_mi.fit.inputs.files import build_observation
-from fmbrdf_mi.fit.inputs.labels import read_labels
+from fmbrdf_mi.fit.inputs.labels import read_labels, write_labels
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
 from fmbrdf_mi.fit.outputs import plots, record
 from fmbrdf_mi.fit.outputs.job import FitJob
@@ -34,11 +35,14 @@ MAP_OUTPUTS = ("k_s.exr", "k_b.exr", "k_s_se.exr", "k_b_se.exr", "albedo_maps.pn
 
 #: A fit of several materials (``materials``: a label image) writes the label map it used.
 MATERIAL_OUTPUTS = ("materials.png",)
+#: ``materials="auto:M"`` (labels found by :func:`~fmbrdf_mi.fit.api.find_materials.find_materials`) also
+#: writes the labels it found (8-bit PNG, 255 not labelled: ``--materials labels.png`` reruns with them).
+FOUND_OUTPUTS = ("labels.png",)
 
 
 def output_files(out, relight, albedo="shared", materials=None):
     names = OUTPUTS + (RELIGHT_OUTPUTS if relight else ()) + (MAP_OUTPUTS if albedo == "per-pixel" else ()) \
-        + (MATERIAL_OUTPUTS if materials is not None else ())
+        + (MATERIAL_OUTPUTS if materials is not None else ()) + (FOUND_OUTPUTS if parse_auto(materials) else ())
     return {n: os.path.join(out, n) for n in names}
 
 
@@ -117,6 +121,7 @@ class SingleImage(FitJob):
                           time_limit=a["time_limit"], max_time=a["max_time"], max_pixels=a["max_pixels"],
                           erode=a["erode"], seed=a["seed"], area_points=a["area_points"], starts=a["starts"],
                           loss=a["loss"], fixed=parse_fixed(a["fixed"]), albedo=a["albedo"])
+        parse_auto(a.get("materials"))   # auto:M well formed (a label file is read in read())
 
     def files(self):
         self.outs = output_files(self.out, self.a["relight"], self.a["albedo"], self.a.get("materials"))
@@ -124,7 +129,9 @@ class SingleImage(FitJob):
 
     def read(self):
         a = self.a
-        self.labels = None if a.get("materials") is None else read_labels(a["materials"])
+        self.auto = parse_auto(a.get("materials"))    # --materials auto:M: found in fit()
+        self.found = None
+        self.labels = None if a.get("materials") is None or self.auto else read_labels(a["materials"])
         files = {k: a[k] for k in ("layout", "black_level", "channel", "demosaic", "conversion_gain", "read_noise",
                                    "footprint")}
         self.obs = obs = build_observation(
@@ -158,13 +165,20 @@ class SingleImage(FitJob):
         elif a["path"] != "pixel":
             raise InputError(f"path: expected 'pixel' or 'render', got {a['path']!r}")
         self.opts = opts
+        if self.auto:
+            self.found = find_materials(obs, self.auto, opts, seed=int(a["seed"]), progress=self.progress)
+            self.labels = self.found.labels
         self.models = [model] + ([m for m in BASELINES if m != model] if a["baselines"] else [])
         self.results, self.preds = {}, {}
         for name in self.models:
             o = opts if name == model else FitOptions(**{**opts.__dict__, "model": name, "bounds": None,
                                                           "init": None, "path": "pixel", "fixed": None})
-            res = fit(obs, o, scene=scene if name == model else None, progress=self.progress,
-                      materials=self.labels)
+            if self.found is not None and name == model and scene is None \
+                    and o == dataclasses.replace(o, albedo="shared", intervals="fisher"):
+                res = self.found.fit    # find_materials' last fit: these labels and these options
+            else:
+                res = fit(obs, o, scene=scene if name == model else None, progress=self.progress,
+                          materials=self.labels)
             self.results[name] = res
             self.preds[name] = predict_image(name, res.params, obs, maps=res.maps,
                                              labels=labels_of(res, self.labels, obs.shape))
@@ -181,6 +195,8 @@ class SingleImage(FitJob):
                 entry["relative_error"] = {k: (res.params[k] - t[k]) / t[k] for k in res.params
                                            if k in t and isinstance(t[k], (int, float)) and t[k] != 0}
             report["models"][name] = entry
+        if self.found is not None:
+            report["materials_found"] = dict(self.found.record, labels=self.outs["labels.png"])
         return report
 
     def write(self, report):
@@ -214,6 +230,8 @@ class SingleImage(FitJob):
             report["albedo_maps"] = {k: outs[k] for k in MAP_OUTPUTS}
         if main.materials is not None:
             write_materials(main, self.labels, obs.shape, outs["materials.png"], model)
+        if self.found is not None:
+            write_labels(outs["labels.png"], self.labels)
 
 
 def write_albedo_maps(res, outs, model):

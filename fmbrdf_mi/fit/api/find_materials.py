@@ -1,0 +1,308 @@
+"""Finding the label image of several materials when the user has none (``fmbrdf-mi fit --materials auto:M``).
+
+    found = find_materials(obs, 2)           # FoundMaterials: labels (H, W), record (for fit.json)
+    res = fit(obs, materials=found.labels)   # the ordinary fit of several materials
+
+What it does, in three steps (every step deterministic for a given ``seed``):
+
+1. **Features: per-pixel albedos.**  The pipeline's per-pixel albedo fit
+   (``fit(obs, albedo="per-pixel")``: shared eta, alpha, beta, kappa; k_s and
+   k_b per pixel, with their standard errors) divides the geometry (normal,
+   view, light) out of each pixel through the model, so a pixel's (k_s, k_b)
+   is a property of its material, not of where it sits on the object -- which
+   raw intensity, DoLP or AoLP are not (they follow the normal).  The features
+   are k_s and k_b in units of each pixel's own standard error (a pixel far
+   from the highlight has an undetermined k_s, SE up to 10-100 times k_s from
+   one image: it then counts by its k_b alone).
+2. **Clustering.**  k-means in those units (each pixel's squared distance to a
+   centre is sum_f (x_f - c_f)^2 / se_f^2, centres the precision-weighted
+   means): k-means++ starts from ``numpy.random.default_rng(seed)``, 10 of
+   them, the lowest total kept; then a 3 x 3 majority filter over the
+   labelled pixels (``clean`` passes) removes isolated pixels.
+3. **Refinement on the model (hard EM).**  The fit of M materials with these
+   labels (refused at once if they are not separated, below), then each pixel
+   goes to the material whose fitted model predicts its Stokes (S0, S1, S2)
+   with the smallest chi^2, majority filter again, and the fit is repeated
+   while labels change (at most ``rounds`` fits; the labels returned are those
+   of the last fit, ``fit``).  The per-pixel albedo
+   fit assumed one shape for all materials; this step uses each material's
+   own eta, alpha, beta, kappa and albedos.
+
+**The check that the materials are separated.**  With the last fit, each
+pixel's distance D: the squared difference, in units of the noise, between the
+Stokes (S0, S1, S2) its material's fitted model predicts there and what the
+nearest other material predicts (the noise unit from the residuals: the
+median per-pixel chi^2 is set to that of chi^2 with 3 degrees of freedom,
+2.37, so no noise model is needed).  Two Gaussians D apart are told apart
+with error probability Phi(-sqrt(D)/2); a pixel is **decided** when D >= 16
+(4 noise sd, error <= 2.3 %).  The materials are **separated** when, for each
+material, at least half its pixels are decided (``min_decided``); otherwise
+:class:`MaterialsNotSeparated` is raised (one line: each material's
+fraction), never labels that mean nothing.  D compares the materials' models,
+not the pixel's own residuals: picking for each pixel the material its noise
+favours (which a chi^2 difference would reward: identical materials scored a
+median delta chi^2 of 4-11) does not make it grow.
+
+**When it fails.**  Materials whose albedos are equal and that differ only in
+eta, alpha, beta or kappa by less than the noise shows at each pixel (each
+pixel must tell its material on its own: a uniform region of a 1 % different
+roughness is not found); materials with identical appearance (refused, as
+above); a material on fewer pixels than the filter's 3 x 3 (thin lines and
+dots are cleaned away); M larger than the number of materials present (a
+material is split: its two halves' fits agree, refused as not separated); a
+material that is everywhere dark or saturated (no albedo per pixel).  The
+labels are on the fit's pixel grid and cover the pixels the fit uses (the
+eroded mask less saturated pixels); the rest are -1.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from fmbrdf_mi.fit.api.fitting import FitOptions, fit, usable_pixels
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.predict import material_params, predict_image
+
+#: A pixel is decided when its material's predicted Stokes and the nearest other's are this far apart (squared,
+#: noise units: 4 standard deviations, a misassignment probability Phi(-2) = 2.3 %).
+DECIDED_D = 16.0
+#: Median chi^2 of 3 degrees of freedom (the per-pixel Stokes S0, S1, S2): the residuals' noise unit.
+CHI2_3_MEDIAN = 2.3659738843753377
+METHOD = ("per-pixel albedo fit (k_s, k_b in units of their standard errors) -> k-means (k-means++, 10 starts, "
+          "fixed seed) -> 3x3 majority filter -> fit of M materials (refused unless separated), each pixel to "
+          "the material of least chi^2, fitted again while labels change")
+
+
+class MaterialsNotSeparated(InputError):
+    """The clusters found do not separate into materials (the record says by how much)."""
+
+    def __init__(self, message, record):
+        super().__init__(message)
+        self.record = record
+
+
+@dataclasses.dataclass
+class FoundMaterials:
+    """Labels found by :func:`find_materials`: ``labels`` (H, W) 0 .. M-1, -1 not labelled; ``record`` what
+    was done and how well the materials separate (fit.json's ``materials_found``); ``fit``: the last fit of
+    M materials with these labels (a :class:`~fmbrdf_mi.fit.result.FitResult`)."""
+
+    labels: np.ndarray
+    record: dict
+    fit: object = None
+
+
+def parse_auto(value):
+    """M of ``auto:M`` (``--materials auto:M``), None for anything else (a label file)."""
+    if not isinstance(value, str) or not value.startswith("auto"):
+        return None
+    head, _, count = value.partition(":")
+    if head != "auto" or not count.strip().isdigit() or not 2 <= int(count) <= 254:
+        raise InputError(f"--materials {value}: expected auto:M with M an integer 2 .. 254 (the number of "
+                         "materials to find), or a label image .png / .npy")
+    return int(count)
+
+
+# ------------------------------------------------------------------ clustering (NumPy)
+def weighted_kmeans(x, w, count, seed=0, starts=10, max_iter=100):
+    """k-means of points ``x`` (n, F) under per-point, per-feature weights ``w`` (n, F) (1 / variance):
+    distance sum_f w_f (x_f - c_f)^2, centres the weighted means.  k-means++ starts from
+    ``numpy.random.default_rng(seed)``; the start of least total distance is kept.  Returns
+    (labels (n,), centres (count, F), total)."""
+    x, w = np.asarray(x, dtype=np.float64), np.asarray(w, dtype=np.float64)
+    n = len(x)
+    rng = np.random.default_rng(seed)
+    best = None
+
+    def dist(c):
+        return np.sum(w[:, None, :] * (x[:, None, :] - c[None, :, :]) ** 2, axis=-1)  # (n, count)
+
+    for _ in range(starts):
+        c = [x[rng.integers(n)]]
+        for _ in range(1, count):
+            d = dist(np.array(c)).min(axis=1)
+            p = d / d.sum() if d.sum() > 0 else np.full(n, 1.0 / n)
+            c.append(x[rng.choice(n, p=p)])
+        c = np.array(c)
+        lab = None
+        for _ in range(max_iter):
+            new = np.argmin(dist(c), axis=1)
+            if lab is not None and np.array_equal(new, lab):
+                break
+            lab = new
+            for k in range(count):
+                sel = lab == k
+                if sel.any():
+                    c[k] = np.sum(w[sel] * x[sel], axis=0) / np.sum(w[sel], axis=0)
+        total = float(np.sum(dist(c)[np.arange(n), lab]))
+        if best is None or total < best[2]:
+            best = (lab.copy(), c.copy(), total)
+    return best
+
+
+def majority_filter(labels, count, passes=1):
+    """Each labelled pixel (>= 0) takes the most frequent label of its 3 x 3 neighbourhood's labelled pixels
+    (itself included; a tie keeps its own); -1 stays -1.  ``passes`` times."""
+    lab = np.asarray(labels).copy()
+    h, w = lab.shape
+    for _ in range(passes):
+        pad = np.pad(lab, 1, constant_values=-1)
+        votes = np.zeros((count, h, w), int)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                nb = pad[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx]
+                for m in range(count):
+                    votes[m] += nb == m
+        own = np.take_along_axis(votes, np.clip(lab, 0, None)[None], 0)[0]
+        top = votes.max(axis=0)
+        new = np.where(own == top, lab, np.argmax(votes, axis=0))
+        lab = np.where(lab >= 0, new, -1)
+    return lab
+
+
+# ------------------------------------------------------------------ the model's per-pixel chi^2
+def material_chi2(obs, model, params, count, idx):
+    """Each material's fitted model at pixels ``idx`` in units of the noise: (chi2 (count, n), the per-pixel
+    chi^2 of the Stokes (S0, S1, S2) residuals; pred (count, 3, n), the predictions divided by the noise's
+    standard deviation; the 3 noise scales).  Each pixel's variance: the capture's ``lin_variance`` when
+    known (S1, S2; S0 half of it, the four polariser samples' mean), else proportional to S0 plus 1 % of its
+    median (shot noise); then each component is scaled so that the median of the best material's per-pixel
+    sum is the median of chi^2 with 3 degrees of freedom (the noise unit from the residuals: no noise model
+    needed, and none trusted beyond its shape)."""
+    obs_s = np.asarray(obs.stokes, dtype=np.float64).reshape(3, -1)[:, idx]
+    if obs.lin_variance is not None:
+        lin = np.asarray(obs.lin_variance, dtype=np.float64).ravel()[idx]
+        var = np.stack([0.5 * lin, lin, lin])
+    else:
+        s0 = np.abs(obs_s[0])
+        var = np.repeat((s0 + 0.01 * np.median(s0))[None], 3, axis=0)
+    var = np.maximum(var, 1e-12 * np.max(var))
+    pred = np.empty((count, 3, len(idx)))
+    for m in range(count):
+        pred[m] = predict_image(model, material_params(params, m), obs, idx).reshape(3, -1)[:, idx]
+    r2 = (obs_s[None] - pred) ** 2 / var[None]
+    best = np.argmin(r2.sum(axis=1), axis=0)
+    own = r2[best, :, np.arange(len(idx))].T                 # (3, n)
+    scale = np.maximum(np.median(own, axis=1), 1e-300) / (CHI2_3_MEDIAN / 3.0)  # per Stokes component
+    sd = np.sqrt(var * scale[:, None])
+    return (r2 / scale[None, :, None]).sum(axis=1), pred / sd[None], scale
+
+
+def separation(pred, labels_flat, count):
+    """Per material: the fraction of its pixels decided and the median distance D (squared, noise units)
+    between the pixel's own material's predicted Stokes and the nearest other material's.  Two Gaussians D
+    apart are told apart by the likelihood with error probability Phi(-sqrt(D) / 2): a pixel is decided when
+    D >= DECIDED_D (error <= 2.3 %).  D measures the materials, not the pixel's noise: it does not grow by
+    picking, for each pixel, the material its noise happens to favour."""
+    n = pred.shape[2]
+    own = pred[labels_flat, :, np.arange(n)]                 # (n, 3)
+    d = np.sum((pred - own.T[None]) ** 2, axis=1)            # (count, n)
+    d[labels_flat, np.arange(n)] = np.inf
+    dist = d.min(axis=0)
+    frac, med = [], []
+    for m in range(count):
+        x = dist[labels_flat == m]
+        frac.append(float(np.mean(x >= DECIDED_D)) if len(x) else 0.0)
+        med.append(float(np.median(x)) if len(x) else 0.0)
+    return frac, med
+
+
+# ------------------------------------------------------------------ the method
+def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_decided=0.5, progress=False,
+                   **kw):
+    """Labels of ``count`` materials for ``obs`` (one :class:`Observation`, mono), found from its pixels
+    (module docstring): a :class:`FoundMaterials`.  ``options`` / ``kw``: the :class:`FitOptions` of the
+    fits it runs (the likelihood; ``albedo`` and ``materials`` are its own); ``seed``: k-means++'s;
+    ``rounds``: at most this many fits of M materials; ``clean``: majority-filter passes; ``min_decided``:
+    the fraction of each material's pixels that must be decided.  Raises :class:`MaterialsNotSeparated`
+    (an InputError) when they are not, and InputError for a bad ``count``."""
+    if isinstance(obs, (list, tuple)):
+        raise InputError("find_materials: one image (an Observation); several images are not supported yet")
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or not 2 <= count <= 254:
+        raise InputError(f"find_materials: count: expected an integer 2 .. 254, got {count!r}")
+    if not 0 < min_decided <= 1:
+        raise InputError(f"find_materials: min_decided: expected a fraction in (0, 1], got {min_decided!r}")
+    count = int(count)
+    opts = dataclasses.replace(options or FitOptions(), **kw) if (options or kw) else FitOptions()
+    # its own fits: shared albedos per material, Fisher intervals (only the estimates are used)
+    opts = dataclasses.replace(opts, albedo="shared", intervals="fisher")
+
+    def say(msg):
+        if progress is True:
+            import sys
+
+            print(f"find materials: {msg} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+        elif callable(progress):
+            progress(f"find materials: {msg} ({time.perf_counter() - t0:.0f} s)")
+
+    t0 = time.perf_counter()
+    h, w = obs.shape
+    idx = np.asarray(usable_pixels(obs, dataclasses.replace(opts, max_pixels=None)))
+    if len(idx) < 9 * count:
+        raise InputError(f"--materials auto:{count}: {len(idx)} usable pixels, too few to find {count} materials "
+                         f"(at least {9 * count})")
+    # 1. per-pixel albedos (all usable pixels)
+    say(f"per-pixel albedo fit of {len(idx)} pixels")
+    pp = fit(obs, dataclasses.replace(opts, albedo="per-pixel", max_pixels=None, intervals="fisher"),
+             progress=False)
+    maps = pp.maps
+    feats = np.stack([maps[k].ravel() for k in ("k_s", "k_b")], axis=1)
+    ses = np.stack([maps[k].ravel() for k in ("k_s_se", "k_b_se")], axis=1)
+    ok = np.all(np.isfinite(feats) & np.isfinite(ses) & (ses > 0), axis=1)
+    have = np.intersect1d(idx, np.flatnonzero(ok))
+    if len(have) < 9 * count:
+        raise InputError(f"--materials auto:{count}: only {len(have)} pixels have per-pixel albedos with standard "
+                         f"errors, too few to find {count} materials")
+    # 2. k-means in standard-error units, then the majority filter
+    floor = np.median(ses[have], axis=0) * 1e-3          # a pixel with an SE near 0 must not dominate
+    wts = 1.0 / np.maximum(ses[have], floor) ** 2
+    lab_have, centres, _ = weighted_kmeans(feats[have], wts, count, seed=seed)
+    lab = np.full(h * w, -1)
+    lab[have] = lab_have
+    lab = majority_filter(lab.reshape(h, w), count, clean).ravel()
+    kmeans = {"centres": {"k_s": centres[:, 0].tolist(), "k_b": centres[:, 1].tolist()},
+              "pixels": [int(np.sum(lab == m)) for m in range(count)]}
+    say(f"k-means: {kmeans['pixels']} pixels, k_b centres {np.round(centres[:, 1], 4).tolist()}")
+    # 3. fit M materials; stop if they are not separated; else reassign each usable pixel to its least-chi^2
+    # material and fit again while labels change (at most ``rounds`` fits)
+    record = {"method": METHOD, "count": count, "seed": int(seed), "features": ["k_s", "k_b"],
+              "clean_passes": int(clean), "kmeans": kmeans, "rounds": [],
+              "decided_distance": DECIDED_D, "min_decided": float(min_decided),
+              "per_pixel_fit_shape": {k: v for k, v in pp.params.items()}}
+    for r in range(rounds):
+        missing = [m for m in range(count) if not np.any(lab == m)]
+        if missing:
+            record.update(separated=False, pixels=[int(np.sum(lab == m)) for m in range(count)],
+                          seconds=time.perf_counter() - t0)
+            raise MaterialsNotSeparated(f"--materials auto:{count}: material(s) {missing} ended with no pixels: "
+                                        f"the image does not show {count} separable materials", record)
+        res = fit(obs, opts, materials=lab.reshape(h, w), progress=False)
+        chi2, pred, scale = material_chi2(obs, opts.model, res.params, count, idx)
+        frac, med = separation(pred, lab[idx], count)
+        separated = min(frac) >= min_decided
+        new = np.full(h * w, -1)
+        new[idx] = np.argmin(chi2, axis=0)
+        new = majority_filter(new.reshape(h, w), count, clean).ravel()
+        changed = int(np.sum(new[idx] != lab[idx]))
+        record["rounds"].append({"round": r + 1, "decided_fraction": frac, "median_distance": med,
+                                 "changed_pixels": changed if separated else None})
+        record.update(separated=separated, decided_fraction=frac, median_distance=med,
+                      pixels=[int(np.sum(lab == m)) for m in range(count)],
+                      noise_scale=[float(np.sqrt(x)) for x in scale],  # the residuals' sd / the assumed noise sd
+                      seconds=time.perf_counter() - t0)
+        say(f"fit {r + 1}: decided pixels per material {[round(f, 3) for f in frac]} (need {min_decided:g} "
+            f"each), median distance to the nearest other material {[round(x, 1) for x in med]} (noise units "
+            f"squared)" + (f"; {changed} pixel(s) would change material" if separated else ""))
+        if not separated:
+            raise MaterialsNotSeparated(
+                f"--materials auto:{count}: the {count} clusters found are not separated materials: the fraction "
+                f"of each one's pixels where its fitted material and the nearest other predict Stokes values at "
+                f"least {np.sqrt(DECIDED_D):g} noise sd apart is {', '.join(f'{f:.0%}' for f in frac)} (needs "
+                f"{min_decided:.0%} each): the materials look alike at each pixel (give a label image, or fewer "
+                f"materials)", record)
+        if changed == 0 or r == rounds - 1:
+            break      # the labels of the last fit are kept (its separation is the one recorded)
+        lab = new
+    return FoundMaterials(lab.reshape(h, w), record, res)
