@@ -72,7 +72,10 @@ def distinct_starts(problem, cands, n):
 
 
 def step_in_se(problem, st_old, st_new, J):
-    """Largest |change| of z between two states in units of its standard error (from J^T J)."""
+    """Largest |change| of z between two states in units of its standard error (from J^T J); 0 when no
+    unknown is iterated (every shape parameter fixed and the albedos solved in closed form)."""
+    if J.shape[1] == 0:
+        return 0.0
     try:
         cov = np.linalg.pinv(J.T @ J)
     except np.linalg.LinAlgError:
