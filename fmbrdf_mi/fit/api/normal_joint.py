@@ -158,15 +158,17 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         st, nmap = x[0], x[1]
         r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
         n = nmap[jp.idx]
-        return (system(r, Jm, Jn, t, n), Jn, t, z, n)
+        return (system(r, Jm, Jn, t, n), Jn, t, z, n, {})
 
     def solve(lin, mu):
-        (Hmm, Hmn, gm, gn), Jn, t, _, _ = lin
-        return NS.solve_step(Hmm, Hmn, block(Jn, t, mu), gm, gn, mu)
+        (Hmm, Hmn, gm, gn), Jn, t, _, _, cache = lin
+        if "block" not in cache:    # H_nn's assembly, once per linearisation; each damping adds its ridge
+            cache["block"] = block(Jn, t)
+        return NS.solve_step(Hmm, Hmn, cache["block"].damped(mu), gm, gn, mu)
 
     def trial(x, step, lin):
         dm, dn = step
-        _, _, t, z, n = lin
+        _, _, t, z, n, _ = lin
         st_new = jp.from_z(np.clip(z + dm, -40, 40))
         n_new = n + dn[:, :1] * t[0] + dn[:, 1:] * t[1]
         n_new /= np.linalg.norm(n_new, axis=1, keepdims=True)
