@@ -96,6 +96,19 @@ from fmbrdf_mi.fit.solve.irls import reweighted
 LAM_MATERIAL = 0.03
 
 
+def round_time_left(decreases, per_iter, most, tol=0.01):
+    """Seconds a Levenberg-Marquardt round of :func:`refine_joint` probably has left (its progress lines): the
+    energy's last three decreases extrapolated geometrically to the stopping rule (a decrease below ``tol``
+    twice in a row), at ``per_iter`` seconds an iteration, at most ``most`` iterations; None while there are
+    fewer than three decreases or they do not shrink."""
+    d = decreases[-3:]
+    if len(d) < 3 or min(d) <= 0 or d[2] >= d[0]:
+        return None
+    rho = math.sqrt(d[2] / d[0])
+    n = 1 if d[2] < tol else math.ceil(math.log(tol / d[2]) / math.log(rho)) + 1
+    return min(n, most) * per_iter
+
+
 def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="curvature", model="fmbrdf",
                  bounds=None, fixed=None, max_iter=50, refreshes=2, h=1e-3, progress=None, time_limit=None,
                  lam_material=LAM_MATERIAL):
@@ -179,13 +192,19 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         return (st_new, nmap_new, ed_new, ep_new), ed_new + ep_new, None
 
     def minimise(x, rnd):
+        t_round, decreases = time.time(), []
+
         def on_accept(it, x, f):
             st, jp.nmap = x[0], x[1]
             rep = mdl.report(st.shape, st.a_s, st.a_b)
+            decreases.append((history[-1]["energy"] if history and history[-1]["round"] == rnd
+                              else last["ed"] + last["ep"]) - f)
             history.append({"round": rnd, "iter": it, "energy": f, "data": x[2], "prior": x[3],
                             "time": time.time() - t0, "params": rep})
+            left = round_time_left(decreases, (time.time() - t_round) / it, max_iter - it)
             say(f"[joint-normals] round {rnd} iter {it:2d}: energy {f:.6e} (data {x[2]:.6e}, prior {x[3]:.6e})  "
-                + " ".join(f"{k}={v:.4g}" for k, v in rep.items()) + f"  ({time.time() - t0:.1f} s)")
+                + " ".join(f"{k}={v:.4g}" for k, v in rep.items()) + f"  ({time.time() - t0:.1f} s"
+                + ("" if left is None else f"; this round about {left:.0f} s more") + ")")
 
         res = LM.levenberg_marquardt(
             (x[0], x[1], last["ed"], last["ep"]), last["ed"] + last["ep"], linearise, solve, trial,

@@ -60,12 +60,13 @@ def data_products(pix, val, Jm, r, N):
     their two tangent unknowns, ``Jm`` (m, p) the material columns, ``r`` (m,).
     """
     p = Jm.shape[1]
-    ok = pix >= 0
-    q = np.where(ok, pix, 0).ravel()
-    v = np.where(ok[..., None], val, 0.0)
     m, Q = pix.shape
-    Hmn = _sums(q, (v[:, :, :, None] * Jm[:, None, None, :]).reshape(m * Q, 2 * p), N).reshape(N, 2, p)
-    gn = _sums(q, (v * r[:, None, None]).reshape(m * Q, 2), N)
+    # the terms that contribute: a fixed pixel (-1) or a zero derivative (the unused extrapolation slots of an
+    # inside sample) adds nothing, so they are left out (each sum keeps its order: the same result)
+    row, slot = np.nonzero((pix >= 0) & np.any(val != 0, axis=2))
+    q, v = pix[row, slot], val[row, slot]
+    Hmn = _sums(q, (v[:, :, None] * Jm[row][:, None, :]).reshape(len(q), 2 * p), N).reshape(N, 2, p)
+    gn = _sums(q, v * r[row][:, None], N)
     return Jm.T @ Jm, np.ascontiguousarray(Hmn.transpose(2, 0, 1)), Jm.T @ r, gn
 
 
@@ -132,13 +133,12 @@ class NormalBlock:
         self.v = np.where(ok[..., None], val, 0.0)
         self.st, self.coef = stencils, np.asarray(coef, float)
         self.t1, self.t2, self.w = t1, t2, float(w)
-        m, Q = pix.shape
-        qf = self.q.ravel()
         self.csum = np.zeros(N)
         if len(stencils):
             self.csum = _sums(stencils.ravel(), np.tile(self.coef ** 2, len(stencils))[:, None], N)[:, 0]
-        vv = np.einsum("mqa,mqb->mqab", self.v, self.v).reshape(m * Q, 4)
-        diag = _sums(qf, vv, N).reshape(N, 2, 2)
+        row, slot = np.nonzero(ok & np.any(self.v != 0, axis=2))     # the terms that add something
+        vs = self.v[row, slot]
+        diag = _sums(self.q[row, slot], (vs[:, :, None] * vs[:, None, :]).reshape(-1, 4), N).reshape(N, 2, 2)
         diag[:, 0, 0] += self.w * self.csum      # the tangent bases are orthonormal
         diag[:, 1, 1] += self.w * self.csum
         self._diag = diag
@@ -195,7 +195,8 @@ class NormalBlock:
             W = W[sp["dsel"]]
         P, inv = len(sp["rows"]), sp["inv"]
         nd = len(W)
-        data = _sums(inv[:nd], W, P)                            # each pair's data sum
+        nz = np.any(W != 0, axis=1)                             # pairs with an unused slot add nothing
+        data = _sums(inv[:nd][nz], W[nz], P)                    # each pair's data sum
         vals, idx = [data], [np.arange(P)]
         pinv = inv[nd + N:]
         if prior:
