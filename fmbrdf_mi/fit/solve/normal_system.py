@@ -136,13 +136,14 @@ class NormalBlock:
         self.csum = np.zeros(N)
         if len(stencils):
             self.csum = _sums(stencils.ravel(), np.tile(self.coef ** 2, len(stencils))[:, None], N)[:, 0]
-        row, slot = np.nonzero(ok & np.any(self.v != 0, axis=2))     # the terms that add something
+        nonzero = np.any(self.v != 0, axis=2)                          # (m, Q): slots with a derivative
+        row, slot = np.nonzero(ok & nonzero)                            # the terms that add something
         vs = self.v[row, slot]
         diag = _sums(self.q[row, slot], (vs[:, :, None] * vs[:, None, :]).reshape(-1, 4), N).reshape(N, 2, 2)
         diag[:, 0, 0] += self.w * self.csum      # the tangent bases are orthonormal
         diag[:, 1, 1] += self.w * self.csum
         self._diag = diag
-        self._assemble(ok)
+        self._assemble(ok, nonzero)
         self._damp(mu)
 
     def damped(self, mu):
@@ -172,7 +173,7 @@ class NormalBlock:
         B[np.arange(N), :, 2 * dg["pos"] + 1] = blocks.reshape(N, 2, 2)[:, :, 1]
         self.B = B
 
-    def _assemble(self, ok):
+    def _assemble(self, ok, nonzero):
         """H_nn as 2 x 2 blocks B_ij of the coupled pixel pairs (i, j) (:func:`_pairs`), in a padded (N, Qmax)
         neighbour list for :meth:`apply`; without the ridge, which :meth:`_damp` adds to the diagonal pairs.
 
@@ -186,17 +187,22 @@ class NormalBlock:
         prior = bool(len(self.st) and self.w)
         sp = _pairs(np.where(ok, self.q, -1), self.st if prior else self.st[:0], N)
         V = self.v.reshape(m, 2 * Q)
-        W = np.empty((sp["G"], 2 * Q, 2 * Q))                   # sum over a list's rows of V_r V_r^T
+        G = sp["G"]
+        W = np.empty((G, 2 * Q, 2 * Q))                         # sum over a list's rows of V_r V_r^T
+        used = np.empty((G, Q), bool)                           # slots with a nonzero derivative in some row
         for gs, rs in sp["groups"]:
             Vg = V[rs]                                          # (groups, rows each, 2Q)
             W[gs] = np.matmul(Vg.transpose(0, 2, 1), Vg)
-        W = W.reshape(-1, Q, 2, Q, 2).transpose(0, 1, 3, 2, 4).reshape(-1, 4)              # (G Q Q, 4)
-        if sp["dsel"] is not None:
-            W = W[sp["dsel"]]
+            used[gs] = np.any(nonzero[rs], axis=1)
+        # the valid term pairs (g, a, b) in their order, less those with an unused slot (they add only zeros)
+        valid = np.ones(G * Q * Q, bool) if sp["dsel"] is None else sp["dsel"]
+        at = np.cumsum(valid) - 1                               # each valid pair's place among them (inv)
+        g, a, b = np.unravel_index(np.flatnonzero(valid & (used[:, :, None] & used[:, None, :]).ravel()),
+                                   (G, Q, Q))
         P, inv = len(sp["rows"]), sp["inv"]
-        nd = len(W)
-        nz = np.any(W != 0, axis=1)                             # pairs with an unused slot add nothing
-        data = _sums(inv[:nd][nz], W[nz], P)                    # each pair's data sum
+        nd = int(valid.sum())
+        Wk = W.reshape(G, Q, 2, Q, 2)[g, a, :, b, :].reshape(-1, 4)                     # (pairs kept, 4)
+        data = _sums(inv[at[(g * Q + a) * Q + b]], Wk, P)       # each pair's data sum
         vals, idx = [data], [np.arange(P)]
         pinv = inv[nd + N:]
         if prior:
