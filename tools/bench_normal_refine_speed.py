@@ -4,11 +4,12 @@ tree against another (e.g. an older commit's worktree), at one or several object
 
     python tools/bench_normal_refine_speed.py --old /path/to/old/worktree [--new ROOT] [--res 40,80,100]
                                              [--reps 2] [--lights 4] [--seed 11] [--lam 0.3] [--threads 1]
-                                             [--json OUT.json]
+                                             [--inputs DIR] [--json OUT.json]
 
 The object is tools/bench_normal_refine.py's (``--starts ps``: Lambertian photometric stereo start, material by
 a joint fit on it, then ``refine_joint`` at ``--lam``).  Per size, one child process of the new tree builds
-these inputs once and pickles them; then, ``--reps`` times, a child of the old tree and one of the new refine
+these inputs once and pickles them (``--inputs DIR``: kept there as ``inputsRES.pkl`` and reused by a later
+run with the same DIR, lights, seed and lam: the inputs' own build is the slow part at 100²); then, ``--reps`` times, a child of the old tree and one of the new refine
 them (interleaved).  Each child is a fresh process with ``PYTHONPATH`` set to its tree (checked:
 ``fmbrdf_mi.__file__`` must lie in it) and ``--threads`` Dr.Jit threads (``dr.set_thread_count``; with 1,
 pin the whole command to one core with ``taskset -c N``).  Only ``refine_joint`` is timed: wall and CPU
@@ -92,19 +93,24 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--lam", type=float, default=0.3)
     ap.add_argument("--threads", type=int, default=1, help="Dr.Jit threads of each child (default %(default)s)")
+    ap.add_argument("--inputs", metavar="DIR", help="keep (and reuse) the pickled inputs here (default: a temporary "
+                    "directory)")
     ap.add_argument("--json", metavar="OUT.json", help="every run's record, with the LM history (round, iter, energy)")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.join(HERE, "tools"))
     from bench_normal_refine import LIGHTS, POWERS, TRUTH
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
+        if args.inputs:
+            os.makedirs(args.inputs, exist_ok=True)
+            tmp = args.inputs
         for res in [int(r) for r in args.res.split(",")]:
             cfg = {"res": res, "lights": args.lights, "seed": args.seed, "lam": args.lam, "truth": TRUTH,
                    "lights_dirs": LIGHTS, "powers": POWERS, "inputs": os.path.join(tmp, f"inputs{res}.pkl")}
             env = dict(os.environ, PYTHONPATH=args.new, DRJIT_NUM_THREADS=str(args.threads))
             out = subprocess.run([sys.executable, "-c", BUILD, args.new, json.dumps(cfg)], env=env,
-                                 capture_output=True, text=True)
-            if out.returncode:
+                                 capture_output=True, text=True) if not os.path.exists(cfg["inputs"]) else None
+            if out is not None and out.returncode:
                 print(out.stdout, out.stderr, file=sys.stderr)
                 return 1
             for rep in range(args.reps):
