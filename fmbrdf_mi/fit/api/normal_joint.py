@@ -38,8 +38,9 @@ The energy is
 the material's columns dense, the normals' sparse (each data row touches at
 most 4 pixels, each prior row 2 or 3).  The damped Gauss-Newton system is
 solved by the Schur complement onto the material (the bundle-adjustment
-trick): conjugate gradients with H_nn (2 x 2 block-preconditioned, never
-formed), then a p x p solve.  The material Jacobian is the fit's
+trick): conjugate gradients with H_nn (2 x 2 block-preconditioned; assembled
+once per linearisation as 2 x 2 blocks of the coupled pixel pairs, each
+damping adding only its ridge), then a p x p solve.  The material Jacobian is the fit's
 (forward-mode Dr.Jit AD through the BSDF, one table build per shape
 parameter; analytic in the albedos); the normals' comes from central
 differences of every sample's prediction in its own normal's tangent plane

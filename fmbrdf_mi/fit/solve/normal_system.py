@@ -25,7 +25,10 @@ border extrapolation terms, the prior's stencils), each pixel's row of blocks
 in a padded neighbour list, so that a product is a gather and a batched
 2 x (2 Qmax) times (2 Qmax) x R product, O(pixels) with no scatter-add; the
 sparsity pattern depends on the rows' pixel lists and the stencils only and
-is kept across the blocks of one refinement.  :class:`NormalBlock` solves
+is kept across the blocks of one refinement.  The assembly depends on the
+Jacobian only: a damped copy (:meth:`NormalBlock.damped`) adds its ridge to
+the diagonal pairs, so an LM step rejected and re-solved with more damping
+costs no new assembly.  :class:`NormalBlock` solves
 with it by conjugate gradients preconditioned by its
 2 x 2 diagonal blocks (the data's own block + the prior's, a multiple of I:
 the tangent bases are orthonormal),
