@@ -179,6 +179,58 @@ def test_assembled_normal_block_matches_the_matrix_free_product(prior):
         np.testing.assert_allclose(gm, Jm.T @ r)
 
 
+@pytest.mark.parametrize("prior", ["curvature", "membrane"])
+def test_damped_block_and_prior_gradient_equal_their_direct_forms_bit_for_bit(prior):
+    """NormalBlock.damped(mu) (the undamped assembly kept, the ridge added to the diagonal pairs) gives the
+    same blocks, preconditioner and ridge as a block assembled with that damping, bit for bit, and so the same
+    CG solve; NormalProblem.prior_gradient (one bincount) equals its definition as a scatter-add per stencil
+    place (np.add.at), bit for bit: the refinement's path is sensitive to rounding (docs/benchmarks.md)."""
+    from fmbrdf_mi.fit.problem.normals import NormalProblem, stencils, tangent_bases
+    from fmbrdf_mi.fit.solve.normal_system import NormalBlock
+
+    rng = np.random.default_rng(11)
+    mask = np.ones((6, 8), bool)
+    mask[2, 3] = mask[5, 0] = False
+    st, coef = stencils(mask, prior)
+    N = int(mask.sum())
+    n = rng.normal(size=(N, 3))
+    n[:, 2] = np.abs(n[:, 2]) + 1
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    t1, t2 = tangent_bases(n)
+    pix = rng.integers(-1, N, size=(5 * N, 8))
+    val = rng.normal(size=pix.shape + (2,))
+    val[:, 4:][rng.random((5 * N, 4)) < 0.5] = 0.0                  # unused slots, as inside samples have
+    base = NormalBlock(pix, val, st, coef, t1, t2, 0.7, 0.0)
+    b = rng.normal(size=(N, 2, 3))
+    for mu in (0.0, 1e-3, 0.4):
+        direct, damped = NormalBlock(pix, val, st, coef, t1, t2, 0.7, mu), base.damped(mu)
+        for a in ("B", "pre", "ridge"):
+            assert np.array_equal(getattr(direct, a), getattr(damped, a)), (mu, a)
+        assert np.array_equal(direct.solve(b), damped.solve(b))
+    assert not np.array_equal(base.damped(0.4).B, base.B)           # the damping is not lost or shared
+    jp = NormalProblem.__new__(NormalProblem)                       # only what prior_gradient reads
+    jp.stencils, jp.coef, jp.w_prior = st, np.array(coef), 0.37
+    gn0 = rng.normal(size=(N, 2))
+    ref = gn0.copy()
+    d = jp.w_prior * sum(c * n[st[:, s]] for s, c in enumerate(coef))
+    for s, c in enumerate(coef):
+        k = st[:, s]
+        np.add.at(ref, k, c * np.stack([np.sum(t1[k] * d, 1), np.sum(t2[k] * d, 1)], 1))
+    assert np.array_equal(jp.prior_gradient(gn0.copy(), (t1, t2), n), ref)
+
+
+def test_round_time_left_extrapolates_the_decreases_to_the_stopping_rule():
+    """Decreases halving from 2: 1, 0.5, ..., 0.0078 is the 8th below 0.01, the 9th the second in a row, so 9
+    more iterations; capped by the iterations left; unknown before three decreases or when they grow."""
+    from fmbrdf_mi.fit.api.normal_joint import round_time_left
+
+    assert round_time_left([8.0, 4.0, 2.0], 2.0, 50) == 18.0
+    assert round_time_left([8.0, 4.0, 2.0], 2.0, 5) == 10.0
+    assert round_time_left([1.0, 0.1, 0.005], 1.0, 50) == 1.0
+    assert round_time_left([4.0, 2.0], 1.0, 50) is None
+    assert round_time_left([1.0, 2.0, 3.0], 1.0, 50) is None
+
+
 def test_curvature_prior_is_zero_on_a_linear_normal_field():
     """Second differences vanish where the normal changes linearly across the image (a cylinder-like
     slope field before normalisation); first differences do not."""

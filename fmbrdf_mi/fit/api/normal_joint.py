@@ -38,8 +38,9 @@ The energy is
 the material's columns dense, the normals' sparse (each data row touches at
 most 4 pixels, each prior row 2 or 3).  The damped Gauss-Newton system is
 solved by the Schur complement onto the material (the bundle-adjustment
-trick): conjugate gradients with H_nn (2 x 2 block-preconditioned, never
-formed), then a p x p solve.  The material Jacobian is the fit's
+trick): conjugate gradients with H_nn (2 x 2 block-preconditioned; assembled
+once per linearisation as 2 x 2 blocks of the coupled pixel pairs, each
+damping adding only its ridge), then a p x p solve.  The material Jacobian is the fit's
 (forward-mode Dr.Jit AD through the BSDF, one table build per shape
 parameter; analytic in the albedos); the normals' comes from central
 differences of every sample's prediction in its own normal's tangent plane
@@ -94,6 +95,19 @@ from fmbrdf_mi.fit.solve.irls import reweighted
 #: weakened to this.  The prior biases the material through the normals it pulls, by an amount that grows
 #: with lam and that the covariance does not contain (module docstring, Uncertainty).
 LAM_MATERIAL = 0.03
+
+
+def round_time_left(decreases, per_iter, most, tol=0.01):
+    """Seconds a Levenberg-Marquardt round of :func:`refine_joint` probably has left (its progress lines): the
+    energy's last three decreases extrapolated geometrically to the stopping rule (a decrease below ``tol``
+    twice in a row), at ``per_iter`` seconds an iteration, at most ``most`` iterations; None while there are
+    fewer than three decreases or they do not shrink."""
+    d = decreases[-3:]
+    if len(d) < 3 or min(d) <= 0 or d[2] >= d[0]:
+        return None
+    rho = math.sqrt(d[2] / d[0])
+    n = 1 if d[2] < tol else math.ceil(math.log(tol / d[2]) / math.log(rho)) + 1
+    return min(n, most) * per_iter
 
 
 def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="curvature", model="fmbrdf",
@@ -158,15 +172,17 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         st, nmap = x[0], x[1]
         r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
         n = nmap[jp.idx]
-        return (system(r, Jm, Jn, t, n), Jn, t, z, n)
+        return (system(r, Jm, Jn, t, n), Jn, t, z, n, {})
 
     def solve(lin, mu):
-        (Hmm, Hmn, gm, gn), Jn, t, _, _ = lin
-        return NS.solve_step(Hmm, Hmn, block(Jn, t, mu), gm, gn, mu)
+        (Hmm, Hmn, gm, gn), Jn, t, _, _, cache = lin
+        if "block" not in cache:    # H_nn's assembly, once per linearisation; each damping adds its ridge
+            cache["block"] = block(Jn, t)
+        return NS.solve_step(Hmm, Hmn, cache["block"].damped(mu), gm, gn, mu)
 
     def trial(x, step, lin):
         dm, dn = step
-        _, _, t, z, n = lin
+        _, _, t, z, n, _ = lin
         st_new = jp.from_z(np.clip(z + dm, -40, 40))
         n_new = n + dn[:, :1] * t[0] + dn[:, 1:] * t[1]
         n_new /= np.linalg.norm(n_new, axis=1, keepdims=True)
@@ -177,13 +193,19 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         return (st_new, nmap_new, ed_new, ep_new), ed_new + ep_new, None
 
     def minimise(x, rnd):
+        t_round, decreases = time.time(), []
+
         def on_accept(it, x, f):
             st, jp.nmap = x[0], x[1]
             rep = mdl.report(st.shape, st.a_s, st.a_b)
+            decreases.append((history[-1]["energy"] if history and history[-1]["round"] == rnd
+                              else last["ed"] + last["ep"]) - f)
             history.append({"round": rnd, "iter": it, "energy": f, "data": x[2], "prior": x[3],
                             "time": time.time() - t0, "params": rep})
+            left = round_time_left(decreases, (time.time() - t_round) / it, max_iter - it)
             say(f"[joint-normals] round {rnd} iter {it:2d}: energy {f:.6e} (data {x[2]:.6e}, prior {x[3]:.6e})  "
-                + " ".join(f"{k}={v:.4g}" for k, v in rep.items()) + f"  ({time.time() - t0:.1f} s)")
+                + " ".join(f"{k}={v:.4g}" for k, v in rep.items()) + f"  ({time.time() - t0:.1f} s"
+                + ("" if left is None else f"; this round about {left:.0f} s more") + ")")
 
         res = LM.levenberg_marquardt(
             (x[0], x[1], last["ed"], last["ep"]), last["ed"] + last["ep"], linearise, solve, trial,

@@ -140,15 +140,20 @@ class _Evaluator:
             self.set_albedos(*a)
             s_all.append(self._stokes())
         outputs = [c for s in s_all for c in s]
+        g = {}
         for name in wrt:
             dr.set_grad(xs[name], 1.0)
             dr.forward_to(*outputs, flags=dr.ADFlag.ClearInterior | dr.ADFlag.ClearInput)
-            grads = [np.stack([np.asarray(dr.grad(c), dtype=np.float64) for c in s]) for s in s_all]
+            g[name] = [[dr.grad(c) for c in s] for s in s_all]
             for c in outputs:
                 dr.clear_grad(c)
+        dr.eval(g)      # one kernel for every parameter's six derivatives (not one per output and parameter)
+        for name in wrt:
+            grads = [np.stack([np.asarray(c, dtype=np.float64) for c in s]) for s in g[name]]
             parts.d_surface[name], parts.d_body[name] = grads
             bad = ~(np.all(np.isfinite(grads[0]), 0) & np.all(np.isfinite(grads[1]), 0))
             parts.nonfinite = parts.nonfinite | bad if parts.nonfinite is not None else bad
+        del g
         del outputs, s_all
         # leave detached values in place (no graph kept alive)
         for name in wrt:

@@ -221,11 +221,21 @@ class NormalProblem(Problem):
         return r, Jm, (pix, val.reshape(-1, Q, 2)), (t1, t2), z
 
     def prior_gradient(self, gn, t, n):
-        """Add the prior's gradient (w coef_s (sum_s' coef_s' n_s') on pixel s's tangents) to ``gn``."""
+        """Add the prior's gradient (w coef_s (sum_s' coef_s' n_s') on pixel s's tangents) to ``gn``.
+
+        One bincount over every (stencil, place) term, in the order of a scatter-add per place s (and ``gn``
+        itself first), so each pixel's sum is the same as that sequence of adds would give."""
         if len(self.stencils):
             t1, t2 = t
-            d = self.w_prior * sum(c * n[self.stencils[:, s]] for s, c in enumerate(self.coef))
-            for s, c in enumerate(self.coef):
-                k = self.stencils[:, s]
-                np.add.at(gn, k, c * np.stack([np.sum(t1[k] * d, 1), np.sum(t2[k] * d, 1)], 1))
+            d = self.w_prior * sum(c * n[self.stencils[:, s]] for s, c in enumerate(self.coef))    # (E, 3)
+            S, E = len(self.coef), len(self.stencils)
+            k = self.stencils.T.ravel()                                              # place-major, as s loops
+            dd = np.tile(d, (S, 1))
+            g = np.repeat(np.asarray(self.coef, float), E)[:, None] * np.stack([np.sum(t1[k] * dd, 1),
+                                                                                 np.sum(t2[k] * dd, 1)], 1)
+            N = len(gn)
+            idx = np.concatenate([np.arange(N), k])
+            vals = np.concatenate([gn, g])
+            out = np.stack([np.bincount(idx, weights=vals[:, a], minlength=N) for a in range(2)], 1)
+            gn[...] = out
         return gn
