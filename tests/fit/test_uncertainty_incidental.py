@@ -2,6 +2,8 @@
 PixelAlbedos.incidental's C against a per-group dense computation and against its meaning (the mean
 excess of Kaufman's information at noisy albedos), and uncertainty.incidental_sandwich against the spread
 of a variable-projection estimate over noise draws, where the Fisher errors are far too small."""
+import math
+
 import numpy as np
 
 
@@ -137,3 +139,32 @@ def test_sandwich_caps_a_direction_where_h_is_not_positive_definite():
     cov, capped = incidental_sandwich(F, C)
     assert capped == 1
     assert np.allclose(np.sqrt(np.diag(cov)), [0.5 * 2.0, 1.0 / INCIDENTAL_FLOOR])
+
+
+def test_fit_reports_the_sandwich_for_per_pixel_albedos_only():
+    """One noisy image, beta and kappa fixed: the per-pixel fit's shape errors are the sandwich's (at least
+    the Fisher ones it keeps in ``incidental``; the method says so; the profile thresholds follow them);
+    the shared-albedo fit of the same data has no ``incidental`` block and the plain Fisher method
+    (its numbers: tools/record_fits.py, bit for bit)."""
+    from fmbrdf_mi.camera import CameraModel
+    from fmbrdf_mi.fit import fit
+    from fmbrdf_mi.fit.api.fitting import FitOptions
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+
+    true = {"eta": 1.55, "alpha": 0.35, "beta": 1.4, "kappa": 30.0, "k_s": 0.9, "r_k": 1.7}
+    obs = capture_observation(ideal_sphere(true, res=16, light=(0.45, 0.35, 1.0)),
+                              CameraModel(full_well=3000.0, read_noise=2.0, bits=12), seed=7)[0]
+    fixed = {"beta": 1.4, "kappa": 30.0}
+    pp = fit(obs, FitOptions(loss="likelihood", fixed=fixed, starts=1, albedo="per-pixel", intervals="auto"),
+             progress=False)
+    u = pp.uncertainty
+    assert pp.converged and u["method"].startswith("incidental-parameter sandwich"), u["method"]
+    fse = u["incidental"]["fisher_std_errors"]
+    for k in ("eta", "alpha"):
+        assert pp.std_errors[k] >= fse[k] * (1 - 1e-9) and fse[k] > 0, (k, pp.std_errors[k], fse[k])
+        assert math.isclose(u["profile"]["thresholds"][k],
+                            u["profile"]["threshold"] * (pp.std_errors[k] / fse[k]) ** 2, rel_tol=1e-9)
+    assert np.isfinite(pp.maps["k_b_se"]).any()
+    sh = fit(obs, FitOptions(loss="likelihood", fixed=fixed, starts=1, intervals="fisher"), progress=False)
+    assert "incidental" not in sh.uncertainty
+    assert sh.uncertainty["method"] == "inverse Fisher information (known camera noise)"
