@@ -51,6 +51,15 @@ unknowns free, the variances frozen at the fit's): ``interval_kind`` says
 per parameter which kind each interval is, and the standard errors stay the
 Fisher ones.  Problems with extra unknowns (free light powers, per-pixel
 normals) keep Fisher intervals.
+
+**Per-pixel albedos** (an eliminating layout, issue 25).  With two albedos per
+pixel eliminated, J (Kaufman's) is evaluated at the noisy estimated albedos,
+and on average J^T J = H + C (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`):
+the shape estimate's covariance is the sandwich H^-1 J^T J H^-1, H = J^T J - C,
+not (J^T J)^-1, which from one image is 2-5x too small
+(tools/diag_pp_sandwich.py).  :func:`covariance` reports the sandwich (capped
+where H is not positive definite: :func:`incidental_sandwich`), keeps the
+Fisher errors in ``incidental``, and the profile check's threshold follows it.
 """
 from __future__ import annotations
 
@@ -125,8 +134,50 @@ def jacobian_in_reported(problem, st, J):
     return names, J @ np.linalg.inv(G)
 
 
-def covariance(problem, st, J, r, n_independent=None):
-    """Covariance of the reported free parameters; returns (names, cov (p, p), info dict)."""
+#: Where H = J^T J - C is not positive definite (a noisy C), each of its generalised eigenvalues relative to
+#: J^T J (1 - lambda, lambda those of C) is floored here: no direction's standard error is inflated by more
+#: than 1 / INCIDENTAL_FLOOR over the Fisher one (:func:`incidental_sandwich`).
+INCIDENTAL_FLOOR = 0.1
+
+
+def incidental_term(problem, st, parts):
+    """C (p, p) in z of an eliminating layout (:meth:`PixelAlbedos.incidental`) at ``st`` (``parts`` with
+    derivatives), or None for layouts that do not eliminate."""
+    if not getattr(problem, "eliminates", False):
+        return None
+    obj = problem.obj
+    z = problem.to_z(st)
+    dcols = obj.albedo_column_derivatives(parts, z, problem.names, problem.bounds)
+    return problem.layout.incidental(*obj.albedo_columns(parts), dcols)
+
+
+def incidental_sandwich(F, C):
+    """(cov, capped): the shape estimate's covariance H^-1 F H^-1, H = F - C (F = J^T J at the estimated
+    albedos, C :func:`incidental_term` times the covariance's scale: the albedos' noise is scale x G^-1
+    when the data's is scale x the stated; issue 25, tools/diag_pp_sandwich.py), and how many directions had
+    H not positive definite.  In F's metric, H = F^1/2 V (I - L) V^T F^1/2 with L the eigenvalues of
+    F^-1/2 C F^-1/2 (>= 0: C is positive semi-definite), so cov = F^-1/2 V (I - L)^-2 V^T F^-1/2: each
+    direction's Fisher variance inflated by (1 - lambda)^-2.  1 - lambda is floored at
+    :data:`INCIDENTAL_FLOOR` (a noisy C: H estimated from one image is not positive definite in ~10 % of
+    seeds, measured), i.e. the inflation is capped there, and the cap is reported."""
+    w, V = np.linalg.eigh(F)
+    if w.min() <= 0:
+        raise np.linalg.LinAlgError("singular information matrix")
+    R = V / np.sqrt(w)                        # F^-1/2 = R V^T, R = V w^-1/2
+    lam, Q = np.linalg.eigh(R.T @ C @ R)      # in F's metric (symmetric: V^T F^-1/2 C F^-1/2 V)
+    d = 1.0 - lam
+    capped = int(np.sum(d < INCIDENTAL_FLOOR))
+    d = np.maximum(d, INCIDENTAL_FLOOR)
+    T = R @ Q                                 # cov = F^-1/2 (I - L)^-2 F^-1/2 in these coordinates
+    return (T / d ** 2) @ T.T, capped
+
+
+def covariance(problem, st, J, r, n_independent=None, parts=None):
+    """Covariance of the reported free parameters; returns (names, cov (p, p), info dict).
+
+    An eliminating layout (per-pixel albedos) gets the incidental-parameter sandwich
+    (:func:`incidental_sandwich`; ``parts``: the model at ``st`` with derivatives, evaluated when not
+    given); ``info["fisher_std_errors"]`` keeps the plain inverse-Fisher errors (same scale)."""
     try:
         names, Jt = jacobian_in_reported(problem, st, J)
     except np.linalg.LinAlgError:
@@ -155,7 +206,29 @@ def covariance(problem, st, J, r, n_independent=None):
         else:
             scale = info["chi2_per_dof"]
             info["method"] = "inverse Fisher information, noise level estimated from the residuals"
+        if getattr(problem, "eliminates", False) and p:
+            # the albedos' noise is scale x G^-1 when the data's noise is scale x the stated: C scales with it
+            if parts is None:
+                parts = problem.parts(st, jac=True)
+            Gd = dtheta_dz(problem, st, names)                   # theta = theta(z): cov_theta = G cov_z G^T
+            try:
+                cz, capped = incidental_sandwich(J.T @ J, scale * incidental_term(problem, st, parts))
+            except np.linalg.LinAlgError:
+                return names, None, {"method": "singular information matrix"}
+            fisher_sd = np.sqrt(np.clip(np.diag(Hi), 0.0, None) * scale)
+            Hi = Gd @ cz @ Gd.T
+            info["incidental"] = {"fisher_std_errors": dict(zip(names, fisher_sd.tolist())),
+                                  "capped_directions": capped}
         cov = scale * Hi
+        if "incidental" in info:
+            inc = info["incidental"]
+            info["method"] = info["method"].replace(
+                "inverse Fisher information",
+                "incidental-parameter sandwich H^-1 (J^T J) H^-1, H = J^T J - C (the per-pixel albedos' noise "
+                "removed from the information, issue 25)", 1)
+            if inc["capped_directions"]:
+                info["method"] += (f"; H not positive definite in {inc['capped_directions']} direction(s): their "
+                                   f"inflation capped at {1 / INCIDENTAL_FLOOR:g}x the Fisher standard error")
     else:
         grid = getattr(obj, "grid", None)
         M = block_meat(Jt, r, obj.row_pixels(len(r)), Hi, grid)
@@ -218,9 +291,10 @@ def block_meat(J, r, row_pix, Hi, grid=None):
     return (V * np.clip(w, 0.0, None)) @ V.T
 
 
-def summarise(problem, st, J, r, n_independent=None):
-    """The uncertainty block of fit.json: std_errors, ci95, correlation, at_bound, method."""
-    names, cov, info = covariance(problem, st, J, r, n_independent)
+def summarise(problem, st, J, r, n_independent=None, parts=None):
+    """The uncertainty block of fit.json: std_errors, ci95, correlation, at_bound, method (and, per-pixel
+    albedos, ``incidental``: :func:`covariance`)."""
+    names, cov, info = covariance(problem, st, J, r, n_independent, parts)
     rep = problem.model.report(st.shape, st.a_s, st.a_b)
     out = {"std_errors": {}, "ci95": {}, "correlation": None, "at_bound": at_bound(problem, st), **info}
     if cov is None:
@@ -371,6 +445,11 @@ def profile_intervals(problem, st, unc, J, r, refit, every=False):
     ``start`` the path's State there).
     Adds ``interval_kind`` {name: "fisher" | "profile" | ...} and ``profile`` {name: the rises tried} to
     ``unc`` and replaces the profiled ends in ``unc["ci95"]``; the standard errors stay Fisher's.
+    With the incidental-parameter sandwich (per-pixel albedos, ``unc["incidental"]``) the threshold is
+    per parameter, delta (SE / Fisher SE)^2 (``profile["thresholds"]``): chi^2's curvature along the path
+    is J^T J's, so that is its rise at +-1.96 sandwich SE, and it is the profile likelihood-ratio statistic
+    rescaled to the sandwich variance (the one-parameter adjusted likelihood ratio of composite-likelihood
+    inference: Varin, Reid and Firth 2011, sec. 4.2).  The path itself stays J^T J's regression.
     Likelihood fits only (the paper's loss is not a likelihood); parameters without a finite
     standard error are left alone.  ``every``: both ends of every such parameter from the profile
     likelihood, whatever the criterion says (``intervals="profile"``; the criterion's rises are still
@@ -390,10 +469,15 @@ def profile_intervals(problem, st, unc, J, r, refit, every=False):
         return refit(name, v, path.state(name, v))
 
     kinds, details, fisher = {}, {}, {n: list(v) for n, v in unc["ci95"].items()}
+    fse = unc.get("incidental", {}).get("fisher_std_errors")
+    thresholds = {}
     for n in problem.names:
         se = unc["std_errors"].get(n)
         if se is None or not math.isfinite(se) or se <= 0:
             continue
+        if fse is not None:     # the sandwich: the rise of chi^2 (curvature J^T J) at +-1.96 of its SE
+            delta = Z95 ** 2 * scale * (se / fse[n]) ** 2 if fse.get(n, 0.0) > 0 else Z95 ** 2 * scale
+            thresholds[n] = delta
         _, _, lo, hi = problem.bounds.lims[n]
         v = st.shape[n]
         ends, kind, tried = list(unc["ci95"][n]), [], {}
@@ -413,7 +497,9 @@ def profile_intervals(problem, st, unc, J, r, refit, every=False):
         details[n] = tried
         unc["ci95"][n] = [float(min(ends[0], v)), float(max(ends[1], v))]
     unc["interval_kind"] = kinds
-    unc["profile"] = {"threshold": delta, "rises": details, "fisher_ci95": fisher}
+    unc["profile"] = {"threshold": Z95 ** 2 * scale, "rises": details, "fisher_ci95": fisher}
+    if thresholds:
+        unc["profile"]["thresholds"] = thresholds
     if any(k != "fisher" for k in kinds.values()):
         unc["method"] += "; profile-likelihood 95 % intervals where the Fisher ones fail (interval_kind)"
     return unc
@@ -444,7 +530,8 @@ def pixel_albedos(problem, st, parts, J, unc):
 
     ``J``: the projected Jacobian at ``st`` (z: the free shape parameters); ``unc``: the fit's
     uncertainty block (its covariance scale: misfit inflation or an estimated noise level).  Each group's
-    (a_s, a_b) covariance is scale (U^T U)^-1 + K C_z K^T (:meth:`PixelAlbedos.covariance`).  Returns a dict
+    (a_s, a_b) covariance is scale (U^T U)^-1 + K C_z K^T (:meth:`PixelAlbedos.covariance`), C_z the shape's
+    covariance the block reports (the incidental-parameter sandwich where ``unc["incidental"]``).  Returns a dict
     of arrays (n_groups,): ``k_s``, ``k_b`` (the model's reported albedos: the albedo factor times a_s,
     a_b), ``k_s_se``, ``k_b_se``, ``correlation`` of the two, and ``identified``: False where the split
     is not identified, i.e. where the standard error of the surface's or the body's contribution to the
@@ -459,7 +546,12 @@ def pixel_albedos(problem, st, parts, J, unc):
     Jt = obj.shape_jacobian(parts, st, z, problem.names, problem.bounds)
     scale = interval_scale(problem, unc) if unc.get("chi2_per_dof") is not None else 1.0
     try:
-        cov_z = np.linalg.pinv(J.T @ J) * scale if J.shape[1] else np.zeros((0, 0))
+        if not J.shape[1]:
+            cov_z = np.zeros((0, 0))
+        elif "incidental" in unc and obj.is_likelihood:   # the shape's covariance fit.json reports (issue 25)
+            cov_z = incidental_sandwich(J.T @ J, scale * incidental_term(problem, st, parts))[0] * scale
+        else:
+            cov_z = np.linalg.pinv(J.T @ J) * scale
     except np.linalg.LinAlgError:
         cov_z = np.full((J.shape[1], J.shape[1]), np.nan)
     C = lay.covariance(us, ub, Jt, cov_z, scale)

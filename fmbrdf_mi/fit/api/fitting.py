@@ -190,7 +190,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         parts = problem.parts(st, jac=True)
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
         n_ind = None if loss != "likelihood" else len(idx) * objective.dof - problem.n_eliminated(st)
-        unc = U.summarise(problem, st, J, r, n_ind)
+        unc = U.summarise(problem, st, J, r, n_ind, parts)
         if loss == "likelihood" and opts.intervals in ("auto", "profile"):
             if deadline is not None and time.time() > deadline:
                 unc["method"] += "; intervals not checked against the profile likelihood (max_time reached)"
@@ -294,17 +294,21 @@ def albedo_maps(layout, shape, groups):
     return summary, maps
 
 
-#: Below this many images of each pixel a per-pixel albedo fit's shared parameters are biased: with two free
-#: albedos per pixel the unknowns grow with the pixels (the incidental-parameter problem of the joint
-#: likelihood), and one image's four polariser samples per pixel leave them too little.  Measured
-#: (tools/bench_textured.py, 24^2, smooth texture, 12 seeds, 2026-11-26): from one image eta +1.7 %, beta
-#: +14 %, kappa +200 % with 4-10 of 12 intervals covering, the profile likelihood's intervals honest for the
-#: likelihood (an independent fit with eta fixed at the truth: chi^2 +7.0); from three lights unbiased, every
-#: interval covering.  Two images were not measured.
+#: Below this many images of each pixel a per-pixel albedo fit's shared parameters are poorly determined: with
+#: two free albedos per pixel the unknowns grow with the pixels (the incidental-parameter problem), and one
+#: image's four polariser samples per pixel leave them too little.  Measured (tools/diag_pp_bias.py,
+#: tools/diag_pp_sandwich.py: 24^2, smooth texture, camera noise, 48 seeds, 2026-11-26): from one image the
+#: estimates' medians are roughly right, but their spread is 2.5-5.6x the Fisher standard errors (95 %
+#: intervals covered 21-36 of 48) and the tails are heavy (a second mode at high eta / low kappa in ~4 % of
+#: seeds).  The incidental-parameter sandwich (fmbrdf_mi.fit.uncertainty.covariance, reported since) brings
+#: the coverage to 38-45 of 48; the second mode stays.  From three lights the sandwich changes the standard
+#: errors by 4-24 %.  Two images were not measured.
 MIN_IMAGES_PER_PIXEL = 3
 PER_PIXEL_FEW_IMAGES = ("per-pixel albedos from fewer than 3 images of each pixel: eta, alpha, beta, kappa are "
-                        "biased (one image, measured: kappa by +200 %, beta +14 %; their intervals cover 4-10 "
-                        "of 12); fit several lights of the same view")
+                        "poorly determined (one image, measured: a spread 2.5-5.6x the Fisher standard errors, "
+                        "which the reported incidental-parameter sandwich corrects for the most part, and heavy "
+                        "tails: a second solution at high eta / low kappa in ~4 % of noise draws); fit several "
+                        "lights of the same view")
 
 
 def _determined(value, se, rel=0.5):

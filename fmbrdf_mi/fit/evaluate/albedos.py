@@ -223,6 +223,42 @@ class PixelAlbedos:
                 c[:, i, k] = np.bincount(g, weights=u * J[:, k], minlength=self.n_groups)
         return c
 
+    def incidental(self, us, ub, dcols):
+        """The incidental-parameter term C (p, p) of the eliminated albedos' noise in Kaufman's information
+        (issue 25; tools/diag_pp_sandwich.py): with U_g = [us, ub] a group's (whitened) albedo columns,
+        G_g = U_g^T U_g, M_g = I - U_g G_g^+ U_g^T and A_gj = d U_g / d z_j (``dcols``: p pairs (dus, dub) of
+        (N,) arrays),
+
+            C_jk = sum_g tr(A_gj^T M_g A_gk G_g^+)
+                 = sum_g [tr(X_gjk G_g^+) - tr(Y_gj^T G_g^+ Y_gk G_g^+)],  X_gjk = A_gj^T A_gk, Y_gj = U_g^T A_gj.
+
+        J^T J evaluated at the estimated albedos is on average H + C (H: the profile score's mean
+        derivative), so the shape estimate's covariance is H^-1 J^T J H^-1 with H = J^T J - C (the
+        sandwich; Neyman and Scott 1948's incidental parameters, here two per group).  C is positive
+        semi-definite.  Sums per group by bincount (no loop over groups)."""
+        g = self.groups.ravel()
+        p = len(dcols)
+        Gi = np.linalg.pinv(self._gram(us, ub), rcond=1e-10, hermitian=True)      # (n_groups, 2, 2)
+        A = [np.stack(d, -1) for d in dcols]                                       # p x (N, 2)
+        U = np.stack([us, ub], -1)                                                  # (N, 2)
+
+        def total(v):   # (N, 2, 2) -> (n_groups, 2, 2)
+            out = np.empty((self.n_groups, 2, 2))
+            for a in range(2):
+                for b in range(2):
+                    out[:, a, b] = np.bincount(g, weights=v[:, a, b], minlength=self.n_groups)
+            return out
+
+        Y = [total(U[:, :, None] * Aj[:, None, :]) for Aj in A]                    # U^T A_j per group
+        GY = [np.einsum("gab,gbc->gac", Gi, y) for y in Y]                          # G^+ U^T A_j
+        C = np.empty((p, p))
+        for j in range(p):
+            for k in range(j, p):
+                X = total(A[j][:, :, None] * A[k][:, None, :])                     # A_j^T A_k per group
+                C[j, k] = C[k, j] = (np.einsum("gab,gba->", X, Gi)
+                                     - np.einsum("gba,gbc,gca->", Y[j], GY[k], Gi))
+        return C
+
     def covariance(self, us, ub, J, cov_z, scale=1.0):
         """(n_groups, 2, 2) covariance of each group's (a_s, a_b) with the shape unknowns free:
         scale G^-1 + K cov_z K^T, K = G^-1 U^T J (the block inverse of the full information matrix;

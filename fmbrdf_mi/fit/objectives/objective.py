@@ -285,6 +285,15 @@ class LikelihoodObjective:
         S, B = self.unit_samples(parts)
         return (-S / sd).ravel(), (-B / sd).ravel()
 
+    def albedo_column_derivatives(self, parts, z, names, bounds):
+        """[(d us / d z_j, d ub / d z_j)] per free shape parameter ``names``: the derivatives of
+        :meth:`albedo_columns` (N,) (an eliminating layout's incidental-parameter term,
+        :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`)."""
+        sd = np.sqrt(self.var)
+        U = self._mu_of
+        return [tuple((-U(d[n]) / sd).ravel() * bounds.derivative(n, z[j]) for d in (parts.d_surface, parts.d_body))
+                for j, n in enumerate(names)]
+
     def unit_samples(self, parts):
         """(S, B) (cells, n): each sample's unit-albedo surface and body intensity behind its polariser."""
         return self._mu_of(parts.surface), self._mu_of(parts.body)
