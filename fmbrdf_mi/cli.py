@@ -43,14 +43,14 @@ class CLIError(Exception):
     """A mistake in the command line or its inputs, reported as one line."""
 
 
-#: Exceptions reported as a one-line error message (no traceback).  OSError covers
-#: the operating system's errors (permissions, a full disk, ...): they name the path.
 #: ``render --raw`` renders with at least this many samples per pixel unless ``--spp`` is given: at the
 #: scene's 64 the renderer's Monte Carlo noise, which no camera has and the fit's noise model does not
 #: know, left kappa biased by -0.47 +- 0.15 (32 seeds) with spread 0.72 of its standard error on 128^2
 #: captures; at 1024 by +0.08 +- 0.17 with spread 0.97 (48 seeds) (tools/bench_raw_kappa.py --spp).
 RAW_MIN_SPP = 1024
 
+#: Exceptions reported as a one-line error message (no traceback).  OSError covers
+#: the operating system's errors (permissions, a full disk, ...): they name the path.
 USER_ERRORS = (CLIError, ParameterError, ValueError, OSError, LLVMTooOldError)
 
 
