@@ -72,12 +72,21 @@ def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1
     kappa) everywhere and per super-pixel albedos ``k_s_map``, ``k_b_map`` (res, res) (each super-pixel's
     four raw pixels share them: the cells of the per-pixel albedo layout).  The truth is in
     ``params`` (the shape) and ``k_s_map``, ``k_b_map``."""
+    return textured(lambda p: ideal_sphere(p, res=res, light=light, model=model, area=area),
+                    shape_params, k_s_map, k_b_map, res)
+
+
+def textured(ideal_of, shape_params, k_s_map, k_b_map, res):
+    """The textured capture of any ideal object: ``ideal_of(params)`` its noise-free dict
+    (:func:`ideal_sphere`, :func:`fmbrdf_mi.fit.evaluate.synthetic_object.ideal_object`), evaluated with unit
+    surface and body albedos and combined per super-pixel with ``k_s_map``, ``k_b_map`` (res, res) (the model
+    is linear in them: paper eq:fmbrdf)."""
     k_s_map, k_b_map = (np.asarray(m, dtype=np.float64) for m in (k_s_map, k_b_map))
     if k_s_map.shape != (res, res) or k_b_map.shape != (res, res):
         raise ValueError(f"k_s_map, k_b_map: expected ({res}, {res}), got {k_s_map.shape} and {k_b_map.shape}")
     base = {k: v for k, v in shape_params.items() if k not in ("k_s", "r_k")}
-    surface = ideal_sphere(dict(base, k_s=1.0, r_k=0.0), res=res, light=light, model=model, area=area)
-    both = ideal_sphere(dict(base, k_s=1.0, r_k=1.0), res=res, light=light, model=model, area=area)
+    surface = ideal_of(dict(base, k_s=1.0, r_k=0.0))
+    both = ideal_of(dict(base, k_s=1.0, r_k=1.0))
     up = (lambda m: np.repeat(np.repeat(m, 2, axis=0), 2, axis=1))
     S, B = surface["stokes"], both["stokes"] - surface["stokes"]
     out = dict(surface)
