@@ -53,7 +53,9 @@ class FitOptions:
     free_power: bool = False          # joint fits: estimate the relative light powers (free_power.py)
     power_start: str = "ratio"        # ... starting from "ratio" (closed form) or "given"
     area_points: int = None           # likelihood: each sample the mean of the model over m x m points of its
-                                      # pixel (None: 2 for raw mosaics, 1 = the pixel's centre otherwise)
+                                      # pixel (None: 2 for raw mosaics, refined to 4 or 8 while 2 would bias a
+                                      # shape parameter by > 0.2 SE: refine_quadrature; 1 = the pixel's centre
+                                      # otherwise)
     intervals: str = "auto"           # likelihood: "auto" checks each shape parameter's Fisher 95 % interval
                                       # against the likelihood and takes the profile likelihood's ends where it
                                       # fails (uncertainty.profile_intervals); "profile": the profile likelihood's
@@ -183,6 +185,14 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                 lr=opts.lr, max_time=opts.max_time, history=history, report=report)
     st, reason, converged, J, r = sol.state, sol.reason, sol.converged, sol.J, sol.r
     can_jac = opts.path == "pixel"
+    quadrature = None
+    if converged and can_jac and opts.area_points is None and data.remake is not None and data.area_points > 1:
+        problem, data, quadrature, fine_sol = refine_quadrature(problem, data, st, opts, get_model(opts.model),
+                                                                report, deadline, history)
+        if fine_sol is not None:
+            st, reason, converged, J, r = (fine_sol.state, fine_sol.reason, fine_sol.converged, fine_sol.J,
+                                           fine_sol.r)
+            objective = data.objective
     unc = {}
     parts = groups = None
     if converged and can_jac:
@@ -205,6 +215,14 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
             report("[fit] warning: " + U.misfit_text(unc))
         if problem.eliminates:
             groups = U.pixel_albedos(problem, st, parts, J, unc)
+        if quadrature is not None:
+            unc["quadrature"] = quadrature
+            first, m_used = quadrature["checks"][0], quadrature["area_points"]
+            if m_used != first["area_points"]:
+                worst = max(first["bias_se"], key=lambda n: abs(first["bias_se"][n]))
+                unc["method"] = unc.get("method", "") + (
+                    f"; pixel-area quadrature {m_used} x {m_used} points per raw pixel ({first['area_points']} x "
+                    f"{first['area_points']} would bias {worst} by about {first['bias_se'][worst] / 0.75:+.2f} SE)")
     elif not converged:
         unc = {"std_errors": {}, "method": "not computed: the fit did not converge"}
     if parts is None:
@@ -259,6 +277,46 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                                            "a_b": np.asarray(st.a_b).tolist()},
                               "residuals": problem.obj.residuals(parts, st),
                               "n_free": len(problem.to_z(st)) + problem.n_eliminated(st)})
+
+
+def refine_quadrature(problem, data, st, opts, model, report, deadline, history):
+    """The pixel-area quadrature of a converged likelihood fit of raw samples, checked and refined: while a
+    shape parameter's bias from averaging the model over m x m points of each raw pixel
+    (:func:`fmbrdf_mi.fit.uncertainty.quadrature_bias`: against 2m x 2m) exceeds
+    :data:`~fmbrdf_mi.fit.uncertainty.QUADRATURE_TOL` standard errors, the data are remade with 2m x 2m and the
+    fit resumed from its estimate, up to :data:`~fmbrdf_mi.fit.uncertainty.MAX_AREA_POINTS` (a highlight a few
+    pixels wide: glossy materials on small objects; tools/bench_modes.py --material glossy).  Returns
+    (problem, data, fit.json's ``uncertainty.quadrature`` block, the refined Solution or None)."""
+    m, fine_sol, t0 = data.area_points, None, time.time()
+    block = {"area_points": m, "tolerance_se": U.QUADRATURE_TOL, "checks": []}
+    while m < U.MAX_AREA_POINTS:
+        parts = problem.parts(st, jac=True)
+        r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
+        fine_data = data.remake(2 * m)
+        fine = fine_data.problem(model, opts.bounds, report, opts.fixed, deadline)
+        bias = U.quadrature_bias(problem, fine, st, J, r)
+        block["checks"].append({"area_points": m, "against": 2 * m, "bias_se": bias})
+        worst = max(bias, key=lambda n: abs(bias[n])) if bias else None
+        if worst is None or abs(bias[worst]) <= U.QUADRATURE_TOL:
+            break
+        report(f"[fit] pixel-area quadrature: {m} x {m} points per raw pixel bias {worst} by about "
+               f"{bias[worst] / 0.75:+.2f} standard errors here (the highlight spans few pixels); the fit goes on "
+               f"with {2 * m} x {2 * m}")
+        try:
+            sol = solve(fine, init=st, starts=1, rounds=max(1, opts.rounds) + 2, optimizer=opts.optimizer,
+                        max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit, lr=opts.lr,
+                        max_time=opts.max_time, history=history, report=report)
+        except InputError:      # max_time: not even one evaluation with the finer points fits
+            sol = None
+        if sol is None or not sol.converged:    # keep the converged coarser fit, and say so
+            block["refinement"] = f"stopped: the fit with {2 * m} x {2 * m} points did not converge" + (
+                "" if sol is None else f" ({sol.reason})")
+            report(f"[fit] warning: {block['refinement']}; the estimate is the one with {m} x {m} points")
+            break
+        problem, data, m, fine_sol, st = fine, fine_data, 2 * m, sol, sol.state
+        block["area_points"] = m
+    block["seconds"] = time.time() - t0
+    return problem, data, block, fine_sol
 
 
 def albedo_maps(layout, shape, groups):
@@ -351,15 +409,23 @@ def _fit_images(observations, options=None, *, names=None, progress=True, powers
     pmodel = None
     if opts.free_power:
         pmodel = FP.PowerModel(get_model(opts.model), given)
-        pev = FP.PowerEvaluator(data.evaluator, pmodel, [b - a for a, b in slices])
-        data = dataclasses.replace(data, evaluator=pev,
-                                   make_problem=FP.problem_factory(pmodel, pev, slices, opts.power_start))
+
+        def powered(d):     # the data with the free powers' evaluator and problem (their remakes too)
+            pev = FP.PowerEvaluator(d.evaluator, pmodel, [b - a for a, b in slices])
+            remake = None if d.remake is None else (lambda m, f=d.remake: powered(f(m)))
+            return dataclasses.replace(d, evaluator=pev, remake=remake,
+                                       make_problem=FP.problem_factory(pmodel, pev, slices, opts.power_start))
+
+        data = powered(data)
     report = O.default_progress if progress is True else progress
     say = report or (lambda m: None)
     say(f"[joint] {len(observations)} images, " + ", ".join(
         f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
         for n, o, (a, b) in zip(names, observations, slices)))
     res = fit(observations[0], opts, progress=progress, data=data, materials=materials)
+    m = (res.uncertainty or {}).get("quadrature", {}).get("area_points")
+    if m is not None and m != data.area_points:     # the fit refined its pixel-area quadrature: diagnose on it
+        data = data.remake(m)
     images = diagnose(res, data, observations, names, pmodel)
     block = None
     if pmodel is not None:

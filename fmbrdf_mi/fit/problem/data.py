@@ -349,5 +349,11 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
             irr = float(irr[0])
         evaluator = PixelEvaluator(get_model(opts.model), normals, views, lights, irr, weights=weights)
     flat_idx = np.concatenate(idxs)
+
+    def remake(m_new):      # the same images, pixels and options with m_new x m_new points per sample
+        return prepare(observations, dataclasses.replace(opts, area_points=int(m_new)), loss, single=single,
+                       materials=materials)
+
     return FitData(loss, flat_idx, excluded, objective, smp, evaluator, image_pixels=idxs, slices=slices,
-                   make_problem=make_problem, materials=mat)
+                   make_problem=make_problem, materials=mat, area_points=m if loss == "likelihood" else None,
+                   remake=remake if loss == "likelihood" else None)

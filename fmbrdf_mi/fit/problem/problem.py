@@ -205,6 +205,11 @@ class FitData:
     make_problem: object = None
     #: several materials: ``{"labels": (H, W), "count": M, "cell_material": (cells,), "pixels": [per material]}``
     materials: dict = None
+    #: likelihood: m of the m x m points per sample over which the model is averaged (None: not a likelihood)
+    area_points: int = None
+    #: m -> the same data prepared with m x m points per sample (the pixel-area quadrature's refinement:
+    #: :func:`fmbrdf_mi.fit.api.fitting.fit`); None where it cannot be remade
+    remake: object = None
 
     def problem(self, model, bounds, progress, fixed, deadline):
         """The :class:`Problem` of these data (the free-power one when ``make_problem`` says so)."""
