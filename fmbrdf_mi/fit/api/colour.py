@@ -152,6 +152,10 @@ def predict_samples(obs, samples, res):
     A, n = samples.analyser(), len(idx)
     unit = [np.einsum("kc,cik->ik", A, s.reshape(3, n, -1)) for s in (p.surface, p.body)]
     if getattr(res, "maps", None) is not None:      # per period and channel: the maps' albedos
+        if np.shape(res.maps["k_s"])[1:] != obs.mask.shape:
+            raise InputError(f"per-pixel albedos: the maps are {np.shape(res.maps['k_s'])[2]}x"
+                             f"{np.shape(res.maps['k_s'])[1]} periods, this mosaic {obs.mask.shape[1]}x"
+                             f"{obs.mask.shape[0]}; the maps predict images of the fitted view only")
         f, ch = float(m.albedo_factor), np.asarray(samples.channel)
         a_s, a_b = (np.asarray(res.maps[k], float).reshape(len(CHANNELS), -1)[:, idx] / f for k in ("k_s", "k_b"))
         mu = a_s[ch].T * unit[0] + a_b[ch].T * unit[1]
