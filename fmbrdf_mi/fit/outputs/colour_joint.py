@@ -72,7 +72,9 @@ def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True,
     be of one view); ``tol`` and ``time_limit`` do not apply.
     """
     refused = [f for f, on in (("baselines", baselines), ("init", init), ("free_power (--free-power)", free_power),
-                               (f"loss {loss}", loss not in ("auto", "likelihood", None))) if on]
+                               (f"loss {loss}", loss not in ("auto", "likelihood", None)),
+                               (f"albedo {albedo!r} (--albedo; expected 'shared' or 'per-pixel')",
+                                albedo not in ("shared", "per-pixel"))) if on]
     if refused:
         raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
                          "of the raw samples)")
