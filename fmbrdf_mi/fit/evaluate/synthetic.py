@@ -73,11 +73,11 @@ def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1
     The truth is in ``params`` (the shape) and ``k_s_map``, ``k_b_map``.
 
     * mono: maps (res, res), one per super-pixel (its four raw pixels share them); ``stokes`` (3, 2 res, 2 res)
-      and the geometry on the super-pixel grid, as :func:`ideal_sphere`;
+      and the geometry on the super-pixel grid, as ``ideal_sphere``;
     * colour (maps (3, res, res): R, G, B): one pair per 4x4 colour period and channel; ``stokes``
       (3 channels, 3, 4 res, 4 res) per raw pixel (each channel's model, to be sampled by a colour camera:
-      :func:`capture_colour`), the geometry on the period grid (sphere radius res/2 - 1/2 periods:
-      :func:`ideal_sphere` of 2 res super-pixels)."""
+      ``capture_colour``), the geometry on the period grid (sphere radius res/2 - 1/2 periods:
+      ``ideal_sphere`` of 2 res super-pixels)."""
     k_s_map, k_b_map = (np.asarray(m, dtype=np.float64) for m in (k_s_map, k_b_map))
     colour = k_s_map.ndim == 3
     want = (3, res, res) if colour else (res, res)
