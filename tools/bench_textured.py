@@ -1,13 +1,16 @@
 """Textured objects: per-pixel albedo fits (``albedo="per-pixel"``) over camera-noise seeds.
 
     python tools/bench_textured.py [--res 32] [--seeds 16] [--textures smooth,high] [--lights 1,3]
-                                   [--json out.json]
+                                   [--objects sphere,mesh] [--json out.json]
     python tools/bench_textured.py --table out.json
     python tools/bench_textured.py --sensor colour --res 24 --seeds 12 --textures smooth --lights 3 [--json c.json]
 
 Data, as a camera makes them: an orthographic sphere filling a RES x RES
 super-pixel image (:func:`fmbrdf_mi.fit.evaluate.synthetic.textured_sphere`: each raw pixel the mean of
-the model over 4 x 4 points of its area; the fit models it with 2 x 2), the
+the model over 4 x 4 points of its area; the fit models it with 2 x 2), or (``--objects mesh``) the
+non-spherical blob mesh of :mod:`fmbrdf_mi.fit.evaluate.synthetic_object` seen by a pinhole camera
+(fov 20 degrees, about 30 % of the image; :func:`~fmbrdf_mi.fit.evaluate.synthetic_object.ideal_object`,
+exact ray-cast geometry at every point the fit evaluates), the
 `medium` material's eta, alpha, beta, kappa, and albedo maps per super-pixel:
 
 * ``smooth``: k_s = 0.6 + 0.4 sin(6x) cos(4y), k_b = 0.4 + 0.1 cos(5x + 3y) (x, y in [0, 1));
@@ -151,18 +154,31 @@ def wilson(k, n, z=1.959963984540054):
     return (c - h, c + h)
 
 
-def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "uniform"), intervals="fisher"):
+def ideal_of(obj, res, light):
+    """The noise-free object of ``--objects``: params -> its ideal capture dict."""
+    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.fit.evaluate.synthetic_object import ideal_object
+
+    if obj == "sphere":
+        return lambda p: ideal_sphere(p, res=res, light=light)
+    if obj == "mesh":
+        return lambda p: ideal_object(p, res=res, light=light)
+    raise SystemExit(f"--objects: unknown {obj!r} (sphere, mesh)")
+
+
+def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "uniform"), intervals="fisher",
+        obj="sphere"):
     from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.evaluate.predict import relight_error
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured_sphere
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured
 
     ks, kb = texture(tex, res)
     fitted, held = lights(K)
     cam = CameraModel()
     obs = []
     for j, light in enumerate(fitted + [held]):
-        ideal = textured_sphere(TRUTH, ks, kb, res=res, light=light)
+        ideal = textured(ideal_of(obj, res, light), TRUTH, ks, kb, res)
         # one exposure for all images (the brightest of the first), so the albedos are in one unit
         o, cap = capture_observation(ideal, cam, seed=1000 * seed + j,
                                      exposure=None if j == 0 else obs[0].meta["capture"]["exposure"])
@@ -171,8 +187,8 @@ def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "unif
     scale = 1.0     # the albedos come back in the units of the truth (the fit knows each exposure)
     out = {"seed": seed}
     # the time of a uniform fit of the same pixels: the object with its textures' mean albedos
-    uni = [capture_observation(textured_sphere(TRUTH, np.full_like(ks, ks.mean()), np.full_like(kb, kb.mean()),
-                                               res=res, light=light), cam, seed=1000 * seed + j,
+    uni = [capture_observation(textured(ideal_of(obj, res, light), TRUTH, np.full_like(ks, ks.mean()),
+                                        np.full_like(kb, kb.mean()), res), cam, seed=1000 * seed + j,
                                exposure=obs[j].meta["capture"]["exposure"])[0] for j, light in enumerate(fitted)]
     if "uniform" in modes:
         t = time.time()
@@ -205,10 +221,11 @@ def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "unif
 
 def summarise(runs):
     rows = []
-    for key in sorted({(r["texture"], r["K"]) for r in runs}):
-        rs = [r for r in runs if (r["texture"], r["K"]) == key]
+    for key in sorted({(r.get("object", "sphere"), r["res"], r["texture"], r["K"]) for r in runs}):
+        rs = [r for r in runs if (r.get("object", "sphere"), r["res"], r["texture"], r["K"]) == key]
         pp = [r["per-pixel"] for r in rs if r["per-pixel"]["converged"]]
-        row = {"texture": key[0], "K": key[1], "n": len(pp), "not_converged": len(rs) - len(pp), "params": {}}
+        row = {"object": key[0], "res": key[1], "texture": key[2], "K": key[3], "n": len(pp),
+               "not_converged": len(rs) - len(pp), "params": {}}
         for n in SHAPE:
             err = np.array([(r["params"][n] - TRUTH[n]) / TRUTH[n] for r in pp])
             se = np.array([r["se"][n] / TRUTH[n] for r in pp])
@@ -232,28 +249,29 @@ def summarise(runs):
 
 
 def table(rows):
-    lines = ["| texture | K | parameter | bias ± SE | spread / SE | coverage (Wilson 95 %) |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| object | size | texture | K | parameter | bias ± SE | spread / SE | coverage (Wilson 95 %) |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         for n, p in r["params"].items():
             lo, hi = p["wilson"]
-            lines.append(f"| {r['texture']} | {r['K']} | {n} | {100 * p['bias']:+.2f} ± {100 * p['bias_se']:.2f} % "
+            lines.append(f"| {r['object']} | {r['res']}² | {r['texture']} | {r['K']} | {n} | {100 * p['bias']:+.2f} ± {100 * p['bias_se']:.2f} % "
                          f"| {p['spread_over_se']:.2f} | {p['cover']}/{r['n']} ({100 * lo:.0f}–{100 * hi:.0f} %) |")
-    lines += ["", "| texture | K | fits (not converged) | maps: RMS z k_s, k_b | maps: 95 % cover k_s, k_b | "
+    lines += ["", "| object | size | texture | K | fits (not converged) | maps: RMS z k_s, k_b | maps: 95 % cover k_s, k_b | "
                   "median rel. error k_s, k_b | split identified | relight per-pixel / shared | time per-pixel / "
-                  "uniform object (ratio) |", "|---|---|---|---|---|---|---|---|---|"]
+                  "uniform object (ratio) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         m = r["maps"]
         if "R" in m:        # colour: one row per channel
             for c, mc in m.items():
-                lines.append(f"| {r['texture']} ({c}) | {r['K']} | {r['n']} ({r['not_converged']}) | "
+                lines.append(f"| {r['object']} (colour) | {r['res']}² | {r['texture']} ({c}) | {r['K']} | "
+                             f"{r['n']} ({r['not_converged']}) | "
                              f"{mc['z_rms_k_s']:.2f}, {mc['z_rms_k_b']:.2f} | {100 * mc['cover_k_s']:.0f} %, "
                              f"{100 * mc['cover_k_b']:.0f} % | {100 * mc['med_rel_k_s']:.1f} %, "
                              f"{100 * mc['med_rel_k_b']:.1f} % | {100 * mc['identified']:.0f} % | "
                              f"{r['relight_per_pixel']:.4f} / {r['relight_shared']:.4f} | "
                              f"{r['time_per_pixel']:.1f} s / {r['time_shared']:.1f} s (shared fit) |")
             continue
-        lines.append(f"| {r['texture']} | {r['K']} | {r['n']} ({r['not_converged']}) | {m.get('z_rms_k_s', math.nan):.2f}, "
+        lines.append(f"| {r['object']} | {r['res']}² | {r['texture']} | {r['K']} | {r['n']} ({r['not_converged']}) | {m.get('z_rms_k_s', math.nan):.2f}, "
                      f"{m.get('z_rms_k_b', math.nan):.2f} | {100 * m.get('cover_k_s', math.nan):.0f} %, "
                      f"{100 * m.get('cover_k_b', math.nan):.0f} % | {100 * m.get('med_rel_k_s', math.nan):.1f} %, "
                      f"{100 * m.get('med_rel_k_b', math.nan):.1f} % | {100 * m.get('identified', math.nan):.0f} % | "
@@ -268,6 +286,8 @@ def main(argv=None):
     p.add_argument("--seeds", type=int, default=16)
     p.add_argument("--seed0", type=int, default=0)
     p.add_argument("--textures", default="smooth,high")
+    p.add_argument("--objects", default="sphere", help="sphere (orthographic) and/or mesh (the blob mesh of "
+                   "fmbrdf_mi.fit.evaluate.synthetic_object, pinhole camera, fov 20 degrees)")
     p.add_argument("--lights", default="1,3", help="numbers of fitted lights (1 or 3)")
     p.add_argument("--area-points", type=int, default=None,
                    help="the fits' points per raw pixel side (default: the fit's, 2; the data average 4 x 4)")
@@ -285,29 +305,33 @@ def main(argv=None):
     runs = []
     if a.json and os.path.exists(a.json):
         runs = json.load(open(a.json))["runs"]
-    done = {(r["texture"], r["K"], r["seed"]) for r in runs}
+    done = {(r.get("object", "sphere"), r["res"], r["texture"], r["K"], r["seed"]) for r in runs}
     t0 = time.time()
-    for tex in a.textures.split(","):
-        for K in (int(k) for k in a.lights.split(",")):
-            for seed in range(a.seed0, a.seed0 + a.seeds):
-                if (tex, K, seed) in done:
-                    continue
-                if a.sensor == "colour":
-                    r = one_colour(tex, K, seed, a.res, a.intervals,
-                                   ("per-pixel",) if a.per_pixel_only else ("per-pixel", "shared"))
-                else:
-                    r = one(tex, K, seed, a.res, a.area_points,
-                            ("per-pixel",) if a.per_pixel_only else ("per-pixel", "shared", "uniform"), a.intervals)
-                r.update(texture=tex, K=K, res=a.res, sensor=a.sensor)
-                runs.append(r)
-                pp = r["per-pixel"]
-                print(f"[{time.time() - t0:.0f} s] {tex} K={K} seed {seed}: "
-                      + " ".join(f"{n}={pp['params'][n]:.4g}" for n in SHAPE)
-                      + f" ({pp['time']:.1f} s)", file=sys.stderr, flush=True)
-                if a.json:
-                    with open(a.json + ".tmp", "w") as f:
-                        json.dump({"runs": runs}, f)
-                    os.replace(a.json + ".tmp", a.json)
+    cells = [(obj, tex, int(K)) for obj in a.objects.split(",") for tex in a.textures.split(",")
+             for K in a.lights.split(",")]
+    if a.sensor == "colour" and any(obj != "sphere" for obj, _, _ in cells):
+        raise SystemExit("--sensor colour: the sphere only (--objects sphere)")
+    for obj, tex, K in cells:
+        for seed in range(a.seed0, a.seed0 + a.seeds):
+            if (obj, a.res, tex, K, seed) in done:
+                continue
+            if a.sensor == "colour":
+                r = one_colour(tex, K, seed, a.res, a.intervals,
+                               ("per-pixel",) if a.per_pixel_only else ("per-pixel", "shared"))
+            else:
+                r = one(tex, K, seed, a.res, a.area_points,
+                        ("per-pixel",) if a.per_pixel_only else ("per-pixel", "shared", "uniform"), a.intervals,
+                        obj)
+            r.update(texture=tex, K=K, res=a.res, object=obj, sensor=a.sensor)
+            runs.append(r)
+            pp = r["per-pixel"]
+            print(f"[{time.time() - t0:.0f} s] {obj} {a.res}² {tex} K={K} seed {seed}: "
+                  + " ".join(f"{n}={pp['params'][n]:.4g}" for n in SHAPE)
+                  + f" ({pp['time']:.1f} s)", file=sys.stderr, flush=True)
+            if a.json:
+                with open(a.json + ".tmp", "w") as f:
+                    json.dump({"runs": runs}, f)
+                os.replace(a.json + ".tmp", a.json)
     print(table(summarise(runs)))
     return 0
 

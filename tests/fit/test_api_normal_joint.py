@@ -405,3 +405,15 @@ def test_refine_normals_command(tiny, tmp_path, capsys):
     assert main(["fit", img, "--light", "0,0,1", "--refine-normals", "-o", str(out2)]) != 0
     err = capsys.readouterr().err
     assert "--refine-normals: needs K >= 3 images" in err and err.strip().count("\n") == 0, err
+
+
+def test_refinement_time_left_adds_the_rounds_still_to_run():
+    """The whole refinement's time left: this round's, plus each later round at the finished rounds' mean
+    duration (before one has finished: at this round's own projected duration)."""
+    from fmbrdf_mi.fit.api.normal_joint import refinement_time_left
+
+    assert refinement_time_left(5.0, [], 10.0, 2) == 5.0 + 2 * 15.0       # this round: 10 s done + 5 s left
+    assert refinement_time_left(5.0, [20.0, 30.0], 3.0, 1) == 5.0 + 25.0   # the finished rounds' mean
+    assert refinement_time_left(None, [20.0], 3.0, 2) == 40.0              # this round's left not known yet
+    assert refinement_time_left(None, [], 3.0, 2) is None
+    assert refinement_time_left(7.0, [20.0], 3.0, 0) == 7.0                 # the last round: its own time

@@ -110,6 +110,24 @@ def round_time_left(decreases, per_iter, most, tol=0.01):
     return min(n, most) * per_iter
 
 
+def refinement_time_left(left, round_times, elapsed, rounds_after):
+    """Seconds the whole refinement probably has left (its progress lines): ``left`` this round's
+    (:func:`round_time_left`, None: not known yet), ``round_times`` the durations of the rounds already
+    finished, ``elapsed`` this round's time so far, ``rounds_after`` how many rounds follow this one.  Each
+    later round is taken to last as long as the finished ones did on average (before the first has finished:
+    as long as this one will); later rounds start nearer the optimum, so this errs long.  None when neither
+    this round's time left nor a finished round is known."""
+    if rounds_after <= 0:
+        return left
+    if round_times:
+        per_round = sum(round_times) / len(round_times)
+    elif left is not None:
+        per_round = elapsed + left
+    else:
+        return None
+    return (left or 0.0) + rounds_after * per_round
+
+
 def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="curvature", model="fmbrdf",
                  bounds=None, fixed=None, max_iter=50, refreshes=2, h=1e-3, progress=None, time_limit=None,
                  lam_material=LAM_MATERIAL):
@@ -149,6 +167,9 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     t0 = time.time()
     history = []
     last = {}
+    staged = lam_material is not None and lam_material < lam
+    n_rounds = refreshes + 1 + int(staged)     # IRLS rounds, then the material's (module docstring)
+    round_times = []
 
     def system(r, Jm, Jn, t, n):    # the normal equations' blocks: data, then the prior's gradient
         Hmm, Hmn, gm, gn = NS.data_products(Jn[0], Jn[1], Jm, r, jp.n)
@@ -194,6 +215,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
 
     def minimise(x, rnd):
         t_round, decreases = time.time(), []
+        label = "material round" if rnd == refreshes + 1 else f"round {rnd}"
 
         def on_accept(it, x, f):
             st, jp.nmap = x[0], x[1]
@@ -203,9 +225,13 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
             history.append({"round": rnd, "iter": it, "energy": f, "data": x[2], "prior": x[3],
                             "time": time.time() - t0, "params": rep})
             left = round_time_left(decreases, (time.time() - t_round) / it, max_iter - it)
-            say(f"[joint-normals] round {rnd} iter {it:2d}: energy {f:.6e} (data {x[2]:.6e}, prior {x[3]:.6e})  "
+            total = refinement_time_left(left, round_times, time.time() - t_round, n_rounds - rnd - 1)
+            say(f"[joint-normals] {label} iter {it:2d}: energy {f:.6e} (data {x[2]:.6e}, prior {x[3]:.6e})  "
                 + " ".join(f"{k}={v:.4g}" for k, v in rep.items()) + f"  ({time.time() - t0:.1f} s"
-                + ("" if left is None else f"; this round about {left:.0f} s more") + ")")
+                + ("" if left is None else f"; this round about {left:.0f} s more")
+                + ("" if total is None or total == left else
+                   f"; {n_rounds - rnd - 1} more round{'s' if n_rounds - rnd > 2 else ''}, about {total:.0f} s "
+                   "in all") + ")")
 
         res = LM.levenberg_marquardt(
             (x[0], x[1], last["ed"], last["ep"]), last["ed"] + last["ep"], linearise, solve, trial,
@@ -214,6 +240,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
             time_up=None if time_limit is None else (lambda: time.time() - t0 > time_limit),
             on_accept=on_accept, final_linearise=False)
         st, nmap, ed, ep = res.x
+        round_times.append(time.time() - t_round)
         last.update(f=res.f, ed=ed, ep=ep, reason={
             "no_step": "no step lowers the energy (converged to float32 precision)",
             "small_decrease": "energy decrease below 0.01 twice in a row",
@@ -224,7 +251,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     (st, nmap), converged, _, _ = reweighted((st, nmap), minimise, rounds=refreshes + 1, before=before)
     f, ed, ep, reason = last["f"], last["ed"], last["ep"], last["reason"]
     n_out, stage = nmap, None
-    if converged and lam_material is not None and lam_material < lam:
+    if converged and staged:
         # the material's estimate: the prior weakened (the normals keep the requested smoothing)
         jp.lam = float(lam_material)
         jp.set_scale()

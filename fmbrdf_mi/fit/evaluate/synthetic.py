@@ -78,6 +78,23 @@ def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1
       (3 channels, 3, 4 res, 4 res) per raw pixel (each channel's model, to be sampled by a colour camera:
       ``capture_colour``), the geometry on the period grid (sphere radius res/2 - 1/2 periods:
       ``ideal_sphere`` of 2 res super-pixels)."""
+    colour = np.ndim(k_s_map) == 3
+    sub = 2 * res if colour else res             # ideal_sphere's super-pixel grid
+    out = textured(lambda p: ideal_sphere(p, res=sub, light=light, model=model, area=area),
+                   shape_params, k_s_map, k_b_map, res)
+    if colour:
+        n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 0.5)
+        out.update(normals=n, mask=m, view_dirs=v,
+                   geometry=ob.SphereGeometry((res, res), (res / 2, res / 2), res / 2 - 0.5))
+    return out
+
+
+def textured(ideal_of, shape_params, k_s_map, k_b_map, res):
+    """The textured capture of any ideal object: ``ideal_of(params)`` its noise-free dict
+    (:func:`ideal_sphere`, :func:`fmbrdf_mi.fit.evaluate.synthetic_object.ideal_object`), evaluated with unit
+    surface and body albedos and combined per cell with ``k_s_map``, ``k_b_map`` (the model is linear in them:
+    paper eq:fmbrdf): (res, res) per super-pixel (each 2 x 2 raw pixels), or (3, res, res) per colour channel
+    and 4x4 period (``stokes`` then (3 channels, 3, 4 res, 4 res): ``ideal_of`` must give 4 res raw pixels)."""
     k_s_map, k_b_map = (np.asarray(m, dtype=np.float64) for m in (k_s_map, k_b_map))
     colour = k_s_map.ndim == 3
     want = (3, res, res) if colour else (res, res)
@@ -85,18 +102,14 @@ def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1
         raise ValueError(f"k_s_map, k_b_map: expected ({res}, {res}) or (3, {res}, {res}), got {k_s_map.shape} "
                          f"and {k_b_map.shape}")
     base = {k: v for k, v in shape_params.items() if k not in ("k_s", "r_k")}
-    sub = 2 * res if colour else res             # ideal_sphere's super-pixel grid
-    surface = ideal_sphere(dict(base, k_s=1.0, r_k=0.0), res=sub, light=light, model=model, area=area)
-    both = ideal_sphere(dict(base, k_s=1.0, r_k=1.0), res=sub, light=light, model=model, area=area)
+    surface = ideal_of(dict(base, k_s=1.0, r_k=0.0))
+    both = ideal_of(dict(base, k_s=1.0, r_k=1.0))
     f = 4 if colour else 2
     up = (lambda m: np.repeat(np.repeat(m, f, axis=-2), f, axis=-1))
     S, B = surface["stokes"], both["stokes"] - surface["stokes"]
     out = dict(surface)
     if colour:
         stokes = up(k_s_map)[:, None] * S[None] + up(k_b_map)[:, None] * B[None]
-        n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 0.5)
-        out.update(normals=n, mask=m, view_dirs=v,
-                   geometry=ob.SphereGeometry((res, res), (res / 2, res / 2), res / 2 - 0.5))
     else:
         stokes = up(k_s_map) * S + up(k_b_map) * B
     out.update(stokes=stokes, params=dict(base), k_s_map=k_s_map, k_b_map=k_b_map)

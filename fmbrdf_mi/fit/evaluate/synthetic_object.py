@@ -155,3 +155,43 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
     with open(os.path.join(root, "truth.json"), "w") as f:
         json.dump(truth, f, indent=1)
     return truth
+
+
+class MeshGeometry:
+    """Exact normals and view directions of a mesh seen by :func:`pinhole_rays`' camera at any image point
+    (Mitsuba ray casts; the interface of :class:`fmbrdf_mi.fit.inputs.observations.SphereGeometry`), for
+    sub-pixel samples of a synthetic object: ``shape`` (H, W) the super-pixel grid, ``X``, ``Y`` in its
+    pixels (centres at + 0.5, x right, y down); points off the mesh get (0, 0, 1)."""
+
+    def __init__(self, scene, shape, fov, distance):
+        self.scene, self.shape, self.fov, self.distance = scene, tuple(shape), float(fov), float(distance)
+
+    def at(self, X, Y):
+        h, w = self.shape
+        f = 0.5 * w / np.tan(np.radians(self.fov) / 2)
+        X, Y = np.broadcast_arrays(np.asarray(X, float), np.asarray(Y, float))
+        d = np.stack([X - 0.5 * w, -(Y - 0.5 * h), np.full_like(X, -f)], -1)
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        n, _ = ray_cast(self.scene, np.array([0.0, 0.0, self.distance]), d.reshape(-1, 1, 3))
+        return n.reshape(d.shape), -d
+
+
+def ideal_object(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4, mesh=None, fov=20.0,
+                 distance=8.0):
+    """Noise-free Stokes (3, 2 res, 2 res) of the raw pixels of :func:`blob_mesh` (or ``mesh``) seen by a
+    pinhole camera (``fov``, ``distance``), and the super-pixel geometry: the dict of
+    :func:`fmbrdf_mi.fit.evaluate.synthetic.ideal_sphere` (``geometry`` a :class:`MeshGeometry`, exact at any
+    point), so that :func:`~fmbrdf_mi.fit.evaluate.synthetic.capture_observation` and the textured
+    captures take it as they take the sphere.  Each raw pixel is the mean of the model over ``area`` x
+    ``area`` points of its area (points off the mesh count 0), as a sensor pixel integrates."""
+    a = int(area)
+    scene = _scene(mesh or blob_mesh())
+    r2 = 2 * res
+    origin, d2, _ = pinhole_rays((r2 * a, r2 * a), fov, distance)
+    n2, m2 = ray_cast(scene, origin, d2)
+    o2 = ob.Observation(np.ones((3, r2 * a, r2 * a)), m2, n2, -d2, light)
+    stokes = predict_image(model, params, o2).reshape(3, r2, a, r2, a).mean(axis=(2, 4))
+    _, d1, _ = pinhole_rays((res, res), fov, distance)
+    n1, m1 = ray_cast(scene, origin, d1)
+    return {"stokes": stokes, "normals": n1, "mask": m1, "view_dirs": -d1, "light": np.asarray(light, float),
+            "geometry": MeshGeometry(scene, (res, res), fov, distance), "params": dict(params), "model": model}
