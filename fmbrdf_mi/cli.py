@@ -530,18 +530,20 @@ def _write_true_maps(args, scene, material, meta):
     """A render with albedo textures (``-D k_s=FILE``): the albedos at each pixel's centre, OUT_k_s.exr and
     OUT_k_b.exr (the render's pixels), and with ``--raw`` OUT_raw_k_s.exr, OUT_raw_k_b.exr on the grid a
     fit of the mosaic works on (the mean over each 2 x 2 super-pixel, 4 x 4 colour period): what
-    ``fmbrdf-mi fit --albedo per-pixel`` estimates."""
+    ``fmbrdf-mi fit --albedo per-pixel`` estimates.  ``--sensor colour``: channels R, G, B (the maps per
+    colour channel, as the colour fit estimates them); else one channel (an RGB texture's mean)."""
     from .stokes_io import write_map_exr
 
-    maps = S.true_albedo_maps(scene, material)
+    colour = args.raw and args.sensor == "colour"
+    maps = S.true_albedo_maps(scene, material, channels=colour)
     paths = true_map_paths(args.output, args.raw)
     info = {"generator": meta["generator"], "command": meta["command"], "what": "true albedo at each pixel's centre"}
     for k in ("k_s", "k_b"):
         write_map_exr(paths[f"true_{k}"], maps[k], dict(info, map=k), force=args.force)
         if args.raw:
             p = 4 if args.sensor == "colour" else 2
-            h, w = maps[k].shape
-            grid = maps[k].reshape(h // p, p, w // p, p).mean(axis=(1, 3))
+            h, w = maps[k].shape[-2:]
+            grid = maps[k].reshape(maps[k].shape[:-2] + (h // p, p, w // p, p)).mean(axis=(-3, -1))
             write_map_exr(paths[f"true_raw_{k}"], grid, dict(info, map=k, grid=f"{p}x{p} mean"), force=args.force)
     return paths
 

@@ -587,32 +587,44 @@ def _centre_hits(scene):
     return si, np.asarray(si.is_valid(), bool), (h, w)
 
 
-def true_albedo_maps(scene, material):
+def true_albedo_maps(scene, material, channels=False):
     """The albedos the camera sees at each pixel's centre of ``scene``'s first sensor: {"k_s": (H, W),
     "k_b": (H, W)} (0 where no object is hit), for a ``material`` (:func:`check_material`'s keys) whose
     k_s, k_b or r_k may be textures: each pixel's ray is intersected with the scene and the textures
     evaluated at the hit's uv (k_b = r_k k_s when the body is given as r_k).  Monochrome values (an RGB
-    texture: the mean of its channels).  A pixel whose footprint straddles a texture edge renders the
-    mean over its area; these maps are the centre's value."""
+    texture: the mean of its channels); ``channels`` (an RGB or spectral variant): (3, H, W) maps, R, G, B
+    (what a colour sensor's channels see; a grey value or texture is the same in all three).  A pixel whose
+    footprint straddles a texture edge renders the mean over its area; these maps are the centre's value."""
     mi = _mi()
     si, hit, (h, w) = _centre_hits(scene)
     m = check_material(material)
+
+    per = bool(channels) and not mi.is_monochromatic
+    shape = (3, h, w) if per else (h, w)
 
     def values(key, default):
         v = m.get(key, default)
         if isinstance(v, dict):
             tex = mi.load_dict(v)
-            if mi.is_monochromatic:
-                out = np.asarray(tex.eval_1(si), dtype=np.float64)
-            else:
-                out = np.asarray(tex.eval_3(si), dtype=np.float64).reshape(3, -1).mean(axis=0) \
-                    if hasattr(tex, "eval_3") else np.asarray(tex.eval_1(si), dtype=np.float64)
-            return np.where(hit, out.ravel(), 0.0)
+            out = None
+            if not mi.is_monochromatic and hasattr(tex, "eval_3"):
+                try:
+                    out = np.asarray(tex.eval_3(si), dtype=np.float64).reshape(3, -1)
+                except RuntimeError:    # a one-channel bitmap in an RGB or spectral variant: grey
+                    out = None
+            if out is None:
+                out = np.broadcast_to(np.asarray(tex.eval_1(si), dtype=np.float64).ravel(), (3, h * w))
+            out = out if per else out.mean(axis=0)
+            return np.where(hit, out, 0.0)
+        if per:
+            rgb = np.broadcast_to(np.asarray(v, dtype=np.float64).ravel(), (3,)) if np.size(v) in (1, 3) \
+                else np.full(3, float(np.mean(v)))
+            return np.where(hit, rgb[:, None], 0.0)
         return np.where(hit, float(np.mean(v)), 0.0)
 
     ks = values("k_s", P.DEFAULT_K_S)
     kb = values("k_b", 0.0) if "k_b" in m else values("r_k", P.DEFAULT_R_K) * ks
-    return {"k_s": ks.reshape(h, w), "k_b": kb.reshape(h, w)}
+    return {"k_s": ks.reshape(shape), "k_b": kb.reshape(shape)}
 
 
 def label_texture(labels, m):

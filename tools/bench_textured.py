@@ -3,6 +3,7 @@
     python tools/bench_textured.py [--res 32] [--seeds 16] [--textures smooth,high] [--lights 1,3]
                                    [--objects sphere,mesh] [--json out.json]
     python tools/bench_textured.py --table out.json
+    python tools/bench_textured.py --sensor colour --res 24 --seeds 12 --textures smooth --lights 3 [--json c.json]
 
 Data, as a camera makes them: an orthographic sphere filling a RES x RES
 super-pixel image (:func:`fmbrdf_mi.fit.evaluate.synthetic.textured_sphere`: each raw pixel the mean of
@@ -34,6 +35,14 @@ intervals (Wilson interval); for the maps the RMS over pixels of
 and the median relative error; the held-out light's relighting error
 (RMSE / mean intensity) of the per-pixel fit and of the uniform fit of the
 same data; the mean time of the per-pixel fit against the uniform object's.
+
+``--sensor colour``: a colour polarisation mosaic (IMX250MYR type, RGGB; the same camera otherwise) of RES x
+RES 4x4 periods (:func:`fmbrdf_mi.fit.evaluate.synthetic.textured_sphere` with (3, RES, RES) maps,
+:func:`~fmbrdf_mi.fit.evaluate.synthetic.capture_colour`), the maps per channel (:func:`colour_texture`),
+fitted by :func:`fmbrdf_mi.fit.api.colour.fit_colour` with ``albedo="per-pixel"`` (one k_s, k_b per period
+and channel) and, for the relighting comparison, ``albedo="shared"`` (per-channel albedos, uniform); the map
+rows are per channel (RMS z, 95 % cover, median relative error), the relighting error the held-out mosaic's
+raw-sample RMSE / mean over the periods both fits predict.
 """
 import argparse
 import json
@@ -69,6 +78,70 @@ def texture(name, res):
         iy, ix = np.mgrid[0:res, 0:res] // 3
         return np.where((iy + ix) % 2, 1.0, 0.4), np.where((iy + ix + 1) % 2 == 0, 0.55, 0.25)
     raise SystemExit(f"--textures: unknown {name!r} (smooth, high)")
+
+
+def colour_texture(name, res):
+    """(3, res, res) k_s and k_b maps of a colour object: the mono texture's pattern, another scale and phase per
+    channel (the channels' maps differ, so a channel mixed up with another shows in the maps' errors)."""
+    y, x = np.mgrid[0:res, 0:res] / res
+    if name == "smooth":
+        ks = np.stack([0.6 + 0.3 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.2 * np.cos(3 * x + 2 * y),
+                       0.5 + 0.2 * np.sin(5 * y)])
+        kb = np.stack([0.4 + 0.1 * np.cos(5 * x + 3 * y), 0.7 + 0.2 * np.sin(4 * x), 0.3 + 0.1 * np.cos(2 * y)])
+        return ks, kb
+    ks, kb = texture(name, res)
+    return np.stack([ks, 0.7 * ks[::-1], 0.5 * ks.T]), np.stack([kb, 1.5 * kb[:, ::-1], 0.8 * kb.T])
+
+
+def one_colour(tex, K, seed, res, intervals="fisher", modes=("per-pixel", "shared")):
+    """One noise seed of the colour bench (module docstring): the per-pixel and the shared colour fit."""
+    from fmbrdf_mi import polcam
+    from fmbrdf_mi.camera import CameraModel
+    from fmbrdf_mi.fit.api.colour import fit_colour, predict_samples
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_colour, textured_sphere
+
+    ks, kb = colour_texture(tex, res)
+    fitted, held = lights(K)
+    cam = CameraModel(cfa=polcam.BAYER_RGGB)
+    caps = []
+    for j, light in enumerate(fitted + [held]):
+        o, s, noise, _ = capture_colour(textured_sphere(TRUTH, ks, kb, res=res, light=light), cam,
+                                        seed=1000 * seed + j,
+                                        exposure=None if j == 0 else caps[0][0].meta["capture"]["exposure"])
+        caps.append((o, s))
+    obs, smp = [c[0] for c in caps[:K]], [c[1] for c in caps[:K]]
+    (ho, hs) = caps[K]
+    out = {"seed": seed}
+    preds = {}
+    for mode in modes:
+        t = time.time()
+        r = fit_colour(obs if K > 1 else obs[0], smp if K > 1 else smp[0], noise, intervals=intervals,
+                       albedo=mode)
+        dt = time.time() - t
+        rec = {"time": dt, "converged": r.converged, "params": {n: r.params[n] for n in SHAPE},
+               "se": {n: (r.std_errors or {}).get(n) for n in SHAPE},
+               "ci95": {n: (r.uncertainty or {}).get("ci95", {}).get(n) for n in SHAPE}}
+        preds[mode] = predict_samples(ho, hs, r)
+        if mode == "per-pixel" and r.maps is not None:
+            m, maps = r.maps, {}
+            for c, name in enumerate("RGB"):
+                f = np.isfinite(m["k_s"][c]) & np.isfinite(m["k_s_se"][c]) & np.isfinite(m["k_b_se"][c])
+                zs = (m["k_s"][c][f] - ks[c][f]) / m["k_s_se"][c][f]
+                zb = (m["k_b"][c][f] - kb[c][f]) / m["k_b_se"][c][f]
+                maps[name] = {"pixels": int(f.sum()), "z_rms_k_s": float(np.sqrt(np.mean(zs ** 2))),
+                              "z_rms_k_b": float(np.sqrt(np.mean(zb ** 2))),
+                              "med_rel_k_s": float(np.median(np.abs(m["k_s"][c][f] / ks[c][f] - 1))),
+                              "med_rel_k_b": float(np.median(np.abs(m["k_b"][c][f] / kb[c][f] - 1))),
+                              "cover_k_s": float(np.mean(np.abs(zs) <= 1.96)),
+                              "cover_k_b": float(np.mean(np.abs(zb) <= 1.96)),
+                              "identified": float(np.mean(m["identified"][c][f]))}
+            rec["maps"] = maps
+        out[mode] = rec
+    sel = np.all([np.all(np.isfinite(p), axis=0) for p in preds.values()], axis=0)
+    o = hs.values[:, sel]
+    for mode in preds:
+        out[mode]["relight"] = float(np.sqrt(np.mean((preds[mode][:, sel] - o) ** 2)) / np.mean(o))
+    return out
 
 
 def wilson(k, n, z=1.959963984540054):
@@ -162,10 +235,14 @@ def summarise(runs):
                                 "spread_over_se": float(err.std(ddof=1) / se.mean()), "cover": int(cov),
                                 "wilson": wilson(cov, len(pp))}
         mp = [r["maps"] for r in pp if "maps" in r]
-        row["maps"] = {k: float(np.mean([m[k] for m in mp])) for k in mp[0]} if mp else {}
+        if mp and "R" in mp[0]:      # colour: per channel
+            row["maps"] = {c: {k: float(np.mean([m[c][k] for m in mp])) for k in mp[0][c]} for c in mp[0]}
+        else:
+            row["maps"] = {k: float(np.mean([m[k] for m in mp])) for k in mp[0]} if mp else {}
         row["relight_per_pixel"] = float(np.mean([r["per-pixel"]["relight"] for r in rs]))
         row["relight_shared"] = float(np.mean([r["shared"]["relight"] for r in rs])) if "shared" in rs[0] else math.nan
         row["time_per_pixel"] = float(np.mean([r["per-pixel"]["time"] for r in rs]))
+        row["time_shared"] = float(np.mean([r["shared"]["time"] for r in rs])) if "shared" in rs[0] else math.nan
         row["time_uniform"] = float(np.mean([r["uniform_time"] for r in rs])) if "uniform_time" in rs[0] else math.nan
         rows.append(row)
     return rows
@@ -184,6 +261,16 @@ def table(rows):
                   "uniform object (ratio) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         m = r["maps"]
+        if "R" in m:        # colour: one row per channel
+            for c, mc in m.items():
+                lines.append(f"| {r['object']} (colour) | {r['res']}² | {r['texture']} ({c}) | {r['K']} | "
+                             f"{r['n']} ({r['not_converged']}) | "
+                             f"{mc['z_rms_k_s']:.2f}, {mc['z_rms_k_b']:.2f} | {100 * mc['cover_k_s']:.0f} %, "
+                             f"{100 * mc['cover_k_b']:.0f} % | {100 * mc['med_rel_k_s']:.1f} %, "
+                             f"{100 * mc['med_rel_k_b']:.1f} % | {100 * mc['identified']:.0f} % | "
+                             f"{r['relight_per_pixel']:.4f} / {r['relight_shared']:.4f} | "
+                             f"{r['time_per_pixel']:.1f} s / {r['time_shared']:.1f} s (shared fit) |")
+            continue
         lines.append(f"| {r['object']} | {r['res']}² | {r['texture']} | {r['K']} | {r['n']} ({r['not_converged']}) | {m.get('z_rms_k_s', math.nan):.2f}, "
                      f"{m.get('z_rms_k_b', math.nan):.2f} | {100 * m.get('cover_k_s', math.nan):.0f} %, "
                      f"{100 * m.get('cover_k_b', math.nan):.0f} % | {100 * m.get('med_rel_k_s', math.nan):.1f} %, "
@@ -207,6 +294,8 @@ def main(argv=None):
     p.add_argument("--per-pixel-only", action="store_true", help="skip the shared and uniform-object fits")
     p.add_argument("--intervals", default="fisher", choices=("fisher", "auto"),
                    help="the per-pixel fits' intervals (auto: profile likelihood where the Fisher ones fail)")
+    p.add_argument("--sensor", default="mono", choices=("mono", "colour"),
+                   help="colour: a colour polarisation mosaic, maps per channel (module docstring)")
     p.add_argument("--json", metavar="OUT.json", help="runs and summary, written after every fit (resumed)")
     p.add_argument("--table", metavar="IN.json")
     a = p.parse_args(argv)
@@ -220,14 +309,20 @@ def main(argv=None):
     t0 = time.time()
     cells = [(obj, tex, int(K)) for obj in a.objects.split(",") for tex in a.textures.split(",")
              for K in a.lights.split(",")]
+    if a.sensor == "colour" and any(obj != "sphere" for obj, _, _ in cells):
+        raise SystemExit("--sensor colour: the sphere only (--objects sphere)")
     for obj, tex, K in cells:
         for seed in range(a.seed0, a.seed0 + a.seeds):
             if (obj, a.res, tex, K, seed) in done:
                 continue
-            r = one(tex, K, seed, a.res, a.area_points,
-                    ("per-pixel",) if a.per_pixel_only else ("per-pixel", "shared", "uniform"), a.intervals,
-                    obj)
-            r.update(texture=tex, K=K, res=a.res, object=obj)
+            if a.sensor == "colour":
+                r = one_colour(tex, K, seed, a.res, a.intervals,
+                               ("per-pixel",) if a.per_pixel_only else ("per-pixel", "shared"))
+            else:
+                r = one(tex, K, seed, a.res, a.area_points,
+                        ("per-pixel",) if a.per_pixel_only else ("per-pixel", "shared", "uniform"), a.intervals,
+                        obj)
+            r.update(texture=tex, K=K, res=a.res, object=obj, sensor=a.sensor)
             runs.append(r)
             pp = r["per-pixel"]
             print(f"[{time.time() - t0:.0f} s] {obj} {a.res}² {tex} K={K} seed {seed}: "

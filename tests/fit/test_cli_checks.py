@@ -86,3 +86,14 @@ def test_defaults_table_matches_the_parser():
     assert all(v in (None, False) for k, v in defaults.items() if k not in DEFAULTS), defaults
     assert given_options(parse([])) == []
     assert given_options(parse(["--max-pixels", "0", "--seed", "0", "--channel", "R"])) == ["--channel", "--max-pixels"]
+
+
+def test_colour_mosaics_take_per_pixel_albedos_not_materials():
+    """Per-pixel albedo maps are fitted on colour mosaics (per period and channel, issue 25): --albedo is no longer
+    refused there; several materials still are, and the normal refinement still refuses --albedo."""
+    refuse(parse(["a.png", "--albedo", "per-pixel"]), "colour")
+    assert "--albedo" not in REFUSED["colour"][0] and "--materials" in REFUSED["colour"][0]
+    with pytest.raises(InputError, match="^colour polarisation mosaic: --materials not supported"):
+        refuse(parse(["a.png", "--albedo", "per-pixel", "--materials", "labels.png"]), "colour")
+    with pytest.raises(InputError, match="^--refine-normals: --albedo per-pixel not supported"):
+        refuse(parse(["a.png", "--albedo", "per-pixel"]), "refine")

@@ -125,15 +125,18 @@ def test_fit_cli_colour_joint_manifest(tmp_path, capsys):
     assert not (tmp_path / "mixed").exists()
 
 
-def test_colour_joint_fit_takes_the_shared_albedo_layout_only(tmp_path):
-    """The joint command passes every fit key to the colour joint fit (one request, FIT_KEYS): 'shared' is its
-    layout and is taken; any other is refused in one line naming the option, before anything is read or written
-    (the specs are not looked at)."""
+def test_colour_joint_fit_takes_the_albedo_layouts(tmp_path):
+    """The joint command passes every fit key to the colour joint fit (one request, FIT_KEYS): 'shared' and
+    'per-pixel' are its layouts (per-pixel: tests/fit/test_api_colour_per_pixel.py); any other is refused in one
+    line naming the option, before anything is read or written (the specs are not looked at), as is
+    free_power."""
     import pytest
 
     from fmbrdf_mi.fit.errors import InputError
     from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
 
-    with pytest.raises(InputError, match=r"albedo 'per-pixel' \(--albedo\)"):
-        fit_colour_images([], str(tmp_path / "out"), albedo="per-pixel")
+    with pytest.raises(InputError, match=r"albedo 'per-channel' \(--albedo; expected 'shared' or 'per-pixel'\)"):
+        fit_colour_images([], str(tmp_path / "out"), albedo="per-channel")
+    with pytest.raises(InputError, match=r"free_power \(--free-power\)"):
+        fit_colour_images([], str(tmp_path / "out"), albedo="per-pixel", free_power=True)
     assert not (tmp_path / "out").exists()

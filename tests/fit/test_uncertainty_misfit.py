@@ -166,3 +166,41 @@ def test_misfit_of_the_normal_refinement():
     for k in ("k_s", "r_k", "eta"):
         ratio = wrong.std_errors[k] / honest.std_errors[k]
         assert 0.8 < ratio < 1.25, (k, ratio)
+
+
+def test_misfit_of_a_colour_per_pixel_fit():
+    """Per-pixel albedos of a colour mosaic (one pair per period and channel): the same flag and inflation
+    through the same code path as the mono per-pixel fit (chi^2/dof counts the eliminated albedos, three pairs
+    per period), for the shape parameters and for each channel's maps."""
+    from fmbrdf_mi import polcam
+    from fmbrdf_mi.fit.api.colour import fit_colour
+    from fmbrdf_mi.fit.camera.noise import NoiseModel
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_colour, textured_sphere
+
+    R = 12
+    y, x = np.mgrid[0:R, 0:R] / R
+    ks = np.stack([0.6 + 0.3 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.2 * np.cos(3 * x), 0.5 + 0.2 * np.sin(5 * y)])
+    kb = np.stack([0.4 + 0.1 * np.cos(5 * x + 3 * y), 0.7 + 0.2 * np.sin(4 * x), 0.3 + 0.1 * np.cos(2 * y)])
+    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=12, full_well=3000, read_noise=2.0)
+    obs, smp = [], []
+    for k, light in enumerate(LIGHTS):
+        o, s, noise, _ = capture_colour(textured_sphere(SHAPE, ks, kb, res=R, light=light), cam, seed=11 + k,
+                                        exposure=None if k == 0 else obs[0].meta["capture"]["exposure"])
+        obs.append(o)
+        smp.append(s)
+    kw = dict(fixed={"beta": SHAPE["beta"], "kappa": SHAPE["kappa"]}, intervals="fisher", albedo="per-pixel",
+              starts=1)
+    lines = []
+    honest = fit_colour(obs, smp, noise, **kw)
+    wrong = fit_colour(obs, smp, NoiseModel(9 * cam.conversion_gain, cam.read_noise, 1.0), progress=lines.append,
+                       **kw)
+    assert honest.converged and wrong.converged
+    _check_inflated(honest.std_errors, wrong.std_errors, ["eta", "alpha"], wrong.uncertainty, honest.uncertainty)
+    assert "incidental" in honest.uncertainty["method"] and "incidental" in wrong.uncertainty["method"]
+    assert any("warning: chi^2/dof" in s for s in lines), lines
+    for key in ("k_s_se", "k_b_se"):
+        for c in range(3):
+            h, w = honest.maps[key][c], wrong.maps[key][c]
+            sel = np.isfinite(h) & np.isfinite(w)
+            ratio = np.median(w[sel] / h[sel])
+            assert sel.sum() > 40 and 0.8 < ratio < 1.25, (key, c, ratio)

@@ -54,7 +54,7 @@ from fmbrdf_mi.fit.problem.data import RAW_AREA_POINTS, prepare
 
 def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=None, max_pixels=None, seed=0,
                irls_rounds=4, progress=None, max_time=None, max_iter=40, starts=2, area_points=RAW_AREA_POINTS,
-               intervals="auto"):
+               intervals="auto", albedo="shared"):
     """Fit one material with per-channel albedos to a colour mosaic's samples (module docstring).
 
     ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` whose grid is
@@ -74,6 +74,11 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     many points squared of its pixel (as a sensor pixel integrates; 1: its
     centre), as in the one-channel likelihood.  ``intervals``: as
     :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`' (profile-likelihood ends where the Fisher ones fail).
+    ``albedo``: ``"shared"`` (one k_s, r_k per channel for the whole object) or ``"per-pixel"``: albedo
+    maps, one k_s and k_b per period and colour channel (a textured object: the per-pixel layout,
+    :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`, with one group per period and channel; the
+    albedos eliminated by variable projection, their standard errors and the shape's incidental-parameter
+    sandwich as in a mono per-pixel fit).  Several mosaics must then be of one view.
 
     The fit is :func:`~fmbrdf_mi.fit.api.fitting.fit` of the observations
     with these samples: the same pixel selection (grazing and polar periods
@@ -84,7 +89,10 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     flat period indices; a list per image for lists), channels, and in
     ``details`` (read as ``res["key"]``): chi2, chi2_per_dof, n_samples,
     evaluations, time_s, chi2_per_sample (chi^2 / samples, per image for
-    lists), internal (shape and unit albedos for :func:`predict_samples`).
+    lists), internal (shape and unit albedos for :func:`predict_samples`).  With ``albedo="per-pixel"``
+    ``params`` and ``std_errors`` hold the shape parameters only; ``maps`` the albedo maps (each
+    (3, H, W): R, G, B on the period grid, NaN where no period was fitted) and ``albedo`` their summary
+    (fit.json's ``albedo`` block, with ``per_channel``), as :func:`~fmbrdf_mi.fit.api.fitting.fit`'s.
     """
     t0 = time.time()
     joint = isinstance(obs, (list, tuple))
@@ -103,7 +111,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     obs_l = [dataclasses.replace(o, samples=smp, noise=noise) for o, smp in zip(obs_l, smp_l)]
     opts = FitOptions(model=model, loss="likelihood", fixed=fixed, bounds=bounds, max_pixels=max_pixels, seed=seed,
                       rounds=max(1, int(irls_rounds) - 2), max_time=max_time, max_iter=max_iter, starts=starts,
-                      area_points=area_points, erode=0, intervals=intervals)
+                      area_points=area_points, erode=0, intervals=intervals, albedo=albedo)
     data = prepare(obs_l, opts, "likelihood", single=not joint)
     res = fit(obs_l[0], opts, progress=progress or False, data=data)
     layout, m = data.objective.layout, get_model(model)
@@ -120,7 +128,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     res.pixels = data.image_pixels if joint else data.image_pixels[0]
     res.options = {"model": model, "fixed": fixed, "bounds": bounds, "max_pixels": max_pixels, "seed": seed,
                    "irls_rounds": irls_rounds, "max_time": max_time, "max_iter": max_iter, "starts": starts,
-                   "area_points": int(area_points), "intervals": intervals}
+                   "area_points": int(area_points), "intervals": intervals, "albedo": albedo}
     res.details.update({"chi2": res.loss, "chi2_per_dof": res.loss / max(r.size - res.details.pop("n_free"), 1),
                         "n_samples": int(r.size), "evaluations": res.timings["evaluations"],
                         "time_s": time.time() - t0, "chi2_per_sample": per_chi2 if joint else per_chi2[0]})
@@ -130,7 +138,8 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
 
 
 def predict_samples(obs, samples, res):
-    """The fitted model's 16 samples (16, H, W) per period (image units, NaN outside mask & usable)."""
+    """The fitted model's 16 samples (16, H, W) per period (image units, NaN outside mask & usable, and for
+    a per-pixel albedo fit where its maps have no value: periods it did not fit)."""
 
     m = get_model(res["model"])
     idx = np.flatnonzero((obs.mask & samples.usable).ravel())
@@ -142,7 +151,16 @@ def predict_samples(obs, samples, res):
                        weights=None if len(w) == 1 else w).parts(res["internal"]["shape"], ())
     A, n = samples.analyser(), len(idx)
     unit = [np.einsum("kc,cik->ik", A, s.reshape(3, n, -1)) for s in (p.surface, p.body)]
-    mu = ChannelAlbedos(samples.channel).mu(*unit, res["internal"]["a_s"], res["internal"]["a_b"])
+    if getattr(res, "maps", None) is not None:      # per period and channel: the maps' albedos
+        if np.shape(res.maps["k_s"])[1:] != obs.mask.shape:
+            raise InputError(f"per-pixel albedos: the maps are {np.shape(res.maps['k_s'])[2]}x"
+                             f"{np.shape(res.maps['k_s'])[1]} periods, this mosaic {obs.mask.shape[1]}x"
+                             f"{obs.mask.shape[0]}; the maps predict images of the fitted view only")
+        f, ch = float(m.albedo_factor), np.asarray(samples.channel)
+        a_s, a_b = (np.asarray(res.maps[k], float).reshape(len(CHANNELS), -1)[:, idx] / f for k in ("k_s", "k_b"))
+        mu = a_s[ch].T * unit[0] + a_b[ch].T * unit[1]
+    else:
+        mu = ChannelAlbedos(samples.channel).mu(*unit, res["internal"]["a_s"], res["internal"]["a_b"])
     flat = out.reshape(16, -1)
     flat[:, idx] = mu.T
     return out

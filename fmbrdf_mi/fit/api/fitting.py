@@ -343,9 +343,20 @@ def albedo_maps(layout, shape, groups):
                "k_s_determined_fraction": _determined(groups["k_s"], groups["k_s_se"]),
                "k_b_determined_fraction": _determined(groups["k_b"], groups["k_b_se"]),
                "channels": maps["channels"]}
+    if C > 1:   # a colour mosaic: the same summary per channel (each channel's groups)
+        summary["per_channel"] = {
+            c: {"identified_fraction": float(ident[ch == j].mean()) if (ch == j).any() else 0.0,
+                "k_s_median": float(np.nanmedian(groups["k_s"][ch == j])),
+                "k_b_median": float(np.nanmedian(groups["k_b"][ch == j])),
+                "k_s_determined_fraction": _determined(groups["k_s"][ch == j], groups["k_s_se"][ch == j]),
+                "k_b_determined_fraction": _determined(groups["k_b"][ch == j], groups["k_b_se"][ch == j])}
+            for j, c in enumerate(layout.labels)}
     # images (cells) per albedo pair: the median over the pairs (a pixel excluded from an image, e.g.
     # saturated or grazing there, has fewer)
-    per = float(np.median(np.bincount(layout.groups[:, 0], minlength=layout.n_groups))) if layout.n_groups else 0.0
+    # (a colour mosaic's cell holds three groups, one per channel: count each group once per cell)
+    cells = np.unique(np.stack([np.repeat(np.arange(len(layout.groups)), layout.groups.shape[1]),
+                                layout.groups.ravel()]), axis=1)[1] if C > 1 else layout.groups[:, 0]
+    per = float(np.median(np.bincount(cells, minlength=layout.n_groups))) if layout.n_groups else 0.0
     summary["images_per_pixel"] = per
     if per < MIN_IMAGES_PER_PIXEL:
         summary["warning"] = PER_PIXEL_FEW_IMAGES

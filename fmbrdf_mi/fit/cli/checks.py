@@ -99,9 +99,9 @@ OPTIONS = {
 #: The one table of which options a mode refuses: mode -> (options, the message's head, why).
 REFUSED = {
     "colour": (("--baselines", "--relight", "--path", "--optimizer", "--init", "--loss", "--layout", "--dark-level",
-                "--footprint", "--area-points", "--channel", "--albedo", "--materials"), "colour polarisation mosaic",
+                "--footprint", "--area-points", "--channel", "--materials"), "colour polarisation mosaic",
                "the colour fit is the likelihood of the raw samples, layout and cfa from the sidecar, pixel path, LM; "
-               "per-pixel albedos and several materials are for mono captures so far"),
+               "several materials are for mono captures so far"),
     "manifest": (("--light",), "--manifest", "the manifest gives each image's light"),
     "authors": (("--light",), "--authors", "the lights are the object's calibration/L.txt"),
     "refine": (("--baselines", "--free-power", "--loss", "--albedo", "--materials"), "--refine-normals",

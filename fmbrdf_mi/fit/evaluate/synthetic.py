@@ -69,29 +69,79 @@ def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fract
 
 def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4):
     """``ideal_sphere`` of a textured object: the shape parameters ``shape_params`` (eta, alpha, beta,
-    kappa) everywhere and per super-pixel albedos ``k_s_map``, ``k_b_map`` (res, res) (each super-pixel's
-    four raw pixels share them: the cells of the per-pixel albedo layout).  The truth is in
-    ``params`` (the shape) and ``k_s_map``, ``k_b_map``."""
-    return textured(lambda p: ideal_sphere(p, res=res, light=light, model=model, area=area),
-                    shape_params, k_s_map, k_b_map, res)
+    kappa) everywhere and per-cell albedos ``k_s_map``, ``k_b_map`` (the cells of the per-pixel albedo layout).
+    The truth is in ``params`` (the shape) and ``k_s_map``, ``k_b_map``.
+
+    * mono: maps (res, res), one per super-pixel (its four raw pixels share them); ``stokes`` (3, 2 res, 2 res)
+      and the geometry on the super-pixel grid, as ``ideal_sphere``;
+    * colour (maps (3, res, res): R, G, B): one pair per 4x4 colour period and channel; ``stokes``
+      (3 channels, 3, 4 res, 4 res) per raw pixel (each channel's model, to be sampled by a colour camera:
+      ``capture_colour``), the geometry on the period grid (sphere radius res/2 - 1/2 periods:
+      ``ideal_sphere`` of 2 res super-pixels)."""
+    colour = np.ndim(k_s_map) == 3
+    sub = 2 * res if colour else res             # ideal_sphere's super-pixel grid
+    out = textured(lambda p: ideal_sphere(p, res=sub, light=light, model=model, area=area),
+                   shape_params, k_s_map, k_b_map, res)
+    if colour:
+        n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 0.5)
+        out.update(normals=n, mask=m, view_dirs=v,
+                   geometry=ob.SphereGeometry((res, res), (res / 2, res / 2), res / 2 - 0.5))
+    return out
 
 
 def textured(ideal_of, shape_params, k_s_map, k_b_map, res):
     """The textured capture of any ideal object: ``ideal_of(params)`` its noise-free dict
     (:func:`ideal_sphere`, :func:`fmbrdf_mi.fit.evaluate.synthetic_object.ideal_object`), evaluated with unit
-    surface and body albedos and combined per super-pixel with ``k_s_map``, ``k_b_map`` (res, res) (the model
-    is linear in them: paper eq:fmbrdf)."""
+    surface and body albedos and combined per cell with ``k_s_map``, ``k_b_map`` (the model is linear in them:
+    paper eq:fmbrdf): (res, res) per super-pixel (each 2 x 2 raw pixels), or (3, res, res) per colour channel
+    and 4x4 period (``stokes`` then (3 channels, 3, 4 res, 4 res): ``ideal_of`` must give 4 res raw pixels)."""
     k_s_map, k_b_map = (np.asarray(m, dtype=np.float64) for m in (k_s_map, k_b_map))
-    if k_s_map.shape != (res, res) or k_b_map.shape != (res, res):
-        raise ValueError(f"k_s_map, k_b_map: expected ({res}, {res}), got {k_s_map.shape} and {k_b_map.shape}")
+    colour = k_s_map.ndim == 3
+    want = (3, res, res) if colour else (res, res)
+    if k_s_map.shape != want or k_b_map.shape != want:
+        raise ValueError(f"k_s_map, k_b_map: expected ({res}, {res}) or (3, {res}, {res}), got {k_s_map.shape} "
+                         f"and {k_b_map.shape}")
     base = {k: v for k, v in shape_params.items() if k not in ("k_s", "r_k")}
     surface = ideal_of(dict(base, k_s=1.0, r_k=0.0))
     both = ideal_of(dict(base, k_s=1.0, r_k=1.0))
-    up = (lambda m: np.repeat(np.repeat(m, 2, axis=0), 2, axis=1))
+    f = 4 if colour else 2
+    up = (lambda m: np.repeat(np.repeat(m, f, axis=-2), f, axis=-1))
     S, B = surface["stokes"], both["stokes"] - surface["stokes"]
     out = dict(surface)
-    out.update(stokes=up(k_s_map) * S + up(k_b_map) * B, params=dict(base), k_s_map=k_s_map, k_b_map=k_b_map)
+    if colour:
+        stokes = up(k_s_map)[:, None] * S[None] + up(k_b_map)[:, None] * B[None]
+    else:
+        stokes = up(k_s_map) * S + up(k_b_map) * B
+    out.update(stokes=stokes, params=dict(base), k_s_map=k_s_map, k_b_map=k_b_map)
     return out
+
+
+def capture_colour(ideal, camera=None, *, seed=0, exposure=None, peak_fraction=0.8, noiseless=False, exact=False,
+                   erode=1):
+    """One capture of a colour ``ideal`` (:func:`textured_sphere` with (3, res, res) maps) by a colour camera
+    (default: :class:`~fmbrdf_mi.camera.CameraModel` with an RGGB filter): ``(obs, samples, noise, cap)`` for
+    :func:`fmbrdf_mi.fit.api.colour.fit_colour` (the observation's mask eroded by ``erode`` periods: the
+    outermost periods are partly off the sphere, which each raw pixel's mean over its area models only where
+    the whole period is on it).  ``noiseless``: no shot or read noise (rounding and clipping stay);
+    ``exact``: the samples are the model's values themselves in DN (no noise, rounding or clipping)."""
+    from fmbrdf_mi import polcam
+    from fmbrdf_mi.camera import intensity_at_each_pixel_colour
+    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
+
+    cam = camera or CameraModel(cfa=polcam.BAYER_RGGB)
+    cap = capture(ideal["stokes"], cam, exposure=exposure, peak_fraction=peak_fraction, seed=seed,
+                  noiseless=noiseless or exact)
+    if exact:
+        dn = intensity_at_each_pixel_colour(ideal["stokes"], cam.layout, cam.cfa) * cap["exposure"] / cam.conversion_gain
+        smp = colour_samples(dn, cam.layout, cam.cfa, 0.0, cam.white_level)
+    else:
+        smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
+    R = ideal["mask"].shape[0]
+    obs = ob.Observation(np.ones((3, R, R)), ob.erode(ideal["mask"], erode), ideal["normals"], ideal["view_dirs"],
+                         np.asarray(ideal["light"], float), cap["exposure"] / cam.conversion_gain,
+                         {"truth": ideal["params"], "capture": {"exposure": cap["exposure"], "seed": seed}},
+                         geometry=ideal["geometry"])
+    return obs, smp, NoiseModel(cam.conversion_gain, cam.read_noise, 1.0), cap
 
 
 def half_labels(res, count=2):

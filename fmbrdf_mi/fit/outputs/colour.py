@@ -4,7 +4,9 @@
 on the grid of 4x4 periods (the mono path's 2x2 super-pixels, one level
 coarser), fits shared eta, alpha, beta, kappa with per-channel k_s, r_k by
 :func:`fmbrdf_mi.fit.api.colour.fit_colour` and writes ``fit.json`` and
-``colour_fit.png``; :func:`print_colour` is the stdout summary.
+``colour_fit.png`` (with ``albedo="per-pixel"``: the albedo maps per period and
+colour channel too, k_s.exr, k_b.exr, k_s_se.exr, k_b_se.exr with channels
+R, G, B, and albedo_maps.png); :func:`print_colour` is the stdout summary.
 
 Geometry: ``--sphere cx,cy,r`` (period units: pixel centres at +0.5 periods)
 or ``--sphere auto --mask M``, or ``--normals N --mask M``; maps at the raw
@@ -26,8 +28,14 @@ from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed
 from fmbrdf_mi.fit.outputs import record
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
+from fmbrdf_mi.fit.outputs.single import MAP_OUTPUTS, write_albedo_maps
 
 OUTPUTS = ("fit.json", "colour_fit.png")
+
+
+def output_names(albedo="shared"):
+    """The files a colour fit writes (``albedo="per-pixel"``: the maps too)."""
+    return OUTPUTS + (MAP_OUTPUTS if albedo == "per-pixel" else ())
 
 
 def model_entry(model, res, bounds, fixed, truth):
@@ -40,6 +48,8 @@ def model_entry(model, res, bounds, fixed, truth):
     entry["uncertainty"] = {k: v for k, v in unc.items() if k not in ("std_errors", "ci95")}
     entry["weakly_identified"] = res.weakly_identified
     entry["fixed"] = fixed or {}
+    if getattr(res, "albedo", None) is not None:      # per-pixel albedos: the maps' summary (per channel)
+        entry["albedo"] = res.albedo
     if truth:
         rel = {}
         for k, t in truth.items():
@@ -57,12 +67,14 @@ def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=
                      fov=None, light=None, irradiance=None, black_level=None, white_level=None,
                      conversion_gain=None, read_noise=None, model="fmbrdf", bounds=None, fixed=None,
                      max_time=None, max_iter=40, max_pixels=20000, erode=2, seed=0, starts=2, intervals="auto",
-                     force=False,
+                     albedo="shared", force=False,
                      progress=True, command=None):
     """Fit a colour polarisation mosaic (module docstring); write ``out``/fit.json and colour_fit.png.
 
     Returns the dict written to fit.json (``models[model]``: params with
     per-channel k_s and r_k, std_errors, ci95, converged, stop_reason ...).
+    ``albedo="per-pixel"``: k_s and k_b per period and channel (maps; ``models[model]["albedo"]``
+    their summary), the shape parameters shared.
     """
     arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
     return Colour(arguments, out, force=force, progress=progress, command=command).run()
@@ -85,7 +97,7 @@ class Colour(FitJob):
         self.bounds, self.fixed = parse_bounds(self.a["bounds"]), parse_fixed(self.a["fixed"])
 
     def files(self):
-        self.outs = {n: os.path.join(self.out, n) for n in OUTPUTS}
+        self.outs = {n: os.path.join(self.out, n) for n in output_names(self.a.get("albedo", "shared"))}
         return list(self.outs.values())
 
     def read(self):
@@ -107,7 +119,7 @@ class Colour(FitJob):
         self.res = fit_colour(ci.obs, ci.samples, ci.noise, model=a["model"], fixed=self.fixed, bounds=self.bounds,
                               max_pixels=a["max_pixels"] or None, seed=a["seed"], progress=say,
                               max_time=a["max_time"], max_iter=a["max_iter"], starts=int(a["starts"]),
-                              intervals=a["intervals"])
+                              intervals=a["intervals"], albedo=a.get("albedo", "shared"))
 
     def report(self):
         obs, model = self.ci.obs, self.a["model"]
@@ -121,6 +133,9 @@ class Colour(FitJob):
         pred = predict_samples(ci.obs, ci.samples, res)
         plot_colour_fit(ci.samples, pred, ci.obs.mask & ci.samples.usable, ci.camera, self.outs["colour_fit.png"],
                         title=f"{self.a['model']}: " + format_result(res).replace("\n", "; "))
+        if res.maps is not None:
+            write_albedo_maps(res, self.outs, self.a["model"])
+            report["albedo_maps"] = {k: self.outs[k] for k in MAP_OUTPUTS}
 
     def finish(self, report):
         report["outputs"] = list(self.outs.values())

@@ -12,7 +12,9 @@ irradiance and chi^2 per raw sample, relighting errors, the ``reproduce``
 block of :func:`fmbrdf_mi.fit.outputs.record.joint_block`, so ``--from`` reruns
 it), ``colour_fit_NAME.png`` per fitted image and ``relight_NAME.png`` per
 held-out image (observed, predicted and their difference in intensity and
-DoLP per channel).
+DoLP per channel).  With ``albedo="per-pixel"`` (the images of one view): the albedo maps per period and
+colour channel too (k_s.exr, k_b.exr, k_s_se.exr, k_b_se.exr with channels R, G, B; albedo_maps.png), and the
+held-out images are relit with them.
 """
 from __future__ import annotations
 
@@ -29,19 +31,24 @@ from fmbrdf_mi.fit.inputs.colour import read_colour_inputs
 from fmbrdf_mi.fit.outputs.colour import model_entry
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
 from fmbrdf_mi.fit.outputs.job import FitJob
+from fmbrdf_mi.fit.outputs.single import MAP_OUTPUTS, write_albedo_maps
 from fmbrdf_mi.fit.outputs.writer import prepare_outputs
 
 
-def outputs(out, names, holdout):
+def outputs(out, names, holdout, albedo="shared"):
     files = ["fit.json"]
     for n, h in zip(names, holdout):
         files.append(f"relight_{n}.png" if h else f"colour_fit_{n}.png")
+    if albedo == "per-pixel":
+        files += list(MAP_OUTPUTS)
     return [os.path.join(out, f) for f in files]
 
 
 def sample_rmse(smp, pred, sel, channel):
-    """RMSE / mean of the raw samples in ``sel`` (all, and per colour channel): the held-out images' error."""
+    """RMSE / mean of the raw samples in ``sel`` (all, and per colour channel): the held-out images' error (over
+    the periods with a prediction: a per-pixel albedo fit predicts the periods it fitted)."""
 
+    sel = sel & np.all(np.isfinite(pred), axis=0)
     o, p = smp.values[:, sel], pred[:, sel]
     out = {"rel_rmse": float(np.sqrt(np.mean((p - o) ** 2)) / np.mean(o)), "n_periods": int(sel.sum())}
     for c, name in enumerate(CHANNELS):
@@ -60,20 +67,21 @@ def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True,
     mosaics.  Keywords as :func:`~fmbrdf_mi.fit.outputs.joint.fit_images`'s;
     ``baselines``, ``init`` and losses other than the likelihood are refused
     (the colour fit has none of them), as is ``free_power`` (not yet for colour
-    mosaics: give the powers) and an ``albedo`` layout other than ``"shared"``
-    (per-channel albedos shared by the pixels; per-pixel ones are for mono
-    captures so far); ``tol`` and ``time_limit`` do not apply.
+    mosaics: give the powers); ``albedo``: ``"shared"`` (per-channel albedos shared
+    by the pixels) or ``"per-pixel"`` (maps per period and channel: the images must
+    be of one view); ``tol`` and ``time_limit`` do not apply.
     """
     refused = [f for f, on in (("baselines", baselines), ("init", init), ("free_power (--free-power)", free_power),
                                (f"loss {loss}", loss not in ("auto", "likelihood", None)),
-                               (f"albedo {albedo!r} (--albedo)", albedo != "shared")) if on]
+                               (f"albedo {albedo!r} (--albedo; expected 'shared' or 'per-pixel')",
+                                albedo not in ("shared", "per-pixel"))) if on]
     if refused:
         raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
                          "of the raw samples)")
     return ColourJoint(specs, out, force=force, progress=progress, command=command, extra=extra,
                        reproduce=reproduce, model=model, fixed=fixed, bounds=bounds, starts=starts,
                        max_iter=max_iter, max_time=max_time, max_pixels=max_pixels, erode=erode, seed=seed,
-                       intervals=intervals).run()
+                       intervals=intervals, albedo=albedo).run()
 
 
 class ColourJoint(FitJob):
@@ -88,7 +96,9 @@ class ColourJoint(FitJob):
         get_model(self.model)
 
     def files(self):
-        self.names, self.holdout, files = prepare_outputs(self.specs, self.out, outputs, self.force)
+        albedo = self.fit_kw["albedo"]
+        self.names, self.holdout, files = prepare_outputs(
+            self.specs, self.out, lambda out, names, holdout: outputs(out, names, holdout, albedo), self.force)
         return files
 
     def read(self):
@@ -106,7 +116,7 @@ class ColourJoint(FitJob):
                               model=self.model, fixed=kw["fixed"], bounds=kw["bounds"],
                               max_pixels=kw["max_pixels"] or None, seed=kw["seed"], progress=say,
                               max_time=kw["max_time"], max_iter=kw["max_iter"], starts=int(kw["starts"]),
-                              intervals=kw["intervals"])
+                              intervals=kw["intervals"], albedo=kw["albedo"])
 
     def report(self):
         names, holdout, inputs, res = self.names, self.holdout, self.inputs, self.res
@@ -137,6 +147,10 @@ class ColourJoint(FitJob):
             else:
                 plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"colour_fit_{n}.png"),
                                 title=f"{n}: {title}")
+        if res.maps is not None:
+            outs = {f: os.path.join(out, f) for f in MAP_OUTPUTS}
+            write_albedo_maps(res, outs, model)
+            report["albedo_maps"] = outs
 
     def finish(self, report):
         report["outputs"], report["wall_s"] = self.paths, time.time() - self.t0

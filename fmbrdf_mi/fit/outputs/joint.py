@@ -214,7 +214,7 @@ def fitter(specs, albedo="shared", materials=None):
     :mod:`fmbrdf_mi.fit.outputs.colour_joint` when the images are colour mosaics."""
 
     if is_colour(specs):
-        return fit_colour_images, colour_outputs
+        return fit_colour_images, (lambda out, names, holdout: colour_outputs(out, names, holdout, albedo))
     return fit_images, (lambda out, names, holdout: outputs(out, names, holdout, albedo, materials))
 
 

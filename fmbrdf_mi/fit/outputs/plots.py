@@ -197,37 +197,54 @@ def plot_loss_history(histories, path):
 
 def plot_albedo_maps(maps, path, title=""):
     """Per-pixel albedos (a fit with ``albedo="per-pixel"``): k_s, k_b, their relative standard errors and
-    where the surface / body split is identified, cropped to the fitted pixels (mono maps; a colour fit's
-    maps show their mean over the channels)."""
+    where the surface / body split is identified, cropped to the fitted pixels; a colour fit's maps
+    ((3, H, W): R, G, B) one row per channel, each map's grey scale its own channel's (the channels' albedos
+    differ by the colour filters' transmission).  The grey scales are set by the albedos whose relative
+    standard error is at most 0.5 (poorly determined ones, e.g. k_s where the surface lobe is dark, show
+    clipped)."""
     plt = pyplot()
+    ks_all = np.asarray(maps["k_s"], dtype=np.float64)
+    colour = ks_all.ndim == 3
+    labels = (maps.get("channels") or ["R", "G", "B"]) if colour else [None]
 
-    def mono(a):
-        a = np.asarray(a, dtype=np.float64)
-        return np.nanmean(a, axis=0) if a.ndim == 3 else a
+    def layer(key, c, dtype=np.float64):
+        a = np.asarray(maps[key], dtype=dtype)
+        return a[c] if colour else a
 
-    ks, kb = mono(maps["k_s"]), mono(maps["k_b"])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rs, rb = mono(maps["k_s_se"]) / ks, mono(maps["k_b_se"]) / kb
-    ident = np.asarray(maps["identified"], dtype=float)
-    ident = ident.mean(axis=0) if ident.ndim == 3 else ident
-    fitted = np.isfinite(ks)
-    ys, xs = np.nonzero(fitted)
+    fitted_any = np.any(np.isfinite(ks_all), axis=0) if colour else np.isfinite(ks_all)
+    ys, xs = np.nonzero(fitted_any)
     if ys.size:
         crop = (slice(max(ys.min() - 1, 0), ys.max() + 2), slice(max(xs.min() - 1, 0), xs.max() + 2))
     else:
         crop = (slice(None), slice(None))
-    ident = np.where(fitted, ident, np.nan)
-    panels = (("k_s", ks, dict(vmin=0, vmax=scale_from(ks, fitted), cmap="gray")),
-              ("k_b", kb, dict(vmin=0, vmax=scale_from(kb, fitted), cmap="gray")),
-              ("SE(k_s) / k_s", rs, dict(vmin=0, vmax=min(scale_from(rs, fitted, 95.0), 1.0), cmap="magma")),
-              ("SE(k_b) / k_b", rb, dict(vmin=0, vmax=min(scale_from(rb, fitted, 95.0), 1.0), cmap="magma")),
-              ("split identified", ident, dict(vmin=0, vmax=1, cmap="RdYlGn")))
-    fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.6))
-    for ax, (name, img, kw) in zip(axes, panels):
-        im = ax.imshow(img[crop], **kw)
-        ax.set_title(name)
-        ax.axis("off")
-        fig.colorbar(im, ax=ax, fraction=0.046)
+    rows = []
+    for c, label in enumerate(labels):
+        ks, kb = layer("k_s", c), layer("k_b", c)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rs, rb = layer("k_s_se", c) / ks, layer("k_b_se", c) / kb
+        fitted = np.isfinite(ks)
+        ident = np.where(fitted, layer("identified", c, float), np.nan)
+        tag = "" if label is None else f"{label}: "
+        # the grey scales from the albedos with a relative standard error <= 0.5 (where there are some): a
+        # k_s where the surface lobe is dark is noise, whose extremes would otherwise set the scale
+        with np.errstate(invalid="ignore"):
+            sel_s, sel_b = (fitted & (layer(k + "_se", c) <= 0.5 * v) for k, v in (("k_s", ks), ("k_b", kb)))
+        sel_s, sel_b = (sel if sel.any() else fitted for sel in (sel_s, sel_b))
+        rows.append(((tag + "k_s", ks, dict(vmin=0, vmax=scale_from(ks, sel_s), cmap="gray")),
+                     (tag + "k_b", kb, dict(vmin=0, vmax=scale_from(kb, sel_b), cmap="gray")),
+                     (tag + "SE(k_s) / k_s", rs, dict(vmin=0, vmax=min(scale_from(rs, fitted, 95.0), 1.0),
+                                                      cmap="magma")),
+                     (tag + "SE(k_b) / k_b", rb, dict(vmin=0, vmax=min(scale_from(rb, fitted, 95.0), 1.0),
+                                                      cmap="magma")),
+                     (tag + "split identified", ident, dict(vmin=0, vmax=1, cmap="RdYlGn"))))
+    ncol = len(rows[0])
+    fig, axes = plt.subplots(len(rows), ncol, figsize=(3.2 * ncol, 3.6 * len(rows)), squeeze=False)
+    for r, panels in enumerate(rows):
+        for ax, (name, img, kw) in zip(axes[r], panels):
+            im = ax.imshow(img[crop], **kw)
+            ax.set_title(name)
+            ax.axis("off")
+            fig.colorbar(im, ax=ax, fraction=0.046)
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -46,7 +46,7 @@ ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "li
 #: The arguments of :func:`fmbrdf_mi.fit.outputs.colour.fit_colour_files` among them (a colour fit's record).
 COLOUR_ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "light", "irradiance",
                     "black_level", "white_level", "conversion_gain", "read_noise", "model", "bounds", "fixed",
-                    "max_time", "max_iter", "max_pixels", "erode", "seed", "starts", "intervals")
+                    "max_time", "max_iter", "max_pixels", "erode", "seed", "starts", "intervals", "albedo")
 
 
 def sha256(path):

@@ -19,11 +19,16 @@ def kind_text(model_entry, name):
     return "" if kind == "fisher" else f" ({kind.replace('profile', 'profile likelihood')})"
 
 def albedo_text(a):
-    """One line on a per-pixel albedo fit's maps (fit.json's ``albedo`` block)."""
+    """One line on a per-pixel albedo fit's maps (fit.json's ``albedo`` block; a colour fit's: one more line per
+    channel)."""
+    per = "".join(f"\n    {c}: median k_s {p['k_s_median']:.4g}, k_b {p['k_b_median']:.4g}; relative standard error "
+                  f"<= 0.5 for k_s in {p['k_s_determined_fraction']:.0%}, for k_b in "
+                  f"{p['k_b_determined_fraction']:.0%}; split identified in {p['identified_fraction']:.0%}"
+                  for c, p in (a.get("per_channel") or {}).items())
     return (f"albedo maps: {a['pixels']} pixels, median k_s {a['k_s_median']:.4g}, k_b {a['k_b_median']:.4g}; "
             f"relative standard error <= 0.5 for k_s in {a['k_s_determined_fraction']:.0%}, for k_b in "
             f"{a['k_b_determined_fraction']:.0%} of them; surface / body split identified in "
-            f"{a['identified_fraction']:.0%}" + (f"\n  warning: {a['warning']}" if a.get("warning") else ""))
+            f"{a['identified_fraction']:.0%}" + per + (f"\n  warning: {a['warning']}" if a.get("warning") else ""))
 
 
 def print_colour(report):
@@ -32,7 +37,8 @@ def print_colour(report):
 
     status = 0
     for name, m in report["models"].items():
-        print(f"{name} (colour, per-channel albedos): chi2/dof {m['chi2_per_dof']:.4f} over {m['n_samples']} raw "
+        kind = "albedo maps per pixel and channel" if m.get("albedo") else "per-channel albedos"
+        print(f"{name} (colour, {kind}): chi2/dof {m['chi2_per_dof']:.4f} over {m['n_samples']} raw "
               f"samples of {m['n_pixels']} periods  ({'converged' if m['converged'] else 'NOT converged'}: "
               f"{m['stop_reason']})")
         print(f"  camera noise {m['noise'].get('description', m['noise'])}")
@@ -63,6 +69,8 @@ def print_colour(report):
             print("  warning: " + misfit_text(unc))
         if m.get("weakly_identified"):
             print(f"  weakly identified (standard error > 5% or at a bound): {', '.join(m['weakly_identified'])}")
+        if m.get("albedo"):
+            print("  " + albedo_text(m["albedo"]))
         for img, c2 in (m.get("chi2_per_sample") or {}).items():
             print(f"  {img}: chi2 per raw sample {c2:.3f}")
         if not m["converged"]:

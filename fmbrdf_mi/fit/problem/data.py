@@ -144,11 +144,6 @@ def area_points(samples, opts):
     return int(m)
 
 
-#: Per-pixel albedos of colour mosaics (per pixel and channel): the layout supports them; the outputs and
-#: tests do not yet, so the fit refuses them.
-COLOUR_PER_PIXEL = False
-
-
 def pixel_layout(observations, idxs, samples):
     """The per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) of the fitted cells
     ``idxs`` (one flat index array per image): one group per pixel of the view (per pixel and colour
@@ -165,8 +160,6 @@ def pixel_layout(observations, idxs, samples):
     m = samples.n
     if samples.channel is None:
         return PixelAlbedos(np.repeat(cell[:, None], m, axis=1), len(pixels), pixels)
-    if not COLOUR_PER_PIXEL:
-        raise InputError("albedo per-pixel: not yet for colour mosaics (mono captures, raw or angle images)")
     C = len(CHANNELS)
     ch = np.asarray(samples.channel, dtype=np.int64)
     groups = cell[:, None] * C + ch[None, :]
