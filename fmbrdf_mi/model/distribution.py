@@ -16,6 +16,7 @@ import math
 import drjit as dr
 import numpy as np
 
+from .coords import polar_nodes, x_of_cos_theta
 from .interp import gather
 from .quadrature import PolarMap, gauss_legendre_array, gennormal_unnormalised
 
@@ -62,7 +63,7 @@ class Distribution:
         th = self.map.theta(u)
         integrand = gennormal_unnormalised(th, alpha, beta) * dr.sin(th) * dr.cos(th)
         self.norm = 1.0 / (2.0 * math.pi * dr.sum(w * self.map.dtheta_du(u) * integrand))
-        self.theta_tab = np.linspace(0.0, 0.5 * math.pi, self.N_PTAB)
+        self.theta_tab = polar_nodes(self.N_PTAB)  # uniform in coords.x_of_cos_theta
         self.p_tab = self.projected_area(Float(self.theta_tab))
 
     def D(self, m):
@@ -114,10 +115,10 @@ class Distribution:
         return out
 
     def proj_area_lookup(self, cos_theta):
-        """P at cos(theta_w) by linear interpolation in the table."""
+        """P at cos(theta_w) by linear interpolation in the table (nodes uniform in
+        coords.x_of_cos_theta, denser towards grazing, where P changes fastest)."""
         Float = self.Float
-        th = dr.acos(dr.clip(cos_theta, 0.0, 1.0))
-        x = th * ((self.N_PTAB - 1) / (0.5 * math.pi))
+        x = x_of_cos_theta(cos_theta) * (self.N_PTAB - 1)
         i0 = dr.minimum(dr.uint32_array_t(Float)(dr.floor(x)), self.N_PTAB - 2)
         t = x - Float(i0)
         p0 = gather(Float, self.p_tab, i0)
