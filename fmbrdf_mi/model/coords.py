@@ -3,31 +3,28 @@
 The body tables (body.py) are read at (x(phi), x(theta_L), x(theta_V)) in
 [0, 1]^3 and the 1-D tables over a polar angle (the grazing factors, the
 projected area P of distribution.py) at x(theta); their nodes sit uniformly
-in x.  eval computes x from the cosines it has (and |sin phi|) with square
-roots and a few products, without inverse trigonometric functions (which
-cost eval about a tenth of pplastic's time, docs/benchmarks.md):
+in x.  The warps are those the tables were designed with:
 
-* polar: s = sqrt(1 - cos theta) = sqrt(2) sin(theta / 2) in [0, 1],
-  b = (s + a s^3) / (1 + a) (a = 0.138 makes b nearly proportional to
-  theta: db/dtheta is the same at the pole and at grazing), then the warp w
-  below with k = THETA_K;
-* azimuth (phi in [0, pi], the tables' range): u = sqrt(2) sin(phi/2 - pi/4)
-  in [-1, 1], which is -+sqrt(1 - sin phi) = -cos phi / sqrt(1 + sin phi)
-  (the form eval uses: no cancellation near phi = pi/2),
-  b = (1 + (u + a u^3) / (1 + a)) / 2 (nearly
-  proportional to phi for the same reason), then w with k = PHI_K;
-* w(b) = (1 - sqrt(1 - k b)) / (1 - sqrt(1 - k)): node spacing in b
-  proportional to sqrt(1 - k b), sqrt(1 - k) times as fine at b = 1 as at 0.
+* polar: theta = (pi/2) sin(A x) / sin(A), A = TABLE_WARP: near grazing,
+  where Fresnel transmittance and masking change fastest, the spacing is
+  cos(A) = 0.17 times the spacing at the pole;
+* azimuth: phi = pi sin(B x) / sin(B), B = PHI_WARP: near forward scattering
+  (phi = pi), where a large kappa makes the body term of grazing directions
+  fall steeply (light must leave through a facet near the one it entered by,
+  and the facets that both grazing directions see shrink to a band), the
+  spacing is cos(B) = 0.12 times the spacing at phi = 0;
 
-So the polar spacing near grazing (where Fresnel transmittance and masking
-change fastest) is 0.12 of that at the pole, and the azimuthal spacing near
-forward scattering (phi = pi, where a large kappa makes the body term of
-grazing directions fall steeply: light must leave through a facet near the
-one it entered by, and the facets both grazing directions see shrink to a
-band) 0.14 of that at phi = 0.  The constants were chosen by the table's
-interpolation error against the direct quadrature (docs/benchmarks.md,
-"Evaluation"); the nodes (the inverse maps, NumPy float64) solve the cubic
-in closed form.
+but eval computes them from the cosines it has (and |sin phi|) without acos:
+theta / (pi/2) and phi / pi are replaced by b = q(s) and (1 + q(u)) / 2 with
+s = sqrt(1 - cos theta) = sqrt(2) sin(theta/2), u = sqrt(2) sin(phi/2 - pi/4)
+= -cos phi / sqrt(1 + |sin phi|) (no cancellation near phi = pi/2), and
+q(t) an odd quintic, q(1) = 1, within 3.5e-4 of (4/pi) asin(t / sqrt(2)),
+which is what theta / (pi/2) and (2 phi / pi - 1) are in those variables.
+So x = asin(sin(A) b) / A: one asin instead of acos and asin (eval's inverse
+trigonometric functions cost it about a tenth of pplastic's time,
+docs/benchmarks.md), and the nodes, the exact inverse of that map (NumPy,
+float64, cached per resolution), lie within 0.03 cells of where the warps
+above put them.
 """
 import functools
 import math
@@ -35,39 +32,36 @@ import math
 import drjit as dr
 import numpy as np
 
-#: cubic term of the polar and azimuthal base coordinates b
-CUBIC = 0.138
-#: warp constants k of w(b), polar and azimuthal
-THETA_K = 0.9856
-PHI_K = 0.98
+#: The warps: polar A, azimuthal B (see the module docstring).
+TABLE_WARP = 1.4
+PHI_WARP = 1.45
+#: q(t) = t (Q1 + t^2 (Q3 + Q5 t^2)), least squares to (4/pi) asin(t/sqrt(2)) on [0, 1], q(1) = 1
+Q1, Q3 = 0.90151914, 0.06579845
+Q5 = 1.0 - Q1 - Q3
 
 
-def _warp(b, k):
-    return (1.0 - dr.sqrt(1.0 - k * b)) * (1.0 / (1.0 - math.sqrt(1.0 - k)))
+def _q(t):
+    t2 = t * t
+    return t * (Q1 + t2 * (Q3 + Q5 * t2))
 
 
-def _unwarp(x, k):
-    """Inverse of :func:`_warp` (NumPy)."""
-    r = 1.0 - np.asarray(x, dtype=np.float64) * (1.0 - math.sqrt(1.0 - k))
-    return (1.0 - r * r) / k
+def _q_inverse(y):
+    """The t in [-1, 1] with q(t) = y (NumPy float64, Newton's method; q is increasing)."""
+    y = np.asarray(y, dtype=np.float64)
+    t = y.copy()
+    for _ in range(40):
+        t = np.clip(t - (_q(t) - y) / (Q1 + t * t * (3.0 * Q3 + 5.0 * Q5 * t * t)), -1.0, 1.0)
+    return t
 
 
-def _cubic(t):
-    return (t + CUBIC * t * t * t) * (1.0 / (1.0 + CUBIC))
-
-
-def _uncubic(y):
-    """The real root t of t + a t^3 = (1 + a) y (NumPy; Cardano, one real root for a > 0)."""
-    q = -(1.0 + CUBIC) * np.asarray(y, dtype=np.float64) / CUBIC
-    p = 1.0 / CUBIC
-    disc = np.sqrt(0.25 * q * q + p ** 3 / 27.0)
-    return np.cbrt(-0.5 * q + disc) + np.cbrt(-0.5 * q - disc)
+def _warp(b, w):
+    """asin(sin(w) b) / w (Dr.Jit arrays or Python floats)."""
+    return dr.asin(dr.clip(b, -1.0, 1.0) * math.sin(w)) * (1.0 / w)
 
 
 def x_of_cos_theta(cos_theta):
     """x(theta) from cos(theta) (Dr.Jit arrays or Python floats), clamped to [0, 1]."""
-    s = dr.sqrt(1.0 - dr.clip(cos_theta, 0.0, 1.0))
-    return _warp(_cubic(s), THETA_K)
+    return _warp(_q(dr.sqrt(1.0 - dr.clip(cos_theta, 0.0, 1.0))), TABLE_WARP)
 
 
 def x_of_theta(theta):
@@ -76,15 +70,15 @@ def x_of_theta(theta):
 
 def theta_of_x(x):
     """Polar angles (NumPy float64) at table coordinates ``x``: the inverse of :func:`x_of_cos_theta`."""
-    s = np.clip(_uncubic(_unwarp(x, THETA_K)), 0.0, 1.0)
-    return 2.0 * np.arcsin(s * math.sqrt(0.5))
+    b = np.sin(TABLE_WARP * np.asarray(x, dtype=np.float64)) / math.sin(TABLE_WARP)
+    s = np.clip(_q_inverse(b), 0.0, 1.0)
+    return np.clip(2.0 * np.arcsin(s * math.sqrt(0.5)), 0.0, 0.5 * math.pi)
 
 
 def x_of_cos_phi(cos_phi, sin_phi):
     """x(phi) for phi in [0, pi] given as cos(phi) and sin(phi) (its sign ignored)."""
-    # u = -+sqrt(1 - sin phi), written without the cancellation of 1 - sin phi near phi = pi/2
     u = dr.clip(-cos_phi * dr.rsqrt(1.0 + dr.minimum(dr.abs(sin_phi), 1.0)), -1.0, 1.0)
-    return _warp(0.5 + 0.5 * _cubic(u), PHI_K)
+    return _warp(0.5 + 0.5 * _q(u), PHI_WARP)
 
 
 def x_of_phi(phi):
@@ -93,7 +87,8 @@ def x_of_phi(phi):
 
 def phi_of_x(x):
     """Azimuths in [0, pi] (NumPy float64) at table coordinates ``x``: the inverse of :func:`x_of_cos_phi`."""
-    u = np.clip(_uncubic(2.0 * _unwarp(x, PHI_K) - 1.0), -1.0, 1.0)
+    b = np.sin(PHI_WARP * np.asarray(x, dtype=np.float64)) / math.sin(PHI_WARP)
+    u = _q_inverse(2.0 * b - 1.0)
     return np.clip(0.5 * math.pi + 2.0 * np.arcsin(u * math.sqrt(0.5)), 0.0, math.pi)
 
 
