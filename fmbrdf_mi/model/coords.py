@@ -1,9 +1,9 @@
 """Table coordinates over the polar angle and the azimuth difference.
 
 The body tables (body.py) are read at (x(phi), x(theta_L), x(theta_V)) in
-[0, 1]^3 and the 1-D tables over a polar angle (the grazing factors, the
-projected area P of distribution.py) at x(theta); their nodes sit uniformly
-in x.  The warps are those the tables were designed with:
+[0, 1]^3 and the 1-D table of the grazing factors at x(theta); their nodes
+sit uniformly in x.  The projected area P of distribution.py is tabulated
+uniformly in theta and read at b (below), nearly theta / (pi/2).  The warps are those the tables were designed with:
 
 * polar: theta = (pi/2) sin(A x) / sin(A), A = TABLE_WARP: near grazing,
   where Fresnel transmittance and masking change fastest, the spacing is
@@ -65,9 +65,29 @@ def _warp(b, w):
     return dr.asin(dr.clip(b, -1.0, 1.0) * math.sin(w)) * (1.0 / w)
 
 
+def b_of_cos_theta(cos_theta):
+    """q(sqrt(1 - cos theta)): theta / (pi/2) to within 9e-6 rad (Dr.Jit arrays or Python
+    floats), clamped to [0, 1]; the coordinate of tables with nodes uniform in theta."""
+    return _q(dr.sqrt(1.0 - dr.clip(cos_theta, 0.0, 1.0)))
+
+
+@functools.lru_cache(maxsize=8)
+def uniform_theta_nodes(n):
+    """``n`` polar angles uniform in b (NumPy, read-only): theta within 9e-6 rad of uniform in [0, pi/2]."""
+    th = theta_of_b(np.linspace(0.0, 1.0, int(n)))
+    th.flags.writeable = False
+    return th
+
+
+def theta_of_b(b):
+    """Polar angles (NumPy float64) at ``b``: the inverse of :func:`b_of_cos_theta`."""
+    s = np.clip(_q_inverse(np.asarray(b, dtype=np.float64)), 0.0, 1.0)
+    return np.clip(2.0 * np.arcsin(s * math.sqrt(0.5)), 0.0, 0.5 * math.pi)
+
+
 def x_of_cos_theta(cos_theta):
     """x(theta) from cos(theta) (Dr.Jit arrays or Python floats), clamped to [0, 1]."""
-    return _warp(_q(dr.sqrt(1.0 - dr.clip(cos_theta, 0.0, 1.0))), TABLE_WARP)
+    return _warp(b_of_cos_theta(cos_theta), TABLE_WARP)
 
 
 def x_of_theta(theta):
@@ -76,9 +96,7 @@ def x_of_theta(theta):
 
 def theta_of_x(x):
     """Polar angles (NumPy float64) at table coordinates ``x``: the inverse of :func:`x_of_cos_theta`."""
-    b = np.sin(TABLE_WARP * np.asarray(x, dtype=np.float64)) / math.sin(TABLE_WARP)
-    s = np.clip(_q_inverse(b), 0.0, 1.0)
-    return np.clip(2.0 * np.arcsin(s * math.sqrt(0.5)), 0.0, 0.5 * math.pi)
+    return theta_of_b(np.sin(TABLE_WARP * np.asarray(x, dtype=np.float64)) / math.sin(TABLE_WARP))
 
 
 def x_of_cos_phi(cos_phi, sin_phi):
