@@ -60,9 +60,50 @@ def _q_inverse(y):
     return t
 
 
+#: asin(z) ~ pi/2 - sqrt(1 - z) (S0 + S1 z + ... + S7 z^7) on [0, 1], within 2e-8 (Abramowitz and
+#: Stegun 4.4.46): the warps' arcsine without Dr.Jit's asin, which cost eval a fifth of its time
+S = (1.5707963050, -0.2145988016, 0.0889789874, -0.0501743046, 0.0308918810, -0.0170881256, 0.0066700901,
+     -0.0012624911)
+
+
+def _asin_poly(z):
+    poly = S[7]
+    for c in S[6::-1]:
+        poly = poly * z + c
+    return poly
+
+
+def _asin_approx(z):
+    """Dr.Jit arrays or Python floats."""
+    return 0.5 * math.pi - dr.sqrt(dr.maximum(1.0 - z, 0.0)) * _asin_poly(z)
+
+
+def _asin_approx_np(z):
+    return 0.5 * math.pi - np.sqrt(np.maximum(1.0 - z, 0.0)) * _asin_poly(z)
+
+
 def _warp(b, w):
-    """asin(sin(w) b) / w (Dr.Jit arrays or Python floats)."""
-    return dr.asin(dr.clip(b, -1.0, 1.0) * math.sin(w)) * (1.0 / w)
+    """asin(sin(w) b) / w, normalised to map [0, 1] onto [0, 1] exactly (Dr.Jit arrays or Python
+    floats): within 2e-8 of the exact arcsine warp."""
+    k = math.sin(w)
+    lo, hi = _asin_approx(0.0), _asin_approx(k)
+    return (_asin_approx(dr.clip(b, 0.0, 1.0) * k) - lo) * (1.0 / (hi - lo))
+
+
+def _unwarp(x, w):
+    """Inverse of :func:`_warp` (NumPy float64, Newton's method from the exact arcsine's inverse)."""
+    x = np.asarray(x, dtype=np.float64)
+    k = math.sin(w)
+    f = lambda b: _asin_approx_np(k * b)
+    lo, hi = f(0.0), f(1.0)
+    b = np.clip(np.sin(w * x) / k, 0.0, 1.0)
+    for _ in range(40):
+        h = 1e-7
+        g = (f(b) - lo) / (hi - lo) - x
+        d = ((f(np.minimum(b + h, 1.0)) - f(np.maximum(b - h, 0.0))) / (np.minimum(b + h, 1.0) - np.maximum(b - h, 0.0))
+             / (hi - lo))
+        b = np.clip(b - g / d, 0.0, 1.0)
+    return b
 
 
 def b_of_cos_theta(cos_theta):
@@ -96,7 +137,7 @@ def x_of_theta(theta):
 
 def theta_of_x(x):
     """Polar angles (NumPy float64) at table coordinates ``x``: the inverse of :func:`x_of_cos_theta`."""
-    return theta_of_b(np.sin(TABLE_WARP * np.asarray(x, dtype=np.float64)) / math.sin(TABLE_WARP))
+    return theta_of_b(_unwarp(x, TABLE_WARP))
 
 
 def x_of_cos_phi(cos_phi, sin_phi):
@@ -111,8 +152,7 @@ def x_of_phi(phi):
 
 def phi_of_x(x):
     """Azimuths in [0, pi] (NumPy float64) at table coordinates ``x``: the inverse of :func:`x_of_cos_phi`."""
-    b = np.sin(PHI_WARP * np.asarray(x, dtype=np.float64)) / math.sin(PHI_WARP)
-    u = _q_inverse(2.0 * b - 1.0)
+    u = _q_inverse(2.0 * _unwarp(x, PHI_WARP) - 1.0)
     return np.clip(0.5 * math.pi + 2.0 * np.arcsin(u * math.sqrt(0.5)), 0.0, math.pi)
 
 
