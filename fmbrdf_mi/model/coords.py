@@ -3,7 +3,8 @@
 The body tables (body.py) are read at (x(phi), x(theta_L), x(theta_V)) in
 [0, 1]^3 and the 1-D table of the grazing factors at x(theta); their nodes
 sit uniformly in x.  The projected area P of distribution.py is tabulated
-uniformly in theta and read at b (below), nearly theta / (pi/2).  The warps are those the tables were designed with:
+uniformly in theta and read at b (below), nearly theta / (pi/2).  The warps
+are those the tables were designed with:
 
 * polar: theta = (pi/2) sin(A x) / sin(A), A = TABLE_WARP: near grazing,
   where Fresnel transmittance and masking change fastest, the spacing is
@@ -14,17 +15,21 @@ uniformly in theta and read at b (below), nearly theta / (pi/2).  The warps are 
   and the facets that both grazing directions see shrink to a band), the
   spacing is cos(B) = 0.12 times the spacing at phi = 0;
 
-but eval computes them from the cosines it has (and |sin phi|) without acos:
-theta / (pi/2) and phi / pi are replaced by b = q(s) and (1 + q(u)) / 2 with
-s = sqrt(1 - cos theta) = sqrt(2) sin(theta/2), u = sqrt(2) sin(phi/2 - pi/4)
-= -cos phi / sqrt(1 + |sin phi|) (no cancellation near phi = pi/2), and
-q(t) an odd polynomial of degree 9, q(1) = 1, within 5.8e-6 of (4/pi) asin(t / sqrt(2)),
-which is what theta / (pi/2) and (2 phi / pi - 1) are in those variables.
-So x = asin(sin(A) b) / A: one asin instead of acos and asin (eval's inverse
-trigonometric functions cost it about a tenth of pplastic's time,
-docs/benchmarks.md), and the nodes, the exact inverse of that map (NumPy,
-float64, cached per resolution), lie within 0.002 cells of where the warps
-above put them.
+but eval computes them from the cosines it has (and |sin phi|) with square
+roots and polynomials, without Dr.Jit's acos and asin:
+
+* theta / (pi/2) and phi / pi become b = q(s) and (1 + q(u)) / 2, with
+  s = sqrt(1 - cos theta) = sqrt(2) sin(theta/2), u = sqrt(2) sin(phi/2 - pi/4)
+  = -cos phi / sqrt(1 + |sin phi|) (no cancellation near phi = pi/2), and q an
+  odd polynomial of degree 9, q(1) = 1, within 5.8e-6 of
+  (4/pi) asin(t / sqrt(2)), which is what they are in those variables;
+* x = asin(sin(A) b) / A with the arcsine of Abramowitz and Stegun 4.4.46
+  (a square root times a polynomial of degree 7, within 2e-8), rescaled to
+  map [0, 1] onto [0, 1].
+
+The nodes are the exact inverse of that map (NumPy, float64, Newton's method,
+cached per resolution); they lie within 0.0012 cells of where the warps above
+put them, so the tables interpolate what they did before.
 """
 import functools
 import math
@@ -61,7 +66,7 @@ def _q_inverse(y):
 
 
 #: asin(z) ~ pi/2 - sqrt(1 - z) (S0 + S1 z + ... + S7 z^7) on [0, 1], within 2e-8 (Abramowitz and
-#: Stegun 4.4.46): the warps' arcsine without Dr.Jit's asin, which cost eval a fifth of its time
+#: Stegun 4.4.46): the warps' arcsine without Dr.Jit's asin
 S = (1.5707963050, -0.2145988016, 0.0889789874, -0.0501743046, 0.0308918810, -0.0170881256, 0.0066700901,
      -0.0012624911)
 
