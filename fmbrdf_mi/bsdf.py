@@ -12,8 +12,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import params as P
-from .model.body import BodyGrid, body_tables
-from .model.coords import x_of_cos_phi, x_of_cos_theta
+from .model.body import BodyGrid, body_tables, table_x_of_phi, table_x_of_theta
 from .model.distribution import Distribution
 from .model.interp import PackedTetraTable
 from .model.fresnel import reflection_mueller_terms
@@ -412,21 +411,18 @@ class _FMBRDFMethods:
             return wo, si.wi
         return si.wi, wo
 
-    def table_coords(self, cos_l, cos_v, cos_phi, sin_phi):
+    def table_coords(self, cos_l, cos_v, phi):
         """Coordinates in [0, 1]^3 of the body tables, in their axis order
-        (x(phi), x(theta_L), x(theta_V)) (model/coords.py), for cos theta_L,
-        cos theta_V and phi = phi_V - phi_L given as (cos phi, sin phi)."""
-        return x_of_cos_phi(cos_phi, sin_phi), x_of_cos_theta(cos_l), x_of_cos_theta(cos_v)
+        (x(phi), x(theta_L), x(theta_V)), for (cos theta_L, cos theta_V, |phi|)."""
+        x_l = table_x_of_theta(dr.acos(dr.clip(cos_l, 0.0, 1.0)))
+        x_v = table_x_of_theta(dr.acos(dr.clip(cos_v, 0.0, 1.0)))
+        return table_x_of_phi(phi), x_l, x_v
 
     def body_ratios(self, cos_l, cos_v, phi):
         """The body matrix over k_b cos(theta_L) from the tables, in their bases (body.py):
         (M00, [M10, M20] / M00, [M01, M02, M11, M12, M21, M22] / M00), for
         (cos theta_L, cos theta_V, |phi|); the ratios are None when not polarised."""
-        return self.body_ratios_cs(cos_l, cos_v, dr.cos(phi), dr.sin(phi))
-
-    def body_ratios_cs(self, cos_l, cos_v, cos_phi, sin_phi):
-        """:meth:`body_ratios` with phi given as (cos phi, sin phi) (the sign of sin phi is ignored)."""
-        u = self.table_coords(cos_l, cos_v, cos_phi, sin_phi)
+        u = self.table_coords(cos_l, cos_v, phi)
         log_fl, d_l = self.factors.eval(u[1])
         log_fv, d_v = self.factors.eval(u[2])
         c = self.table.eval(*u)  # the channels of body.CHANNELS
@@ -457,7 +453,8 @@ class _FMBRDFMethods:
         lx, ly = _unit_xy(L)
         vx, vy = _unit_xy(V)
         sin_phi = lx * vy - ly * vx  # phi = phi_V - phi_L
-        m00, column, rest = self.body_ratios_cs(L.z, V.z, lx * vx + ly * vy, sin_phi)
+        phi = dr.acos(dr.clip(lx * vx + ly * vy, -1.0, 1.0))
+        m00, column, rest = self.body_ratios(L.z, V.z, phi)
         if not self.polarized:
             return cos_o * m00, None
         r10, r20 = column

@@ -50,7 +50,6 @@ import math
 import drjit as dr
 import numpy as np
 
-from .coords import polar_nodes as table_polar_nodes, table_angles
 from .fresnel import transmission_mueller_terms
 from .interp import LineTable, TetraTable
 from .quadrature import constant, gauss_legendre_array, gennormal_unnormalised
@@ -295,6 +294,44 @@ def _grid_order(Float, Y, nv, nr, nc):
     return dr.gather(Float, Y, block * (nv * nr * nc) + (s * nv + v) * nr + r)
 
 
+#: Table polar angles are theta = (pi/2) sin(A x) / sin(A), x uniform in [0, 1]:
+#: near grazing, where Fresnel transmittance and masking change fastest, the
+#: spacing is cos(A) = 0.17 times the spacing at the pole.
+TABLE_WARP = 1.4
+
+
+def table_theta_of_x(x):
+    return (0.5 * math.pi / math.sin(TABLE_WARP)) * np.sin(TABLE_WARP * np.asarray(x))
+
+
+def table_x_of_theta(theta):
+    """Inverse of :func:`table_theta_of_x` (Dr.Jit arrays)."""
+    return dr.asin(theta * (math.sin(TABLE_WARP) / (0.5 * math.pi))) * (1.0 / TABLE_WARP)
+
+
+#: Table azimuths are phi = pi sin(B x) / sin(B), x uniform in [0, 1]: near
+#: forward scattering (phi = pi), where a large kappa makes the body term of
+#: grazing directions fall steeply (light must leave through a facet near the
+#: one it entered by, and the facets that both grazing directions see shrink to
+#: a band), the spacing is cos(B) = 0.12 times the spacing at phi = 0.
+PHI_WARP = 1.45
+
+
+def table_phi_of_x(x):
+    return (math.pi / math.sin(PHI_WARP)) * np.sin(PHI_WARP * np.asarray(x))
+
+
+def table_x_of_phi(phi):
+    """Inverse of :func:`table_phi_of_x` (Dr.Jit arrays)."""
+    return dr.asin(phi * (math.sin(PHI_WARP) / math.pi)) * (1.0 / PHI_WARP)
+
+
+def table_angles(n_theta, n_phi):
+    """Table nodes: theta in [0, pi/2] (both ends, warped), phi in [0, pi] (both ends, warped)."""
+    x = lambda n: np.linspace(0.0, 1.0, n)
+    return table_theta_of_x(x(n_theta)), table_phi_of_x(x(n_phi))
+
+
 def grazing_factors(dist, eta, grid, theta):
     """(F, d) at polar angles ``theta``: the body matrix at kappa = 0, per direction.
 
@@ -333,8 +370,7 @@ CHANNELS = ("log_m00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22")
 
 
 def body_tables(dist, eta, kappa, grid, polarized=True, planar=False):
-    """The body term as an interpolation table over (x(phi), x(theta_L), x(theta_V))
-    (coords.py).
+    """The body term as an interpolation table over (x(phi), x(theta_L), x(theta_V)).
 
     M is divided by k_b cos(theta_L) and expressed in the bases of
     :func:`body_grid_matrices`; then the 1-D grazing factors of
@@ -359,7 +395,7 @@ def body_tables(dist, eta, kappa, grid, polarized=True, planar=False):
     nodes = polar_nodes(dist, grid)
     khat = coupling_modes(dist, kappa, grid, *nodes)
     th, ph = table_angles(*grid.table)
-    th_f = table_polar_nodes(grid.n_factor)
+    th_f = table_theta_of_x(np.linspace(0.0, 1.0, grid.n_factor))
     # the grazing factors at the 1-D nodes and at the table's polar nodes, in one pass
     f_all, d_all = grazing_factors(dist, eta, grid, np.concatenate([th_f, th]))
     nf, n1 = len(th_f), len(th)

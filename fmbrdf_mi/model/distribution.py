@@ -16,7 +16,6 @@ import math
 import drjit as dr
 import numpy as np
 
-from .coords import b_of_cos_theta, uniform_theta_nodes
 from .interp import gather
 from .quadrature import PolarMap, gauss_legendre_array, gennormal_unnormalised
 
@@ -63,8 +62,7 @@ class Distribution:
         th = self.map.theta(u)
         integrand = gennormal_unnormalised(th, alpha, beta) * dr.sin(th) * dr.cos(th)
         self.norm = 1.0 / (2.0 * math.pi * dr.sum(w * self.map.dtheta_du(u) * integrand))
-        # nodes uniform in coords.b_of_cos_theta, theta within 9e-6 rad of uniform in [0, pi/2]
-        self.theta_tab = uniform_theta_nodes(self.N_PTAB)
+        self.theta_tab = np.linspace(0.0, 0.5 * math.pi, self.N_PTAB)
         self.p_tab = self.projected_area(Float(self.theta_tab))
 
     def D(self, m):
@@ -116,10 +114,10 @@ class Distribution:
         return out
 
     def proj_area_lookup(self, cos_theta):
-        """P at cos(theta_w) by linear interpolation in the table (its coordinate
-        coords.b_of_cos_theta, nearly theta / (pi/2), without acos)."""
+        """P at cos(theta_w) by linear interpolation in the table."""
         Float = self.Float
-        x = b_of_cos_theta(cos_theta) * (self.N_PTAB - 1)
+        th = dr.acos(dr.clip(cos_theta, 0.0, 1.0))
+        x = th * ((self.N_PTAB - 1) / (0.5 * math.pi))
         i0 = dr.minimum(dr.uint32_array_t(Float)(dr.floor(x)), self.N_PTAB - 2)
         t = x - Float(i0)
         p0 = gather(Float, self.p_tab, i0)
