@@ -20,12 +20,16 @@ pixel lies inside one interpolation square), so a linear gradient across a
 super-pixel is modelled exactly.
 
 **At the mask's edge** (a neighbour that is not fitted in any image: off
-the object, excluded, or not selected): across a missing edge neighbour the
-albedo is held constant (the interpolation is clamped to the sample's own
-column or row of centres); where only the diagonal neighbour is missing,
-its value is taken as the plane through the other three
-(a_h + a_v - a_own: exact for a linear texture).  A lone pixel predicts
-with its own pair, as in :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`.
+the object, excluded, or not selected): along each axis the sample's value
+is interpolated towards the neighbour on its side; that one missing, it is
+extrapolated linearly from the neighbour on the other side; both missing,
+the albedo is held constant along that axis.  The 2-D weights are the
+products of the two axes' (a weight can then be negative), and an off-axis
+corner that is missing is taken as the plane through the other three
+(a_h + a_v - a_own).  A linear texture is thus modelled exactly at every
+sample of a pixel with a neighbour on at least one side in each direction;
+a lone pixel predicts with its own pair, as in
+:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`.
 Samples without an offset (angle images, Stokes images) use their own
 pixel's pair only: the layout is then the per-pixel one.
 
@@ -81,29 +85,38 @@ def bilinear_weights(rows, cols, offsets, present):
 
     ``rows``, ``cols`` (cells,): each cell's pixel; ``offsets`` (n, 2): each sample's (dx right, dy down)
     from its cell's centre, in cells (|d| < 1/2 ... 1); ``present(r, c)`` -> bool array: whether pixel
-    (r, c) has albedos (fitted; False off the image).  The rule at missing neighbours: module docstring."""
+    (r, c) has albedos (fitted; False off the image).  The rule at missing neighbours: module docstring.
+    Per axis the sample's value is interpolated towards the neighbour on its side, or, that one missing,
+    extrapolated linearly from the opposite neighbour, or, both missing, held constant; the 2-D weights are
+    the product of the two axes', and a missing off-axis corner is the plane through the other three."""
     rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
     off = np.asarray(offsets, dtype=np.float64)
     cells, n = len(rows), len(off)
     dx, dy = off[:, 0][None, :], off[:, 1][None, :]                 # (1, n)
     sx, sy = np.sign(dx).astype(np.int64), np.sign(dy).astype(np.int64)
+    ax, ay = np.abs(dx), np.abs(dy)
     r0, c0 = np.broadcast_to(rows[:, None], (cells, n)), np.broadcast_to(cols[:, None], (cells, n))
-    rh, ch = r0, c0 + sx                                             # edge neighbour in x
-    rv, cv = r0 + sy, c0                                             # edge neighbour in y
-    rd, cd = r0 + sy, c0 + sx                                        # diagonal
-    has_h = present(rh, ch) & (sx != 0)
-    has_v = present(rv, cv) & (sy != 0)
-    has_d = present(rd, cd) & (sx != 0) & (sy != 0)
-    ax = np.where(has_h, np.abs(dx), 0.0)                           # missing edge neighbour: clamped
-    ay = np.where(has_v, np.abs(dy), 0.0)
-    w_o, w_h, w_v, w_d = (1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay
-    plane = has_h & has_v & ~has_d                                   # a_d := a_h + a_v - a_own
-    w_h, w_v, w_o, w_d = w_h + plane * w_d, w_v + plane * w_d, w_o - plane * w_d, np.where(plane, 0.0, w_d)
-    idx = np.stack([np.stack([r0, c0], -1), np.stack([rh, ch], -1), np.stack([rv, cv], -1),
-                    np.stack([rd, cd], -1)], 2)                      # (cells, n, 4, 2) (row, col)
+
+    def stencil(fwd, back, s, a):
+        """One axis: (neighbour step, own weight, neighbour weight): interpolation towards a present
+        neighbour, else linear extrapolation from the opposite one, else constant."""
+        inter, extra = fwd & (s != 0), ~fwd & back & (s != 0)
+        step = np.where(inter, s, np.where(extra, -s, 0))
+        w_own = np.where(inter, 1 - a, np.where(extra, 1 + a, 1.0))
+        return step, w_own, 1.0 - w_own
+
+    kx, ox, nx = stencil(present(r0, c0 + sx), present(r0, c0 - sx), sx, ax)
+    ky, oy, ny = stencil(present(r0 + sy, c0), present(r0 - sy, c0), sy, ay)
+    w_o, w_h, w_v, w_d = ox * oy, nx * oy, ox * ny, nx * ny
+    has_d = present(r0 + ky, c0 + kx) | (kx == 0) | (ky == 0)
+    plane = ~has_d                                                   # a_d := a_h + a_v - a_own
+    w_h, w_v, w_o = w_h + plane * w_d, w_v + plane * w_d, w_o - plane * w_d
+    w_d = np.where(plane, 0.0, w_d)
+    idx = np.stack([np.stack([r0, c0], -1), np.stack([r0, c0 + kx], -1), np.stack([r0 + ky, c0], -1),
+                    np.stack([r0 + ky, c0 + kx], -1)], 2)            # (cells, n, 4, 2) (row, col)
     wt = np.stack([w_o, w_h, w_v, w_d], 2)
-    # corners with weight 0 point at the own pixel (always present): their index stays valid
-    idx = np.where((wt > 0)[..., None], idx, np.stack([r0, c0], -1)[:, :, None, :])
+    # unused corners (weight 0) point at the own pixel (always present): their index stays valid
+    idx = np.where((wt != 0)[..., None], idx, np.stack([r0, c0], -1)[:, :, None, :])
     return idx, wt
 
 
