@@ -238,3 +238,25 @@ def test_option_wiring_and_refusals(tmp_path, capsys):
     rc = main(args[:-3] + ["--loss", "paper", "-o", str(tmp_path / "c")])
     one_line_error(rc, capsys.readouterr().err, "fit", "--albedo per-pixel-bilinear", "likelihood")
     assert not (tmp_path / "c").exists()
+
+
+def test_textured_sphere_continuous_matches_per_super_pixel_for_a_step_texture():
+    """``textured_sphere`` with callables evaluates the texture at each raw pixel's area points in
+    super-pixel units (super-pixel (i, j) covers x in [j - 1/2, j + 1/2), y in [i - 1/2, i + 1/2)): a texture
+    that is constant over each super-pixel (a step function of the point) gives the per-super-pixel
+    arrays' image to rounding, and its centre maps are the arrays."""
+    from fmbrdf_mi.fit.evaluate.synthetic import textured_sphere
+
+    res = 8
+    rng = np.random.default_rng(4)
+    ks, kb = rng.uniform(0.2, 1.0, (res, res)), rng.uniform(0.1, 0.5, (res, res))
+
+    def step(m):
+        return lambda x, y: m[np.clip(np.floor(y + 0.5).astype(int), 0, res - 1),
+                              np.clip(np.floor(x + 0.5).astype(int), 0, res - 1)]
+
+    a = textured_sphere(SHAPE, ks, kb, res=res)
+    b = textured_sphere(SHAPE, step(ks), step(kb), res=res)
+    np.testing.assert_allclose(b["stokes"], a["stokes"], rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(b["k_s_map"], ks)
+    np.testing.assert_allclose(b["k_b_mean"], kb, rtol=1e-14)
