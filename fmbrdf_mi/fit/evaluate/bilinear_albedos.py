@@ -131,7 +131,7 @@ class BilinearPixelAlbedos:
 
     eliminates = True
     name = "per-pixel-bilinear"
-    #: not computed (module docstring): :mod:`fmbrdf_mi.fit.uncertainty` reports the Fisher errors and says so
+    #: not computed (module docstring): ``fmbrdf_mi.fit.uncertainty`` reports the Fisher errors and says so
     incidental = None
     incidental_reason = NO_INCIDENTAL
 
