@@ -143,7 +143,7 @@ INCIDENTAL_FLOOR = 0.1
 def incidental_term(problem, st, parts):
     """C (p, p) in z of an eliminating layout (:meth:`PixelAlbedos.incidental`) at ``st`` (``parts`` with
     derivatives), or None for layouts that do not eliminate."""
-    if not getattr(problem, "eliminates", False):
+    if not getattr(problem, "eliminates", False) or not callable(getattr(problem.layout, "incidental", None)):
         return None
     obj = problem.obj
     z = problem.to_z(st)
@@ -206,7 +206,10 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
         else:
             scale = info["chi2_per_dof"]
             info["method"] = "inverse Fisher information, noise level estimated from the residuals"
-        if getattr(problem, "eliminates", False) and p:
+        if getattr(problem, "eliminates", False) and p and not callable(getattr(problem.layout, "incidental", None)):
+            # a layout without the incidental-parameter term (bilinear albedos): the Fisher errors, said so
+            info["incidental_not_computed"] = problem.layout.incidental_reason
+        elif getattr(problem, "eliminates", False) and p:
             # the albedos' noise is scale x G^-1 when the data's noise is scale x the stated: C scales with it
             if parts is None:
                 parts = problem.parts(st, jac=True)
@@ -229,6 +232,8 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
             if inc["capped_directions"]:
                 info["method"] += (f"; H not positive definite in {inc['capped_directions']} direction(s): their "
                                    f"inflation capped at {1 / INCIDENTAL_FLOOR:g}x the Fisher standard error")
+        elif "incidental_not_computed" in info:
+            info["method"] += "; " + info["incidental_not_computed"]
     else:
         grid = getattr(obj, "grid", None)
         M = block_meat(Jt, r, obj.row_pixels(len(r)), Hi, grid)

@@ -61,7 +61,8 @@ class FitOptions:
                                       # fails (uncertainty.profile_intervals); "profile": the profile likelihood's
                                       # ends for every shape parameter; "fisher": Fisher intervals only
     albedo: str = "shared"            # likelihood: "shared" (one k_s, r_k) or "per-pixel" (albedo maps: a textured
-                                      # object; evaluate.albedos.PixelAlbedos)
+                                      # object; evaluate.albedos.PixelAlbedos) or "per-pixel-bilinear" (the maps
+                                      # interpolated to each raw sample; evaluate.bilinear_albedos)
 
 
 def weakly_identified(params, std, at_bound=()):
@@ -335,7 +336,7 @@ def albedo_maps(layout, shape, groups):
     maps["channels"] = None if C == 1 else list(layout.labels)
     ident = np.asarray(groups["identified"], bool)
     n_pix = len(np.unique(layout.pixels))
-    summary = {"layout": "per-pixel", "pixels": int(n_pix), "groups": int(layout.n_groups),
+    summary = {"layout": getattr(layout, "name", "per-pixel"), "pixels": int(n_pix), "groups": int(layout.n_groups),
                "identified_fraction": float(ident.mean()) if ident.size else 0.0,
                "split_rule": f"identified where the standard error of the surface's and of the body's share of "
                              f"the pixel's brightness are at most {U.SPLIT_REL:g} of it",

@@ -10,6 +10,7 @@ import math
 import numbers
 
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
 from fmbrdf_mi.fit.inputs.observations import IRRADIANCE_RANGE
 
@@ -43,7 +44,7 @@ def reported_names(model):
 
 
 #: The albedo layouts a fit can be asked for (``FitOptions.albedo``, ``--albedo``).
-ALBEDO_LAYOUTS = ("shared", "per-pixel")
+ALBEDO_LAYOUTS = ("shared",) + PER_PIXEL_LAYOUTS
 
 
 def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=None, init=None, max_iter=40,
@@ -82,12 +83,12 @@ def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=No
                          "light's power, so the powers would be undetermined)")
     if albedo not in ALBEDO_LAYOUTS:
         raise InputError(f"{flag('albedo')}: expected {' or '.join(map(repr, ALBEDO_LAYOUTS))}, got {albedo!r}")
-    if albedo == "per-pixel" and (loss not in ("auto", "likelihood") or optimizer != "lm" or path != "pixel"):
-        raise InputError(f"{flag('albedo')} per-pixel: needs the likelihood of the camera's samples ("
+    if albedo in PER_PIXEL_LAYOUTS and (loss not in ("auto", "likelihood") or optimizer != "lm" or path != "pixel"):
+        raise InputError(f"{flag('albedo')} {albedo}: needs the likelihood of the camera's samples ("
                          f"{flag('loss')} likelihood or auto with the camera noise known, the pixel path, optimizer "
                          "lm): the albedo maps are solved per pixel from its raw samples")
-    if albedo == "per-pixel" and free_power:
-        raise InputError(f"{flag('albedo')} per-pixel: not with {flag('free_power')} (give the relative light "
+    if albedo in PER_PIXEL_LAYOUTS and free_power:
+        raise InputError(f"{flag('albedo')} {albedo}: not with {flag('free_power')} (give the relative light "
                          "powers)")
     if power_start not in ("ratio", "given"):
         raise InputError(f"{flag('power_start')}: expected 'ratio' or 'given', got {power_start!r}")

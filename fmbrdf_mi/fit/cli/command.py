@@ -17,6 +17,7 @@ from fmbrdf_mi.fit.cli.layout_check import mirrored_layout_hint
 from fmbrdf_mi.fit.cli.normals import add_arguments as add_normal_arguments
 from fmbrdf_mi.fit.cli.normals import check as check_normal_args
 from fmbrdf_mi.fit.cli.request import request
+from fmbrdf_mi.fit.api.options import ALBEDO_LAYOUTS
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import MODELS
 from fmbrdf_mi.fit.inputs.colour import colour_sidecar
@@ -104,10 +105,13 @@ def add_fit_arguments(p):
                         "weakly identified parameters); profile: the profile likelihood's ends for every shape "
                         "parameter (two or more refits per end); fisher: Fisher intervals only "
                         "(default %(default)s)")
-    g.add_argument("--albedo", default="shared", choices=("shared", "per-pixel"),
+    g.add_argument("--albedo", default="shared", choices=ALBEDO_LAYOUTS,
                    help="likelihood fits: one k_s, r_k for the whole object (default), or per-pixel k_s and k_b "
                         "maps (a textured object: written as k_s.exr, k_b.exr with their standard errors, the "
-                        "shape parameters shared; --max-pixels 0 maps every pixel)")
+                        "shape parameters shared; --max-pixels 0 maps every pixel); per-pixel: one pair for the "
+                        "four raw samples of a super-pixel; per-pixel-bilinear: the pairs at the super-pixel "
+                        "centres, each raw sample's albedo interpolated bilinearly at its own point (textures that "
+                        "change within a super-pixel, as a camera sees them)")
     g.add_argument("--materials", metavar="LABELS.png|npy|auto:M",
                    help="likelihood fits: a label image giving each pixel's material, each with its own eta, "
                         "alpha, beta, kappa (and, with --albedo shared, k_s, r_k): one integer per pixel of the "

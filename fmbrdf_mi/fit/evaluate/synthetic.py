@@ -28,14 +28,22 @@ def ideal_sphere(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4
     """
     a = int(area)
     r2 = 2 * res
-    n2, m2, v2 = ob.sphere_normals((r2 * a, r2 * a), (r2 * a / 2, r2 * a / 2), (r2 / 2 - 2) * a)
-    obs2 = ob.Observation(np.ones((3, r2 * a, r2 * a)), m2, n2, v2, light)
-    stokes = predict_image(model, params, obs2).reshape(3, r2, a, r2, a).mean(axis=(2, 4))
+    stokes = sphere_points(params, res, light, model, a).reshape(3, r2, a, r2, a).mean(axis=(2, 4))
     n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
     geom = ob.SphereGeometry((res, res), (res / 2, res / 2), res / 2 - 1)
     return {"stokes": stokes, "normals": n, "mask": m, "view_dirs": v, "light": np.asarray(light, float),
             "geometry": geom,
             "params": dict(params), "model": model}
+
+
+def sphere_points(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4):
+    """The model's Stokes (3, 2 res area, 2 res area) at the ``area`` x ``area`` points of every raw pixel
+    (sub-pixel centres; 0 off the sphere): what :func:`ideal_sphere` averages per raw pixel."""
+    a = int(area)
+    r2 = 2 * res
+    n2, m2, v2 = ob.sphere_normals((r2 * a, r2 * a), (r2 * a / 2, r2 * a / 2), (r2 / 2 - 2) * a)
+    obs2 = ob.Observation(np.ones((3, r2 * a, r2 * a)), m2, n2, v2, light)
+    return predict_image(model, params, obs2)
 
 
 def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fraction=0.8, known_noise=True,
@@ -69,15 +77,46 @@ def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fract
 
 def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4):
     """``ideal_sphere`` of a textured object: the shape parameters ``shape_params`` (eta, alpha, beta,
-    kappa) everywhere and per-cell albedos ``k_s_map``, ``k_b_map`` (the cells of the per-pixel albedo layout).
-    The truth is in ``params`` (the shape) and ``k_s_map``, ``k_b_map``.
+    kappa) everywhere and albedos ``k_s_map``, ``k_b_map``, either
 
-    * mono: maps (res, res), one per super-pixel (its four raw pixels share them); ``stokes`` (3, 2 res, 2 res)
-      and the geometry on the super-pixel grid, as ``ideal_sphere``;
-    * colour (maps (3, res, res): R, G, B): one pair per 4x4 colour period and channel; ``stokes``
+    * arrays (res, res): per super-pixel albedos (each super-pixel's four raw pixels share them: the cells
+      of the per-pixel albedo layout ``per-pixel``); ``stokes`` (3, 2 res, 2 res) and the geometry on the
+      super-pixel grid, as ``ideal_sphere``;
+    * arrays (3, res, res) (colour: R, G, B): one pair per 4x4 colour period and channel; ``stokes``
       (3 channels, 3, 4 res, 4 res) per raw pixel (each channel's model, to be sampled by a colour camera:
       ``capture_colour``), the geometry on the period grid (sphere radius res/2 - 1/2 periods:
-      ``ideal_sphere`` of 2 res super-pixels)."""
+      ``ideal_sphere`` of 2 res super-pixels); or
+    * callables ``f(x, y)`` of the image point in super-pixel units (super-pixel (i, j) covers
+      x in [j - 1/2, j + 1/2), y in [i - 1/2, i + 1/2): its centre is (j, i)): a *continuous* texture, as a
+      camera sees one; every one of the ``area`` x ``area`` points of every raw pixel takes the texture's
+      value at that point, and the raw pixel is the mean of albedo x model over its points (each
+      polariser sample of a super-pixel sees its own albedos).
+
+    The truth is in ``params`` (the shape) and ``k_s_map``, ``k_b_map`` (callables: the texture at the
+    super-pixel centres, (res, res); ``k_s_mean``, ``k_b_mean``: the texture's mean over each super-pixel's
+    area points)."""
+    base = {k: v for k, v in shape_params.items() if k not in ("k_s", "r_k")}
+    if callable(k_s_map) != callable(k_b_map):
+        raise ValueError("k_s_map, k_b_map: give two arrays or two callables")
+    if callable(k_s_map):
+        a = int(area)
+        surface = sphere_points(dict(base, k_s=1.0, r_k=0.0), res, light, model, a)
+        both = sphere_points(dict(base, k_s=1.0, r_k=1.0), res, light, model, a)
+        # point (r, c) of the (2 res a)^2 grid sits at ((c + 1/2) / (2 a) - 1/2, (r + 1/2) / (2 a) - 1/2)
+        t = (np.arange(2 * res * a) + 0.5) / (2 * a) - 0.5
+        X, Y = np.meshgrid(t, t)
+        ks, kb = (np.broadcast_to(np.asarray(f(X, Y), dtype=np.float64), X.shape) for f in (k_s_map, k_b_map))
+        pts = ks * surface + kb * (both - surface)
+        stokes = pts.reshape(3, 2 * res, a, 2 * res, a).mean(axis=(2, 4))
+        out = ideal_sphere(dict(base, k_s=1.0, r_k=0.0), res=res, light=light, model=model, area=1)
+        j = np.arange(res, dtype=np.float64)
+        C, R = np.meshgrid(j, j)
+        out.update(stokes=stokes, params=dict(base),
+                   k_s_map=np.broadcast_to(np.asarray(k_s_map(C, R), dtype=np.float64), C.shape).copy(),
+                   k_b_map=np.broadcast_to(np.asarray(k_b_map(C, R), dtype=np.float64), C.shape).copy(),
+                   k_s_mean=ks.reshape(res, 2 * a, res, 2 * a).mean(axis=(1, 3)),
+                   k_b_mean=kb.reshape(res, 2 * a, res, 2 * a).mean(axis=(1, 3)))
+        return out
     colour = np.ndim(k_s_map) == 3
     sub = 2 * res if colour else res             # ideal_sphere's super-pixel grid
     out = textured(lambda p: ideal_sphere(p, res=sub, light=light, model=model, area=area),

@@ -50,6 +50,7 @@ from fmbrdf_mi.fit.api.fitting import FitOptions
 from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.api.options import check_fit_options
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
 from fmbrdf_mi.fit.inputs.colour import is_colour
 from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power
@@ -70,7 +71,7 @@ def outputs(out, names, holdout, albedo="shared", materials=None):
     files = ["fit.json", "history.png"]
     for n, h in zip(names, holdout):
         files += [f"relight_{n}.png"] if h else [f"images_{n}.png", f"profiles_{n}.png"]
-    if albedo == "per-pixel":
+    if albedo in PER_PIXEL_LAYOUTS:
         files += list(MAP_OUTPUTS)
     if materials is not None:
         files += list(MATERIAL_OUTPUTS)

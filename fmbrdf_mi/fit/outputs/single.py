@@ -12,6 +12,7 @@ from fmbrdf_mi.fit.api.find_materials import find_materials, parse_auto
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit
 from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.materials import check_labels
 from fmbrdf_mi.fit.evaluate.models import BASELINES, get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
@@ -41,7 +42,7 @@ FOUND_OUTPUTS = ("labels.png",)
 
 
 def output_files(out, relight, albedo="shared", materials=None):
-    names = OUTPUTS + (RELIGHT_OUTPUTS if relight else ()) + (MAP_OUTPUTS if albedo == "per-pixel" else ()) \
+    names = OUTPUTS + (RELIGHT_OUTPUTS if relight else ()) + (MAP_OUTPUTS if albedo in PER_PIXEL_LAYOUTS else ()) \
         + (MATERIAL_OUTPUTS if materials is not None else ()) + (FOUND_OUTPUTS if parse_auto(materials) else ())
     return {n: os.path.join(out, n) for n in names}
 

@@ -19,6 +19,7 @@ from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
 from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos, PixelModel
+from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS, BilinearPixelAlbedos, bilinear_weights
 from fmbrdf_mi.fit.evaluate.materials import (MIN_MATERIAL_PIXELS, MaterialAlbedos, MaterialEvaluator,
                                               MaterialModel, check_labels, material_count)
 from fmbrdf_mi.fit.evaluate.models import get_model
@@ -144,7 +145,7 @@ def area_points(samples, opts):
     return int(m)
 
 
-def pixel_layout(observations, idxs, samples):
+def pixel_layout(observations, idxs, samples, bilinear=False):
     """The per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) of the fitted cells
     ``idxs`` (one flat index array per image): one group per pixel of the view (per pixel and colour
     channel for a colour mosaic), the same pixel in every image sharing it.  Several images must be of
@@ -158,6 +159,8 @@ def pixel_layout(observations, idxs, samples):
     pixels = np.unique(flat)
     cell = np.searchsorted(pixels, flat)                               # (cells,) the pixel's group
     m = samples.n
+    if bilinear:
+        return bilinear_layout(o0.shape, flat, pixels, cell, samples)
     if samples.channel is None:
         return PixelAlbedos(np.repeat(cell[:, None], m, axis=1), len(pixels), pixels)
     C = len(CHANNELS)
@@ -165,6 +168,27 @@ def pixel_layout(observations, idxs, samples):
     groups = cell[:, None] * C + ch[None, :]
     return PixelAlbedos(groups, len(pixels) * C, np.repeat(pixels, C), np.tile(np.arange(C), len(pixels)),
                         labels=CHANNELS)
+
+
+def bilinear_layout(shape, flat, pixels, cell, samples):
+    """The bilinear per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BilinearPixelAlbedos`)
+    of cells at flat indices ``flat`` of the pixel grid ``shape``, ``pixels`` the sorted fitted pixels (the
+    groups), ``cell`` each cell's group: each sample interpolated at its offset between the fitted pixels'
+    centres."""
+    if samples.channel is not None:
+        raise InputError("albedo per-pixel-bilinear: not for colour mosaics (mono captures, raw or angle images)")
+    H, W = shape
+    have = np.zeros(H * W, bool)
+    have[pixels] = True
+
+    def present(r, c):
+        inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+        return inside & have[np.where(inside, r * W + c, 0)]
+
+    rows, cols = np.divmod(np.asarray(flat, dtype=np.int64), W)
+    corners, weights = bilinear_weights(rows, cols, samples.offsets, present)
+    groups = np.searchsorted(pixels, corners[..., 0] * W + corners[..., 1])
+    return BilinearPixelAlbedos(np.repeat(cell[:, None], samples.n, axis=1), groups, weights, len(pixels), pixels)
 
 
 def material_labels(observations, materials, loss, opts, evaluator=None):
@@ -285,8 +309,10 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         layout = None if smps[0].channel is None else ChannelAlbedos(smps[0].channel)
         if lab is not None and layout is not None:
             raise InputError("materials: not yet for colour mosaics (mono captures, raw or angle images)")
-        if getattr(opts, "albedo", "shared") == "per-pixel":
-            layout = pixel_layout(observations, idxs, smps[0])
+        if getattr(opts, "albedo", "shared") in PER_PIXEL_LAYOUTS:
+            if lab is not None and opts.albedo == "per-pixel-bilinear":
+                raise InputError("materials: not with albedo per-pixel-bilinear yet (use albedo per-pixel)")
+            layout = pixel_layout(observations, idxs, smps[0], bilinear=opts.albedo == "per-pixel-bilinear")
         elif lab is not None:
             layout = MaterialAlbedos(cell_material, smps[0].n, count)
         objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof, layout=layout)

@@ -1,0 +1,262 @@
+"""Bilinear per-pixel albedos (``albedo="per-pixel-bilinear"``, issue 25): the interpolation weights, the
+coupled least squares, Kaufman's projection and each pixel's covariance against dense linear algebra; a
+noise-free continuous texture recovered where the one-pair-per-super-pixel layout is not; the option's
+wiring and refusals."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from conftest import one_line_error
+
+SHAPE = dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0)
+OFFSETS = np.array([[-0.25, -0.25], [0.25, -0.25], [-0.25, 0.25], [0.25, 0.25]])   # a mono raw mosaic's
+
+
+def _layout(mask, offsets=OFFSETS):
+    """The layout of every pixel of ``mask`` (H, W), one cell per pixel, and the dense interpolation matrix
+    (N, groups) built here from the weights."""
+    from fmbrdf_mi.fit.evaluate.bilinear_albedos import BilinearPixelAlbedos, bilinear_weights
+
+    H, W = mask.shape
+    pixels = np.flatnonzero(mask)
+
+    def present(r, c):
+        inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+        return inside & mask.ravel()[np.where(inside, r * W + c, 0)]
+
+    rows, cols = np.divmod(pixels, W)
+    corners, wts = bilinear_weights(rows, cols, offsets, present)
+    groups = np.searchsorted(pixels, corners[..., 0] * W + corners[..., 1])
+    n, m = len(pixels), len(offsets)
+    lay = BilinearPixelAlbedos(np.repeat(np.arange(n)[:, None], m, 1), groups, wts, n, pixels)
+    dense = np.zeros((n * m, n))
+    np.add.at(dense, (np.repeat(np.arange(n * m), 4), groups.ravel()), wts.ravel())
+    return lay, dense, corners, wts
+
+
+def _disc(H=7, W=9, hole=True):
+    yy, xx = np.mgrid[0:H, 0:W]
+    mask = (yy - 3) ** 2 + (xx - 4) ** 2 <= 10
+    if hole:
+        mask[3, 4] = False      # an inner edge: pixels whose neighbour is missing on every side
+    return mask
+
+
+def test_weights_interior_and_edges():
+    """Interior sample: 9/16 own, 3/16 each edge neighbour, 1/16 the diagonal.  A linear albedo
+    a + b x + c y is reproduced exactly at every sample's point (raw pixel centre) along each axis in which
+    its pixel has a neighbour on either side (interpolated, or extrapolated from the other side; a missing
+    off-axis corner: the plane through the other three), and held constant along an axis with none (the
+    pixel's centre coordinate).  Weights sum to 1 everywhere."""
+    mask = _disc()
+    mask[0, :] = False
+    mask[0, 4] = True                # a pixel with no neighbour left or right
+    lay, dense, corners, wts = _layout(mask)
+    np.testing.assert_allclose(wts.sum(-1), 1.0, atol=1e-15)
+    H, W = mask.shape
+    pixels = np.flatnonzero(mask)
+    i = np.searchsorted(pixels, 2 * W + 4)          # every neighbour present
+    np.testing.assert_allclose(np.sort(wts[i, 0]), [1 / 16, 3 / 16, 3 / 16, 9 / 16])
+    pr, pc = np.divmod(pixels, W)
+    val = (dense @ (0.3 + 0.05 * pc - 0.02 * pr)).reshape(-1, 4)
+
+    def have(rr, cc):
+        ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+        return ok & mask[np.clip(rr, 0, H - 1), np.clip(cc, 0, W - 1)]
+
+    any_x = (have(pr, pc - 1) | have(pr, pc + 1))[:, None]
+    any_y = (have(pr - 1, pc) | have(pr + 1, pc))[:, None]
+    assert (~any_x).any() and (any_x & any_y).all(axis=1).sum() > 20
+    x = np.where(any_x, pc[:, None] + OFFSETS[None, :, 0], pc[:, None])
+    y = np.where(any_y, pr[:, None] + OFFSETS[None, :, 1], pr[:, None])
+    np.testing.assert_allclose(val, 0.3 + 0.05 * x - 0.02 * y, atol=1e-14)
+
+
+def _random_problem(seed=1):
+    mask = _disc()
+    lay, dense, _, _ = _layout(mask)
+    rng = np.random.default_rng(seed)
+    n = lay.n_groups
+    S, B = rng.uniform(0.1, 1, (n, 4)), rng.uniform(0.1, 1, (n, 4))
+    y, w = rng.uniform(0, 1, (n, 4)), rng.uniform(0.5, 2, (n, 4))
+    return lay, dense, S, B, y, w, rng
+
+
+def test_solve_is_the_dense_least_squares():
+    """The coupled solve against numpy.linalg.lstsq of the dense design (mask edges and a hole included):
+    to 1e-10 (measured 6e-14; the system's condition number here is ~1e3)."""
+    lay, dense, S, B, y, w, _ = _random_problem()
+    a_s, a_b = lay.solve(S, B, y, w)
+    sw = np.sqrt(w.ravel())
+    A = np.concatenate([dense * S.ravel()[:, None], dense * B.ravel()[:, None]], 1) * sw[:, None]
+    x = np.linalg.lstsq(A, y.ravel() * sw, rcond=None)[0]
+    n = lay.n_groups
+    np.testing.assert_allclose(a_s, x[:n], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(a_b, x[n:], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(lay.mu(S, B, a_s, a_b).ravel(), (dense @ a_s) * S.ravel() + (dense @ a_b) * B.ravel(),
+                               atol=1e-14)
+
+
+def test_projection_and_covariance_are_the_dense_ones():
+    """Kaufman's projected Jacobian (I - A (A^T A)^-1 A^T) J and each pixel's (a_s, a_b) covariance, the 2 x 2
+    diagonal block of the inverse of the full information matrix [[A^T A, A^T J], [J^T A, J^T J]], against
+    dense NumPy (inverse of the whole matrix): to 1e-9 relative."""
+    lay, dense, S, B, y, w, rng = _random_problem(2)
+    n = lay.n_groups
+    J = rng.normal(size=(4 * n, 3))
+    us, ub = -(S * np.sqrt(w)).ravel(), -(B * np.sqrt(w)).ravel()
+    lay.solve(S, B, y, w)                      # the factor the projection reuses
+    Jp, K = lay.project(J, us, ub)
+    A = np.concatenate([dense * us[:, None], dense * ub[:, None]], 1)
+    Jp_ref = J - A @ np.linalg.solve(A.T @ A, A.T @ J)
+    np.testing.assert_allclose(Jp, Jp_ref, rtol=0, atol=1e-10 * np.abs(J).max())
+    cov_z = np.linalg.inv(Jp.T @ Jp)
+    C = lay.covariance(us, ub, J, cov_z, 1.0)
+    F = np.block([[A.T @ A, A.T @ J], [J.T @ A, J.T @ J]])
+    Fi = np.linalg.inv(F)
+    ref = np.stack([np.stack([np.diag(Fi)[:n], Fi[np.arange(n), n + np.arange(n)]], -1),
+                    np.stack([Fi[np.arange(n), n + np.arange(n)], np.diag(Fi)[n:2 * n]], -1)], 1)
+    np.testing.assert_allclose(C, ref, rtol=1e-9, atol=0)
+
+
+def test_band_cholesky_selected_inverse_odd_band():
+    """The selected inverse's 2 x 2 diagonal blocks (pairs straddling the factor's blocks: an odd half
+    bandwidth) and the solve against numpy.linalg.inv of a random banded SPD matrix with a wide range of
+    diagonal scales (the Jacobi scaling)."""
+    from fmbrdf_mi.fit.evaluate.bilinear_albedos import BandCholesky
+
+    rng = np.random.default_rng(3)
+    n, b = 40, 5
+    G = np.zeros((n, n))
+    for d in range(b + 1):
+        v = rng.normal(size=n - d)
+        G[np.arange(d, n), np.arange(n - d)] = v
+    G = G @ G.T                                          # SPD, half bandwidth 2b... keep only the band
+    G = np.where(np.abs(np.subtract.outer(np.arange(n), np.arange(n))) <= b, G, 0.0) + 10 * np.eye(n)
+    s = 10.0 ** rng.uniform(-6, 3, n)
+    G = G * s[:, None] * s[None, :]
+    band = np.zeros((n, b + 1))
+    for d in range(b + 1):
+        band[np.arange(d, n), d] = G[np.arange(d, n), np.arange(n - d)]
+    fac = BandCholesky(band, b)
+    Gi = np.linalg.inv(G)
+    r = rng.normal(size=n)
+    np.testing.assert_allclose(fac.solve(r), Gi @ r, rtol=1e-8)
+    Z = fac.diagonal_blocks()
+    for g in range(n // 2):
+        np.testing.assert_allclose(Z[g], Gi[2 * g:2 * g + 2, 2 * g:2 * g + 2], rtol=1e-8)
+
+
+# ---------------------------------------------------------------- fits of a noise-free continuous texture
+def _texture_funcs():
+    """A continuous texture (x, y in super-pixel units): k_s changes 3 % and k_b 1.5 % per super-pixel, about
+    what the renders of issue 25 had within a super-pixel."""
+    return (lambda x, y: 0.5 + 0.015 * x + 0.004 * y), (lambda x, y: 0.35 + 0.003 * x + 0.005 * y)
+
+
+def _exact_continuous(res=16, light=(-0.5, 0.5, 1.0)):
+    """A continuously textured sphere without noise and rounding: each raw pixel the model at its centre
+    times the texture there (area 1: what a fit with ``area_points=1`` models exactly where the texture is
+    linear), the camera's noise stated."""
+    from fmbrdf_mi.camera import CameraModel, intensity_at_each_pixel
+    from fmbrdf_mi.fit.camera import samples as SM
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured_sphere
+
+    fs, fb = _texture_funcs()
+    ideal = textured_sphere(SHAPE, fs, fb, res=res, light=light, area=1)
+    cam = CameraModel(bits=16, full_well=1e6)
+    obs, cap = capture_observation(ideal, cam, noiseless=True)
+    exact = intensity_at_each_pixel(ideal["stokes"], cam.layout) * cap["exposure"] / cam.conversion_gain
+    return dataclasses.replace(obs, samples=SM.from_raw(exact, cam.layout, 0.0, cam.white_level)), ideal
+
+
+def _errors(res_, ideal):
+    shape = max(abs(res_.params[k] / SHAPE[k] - 1) for k in ("eta", "alpha", "beta"))
+    m = res_.maps
+    f = np.isfinite(m["k_b"])
+    return shape, float(np.max(np.abs(m["k_b"][f] / ideal["k_b_map"][f] - 1)))
+
+
+@pytest.mark.slow
+def test_noise_free_continuous_texture_is_recovered_bilinear_not_per_super_pixel():
+    """Three lights, a linear texture, exact samples: the bilinear layout recovers eta, alpha, beta within
+    0.1 % and k_b at every pixel within 1e-3 (relative; the model is exact for a linear texture), where one pair per super-pixel misses one of the two tolerances (the four samples'
+    albedo differences read as polarisation)."""
+    from fmbrdf_mi.fit import fit
+
+    obs, ideal = zip(*[_exact_continuous(light=L) for L in
+                       ((-0.5, 0.5, 1.0), (0.287, 0.497, 0.819), (0.287, -0.497, 0.819))])
+    ideal = ideal[0]
+    new = fit(list(obs), albedo="per-pixel-bilinear", max_pixels=None, intervals="fisher", progress=False,
+              area_points=1)
+    old = fit(list(obs), albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False, area_points=1)
+    s_new, b_new = _errors(new, ideal)
+    s_old, b_old = _errors(old, ideal)
+    assert new.converged and s_new < 1e-3 and b_new < 1e-3, (s_new, b_new, new.params)
+    assert s_old > 1e-3 or b_old > 1e-3, (s_old, b_old, old.params)
+    assert "not computed" in new.uncertainty["method"] and "incidental" not in new.uncertainty
+    assert new.albedo["layout"] == "per-pixel-bilinear"
+
+
+def test_option_wiring_and_refusals(tmp_path, capsys):
+    """`--albedo per-pixel-bilinear` is an option value of the one pipeline (fit and CLI); with the paper's
+    loss, free powers or several materials it is refused in one line; colour mosaics too (layout level)."""
+    from fmbrdf_mi.cli import main
+    from fmbrdf_mi.fit import fit
+    from fmbrdf_mi.fit.camera import samples as SM
+    from fmbrdf_mi.fit.errors import InputError
+    from fmbrdf_mi.fit.problem.data import bilinear_layout
+
+    obs, _ = _exact_continuous(res=16)
+    with pytest.raises(InputError, match="per-pixel-bilinear: needs the likelihood"):
+        fit(obs, albedo="per-pixel-bilinear", loss="paper", progress=False)
+    with pytest.raises(InputError, match="per-pixel-bilinear: not with free_power"):
+        fit([obs, obs], albedo="per-pixel-bilinear", free_power=True, progress=False)
+    labels = np.zeros(obs.shape, int)
+    labels[:, 8:] = 1
+    with pytest.raises(InputError, match="materials: not with albedo per-pixel-bilinear"):
+        fit(obs, albedo="per-pixel-bilinear", materials=labels, max_pixels=None, progress=False)
+    col = dataclasses.replace(obs.samples, channel=np.zeros(4, int))
+    with pytest.raises(InputError, match="per-pixel-bilinear: not for colour mosaics"):
+        bilinear_layout(obs.shape, np.array([0]), np.array([0]), np.array([0]), col)
+    assert isinstance(obs.samples, SM.Samples)
+    raw = tmp_path / "raw.npy"
+    from fmbrdf_mi.camera import CameraModel, capture
+    from fmbrdf_mi.fit.evaluate.synthetic import textured_sphere
+
+    fs, fb = _texture_funcs()
+    ideal = textured_sphere(SHAPE, fs, fb, res=12, light=(-0.5, 0.5, 1.0))
+    cam = CameraModel()
+    np.save(raw, capture(ideal["stokes"], cam, peak_fraction=0.8, seed=2)["raw"])
+    args = ["fit", str(raw), "--sphere", "6,6,5", "--light=-0.5,0.5,1", "--conversion-gain",
+            str(cam.conversion_gain), "--read-noise", "2.5", "--albedo", "per-pixel-bilinear", "--max-pixels", "0",
+            "--intervals", "fisher", "-q"]
+    assert main(args + ["-o", str(tmp_path / "a")]) == 0
+    assert (tmp_path / "a" / "k_s.exr").exists() and (tmp_path / "a" / "k_b_se.exr").exists()
+    capsys.readouterr()
+    rc = main(args[:-3] + ["--loss", "paper", "-o", str(tmp_path / "c")])
+    one_line_error(rc, capsys.readouterr().err, "fit", "--albedo per-pixel-bilinear", "likelihood")
+    assert not (tmp_path / "c").exists()
+
+
+def test_textured_sphere_continuous_matches_per_super_pixel_for_a_step_texture():
+    """``textured_sphere`` with callables evaluates the texture at each raw pixel's area points in
+    super-pixel units (super-pixel (i, j) covers x in [j - 1/2, j + 1/2), y in [i - 1/2, i + 1/2)): a texture
+    that is constant over each super-pixel (a step function of the point) gives the per-super-pixel
+    arrays' image to rounding, and its centre maps are the arrays."""
+    from fmbrdf_mi.fit.evaluate.synthetic import textured_sphere
+
+    res = 8
+    rng = np.random.default_rng(4)
+    ks, kb = rng.uniform(0.2, 1.0, (res, res)), rng.uniform(0.1, 0.5, (res, res))
+
+    def step(m):
+        return lambda x, y: m[np.clip(np.floor(y + 0.5).astype(int), 0, res - 1),
+                              np.clip(np.floor(x + 0.5).astype(int), 0, res - 1)]
+
+    a = textured_sphere(SHAPE, ks, kb, res=res)
+    b = textured_sphere(SHAPE, step(ks), step(kb), res=res)
+    np.testing.assert_allclose(b["stokes"], a["stokes"], rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(b["k_s_map"], ks)
+    np.testing.assert_allclose(b["k_b_mean"], kb, rtol=1e-14)

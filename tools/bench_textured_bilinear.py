@@ -1,0 +1,210 @@
+"""Per-pixel albedos on textures that change within a super-pixel: ``per-pixel`` (one pair per 2 x 2 block)
+against ``per-pixel-bilinear`` (the pairs at the super-pixel centres, each raw sample interpolated), issue 25.
+
+    python tools/bench_textured_bilinear.py --work /tmp/btb [--sizes 64,128] [--seeds 3] [--lights 1,3]
+                                            [--exact-res 32] [--exact-seeds 3] [--json out.json]
+    python tools/bench_textured_bilinear.py --table out.json
+
+Two kinds of data, the `medium` material (eta 1.45, alpha 0.25, beta 1, kappa 10), lights as in
+tools/bench_textured.py (K = 1: (-0.5, 0.5, 1); K = 3: that one and two 35 degrees from the view at
+azimuths 60 and 300 degrees):
+
+* ``render``: the renderer (``fmbrdf-mi render --raw``, 1024 spp, the built-in orthographic sphere,
+  ``--res 2 S`` for an S x S super-pixel grid) with uv textures whose image on the sphere (pole towards the
+  camera) is tools/bench_textured.py's ``smooth`` texture over the image (k_s = 0.6 + 0.4 sin(6x) cos(4y),
+  k_b = 0.4 + 0.1 cos(5x + 3y), x, y in [0, 1] across the sphere's disc), 4096 x 2048 texels, bilinear;
+  raw seeds 0 .. N-1 (``--raw-seed``; the rendered Stokes image is the same for every seed).  Fitted
+  with ``fmbrdf_mi.fit.inputs.files.build_observation`` of each OUT_raw.png (its sidecar: the camera, the
+  light), every usable pixel, Fisher intervals; the maps against the render's OUT_raw_k_*.exr.
+* ``exact``: model-exact captures (:func:`fmbrdf_mi.fit.evaluate.synthetic.textured_sphere`, 4 x 4 points
+  per raw pixel), with the same smooth texture either per super-pixel (``constant``: the four raw pixels
+  share the super-pixel's value) or ``continuous`` (each area point its own value), camera noise seeds.
+
+Reported per data kind x size x K x layout: for eta, alpha, beta, kappa the mean of (estimate - truth) /
+reported SE and the RMS of it (1 when the SEs are right and there is no bias), chi^2/dof, the maps' RMS
+of (estimate - truth) / SE for k_s and k_b, and the mean fit time.  The renders are made with
+DRJIT_NUM_THREADS=1 and not pinned with taskset (a textured render under ``taskset -c`` hung in a futex
+on this machine); the fits run in this process.
+"""
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+
+TRUTH = dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0)
+SHAPE = tuple(TRUTH)
+T = math.radians(35.0)
+LIGHTS = [(-0.5, 0.5, 1.0)] + [(math.sin(T) * math.cos(math.radians(a)), math.sin(T) * math.sin(math.radians(a)),
+                                math.cos(T)) for a in (60.0, 300.0)]
+LAYOUTS = ("per-pixel", "per-pixel-bilinear")
+
+
+def smooth(x, y):
+    """bench_textured's smooth texture at x, y in [0, 1]: (k_s, k_b)."""
+    return 0.6 + 0.4 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.1 * np.cos(5 * x + 3 * y)
+
+
+def textures(work):
+    """The uv textures (the sphere's pole faces the camera: u the azimuth, v in [0, 0.5] the visible half)."""
+    from fmbrdf_mi.stokes_io import write_map_exr
+
+    paths = [os.path.join(work, "ks.exr"), os.path.join(work, "kb.exr")]
+    if all(os.path.exists(p) for p in paths):
+        return paths
+    W, H = 4096, 2048
+    U, V = np.meshgrid((np.arange(W) + 0.5) / W, (np.arange(H) + 0.5) / H)
+    rho = np.sin(np.pi * np.minimum(V, 0.5))
+    ks, kb = smooth((1 + rho * np.cos(2 * np.pi * U)) / 2, (1 + rho * np.sin(2 * np.pi * U)) / 2)
+    for p, m in zip(paths, (ks, kb)):
+        write_map_exr(p, m, force=True)
+    return paths
+
+
+def render(work, size, j, seed):
+    """OUT_raw.png of light j at an S x S super-pixel grid, raw seed ``seed`` (rendered once per seed)."""
+    ks, kb = textures(work)
+    out = os.path.join(work, f"s{size}_l{j}_r{seed}.exr")
+    if not os.path.exists(out[:-4] + "_raw.png"):
+        env = dict(os.environ, DRJIT_NUM_THREADS="1", PYTHONPATH=ROOT)
+        cmd = [os.path.join(os.path.dirname(sys.executable), "fmbrdf-mi"), "render", out, "--variant", "llvm_ad_mono_polarized",
+               "--res", str(2 * size), "-D", "eta=1.45", "-D", "alpha=0.25", "-D", "beta=1", "-D", "kappa=10",
+               "-D", f"k_s={ks}", "-D", f"k_b={kb}", "-D", "light_dir=" + ",".join(f"{v:.7f}" for v in LIGHTS[j]),
+               "--raw", "--raw-seed", str(seed), "--no-previews", "--force", "-q"]
+        # the render is not pinned to this process's cores: under an affinity of one core a textured render
+        # hung in a futex (mitsuba 3.9.1 on the 2-core bench machine); DRJIT_NUM_THREADS=1 keeps it to one thread
+        subprocess.run(cmd, check=True, env=env,
+                       preexec_fn=lambda: os.sched_setaffinity(0, range(os.cpu_count() or 1)))
+    return out[:-4] + "_raw.png", out[:-4] + "_raw_k_s.exr", out[:-4] + "_raw_k_b.exr"
+
+
+def read_map(path):
+    import OpenEXR
+
+    with OpenEXR.File(path, separate_channels=True) as f:
+        return np.asarray(f.channels()["Y"].pixels, dtype=np.float64)
+
+
+def exact_data(kind, res, K, seed):
+    from fmbrdf_mi.camera import CameraModel
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured_sphere
+
+    fks = (lambda x, y: smooth((x + 0.5) / res, (y + 0.5) / res)[0])   # super-pixel (i, j) centre: x = j
+    fkb = (lambda x, y: smooth((x + 0.5) / res, (y + 0.5) / res)[1])
+    C, R = np.meshgrid(np.arange(res) * 1.0, np.arange(res) * 1.0)
+    obs = []
+    for j in range(K):
+        ideal = (textured_sphere(TRUTH, fks, fkb, res=res, light=LIGHTS[j]) if kind == "continuous" else
+                 textured_sphere(TRUTH, fks(C, R), fkb(C, R), res=res, light=LIGHTS[j]))
+        o, _ = capture_observation(ideal, CameraModel(), seed=1000 * seed + j,
+                                   exposure=None if j == 0 else obs[0].meta["capture"]["exposure"])
+        obs.append(o)
+    return obs, ideal["k_s_map"], ideal["k_b_map"]
+
+
+def one_fit(obs, layout, ks, kb):
+    from fmbrdf_mi.fit import fit
+
+    t = time.time()
+    r = fit(obs if len(obs) > 1 else obs[0], albedo=layout, max_pixels=None, intervals="fisher", progress=False)
+    dt = time.time() - t
+    m = r.maps
+    f = np.isfinite(m["k_s"]) & np.isfinite(m["k_s_se"]) & np.isfinite(m["k_b_se"]) & (m["k_b_se"] > 0)
+    zs = (m["k_s"][f] - ks[f]) / m["k_s_se"][f]
+    zb = (m["k_b"][f] - kb[f]) / m["k_b_se"][f]
+    return {"time": dt, "converged": bool(r.converged), "params": r.params, "se": r.std_errors,
+            "chi2_per_dof": (r.uncertainty or {}).get("chi2_per_dof"), "pixels": int(f.sum()),
+            "z_rms_k_s": float(np.sqrt(np.mean(zs ** 2))), "z_rms_k_b": float(np.sqrt(np.mean(zb ** 2))),
+            "at_bound": list((r.uncertainty or {}).get("at_bound", []))}
+
+
+def summarise(runs):
+    rows = []
+    for key in sorted({(r["data"], r["size"], r["K"], r["layout"]) for r in runs}):
+        rs = [r for r in runs if (r["data"], r["size"], r["K"], r["layout"]) == key]
+        row = dict(zip(("data", "size", "K", "layout"), key), n=len(rs),
+                   converged=sum(r["converged"] for r in rs))
+        for n in SHAPE:
+            z = np.array([(r["params"][n] - TRUTH[n]) / r["se"][n] if r["se"].get(n) else np.nan for r in rs])
+            row[n] = (float(np.nanmean(z)), float(np.sqrt(np.nanmean(z ** 2))))
+        for k in ("chi2_per_dof", "z_rms_k_s", "z_rms_k_b", "time"):
+            row[k] = float(np.mean([r[k] for r in rs]))
+        row["at_bound"] = sum(bool(r["at_bound"]) for r in rs)
+        rows.append(row)
+    return rows
+
+
+def table(rows):
+    lines = ["| data | size | K | layout | fits (at a bound) | η z: mean, RMS | α z | β z | κ z | χ²/dof | "
+             "maps RMS z k_s, k_b | time |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['data']} | {r['size']}² | {r['K']} | {r['layout']} | {r['n']} ({r['at_bound']}) | "
+                     + " | ".join(f"{r[n][0]:+.1f}, {r[n][1]:.1f}" for n in SHAPE)
+                     + f" | {r['chi2_per_dof']:.3f} | {r['z_rms_k_s']:.2f}, {r['z_rms_k_b']:.2f} | {r['time']:.0f} s |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--work", default="/tmp/bench_textured_bilinear", help="renders go here (reused)")
+    p.add_argument("--sizes", default="64,128", help="render super-pixel grids (empty: none)")
+    p.add_argument("--seeds", type=int, default=3, help="raw seeds per render")
+    p.add_argument("--lights", default="3,1")
+    p.add_argument("--exact-res", default="32", help="model-exact data's grids (empty: none)")
+    p.add_argument("--exact-seeds", type=int, default=3)
+    p.add_argument("--json", metavar="OUT.json")
+    p.add_argument("--table", metavar="IN.json")
+    a = p.parse_args(argv)
+    if a.table:
+        print(table(summarise(json.load(open(a.table))["runs"])))
+        return 0
+    os.makedirs(a.work, exist_ok=True)
+    runs = json.load(open(a.json))["runs"] if a.json and os.path.exists(a.json) else []
+    done = {(r["data"], r["size"], r["K"], r["seed"], r["layout"]) for r in runs}
+    t0 = time.time()
+
+    def record(rec):
+        runs.append(rec)
+        print(f"[{time.time() - t0:.0f} s] {rec['data']} {rec['size']} K={rec['K']} seed {rec['seed']} "
+              f"{rec['layout']}: " + " ".join(f"{n}={rec['params'][n]:.4g}" for n in SHAPE)
+              + f" chi2/dof={rec['chi2_per_dof']:.3f} ({rec['time']:.0f} s)", file=sys.stderr, flush=True)
+        if a.json:
+            with open(a.json + ".tmp", "w") as f:
+                json.dump({"runs": runs}, f)
+            os.replace(a.json + ".tmp", a.json)
+
+    for K in (int(k) for k in a.lights.split(",")):
+        for res in [int(s) for s in a.exact_res.split(",") if s]:
+            for kind in ("continuous", "constant"):
+                for seed in range(a.exact_seeds):
+                    todo = [L for L in LAYOUTS if (f"exact-{kind}", res, K, seed, L) not in done]
+                    if todo:
+                        obs, ks, kb = exact_data(kind, res, K, seed)
+                        for L in todo:
+                            record(dict(one_fit(obs, L, ks, kb), data=f"exact-{kind}", size=res, K=K, seed=seed,
+                                        layout=L))
+        for size in [int(s) for s in a.sizes.split(",") if s]:
+            for seed in range(a.seeds):
+                todo = [L for L in LAYOUTS if ("render", size, K, seed, L) not in done]
+                if not todo:
+                    continue
+                from fmbrdf_mi.fit.inputs.files import build_observation
+
+                files = [render(a.work, size, j, seed) for j in range(K)]
+                obs = [build_observation(f[0]) for f in files]
+                ks, kb = read_map(files[0][1]), read_map(files[0][2])
+                for L in todo:
+                    record(dict(one_fit(obs, L, ks, kb), data="render", size=size, K=K, seed=seed, layout=L))
+    print(table(summarise(runs)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
