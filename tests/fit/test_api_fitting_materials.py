@@ -58,7 +58,7 @@ def test_noise_free_two_material_sphere_is_recovered():
     from fmbrdf_mi.fit import fit
 
     obs, lab = _exact_observation()
-    res = fit(obs, materials=lab, max_pixels=None, intervals="fisher", progress=False)
+    res = fit(obs, materials=lab, max_pixels=None, intervals="fisher", progress=False, area_points=2)
     assert res.converged
     blk = res.materials
     assert blk["count"] == 2 and sum(blk["pixels"]) == res.n_pixels and min(blk["pixels"]) >= 40
@@ -183,7 +183,7 @@ def test_noise_free_two_materials_with_pixel_albedos():
     from fmbrdf_mi.fit import fit
 
     obs, lab = _exact_observation()
-    res = fit(obs, materials=lab, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False)
+    res = fit(obs, materials=lab, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False, area_points=2)
     assert res.converged and res.materials["count"] == 2
     for m, truth in enumerate((A, B)):
         got = res.materials["parameters"][m]

@@ -42,7 +42,7 @@ def test_noise_free_textured_sphere_is_recovered():
     from fmbrdf_mi.fit.evaluate.predict import predict_image
 
     obs, ks, kb = _exact_observation()
-    res = fit(obs, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False)
+    res = fit(obs, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False, area_points=2)
     assert res.converged
     for k in ("eta", "alpha", "beta"):
         assert abs(res.params[k] / SHAPE[k] - 1) < 1e-4, (k, res.params)
@@ -70,7 +70,7 @@ def test_every_shape_parameter_fixed_leaves_only_the_maps():
     from fmbrdf_mi.fit import fit
 
     obs, ks, kb = _exact_observation(res=12)
-    res = fit(obs, albedo="per-pixel", fixed=dict(SHAPE), max_pixels=None, progress=False)
+    res = fit(obs, albedo="per-pixel", fixed=dict(SHAPE), max_pixels=None, progress=False, area_points=2)
     assert res.params == SHAPE
     f = np.isfinite(res.maps["k_b"])
     assert f.sum() == len(res.pixels) > 25 and np.all(np.abs(res.maps["k_b"][f] / kb[f] - 1) < 1e-3)
