@@ -186,11 +186,13 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                 lr=opts.lr, max_time=opts.max_time, history=history, report=report)
     st, reason, converged, J, r = sol.state, sol.reason, sol.converged, sol.J, sol.r
     can_jac = opts.path == "pixel"
-    quadrature = None
+    quadrature, coarse_evals = None, 0
     if converged and can_jac and opts.area_points is None and data.remake is not None and data.area_points > 1:
+        coarse = problem
         problem, data, quadrature, fine_sol = refine_quadrature(problem, data, st, opts, get_model(opts.model),
                                                                 report, deadline, history)
         if fine_sol is not None:
+            coarse_evals = coarse.n_evals
             st, reason, converged, J, r = (fine_sol.state, fine_sol.reason, fine_sol.converged, fine_sol.J,
                                            fine_sol.r)
             objective = data.objective
@@ -267,7 +269,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                    + " ".join(f"{k}={v:.4g}" for k, v in p.items()))
     return FitResult(model=model.name, params=params, loss=value, loss_terms=terms, std_errors=std,
                      history=history, stop_reason=reason, n_pixels=len(idx), n_outliers=n_out,
-                     timings={"search": sol.t_search, "total": t_total, "evaluations": problem.n_evals,
+                     timings={"search": sol.t_search, "total": t_total, "evaluations": problem.n_evals + coarse_evals,
                               "nonfinite_derivative_pixels": problem.n_nonfinite},
                      options=dataclasses.asdict(opts), weakly_identified=weak, converged=bool(converged),
                      objective=loss, uncertainty=unc,
