@@ -53,7 +53,7 @@ from fmbrdf_mi.fit.problem.data import RAW_AREA_POINTS, prepare
 
 
 def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=None, max_pixels=None, seed=0,
-               irls_rounds=4, progress=None, max_time=None, max_iter=40, starts=2, area_points=RAW_AREA_POINTS,
+               irls_rounds=4, progress=None, max_time=None, max_iter=40, starts=2, area_points=None,
                intervals="auto", albedo="shared"):
     """Fit one material with per-channel albedos to a colour mosaic's samples (module docstring).
 
@@ -72,7 +72,9 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     ``irls_rounds``: at most this many reweighting rounds (at least 3).
     ``area_points``: each raw sample is the mean of the model over this
     many points squared of its pixel (as a sensor pixel integrates; 1: its
-    centre), as in the one-channel likelihood.  ``intervals``: as
+    centre), as in the one-channel likelihood; None (the default): 2, checked and raised where
+    the 2 x 2 quadrature would bias a shape parameter (:func:`~fmbrdf_mi.fit.api.fitting.refine_quadrature`,
+    fit.json's ``uncertainty.quadrature``).  ``intervals``: as
     :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`' (profile-likelihood ends where the Fisher ones fail).
     ``albedo``: ``"shared"`` (one k_s, r_k per channel for the whole object) or ``"per-pixel"``: albedo
     maps, one k_s and k_b per period and colour channel (a textured object: the per-pixel layout,
@@ -128,13 +130,22 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     res.pixels = data.image_pixels if joint else data.image_pixels[0]
     res.options = {"model": model, "fixed": fixed, "bounds": bounds, "max_pixels": max_pixels, "seed": seed,
                    "irls_rounds": irls_rounds, "max_time": max_time, "max_iter": max_iter, "starts": starts,
-                   "area_points": int(area_points), "intervals": intervals, "albedo": albedo}
+                   "area_points": None if area_points is None else int(area_points), "intervals": intervals,
+                   "albedo": albedo}
     res.details.update({"chi2": res.loss, "chi2_per_dof": res.loss / max(r.size - res.details.pop("n_free"), 1),
                         "n_samples": int(r.size), "evaluations": res.timings["evaluations"],
                         "time_s": time.time() - t0, "chi2_per_sample": per_chi2 if joint else per_chi2[0]})
     if res.std_errors is not None and progress:
         progress("[colour] " + format_result(res))
     return res
+
+
+def used_area_points(res):
+    """m of the m x m points per raw pixel a colour fit ``res`` modelled its samples with: the refined
+    quadrature's (fit.json ``uncertainty.quadrature``), else the one asked for, else :data:`RAW_AREA_POINTS`."""
+    q = (res.uncertainty or {}).get("quadrature") or {}
+    m = q.get("area_points", (res.options or {}).get("area_points"))
+    return int(RAW_AREA_POINTS if m is None else m)
 
 
 def predict_samples(obs, samples, res):
@@ -146,7 +157,7 @@ def predict_samples(obs, samples, res):
     out = np.full(samples.values.shape, np.nan)
     if len(idx) == 0:
         return out
-    n, v, w = obs.sample_geometry(idx, footprint=samples.footprint((res.options or {}).get("area_points", 1)))
+    n, v, w = obs.sample_geometry(idx, footprint=samples.footprint(used_area_points(res)))
     p = PixelEvaluator(m, n, v, obs.light_dir, obs.irradiance,
                        weights=None if len(w) == 1 else w).parts(res["internal"]["shape"], ())
     A, n = samples.analyser(), len(idx)
