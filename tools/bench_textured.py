@@ -120,7 +120,8 @@ def one_colour(tex, K, seed, res, intervals="fisher", modes=("per-pixel", "share
         dt = time.time() - t
         rec = {"time": dt, "converged": r.converged, "params": {n: r.params[n] for n in SHAPE},
                "se": {n: (r.std_errors or {}).get(n) for n in SHAPE},
-               "ci95": {n: (r.uncertainty or {}).get("ci95", {}).get(n) for n in SHAPE}}
+               "ci95": {n: (r.uncertainty or {}).get("ci95", {}).get(n) for n in SHAPE},
+               "quadrature": (r.uncertainty or {}).get("quadrature")}
         preds[mode] = predict_samples(ho, hs, r)
         if mode == "per-pixel" and r.maps is not None:
             m, maps = r.maps, {}
@@ -202,7 +203,9 @@ def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "unif
         e = relight_error(res_.model, res_.params, held_obs, maps=res_.maps)
         rec = {"time": dt, "converged": res_.converged, "params": res_.params, "se": res_.std_errors,
                "interval_kind": (res_.uncertainty or {}).get("interval_kind"),
-               "ci95": (res_.uncertainty or {}).get("ci95", {}), "relight": e["rel_rmse"]}
+               "ci95": (res_.uncertainty or {}).get("ci95", {}), "relight": e["rel_rmse"],
+               "quadrature": (res_.uncertainty or {}).get("quadrature"),
+               "fisher_se": (res_.uncertainty or {}).get("incidental", {}).get("fisher_std_errors")}
         if mode == "per-pixel" and res_.maps is not None:
             m = res_.maps
             f = np.isfinite(m["k_s"]) & np.isfinite(m["k_s_se"]) & np.isfinite(m["k_b_se"])
