@@ -205,7 +205,8 @@ def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "unif
                "interval_kind": (res_.uncertainty or {}).get("interval_kind"),
                "ci95": (res_.uncertainty or {}).get("ci95", {}), "relight": e["rel_rmse"],
                "quadrature": (res_.uncertainty or {}).get("quadrature"),
-               "fisher_se": (res_.uncertainty or {}).get("incidental", {}).get("fisher_std_errors")}
+               "fisher_se": (res_.uncertainty or {}).get("incidental", {}).get("fisher_std_errors"),
+               "other_optima": (res_.uncertainty or {}).get("other_optima")}
         if mode == "per-pixel" and res_.maps is not None:
             m = res_.maps
             f = np.isfinite(m["k_s"]) & np.isfinite(m["k_s_se"]) & np.isfinite(m["k_b_se"])

@@ -599,3 +599,62 @@ def pixel_albedos(problem, st, parts, J, unc):
     ident = (total > 0) & (se_s * mean_s <= SPLIT_REL * total) & (se_b * mean_b <= SPLIT_REL * total)
     return {"k_s": f * a_s, "k_b": f * a_b, "k_s_se": f * se_s, "k_b_se": f * se_b,
             "correlation": np.clip(corr, -1.0, 1.0), "identified": ident}
+
+
+#: 95 % quantiles of chi^2 with 1 ... 8 degrees of freedom: the joint 95 % region of that many shape parameters
+CHI2_95 = (3.841458820694124, 5.991464547107979, 7.814727903251178, 9.487729036781154, 11.070497693516351,
+           12.591587243743977, 14.067140449340169, 15.507313055865453)
+
+#: Another start's end is a separate optimum where some shape parameter differs from the estimate's by more
+#: than this many standard errors (:func:`other_optima`).
+MODE_SEPARATION_SE = 2.0
+
+
+def other_optima(starts, params, unc, names):
+    """The separate optima among a multi-start fit's ends (:func:`fmbrdf_mi.fit.solve.driver.solve`'s
+    ``starts``: each with its ``end``, ``score`` (the negative log-likelihood, ``objective.nll``) and
+    ``converged``), for fit.json's ``uncertainty.other_optima`` and a warning.
+
+    An end is another optimum when one of the shape parameters ``names`` differs from the estimate
+    ``params`` by more than :data:`MODE_SEPARATION_SE` of its standard error (``unc["std_errors"]``).  Its
+    ``delta_chi2`` = 2 (score - the best start's score) is how much worse the data say it is.  It is
+    *competing* when that is below the joint 95 % threshold of the shape parameters,
+    :data:`CHI2_95` [p] x the covariance's scale x the largest (SE / Fisher SE)^2 of the incidental-parameter
+    sandwich (as the profile check rescales its threshold, :func:`profile_intervals`): the likelihood's 95 %
+    region then has a second part there, which the intervals around the estimate do not describe (measured:
+    per-pixel albedos from one image, tools/bench_textured.py --lights 1; a tie between two modes whose
+    noise-free difference is small).  Returns (list of {params, delta_chi2, distance_se, converged,
+    competing}, the threshold); an empty list for a single start or a fit without standard errors."""
+    se = unc.get("std_errors") or {}
+    names = [n for n in names if se.get(n) and math.isfinite(se[n]) and se[n] > 0]
+    scored = [s for s in starts if s.get("score") is not None and math.isfinite(s["score"])]
+    if len(scored) < 2 or not names:
+        return [], None
+    best = min(s["score"] for s in scored)
+    fse = unc.get("incidental", {}).get("fisher_std_errors") or {}
+    inflation = max([1.0] + [(se[n] / fse[n]) ** 2 for n in names if fse.get(n)])
+    scale = float(unc["chi2_per_dof"]) if unc.get("misfit") and unc.get("chi2_per_dof") else 1.0
+    threshold = CHI2_95[min(len(names), len(CHI2_95)) - 1] * scale * inflation
+    out = []
+    for s in scored:
+        end = s["end"]
+        dist = max(abs(end[n] - params[n]) / se[n] for n in names)
+        if dist <= MODE_SEPARATION_SE:
+            continue    # the estimate's own optimum (or the estimate itself)
+        d = 2.0 * (s["score"] - best)
+        out.append({"params": {n: float(end[n]) for n in names}, "delta_chi2": float(d), "distance_se": float(dist),
+                    "converged": bool(s.get("converged")),
+                    "competing": bool(s.get("converged")) and d < threshold})
+    return out, float(threshold)
+
+
+def optima_text(optima, threshold):
+    """One line for the warning about competing optima (:func:`other_optima`), or None."""
+    comp = [o for o in optima if o["competing"]]
+    if not comp:
+        return None
+    o = min(comp, key=lambda x: x["delta_chi2"])
+    where = ", ".join(f"{n} {v:.4g}" for n, v in o["params"].items())
+    return (f"another optimum of the likelihood ({where}) is only {o['delta_chi2']:.1f} worse in chi^2 "
+            f"(below the joint 95 % threshold {threshold:.1f}): the data do not decide between the two, and the "
+            "intervals describe the estimate's one only; add images under other lights, or fix a parameter")

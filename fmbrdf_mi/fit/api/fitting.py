@@ -216,6 +216,14 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                            + ", ".join(f"{n} ({k})" for n, k in prof.items()))
         if unc.get("misfit"):
             report("[fit] warning: " + U.misfit_text(unc))
+        optima, threshold = U.other_optima(sol.starts, st.shape, unc, problem.names)
+        if optima:
+            unc["other_optima"] = {"optima": optima, "threshold": threshold,
+                                   "separation_se": U.MODE_SEPARATION_SE}
+            text = U.optima_text(optima, threshold)
+            if text:
+                unc["other_optima"]["warning"] = text
+                report("[fit] warning: " + text)
         if problem.eliminates:
             groups = U.pixel_albedos(problem, st, parts, J, unc)
         if quadrature is not None:
@@ -374,13 +382,17 @@ def albedo_maps(layout, shape, groups):
 #: intervals covered 21-36 of 48) and the tails are heavy (a second mode at high eta / low kappa in ~4 % of
 #: seeds).  The incidental-parameter sandwich (fmbrdf_mi.fit.uncertainty.covariance, reported since) brings
 #: the coverage to 38-45 of 48; the second mode stays.  From three lights the sandwich changes the standard
-#: errors by 4-24 %.  Two images were not measured.
+#: errors by 4-24 %.  Two images were not measured.  At 100^2 (tools/bench_textured.py --res 100 --lights 1,
+#: 11-12 seeds per object, 2026-11-26) the second optimum (alpha, beta ~50 % high, kappa ~40 % high on the
+#: sphere) wins in about a third of the seeds, by a chi^2 difference of ~10 that the sandwich's 95 % region
+#: cannot tell from noise: the mean errors of alpha, beta are +12 to +17 %, the medians +3 to +12 %
+#: (:func:`fmbrdf_mi.fit.uncertainty.other_optima` warns when it sees such an optimum among its starts).
 MIN_IMAGES_PER_PIXEL = 3
 PER_PIXEL_FEW_IMAGES = ("per-pixel albedos from fewer than 3 images of each pixel: eta, alpha, beta, kappa are "
                         "poorly determined (one image, measured: a spread 2.5-5.6x the Fisher standard errors, "
                         "which the reported incidental-parameter sandwich corrects for the most part, and heavy "
-                        "tails: a second solution at high eta / low kappa in ~4 % of noise draws); fit several "
-                        "lights of the same view")
+                        "tails: a second optimum that wins in a few to a third of noise draws, more often on "
+                        "larger objects); fit several lights of the same view")
 
 
 def _determined(value, se, rel=0.5):

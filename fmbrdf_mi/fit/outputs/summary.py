@@ -67,6 +67,8 @@ def print_colour(report):
             print(f"  uncertainty: {unc.get('method', 'inverse Fisher information of the raw samples')}")
         if unc.get("misfit"):
             print("  warning: " + misfit_text(unc))
+        if (unc.get("other_optima") or {}).get("warning"):
+            print("  warning: " + unc["other_optima"]["warning"])
         if m.get("weakly_identified"):
             print(f"  weakly identified (standard error > 5% or at a bound): {', '.join(m['weakly_identified'])}")
         if m.get("albedo"):
@@ -167,7 +169,9 @@ def print_summary(report, out, t0):
         if unc.get("method"):
             print(f"  uncertainty: {unc['method']}"
                   + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
-                  + ("\n  warning: " + misfit_text(unc) if unc.get("misfit") else ""))
+                  + ("\n  warning: " + misfit_text(unc) if unc.get("misfit") else "")
+                  + ("\n  warning: " + unc["other_optima"]["warning"]
+                     if (unc.get("other_optima") or {}).get("warning") else ""))
         if unc.get("correlation"):
             c = unc["correlation"]
             big = [(c["names"][i], c["names"][j], c["matrix"][i][j]) for i in range(len(c["names"]))

@@ -1,0 +1,76 @@
+"""Separate optima among a multi-start fit's ends (``fmbrdf_mi.fit.uncertainty.other_optima``).
+
+The rule is arithmetic on the starts' ends and scores (negative log-likelihoods), so these tests build
+the starts by hand and check each branch against numbers worked out here: the separation in standard
+errors, delta chi^2 = 2 x the score difference, and the joint threshold chi^2_p(0.95) x scale x the
+sandwich's largest variance inflation.
+"""
+import math
+
+import pytest
+
+from fmbrdf_mi.fit import uncertainty as U
+
+NAMES = ("eta", "alpha", "beta", "kappa")
+BEST = {"eta": 1.45, "alpha": 0.25, "beta": 1.0, "kappa": 10.0}
+SE = {"eta": 0.01, "alpha": 0.01, "beta": 0.05, "kappa": 1.0}
+
+
+def start(score, converged=True, **moved):
+    return {"end": dict(BEST, **moved, k_s=0.5), "score": score, "converged": converged}
+
+
+def test_chi2_quantiles():
+    """CHI2_95[p-1] is the 95 % quantile of chi^2_p: for even p the closed-form CDF
+    1 - exp(-x/2) sum_{k<p/2} (x/2)^k / k! is 0.95 there; for p = 1, erf(sqrt(x/2)) = 0.95."""
+    assert math.erf(math.sqrt(U.CHI2_95[0] / 2)) == pytest.approx(0.95, abs=1e-12)
+    for p in (2, 4, 6, 8):
+        x = U.CHI2_95[p - 1] / 2
+        cdf = 1 - math.exp(-x) * sum(x ** k / math.factorial(k) for k in range(p // 2))
+        assert cdf == pytest.approx(0.95, abs=1e-12), p
+
+
+def test_a_close_second_mode_competes_and_a_far_one_does_not():
+    unc = {"std_errors": SE}
+    starts = [start(100.0), start(103.0, alpha=0.30, beta=1.3), start(110.0, eta=1.40)]
+    optima, thr = U.other_optima(starts, BEST, unc, NAMES)
+    assert thr == pytest.approx(U.CHI2_95[3])                 # four shape parameters, no inflation
+    assert [o["delta_chi2"] for o in optima] == pytest.approx([6.0, 20.0])
+    assert [o["distance_se"] for o in optima] == pytest.approx([6.0, 5.0])     # max over parameters: beta 0.3/0.05
+    assert [o["competing"] for o in optima] == [True, False]
+    text = U.optima_text(optima, thr)
+    assert "6.0 worse" in text and "alpha 0.3" in text
+
+
+def test_ends_within_the_separation_are_the_same_optimum():
+    unc = {"std_errors": SE}
+    starts = [start(100.0), start(100.5, alpha=0.25 + 1.9 * 0.01)]
+    assert U.other_optima(starts, BEST, unc, NAMES)[0] == []
+    # just beyond 2 SE it is another optimum
+    starts = [start(100.0), start(100.5, alpha=0.25 + 2.1 * 0.01)]
+    optima, _ = U.other_optima(starts, BEST, unc, NAMES)
+    assert len(optima) == 1 and optima[0]["competing"]
+
+
+def test_a_start_that_did_not_converge_never_competes():
+    optima, thr = U.other_optima([start(100.0), start(100.1, False, eta=1.5)], BEST, {"std_errors": SE}, NAMES)
+    assert len(optima) == 1 and not optima[0]["competing"] and U.optima_text(optima, thr) is None
+
+
+def test_the_threshold_follows_the_sandwich_and_the_misfit_scale():
+    """With the incidental-parameter sandwich the threshold is multiplied by the largest (SE / Fisher SE)^2
+    (here alpha's 2^2 = 4), and with an inflated (misfit) covariance by chi^2/dof: a mode 20 worse then
+    competes (threshold 9.49 x 4 x 1.5 = 56.9)."""
+    unc = {"std_errors": SE, "incidental": {"fisher_std_errors": dict(SE, alpha=0.005, beta=0.04)},
+           "misfit": True, "chi2_per_dof": 1.5}
+    optima, thr = U.other_optima([start(100.0), start(110.0, eta=1.40)], BEST, unc, NAMES)
+    assert thr == pytest.approx(U.CHI2_95[3] * 4 * 1.5)
+    assert optima[0]["competing"]
+
+
+def test_parameters_without_a_standard_error_are_left_out():
+    """A fixed parameter (no standard error) neither separates nor counts in the threshold's degrees of freedom."""
+    se = dict(SE, kappa=None)
+    optima, thr = U.other_optima([start(100.0), start(101.0, kappa=30.0)], BEST, {"std_errors": se}, NAMES)
+    assert optima == [] and thr == pytest.approx(U.CHI2_95[2])
+    assert U.other_optima([start(100.0)], BEST, {"std_errors": SE}, NAMES) == ([], None)
