@@ -259,14 +259,14 @@ def test_refusals(tmp_path, capsys):
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.errors import InputError
 
-    (obs, _), = _constant_exact(res=8)
+    (obs, _), = _constant_exact(res=12)
     with pytest.raises(InputError, match="albedo_smooth: .*needs albedo per-pixel"):
         fit(obs, albedo_smooth=0.1, progress=False)
     for bad in (0.0, -1.0, float("inf"), float("nan"), (0.1, 0.0), (0.1, 0.1, 0.1), "x"):
         with pytest.raises(InputError, match="albedo_smooth"):
             fit(obs, albedo="per-pixel", albedo_smooth=bad, progress=False)
     labels = np.zeros(obs.shape, int)
-    labels[:, 4:] = 1
+    labels[:, 6:] = 1
     with pytest.raises(InputError, match="materials: not with albedo_smooth"):
         fit(obs, albedo="per-pixel", albedo_smooth=0.1, materials=labels, max_pixels=None, progress=False)
     raw = tmp_path / "raw.npy"
@@ -281,3 +281,32 @@ def test_refusals(tmp_path, capsys):
         rc = main(base + extra + ["-o", str(tmp_path / "o")])
         one_line_error(rc, capsys.readouterr().err, "fit", name)
         assert not (tmp_path / "o").exists()
+
+
+def test_cli_writes_the_prior_and_reruns_it(tmp_path):
+    """``fmbrdf-mi fit --albedo per-pixel --albedo-smooth TAU_S,TAU_B`` fits with the prior (fit.json's albedo.prior
+    and the posterior method), and ``--from`` reruns it with the same prior (the same maps)."""
+    import json
+
+    from fmbrdf_mi.camera import CameraModel, capture
+    from fmbrdf_mi.cli import main
+    from fmbrdf_mi.fit.evaluate.synthetic import textured_sphere
+
+    ideal = textured_sphere(SHAPE, lambda x, y: 0.5 + 0.01 * x, lambda x, y: 0.35 + 0 * x, res=12,
+                            light=(-0.5, 0.5, 1.0))
+    cam = CameraModel()
+    raw = tmp_path / "raw.npy"
+    np.save(raw, capture(ideal["stokes"], cam, peak_fraction=0.8, seed=2)["raw"])
+    args = ["fit", str(raw), "--sphere", "6,6,5", "--light=-0.5,0.5,1", "--conversion-gain",
+            str(cam.conversion_gain), "--read-noise", "2.5", "--albedo", "per-pixel", "--albedo-smooth", "0.05,0.02",
+            "--max-pixels", "0", "--intervals", "fisher", "-q"]
+    assert main(args + ["-o", str(tmp_path / "a")]) == 0
+    rep = json.load(open(tmp_path / "a" / "fit.json"))
+    m = rep["models"]["fmbrdf"]
+    assert m["albedo"]["prior"]["tau_s"] == 0.05 and m["albedo"]["prior"]["tau_b"] == 0.02
+    assert m["uncertainty"]["method"].startswith("posterior covariance")
+    assert (tmp_path / "a" / "k_s_se.exr").exists()
+    assert main(["fit", "--from", str(tmp_path / "a" / "fit.json"), "-o", str(tmp_path / "b"), "-q"]) == 0
+    again = json.load(open(tmp_path / "b" / "fit.json"))["models"]["fmbrdf"]
+    assert again["albedo"]["prior"] == m["albedo"]["prior"]
+    assert again["params"] == m["params"]

@@ -261,6 +261,8 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     """
     K = len(observations)
     lab = count = keep = None
+    if materials is not None and getattr(opts, "albedo_smooth", None) is not None:
+        raise InputError("materials: not with albedo_smooth (the albedo maps' smoothness prior) yet")
     if materials is not None:
         lab, count = material_labels(observations, materials, loss, opts, evaluator)
         keep = lab >= 0
@@ -326,8 +328,6 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         if getattr(opts, "albedo", "shared") in PER_PIXEL_LAYOUTS:
             if lab is not None and opts.albedo == "per-pixel-bilinear":
                 raise InputError("materials: not with albedo per-pixel-bilinear yet (use albedo per-pixel)")
-            if lab is not None and getattr(opts, "albedo_smooth", None) is not None:
-                raise InputError("materials: not with albedo_smooth (the albedo maps' smoothness prior) yet")
             smooth = getattr(opts, "albedo_smooth", None)
             layout = pixel_layout(observations, idxs, smps[0], bilinear=opts.albedo == "per-pixel-bilinear",
                                   smooth=None if smooth is None else smooth_pair(smooth),
