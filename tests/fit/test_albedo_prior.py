@@ -252,6 +252,31 @@ def test_noise_free_constant_maps_cost_nothing():
     assert np.all(np.isfinite(res.maps["k_s_se"][f]))
 
 
+def test_joint_fit_with_the_prior_and_bilinear_layout():
+    """Two noisy lights of one view (camera noise), the bilinear layout with the prior: the fit's chi^2 is data
+    chi^2 + penalty, the per-image diagnosis counts the samples' residuals only (their chi^2 sums to the data
+    chi^2), and constant maps give eta, alpha, beta within 5 of their (posterior) standard errors."""
+    from fmbrdf_mi.camera import CameraModel
+    from fmbrdf_mi.fit import fit
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured_sphere
+
+    obs, exposure = [], None
+    for k, L in enumerate(((-0.5, 0.5, 1.0), (0.287, 0.497, 0.819))):
+        ideal = textured_sphere(SHAPE, lambda x, y: 0.6 + 0 * x, lambda x, y: 0.35 + 0 * x, res=12, light=L)
+        o, cap = capture_observation(ideal, CameraModel(), seed=11 + k, exposure=exposure)
+        exposure = cap["exposure"]
+        obs.append(o)
+    res = fit(obs, albedo="per-pixel-bilinear", albedo_smooth=0.02, max_pixels=None, intervals="fisher",
+              progress=False)
+    assert res.converged and res.albedo["layout"] == "per-pixel-bilinear"
+    for k in ("eta", "alpha", "beta"):
+        assert abs(res.params[k] - SHAPE[k]) < 5 * res.std_errors[k], (k, res.params, res.std_errors)
+    pr = res.albedo["prior"]
+    assert pr["penalty"] > 0 and pr["data_chi2"] > 100
+    assert sum(im["chi2"] for im in res.images) == pytest.approx(pr["data_chi2"], rel=1e-9)
+    assert res.loss == pytest.approx(pr["data_chi2"] + pr["penalty"], rel=1e-9)
+
+
 def test_refusals(tmp_path, capsys):
     """albedo_smooth: only with a per-pixel layout; tau > 0 and finite, one or two values; in one line naming
     the option (API and CLI, nothing written)."""
