@@ -250,6 +250,7 @@ def test_noise_free_constant_maps_cost_nothing():
     assert "incidental" not in res.uncertainty and "not computed" in res.uncertainty["method"]
     assert res.loss_terms["albedo_prior"] == pytest.approx(pr["penalty"])
     assert np.all(np.isfinite(res.maps["k_s_se"][f]))
+    assert "posterior" in res.albedo["warning"] and "sandwich" not in res.albedo["warning"]   # one image
 
 
 def test_joint_fit_with_the_prior_and_bilinear_layout():

@@ -261,6 +261,10 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         albedo, maps = albedo_maps(problem.layout, obs.shape, groups)
         if getattr(problem.layout, "prior", None) is not None:
             albedo["prior"] = prior_block(problem, st, parts)
+            if albedo.get("warning"):   # no sandwich with the prior: the posterior errors (docs/howto/fit-textured.md)
+                albedo["warning"] = albedo["warning"].replace(
+                    "which the reported incidental-parameter sandwich corrects for the most part",
+                    "the smoothness prior narrows, at the cost of its bias (the reported errors are posterior ones)")
             report(f"[fit] albedo smoothness prior: penalty {albedo['prior']['penalty']:.4g} of chi^2 "
                    f"{value:.6g}, effective albedo parameters {albedo['prior']['effective_parameters']:.1f} of "
                    f"{albedo['prior']['parameters']}")
