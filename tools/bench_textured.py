@@ -2,7 +2,7 @@
 
     python tools/bench_textured.py [--res 32] [--seeds 16] [--textures smooth,high] [--lights 1,3]
                                    [--objects sphere,mesh] [--json out.json]
-    python tools/bench_textured.py --table out.json
+    python tools/bench_textured.py --table out.json [more.json ...]
     python tools/bench_textured.py --res 24 --seeds 24 --textures smooth --lights 1 --per-pixel-only \
                                    --albedo-smooth 0.04,0.012 [--json s.json]
     python tools/bench_textured.py --sensor colour --res 24 --seeds 12 --textures smooth --lights 3 [--json c.json]
@@ -363,10 +363,10 @@ def main(argv=None):
     p.add_argument("--albedo-smooth", metavar="TAU[,TAU_B]",
                    help="the per-pixel fits with the albedo maps' smoothness prior (FitOptions.albedo_smooth)")
     p.add_argument("--json", metavar="OUT.json", help="runs and summary, written after every fit (resumed)")
-    p.add_argument("--table", metavar="IN.json")
+    p.add_argument("--table", metavar="IN.json", nargs="+", help="the table of saved runs (several files: merged)")
     a = p.parse_args(argv)
     if a.table:
-        print(table(summarise(json.load(open(a.table))["runs"])))
+        print(table(summarise([r for f in a.table for r in json.load(open(f))["runs"]])))
         return 0
     runs = []
     if a.json and os.path.exists(a.json):
