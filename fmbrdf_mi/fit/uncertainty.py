@@ -60,6 +60,14 @@ not (J^T J)^-1, which from one image is 2-5x too small
 (tools/diag_pp_sandwich.py).  :func:`covariance` reports the sandwich (capped
 where H is not positive definite: :func:`incidental_sandwich`), keeps the
 Fisher errors in ``incidental``, and the profile check's threshold follows it.
+
+**With the albedo maps' smoothness prior** (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) the residuals
+carry the prior's rows, and J^T J of Kaufman's Jacobian over them is the shape's information with the
+albedos eliminated under the prior: its inverse is the posterior covariance (Bayesian; :data:`POSTERIOR`),
+and each pixel's is the 2 x 2 block of the penalised information's inverse.  The incidental-parameter
+sandwich is not computed there (the prior shrinks the albedos' noise, so C shrinks, but it needs traces
+of the full coupled inverse).  chi^2 includes the penalty; its degrees of freedom:
+``fmbrdf_mi.fit.api.fitting.PRIOR_DOF_RULE``.
 """
 from __future__ import annotations
 
@@ -138,6 +146,11 @@ def jacobian_in_reported(problem, st, J):
 #: J^T J (1 - lambda, lambda those of C) is floored here: no direction's standard error is inflated by more
 #: than 1 / INCIDENTAL_FLOOR over the Fisher one (:func:`incidental_sandwich`).
 INCIDENTAL_FLOOR = 0.1
+
+
+#: How the method string names the covariance of a fit with the albedo maps' smoothness prior.
+POSTERIOR = ("posterior covariance (Bayesian): the inverse of the information penalised by the albedo maps' "
+             "smoothness prior (J^T J of the residuals with the prior's rows, the albedos eliminated)")
 
 
 def incidental_term(problem, st, parts):
@@ -234,6 +247,8 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
                                    f"inflation capped at {1 / INCIDENTAL_FLOOR:g}x the Fisher standard error")
         elif "incidental_not_computed" in info:
             info["method"] += "; " + info["incidental_not_computed"]
+        if getattr(getattr(problem, "layout", None), "prior", None) is not None:
+            info["method"] = info["method"].replace("inverse Fisher information", POSTERIOR, 1)
     else:
         grid = getattr(obj, "grid", None)
         M = block_meat(Jt, r, obj.row_pixels(len(r)), Hi, grid)

@@ -23,7 +23,8 @@ GIVE = {"--baselines": ["--baselines"], "--relight": ["--relight", "b.exr"], "--
         "--layout": ["--layout", "0,45,90,135"], "--dark-level": ["--dark-level", "3"],
         "--footprint": ["--footprint", "box"], "--free-power": ["--free-power"],
         "--area-points": ["--area-points", "3"], "--channel": ["--channel", "R"], "--light": ["--light", "0,0,1"],
-        "--albedo": ["--albedo", "per-pixel"], "--materials": ["--materials", "labels.png"]}
+        "--albedo": ["--albedo", "per-pixel"], "--materials": ["--materials", "labels.png"],
+        "--albedo-smooth": ["--albedo-smooth", "0.1"]}
 NEED_GIVE = {"--relight-light": ["--relight-light", "0,0,1"], "--holdout": ["--holdout", "1"],
              "--normals-start": ["--normals-start", "sphere"], "--smooth": ["--smooth", "0.5"],
              "--rounds": ["--rounds", "2"], "--power-start": ["--power-start", "given"]}

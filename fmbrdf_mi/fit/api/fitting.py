@@ -63,6 +63,10 @@ class FitOptions:
     albedo: str = "shared"            # likelihood: "shared" (one k_s, r_k) or "per-pixel" (albedo maps: a textured
                                       # object; evaluate.albedos.PixelAlbedos) or "per-pixel-bilinear" (the maps
                                       # interpolated to each raw sample; evaluate.bilinear_albedos)
+    albedo_smooth: object = None      # per-pixel albedos: a Gaussian smoothness prior on the maps, tau (one for
+                                      # k_s and k_b, or a pair (tau_s, tau_b)): the expected difference of
+                                      # 4-neighbouring pixels' albedos in k_s, k_b units (evaluate.albedo_prior);
+                                      # None: no prior
 
 
 def weakly_identified(params, std, at_bound=()):
@@ -255,6 +259,15 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
             groups = {"k_s": f * np.asarray(st.a_s), "k_b": f * np.asarray(st.a_b), "k_s_se": nan, "k_b_se": nan,
                       "correlation": nan, "identified": np.zeros(problem.layout.n_groups, bool)}
         albedo, maps = albedo_maps(problem.layout, obs.shape, groups)
+        if getattr(problem.layout, "prior", None) is not None:
+            albedo["prior"] = prior_block(problem, st, parts)
+            if albedo.get("warning"):   # no sandwich with the prior: the posterior errors (docs/howto/fit-textured.md)
+                albedo["warning"] = albedo["warning"].replace(
+                    "which the reported incidental-parameter sandwich corrects for the most part",
+                    "the smoothness prior narrows, at the cost of its bias (the reported errors are posterior ones)")
+            report(f"[fit] albedo smoothness prior: penalty {albedo['prior']['penalty']:.4g} of chi^2 "
+                   f"{value:.6g}, effective albedo parameters {albedo['prior']['effective_parameters']:.1f} of "
+                   f"{albedo['prior']['parameters']}")
         report(f"[fit] albedo maps: {albedo['pixels']} pixels, surface / body split identified in "
                f"{albedo['identified_fraction']:.0%} (median k_s {albedo['k_s_median']:.4g}, k_b "
                f"{albedo['k_b_median']:.4g})")
@@ -286,7 +299,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                      materials=block,
                      details={"internal": {"shape": dict(st.shape), "a_s": np.asarray(st.a_s).tolist(),
                                            "a_b": np.asarray(st.a_b).tolist()},
-                              "residuals": problem.obj.residuals(parts, st),
+                              "residuals": data_residuals(problem.obj, parts, st),
                               "n_free": len(problem.to_z(st)) + problem.n_eliminated(st)})
 
 
@@ -328,6 +341,32 @@ def refine_quadrature(problem, data, st, opts, model, report, deadline, history)
         block["area_points"] = m
     block["seconds"] = time.time() - t0
     return problem, data, block, fine_sol
+
+
+def data_residuals(obj, parts, st):
+    """The objective's residuals of the data (without the albedo prior's rows, :mod:`fmbrdf_mi.fit.evaluate.albedo_prior`)."""
+    r = obj.residuals(parts, st)
+    return r if getattr(getattr(obj, "layout", None), "prior", None) is None else r[:obj.y.size]
+
+
+#: How a fit with the albedo maps' smoothness prior counts chi^2's degrees of freedom (fit.json albedo.prior).
+PRIOR_DOF_RULE = ("chi^2 (data + penalty) has N - p - n0 degrees of freedom, N the independent samples, p the "
+                  "free shape parameters, n0 the prior's null space (2 per connected set of pixels: each set's "
+                  "mean k_s, k_b): its expectation at the optimum when the maps' neighbour differences follow the "
+                  "prior; maps smoother than tau give less (down to N - p - effective_parameters), rougher ones "
+                  "more (the misfit check then flags a tau too small)")
+
+
+def prior_block(problem, st, parts):
+    """fit.json's ``albedo.prior``: the maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`), its
+    penalty at ``st``, the albedos' effective number of parameters (the hat matrix's trace) and the rule of
+    chi^2's degrees of freedom."""
+    lay, obj = problem.layout, problem.obj
+    pr = lay.prior
+    return {"kind": pr.describe(), "tau_s": pr.tau[0], "tau_b": pr.tau[1], "pairs": int(len(pr.pairs)),
+            "penalty": obj.penalty(st), "data_chi2": float(np.sum(data_residuals(obj, parts, st) ** 2)),
+            "effective_parameters": lay.effective_parameters(*obj.albedo_columns(parts)),
+            "parameters": 2 * int(lay.n_groups), "null_dims": int(pr.null_dims()), "dof_rule": PRIOR_DOF_RULE}
 
 
 def albedo_maps(layout, shape, groups):
@@ -500,7 +539,7 @@ def diagnose(res, data, observations, names, power_model=None):
               "intensity_rel_rmse": float(np.sqrt(np.mean((i_pred - i_obs) ** 2)) / np.mean(i_obs)),
               "dolp_rmse": float(np.sqrt(np.mean((d_pred - d_obs)[bright] ** 2))) if bright.any() else None}
         if loss == "likelihood":
-            r = objective.residuals(parts, st).reshape(-1, 4)[a:b]
+            r = objective.residuals(parts, st)[:objective.y.size].reshape(-1, 4)[a:b]   # the samples' rows
             im["chi2"] = float(np.sum(r ** 2))
             im["chi2_per_dof"] = im["chi2"] / max((b - a) * objective.dof, 1)
         out.append(im)

@@ -50,7 +50,8 @@ ALBEDO_LAYOUTS = ("shared",) + PER_PIXEL_LAYOUTS
 def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=None, init=None, max_iter=40,
                       tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0,
                       lr=0.02, spp=16, rounds=3, loss="auto", starts=2, fixed=None, free_power=False,
-                      power_start="ratio", area_points=None, albedo="shared", flag=lambda name: name, **_ignored):
+                      power_start="ratio", area_points=None, albedo="shared", albedo_smooth=None,
+                      flag=lambda name: name, **_ignored):
     """Raise InputError for the first invalid fit option.  ``flag`` maps an option name to
     how the user wrote it (``--max-pixels`` on the command line)."""
 
@@ -90,6 +91,8 @@ def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=No
     if albedo in PER_PIXEL_LAYOUTS and free_power:
         raise InputError(f"{flag('albedo')} {albedo}: not with {flag('free_power')} (give the relative light "
                          "powers)")
+    if albedo_smooth is not None:
+        check_albedo_smooth(albedo_smooth, albedo, flag)
     if power_start not in ("ratio", "given"):
         raise InputError(f"{flag('power_start')}: expected 'ratio' or 'given', got {power_start!r}")
     if fixed is not None:
@@ -138,6 +141,19 @@ def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=No
                     raise InputError(f"{flag('init')} {k}: {v:g} is outside the fit's bounds [{lo:g}, {hi:g}]")
             elif v < 0:
                 raise InputError(f"{flag('init')} {k}: {v:g} must be >= 0")
+
+
+def check_albedo_smooth(value, albedo, flag=lambda name: name):
+    """``albedo_smooth``: tau > 0 and finite, or a pair (tau_s, tau_b), with a per-pixel albedo layout."""
+    name = flag("albedo_smooth")
+    if albedo not in PER_PIXEL_LAYOUTS:
+        raise InputError(f"{name}: the albedo maps' smoothness prior needs {flag('albedo')} "
+                         f"{' or '.join(PER_PIXEL_LAYOUTS)} (got {albedo!r})")
+    vals = list(value) if isinstance(value, (tuple, list)) else [value]
+    if len(vals) not in (1, 2):
+        raise InputError(f"{name}: expected tau or (tau_s, tau_b), got {value!r}")
+    for v in vals:
+        _num(name, v, lo=0.0, lo_incl=False, none_ok=False)
 
 
 def check_input_options(*, black_level=0.0, conversion_gain=None, read_noise=None, irradiance=None,

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
+from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_smooth
 
 
 def check_args(args):
@@ -16,12 +16,15 @@ def check_args(args):
                         read_noise=args.read_noise, irradiance=args.irradiance, fov=args.fov,
                         relight_irradiance=args.relight_irradiance, white_level=args.white_level,
                         dark_level=args.dark_level, flag=flag)
+    if isinstance(getattr(args, "albedo_smooth", None), str):    # TAU[,TAU_B] -> tau or (tau_s, tau_b)
+        args.albedo_smooth = parse_smooth(args.albedo_smooth, "--albedo-smooth")
     check_fit_options(model=args.model, optimizer=args.optimizer, path=args.path,
                       bounds=parse_bounds(args.bounds), init=parse_init(args.init), max_iter=args.max_iter,
                       tol=args.tol, time_limit=args.time_limit, max_time=args.max_time,
                       max_pixels=args.max_pixels, erode=args.erode, seed=args.seed, loss=args.loss,
                       starts=args.starts, fixed=parse_fixed(args.fix), area_points=args.area_points,
                       albedo=getattr(args, "albedo", "shared"), free_power=getattr(args, "free_power", False),
+                      albedo_smooth=getattr(args, "albedo_smooth", None),
                       flag=flag)
     if getattr(args, "from_json", None):
         check_rerun_args(args)
@@ -94,17 +97,20 @@ OPTIONS = {
     "--light": (lambda a: bool(a.light), lambda a: "--light"),
     "--albedo": (lambda a: getattr(a, "albedo", "shared") != "shared", lambda a: "--albedo " + str(a.albedo)),
     "--materials": (lambda a: getattr(a, "materials", None) is not None, lambda a: "--materials"),
+    "--albedo-smooth": (lambda a: getattr(a, "albedo_smooth", None) is not None, lambda a: "--albedo-smooth"),
 }
 
 #: The one table of which options a mode refuses: mode -> (options, the message's head, why).
 REFUSED = {
     "colour": (("--baselines", "--relight", "--path", "--optimizer", "--init", "--loss", "--layout", "--dark-level",
-                "--footprint", "--area-points", "--channel", "--materials"), "colour polarisation mosaic",
+                "--footprint", "--area-points", "--channel", "--materials", "--albedo-smooth"),
+               "colour polarisation mosaic",
                "the colour fit is the likelihood of the raw samples, layout and cfa from the sidecar, pixel path, LM; "
-               "several materials are for mono captures so far"),
+               "several materials and the albedo smoothness prior are for mono captures so far"),
     "manifest": (("--light",), "--manifest", "the manifest gives each image's light"),
     "authors": (("--light",), "--authors", "the lights are the object's calibration/L.txt"),
-    "refine": (("--baselines", "--free-power", "--loss", "--albedo", "--materials"), "--refine-normals",
+    "refine": (("--baselines", "--free-power", "--loss", "--albedo", "--materials", "--albedo-smooth"),
+               "--refine-normals",
                "the refinement is the likelihood of the camera samples, one model, the given light powers, "
                "one pair of albedos, one material"),
 }

@@ -112,6 +112,11 @@ def add_fit_arguments(p):
                         "four raw samples of a super-pixel; per-pixel-bilinear: the pairs at the super-pixel "
                         "centres, each raw sample's albedo interpolated bilinearly at its own point (textures that "
                         "change within a super-pixel, as a camera sees them)")
+    g.add_argument("--albedo-smooth", metavar="TAU[,TAU_B]",
+                   help="with --albedo per-pixel or per-pixel-bilinear: a Gaussian smoothness prior on the maps, "
+                        "TAU the expected difference of 4-neighbouring pixels' k_s (and k_b; TAU_B for k_b "
+                        "apart) in the maps' units; added to chi^2, the maps and the shape's errors are then "
+                        "posterior ones (docs: how-to 'Fit a textured object'); default: no prior")
     g.add_argument("--materials", metavar="LABELS.png|npy|auto:M",
                    help="likelihood fits: a label image giving each pixel's material, each with its own eta, "
                         "alpha, beta, kappa (and, with --albedo shared, k_s, r_k): one integer per pixel of the "

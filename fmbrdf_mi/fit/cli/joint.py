@@ -80,6 +80,8 @@ def run_joint(args, command):
         fit_kw.pop("materials", None)
     if fit_kw.get("area_points") is None:   # the default (the colour fit refuses the option: check_colour_args)
         fit_kw.pop("area_points", None)
+    if fit_kw.get("albedo_smooth") is None:  # the default (the colour fit refuses the option: check_colour_args)
+        fit_kw.pop("albedo_smooth", None)
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
     if getattr(args, "refine_normals", False):
         obs = build_observations(specs)

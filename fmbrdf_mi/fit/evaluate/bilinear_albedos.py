@@ -77,6 +77,11 @@ RIDGE = (1e-12, 1e-10, 1e-8)
 NO_INCIDENTAL = ("the incidental-parameter sandwich is not computed for bilinear per-pixel albedos (coupled "
                  "pairs): Fisher errors, too small from one image")
 
+#: The same with the albedo maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`): the errors are the
+#: posterior ones, from the penalised information.
+PRIOR_INCIDENTAL = ("the incidental-parameter sandwich is not computed with the albedo smoothness prior (the "
+                    "posterior covariance of the penalised likelihood is reported)")
+
 
 def bilinear_weights(rows, cols, offsets, present):
     """The interpolation of each sample's albedo from pixel centres: (corners (cells, n, 4, 2), weights
@@ -120,30 +125,37 @@ def bilinear_weights(rows, cols, offsets, present):
     return idx, wt
 
 
-class BilinearPixelAlbedos:
-    """One (a_s, a_b) per fitted pixel, at its centre; each sample's albedos interpolated bilinearly between
-    the pixel centres around its point (module docstring).  Mono captures (one group per pixel).
+class CoupledPixelAlbedos:
+    """One (a_s, a_b) per fitted pixel (per pixel and channel: ``channel_of``, ``labels`` as in
+    :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`), the pairs coupled and solved as one banded least
+    squares (module docstring): each sample's albedos the combination ``corner_weights`` of the pairs
+    ``corner_groups`` (bilinear interpolation: :class:`BilinearPixelAlbedos`; one corner of weight 1: the
+    per-pixel layout), and with ``prior`` (:class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior`) the
+    prior's rows appended to the least squares (the normal matrix G + Lambda; the residuals and Kaufman's
+    Jacobian get the prior's rows too).
 
     ``groups`` (cells, n): each sample's own pixel's group (for the maps, the split rule and the images per
-    pixel, as in :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`); ``corner_groups``,
-    ``corner_weights`` (cells, n, 4): the groups and weights of each sample's interpolation; ``n_groups``;
-    ``pixels`` (n_groups,) the flat pixel index of each group."""
+    pixel); ``corner_groups``, ``corner_weights`` (cells, n, c): the groups and weights of each sample's
+    combination; ``n_groups``; ``pixels`` (n_groups,) the flat pixel index of each group; ``name``: the
+    ``albedo`` option's value it implements."""
 
     eliminates = True
-    name = "per-pixel-bilinear"
     #: not computed (module docstring): ``fmbrdf_mi.fit.uncertainty`` reports the Fisher errors and says so
     incidental = None
-    incidental_reason = NO_INCIDENTAL
 
-    def __init__(self, groups, corner_groups, corner_weights, n_groups, pixels):
+    def __init__(self, groups, corner_groups, corner_weights, n_groups, pixels, *, name="per-pixel-bilinear",
+                 prior=None, channel_of=None, labels=None):
         self.groups = np.asarray(groups, dtype=np.int64)
         self.n_groups = int(n_groups)
         self.size = self.n_groups
         self.pixels = np.asarray(pixels, dtype=np.int64)
-        self.channel_of = None
-        self.labels = None
-        self.corner_groups = np.asarray(corner_groups, dtype=np.int64).reshape(-1, 4)
-        self.corner_weights = np.asarray(corner_weights, dtype=np.float64).reshape(-1, 4)
+        self.channel_of = None if channel_of is None else np.asarray(channel_of, dtype=np.int64)
+        self.labels = labels
+        self.name = name
+        self.prior = prior
+        self.corner_groups = np.asarray(corner_groups, dtype=np.int64).reshape(self.groups.size, -1)
+        self.corner_weights = np.asarray(corner_weights, dtype=np.float64).reshape(self.groups.size, -1)
+        self.incidental_reason = NO_INCIDENTAL if prior is None else PRIOR_INCIDENTAL
         self._factor = None    # (key columns, BandCholesky) of the last normal matrix
 
     # ---- predictions
@@ -185,14 +197,15 @@ class BilinearPixelAlbedos:
     def _factorised(self, us, ub):
         """(A, factor) at the columns ``us``, ``ub``: the last factor when the columns are those it came
         from (to a relative 1e-12: the solve's S sqrt(w) and the Jacobian's -S / sd differ in rounding),
-        else a new one (:class:`BandCholesky` of A^T A with the ridge)."""
+        else a new one (:class:`BandCholesky` of A^T A (+ Lambda, the prior's) with the ridge).  A: the
+        data's design (the prior's rows are :attr:`prior`'s)."""
         key = (np.abs(np.asarray(us, float).ravel()), np.abs(np.asarray(ub, float).ravel()))
         A = self.design(us, ub)
         f = self._factor
         if f is not None and all(a.shape == b.shape and np.allclose(a, b, rtol=1e-12, atol=0.0)
                                  for a, b in zip(key, f[0])):
             return A, f[1]
-        band = normal_band(A, 2 * self.n_groups)
+        band = normal_band(A if self.prior is None else stack_rows(A, self.prior.rows()), 2 * self.n_groups)
         for ridge in (0.0,) + RIDGE:       # G singular (columns parallel to rounding): the ridge (module docstring)
             try:
                 fac = BandCholesky(*band, ridge=ridge)
@@ -204,26 +217,49 @@ class BilinearPixelAlbedos:
         return A, fac
 
     def solve(self, S, B, y, w):
-        """Every group's (a_s, a_b), the weighted least squares of all samples at once: two arrays (n_groups,)."""
+        """Every group's (a_s, a_b), the weighted least squares of all samples at once (penalised by the
+        prior, whose rows' data are 0): two arrays (n_groups,)."""
         sw = np.sqrt(np.asarray(w, dtype=np.float64)).ravel()
         A, fac = self._factorised(np.asarray(S, float).ravel() * sw, np.asarray(B, float).ravel() * sw)
         x = fac.solve(self.t_at(A, np.asarray(y, float).ravel() * sw))
         return x[0::2].copy(), x[1::2].copy()
 
     def free(self):
-        """Degrees of freedom spent on the albedos: two per group (the ridge keeps every pair determined)."""
-        return 2 * self.n_groups
+        """Degrees of freedom spent on the albedos: two per group (the ridge keeps every pair determined);
+        with the prior, the dimension of its null space (2 per connected set of pixels and channel: the
+        expected penalised chi^2 at the optimum is N - p - that when the maps follow the prior, module
+        docstring of :mod:`fmbrdf_mi.fit.evaluate.albedo_prior`)."""
+        return 2 * self.n_groups if self.prior is None else self.prior.null_dims()
+
+    def prior_residuals(self, a_s, a_b):
+        """The prior's residual rows (2E,) at the albedos (empty without a prior)."""
+        return np.zeros(0) if self.prior is None else self.prior.residuals(a_s, a_b)
 
     def project(self, J, us, ub):
         """Kaufman's Jacobian (I - P) J, P = A G^-1 A^T the projection onto the albedos' columns (``us``,
         ``ub`` (N,): each sample's whitened unit-albedo columns; ``J`` (N, p)).  Returns (J_projected, K),
-        K (n_groups, 2, p) = G^-1 A^T J (the albedos' regression on the shape unknowns)."""
+        K (n_groups, 2, p) = G^-1 A^T J (the albedos' regression on the shape unknowns).  With the prior the
+        least squares is augmented by its rows R (which do not depend on the shape: their J rows are 0), G is
+        A^T A + R^T R, and the projected Jacobian has the rows -R K appended: (N + 2E, p)."""
         A, fac = self._factorised(us, ub)
         p = J.shape[1]
+        extra = 0 if self.prior is None else self.prior.n_rows
         if not p:
-            return J.copy(), np.zeros((self.n_groups, 2, 0))
+            return np.zeros((J.shape[0] + extra, 0)), np.zeros((self.n_groups, 2, 0))
         K = fac.solve(self.t_at(A, J))
-        return J - self.at(A, K), K.reshape(self.n_groups, 2, p)
+        Jp = J - self.at(A, K)
+        if self.prior is not None:
+            Jp = np.concatenate([Jp, -self.prior.apply(K)])
+        return Jp, K.reshape(self.n_groups, 2, p)
+
+    def effective_parameters(self, us, ub):
+        """tr(A (A^T A + Lambda)^-1 A^T) = tr((G + Lambda)^-1 G): the albedos' effective number of parameters
+        (the trace of the hat matrix; 2 n_groups without a prior), from the inverse's entries within G's band
+        (:meth:`BandCholesky.inverse_band`)."""
+        A, fac = self._factorised(us, ub)
+        band, b = normal_band(A, 2 * self.n_groups)
+        Z = fac.inverse_band(b)
+        return float(np.sum(Z[:, 0] * band[:, 0]) + 2.0 * np.sum(Z[:, 1:] * band[:, 1:]))
 
     # ---- the covariance
     def covariance(self, us, ub, J, cov_z, scale=1.0):
@@ -238,6 +274,38 @@ class BilinearPixelAlbedos:
             C = C + np.einsum("gip,pq,gjq->gij", K, cov_z, K)
         C[np.any(fac.raw_diagonal.reshape(self.n_groups, 2) <= 0, axis=1)] = np.inf
         return C
+
+
+class BilinearPixelAlbedos(CoupledPixelAlbedos):
+    """One (a_s, a_b) per fitted pixel, at its centre; each sample's albedos interpolated bilinearly between
+    the pixel centres around its point (module docstring).  Mono captures (one group per pixel).
+
+    ``groups`` (cells, n): each sample's own pixel's group (for the maps, the split rule and the images per
+    pixel, as in :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`); ``corner_groups``,
+    ``corner_weights`` (cells, n, 4): the groups and weights of each sample's interpolation; ``n_groups``;
+    ``pixels`` (n_groups,) the flat pixel index of each group; ``prior``: the albedo maps' smoothness prior
+    (None: none)."""
+
+    def __init__(self, groups, corner_groups, corner_weights, n_groups, pixels, prior=None):
+        super().__init__(groups, corner_groups, corner_weights, n_groups, pixels, name="per-pixel-bilinear",
+                         prior=prior)
+
+
+def stack_rows(A, R):
+    """The design A (columns (N, c), values (N, c)) with the rows R (columns (M, d), values (M, d)) appended,
+    the narrower padded with zero values (at a valid column)."""
+    (ca, va), (cr, vr) = A, R
+    c = max(ca.shape[1], cr.shape[1])
+
+    def pad(cols, vals):
+        k = c - cols.shape[1]
+        if not k:
+            return cols, vals
+        return (np.concatenate([cols, np.repeat(cols[:, :1], k, 1)], 1),
+                np.concatenate([vals, np.zeros((len(vals), k))], 1))
+
+    (ca, va), (cr, vr) = pad(ca, va), pad(cr, vr)
+    return np.concatenate([ca, cr]), np.concatenate([va, vr])
 
 
 def normal_band(A, n):
@@ -352,3 +420,43 @@ class BandCholesky:
         out[:, 0, 0], out[:, 1, 1] = diag[0::2] * sc[0::2] ** 2, diag[1::2] * sc[1::2] ** 2
         out[:, 0, 1] = out[:, 1, 0] = off[0::2] * sc[0::2] * sc[1::2]
         return out
+
+    def inverse_band(self, bw):
+        """The lower band (n, bw + 1) of G^-1 (Z[i, i - d] at [i, d]; 0 where i - d < 0), bw at most the
+        factor's half bandwidth: the same selected inversion as :meth:`diagonal_blocks`, keeping each block
+        row's Z_{k,k-1} and Z_kk (an entry within the band lies in one of them).  O(n b^2)."""
+        e = self.edges
+        K = len(e) - 1
+        s = max(e[1] - e[0], 1) if K else 1
+        if bw > s:
+            raise ValueError(f"inverse_band: bandwidth {bw} above the factor's {s}")
+        out = np.zeros((self.n, bw + 1))
+        Znext = None
+        for k in range(K - 1, -1, -1):
+            Li = self.Linv[k]
+            if Znext is None:
+                Z = Li.T @ Li
+            else:
+                Zlow = -(Znext @ self.M[k]) @ Li       # Z_{k+1,k}: row block k + 1's left part
+                Z = Li.T @ (Li - self.M[k].T @ Zlow)
+                self._fill(out, k + 1, Zlow, Znext, bw)
+            Znext = Z
+        if K:
+            self._fill(out, 0, None, Znext, bw)
+        sc = self.scale
+        for d in range(bw + 1):
+            i = np.arange(d, self.n)
+            out[i, d] *= sc[i] * sc[i - d]
+        return out
+
+    def _fill(self, out, k, Zleft, Zkk, bw):
+        """Rows of block k of the band from [Z_{k,k-1} | Z_kk] (Zleft None: block 0)."""
+        e = self.edges
+        r0, r1 = e[k], e[k + 1]
+        c0 = r0 if Zleft is None else e[k - 1]
+        strip = Zkk if Zleft is None else np.concatenate([Zleft, Zkk], 1)
+        rows = np.arange(r0, r1)
+        for d in range(bw + 1):
+            j = rows - d
+            ok = j >= c0
+            out[rows[ok], d] = strip[rows[ok] - r0, j[ok] - c0]

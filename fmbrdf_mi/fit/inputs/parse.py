@@ -23,6 +23,18 @@ def parse_vector(text, name, n=3):
     return vals
 
 
+def parse_smooth(text, name="--albedo-smooth"):
+    """``TAU`` or ``TAU_S,TAU_B`` (the albedo maps' smoothness prior) -> tau or (tau_s, tau_b); the values are
+    range-checked with the other fit options."""
+    try:
+        vals = [float(x) for x in str(text).replace(" ", "").split(",")]
+    except ValueError:
+        raise InputError(f"{name}: expected TAU or TAU_S,TAU_B (numbers > 0), got {text!r}") from None
+    if len(vals) not in (1, 2):
+        raise InputError(f"{name}: expected TAU or TAU_S,TAU_B (numbers > 0), got {text!r}")
+    return vals[0] if len(vals) == 1 else tuple(vals)
+
+
 def check_number(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True):
     """``value`` as a float if it is a finite real number in the range, else InputError naming ``name``.
 

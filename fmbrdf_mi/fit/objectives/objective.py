@@ -214,7 +214,18 @@ class LikelihoodObjective:
         return f"variances from the model ({self.noise.describe()})"
 
     def residuals(self, parts, st):
-        return ((self.y - self.mu(parts, st)) / np.sqrt(self.var)).ravel()
+        """The whitened residuals of the samples (N,), then, with the albedo maps' smoothness prior
+        (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`), its rows: r @ r is then data chi^2 + penalty."""
+        r = ((self.y - self.mu(parts, st)) / np.sqrt(self.var)).ravel()
+        if getattr(self.layout, "prior", None) is None:
+            return r
+        return np.concatenate([r, self.layout.prior_residuals(st.a_s, st.a_b)])
+
+    def penalty(self, st):
+        """The albedo prior's term of chi^2 at ``st`` (0 without a prior)."""
+        if getattr(self.layout, "prior", None) is None:
+            return 0.0
+        return self.layout.prior.penalty(st.a_s, st.a_b)
 
     def value(self, parts, st):
         r = self.residuals(parts, st)
@@ -224,7 +235,8 @@ class LikelihoodObjective:
         """Negative log-likelihood (up to a constant) with the variance from this prediction."""
         mu = self.mu(parts, st)
         v = np.maximum(self.noise.variance(mu), 1e-300)
-        return 0.5 * float(np.sum((self.y - mu) ** 2 / v + np.log(v)))
+        out = 0.5 * float(np.sum((self.y - mu) ** 2 / v + np.log(v)))
+        return out if getattr(self.layout, "prior", None) is None else out + 0.5 * self.penalty(st)
 
     def score(self, parts, st):
         return self.nll(parts, st)
@@ -243,7 +255,11 @@ class LikelihoodObjective:
     def loss_terms(self, parts, st):
         r = self.residuals(parts, st)
         chi2 = float(r @ r)
-        return {"chi2": chi2, "samples": int(r.size), "nll": self.nll(parts, st)}
+        out = {"chi2": chi2, "samples": int(self.y.size), "nll": self.nll(parts, st)}
+        if getattr(self.layout, "prior", None) is not None:    # chi2 is data + penalty: say both
+            out["albedo_prior"] = self.penalty(st)
+            out["data_chi2"] = chi2 - out["albedo_prior"]
+        return out
 
     def row_pixels(self, n_rows):
         return np.arange(n_rows) // self.m
@@ -252,6 +268,8 @@ class LikelihoodObjective:
         r = self.residuals(parts, st)
         bad = None if parts.nonfinite is None else np.repeat(
             parts.nonfinite.reshape(self.n, -1).any(axis=1), self.m)
+        if bad is not None and len(bad) < len(r):      # the albedo prior's rows: finite (no BSDF derivative)
+            bad = np.concatenate([bad, np.zeros(len(r) - len(bad), bool)])
         if self.layout is None:
             inv_sd = 1.0 / np.sqrt(self.var)
 

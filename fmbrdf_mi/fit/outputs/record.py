@@ -40,7 +40,8 @@ ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "li
              "black_level", "channel", "demosaic", "conversion_gain", "read_noise", "footprint", "model",
              "baselines", "optimizer", "path", "bounds", "init", "loss", "white_level", "dark_level", "fixed",
              "starts", "max_iter", "tol", "time_limit", "max_time", "max_pixels", "erode", "seed", "relight",
-             "relight_light", "relight_irradiance", "area_points", "intervals", "albedo", "materials")
+             "relight_light", "relight_irradiance", "area_points", "intervals", "albedo", "materials",
+             "albedo_smooth")
 
 
 #: The arguments of :func:`fmbrdf_mi.fit.outputs.colour.fit_colour_files` among them (a colour fit's record).
@@ -118,7 +119,7 @@ def reproduce_block(arguments, inputs, command, obs, relight=None):
 #: fit_images keywords that define a joint fit (not where it writes or how it talks).
 FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
             "max_time", "max_pixels", "erode", "seed", "free_power", "power_start", "area_points", "intervals",
-            "albedo", "materials")
+            "albedo", "materials", "albedo_smooth")
 
 
 #: read_object keywords recorded for an authors' object.

@@ -68,7 +68,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
               demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf",
               baselines=False, optimizer="lm", path="pixel", bounds=None, init=None, loss="auto",
               white_level=None, dark_level=None, fixed=None, starts=2, area_points=None, intervals="auto",
-              albedo="shared", materials=None, max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
+              albedo="shared", albedo_smooth=None, materials=None, max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
               relight_light=None, relight_irradiance=None, force=False, progress=True, command=None):
     """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
 
@@ -89,7 +89,8 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     raw sample as the mean over that many points squared of its pixel (None: 2
     for raw mosaics, 1 otherwise).  ``intervals``: ``auto``, ``profile`` or ``fisher``
     (:class:`~fmbrdf_mi.fit.api.fitting.FitOptions`).  ``albedo``: ``shared`` (one k_s, r_k) or
-    ``per-pixel`` (albedo maps of a textured object, the likelihood only).  ``materials``: a label image
+    ``per-pixel`` (albedo maps of a textured object, the likelihood only); ``albedo_smooth``: the maps'
+    smoothness prior (tau or (tau_s, tau_b); :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`).  ``materials``: a label image
     (.png / .npy: :mod:`fmbrdf_mi.fit.inputs.labels`) giving each pixel's material, each fitted with its own
     parameters (the likelihood only); writes materials.png.  ``relight``: a second image of
     the same object under ``relight_light`` for the relighting check.
@@ -121,7 +122,8 @@ class SingleImage(FitJob):
                           init=parse_init(a["init"]), max_iter=a["max_iter"], tol=a["tol"],
                           time_limit=a["time_limit"], max_time=a["max_time"], max_pixels=a["max_pixels"],
                           erode=a["erode"], seed=a["seed"], area_points=a["area_points"], starts=a["starts"],
-                          loss=a["loss"], fixed=parse_fixed(a["fixed"]), albedo=a["albedo"])
+                          loss=a["loss"], fixed=parse_fixed(a["fixed"]), albedo=a["albedo"],
+                          albedo_smooth=a.get("albedo_smooth"))
         parse_auto(a.get("materials"))   # auto:M well formed (a label file is read in read())
 
     def files(self):
@@ -156,7 +158,7 @@ class SingleImage(FitJob):
                           time_limit=a["time_limit"], max_time=a["max_time"] or None, loss=a["loss"],
                           fixed=parse_fixed(a["fixed"]), starts=int(a["starts"]), max_pixels=a["max_pixels"],
                           erode=int(a["erode"]), seed=int(a["seed"]), area_points=a["area_points"],
-                          intervals=a["intervals"], albedo=a["albedo"])
+                          intervals=a["intervals"], albedo=a["albedo"], albedo_smooth=a.get("albedo_smooth"))
         loss = resolve_loss(obs, dataclasses.replace(opts, path=a["path"]))
         check_footprint(a["footprint"], loss, "--loss likelihood" if a["loss"] == "likelihood" else
                         f"the camera noise from {obs.meta.get('sidecar') or '--conversion-gain'}")

@@ -19,7 +19,9 @@ from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
 from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos, PixelModel
-from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS, BilinearPixelAlbedos, bilinear_weights
+from fmbrdf_mi.fit.evaluate.albedo_prior import SmoothPrior, neighbour_pairs, smooth_pair
+from fmbrdf_mi.fit.evaluate.bilinear_albedos import (PER_PIXEL_LAYOUTS, BilinearPixelAlbedos, CoupledPixelAlbedos,
+                                                     bilinear_weights)
 from fmbrdf_mi.fit.evaluate.materials import (MIN_MATERIAL_PIXELS, MaterialAlbedos, MaterialEvaluator,
                                               MaterialModel, check_labels, material_count)
 from fmbrdf_mi.fit.evaluate.models import get_model
@@ -145,11 +147,15 @@ def area_points(samples, opts):
     return int(m)
 
 
-def pixel_layout(observations, idxs, samples, bilinear=False):
+def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, factor=1.0):
     """The per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) of the fitted cells
     ``idxs`` (one flat index array per image): one group per pixel of the view (per pixel and colour
     channel for a colour mosaic), the same pixel in every image sharing it.  Several images must be of
-    one view (one pixel grid and the same view directions), else a pixel is not one point of the object."""
+    one view (one pixel grid and the same view directions), else a pixel is not one point of the object.
+    ``smooth``: (tau_s, tau_b) of the maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`, in
+    the reported albedos' units; ``factor`` the model's albedo factor), or None: no prior.  With a prior the
+    pairs are coupled: the per-pixel layout is then the banded solve of
+    :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.CoupledPixelAlbedos` with one corner per sample."""
     o0 = observations[0]
     for k, o in enumerate(observations[1:], 1):
         if o.shape != o0.shape or not np.allclose(o.view_dirs, o0.view_dirs):
@@ -159,22 +165,29 @@ def pixel_layout(observations, idxs, samples, bilinear=False):
     pixels = np.unique(flat)
     cell = np.searchsorted(pixels, flat)                               # (cells,) the pixel's group
     m = samples.n
+    W = o0.shape[1]
     if bilinear:
-        return bilinear_layout(o0.shape, flat, pixels, cell, samples)
+        prior = None if smooth is None else SmoothPrior(neighbour_pairs(pixels, W), len(pixels), smooth, factor)
+        return bilinear_layout(o0.shape, flat, pixels, cell, samples, prior)
     if samples.channel is None:
-        return PixelAlbedos(np.repeat(cell[:, None], m, axis=1), len(pixels), pixels)
-    C = len(CHANNELS)
-    ch = np.asarray(samples.channel, dtype=np.int64)
-    groups = cell[:, None] * C + ch[None, :]
-    return PixelAlbedos(groups, len(pixels) * C, np.repeat(pixels, C), np.tile(np.arange(C), len(pixels)),
-                        labels=CHANNELS)
+        groups, n_groups, gpix, ch, labels = np.repeat(cell[:, None], m, axis=1), len(pixels), pixels, None, None
+    else:
+        C = len(CHANNELS)
+        chs = np.asarray(samples.channel, dtype=np.int64)
+        groups = cell[:, None] * C + chs[None, :]
+        n_groups, gpix, ch, labels = len(pixels) * C, np.repeat(pixels, C), np.tile(np.arange(C), len(pixels)), CHANNELS
+    if smooth is None:
+        return PixelAlbedos(groups, n_groups, gpix, ch, labels=labels)
+    prior = SmoothPrior(neighbour_pairs(gpix, W, ch), n_groups, smooth, factor)
+    return CoupledPixelAlbedos(groups, groups[..., None], np.ones(groups.shape + (1,)), n_groups, gpix,
+                               name="per-pixel", prior=prior, channel_of=ch, labels=labels)
 
 
-def bilinear_layout(shape, flat, pixels, cell, samples):
+def bilinear_layout(shape, flat, pixels, cell, samples, prior=None):
     """The bilinear per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BilinearPixelAlbedos`)
     of cells at flat indices ``flat`` of the pixel grid ``shape``, ``pixels`` the sorted fitted pixels (the
     groups), ``cell`` each cell's group: each sample interpolated at its offset between the fitted pixels'
-    centres."""
+    centres; ``prior``: the maps' smoothness prior or None."""
     if samples.channel is not None:
         raise InputError("albedo per-pixel-bilinear: not for colour mosaics (mono captures, raw or angle images)")
     H, W = shape
@@ -188,7 +201,8 @@ def bilinear_layout(shape, flat, pixels, cell, samples):
     rows, cols = np.divmod(np.asarray(flat, dtype=np.int64), W)
     corners, weights = bilinear_weights(rows, cols, samples.offsets, present)
     groups = np.searchsorted(pixels, corners[..., 0] * W + corners[..., 1])
-    return BilinearPixelAlbedos(np.repeat(cell[:, None], samples.n, axis=1), groups, weights, len(pixels), pixels)
+    return BilinearPixelAlbedos(np.repeat(cell[:, None], samples.n, axis=1), groups, weights, len(pixels), pixels,
+                                prior=prior)
 
 
 def material_labels(observations, materials, loss, opts, evaluator=None):
@@ -247,6 +261,8 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     """
     K = len(observations)
     lab = count = keep = None
+    if materials is not None and getattr(opts, "albedo_smooth", None) is not None:
+        raise InputError("materials: not with albedo_smooth (the albedo maps' smoothness prior) yet")
     if materials is not None:
         lab, count = material_labels(observations, materials, loss, opts, evaluator)
         keep = lab >= 0
@@ -312,7 +328,10 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         if getattr(opts, "albedo", "shared") in PER_PIXEL_LAYOUTS:
             if lab is not None and opts.albedo == "per-pixel-bilinear":
                 raise InputError("materials: not with albedo per-pixel-bilinear yet (use albedo per-pixel)")
-            layout = pixel_layout(observations, idxs, smps[0], bilinear=opts.albedo == "per-pixel-bilinear")
+            smooth = getattr(opts, "albedo_smooth", None)
+            layout = pixel_layout(observations, idxs, smps[0], bilinear=opts.albedo == "per-pixel-bilinear",
+                                  smooth=None if smooth is None else smooth_pair(smooth),
+                                  factor=get_model(opts.model).albedo_factor)
         elif lab is not None:
             layout = MaterialAlbedos(cell_material, smps[0].n, count)
         objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof, layout=layout)

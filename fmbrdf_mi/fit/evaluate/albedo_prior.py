@@ -1,0 +1,123 @@
+"""A Gaussian smoothness prior on per-pixel albedo maps (``FitOptions.albedo_smooth``, ``--albedo-smooth``).
+
+The maps of a per-pixel albedo fit (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`,
+:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BilinearPixelAlbedos`) are two unknowns per pixel, which
+one image's four polariser samples determine poorly.  The prior says that the albedos of 4-neighbouring
+fitted pixels i, j differ by a Gaussian amount of standard deviation tau (in the maps' units: the reported
+k_s and k_b, i.e. the model's albedo factor times the BSDF's a_s, a_b):
+
+    penalty = sum over 4-neighbour pairs (i, j) of ((k_s,i - k_s,j) / tau_s)^2 + ((k_b,i - k_b,j) / tau_b)^2
+
+(a first-difference Gaussian Markov random field; pairs of the same colour channel only for colour
+mosaics).  The residuals of the likelihood are whitened by the camera noise, so the penalty is in chi^2
+units and is added to chi^2: the fit minimises data chi^2 + penalty (the negative log posterior, up to a
+constant).  It is written as 2 E extra residual rows D a / tau (E pairs; :meth:`SmoothPrior.residuals`),
+which do not depend on the shape parameters; the albedos stay eliminated (variable projection), now by the
+penalised least squares (G + Lambda) a = A^T y, Lambda = D^T diag(1 / tau^2) D.
+
+The prior is improper: each connected set of fitted pixels keeps its mean k_s and k_b free
+(:meth:`SmoothPrior.null_dims`: 2 per component and channel), so a constant map costs nothing.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def smooth_pair(value):
+    """(tau_s, tau_b) from ``albedo_smooth``: one number for both, or a pair (checked by
+    :func:`fmbrdf_mi.fit.api.options.check_fit_options`)."""
+    if isinstance(value, (tuple, list, np.ndarray)):
+        return float(value[0]), float(value[1])
+    return float(value), float(value)
+
+
+def neighbour_pairs(pixels, width, channel_of=None):
+    """The 4-neighbour pairs of groups: (E, 2) group indices (i, j), i < j, of groups whose pixels (flat
+    indices ``pixels`` (n_groups,) on an image ``width`` wide) are right or down neighbours and, for a colour
+    mosaic (``channel_of`` (n_groups,)), of the same channel.  Groups are sorted by (pixel, channel)."""
+    pixels = np.asarray(pixels, dtype=np.int64)
+    ch = np.zeros(len(pixels), np.int64) if channel_of is None else np.asarray(channel_of, dtype=np.int64)
+    C = int(ch.max()) + 1 if len(ch) else 1
+    key = pixels * C + ch
+    order = np.argsort(key, kind="stable")
+    sk = key[order]
+    out = []
+    for step, ok in ((1, pixels % width != width - 1), (width, np.ones(len(pixels), bool))):
+        target = (pixels + step) * C + ch
+        pos = np.clip(np.searchsorted(sk, target), 0, max(len(sk) - 1, 0))
+        hit = ok & (len(sk) > 0) & (sk[pos] == target)
+        i = np.flatnonzero(hit)
+        out.append(np.stack([i, order[pos[hit]]], 1))
+    pairs = np.concatenate(out) if out else np.zeros((0, 2), np.int64)
+    pairs = np.sort(pairs, axis=1)
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+
+
+def components(n, pairs):
+    """The number of connected components of n nodes joined by ``pairs`` (E, 2) (isolated nodes count)."""
+    label = np.arange(n)
+    if len(pairs):
+        i, j = pairs[:, 0], pairs[:, 1]
+        while True:            # min-label propagation with pointer jumping: O(E log n) passes at most
+            m = np.minimum(label[i], label[j])
+            new = label.copy()
+            np.minimum.at(new, i, m)
+            np.minimum.at(new, j, m)
+            new = new[new]
+            if np.array_equal(new, label):
+                break
+            label = new
+    return int(len(np.unique(label)))
+
+
+class SmoothPrior:
+    """The smoothness prior of the module docstring on ``n_groups`` albedo pairs, unknowns interleaved
+    (a_s[g] at 2g, a_b[g] at 2g + 1): ``pairs`` (E, 2) the neighbouring groups, ``tau`` (tau_s, tau_b) in the
+    maps' units, ``factor`` the model's albedo factor (k = factor a), so that a row is
+    factor (a_i - a_j) / tau."""
+
+    def __init__(self, pairs, n_groups, tau, factor=1.0):
+        self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        self.n_groups = int(n_groups)
+        self.tau = (float(tau[0]), float(tau[1]))
+        self.factor = float(factor)
+        self.weights = (self.factor / self.tau[0], self.factor / self.tau[1])
+        self.n_rows = 2 * len(self.pairs)
+        self._null = None
+
+    def rows(self):
+        """The prior's rows of the augmented design: (columns (2E, 2), values (2E, 2)), first the E k_s
+        differences, then the E k_b ones."""
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        ws, wb = self.weights
+        cols = np.concatenate([np.stack([2 * i, 2 * j], 1), np.stack([2 * i + 1, 2 * j + 1], 1)])
+        vals = np.concatenate([np.tile([ws, -ws], (len(i), 1)), np.tile([wb, -wb], (len(i), 1))])
+        return cols, vals.astype(np.float64)
+
+    def residuals(self, a_s, a_b):
+        """The prior's residuals (2E,): factor (a_s,i - a_s,j) / tau_s, then the same of a_b."""
+        a_s, a_b = np.asarray(a_s, dtype=np.float64), np.asarray(a_b, dtype=np.float64)
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        return np.concatenate([self.weights[0] * (a_s[i] - a_s[j]), self.weights[1] * (a_b[i] - a_b[j])])
+
+    def apply(self, x):
+        """D x / tau for interleaved unknowns x (2 n_groups,) or (2 n_groups, p): (2E,) or (2E, p)."""
+        x = np.asarray(x, dtype=np.float64)
+        return self.residuals(x[0::2], x[1::2]) if x.ndim == 1 else np.stack(
+            [self.residuals(x[0::2, k], x[1::2, k]) for k in range(x.shape[1])], 1)
+
+    def penalty(self, a_s, a_b):
+        """The prior's term of chi^2: the sum of the squared :meth:`residuals`."""
+        r = self.residuals(a_s, a_b)
+        return float(r @ r)
+
+    def null_dims(self):
+        """The dimension of the prior's null space: 2 per connected component of the neighbour graph (each
+        component's mean k_s and k_b are not penalised)."""
+        if self._null is None:
+            self._null = 2 * components(self.n_groups, self.pairs)
+        return self._null
+
+    def describe(self):
+        return (f"Gaussian first-difference prior on 4-neighbour pairs: tau_s {self.tau[0]:g}, tau_b "
+                f"{self.tau[1]:g} (k_s, k_b units)")
