@@ -1,7 +1,6 @@
 """The likelihood's pixel-area quadrature, checked and refined by the fit (fitting.refine_quadrature):
 its predicted bias against two independent fits with fixed quadratures on the same data, and the refined fit
 against the fit with the finer quadrature from the start."""
-import numpy as np
 import pytest
 
 from fmbrdf_mi.camera import CameraModel
