@@ -400,21 +400,13 @@ class BandCholesky:
 
         which needs only the diagonal blocks of Z (of Gs; G's are D^-1/2 Z D^-1/2).  O(n b^2)."""
         e = self.edges
-        K = len(e) - 1
         diag = np.empty(self.n)
         off = np.zeros(self.n)               # Z[i, i + 1]
-        Znext = None
-        for k in range(K - 1, -1, -1):
-            Li = self.Linv[k]
-            if Znext is None:
-                Z = Li.T @ Li
-            else:
-                Zlow = -(Znext @ self.M[k]) @ Li       # Z_{k+1,k}
-                Z = Li.T @ (Li - self.M[k].T @ Zlow)
+        for k, Z, Zlow, _ in self._selected_inverse():
+            if Zlow is not None:
                 off[e[k + 1] - 1] = Zlow[0, -1]          # Z[e_{k+1}, e_{k+1} - 1]
             diag[e[k]:e[k + 1]] = np.diag(Z)
             off[e[k]:e[k + 1] - 1] = np.diag(Z, 1)
-            Znext = Z
         sc = self.scale
         out = np.empty((self.n // 2, 2, 2))
         out[:, 0, 0], out[:, 1, 1] = diag[0::2] * sc[0::2] ** 2, diag[1::2] * sc[1::2] ** 2
@@ -431,23 +423,31 @@ class BandCholesky:
         if bw > s:
             raise ValueError(f"inverse_band: bandwidth {bw} above the factor's {s}")
         out = np.zeros((self.n, bw + 1))
-        Znext = None
-        for k in range(K - 1, -1, -1):
-            Li = self.Linv[k]
-            if Znext is None:
-                Z = Li.T @ Li
-            else:
-                Zlow = -(Znext @ self.M[k]) @ Li       # Z_{k+1,k}: row block k + 1's left part
-                Z = Li.T @ (Li - self.M[k].T @ Zlow)
+        Z = None
+        for k, Z, Zlow, Znext in self._selected_inverse():
+            if Zlow is not None:        # Z_{k+1,k}: row block k + 1's left part
                 self._fill(out, k + 1, Zlow, Znext, bw)
-            Znext = Z
         if K:
-            self._fill(out, 0, None, Znext, bw)
+            self._fill(out, 0, None, Z, bw)
         sc = self.scale
         for d in range(bw + 1):
             i = np.arange(d, self.n)
             out[i, d] *= sc[i] * sc[i - d]
         return out
+
+    def _selected_inverse(self):
+        """Takahashi's recursion on the block-bidiagonal factor, from the last block up (:meth:`diagonal_blocks`):
+        yields (k, Z_kk, Z_{k+1,k} or None for the last block, Z_{k+1,k+1} or None), Z = Gs^-1."""
+        Znext = None
+        for k in range(len(self.edges) - 2, -1, -1):
+            Li = self.Linv[k]
+            if Znext is None:
+                Z, Zlow = Li.T @ Li, None
+            else:
+                Zlow = -(Znext @ self.M[k]) @ Li
+                Z = Li.T @ (Li - self.M[k].T @ Zlow)
+            yield k, Z, Zlow, Znext
+            Znext = Z
 
     def _fill(self, out, k, Zleft, Zkk, bw):
         """Rows of block k of the band from [Z_{k,k-1} | Z_kk] (Zleft None: block 0)."""
