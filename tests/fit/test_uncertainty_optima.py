@@ -74,3 +74,41 @@ def test_parameters_without_a_standard_error_are_left_out():
     optima, thr = U.other_optima([start(100.0), start(101.0, kappa=30.0)], BEST, {"std_errors": se}, NAMES)
     assert optima == [] and thr == pytest.approx(U.CHI2_95[2])
     assert U.other_optima([start(100.0)], BEST, {"std_errors": SE}, NAMES) == ([], None)
+
+
+def ci_of(params, se, k=1.96):
+    return {n: [params[n] - k * se[n], params[n] + k * se[n]] for n in NAMES}
+
+
+def test_intervals_are_widened_over_a_competing_optimum_only():
+    """The hull of the estimate's interval and, around the competing optimum, an interval of the same
+    half-widths (worked out by hand here); a far (non-competing) optimum widens nothing."""
+    unc = {"std_errors": SE, "ci95": ci_of(BEST, SE), "method": "Fisher"}
+    optima, _ = U.other_optima([start(100.0), start(103.0, alpha=0.30, beta=1.3), start(110.0, eta=1.40)],
+                               BEST, unc, NAMES)
+    unc["other_optima"] = {"optima": optima}
+    widened = U.widen_for_optima(unc, BEST, optima)
+    assert sorted(widened) == ["alpha", "beta"]
+    assert unc["ci95"]["alpha"] == pytest.approx([0.25 - 0.0196, 0.30 + 0.0196])
+    assert unc["ci95"]["beta"] == pytest.approx([1.0 - 0.098, 1.3 + 0.098])
+    assert unc["ci95"]["eta"] == pytest.approx([1.45 - 0.0196, 1.45 + 0.0196])   # the eta=1.40 optimum is far
+    assert unc["interval_kind"] == {"eta": "fisher", "alpha": "optima", "beta": "optima", "kappa": "fisher"}
+    assert unc["other_optima"]["widened"]["alpha"] == pytest.approx([0.25 - 0.0196, 0.25 + 0.0196])
+    assert "widened" in unc["method"]
+
+
+def test_asymmetric_intervals_keep_their_half_widths_and_profile_kinds():
+    """A profile interval (asymmetric) moves with its own lower and upper half-widths; a competing optimum
+    below the estimate stretches the lower end only; parameters it does not move keep their kind."""
+    ci = ci_of(BEST, SE)
+    ci["kappa"] = [8.0, 14.0]                       # half-widths 2 below, 4 above
+    unc = {"std_errors": SE, "ci95": ci, "interval_kind": dict.fromkeys(NAMES, "fisher") | {"eta": "profile"}}
+    optima, _ = U.other_optima([start(100.0), start(101.0, kappa=5.0)], BEST, unc, NAMES)
+    assert optima[0]["competing"]
+    U.widen_for_optima(unc, BEST, optima)
+    assert unc["ci95"]["kappa"] == pytest.approx([3.0, 14.0])
+    assert unc["interval_kind"]["kappa"] == "optima" and unc["interval_kind"]["eta"] == "profile"
+    # nothing competing: nothing changes
+    unc2 = {"std_errors": SE, "ci95": ci_of(BEST, SE)}
+    optima2, _ = U.other_optima([start(100.0), start(150.0, kappa=5.0)], BEST, unc2, NAMES)
+    assert U.widen_for_optima(unc2, BEST, optima2) == [] and "interval_kind" not in unc2

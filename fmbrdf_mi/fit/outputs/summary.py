@@ -13,9 +13,12 @@ EXIT_NOT_CONVERGED = 3
 
 
 def kind_text(model_entry, name):
-    """`` (profile likelihood ...)`` after an interval that is not the Fisher one (uncertainty.profile_intervals)."""
+    """`` (profile likelihood ...)`` after an interval that is not the Fisher one (uncertainty.profile_intervals,
+    uncertainty.widen_for_optima)."""
     unc = model_entry.get("uncertainty") or {}
     kind = (unc.get("interval_kind") or {}).get(name, "fisher")
+    if kind == "optima":
+        return " (widened over another optimum)"
     return "" if kind == "fisher" else f" ({kind.replace('profile', 'profile likelihood')})"
 
 def albedo_text(a):
