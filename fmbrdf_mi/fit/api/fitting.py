@@ -426,7 +426,10 @@ def albedo_maps(layout, shape, groups):
 #: 11-12 seeds per object, 2026-11-26) the second optimum (alpha, beta ~50 % high, kappa ~40 % high on the
 #: sphere) wins in about a third of the seeds, by a chi^2 difference of ~10 that the sandwich's 95 % region
 #: cannot tell from noise: the mean errors of alpha, beta are +12 to +17 %, the medians +3 to +12 %
-#: (:func:`fmbrdf_mi.fit.uncertainty.other_optima` warns when it sees such an optimum among its starts).
+#: (:func:`fmbrdf_mi.fit.uncertainty.other_optima` warns when it sees such an optimum among its starts, and
+#: :func:`~fmbrdf_mi.fit.uncertainty.widen_for_optima` stretches the intervals over it: 24 seeds per object,
+#: alpha and beta covered 18-19 of 24 instead of 15-16).  Noise-free there is no second optimum
+#: (tools/diag_one_image_ridge.py: a ridge along which chi^2 rises by 31 at 100^2, 114 at 200^2).
 #: At 200^2 (24 seeds, --res 200 --lights 1) it did not occur: eta -0.01 +- 0.06 %, alpha -2.0 +- 1.9 %,
 #: beta -1.1 +- 1.3 %, spread / SE 0.80-0.91, 23-24 of 24 intervals cover.
 MIN_IMAGES_PER_PIXEL = 3
