@@ -1,7 +1,7 @@
 """Issue 25 diagnostic: where the one-image per-pixel fit's second optimum comes from, and why it goes with size.
 
     python tools/diag_one_image_ridge.py [--objects sphere,mesh] [--sizes 100,200] [--other 1.42,0.37,1.47,13.8]
-                                         [--noisy-seed 0] [--json OUT.json]
+                                         [--noisy-seed 0] [--from-truth 3,5,6] [--json OUT.json]
 
 Data as tools/bench_textured.py makes them (smooth texture, one light, the ``medium`` material, per-pixel
 albedos fitted with ``albedo="per-pixel"``).  ``--other`` is the second optimum (eta, alpha, beta, kappa)
@@ -15,7 +15,11 @@ that noisy fits of the 100^2 sphere end at (seed 0 of ``bench_textured --res 100
    noise-free data say the other optimum is.  The per-pixel likelihood's 95 % region is this many chi^2
    units against a threshold of chi^2_4(0.95) x the sandwich's variance inflation (about 42 on the 100^2
    sphere): below it noise can make the other point an optimum that wins; it grows with the pixel count.
-3. *Non-negative albedos would not tell them apart* (``--noisy-seed``): the noisy capture of that seed fitted
+3. *Seeds without an optimum near the truth* (``--from-truth 3,5,6``: seeds of ``bench_textured --res 100
+   --lights 1`` whose intervals missed): each noisy capture fitted once from the truth and once with 4 starts
+   of the coarse search; where the fit from the truth slides to the high-alpha point there is no optimum near
+   the truth to find, and no start, interval stretching or profile check built on this likelihood covers it.
+4. *Non-negative albedos would not tell them apart* (``--noisy-seed``): the noisy capture of that seed fitted
    from the other optimum and from the truth (one start each); how many k_s, k_b come out below 0, and below
    -2 and -3 of their standard errors, at each.
 """
@@ -57,6 +61,7 @@ def main():
     p.add_argument("--other", default="1.42,0.37,1.47,13.8")
     p.add_argument("--steps", type=int, default=4, help="points along the line (besides the truth)")
     p.add_argument("--noisy-seed", type=int, default=0, help="-1: skip part 3")
+    p.add_argument("--from-truth", default="", help="seeds (comma-separated) to fit from the truth and with 4 starts")
     p.add_argument("--json")
     a = p.parse_args()
     other = dict(zip(SHAPE, (float(x) for x in a.other.split(","))))
@@ -102,6 +107,19 @@ def main():
                           + f", chi2 {q['chi2']:.1f}; of {q['pixels']} pixels k_s < 0: {q['k_s_below_0']}, "
                           f"< -2 SE: {q['k_s_below_-2se']}, < -3 SE: {q['k_s_below_-3se']}; k_b < 0: {q['k_b_below_0']}, "
                           f"< -3 SE: {q['k_b_below_-3se']}", flush=True)
+            run["from_truth"] = []
+            for seed in (int(x) for x in a.from_truth.split(",") if x):
+                from fmbrdf_mi.fit import fit
+
+                o = capture(obj, res, 1000 * seed, noiseless=False)
+                r = fit_from(o, {n: TRUTH[n] for n in SHAPE})
+                r4 = fit(o, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False, starts=4)
+                q = {"seed": seed, "from_truth": {n: float(r.params[n]) for n in SHAPE},
+                     "starts4": {n: float(r4.params[n]) for n in SHAPE},
+                     "starts4_ends_alpha": [float(st["end"]["alpha"]) for st in r4.starts]}
+                run["from_truth"].append(q)
+                print(f"  noisy seed {seed}: from the truth -> " + ", ".join(f"{n} {q['from_truth'][n]:.4g}" for n in SHAPE)
+                      + "; 4 starts end at alpha " + ", ".join(f"{x:.3f}" for x in q["starts4_ends_alpha"]), flush=True)
             run["seconds"] = time.time() - t0
             out["runs"].append(run)
     if a.json:

@@ -112,3 +112,12 @@ def test_asymmetric_intervals_keep_their_half_widths_and_profile_kinds():
     unc2 = {"std_errors": SE, "ci95": ci_of(BEST, SE)}
     optima2, _ = U.other_optima([start(100.0), start(150.0, kappa=5.0)], BEST, unc2, NAMES)
     assert U.widen_for_optima(unc2, BEST, optima2) == [] and "interval_kind" not in unc2
+
+
+def test_the_summary_marks_stretched_intervals():
+    from fmbrdf_mi.fit.outputs.summary import kind_text
+
+    entry = {"uncertainty": {"interval_kind": {"alpha": "optima", "eta": "profile", "beta": "fisher"}}}
+    assert kind_text(entry, "alpha") == " (widened over another optimum)"
+    assert kind_text(entry, "eta") == " (profile likelihood)"
+    assert kind_text(entry, "beta") == "" and kind_text(entry, "kappa") == ""
