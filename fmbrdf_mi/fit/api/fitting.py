@@ -430,14 +430,16 @@ def albedo_maps(layout, shape, groups):
 #: :func:`~fmbrdf_mi.fit.uncertainty.widen_for_optima` stretches the intervals over it: 24 seeds per object,
 #: alpha and beta covered 18-19 of 24 instead of 15-16).  Noise-free there is no second optimum
 #: (tools/diag_one_image_ridge.py: a ridge along which chi^2 rises by 31 at 100^2, 114 at 200^2).
-#: At 200^2 (24 seeds, --res 200 --lights 1) it did not occur: eta -0.01 +- 0.06 %, alpha -2.0 +- 1.9 %,
-#: beta -1.1 +- 1.3 %, spread / SE 0.80-0.91, 23-24 of 24 intervals cover.
+#: At 200^2 (24 seeds, --res 200 --lights 1) it did not occur on the sphere (27,000 fitted super-pixels):
+#: eta -0.01 +- 0.06 %, alpha -2.0 +- 1.9 %, beta -1.1 +- 1.3 %, spread / SE 0.80-0.91, 23-24 of 24 intervals
+#: cover; it did on the mesh (10,600: a competing optimum in 8 of 24, alpha +8 %).
 MIN_IMAGES_PER_PIXEL = 3
 PER_PIXEL_FEW_IMAGES = ("per-pixel albedos from fewer than 3 images of each pixel: eta, alpha, beta, kappa are "
                         "poorly determined (one image, measured: a spread 2.5-5.6x the Fisher standard errors, "
                         "which the reported incidental-parameter sandwich corrects for the most part, and heavy "
-                        "tails: a second optimum that wins in up to a third of noise draws: 4 % at 24^2, a third "
-                        "at 100^2, none of 24 at 200^2 super-pixels); fit several lights of the same view")
+                        "tails: a second optimum that wins in up to a third of noise draws: 4 % at about 400 fitted "
+                        "super-pixels, a third at 2,500-10,600, none of 24 at 27,000); fit several lights of the "
+                        "same view")
 
 
 def _determined(value, se, rel=0.5):
