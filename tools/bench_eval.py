@@ -6,7 +6,14 @@ compiles the kernels, and times the rebuild after a parameter change
 (mi.traverse + update: the Smith table and the body table).
 The two BSDFs are timed in interleaved rounds; each keeps its best.
 
-    python tools/bench_eval.py [--n 1000000] [--repeats 5] [--variant ...]
+    python tools/bench_eval.py [--n 1000000] [--repeats 5] [--variant ...] [--grid NT NP] [--decompose]
+
+``--decompose``: where eval's time goes.  The same fmbrdf evaluated with its body-table coordinates
+squeezed into a corner of 4 % of each axis (the same arithmetic, every table read from a few texels that
+stay in the L1 cache: what eval would cost if no read missed the cache), and with every coordinate at one
+point (constants: the compiler then drops the lookup's arithmetic too, so this is about what eval costs
+without the body table).  full - cached is the cost of the table reads missing the caches; cached - one
+texel the lookup's arithmetic and its gathers from the L1 cache.
 """
 import argparse
 import os
@@ -24,6 +31,8 @@ def main():
                     metavar=("NT", "NP"),
                     help="also time fmbrdf with a body table of (NT, NP) nodes "
                          "(repeatable): how eval's cost depends on the tables' size")
+    ap.add_argument("--decompose", action="store_true",
+                    help="also time fmbrdf with its table reads kept in the L1 cache, and at one point")
     args = ap.parse_args()
 
     import drjit as dr
@@ -69,21 +78,37 @@ def main():
         b.grid = BodyGrid(b.grid.n_theta, b.grid.n_phi, (nt, nph), b.grid.n_factor)
         b.parameters_changed(["alpha"])
         bsdfs[f"fmbrdf {nt}x{nt}x{nph} ({table_kib(b):.0f} KiB)"] = b
-    for bsdf in bsdfs.values():
+    cls = type(bsdfs["fmbrdf"])
+    coords = {name: cls.table_coords for name in bsdfs}
+    if args.decompose:  # the same BSDF, its table coordinates squeezed (traced anew for each)
+        full = cls.table_coords
+
+        def cached(self, cos_l, cos_v, phi):
+            return tuple(0.5 + 0.04 * (u - 0.5) for u in full(self, cos_l, cos_v, phi))
+
+        def one_point(self, cos_l, cos_v, phi):
+            return tuple(0.5 + 0.0 * u for u in full(self, cos_l, cos_v, phi))
+
+        for name, f in (("fmbrdf, reads cached", cached), ("fmbrdf, one texel", one_point)):
+            bsdfs[name], coords[name] = bsdfs["fmbrdf"], f
+    for name, bsdf in bsdfs.items():
+        cls.table_coords = coords[name]
         dr.eval(bsdf.eval(ctx, si, wo))  # compile
     times = {name: np.inf for name in bsdfs}
     for _ in range(args.repeats):  # interleaved rounds: both see the same machine state
         for name, bsdf in bsdfs.items():
+            cls.table_coords = coords[name]
             dr.sync_thread()
             t = time.perf_counter()
             dr.eval(bsdf.eval(ctx, si, wo))
             dr.sync_thread()
             times[name] = min(times[name], time.perf_counter() - t)
     for name, best in times.items():
-        print(f"{name:9s} eval: {best * 1e3:8.1f} ms for {args.n} pairs = {args.n / best / 1e6:6.2f} M Mueller evals/s"
+        print(f"{name:20s} eval: {best * 1e3:8.1f} ms for {args.n} pairs = {args.n / best / 1e6:6.2f} M Mueller evals/s"
               f"  (ratio {best / times['pplastic']:.2f})")
     print(f"ratio fmbrdf / pplastic: {times['fmbrdf'] / times['pplastic']:.2f}  (issue 26: <= 1.4)")
 
+    cls.table_coords = coords["fmbrdf"]
     params = mi.traverse(bsdfs["fmbrdf"])
     rebuild = []
     for i in range(args.repeats + 1):
