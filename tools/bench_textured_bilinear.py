@@ -4,6 +4,12 @@ against ``per-pixel-bilinear`` (the pairs at the super-pixel centres, each raw s
     python tools/bench_textured_bilinear.py --work /tmp/btb [--sizes 64,128] [--seeds 3] [--lights 1,3]
                                             [--exact-res 32] [--exact-seeds 3] [--json out.json]
     python tools/bench_textured_bilinear.py --table out.json
+    python tools/bench_textured_bilinear.py --sizes 128 --lights 3 --exact-res '' --layouts per-pixel-bilinear \
+                                            --render-seeds [--spp 4096] [--seed0 0] --seeds 6 --json own.json
+
+``--render-seeds``: each raw seed's images rendered with their own sampler seed (raw seed + 1), so that the
+renderer's Monte Carlo noise differs between seeds as the camera's does (by default every raw seed of one
+size and light is the same render: its Monte Carlo noise is common to all of them).
 
 Two kinds of data, the `medium` material (eta 1.45, alpha 0.25, beta 1, kappa 10), lights as in
 tools/bench_textured.py (K = 1: (-0.5, 0.5, 1); K = 3: that one and two 35 degrees from the view at
@@ -68,16 +74,19 @@ def textures(work):
     return paths
 
 
-def render(work, size, j, seed):
-    """OUT_raw.png of light j at an S x S super-pixel grid, raw seed ``seed`` (rendered once per seed)."""
+def render(work, size, j, seed, sampler_seed=0, spp=None):
+    """OUT_raw.png of light j at an S x S super-pixel grid, raw seed ``seed`` (rendered once per seed), the
+    renderer's sampler seed ``sampler_seed`` and ``spp`` samples per pixel (None: render --raw's 1024)."""
     ks, kb = textures(work)
-    out = os.path.join(work, f"s{size}_l{j}_r{seed}.exr")
+    tag = (f"_m{sampler_seed}" if sampler_seed else "") + (f"_spp{spp}" if spp else "")
+    out = os.path.join(work, f"s{size}_l{j}_r{seed}{tag}.exr")
     if not os.path.exists(out[:-4] + "_raw.png"):
         env = dict(os.environ, DRJIT_NUM_THREADS="1", PYTHONPATH=ROOT)
         cmd = [os.path.join(os.path.dirname(sys.executable), "fmbrdf-mi"), "render", out, "--variant", "llvm_ad_mono_polarized",
                "--res", str(2 * size), "-D", "eta=1.45", "-D", "alpha=0.25", "-D", "beta=1", "-D", "kappa=10",
                "-D", f"k_s={ks}", "-D", f"k_b={kb}", "-D", "light_dir=" + ",".join(f"{v:.7f}" for v in LIGHTS[j]),
-               "--raw", "--raw-seed", str(seed), "--no-previews", "--force", "-q"]
+               "--raw", "--raw-seed", str(seed), "--no-previews", "--force", "-q", "--seed", str(sampler_seed)]
+        cmd += ["--spp", str(spp)] if spp else []
         # the render is not pinned to this process's cores: under an affinity of one core a textured render
         # hung in a futex (mitsuba 3.9.1 on the 2-core bench machine); DRJIT_NUM_THREADS=1 keeps it to one thread
         subprocess.run(cmd, check=True, env=env,
@@ -159,9 +168,19 @@ def main(argv=None):
     p.add_argument("--lights", default="3,1")
     p.add_argument("--exact-res", default="32", help="model-exact data's grids (empty: none)")
     p.add_argument("--exact-seeds", type=int, default=3)
+    p.add_argument("--seed0", type=int, default=0, help="first raw seed")
+    p.add_argument("--render-seeds", action="store_true",
+                   help="render each raw seed with its own sampler seed (its own Monte Carlo noise; default: "
+                        "every raw seed of one size and light shares one render)")
+    p.add_argument("--spp", type=int, help="samples per pixel of the renders (default: render --raw's 1024)")
+    p.add_argument("--layouts", default=",".join(LAYOUTS), help="the layouts fitted")
     p.add_argument("--json", metavar="OUT.json")
     p.add_argument("--table", metavar="IN.json")
     a = p.parse_args(argv)
+    layouts = [L for L in a.layouts.split(",") if L]
+    if any(L not in LAYOUTS for L in layouts):
+        p.error(f"--layouts: expected some of {', '.join(LAYOUTS)}")
+    data_name = "render" + (" (own MC seed)" if a.render_seeds else "") + (f" {a.spp} spp" if a.spp else "")
     if a.table:
         print(table(summarise(json.load(open(a.table))["runs"])))
         return 0
@@ -184,24 +203,24 @@ def main(argv=None):
         for res in [int(s) for s in a.exact_res.split(",") if s]:
             for kind in ("continuous", "constant"):
                 for seed in range(a.exact_seeds):
-                    todo = [L for L in LAYOUTS if (f"exact-{kind}", res, K, seed, L) not in done]
+                    todo = [L for L in layouts if (f"exact-{kind}", res, K, seed, L) not in done]
                     if todo:
                         obs, ks, kb = exact_data(kind, res, K, seed)
                         for L in todo:
                             record(dict(one_fit(obs, L, ks, kb), data=f"exact-{kind}", size=res, K=K, seed=seed,
                                         layout=L))
         for size in [int(s) for s in a.sizes.split(",") if s]:
-            for seed in range(a.seeds):
-                todo = [L for L in LAYOUTS if ("render", size, K, seed, L) not in done]
+            for seed in range(a.seed0, a.seed0 + a.seeds):
+                todo = [L for L in layouts if (data_name, size, K, seed, L) not in done]
                 if not todo:
                     continue
                 from fmbrdf_mi.fit.inputs.files import build_observation
 
-                files = [render(a.work, size, j, seed) for j in range(K)]
+                files = [render(a.work, size, j, seed, seed + 1 if a.render_seeds else 0, a.spp) for j in range(K)]
                 obs = [build_observation(f[0]) for f in files]
                 ks, kb = read_map(files[0][1]), read_map(files[0][2])
                 for L in todo:
-                    record(dict(one_fit(obs, L, ks, kb), data="render", size=size, K=K, seed=seed, layout=L))
+                    record(dict(one_fit(obs, L, ks, kb), data=data_name, size=size, K=K, seed=seed, layout=L))
     print(table(summarise(runs)))
     return 0
 
