@@ -121,3 +121,12 @@ def test_the_summary_marks_stretched_intervals():
     assert kind_text(entry, "alpha") == " (widened over another optimum)"
     assert kind_text(entry, "eta") == " (profile likelihood)"
     assert kind_text(entry, "beta") == "" and kind_text(entry, "kappa") == ""
+
+
+def test_stretched_intervals_stop_at_the_bounds():
+    """A competing optimum near a bound stretches the interval to the bound, not past it (alpha's lower
+    bound 0.2 here: 0.21 - 0.0196 would cross it)."""
+    unc = {"std_errors": SE, "ci95": ci_of(BEST, SE)}
+    optima, _ = U.other_optima([start(100.0), start(102.0, alpha=0.21)], BEST, unc, NAMES)
+    U.widen_for_optima(unc, BEST, optima, {"alpha": (0.2, 1.0)})
+    assert unc["ci95"]["alpha"] == pytest.approx([0.2, 0.25 + 0.0196])

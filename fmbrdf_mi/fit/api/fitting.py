@@ -228,7 +228,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
             if text:
                 unc["other_optima"]["warning"] = text
                 report("[fit] warning: " + text)
-            U.widen_for_optima(unc, st.shape, optima)
+            U.widen_for_optima(unc, st.shape, optima, {n: problem.bounds.lims[n][2:] for n in problem.names})
         if problem.eliminates:
             groups = U.pixel_albedos(problem, st, parts, J, unc)
         if quadrature is not None:
