@@ -286,16 +286,23 @@ def smooth_text(v):
     return ",".join(f"{float(t):g}" for t in (v if isinstance(v, (list, tuple)) else [v]))
 
 
-def prior_table(rows):
-    """The albedo-prior comparison (``--albedo-smooth``): per texture x tau, the shape parameters and the maps."""
-    lines = ["| texture | tau (k_s, k_b) | fits | parameter | bias ± SE | spread / SE | coverage (Wilson 95 %) |",
-             "|---|---|---|---|---|---|---|"]
+def param_lines(rows, heads, cells):
+    """The shape parameters' table: per row of ``rows`` and parameter, the leading cells ``cells(row)`` (under
+    the column names ``heads``), then bias ± SE, spread / SE and coverage with its Wilson interval."""
+    lines = ["| " + " | ".join(heads + ["parameter", "bias ± SE", "spread / SE", "coverage (Wilson 95 %)"]) + " |",
+             "|" + "---|" * (len(heads) + 4)]
     for r in rows:
         for n, p in r["params"].items():
             lo, hi = p["wilson"]
-            lines.append(f"| {r['texture']} | {r['smooth']} | {r['n']} ({r['not_converged']}) | {n} | "
-                         f"{100 * p['bias']:+.2f} ± {100 * p['bias_se']:.2f} % | {p['spread_over_se']:.2f} | "
-                         f"{p['cover']}/{r['n']} ({100 * lo:.0f}–{100 * hi:.0f} %) |")
+            lines.append("| " + " | ".join(cells(r)) + f" | {n} | {100 * p['bias']:+.2f} ± {100 * p['bias_se']:.2f} % "
+                         f"| {p['spread_over_se']:.2f} | {p['cover']}/{r['n']} ({100 * lo:.0f}–{100 * hi:.0f} %) |")
+    return lines
+
+
+def prior_table(rows):
+    """The albedo-prior comparison (``--albedo-smooth``): per texture x tau, the shape parameters and the maps."""
+    lines = param_lines(rows, ["texture", "tau (k_s, k_b)", "fits"],
+                        lambda r: [r["texture"], r["smooth"], f"{r['n']} ({r['not_converged']})"])
     lines += ["", "| texture | tau (k_s, k_b) | maps: RMS z k_s, k_b | maps: 95 % cover k_s, k_b | RMS error k_s, k_b | "
                   "effective albedo parameters / albedos | chi² / dof (misfit flagged) | time |",
               "|---|---|---|---|---|---|---|---|"]
@@ -313,13 +320,8 @@ def prior_table(rows):
 def table(rows):
     if any(r.get("smooth", "none") != "none" for r in rows):
         return prior_table(rows)
-    lines = ["| object | size | texture | K | parameter | bias ± SE | spread / SE | coverage (Wilson 95 %) |",
-             "|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        for n, p in r["params"].items():
-            lo, hi = p["wilson"]
-            lines.append(f"| {r['object']} | {r['res']}² | {r['texture']} | {r['K']} | {n} | {100 * p['bias']:+.2f} ± {100 * p['bias_se']:.2f} % "
-                         f"| {p['spread_over_se']:.2f} | {p['cover']}/{r['n']} ({100 * lo:.0f}–{100 * hi:.0f} %) |")
+    lines = param_lines(rows, ["object", "size", "texture", "K"],
+                        lambda r: [r["object"], f"{r['res']}²", r["texture"], str(r["K"])])
     lines += ["", "| object | size | texture | K | fits (not converged) | maps: RMS z k_s, k_b | maps: 95 % cover k_s, k_b | "
                   "median rel. error k_s, k_b | split identified | relight per-pixel / shared | time per-pixel / "
                   "uniform object (ratio) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
