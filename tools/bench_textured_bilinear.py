@@ -3,7 +3,9 @@ against ``per-pixel-bilinear`` (the pairs at the super-pixel centres, each raw s
 
     python tools/bench_textured_bilinear.py --work /tmp/btb [--sizes 64,128] [--seeds 3] [--lights 1,3]
                                             [--exact-res 32] [--exact-seeds 3] [--json out.json]
-    python tools/bench_textured_bilinear.py --table out.json
+    python tools/bench_textured_bilinear.py --table out.json[,more.json]
+    python tools/bench_textured_bilinear.py --sizes '' --lights 3 --exact-res 128 --exact-kinds continuous \
+                                            --layouts per-pixel-bilinear --exact-seeds 6 --seed0 6 --json b.json
     python tools/bench_textured_bilinear.py --sizes 128 --lights 3 --exact-res '' --layouts per-pixel-bilinear \
                                             --render-seeds [--spp 4096] [--seed0 0] --seeds 6 --json own.json
 
@@ -168,21 +170,24 @@ def main(argv=None):
     p.add_argument("--lights", default="3,1")
     p.add_argument("--exact-res", default="32", help="model-exact data's grids (empty: none)")
     p.add_argument("--exact-seeds", type=int, default=3)
-    p.add_argument("--seed0", type=int, default=0, help="first raw seed")
+    p.add_argument("--exact-kinds", default="continuous,constant", help="the model-exact data's kinds")
+    p.add_argument("--seed0", type=int, default=0, help="first seed (raw seed; camera-noise seed of exact data)")
     p.add_argument("--render-seeds", action="store_true",
                    help="render each raw seed with its own sampler seed (its own Monte Carlo noise; default: "
                         "every raw seed of one size and light shares one render)")
     p.add_argument("--spp", type=int, help="samples per pixel of the renders (default: render --raw's 1024)")
     p.add_argument("--layouts", default=",".join(LAYOUTS), help="the layouts fitted")
     p.add_argument("--json", metavar="OUT.json")
-    p.add_argument("--table", metavar="IN.json")
+    p.add_argument("--table", metavar="IN.json[,IN2.json...]", help="print the table of these runs (merged)")
     a = p.parse_args(argv)
     layouts = [L for L in a.layouts.split(",") if L]
     if any(L not in LAYOUTS for L in layouts):
         p.error(f"--layouts: expected some of {', '.join(LAYOUTS)}")
+    if any(k not in ("continuous", "constant") for k in a.exact_kinds.split(",") if k):
+        p.error("--exact-kinds: expected some of continuous, constant")
     data_name = "render" + (" (own MC seed)" if a.render_seeds else "") + (f" {a.spp} spp" if a.spp else "")
     if a.table:
-        print(table(summarise(json.load(open(a.table))["runs"])))
+        print(table(summarise([r for f in a.table.split(",") for r in json.load(open(f))["runs"]])))
         return 0
     os.makedirs(a.work, exist_ok=True)
     runs = json.load(open(a.json))["runs"] if a.json and os.path.exists(a.json) else []
@@ -201,8 +206,8 @@ def main(argv=None):
 
     for K in (int(k) for k in a.lights.split(",")):
         for res in [int(s) for s in a.exact_res.split(",") if s]:
-            for kind in ("continuous", "constant"):
-                for seed in range(a.exact_seeds):
+            for kind in [k for k in a.exact_kinds.split(",") if k]:
+                for seed in range(a.seed0, a.seed0 + a.exact_seeds):
                     todo = [L for L in layouts if (f"exact-{kind}", res, K, seed, L) not in done]
                     if todo:
                         obs, ks, kb = exact_data(kind, res, K, seed)

@@ -60,13 +60,16 @@ not (J^T J)^-1, which from one image is 2-5x too small
 (tools/diag_pp_sandwich.py).  :func:`covariance` reports the sandwich (capped
 where H is not positive definite: :func:`incidental_sandwich`), keeps the
 Fisher errors in ``incidental``, and the profile check's threshold follows it.
+The bilinear layout's pairs are coupled through their neighbours, and its C
+(:meth:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.CoupledPixelAlbedos.incidental_term`)
+is a Monte Carlo estimate of the same trace.
 
 **With the albedo maps' smoothness prior** (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) the residuals
 carry the prior's rows, and J^T J of Kaufman's Jacobian over them is the shape's information with the
 albedos eliminated under the prior: its inverse is the posterior covariance (Bayesian; :data:`POSTERIOR`),
 and each pixel's is the 2 x 2 block of the penalised information's inverse.  The incidental-parameter
-sandwich is not computed there (the prior shrinks the albedos' noise, so C shrinks, but it needs traces
-of the full coupled inverse).  chi^2 includes the penalty; its degrees of freedom:
+sandwich is not computed there (the prior shrinks the albedos' noise, so C shrinks; not derived for the
+penalised solve).  chi^2 includes the penalty; its degrees of freedom:
 ``fmbrdf_mi.fit.api.fitting.PRIOR_DOF_RULE``.
 """
 from __future__ import annotations
@@ -220,7 +223,7 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
             scale = info["chi2_per_dof"]
             info["method"] = "inverse Fisher information, noise level estimated from the residuals"
         if getattr(problem, "eliminates", False) and p and not callable(getattr(problem.layout, "incidental", None)):
-            # a layout without the incidental-parameter term (bilinear albedos): the Fisher errors, said so
+            # a layout without the incidental-parameter term (the smoothness prior): the errors, said so
             info["incidental_not_computed"] = problem.layout.incidental_reason
         elif getattr(problem, "eliminates", False) and p:
             # the albedos' noise is scale x G^-1 when the data's noise is scale x the stated: C scales with it
@@ -242,6 +245,8 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
                 "inverse Fisher information",
                 "incidental-parameter sandwich H^-1 (J^T J) H^-1, H = J^T J - C (the per-pixel albedos' noise "
                 "removed from the information, issue 25)", 1)
+            if getattr(problem.layout, "incidental_method", None):
+                info["method"] += "; " + problem.layout.incidental_method
             if inc["capped_directions"]:
                 info["method"] += (f"; H not positive definite in {inc['capped_directions']} direction(s): their "
                                    f"inflation capped at {1 / INCIDENTAL_FLOOR:g}x the Fisher standard error")

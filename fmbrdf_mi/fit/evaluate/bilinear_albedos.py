@@ -56,10 +56,14 @@ are such directions (measured on renders).
 full information matrix's inverse, scale G^-1 + K C_z K^T with K = G^-1 A^T J;
 the diagonal blocks of G^-1 are computed exactly by the selected inverse of
 G's banded Cholesky factor (Takahashi's recursion, O(n b^2)).  The incidental-parameter term
-of :meth:`PixelAlbedos.incidental` needs traces of products of the full
-G^-1 here (the pairs are coupled), and is **not computed**: the shape
-parameters' errors are the Fisher ones, which from one image are too small
-(fmbrdf_mi.fit.uncertainty says so in the method).
+of :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`,
+C_jk = tr(G^-1 A_j^T (I - P) A_k) (A_j = d A / d z_j), needs the full G^-1
+here (the pairs are coupled), so it is estimated by Monte Carlo
+(:meth:`CoupledPixelAlbedos.incidental_term`): positive semi-definite, from a fixed
+seed (a fit is repeatable), to about 1 % (:attr:`CoupledPixelAlbedos.INCIDENTAL_DRAWS`).  Without it the shape
+errors were 1.3-2.1x too small with three lights (128^2, model-exact data:
+tools/bench_textured_bilinear.py).  With the smoothness prior it is not computed
+(:data:`PRIOR_INCIDENTAL`).
 """
 from __future__ import annotations
 
@@ -73,12 +77,9 @@ PER_PIXEL_LAYOUTS = ("per-pixel", "per-pixel-bilinear")
 #: rounding (module docstring).
 RIDGE = (1e-12, 1e-10, 1e-8)
 
-#: Why the incidental-parameter sandwich is not reported for these albedos (fit.json's uncertainty method).
-NO_INCIDENTAL = ("the incidental-parameter sandwich is not computed for bilinear per-pixel albedos (coupled "
-                 "pairs): Fisher errors, too small from one image")
-
-#: The same with the albedo maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`): the errors are the
-#: posterior ones, from the penalised information.
+#: Why the incidental-parameter sandwich is not reported with the albedo maps' smoothness prior
+#: (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`; fit.json's uncertainty method): the errors are the posterior
+#: ones, from the penalised information.
 PRIOR_INCIDENTAL = ("the incidental-parameter sandwich is not computed with the albedo smoothness prior (the "
                     "posterior covariance of the penalised likelihood is reported)")
 
@@ -140,8 +141,12 @@ class CoupledPixelAlbedos:
     ``albedo`` option's value it implements."""
 
     eliminates = True
-    #: not computed (module docstring): ``fmbrdf_mi.fit.uncertainty`` reports the Fisher errors and says so
-    incidental = None
+
+    #: Monte Carlo draws of :meth:`incidental_term`: about INCIDENTAL_DRAWS[1] / pairs, at least [0], at most
+    #: [2].  Each draw's estimate of a diagonal entry of C is a sum over all the pixels, its relative spread
+    #: about sqrt(6 / pairs) (measured: tests/fit/test_bilinear_albedos.py), so the mean over the draws is
+    #: good to about 1 % from ~120 pixels up (1.8 % at 36), at a cost of (1 + p) x draws banded solves.
+    INCIDENTAL_DRAWS = (8, 60000, 512)
 
     def __init__(self, groups, corner_groups, corner_weights, n_groups, pixels, *, name="per-pixel-bilinear",
                  prior=None, channel_of=None, labels=None):
@@ -155,7 +160,12 @@ class CoupledPixelAlbedos:
         self.prior = prior
         self.corner_groups = np.asarray(corner_groups, dtype=np.int64).reshape(self.groups.size, -1)
         self.corner_weights = np.asarray(corner_weights, dtype=np.float64).reshape(self.groups.size, -1)
-        self.incidental_reason = NO_INCIDENTAL if prior is None else PRIOR_INCIDENTAL
+        self.incidental_reason = PRIOR_INCIDENTAL
+        lo, k, hi = self.INCIDENTAL_DRAWS
+        self.incidental_draws = int(np.clip(np.ceil(k / max(self.n_groups, 1)), lo, hi))
+        #: appended to the uncertainty method where the sandwich is reported
+        self.incidental_method = (f"C estimated by Monte Carlo over {self.incidental_draws} noise draws "
+                                  "(the albedo pairs are coupled)")
         self._factor = None    # (key columns, BandCholesky) of the last normal matrix
 
     # ---- predictions
@@ -262,6 +272,41 @@ class CoupledPixelAlbedos:
         return float(np.sum(Z[:, 0] * band[:, 0]) + 2.0 * np.sum(Z[:, 1:] * band[:, 1:]))
 
     # ---- the covariance
+    @property
+    def incidental(self):
+        """The incidental-parameter term (:meth:`incidental_term`), or None with the smoothness prior (not
+        computed there: :attr:`incidental_reason`)."""
+        return self.incidental_term if self.prior is None else None
+
+    def incidental_term(self, us, ub, dcols, draws=None, seed=0):
+        """The incidental-parameter term C (p, p) of the eliminated albedos' noise in Kaufman's information,
+        as :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental` defines it for uncoupled pairs:
+
+            C_jk = tr(G^-1 A_j^T (I - P) A_k),   P = A G^-1 A^T,
+
+        A the design at the whitened unit-albedo columns ``us``, ``ub`` (N,) and A_j the design at their
+        derivatives ``dcols`` (p pairs (dus, dub) of (N,) arrays: d A / d z_j, the interpolation weights
+        being fixed).  G^-1 is not banded, so C is estimated by Monte Carlo: with e ~ N(0, I_N) and
+        b = G^-1 A^T e (covariance G^-1, the albedos' noise; in a direction G does not determine -- the
+        ridge's -- its variance goes to 0, as the per-pixel layout's pseudo-inverse drops it), the
+        columns v_j = (I - P) A_j b have E[v_j^T v_k] = C_jk.  The mean of v^T v over ``draws`` (default
+        :attr:`incidental_draws`) draws from the generator seeded ``seed``: positive semi-definite, the
+        same at every call with the same columns."""
+        A, fac = self._factorised(us, ub)
+        p = len(dcols)
+        N = A[0].shape[0]
+        m = int(draws or self.incidental_draws)
+        if not p:
+            return np.zeros((0, 0))
+        e = np.random.default_rng(seed).standard_normal((N, m))
+        b = fac.solve(self.t_at(A, e))                           # (2 n_groups, m), covariance G^-1
+        V = []
+        for dus, dub in dcols:
+            v = self.at(self.design(dus, dub), b)                # A_j b (N, m)
+            V.append(v - self.at(A, fac.solve(self.t_at(A, v))))
+        V = np.stack(V, 1)                                       # (N, p, m)
+        return np.einsum("njd,nkd->jk", V, V) / m
+
     def covariance(self, us, ub, J, cov_z, scale=1.0):
         """(n_groups, 2, 2) covariance of each group's (a_s, a_b) with the shape unknowns free: the diagonal
         blocks of scale G^-1 + K cov_z K^T, K = G^-1 A^T J (``J`` (N, p) unprojected, ``cov_z`` already
