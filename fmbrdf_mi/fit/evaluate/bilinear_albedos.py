@@ -276,7 +276,7 @@ class CoupledPixelAlbedos:
     @property
     def incidental(self):
         """The incidental-parameter term (:meth:`incidental_term`), or None with the smoothness prior (not
-        computed there: :attr:`incidental_reason`)."""
+        computed there: ``incidental_reason``)."""
         return self.incidental_term if self.prior is None else None
 
     def incidental_term(self, us, ub, dcols, draws=None, seed=0):
@@ -291,7 +291,7 @@ class CoupledPixelAlbedos:
         b = G^-1 A^T e (covariance G^-1, the albedos' noise; in a direction G does not determine -- the
         ridge's -- its variance goes to 0, as the per-pixel layout's pseudo-inverse drops it), the
         columns v_j = (I - P) A_j b have E[v_j^T v_k] = C_jk.  The mean of v^T v over ``draws`` (default
-        :attr:`incidental_draws`) draws from the generator seeded ``seed``: positive semi-definite, the
+        ``incidental_draws``) draws from the generator seeded ``seed``: positive semi-definite, the
         same at every call with the same columns (the last result is kept: the covariance and the maps ask
         for it at the same point)."""
         args = [np.asarray(c, dtype=np.float64).ravel() for c in (us, ub, *(c for pair in dcols for c in pair))]
