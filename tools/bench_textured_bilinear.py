@@ -26,7 +26,8 @@ azimuths 60 and 300 degrees):
   light), every usable pixel, Fisher intervals; the maps against the render's OUT_raw_k_*.exr.
 * ``exact``: model-exact captures (:func:`fmbrdf_mi.fit.evaluate.synthetic.textured_sphere`, 4 x 4 points
   per raw pixel), with the same smooth texture either per super-pixel (``constant``: the four raw pixels
-  share the super-pixel's value) or ``continuous`` (each area point its own value), camera noise seeds.
+  share the super-pixel's value) or ``continuous`` (each area point its own value), or no texture
+  (``uniform``: k_s 0.6, k_b 0.4, which every layout models exactly), camera noise seeds.
 
 Reported per data kind x size x K x layout: for eta, alpha, beta, kappa the mean of (estimate - truth) /
 reported SE and the RMS of it (1 when the SEs are right and there is no bias), chi^2/dof, the maps' RMS
@@ -109,10 +110,12 @@ def exact_data(kind, res, K, seed):
 
     fks = (lambda x, y: smooth((x + 0.5) / res, (y + 0.5) / res)[0])   # super-pixel (i, j) centre: x = j
     fkb = (lambda x, y: smooth((x + 0.5) / res, (y + 0.5) / res)[1])
+    if kind == "uniform":           # no texture: every layout's model is exact
+        fks, fkb = (lambda x, y: 0.6 + 0.0 * x), (lambda x, y: 0.4 + 0.0 * x)
     C, R = np.meshgrid(np.arange(res) * 1.0, np.arange(res) * 1.0)
     obs = []
     for j in range(K):
-        ideal = (textured_sphere(TRUTH, fks, fkb, res=res, light=LIGHTS[j]) if kind == "continuous" else
+        ideal = (textured_sphere(TRUTH, fks, fkb, res=res, light=LIGHTS[j]) if kind != "constant" else
                  textured_sphere(TRUTH, fks(C, R), fkb(C, R), res=res, light=LIGHTS[j]))
         o, _ = capture_observation(ideal, CameraModel(), seed=1000 * seed + j,
                                    exposure=None if j == 0 else obs[0].meta["capture"]["exposure"])
@@ -183,8 +186,8 @@ def main(argv=None):
     layouts = [L for L in a.layouts.split(",") if L]
     if any(L not in LAYOUTS for L in layouts):
         p.error(f"--layouts: expected some of {', '.join(LAYOUTS)}")
-    if any(k not in ("continuous", "constant") for k in a.exact_kinds.split(",") if k):
-        p.error("--exact-kinds: expected some of continuous, constant")
+    if any(k not in ("continuous", "constant", "uniform") for k in a.exact_kinds.split(",") if k):
+        p.error("--exact-kinds: expected some of continuous, constant, uniform")
     data_name = "render" + (" (own MC seed)" if a.render_seeds else "") + (f" {a.spp} spp" if a.spp else "")
     if a.table:
         print(table(summarise([r for f in a.table.split(",") for r in json.load(open(f))["runs"]])))

@@ -61,7 +61,7 @@ C_jk = tr(G^-1 A_j^T (I - P) A_k) (A_j = d A / d z_j), needs the full G^-1
 here (the pairs are coupled), so it is estimated by Monte Carlo
 (:meth:`CoupledPixelAlbedos.incidental_term`): positive semi-definite, from a fixed
 seed (a fit is repeatable), to about 1 % (:attr:`CoupledPixelAlbedos.INCIDENTAL_DRAWS`).  Without it the shape
-errors were 1.3-2.1x too small with three lights (128^2, model-exact data:
+errors were 1.25-2.2x too small with three lights (128^2, model-exact data:
 tools/bench_textured_bilinear.py).  With the smoothness prior it is not computed
 (:data:`PRIOR_INCIDENTAL`).
 """
