@@ -23,7 +23,8 @@ azimuths 60 and 300 degrees):
   k_b = 0.4 + 0.1 cos(5x + 3y), x, y in [0, 1] across the sphere's disc), 4096 x 2048 texels, bilinear;
   raw seeds 0 .. N-1 (``--raw-seed``; the rendered Stokes image is the same for every seed).  Fitted
   with ``fmbrdf_mi.fit.inputs.files.build_observation`` of each OUT_raw.png (its sidecar: the camera, the
-  light), every usable pixel, Fisher intervals; the maps against the render's OUT_raw_k_*.exr.
+  light), every usable pixel, intervals +- 1.96 reported SE (no profile check); the maps against the
+  render's OUT_raw_k_*.exr.
 * ``exact``: model-exact captures (:func:`fmbrdf_mi.fit.evaluate.synthetic.textured_sphere`, 4 x 4 points
   per raw pixel), with the same smooth texture either per super-pixel (``constant``: the four raw pixels
   share the super-pixel's value) or ``continuous`` (each area point its own value), or no texture

@@ -294,17 +294,17 @@ class CoupledPixelAlbedos:
         ``incidental_draws``) draws from the generator seeded ``seed``: positive semi-definite, the
         same at every call with the same columns (the last result is kept: the covariance and the maps ask
         for it at the same point)."""
+        p = len(dcols)
+        if not p:
+            return np.zeros((0, 0))
         args = [np.asarray(c, dtype=np.float64).ravel() for c in (us, ub, *(c for pair in dcols for c in pair))]
         last = self._incidental_last
         if (last is not None and last[0] == (draws, seed, len(args))
                 and all(np.array_equal(a, b) for a, b in zip(args, last[1]))):
             return last[2].copy()
         A, fac = self._factorised(us, ub)
-        p = len(dcols)
         N = A[0].shape[0]
         m = int(draws or self.incidental_draws)
-        if not p:
-            return np.zeros((0, 0))
         e = np.random.default_rng(seed).standard_normal((N, m))
         b = fac.solve(self.t_at(A, e))                           # (2 n_groups, m), covariance G^-1
         V = []
