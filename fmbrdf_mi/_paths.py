@@ -4,6 +4,13 @@ from __future__ import annotations
 
 import os
 
+#: The command line's name, as its messages and the metadata of its outputs spell it.
+PROG = "fmbrdf-mi"
+
+
+class CLIError(Exception):
+    """A mistake in the command line or its inputs, reported by the command line as one line."""
+
 
 class PathError(OSError):
     """An output path that cannot be written (the message names it and says why)."""

@@ -34,7 +34,7 @@ TOP_LAYERS = [
     {"bsdf", "oren_nayar_bsdf"},
     {"scene", "camera", "previews"},
     {"fit"},
-    {"brdf_fit", "mesogeometry", "dataset"},
+    {"brdf_fit", "mesogeometry", "dataset", "render"},
     {"cli", "__main__"},
 ]
 
