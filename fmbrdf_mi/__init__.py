@@ -17,7 +17,7 @@ from ._llvm import LLVMTooOldError, check_llvm, pin_newest_llvm
 from .params import ParameterError
 
 __version__ = "0.1.0"
-__all__ = ["register", "load_dict", "load_file", "ParameterError", "LLVMTooOldError",
+__all__ = ["register", "load_dict", "load_file", "check_variant", "ParameterError", "LLVMTooOldError",
            "UntestedVersionWarning", "check_versions", "SUPPORTED_VARIANTS", "TESTED_VERSIONS"]
 
 #: The versions the package was tested with (pyproject.toml pins them).
@@ -69,6 +69,22 @@ SUPPORTED_VARIANTS = (
 _registered = set()
 
 
+def check_variant(variant):
+    """Raise ValueError (one line) for a Mitsuba variant the plugin cannot run in: one not in
+    :data:`SUPPORTED_VARIANTS` (the scalar polarised variants among them), or a ``cuda_`` variant on a
+    machine without a CUDA device (Dr.Jit's own message then speaks of its thread state)."""
+    if variant not in SUPPORTED_VARIANTS:
+        polarised = [v for v in SUPPORTED_VARIANTS if v.endswith("_polarized")]
+        raise ValueError(f"fmbrdf: variant '{variant}' is not supported; use one of {', '.join(SUPPORTED_VARIANTS)} "
+                         f"(the polarised ones: {', '.join(polarised)})")
+    if variant.startswith("cuda"):
+        import drjit as dr
+
+        if not dr.has_backend(dr.JitBackend.CUDA):
+            raise ValueError(f"variant '{variant}': no CUDA device here (Dr.Jit's CUDA backend is unavailable); "
+                             f"use the llvm_ variant, {variant.replace('cuda_', 'llvm_', 1)}")
+
+
 def register(variant=None):
     """Register the ``fmbrdf`` and ``orennayar`` BSDF plugins for the current (or given) Mitsuba variant.
 
@@ -78,14 +94,13 @@ def register(variant=None):
     import mitsuba as mi
 
     if variant is not None:
+        check_variant(variant)
         mi.set_variant(variant)
     variant = mi.variant()
     if variant is None:
         raise RuntimeError("fmbrdf_mi.register(): call mi.set_variant(...) first, e.g. "
                            "mi.set_variant('llvm_ad_spectral_polarized')")
-    if variant not in SUPPORTED_VARIANTS:
-        raise ValueError(f"fmbrdf: variant '{variant}' is not supported; use one of "
-                         f"{', '.join(SUPPORTED_VARIANTS)}")
+    check_variant(variant)
     if not variant.startswith("cuda"):
         check_llvm()
     if variant in _registered:
@@ -98,6 +113,27 @@ def register(variant=None):
     on_cls = make_oren_nayar_class()
     mi.register_bsdf("orennayar", lambda props: on_cls(props))
     _registered.add(variant)
+
+
+def _register_unsupported(variant):
+    """In a variant the plugin cannot run in, register stand-ins named ``fmbrdf`` and ``orennayar`` whose
+    construction raises :func:`check_variant`'s error, so that ``mi.load_dict`` says why instead of
+    "plugin not found"."""
+    import mitsuba as mi
+
+    def refuse(props):
+        check_variant(variant)
+
+    for name in ("fmbrdf", "orennayar"):
+        mi.register_bsdf(name, refuse)
+    _registered.add(variant)
+
+
+def _variant_error(exc):
+    """The ValueError of :func:`check_variant` inside a Mitsuba RuntimeError raised by a stand-in of
+    :func:`_register_unsupported`, or None."""
+    m = re.search(r"(?:^|\n)\s*ValueError: (fmbrdf: variant .* is not supported.*)\Z", str(exc).strip(), re.S)
+    return ValueError(" ".join(m.group(1).split())) if m else None
 
 
 def _parameter_error(exc, where=None):
@@ -184,7 +220,7 @@ def load_dict(d, *args, **kwargs):
     try:
         return mi.load_dict(d, *args, **kwargs)
     except RuntimeError as e:
-        err = _parameter_error(e)
+        err = _parameter_error(e) or _variant_error(e)
         if err is None:
             raise
         raise err from None
@@ -199,7 +235,7 @@ def load_file(path, *args, **kwargs):
     try:
         return mi.load_file(str(path), *args, **kwargs)
     except RuntimeError as e:
-        err = _parameter_error(e, where=str(path))
+        err = _parameter_error(e, where=str(path)) or _variant_error(e)
         if err is None:
             raise
         raise err from None
@@ -208,17 +244,25 @@ def load_file(path, *args, **kwargs):
 def _register_current():
     import mitsuba as mi
 
-    if mi.variant() in SUPPORTED_VARIANTS and mi.variant() not in _registered:
-        register()
+    if mi.variant() is not None and mi.variant() not in _registered:
+        if mi.variant() in SUPPORTED_VARIANTS:
+            register()
+        else:
+            _register_unsupported(mi.variant())
 
 
 def _on_variant(old, new):
-    """Mitsuba variant callback: register the plugin for every supported variant that gets set."""
-    if new in SUPPORTED_VARIANTS and new not in _registered:
-        try:
-            register()
-        except LLVMTooOldError as e:  # register() raises it; load_dict would only say "unknown plugin"
-            warnings.warn(str(e), RuntimeWarning, stacklevel=2)
+    """Mitsuba variant callback: register the plugin for every supported variant that gets set, and the
+    stand-ins that say so (:func:`_register_unsupported`) in the others."""
+    if new is None or new in _registered:
+        return
+    if new not in SUPPORTED_VARIANTS:
+        _register_unsupported(new)
+        return
+    try:
+        register()
+    except LLVMTooOldError as e:  # register() raises it; load_dict would only say "unknown plugin"
+        warnings.warn(str(e), RuntimeWarning, stacklevel=2)
 
 
 def _install():
@@ -226,8 +270,7 @@ def _install():
 
     check_versions()
     mi.detail.add_variant_callback(_on_variant)
-    if mi.variant() in SUPPORTED_VARIANTS:
-        register()
+    _register_current()
 
 
 _install()

@@ -11,11 +11,13 @@ line.  Mitsuba is imported only after the arguments and inputs are checked.
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import re
 import shlex
 import sys
+import tempfile
 import time
 
 import numpy as np
@@ -86,10 +88,6 @@ def _positive(name, text):
     return v
 
 
-#: Albedo texture files that ``-D k_s=FILE`` (k_b, r_k) takes: Mitsuba's bitmap formats.
-TEXTURE_EXTENSIONS = (".exr", ".png", ".jpg", ".jpeg", ".hdr", ".pfm", ".ppm", ".tga", ".bmp")
-
-
 def parse_value(name, text):
     """Typed value of scene parameter ``name`` given as text, validated.
 
@@ -114,10 +112,14 @@ def parse_value(name, text):
         from .params import check_albedo
 
         path = str(text).strip()
-        if os.path.splitext(path)[1].lower() in TEXTURE_EXTENSIONS:
+        if os.path.splitext(path)[1].lower() in S.TEXTURE_EXTENSIONS:
             if not os.path.isfile(path):
                 raise CLIError(f"{name}={text}: no such texture file (an albedo is a number, r,g,b, or an image "
-                               f"file: {', '.join(TEXTURE_EXTENSIONS)})")
+                               f"file: {', '.join(S.TEXTURE_EXTENSIONS)})")
+            try:
+                S.texture_bitmap(path)      # an unusable file: say so now, not from inside Mitsuba
+            except ValueError as e:
+                raise CLIError(f"{name}={text}: {str(e).removeprefix(f'texture {path}: ')}") from None
             return S.texture_file_dict(path)
         vals = _numbers(name, text, (1, 3))
         check_albedo(name, vals)
@@ -403,14 +405,15 @@ def label_paths(output, raw):
     return {"labels": f"{stem}_labels.png", **({"raw_labels": f"{stem}_raw_labels.png"} if raw else {})}
 
 
-def _write_labels(args, scene):
+def _write_labels(args, scene, output):
     """OUTPUT_labels.png (each pixel centre's material, 255 off the object) and with --raw
-    OUTPUT_raw_labels.png on the super-pixel grid (255 where the four raw pixels' labels differ)."""
+    OUTPUT_raw_labels.png on the super-pixel grid (255 where the four raw pixels' labels differ), beside
+    ``output`` (where :func:`staged_outputs` collects them)."""
     from fmbrdf_mi.fit.evaluate.materials import check_labels
     from fmbrdf_mi.fit.inputs.labels import write_labels
 
     lab = S.true_label_map(scene, args.uv_labels, int(args.uv_labels.max()) + 1)
-    paths = label_paths(args.output, args.raw)
+    paths = label_paths(output, args.raw)
     write_labels(paths["labels"], lab)
     if args.raw:
         h, w = lab.shape
@@ -485,13 +488,50 @@ def _check_camera_options(args):
 
 
 def _check_rgb_values(args, given):
-    """An RGB albedo (-D k_s=r,g,b) in a monochrome variant would be averaged silently: refuse it."""
-    if "mono" not in args.variant:
-        return
+    """An RGB albedo (-D k_s=r,g,b) in a monochrome variant would be averaged silently, and an RGB texture
+    (-D k_s=FILE) cannot be a spectral variant's albedo as it is (its values are used raw, not turned into
+    spectra): refuse them."""
     for name, value in given.items():
-        if isinstance(value, tuple) and re.sub(r"_\d+$", "", name) in ("k_s", "r_k", "k_b"):
+        if re.sub(r"_\d+$", "", name) not in ("k_s", "r_k", "k_b"):
+            continue
+        if "mono" in args.variant and isinstance(value, tuple):
             raise CLIError(f"-D {name}={','.join(f'{v:g}' for v in value)}: an RGB value needs a spectral or RGB "
                            f"variant, --variant {args.variant} takes one number")
+        if "spectral" in args.variant and isinstance(value, dict) and "filename" in value \
+                and S.texture_channels(value["filename"]) == 3:
+            raise CLIError(f"-D {name}={value['filename']}: an RGB texture (R, G, B channels) is not an albedo of "
+                           f"--variant {args.variant}; give a one-channel (Y) texture, or --variant "
+                           "llvm_ad_mono_polarized (which renders its luminance)")
+
+
+def output_paths(args, given, kinds):
+    """Every file this render writes: the Stokes EXR, the previews of ``kinds``, the raw capture, the true
+    albedo maps of a textured render and the label images of ``--materials``."""
+    from .previews import preview_paths
+
+    out = [args.output, *preview_paths(str(args.output)[:-4], kinds).values()]
+    if args.raw:
+        out += [args.output[:-4] + "_raw.png", args.output[:-4] + "_raw.json"]
+    if any(isinstance(v, dict) for v in given.values()):
+        out += true_map_paths(args.output, args.raw).values()
+    if getattr(args, "materials", None) is not None:
+        out += label_paths(args.output, args.raw).values()
+    return out
+
+
+def _check_inputs_not_outputs(args, given, kinds):
+    """Refuse a render that would overwrite one of its own inputs (a texture, the uv label image, the scene
+    file), with or without --force, before anything is rendered."""
+    inputs = [(f"-D {k}={v['filename']}", v["filename"]) for k, v in given.items()
+              if isinstance(v, dict) and "filename" in v]
+    inputs += [(f"--materials {args.materials}", args.materials)] if getattr(args, "materials", None) else []
+    inputs += [(f"--scene {args.scene}", args.scene)] if args.scene is not None else []
+    outputs = {os.path.realpath(p): p for p in output_paths(args, given, kinds)}
+    for what, path in inputs:
+        hit = outputs.get(os.path.realpath(path))
+        if hit is not None:
+            raise CLIError(f"{what}: is also an output of this render ({hit}) and would be overwritten; "
+                           "write the render under another name")
 
 
 def true_map_paths(output, raw):
@@ -503,25 +543,26 @@ def true_map_paths(output, raw):
     return out
 
 
-def _write_true_maps(args, scene, material, meta):
+def _write_true_maps(args, scene, material, meta, output):
     """A render with albedo textures (``-D k_s=FILE``): the albedos at each pixel's centre, OUT_k_s.exr and
     OUT_k_b.exr (the render's pixels), and with ``--raw`` OUT_raw_k_s.exr, OUT_raw_k_b.exr on the grid a
     fit of the mosaic works on (the mean over each 2 x 2 super-pixel, 4 x 4 colour period): what
     ``fmbrdf-mi fit --albedo per-pixel`` estimates.  ``--sensor colour``: channels R, G, B (the maps per
-    colour channel, as the colour fit estimates them); else one channel (an RGB texture's mean)."""
+    colour channel, as the colour fit estimates them); else one channel (an RGB texture's mean).  Written
+    beside ``output`` (where :func:`staged_outputs` collects them)."""
     from .stokes_io import write_map_exr
 
     colour = args.raw and args.sensor == "colour"
     maps = S.true_albedo_maps(scene, material, channels=colour)
-    paths = true_map_paths(args.output, args.raw)
+    paths = true_map_paths(output, args.raw)
     info = {"generator": meta["generator"], "command": meta["command"], "what": "true albedo at each pixel's centre"}
     for k in ("k_s", "k_b"):
-        write_map_exr(paths[f"true_{k}"], maps[k], dict(info, map=k), force=args.force)
+        write_map_exr(paths[f"true_{k}"], maps[k], dict(info, map=k), force=True)
         if args.raw:
             p = 4 if args.sensor == "colour" else 2
             h, w = maps[k].shape[-2:]
             grid = maps[k].reshape(maps[k].shape[:-2] + (h // p, p, w // p, p)).mean(axis=(-3, -1))
-            write_map_exr(paths[f"true_raw_{k}"], grid, dict(info, map=k, grid=f"{p}x{p} mean"), force=args.force)
+            write_map_exr(paths[f"true_raw_{k}"], grid, dict(info, map=k, grid=f"{p}x{p} mean"), force=True)
     return paths
 
 
@@ -540,8 +581,12 @@ def run_render(args):
         return _list_params(kind, declared, args)
     if args.output is None:
         raise CLIError("no output file given, e.g. fmbrdf-mi render out/sphere.exr")
+    from . import check_variant
+
+    check_variant(args.variant)     # e.g. a cuda_ variant without a CUDA device: one line, before any work
     given = _resolve(args, kind, declared)
     _check_rgb_values(args, given)
+    _check_inputs_not_outputs(args, given, kinds)
     _check_output(args.output, args.force, kinds)
     if getattr(args, "materials", None) is not None:
         if any(isinstance(v, dict) for v in given.values()):
@@ -578,7 +623,7 @@ def run_render(args):
 
     try:
         mi.set_variant(args.variant)
-    except Exception as e:  # e.g. a CUDA variant without a GPU
+    except Exception as e:  # e.g. a variant this Mitsuba build lacks
         raise CLIError(f"variant {args.variant} is not available here: {_mitsuba_message(e)}") from None
     import fmbrdf_mi
 
@@ -661,21 +706,52 @@ def run_render(args):
     }
     if xml_text is not None:
         meta["scene_xml"] = xml_text
-    write_stokes_exr(args.output, stokes, meta, force=args.force)
-    written = write_previews(args.output[:-4], stokes, kinds, exposure=args.exposure,
-                             dolp_max=args.dolp_max, modulate_aolp=args.aolp_dolp, force=args.force) if kinds else {}
-    if args.raw:
-        written["raw"], written["raw_sidecar"] = _write_raw(args, stokes, meta)
-    if textured:
-        written.update(_write_true_maps(args, scene, material, meta))
-    if getattr(args, "materials", None) is not None:
-        written.update(_write_labels(args, scene))
+    with staged_outputs(args.output) as out:   # every file or none (Ctrl-C, a refused capture)
+        write_stokes_exr(out, stokes, meta, force=True)
+        written = write_previews(out[:-4], stokes, kinds, exposure=args.exposure, dolp_max=args.dolp_max,
+                                 modulate_aolp=args.aolp_dolp, force=True) if kinds else {}
+        if args.raw:
+            written["raw"], written["raw_sidecar"] = _write_raw(args, stokes, meta, out)
+        if textured:
+            written.update(_write_true_maps(args, scene, material, meta, out))
+        if getattr(args, "materials", None) is not None:
+            written.update(_write_labels(args, scene, out))
+    written = {k: os.path.join(os.path.dirname(args.output), os.path.basename(p)) for k, p in written.items()}
     cols = "Y" if c == 1 else "R,G,B"
     print(f"wrote {args.output}: Stokes S0-S3 x {cols}, {w}x{h}, {spp_used} spp, {args.variant}, "
           f"{time.perf_counter() - t0:.1f} s")
     for p in written.values():
         print(f"wrote {p}")
     return 0
+
+
+@contextlib.contextmanager
+def staged_outputs(output):
+    """Write a render's files all or none: yields the path to write ``output`` to, in a hidden staging
+    directory beside it; the files written there (``output`` and the ones beside it) replace their
+    namesakes beside ``output`` when the block ends, and are deleted with the staging directory when it
+    raises (Ctrl-C, a refused capture), so that no file is half-written and no earlier output is lost.
+    Directories made for it are removed again on failure."""
+    import shutil
+
+    directory = os.path.dirname(os.path.abspath(output))
+    made = directory
+    while not os.path.exists(os.path.dirname(made)) and os.path.dirname(made) != made:
+        made = os.path.dirname(made)
+    made = None if os.path.exists(directory) else made
+    os.makedirs(directory, exist_ok=True)
+    stage = tempfile.mkdtemp(prefix=f".{os.path.basename(output)}.", suffix=".partial", dir=directory)
+    try:
+        yield os.path.join(stage, os.path.basename(output))
+        for name in sorted(os.listdir(stage)):
+            if not name.startswith("."):       # a writer's own temporary file is not an output
+                os.replace(os.path.join(stage, name), os.path.join(directory, name))
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+        raise
+    shutil.rmtree(stage, ignore_errors=True)
 
 
 def _raw_camera(args):
@@ -699,8 +775,9 @@ def _raw_camera(args):
         raise CLIError(f"--raw: {e}") from None
 
 
-def _write_raw(args, stokes, meta):
-    """OUTPUT_raw.png (uint16 mosaic) and OUTPUT_raw.json (camera settings + the EXR's metadata)."""
+def _write_raw(args, stokes, meta, output):
+    """OUTPUT_raw.png (uint16 mosaic) and OUTPUT_raw.json (camera settings + the EXR's metadata) beside
+    ``output`` (where :func:`staged_outputs` collects them; the sidecar names the final Stokes EXR)."""
     import numpy as np
     from PIL import Image
 
@@ -721,12 +798,10 @@ def _write_raw(args, stokes, meta):
         raise CLIError(f"--raw: the image's width and height must be multiples of {p} for the "
                        f"{'colour' if p == 4 else 'quad-Bayer'} mosaic period, got {s.shape[-1]}x{s.shape[-2]}")
     cap = capture(s, cam, exposure=args.raw_exposure, peak_fraction=0.8, seed=args.raw_seed)
-    path = args.output[:-4] + "_raw.png"
-    if os.path.exists(path) and not args.force:
-        raise FileExistsError(f"{path} exists; pass --force to overwrite it")
+    path = output[:-4] + "_raw.png"
     Image.fromarray(np.ascontiguousarray(cap["raw"], dtype=np.uint16)).save(path)
     extra = dict(meta, capture={"exposure_e_per_unit": cap["exposure"], "seed": args.raw_seed,
                                 "dn_per_input_unit": 1.0 / cap["dn_to_input"], "saturated": cap["saturated"],
                                 "channel": channel, "stokes_exr": os.path.abspath(args.output)})
-    side = write_sidecar(path, cam, extra, force=args.force)
+    side = write_sidecar(path, cam, extra, force=True)
     return path, side

@@ -225,7 +225,7 @@ def material_bsdf(material=None):
     m = check_material(material)
     d = {"type": "fmbrdf"}
     for k, v in m.items():
-        d[k] = {"type": "rgb", "value": list(v)} if isinstance(v, tuple) else v
+        d[k] = {"type": "rgb", "value": list(v)} if isinstance(v, tuple) else loaded_texture(v)
     return d
 
 
@@ -566,10 +566,78 @@ def scene_camera(scene):
     return out
 
 
+#: Albedo texture files (:func:`texture_bitmap`): EXR through the OpenEXR package, the others through Mitsuba.
+TEXTURE_EXTENSIONS = (".exr", ".png", ".jpg", ".jpeg", ".hdr", ".pfm", ".ppm", ".tga", ".bmp")
+
+#: What an albedo texture file must be, as the error messages say it.
+TEXTURE_KINDS = f"an image file ({', '.join(TEXTURE_EXTENSIONS)}) with one channel (Y) or three (R, G, B)"
+
+#: EXR channel layouts a texture takes, in the order Mitsuba's bitmap expects them (Y[A], RGB[A]).
+_EXR_LAYOUTS = (("R", "G", "B", "A"), ("R", "G", "B"), ("Y", "A"), ("Y",))
+
+
+def texture_bitmap(path):
+    """The ``mi.Bitmap`` of an albedo texture file (no Mitsuba variant needed).  An EXR is read with the
+    OpenEXR package (:func:`fmbrdf_mi.stokes_io.read_exr`) and handed over as an array, because Mitsuba's
+    EXR reader hangs in a process allowed one CPU (cluster jobs, ``taskset``); other formats are read by
+    Mitsuba.  ValueError naming the file unless it is a readable image of one channel (Y, or any one name
+    in an EXR) or three (R, G, B), each optionally with alpha (:data:`TEXTURE_KINDS`)."""
+    import mitsuba as mi
+
+    path = os.fspath(path)
+    if os.path.isdir(path) or not os.path.isfile(path):
+        raise ValueError(f"texture {path}: {'is a directory' if os.path.isdir(path) else 'no such file'}; "
+                         f"expected {TEXTURE_KINDS}")
+    if path.lower().endswith(".exr"):
+        from .stokes_io import read_exr
+
+        try:
+            _, channels = read_exr(path)
+        except ValueError as e:
+            raise ValueError(f"texture {e}; expected {TEXTURE_KINDS}") from None
+        names = tuple(channels)
+        order = next((c for c in _EXR_LAYOUTS if set(c) == set(names)), names if len(names) == 1 else None)
+        if order is None:
+            raise ValueError(f"texture {path}: {len(names)} channels ({', '.join(sorted(names))}); expected "
+                             f"{TEXTURE_KINDS}")
+        pixels = np.stack([np.asarray(channels[c], dtype=np.float32) for c in order], axis=-1)
+        return mi.Bitmap(np.ascontiguousarray(pixels))
+    try:
+        bitmap = mi.Bitmap(path)
+    except Exception as e:     # Mitsuba's readers raise RuntimeErrors naming the file
+        why = " ".join(str(e).replace(f'"{path}": ', "").split())
+        raise ValueError(f"texture {path}: not a readable image ({why}); expected {TEXTURE_KINDS}") from None
+    fmt = mi.Bitmap.PixelFormat
+    if bitmap.pixel_format() not in (fmt.Y, fmt.YA, fmt.RGB, fmt.RGBA):
+        raise ValueError(f"texture {path}: {bitmap.channel_count()} channels ({bitmap.pixel_format().name}); "
+                         f"expected {TEXTURE_KINDS}")
+    return bitmap
+
+
+def texture_channels(path):
+    """1 (a grey texture) or 3 (R, G, B) for an albedo texture file, read and checked by :func:`texture_bitmap`."""
+    import mitsuba as mi
+
+    fmt = texture_bitmap(path).pixel_format()
+    return 1 if fmt in (mi.Bitmap.PixelFormat.Y, mi.Bitmap.PixelFormat.YA) else 3
+
+
 def texture_file_dict(path):
     """The Mitsuba texture dict of an albedo map file (a bitmap: .exr, .png, .jpg, ...): its values used as
-    they are (``raw``: no sRGB decoding), bilinear between texels, over the shape's uv."""
+    they are (``raw``: no sRGB decoding), bilinear between texels, over the shape's uv.  It names the file
+    (a description a scene's metadata can hold); :func:`material_bsdf` reads the file
+    (:func:`texture_bitmap`) when it builds the BSDF."""
     return {"type": "bitmap", "filename": os.path.abspath(os.fspath(path)), "raw": True}
+
+
+def loaded_texture(value):
+    """``value`` with a bitmap texture's file read by :func:`texture_bitmap` (``filename`` replaced by
+    ``bitmap``), so that Mitsuba's own EXR reader is never used; anything else unchanged."""
+    if not (isinstance(value, dict) and value.get("type") == "bitmap" and "filename" in value):
+        return value
+    out = {k: v for k, v in value.items() if k != "filename"}
+    out["bitmap"] = texture_bitmap(value["filename"])
+    return out
 
 
 def _centre_hits(scene):
@@ -605,7 +673,7 @@ def true_albedo_maps(scene, material, channels=False):
     def values(key, default):
         v = m.get(key, default)
         if isinstance(v, dict):
-            tex = mi.load_dict(v)
+            tex = mi.load_dict(loaded_texture(v))
             out = None
             if not mi.is_monochromatic and hasattr(tex, "eval_3"):
                 try:

@@ -18,6 +18,7 @@ ordinary named channels.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 
@@ -87,7 +88,8 @@ def write_map_exr(path, image, metadata=None, force=False):
 
 
 def _write_exr(path, channels, metadata, force):
-    """Write float32 ``channels`` {name: (H, W)} atomically (a temporary file, then renamed)."""
+    """Write float32 ``channels`` {name: (H, W)} atomically (a temporary file, then renamed; the temporary
+    file removed when writing fails or is interrupted)."""
     import OpenEXR
 
     path = os.fspath(path)
@@ -99,9 +101,56 @@ def _write_exr(path, channels, metadata, force):
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
     tmp = os.path.join(directory, f".{os.path.basename(path)}.tmp{os.getpid()}.exr")
-    with OpenEXR.File(header, channels) as f:
-        f.write(tmp)
-    os.replace(tmp, path)
+    try:
+        with OpenEXR.File(header, channels) as f:
+            f.write(tmp)
+        os.replace(tmp, path)
+    except BaseException:      # Ctrl-C or a full disk: no temporary file left behind
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def read_exr(path):
+    """``(header dict, {channel name: (H, W) array})`` of an EXR file, read with the OpenEXR package (not
+    Mitsuba's reader, which hangs in a process allowed one CPU).  ValueError naming the file when it cannot
+    be read: empty, truncated, not an EXR."""
+    import OpenEXR
+
+    with _native_output() as said:   # the library's own lines about a damaged file go into the message
+        try:
+            with OpenEXR.File(os.fspath(path), separate_channels=True) as f:
+                return dict(f.header()), {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
+        except Exception as exc:  # OpenEXR raises bare RuntimeErrors
+            error = exc
+    path = os.fspath(path)
+    why = next((ln for ln in said() if "EXR_ERR" in ln), None) or str(error)
+    raise ValueError(f"{path}: not a readable EXR file ({' '.join(why.removeprefix(f'{path}: ').split())})")
+
+
+@contextlib.contextmanager
+def _native_output():
+    """Capture what native code writes to the standard output and error (file descriptors 1 and 2) inside the
+    block; yields a function that returns the captured lines once the block has ended."""
+    import sys
+    import tempfile
+
+    lines = []
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        try:
+            os.dup2(tmp.fileno(), 1)
+            os.dup2(tmp.fileno(), 2)
+            yield lambda: lines
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            tmp.seek(0)
+            lines.extend(tmp.read().decode(errors="replace").splitlines())
 
 
 def read_stokes_exr(path):
@@ -111,8 +160,6 @@ def read_stokes_exr(path):
     (S0.R ... S3.B beside R, G, B).  Raises :class:`StokesFileError` naming the
     file for a missing or malformed file.
     """
-    import OpenEXR
-
     path = os.fspath(path)
     if os.path.isdir(path):
         raise StokesFileError(f"{path}: is a directory, expected a Stokes .exr file")
@@ -120,11 +167,9 @@ def read_stokes_exr(path):
         raise StokesFileError(f"{path}: not a regular file (a device or a pipe), expected a Stokes .exr file"
                               if os.path.exists(path) else f"{path}: no such file")
     try:
-        with OpenEXR.File(path, separate_channels=True) as f:
-            header = dict(f.header())
-            channels = {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
-    except Exception as exc:  # OpenEXR raises bare RuntimeErrors
-        raise StokesFileError(f"{path}: not a readable EXR file ({exc})") from None
+        header, channels = read_exr(path)
+    except ValueError as exc:
+        raise StokesFileError(str(exc)) from None
     cols = next((c for c in (("R", "G", "B"), ("Y",))
                  if all(f"S{k}.{x}" in channels for k in range(4) for x in c)), None)
     if cols is None:

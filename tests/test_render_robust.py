@@ -1,0 +1,221 @@
+"""``fmbrdf-mi render`` on awkward inputs: albedo textures read without Mitsuba's EXR reader (which hangs in a
+process allowed one CPU), texture files that are not usable images, a render that would overwrite its own
+texture, interrupted or refused renders that must leave nothing behind, and variants the plugin cannot run in."""
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import one_line_error, run
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _exr(path, channels):
+    """An EXR of float32 ``channels`` {name: (H, W)} written by the OpenEXR package itself."""
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}) as f:
+        f.write(str(path))
+    return path
+
+
+def _checker(path):
+    tex = np.where((np.arange(4)[:, None] + np.arange(8)[None]) % 2, 0.9, 0.3)
+    return _exr(path, {"Y": tex})
+
+
+def _listing(directory):
+    return sorted(os.listdir(directory)) if os.path.isdir(directory) else []
+
+
+# ---------------------------------------------------------------- textures on one core
+@pytest.mark.skipif(shutil.which("taskset") is None or shutil.which("timeout") is None,
+                    reason="needs taskset and timeout (util-linux, coreutils)")
+def test_textured_render_pinned_to_one_core(tmp_path):
+    """A render with an EXR albedo texture, the process pinned to one CPU (a cluster job's share): it
+    finishes (Mitsuba's own EXR reader never returns there) and writes the capture and the true maps."""
+    tex = _checker(tmp_path / "ks.exr")
+    out = tmp_path / "out.exr"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
+    cmd = ["timeout", "300", "taskset", "-c", "0", sys.executable, "-m", "fmbrdf_mi", "render", str(out),
+           "-D", f"k_s={tex}", "--variant", "llvm_ad_mono_polarized", "--res", "16", "--spp", "2",
+           "--no-previews", "-q"]
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, (proc.returncode, proc.stderr[-2000:])
+    assert out.exists() and (tmp_path / "out_k_s.exr").exists()
+
+
+def test_texture_values_are_the_files(tmp_path):
+    """The bitmap a texture file becomes holds the file's values: a one-channel and an RGB EXR (written by
+    OpenEXR, read back exactly), and an 8-bit PNG (the bytes PIL writes)."""
+    from PIL import Image
+
+    from fmbrdf_mi import scene as S
+
+    rng = np.random.default_rng(0)
+    grey = rng.uniform(0, 1, (5, 7)).astype(np.float32)
+    got = np.asarray(S.texture_bitmap(_exr(tmp_path / "g.exr", {"Y": grey})))
+    np.testing.assert_array_equal(got.reshape(5, 7), grey)
+    rgb = rng.uniform(0, 1, (3, 5, 7)).astype(np.float32)
+    got = np.asarray(S.texture_bitmap(_exr(tmp_path / "c.exr", dict(zip("BGR", rgb[::-1])))))
+    np.testing.assert_array_equal(got, np.moveaxis(rgb, 0, -1))     # R, G, B whatever the file's order
+    assert S.texture_channels(tmp_path / "g.exr") == 1 and S.texture_channels(tmp_path / "c.exr") == 3
+    png = rng.integers(0, 256, (5, 7), dtype=np.uint8)
+    Image.fromarray(png).save(tmp_path / "p.png")
+    np.testing.assert_array_equal(np.asarray(S.texture_bitmap(tmp_path / "p.png")).reshape(5, 7), png)
+
+
+def _bad_textures(tmp_path):
+    """{name: (path, words of the error)} of texture files that are not usable albedo textures."""
+    (tmp_path / "text.png").write_text("not an image\n")
+    (tmp_path / "empty.exr").write_bytes(b"")
+    big = tmp_path / "big.exr"
+    _exr(big, {"Y": np.random.default_rng(1).uniform(0, 1, (256, 256))})
+    data = big.read_bytes()
+    (tmp_path / "truncated.exr").write_bytes(data[:len(data) // 2])     # header whole, pixels cut
+    _exr(tmp_path / "twelve.exr", {f"C{i}": np.full((4, 8), 0.5) for i in range(12)})
+    return {"text": ("text.png", ["not a readable image"]),
+            "empty": ("empty.exr", ["not a readable EXR"]),
+            "truncated": ("truncated.exr", ["not a readable EXR"]),
+            "twelve": ("twelve.exr", ["12 channels"])}
+
+
+@pytest.mark.parametrize("case", ["text", "empty", "truncated", "twelve"])
+def test_unusable_texture_files_are_one_line(capsys, tmp_path, case):
+    name, words = _bad_textures(tmp_path)[case]
+    out = tmp_path / "out" / "t.exr"
+    rc, _, err = run(capsys, "render", str(out), "-D", f"k_s={tmp_path / name}", "--res", "16", "--spp", "2", "-q")
+    one_line_error(rc, err, "render", "k_s=", name, *words, "one channel (Y) or three (R, G, B)")
+    assert _listing(tmp_path / "out") == []
+
+
+def test_rgb_texture_in_a_spectral_variant_is_one_line(capsys, tmp_path):
+    """A spectral variant takes an albedo texture's values raw, so an RGB texture is no albedo there (Mitsuba
+    failed mid-render); the monochrome variant renders it (its luminance)."""
+    tex = _exr(tmp_path / "rgb.exr", {c: np.full((4, 8), v) for c, v in zip("RGB", (0.9, 0.3, 0.3))})
+    out = tmp_path / "t.exr"
+    rc, _, err = run(capsys, "render", str(out), "-D", f"k_s={tex}", "--res", "16", "--spp", "2", "-q",
+                     "--variant", "llvm_ad_spectral_polarized")
+    one_line_error(rc, err, "render", "rgb.exr", "RGB texture", "one-channel", "llvm_ad_mono_polarized")
+    assert not out.exists()
+    rc, _, err = run(capsys, "render", str(out), "-D", f"k_s={tex}", "--res", "16", "--spp", "2", "-q",
+                     "--no-previews", "--variant", "llvm_ad_mono_polarized")
+    assert rc == 0 and out.exists(), err
+
+
+# ---------------------------------------------------------------- outputs
+@pytest.mark.parametrize("which", ["exr", "preview"])
+def test_render_refuses_to_overwrite_its_own_texture(capsys, tmp_path, which):
+    """``render OUT -D k_s=OUT --force`` (or a texture named as one of OUT's previews): refused before
+    rendering, the texture untouched."""
+    out = tmp_path / "t.exr"
+    tex = _checker(out) if which == "exr" else tmp_path / "t_intensity.png"
+    if which == "preview":
+        from PIL import Image
+
+        Image.fromarray(np.full((4, 8), 128, np.uint8)).save(tex)
+    before = tex.read_bytes()
+    rc, _, err = run(capsys, "render", str(out), "-D", f"k_s={tex}", "--force", "--res", "16", "--spp", "2", "-q")
+    one_line_error(rc, err, "render", "k_s=", tex.name, "also an output")
+    assert tex.read_bytes() == before
+    assert _listing(tmp_path) == [tex.name]
+
+
+def test_interrupted_render_leaves_nothing(capsys, tmp_path, monkeypatch):
+    """Ctrl-C while the previews are written (the EXR and two PNGs done): exit 130, no output and no
+    temporary file left, and an earlier output of the same name kept as it was."""
+    from fmbrdf_mi import previews
+
+    def interrupt(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(previews, "save_aolp", interrupt)
+    out = tmp_path / "out" / "t.exr"
+    rc, _, err = run(capsys, "render", str(out), "--res", "16", "--spp", "2", "-q")
+    assert rc == 130 and "interrupted" in err
+    assert not (tmp_path / "out").exists()          # the directory it made is gone too
+    (tmp_path / "out").mkdir()
+    out.write_bytes(b"earlier")
+    rc, _, err = run(capsys, "render", str(out), "--res", "16", "--spp", "2", "-q", "--force")
+    assert rc == 130
+    assert _listing(tmp_path / "out") == ["t.exr"] and out.read_bytes() == b"earlier"
+
+
+def test_interrupted_exr_write_leaves_no_temporary_file(tmp_path, monkeypatch):
+    """An EXR writer interrupted after its temporary file is written (before the rename) removes it."""
+    from fmbrdf_mi import stokes_io
+
+    def interrupt(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(stokes_io.os, "replace", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        stokes_io.write_map_exr(tmp_path / "m.exr", np.ones((4, 4)))
+    monkeypatch.undo()
+    assert _listing(tmp_path) == []
+
+
+def test_refused_black_capture_leaves_nothing(capsys, tmp_path):
+    """``--raw`` with the light behind the sphere: the black image is refused (no exposure to choose), and no
+    EXR or preview of it is left behind."""
+    out = tmp_path / "t.exr"
+    rc, _, err = run(capsys, "render", str(out), "--res", "16", "--spp", "2", "-q", "--raw",
+                     "-D", "light_dir=0,0,-1")
+    assert rc == 1 and "black" in err and "Traceback" not in err, err
+    assert _listing(tmp_path) == []
+
+
+# ---------------------------------------------------------------- variants
+def test_unsupported_scalar_polarised_variant_says_so():
+    """In a scalar polarised variant the plugin cannot run: loading it names the variant and the supported
+    ones (not Mitsuba's "plugin not found"), through fmbrdf_mi.load_dict (one line) and mi.load_dict."""
+    import mitsuba as mi
+
+    import fmbrdf_mi
+
+    scalar_pol = [v for v in mi.variants() if v.startswith("scalar") and v.endswith("polarized")]
+    if not scalar_pol:
+        pytest.skip("this Mitsuba build has no scalar polarised variant")
+    try:
+        mi.set_variant(scalar_pol[0])
+        with pytest.raises(ValueError) as e:
+            fmbrdf_mi.load_dict({"type": "fmbrdf"})
+        msg = str(e.value)
+        assert "\n" not in msg and scalar_pol[0] in msg and "not supported" in msg
+        assert "llvm_ad_spectral_polarized" in msg and "llvm_ad_mono_polarized" in msg
+        with pytest.raises(RuntimeError) as e:
+            mi.load_dict({"type": "fmbrdf"})
+        assert "not supported" in str(e.value) and "not found" not in str(e.value)
+    finally:
+        mi.set_variant("llvm_ad_mono_polarized")
+    assert fmbrdf_mi.load_dict({"type": "fmbrdf"}) is not None
+
+
+def test_unsupported_variant_set_before_import_says_so(tmp_path):
+    """The variant set before ``import fmbrdf_mi``: the first load says why (a fresh interpreter)."""
+    import mitsuba as mi
+
+    scalar_pol = [v for v in mi.variants() if v.startswith("scalar") and v.endswith("polarized")]
+    if not scalar_pol:
+        pytest.skip("this Mitsuba build has no scalar polarised variant")
+    code = (f"import mitsuba as mi; mi.set_variant({scalar_pol[0]!r}); import fmbrdf_mi\n"
+            "try:\n    mi.load_dict({'type': 'fmbrdf'})\nexcept RuntimeError as e:\n    print(e)\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert "not supported" in proc.stdout and "not found" not in proc.stdout, proc.stdout + proc.stderr
+
+
+def test_cuda_variant_without_a_device_is_one_line(capsys, tmp_path):
+    import drjit as dr
+
+    if dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("a CUDA device is present")
+    out = tmp_path / "t.exr"
+    rc, _, err = run(capsys, "render", str(out), "--variant", "cuda_ad_mono_polarized", "--res", "16", "-q")
+    one_line_error(rc, err, "render", "cuda_ad_mono_polarized", "no CUDA device", "llvm_ad_mono_polarized")
+    assert not out.exists()
