@@ -203,6 +203,25 @@ def check_meshes(root, path):
                     raise CLIError(f"scene file {path}: shape '{shape.get('id') or shape.get('type')}': {e}") from None
 
 
+def check_exr_textures(root, path):
+    """CLIError for an EXR bitmap texture in the XML scene ``path`` when this process may use one CPU only:
+    Mitsuba reads the scene's textures itself, and its EXR reader never returns there.  (``-D k_s=FILE`` on
+    the built-in sphere reads EXR textures without it.)"""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):    # not on Linux: the hang is not known there
+        return
+    if cpus > 1:
+        return
+    for tex in root.iter("texture"):
+        for el in tex.findall("string"):
+            name = el.get("value", "")
+            if tex.get("type") == "bitmap" and el.get("name") == "filename" and name.lower().endswith(".exr"):
+                raise CLIError(f"scene file {path}: bitmap texture {name}: Mitsuba's EXR reader does not return in a "
+                               "process allowed one CPU (taskset, a one-core cluster job); allow two CPUs, or give "
+                               "the texture as PNG")
+
+
 def xml_parameters(path):
     """``({name: default text or None}, xml text)`` of an XML scene's parameters.
 
@@ -226,6 +245,7 @@ def xml_parameters(path):
     if next(root.iter("sensor"), None) is None and next(root.iter("include"), None) is None:
         raise CLIError(f"scene file {path}: {NO_SENSOR}")
     check_meshes(root, path)
+    check_exr_textures(root, path)
     found = {}
     for el in root.iter():
         for value in el.attrib.values():

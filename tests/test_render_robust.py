@@ -50,6 +50,37 @@ def test_textured_render_pinned_to_one_core(tmp_path):
     assert out.exists() and (tmp_path / "out_k_s.exr").exists()
 
 
+SCENE_WITH_EXR_TEXTURE = """<scene version="3.0.0">
+  <integrator type="stokes"><integrator type="direct"/></integrator>
+  <sensor type="orthographic">
+    <sampler type="independent"><integer name="sample_count" value="2"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
+  </sensor>
+  <shape type="sphere">
+    <bsdf type="diffuse"><texture type="bitmap" name="reflectance"><string name="filename" value="ks.exr"/></texture></bsdf>
+  </shape>
+  <emitter type="constant"/>
+</scene>
+"""
+
+
+@pytest.mark.skipif(shutil.which("taskset") is None or shutil.which("timeout") is None,
+                    reason="needs taskset and timeout (util-linux, coreutils)")
+def test_xml_scene_with_an_exr_texture_on_one_core_is_one_line(tmp_path):
+    """An XML scene's bitmap textures are read by Mitsuba itself: pinned to one CPU, an EXR one is refused in
+    one line instead of never returning."""
+    _checker(tmp_path / "ks.exr")
+    (tmp_path / "scene.xml").write_text(SCENE_WITH_EXR_TEXTURE)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")]))
+    cmd = ["timeout", "300", "taskset", "-c", "0", sys.executable, "-m", "fmbrdf_mi", "render",
+           str(tmp_path / "out.exr"), "-s", str(tmp_path / "scene.xml"), "--no-previews", "-q"]
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 1 and len(lines) == 1, (proc.returncode, proc.stderr[-2000:])
+    assert "ks.exr" in lines[0] and "one CPU" in lines[0] and "Traceback" not in proc.stderr
+    assert not (tmp_path / "out.exr").exists()
+
+
 def test_texture_values_are_the_files(tmp_path):
     """The bitmap a texture file becomes holds the file's values: a one-channel and an RGB EXR (written by
     OpenEXR, read back exactly), and an 8-bit PNG (the bytes PIL writes)."""
