@@ -250,3 +250,16 @@ def test_cuda_variant_without_a_device_is_one_line(capsys, tmp_path):
     rc, _, err = run(capsys, "render", str(out), "--variant", "cuda_ad_mono_polarized", "--res", "16", "-q")
     one_line_error(rc, err, "render", "cuda_ad_mono_polarized", "no CUDA device", "llvm_ad_mono_polarized")
     assert not out.exists()
+
+
+def test_dataset_cuda_variant_without_a_device_is_one_line(capsys, tmp_path):
+    import drjit as dr
+
+    if dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("a CUDA device is present")
+    cfg = tmp_path / "ds.toml"
+    cfg.write_text('samples = 1\n[render]\nresolution = 8\nspp = 1\nvariant = "cuda_ad_mono_polarized"\n')
+    out = tmp_path / "ds"
+    rc, _, err = run(capsys, "dataset", "--config", str(cfg), "--out", str(out), "-q")
+    one_line_error(rc, err, "dataset", "cuda_ad_mono_polarized", "no CUDA device", "llvm_ad_mono_polarized")
+    assert not out.exists()

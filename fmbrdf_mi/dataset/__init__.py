@@ -438,6 +438,9 @@ def generate(config, out, *, shard=None, seed=None, samples=None, progress=True,
             raw["samples"] = samples
         cfg = load_config(raw, base_dir=base_dir)
     k, n_shards = parse_shard(shard)
+    from .. import check_variant
+
+    check_variant(cfg.variant)     # a cuda_ variant without a device: one line before any work
     if not isinstance(out, (str, os.PathLike)) or not os.fspath(out):
         raise ValueError(f"out: expected a directory name, got {out!r}")
     out = os.fspath(out)
