@@ -1,9 +1,8 @@
 """``render --raw`` renders with at least RAW_MIN_SPP samples per pixel unless --spp is given.
 
 At the scene's 64 samples the renderer's Monte Carlo noise (which no camera has, and which the fit's
-camera-noise model does not know) biased kappa on 128^2 captures (tools/bench_raw_kappa.py --spp:
--0.47 +- 0.15 at 64 spp over 32 seeds, +0.08 +- 0.17 at 1024 over 48).  Checked through what the files
-record: the raw sidecar's and the EXR's sample counts.
+camera-noise model does not know) biases kappa (docs/benchmarks/coverage.md).  Checked through what
+the files record: the raw sidecar's and the EXR's sample counts.
 """
 import json
 
