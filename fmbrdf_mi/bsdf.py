@@ -373,11 +373,8 @@ class _FMBRDFMethods:
                                                planar=compact)
         if compact:
             # No derivatives wanted: the nine channels in fixed point over their own range, 16 bytes
-            # a texel (interp.py): log M00 within 4.8e-7 of its range (up to 8 in the materials
-            # measured, among them the corners of the valid range: 3.8e-6 relative in M00), M10 and
-            # M20 within 7.6e-6 of theirs, the rest of the polarised response within 6.1e-5 to
-            # 1.2e-4 of theirs (up to 0.2 in those materials).  The 1-D factors go in pairs into
-            # 64-bit words.  With
+            # a texel (interp.py), far finer than the interpolation error (docs/benchmarks/accuracy.md).
+            # The 1-D factors go in pairs into 64-bit words.  With
             # gradients, or tables="float32", both stay float32 (smooth in the parameters to float32
             # rounding, which finite differences with small steps need).
             self.table = PackedTetraTable(self.table, PACKING)

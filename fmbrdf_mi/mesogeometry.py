@@ -153,7 +153,7 @@ def fit_fmbrdf(angles, obs, light_angle, kappa=None, progress=None):
     """FMBRDF on the intensities; ``kappa``: None (free) or a fixed value."""
     from .brdf_fit.values import evaluation_variant
 
-    with evaluation_variant():  # once for all evaluations (a variant switch costs ~70 ms)
+    with evaluation_variant():  # once for all evaluations (a variant switch is not free)
         return _fit_fmbrdf(angles, obs, light_angle, kappa, progress)
 
 

@@ -1,9 +1,8 @@
 """``render --raw`` renders with at least RAW_MIN_SPP samples per pixel unless --spp is given.
 
 At the scene's default sample count the renderer's Monte Carlo noise (which no camera has, and which the
-fit's camera-noise model does not know) biases kappa (docs/benchmarks.md, tools/bench_raw_kappa.py --spp).
-Checked through what the files
-record: the raw sidecar's and the EXR's sample counts.
+fit's camera-noise model does not know) biases kappa (docs/benchmarks/coverage.md).  Checked through what
+the files record: the raw sidecar's and the EXR's sample counts.
 """
 import json
 

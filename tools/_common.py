@@ -1,5 +1,6 @@
-"""Helpers shared by the scripts in tools/ (and the tests): evaluate the BSDF on arrays."""
+"""Helpers shared by the scripts in tools/ (and the tests): evaluate the BSDF on arrays, name the CPU."""
 import os
+import platform
 import sys
 
 import numpy as np
@@ -55,3 +56,15 @@ def set_body_grid(bsdf, n_phi=None, table=None):
     bsdf.grid = BodyGrid(g.n_theta, n_phi or g.n_phi, tuple(table or g.table), g.n_factor)
     bsdf._rebuild()
     return bsdf
+
+
+def cpu_name():
+    """The CPU's model name (for the header of a timing table)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"

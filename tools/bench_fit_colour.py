@@ -170,7 +170,7 @@ def main():
             sys.exit(f"bench_fit_colour: --fix: {name!r} is not one of {', '.join(SHAPE)}")
         fixed[name] = float(value) if value else SHAPE[name]
 
-    from bench_rebuild import cpu_name
+    from _common import cpu_name
 
     R = args.periods
     print(f"bench_fit_colour: {time.strftime('%Y-%m-%d')}, {cpu_name()}, {os.cpu_count()} cores; "

@@ -50,7 +50,7 @@ MATERIALS = {
     "rough": dict(eta=1.60, alpha=0.60, beta=2.0, kappa=0.0, k_s=0.7, r_k=2.0),
     "medium": dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0, k_s=1.0, r_k=0.5),
     "dense": dict(eta=2.00, alpha=0.15, beta=3.0, kappa=50.0, k_s=0.6, r_k=3.0),
-    # the render command's default sphere at -D alpha=0.15 (tools/bench_raw_kappa.py's captures)
+    # the render command's default sphere at -D alpha=0.15 (the captures of ``render --raw``)
     "render": dict(eta=1.50, alpha=0.15, beta=2.0, kappa=10.0, k_s=1.0, r_k=1.0),
 }
 NAMES = ("eta", "alpha", "beta", "kappa", "k_s", "r_k")

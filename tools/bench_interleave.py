@@ -27,7 +27,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 
-from bench_rebuild import cpu_name  # noqa: E402
+from _common import cpu_name  # noqa: E402
 
 
 def fit_times(d):

@@ -1,4 +1,4 @@
-"""Interval coverage in every fitting mode (issue 23): one command over the per-mode benches, one table.
+"""Interval coverage in every fitting mode: one command over the per-mode benches, one table.
 
     python tools/bench_modes.py --json modes.json [--modes single,joint3,joint6,free_power,colour,normals]
                                 [--seeds 64] [--mode-seeds colour=32,normals=16] [--size 40] [--material medium]
@@ -17,7 +17,7 @@ Each mode is one of the per-mode benches, whose per-fit functions do the work
 * ``free_power``: the same K = 3 with true powers 1, 0.6, 1.7 told as 1, 1, 1 and
   estimated (``power_start="ratio"``); the powers are rows of their own;
 * ``colour``: :func:`bench_fit_colour.colour_fit` (its own material; PERIODS² colour periods);
-* ``normals``: :func:`bench_normal_refine_seeds.normal_fit` (the ``medium``
+* ``normals``: :func:`bench_normal_refine.normal_fit` (the ``medium``
   material on the mesh object, NORMAL_RES² super-pixels, 4 lights): the
   material's standard errors are known to be too small and are withheld by
   the command (``calibrated: false``): the row shows by how much.
@@ -114,8 +114,7 @@ class Runner:
             rec["truth"] = _truth({})
             return rec
         if mode == "normals":
-            from bench_normal_refine import TRUTH
-            from bench_normal_refine_seeds import normal_fit
+            from bench_normal_refine import TRUTH, normal_fit
 
             rec = normal_fit(100 + seed, res=a.normal_res, lights=4, lam=0.3)
             rec["truth"] = dict(TRUTH)

@@ -1,5 +1,5 @@
 """Per-pixel albedos on textures that change within a super-pixel: ``per-pixel`` (one pair per 2 x 2 block)
-against ``per-pixel-bilinear`` (the pairs at the super-pixel centres, each raw sample interpolated), issue 25.
+against ``per-pixel-bilinear`` (the pairs at the super-pixel centres, each raw sample interpolated).
 
     python tools/bench_textured_bilinear.py --work /tmp/btb [--sizes 64,128] [--seeds 3] [--lights 1,3]
                                             [--exact-res 32] [--exact-seeds 3] [--json out.json]

@@ -18,7 +18,7 @@ import numpy as np
 
 from _common import directions, dolp, eval_mueller, set_body_grid
 
-#: The box of issue 2's accuracy targets.
+#: The parameter box of the accuracy targets (docs/benchmarks/accuracy.md).
 BOX = {"eta": (1.1, 2.5), "alpha": (0.02, 1.5), "beta": (0.5, 4.0), "kappa": (0.0, 100.0)}
 
 
@@ -69,7 +69,7 @@ def main():
     ap.add_argument("--ref-res", type=int, nargs=2, default=(128, 256), metavar=("N_S", "N_PHI"))
     ap.add_argument("--variant", default="llvm_ad_mono_polarized")
     ap.add_argument("--full-range", action="store_true",
-                    help="sample the whole valid parameter range instead of the issue's box")
+                    help="sample the whole valid parameter range instead of the targets' box")
     ap.add_argument("--forward-grazing", action="store_true",
                     help="draw every direction pair near grazing and near forward scattering")
     ap.add_argument("--n-phi", type=int, default=None,

@@ -7,8 +7,7 @@
 2. Lambert (k_d 0.4, 0.2, 0.1) + GGX (alpha 0.15, Schlick F0 0.04, separable Smith G, k_s 1), in NumPy.
 Both are fitted with fit-brdf's defaults (start grid of 320 points searched coarse to fine, 2 starts, log10
 error), and the parameters, the log10 RMSE over every usable bin and the time are printed; --plot saves the
-slices of 2.  tools/bench_fit_brdf.py times the same two fits for two versions of the package, interleaved, and
-prints both versions' parameters side by side.
+slices of 2.
 """
 import argparse
 import math

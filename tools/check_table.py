@@ -49,7 +49,7 @@ def main():
     ap.add_argument("--points", type=int, default=4000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--full-range", action="store_true",
-                    help="sample the whole valid parameter range instead of the issue's box")
+                    help="sample the whole valid parameter range instead of the targets' box")
     ap.add_argument("--n-phi", type=int, default=None,
                     help="microfacet node azimuths of the body quadrature (default: the package's)")
     ap.add_argument("--table", type=int, nargs=2, default=None, metavar=("N_THETA", "N_PHI"),

@@ -26,7 +26,7 @@ Cases (all small: the whole run takes about 2 minutes on a 2-core machine):
   g_fit_brdf             ``fit-brdf`` on a synthetic MERL file (Lambert + a GGX-like lobe), 5000 samples
 
 The mesh objects are those of fmbrdf_mi/fit/synthetic_object.py (the code copied here, so that moving that
-module changes nothing): for the same arguments the files come out byte for byte the same (checked 2026-11-24).
+module changes nothing): for the same arguments the files come out byte for byte the same.
 Every input is deterministic (seeded camera noise, seeded renders); text inputs are hashed with the work
 directory's path replaced by <WORK>, so two work directories give the same hashes.
 
@@ -43,7 +43,7 @@ Compare (``--compare BASELINE``): per key the relative difference |a - b| / max(
 exceeds ``--rtol`` (default 1e-9) or a key is missing or new, 0 otherwise.  Every key that moved at all is listed,
 then a per-case summary.
 
-Noise floor (2026-11-24, 2-core AMD EPYC): two runs with fresh inputs in different work directories, a third at
+Noise floor: two runs with fresh inputs in different work directories, a third at
 load ~3.5 with the inputs reused, two cases with an empty Dr.Jit kernel cache, and every case run with 1 and 8
 Dr.Jit threads (``dr.set_thread_count``) gave every number bit for bit the same (relative difference 0): rtol 1e-9
 has no run-to-run noise to absorb here.

@@ -59,8 +59,8 @@ class BodyGrid:
     """Resolution of the body quadrature and of its tables.
 
     ``n_theta`` polar x ``n_phi`` azimuthal microfacet nodes (n_phi even);
-    ``table``: (n_theta, n_phi) nodes of the body table (docs/benchmarks.md, Measured
-    accuracy, for how they were chosen).
+    ``table``: (n_theta, n_phi) nodes of the body table (docs/benchmarks/accuracy.md
+    for how they were chosen).
     """
 
     def __init__(self, n_theta=32, n_phi=64, table=(49, 81), n_factor=257):

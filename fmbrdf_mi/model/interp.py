@@ -180,7 +180,7 @@ class PackedTetraTable(TetraTable):
     own range [lo_c, hi_c] in this table, so it is within step_c / 2 of the
     float32 value; interpolation is exact on q (a convex combination), and
     lo_c + step_c sum_k w_k q_k restores the value.  eval's random-access
-    reads are what costs (docs/benchmarks.md, "Evaluation"): one 16-byte texel per corner
+    reads are what costs (docs/benchmarks/speed.md): one 16-byte texel per corner
     sits in one cache line and takes two 64-bit gathers, against one 32-bit
     gather per channel for the float table.  The bits carry no AD graph: use
     it only where no parameter of the table has gradients enabled.  Built

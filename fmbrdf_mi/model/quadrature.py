@@ -58,8 +58,8 @@ def gauss_legendre_array(Float, n):
 def gauss_legendre(n, a=0.0, b=1.0):
     """Gauss-Legendre nodes and weights on [a, b] (NumPy, float64).
 
-    The rule of each order is computed once (an eigenvalue problem: 5 ms
-    for n = 256, which otherwise dominated a table rebuild)."""
+    The rule of each order is computed once (an eigenvalue problem, which
+    would otherwise dominate a table rebuild)."""
     x, w = _leggauss(n)
     return 0.5 * (b - a) * x + 0.5 * (b + a), 0.5 * (b - a) * w
 

@@ -132,7 +132,7 @@ def test_joint_manifest_with_maps_relights_the_held_out_image(tmp_path, capsys):
     """Three lights of a textured sphere (one view) and a fourth held out, through a manifest with
     `--albedo per-pixel`: the maps are written, the shape recovered within 4 standard errors, and the
     held-out image relit with the maps to RMSE / mean < 0.04 (noise alone: about 0.01; a uniform fit of
-    these textures relights at about 0.12: tools/bench_textured.py, docs/benchmarks.md)."""
+    these textures relights at about 0.12: tools/bench_textured.py, docs/benchmarks/textured.md)."""
     from fmbrdf_mi.camera import CameraModel, capture
     from fmbrdf_mi.cli import main
     from fmbrdf_mi.fit.evaluate.synthetic import textured_sphere

@@ -184,7 +184,7 @@ def test_damped_block_and_prior_gradient_equal_their_direct_forms_bit_for_bit(pr
     """NormalBlock.damped(mu) (the undamped assembly kept, the ridge added to the diagonal pairs) gives the
     same blocks, preconditioner and ridge as a block assembled with that damping, bit for bit, and so the same
     CG solve; NormalProblem.prior_gradient (one bincount) equals its definition as a scatter-add per stencil
-    place (np.add.at), bit for bit: the refinement's path is sensitive to rounding (docs/benchmarks.md)."""
+    place (np.add.at), bit for bit: the refinement's path is sensitive to rounding (docs/benchmarks/joint.md)."""
     from fmbrdf_mi.fit.problem.normals import NormalProblem, stencils, tangent_bases
     from fmbrdf_mi.fit.solve.normal_system import NormalBlock
 
@@ -308,10 +308,9 @@ def test_normal_jacobian_matches_brute_force(tiny):
 def test_border_ring_model_fits_the_ray_cast_data(tiny):
     """At the true material and the ray-cast normal map, the refinement's model fits the raw samples of the
     refined region's border ring (pixels with a neighbour outside it) nearly as well as inside: a sample
-    corner outside the region is extrapolated linearly from the inside.  With the old constant
-    extrapolation (the pixel's own normal) chi^2 per sample was 11 overall on this object, concentrated in
-    the ring, where the normal turns fast towards the silhouette: a model error that biased the material by
-    several standard errors (tools/bench_normal_refine_seeds.py).  Now ~2.6 in the ring, ~1.3 inside."""
+    corner outside the region is extrapolated linearly from the inside.  A constant extrapolation (the
+    pixel's own normal) leaves a model error in the ring, where the normal turns fast towards the
+    silhouette, that biases the material (tools/bench_normal_refine.py --seeds, docs/benchmarks/joint.md)."""
     from fmbrdf_mi.fit.problem.normals import NormalProblem
     from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
     from fmbrdf_mi.fit.inputs.observations import erode
@@ -387,7 +386,7 @@ def test_refine_normals_command(tiny, tmp_path, capsys):
     assert set(rep["models"]["fmbrdf"]["params"]) == set(TRUE)
     assert "stdout" not in rep and capsys.readouterr().out.count("angle to the ground truth") == 1
     if rn["converged"]:
-        # the material at the weakened prior, its standard errors calibrated (tools/bench_normal_refine_seeds.py)
+        # the material at the weakened prior, its standard errors calibrated (tools/bench_normal_refine.py --seeds)
         unc = rep["models"]["fmbrdf"]["uncertainty"]
         assert unc["calibrated"] and set(unc["std_errors"]) == set(TRUE)
         assert "uncertainty_uncalibrated" not in rep["models"]["fmbrdf"]

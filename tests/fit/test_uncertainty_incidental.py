@@ -1,4 +1,4 @@
-"""The per-pixel albedo fit's incidental-parameter sandwich (issue 25, tools/diag_pp_sandwich.py):
+"""The per-pixel albedo fit's incidental-parameter sandwich (docs/benchmarks/textured.md):
 PixelAlbedos.incidental's C against a per-group dense computation and against its meaning (the mean
 excess of Kaufman's information at noisy albedos), and uncertainty.incidental_sandwich against the spread
 of a variable-projection estimate over noise draws, where the Fisher errors are far too small (per-pixel

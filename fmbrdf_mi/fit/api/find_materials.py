@@ -40,8 +40,8 @@ material, at least half its pixels are decided (``min_decided``); otherwise
 :class:`MaterialsNotSeparated` is raised (one line: each material's
 fraction), never labels that mean nothing.  D compares the materials' models,
 not the pixel's own residuals: picking for each pixel the material its noise
-favours (which a chi^2 difference would reward: identical materials scored a
-median delta chi^2 of 4-11) does not make it grow.
+favours (which a chi^2 difference would reward, even between identical
+materials) does not make it grow.
 
 **When it fails.**  Materials whose albedos are equal and that differ only in
 eta, alpha, beta or kappa by less than the noise shows at each pixel (each

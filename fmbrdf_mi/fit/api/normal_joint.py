@@ -57,15 +57,12 @@ J^T J: :func:`fmbrdf_mi.fit.solve.normal_system.material_covariance`), the norma
 free, not held fixed; the inverse Schur complement alone would count the
 prior as information.  It measures the spread over noise, but not the
 prior's bias: the prior pulls the normals, and through them the material,
-by an amount that grows with lam (measured on a well-specified simulation,
-24^2 object, 12 seeds from the truth: beta and kappa -1.6 and -1.9 standard
-errors at lam 0.3, -6 and -12 at lam 3, within 0.4 at lam 0.03 and at 0; the
-spread matched the standard errors at every lam).  So the material, and its
+by an amount that grows with lam.  So the material, and its
 covariance, come from one more Levenberg-Marquardt run from the refinement's
 result with the prior weakened to ``lam_material`` (0.03); the normals
-returned are those of the requested lam.  Over noise seeds
-(tools/bench_normal_refine_seeds.py, docs/benchmarks.md) these standard
-errors are calibrated (``uncertainty["calibrated"]``); with
+returned are those of the requested lam.  These standard errors are
+calibrated (``uncertainty["calibrated"]``; measured with
+``tools/bench_normal_refine.py --seeds``, docs/benchmarks/joint.md); with
 ``lam_material=None`` and lam > 0.03 they are not, and
 ``uncertainty["warning"]`` says so.  It is mapped to the reported
 parameters as the fit does (:mod:`fmbrdf_mi.fit.uncertainty`), inflated by
@@ -280,13 +277,13 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         if stage is not None:
             unc["method"] += f"; material with the prior weakened to lam {stage['lam']:g} (the normals: lam {lam:g})"
         if jp.lam <= LAM_MATERIAL:
-            # tools/bench_normal_refine_seeds.py: the spread matches these and the 95 % intervals cover
+            # at the weakened prior the spread over noise matches these errors (docs/benchmarks/joint.md)
             unc["calibrated"] = True
         else:
             unc["calibrated"] = False
-            unc["warning"] = (f"the smoothness prior (lam {jp.lam:g}) biases the material by an amount these do "
-                              f"not contain (measured at lam 0.3: beta, kappa 1.5-2 standard errors); the "
-                              f"material is estimated at lam <= {LAM_MATERIAL:g} unless lam_material=None")
+            unc["warning"] = (f"the smoothness prior (lam {jp.lam:g}) biases the material by more than these "
+                              f"standard errors; leave lam_material at its default to estimate the material at "
+                              f"lam <= {LAM_MATERIAL:g} (docs: benchmarks, normal refinement)")
     out = n_out.reshape(n_map.shape)
     params_out = mdl.report(st.shape, st.a_s, st.a_b)
     say(f"[joint-normals] done in {time.time() - t0:.1f} s ({reason}): "

@@ -45,8 +45,8 @@ def builtin_sphere_geometry(p, shape=None):
     The scene (:func:`fmbrdf_mi.scene.sphere_scene`) puts a unit sphere at the origin, the camera at
     ``distance`` on +z, the image spanning ``2 * half_width(fov, distance)`` horizontally.  Exact
     geometry matters to the likelihood of a raw mosaic, whose samples sit a quarter super-pixel off the
-    centre: bilinear interpolation of the pooled super-pixel normal map errs by up to 0.3 degrees near
-    the silhouette at 128x128, which moved kappa from 10 to ~19 (``tools/bench_raw_kappa.py``).
+    centre, and bilinear interpolation of the pooled super-pixel normal map errs near the silhouette by
+    enough to bias kappa (docs/benchmarks/coverage.md).
     """
     w, h = int(p["width"]), int(p["height"])
     shape = (h, w) if shape is None else tuple(shape)

@@ -202,7 +202,7 @@ def check_direction(v, name):
                          f"the camera), got {shown!r}")
     with np.errstate(over="ignore", under="ignore"):
         n = np.linalg.norm(a)
-    if not 1e-150 < n < 1e150:     # (1e308, 0, 0): normalised without overflow (others exactly as before)
+    if not 1e-150 < n < 1e150:     # (1e308, 0, 0): scaled first so that the norm does not overflow
         a = a / np.abs(a).max()
         n = np.linalg.norm(a)
     return a / n
@@ -484,7 +484,7 @@ class SphereGeometry:
 
     Stored as :attr:`Observation.geometry`; :meth:`Observation.sample_geometry`
     then evaluates it at each sample's point instead of interpolating the
-    normal map (bilinear interpolation on a sphere of radius 10 errs by ~0.5 %).
+    normal map (which errs near the silhouette of a small sphere).
     """
 
     def __init__(self, shape, centre, radius, camera="orthographic", fov=None):
@@ -509,10 +509,9 @@ def find_sphere(mask):
     4-neighbours outside the mask, at a point uniformly distributed along it
     over the disc's sub-pixel positions: the segment's midpoint (a point on
     the pixels' shared edge) is an unbiased sample of the outline.  A circle
-    is fitted to those midpoints (Kasa).  (The centres of the boundary
-    pixels moved out by half a pixel, used before, overestimated the radius
-    by 0.05 px on average and up to 0.14 px at r = 7:
-    ``tools/check_find_sphere.py``.)  Segments to the image border are
+    is fitted to those midpoints (Kasa); the boundary pixels' centres moved out
+    by half a pixel would overestimate the radius (``tools/check_find_sphere.py``
+    measures the error).  Segments to the image border are
     skipped, so a sphere cut by the frame is fitted to its visible outline.
     """
     m = read_mask(mask)

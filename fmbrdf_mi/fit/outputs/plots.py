@@ -135,7 +135,7 @@ def scale_from(values, sel, q=99.0, floor=1e-6):
     """Colour-scale maximum: the ``q``-th percentile of |values| over the selected (fitted) pixels.
 
     Unlit pixels (whose DoLP is noise) and the one-pixel rim (whose DoLP and
-    error are extreme) are not fitted, so they no longer set the scale.
+    error are extreme) are not fitted, so they do not set the scale.
     """
     v = np.abs(np.asarray(values, dtype=np.float64)[sel])
     v = v[np.isfinite(v)]

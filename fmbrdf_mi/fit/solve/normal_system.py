@@ -243,7 +243,7 @@ class NormalBlock:
 
     def precondition(self, r):
         """The 2 x 2 block-diagonal preconditioner's inverse applied to r (N, 2, R) (written out: the same
-        products and sums as ``einsum("nab,nbr->nar", pre, r)``, in half its time)."""
+        products and sums as ``einsum("nab,nbr->nar", pre, r)``, faster)."""
         P = self.pre
         z = np.empty_like(r)
         np.multiply(P[:, 0, 0, None], r[:, 0], out=z[:, 0])
