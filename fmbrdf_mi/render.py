@@ -35,7 +35,7 @@ POLARISED_VARIANTS = ("llvm_ad_spectral_polarized", "llvm_ad_mono_polarized",
 
 #: ``render --raw`` renders with at least this many samples per pixel unless ``--spp`` is given: the
 #: renderer's Monte Carlo noise, which no camera has and the fit's noise model does not know, biases
-#: the fitted kappa at the scene's default sample count (docs/benchmarks.md, tools/bench_raw_kappa.py --spp).
+#: the fitted kappa at the scene's default sample count (docs/benchmarks/coverage.md).
 RAW_MIN_SPP = 1024
 
 #: Errors of a parameter's value (:func:`parse_value`).
