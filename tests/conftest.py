@@ -107,3 +107,38 @@ def fit_record(tmp_path, joint=False):
     return {"reproduce": {"command": "fmbrdf-mi fit ...", "cwd": str(tmp_path),
                           "arguments": {"model": "fmbrdf", "max_iter": 1, "free_power": False},
                           "joint": {"kind": "manifest", "images": images}, "files_sha256": hashes}}
+
+
+# ---------------------------------------------------------------- the two tiers
+#: The slow tier (``python -m pytest -q tests -m slow``; ``.ci/run`` runs both tiers): coverage loops over
+#: noise seeds, end-to-end refinements, the documentation's code and tutorials.  Node-id prefixes, marked
+#: here in one place so that the fast tier's budget is tuned in one file; tests may also carry
+#: ``@pytest.mark.slow`` themselves.  An entry matching no collected test of a collected file is an error
+#: (a renamed test would otherwise move silently into the fast tier).
+SLOW = (
+    "tests/test_docs.py",
+    "tests/fit/test_objectives_likelihood.py::test_likelihood_intervals_cover_the_truth",
+    "tests/fit/test_objectives_likelihood.py::test_paper_loss_sandwich_intervals_cover_the_truth",
+    "tests/fit/test_uncertainty_incidental.py::test_sandwich_matches_the_spread_over_noise_draws",
+    "tests/fit/test_albedo_prior.py::test_chi2_degrees_of_freedom_rule_by_simulation",
+    "tests/fit/test_inputs_authors.py::test_manifest_and_repeated_light_give_the_authors_fit",
+    "tests/fit/test_inputs_authors.py::test_normal_refinement_on_the_mesh_object",
+    "tests/fit/test_api_joint.py::test_one_image_is_the_list_of_one",
+    "tests/fit/test_api_normal_joint.py::test_joint_lowers_the_energy_monotonically_and_beats_the_alternation",
+    "tests/fit/test_api_normal_joint.py::test_refine_normals_command",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    root = os.path.dirname(HERE)
+    files, used = set(), set()
+    for item in items:
+        node = os.path.relpath(str(item.path), root).replace(os.sep, "/") + item.nodeid[item.nodeid.find("::"):]
+        files.add(node.split("::")[0])
+        for prefix in SLOW:
+            if node == prefix or node.startswith(prefix + "::") or node.startswith(prefix + "["):
+                item.add_marker(pytest.mark.slow)
+                used.add(prefix)
+    stale = [p for p in SLOW if p.split("::")[0] in files and p not in used]
+    if stale:
+        raise pytest.UsageError("tests/conftest.py SLOW names no collected test: " + ", ".join(stale))
