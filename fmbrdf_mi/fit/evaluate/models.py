@@ -130,6 +130,71 @@ class Model:
         return shape, ks / self.albedo_factor, kb / self.albedo_factor
 
 
+
+class ModelView:
+    """A :class:`Model` seen through a wrapper that changes what it estimates or reports (per-channel albedos,
+    per-material parameters, albedo maps, free light powers): every attribute of the model's interface is
+    the ``base`` model's, listed here, and a wrapper overrides the ones it changes."""
+
+    def __init__(self, base):
+        self.base = base
+
+    @property
+    def name(self):
+        return self.base.name
+
+    @property
+    def description(self):
+        return self.base.description
+
+    @property
+    def shape(self):
+        return self.base.shape
+
+    @property
+    def shape_names(self):
+        return self.base.shape_names
+
+    @property
+    def surface_key(self):
+        return self.base.surface_key
+
+    @property
+    def body_key(self):
+        return self.base.body_key
+
+    @property
+    def albedo_factor(self):
+        return self.base.albedo_factor
+
+    @property
+    def base_dict(self):
+        return self.base.base_dict
+
+    @property
+    def surface_name(self):
+        return self.base.surface_name
+
+    @property
+    def body_name(self):
+        return self.base.body_name
+
+    @property
+    def reported_names(self):
+        return self.base.reported_names
+
+    def param(self, name):
+        return self.base.param(name)
+
+    def bsdf_dict(self, shape_values=None):
+        return self.base.bsdf_dict(shape_values)
+
+    def report(self, shape_values, a_s, a_b):
+        return self.base.report(shape_values, a_s, a_b)
+
+    def split(self, reported):
+        return self.base.split(reported)
+
 def _fill(template, vals):
     if isinstance(template, dict):
         return {k: _fill(v, vals) for k, v in template.items()}
