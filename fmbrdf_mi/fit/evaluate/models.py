@@ -139,49 +139,17 @@ class ModelView:
     def __init__(self, base):
         self.base = base
 
-    @property
-    def name(self):
-        return self.base.name
-
-    @property
-    def description(self):
-        return self.base.description
-
-    @property
-    def shape(self):
-        return self.base.shape
-
-    @property
-    def shape_names(self):
-        return self.base.shape_names
-
-    @property
-    def surface_key(self):
-        return self.base.surface_key
-
-    @property
-    def body_key(self):
-        return self.base.body_key
-
-    @property
-    def albedo_factor(self):
-        return self.base.albedo_factor
-
-    @property
-    def base_dict(self):
-        return self.base.base_dict
-
-    @property
-    def surface_name(self):
-        return self.base.surface_name
-
-    @property
-    def body_name(self):
-        return self.base.body_name
-
-    @property
-    def reported_names(self):
-        return self.base.reported_names
+    name = property(lambda self: self.base.name)
+    description = property(lambda self: self.base.description)
+    shape = property(lambda self: self.base.shape)
+    shape_names = property(lambda self: self.base.shape_names)
+    surface_key = property(lambda self: self.base.surface_key)
+    body_key = property(lambda self: self.base.body_key)
+    albedo_factor = property(lambda self: self.base.albedo_factor)
+    base_dict = property(lambda self: self.base.base_dict)
+    surface_name = property(lambda self: self.base.surface_name)
+    body_name = property(lambda self: self.base.body_name)
+    reported_names = property(lambda self: self.base.reported_names)
 
     def param(self, name):
         return self.base.param(name)
@@ -194,6 +162,7 @@ class ModelView:
 
     def split(self, reported):
         return self.base.split(reported)
+
 
 def _fill(template, vals):
     if isinstance(template, dict):
