@@ -115,20 +115,19 @@ class AlbedoLayout(abc.ABC):
         self.prior = prior
         #: one corner of weight 1 per sample: A's columns of different groups never share a row
         self.one_corner = self.corner_groups.shape[-1] == 1 and bool(np.all(self.corner_weights == 1.0))
+        self._single = np.ascontiguousarray(self.corner_groups[..., 0]) if self.one_corner else None
 
     # ---- the design
     def interpolate(self, a):
         """Each sample's combination sum_c w_c a[g_c] of the per-group ``a`` (n_groups,): groups' shape."""
         a = np.asarray(a, dtype=np.float64)
         if self.one_corner:
-            return a[self.corner_groups[..., 0]]
+            return a[self._single]
         return np.einsum("...c,...c->...", self.corner_weights, a[self.corner_groups])
 
     def mu(self, S, B, a_s, a_b):
         """(cells, n) predictions A a from the unit-albedo intensities S, B (cells, n)."""
-        S, B = np.asarray(S), np.asarray(B)
-        return (np.broadcast_to(self.interpolate(a_s), S.shape) * S
-                + np.broadcast_to(self.interpolate(a_b), B.shape) * B)
+        return self.interpolate(a_s) * S + self.interpolate(a_b) * B
 
     def design(self, us, ub):
         """A as (columns (N, 2c), values (N, 2c)): each sample's non-zeros, unknowns interleaved (a_s[g] at 2g,
