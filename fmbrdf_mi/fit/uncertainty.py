@@ -60,9 +60,8 @@ not (J^T J)^-1, which from one image is 2-5x too small
 (tools/diag_pp_sandwich.py).  :func:`covariance` reports the sandwich (capped
 where H is not positive definite: :func:`incidental_sandwich`), keeps the
 Fisher errors in ``incidental``, and the profile check's threshold follows it.
-The bilinear layout's pairs are coupled through their neighbours, and its C
-(:meth:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.CoupledPixelAlbedos.incidental_term`)
-is a Monte Carlo estimate of the same trace.
+Where the pairs are coupled (bilinear corners) C is a Monte Carlo estimate of
+the same trace (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`).
 
 **With the albedo maps' smoothness prior** (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) the residuals
 carry the prior's rows, and J^T J of Kaufman's Jacobian over them is the shape's information with the
@@ -157,9 +156,9 @@ POSTERIOR = ("posterior covariance (Bayesian): the inverse of the information pe
 
 
 def incidental_term(problem, st, parts):
-    """C (p, p) in z of an eliminating layout (:meth:`PixelAlbedos.incidental`) at ``st`` (``parts`` with
-    derivatives), or None for layouts that do not eliminate."""
-    if not getattr(problem, "eliminates", False) or not callable(getattr(problem.layout, "incidental", None)):
+    """C (p, p) in z of an eliminating layout (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`)
+    at ``st`` (``parts`` with derivatives), or None where the layout does not eliminate or does not compute it."""
+    if not problem.eliminates:
         return None
     obj = problem.obj
     z = problem.to_z(st)
@@ -222,10 +221,10 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
         else:
             scale = info["chi2_per_dof"]
             info["method"] = "inverse Fisher information, noise level estimated from the residuals"
-        if getattr(problem, "eliminates", False) and p and not callable(getattr(problem.layout, "incidental", None)):
+        if problem.eliminates and p and problem.layout.incidental_reason is not None:
             # a layout without the incidental-parameter term (the smoothness prior): the errors, said so
             info["incidental_not_computed"] = problem.layout.incidental_reason
-        elif getattr(problem, "eliminates", False) and p:
+        elif problem.eliminates and p:
             # the albedos' noise is scale x G^-1 when the data's noise is scale x the stated: C scales with it
             if parts is None:
                 parts = problem.parts(st, jac=True)
@@ -245,14 +244,14 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
                 "inverse Fisher information",
                 "incidental-parameter sandwich H^-1 (J^T J) H^-1, H = J^T J - C (the per-pixel albedos' noise "
                 "removed from the information, issue 25)", 1)
-            if getattr(problem.layout, "incidental_method", None):
+            if problem.layout.incidental_method:
                 info["method"] += "; " + problem.layout.incidental_method
             if inc["capped_directions"]:
                 info["method"] += (f"; H not positive definite in {inc['capped_directions']} direction(s): their "
                                    f"inflation capped at {1 / INCIDENTAL_FLOOR:g}x the Fisher standard error")
         elif "incidental_not_computed" in info:
             info["method"] += "; " + info["incidental_not_computed"]
-        if getattr(getattr(problem, "layout", None), "prior", None) is not None:
+        if problem.obj.prior is not None:
             info["method"] = info["method"].replace("inverse Fisher information", POSTERIOR, 1)
     else:
         grid = getattr(obj, "grid", None)
@@ -427,7 +426,7 @@ def chi2_along_covariance(problem, st, J, scale):
             z = z0 + c[:, j] / c[j, j] * (zt - z0[j])
         s = problem.from_z(z)
         s.shape[name] = float(value)   # exactly (z is clipped to +-Z_MAX)
-        if getattr(problem, "eliminates", False):   # albedo maps: re-solved at the point (the profile over them)
+        if problem.eliminates:   # albedo maps: re-solved at the point (the profile over them)
             s = problem.projected(s.shape)[0]
         return s
 
@@ -575,20 +574,15 @@ SPLIT_REL = 0.5
 
 
 def pixel_albedos(problem, st, parts, J, unc):
-    """The albedo maps' values and uncertainty per group of an eliminating layout (per-pixel albedos,
+    """The albedo maps' values and uncertainty per group of an eliminating layout (albedo maps,
     :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`), the shape parameters free.
 
     ``J``: the projected Jacobian at ``st`` (z: the free shape parameters); ``unc``: the fit's
     uncertainty block (its covariance scale: misfit inflation or an estimated noise level).  Each group's
-    (a_s, a_b) covariance is scale (U^T U)^-1 + K C_z K^T (:meth:`PixelAlbedos.covariance`), C_z the shape's
-    covariance the block reports (the incidental-parameter sandwich where ``unc["incidental"]``).  Returns a dict
-    of arrays (n_groups,): ``k_s``, ``k_b`` (the model's reported albedos: the albedo factor times a_s,
-    a_b), ``k_s_se``, ``k_b_se``, ``correlation`` of the two, and ``identified``: False where the split
-    is not identified, i.e. where the standard error of the surface's or the body's contribution to the
-    pixel's brightness (a_s mean S, a_b mean B over the group's samples) exceeds :data:`SPLIT_REL` of
-    the pixel's mean predicted brightness (both parts' signatures alike behind the polarisers, or too
-    little light); a group with no signal is not identified either; parallel signatures give infinite
-    standard errors.  The albedos are unconstrained estimates (a poorly determined one can be below 0).
+    (a_s, a_b) covariance is the layout's (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.covariance`)
+    with C_z the shape's covariance the block reports (the incidental-parameter sandwich where
+    ``unc["incidental"]``); the maps and their split rule (:data:`SPLIT_REL`):
+    :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.maps`.
     """
     obj, lay = problem.obj, problem.layout
     z = problem.to_z(st)
@@ -598,27 +592,14 @@ def pixel_albedos(problem, st, parts, J, unc):
     try:
         if not J.shape[1]:
             cov_z = np.zeros((0, 0))
-        elif "incidental" in unc and obj.is_likelihood:   # the shape's covariance fit.json reports (issue 25)
+        elif "incidental" in unc and obj.is_likelihood:   # the shape's covariance fit.json reports
             cov_z = incidental_sandwich(J.T @ J, scale * incidental_term(problem, st, parts))[0] * scale
         else:
             cov_z = np.linalg.pinv(J.T @ J) * scale
     except np.linalg.LinAlgError:
         cov_z = np.full((J.shape[1], J.shape[1]), np.nan)
-    C = lay.covariance(us, ub, Jt, cov_z, scale)
-    f = float(problem.model.albedo_factor)
-    a_s, a_b = np.asarray(st.a_s, float), np.asarray(st.a_b, float)
-    se_s, se_b = np.sqrt(np.clip(C[:, 0, 0], 0, None)), np.sqrt(np.clip(C[:, 1, 1], 0, None))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = np.where(np.isfinite(se_s * se_b) & (se_s * se_b > 0), C[:, 0, 1] / (se_s * se_b), np.nan)
-    g = lay.groups.ravel()
-    n = np.maximum(np.bincount(g, minlength=lay.n_groups), 1)
-    S, B = obj.unit_samples(parts)
-    mean_s = np.bincount(g, weights=np.abs(S).ravel(), minlength=lay.n_groups) / n
-    mean_b = np.bincount(g, weights=np.abs(B).ravel(), minlength=lay.n_groups) / n
-    total = np.bincount(g, weights=np.abs(lay.mu(S, B, a_s, a_b)).ravel(), minlength=lay.n_groups) / n
-    ident = (total > 0) & (se_s * mean_s <= SPLIT_REL * total) & (se_b * mean_b <= SPLIT_REL * total)
-    return {"k_s": f * a_s, "k_b": f * a_b, "k_s_se": f * se_s, "k_b_se": f * se_b,
-            "correlation": np.clip(corr, -1.0, 1.0), "identified": ident}
+    return lay.maps(*obj.unit_samples(parts), st.a_s, st.a_b, lay.covariance(us, ub, Jt, cov_z, scale),
+                    problem.model.albedo_factor, SPLIT_REL)
 
 
 #: 95 % quantiles of chi^2 with 1 ... 8 degrees of freedom: the joint 95 % region of that many shape parameters

@@ -52,7 +52,8 @@ def _prior_dense(pairs, G, tau, f):
 def _layout(mask, kind, tau=(0.05, 0.02), f=0.5):
     """(layout with the prior, dense mixing M (N, G) of each sample's albedo from the groups, dense R)."""
     from fmbrdf_mi.fit.evaluate.albedo_prior import SmoothPrior, neighbour_pairs
-    from fmbrdf_mi.fit.evaluate.bilinear_albedos import BilinearPixelAlbedos, CoupledPixelAlbedos, bilinear_weights
+    from fmbrdf_mi.fit.evaluate.albedos import PixelAlbedos
+    from fmbrdf_mi.fit.evaluate.bilinear_albedos import bilinear_weights
 
     H, W = mask.shape
     pixels = np.flatnonzero(mask)
@@ -60,7 +61,7 @@ def _layout(mask, kind, tau=(0.05, 0.02), f=0.5):
     prior = SmoothPrior(neighbour_pairs(pixels, W), n, tau, f)
     own = np.repeat(np.arange(n)[:, None], m, 1)
     if kind == "per-pixel":
-        lay = CoupledPixelAlbedos(own, own[..., None], np.ones((n, m, 1)), n, pixels, name="per-pixel", prior=prior)
+        lay = PixelAlbedos(own, n, pixels, prior=prior)
         mix = np.zeros((n * m, n))
         mix[np.arange(n * m), own.ravel()] = 1.0
     else:
@@ -71,7 +72,8 @@ def _layout(mask, kind, tau=(0.05, 0.02), f=0.5):
         rows, cols = np.divmod(pixels, W)
         corners, wts = bilinear_weights(rows, cols, OFFSETS, present)
         groups = np.searchsorted(pixels, corners[..., 0] * W + corners[..., 1])
-        lay = BilinearPixelAlbedos(own, groups, wts, n, pixels, prior=prior)
+        lay = PixelAlbedos(own, n, pixels, corner_groups=groups, corner_weights=wts, name="per-pixel-bilinear",
+                           prior=prior)
         mix = np.zeros((n * m, n))
         np.add.at(mix, (np.repeat(np.arange(n * m), 4), groups.ravel()), wts.ravel())
     R = _prior_dense(_pairs_brute(mask), n, tau, f)

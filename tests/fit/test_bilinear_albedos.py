@@ -16,7 +16,8 @@ OFFSETS = np.array([[-0.25, -0.25], [0.25, -0.25], [-0.25, 0.25], [0.25, 0.25]])
 def _layout(mask, offsets=OFFSETS):
     """The layout of every pixel of ``mask`` (H, W), one cell per pixel, and the dense interpolation matrix
     (N, groups) built here from the weights."""
-    from fmbrdf_mi.fit.evaluate.bilinear_albedos import BilinearPixelAlbedos, bilinear_weights
+    from fmbrdf_mi.fit.evaluate.albedos import PixelAlbedos
+    from fmbrdf_mi.fit.evaluate.bilinear_albedos import bilinear_weights
 
     H, W = mask.shape
     pixels = np.flatnonzero(mask)
@@ -29,7 +30,9 @@ def _layout(mask, offsets=OFFSETS):
     corners, wts = bilinear_weights(rows, cols, offsets, present)
     groups = np.searchsorted(pixels, corners[..., 0] * W + corners[..., 1])
     n, m = len(pixels), len(offsets)
-    lay = BilinearPixelAlbedos(np.repeat(np.arange(n)[:, None], m, 1), groups, wts, n, pixels)
+    lay = PixelAlbedos(np.repeat(np.arange(n)[:, None], m, 1), n, pixels, corner_groups=groups, corner_weights=wts,
+                       name="per-pixel-bilinear")
+    assert lay.coupled
     dense = np.zeros((n * m, n))
     np.add.at(dense, (np.repeat(np.arange(n * m), 4), groups.ravel()), wts.ravel())
     return lay, dense, corners, wts
@@ -134,7 +137,7 @@ def test_incidental_term_is_the_dense_trace():
     columns' derivatives) against dense NumPy: the Monte Carlo estimate with 20,000 draws within 2 % of
     sqrt(C_jj C_kk) (its standard deviation there: ~0.3 %), positive semi-definite, the same at every call;
     at the default draws its relative spread over seeds is the sqrt(6 / (pairs x draws)) that
-    CoupledPixelAlbedos.INCIDENTAL_DRAWS is sized by (within 0.6-1.5x: 40 seeds estimate a standard
+    PixelAlbedos.INCIDENTAL_DRAWS is sized by (within 0.6-1.5x: 40 seeds estimate a standard
     deviation to ~11 %), and its mean over those seeds is within 4 of its standard errors of the trace."""
     lay, dense, us, ub, dcols = _incidental_problem()
     p, N = len(dcols), len(us)
@@ -143,38 +146,54 @@ def test_incidental_term_is_the_dense_trace():
     M = np.eye(N) - A @ Gi @ A.T
     Aj = [np.concatenate([dense * d[0][:, None], dense * d[1][:, None]], 1) for d in dcols]
     ref = np.array([[np.trace(Gi @ Aj[j].T @ M @ Aj[k]) for k in range(p)] for j in range(p)])
-    got = lay.incidental_term(us, ub, dcols, draws=20000, seed=1)
+    got = lay.incidental(us, ub, dcols, draws=20000, seed=1)
     scale = np.sqrt(np.outer(np.diag(ref), np.diag(ref)))
     assert np.all(np.abs(got - ref) < 0.02 * scale), (got - ref) / scale
     assert np.linalg.eigvalsh(got).min() > -1e-12
     assert np.array_equal(lay.incidental(us, ub, dcols), lay.incidental(us, ub, dcols))
-    diag = np.array([np.diag(lay.incidental_term(us, ub, dcols, seed=s)) for s in range(40)])
+    diag = np.array([np.diag(lay.incidental(us, ub, dcols, seed=s)) for s in range(40)])
     rel_sd = diag.std(0, ddof=1) / np.diag(ref)
     predicted = np.sqrt(6.0 / (lay.n_groups * lay.incidental_draws))
     assert np.all((rel_sd > 0.6 * predicted) & (rel_sd < 1.5 * predicted)), (rel_sd, predicted)
     assert np.all(np.abs(diag.mean(0) - np.diag(ref)) < 4 * diag.std(0, ddof=1) / np.sqrt(40))
 
 
-def test_incidental_term_with_one_corner_is_the_per_pixel_one():
-    """With each sample's albedos its own pixel's (one corner of weight 1) the coupled layout is the
-    per-pixel one: its Monte Carlo C (20,000 draws) matches PixelAlbedos.incidental (exact, per group) to
-    2 % of sqrt(C_jj C_kk); with the smoothness prior the term is not computed (None: the uncertainty
-    reports the posterior covariance and says so)."""
+def test_one_corner_through_the_banded_algebra_is_the_block_diagonal_one():
+    """Per-pixel albedos are the design with one corner of weight 1 per sample: G is block diagonal, and
+    PixelAlbedos inverts its 2 x 2 blocks in closed form.  The same design through the banded algebra
+    (``coupled`` set: BandCholesky, its selected inverse, the Monte Carlo C) gives the same albedos,
+    projected Jacobian and pair covariances to 1e-9 relative, and C (20,000 draws) within 2 % of
+    sqrt(C_jj C_kk) of the exact per-group one; with the smoothness prior the term is not computed (None:
+    the uncertainty reports the posterior covariance and says so)."""
     from fmbrdf_mi.fit.evaluate.albedo_prior import SmoothPrior
     from fmbrdf_mi.fit.evaluate.albedos import PixelAlbedos
-    from fmbrdf_mi.fit.evaluate.bilinear_albedos import CoupledPixelAlbedos
 
     lay, _, us, ub, dcols = _incidental_problem(4, 2)
     n = lay.n_groups
     own = np.repeat(np.arange(n)[:, None], 4, 1)
-    one = CoupledPixelAlbedos(own, own[..., None], np.ones((n, 4, 1)), n, lay.pixels, name="per-pixel")
-    ref = PixelAlbedos(own, n, lay.pixels).incidental(us, ub, dcols)
-    got = one.incidental_term(us, ub, dcols, draws=20000, seed=2)
+    block, banded = PixelAlbedos(own, n, lay.pixels), PixelAlbedos(own, n, lay.pixels)
+    assert not block.coupled
+    banded.coupled = True
+    rng = np.random.default_rng(5)
+    S, B = rng.uniform(0.1, 1, (n, 4)), rng.uniform(0.1, 1, (n, 4))
+    y, w = rng.uniform(0, 1, (n, 4)), rng.uniform(0.5, 2, (n, 4))
+    for a, b in zip(block.solve(S, B, y, w), banded.solve(S, B, y, w)):
+        np.testing.assert_allclose(b, a, rtol=1e-9, atol=0)
+    J = rng.normal(size=(4 * n, 3))
+    vs, vb = -(S * np.sqrt(w)).ravel(), -(B * np.sqrt(w)).ravel()
+    (Jp0, K0), (Jp1, K1) = block.project(J, vs, vb), banded.project(J, vs, vb)
+    np.testing.assert_allclose(Jp1, Jp0, rtol=0, atol=1e-10 * np.abs(J).max())
+    np.testing.assert_allclose(K1, K0, rtol=1e-9, atol=0)
+    cov_z = np.linalg.inv(Jp0.T @ Jp0)
+    np.testing.assert_allclose(banded.covariance(vs, vb, J, cov_z), block.covariance(vs, vb, J, cov_z), rtol=1e-9)
+    ref = block.incidental(us, ub, dcols)
+    got = banded.incidental(us, ub, dcols, draws=20000, seed=2)
     assert np.all(np.abs(got - ref) < 0.02 * np.sqrt(np.outer(np.diag(ref), np.diag(ref)))), (got, ref)
+    assert block.incidental_method is None and "Monte Carlo" in banded.incidental_method
     pairs = np.array([[i, i + 1] for i in range(n - 1)])
-    with_prior = CoupledPixelAlbedos(own, own[..., None], np.ones((n, 4, 1)), n, lay.pixels, name="per-pixel",
-                                     prior=SmoothPrior(pairs, n, (0.1, 0.1)))
-    assert with_prior.incidental is None and "not computed" in with_prior.incidental_reason
+    with_prior = PixelAlbedos(own, n, lay.pixels, prior=SmoothPrior(pairs, n, (0.1, 0.1)))
+    assert with_prior.coupled and with_prior.incidental(us, ub, dcols) is None
+    assert "not computed" in with_prior.incidental_reason
 
 
 def test_band_cholesky_selected_inverse_odd_band():

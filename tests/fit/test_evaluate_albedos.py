@@ -19,7 +19,7 @@ def test_solve_is_each_channels_weighted_least_squares():
     lay, S, B, y, w, a_s, a_b = _data()
     got_s, got_b = lay.solve(S, B, y, w)
     for g in range(3):
-        m = lay.channel == g
+        m = lay.groups == g
         X = np.stack([S[:, m].ravel(), B[:, m].ravel()], 1) * np.sqrt(w[:, m].ravel())[:, None]
         ref = np.linalg.lstsq(X, y[:, m].ravel() * np.sqrt(w[:, m].ravel()), rcond=None)[0]
         assert np.allclose([got_s[g], got_b[g]], ref, rtol=1e-10), (g, got_s, got_b, ref)

@@ -79,9 +79,10 @@ def test_incidental_term_is_the_mean_excess_of_kaufman_information():
 
 
 def _bilinear(H, W):
-    """The bilinear layout (:class:`BilinearPixelAlbedos`) of every pixel of an H x W grid, a mono raw
+    """The bilinear layout (:class:`PixelAlbedos` with bilinear corners) of every pixel of an H x W grid, a mono raw
     mosaic's four samples per pixel, and its dense interpolation matrix (4 H W, H W)."""
-    from fmbrdf_mi.fit.evaluate.bilinear_albedos import BilinearPixelAlbedos, bilinear_weights
+    from fmbrdf_mi.fit.evaluate.albedos import PixelAlbedos
+    from fmbrdf_mi.fit.evaluate.bilinear_albedos import bilinear_weights
 
     offsets = np.array([[-0.25, -0.25], [0.25, -0.25], [-0.25, 0.25], [0.25, 0.25]])
     n = H * W
@@ -91,7 +92,8 @@ def _bilinear(H, W):
     groups = corners[..., 0] * W + corners[..., 1]
     dense = np.zeros((4 * n, n))
     np.add.at(dense, (np.repeat(np.arange(4 * n), 4), groups.ravel()), wts.ravel())
-    return BilinearPixelAlbedos(np.repeat(np.arange(n)[:, None], 4, 1), groups, wts, n, np.arange(n)), dense
+    return PixelAlbedos(np.repeat(np.arange(n)[:, None], 4, 1), n, np.arange(n), corner_groups=groups,
+                        corner_weights=wts, name="per-pixel-bilinear"), dense
 
 
 @pytest.mark.parametrize("layout", ["per-pixel", "per-pixel-bilinear"])

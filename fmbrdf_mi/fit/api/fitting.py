@@ -260,7 +260,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
             groups = {"k_s": f * np.asarray(st.a_s), "k_b": f * np.asarray(st.a_b), "k_s_se": nan, "k_b_se": nan,
                       "correlation": nan, "identified": np.zeros(problem.layout.n_groups, bool)}
         albedo, maps = albedo_maps(problem.layout, obs.shape, groups)
-        if getattr(problem.layout, "prior", None) is not None:
+        if problem.layout.prior is not None:
             albedo["prior"] = prior_block(problem, st, parts)
             if albedo.get("warning"):   # no sandwich with the prior: the posterior errors (docs/howto/fit-textured.md)
                 albedo["warning"] = albedo["warning"].replace(
@@ -347,7 +347,7 @@ def refine_quadrature(problem, data, st, opts, model, report, deadline, history)
 def data_residuals(obj, parts, st):
     """The objective's residuals of the data (without the albedo prior's rows, :mod:`fmbrdf_mi.fit.evaluate.albedo_prior`)."""
     r = obj.residuals(parts, st)
-    return r if getattr(getattr(obj, "layout", None), "prior", None) is None else r[:obj.y.size]
+    return r if obj.prior is None else r[:obj.y.size]
 
 
 #: How a fit with the albedo maps' smoothness prior counts chi^2's degrees of freedom (fit.json albedo.prior).
@@ -386,7 +386,7 @@ def albedo_maps(layout, shape, groups):
     maps["channels"] = None if C == 1 else list(layout.labels)
     ident = np.asarray(groups["identified"], bool)
     n_pix = len(np.unique(layout.pixels))
-    summary = {"layout": getattr(layout, "name", "per-pixel"), "pixels": int(n_pix), "groups": int(layout.n_groups),
+    summary = {"layout": layout.name, "pixels": int(n_pix), "groups": int(layout.n_groups),
                "identified_fraction": float(ident.mean()) if ident.size else 0.0,
                "split_rule": f"identified where the standard error of the surface's and of the body's share of "
                              f"the pixel's brightness are at most {U.SPLIT_REL:g} of it",

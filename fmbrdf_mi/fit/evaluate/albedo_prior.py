@@ -1,7 +1,7 @@
 """A Gaussian smoothness prior on per-pixel albedo maps (``FitOptions.albedo_smooth``, ``--albedo-smooth``).
 
-The maps of a per-pixel albedo fit (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`,
-:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BilinearPixelAlbedos`) are two unknowns per pixel, which
+The maps of a per-pixel albedo fit (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`, per pixel or
+bilinear) are two unknowns per pixel, which
 one image's four polariser samples determine poorly.  The prior says that the albedos of 4-neighbouring
 fitted pixels i, j differ by a Gaussian amount of standard deviation tau (in the maps' units: the reported
 k_s and k_b, i.e. the model's albedo factor times the BSDF's a_s, a_b):
@@ -11,9 +11,10 @@ k_s and k_b, i.e. the model's albedo factor times the BSDF's a_s, a_b):
 (a first-difference Gaussian Markov random field; pairs of the same colour channel only for colour
 mosaics).  The residuals of the likelihood are whitened by the camera noise, so the penalty is in chi^2
 units and is added to chi^2: the fit minimises data chi^2 + penalty (the negative log posterior, up to a
-constant).  It is written as 2 E extra residual rows D a / tau (E pairs; :meth:`SmoothPrior.residuals`),
-which do not depend on the shape parameters; the albedos stay eliminated (variable projection), now by the
-penalised least squares (G + Lambda) a = A^T y, Lambda = D^T diag(1 / tau^2) D.
+constant).  It is written as 2 E extra rows of the albedos' design, D a / tau with data 0 (E pairs;
+:meth:`SmoothPrior.rows`, :meth:`SmoothPrior.residuals`), which do not depend on the shape parameters; the
+albedos stay eliminated (variable projection), now by the penalised least squares (G + Lambda) a = A^T y,
+Lambda = D^T diag(1 / tau^2) D.
 
 The prior is improper: each connected set of fitted pixels keeps its mean k_s and k_b free
 (:meth:`SmoothPrior.null_dims`: 2 per component and channel), so a constant map costs nothing.

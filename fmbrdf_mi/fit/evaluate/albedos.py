@@ -1,32 +1,54 @@
-"""The albedo layouts of a fit: which pair of linear albedos each sample's prediction uses.
+"""The albedo layouts of a fit: each a sparse design A(theta) of the albedos.
 
 Every model is linear in two albedos (paper eq:fmbrdf: k_s scales the
-surface term, k_b = r_k k_s the body term), so sample k of cell i is
+surface term, k_b = r_k k_s the body term), so with S_k, B_k the unit-albedo
+intensities of sample k behind its polariser
+(:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` through the analyser),
+which depend on the shape parameters theta,
 
-    mu_ik = a_s[g_k] S_ik + a_b[g_k] B_ik,
+    mu_k = sum_c w_kc (a_s[g_kc] S_k + a_b[g_kc] B_k) = (A(theta) a)_k,
 
-with S, B the unit-albedo intensities behind the sample's polariser
-(:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` through the analyser)
-and g_k the albedo group of sample k.  A layout says what the groups are:
+a = (a_s[0], a_b[0], a_s[1], ...) the 2 n_groups albedos and A(theta) a sparse
+design: row k has w_kc S_k at a_s[g_kc] and w_kc B_k at a_b[g_kc], for the
+sample's corners c (its groups g_kc and their weights w_kc).  A layout is
+its design, i.e. its corners (:class:`AlbedoLayout`):
 
-* **shared** (``layout=None``: mono and joint fits): one pair for every
-  sample; a :class:`~fmbrdf_mi.fit.evaluate.models.State` holds two floats;
-* **per channel** (:class:`ChannelAlbedos`: colour mosaics): g_k is sample
-  k's colour filter; a State holds two arrays (one entry per channel), and
-  :class:`ChannelModel` reports each channel's k_s and r_k (``k_s[R]`` ...).
+* **per channel** (:class:`ChannelAlbedos`, colour mosaics) and **per
+  material** (:class:`~fmbrdf_mi.fit.evaluate.materials.MaterialAlbedos`):
+  one corner of weight 1, the sample's colour channel or material;
+* **per pixel** (:class:`PixelAlbedos`, ``albedo="per-pixel"``): one corner
+  of weight 1, the sample's pixel (per pixel and channel for colour mosaics);
+* **per pixel, bilinear** (``albedo="per-pixel-bilinear"``): up to four
+  corners, the pixel centres around the sample's point with their bilinear
+  weights (:func:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.bilinear_weights`);
+* the maps' **smoothness prior**
+  (:class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior`): rows appended
+  to the design, with data 0.
 
-(The free light powers of a joint fit scale whole images and are non-linear
-unknowns of the problem: :mod:`fmbrdf_mi.fit.problem.free_power`.)
+The shared pair of mono and joint fits is the one-group design and needs no
+layout (``layout=None``: a :class:`~fmbrdf_mi.fit.evaluate.models.State`
+holds two floats).  (The free light powers of a joint fit scale whole images
+and are non-linear unknowns of the problem: :mod:`fmbrdf_mi.fit.problem.free_power`.)
 
-Per group the albedos are the non-negative weighted least squares of that
-group's samples (:func:`nnls2`), and d mu / d log a_s[g] = a_s[g] S on the
-group's samples, 0 elsewhere: both in closed form.
+Two kinds of layout differ in what the optimiser sees.  A few albedos
+(:class:`GroupAlbedos`: channels, materials) are unknowns of the optimiser,
+their logs in z beside the shape parameters, re-solved in closed form
+(non-negative, :func:`nnls2`) at trial points.  Maps (:class:`PixelAlbedos`:
+thousands of pairs) are eliminated by variable projection (Golub and
+Pereyra): at every shape point a = A^+ y, the optimiser sees the shape
+parameters only, with Kaufman's Jacobian (I - P) J_theta, P = A (A^T A)^-1 A^T;
+one incidental-parameter term corrects the information for the eliminated
+albedos' noise, and one covariance maps the shape's back to each pair.
 """
 from __future__ import annotations
+
+import abc
 
 import numpy as np
 
 from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
+from fmbrdf_mi.fit.evaluate.bilinear_albedos import RIDGE, BandCholesky, normal_band, stack_rows
+from fmbrdf_mi.fit.evaluate.models import ModelView
 
 
 def nnls2(S, B, I, w=None):
@@ -52,191 +74,414 @@ def nnls2(S, B, I, w=None):
     return float(max(best[0], floor)), float(max(best[1], floor))
 
 
-class ChannelAlbedos:
-    """One (a_s, a_b) per colour channel: ``channel`` (n,) is the group of each of a cell's n samples."""
-
-    def __init__(self, channel, labels=CHANNELS):
-        self.channel = np.asarray(channel, dtype=int)
-        self.labels = tuple(labels)
-        self.size = len(self.labels)
-        self.masks = [self.channel == g for g in range(self.size)]
-
-    def mu(self, S, B, a_s, a_b):
-        """(cells, n) predictions from the unit-albedo intensities S, B (cells, n)."""
-        return np.asarray(a_s)[self.channel] * S + np.asarray(a_b)[self.channel] * B
-
-    def solve(self, S, B, y, w):
-        """Each group's (a_s, a_b) by :func:`nnls2` of its samples: two arrays (size,)."""
-        out = [nnls2(S[:, m].ravel(), B[:, m].ravel(), y[:, m].ravel(), w[:, m].ravel()) for m in self.masks]
-        return np.array([o[0] for o in out]), np.array([o[1] for o in out])
-
-    def columns(self, S, B, a_s, a_b):
-        """d mu / d log a_s[g] for every g, then d mu / d log a_b[g]: 2 size arrays (cells, n)."""
-        return ([a_s[g] * S * m for g, m in enumerate(self.masks)]
-                + [a_b[g] * B * m for g, m in enumerate(self.masks)])
-
-
 def floored(a_s, a_b):
     """The albedos with those at 0 raised to 1e-9 of the largest (so that their logs stay finite)."""
     floor = 1e-9 * max(float(np.max(a_s)), float(np.max(a_b)), 1e-300)
     return np.maximum(a_s, floor), np.maximum(a_b, floor)
 
 
-class ChannelModel:
-    """A model whose albedos are per channel (``layout``: :class:`ChannelAlbedos`).
+class AlbedoLayout(abc.ABC):
+    """The albedos of a fit as the sparse design A(theta) of the module docstring.
 
-    :meth:`report` gives the shape parameters and, per channel, the model's
-    albedo names with the channel in brackets (``k_s[R]``, ``r_k[R]``, ...):
-    one flat name per estimated quantity, as :mod:`fmbrdf_mi.fit.uncertainty`
-    needs; :meth:`nest` turns them into ``{"k_s": {"R": ..}}``.  Everything
-    else is the base model's.
-    """
+    ``name``: the ``albedo`` option's value; ``groups``: each sample's own group, an int array broadcastable
+    to (cells, n) (the maps, the split rule and the images per pixel use it); ``n_groups``: how many albedo
+    pairs; ``corner_groups``, ``corner_weights`` (groups' shape + (c,)): the design's corners (default: one
+    corner of weight 1, the own group); ``labels``: each group's label where the groups are named (channels,
+    materials; for maps: the channels' names or None); ``pixels`` (n_groups,): the flat pixel index of each
+    group of a map (None otherwise); ``channel_of`` (n_groups,): a map's colour channel per group (None:
+    mono or not a map); ``prior``: the smoothness prior's rows (None: none).  Every attribute is always
+    present; a layout supplies its design, the base its algebra."""
 
-    def __init__(self, base, layout):
-        self.base, self.layout = base, layout
+    #: Whether the albedos are eliminated by variable projection (:class:`PixelAlbedos`: it gives ``project``,
+    #: ``covariance``, ``incidental``), not unknowns of the optimiser (:class:`GroupAlbedos`: ``columns``).
+    eliminates = False
+    #: Why the incidental-parameter term is not computed (None: it is, or nothing is eliminated).
+    incidental_reason = None
+    #: How the incidental-parameter term is computed, where the uncertainty method names it (None: exactly).
+    incidental_method = None
 
-    def __getattr__(self, name):  # name, shape, shape_names, param, bsdf_dict, albedo_factor, ...
-        return getattr(self.base, name)
+    def __init__(self, name, groups, n_groups, corner_groups=None, corner_weights=None, *, labels=None,
+                 pixels=None, channel_of=None, prior=None):
+        self.name = name
+        self.groups = np.asarray(groups, dtype=np.int64)
+        self.n_groups = int(n_groups)
+        self.corner_groups = (self.groups[..., None] if corner_groups is None
+                              else np.asarray(corner_groups, dtype=np.int64).reshape(self.groups.shape + (-1,)))
+        self.corner_weights = (np.ones(self.corner_groups.shape) if corner_weights is None
+                               else np.asarray(corner_weights, dtype=np.float64).reshape(self.corner_groups.shape))
+        self.labels = None if labels is None else tuple(labels)
+        self.pixels = None if pixels is None else np.asarray(pixels, dtype=np.int64)
+        self.channel_of = None if channel_of is None else np.asarray(channel_of, dtype=np.int64)
+        self.prior = prior
+        #: one corner of weight 1 per sample: A's columns of different groups never share a row
+        self.one_corner = self.corner_groups.shape[-1] == 1 and bool(np.all(self.corner_weights == 1.0))
+        self._single = np.ascontiguousarray(self.corner_groups[..., 0]) if self.one_corner else None
 
-    def report(self, shape_values, a_s, a_b):
-        a_s, a_b = np.broadcast_to(a_s, (self.layout.size,)), np.broadcast_to(a_b, (self.layout.size,))
-        per = [self.base.report(shape_values, a_s[g], a_b[g]) for g in range(self.layout.size)]
-        out = {n: per[0][n] for n in self.base.shape_names}
-        for key in per[0]:
-            if key not in self.base.shape_names:
-                out.update({f"{key}[{c}]": per[g][key] for g, c in enumerate(self.layout.labels)})
-        return out
+    # ---- the design
+    def interpolate(self, a):
+        """Each sample's combination sum_c w_c a[g_c] of the per-group ``a`` (n_groups,): groups' shape."""
+        a = np.asarray(a, dtype=np.float64)
+        if self.one_corner:
+            return a[self._single]
+        return np.einsum("...c,...c->...", self.corner_weights, a[self.corner_groups])
 
-    def nest(self, flat):
-        """``{"k_s[R]": x, ...}`` -> ``{"k_s": {"R": x, ...}}`` (shape names stay as they are)."""
-        out = {}
-        for k, v in flat.items():
-            if k.endswith("]") and "[" in k:
-                name, label = k[:-1].split("[", 1)
-                out.setdefault(name, {})[label] = v
-            else:
-                out[k] = v
-        return out
+    def mu(self, S, B, a_s, a_b):
+        """(cells, n) predictions A a from the unit-albedo intensities S, B (cells, n)."""
+        return self.interpolate(a_s) * S + self.interpolate(a_b) * B
+
+    def design(self, us, ub):
+        """A as (columns (N, 2c), values (N, 2c)): each sample's non-zeros, unknowns interleaved (a_s[g] at 2g,
+        a_b[g] at 2g + 1), from its (whitened) unit-albedo columns ``us``, ``ub`` (N,), samples in the order
+        of (cells, n) raveled."""
+        us, ub = (np.asarray(u, dtype=np.float64).ravel() for u in (us, ub))
+        c = self.corner_groups.shape[-1]
+        g, w = self.corner_groups.reshape(-1, c), self.corner_weights.reshape(-1, c)
+        if len(g) != len(us):       # groups given per sample of a cell (n,): the same for every cell
+            g, w = np.tile(g, (len(us) // len(g), 1)), np.tile(w, (len(us) // len(w), 1))
+        return (np.concatenate([2 * g, 2 * g + 1], 1), np.concatenate([w * us[:, None], w * ub[:, None]], 1))
+
+    def at(self, A, x):
+        """A x: (N,) or (N, p) for x (2 n_groups,) or (2 n_groups, p)."""
+        cols, vals = A
+        return np.einsum("rc,rc...->r...", vals, np.asarray(x, dtype=np.float64)[cols])
+
+    def t_at(self, A, v):
+        """A^T v: (2 n_groups,) or (2 n_groups, p) for v (N,) or (N, p)."""
+        cols, vals = A
+        v = np.asarray(v, dtype=np.float64)
+        n = 2 * self.n_groups
+        if v.ndim == 1:
+            return np.bincount(cols.ravel(), weights=(vals * v[:, None]).ravel(), minlength=n)
+        return np.stack([np.bincount(cols.ravel(), weights=(vals * v[:, k, None]).ravel(), minlength=n)
+                         for k in range(v.shape[1])], 1)
+
+    # ---- the prior's rows
+    def prior_residuals(self, a_s, a_b):
+        """The prior's residual rows (2E,) at the albedos (empty without a prior)."""
+        return np.zeros(0) if self.prior is None else self.prior.residuals(a_s, a_b)
+
+    def penalty(self, a_s, a_b):
+        """The prior's term of chi^2 (0 without a prior)."""
+        return 0.0 if self.prior is None else self.prior.penalty(a_s, a_b)
+
+    # ---- what each kind does
+    @abc.abstractmethod
+    def solve(self, S, B, y, w):
+        """Every group's (a_s, a_b) from the unit-albedo intensities S, B, the data y and weights w (cells, n):
+        two arrays (n_groups,)."""
+
+    @abc.abstractmethod
+    def free(self):
+        """How many albedos the data spent unknowns on (degrees of freedom)."""
 
 
-def ls2_groups(S, B, y, w, groups, n_groups):
-    """The weighted least squares of I ~ a_s S + a_b B of every group at once, unconstrained: ``groups``
-    (same shape as S) the group of each sample.  Returns (a_s, a_b) arrays (n_groups,); a group whose
-    two columns are parallel (or empty) gets the minimum-norm solution (its split undetermined)."""
-    g = np.asarray(groups).ravel()
-    S, B, y, w = (np.asarray(a, dtype=np.float64).ravel() for a in (S, B, y, w))
+class GroupAlbedos(AlbedoLayout):
+    """A few albedo pairs that are unknowns of the optimiser (their logs in z): one corner of weight 1 per
+    sample, its group; each group's pair solved non-negatively (:func:`nnls2`) where the optimiser re-solves
+    them, d mu / d log a_s[g] = a_s[g] S on the group's samples and 0 elsewhere (:meth:`columns`)."""
 
-    def total(v):
-        return np.bincount(g, weights=v, minlength=n_groups)
+    def __init__(self, name, groups, n_groups, labels):
+        super().__init__(name, groups, n_groups, labels=labels)
+        self.masks = [self.groups == g for g in range(self.n_groups)]
 
-    G = np.empty((n_groups, 2, 2))
-    G[:, 0, 0], G[:, 1, 1] = total(w * S * S), total(w * B * B)
-    G[:, 0, 1] = G[:, 1, 0] = total(w * S * B)
-    b = np.stack([total(w * S * y), total(w * B * y)], 1)
-    x = np.einsum("gij,gj->gi", np.linalg.pinv(G, rcond=1e-10, hermitian=True), b)
-    return x[:, 0], x[:, 1]
+    def solve(self, S, B, y, w):
+        """Each group's (a_s, a_b) by :func:`nnls2` of its samples: two arrays (n_groups,)."""
+        S, B, y, w = (np.asarray(a) for a in (S, B, y, w))
+        out = [nnls2(*(a[np.broadcast_to(m, a.shape)] for a in (S, B, y, w))) for m in self.masks]
+        return np.array([o[0] for o in out]), np.array([o[1] for o in out])
+
+    def columns(self, S, B, a_s, a_b):
+        """d mu / d log a_s[g] for every g, then d mu / d log a_b[g]: 2 n_groups arrays (cells, n)."""
+        return ([a_s[g] * S * m for g, m in enumerate(self.masks)]
+                + [a_b[g] * B * m for g, m in enumerate(self.masks)])
+
+    def free(self):
+        """Two per group (they are unknowns of the optimiser: counted in z, not here)."""
+        return 2 * self.n_groups
 
 
-class PixelAlbedos:
-    """One (a_s, a_b) per pixel of the object (per pixel and colour channel for colour mosaics): the
-    albedo maps of a textured object (issue: textured objects).
+class ChannelAlbedos(GroupAlbedos):
+    """One (a_s, a_b) per colour channel: ``channel`` (n,) is the group of each of a cell's n samples."""
 
-    ``groups`` (cells, n): the albedo group of each of a cell's n samples;
-    ``n_groups`` how many there are; ``pixels`` (n_groups,) the flat pixel
-    index of each group and ``channel_of`` (n_groups,) its colour channel
-    (None: mono).  A joint fit of several images of one view gives the same
-    group to the same pixel in every image.
+    def __init__(self, channel, labels=CHANNELS):
+        super().__init__("per-channel", channel, len(labels), labels)
 
-    Unlike the shared and per-channel layouts, these albedos are not unknowns
-    of the optimiser: they are *eliminated* (variable projection, Golub and
-    Pereyra): at every shape point each group's pair is its own weighted least
-    squares (``ls2_groups``, closed form), the optimiser sees the shape
-    parameters only, and its Jacobian is Kaufman's, (I - P) J_theta, with P
-    the projection onto the albedos' columns (block diagonal: one 2 x 2 block
-    per group).  At the optimum (I - P) J_theta gives exactly the shape
-    parameters' Fisher information with the albedos free (the Schur
-    complement), and each group's covariance follows in closed form
-    (:meth:`covariance`).  The albedos are *not* held non-negative: they
-    are thousands of nuisance parameters of the shape, and clipping the
-    poorly determined ones at 0 (k_s away from the highlight) biases the
-    shape (measured on a render of a uniform sphere: eta 4 standard errors
-    off with the clipping, 1.2 without); an estimate below 0 is a small
-    albedo measured with noise, and its standard error says so.
+
+#: Why the incidental-parameter sandwich is not reported with the albedo maps' smoothness prior
+#: (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`; fit.json's uncertainty method): the errors are the posterior
+#: ones, from the penalised information.
+PRIOR_INCIDENTAL = ("the incidental-parameter sandwich is not computed with the albedo smoothness prior (the "
+                    "posterior covariance of the penalised likelihood is reported)")
+
+
+class PixelAlbedos(AlbedoLayout):
+    """Albedo maps, eliminated by variable projection: one (a_s, a_b) per fitted pixel (per pixel and colour
+    channel: ``channel_of``, ``labels``), the same pixel in every image of a joint fit sharing it.
+
+    ``groups`` (cells, n): each sample's own pixel's group; ``n_groups``; ``pixels`` (n_groups,) the flat
+    pixel index of each group; ``corner_groups``, ``corner_weights`` (cells, n, c): the design's corners (default
+    the own group: ``albedo="per-pixel"``; bilinear interpolation between pixel centres:
+    ``albedo="per-pixel-bilinear"``, :func:`~fmbrdf_mi.fit.problem.data.bilinear_layout`); ``prior``: the
+    smoothness prior (:class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior`), whose rows R are appended
+    to the design (data 0).
+
+    At every shape point the albedos are the least squares a = (A^T A + R^T R)^-1 A^T y (:meth:`solve`),
+    the optimiser's Jacobian is Kaufman's, (I - P) J_theta (:meth:`project`), and at the optimum each pair's
+    covariance is the diagonal block of the full information's inverse (:meth:`covariance`).  The normal
+    matrix G = A^T A (+ R^T R) has one of two structures, and the algebra follows it:
+
+    * **block diagonal** (``coupled`` False: one corner per sample, no prior): one 2 x 2 block per group,
+      inverted in closed form for all groups at once (a pseudo-inverse: a group whose two columns are
+      parallel gets the minimum-norm pair, and one degree of freedom); the incidental-parameter term is
+      exact (:meth:`incidental`);
+    * **banded** (``coupled`` True: bilinear corners, or the prior's rows): the pixels in row-major order make
+      G banded, half bandwidth about twice the object's width in pixels; it is factored once per point
+      (:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`, with a ridge where it is singular to
+      rounding: :data:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.RIDGE`) and the factor reused by the
+      projection; each pair's block of G^-1 is its selected inverse, and the incidental-parameter term is a
+      Monte Carlo estimate of the same trace (none with the prior: :data:`PRIOR_INCIDENTAL`).
+
+    The albedos are not held non-negative: they are thousands of nuisance parameters of the shape, and
+    clipping the poorly determined ones at 0 (k_s away from the highlight) biases the shape; an estimate
+    below 0 is a small albedo measured with noise, and its standard error says so.
     """
 
     eliminates = True
 
-    def __init__(self, groups, n_groups, pixels, channel_of=None, labels=None):
-        self.groups = np.asarray(groups, dtype=np.int64)
-        self.n_groups = int(n_groups)
-        self.size = self.n_groups
-        self.pixels = np.asarray(pixels, dtype=np.int64)
-        self.channel_of = None if channel_of is None else np.asarray(channel_of, dtype=np.int64)
-        self.labels = labels
-        self._rank = None
+    #: Monte Carlo draws of the coupled :meth:`incidental`: about INCIDENTAL_DRAWS[1] / pairs, at least [0], at
+    #: most [2].  Each draw's estimate of a diagonal entry of C is a sum over all the pixels, its relative spread
+    #: about sqrt(6 / pairs) (tests/fit/test_bilinear_albedos.py), so the mean over the draws is good to about
+    #: 1 % from about a hundred pixels up, at a cost of (1 + p) x draws banded solves.
+    INCIDENTAL_DRAWS = (8, 60000, 512)
 
-    def mu(self, S, B, a_s, a_b):
-        """(cells, n) predictions from the unit-albedo intensities S, B (cells, n)."""
-        return np.asarray(a_s)[self.groups] * S + np.asarray(a_b)[self.groups] * B
+    def __init__(self, groups, n_groups, pixels, *, corner_groups=None, corner_weights=None, name="per-pixel",
+                 prior=None, channel_of=None, labels=None):
+        super().__init__(name, groups, n_groups, corner_groups, corner_weights, labels=labels, pixels=pixels,
+                         channel_of=channel_of, prior=prior)
+        #: whether the pairs are coupled (G banded) or not (G block diagonal): class docstring
+        self.coupled = not self.one_corner or prior is not None
+        lo, k, hi = self.INCIDENTAL_DRAWS
+        self.incidental_draws = int(np.clip(np.ceil(k / max(self.n_groups, 1)), lo, hi))
+        self._block = self.corner_groups[..., 0].ravel()    # block diagonal G: each sample's group
+        self._rank = None      # the block diagonal G's ranks per group at the last projection
+        self._factor = None    # (key columns, BandCholesky) of the last banded G
+        self._incidental_last = None    # (draws, seed, count), the columns, C of the last coupled incidental
 
-    def solve(self, S, B, y, w):
-        """Every group's (a_s, a_b) (``ls2_groups``): two arrays (n_groups,)."""
-        return ls2_groups(S, B, y, w, self.groups, self.n_groups)
+    @property
+    def incidental_reason(self):
+        """Why :meth:`incidental` gives None (with the prior), else None."""
+        return None if self.prior is None else PRIOR_INCIDENTAL
 
-    def free(self):
-        """How many albedos the data spent unknowns on (degrees of freedom): two per group, one where a
-        group's columns are parallel (the last :meth:`project`'s ranks; before one: two per group)."""
-        return int(2 * self.n_groups if self._rank is None else self._rank.sum())
+    @property
+    def incidental_method(self):
+        """How C is computed, where the uncertainty method names it (the coupled pairs' estimate), else None."""
+        if self.coupled and self.prior is None:
+            return (f"C estimated by Monte Carlo over {self.incidental_draws} noise draws (the albedo pairs are "
+                    "coupled)")
+        return None
 
+    # ---- block diagonal G: one 2 x 2 block per group
     def _gram(self, us, ub):
         """Per group the Gram matrix U^T U of its two albedo columns (n_groups, 2, 2)."""
-        g = self.groups.ravel()
+        g = self._block
         G = np.zeros((self.n_groups, 2, 2))
         for i, u in enumerate((us, ub)):
             for j, v in enumerate((us, ub)):
                 G[:, i, j] = np.bincount(g, weights=u * v, minlength=self.n_groups)
         return G
 
-    def _blocks(self, us, ub):
-        """Per group the pseudo-inverse of the Gram matrix of its two albedo columns (n_groups, 2, 2); the
-        groups' ranks are kept for :meth:`free`."""
-        G = self._gram(us, ub)
-        self._rank = np.linalg.matrix_rank(G, rtol=1e-10, hermitian=True)
-        return np.linalg.pinv(G, rcond=1e-10, hermitian=True)
-
-    def project(self, J, us, ub):
-        """Kaufman's Jacobian (I - P) J: ``J`` (N, p) the residuals' derivatives with respect to the shape
-        unknowns, ``us``, ``ub`` (N,) those with respect to each sample's group's a_s and a_b; P projects
-        onto the albedos' columns.  Returns (J_projected, K), K (n_groups, 2, p) = G^+ U^T J per group (the
-        albedos' regression on the shape unknowns)."""
-        g = self.groups.ravel()
-        Gi = self._blocks(us, ub)
-        K = np.einsum("gij,gjp->gip", Gi, self._cross(us, ub, J))
-        return J - us[:, None] * K[g, 0] - ub[:, None] * K[g, 1], K
-
     def _cross(self, us, ub, J):
         """U^T J per group (n_groups, 2, p)."""
-        g = self.groups.ravel()
+        g = self._block
         c = np.zeros((self.n_groups, 2, J.shape[1]))
         for i, u in enumerate((us, ub)):
             for k in range(J.shape[1]):
                 c[:, i, k] = np.bincount(g, weights=u * J[:, k], minlength=self.n_groups)
         return c
 
-    def incidental(self, us, ub, dcols):
-        """The incidental-parameter term C (p, p) of the eliminated albedos' noise in Kaufman's information
-        (issue 25; tools/diag_pp_sandwich.py): with U_g = [us, ub] a group's (whitened) albedo columns,
-        G_g = U_g^T U_g, M_g = I - U_g G_g^+ U_g^T and A_gj = d U_g / d z_j (``dcols``: p pairs (dus, dub) of
-        (N,) arrays),
+    def _block_inverse(self, G):
+        """Per group the inverse of its 2 x 2 Gram block and whether it is regular (det above 1e-10 of
+        G_ss G_bb): (Gi (n_groups, 2, 2), ok (n_groups,)); a singular block's inverse is 0."""
+        det = G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] ** 2
+        ok = det > 1e-10 * np.maximum(G[:, 0, 0] * G[:, 1, 1], 1e-300)
+        Gi = np.zeros_like(G)
+        d = np.where(ok, det, 1.0)
+        Gi[:, 0, 0], Gi[:, 1, 1] = G[:, 1, 1] / d, G[:, 0, 0] / d
+        Gi[:, 0, 1] = Gi[:, 1, 0] = -G[:, 0, 1] / d
+        return Gi, ok
 
-            C_jk = sum_g tr(A_gj^T M_g A_gk G_g^+)
-                 = sum_g [tr(X_gjk G_g^+) - tr(Y_gj^T G_g^+ Y_gk G_g^+)],  X_gjk = A_gj^T A_gk, Y_gj = U_g^T A_gj.
+    # ---- banded G
+    def _factorised(self, us, ub):
+        """(A, factor) at the columns ``us``, ``ub``: the last factor when the columns are those it came
+        from (to a relative 1e-12: the solve's S sqrt(w) and the Jacobian's -S / sd differ in rounding),
+        else a new one (BandCholesky of A^T A (+ R^T R) with the ridge).  A: the data's design."""
+        key = (np.abs(np.asarray(us, float).ravel()), np.abs(np.asarray(ub, float).ravel()))
+        A = self.design(us, ub)
+        f = self._factor
+        if f is not None and all(a.shape == b.shape and np.allclose(a, b, rtol=1e-12, atol=0.0)
+                                 for a, b in zip(key, f[0])):
+            return A, f[1]
+        band = normal_band(A if self.prior is None else stack_rows(A, self.prior.rows()), 2 * self.n_groups)
+        for ridge in (0.0,) + RIDGE:       # G singular to rounding (parallel columns): the ridge
+            try:
+                fac = BandCholesky(*band, ridge=ridge)
+                break
+            except np.linalg.LinAlgError:
+                if ridge == RIDGE[-1]:
+                    raise
+        self._factor = (key, fac)
+        return A, fac
+
+    # ---- solve, project, covariance, incidental term
+    def solve(self, S, B, y, w):
+        """Every group's (a_s, a_b), the weighted least squares of all samples at once (penalised by the
+        prior's rows): two arrays (n_groups,)."""
+        if not self.coupled:
+            return ls2_groups(S, B, y, w, self._block, self.n_groups)
+        sw = np.sqrt(np.asarray(w, dtype=np.float64)).ravel()
+        A, fac = self._factorised(np.asarray(S, float).ravel() * sw, np.asarray(B, float).ravel() * sw)
+        x = fac.solve(self.t_at(A, np.asarray(y, float).ravel() * sw))
+        return x[0::2].copy(), x[1::2].copy()
+
+    def free(self):
+        """How many albedos the data spent unknowns on: two per group, one where a block diagonal G's group
+        has parallel columns (the last :meth:`project`'s ranks); with the prior the dimension of its null
+        space (:meth:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior.null_dims`: the expected penalised
+        chi^2 at the optimum is N - p - that when the maps follow the prior)."""
+        if self.prior is not None:
+            return self.prior.null_dims()
+        return int(2 * self.n_groups if self._rank is None else self._rank.sum())
+
+    def project(self, J, us, ub):
+        """Kaufman's Jacobian (I - P) J: ``J`` (N, p) the residuals' derivatives with respect to the shape
+        unknowns, ``us``, ``ub`` (N,) those with respect to each sample's unit albedos (the design's columns
+        before the corner weights); P = A G^-1 A^T projects onto the albedos' columns.  Returns (J_projected,
+        K), K (n_groups, 2, p) = G^-1 A^T J (the albedos' regression on the shape unknowns).  With the prior
+        its rows R (which do not depend on the shape: their J rows are 0) are in G, and the projected
+        Jacobian has the rows -R K appended: (N + 2E, p)."""
+        p = J.shape[1]
+        if not self.coupled:
+            g = self._block
+            G = self._gram(us, ub)
+            self._rank = np.linalg.matrix_rank(G, rtol=1e-10, hermitian=True)
+            K = np.einsum("gij,gjp->gip", np.linalg.pinv(G, rcond=1e-10, hermitian=True), self._cross(us, ub, J))
+            return J - us[:, None] * K[g, 0] - ub[:, None] * K[g, 1], K
+        A, fac = self._factorised(us, ub)
+        extra = 0 if self.prior is None else self.prior.n_rows
+        if not p:
+            return np.zeros((J.shape[0] + extra, 0)), np.zeros((self.n_groups, 2, 0))
+        K = fac.solve(self.t_at(A, J))
+        Jp = J - self.at(A, K)
+        if self.prior is not None:
+            Jp = np.concatenate([Jp, -self.prior.apply(K)])
+        return Jp, K.reshape(self.n_groups, 2, p)
+
+    def covariance(self, us, ub, J, cov_z, scale=1.0):
+        """(n_groups, 2, 2) covariance of each group's (a_s, a_b) with the shape unknowns free: the diagonal
+        blocks of scale G^-1 + K cov_z K^T, K = G^-1 A^T J (the block inverse of the full information matrix;
+        ``J`` (N, p) the residuals' unprojected shape derivatives, ``cov_z`` their covariance, already
+        scaled).  A pair the data do not determine gets infinite variances: a block whose two columns are
+        parallel (singular to 1e-10: the data fix one combination of a_s and a_b, not the split), or a
+        coupled pair without signal (its diagonal of A^T A zero)."""
+        if not self.coupled:
+            Gi, ok = self._block_inverse(self._gram(us, ub))
+            K = np.einsum("gij,gjp->gip", Gi, self._cross(us, ub, J))
+            C = scale * Gi + np.einsum("gip,pq,gjq->gij", K, cov_z, K)
+            C[~ok] = np.inf
+            return C
+        A, fac = self._factorised(us, ub)
+        C = scale * fac.diagonal_blocks()
+        if J.shape[1]:
+            K = fac.solve(self.t_at(A, J)).reshape(self.n_groups, 2, J.shape[1])
+            C = C + np.einsum("gip,pq,gjq->gij", K, cov_z, K)
+        C[np.any(fac.raw_diagonal.reshape(self.n_groups, 2) <= 0, axis=1)] = np.inf
+        return C
+
+    def effective_parameters(self, us, ub):
+        """tr(A (A^T A + R^T R)^-1 A^T): the albedos' effective number of parameters (the trace of the hat
+        matrix; the rank of A without a prior), from G^-1's entries within G's band."""
+        if not self.coupled:
+            return float(np.linalg.matrix_rank(self._gram(us, ub), rtol=1e-10, hermitian=True).sum())
+        A, fac = self._factorised(us, ub)
+        band, b = normal_band(A, 2 * self.n_groups)
+        Z = fac.inverse_band(b)
+        return float(np.sum(Z[:, 0] * band[:, 0]) + 2.0 * np.sum(Z[:, 1:] * band[:, 1:]))
+
+    def maps(self, S, B, a_s, a_b, cov, factor, split_rel):
+        """The maps of every group: a dict of arrays (n_groups,): ``k_s``, ``k_b`` (the model's reported
+        albedos: ``factor`` times a_s, a_b), ``k_s_se``, ``k_b_se`` (from ``cov`` (n_groups, 2, 2), the pairs'
+        :meth:`covariance`), ``correlation`` of the two, and ``identified``: False where the split is not
+        identified, i.e. where the standard error of the surface's or the body's contribution to the pixel's
+        brightness (a_s mean S, a_b mean B over the group's own samples; ``S``, ``B`` (cells, n) the unit-albedo
+        intensities) exceeds ``split_rel`` of the pixel's mean predicted brightness (both parts' signatures
+        alike behind the polarisers, or too little light); a group with no signal is not identified either;
+        parallel signatures give infinite standard errors.  The albedos are unconstrained estimates (a poorly
+        determined one can be below 0)."""
+        f = float(factor)
+        a_s, a_b = np.asarray(a_s, float), np.asarray(a_b, float)
+        se_s, se_b = np.sqrt(np.clip(cov[:, 0, 0], 0, None)), np.sqrt(np.clip(cov[:, 1, 1], 0, None))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = np.where(np.isfinite(se_s * se_b) & (se_s * se_b > 0), cov[:, 0, 1] / (se_s * se_b), np.nan)
+        g = self.groups.ravel()
+
+        def mean(v):
+            return np.bincount(g, weights=np.abs(v).ravel(), minlength=self.n_groups) / n
+
+        n = np.maximum(np.bincount(g, minlength=self.n_groups), 1)
+        mean_s, mean_b, total = mean(S), mean(B), mean(self.mu(S, B, a_s, a_b))
+        ident = (total > 0) & (se_s * mean_s <= split_rel * total) & (se_b * mean_b <= split_rel * total)
+        return {"k_s": f * a_s, "k_b": f * a_b, "k_s_se": f * se_s, "k_b_se": f * se_b,
+                "correlation": np.clip(corr, -1.0, 1.0), "identified": ident}
+
+    def incidental(self, us, ub, dcols, draws=None, seed=0):
+        """The incidental-parameter term C (p, p) of the eliminated albedos' noise in Kaufman's information,
+        or None with the prior (:attr:`incidental_reason`).  With A the design at the whitened unit-albedo
+        columns ``us``, ``ub`` (N,), A_j the design at their derivatives ``dcols`` (p pairs (dus, dub) of (N,)
+        arrays: d A / d z_j, the corner weights being fixed) and P = A G^-1 A^T,
+
+            C_jk = tr(G^-1 A_j^T (I - P) A_k).
 
         J^T J evaluated at the estimated albedos is on average H + C (H: the profile score's mean
-        derivative), so the shape estimate's covariance is H^-1 J^T J H^-1 with H = J^T J - C (the
-        sandwich; Neyman and Scott 1948's incidental parameters, here two per group).  C is positive
-        semi-definite.  Sums per group by bincount (no loop over groups)."""
-        g = self.groups.ravel()
+        derivative), so the shape estimate's covariance is H^-1 J^T J H^-1 with H = J^T J - C (the sandwich;
+        Neyman and Scott's incidental parameters, here two per group).  C is positive semi-definite.
+
+        Block diagonal G: per group g, with U_g = [us, ub] its columns, G_g = U_g^T U_g and
+        Y_gj = U_g^T A_gj, C_jk = sum_g [tr(A_gj^T A_gk G_g^+) - tr(Y_gj^T G_g^+ Y_gk G_g^+)], exactly, by
+        sums per group.  Banded G: G^-1 is not banded, so C is estimated by Monte Carlo: with e ~ N(0, I_N)
+        and b = G^-1 A^T e (covariance G^-1, the albedos' noise; in a direction the ridge regularises its
+        variance goes to 0, as the pseudo-inverse drops it), v_j = (I - P) A_j b has E[v_j^T v_k] = C_jk; the
+        mean of v^T v over ``draws`` (default ``incidental_draws``) draws from the generator seeded ``seed``:
+        positive semi-definite, the same at every call with the same columns (the last result is kept: the
+        covariance and the maps ask for it at the same point)."""
+        if self.prior is not None:
+            return None
+        if not self.coupled:
+            return self._block_incidental(us, ub, dcols)
+        p = len(dcols)
+        if not p:
+            return np.zeros((0, 0))
+        args = [np.asarray(c, dtype=np.float64).ravel() for c in (us, ub, *(c for pair in dcols for c in pair))]
+        last = self._incidental_last
+        if (last is not None and last[0] == (draws, seed, len(args))
+                and all(np.array_equal(a, b) for a, b in zip(args, last[1]))):
+            return last[2].copy()
+        A, fac = self._factorised(us, ub)
+        N = A[0].shape[0]
+        m = int(draws or self.incidental_draws)
+        e = np.random.default_rng(seed).standard_normal((N, m))
+        b = fac.solve(self.t_at(A, e))                           # (2 n_groups, m), covariance G^-1
+        V = []
+        for dus, dub in dcols:
+            v = self.at(self.design(dus, dub), b)                # A_j b (N, m)
+            V.append(v - self.at(A, fac.solve(self.t_at(A, v))))
+        V = np.stack(V, 1)                                       # (N, p, m)
+        C = np.einsum("njd,nkd->jk", V, V) / m
+        self._incidental_last = ((draws, seed, len(args)), [a.copy() for a in args], C)
+        return C.copy()
+
+    def _block_incidental(self, us, ub, dcols):
+        """:meth:`incidental` of a block diagonal G, exactly, by bincount sums per group (no loop over groups)."""
+        g = self._block
         p = len(dcols)
         Gi = np.linalg.pinv(self._gram(us, ub), rcond=1e-10, hermitian=True)      # (n_groups, 2, 2)
         A = [np.stack(d, -1) for d in dcols]                                       # p x (N, 2)
@@ -259,35 +504,68 @@ class PixelAlbedos:
                                      - np.einsum("gba,gbc,gca->", Y[j], GY[k], Gi))
         return C
 
-    def covariance(self, us, ub, J, cov_z, scale=1.0):
-        """(n_groups, 2, 2) covariance of each group's (a_s, a_b) with the shape unknowns free:
-        scale G^-1 + K cov_z K^T, K = G^-1 U^T J (the block inverse of the full information matrix;
-        ``J`` (N, p) the residuals' unprojected shape derivatives, ``cov_z`` their covariance, already
-        scaled).  A group whose two columns are parallel (G singular to 1e-10: the data fix one
-        combination of a_s and a_b, not the split) gets infinite variances."""
-        G = self._gram(us, ub)
-        det = G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] ** 2
-        ok = det > 1e-10 * np.maximum(G[:, 0, 0] * G[:, 1, 1], 1e-300)
-        Gi = np.zeros_like(G)
-        d = np.where(ok, det, 1.0)
-        Gi[:, 0, 0], Gi[:, 1, 1] = G[:, 1, 1] / d, G[:, 0, 0] / d
-        Gi[:, 0, 1] = Gi[:, 1, 0] = -G[:, 0, 1] / d
-        K = np.einsum("gij,gjp->gip", Gi, self._cross(us, ub, J))
-        C = scale * Gi + np.einsum("gip,pq,gjq->gij", K, cov_z, K)
-        C[~ok] = np.inf
-        return C
+
+def ls2_groups(S, B, y, w, groups, n_groups):
+    """The weighted least squares of I ~ a_s S + a_b B of every group at once, unconstrained: ``groups``
+    (same shape as S) the group of each sample.  Returns (a_s, a_b) arrays (n_groups,); a group whose
+    two columns are parallel (or empty) gets the minimum-norm solution (its split undetermined)."""
+    g = np.asarray(groups).ravel()
+    S, B, y, w = (np.asarray(a, dtype=np.float64).ravel() for a in (S, B, y, w))
+
+    def total(v):
+        return np.bincount(g, weights=v, minlength=n_groups)
+
+    G = np.empty((n_groups, 2, 2))
+    G[:, 0, 0], G[:, 1, 1] = total(w * S * S), total(w * B * B)
+    G[:, 0, 1] = G[:, 1, 0] = total(w * S * B)
+    b = np.stack([total(w * S * y), total(w * B * y)], 1)
+    x = np.einsum("gij,gj->gi", np.linalg.pinv(G, rcond=1e-10, hermitian=True), b)
+    return x[:, 0], x[:, 1]
 
 
-class PixelModel:
-    """A model whose albedos are maps (``layout``: :class:`PixelAlbedos`): :meth:`report` gives the shape
-    parameters only (the albedo maps are reported as maps: :func:`fmbrdf_mi.fit.api.fitting.fit`'s
-    ``res.maps``); everything else is the base model's."""
+class ChannelModel(ModelView):
+    """A model whose albedos are per channel (``layout``: :class:`ChannelAlbedos`).
+
+    :meth:`report` gives the shape parameters and, per channel, the model's
+    albedo names with the channel in brackets (``k_s[R]``, ``r_k[R]``, ...):
+    one flat name per estimated quantity, as :mod:`fmbrdf_mi.fit.uncertainty`
+    needs; :meth:`nest` turns them into ``{"k_s": {"R": ..}}``.
+    """
 
     def __init__(self, base, layout):
-        self.base, self.layout = base, layout
+        super().__init__(base)
+        self.layout = layout
 
-    def __getattr__(self, name):
-        return getattr(self.base, name)
+    def report(self, shape_values, a_s, a_b):
+        n = self.layout.n_groups
+        a_s, a_b = np.broadcast_to(a_s, (n,)), np.broadcast_to(a_b, (n,))
+        per = [self.base.report(shape_values, a_s[g], a_b[g]) for g in range(n)]
+        out = {k: per[0][k] for k in self.base.shape_names}
+        for key in per[0]:
+            if key not in self.base.shape_names:
+                out.update({f"{key}[{c}]": per[g][key] for g, c in enumerate(self.layout.labels)})
+        return out
+
+    def nest(self, flat):
+        """``{"k_s[R]": x, ...}`` -> ``{"k_s": {"R": x, ...}}`` (shape names stay as they are)."""
+        out = {}
+        for k, v in flat.items():
+            if k.endswith("]") and "[" in k:
+                name, label = k[:-1].split("[", 1)
+                out.setdefault(name, {})[label] = v
+            else:
+                out[k] = v
+        return out
+
+
+class PixelModel(ModelView):
+    """A model whose albedos are maps (``layout``: :class:`PixelAlbedos`): :meth:`report` gives the shape
+    parameters only (the albedo maps are reported as maps: :func:`fmbrdf_mi.fit.api.fitting.fit`'s
+    ``res.maps``)."""
+
+    def __init__(self, base, layout):
+        super().__init__(base)
+        self.layout = layout
 
     def report(self, shape_values, a_s, a_b):
         return {n: float(shape_values[n]) for n in self.base.shape_names}

@@ -1,4 +1,4 @@
-"""Several materials in one fit: a label image assigns each fitted pixel to one of M materials (issue 25).
+"""Several materials in one fit: a label image assigns each fitted pixel to one of M materials.
 
 Pixel i with label m(i) is predicted with its material's own shape parameters
 and albedos (paper eq:fmbrdf, one BRDF per material):
@@ -18,8 +18,9 @@ wrapper of what one material already has:
   derivative with respect to ``eta[m]`` is material m's derivative on its
   points and 0 elsewhere); a material whose parameters did not change is
   not evaluated again;
-* :class:`MaterialAlbedos`: the albedo layout with one (a_s, a_b) per
-  material (the groups of the per-channel layout are the materials).  Per-pixel
+* :class:`MaterialAlbedos`: the albedo design with one (a_s, a_b) per
+  material (:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos`, each
+  sample's group its material).  Per-pixel
   albedo maps (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) need
   nothing new: each pixel has its own pair whatever its material.
 
@@ -31,8 +32,8 @@ from __future__ import annotations
 import numpy as np
 
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, nnls2
-from fmbrdf_mi.fit.evaluate.models import ShapeParam
+from fmbrdf_mi.fit.evaluate.albedos import GroupAlbedos
+from fmbrdf_mi.fit.evaluate.models import ModelView, ShapeParam
 from fmbrdf_mi.fit.evaluate.pixel_model import Parts
 
 #: Fewest fitted (super-)pixels a material must have: as many as a whole fit
@@ -86,19 +87,20 @@ def material_count(labels, what="materials"):
     return top + 1
 
 
-class MaterialModel:
+class MaterialModel(ModelView):
     """A model with ``count`` materials: per-material shape parameters (``eta[m]`` ...) and, with the shared
     layout, per-material albedos (:meth:`report`: ``k_s[m]``, ``r_k[m]`` for fmbrdf)."""
 
     def __init__(self, base, count):
-        self.base = base
+        super().__init__(base)
         self.count = int(count)
-        self.shape = tuple(ShapeParam(material_name(p.name, m), p.key, p.lo, p.hi, p.scale, p.grid)
-                           for m in range(self.count) for p in base.shape)
+        self._shape = tuple(ShapeParam(material_name(p.name, m), p.key, p.lo, p.hi, p.scale, p.grid)
+                            for m in range(self.count) for p in base.shape)
         self._params = {p.name: p for p in self.shape}
 
-    def __getattr__(self, name):  # name, surface_key, body_key, albedo_factor, bsdf_dict, ...
-        return getattr(self.base, name)
+    @property
+    def shape(self):
+        return self._shape
 
     @property
     def shape_names(self):
@@ -156,19 +158,14 @@ class MaterialModel:
         return shape, a_s, a_b
 
 
-class MaterialAlbedos(ChannelAlbedos):
+class MaterialAlbedos(GroupAlbedos):
     """One (a_s, a_b) per material: ``material`` (cells,) the material of each cell, ``n`` samples per cell
-    (the per-channel layout with the material as each sample's group)."""
+    (each sample's group is its cell's material)."""
 
     def __init__(self, material, n, count):
         material = np.asarray(material, dtype=np.int64)
-        super().__init__(np.repeat(material[:, None], int(n), axis=1), labels=[str(m) for m in range(count)])
-        self.groups = self.channel      # (cells, n): each sample's material
-
-    def solve(self, S, B, y, w):
-        """Each material's (a_s, a_b) by :func:`~fmbrdf_mi.fit.evaluate.albedos.nnls2` of its samples."""
-        out = [nnls2(S[m], B[m], y[m], w[m]) for m in self.masks]
-        return np.array([o[0] for o in out]), np.array([o[1] for o in out])
+        super().__init__("per-material", np.repeat(material[:, None], int(n), axis=1), count,
+                         [str(m) for m in range(count)])
 
 
 class MaterialEvaluator:

@@ -130,6 +130,40 @@ class Model:
         return shape, ks / self.albedo_factor, kb / self.albedo_factor
 
 
+
+class ModelView:
+    """A :class:`Model` seen through a wrapper that changes what it estimates or reports (per-channel albedos,
+    per-material parameters, albedo maps, free light powers): every attribute of the model's interface is
+    the ``base`` model's, listed here, and a wrapper overrides the ones it changes."""
+
+    def __init__(self, base):
+        self.base = base
+
+    name = property(lambda self: self.base.name)
+    description = property(lambda self: self.base.description)
+    shape = property(lambda self: self.base.shape)
+    shape_names = property(lambda self: self.base.shape_names)
+    surface_key = property(lambda self: self.base.surface_key)
+    body_key = property(lambda self: self.base.body_key)
+    albedo_factor = property(lambda self: self.base.albedo_factor)
+    base_dict = property(lambda self: self.base.base_dict)
+    surface_name = property(lambda self: self.base.surface_name)
+    body_name = property(lambda self: self.base.body_name)
+    reported_names = property(lambda self: self.base.reported_names)
+
+    def param(self, name):
+        return self.base.param(name)
+
+    def bsdf_dict(self, shape_values=None):
+        return self.base.bsdf_dict(shape_values)
+
+    def report(self, shape_values, a_s, a_b):
+        return self.base.report(shape_values, a_s, a_b)
+
+    def split(self, reported):
+        return self.base.split(reported)
+
+
 def _fill(template, vals):
     if isinstance(template, dict):
         return {k: _fill(v, vals) for k, v in template.items()}

@@ -56,6 +56,8 @@ class PaperObjective:
 
     name = "paper"
     is_likelihood = False
+    #: the albedos are one shared pair (no layout: :mod:`fmbrdf_mi.fit.evaluate.albedos`), without a prior
+    layout = prior = None
 
     def __init__(self, target):
         self.target = target
@@ -176,6 +178,8 @@ class LikelihoodObjective:
         self.noise = noise
         self.dof = int(dof)
         self.layout = layout
+        #: the albedo maps' smoothness prior (its rows are residuals too), or None
+        self.prior = None if layout is None else layout.prior
         self.n, self.m = self.y.shape
         # start: variance from the observations themselves (only for the first round / coarse search)
         self.var = np.maximum(noise.variance(self.y), 1e-300)
@@ -217,15 +221,13 @@ class LikelihoodObjective:
         """The whitened residuals of the samples (N,), then, with the albedo maps' smoothness prior
         (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`), its rows: r @ r is then data chi^2 + penalty."""
         r = ((self.y - self.mu(parts, st)) / np.sqrt(self.var)).ravel()
-        if getattr(self.layout, "prior", None) is None:
+        if self.prior is None:
             return r
         return np.concatenate([r, self.layout.prior_residuals(st.a_s, st.a_b)])
 
     def penalty(self, st):
         """The albedo prior's term of chi^2 at ``st`` (0 without a prior)."""
-        if getattr(self.layout, "prior", None) is None:
-            return 0.0
-        return self.layout.prior.penalty(st.a_s, st.a_b)
+        return 0.0 if self.prior is None else self.layout.penalty(st.a_s, st.a_b)
 
     def value(self, parts, st):
         r = self.residuals(parts, st)
@@ -236,7 +238,7 @@ class LikelihoodObjective:
         mu = self.mu(parts, st)
         v = np.maximum(self.noise.variance(mu), 1e-300)
         out = 0.5 * float(np.sum((self.y - mu) ** 2 / v + np.log(v)))
-        return out if getattr(self.layout, "prior", None) is None else out + 0.5 * self.penalty(st)
+        return out if self.prior is None else out + 0.5 * self.penalty(st)
 
     def score(self, parts, st):
         return self.nll(parts, st)
@@ -256,7 +258,7 @@ class LikelihoodObjective:
         r = self.residuals(parts, st)
         chi2 = float(r @ r)
         out = {"chi2": chi2, "samples": int(self.y.size), "nll": self.nll(parts, st)}
-        if getattr(self.layout, "prior", None) is not None:    # chi2 is data + penalty: say both
+        if self.prior is not None:    # chi2 is data + penalty: say both
             out["albedo_prior"] = self.penalty(st)
             out["data_chi2"] = chi2 - out["albedo_prior"]
         return out
@@ -278,7 +280,7 @@ class LikelihoodObjective:
 
             return r, _jacobian(cols, parts, st, z, names, bounds, len(r)), bad
         lay, U, sd = self.layout, self._mu_of, np.sqrt(self.var)
-        if getattr(lay, "eliminates", False):   # per-pixel albedos: Kaufman's projected Jacobian
+        if lay.eliminates:   # albedo maps: Kaufman's projected Jacobian
             J = self.shape_jacobian(parts, st, z, names, bounds)
             return r, lay.project(J, *self.albedo_columns(parts))[0], bad
         J = np.empty((len(r), len(z)))
@@ -297,8 +299,8 @@ class LikelihoodObjective:
         return J
 
     def albedo_columns(self, parts):
-        """(us, ub): each residual's derivative with respect to its own group's a_s and a_b (N,) (an
-        eliminating layout: :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`)."""
+        """(us, ub): each residual's derivative with respect to its sample's unit albedos (N,): the whitened
+        columns of an eliminating layout's design (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`)."""
         sd = np.sqrt(self.var)
         S, B = self.unit_samples(parts)
         return (-S / sd).ravel(), (-B / sd).ravel()

@@ -20,8 +20,7 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
 from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos, PixelModel
 from fmbrdf_mi.fit.evaluate.albedo_prior import SmoothPrior, neighbour_pairs, smooth_pair
-from fmbrdf_mi.fit.evaluate.bilinear_albedos import (PER_PIXEL_LAYOUTS, BilinearPixelAlbedos, CoupledPixelAlbedos,
-                                                     bilinear_weights)
+from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS, bilinear_weights
 from fmbrdf_mi.fit.evaluate.materials import (MIN_MATERIAL_PIXELS, MaterialAlbedos, MaterialEvaluator,
                                               MaterialModel, check_labels, material_count)
 from fmbrdf_mi.fit.evaluate.models import get_model
@@ -141,7 +140,7 @@ def area_points(samples, opts):
     """m of the likelihood's m x m points per sample: ``opts.area_points``, or when None
     :data:`RAW_AREA_POINTS` for a raw mosaic (a sensor pixel integrates over its area) and 1 (the
     pixel's centre) for angle images and Stokes images."""
-    m = getattr(opts, "area_points", None)
+    m = opts.area_points
     if m is None:
         m = RAW_AREA_POINTS if samples.source in ("raw mosaic", "colour raw mosaic") else 1
     return int(m)
@@ -153,9 +152,8 @@ def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, facto
     channel for a colour mosaic), the same pixel in every image sharing it.  Several images must be of
     one view (one pixel grid and the same view directions), else a pixel is not one point of the object.
     ``smooth``: (tau_s, tau_b) of the maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`, in
-    the reported albedos' units; ``factor`` the model's albedo factor), or None: no prior.  With a prior the
-    pairs are coupled: the per-pixel layout is then the banded solve of
-    :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.CoupledPixelAlbedos` with one corner per sample."""
+    the reported albedos' units; ``factor`` the model's albedo factor), or None: no prior.  ``bilinear``: each
+    sample's albedos interpolated between the pixel centres (:func:`bilinear_layout`), else its own pixel's."""
     o0 = observations[0]
     for k, o in enumerate(observations[1:], 1):
         if o.shape != o0.shape or not np.allclose(o.view_dirs, o0.view_dirs):
@@ -176,18 +174,16 @@ def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, facto
         chs = np.asarray(samples.channel, dtype=np.int64)
         groups = cell[:, None] * C + chs[None, :]
         n_groups, gpix, ch, labels = len(pixels) * C, np.repeat(pixels, C), np.tile(np.arange(C), len(pixels)), CHANNELS
-    if smooth is None:
-        return PixelAlbedos(groups, n_groups, gpix, ch, labels=labels)
-    prior = SmoothPrior(neighbour_pairs(gpix, W, ch), n_groups, smooth, factor)
-    return CoupledPixelAlbedos(groups, groups[..., None], np.ones(groups.shape + (1,)), n_groups, gpix,
-                               name="per-pixel", prior=prior, channel_of=ch, labels=labels)
+    prior = None if smooth is None else SmoothPrior(neighbour_pairs(gpix, W, ch), n_groups, smooth, factor)
+    return PixelAlbedos(groups, n_groups, gpix, prior=prior, channel_of=ch, labels=labels)
 
 
 def bilinear_layout(shape, flat, pixels, cell, samples, prior=None):
-    """The bilinear per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BilinearPixelAlbedos`)
-    of cells at flat indices ``flat`` of the pixel grid ``shape``, ``pixels`` the sorted fitted pixels (the
-    groups), ``cell`` each cell's group: each sample interpolated at its offset between the fitted pixels'
-    centres; ``prior``: the maps' smoothness prior or None."""
+    """The bilinear per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos` whose corners
+    are :func:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.bilinear_weights`') of cells at flat indices ``flat`` of
+    the pixel grid ``shape``, ``pixels`` the sorted fitted pixels (the groups), ``cell`` each cell's group: each
+    sample interpolated at its offset between the fitted pixels' centres; ``prior``: the maps' smoothness prior
+    or None."""
     if samples.channel is not None:
         raise InputError("albedo per-pixel-bilinear: not for colour mosaics (mono captures, raw or angle images)")
     H, W = shape
@@ -201,8 +197,8 @@ def bilinear_layout(shape, flat, pixels, cell, samples, prior=None):
     rows, cols = np.divmod(np.asarray(flat, dtype=np.int64), W)
     corners, weights = bilinear_weights(rows, cols, samples.offsets, present)
     groups = np.searchsorted(pixels, corners[..., 0] * W + corners[..., 1])
-    return BilinearPixelAlbedos(np.repeat(cell[:, None], samples.n, axis=1), groups, weights, len(pixels), pixels,
-                                prior=prior)
+    return PixelAlbedos(np.repeat(cell[:, None], samples.n, axis=1), len(pixels), pixels, corner_groups=groups,
+                        corner_weights=weights, name="per-pixel-bilinear", prior=prior)
 
 
 def material_labels(observations, materials, loss, opts, evaluator=None):
@@ -222,7 +218,7 @@ def material_labels(observations, materials, loss, opts, evaluator=None):
     count = material_count(lab)
     if count > 1 and evaluator is not None:
         raise InputError("materials: the fit builds one evaluator per material; give no evaluator")
-    if count > 1 and getattr(opts, "free_power", False):
+    if count > 1 and opts.free_power:
         raise InputError("materials: not with free_power (give the relative light powers)")
     return lab, count
 
@@ -261,7 +257,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     """
     K = len(observations)
     lab = count = keep = None
-    if materials is not None and getattr(opts, "albedo_smooth", None) is not None:
+    if materials is not None and opts.albedo_smooth is not None:
         raise InputError("materials: not with albedo_smooth (the albedo maps' smoothness prior) yet")
     if materials is not None:
         lab, count = material_labels(observations, materials, loss, opts, evaluator)
@@ -325,10 +321,10 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         layout = None if smps[0].channel is None else ChannelAlbedos(smps[0].channel)
         if lab is not None and layout is not None:
             raise InputError("materials: not yet for colour mosaics (mono captures, raw or angle images)")
-        if getattr(opts, "albedo", "shared") in PER_PIXEL_LAYOUTS:
+        if opts.albedo in PER_PIXEL_LAYOUTS:
             if lab is not None and opts.albedo == "per-pixel-bilinear":
                 raise InputError("materials: not with albedo per-pixel-bilinear yet (use albedo per-pixel)")
-            smooth = getattr(opts, "albedo_smooth", None)
+            smooth = opts.albedo_smooth
             layout = pixel_layout(observations, idxs, smps[0], bilinear=opts.albedo == "per-pixel-bilinear",
                                   smooth=None if smooth is None else smooth_pair(smooth),
                                   factor=get_model(opts.model).albedo_factor)
@@ -378,7 +374,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     if lab is not None:
         evaluator = material_evaluators(get_model(opts.model), count, cell_material, normals, views, lights, irr,
                                         weights)
-        wrap = (lambda mm: PixelModel(mm, layout)) if getattr(layout, "eliminates", False) else (lambda mm: mm)
+        wrap = (lambda mm: PixelModel(mm, layout)) if layout is not None and layout.eliminates else (lambda mm: mm)
         make_problem = MT.problem_factory(cell_material, count, wrap)
         mat = {"labels": lab, "count": count, "cell_material": cell_material,
                "pixels": np.bincount(cell_material, minlength=count).tolist()}

@@ -44,7 +44,7 @@ import math
 
 import numpy as np
 
-from fmbrdf_mi.fit.evaluate.models import Bounds, ShapeParam, State
+from fmbrdf_mi.fit.evaluate.models import Bounds, ModelView, ShapeParam, State
 from fmbrdf_mi.fit.evaluate.pixel_model import Parts
 from fmbrdf_mi.fit.problem.problem import Problem
 
@@ -61,22 +61,20 @@ def power_names(k):
     return tuple(f"power_{j}" for j in range(1, k))
 
 
-class PowerModel:
+class PowerModel(ModelView):
     """A :class:`~fmbrdf_mi.fit.evaluate.models.Model` with the powers P_1 .. P_{K-1} as extra shape parameters.
 
     ``given``: G_0 .. G_{K-1}.  :meth:`report` adds ``power_k`` (P_k) to
     the model's parameters; :meth:`split` takes them from the reported
-    values, else from :attr:`start`.  Everything else is the model's.
+    values, else from :attr:`start`.  Everything else is the model's
+    (:class:`~fmbrdf_mi.fit.evaluate.models.ModelView`).
     """
 
     def __init__(self, base, given):
-        self.base = base
+        super().__init__(base)
         self.given = [float(g) for g in given]
         self.power_names = power_names(len(self.given))
         self.start = {n: g for n, g in zip(self.power_names, self.given[1:])}
-
-    def __getattr__(self, name):  # surface_key, body_key, albedo_factor, bsdf_dict, name, ...
-        return getattr(self.base, name)
 
     def _power_param(self, name):
         g = self.given[int(name.split("_")[1])]
@@ -121,9 +119,6 @@ class PowerEvaluator:
         self.base, self.model = base, model
         self.counts = np.asarray(pixels_per_image, int)
         self._cache = None   # (shape key, wrt, Parts) of the last BSDF evaluation
-
-    def __getattr__(self, name):
-        return getattr(self.base, name)
 
     def image_of(self, m):
         """Image index of each of the ``m`` points (pixel-major)."""

@@ -78,7 +78,7 @@ class Problem:
     # layout (objective.layout: per channel) log a_s[0 ..], then log a_b[0 ..]
     @property
     def layout(self):
-        return getattr(self.obj, "layout", None)
+        return self.obj.layout
 
     @property
     def eliminates(self):
@@ -86,7 +86,7 @@ class Problem:
         albedo maps: :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`); z is then the free shape
         parameters only, and a State from :meth:`from_z` carries the last solved albedos (re-solve them
         with :meth:`projected` before evaluating the objective)."""
-        return bool(getattr(self.layout, "eliminates", False))
+        return self.layout is not None and self.layout.eliminates
 
     def n_eliminated(self, st):
         """How many albedos the data spent unknowns on outside z (free albedos of an eliminating layout)."""
@@ -109,7 +109,7 @@ class Problem:
         if self.eliminates:
             return State(shape, *self.albedos_now)
         if self.layout is not None:
-            g = self.layout.size
+            g = self.layout.n_groups
             return State(shape, np.exp(np.clip(z[k:k + g], -60, 60)), np.exp(np.clip(z[k + g:k + 2 * g], -60, 60)))
         return State(shape, math.exp(np.clip(z[k], -60, 60)), math.exp(np.clip(z[k + 1], -60, 60)))
 
@@ -214,8 +214,8 @@ class FitData:
     def problem(self, model, bounds, progress, fixed, deadline):
         """The :class:`Problem` of these data (the free-power one when ``make_problem`` says so)."""
         if self.make_problem is None:
-            layout = getattr(self.objective, "layout", None)   # per-channel albedos: a model that reports them
-            wrap = (model if layout is None else PixelModel(model, layout) if getattr(layout, "eliminates", False)
+            layout = self.objective.layout   # per-channel albedos: a model that reports them
+            wrap = (model if layout is None else PixelModel(model, layout) if layout.eliminates
                     else ChannelModel(model, layout))
             return Problem(wrap, self.evaluator, self.objective, Bounds(model, bounds), progress, fixed=fixed,
                            deadline=deadline)
