@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from fmbrdf_mi.fit.camera.demosaic import check_layout
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.options import Option
 
 
 def parse_vector(text, name, n=3):
@@ -25,7 +26,9 @@ def parse_vector(text, name, n=3):
 
 def parse_smooth(text, name="--albedo-smooth"):
     """``TAU`` or ``TAU_S,TAU_B`` (the albedo maps' smoothness prior) -> tau or (tau_s, tau_b); the values are
-    range-checked with the other fit options."""
+    range-checked with the other fit options.  A value that is not text is returned as it is."""
+    if not isinstance(text, str):
+        return text
     try:
         vals = [float(x) for x in str(text).replace(" ", "").split(",")]
     except ValueError:
@@ -41,20 +44,7 @@ def check_number(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True):
     Refuses what arrives as text or a list from a manifest, a sidecar or a fit.json (``"2.4"``,
     ``[1]``, ``true``) as well as NaN and infinities; None is passed through.
     """
-    import math
-    import numbers
-
-    if value is None:
-        return None
-    rng = (f"{'[' if lo_incl else '('}{'-inf' if lo is None else f'{lo:g}'}, "
-           f"{'inf' if hi is None else f'{hi:g}'}{']' if hi_incl and hi is not None else ')'}")
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise InputError(f"{name}: expected a number in {rng}, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v) or (lo is not None and (v < lo if lo_incl else v <= lo)) \
-            or (hi is not None and (v > hi if hi_incl else v >= hi)):
-        raise InputError(f"{name}: expected a finite number in {rng}, got {value!r}")
-    return v
+    return Option(name, kind="number", lo=lo, lo_open=not lo_incl, hi=hi, hi_open=not hi_incl).check(value)
 
 
 def parse_bounds(items):
