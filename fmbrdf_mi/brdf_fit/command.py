@@ -62,10 +62,11 @@ def add_fit_brdf_arguments(p):
     p.add_argument("--full-grid", action="store_true",
                    help="evaluate every start-grid point (default: coarse to fine, which finds the same best "
                         "points on smooth error surfaces in about 45 %% of the evaluations)")
-    p.add_argument("--jobs", type=int, default=1, metavar="N", help="batch: materials fitted at once (processes)")
+    p.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help="batch: materials fitted at once (processes; one FILE is fitted in this process)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.add_argument("--skip-existing", action="store_true",
-                   help="batch: leave materials whose params.json exists as they are (listed in the summary)")
+                   help="leave materials whose params.json exists as they are (listed in the summary; not with --force)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output, only the summary")
 
 

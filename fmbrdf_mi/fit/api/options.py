@@ -273,10 +273,11 @@ def reported_names(model):
     return tuple(model.shape_names) + (model.surface_name, model.body_name)
 
 
-def parsed(name, value):
-    """``value`` of the option ``name`` in the form a fit takes (its text form parsed, :attr:`Option.parse`)."""
+def parsed(name, value, flag=keyword):
+    """``value`` of the option ``name`` in the form a fit takes (its text form parsed, :attr:`Option.parse`;
+    ``flag(name)`` names the option in a message)."""
     o = OPTION[name]
-    return o.parse(value) if o.parse is not None and value is not None else value
+    return o.parse(value, flag(name)) if o.parse is not None and value is not None else value
 
 
 def check_values(values, flag=keyword):
@@ -287,7 +288,7 @@ def check_values(values, flag=keyword):
         o = OPTION.get(name)
         if o is None:
             continue
-        out[name] = v = parsed(name, v)
+        out[name] = v = parsed(name, v, flag)
         if name == "albedo_smooth" and v is not None:
             vals = list(v) if isinstance(v, (tuple, list)) else [v]
             if len(vals) not in (1, 2):

@@ -47,14 +47,14 @@ def check_number(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True):
     return Option(name, kind="number", lo=lo, lo_open=not lo_incl, hi=hi, hi_open=not hi_incl).check(value)
 
 
-def parse_bounds(items):
-    """``["alpha=0.05:0.5", ...]`` -> {"alpha": (0.05, 0.5)}."""
+def parse_bounds(items, name="--bounds"):
+    """``["alpha=0.05:0.5", ...]`` -> {"alpha": (0.05, 0.5)}; ``name``: the option in messages."""
     if isinstance(items, dict) or items is None:
         return items
     if isinstance(items, str):
         items = [items]
     if not isinstance(items, (list, tuple)):
-        raise InputError(f"--bounds: expected NAME=LO:HI items, e.g. alpha=0.05:0.5, got {items!r}")
+        raise InputError(f"{name}: expected NAME=LO:HI items, e.g. alpha=0.05:0.5, got {items!r}")
     out = {}
     for item in items:
         name, sep, rng = str(item).partition("=")
@@ -62,14 +62,15 @@ def parse_bounds(items):
         try:
             out[name.strip()] = (float(lo), float(hi))
         except ValueError:
-            raise InputError(f"--bounds {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5") from None
+            raise InputError(f"{name} {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5") from None
         if not (sep and sep2):
-            raise InputError(f"--bounds {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5")
+            raise InputError(f"{name} {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5")
     return out
 
 
-def parse_init(text):
-    """``"eta=1.5,alpha=0.3,..."`` -> dict (all reported parameters of the model)."""
+def parse_init(text, name="--init"):
+    """``"eta=1.5,alpha=0.3,..."`` -> dict (all reported parameters of the model); ``name``: the option in
+    messages."""
     if isinstance(text, dict) or text is None:
         return text
     out = {}
@@ -78,17 +79,17 @@ def parse_init(text):
         try:
             out[name.strip()] = float(value)
         except ValueError:
-            raise InputError(f"--init {text!r}: expected NAME=VALUE,..., e.g. eta=1.5,alpha=0.3,beta=2,"
+            raise InputError(f"{name} {text!r}: expected NAME=VALUE,..., e.g. eta=1.5,alpha=0.3,beta=2,"
                              "kappa=10,k_s=1,r_k=1") from None
     return out
 
 
-def parse_fixed(items):
+def parse_fixed(items, name="--fix"):
     """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (shape parameters held fixed)."""
     if isinstance(items, dict) or items is None:
         return items
     if not isinstance(items, (str, list, tuple)):
-        raise InputError(f"--fix: expected NAME=VALUE items, e.g. kappa=0, got {items!r}")
+        raise InputError(f"{name}: expected NAME=VALUE items, e.g. kappa=0, got {items!r}")
     items = [items] if isinstance(items, str) else [str(x) for x in items]
     out = {}
     for item in ",".join(items).split(","):
@@ -96,9 +97,9 @@ def parse_fixed(items):
         try:
             out[name.strip()] = float(value)
         except ValueError:
-            raise InputError(f"--fix {item!r}: expected NAME=VALUE, e.g. kappa=0") from None
+            raise InputError(f"{name} {item!r}: expected NAME=VALUE, e.g. kappa=0") from None
         if not sep:
-            raise InputError(f"--fix {item!r}: expected NAME=VALUE, e.g. kappa=0")
+            raise InputError(f"{name} {item!r}: expected NAME=VALUE, e.g. kappa=0")
     return out
 
 
