@@ -224,7 +224,7 @@ def arguments(record, given, where):
 
 
 def _doc():
-    rows = [f"* ``{o.name}`` (default ``{o.default!r}``{', ' + o.flag if o.flag else ''}): {o.help}"
+    rows = [f"* ``{o.name}`` (default ``{o.default!r}``{f', ``{o.flag}``' if o.flag else ''}): {o.help}"
             for o in OPTIONS if o.fit]
     return ("The options of a fit (:func:`fmbrdf_mi.fit.fit`), generated from "
             ":data:`fmbrdf_mi.fit.api.options.OPTIONS`:\n\n" + "\n".join(rows).replace("%%", "%")
@@ -428,7 +428,7 @@ def check_resolved_loss(values, loss, source, flag=keyword):
     elif values.get("intervals") == "profile":
         bad = f"{flag('intervals')} profile"
     elif values.get("materials") is not None:
-        bad = flag("materials")
+        bad = f"{flag('materials')} {values['materials']}"
     else:
         return
     raise InputError(f"{bad}: needs the likelihood of the camera's samples, and the loss here is {loss} ({source}): "
