@@ -100,6 +100,8 @@ def captures(tmp_path_factory):
     ("m_raw.png", ["--camera", "perspective"], ["--camera perspective", "built-in sphere"]),
     ("m_raw.png", ["--fov", "30"], ["--fov", "built-in sphere"]),
     ("c_raw.png", ["--channel", "R"], ["colour polarisation mosaic", "--channel R"]),
+    ("c_raw.png", ["--demosaic", "superpixel"], ["colour polarisation mosaic", "--demosaic superpixel"]),
+    ("c_raw.png", ["--tol", "0.01", "--time-limit", "5"], ["colour polarisation mosaic", "--tol, --time-limit"]),
 ])
 def test_fit_options_the_capture_overrides_are_refused(capsys, tmp_path, captures, image, argv, words):
     """Before: the fit ran with the sidecar's noise (the likelihood, which has no footprint), the render's
