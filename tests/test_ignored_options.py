@@ -58,6 +58,18 @@ def test_render_valid_camera_options_still_run(capsys, tmp_path, argv):
     (["--from", "{d}/fit.json", "--light", "0,0,1", "--loss", "paper"], ["--from", "--light", "--loss"]),
     (["--from", "{d}/fit.json", "--free-power"], ["--from", "--free-power"]),
     (["--from", "{d}/fit.json", "--refine-normals"], ["--from", "--refine-normals"]),
+    # typed at their default values: still not what --from reruns
+    (["--from", "{d}/fit.json", "--albedo", "shared"], ["--from", "--albedo"]),
+    (["--from", "{d}/fit.json", "--max-pixels", "20000", "--seed", "0"], ["--from", "--max-pixels", "--seed"]),
+    # pairs that do not go together: refused before the materials are searched or the fit starts
+    (["{d}/missing.png", "--materials", "auto:2", "--albedo", "per-pixel", "--albedo-smooth", "0.1"],
+     ["--materials auto:2", "--albedo-smooth"]),
+    (["{d}/missing.png", "--materials", "auto:2", "--albedo", "per-pixel-bilinear"],
+     ["--materials auto:2", "per-pixel-bilinear"]),
+    (["{d}/missing.png", "--materials", "labels.png", "--loss", "paper"], ["--materials labels.png", "likelihood"]),
+    # a smoothness scale the fit cannot resolve: the valid range named
+    (["{d}/missing.png", "--albedo", "per-pixel", "--albedo-smooth", "1e-200"], ["--albedo-smooth", "1e-06", "1e-200"]),
+    (["{d}/missing.png", "--albedo", "per-pixel", "--albedo-smooth", "0.1,1e-12"], ["--albedo-smooth", "1e-12"]),
 ])
 def test_fit_ignored_options_refused_before_any_file_is_read(capsys, tmp_path, argv, words):
     """Before: each ran (or read its files) and dropped the option.  Nothing here exists: the options
@@ -88,6 +100,8 @@ def captures(tmp_path_factory):
     ("m_raw.png", ["--camera", "perspective"], ["--camera perspective", "built-in sphere"]),
     ("m_raw.png", ["--fov", "30"], ["--fov", "built-in sphere"]),
     ("c_raw.png", ["--channel", "R"], ["colour polarisation mosaic", "--channel R"]),
+    ("c_raw.png", ["--demosaic", "superpixel"], ["colour polarisation mosaic", "--demosaic superpixel"]),
+    ("c_raw.png", ["--tol", "0.01", "--time-limit", "5"], ["colour polarisation mosaic", "--tol, --time-limit"]),
 ])
 def test_fit_options_the_capture_overrides_are_refused(capsys, tmp_path, captures, image, argv, words):
     """Before: the fit ran with the sidecar's noise (the likelihood, which has no footprint), the render's
@@ -104,6 +118,20 @@ def test_fit_footprint_with_the_paper_loss_still_runs(capsys, tmp_path, captures
                      "--starts", "1", "--max-pixels", "100", "-q", "--footprint", "box", "--loss", "paper")
     assert rc in (0, 3), err      # 3: stopped by --max-iter 1
     assert (tmp_path / "out" / "fit.json").exists()
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["--albedo", "per-pixel"], ["--albedo per-pixel", "no camera noise model", "--conversion-gain"]),
+    (["--albedo", "per-pixel-bilinear"], ["--albedo per-pixel-bilinear", "no camera noise model"]),
+    (["--intervals", "profile"], ["--intervals profile", "no camera noise model"]),
+])
+def test_fit_likelihood_options_on_an_input_without_noise_model_refused(capsys, tmp_path, captures, argv, words):
+    """A Stokes EXR has no camera noise model: the loss resolves to the paper's.  Before: the option was dropped,
+    the fit ran (exit 0) and fit.json recorded it as if applied.  Now refused before the fit, nothing written."""
+    rc, _, err = run(capsys, "fit", str(captures / "m.exr"), "-o", str(tmp_path / "out"), "--max-iter", "1",
+                     "--starts", "1", "--max-pixels", "100", "-q", *argv)
+    one_line_error(rc, err, "fit", *words)
+    assert not (tmp_path / "out").exists()
 
 
 # ------------------------------------------------------------------ fit --from: integrity

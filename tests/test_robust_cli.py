@@ -253,3 +253,38 @@ def test_dataset_back_faces_not_in_mask(tmp_path):
     # orthographic camera: every pixel looks along -z of the camera frame
     assert np.all(n[m][:, 2] > 0)
     assert np.all(n[~m] == 0)
+
+
+# ---------------------------------------------------------------- fit-brdf: batch options with one file
+def test_fit_brdf_force_with_skip_existing_refused(capsys, tmp_path):
+    """Before: both taken, --force winning silently for one file and overwriting for a batch."""
+    rc, _, err = run(capsys, "fit-brdf", str(tmp_path / "missing.binary"), "--force", "--skip-existing")
+    one_line_error(rc, err, "fit-brdf", "--force and --skip-existing")
+
+
+def _fitted(tmp_path):
+    """A MERL file name and its output directory holding a params.json (an earlier fit)."""
+    path = tmp_path / "gold.binary"
+    path.write_bytes(b"")
+    out = tmp_path / "gold_fit"
+    out.mkdir()
+    report = {"params": {"eta": 1.5, "alpha": 0.2, "beta": 1.0, "kappa": 3.0, "k_s": [1, 1, 1], "k_b": [1, 1, 1]},
+              "at_bound": [], "log10_rmse": {"all_usable_bins": 0.1}, "n_usable_bins": 10}
+    (out / "params.json").write_text(json.dumps(report))
+    return path, out
+
+
+def test_fit_brdf_skip_existing_with_one_file_skips_it(capsys, tmp_path):
+    """Before: one FILE with --skip-existing was refused as existing (pass --force) although its fit exists."""
+    path, out = _fitted(tmp_path)
+    stamp = os.stat(out / "params.json").st_mtime_ns
+    rc, stdout, err = run(capsys, "fit-brdf", str(path), "--skip-existing", "-q")
+    assert rc == 0, err
+    assert "gold: eta 1.5" in stdout and "skipped" in stdout and os.stat(out / "params.json").st_mtime_ns == stamp
+
+
+def test_fit_brdf_jobs_with_one_file_says_what_it_does(capsys, tmp_path):
+    """Before: --jobs dropped silently with one FILE; now one line says it is fitted in this process."""
+    path, _ = _fitted(tmp_path)
+    rc, _, err = run(capsys, "fit-brdf", str(path), "--skip-existing", "--jobs", "3", "-q")
+    assert rc == 0 and "--jobs 3: one FILE is fitted in this process" in err

@@ -62,10 +62,11 @@ def add_fit_brdf_arguments(p):
     p.add_argument("--full-grid", action="store_true",
                    help="evaluate every start-grid point (default: coarse to fine, which finds the same best "
                         "points on smooth error surfaces in about 45 %% of the evaluations)")
-    p.add_argument("--jobs", type=int, default=1, metavar="N", help="batch: materials fitted at once (processes)")
+    p.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help="batch: materials fitted at once (processes; one FILE is fitted in this process)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.add_argument("--skip-existing", action="store_true",
-                   help="batch: leave materials whose params.json exists as they are (listed in the summary)")
+                   help="leave materials whose params.json exists as they are (listed in the summary; not with --force)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output, only the summary")
 
 
@@ -73,7 +74,7 @@ def _options(args):
     from .fitting import BRDFFitOptions
 
     return BRDFFitOptions(max_samples=args.samples, starts=args.starts, max_evals=args.max_evals, seed=args.seed,
-                          **({"grid_search": "full"} if getattr(args, "full_grid", False) else {}))
+                          **({"grid_search": "full"} if args.full_grid else {}))
 
 
 def _check_args(args):
@@ -81,6 +82,9 @@ def _check_args(args):
                         ("--max-evals", args.max_evals, 1), ("--jobs", args.jobs, 1)):
         if v < lo:
             raise ValueError(f"{name}: must be an integer >= {lo}, got {v}")
+    if args.force and args.skip_existing:
+        raise ValueError("--force and --skip-existing: give one of them (--force fits every material again over "
+                         "its outputs, --skip-existing leaves the fitted ones as they are)")
 
 
 def _check_outputs(out, force):
@@ -150,9 +154,22 @@ def run_fit_brdf(args):
 
 def _run_single(args, path):
     out = args.out or os.path.splitext(path)[0] + "_fit"
+    name = os.path.splitext(os.path.basename(path))[0]
+    if args.jobs != 1:
+        print(f"fmbrdf-mi fit-brdf: --jobs {args.jobs}: one FILE is fitted in this process (--jobs fits the "
+              "materials of a batch in parallel)", file=sys.stderr, flush=True)
+    if args.skip_existing and os.path.exists(os.path.join(out, "params.json")):
+        try:
+            with open(os.path.join(out, "params.json")) as f:
+                line = summary_line(name, json.load(f), out)
+        except (OSError, ValueError, KeyError, TypeError):
+            line = None   # unreadable or incomplete: fitted again (needs --force to overwrite)
+        if line is not None:
+            print(f"{line} (skipped: params.json exists)")
+            return 0
     progress = None if args.quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     report = fit_one(path, out, _options(args), args.force, progress)
-    print(summary_line(os.path.splitext(os.path.basename(path))[0], report, out))
+    print(summary_line(name, report, out))
     return 0 if report["converged"] else _not_converged(report)
 
 

@@ -13,7 +13,7 @@ import os
 
 import pytest
 
-from fmbrdf_mi.fit.cli.checks import NEEDS, OPTIONS, REFUSED, check_needs, refuse
+from fmbrdf_mi.fit.cli.checks import NEEDS, REFUSED, check_needs, given, named, refuse
 from fmbrdf_mi.fit.cli.command import add_fit_arguments
 from fmbrdf_mi.fit.errors import InputError
 
@@ -24,7 +24,9 @@ GIVE = {"--baselines": ["--baselines"], "--relight": ["--relight", "b.exr"], "--
         "--footprint": ["--footprint", "box"], "--free-power": ["--free-power"],
         "--area-points": ["--area-points", "3"], "--channel": ["--channel", "R"], "--light": ["--light", "0,0,1"],
         "--albedo": ["--albedo", "per-pixel"], "--materials": ["--materials", "labels.png"],
-        "--albedo-smooth": ["--albedo-smooth", "0.1"]}
+        "--albedo-smooth": ["--albedo-smooth", "0.1"], "--demosaic": ["--demosaic", "superpixel"],
+        "--tol": ["--tol", "0.01"], "--time-limit": ["--time-limit", "5"],
+        "--relight-light": ["--relight-light", "0,0,1"], "--relight-irradiance": ["--relight-irradiance", "2"]}
 NEED_GIVE = {"--relight-light": ["--relight-light", "0,0,1"], "--holdout": ["--holdout", "1"],
              "--normals-start": ["--normals-start", "sphere"], "--smooth": ["--smooth", "0.5"],
              "--rounds": ["--rounds", "2"], "--power-start": ["--power-start", "given"]}
@@ -37,11 +39,11 @@ def parse(argv):
 
 
 def test_every_option_of_the_table_can_be_given():
-    assert set(GIVE) == set(OPTIONS) and set(NEED_GIVE) == set(NEEDS)
+    assert set(GIVE) == {f for flags, _, _ in REFUSED.values() for f in flags} and set(NEED_GIVE) == set(NEEDS)
     none = parse(["a.png"])
-    for flag, (given, _) in OPTIONS.items():
-        assert not given(none), flag
-        assert given(parse(["a.png", *GIVE[flag]])), flag
+    for flag in GIVE:
+        assert not given(none, flag), flag
+        assert given(parse(["a.png", *GIVE[flag]]), flag), flag
 
 
 @pytest.mark.parametrize("mode", sorted(REFUSED))
@@ -53,8 +55,8 @@ def test_each_refused_option_is_named_alone(mode):
             refuse(parse(["a.png", *GIVE[flag]]), mode)
         msg = str(e.value)
         assert msg.startswith(head + ": ") and "\n" not in msg
-        assert OPTIONS[flag][1](parse(["a.png", *GIVE[flag]])) in msg
-        assert all(OPTIONS[o][1](parse(["a.png", *GIVE[o]])) not in msg for o in flags if o != flag)
+        assert msg[len(head) + 2:].split(" not supported")[0].split(", ") == [named(parse(["a.png", *GIVE[flag]]),
+                                                                                     flag)]
 
 
 @pytest.mark.parametrize("flag", sorted(NEEDS))
@@ -98,3 +100,39 @@ def test_colour_mosaics_take_per_pixel_albedos_not_materials():
         refuse(parse(["a.png", "--albedo", "per-pixel", "--materials", "labels.png"]), "colour")
     with pytest.raises(InputError, match="^--refine-normals: --albedo per-pixel not supported"):
         refuse(parse(["a.png", "--albedo", "per-pixel"]), "refine")
+
+
+def test_every_option_is_on_the_command_line_with_its_help():
+    """The parser is generated from the schema: every option with a flag is there, each with a help text."""
+    from fmbrdf_mi.fit.api.options import OPTIONS
+
+    p = argparse.ArgumentParser()
+    add_fit_arguments(p)
+    actions = {a.dest: a for a in p._actions if a.dest != "help"}
+    assert set(actions) == {o.name for o in OPTIONS if o.flag is not None}
+    assert all(a.help and "%(" not in (a.help % {"default": a.default}) for a in actions.values())
+    assert actions["fixed"].option_strings == ["--fix"] and actions["normal_rounds"].option_strings == ["--rounds"]
+
+
+def test_typed_options_counts_values_at_their_default():
+    """--from tells what was typed from the command line itself: an option typed at its default value counts
+    (a value compared with the default would miss it), a repeated option too."""
+    from fmbrdf_mi.fit.cli.checks import typed_options
+
+    typed = typed_options(["a.png", "--albedo", "shared", "--fix", "kappa=0", "--fix", "eta=1.5", "--baselines",
+                           "-o", "x"])
+    assert sorted(typed) == ["albedo", "baselines", "fixed", "inputs", "out"]
+    assert sorted(typed_options(["--from", "f.json", "-o", "x"])) == ["from_json", "inputs", "out"]
+
+
+def test_writing_functions_refuse_an_unknown_option(tmp_path):
+    """fit_files / fit_colour_files take the schema's options of their record: a misspelt one is one line naming
+    it (before: a TypeError of the signature), and nothing is read or written."""
+    from fmbrdf_mi.fit.outputs.colour import fit_colour_files
+    from fmbrdf_mi.fit.outputs.single import fit_files
+
+    with pytest.raises(InputError, match=r"^fit_files\(\): unknown option\(s\) albedo_smoth \(valid: inputs, "):
+        fit_files(str(tmp_path / "missing.exr"), str(tmp_path / "out"), albedo_smoth=0.1)
+    with pytest.raises(InputError, match=r"^fit_colour_files\(\): unknown option\(s\) loss "):
+        fit_colour_files(str(tmp_path / "missing.png"), str(tmp_path / "out"), loss="paper")
+    assert not (tmp_path / "out").exists()

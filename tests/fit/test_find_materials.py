@@ -176,8 +176,10 @@ def test_command_refusal_is_one_line_and_writes_nothing(tmp_path, capsys, monkey
 
     monkeypatch.setattr(single, "find_materials", refuse)
     ideal = material_sphere([A, A], half_labels(RES), res=RES, light=LIGHT)
-    np.save(tmp_path / "raw.npy", capture(ideal["stokes"], CameraModel(), peak_fraction=0.8, seed=2)["raw"])
+    cam = CameraModel()
+    np.save(tmp_path / "raw.npy", capture(ideal["stokes"], cam, peak_fraction=0.8, seed=2)["raw"])
     rc = main(["fit", str(tmp_path / "raw.npy"), "--sphere", "8,8,7", "--light=-0.5,0.5,1", "--materials", "auto:2",
+               "--conversion-gain", str(cam.conversion_gain), "--read-noise", str(cam.read_noise),
                "-o", str(tmp_path / "o"), "-q"])
     one_line_error(rc, capsys.readouterr().err, "fit", "--materials auto:2", "not separated")
     assert not (tmp_path / "o").exists()

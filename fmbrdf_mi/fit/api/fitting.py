@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from fmbrdf_mi.fit import uncertainty as U
-from fmbrdf_mi.fit.api.options import check_fit_options
+from fmbrdf_mi.fit.api.options import FitOptions, check_fit_options
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import State, get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import RenderEvaluator
@@ -23,50 +23,6 @@ from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import optimise as O
 from fmbrdf_mi.fit.solve.driver import refit_fixed, solve
 from fmbrdf_mi.fit.uncertainty import WEAK_REL
-
-
-@dataclasses.dataclass
-class FitOptions:
-    model: str = "fmbrdf"
-    path: str = "pixel"               # "pixel" or "render"
-    optimizer: str = "lm"             # "lm" or "adam"
-    loss: str = "auto"                # "likelihood", "paper" or "auto" (likelihood when the camera noise is known);
-                                      # "intensity" / "dolp": one term of the paper's loss (loss_variants.py)
-    bounds: dict = None               # {name: (lo, hi)} narrowing the model's bounds
-    fixed: dict = None                # {shape name: value} held fixed (not estimated)
-    init: dict = None                 # reported parameters to start from (skips the coarse search)
-    starts: int = 2                   # refine from this many of the best distinct coarse-search points
-    max_iter: int = 40
-    tol: float = 1e-4                 # paper's loss: relative decrease (likelihood: 0.01 in chi^2, fixed)
-    time_limit: float = None          # seconds for each refinement round
-    max_time: float = None            # seconds for the whole fit: a hard limit (None: until converged)
-    rounds: int = 3                   # paper: inlier/outlier refresh rounds; likelihood: IRLS rounds + 2
-    max_pixels: int = 20000           # random subset of the usable pixels (None: all)
-    erode: int = 2                    # pixels removed from the mask's border
-    min_cos_view: float = 0.1         # n . v above this
-    min_cos_light: float = 0.02       # n . l above this
-    dolp_min_intensity: float = 0.02  # DoLP term: observed I > this x 99th percentile
-    seed: int = 0
-    lr: float = 0.02                  # Adam (step in the reparameterised variables)
-    spp: int = 16                     # render path
-    bsdf_prefix: str = "sphere.bsdf"  # render path: traverse prefix of the object's BSDF
-    free_power: bool = False          # joint fits: estimate the relative light powers (free_power.py)
-    power_start: str = "ratio"        # ... starting from "ratio" (closed form) or "given"
-    area_points: int = None           # likelihood: each sample the mean of the model over m x m points of its
-                                      # pixel (None: 2 for raw mosaics, refined to 4 or 8 while 2 would bias a
-                                      # shape parameter by > 0.2 SE: refine_quadrature; 1 = the pixel's centre
-                                      # otherwise)
-    intervals: str = "auto"           # likelihood: "auto" checks each shape parameter's Fisher 95 % interval
-                                      # against the likelihood and takes the profile likelihood's ends where it
-                                      # fails (uncertainty.profile_intervals); "profile": the profile likelihood's
-                                      # ends for every shape parameter; "fisher": Fisher intervals only
-    albedo: str = "shared"            # likelihood: "shared" (one k_s, r_k) or "per-pixel" (albedo maps: a textured
-                                      # object; evaluate.albedos.PixelAlbedos) or "per-pixel-bilinear" (the maps
-                                      # interpolated to each raw sample; evaluate.bilinear_albedos)
-    albedo_smooth: object = None      # per-pixel albedos: a Gaussian smoothness prior on the maps, tau (one for
-                                      # k_s and k_b, or a pair (tau_s, tau_b)): the expected difference of
-                                      # 4-neighbouring pixels' albedos in k_s, k_b units (evaluate.albedo_prior);
-                                      # None: no prior
 
 
 def weakly_identified(params, std, at_bound=()):

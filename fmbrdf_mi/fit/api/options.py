@@ -1,41 +1,271 @@
-"""Validation of the fit's options, shared by :func:`fmbrdf_mi.fit.fit` and ``fmbrdf-mi fit``.
+"""The one option schema of a fit: every option declared once, the rest generated.
 
-Every numeric option is range-checked before any file is read or any BSDF is
-built; mistakes raise :class:`~fmbrdf_mi.fit.errors.InputError` (a
-ValueError) with one line naming the option and what is valid.
+:data:`OPTIONS` holds each option of ``fmbrdf-mi fit`` and of the fitting
+functions as an :class:`~fmbrdf_mi.fit.inputs.options.Option` (name, flag,
+kind, valid range or choices, default, help, which fit.json records keep it,
+whether a manifest image gives it).  Generated from it:
+
+* :class:`FitOptions`, the options of :func:`fmbrdf_mi.fit.fit` (the options with ``fit=True``);
+* the command line (:func:`add_arguments`);
+* the checks (:func:`check_fit_options`, :func:`check_input_options`): each value against its kind and
+  range, one line naming the option and what is valid, then the relations between options
+  (:func:`check_relations`), all before any file is read;
+* the keys a ``reproduce`` record keeps (:func:`record_keys`) and the keywords the writing functions take
+  (:func:`arguments`);
+* a manifest image's keys (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`).
+
+A new option is one more :class:`~fmbrdf_mi.fit.inputs.options.Option` here (or, for an option of one
+image, in :mod:`fmbrdf_mi.fit.inputs.options`) and the code that uses it.
 """
 from __future__ import annotations
 
-import math
-import numbers
+import dataclasses
 
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
-from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
-from fmbrdf_mi.fit.inputs.observations import IRRADIANCE_RANGE
+from fmbrdf_mi.fit.evaluate.models import MODELS, Bounds, get_model
+from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option, flag_of
+from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_smooth
+from fmbrdf_mi.fit.uncertainty import INTERVALS
+
+#: The albedo layouts a fit can be asked for (``FitOptions.albedo``, ``--albedo``).
+ALBEDO_LAYOUTS = ("shared",) + PER_PIXEL_LAYOUTS
+
+#: The smallest smoothness scale tau of the albedo maps' prior (in the maps' units): the prior adds 1 / tau^2
+#: to the maps' normal equations, and far below this the data's information is lost beside it in double
+#: precision (the fit breaks down; maps tied to one value are ``albedo="shared"``).
+SMOOTH_MIN = 1e-6
+
+_IMAGE, _GEOMETRY = IMAGE_OPTIONS[0].group, IMAGE_OPTIONS[-1].group
+_FIT = "fit"
+_JOINT = "several images of one object (joint fit: shared material, one light each)"
+_NORMALS = "normal refinement (a joint fit of K >= 3 images of one view)"
+_RELIGHT = "relighting check"
+_OUTPUT = "output"
+_ALL = RECORDS
+_SJ = ("single", "joint")
+
+#: The command line's help sections, in order.
+GROUPS = (_IMAGE, _GEOMETRY, _FIT, _JOINT, _NORMALS, _RELIGHT, _OUTPUT)
+
+#: Every option, declared once (module docstring).
+OPTIONS = (
+    Option("inputs", None, flag="inputs", group=_IMAGE, records=("single", "colour"),
+           cli={"nargs": "*", "metavar": "INPUT", "default": []},
+           help="Stokes .exr; raw quad-Bayer mosaic (.npy, 16-bit .png/.tif); (4,H,W) .npy of angle images; or "
+                "four angle images in the order 0 45 90 135 deg"),
+    *IMAGE_OPTIONS,
+    Option("loss", "auto", kind="choice", choices=("auto", "likelihood", "paper", "intensity", "dolp"), fit=True,
+           records=_SJ, flag="--loss", group=_IMAGE,
+           help="likelihood of the camera's samples (Poisson-Gaussian noise), or the paper's loss (intensity MSE + "
+                "weighted DoLP MSE); auto: likelihood when the camera noise is known (--conversion-gain / a "
+                "capture sidecar), else paper.  The paper's comparison: intensity (its intensity term alone: "
+                "radiometric fits) or dolp (its DoLP term alone, overall albedo from the mean intensity); for the "
+                "baselines too"),
+    Option("light", None, flag="--light", group=_GEOMETRY, records=("single", "colour"),
+           cli={"metavar": "X,Y,Z", "action": "append"},
+           help="direction from the surface towards the light; repeated, one per INPUT: a joint fit of several "
+                "images of the object (one raw mosaic or Stokes EXR each)"),
+    Option("model", "fmbrdf", kind="choice", choices=tuple(MODELS), fit=True, records=_ALL, flag="--model",
+           group=_FIT, help="the model fitted"),
+    Option("baselines", False, kind="bool", records=_SJ, flag="--baselines", group=_FIT, cli={"action": "store_true"},
+           help="also fit pplastic, Lambertian + Torrance-Sparrow and Oren-Nayar + Torrance-Sparrow the same way"),
+    Option("optimizer", "lm", kind="choice", choices=("lm", "adam"), fit=True, records=("single",),
+           flag="--optimizer", group=_FIT,
+           help="Levenberg-Marquardt (forward-mode AD Jacobian) or Adam (reverse-mode gradient); the render path "
+                "needs adam"),
+    Option("path", "pixel", kind="choice", choices=("pixel", "render"), fit=True, records=("single",), flag="--path",
+           group=_FIT,
+           help="per-pixel BSDF evaluation, or rendering the scene (synthetic EXRs of the built-in sphere)"),
+    Option("bounds", None, fit=True, records=_ALL, flag="--bounds", group=_FIT, parse=parse_bounds,
+           cli={"action": "append", "metavar": "NAME=LO:HI"},
+           help="narrow a parameter's bounds (repeatable): {name: (lo, hi)}"),
+    Option("init", None, fit=True, records=_SJ, flag="--init", group=_FIT, parse=parse_init,
+           cli={"metavar": "NAME=V,..."},
+           help="start from these parameters instead of the coarse search (all the reported ones)"),
+    Option("max_iter", 40, kind="int", lo=1, fit=True, records=_ALL, flag="--max-iter", group=_FIT,
+           cli={"type": int}, help="iterations per refinement round"),
+    Option("tol", 1e-4, kind="number", lo=0.0, fit=True, records=_SJ, flag="--tol", group=_FIT, cli={"type": float},
+           help="stop when the loss falls by less than this (relative) twice (the paper's loss)"),
+    Option("time_limit", None, kind="number", lo=0.0, lo_open=True, fit=True, records=_SJ, flag="--time-limit",
+           group=_FIT, cli={"type": float}, help="seconds per refinement round"),
+    Option("max_time", None, kind="number", lo=0.0, fit=True, records=_ALL, flag="--max-time", group=_FIT,
+           cli={"type": float},
+           help="hard wall-clock limit in seconds for each model's fit (default: none, the fit runs until it "
+                "converges); a fit it stops exits with status 3"),
+    Option("fixed", None, fit=True, records=_ALL, flag="--fix", group=_FIT, parse=parse_fixed,
+           cli={"action": "append", "metavar": "NAME=VALUE"},
+           help="hold a shape parameter fixed, e.g. --fix kappa=0 (repeatable)"),
+    Option("starts", 2, kind="int", lo=1, fit=True, records=_ALL, flag="--starts", group=_FIT, cli={"type": int},
+           help="refine from this many of the best distinct coarse-search points and keep the best "
+                "(default %(default)s)"),
+    Option("intervals", "auto", kind="choice", choices=INTERVALS, fit=True, records=_ALL, flag="--intervals",
+           group=_FIT,
+           help="likelihood fits: auto checks each shape parameter's Fisher 95 %% interval against the likelihood "
+                "and gives the profile likelihood's ends where it fails (refits: slower on weakly identified "
+                "parameters); profile: the profile likelihood's ends for every shape parameter (two or more refits "
+                "per end); fisher: Fisher intervals only (default %(default)s)"),
+    Option("albedo", "shared", kind="choice", choices=ALBEDO_LAYOUTS, fit=True, records=_ALL, flag="--albedo",
+           group=_FIT,
+           help="likelihood fits: one k_s, r_k for the whole object (default), or per-pixel k_s and k_b maps (a "
+                "textured object: written as k_s.exr, k_b.exr with their standard errors, the shape parameters "
+                "shared; --max-pixels 0 maps every pixel); per-pixel: one pair for the four raw samples of a "
+                "super-pixel; per-pixel-bilinear: the pairs at the super-pixel centres, each raw sample's albedo "
+                "interpolated bilinearly at its own point (textures that change within a super-pixel, as a camera "
+                "sees them)"),
+    Option("albedo_smooth", None, fit=True, records=_SJ, flag="--albedo-smooth", group=_FIT, parse=parse_smooth,
+           cli={"metavar": "TAU[,TAU_B]"},
+           help="with --albedo per-pixel or per-pixel-bilinear: a Gaussian smoothness prior on the maps, TAU the "
+                "expected difference of 4-neighbouring pixels' k_s (and k_b; TAU_B for k_b apart) in the maps' "
+                f"units, at least {SMOOTH_MIN:g}; added to chi^2, the maps and the shape's "
+                "errors are then posterior ones (docs: how-to 'Fit a textured object'); default: no prior"),
+    Option("materials", None, records=_SJ, flag="--materials", group=_FIT, cli={"metavar": "LABELS.png|npy|auto:M"},
+           help="likelihood fits: a label image giving each pixel's material, each with its own eta, alpha, beta, "
+                "kappa (and, with --albedo shared, k_s, r_k): one integer per pixel of the fit's grid (a raw "
+                "mosaic's super-pixels, or its sensor pixels), 0 .. M-1; not fitted: 255 in an 8-bit PNG, 65535 in "
+                "a 16-bit one, < 0 in a .npy; or auto:M: find M materials from the image (per-pixel albedos "
+                "clustered, refined on the model; refused when they do not separate; writes labels.png; "
+                "single-image fits) (docs: how-to 'Fit a textured object')"),
+    Option("area_points", None, kind="int", lo=1, hi=16, fit=True, records=_SJ, flag="--area-points", group=_FIT,
+           cli={"type": int, "metavar": "M"},
+           help="likelihood: model each raw sample as the mean of the BSDF over M x M points of its pixel, as a "
+                "sensor pixel integrates over its area (default: 2 for raw mosaics, raised to 4 or 8 where 2 would "
+                "bias a shape parameter by more than 0.2 standard errors, e.g. a glossy highlight a few pixels "
+                "wide, fit.json uncertainty.quadrature; 1 = the pixel's centre for angle images and Stokes images)"),
+    Option("max_pixels", 20000, kind="int", lo=0, fit=True, records=_ALL, flag="--max-pixels", group=_FIT,
+           cli={"type": int}, help="random subset of usable pixels (0: all)"),
+    Option("erode", 2, kind="int", lo=0, fit=True, records=_ALL, flag="--erode", group=_FIT, cli={"type": int},
+           help="pixels removed from the mask border"),
+    Option("seed", 0, kind="int", lo=0, fit=True, records=_ALL, flag="--seed", group=_FIT, cli={"type": int},
+           help="seed of the random pixel subset"),
+    Option("rounds", 3, kind="int", lo=1, fit=True, help="paper's loss: inlier/outlier refresh rounds; likelihood: "
+                                                        "reweighting rounds + 2"),
+    Option("min_cos_view", 0.1, kind="number", lo=-1.0, hi=1.0, fit=True, help="pixels with n . v above this"),
+    Option("min_cos_light", 0.02, kind="number", lo=-1.0, hi=1.0, fit=True, help="pixels with n . l above this"),
+    Option("dolp_min_intensity", 0.02, kind="number", lo=0.0, fit=True,
+           help="the DoLP term's pixels: observed I above this times its 99th percentile"),
+    Option("lr", 0.02, kind="number", lo=0.0, lo_open=True, fit=True,
+           help="Adam's step in the reparameterised variables"),
+    Option("spp", 16, kind="int", lo=1, fit=True, help="render path: samples per pixel"),
+    Option("bsdf_prefix", "sphere.bsdf", fit=True, help="render path: traverse prefix of the object's BSDF"),
+    Option("manifest", None, flag="--manifest", group=_JOINT, cli={"metavar": "FILE.toml|json"},
+           help="images, lights, relative powers, geometry and held-out images (fmbrdf_mi.fit.outputs.joint)"),
+    Option("authors", None, flag="--authors", group=_JOINT, cli={"metavar": "OBJECT_DIR"},
+           help="an object in the paper authors' captured-data layout (calibration/L.txt, image/img_ud/*.png, "
+                "normal/normal_GT.npy, ...: fmbrdf_mi.fit.inputs.authors)"),
+    Option("holdout", None, flag="--holdout", group=_JOINT, cli={"metavar": "I,J,..."},
+           help="with --authors: image indices not fitted but predicted (relighting check)"),
+    Option("free_power", False, kind="bool", fit=True, records=("joint",), flag="--free-power", group=_JOINT,
+           cli={"action": "store_true"},
+           help="estimate the relative light power of every fitted image but the first (the reference, held at its "
+                "given power; the given powers are then starting values): fmbrdf_mi.fit.problem.free_power"),
+    Option("power_start", "ratio", kind="choice", choices=("ratio", "given"), fit=True, records=("joint",),
+           flag="--power-start", group=_JOINT,
+           help="with --free-power: start the powers in closed form at every coarse-search point (ratio, default) "
+                "or at the given powers"),
+    Option("refine_normals", False, kind="bool", flag="--refine-normals", group=_NORMALS, cli={"action": "store_true"},
+           help="refine per-pixel normals and the material together (outputs normals.npy and plots)"),
+    Option("normals_start", "ps", flag="--normals-start", group=_NORMALS, cli={"metavar": "ps|sphere|FILE.npy"},
+           help="start map: photometric stereo (default), the mask's sphere, or a normal map file"),
+    Option("smooth", 0.3, kind="number", lo=0.0, flag="--smooth", group=_NORMALS,
+           cli={"type": float, "metavar": "LAMBDA"},
+           help="smoothness weight (units of Stokes residuals / image mean; default %(default)s)"),
+    Option("normal_rounds", 0, kind="int", lo=0, flag="--rounds", group=_NORMALS, cli={"type": int},
+           help="alternation rounds (material fit, then normals) before the joint step (default %(default)s)"),
+    Option("relight", None, records=("single",), flag="--relight", group=_RELIGHT,
+           cli={"nargs": "+", "metavar": "INPUT"}, help="a second image of the object under another light"),
+    Option("relight_light", None, records=("single",), flag="--relight-light", group=_RELIGHT,
+           cli={"metavar": "X,Y,Z"}, help="its light direction"),
+    Option("relight_irradiance", None, kind="number", lo=IMAGE_OPTIONS[-1].lo, hi=IMAGE_OPTIONS[-1].hi,
+           records=("single",), flag="--relight-irradiance", group=_RELIGHT, cli={"type": float},
+           help="its light's irradiance in image units"),
+    Option("out", None, flag="-o", group=_OUTPUT, cli={"required": True, "metavar": "DIR"}, help="output directory"),
+    Option("from_json", None, flag="--from", group=_OUTPUT, cli={"metavar": "FIT.json"},
+           help="rerun the fit recorded in a fit.json (same inputs, checked by SHA-256, and options)"),
+    Option("force", False, flag="--force", group=_OUTPUT, cli={"action": "store_true"},
+           help="overwrite existing outputs"),
+    Option("quiet", False, flag="-q", group=_OUTPUT, cli={"action": "store_true"}, help="no progress output"),
+)
+
+#: :data:`OPTIONS` by name.
+OPTION = {o.name: o for o in OPTIONS}
+
+#: Flags with a short form: the long one.
+LONG = {"-o": "--out", "-q": "--quiet"}
 
 
-def _num(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True, integer=False, none_ok=True):
-    """``value`` as a float/int within the range, or InputError naming ``name``."""
-    if value is None:
-        if none_ok:
-            return None
-        raise InputError(f"{name}: a value is needed")
-    kind = "an integer" if integer else "a number"
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise InputError(f"{name}: expected {kind}, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v) or (integer and v != int(v)):
-        raise InputError(f"{name}: expected a finite {kind[3:] if integer else 'number'}, got {value!r}")
-    below = lo is not None and (v < lo if lo_incl else v <= lo)
-    above = hi is not None and (v > hi if hi_incl else v >= hi)
-    if below or above:
-        rng = f"{'[' if lo_incl else '('}{'-inf' if lo is None else f'{lo:g}'}, " \
-              f"{'inf' if hi is None else f'{hi:g}'}{']' if hi_incl and hi is not None else ')'}"
-        raise InputError(f"{name}: {value!r} is outside the valid range {rng}")
-    return int(v) if integer else v
+def keyword(name):
+    """How a function's keyword names the option ``name`` (its name): the default of the checks' ``flag``."""
+    return name
 
 
+def flag(name):
+    """How the command line names the option ``name`` (``max_pixels`` -> ``--max-pixels``)."""
+    o = OPTION.get(name)
+    if o is None or o.flag is None or not o.flag.startswith("-"):
+        return flag_of(name)
+    return LONG.get(o.flag, o.flag)
+
+
+def record_keys(record):
+    """The options the ``record`` (``single``, ``colour``, ``joint``) of fit.json keeps, in schema order."""
+    return tuple(o.name for o in OPTIONS if record in o.records)
+
+
+def arguments(record, given, where):
+    """``given`` (keyword arguments) checked to be options of ``record``, completed by the defaults: the
+    arguments of a writing function (:func:`~fmbrdf_mi.fit.outputs.single.fit_files`, ...), as fit.json's
+    ``reproduce.arguments`` keeps them."""
+    keys = record_keys(record)
+    unknown = [k for k in given if k not in keys]
+    if unknown:
+        raise InputError(f"{where}: unknown option(s) {', '.join(map(str, unknown))} (valid: {', '.join(keys)})")
+    return {k: given.get(k, OPTION[k].default) for k in keys}
+
+
+def _doc():
+    rows = [f"* ``{o.name}`` (default ``{o.default!r}``{f', ``{o.flag}``' if o.flag else ''}): {o.help}"
+            for o in OPTIONS if o.fit]
+    return ("The options of a fit (:func:`fmbrdf_mi.fit.fit`), generated from "
+            ":data:`fmbrdf_mi.fit.api.options.OPTIONS`:\n\n" + "\n".join(rows).replace("%%", "%")
+            .replace(" (default %(default)s)", "") + "\n")
+
+
+#: The options of :func:`fmbrdf_mi.fit.fit`: the schema's ``fit`` options, their defaults.
+FitOptions = dataclasses.make_dataclass(
+    "FitOptions", [(o.name, object, dataclasses.field(default=o.default)) for o in OPTIONS if o.fit],
+    namespace={"__doc__": _doc(), "__module__": __name__})
+
+#: The names of :class:`FitOptions`' fields.
+FIT_NAMES = tuple(o.name for o in OPTIONS if o.fit)
+
+
+def fit_options(values, **changes):
+    """The :class:`FitOptions` of ``values`` (option name -> value; names that are not fit options are left
+    out), parsed and checked (:func:`check_values`), with ``changes``."""
+    return FitOptions(**{**check_values({k: x for k, x in values.items() if k in FIT_NAMES}), **changes})
+
+
+# ---------------------------------------------------------------- the command line
+def add_arguments(p, groups=GROUPS):
+    """The command line of ``fmbrdf-mi fit`` on the parser ``p``: every option with a flag, in its section."""
+    for title in groups:
+        g = p.add_argument_group(title)
+        for o in OPTIONS:
+            if o.group != title or o.flag is None:
+                continue
+            kw = dict(o.cli)
+            kw.setdefault("default", o.default)
+            if o.kind == "choice":
+                kw["choices"] = o.choices
+            if o.flag.startswith("-"):
+                flags = [o.flag] + ([LONG[o.flag]] if o.flag in LONG else [])
+                g.add_argument(*flags, dest=o.name, help=o.help, **kw)
+            else:
+                g.add_argument(o.name, help=o.help, **kw)
+
+
+# ---------------------------------------------------------------- the checks
 def reported_names(model):
     """Names of the parameters a fit of ``model`` reports (and --init must give)."""
     if model.name == "fmbrdf":
@@ -43,135 +273,164 @@ def reported_names(model):
     return tuple(model.shape_names) + (model.surface_name, model.body_name)
 
 
-#: The albedo layouts a fit can be asked for (``FitOptions.albedo``, ``--albedo``).
-ALBEDO_LAYOUTS = ("shared",) + PER_PIXEL_LAYOUTS
+def parsed(name, value, flag=keyword):
+    """``value`` of the option ``name`` in the form a fit takes (its text form parsed, :attr:`Option.parse`;
+    ``flag(name)`` names the option in a message)."""
+    o = OPTION[name]
+    return o.parse(value, flag(name)) if o.parse is not None and value is not None else value
 
 
-def check_fit_options(*, model="fmbrdf", optimizer="lm", path="pixel", bounds=None, init=None, max_iter=40,
-                      tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0,
-                      lr=0.02, spp=16, rounds=3, loss="auto", starts=2, fixed=None, free_power=False,
-                      power_start="ratio", area_points=None, albedo="shared", albedo_smooth=None,
-                      flag=lambda name: name, **_ignored):
-    """Raise InputError for the first invalid fit option.  ``flag`` maps an option name to
-    how the user wrote it (``--max-pixels`` on the command line)."""
+def check_values(values, flag=keyword):
+    """Each value of ``values`` (option name -> value; names outside the schema are left alone) checked against
+    its option's kind and range; returns them parsed (:func:`parsed`)."""
+    out = dict(values)
+    for name, v in values.items():
+        o = OPTION.get(name)
+        if o is None:
+            continue
+        out[name] = v = parsed(name, v, flag)
+        if name == "albedo_smooth" and v is not None:
+            vals = list(v) if isinstance(v, (tuple, list)) else [v]
+            if len(vals) not in (1, 2):
+                raise InputError(f"{flag(name)}: expected tau or (tau_s, tau_b), got {v!r}")
+            for x in vals:
+                Option(name, kind="number", lo=SMOOTH_MIN).check(x, flag(name))
+        else:
+            o.check(v, flag(name))
+    return out
 
-    if not isinstance(model, str):
-        raise InputError(f"{flag('model')}: expected fmbrdf, pplastic, lambert_ts or oren_nayar_ts, got {model!r}")
-    m = get_model(model)
-    if optimizer not in ("lm", "adam"):
-        raise InputError(f"{flag('optimizer')}: expected 'lm' or 'adam', got {optimizer!r}")
-    if path not in ("pixel", "render"):
-        raise InputError(f"{flag('path')}: expected 'pixel' or 'render', got {path!r}")
-    _num(flag("max_iter"), max_iter, lo=1, integer=True, none_ok=False)
-    _num(flag("tol"), tol, lo=0.0, none_ok=False)
-    _num(flag("time_limit"), time_limit, lo=0.0, lo_incl=False)
-    _num(flag("max_time"), max_time, lo=0.0)
-    _num(flag("max_pixels"), max_pixels, lo=0, integer=True)
-    _num(flag("erode"), erode, lo=0, integer=True, none_ok=False)
-    _num(flag("seed"), seed, lo=0, integer=True, none_ok=False)
-    _num(flag("lr"), lr, lo=0.0, lo_incl=False, none_ok=False)
-    _num(flag("spp"), spp, lo=1, integer=True, none_ok=False)
-    _num(flag("rounds"), rounds, lo=1, integer=True, none_ok=False)
-    if loss not in ("auto", "likelihood", "paper", "intensity", "dolp"):
-        raise InputError(f"{flag('loss')}: expected 'auto', 'likelihood', 'paper', 'intensity' or 'dolp', "
-                         f"got {loss!r}")
-    _num(flag("starts"), starts, lo=1, integer=True, none_ok=False)
-    _num(flag("area_points"), area_points, lo=1, hi=16, integer=True)
-    if not isinstance(free_power, bool):
-        raise InputError(f"{flag('free_power')}: expected True or False, got {free_power!r}")
-    if free_power and loss == "dolp":
+
+def check_fit_options(*, flag=keyword, **values):
+    """Raise InputError for the first invalid fit option (its value, then its relations to the others:
+    :func:`check_relations`).  ``values``: option name -> value, the defaults for those not given; names
+    outside the schema are ignored.  ``flag`` maps an option name to how the user wrote it."""
+    fit_names = [o.name for o in OPTIONS if o.fit] + ["baselines", "materials"]
+    v = {k: OPTION[k].default for k in fit_names}
+    v.update({k: x for k, x in values.items() if k in OPTION})
+    for k in ("max_iter", "tol", "erode", "seed", "lr", "spp", "rounds", "starts"):
+        if v[k] is None:
+            raise InputError(f"{flag(k)}: a value is needed")
+    if not isinstance(v["model"], str):
+        raise InputError(f"{flag('model')}: expected one of {', '.join(MODELS)}, got {v['model']!r}")
+    v = check_values(v, flag)
+    check_relations(v, flag)
+
+
+def check_relations(v, flag=keyword):
+    """The relations between the fit options ``v`` (all given, parsed): pairs that do not go together and
+    parameter tables that must name the model's parameters within its bounds; one line each."""
+    m = get_model(v["model"])
+    loss, albedo, materials = v["loss"], v["albedo"], v.get("materials")
+    likelihood = loss in ("auto", "likelihood")
+    if v["free_power"] and loss == "dolp":
         raise InputError(f"{flag('free_power')}: not with {flag('loss')} dolp (the DoLP does not depend on the "
                          "light's power, so the powers would be undetermined)")
-    if albedo not in ALBEDO_LAYOUTS:
-        raise InputError(f"{flag('albedo')}: expected {' or '.join(map(repr, ALBEDO_LAYOUTS))}, got {albedo!r}")
-    if albedo in PER_PIXEL_LAYOUTS and (loss not in ("auto", "likelihood") or optimizer != "lm" or path != "pixel"):
+    if albedo in PER_PIXEL_LAYOUTS and (not likelihood or v["optimizer"] != "lm" or v["path"] != "pixel"):
         raise InputError(f"{flag('albedo')} {albedo}: needs the likelihood of the camera's samples ("
                          f"{flag('loss')} likelihood or auto with the camera noise known, the pixel path, optimizer "
                          "lm): the albedo maps are solved per pixel from its raw samples")
-    if albedo in PER_PIXEL_LAYOUTS and free_power:
+    if albedo in PER_PIXEL_LAYOUTS and v["free_power"]:
         raise InputError(f"{flag('albedo')} {albedo}: not with {flag('free_power')} (give the relative light "
                          "powers)")
-    if albedo_smooth is not None:
-        check_albedo_smooth(albedo_smooth, albedo, flag)
-    if power_start not in ("ratio", "given"):
-        raise InputError(f"{flag('power_start')}: expected 'ratio' or 'given', got {power_start!r}")
-    if fixed is not None:
-        if not isinstance(fixed, dict):
-            raise InputError(f"{flag('fix')}: expected {{name: value}}, got {fixed!r}")
+    if v["albedo_smooth"] is not None and albedo not in PER_PIXEL_LAYOUTS:
+        raise InputError(f"{flag('albedo_smooth')}: the albedo maps' smoothness prior needs {flag('albedo')} "
+                         f"{' or '.join(PER_PIXEL_LAYOUTS)} (got {albedo!r})")
+    if materials is not None:
+        name = f"{flag('materials')} {materials}"
+        if v["albedo_smooth"] is not None:
+            raise InputError(f"{name}: not with {flag('albedo_smooth')} (the smoothness prior is for one material)")
+        if albedo == "per-pixel-bilinear":
+            raise InputError(f"{name}: not with {flag('albedo')} per-pixel-bilinear (use per-pixel)")
+        if v["free_power"]:
+            raise InputError(f"{name}: not with {flag('free_power')} (give the relative light powers)")
+        if not likelihood or v["path"] != "pixel":
+            raise InputError(f"{name}: needs the likelihood of the camera's samples ({flag('loss')} likelihood or "
+                             "auto with the camera noise known) on the pixel path")
+    if v["fixed"] is not None:
+        if not isinstance(v["fixed"], dict):
+            raise InputError(f"{flag('fixed')}: expected {{name: value}}, got {v['fixed']!r}")
         lims = Bounds(m, None).lims
-        for name, v in fixed.items():
+        for name, x in v["fixed"].items():
             if name not in m.shape_names:
-                raise InputError(f"{flag('fix')}: '{name}' is not a shape parameter of {m.name} "
+                raise InputError(f"{flag('fixed')}: '{name}' is not a shape parameter of {m.name} "
                                  f"({', '.join(m.shape_names)})")
-            v = _num(f"{flag('fix')} {name}", v, none_ok=False)
-            lo, hi = lims[name][2], lims[name][3]
-            if not lo <= v <= hi:
-                raise InputError(f"{flag('fix')} {name}: {v:g} is outside the fit's bounds [{lo:g}, {hi:g}]")
-    if bounds is not None:
-        if not isinstance(bounds, dict):
-            raise InputError(f"{flag('bounds')}: expected {{name: (lo, hi)}}, got {bounds!r}")
-        for name, pair in bounds.items():
+            within(f"{flag('fixed')} {name}", x, lims[name][2], lims[name][3])
+    if v["bounds"] is not None:
+        if not isinstance(v["bounds"], dict):
+            raise InputError(f"{flag('bounds')}: expected {{name: (lo, hi)}}, got {v['bounds']!r}")
+        for name, pair in v["bounds"].items():
             try:
                 lo, hi = pair
             except (TypeError, ValueError):
                 raise InputError(f"{flag('bounds')} {name}: expected (lo, hi), got {pair!r}") from None
-            _num(f"{flag('bounds')} {name} low", lo, none_ok=False)
-            _num(f"{flag('bounds')} {name} high", hi, none_ok=False)
+            Option(name, kind="number").check(lo, f"{flag('bounds')} {name} low")
+            Option(name, kind="number").check(hi, f"{flag('bounds')} {name} high")
         try:
-            Bounds(m, bounds)
+            Bounds(m, v["bounds"])
         except ValueError as e:
             raise InputError(f"{flag('bounds')}: {e}") from None
-    if init is not None:
-        if not isinstance(init, dict):
-            raise InputError(f"{flag('init')}: expected {{name: value}}, got {init!r}")
-        names = reported_names(m)
-        unknown = [k for k in init if k not in names]
-        if unknown:
-            raise InputError(f"{flag('init')}: unknown parameter '{unknown[0]}' of {m.name}; "
-                             f"give all of {', '.join(names)}")
-        missing = [k for k in names if k not in init]
-        if missing:
-            raise InputError(f"{flag('init')}: missing {', '.join(missing)} (give all of {', '.join(names)})")
-        lims = Bounds(m, None).lims
-        for k in names:
-            v = _num(f"{flag('init')} {k}", init[k], none_ok=False)
-            if k in lims:
-                lo, hi = lims[k][2], lims[k][3]
-                if not lo <= v <= hi:
-                    raise InputError(f"{flag('init')} {k}: {v:g} is outside the fit's bounds [{lo:g}, {hi:g}]")
-            elif v < 0:
-                raise InputError(f"{flag('init')} {k}: {v:g} must be >= 0")
+    if v["init"] is not None:
+        check_init(v["init"], m, flag)
 
 
-def check_albedo_smooth(value, albedo, flag=lambda name: name):
-    """``albedo_smooth``: tau > 0 and finite, or a pair (tau_s, tau_b), with a per-pixel albedo layout."""
-    name = flag("albedo_smooth")
-    if albedo not in PER_PIXEL_LAYOUTS:
-        raise InputError(f"{name}: the albedo maps' smoothness prior needs {flag('albedo')} "
-                         f"{' or '.join(PER_PIXEL_LAYOUTS)} (got {albedo!r})")
-    vals = list(value) if isinstance(value, (tuple, list)) else [value]
-    if len(vals) not in (1, 2):
-        raise InputError(f"{name}: expected tau or (tau_s, tau_b), got {value!r}")
-    for v in vals:
-        _num(name, v, lo=0.0, lo_incl=False, none_ok=False)
+def check_init(init, m, flag=keyword):
+    """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds."""
+    if not isinstance(init, dict):
+        raise InputError(f"{flag('init')}: expected {{name: value}}, got {init!r}")
+    names = reported_names(m)
+    unknown = [k for k in init if k not in names]
+    if unknown:
+        raise InputError(f"{flag('init')}: unknown parameter '{unknown[0]}' of {m.name}; give all of "
+                         f"{', '.join(names)}")
+    missing = [k for k in names if k not in init]
+    if missing:
+        raise InputError(f"{flag('init')}: missing {', '.join(missing)} (give all of {', '.join(names)})")
+    lims = Bounds(m, None).lims
+    for k in names:
+        if k in lims:
+            within(f"{flag('init')} {k}", init[k], lims[k][2], lims[k][3])
+        else:
+            Option(k, kind="number", lo=0.0).check(init[k], f"{flag('init')} {k}")
 
 
-def check_input_options(*, black_level=0.0, conversion_gain=None, read_noise=None, irradiance=None,
-                        fov=None, relight_irradiance=None, white_level=None, dark_level=None,
-                        flag=lambda name: name, **_ignored):
-    """Raise InputError for the first invalid option about the image and the light."""
-    _num(flag("black_level"), black_level, lo=0.0)
-    _num(flag("white_level"), white_level, lo=0.0, lo_incl=False)
-    _num(flag("dark_level"), dark_level, lo=0.0)
-    if white_level is not None and dark_level is not None and not dark_level < white_level:
-        raise InputError(f"{flag('dark_level')} {dark_level:g} must be below {flag('white_level')} {white_level:g}")
-    _num(flag("conversion_gain"), conversion_gain, lo=0.0, lo_incl=False)
-    _num(flag("read_noise"), read_noise, lo=0.0)
-    if (conversion_gain is None) != (read_noise is None):
-        given, other = ("read_noise", "conversion_gain") if conversion_gain is None else \
+def within(name, value, lo, hi):
+    """``value`` a finite number within the fit's bounds [``lo``, ``hi``] of a parameter, else InputError."""
+    v = Option(name, kind="number").check(value, name)
+    if v is None or not lo <= v <= hi:
+        raise InputError(f"{name}: {value!r} is outside the fit's bounds [{lo:g}, {hi:g}]")
+    return v
+
+
+def check_input_options(*, flag=keyword, **values):
+    """Raise InputError for the first invalid option about the image and the light (names outside the schema
+    are ignored)."""
+    v = check_values({k: x for k, x in values.items() if k in OPTION and not OPTION[k].fit}, flag)
+    white, dark = v.get("white_level"), v.get("dark_level")
+    if white is not None and dark is not None and not dark < white:
+        raise InputError(f"{flag('dark_level')} {dark:g} must be below {flag('white_level')} {white:g}")
+    if (v.get("conversion_gain") is None) != (v.get("read_noise") is None):
+        given, other = ("read_noise", "conversion_gain") if v.get("conversion_gain") is None else \
             ("conversion_gain", "read_noise")
-        raise InputError(f"{flag(given)} needs {flag(other)} too: the camera noise is known only "
-                         "with both (electrons per image unit and read noise in electrons)")
-    _num(flag("irradiance"), irradiance, lo=IRRADIANCE_RANGE[0], hi=IRRADIANCE_RANGE[1])
-    _num(flag("relight_irradiance"), relight_irradiance, lo=IRRADIANCE_RANGE[0], hi=IRRADIANCE_RANGE[1])
-    _num(flag("fov"), fov, lo=0.0, lo_incl=False, hi=180.0, hi_incl=False)
+        raise InputError(f"{flag(given)} needs {flag(other)} too: the camera noise is known only with both "
+                         "(electrons per image unit and read noise in electrons)")
+
+
+def check_resolved_loss(values, loss, source, flag=keyword):
+    """Refuse, before the fit, the options that need the likelihood when the loss resolved to another
+    (``loss="auto"`` on an input without a camera noise model): they would be dropped.  ``source``: why the
+    loss is what it is, for the message."""
+    if loss == "likelihood":
+        return
+    if values.get("albedo", "shared") != "shared":
+        bad = f"{flag('albedo')} {values['albedo']}"
+    elif values.get("albedo_smooth") is not None:
+        bad = flag("albedo_smooth")
+    elif values.get("intervals") == "profile":
+        bad = f"{flag('intervals')} profile"
+    elif values.get("materials") is not None:
+        bad = f"{flag('materials')} {values['materials']}"
+    else:
+        return
+    raise InputError(f"{bad}: needs the likelihood of the camera's samples, and the loss here is {loss} ({source}): "
+                     f"give the camera noise ({flag('conversion_gain')} and {flag('read_noise')}, or a capture "
+                     "sidecar)")

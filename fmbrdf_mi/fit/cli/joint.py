@@ -6,23 +6,22 @@ import os
 from fmbrdf_mi.fit.cli.checks import check_colour_args
 from fmbrdf_mi.fit.cli.request import request
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS
 from fmbrdf_mi.fit.inputs.authors import read_object
 from fmbrdf_mi.fit.inputs.manifest import (PATH_KEYS, ImageSpec, absolute_paths, build_observations, image_names,
                                            read_manifest)
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_vector
 from fmbrdf_mi.fit.outputs.joint import fit_images, fitter
-from fmbrdf_mi.fit.outputs.record import FIT_KEYS, joint_block
+from fmbrdf_mi.fit.outputs.record import joint_block
 from fmbrdf_mi.fit.outputs.normals import run as refine
 
 
 # ---------------------------------------------------------------- the command
-def _cli_input_options(args):
-    keys = {"normals": "normals", "mask": "mask", "view": "view", "sphere": "sphere", "camera": "camera",
-            "fov": "fov", "irradiance": "irradiance", "layout": "layout", "black_level": "black_level",
-            "white_level": "white_level", "dark_level": "dark_level", "channel": "channel",
-            "demosaic": "demosaic", "footprint": "footprint", "conversion_gain": "conversion_gain",
-            "read_noise": "read_noise"}
-    return {k: getattr(args, a) for k, a in keys.items() if getattr(args, a, None) is not None}
+def image_options(args):
+    """The image options given on the command line (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`): the
+    defaults of every image of the joint fit."""
+    values = vars(args)
+    return {k: values[k] for k in IMAGE_KEYS if values[k] is not None}
 
 
 def run_joint(args, command):
@@ -35,7 +34,7 @@ def run_joint(args, command):
                          "manifest, --holdout with --authors)")
     if args.optimizer != "lm" or args.path != "pixel":
         raise InputError("joint fits use --optimizer lm and --path pixel")
-    cli_opts = _cli_input_options(args)
+    cli_opts = image_options(args)
     info = authors = None
     if args.manifest:
         if args.inputs:
@@ -66,7 +65,7 @@ def run_joint(args, command):
         specs = [ImageSpec(inp, parse_vector(li, f"--light {k + 1}"), options=dict(cli_opts))
                  for k, (inp, li) in enumerate(zip(args.inputs, args.light))]
     names = image_names(specs)
-    fit_fn, outputs_fn = fitter(specs, getattr(args, "albedo", "shared"), getattr(args, "materials", None))
+    fit_fn, outputs_fn = fitter(specs, args.albedo, args.materials)
     if fit_fn is not fit_images:
         check_colour_args(args)
     files = outputs_fn(args.out, names, [s.holdout for s in specs])
@@ -74,20 +73,17 @@ def run_joint(args, command):
         for s in specs:
             s.input = absolute_paths(s.input)
             s.options.update({k: absolute_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
-    fit_kw = request(FIT_KEYS, args, fixed=parse_fixed(args.fix),
-                     bounds=parse_bounds(args.bounds), init=parse_init(args.init), max_pixels=args.max_pixels or None)
-    if fit_kw.get("materials") is None:     # the default (a colour fit refuses the option: check_colour_args)
-        fit_kw.pop("materials", None)
-    if fit_kw.get("area_points") is None:   # the default (the colour fit refuses the option: check_colour_args)
-        fit_kw.pop("area_points", None)
-    if fit_kw.get("albedo_smooth") is None:  # the default (the colour fit refuses the option: check_colour_args)
-        fit_kw.pop("albedo_smooth", None)
+    fit_kw = request("joint", args, fixed=parse_fixed(args.fixed), bounds=parse_bounds(args.bounds),
+                     init=parse_init(args.init), max_pixels=args.max_pixels or None)
+    for k in ("materials", "area_points", "albedo_smooth"):   # at their default: left to the fit (a colour fit
+        if fit_kw[k] is None:                                 # does not take them: check_colour_args)
+            del fit_kw[k]
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
-    if getattr(args, "refine_normals", False):
+    if args.refine_normals:
         obs = build_observations(specs)
         # the authors' layout carries the ground truth (normal/normal_GT.npy): it is the geometry read
         gt = obs[0].normals.copy() if args.authors else None
-        return refine(specs, names, obs, args.out, start=args.normals_start, lam=args.smooth, rounds=args.rounds,
+        return refine(specs, names, obs, args.out, start=args.normals_start, lam=args.smooth, rounds=args.normal_rounds,
                       model=args.model, fit_kw={k: v for k, v in fit_kw.items() if k not in ("model", "baselines")},
                       ground_truth=gt, force=args.force, progress=not args.quiet, command=command)
 

@@ -1,8 +1,8 @@
 """After a raw-mosaic likelihood fit that does not explain its data: would the mirrored polariser layout?
 
 A raw capture decoded with its 45 and 135 degree polarisers swapped (a mirrored optical path, a camera
-mounted upside down, another sensor's convention) negates S2: the fit then fits nonsense (k_s 3x off,
-"stopped before convergence" on an independent capture; issue 24).  The data say which layout is right:
+mounted upside down, another sensor's convention) negates S2: the fit then explains the data poorly, with
+wrong estimates or no convergence.  The data say which layout is right:
 after a single-image fit of a raw mosaic with the likelihood whose chi^2 per sample is poor (the misfit
 flag of :mod:`fmbrdf_mi.fit.uncertainty`, or a fit stopped before convergence, and chi^2 per sample at
 least :data:`POOR_CHI2`), the same fit runs again with 45 and 135 swapped, into a temporary directory;
@@ -18,8 +18,8 @@ import tempfile
 from fmbrdf_mi.interrupt import interrupted
 
 #: chi^2 per raw sample from which a misfit (or an unconverged fit) is checked against the mirrored layout:
-#: fits of the right layout sit near 1 (1.17 on a render of 16 spp, its Monte Carlo noise), a mirrored
-#: one near 4.
+#: a fit of the right layout sits near 1 (a little above on a render, its Monte Carlo noise), a mirrored one
+#: several times higher.
 POOR_CHI2 = 1.5
 
 #: How many times lower the mirrored layout's chi^2 must be to be named.

@@ -11,29 +11,18 @@ import numpy as np
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.files import build_observation
 from fmbrdf_mi.fit.inputs.observations import IRRADIANCE_RANGE, check_direction, check_file
-from fmbrdf_mi.fit.inputs.parse import check_number, parse_layout, parse_vector
+from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS, IMAGE_OPTION
+from fmbrdf_mi.fit.inputs.parse import parse_layout, parse_vector
 
-#: Options an image entry (or [defaults]) may give: :func:`fmbrdf_mi.fit.inputs.files.build_observation`'s.
-INPUT_KEYS = ("normals", "mask", "view", "sphere", "camera", "fov", "irradiance", "layout", "black_level",
-              "white_level", "dark_level", "channel", "demosaic", "footprint", "conversion_gain", "read_noise")
+#: Options an image entry (or [defaults]) may give: :func:`fmbrdf_mi.fit.inputs.files.build_observation`'s
+#: (:data:`fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`).
+INPUT_KEYS = IMAGE_KEYS
 
 
 PATH_KEYS = ("input", "normals", "mask", "view")
 
 
 ENTRY_KEYS = ("input", "light", "power", "holdout", "name") + INPUT_KEYS
-
-
-#: Numeric options: (low, low included, high, high included).
-NUMBER_KEYS = {"irradiance": (IRRADIANCE_RANGE[0], True, IRRADIANCE_RANGE[1], True),
-               "black_level": (0.0, True, None, True),
-               "white_level": (0.0, False, None, True), "dark_level": (0.0, True, None, True),
-               "conversion_gain": (0.0, False, None, True), "read_noise": (0.0, True, None, True),
-               "fov": (0.0, False, 180.0, False)}
-
-#: Options that take one of a few words.
-CHOICE_KEYS = {"camera": ("orthographic", "perspective"), "demosaic": ("bilinear", "superpixel"),
-               "footprint": ("auto", "point", "box", "demosaic")}
 
 
 def _is_path(v):
@@ -52,12 +41,8 @@ def check_options(opts, where):
         if v is None:
             continue
         name = f"{where}: {key}"
-        if key in NUMBER_KEYS:
-            lo, lo_incl, hi, hi_incl = NUMBER_KEYS[key]
-            check_number(name, v, lo=lo, lo_incl=lo_incl, hi=hi, hi_incl=hi_incl)
-        elif key in CHOICE_KEYS:
-            if not isinstance(v, str) or v not in CHOICE_KEYS[key]:
-                raise InputError(f"{name}: expected one of {', '.join(CHOICE_KEYS[key])}, got {v!r}")
+        if key in IMAGE_OPTION and IMAGE_OPTION[key].kind is not None:
+            IMAGE_OPTION[key].check(v, name)
         elif key in ("normals", "mask", "view"):
             if not _is_path(v):
                 raise InputError(f"{name}: expected a file name (text), got {v!r}")

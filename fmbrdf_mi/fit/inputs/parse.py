@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from fmbrdf_mi.fit.camera.demosaic import check_layout
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.options import Option
 
 
 def parse_vector(text, name, n=3):
@@ -25,7 +26,9 @@ def parse_vector(text, name, n=3):
 
 def parse_smooth(text, name="--albedo-smooth"):
     """``TAU`` or ``TAU_S,TAU_B`` (the albedo maps' smoothness prior) -> tau or (tau_s, tau_b); the values are
-    range-checked with the other fit options."""
+    range-checked with the other fit options.  A value that is not text is returned as it is."""
+    if not isinstance(text, str):
+        return text
     try:
         vals = [float(x) for x in str(text).replace(" ", "").split(",")]
     except ValueError:
@@ -41,30 +44,17 @@ def check_number(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True):
     Refuses what arrives as text or a list from a manifest, a sidecar or a fit.json (``"2.4"``,
     ``[1]``, ``true``) as well as NaN and infinities; None is passed through.
     """
-    import math
-    import numbers
-
-    if value is None:
-        return None
-    rng = (f"{'[' if lo_incl else '('}{'-inf' if lo is None else f'{lo:g}'}, "
-           f"{'inf' if hi is None else f'{hi:g}'}{']' if hi_incl and hi is not None else ')'}")
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise InputError(f"{name}: expected a number in {rng}, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v) or (lo is not None and (v < lo if lo_incl else v <= lo)) \
-            or (hi is not None and (v > hi if hi_incl else v >= hi)):
-        raise InputError(f"{name}: expected a finite number in {rng}, got {value!r}")
-    return v
+    return Option(name, kind="number", lo=lo, lo_open=not lo_incl, hi=hi, hi_open=not hi_incl).check(value)
 
 
-def parse_bounds(items):
-    """``["alpha=0.05:0.5", ...]`` -> {"alpha": (0.05, 0.5)}."""
+def parse_bounds(items, name="--bounds"):
+    """``["alpha=0.05:0.5", ...]`` -> {"alpha": (0.05, 0.5)}; ``name``: the option in messages."""
     if isinstance(items, dict) or items is None:
         return items
     if isinstance(items, str):
         items = [items]
     if not isinstance(items, (list, tuple)):
-        raise InputError(f"--bounds: expected NAME=LO:HI items, e.g. alpha=0.05:0.5, got {items!r}")
+        raise InputError(f"{name}: expected NAME=LO:HI items, e.g. alpha=0.05:0.5, got {items!r}")
     out = {}
     for item in items:
         name, sep, rng = str(item).partition("=")
@@ -72,14 +62,15 @@ def parse_bounds(items):
         try:
             out[name.strip()] = (float(lo), float(hi))
         except ValueError:
-            raise InputError(f"--bounds {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5") from None
+            raise InputError(f"{name} {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5") from None
         if not (sep and sep2):
-            raise InputError(f"--bounds {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5")
+            raise InputError(f"{name} {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5")
     return out
 
 
-def parse_init(text):
-    """``"eta=1.5,alpha=0.3,..."`` -> dict (all reported parameters of the model)."""
+def parse_init(text, name="--init"):
+    """``"eta=1.5,alpha=0.3,..."`` -> dict (all reported parameters of the model); ``name``: the option in
+    messages."""
     if isinstance(text, dict) or text is None:
         return text
     out = {}
@@ -88,17 +79,17 @@ def parse_init(text):
         try:
             out[name.strip()] = float(value)
         except ValueError:
-            raise InputError(f"--init {text!r}: expected NAME=VALUE,..., e.g. eta=1.5,alpha=0.3,beta=2,"
+            raise InputError(f"{name} {text!r}: expected NAME=VALUE,..., e.g. eta=1.5,alpha=0.3,beta=2,"
                              "kappa=10,k_s=1,r_k=1") from None
     return out
 
 
-def parse_fixed(items):
+def parse_fixed(items, name="--fix"):
     """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (shape parameters held fixed)."""
     if isinstance(items, dict) or items is None:
         return items
     if not isinstance(items, (str, list, tuple)):
-        raise InputError(f"--fix: expected NAME=VALUE items, e.g. kappa=0, got {items!r}")
+        raise InputError(f"{name}: expected NAME=VALUE items, e.g. kappa=0, got {items!r}")
     items = [items] if isinstance(items, str) else [str(x) for x in items]
     out = {}
     for item in ",".join(items).split(","):
@@ -106,9 +97,9 @@ def parse_fixed(items):
         try:
             out[name.strip()] = float(value)
         except ValueError:
-            raise InputError(f"--fix {item!r}: expected NAME=VALUE, e.g. kappa=0") from None
+            raise InputError(f"{name} {item!r}: expected NAME=VALUE, e.g. kappa=0") from None
         if not sep:
-            raise InputError(f"--fix {item!r}: expected NAME=VALUE, e.g. kappa=0")
+            raise InputError(f"{name} {item!r}: expected NAME=VALUE, e.g. kappa=0")
     return out
 
 

@@ -21,8 +21,9 @@ import os
 import time
 
 from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
+from fmbrdf_mi.fit.api.options import arguments as arguments_of
+from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.inputs.colour import colour_sidecar, read_colour_input
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed
 from fmbrdf_mi.fit.outputs import record
@@ -63,20 +64,16 @@ def model_entry(model, res, bounds, fixed, truth):
     return entry
 
 
-def fit_colour_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
-                     fov=None, light=None, irradiance=None, black_level=None, white_level=None,
-                     conversion_gain=None, read_noise=None, model="fmbrdf", bounds=None, fixed=None,
-                     max_time=None, max_iter=40, max_pixels=20000, erode=2, seed=0, starts=2, intervals="auto",
-                     albedo="shared", force=False,
-                     progress=True, command=None):
+def fit_colour_files(inputs, out, *, force=False, progress=True, command=None, **options):
     """Fit a colour polarisation mosaic (module docstring); write ``out``/fit.json and colour_fit.png.
 
     Returns the dict written to fit.json (``models[model]``: params with
     per-channel k_s and r_k, std_errors, ci95, converged, stop_reason ...).
     ``albedo="per-pixel"``: k_s and k_b per period and channel (maps; ``models[model]["albedo"]``
-    their summary), the shape parameters shared.
+    their summary), the shape parameters shared.  ``options``: the colour record's options of
+    :data:`fmbrdf_mi.fit.api.options.OPTIONS` (those not given take their defaults, others are refused).
     """
-    arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
+    arguments = arguments_of("colour", dict(options, inputs=inputs), "fit_colour_files()")
     return Colour(arguments, out, force=force, progress=progress, command=command).run()
 
 
@@ -93,11 +90,12 @@ class Colour(FitJob):
         if colour_sidecar(self.path) is None:
             raise InputError(f"{self.path}: no colour capture sidecar ({os.path.splitext(self.path)[0]}.json "
                              "with \"cfa\")")
-        get_model(self.a["model"])
+        check_input_options(**self.a)
+        check_fit_options(**self.a)
         self.bounds, self.fixed = parse_bounds(self.a["bounds"]), parse_fixed(self.a["fixed"])
 
     def files(self):
-        self.outs = {n: os.path.join(self.out, n) for n in output_names(self.a.get("albedo", "shared"))}
+        self.outs = {n: os.path.join(self.out, n) for n in output_names(self.a["albedo"])}
         return list(self.outs.values())
 
     def read(self):
@@ -119,7 +117,7 @@ class Colour(FitJob):
         self.res = fit_colour(ci.obs, ci.samples, ci.noise, model=a["model"], fixed=self.fixed, bounds=self.bounds,
                               max_pixels=a["max_pixels"] or None, seed=a["seed"], progress=say,
                               max_time=a["max_time"], max_iter=a["max_iter"], starts=int(a["starts"]),
-                              intervals=a["intervals"], albedo=a.get("albedo", "shared"))
+                              intervals=a["intervals"], albedo=a["albedo"])
 
     def report(self):
         obs, model = self.ci.obs, self.a["model"]

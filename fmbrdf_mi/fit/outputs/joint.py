@@ -46,9 +46,9 @@ from __future__ import annotations
 import dataclasses
 import os
 
-from fmbrdf_mi.fit.api.fitting import FitOptions
 from fmbrdf_mi.fit.api.joint import fit_joint
-from fmbrdf_mi.fit.api.options import check_fit_options
+from fmbrdf_mi.fit.api.options import (FIT_NAMES, OPTION, check_fit_options, check_resolved_loss, fit_options, flag,
+                                        record_keys)
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
@@ -67,6 +67,10 @@ from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
 
 
+#: The keywords :func:`fit_images` takes besides its own: the joint record's options and :class:`FitOptions`'.
+TAKES = tuple(dict.fromkeys(k for k in record_keys("joint") + FIT_NAMES if k not in ("model", "baselines")))
+
+
 def outputs(out, names, holdout, albedo="shared", materials=None):
     files = ["fit.json", "history.png"]
     for n, h in zip(names, holdout):
@@ -82,7 +86,7 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
                observations=None, extra=None, reproduce=None, **fit_kw):
     """Joint fit of the non-held-out images of ``specs``, relighting check on the held-out ones; write outputs.
 
-    ``fit_kw``: :class:`~fmbrdf_mi.fit.api.fitting.FitOptions` fields (loss,
+    ``fit_kw``: :class:`~fmbrdf_mi.fit.api.options.FitOptions` fields (loss,
     fixed, bounds, init, max_pixels, ...).  ``reproduce``: called with the
     observations, returns fit.json's ``reproduce`` block (the command's:
     :func:`fmbrdf_mi.fit.outputs.record.joint_block`).  Returns the dict written to fit.json.
@@ -106,10 +110,14 @@ class Joint(FitJob):
             raise InputError(f"--materials {self.fit_kw['materials']}: finding the materials is for single-image "
                              "fits so far; for several images give a label image (e.g. the labels.png of a "
                              "single-image fit with auto:M)")
+        unknown = [k for k in self.fit_kw if k not in TAKES]
+        if unknown:
+            raise InputError(f"fit_images(): unknown option(s) {', '.join(map(str, unknown))} (valid: "
+                             f"{', '.join(TAKES)})")
         check_fit_options(model=self.model, **self.fit_kw)
 
     def files(self):
-        albedo, labels = self.fit_kw.get("albedo", "shared"), self.fit_kw.get("materials")
+        albedo, labels = self.fit_kw.get("albedo", OPTION["albedo"].default), self.fit_kw.get("materials")
         self.names, self.holdout, files = prepare_outputs(
             self.specs, self.out, lambda out, names, holdout: outputs(out, names, holdout, albedo, labels),
             self.force)
@@ -125,13 +133,16 @@ class Joint(FitJob):
         specs, obs, holdout, model = self.specs, self.obs, self.holdout, self.model
         fit_obs = [o for o, h in zip(obs, holdout) if not h]
         fit_names = [n for n, h in zip(self.names, holdout) if not h]
-        self.opts = opts = FitOptions(model=model, **{k: v for k, v in self.fit_kw.items() if k != "materials"})
+        self.opts = opts = fit_options(self.fit_kw, model=model)
         if opts.free_power and len(fit_obs) < 2:
             raise InputError(f"--free-power (free_power): needs two or more fitted images, got {len(fit_obs)} "
                              "(one image's light power is not separable from k_s and k_b)")
         for n, s, o in zip(self.names, specs, obs):
-            fp = (s.options or {}).get("footprint") if isinstance(getattr(s, "options", None), dict) else None
-            check_footprint(fp, resolve_loss(o, opts), "--loss likelihood" if opts.loss == "likelihood" else
+            fp = (s.options or {}).get("footprint")
+            loss = resolve_loss(o, opts)
+            check_resolved_loss(self.fit_kw, loss, f"image {n} has no camera noise model" if o.noise is None
+                                or not o.noise.known else f"--loss {opts.loss}", flag)
+            check_footprint(fp, loss, "--loss likelihood" if opts.loss == "likelihood" else
                             f"the camera noise from {o.meta.get('sidecar') or 'conversion_gain'}",
                             name=f"image {n}: the manifest's (or --footprint's) footprint")
         given = [given_power(s, o) for s, o, h in zip(specs, obs, holdout) if not h]

@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from fmbrdf_mi.fit.api.fitting import FitOptions
+from fmbrdf_mi.fit.api.options import fit_options
 from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.api.normal_joint import refine_joint
 from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, check_views, photometric_stereo, refine_normals
@@ -110,7 +110,7 @@ class NormalRefinement(FitJob):
     def fit(self):
         fit_obs, n0, say, kw = self.fit_obs, self.n0, self.say, self.fit_kw
         self.t_fit = time.time()
-        opts = FitOptions(model=self.model, **{k: v for k, v in kw.items() if k in FitOptions.__dataclass_fields__})
+        opts = fit_options(kw, model=self.model)
         say(f"[normals] start {self.start}; {len(fit_obs)} images; {self.rounds} alternation round(s), then the "
             f"joint step; smoothness {self.lam:g}")
         n1, params = n0, None
@@ -150,8 +150,8 @@ class NormalRefinement(FitJob):
                                           "converged": joint.converged, "stop_reason": joint.stop_reason}}}
         unc = joint.uncertainty or {}
         if unc.get("calibrated"):
-            # the material at the weakened prior (refine_joint's lam_material): measured over noise seeds
-            # (tools/bench_normal_refine_seeds.py, docs/benchmarks.md)
+            # the material at the weakened prior (refine_joint's lam_material), whose errors are calibrated
+            # (tools/bench_normal_refine_seeds.py)
             report["models"][self.model]["uncertainty"] = unc
         elif unc.get("std_errors"):
             # not reported as standard errors (unc["warning"] says why)

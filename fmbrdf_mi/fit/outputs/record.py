@@ -34,20 +34,17 @@ import sys
 
 from fmbrdf_mi import __version__
 from fmbrdf_mi.camera import sidecar_path
+from fmbrdf_mi.fit.api.options import record_keys
 
-#: Arguments of fit_files that define a fit (not where it writes or how it talks).
-ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "light", "irradiance", "layout",
-             "black_level", "channel", "demosaic", "conversion_gain", "read_noise", "footprint", "model",
-             "baselines", "optimizer", "path", "bounds", "init", "loss", "white_level", "dark_level", "fixed",
-             "starts", "max_iter", "tol", "time_limit", "max_time", "max_pixels", "erode", "seed", "relight",
-             "relight_light", "relight_irradiance", "area_points", "intervals", "albedo", "materials",
-             "albedo_smooth")
+#: Arguments of fit_files that define a fit (not where it writes or how it talks): the schema's single-image
+#: record (:func:`fmbrdf_mi.fit.api.options.record_keys`).
+ARGUMENTS = record_keys("single")
 
+#: The arguments of :func:`fmbrdf_mi.fit.outputs.colour.fit_colour_files` (a colour fit's record).
+COLOUR_ARGUMENTS = record_keys("colour")
 
-#: The arguments of :func:`fmbrdf_mi.fit.outputs.colour.fit_colour_files` among them (a colour fit's record).
-COLOUR_ARGUMENTS = ("inputs", "normals", "mask", "view", "sphere", "camera", "fov", "light", "irradiance",
-                    "black_level", "white_level", "conversion_gain", "read_noise", "model", "bounds", "fixed",
-                    "max_time", "max_iter", "max_pixels", "erode", "seed", "starts", "intervals", "albedo")
+#: fit_images keywords that define a joint fit (not where it writes or how it talks).
+FIT_KEYS = record_keys("joint")
 
 
 def sha256(path):
@@ -114,12 +111,6 @@ def reproduce_block(arguments, inputs, command, obs, relight=None):
         "sidecar": obs.meta.get("sidecar"),
         "versions": versions(),
     }
-
-
-#: fit_images keywords that define a joint fit (not where it writes or how it talks).
-FIT_KEYS = ("model", "baselines", "loss", "fixed", "bounds", "init", "starts", "max_iter", "tol", "time_limit",
-            "max_time", "max_pixels", "erode", "seed", "free_power", "power_start", "area_points", "intervals",
-            "albedo", "materials", "albedo_smooth")
 
 
 #: read_object keywords recorded for an authors' object.

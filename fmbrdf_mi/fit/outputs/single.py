@@ -9,17 +9,19 @@ import numpy as np
 from fmbrdf_mi import scene as S
 from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.api.find_materials import find_materials, parse_auto
-from fmbrdf_mi.fit.api.fitting import FitOptions, fit
-from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
+from fmbrdf_mi.fit.api.fitting import fit
+from fmbrdf_mi.fit.api.options import arguments as arguments_of
+from fmbrdf_mi.fit.api.options import (FitOptions, check_fit_options, check_input_options, check_resolved_loss,
+                                        fit_options, flag)
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.materials import check_labels
-from fmbrdf_mi.fit.evaluate.models import BASELINES, get_model
+from fmbrdf_mi.fit.evaluate.models import BASELINES
 from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
 from fmbrdf_mi.fit.inputs.files import build_observation
 from fmbrdf_mi.fit.inputs.labels import read_labels, write_labels
-from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
+from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS
 from fmbrdf_mi.fit.outputs import plots, record
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
@@ -63,14 +65,11 @@ def write_materials(res, labels, shape, path, model):
                          title=f"{model}: {res.materials['count']} material(s) (faint: labelled, not fitted)")
 
 
-def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
-              fov=None, light=None, irradiance=None, layout=None, black_level=None, channel="mean",
-              demosaic="bilinear", conversion_gain=None, read_noise=None, footprint="auto", model="fmbrdf",
-              baselines=False, optimizer="lm", path="pixel", bounds=None, init=None, loss="auto",
-              white_level=None, dark_level=None, fixed=None, starts=2, area_points=None, intervals="auto",
-              albedo="shared", albedo_smooth=None, materials=None, max_iter=40, tol=1e-4, time_limit=None, max_time=None, max_pixels=20000, erode=2, seed=0, relight=None,
-              relight_light=None, relight_irradiance=None, force=False, progress=True, command=None):
+def fit_files(inputs, out, *, force=False, progress=True, command=None, **options):
     """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
+
+    ``options``: the single-image options of :data:`fmbrdf_mi.fit.api.options.OPTIONS` (the command line's,
+    names with underscores; those not given take their defaults, others are refused).
 
     Inputs: ``inputs`` a Stokes EXR, a raw mosaic (.npy / 16-bit .png / .tif,
     ``layout`` row-major 2x2 polariser angles, default IMX250MZR ``90,45,135,0``),
@@ -88,12 +87,12 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     ``auto`` (the paper's loss).  ``area_points``: the likelihood models each
     raw sample as the mean over that many points squared of its pixel (None: 2
     for raw mosaics, 1 otherwise).  ``intervals``: ``auto``, ``profile`` or ``fisher``
-    (:class:`~fmbrdf_mi.fit.api.fitting.FitOptions`).  ``albedo``: ``shared`` (one k_s, r_k) or
+    (:class:`~fmbrdf_mi.fit.api.options.FitOptions`).  ``albedo``: ``shared`` (one k_s, r_k) or
     ``per-pixel`` (albedo maps of a textured object, the likelihood only); ``albedo_smooth``: the maps'
-    smoothness prior (tau or (tau_s, tau_b); :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`).  ``materials``: a label image
-    (.png / .npy: :mod:`fmbrdf_mi.fit.inputs.labels`) giving each pixel's material, each fitted with its own
-    parameters (the likelihood only); writes materials.png.  ``relight``: a second image of
-    the same object under ``relight_light`` for the relighting check.
+    smoothness prior (tau or (tau_s, tau_b); :class:`~fmbrdf_mi.fit.api.options.FitOptions`).
+    ``materials``: a label image (.png / .npy: :mod:`fmbrdf_mi.fit.inputs.labels`) giving each pixel's
+    material, each fitted with its own parameters (the likelihood only); writes materials.png.  ``relight``: a
+    second image of the same object under ``relight_light`` for the relighting check.
 
     Writes ``out``/fit.json, profiles.png, images.png, history.png,
     fitted_stokes.exr (and relight.png; per-pixel albedos: k_s.exr, k_b.exr, their standard errors
@@ -101,7 +100,7 @@ def fit_files(inputs, out, *, normals=None, mask=None, view=None, sphere=None, c
     ``force``.  Returns the dict written to fit.json.
     """
 
-    arguments = {k: v for k, v in locals().items() if k in record.ARGUMENTS}
+    arguments = arguments_of("single", dict(options, inputs=inputs), "fit_files()")
     return SingleImage(arguments, out, force=force, progress=progress, command=command).run()
 
 
@@ -114,33 +113,22 @@ class SingleImage(FitJob):
 
     def check(self):
         a = self.a
-        get_model(a["model"])
-        check_input_options(black_level=a["black_level"], conversion_gain=a["conversion_gain"],
-                            read_noise=a["read_noise"], irradiance=a["irradiance"], fov=a["fov"],
-                            relight_irradiance=a["relight_irradiance"])
-        check_fit_options(model=a["model"], optimizer=a["optimizer"], path=a["path"], bounds=parse_bounds(a["bounds"]),
-                          init=parse_init(a["init"]), max_iter=a["max_iter"], tol=a["tol"],
-                          time_limit=a["time_limit"], max_time=a["max_time"], max_pixels=a["max_pixels"],
-                          erode=a["erode"], seed=a["seed"], area_points=a["area_points"], starts=a["starts"],
-                          loss=a["loss"], fixed=parse_fixed(a["fixed"]), albedo=a["albedo"],
-                          albedo_smooth=a.get("albedo_smooth"))
-        parse_auto(a.get("materials"))   # auto:M well formed (a label file is read in read())
+        check_input_options(**a)
+        check_fit_options(**a)
+        parse_auto(a["materials"])   # auto:M well formed (a label file is read in read())
 
     def files(self):
-        self.outs = output_files(self.out, self.a["relight"], self.a["albedo"], self.a.get("materials"))
+        self.outs = output_files(self.out, self.a["relight"], self.a["albedo"], self.a["materials"])
         return list(self.outs.values())
 
     def read(self):
         a = self.a
-        self.auto = parse_auto(a.get("materials"))    # --materials auto:M: found in fit()
+        self.auto = parse_auto(a["materials"])    # --materials auto:M: found in fit()
         self.found = None
-        self.labels = None if a.get("materials") is None or self.auto else read_labels(a["materials"])
+        self.labels = None if a["materials"] is None or self.auto else read_labels(a["materials"])
+        self.obs = obs = build_observation(a["inputs"], light=a["light"], **{k: a[k] for k in IMAGE_KEYS})
         files = {k: a[k] for k in ("layout", "black_level", "channel", "demosaic", "conversion_gain", "read_noise",
                                    "footprint")}
-        self.obs = obs = build_observation(
-            a["inputs"], normals=a["normals"], mask=a["mask"], view=a["view"], sphere=a["sphere"],
-            camera=a["camera"], fov=a["fov"], light=a["light"], irradiance=a["irradiance"],
-            white_level=a["white_level"], dark_level=a["dark_level"], **files)
         self.obs2 = None
         if a["relight"] is not None:
             geom = None if (a["normals"] is None and a["sphere"] is None and "truth" in obs.meta) \
@@ -153,13 +141,11 @@ class SingleImage(FitJob):
     def fit(self):
         a, obs = self.a, self.obs
         model = a["model"]
-        opts = FitOptions(model=model, path="pixel", optimizer=a["optimizer"], bounds=parse_bounds(a["bounds"]),
-                          init=parse_init(a["init"]), max_iter=int(a["max_iter"]), tol=float(a["tol"]),
-                          time_limit=a["time_limit"], max_time=a["max_time"] or None, loss=a["loss"],
-                          fixed=parse_fixed(a["fixed"]), starts=int(a["starts"]), max_pixels=a["max_pixels"],
-                          erode=int(a["erode"]), seed=int(a["seed"]), area_points=a["area_points"],
-                          intervals=a["intervals"], albedo=a["albedo"], albedo_smooth=a.get("albedo_smooth"))
+        opts = fit_options(a, path="pixel", max_time=a["max_time"] or None)
         loss = resolve_loss(obs, dataclasses.replace(opts, path=a["path"]))
+        check_resolved_loss(a, loss, "--loss likelihood" if a["loss"] == "likelihood" else
+                            "the input has no camera noise model" if obs.noise is None or not obs.noise.known else
+                            f"--path {a['path']}, --optimizer {a['optimizer']}", flag)
         check_footprint(a["footprint"], loss, "--loss likelihood" if a["loss"] == "likelihood" else
                         f"the camera noise from {obs.meta.get('sidecar') or '--conversion-gain'}")
         scene = None
