@@ -144,7 +144,8 @@ def albedo_block(problem, st, parts, groups, shape, value, report):
 
 
 def data_residuals(obj, parts, st):
-    """The objective's residuals of the data (without the albedo prior's rows, :mod:`fmbrdf_mi.fit.evaluate.albedo_prior`)."""
+    """The objective's residuals of the data (without the albedo prior's rows:
+    :mod:`fmbrdf_mi.fit.evaluate.albedo_prior`)."""
     r = obj.residuals(parts, st)
     return r if getattr(getattr(obj, "layout", None), "prior", None) is None else r[:obj.y.size]
 

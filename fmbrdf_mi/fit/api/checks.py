@@ -8,9 +8,9 @@
 :func:`~fmbrdf_mi.fit.api.fitting.fit` applies those its options ask for (``area_points=None``,
 ``intervals="auto"`` or ``"profile"``; the optima always), as does the command line.  Each takes a
 converged pixel-path result with its ``fitted`` (:class:`~fmbrdf_mi.fit.api.assemble.Fitted`) and
-returns the result with its uncertainty block extended (``quadrature``, ``interval_kind`` and
-``profile``, ``other_optima``) and its ``method`` naming what was applied; any other result is returned
-as it is.
+returns it with its uncertainty block extended (``quadrature``, ``interval_kind`` and ``profile``,
+``other_optima``) and its ``method`` naming what was applied: the same result, updated, or, where the
+quadrature check refits, a new one; any other result is returned as it is.
 """
 from __future__ import annotations
 
@@ -91,7 +91,7 @@ def check_footprint(res, progress=None):
     say, opts = progress or fx.report, fx.options
     problem, data, st, m, t0 = fx.problem, fx.data, fx.solution.state, fx.data.area_points, time.time()
     block = {"area_points": m, "tolerance_se": U.QUADRATURE_TOL, "checks": []}
-    fine_fx = None
+    fine_fx, history = None, list(fx.history)     # the result given keeps its own history
     while m < U.MAX_AREA_POINTS:
         parts = problem.parts(st, jac=True)
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
@@ -108,7 +108,7 @@ def check_footprint(res, progress=None):
         try:
             sol = solve(fine, init=st, starts=1, rounds=max(1, opts.rounds) + 2, optimizer=opts.optimizer,
                         max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit, lr=opts.lr,
-                        max_time=opts.max_time, history=fx.history, report=fx.report)
+                        max_time=opts.max_time, history=history, report=fx.report)
         except InputError:      # max_time: not even one evaluation with the finer points fits
             sol = None
         if sol is None or not sol.converged:    # keep the converged coarser fit, and say so
@@ -118,7 +118,7 @@ def check_footprint(res, progress=None):
             break
         fine_fx = Fitted(fine, fine_data, dataclasses.replace(sol, starts=fx.solution.starts,
                                                               t_search=fx.solution.t_search),
-                         opts, fx.report, fx.deadline, fx.image_shape, fx.labels, fx.history,
+                         opts, fx.report, fx.deadline, fx.image_shape, fx.labels, history,
                          evaluations=fx.evaluations + problem.n_evals, t0=fx.t0)
         problem, data, m, st = fine, fine_data, 2 * m, sol.state
         block["area_points"] = m

@@ -88,7 +88,7 @@ def render_evaluator(model, obs, idx, opts, scene):
 
 def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=None, names=None, powers=None,
         materials=None, **kw):
-    """Estimate the parameters of ``options.model`` from ``obs``; returns a :class:`FitResult`.
+    """Estimate the parameters of ``options.model`` from ``obs``; returns a :class:`~fmbrdf_mi.fit.result.FitResult`.
 
     ``obs``: one :class:`~fmbrdf_mi.fit.inputs.observations.Observation`, or a list of them: several images
     of one object sharing the material (a joint fit, :func:`fmbrdf_mi.fit.api.joint.fit_joint`: ``names``,
@@ -97,7 +97,8 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     callable receives each progress line, False is silent.  ``evaluator``: the evaluator of
     :func:`~fmbrdf_mi.fit.problem.data.prepare` for the same geometry, pixels and objective (reused across
     noise seeds by the benchmarks).  ``data``: a :class:`~fmbrdf_mi.fit.problem.problem.FitData` built by
-    the caller (several images of one object, a colour mosaic); ``obs`` is then only used for its grid.
+    the caller (several images of one object, a colour mosaic); ``obs`` then gives only its noise model
+    and pixel grid.
 
     ``materials``: a label image assigning each pixel to one of M materials
     (:mod:`fmbrdf_mi.fit.evaluate.materials`): an integer array on the fit's pixel grid (``obs.shape``; a
@@ -130,7 +131,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     report_start(problem, data, opts, report)
     history = []
     init = None if not opts.init else problem.state(*problem.model.split(opts.init))
-    sol = solve(problem, init=init, starts=opts.starts, rounds=max(1, opts.rounds) + (2 if loss == "likelihood" else 0),
+    sol = solve(problem, init=init, starts=opts.starts, rounds=max(1, opts.rounds) + 2 * (data.loss == "likelihood"),
                 optimizer=opts.optimizer, max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit,
                 lr=opts.lr, max_time=opts.max_time, history=history, report=report)
     res = assemble(Fitted(problem, data, sol, opts, report, deadline, obs.shape, materials, history, t0=t0))
@@ -199,13 +200,13 @@ def report_start(problem, data, opts, report):
 
 
 def report_end(res):
-    """``res``, its total time set, after the closing progress lines (weakly identified parameters, the
-    estimate, each material's)."""
+    """``res``, its total time and model evaluations (the checks' included) set, after the closing progress
+    lines (weakly identified parameters, the estimate, each material's)."""
     fx = res.fitted
     if res.weakly_identified:
         fx.report(f"[fit] weakly identified (standard error > {U.WEAK_REL:.0%} or at a bound): "
                   f"{', '.join(res.weakly_identified)}")
-    res.timings["total"] = time.time() - fx.t0
+    res.timings.update(total=time.time() - fx.t0, evaluations=fx.problem.n_evals + fx.evaluations)
     fx.report(f"[fit] done in {res.timings['total']:.1f} s: {res.objective} {res.loss:.6e} ({res.stop_reason})  "
               f"{O.format_state(fx.problem, fx.solution.state)}")
     for m, p in enumerate((res.materials or {}).get("parameters", [])):
