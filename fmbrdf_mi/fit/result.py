@@ -68,7 +68,7 @@ class FitResult:
     #: per-pixel albedos (``FitOptions.albedo="per-pixel"``): what the maps hold, in numbers (pixels, how many
     #: have their surface / body split identified, medians); in :meth:`to_json`
     albedo: dict = None
-    #: ... and the maps themselves (:func:`fmbrdf_mi.fit.api.fitting.albedo_maps`): ``k_s``, ``k_b``, their
+    #: ... and the maps themselves (:func:`fmbrdf_mi.fit.api.assemble.albedo_maps`): ``k_s``, ``k_b``, their
     #: standard errors ``k_s_se``, ``k_b_se``, ``identified`` (H, W), or (C, H, W) per colour channel
     #: ``channels``; NaN (``identified``: False) where no pixel was fitted; not in :meth:`to_json`
     maps: dict = dataclasses.field(repr=False, default=None)
@@ -77,14 +77,17 @@ class FitResult:
     #: :func:`fmbrdf_mi.fit.problem.materials.material_block` (per material: pixels, parameters, standard
     #: errors, 95 % intervals); in :meth:`to_json`
     materials: dict = None
+    #: what the checks after a fit (:mod:`fmbrdf_mi.fit.api.checks`) need: the problem, data and solution
+    #: behind the result (:class:`fmbrdf_mi.fit.api.assemble.Fitted`); not in :meth:`to_json`
+    fitted: object = dataclasses.field(repr=False, default=None, compare=False)
 
     #: written by :meth:`to_json` only when set
     OPTIONAL = ("images", "powers", "channels", "albedo", "materials")
 
     def to_json(self):
         d = dataclasses.asdict(dataclasses.replace(self, pixels=None, details=None, normals=None, mask=None,
-                                                   maps=None))
-        for k in ("pixels", "details", "normals", "mask", "maps"):
+                                                   maps=None, fitted=None))
+        for k in ("pixels", "details", "normals", "mask", "maps", "fitted"):
             d.pop(k)
         for k in self.OPTIONAL:
             if d[k] is None:

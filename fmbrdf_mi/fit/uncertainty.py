@@ -1,32 +1,50 @@
-"""Standard errors, 95 % intervals and correlations of the estimates.
+"""Standard errors, 95 % intervals and correlations of the estimates: one function per mechanism.
 
-* **likelihood** (:class:`fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`): the
-  inverse Fisher information.  The residuals are standardised,
-  r = (y - mu) / sd, so with J their Jacobian the Fisher information is
-  J^T J (Gauss-Newton, exact for a Gaussian with known variances at the
-  IRLS fixed point).  When the noise level was estimated from the residuals
-  the covariance is multiplied by chi^2 / (N - p) (N the independent
-  samples), which is then ~1 by construction; with the camera noise known,
-  the same factor is applied when chi^2 / (N - p) is far above 1 (more
-  than 5 of its standard deviations sqrt(2 / (N - p)), and at least 0.1:
-  ``misfit``), in every mode, and the fit warns (:func:`misfit_text`);
-* **paper's loss**: it is not a likelihood, so J^T J says nothing about the
-  spread of its minimiser.  A sandwich estimate H^-1 M H^-1 with H = J^T J
-  and M the covariance of the estimating equation J^T r, summed over pixel
-  neighbourhoods: each pixel's rows (its intensity and DoLP residuals are
-  correlated) and, for a bilinear-demosaicked mosaic, those of its 8
-  neighbours, whose values share raw samples (:func:`block_meat`).  Plain
-  residuals r at the estimate underestimate M: the fit has pulled them
-  towards the data, and with the neighbour sums the loss is large when the
-  object has few pixels (measured: 32 super-pixels, M 41 % too small, 95 %
-  intervals covering 75 %; 88 super-pixels: 83 %).  The residuals of each
-  neighbourhood g are therefore replaced by its leave-g-out prediction
-  residuals (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster jackknife, "CR3"
-  of the econometrics literature; with one pixel per block the "HC3"
-  estimate), which is unbiased to first order and slightly conservative for
-  small objects; for large ones P_gg -> 0 and it is the plain sandwich.  It
-  describes the spread of the estimate, not its bias (the DoLP of a noisy
-  pixel is biased: docs/computed.md).
+The mechanisms, each a function, and what they serve:
+
+* :func:`fisher`: the inverse Fisher information of a likelihood fit.  The residuals are standardised,
+  r = (y - mu) / sd, so with J their Jacobian the Fisher information is J^T J (Gauss-Newton, exact for
+  a Gaussian with known variances at the IRLS fixed point).
+* :func:`noise_scale`: the covariance's scale.  When the noise level was estimated from the residuals
+  the covariance is multiplied by chi^2 / (N - p) (N the independent samples), which is then ~1 by
+  construction; with the camera noise known, the same factor is applied when chi^2 / (N - p) is far
+  above 1 (more than 5 of its standard deviations sqrt(2 / (N - p)), and at least 0.1: ``misfit``),
+  and the fit warns (:func:`misfit_text`).
+* :func:`paper_sandwich`: the paper's loss is not a likelihood, so J^T J says nothing about the
+  spread of its minimiser.  A sandwich estimate H^-1 M H^-1 with H = J^T J and M the covariance of
+  the estimating equation J^T r, summed over pixel neighbourhoods: each pixel's rows (its intensity
+  and DoLP residuals are correlated) and, for a bilinear-demosaicked mosaic, those of its 8
+  neighbours, whose values share raw samples (:func:`block_meat`).  Plain residuals r at the
+  estimate underestimate M (the fit has pulled them towards the data; most for objects of few
+  pixels), so the residuals of each neighbourhood g are replaced by its leave-g-out prediction
+  residuals (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster jackknife, "CR3" of the econometrics
+  literature; with one pixel per block the "HC3" estimate), which is unbiased to first order and
+  slightly conservative for small objects; for large ones P_gg -> 0 and it is the plain sandwich.  It
+  describes the spread of the estimate, not its bias (the DoLP of a noisy pixel is biased:
+  docs/computed.md).
+* :func:`incidental`: per-pixel albedos (an eliminating layout).  With two albedos per pixel
+  eliminated, J (Kaufman's) is evaluated at the noisy estimated albedos, and on average
+  J^T J = H + C (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`): the shape
+  estimate's covariance is the sandwich H^-1 J^T J H^-1, H = J^T J - C, not (J^T J)^-1, which
+  understates the spread when each pixel is seen in few images (docs/howto/fit-textured.md).  The
+  sandwich is reported (capped where H is not positive definite: :func:`incidental_sandwich`), the
+  Fisher errors kept in ``incidental``, and the profile check's threshold follows it.  Where the pairs
+  are coupled (bilinear corners) C is a Monte Carlo estimate of the same trace.
+* posterior with a prior: with the albedo maps' smoothness prior
+  (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) the residuals carry the prior's rows, and J^T J of
+  Kaufman's Jacobian over them is the shape's information with the albedos eliminated under the
+  prior: its inverse is the posterior covariance (Bayesian; :data:`POSTERIOR`), and each pixel's is
+  the 2 x 2 block of the penalised information's inverse.  The incidental-parameter sandwich is not
+  computed there (the prior shrinks the albedos' noise, so C shrinks; not derived for the penalised
+  solve).  chi^2 includes the penalty; its degrees of freedom:
+  ``fmbrdf_mi.fit.api.assemble.PRIOR_DOF_RULE``.
+* :func:`profile_intervals`: the profile likelihood's ends where the Fisher interval fails (below).
+* :func:`other_optima` and :func:`widen_for_optima`: competing optima among a multi-start fit's ends,
+  and the intervals stretched over them.
+
+Each mechanism applied adds an entry ``(kind, detail)`` to a list, and fit.json's
+``uncertainty.method`` is composed from that list once (:func:`method_text`).
+
 **Transforms and bounds.**  The optimiser works in unconstrained z (sigmoid
 onto the bounds, log albedos); the covariance is computed for the reported
 parameters directly: J_theta = J_z (d theta / d z)^-1, so the standard
@@ -47,35 +65,19 @@ at their regression on the parameter: one model evaluation each) must have
 risen by the 95 % threshold 1.96^2 (times the covariance's scale) to within
 :data:`PROFILE_TOL`.  Where it has not, that end is replaced by the
 profile likelihood's (refits with the parameter held fixed, the other
-unknowns free, the variances frozen at the fit's): ``interval_kind`` says
+unknowns free, the variances frozen at the fit's:
+:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed`): ``interval_kind`` says
 per parameter which kind each interval is, and the standard errors stay the
 Fisher ones.  Problems with extra unknowns (free light powers, per-pixel
 normals) keep Fisher intervals.
-
-**Per-pixel albedos** (an eliminating layout, issue 25).  With two albedos per
-pixel eliminated, J (Kaufman's) is evaluated at the noisy estimated albedos,
-and on average J^T J = H + C (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`):
-the shape estimate's covariance is the sandwich H^-1 J^T J H^-1, H = J^T J - C,
-not (J^T J)^-1, which from one image is 2-5x too small
-(tools/diag_pp_sandwich.py).  :func:`covariance` reports the sandwich (capped
-where H is not positive definite: :func:`incidental_sandwich`), keeps the
-Fisher errors in ``incidental``, and the profile check's threshold follows it.
-Where the pairs are coupled (bilinear corners) C is a Monte Carlo estimate of
-the same trace (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`).
-
-**With the albedo maps' smoothness prior** (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) the residuals
-carry the prior's rows, and J^T J of Kaufman's Jacobian over them is the shape's information with the
-albedos eliminated under the prior: its inverse is the posterior covariance (Bayesian; :data:`POSTERIOR`),
-and each pixel's is the 2 x 2 block of the penalised information's inverse.  The incidental-parameter
-sandwich is not computed there (the prior shrinks the albedos' noise, so C shrinks; not derived for the
-penalised solve).  chi^2 includes the penalty; its degrees of freedom:
-``fmbrdf_mi.fit.api.fitting.PRIOR_DOF_RULE``.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+
+from fmbrdf_mi.fit.solve.driver import refit_fixed
 
 Z95 = 1.959963984540054
 
@@ -154,10 +156,56 @@ INCIDENTAL_FLOOR = 0.1
 POSTERIOR = ("posterior covariance (Bayesian): the inverse of the information penalised by the albedo maps' "
              "smoothness prior (J^T J of the residuals with the prior's rows, the albedos eliminated)")
 
+#: The estimators a covariance comes from (one per fit), as fit.json's ``uncertainty.method`` names them.
+ESTIMATORS = {
+    "fisher": "inverse Fisher information",
+    "incidental": "incidental-parameter sandwich H^-1 (J^T J) H^-1, H = J^T J - C (the per-pixel albedos' noise "
+                  "removed from the information)",
+    "posterior": POSTERIOR,
+    "paper-sandwich": "sandwich estimate for the paper's loss, leave-neighbourhood-out residuals (CR3)",
+    "not-converged": "not computed: the fit did not converge",
+    "singular-reparameterisation": "singular reparameterisation",
+    "singular-information": "singular information matrix",
+}
+
+#: What qualifies the estimator: the covariance's scale (likelihood) or the residuals' correlation (paper's loss).
+QUALIFIERS = {
+    "known-noise": " (known camera noise)",
+    "estimated-noise": ", noise level estimated from the residuals",
+    "misfit": ", inflated by chi^2/dof (misfit)",
+    "demosaic": ", with the correlation of neighbouring pixels (demosaicking)",
+}
+
+#: The notes on what else was applied, in the order the method text gives them (``{}``: the entry's detail).
+NOTES = {
+    "incidental-layout": "{}",
+    "incidental-capped": "H not positive definite in {} direction(s): their inflation capped at "
+                         f"{1 / INCIDENTAL_FLOOR:g}x the Fisher standard error",
+    "incidental-not-computed": "{}",
+    "profile-skipped": "intervals not checked against the profile likelihood (max_time reached)",
+    "profile": "profile-likelihood 95 % intervals where the Fisher ones fail (interval_kind)",
+    "optima": "95 % intervals widened over a competing optimum of the likelihood (interval_kind 'optima', "
+              "other_optima)",
+    "quadrature": "pixel-area quadrature {}",
+}
+
+
+def method_text(applied):
+    """fit.json's ``uncertainty.method``: one line naming the mechanisms ``applied``, a list of ``(kind,
+    detail)`` (one estimator of :data:`ESTIMATORS`, kinds of :data:`QUALIFIERS` and :data:`NOTES`): the
+    estimator with its qualifiers, then the notes, in the tables' order whatever the order of application."""
+    done = dict(applied)
+    unknown = [k for k in done if k not in ESTIMATORS and k not in QUALIFIERS and k not in NOTES]
+    estimators = [k for k in ESTIMATORS if k in done]
+    if unknown or len(estimators) != 1:
+        raise ValueError(f"method_text: expected one estimator and known mechanisms, got {', '.join(done)}")
+    head = ESTIMATORS[estimators[0]] + "".join(QUALIFIERS[k] for k in QUALIFIERS if k in done)
+    return "; ".join([head] + [NOTES[k].format(done[k]) for k in NOTES if k in done])
+
 
 def incidental_term(problem, st, parts):
-    """C (p, p) in z of an eliminating layout (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`)
-    at ``st`` (``parts`` with derivatives), or None where the layout does not eliminate or does not compute it."""
+    """C (p, p) in z of an eliminating layout (:meth:`PixelAlbedos.incidental`) at ``st`` (``parts`` with
+    derivatives), or None for layouts that do not eliminate."""
     if not problem.eliminates:
         return None
     obj = problem.obj
@@ -169,12 +217,12 @@ def incidental_term(problem, st, parts):
 def incidental_sandwich(F, C):
     """(cov, capped): the shape estimate's covariance H^-1 F H^-1, H = F - C (F = J^T J at the estimated
     albedos, C :func:`incidental_term` times the covariance's scale: the albedos' noise is scale x G^-1
-    when the data's is scale x the stated; issue 25, tools/diag_pp_sandwich.py), and how many directions had
-    H not positive definite.  In F's metric, H = F^1/2 V (I - L) V^T F^1/2 with L the eigenvalues of
-    F^-1/2 C F^-1/2 (>= 0: C is positive semi-definite), so cov = F^-1/2 V (I - L)^-2 V^T F^-1/2: each
-    direction's Fisher variance inflated by (1 - lambda)^-2.  1 - lambda is floored at
-    :data:`INCIDENTAL_FLOOR` (a noisy C: H estimated from one image is not positive definite in ~10 % of
-    seeds, measured), i.e. the inflation is capped there, and the cap is reported."""
+    when the data's is scale x the stated), and how many directions had H not positive definite.  In F's
+    metric, H = F^1/2 V (I - L) V^T F^1/2 with L the eigenvalues of F^-1/2 C F^-1/2 (>= 0: C is positive
+    semi-definite), so cov = F^-1/2 V (I - L)^-2 V^T F^-1/2: each direction's Fisher variance inflated by
+    (1 - lambda)^-2.  1 - lambda is floored at :data:`INCIDENTAL_FLOOR` (a C estimated from few samples
+    per albedo is noisy, and H then need not be positive definite), i.e. the inflation is capped there, and
+    the cap is reported."""
     w, V = np.linalg.eigh(F)
     if w.min() <= 0:
         raise np.linalg.LinAlgError("singular information matrix")
@@ -187,79 +235,99 @@ def incidental_sandwich(F, C):
     return (T / d ** 2) @ T.T, capped
 
 
-def covariance(problem, st, J, r, n_independent=None, parts=None):
-    """Covariance of the reported free parameters; returns (names, cov (p, p), info dict).
+def fisher(Jt):
+    """The inverse Fisher information (J^T J)^-1 of the reported parameters (``Jt``: the whitened residuals'
+    Jacobian in them); raises LinAlgError when singular."""
+    return np.linalg.inv(Jt.T @ Jt)
 
-    An eliminating layout (per-pixel albedos) gets the incidental-parameter sandwich
-    (:func:`incidental_sandwich`; ``parts``: the model at ``st`` with derivatives, evaluated when not
-    given); ``info["fisher_std_errors"]`` keeps the plain inverse-Fisher errors (same scale)."""
+
+def noise_scale(problem, r, n_independent, p):
+    """(scale, info, applied): the factor the covariance is multiplied by, fit.json's ``chi2_per_dof`` and
+    ``misfit``, and the mechanisms applied.  Noise estimated from the residuals: chi^2 / (N - p); the camera
+    noise known: 1, or chi^2 / (N - p) where that is far above 1 (the model or the stated noise does not
+    explain the data: the quasi-likelihood scale, as when the noise level is estimated; module docstring)."""
+    n = int(n_independent if n_independent is not None else len(r))
+    chi2 = float(r @ r)
+    info = {"chi2_per_dof": chi2 / max(n - p, 1)}
+    if not problem.obj.noise.known:
+        return info["chi2_per_dof"], info, [("estimated-noise", "")]
+    # chi^2 / dof has standard deviation sqrt(2 / dof)
+    info["misfit"] = bool(info["chi2_per_dof"] > 1.0 + max(0.1, 5.0 * math.sqrt(2.0 / max(n - p, 1))))
+    if info["misfit"]:
+        return info["chi2_per_dof"], info, [("known-noise", ""), ("misfit", "")]
+    return 1.0, info, [("known-noise", "")]
+
+
+def incidental(problem, st, J, names, Hi, scale, parts=None):
+    """(cov_theta / scale, info, applied): the incidental-parameter sandwich of an eliminating layout
+    (:func:`incidental_sandwich`; the albedos' noise is scale x G^-1 when the data's is scale x the stated,
+    so C scales with it), the Fisher errors it replaces and the directions capped in ``info``; a layout
+    without the term (the smoothness prior) keeps ``Hi`` and says why.  ``J``: the Jacobian in z;
+    ``parts``: the model at ``st`` with derivatives (evaluated when not given).  Raises LinAlgError."""
+    if problem.layout.incidental_reason is not None:
+        reason = problem.layout.incidental_reason
+        return Hi, {"incidental_not_computed": reason}, [("incidental-not-computed", reason)]
+    if parts is None:
+        parts = problem.parts(st, jac=True)
+    Gd = dtheta_dz(problem, st, names)                   # theta = theta(z): cov_theta = G cov_z G^T
+    cz, capped = incidental_sandwich(J.T @ J, scale * incidental_term(problem, st, parts))
+    fisher_sd = np.sqrt(np.clip(np.diag(Hi), 0.0, None) * scale)
+    info = {"incidental": {"fisher_std_errors": dict(zip(names, fisher_sd.tolist())), "capped_directions": capped}}
+    applied = []
+    if problem.layout.incidental_method:
+        applied.append(("incidental-layout", problem.layout.incidental_method))
+    if capped:
+        applied.append(("incidental-capped", capped))
+    return Gd @ cz @ Gd.T, info, applied
+
+
+def paper_sandwich(problem, Jt, r, Hi):
+    """(cov, applied): the sandwich covariance of the paper's loss (module docstring, :func:`block_meat`),
+    the neighbours of a demosaicked mosaic correlated (the objective's ``grid``)."""
+    grid = problem.obj.grid
+    M = block_meat(Jt, r, problem.obj.row_pixels(len(r)), Hi, grid)
+    return Hi @ M @ Hi, [("paper-sandwich", "")] + ([("demosaic", "")] if grid is not None else [])
+
+
+def covariance(problem, st, J, r, n_independent=None, parts=None):
+    """Covariance of the reported free parameters; returns (names, cov (p, p) or None, info dict).
+
+    The paper's loss: :func:`paper_sandwich`.  A likelihood: :func:`fisher` times :func:`noise_scale`; an
+    eliminating layout (per-pixel albedos) gets :func:`incidental` (``parts``: the model at ``st`` with
+    derivatives, evaluated when not given), with the smoothness prior the covariance is the posterior one.
+    ``info["applied"]``: the mechanisms applied, ``info["method"]`` their :func:`method_text`."""
     try:
         names, Jt = jacobian_in_reported(problem, st, J)
     except np.linalg.LinAlgError:
-        return _free_names(problem), None, {"method": "singular reparameterisation"}
+        return _free_names(problem), None, with_method({}, [("singular-reparameterisation", "")])
     p = Jt.shape[1]
-    H = Jt.T @ Jt
     try:
-        Hi = np.linalg.inv(H)
+        Hi = fisher(Jt)
     except np.linalg.LinAlgError:
-        return names, None, {"method": "singular information matrix"}
-    obj = problem.obj
-    info = {}
-    if obj.is_likelihood:
-        n = int(n_independent if n_independent is not None else len(r))
-        chi2 = float(r @ r)
-        info["chi2_per_dof"] = chi2 / max(n - p, 1)
-        if obj.noise.known:
-            scale, info["method"] = 1.0, "inverse Fisher information (known camera noise)"
-            # chi^2 / dof has standard deviation sqrt(2 / dof): far above 1, the model or the stated
-            # noise does not explain the data, and the Fisher errors are too small: they are inflated
-            # by chi^2 / dof (the quasi-likelihood scale, as when the noise level is estimated)
-            info["misfit"] = bool(info["chi2_per_dof"] > 1.0 + max(0.1, 5.0 * math.sqrt(2.0 / max(n - p, 1))))
-            if info["misfit"]:
-                scale = info["chi2_per_dof"]
-                info["method"] += ", inflated by chi^2/dof (misfit)"
-        else:
-            scale = info["chi2_per_dof"]
-            info["method"] = "inverse Fisher information, noise level estimated from the residuals"
-        if problem.eliminates and p and problem.layout.incidental_reason is not None:
-            # a layout without the incidental-parameter term (the smoothness prior): the errors, said so
-            info["incidental_not_computed"] = problem.layout.incidental_reason
-        elif problem.eliminates and p:
-            # the albedos' noise is scale x G^-1 when the data's noise is scale x the stated: C scales with it
-            if parts is None:
-                parts = problem.parts(st, jac=True)
-            Gd = dtheta_dz(problem, st, names)                   # theta = theta(z): cov_theta = G cov_z G^T
-            try:
-                cz, capped = incidental_sandwich(J.T @ J, scale * incidental_term(problem, st, parts))
-            except np.linalg.LinAlgError:
-                return names, None, {"method": "singular information matrix"}
-            fisher_sd = np.sqrt(np.clip(np.diag(Hi), 0.0, None) * scale)
-            Hi = Gd @ cz @ Gd.T
-            info["incidental"] = {"fisher_std_errors": dict(zip(names, fisher_sd.tolist())),
-                                  "capped_directions": capped}
-        cov = scale * Hi
-        if "incidental" in info:
-            inc = info["incidental"]
-            info["method"] = info["method"].replace(
-                "inverse Fisher information",
-                "incidental-parameter sandwich H^-1 (J^T J) H^-1, H = J^T J - C (the per-pixel albedos' noise "
-                "removed from the information, issue 25)", 1)
-            if problem.layout.incidental_method:
-                info["method"] += "; " + problem.layout.incidental_method
-            if inc["capped_directions"]:
-                info["method"] += (f"; H not positive definite in {inc['capped_directions']} direction(s): their "
-                                   f"inflation capped at {1 / INCIDENTAL_FLOOR:g}x the Fisher standard error")
-        elif "incidental_not_computed" in info:
-            info["method"] += "; " + info["incidental_not_computed"]
-        if problem.obj.prior is not None:
-            info["method"] = info["method"].replace("inverse Fisher information", POSTERIOR, 1)
-    else:
-        grid = getattr(obj, "grid", None)
-        M = block_meat(Jt, r, obj.row_pixels(len(r)), Hi, grid)
-        info["method"] = ("sandwich estimate for the paper's loss, leave-neighbourhood-out residuals (CR3)"
-                          + (", with the correlation of neighbouring pixels (demosaicking)" if grid is not None else ""))
-        cov = Hi @ M @ Hi
-    return names, cov, info
+        return names, None, with_method({}, [("singular-information", "")])
+    if not problem.obj.is_likelihood:
+        cov, applied = paper_sandwich(problem, Jt, r, Hi)
+        return names, cov, with_method({}, applied)
+    scale, info, applied = noise_scale(problem, r, n_independent, p)
+    estimator = "fisher"
+    if problem.eliminates and p:
+        try:
+            Hi, more, used = incidental(problem, st, J, names, Hi, scale, parts)
+        except np.linalg.LinAlgError:
+            return names, None, with_method({}, [("singular-information", "")])
+        info.update(more)
+        applied += used
+        estimator = "incidental" if "incidental" in more else estimator
+    if estimator == "fisher" and problem.obj.prior is not None:
+        estimator = "posterior"
+    return names, scale * Hi, with_method(info, [(estimator, "")] + applied)
+
+
+def with_method(info, applied):
+    """``info`` with the mechanisms ``applied`` and their :func:`method_text`."""
+    info["applied"] = list(applied)
+    info["method"] = method_text(applied)
+    return info
 
 
 def _blocks(row_pix, grid):
@@ -316,9 +384,17 @@ def block_meat(J, r, row_pix, Hi, grid=None):
 
 
 def summarise(problem, st, J, r, n_independent=None, parts=None):
-    """The uncertainty block of fit.json: std_errors, ci95, correlation, at_bound, method (and, per-pixel
-    albedos, ``incidental``: :func:`covariance`)."""
+    """The uncertainty block of fit.json (:func:`summary` of :func:`covariance`); the mechanisms applied are
+    named by its ``method``."""
     names, cov, info = covariance(problem, st, J, r, n_independent, parts)
+    info.pop("applied")
+    return summary(problem, st, names, cov, info)
+
+
+def summary(problem, st, names, cov, info):
+    """The uncertainty block of fit.json from a :func:`covariance` (``info`` without ``applied``):
+    std_errors, ci95, correlation, at_bound, bound_distance_se and ``info`` (chi2_per_dof, misfit, method;
+    per-pixel albedos ``incidental``)."""
     rep = problem.model.report(st.shape, st.a_s, st.a_b)
     out = {"std_errors": {}, "ci95": {}, "correlation": None, "at_bound": at_bound(problem, st), **info}
     if cov is None:
@@ -386,7 +462,7 @@ PROFILE_ROOT_TOL = 0.1
 def interval_scale(problem, unc):
     """The factor the covariance was scaled by (chi^2/dof when inflated or when the noise level was
     estimated, else 1): the 95 % threshold of a chi^2 rise is 1.96^2 times it."""
-    inflated = unc.get("misfit") or not getattr(problem.obj.noise, "known", True)
+    inflated = unc.get("misfit") or not problem.obj.noise.known
     return float(unc["chi2_per_dof"]) if inflated and unc.get("chi2_per_dof") else 1.0
 
 
@@ -438,16 +514,18 @@ def chi2_along_covariance(problem, st, J, scale):
     return f
 
 
-def profile_end(problem, name, value, side, start, delta, chi2_min, refit, max_refits=3):
+def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refits=3):
     """One end of ``name``'s profile-likelihood 95 % interval: where the best chi^2 with ``name`` held fixed
-    (``refit(name, v)`` -> that chi^2) rises by ``delta`` above ``chi2_min``, on ``side`` (-1 or +1) of the estimate
-    ``value``, from a first guess ``start``.  The search runs on the parameter's own scale (log for
+    (:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed`, from the covariance path ``path``'s point there:
+    :func:`chi2_along_covariance`) rises by ``delta`` above ``chi2_min``, on ``side`` (-1 or +1) of the
+    estimate ``st``, from a first guess ``start``.  The search runs on the parameter's own scale (log for
     log-scale parameters), by the square root of the rise, which is linear in the distance for a quadratic
     likelihood: a step to where that line meets sqrt(delta), then false position once the end is
     bracketed.  Returns (end, kind, points): kind "profile", or "profile, open at the bound" when even
     the bound does not raise chi^2 by ``delta``; points: [(value, rise)] tried."""
     b = problem.bounds
     _, _, lo, hi = b.lims[name]
+    value = st.shape[name]
     bound = lo if side < 0 else hi
     t0, tb = b.to_scale(name, value), b.to_scale(name, bound)
     room = abs(tb - t0)
@@ -457,7 +535,7 @@ def profile_end(problem, name, value, side, start, delta, chi2_min, refit, max_r
     for _ in range(max_refits):
         u = min(max(u, 1e-9 * max(room, 1.0)), room)
         v = b.from_scale(name, t0 + side * u) if u < room else bound
-        rise = refit(name, v) - chi2_min
+        rise = refit_fixed(problem, st, name, v, path.state(name, v)) - chi2_min
         pts.append((float(v), float(rise)))
         g = math.sqrt(max(rise, 0.0))
         if abs(rise / delta - 1.0) < PROFILE_ROOT_TOL:
@@ -481,17 +559,16 @@ def profile_end(problem, name, value, side, start, delta, chi2_min, refit, max_r
     return float(pts[-1][0]), "profile, at least", pts
 
 
-def profile_intervals(problem, st, unc, J, r, refit, every=False):
+def profile_intervals(problem, st, unc, J, r, every=False):
     """Check every free shape parameter's Fisher 95 % interval against the likelihood; where it fails,
-    replace that end by the profile likelihood's (issue: intervals that mean what they say).
+    replace that end by the profile likelihood's.
 
-    The measured criterion: at each end of the Fisher interval (cut at a bound), chi^2 along the
+    The criterion: at each end of the Fisher interval (cut at a bound), chi^2 along the
     covariance's path (:func:`chi2_along_covariance`, one model evaluation) must rise by the 95 %
     threshold delta = 1.96^2 x the covariance's scale to within :data:`PROFILE_TOL` (a quadratic
     likelihood's rise is exactly delta there); at a bound, by at most delta (1 + tol): the bound is then
     inside the interval.  Where it does not, that end is the profile likelihood's
-    (:func:`profile_end`: refits with the parameter held fixed, ``refit(name, value, start)`` -> chi^2,
-    ``start`` the path's State there).
+    (:func:`profile_end`: refits with the parameter held fixed, each from the path's State there).
     Adds ``interval_kind`` {name: "fisher" | "profile" | ...} and ``profile`` {name: the rises tried} to
     ``unc`` and replaces the profiled ends in ``unc["ci95"]``; the standard errors stay Fisher's.
     With the incidental-parameter sandwich (per-pixel albedos, ``unc["incidental"]``) the threshold is
@@ -502,21 +579,17 @@ def profile_intervals(problem, st, unc, J, r, refit, every=False):
     Likelihood fits only (the paper's loss is not a likelihood); parameters without a finite
     standard error are left alone.  ``every``: both ends of every such parameter from the profile
     likelihood, whatever the criterion says (``intervals="profile"``; the criterion's rises are still
-    recorded).
+    recorded).  Returns the mechanisms applied (:func:`method_text`): ``profile`` where an end was replaced.
     """
     if not problem.obj.is_likelihood or not unc.get("ci95") or problem.with_fixed({}) is None:
-        return unc
+        return []
     chi2_min = float(r @ r)
     scale = interval_scale(problem, unc)
     delta = Z95 ** 2 * scale
     try:
         path = chi2_along_covariance(problem, st, J, scale)
     except np.linalg.LinAlgError:
-        return unc
-
-    def refit_near(name, v):     # each refit starts from the covariance path's point
-        return refit(name, v, path.state(name, v))
-
+        return []
     kinds, details, fisher = {}, {}, {n: list(v) for n, v in unc["ci95"].items()}
     fse = unc.get("incidental", {}).get("fisher_std_errors")
     thresholds = {}
@@ -539,7 +612,7 @@ def profile_intervals(problem, st, unc, J, r, refit, every=False):
             if ok and not every:
                 kind.append("fisher")
                 continue
-            ends[i], k, pts = profile_end(problem, n, v, side, end, delta, chi2_min, refit_near)
+            ends[i], k, pts = profile_end(problem, st, n, side, end, delta, chi2_min, path)
             kind.append(k)
             tried["lower" if side < 0 else "upper"] = pts
         kinds[n] = kind[0] if kind[0] == kind[1] else f"lower {kind[0]}, upper {kind[1]}"
@@ -549,9 +622,7 @@ def profile_intervals(problem, st, unc, J, r, refit, every=False):
     unc["profile"] = {"threshold": Z95 ** 2 * scale, "rises": details, "fisher_ci95": fisher}
     if thresholds:
         unc["profile"]["thresholds"] = thresholds
-    if any(k != "fisher" for k in kinds.values()):
-        unc["method"] += "; profile-likelihood 95 % intervals where the Fisher ones fail (interval_kind)"
-    return unc
+    return [("profile", "")] if any(k != "fisher" for k in kinds.values()) else []
 
 
 def misfit_text(unc):
@@ -622,9 +693,9 @@ def other_optima(starts, params, unc, names):
     *competing* when that is below the joint 95 % threshold of the shape parameters,
     :data:`CHI2_95` [p] x the covariance's scale x the largest (SE / Fisher SE)^2 of the incidental-parameter
     sandwich (as the profile check rescales its threshold, :func:`profile_intervals`): the likelihood's 95 %
-    region then has a second part there, which the intervals around the estimate do not describe (measured:
-    per-pixel albedos from one image, tools/bench_textured.py --lights 1; a tie between two modes whose
-    noise-free difference is small).  Returns (list of {params, delta_chi2, distance_se, converged,
+    region then has a second part there, which the intervals around the estimate do not describe (a tie
+    between two modes whose noise-free difference is small: per-pixel albedos from one image,
+    docs/howto/fit-textured.md).  Returns (list of {params, delta_chi2, distance_se, converged,
     competing}, the threshold); an empty list for a single start or a fit without standard errors."""
     se = unc.get("std_errors") or {}
     names = [n for n in names if se.get(n) and math.isfinite(se[n]) and se[n] > 0]
@@ -655,11 +726,9 @@ def widen_for_optima(unc, params, optima, lims=None):
     of the estimate's interval and, around every competing optimum, an interval of the same half-widths
     (that optimum's own curvature is not computed: its errors are taken to be the estimate's), cut at the
     parameter's bounds ``lims`` {name: (lo, hi)} where given.  The hull is conservative (the joint region's
-    projection, as the threshold is the joint one).  Measured on the one-image per-pixel fit at 100^2
-    (tools/bench_textured.py --lights 1, 24 seeds per object): alpha's and beta's intervals covered 18-19
-    of 24 instead of 15-16; the rest miss because no optimum near the truth exists in those fits
-    (docs/benchmarks.md).  The standard errors stay the estimate's own.  Widened parameters get
-    ``interval_kind`` "optima" (the others keep theirs, "fisher" where none was set);
+    projection, as the threshold is the joint one); it raises the coverage of the intervals where such an
+    optimum competes, and cannot where no optimum near the truth was found (docs/howto/fit-textured.md).
+    The standard errors stay the estimate's own.  Widened parameters get ``interval_kind`` "optima" (the others keep theirs, "fisher" where none was set);
     ``unc["other_optima"]["widened"]`` lists {name: the interval before}.  Returns the names widened."""
     comp = [o for o in optima if o["competing"]]
     ci = unc.get("ci95") or {}
@@ -680,8 +749,6 @@ def widen_for_optima(unc, params, optima, lims=None):
         for n in before:
             kinds[n] = "optima"
         unc.setdefault("other_optima", {})["widened"] = before
-        unc["method"] = unc.get("method", "") + ("; 95 % intervals widened over a competing optimum of the "
-                                                 "likelihood (interval_kind 'optima', other_optima)")
     return list(before)
 
 

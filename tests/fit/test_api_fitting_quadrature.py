@@ -1,4 +1,4 @@
-"""The likelihood's pixel-area quadrature, checked and refined by the fit (fitting.refine_quadrature):
+"""The likelihood's pixel-area quadrature, checked and refined by the fit (checks.check_footprint):
 its predicted bias against two independent fits with fixed quadratures on the same data, and the refined fit
 against the fit with the finer quadrature from the start."""
 import pytest
@@ -61,3 +61,18 @@ def test_a_broad_highlight_keeps_two_points_and_the_same_estimate():
     assert q["area_points"] == 2 and len(q["checks"]) == 1
     assert max(abs(v) for v in q["checks"][0]["bias_se"].values()) < 0.2
     assert auto.params == two.params and auto.std_errors == two.std_errors
+
+
+def test_the_check_is_a_function_of_a_result(glossy_fits):
+    """``check_footprint`` applied to the fit made with 2 x 2 points is what the default fit applies: the same
+    checks and refinement, the same estimate and standard errors; the result it was given is left as it was."""
+    from fmbrdf_mi.fit.api.checks import check_footprint
+
+    auto, two = glossy_fits[None], glossy_fits[2]
+    steps = len(two.history)
+    checked = check_footprint(two)
+    assert checked.params == auto.params and checked.std_errors == auto.std_errors
+    q, qa = checked.uncertainty["quadrature"], auto.uncertainty["quadrature"]
+    assert q["checks"] == qa["checks"] and q["area_points"] == qa["area_points"] == 4
+    assert "pixel-area quadrature 4 x 4" in checked.uncertainty["method"]
+    assert len(two.history) == steps and "quadrature" not in two.uncertainty

@@ -89,7 +89,10 @@ def test_linear_problem_reaches_the_lstsq_solution():
 
 def test_a_different_linear_solve_gives_the_same_iterates():
     """The solve is pluggable: the normal equations solved by lstsq on the stacked damped system give the
-    same step as the dense solve, hence the same path (as the normal refinement's Schur complement must)."""
+    same step as the dense solve, hence the same path (as the normal refinement's Schur complement must),
+    to the same optimum.  What the method guarantees is the path while the steps are above rounding: once
+    an iterate's objective is within 1e-12 of the end's (relative), further accepted steps are rounding-level
+    decreases whose number depends on the linear algebra library, so the paths are compared up to there."""
     y = model(TRUTH) + 0.01 * np.sin(7 * T)
 
     def stacked(lin, lam):
@@ -103,14 +106,16 @@ def test_a_different_linear_solve_gives_the_same_iterates():
         linearise, trial = problem(y)
         p0 = np.array([1.0, 0.2, 0.0])
         r0 = model(p0) - y
-        path = []
+        path, values = [], []
         res = LM.levenberg_marquardt(p0, float(r0 @ r0), linearise, solve, trial, max_iter=30,
-                                     on_accept=lambda it, x, f: path.append(x.copy()))
-        out.append((res, np.array(path)))
+                                     on_accept=lambda it, x, f: (path.append(x.copy()), values.append(f)))
+        assert res.reason != "max_iter", res.reason
+        settled = next(k for k, f in enumerate(values) if f - values[-1] <= 1e-12 * values[-1])
+        out.append((res, np.array(path[:settled + 1])))
     (a, pa), (b, pb) = out
-    assert len(pa) == len(pb)
+    assert len(pa) == len(pb) >= 3
     np.testing.assert_allclose(pa, pb, rtol=1e-8)
-    assert a.reason == b.reason
+    np.testing.assert_allclose(a.x, b.x, rtol=1e-8)       # the same optimum
 
 
 def test_secant_updates_share_linearisations_and_reach_the_same_minimum():

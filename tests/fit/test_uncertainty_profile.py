@@ -1,4 +1,5 @@
-"""Profile-likelihood intervals (fmbrdf_mi.fit.uncertainty.profile_intervals) against a brute-force profile.
+"""Profile-likelihood intervals (fmbrdf_mi.fit.uncertainty.profile_intervals, applied by
+fmbrdf_mi.fit.api.checks.check_intervals) against a brute-force profile.
 
 The reference does not use the package's optimiser: the profile chi^2 at a kappa is the minimum over
 alpha by golden-section search on alpha's log scale (14 steps over +-0.4: alpha to 0.2 %), with the two
@@ -16,6 +17,7 @@ import pytest
 
 from fmbrdf_mi.camera import CameraModel
 from fmbrdf_mi.fit import uncertainty as U
+from fmbrdf_mi.fit.api.checks import check_intervals
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit
 from fmbrdf_mi.fit.evaluate.models import State, get_model
 from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
@@ -71,9 +73,8 @@ def test_profile_ends_match_a_brute_force_profile(fitted):
     delta = U.Z95 ** 2 * U.interval_scale(problem, unc)
     k0, se = st.shape["kappa"], unc["std_errors"]["kappa"]
     path = U.chi2_along_covariance(problem, st, J, U.interval_scale(problem, unc))
-    refit = lambda n, v: refit_fixed(problem, st, n, v, path.state(n, v))          # noqa: E731
     for side in (-1, 1):
-        end, kind, pts = U.profile_end(problem, "kappa", k0, side, k0 + side * U.Z95 * se, delta, chi2_min, refit)
+        end, kind, pts = U.profile_end(problem, st, "kappa", side, k0 + side * U.Z95 * se, delta, chi2_min, path)
         assert kind == "profile", (kind, pts)
         # the brute-force profile crosses the threshold within 8 % of the Fisher half-width of the package's end
         hw = U.Z95 * se
@@ -168,6 +169,10 @@ def test_fit_reports_the_kind_of_every_interval():
     fisher = fit(obs, FitOptions(loss="likelihood", starts=1, fixed=FIXED, intervals="fisher"), progress=False)
     assert "interval_kind" not in fisher.uncertainty
     assert fisher.params == res.params and fisher.std_errors == res.std_errors   # only intervals change
+    # the check is a function of a result: applied to the Fisher-only fit, it gives the default fit's intervals
+    checked = check_intervals(fisher, progress=False)
+    for key in ("ci95", "interval_kind", "method"):
+        assert checked.uncertainty[key] == u[key], key
     with pytest.raises(Exception, match="intervals: expected one of auto, profile, fisher"):
         fit(obs, FitOptions(loss="likelihood", intervals="wald"), progress=False)
     assert np.isfinite([v for ab in u["ci95"].values() for v in ab]).all()

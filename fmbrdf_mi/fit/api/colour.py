@@ -73,7 +73,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     ``area_points``: each raw sample is the mean of the model over this
     many points squared of its pixel (as a sensor pixel integrates; 1: its
     centre), as in the one-channel likelihood; None (the default): 2, checked and raised where
-    the 2 x 2 quadrature would bias a shape parameter (:func:`~fmbrdf_mi.fit.api.fitting.refine_quadrature`,
+    the 2 x 2 quadrature would bias a shape parameter (:func:`~fmbrdf_mi.fit.api.checks.check_footprint`,
     fit.json's ``uncertainty.quadrature``).  ``intervals``: as
     :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`' (profile-likelihood ends where the Fisher ones fail).
     ``albedo``: ``"shared"`` (one k_s, r_k per channel for the whole object) or ``"per-pixel"``: albedo

@@ -18,8 +18,8 @@
    checked before every model evaluation) ends the fit at its latest
    accepted estimate, not converged.
 
-The caller (:func:`fmbrdf_mi.fit.api.fitting.fit`) turns the
-:class:`Solution` into a result with its uncertainty.
+:func:`fmbrdf_mi.fit.api.assemble.assemble` turns the :class:`Solution`
+into a result with its uncertainty.
 """
 from __future__ import annotations
 

@@ -1,0 +1,241 @@
+"""A solved problem made into a :class:`~fmbrdf_mi.fit.result.FitResult`: its covariance, albedo maps and
+materials block (:func:`assemble`).
+
+The result keeps what the checks after a fit (:mod:`fmbrdf_mi.fit.api.checks`) need in its ``fitted``
+(a :class:`Fitted`, not serialised); what a check changes in the uncertainty block is carried into the
+blocks derived from it by :func:`settle`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from fmbrdf_mi.fit import uncertainty as U
+from fmbrdf_mi.fit.problem.materials import material_block
+from fmbrdf_mi.fit.problem.problem import TimeUp
+from fmbrdf_mi.fit.result import FitResult
+
+
+@dataclasses.dataclass
+class Fitted:
+    """What the checks after a fit need of it (a result's ``fitted``, not serialised).
+
+    ``problem``, ``data`` (its :class:`~fmbrdf_mi.fit.problem.problem.FitData`) and ``solution`` (the
+    solver's :class:`~fmbrdf_mi.fit.solve.driver.Solution`; once the covariance is computed its ``J`` and
+    ``r`` are those at the estimate, without a deadline); ``options``: the
+    :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`; ``report``: the progress callable; ``deadline``: the
+    fit's wall-clock limit (``time.time()``, None: none); ``image_shape``: (H, W) of the albedo maps;
+    ``labels``: the label image the fit was given (one material: its ``materials`` block); ``history``:
+    the fit's list of accepted steps; ``applied``: the uncertainty mechanisms applied
+    (:func:`~fmbrdf_mi.fit.uncertainty.method_text`); ``evaluations``: model evaluations of problems
+    before this one (a refined quadrature's coarser fit); ``t0``: when the fit started.
+    """
+
+    problem: object
+    data: object
+    solution: object
+    options: object
+    report: object
+    deadline: float = None
+    image_shape: tuple = None
+    labels: object = None
+    history: list = dataclasses.field(default_factory=list)
+    applied: list = dataclasses.field(default_factory=list)
+    evaluations: int = 0
+    t0: float = dataclasses.field(default_factory=time.time)
+
+
+def assemble(fx):
+    """The :class:`~fmbrdf_mi.fit.result.FitResult` of the solved problem ``fx`` (a :class:`Fitted`): the
+    covariance (:func:`~fmbrdf_mi.fit.uncertainty.covariance`) of a converged pixel-path fit, the albedo
+    maps of an eliminating layout, the objective's value and terms, the materials block."""
+    problem, sol, data, report = fx.problem, fx.solution, fx.data, fx.report
+    st, loss, objective = sol.state, data.loss, data.objective
+    unc, groups, parts = {}, None, None
+    if sol.converged and fx.options.path == "pixel":
+        problem.deadline = None  # the fit is done; its uncertainty is part of the answer
+        parts = problem.parts(st, jac=True)
+        r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
+        fx.solution = dataclasses.replace(sol, J=J, r=r)
+        n_ind = None if loss != "likelihood" else len(data.pixels) * objective.dof - problem.n_eliminated(st)
+        names, cov, info = U.covariance(problem, st, J, r, n_ind, parts)
+        fx.applied = info.pop("applied")
+        unc = U.summary(problem, st, names, cov, info)
+        if unc.get("misfit"):
+            report("[fit] warning: " + U.misfit_text(unc))
+        if problem.eliminates:
+            groups = U.pixel_albedos(problem, st, parts, J, unc)
+    elif not sol.converged:
+        fx.applied, unc = [("not-converged", "")], {"std_errors": {}}
+    if parts is None:
+        try:
+            parts = problem.parts(st)
+        except TimeUp:
+            problem.deadline = None
+            parts = problem.parts(st)
+    value = problem.obj.value(parts, st)
+    if problem.n_nonfinite:
+        report(f"[fit] {problem.n_nonfinite} pixels had non-finite BSDF derivatives; their Jacobian rows were zeroed")
+    model = problem.model
+    params = model.report(st.shape, st.a_s, st.a_b)
+    albedo = maps = None
+    if problem.eliminates:
+        albedo, maps = albedo_block(problem, st, parts, groups, fx.image_shape, value, report)
+    n_out = int((objective.outliers & objective.target.dolp_valid).sum()) if loss != "likelihood" else 0
+    res = FitResult(model=model.name, params=params, loss=value, loss_terms=problem.obj.loss_terms(parts, st),
+                    std_errors=unc.get("std_errors", {}), history=fx.history, stop_reason=sol.reason,
+                    n_pixels=len(data.pixels), n_outliers=n_out,
+                    timings={"search": sol.t_search, "total": time.time() - fx.t0,
+                             "evaluations": problem.n_evals + fx.evaluations,
+                             "nonfinite_derivative_pixels": problem.n_nonfinite},
+                    options=dataclasses.asdict(fx.options), converged=bool(sol.converged), objective=loss,
+                    uncertainty=unc, noise=objective.noise.to_dict() if loss == "likelihood" else None,
+                    pixels_excluded=data.excluded, starts=sol.starts, pixels=data.pixels, albedo=albedo, maps=maps,
+                    details={"internal": {"shape": dict(st.shape), "a_s": np.asarray(st.a_s).tolist(),
+                                          "a_b": np.asarray(st.a_b).tolist()},
+                             "residuals": data_residuals(problem.obj, parts, st),
+                             "n_free": len(problem.to_z(st)) + problem.n_eliminated(st)},
+                    fitted=fx)
+    return settle(res)
+
+
+def settle(res):
+    """``res`` with what derives from its uncertainty block brought up to date after a mechanism was applied
+    (a check after the fit): the method text (:func:`~fmbrdf_mi.fit.uncertainty.method_text` of the
+    mechanisms applied), the weakly identified parameters, the materials block's standard errors and
+    intervals."""
+    fx, unc = res.fitted, res.uncertainty
+    if fx.applied:
+        unc["method"] = U.method_text(fx.applied)
+    res.weakly_identified = U.weakly_identified(res.params, res.std_errors, unc.get("at_bound", ()))
+    mat = fx.data.materials
+    if mat is not None:
+        res.materials = material_block(res.params, res.std_errors, unc.get("ci95"), mat["count"], mat["pixels"])
+    elif fx.labels is not None:     # one material: the ordinary fit of the labelled pixels
+        res.materials = material_block(res.params, res.std_errors, unc.get("ci95"), 1, [res.n_pixels],
+                                       base_names=tuple(res.params))
+    return res
+
+
+def albedo_block(problem, st, parts, groups, shape, value, report):
+    """(fit.json's ``albedo`` block, the maps) of an eliminating layout at ``st``: ``groups``
+    (:func:`~fmbrdf_mi.fit.uncertainty.pixel_albedos`; None for a fit without standard errors: the values
+    alone) on the image grid ``shape``, with the smoothness prior's block (:func:`prior_block`)."""
+    lay = problem.layout
+    if groups is None:
+        f, nan = float(problem.model.albedo_factor), np.full(lay.n_groups, np.nan)
+        groups = {"k_s": f * np.asarray(st.a_s), "k_b": f * np.asarray(st.a_b), "k_s_se": nan, "k_b_se": nan,
+                  "correlation": nan, "identified": np.zeros(lay.n_groups, bool)}
+    prior = lay.prior is not None
+    albedo, maps = albedo_maps(lay, shape, groups, prior=prior)
+    if prior:
+        albedo["prior"] = prior_block(problem, st, parts)
+        report(f"[fit] albedo smoothness prior: penalty {albedo['prior']['penalty']:.4g} of chi^2 "
+               f"{value:.6g}, effective albedo parameters {albedo['prior']['effective_parameters']:.1f} of "
+               f"{albedo['prior']['parameters']}")
+    report(f"[fit] albedo maps: {albedo['pixels']} pixels, surface / body split identified in "
+           f"{albedo['identified_fraction']:.0%} (median k_s {albedo['k_s_median']:.4g}, k_b "
+           f"{albedo['k_b_median']:.4g})")
+    if albedo.get("warning"):
+        report("[fit] warning: " + albedo["warning"])
+    return albedo, maps
+
+
+def data_residuals(obj, parts, st):
+    """The objective's residuals of the data (without the albedo prior's rows:
+    :mod:`fmbrdf_mi.fit.evaluate.albedo_prior`)."""
+    r = obj.residuals(parts, st)
+    return r if obj.prior is None else r[:obj.y.size]
+
+
+#: How a fit with the albedo maps' smoothness prior counts chi^2's degrees of freedom (fit.json albedo.prior).
+PRIOR_DOF_RULE = ("chi^2 (data + penalty) has N - p - n0 degrees of freedom, N the independent samples, p the "
+                  "free shape parameters, n0 the prior's null space (2 per connected set of pixels: each set's "
+                  "mean k_s, k_b): its expectation at the optimum when the maps' neighbour differences follow the "
+                  "prior; maps smoother than tau give less (down to N - p - effective_parameters), rougher ones "
+                  "more (the misfit check then flags a tau too small)")
+
+
+def prior_block(problem, st, parts):
+    """fit.json's ``albedo.prior``: the maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`), its
+    penalty at ``st``, the albedos' effective number of parameters (the hat matrix's trace) and the rule of
+    chi^2's degrees of freedom."""
+    lay, obj = problem.layout, problem.obj
+    pr = lay.prior
+    return {"kind": pr.describe(), "tau_s": pr.tau[0], "tau_b": pr.tau[1], "pairs": int(len(pr.pairs)),
+            "penalty": obj.penalty(st), "data_chi2": float(np.sum(data_residuals(obj, parts, st) ** 2)),
+            "effective_parameters": lay.effective_parameters(*obj.albedo_columns(parts)),
+            "parameters": 2 * int(lay.n_groups), "null_dims": int(pr.null_dims()), "dof_rule": PRIOR_DOF_RULE}
+
+
+#: Below this many images of each pixel a per-pixel albedo fit's shared parameters are poorly determined: with
+#: two free albedos per pixel the unknowns grow with the pixels (the incidental-parameter problem), and one
+#: image's four polariser samples per pixel leave them too little; the likelihood can then also have a second
+#: optimum that the noise makes win (docs/howto/fit-textured.md).
+MIN_IMAGES_PER_PIXEL = 3
+
+#: The warning of a per-pixel albedo fit from fewer than :data:`MIN_IMAGES_PER_PIXEL` images of each pixel.
+PER_PIXEL_FEW_IMAGES = (f"per-pixel albedos from fewer than {MIN_IMAGES_PER_PIXEL} images of each pixel: eta, "
+                        "alpha, beta, kappa are poorly determined and a second optimum can win; the reported "
+                        "incidental-parameter sandwich covers most of their spread.  Fit several lights of the "
+                        "same view (docs/howto/fit-textured.md)")
+
+#: ... with the albedo maps' smoothness prior, whose errors are posterior ones.
+PER_PIXEL_FEW_IMAGES_PRIOR = (f"per-pixel albedos from fewer than {MIN_IMAGES_PER_PIXEL} images of each pixel: "
+                              "eta, alpha, beta, kappa are poorly determined; the smoothness prior narrows them at "
+                              "the cost of its bias (the reported errors are posterior ones).  Fit several lights "
+                              "of the same view (docs/howto/fit-textured.md)")
+
+
+def albedo_maps(layout, shape, groups, prior=False):
+    """(summary, maps) of per-pixel albedos: ``groups`` (:func:`fmbrdf_mi.fit.uncertainty.pixel_albedos`, one
+    entry per group of ``layout``) put on the image grid ``shape`` (H, W): arrays (H, W), or (C, H, W) for a
+    colour mosaic's channels, NaN where no pixel was fitted (``identified``: False); the summary is
+    fit.json's ``albedo`` block (``prior``: the maps have a smoothness prior, for its warning)."""
+    H, W = shape
+    C = 1 if layout.channel_of is None else len(layout.labels)
+    ch = np.zeros(layout.n_groups, int) if layout.channel_of is None else layout.channel_of
+    maps = {}
+    for key, v in groups.items():
+        img = np.zeros((C, H * W), bool) if key == "identified" else np.full((C, H * W), np.nan)
+        img[ch, layout.pixels] = v
+        maps[key] = img.reshape(C, H, W) if C > 1 else img.reshape(H, W)
+    maps["channels"] = None if C == 1 else list(layout.labels)
+    ident = np.asarray(groups["identified"], bool)
+    n_pix = len(np.unique(layout.pixels))
+    summary = {"layout": layout.name, "pixels": int(n_pix), "groups": int(layout.n_groups),
+               "identified_fraction": float(ident.mean()) if ident.size else 0.0,
+               "split_rule": f"identified where the standard error of the surface's and of the body's share of "
+                             f"the pixel's brightness are at most {U.SPLIT_REL:g} of it",
+               "k_s_median": float(np.nanmedian(groups["k_s"])), "k_b_median": float(np.nanmedian(groups["k_b"])),
+               "k_s_determined_fraction": determined(groups["k_s"], groups["k_s_se"]),
+               "k_b_determined_fraction": determined(groups["k_b"], groups["k_b_se"]),
+               "channels": maps["channels"]}
+    if C > 1:   # a colour mosaic: the same summary per channel (each channel's groups)
+        summary["per_channel"] = {
+            c: {"identified_fraction": float(ident[ch == j].mean()) if (ch == j).any() else 0.0,
+                "k_s_median": float(np.nanmedian(groups["k_s"][ch == j])),
+                "k_b_median": float(np.nanmedian(groups["k_b"][ch == j])),
+                "k_s_determined_fraction": determined(groups["k_s"][ch == j], groups["k_s_se"][ch == j]),
+                "k_b_determined_fraction": determined(groups["k_b"][ch == j], groups["k_b_se"][ch == j])}
+            for j, c in enumerate(layout.labels)}
+    # images (cells) per albedo pair: the median over the pairs (a pixel excluded from an image, e.g.
+    # saturated or grazing there, has fewer); a colour mosaic's cell holds three groups, one per channel:
+    # each group counted once per cell
+    cells = np.unique(np.stack([np.repeat(np.arange(len(layout.groups)), layout.groups.shape[1]),
+                                layout.groups.ravel()]), axis=1)[1] if C > 1 else layout.groups[:, 0]
+    per = float(np.median(np.bincount(cells, minlength=layout.n_groups))) if layout.n_groups else 0.0
+    summary["images_per_pixel"] = per
+    if per < MIN_IMAGES_PER_PIXEL:
+        summary["warning"] = PER_PIXEL_FEW_IMAGES_PRIOR if prior else PER_PIXEL_FEW_IMAGES
+    return summary, maps
+
+
+def determined(value, se, rel=0.5):
+    """Fraction of the groups whose albedo has a relative standard error of at most ``rel``."""
+    value, se = np.asarray(value, float), np.asarray(se, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ok = np.isfinite(se) & (se <= rel * value)
+    return float(ok.mean()) if ok.size else 0.0

@@ -1,0 +1,135 @@
+"""Checks after a fit, each a function of its result (as lmfit's ``conf_interval(minimizer, result)``).
+
+    res = fit(obs, intervals="fisher", area_points=2)     # the fit alone
+    res = check_footprint(res)        # the pixel-area quadrature checked, refined where it biases the estimate
+    res = check_intervals(res)        # each Fisher 95 % interval checked against the profile likelihood
+    res = find_other_optima(res)      # competing optima among the starts' ends; intervals widened over them
+
+:func:`~fmbrdf_mi.fit.api.fitting.fit` applies those its options ask for (``area_points=None``,
+``intervals="auto"`` or ``"profile"``; the optima always), as does the command line.  Each takes a
+converged pixel-path result with its ``fitted`` (:class:`~fmbrdf_mi.fit.api.assemble.Fitted`) and
+returns it with its uncertainty block extended (``quadrature``, ``interval_kind`` and ``profile``,
+``other_optima``) and its ``method`` naming what was applied: the same result, updated, or, where the
+quadrature check refits, a new one; any other result is returned as it is.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+from fmbrdf_mi.fit import uncertainty as U
+from fmbrdf_mi.fit.api.assemble import Fitted, assemble, settle
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.solve.driver import solve
+
+
+def checkable(res):
+    """Whether ``res`` is a converged pixel-path fit that carries what a check needs."""
+    fx = res.fitted
+    return fx is not None and res.converged and fx.solution.J is not None
+
+
+def check_intervals(res, every=False, progress=None):
+    """Each free shape parameter's Fisher 95 % interval checked against the likelihood; where it fails,
+    that end is the profile likelihood's (:func:`~fmbrdf_mi.fit.uncertainty.profile_intervals`: refits
+    with the parameter held fixed).  ``every``: both ends of every parameter from the profile likelihood
+    (``intervals="profile"``).  Likelihood fits only; past the fit's ``max_time`` the intervals stay
+    Fisher's and the method says so.  ``progress``: a callable for the progress line (default: the fit's)."""
+    if not checkable(res) or not res.fitted.problem.obj.is_likelihood:
+        return res
+    fx = res.fitted
+    say = progress or fx.report
+    if fx.deadline is not None and time.time() > fx.deadline:
+        fx.applied.append(("profile-skipped", ""))
+        return settle(res)
+    sol = fx.solution
+    fx.applied += U.profile_intervals(fx.problem, sol.state, res.uncertainty, sol.J, sol.r, every=every)
+    prof = {n: k for n, k in res.uncertainty.get("interval_kind", {}).items() if k != "fisher"}
+    if prof:
+        say("[fit] profile-likelihood 95 % intervals (the Fisher ones fail there): "
+            + ", ".join(f"{n} ({k})" for n, k in prof.items()))
+    return settle(res)
+
+
+def find_other_optima(res, progress=None):
+    """The separate optima among the ends of the fit's starts (:func:`~fmbrdf_mi.fit.uncertainty.other_optima`)
+    in ``uncertainty.other_optima``, a warning where one competes with the estimate, and the 95 % intervals
+    widened over the competing ones (:func:`~fmbrdf_mi.fit.uncertainty.widen_for_optima`).  ``progress``:
+    a callable for the warning (default: the fit's)."""
+    if not checkable(res):
+        return res
+    fx, unc = res.fitted, res.uncertainty
+    problem, st = fx.problem, fx.solution.state
+    optima, threshold = U.other_optima(res.starts, st.shape, unc, problem.names)
+    if not optima:
+        return res
+    unc["other_optima"] = {"optima": optima, "threshold": threshold, "separation_se": U.MODE_SEPARATION_SE}
+    text = U.optima_text(optima, threshold)
+    if text:
+        unc["other_optima"]["warning"] = text
+        (progress or fx.report)("[fit] warning: " + text)
+    if U.widen_for_optima(unc, st.shape, optima, {n: problem.bounds.lims[n][2:] for n in problem.names}):
+        fx.applied.append(("optima", ""))
+    return settle(res)
+
+
+def check_footprint(res, progress=None):
+    """The pixel-area quadrature of a likelihood fit of raw samples, checked and refined: while a shape
+    parameter's bias from averaging the model over m x m points of each raw pixel
+    (:func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias`: against 2m x 2m) exceeds
+    :data:`~fmbrdf_mi.fit.uncertainty.QUADRATURE_TOL` standard errors, the data are remade with 2m x 2m and
+    the fit resumed from its estimate, up to :data:`~fmbrdf_mi.fit.uncertainty.MAX_AREA_POINTS` (a highlight a
+    few pixels wide: glossy materials on small objects).  Returns the result of the finest converged fit
+    (the same result where the quadrature passes), with ``uncertainty.quadrature`` {area_points,
+    tolerance_se, checks: [{area_points, against, bias_se}], seconds}.  Fits whose data cannot be remade
+    (one area point, no raw samples, the paper's loss) are returned as they are.  ``progress``: a callable
+    for the progress lines (default: the fit's)."""
+    if not checkable(res) or res.fitted.data.remake is None or res.fitted.data.area_points <= 1:
+        return res
+    fx = res.fitted
+    say, opts = progress or fx.report, fx.options
+    problem, data, st, m, t0 = fx.problem, fx.data, fx.solution.state, fx.data.area_points, time.time()
+    block = {"area_points": m, "tolerance_se": U.QUADRATURE_TOL, "checks": []}
+    fine_fx, history = None, list(fx.history)     # the result given keeps its own history
+    while m < U.MAX_AREA_POINTS:
+        parts = problem.parts(st, jac=True)
+        r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
+        fine_data = data.remake(2 * m)
+        fine = fine_data.problem(get_model(opts.model), opts.bounds, fx.report, opts.fixed, fx.deadline)
+        bias = U.quadrature_bias(problem, fine, st, J, r)
+        block["checks"].append({"area_points": m, "against": 2 * m, "bias_se": bias})
+        worst = max(bias, key=lambda n: abs(bias[n])) if bias else None
+        if worst is None or abs(bias[worst]) <= U.QUADRATURE_TOL:
+            break
+        say(f"[fit] pixel-area quadrature: {m} x {m} points per raw pixel bias {worst} by about "
+            f"{bias[worst] / 0.75:+.2f} standard errors here (the highlight spans few pixels); the fit goes on "
+            f"with {2 * m} x {2 * m}")
+        try:
+            sol = solve(fine, init=st, starts=1, rounds=max(1, opts.rounds) + 2, optimizer=opts.optimizer,
+                        max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit, lr=opts.lr,
+                        max_time=opts.max_time, history=history, report=fx.report)
+        except InputError:      # max_time: not even one evaluation with the finer points fits
+            sol = None
+        if sol is None or not sol.converged:    # keep the converged coarser fit, and say so
+            block["refinement"] = f"stopped: the fit with {2 * m} x {2 * m} points did not converge" + (
+                "" if sol is None else f" ({sol.reason})")
+            say(f"[fit] warning: {block['refinement']}; the estimate is the one with {m} x {m} points")
+            break
+        fine_fx = Fitted(fine, fine_data, dataclasses.replace(sol, starts=fx.solution.starts,
+                                                              t_search=fx.solution.t_search),
+                         opts, fx.report, fx.deadline, fx.image_shape, fx.labels, history,
+                         evaluations=fx.evaluations + problem.n_evals, t0=fx.t0)
+        problem, data, m, st = fine, fine_data, 2 * m, sol.state
+        block["area_points"] = m
+    block["seconds"] = time.time() - t0
+    if fine_fx is not None:
+        res = assemble(fine_fx)
+    res.uncertainty["quadrature"] = block
+    first = block["checks"][0]
+    if m != first["area_points"]:
+        worst = max(first["bias_se"], key=lambda n: abs(first["bias_se"][n]))
+        res.fitted.applied.append(("quadrature", f"{m} x {m} points per raw pixel ({first['area_points']} x "
+                                                 f"{first['area_points']} would bias {worst} by about "
+                                                 f"{first['bias_se'][worst] / 0.75:+.2f} SE)"))
+    return settle(res)
