@@ -62,6 +62,13 @@ class MuellerModel:
     def shape_names(self):
         return tuple(p.name for p in self.shape)
 
+    def param(self, name):
+        """The shape parameter ``name`` (what :class:`fmbrdf_mi.fit.evaluate.models.Bounds` reads)."""
+        for p in self.shape:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
     @property
     def albedo_names(self):
         return tuple(t[0] for t in self.terms)
