@@ -80,6 +80,7 @@ class MuellerFitOptions:
     level: float = 0.95             # interval level
     max_rows: int = 50_000          # rows fitted per wavelength (a seeded subset beyond)
     seed: int = 0
+    start_grids: dict = None        # {model: {shape parameter: values}} replacing START_GRIDS' entries
 
     def check(self):
         for m in self.models:
@@ -292,7 +293,11 @@ def fit_model(model, table, options=None, progress=None, vanishing=None):
             sm, fixed_m = vanishing, True
         prob.sigma_f, prob.sigma_m = sf, sm
         # 1. start grid
-        grid = START_GRIDS[m.name]
+        grid = (o.start_grids or {}).get(m.name, START_GRIDS[m.name])
+        unknown = [k for k in grid if k not in m.shape_names] + [k for k in m.shape_names if k not in grid]
+        if unknown:
+            raise ValueError(f"start grid of {m.name}: needs exactly {', '.join(m.shape_names) or 'no parameters'}, "
+                             f"got {', '.join(grid) or 'none'}")
         names = tuple(grid)
         cands = []
         for vals in itertools.product(*(grid[n] for n in names)) if names else [()]:
