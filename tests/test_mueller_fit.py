@@ -120,3 +120,14 @@ def test_command_bad_options(tmp_path, capsys):
     assert main(["fit-brdf", str(path), "-o", str(tmp_path / "o"), "-q", "--noise-m", "-1"]) == 1
     assert "--noise-m" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_options_of_the_other_kind_are_refused(tmp_path, capsys):
+    path, _ = _table(tmp_path, "lambert", {"reflectance": 0.3}, 0.0, 0.0, 0)
+    assert main(["fit-brdf", str(path), "-o", str(tmp_path / "o"), "-q", "--jobs", "2"]) == 1
+    assert "--jobs" in capsys.readouterr().err
+    merl = tmp_path / "m.binary"
+    merl.write_bytes(b"")
+    assert main(["fit-brdf", str(merl), "-o", str(tmp_path / "o"), "-q", "--holdout", str(path)]) == 1
+    assert "--holdout" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

@@ -9,6 +9,7 @@ spread of the estimates over the seeds against the mean reported standard error,
 the true ones, and the seconds per fit (one wavelength).
 
     python tools/bench_fit_mueller.py --seeds 20 --models pplastic,fmbrdf -o bench_mueller.json
+    python tools/bench_fit_mueller.py --dense --seeds 2 --models pplastic,fmbrdf   # times on a few thousand rows
     python tools/bench_fit_mueller.py --table bench_mueller.json      # the markdown table of a result
 """
 from __future__ import annotations
@@ -28,11 +29,15 @@ TRUTH = {
 }
 
 
-def run(models, seeds, seed0, noise_f, noise_m):
+#: The dense scan of ``--dense``: four incidence angles, exit angles every 2 degrees in twelve planes.
+DENSE = {"theta_i": (10.0, 30.0, 50.0, 70.0), "theta_o": tuple(range(-79, 80, 2)), "phi_o": tuple(range(0, 180, 15))}
+
+
+def run(models, seeds, seed0, noise_f, noise_m, dense=False):
     from fmbrdf_mi.brdf_fit import mueller as T
     from fmbrdf_mi.brdf_fit import mueller_fit as F
 
-    w_in, w_out = F.goniometer_geometries()
+    w_in, w_out = F.goniometer_geometries(**(DENSE if dense else {}))
     out = {"rows": len(w_in), "noise_f": noise_f, "noise_m": noise_m, "seeds": seeds, "seed0": seed0,
            "level": F.MuellerFitOptions().level, "models": {}}
     with tempfile.TemporaryDirectory() as tmp:
@@ -90,6 +95,7 @@ def main(argv=None):
     p.add_argument("--seed0", type=int, default=0)
     p.add_argument("--noise-f", type=float, default=0.03)
     p.add_argument("--noise-m", type=float, default=0.01)
+    p.add_argument("--dense", action="store_true", help="the dense scan (DENSE, a few thousand rows) for timing")
     p.add_argument("-o", "--out", help="write the result as JSON")
     p.add_argument("--table", metavar="JSON", help="print the markdown table of a result and exit")
     a = p.parse_args(argv)
@@ -100,7 +106,7 @@ def main(argv=None):
     bad = [m for m in models if m not in TRUTH]
     if bad or a.seeds < 1:
         p.error(f"--models: choose from {', '.join(TRUTH)}; --seeds >= 1")
-    res = run(models, a.seeds, a.seed0, a.noise_f, a.noise_m)
+    res = run(models, a.seeds, a.seed0, a.noise_f, a.noise_m, a.dense)
     if a.out:
         with open(a.out + ".part", "w") as f:
             json.dump(res, f, indent=1, default=float)

@@ -146,11 +146,11 @@ def _not_converged(report):
 def run_fit_brdf(args):
     _check_args(args)
     from .mueller import is_mueller_table
+    from .mueller_command import refuse_mueller_options, run_fit_mueller
 
     if any(is_mueller_table(f) for f in args.file):   # a Mueller-matrix BRDF table: mueller_command.py
-        from .mueller_command import run_fit_mueller
-
         return run_fit_mueller(args)
+    refuse_mueller_options(args)
     files = _inputs(args.file)
     if len(files) == 1 and not os.path.isdir(args.file[0]):
         return _run_single(args, files[0])

@@ -38,6 +38,31 @@ def add_mueller_arguments(p):
                    help="slack of the physical bounds on normalised Mueller elements (default 0.05)")
 
 
+#: The Mueller options and their defaults (refused on MERL files when changed).
+_MUELLER_DEFAULTS = {"models": "fmbrdf,pplastic,lambert", "holdout": None, "residual": "log", "noise": "residuals",
+                     "noise_f": None, "noise_m": None, "physical_tolerance": None}
+
+
+def _flag(name):
+    return "--" + name.replace("_", "-")
+
+
+def refuse_mueller_options(args):
+    """MERL files: the options of Mueller tables would be ignored, so they are refused (one line)."""
+    given = [_flag(k) for k, v in _MUELLER_DEFAULTS.items() if getattr(args, k, v) != v]
+    if given:
+        raise ValueError(f"{', '.join(given)}: options of Mueller-matrix tables (.csv, .npz); the MERL files "
+                         f"given ({args.file[0]}{', ...' if len(args.file) > 1 else ''}) do not use them")
+
+
+def _refuse_merl_options(args):
+    given = [f for f, on in (("--jobs", args.jobs != 1), ("--skip-existing", args.skip_existing),
+                             ("--full-grid", getattr(args, "full_grid", False))) if on]
+    if given:
+        raise ValueError(f"{', '.join(given)}: options of MERL batches and start grids; a Mueller table "
+                         f"({args.file[0]}) does not use them")
+
+
 def _options(args):
     from .mueller_fit import MuellerFitOptions
 
@@ -83,6 +108,7 @@ def run_fit_mueller(args):
     if len(args.file) != 1 or os.path.isdir(args.file[0]):
         raise ValueError("fit-brdf: a Mueller table is fitted alone: give one .csv or .npz FILE")
     path = args.file[0]
+    _refuse_merl_options(args)
     opts = _options(args)
     tol = _tolerance(args)
     out = args.out or os.path.splitext(path)[0] + "_fit"

@@ -270,11 +270,10 @@ class _Problem:
                 max(float(np.sqrt(np.sum(rm ** 2) / dof_m)), 1e-6))
 
 
-def fit_model(model, table, options=None, progress=None, vanishing=None):
+def fit_model(model, table, options=None, vanishing=None):
     """Fit one model to one wavelength's rows of a :class:`.mueller.MuellerTable`: :class:`MuellerFitResult`.
     ``vanishing``: :func:`vanishing_noise`'s sigma (computed here when None and needed)."""
     o = options or MuellerFitOptions()
-    say = progress or (lambda msg: None)
     t0 = time.time()
     with polarised_variant():
         prob = _Problem(model, table, o)
@@ -388,7 +387,7 @@ def fit_table(table, options=None, progress=None):
         van = vanishing_noise(sub)[0]
         out[wl] = {}
         for name in o.models:
-            res = fit_model(name, sub, o, progress, vanishing=van)
+            res = fit_model(name, sub, o, vanishing=van)
             out[wl][name] = res
             say(f"[fit-brdf] {_wl(wl)}: {name}: log10 RMSE of f_r11 {res.rmse['log10_f_r11']:.4f}, RMSE of the "
                 f"normalised elements {res.rmse['elements']:.4f} ({res.seconds:.1f} s, {res.stop_reason})")
