@@ -121,17 +121,18 @@ def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
     What this fit plugs in: a forward-difference Jacobian (one table build per shape parameter) refreshed after
     ``refresh`` accepted steps and carried between by Broyden's update from every trial (a trial costs one
     table build, a Jacobian four for FMBRDF); converged when the Gauss-Newton decrement of chi^2 on a fresh
-    Jacobian is below ``lm.DECREMENT_TOL`` (the estimate within ~0.1 standard error of the optimum), or chi^2
-    fell by less than that twice in a row; steps shortened to ``max_step`` in every coordinate (as the MERL
+    Jacobian is below ``lm.DECREMENT_TOL`` (the estimate within ~0.1 standard error of the optimum), or a step
+    from a fresh Jacobian lowered chi^2 by less than that (a secant step's small decrease says nothing); steps shortened to ``max_step`` in every coordinate (as the MERL
     fit's, :func:`.fitting.levenberg_marquardt`); a budget of ``max_evals`` trials."""
-    state = {"trials": 0}
+    state = {"trials": 0, "fresh_step": True}
     r0 = prob.fun(x0)
 
-    def linearise(x):
-        return (prob.fun(x), prob.jac(x))
+    def linearise(x):     # (residuals, Jacobian, fresh)
+        return (prob.fun(x), prob.jac(x), True)
 
     def solve(lin, lam):
-        r, J = lin
+        r, J, fresh = lin
+        state["fresh_step"] = fresh
         step = LM.dense_step(J, r, lam)
         return step * min(1.0, max_step / max(np.abs(step).max(), 1e-300))
 
@@ -141,15 +142,18 @@ def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
         return x + step, float(r_new @ r_new), r_new
 
     def secant(lin, x, x_new, r_new):
-        r, J = lin
-        return (r, LM.broyden(J, x_new - x, r_new - (r + 0.0)))
+        r, J, _ = lin
+        return (r, LM.broyden(J, x_new - x, r_new - r), False)
+
+    def small(f, f_new):  # a step from a fresh Jacobian (not a secant one) that barely lowers chi^2
+        return state["fresh_step"] and f - f_new < LM.DECREMENT_TOL
 
     res = LM.levenberg_marquardt(
         x0, float(r0 @ r0), linearise, solve, trial, max_iter=max_evals, refresh=refresh, secant=secant,
-        moved=lambda lin, x_new, r_new: (r_new, lin[1]),
-        decrement=lambda lin: LM.gn_decrement(lin[1], lin[0]), small=lambda f, f_new: f - f_new < LM.DECREMENT_TOL,
+        moved=lambda lin, x_new, r_new: (r_new, lin[1], False),
+        decrement=lambda lin: LM.gn_decrement(lin[1], lin[0]), small=small, small_count=1,
         budget=lambda: state["trials"] >= max_evals, final_linearise=True)
-    r, J = res.lin
+    r, J, _ = res.lin
     why = {"decrement": "converged: Gauss-Newton decrement below 0.01",
            "small_decrease": "converged: chi^2 decrease below 0.01",
            "no_step": "converged: no step lowers chi^2"}.get(res.reason, f"stopped: {res.reason} ({max_evals} trials)")
