@@ -20,9 +20,10 @@ plane of incidence (in the s/p bases of the planes of incidence and exit, the
 off-diagonal 2 x 2 blocks m13, m14, m23, m24, m31, m32, m41, m42 are odd
 under the mirror symmetry about that plane; :func:`vanishing_noise`), which
 assumes nothing about the model.  Intervals: the Gauss-Newton covariance
-(J^T J)^-1 of the weighted residuals at the optimum, through the delta method
-on the bounded parameters (an interval ending at a bound is as wide as the
-linearisation says, and ``at_bound`` says so); they are as honest as the noise
+(J^T J)^-1 of the weighted residuals at the optimum, J by forward differences
+in the shape parameters' values and the albedos' logarithms (so that it holds
+at a bound too, where the bounded reparameterisation is flat), value +- z SE
+cut at the bounds (``at_bound`` names a parameter that ends there); they are as honest as the noise
 model: a systematic model error inflates the residual-based sigmas, which
 then widen the intervals accordingly.
 
@@ -213,7 +214,11 @@ class _Problem:
 
     def raw(self, x):
         """Unweighted residuals: (f_r11 residuals (n,), element residuals (n, 15))."""
-        M = combine(self.parts(x), np.exp(x[self.nsh:]))
+        return self.residuals_of(self.parts(x), np.exp(x[self.nsh:]))
+
+    def residuals_of(self, P, albedos):
+        """Unweighted residuals of terms P at ``albedos``."""
+        M = combine(P, albedos)
         f = M[:, 0, 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             rf = np.log(f / self.f_obs) if self.o.residual == "log" else f / self.f_obs - 1.0
@@ -225,8 +230,31 @@ class _Problem:
         return rf, rm
 
     def fun(self, x):
-        rf, rm = self.raw(x)
+        return self.weighted(*self.raw(x))
+
+    def weighted(self, rf, rm):
         return np.concatenate([rf / self.sigma_f, rm.ravel() / self.sigma_m])
+
+    def value_jacobian(self, x):
+        """The weighted residuals' Jacobian in the reported parameters (shape values, ln albedos) at x, by forward
+        differences (backward at an upper bound): what the covariance needs also at a bound, where the bounded
+        reparameterisation's derivative vanishes."""
+        shape, al = self.shape_of(x), np.exp(x[self.nsh:])
+        P0 = self.parts(x)
+        r0 = self.weighted(*self.residuals_of(P0, al))
+        J = np.empty((r0.size, x.size))
+        for k, p in enumerate(self.model.shape):
+            v = shape[p.name]
+            lo, hi = self.bounds.lims[p.name][2:]
+            h = 1e-3 * max(abs(v), 1e-2 * (hi - lo))
+            h = h if v + h <= hi else -h
+            P = self.values.parts(dict(shape, **{p.name: v + h}))
+            J[:, k] = (self.weighted(*self.residuals_of(P, al)) - r0) / h
+        for j in range(self.nal):
+            a = al.copy()
+            a[j] *= math.exp(1e-6)
+            J[:, self.nsh + j] = (self.weighted(*self.residuals_of(P0, a)) - r0) / 1e-6
+        return r0, J
 
     def jac(self, x):
         r0 = self.fun(x)
@@ -319,7 +347,6 @@ def fit_model(model, table, options=None, vanishing=None):
             if best is None or c < best[0]:
                 best = (c, x, r, J, ok, status)
         c, x, r, J, ok, status = best
-        sf_J, sm_J = prob.sigma_f, prob.sigma_m
         # 3. the noise from the residuals at the optimum, then refined again while the weights change
         if o.noise_f is None or not fixed_m:
             for _ in range(o.noise_rounds):
@@ -331,36 +358,34 @@ def fit_model(model, table, options=None, vanishing=None):
                     history.append({"stage": "noise", "sigma_f": new[0], "sigma_m": new[1], "change": change})
                     break
                 x, r, J, nfev, ok, status = solve_lm(prob, x, o.max_evals)
-                sf_J, sm_J = prob.sigma_f, prob.sigma_m
                 history.append({"stage": "noise", "sigma_f": new[0], "sigma_m": new[1], "change": change,
                                 "cost": float(r @ r), "trials": nfev, "status": status})
         how.append("sigma_f given" if o.noise_f is not None else "sigma_f from the fit residuals")
         how.append("sigma_m given" if o.noise_m is not None else
                    "sigma_m from the elements that vanish in the plane of incidence" if fixed_m else
                    "sigma_m from the fit residuals")
-        # 4. covariance, from the Jacobian at x with the final weights
-        scale = np.concatenate([np.full(prob.n, sf_J / prob.sigma_f), np.full(15 * prob.n, sm_J / prob.sigma_m)])
-        r, J = r * scale, J * scale[:, None]    # the residuals are linear in 1 / sigma
+        # 4. covariance: the Gauss-Newton one of the weighted residuals with the final sigmas, in the reported
+        #    parameters (delta method on the albedos' logarithms)
+        r, J = prob.value_jacobian(x)
         try:
             cov = np.linalg.inv(J.T @ J)
         except np.linalg.LinAlgError:
             cov = np.linalg.pinv(J.T @ J)
         rf, rm = prob.raw(x)
-    se_x = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    se_v = np.sqrt(np.maximum(np.diag(cov), 0.0))
     zq = _z_quantile(o.level)
     params, se, interval = {}, {}, {}
     for k, p in enumerate(m.shape):
         v = prob.bounds.to_value(p.name, x[k])
+        lo, hi = prob.bounds.lims[p.name][2:]
         params[p.name] = v
-        se[p.name] = abs(prob.bounds.derivative(p.name, x[k])) * se_x[k]
-        lo = prob.bounds.to_value(p.name, x[k] - zq * se_x[k])
-        hi = prob.bounds.to_value(p.name, x[k] + zq * se_x[k])
-        interval[p.name] = [min(lo, hi), max(lo, hi)]
+        se[p.name] = float(se_v[k])
+        interval[p.name] = [max(lo, v - zq * se_v[k]), min(hi, v + zq * se_v[k])]
     for j, name in enumerate(m.albedo_names):
         k = prob.nsh + j
         params[name] = float(np.exp(x[k]))
-        se[name] = params[name] * se_x[k]
-        interval[name] = [float(np.exp(x[k] - zq * se_x[k])), float(np.exp(x[k] + zq * se_x[k]))]
+        se[name] = params[name] * float(se_v[k])
+        interval[name] = [float(np.exp(x[k] - zq * se_v[k])), float(np.exp(x[k] + zq * se_v[k]))]
     log10_f = (rf if o.residual == "log" else np.log1p(np.maximum(rf, -0.999999))) / math.log(10.0)
     return MuellerFitResult(
         model=m.name, wavelength=float(table.wavelength[0]) if len(table) else math.nan, params=params, se=se,
