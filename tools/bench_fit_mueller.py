@@ -11,6 +11,7 @@ the true ones, and the seconds per fit (one wavelength).
     python tools/bench_fit_mueller.py --seeds 20 --models pplastic,fmbrdf -o bench_mueller.json
     python tools/bench_fit_mueller.py --dense --seeds 2 --models pplastic,fmbrdf   # times on a few thousand rows
     python tools/bench_fit_mueller.py --table bench_mueller.json      # the markdown table of a result
+    python tools/bench_fit_mueller.py --make-comparison cmp && fmbrdf-mi fit-brdf cmp/fmbrdf_scan.csv --holdout cmp/fmbrdf_random.npz
 """
 from __future__ import annotations
 
@@ -72,6 +73,22 @@ def run(models, seeds, seed0, noise_f, noise_m, dense=False):
     return out
 
 
+def make_comparison(out_dir):
+    """The inputs of the comparison on the benchmark page: FMBRDF at TRUTH on the goniometric scan (noise seed 1,
+    SCATMECH layout) and on 400 random direction pairs (seed 2, plain NPZ), both with sigma_f 0.03, sigma_m 0.01."""
+    from fmbrdf_mi.brdf_fit import mueller as T
+    from fmbrdf_mi.brdf_fit import mueller_fit as F
+
+    os.makedirs(out_dir, exist_ok=True)
+    truth = TRUTH["fmbrdf"]
+    w_in, w_out = F.goniometer_geometries()
+    T.write_scatmech(os.path.join(out_dir, "fmbrdf_scan.csv"), w_in, w_out,
+                     F.synthetic_table("fmbrdf", truth, w_in, w_out, 0.03, 0.01, 1), 0.633)
+    w_in, w_out = F.random_geometries(400, seed=2)
+    T.write_plain(os.path.join(out_dir, "fmbrdf_random.npz"), w_in, w_out,
+                  F.synthetic_table("fmbrdf", truth, w_in, w_out, 0.03, 0.01, 2), 0.633)
+
+
 def table(res):
     lines = [f"{res['rows']} rows (goniometric scan), sigma_f {res['noise_f']:g}, sigma_m {res['noise_m']:g}, "
              f"{res['seeds']} seeds from {res['seed0']}, intervals at {res['level']:.0%}", "",
@@ -98,7 +115,11 @@ def main(argv=None):
     p.add_argument("--dense", action="store_true", help="the dense scan (DENSE, a few thousand rows) for timing")
     p.add_argument("-o", "--out", help="write the result as JSON")
     p.add_argument("--table", metavar="JSON", help="print the markdown table of a result and exit")
+    p.add_argument("--make-comparison", metavar="DIR", help="write the comparison's two tables to DIR and exit")
     a = p.parse_args(argv)
+    if a.make_comparison:
+        make_comparison(a.make_comparison)
+        return 0
     if a.table:
         print(table(json.load(open(a.table))))
         return 0
