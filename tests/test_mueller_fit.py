@@ -131,3 +131,27 @@ def test_options_of_the_other_kind_are_refused(tmp_path, capsys):
     assert main(["fit-brdf", str(merl), "-o", str(tmp_path / "o"), "-q", "--holdout", str(path)]) == 1
     assert "--holdout" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_each_wavelength_is_fitted_alone(tmp_path, capsys):
+    """Two wavelengths of different materials in one file: each gets its own parameters and plots; a wavelength
+    with too few rows is refused in one line naming the file and the wavelength, before anything is written."""
+    w_in, w_out = F.goniometer_geometries(theta_i=(30.0, 50.0), phi_o=(0.0, 90.0))
+    a = F.synthetic_table("lambert", {"reflectance": 0.2}, w_in, w_out, 0.02, 0.01, 1)
+    b = F.synthetic_table("lambert", {"reflectance": 0.6}, w_in, w_out, 0.02, 0.01, 2)
+    path = tmp_path / "two.csv"
+    T.write_plain(path, np.concatenate([w_in, w_in]), np.concatenate([w_out, w_out]), np.concatenate([a, b]),
+                  np.repeat([0.45, 0.65], len(w_in)))
+    out = tmp_path / "fit"
+    assert main(["fit-brdf", str(path), "-o", str(out), "-q", "--models", "lambert"]) == 0
+    rep = json.load(open(out / "params.json"))
+    rho = {w["wavelength_um"]: w["models"]["lambert"]["params"]["reflectance"] for w in rep["wavelengths"]}
+    assert rho[0.45] == pytest.approx(0.2, rel=0.02) and rho[0.65] == pytest.approx(0.6, rel=0.02)
+    assert (out / "mueller_panel_0.45.png").exists() and (out / "residuals_0.65.png").exists()
+    capsys.readouterr()
+    T.write_plain(path, np.concatenate([w_in, w_in[:3]]), np.concatenate([w_out, w_out[:3]]),
+                  np.concatenate([a, b[:3]]), np.repeat([0.45, 0.65], [len(w_in), 3]))
+    assert main(["fit-brdf", str(path), "-o", str(tmp_path / "few"), "-q", "--models", "lambert"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(path) in err and "0.65" in err, err
+    assert not (tmp_path / "few").exists()

@@ -405,14 +405,16 @@ def fit_table(table, options=None, progress=None):
     o = options or MuellerFitOptions()
     o.check()
     say = progress or (lambda msg: None)
+    for wl in table.wavelengths():   # every wavelength checked before any is fitted
+        n = len(table.at_wavelength(wl))
+        if n < 8:
+            raise ValueError(f"{table.path}: wavelength {wl:g} µm has {n} rows; a fit needs at least 8")
     out = {}
     for wl in table.wavelengths():
         sub = table.at_wavelength(wl)
         if len(sub) > o.max_rows:
             pick = np.sort(np.random.default_rng(o.seed).choice(len(sub), o.max_rows, replace=False))
             sub = sub.subset(pick)
-        if len(sub) < 8:
-            raise ValueError(f"{table.path}: wavelength {wl:g} µm has {len(sub)} rows; a fit needs at least 8")
         van = vanishing_noise(sub)[0]
         out[wl] = {}
         for name in o.models:
