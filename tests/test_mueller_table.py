@@ -6,7 +6,6 @@ documented Stokes convention (S1 = |Es|^2 - |Ep|^2, S2 = 2 Re(Es* Ep),
 S3 = 2 Im(Es* Ep)); Mitsuba's ``mi.mueller.stokes_basis``,
 ``rotate_mueller_basis`` and ``specular_reflection``.
 """
-import os
 
 import numpy as np
 import pytest
