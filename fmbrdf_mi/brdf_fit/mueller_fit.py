@@ -123,9 +123,10 @@ def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
     ``refresh`` accepted steps and carried between by Broyden's update from every trial (a trial costs one
     table build, a Jacobian four for FMBRDF); converged when the Gauss-Newton decrement of chi^2 on a fresh
     Jacobian is below ``lm.DECREMENT_TOL`` (the estimate within ~0.1 standard error of the optimum), or a step
-    from a fresh Jacobian lowered chi^2 by less than that (a secant step's small decrease says nothing); steps shortened to ``max_step`` in every coordinate (as the MERL
+    from a fresh Jacobian lowered chi^2 by less than that, or three steps in a row did (one secant step's small
+    decrease says little; three say that the iteration creeps along a flat valley, as kappa's); steps shortened to ``max_step`` in every coordinate (as the MERL
     fit's, :func:`.fitting.levenberg_marquardt`); a budget of ``max_evals`` trials."""
-    state = {"trials": 0, "fresh_step": True}
+    state = {"trials": 0, "fresh_step": True, "n_small": 0}
     r0 = prob.fun(x0)
 
     def linearise(x):     # (residuals, Jacobian, fresh)
@@ -146,8 +147,10 @@ def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
         r, J, _ = lin
         return (r, LM.broyden(J, x_new - x, r_new - r), False)
 
-    def small(f, f_new):  # a step from a fresh Jacobian (not a secant one) that barely lowers chi^2
-        return state["fresh_step"] and f - f_new < LM.DECREMENT_TOL
+    def small(f, f_new):  # a step from a fresh Jacobian that barely lowers chi^2, or three in a row of any
+        tiny = f - f_new < LM.DECREMENT_TOL
+        state["n_small"] = state["n_small"] + 1 if tiny else 0
+        return tiny and (state["fresh_step"] or state["n_small"] >= 3)
 
     res = LM.levenberg_marquardt(
         x0, float(r0 @ r0), linearise, solve, trial, max_iter=max_evals, refresh=refresh, secant=secant,
