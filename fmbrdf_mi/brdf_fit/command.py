@@ -68,6 +68,9 @@ def add_fit_brdf_arguments(p):
     p.add_argument("--skip-existing", action="store_true",
                    help="leave materials whose params.json exists as they are (listed in the summary; not with --force)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output, only the summary")
+    from .mueller_command import add_mueller_arguments
+
+    add_mueller_arguments(p)
 
 
 def _options(args):
@@ -146,6 +149,12 @@ def _not_converged(report):
 
 def run_fit_brdf(args):
     _check_args(args)
+    from .mueller import is_mueller_table
+    from .mueller_command import refuse_mueller_options, run_fit_mueller
+
+    if any(is_mueller_table(f) for f in args.file):   # a Mueller-matrix BRDF table: mueller_command.py
+        return run_fit_mueller(args)
+    refuse_mueller_options(args)
     files = _inputs(args.file)
     if len(files) == 1 and not os.path.isdir(args.file[0]):
         return _run_single(args, files[0])

@@ -1,0 +1,168 @@
+"""Mueller BRDFs of FMBRDF, ``pplastic`` and a Lambertian surface for many direction pairs: the polarised
+counterpart of :class:`.values.FMBRDFValues`.
+
+Each model is a Mitsuba BSDF in the polarised AD variant :data:`VARIANT`
+(``fmbrdf`` with float32 tables, Mitsuba's ``pplastic`` with GGX facets,
+Mitsuba's ``diffuse``), evaluated for all rows at once in one Dr.Jit call
+through ``mi.BSDFPtr`` per term, at unit albedos: a term's Mueller BRDF is
+linear in its albedo, so the model is sum_c k_c P_c with the terms P_c of
+:meth:`MuellerValues.parts` (FMBRDF: the surface term of eq:Torrance-Sparrow
+and the body term of eq:observed body reflection Stokes vector; ``pplastic``:
+its specular and diffuse terms; Lambertian: one term).
+
+What Mitsuba's ``eval`` returns is converted explicitly: it is the BRDF times
+the cosine of the light direction (``wo`` in radiance mode), divided out here;
+and its Mueller matrix maps Mitsuba's Stokes basis of the incident
+propagation direction, ``stokes_basis(-w_in)``, to that of the outgoing one,
+``stokes_basis(w_out)``, in the local frame (z = normal) with Mitsuba's sign of
+S3: the package's frames, those of :class:`.mueller.MuellerTable`.
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+
+import numpy as np
+
+#: Mitsuba variant of the evaluation: polarised, monochrome.
+VARIANT = "llvm_ad_mono_polarized"
+
+
+@contextlib.contextmanager
+def polarised_variant():
+    """A context in :data:`VARIANT` with the plugin registered: yields ``mitsuba``; the variant set before is set
+    again on leaving (as :func:`.values.evaluation_variant`)."""
+    import mitsuba as mi
+
+    import fmbrdf_mi
+
+    before = mi.variant()
+    if before != VARIANT:
+        mi.set_variant(VARIANT)
+    try:
+        fmbrdf_mi.register()
+        yield mi
+    finally:
+        if before is not None and before != VARIANT:
+            mi.set_variant(before)
+
+
+@dataclasses.dataclass(frozen=True)
+class MuellerModel:
+    """A model of :class:`MuellerValues`: its shape parameters (ShapeParam of fit.evaluate.models: name, traverse
+    key, bounds, scale, coarse grid), its terms (name, Mitsuba component flag name, albedo name) and its BSDF."""
+
+    name: str
+    description: str
+    shape: tuple
+    terms: tuple            # ((albedo name, BSDFFlags name), ...)
+    base: dict              # BSDF dict at unit albedos, without the shape parameters
+
+    @property
+    def shape_names(self):
+        return tuple(p.name for p in self.shape)
+
+    def param(self, name):
+        """The shape parameter ``name`` (what :class:`fmbrdf_mi.fit.evaluate.models.Bounds` reads)."""
+        for p in self.shape:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+    @property
+    def albedo_names(self):
+        return tuple(t[0] for t in self.terms)
+
+    def bsdf_dict(self, shape):
+        d = dict(self.base)
+        for p in self.shape:
+            d[p.key.split(".")[0]] = float(shape[p.name])
+        return d
+
+
+def _models():
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, PPLASTIC
+
+    return {
+        "fmbrdf": MuellerModel("fmbrdf", FMBRDF.description, FMBRDF.shape,
+                               (("k_s", "GlossyReflection"), ("k_b", "DiffuseReflection")),
+                               {"type": "fmbrdf", "k_s": 1.0, "k_b": 1.0, "tables": "float32"}),
+        "pplastic": MuellerModel("pplastic", PPLASTIC.description, PPLASTIC.shape,
+                                 (("specular_reflectance", "GlossyReflection"),
+                                  ("diffuse_reflectance", "DiffuseReflection")),
+                                 {"type": "pplastic", "distribution": "ggx", "specular_reflectance": 1.0,
+                                  "diffuse_reflectance": 1.0}),
+        "lambert": MuellerModel("lambert", "Mitsuba diffuse (Lambertian, depolarising)", (),
+                                (("reflectance", "DiffuseReflection"),), {"type": "diffuse", "reflectance": 1.0}),
+    }
+
+
+#: The models, by name.
+MODELS = _models()
+
+
+def get_model(name):
+    try:
+        return MODELS[name]
+    except KeyError:
+        raise ValueError(f"model {name!r}: valid models are {', '.join(MODELS)}") from None
+
+
+class MuellerValues:
+    """The terms of a model's Mueller BRDF at unit albedos for fixed direction pairs.
+
+    ``w_in`` (towards the light) and ``w_out`` (towards the viewer): (n, 3) in the local frame, above the
+    surface.  Enter :func:`polarised_variant` around many calls to save the variant switches."""
+
+    def __init__(self, model, w_in, w_out):
+        self.model = get_model(model) if isinstance(model, str) else model
+        w_in = np.asarray(w_in, dtype=np.float64)
+        w_out = np.asarray(w_out, dtype=np.float64)
+        if w_in.shape != w_out.shape or w_in.ndim != 2 or w_in.shape[1] != 3:
+            raise ValueError(f"directions: expected two (n, 3) arrays, got {w_in.shape} and {w_out.shape}")
+        if (w_in[:, 2] <= 0).any() or (w_out[:, 2] <= 0).any():
+            raise ValueError("directions: every pair must be above the surface (z > 0)")
+        self.n = len(w_in)
+        self.cos_in = w_in[:, 2]
+        self._shape = None
+        with polarised_variant() as mi:
+            import drjit as dr
+
+            self.si = dr.zeros(mi.SurfaceInteraction3f, self.n)
+            self.si.sh_frame = mi.Frame3f(mi.Vector3f(0.0, 0.0, 1.0))
+            self.si.n = mi.Normal3f(0.0, 0.0, 1.0)
+            self.si.wi = mi.Vector3f(*(mi.Float(w_out[:, k].astype(np.float32)) for k in range(3)))
+            self.wo = mi.Vector3f(*(mi.Float(w_in[:, k].astype(np.float32)) for k in range(3)))
+            start = {p.name: p.grid[len(p.grid) // 2] for p in self.model.shape}
+            self.bsdf = mi.load_dict(self.model.bsdf_dict(start))
+            self.ptr = mi.BSDFPtr(self.bsdf)
+            self.params = mi.traverse(self.bsdf)
+            self.ctx = []
+            for _, flag in self.model.terms:
+                ctx = mi.BSDFContext()
+                ctx.type_mask = +getattr(mi.BSDFFlags, flag)
+                self.ctx.append(ctx)
+
+    def _set_shape(self, shape):
+        vals = tuple(float(shape[p.name]) for p in self.model.shape)
+        if vals != self._shape:
+            for p, v in zip(self.model.shape, vals):
+                self.params[p.key] = v
+            self.params.update()
+            self._shape = vals
+
+    def parts(self, shape=None):
+        """The terms' Mueller BRDFs (1/sr) at unit albedos, package frames: (terms, n, 4, 4) float64."""
+        with polarised_variant() as mi:
+            if self.model.shape:
+                self._set_shape(shape)
+            out = np.empty((len(self.ctx), self.n, 4, 4))
+            for k, ctx in enumerate(self.ctx):
+                v = self.ptr.eval(ctx, self.si, self.wo, mi.Bool(True))
+                out[k] = np.moveaxis(np.asarray(v, dtype=np.float64).reshape(4, 4, self.n), -1, 0)
+        return out / self.cos_in[None, :, None, None]
+
+
+def combine(parts, albedos):
+    """sum_c k_c P_c: (n, 4, 4) from :meth:`MuellerValues.parts` and the albedos (terms,)."""
+    return np.tensordot(np.asarray(albedos, dtype=np.float64), parts, axes=(0, 0))

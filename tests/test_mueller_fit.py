@@ -1,0 +1,157 @@
+"""Fitting Mueller BRDF tables: closed forms (the Lambertian), round trips within the reported intervals,
+the noise estimates against the noise put in, and ``fmbrdf-mi fit-brdf`` on tables (outputs, bad input)."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+from fmbrdf_mi.brdf_fit import mueller as T
+from fmbrdf_mi.brdf_fit import mueller_fit as F
+from fmbrdf_mi.cli import main
+
+
+def _table(tmp_path, model, params, noise_f, noise_m, seed, name="t.csv", geometries=None):
+    w_in, w_out = geometries or F.goniometer_geometries()
+    M = F.synthetic_table(model, params, w_in, w_out, noise_f, noise_m, seed)
+    path = tmp_path / name
+    if name.endswith(".npz"):
+        T.write_plain(path, w_in, w_out, M, 0.633)
+    else:
+        T.write_scatmech(path, w_in, w_out, M, 0.633)
+    return path, T.read_table(path)
+
+
+def test_lambert_is_the_closed_form(tmp_path):
+    """Log residuals: ln rho = mean ln(pi f); the SE from the residual sigma over sqrt(n); sigma_m the RMS of
+    the (all non-zero by noise) normalised elements over their share of the degrees of freedom."""
+    _, tab = _table(tmp_path, "lambert", {"reflectance": 0.4}, 0.05, 0.01, 1)
+    r = F.fit_model("lambert", tab)
+    n = len(tab)
+    lr = np.log(np.pi * tab.f_r11)
+    rho = np.exp(lr.mean())
+    assert r.params["reflectance"] == pytest.approx(rho, rel=1e-6)
+    rf = lr - lr.mean()
+    sigma_f = np.sqrt(rf @ rf / (n - 1 / 16))
+    assert r.noise["sigma_f"] == pytest.approx(sigma_f, rel=1e-4)
+    assert r.se["reflectance"] == pytest.approx(rho * sigma_f / np.sqrt(n), rel=1e-3)
+    m = tab.normalised.reshape(-1, 16)[:, 1:]
+    assert r.noise["sigma_m"] == pytest.approx(np.sqrt(np.sum(m ** 2) / (15 * n - 15 / 16)), rel=1e-4)
+    assert r.converged
+
+
+@pytest.mark.parametrize("name", ["t.csv", "t.npz"])
+def test_pplastic_round_trip_within_intervals(tmp_path, name):
+    truth = {"eta": 1.55, "alpha": 0.12, "specular_reflectance": 0.7, "diffuse_reflectance": 0.35}
+    _, tab = _table(tmp_path, "pplastic", truth, 0.02, 0.01, 3, name)
+    r = F.fit_model("pplastic", tab)
+    assert r.converged
+    for k, v in truth.items():
+        assert abs(r.params[k] - v) < 4 * r.se[k], (k, r.params[k], v, r.se[k])
+        lo, hi = r.interval[k]
+        assert lo < r.params[k] < hi
+    assert r.noise["sigma_f"] == pytest.approx(0.02, rel=0.15)
+    assert r.noise["sigma_m"] == pytest.approx(0.01, rel=0.1)
+
+
+def test_vanishing_elements_estimate_the_noise(tmp_path):
+    _, tab = _table(tmp_path, "pplastic", {"eta": 1.5, "alpha": 0.2, "specular_reflectance": 1.0,
+                                           "diffuse_reflectance": 0.3}, 0.02, 0.01, 4)
+    s, n = F.vanishing_noise(tab)
+    assert n == 3 * 16    # the in-plane rows of goniometer_geometries
+    assert s == pytest.approx(0.01, rel=0.15)
+
+
+def test_fmbrdf_round_trip_within_intervals(tmp_path):
+    truth = {"eta": 1.5, "alpha": 0.2, "beta": 2.0, "kappa": 5.0, "k_s": 0.8, "k_b": 0.3}
+    _, tab = _table(tmp_path, "fmbrdf", truth, 0.03, 0.01, 1)
+    grid = {"fmbrdf": {"eta": (1.4,), "alpha": (0.1, 0.3), "beta": (1.5,), "kappa": (1.0,)}}   # the test's time
+    r = F.fit_model("fmbrdf", tab, F.MuellerFitOptions(starts=1, start_grids=grid))
+    assert r.converged
+    for k, v in truth.items():
+        assert abs(r.params[k] - v) < 4 * r.se[k], (k, r.params[k], v, r.se[k])
+
+
+def test_command_fits_and_compares(tmp_path, capsys):
+    truth = {"eta": 1.45, "alpha": 0.1, "specular_reflectance": 0.6, "diffuse_reflectance": 0.4}
+    path, _ = _table(tmp_path, "pplastic", truth, 0.02, 0.01, 5)
+    hold, _ = _table(tmp_path, "pplastic", truth, 0.02, 0.01, 6, "hold.npz", F.random_geometries(150, 2))
+    out = tmp_path / "fit"
+    assert main(["fit-brdf", str(path), "-o", str(out), "-q", "--models", "pplastic,lambert",
+                 "--holdout", str(hold)]) == 0
+    text = capsys.readouterr().out
+    rows = [ln.split("\t") for ln in text.strip().splitlines()]
+    assert rows[0][:3] == ["wavelength_um", "model", "set"] and len(rows) == 5
+    held = {r[1]: r for r in rows[1:] if r[2] == "holdout"}
+    # the true model predicts the held-out geometries to the noise; the Lambertian does not
+    assert float(held["pplastic"][4]) < 0.02 and float(held["lambert"][4]) > 0.05
+    assert float(held["pplastic"][5]) < float(held["lambert"][5])
+    rep = json.load(open(out / "params.json"))
+    assert rep["wavelengths"][0]["models"]["pplastic"]["noise"]["sigma_m"] > 0
+    assert "Gaussian" in rep["noise_model"]
+    for f in ("comparison.tsv", "mueller_panel_0.633.png", "residuals_0.633.png"):
+        assert os.path.getsize(out / f) > 0
+    assert main(["fit-brdf", str(path), "-o", str(out), "-q", "--models", "lambert"]) == 1   # exists: no --force
+    assert "--force" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("edit, where", [
+    (lambda lines: lines.__setitem__(4, lines[4].replace(lines[4].split(",")[5], "nan", 1)), "row 5, column f_r11"),
+    (lambda lines: lines.__setitem__(3, ",".join(lines[3].split(",")[:-1])), "row 4, column m44"),
+    (lambda lines: lines.__setitem__(2, lines[2] + ",1.0"), "row 3, column 22 (extra)"),
+    (lambda lines: lines.__setitem__(6, ",".join(["0.633", "91"] + lines[6].split(",")[2:])), "row 7, column thetai"),
+])
+def test_command_bad_table_one_line_nothing_written(tmp_path, capsys, edit, where):
+    path, _ = _table(tmp_path, "lambert", {"reflectance": 0.3}, 0.0, 0.0, 0)
+    lines = open(path).read().splitlines()
+    edit(lines)
+    open(path, "w").write("\n".join(lines) + "\n")
+    out = tmp_path / "fit"
+    assert main(["fit-brdf", str(path), "-o", str(out), "-q"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(path) in err and where in err, err
+    assert not out.exists()
+
+
+def test_command_bad_options(tmp_path, capsys):
+    path, _ = _table(tmp_path, "lambert", {"reflectance": 0.3}, 0.0, 0.0, 0)
+    assert main(["fit-brdf", str(path), "-o", str(tmp_path / "o"), "-q", "--models", "phong"]) == 1
+    assert "phong" in capsys.readouterr().err
+    assert main(["fit-brdf", str(path), "-o", str(tmp_path / "o"), "-q", "--noise-m", "-1"]) == 1
+    assert "--noise-m" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_options_of_the_other_kind_are_refused(tmp_path, capsys):
+    path, _ = _table(tmp_path, "lambert", {"reflectance": 0.3}, 0.0, 0.0, 0)
+    assert main(["fit-brdf", str(path), "-o", str(tmp_path / "o"), "-q", "--jobs", "2"]) == 1
+    assert "--jobs" in capsys.readouterr().err
+    merl = tmp_path / "m.binary"
+    merl.write_bytes(b"")
+    assert main(["fit-brdf", str(merl), "-o", str(tmp_path / "o"), "-q", "--holdout", str(path)]) == 1
+    assert "--holdout" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_each_wavelength_is_fitted_alone(tmp_path, capsys):
+    """Two wavelengths of different materials in one file: each gets its own parameters and plots; a wavelength
+    with too few rows is refused in one line naming the file and the wavelength, before anything is written."""
+    w_in, w_out = F.goniometer_geometries(theta_i=(30.0, 50.0), phi_o=(0.0, 90.0))
+    a = F.synthetic_table("lambert", {"reflectance": 0.2}, w_in, w_out, 0.02, 0.01, 1)
+    b = F.synthetic_table("lambert", {"reflectance": 0.6}, w_in, w_out, 0.02, 0.01, 2)
+    path = tmp_path / "two.csv"
+    T.write_plain(path, np.concatenate([w_in, w_in]), np.concatenate([w_out, w_out]), np.concatenate([a, b]),
+                  np.repeat([0.45, 0.65], len(w_in)))
+    out = tmp_path / "fit"
+    assert main(["fit-brdf", str(path), "-o", str(out), "-q", "--models", "lambert"]) == 0
+    rep = json.load(open(out / "params.json"))
+    rho = {w["wavelength_um"]: w["models"]["lambert"]["params"]["reflectance"] for w in rep["wavelengths"]}
+    assert rho[0.45] == pytest.approx(0.2, rel=0.02) and rho[0.65] == pytest.approx(0.6, rel=0.02)
+    assert (out / "mueller_panel_0.45.png").exists() and (out / "residuals_0.65.png").exists()
+    capsys.readouterr()
+    T.write_plain(path, np.concatenate([w_in, w_in[:3]]), np.concatenate([w_out, w_out[:3]]),
+                  np.concatenate([a, b[:3]]), np.repeat([0.45, 0.65], [len(w_in), 3]))
+    assert main(["fit-brdf", str(path), "-o", str(tmp_path / "few"), "-q", "--models", "lambert"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(path) in err and "0.65" in err, err
+    assert not (tmp_path / "few").exists()

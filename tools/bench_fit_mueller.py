@@ -1,0 +1,140 @@
+"""Round trips of the Mueller BRDF fit over noise seeds: coverage of the reported intervals and time per wavelength.
+
+For each model (fmbrdf, pplastic) and each seed: a table of the model at known parameters on a goniometric scan
+(:func:`fmbrdf_mi.brdf_fit.mueller_fit.goniometer_geometries`), with the fit's noise model (relative sigma_f on
+f_r11, additive sigma_m on the normalised elements), written in the SCATMECH/NIST layout or as the plain NPZ table
+(alternating with the seed), read back and fitted with the default options.  Reported per model and parameter:
+the share of seeds whose interval holds the true value (coverage, at the fit's level), the mean estimate, the
+spread of the estimates over the seeds against the mean reported standard error, the estimated sigmas against
+the true ones, and the seconds per fit (one wavelength).
+
+    python tools/bench_fit_mueller.py --seeds 20 --models pplastic,fmbrdf -o bench_mueller.json
+    python tools/bench_fit_mueller.py --dense --seeds 2 --models pplastic,fmbrdf   # times on a few thousand rows
+    python tools/bench_fit_mueller.py --table bench_mueller.json      # the markdown table of a result
+    python tools/bench_fit_mueller.py --make-comparison cmp && fmbrdf-mi fit-brdf cmp/fmbrdf_scan.csv --holdout cmp/fmbrdf_random.npz
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+TRUTH = {
+    "fmbrdf": {"eta": 1.5, "alpha": 0.2, "beta": 2.0, "kappa": 5.0, "k_s": 0.8, "k_b": 0.3},
+    "pplastic": {"eta": 1.55, "alpha": 0.12, "specular_reflectance": 0.7, "diffuse_reflectance": 0.35},
+}
+
+
+#: The dense scan of ``--dense``: four incidence angles, exit angles every 2 degrees in twelve planes.
+DENSE = {"theta_i": (10.0, 30.0, 50.0, 70.0), "theta_o": tuple(range(-79, 80, 2)), "phi_o": tuple(range(0, 180, 15))}
+
+
+def run(models, seeds, seed0, noise_f, noise_m, dense=False):
+    from fmbrdf_mi.brdf_fit import mueller as T
+    from fmbrdf_mi.brdf_fit import mueller_fit as F
+
+    w_in, w_out = F.goniometer_geometries(**(DENSE if dense else {}))
+    out = {"rows": len(w_in), "noise_f": noise_f, "noise_m": noise_m, "seeds": seeds, "seed0": seed0,
+           "level": F.MuellerFitOptions().level, "models": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        for model in models:
+            truth = TRUTH[model]
+            runs = []
+            for s in range(seed0, seed0 + seeds):
+                M = F.synthetic_table(model, truth, w_in, w_out, noise_f, noise_m, s)
+                path = os.path.join(tmp, f"t{s}." + ("csv" if s % 2 == 0 else "npz"))
+                (T.write_scatmech if s % 2 == 0 else T.write_plain)(path, w_in, w_out, M, 0.633)
+                tab = T.read_table(path)
+                t0 = time.time()
+                r = F.fit_model(model, tab)
+                runs.append({"seed": s, "format": "scatmech" if s % 2 == 0 else "plain npz",
+                             "seconds": time.time() - t0, "params": r.params, "se": r.se, "interval": r.interval,
+                             "sigma_f": r.noise["sigma_f"], "sigma_m": r.noise["sigma_m"], "converged": r.converged})
+                print(f"{model} seed {s}: {time.time() - t0:.1f} s, " + ", ".join(
+                    f"{k} {v:.4g}±{r.se[k]:.2g}" for k, v in r.params.items()), file=sys.stderr, flush=True)
+            summary = {}
+            for k, v in truth.items():
+                est = np.array([r["params"][k] for r in runs])
+                se = np.array([r["se"][k] for r in runs])
+                cover = np.mean([r["interval"][k][0] <= v <= r["interval"][k][1] for r in runs])
+                summary[k] = {"true": v, "mean": float(est.mean()), "coverage": float(cover),
+                              "spread": float(est.std(ddof=1)) if len(est) > 1 else None,
+                              "mean_se": float(se.mean())}
+            out["models"][model] = {"truth": truth, "summary": summary, "runs": runs,
+                                    "seconds_median": float(np.median([r["seconds"] for r in runs])),
+                                    "converged": int(sum(r["converged"] for r in runs)),
+                                    "sigma_f_mean": float(np.mean([r["sigma_f"] for r in runs])),
+                                    "sigma_m_mean": float(np.mean([r["sigma_m"] for r in runs]))}
+    return out
+
+
+def make_comparison(out_dir):
+    """The inputs of the comparison on the benchmark page: FMBRDF at TRUTH on the goniometric scan (noise seed 1,
+    SCATMECH layout) and on 400 random direction pairs (seed 2, plain NPZ), both with sigma_f 0.03, sigma_m 0.01."""
+    from fmbrdf_mi.brdf_fit import mueller as T
+    from fmbrdf_mi.brdf_fit import mueller_fit as F
+
+    os.makedirs(out_dir, exist_ok=True)
+    truth = TRUTH["fmbrdf"]
+    w_in, w_out = F.goniometer_geometries()
+    T.write_scatmech(os.path.join(out_dir, "fmbrdf_scan.csv"), w_in, w_out,
+                     F.synthetic_table("fmbrdf", truth, w_in, w_out, 0.03, 0.01, 1), 0.633)
+    w_in, w_out = F.random_geometries(400, seed=2)
+    T.write_plain(os.path.join(out_dir, "fmbrdf_random.npz"), w_in, w_out,
+                  F.synthetic_table("fmbrdf", truth, w_in, w_out, 0.03, 0.01, 2), 0.633)
+
+
+def table(res):
+    lines = [f"{res['rows']} rows (goniometric scan), sigma_f {res['noise_f']:g}, sigma_m {res['noise_m']:g}, "
+             f"{res['seeds']} seeds from {res['seed0']}, intervals at {res['level']:.0%}", "",
+             "| model | parameter | true | mean estimate | coverage | spread / mean SE |",
+             "|---|---|---|---|---|---|"]
+    for model, m in res["models"].items():
+        for k, s in m["summary"].items():
+            ratio = "" if s["spread"] is None else f"{s['spread'] / s['mean_se']:.2f}"
+            lines.append(f"| {model} | {k} | {s['true']:g} | {s['mean']:.4g} | {s['coverage']:.0%} | {ratio} |")
+    lines += ["", "| model | converged | median s per wavelength | mean sigma_f | mean sigma_m |", "|---|---|---|---|---|"]
+    for model, m in res["models"].items():
+        lines.append(f"| {model} | {m['converged']}/{len(m['runs'])} | {m['seconds_median']:.1f} | "
+                     f"{m['sigma_f_mean']:.4g} | {m['sigma_m_mean']:.4g} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--models", default="pplastic,fmbrdf")
+    p.add_argument("--seeds", type=int, default=20)
+    p.add_argument("--seed0", type=int, default=0)
+    p.add_argument("--noise-f", type=float, default=0.03)
+    p.add_argument("--noise-m", type=float, default=0.01)
+    p.add_argument("--dense", action="store_true", help="the dense scan (DENSE, a few thousand rows) for timing")
+    p.add_argument("-o", "--out", help="write the result as JSON")
+    p.add_argument("--table", metavar="JSON", help="print the markdown table of a result and exit")
+    p.add_argument("--make-comparison", metavar="DIR", help="write the comparison's two tables to DIR and exit")
+    a = p.parse_args(argv)
+    if a.make_comparison:
+        make_comparison(a.make_comparison)
+        return 0
+    if a.table:
+        print(table(json.load(open(a.table))))
+        return 0
+    models = [m.strip() for m in a.models.split(",") if m.strip()]
+    bad = [m for m in models if m not in TRUTH]
+    if bad or a.seeds < 1:
+        p.error(f"--models: choose from {', '.join(TRUTH)}; --seeds >= 1")
+    res = run(models, a.seeds, a.seed0, a.noise_f, a.noise_m, a.dense)
+    if a.out:
+        with open(a.out + ".part", "w") as f:
+            json.dump(res, f, indent=1, default=float)
+        os.replace(a.out + ".part", a.out)
+    print(table(res))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
