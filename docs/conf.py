@@ -34,7 +34,7 @@ nitpicky = True
 nitpick_ignore_regex = [
     # Names from Mitsuba / Dr.Jit / NumPy / the standard library, which have no
     # intersphinx inventory here (the docs build offline).
-    (r"py:.*", r"(mi|mitsuba|dr|drjit|np|numpy|pathlib|os)\..*"),
+    (r"py:.*", r"(mi|mitsuba|dr|drjit|np|numpy|pathlib|os|abc)\..*"),
     (r"py:class", r"(optional|array-like|callable|dict|list|tuple|str|float|int|bool|None|Path)"),
     # The fitting pipeline's internal layers (fmbrdf_mi/fit/<layer>/...): the API
     # reference documents the public entry points only (fmbrdf_mi.fit.__all__),

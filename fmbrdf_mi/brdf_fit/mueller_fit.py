@@ -172,7 +172,7 @@ def _z_quantile(level):
 
 def vanishing_noise(table, max_sin=1e-6):
     """Model-free sigma_m: RMS of the elements that vanish for an isotropic surface in the plane of incidence
-    (:data:`VANISHING`, in the s/p bases), over the table's in-plane rows: (sigma or None, rows used)."""
+    (``VANISHING``, in the s/p bases), over the table's in-plane rows: (sigma or None, rows used)."""
     w_in, w_out = table.w_in, table.w_out
     sin = np.abs(np.cross(w_in, w_out) @ np.array([0.0, 0.0, 1.0])) / np.maximum(
         np.linalg.norm(w_in[:, :2], axis=1) * np.linalg.norm(w_out[:, :2], axis=1), 1e-300)
@@ -307,7 +307,7 @@ class _Problem:
 
 def fit_model(model, table, options=None, vanishing=None):
     """Fit one model to one wavelength's rows of a :class:`.mueller.MuellerTable`: :class:`MuellerFitResult`.
-    ``vanishing``: :func:`vanishing_noise`'s sigma (computed here when None and needed)."""
+    ``vanishing``: :func:`~fmbrdf_mi.brdf_fit.mueller_fit.vanishing_noise`'s sigma (computed here when None and needed)."""
     o = options or MuellerFitOptions()
     t0 = time.time()
     with polarised_variant():
@@ -444,7 +444,7 @@ def prediction_errors(M_model, table):
     """Errors of a predicted Mueller BRDF against a table's rows: log10 RMSE of f_r11; RMSE of the DoLP of
     reflected unpolarised light; RMSE of the normalised elements; and the signed polarisation element m21 in
     the s/p bases (> 0: s-polarised): its RMSE and the share of rows where its sign agrees with the data's
-    (over rows where the data's |m21| exceeds 0.02)."""
+    (over rows where the data's ``|m21|`` exceeds 0.02)."""
     f_mod, f_obs = M_model[:, 0, 0], table.f_r11
     Mn_mod = M_model / f_mod[:, None, None]
     Mn_obs = table.normalised

@@ -33,7 +33,7 @@ and are non-linear unknowns of the problem: :mod:`fmbrdf_mi.fit.problem.free_pow
 Two kinds of layout differ in what the optimiser sees.  A few albedos
 (:class:`GroupAlbedos`: channels, materials) are unknowns of the optimiser,
 their logs in z beside the shape parameters, re-solved in closed form
-(non-negative, :func:`nnls2`) at trial points.  Maps (:class:`PixelAlbedos`:
+(non-negative, ``nnls2``) at trial points.  Maps (:class:`PixelAlbedos`:
 thousands of pairs) are eliminated by variable projection (Golub and
 Pereyra): at every shape point a = A^+ y, the optimiser sees the shape
 parameters only, with Kaufman's Jacobian (I - P) J_theta, P = A (A^T A)^-1 A^T;
@@ -93,7 +93,7 @@ class AlbedoLayout(abc.ABC):
     present; a layout supplies its design, the base its algebra."""
 
     #: Whether the albedos are eliminated by variable projection (:class:`PixelAlbedos`: it gives ``project``,
-    #: ``covariance``, ``incidental``), not unknowns of the optimiser (:class:`GroupAlbedos`: ``columns``).
+    #: ``covariance``, ``incidental``), not unknowns of the optimiser (:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos`: ``columns``).
     eliminates = False
     #: Why the incidental-parameter term is not computed (None: it is, or nothing is eliminated).
     incidental_reason = None
@@ -177,7 +177,7 @@ class AlbedoLayout(abc.ABC):
 
 class GroupAlbedos(AlbedoLayout):
     """A few albedo pairs that are unknowns of the optimiser (their logs in z): one corner of weight 1 per
-    sample, its group; each group's pair solved non-negatively (:func:`nnls2`) where the optimiser re-solves
+    sample, its group; each group's pair solved non-negatively (``nnls2``) where the optimiser re-solves
     them, d mu / d log a_s[g] = a_s[g] S on the group's samples and 0 elsewhere (:meth:`columns`)."""
 
     def __init__(self, name, groups, n_groups, labels):
@@ -185,7 +185,7 @@ class GroupAlbedos(AlbedoLayout):
         self.masks = [self.groups == g for g in range(self.n_groups)]
 
     def solve(self, S, B, y, w):
-        """Each group's (a_s, a_b) by :func:`nnls2` of its samples: two arrays (n_groups,)."""
+        """Each group's (a_s, a_b) by ``nnls2`` of its samples: two arrays (n_groups,)."""
         S, B, y, w = (np.asarray(a) for a in (S, B, y, w))
         out = [nnls2(*(a[np.broadcast_to(m, a.shape)] for a in (S, B, y, w))) for m in self.masks]
         return np.array([o[0] for o in out]), np.array([o[1] for o in out])
@@ -239,7 +239,7 @@ class PixelAlbedos(AlbedoLayout):
       (:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`, with a ridge where it is singular to
       rounding: :data:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.RIDGE`) and the factor reused by the
       projection; each pair's block of G^-1 is its selected inverse, and the incidental-parameter term is a
-      Monte Carlo estimate of the same trace (none with the prior: :data:`PRIOR_INCIDENTAL`).
+      Monte Carlo estimate of the same trace (none with the prior: :data:`~fmbrdf_mi.fit.evaluate.albedos.PRIOR_INCIDENTAL`).
 
     The albedos are not held non-negative: they are thousands of nuisance parameters of the shape, and
     clipping the poorly determined ones at 0 (k_s away from the highlight) biases the shape; an estimate

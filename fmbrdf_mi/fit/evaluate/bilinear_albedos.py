@@ -67,7 +67,7 @@ def bilinear_weights(rows, cols, offsets, present):
     the sample's own pixel; the weights sum to 1).
 
     ``rows``, ``cols`` (cells,): each cell's pixel; ``offsets`` (n, 2): each sample's (dx right, dy down)
-    from its cell's centre, in cells (|d| < 1/2 ... 1); ``present(r, c)`` -> bool array: whether pixel
+    from its cell's centre, in cells (``|d|`` < 1/2 ... 1); ``present(r, c)`` -> bool array: whether pixel
     (r, c) has albedos (fitted; False off the image).  The rule at missing neighbours: module docstring.
     Per axis the sample's value is interpolated towards the neighbour on its side, or, that one missing,
     extrapolated linearly from the opposite neighbour, or, both missing, held constant; the 2-D weights are
