@@ -9,7 +9,9 @@ own directory), by ``--jobs`` worker processes; a material that fails (an
 unreadable file, outputs that exist without ``--force``) is one line naming
 its file on stderr, the others are still fitted, and the exit status is 1.
 The summary table (one row per material) goes to stdout and, with ``-o``, to
-DIR/summary.tsv.
+DIR/summary.tsv.  Ctrl-C stops a batch at once: the queued materials are not
+fitted, the running fits are stopped, and a material's files are written all or
+none (:func:`fmbrdf_mi._paths.staged_directory`), so no params.json is half-written.
 """
 from __future__ import annotations
 
