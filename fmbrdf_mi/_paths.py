@@ -1,8 +1,18 @@
 """Checks made before rendering or fitting, so that foreseeable operating-system
-problems and impossible sizes are reported at once, in one line naming the path."""
+problems and impossible sizes are reported at once, in one line naming the path;
+outputs written all or none (:func:`staged_directory`) and output directories
+locked while a run writes them (:func:`take_lock`)."""
 from __future__ import annotations
 
+import contextlib
+import json
 import os
+import shutil
+import signal
+import socket
+import tempfile
+import threading
+import time
 
 #: The command line's name, as its messages and the metadata of its outputs spell it.
 PROG = "fmbrdf-mi"
@@ -114,3 +124,161 @@ def check_render_size(width, height, what="resolution", extra_per_pixel=0):
                          f"({BYTES_PER_PIXEL + extra_per_pixel} bytes per pixel), more than the "
                          f"{_size(avail)} available; choose a smaller resolution")
     return need
+
+
+# ------------------------------------------------------------------ all-or-none outputs
+@contextlib.contextmanager
+def staged_directory(directory, last=(), remove=()):
+    """Write a set of files all or none: yields a hidden staging directory inside ``directory`` (made if
+    needed); when the block ends, the files ``remove`` (paths in ``directory``: a previous run's outputs
+    that this one does not write) are deleted and the files written into the staging directory replace
+    their namesakes in ``directory``, the names in ``last`` after the others (a record that says the rest
+    is complete), with Ctrl-C held back until every file is in place.  When the block raises (Ctrl-C, a
+    refused input) the staging directory is deleted, ``directory`` is left as it was, and the directories
+    made for it are removed again: no file half-written and no earlier output lost."""
+    directory = os.path.abspath(directory)
+    made = directory
+    while not os.path.exists(os.path.dirname(made)) and os.path.dirname(made) != made:
+        made = os.path.dirname(made)
+    made = None if os.path.exists(directory) else made
+    os.makedirs(directory, exist_ok=True)
+    stage = tempfile.mkdtemp(prefix=".staging.", suffix=".partial", dir=directory)
+    try:
+        yield stage
+        names = sorted(n for n in os.listdir(stage) if not n.startswith("."))  # a writer's own temporary file
+        names = [n for n in names if n not in last] + [n for n in last if n in names]
+        with _sigint_held():
+            for p in remove:
+                if os.path.basename(p) not in names and os.path.isfile(p):
+                    os.remove(p)
+            for name in names:
+                os.replace(os.path.join(stage, name), os.path.join(directory, name))
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+        raise
+    shutil.rmtree(stage, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def staged_outputs(output):
+    """:func:`staged_directory` for a file ``output`` and the files written beside it: yields the path to
+    write ``output`` to, in the staging directory."""
+    with staged_directory(os.path.dirname(os.path.abspath(output))) as stage:
+        yield os.path.join(stage, os.path.basename(output))
+
+
+@contextlib.contextmanager
+def _sigint_held():
+    """Hold SIGINT back (delivered when the block ends) so that a group of renames is not cut in two."""
+    block = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
+    if block:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        if block:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+# ------------------------------------------------------------------ locks
+def lock_info(**extra):
+    """What a lock file records of the process that holds it (this one)."""
+    return {"pid": os.getpid(), "host": socket.gethostname(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            **extra}
+
+
+def holder_alive(info):
+    """Whether the process that wrote lock ``info`` may still run (on another host: assumed so)."""
+    if info.get("host") != socket.gethostname():
+        return True  # cannot tell: assume it runs
+    try:
+        os.kill(int(info["pid"]), 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, KeyError, ValueError, TypeError):
+        return True
+    return True
+
+
+def read_lock(path):
+    """The JSON a lock file holds, or None if it is gone or unreadable."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+def describe_lock(info, path):
+    """The holder of a lock, as a message says it."""
+    return (f"pid {info.get('pid')} on {info.get('host')}, started {info.get('started')} "
+            f"(lock file {path}; delete it if that process is gone)")
+
+
+def take_lock(path, what):
+    """Create lock file ``path`` for this process, its content complete when it appears (a hard link of a
+    written file); PathError naming ``what`` and the holder if a live process holds it.  A lock left by a
+    process that is gone (on this host) is replaced.  Returns ``path``."""
+    tmp = f"{path}.{os.getpid()}.{threading.get_ident()}"
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(json.dumps(lock_info()) + "\n")
+    try:
+        for _ in range(3):
+            try:
+                os.link(tmp, path)
+                return path
+            except FileExistsError:
+                info = read_lock(path)
+                if info is None:
+                    continue  # released in the meantime
+                if holder_alive(info):
+                    raise PathError(f"{what}: another run is writing into it: {describe_lock(info, path)}")
+                release_lock(path)  # stale: its process is gone
+        raise PathError(f"{what}: could not take the lock {path}")
+    finally:
+        release_lock(tmp)
+
+
+#: The lock file of an output directory a run is writing (:func:`locked_directory`).
+LOCK_NAME = ".fmbrdf-mi.lock"
+
+
+@contextlib.contextmanager
+def locked_directory(directory, what="output directory"):
+    """Hold the lock of output directory ``directory`` (made if needed) while the block runs: PathError
+    naming the directory and the lock file if another live run holds it.  A directory made for it is
+    removed again if the block raises and leaves it empty."""
+    check_output_dir(directory, what)
+    what = f"{what} {os.fspath(directory)}"
+    directory = os.path.abspath(directory)
+    made = []
+    d = directory
+    while not os.path.exists(d) and os.path.dirname(d) != d:
+        made.append(d)
+        d = os.path.dirname(d)
+    os.makedirs(directory, exist_ok=True)
+    ok = False
+    try:
+        path = take_lock(os.path.join(directory, LOCK_NAME), what)
+        try:
+            yield path
+            ok = True
+        finally:
+            release_lock(path)
+    finally:
+        if not ok:
+            for d in made:           # deepest first; one that is not empty stays
+                try:
+                    os.rmdir(d)
+                except OSError:
+                    break
+
+
+def release_lock(path):
+    """Remove lock file ``path`` (nothing if it is gone)."""
+    try:
+        os.remove(path)
+    except FileNotFoundError:
+        pass

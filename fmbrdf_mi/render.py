@@ -11,20 +11,18 @@ line.  Mitsuba is imported only after the arguments and inputs are checked.
 """
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import re
 import shlex
 import sys
-import tempfile
 import time
 
 import numpy as np
 
 from . import __version__
 from . import scene as S
-from ._paths import PROG, CLIError, resolve_builtin
+from ._paths import PROG, CLIError, resolve_builtin, staged_outputs
 from .params import ParameterError
 
 HELP = "render spheres of FMBRDF material to a Stokes EXR and PNG previews"
@@ -743,35 +741,6 @@ def run_render(args):
     for p in written.values():
         print(f"wrote {p}")
     return 0
-
-
-@contextlib.contextmanager
-def staged_outputs(output):
-    """Write a render's files all or none: yields the path to write ``output`` to, in a hidden staging
-    directory beside it; the files written there (``output`` and the ones beside it) replace their
-    namesakes beside ``output`` when the block ends, and are deleted with the staging directory when it
-    raises (Ctrl-C, a refused capture), so that no file is half-written and no earlier output is lost.
-    Directories made for it are removed again on failure."""
-    import shutil
-
-    directory = os.path.dirname(os.path.abspath(output))
-    made = directory
-    while not os.path.exists(os.path.dirname(made)) and os.path.dirname(made) != made:
-        made = os.path.dirname(made)
-    made = None if os.path.exists(directory) else made
-    os.makedirs(directory, exist_ok=True)
-    stage = tempfile.mkdtemp(prefix=f".{os.path.basename(output)}.", suffix=".partial", dir=directory)
-    try:
-        yield os.path.join(stage, os.path.basename(output))
-        for name in sorted(os.listdir(stage)):
-            if not name.startswith("."):       # a writer's own temporary file is not an output
-                os.replace(os.path.join(stage, name), os.path.join(directory, name))
-    except BaseException:
-        shutil.rmtree(stage, ignore_errors=True)
-        if made is not None:
-            shutil.rmtree(made, ignore_errors=True)
-        raise
-    shutil.rmtree(stage, ignore_errors=True)
 
 
 def _raw_camera(args):

@@ -9,12 +9,15 @@ own directory), by ``--jobs`` worker processes; a material that fails (an
 unreadable file, outputs that exist without ``--force``) is one line naming
 its file on stderr, the others are still fitted, and the exit status is 1.
 The summary table (one row per material) goes to stdout and, with ``-o``, to
-DIR/summary.tsv.
+DIR/summary.tsv.  Ctrl-C stops a batch at once: the queued materials are not
+fitted, the running fits are stopped, and a material's files are written all or
+none (:func:`fmbrdf_mi._paths.staged_directory`), so no params.json is half-written.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
 import sys
 import time
@@ -102,6 +105,8 @@ def _check_outputs(out, force):
 
 def fit_one(path, out, opts, force=False, progress=None):
     """Fit one MERL file and write ``out``/params.json and slices.png: the report (dict, as params.json)."""
+    from fmbrdf_mi._paths import staged_directory
+
     from . import fitting
     from .merl import read_merl
     from .plots import PHI_D_INDEX, slice_plot
@@ -110,22 +115,20 @@ def fit_one(path, out, opts, force=False, progress=None):
     t0 = time.time()
     brdf = read_merl(path)
     res = fitting.fit_brdf(brdf, opts, progress=progress)
-    os.makedirs(out, exist_ok=True)
     name = os.path.splitext(os.path.basename(path))[0]
     fitted = fitting.model_brdf(res.params, PHI_D_INDEX)  # the plotted slices only
-    slice_plot(brdf, fitted, os.path.join(out, "slices.png"),
-               title=f"{name}: FMBRDF fit, log10 RMSE {res.log_rmse_all:.3f} (all usable bins)")
-    report = {"file": os.path.abspath(path), "params": res.params,
-              "log10_rmse": {"fitted_samples": res.log_rmse, "all_usable_bins": res.log_rmse_all,
-                             "per_channel_fitted_samples": dict(zip("rgb", res.log_rmse_channels))},
-              "converged": res.converged, "stop_reason": res.stop_reason,
-              "n_samples": res.n_samples, "n_usable_bins": res.n_usable, "at_bound": res.at_bound,
-              "options": opts.__dict__, "history": res.history,
-              "timings": dict(res.timings, command=time.time() - t0)}
-    tmp = os.path.join(out, "params.json.part")
-    with open(tmp, "w") as f:
-        json.dump(report, f, indent=2, default=float)
-    os.replace(tmp, os.path.join(out, "params.json"))
+    with staged_directory(out, last=("params.json",)) as stage:   # both files or neither (Ctrl-C)
+        slice_plot(brdf, fitted, os.path.join(stage, "slices.png"),
+                   title=f"{name}: FMBRDF fit, log10 RMSE {res.log_rmse_all:.3f} (all usable bins)")
+        report = {"file": os.path.abspath(path), "params": res.params,
+                  "log10_rmse": {"fitted_samples": res.log_rmse, "all_usable_bins": res.log_rmse_all,
+                                 "per_channel_fitted_samples": dict(zip("rgb", res.log_rmse_channels))},
+                  "converged": res.converged, "stop_reason": res.stop_reason,
+                  "n_samples": res.n_samples, "n_usable_bins": res.n_usable, "at_bound": res.at_bound,
+                  "options": opts.__dict__, "history": res.history,
+                  "timings": dict(res.timings, command=time.time() - t0)}
+        with open(os.path.join(stage, "params.json"), "w") as f:
+            json.dump(report, f, indent=2, default=float)
     return report
 
 
@@ -212,10 +215,54 @@ def _batch_task(path, out, opts, force, threads=None):
         import drjit as dr
 
         dr.set_thread_count(threads)
+    global _fitting
+    _fitting = True
     try:
         return fit_one(path, out, opts, force), None
     except (ValueError, OSError) as e:   # the CLI's user errors: the file's problem, not the batch's
         return None, _error_line(path, e)
+    except BaseException as e:
+        from fmbrdf_mi.interrupt import interrupted
+
+        if interrupted(e) and multiprocessing.parent_process() is not None:
+            os._exit(130)   # a worker stopped by the batch (_stop_workers): its outputs removed, no further material
+        raise
+    finally:
+        _fitting = False
+
+
+def _worker_signals():
+    """A batch worker's signals: Ctrl-C (sent to the terminal's whole process group) is left to the batch,
+    which stops the workers with SIGTERM (:func:`_stop_workers`); SIGTERM ends the worker's fit as a
+    KeyboardInterrupt would, so that its staged outputs are removed (:func:`fit_one`)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _terminated)
+
+
+#: Whether this worker is fitting a material (SIGTERM then stops the fit; otherwise the worker exits at once).
+_fitting = False
+
+
+def _terminated(signum, frame):
+    if _fitting:
+        raise KeyboardInterrupt
+    os._exit(130)
+
+
+def _stop_workers(grace=10.0):
+    """Stop this process's worker processes: SIGTERM (a fit stops, its staging directory removed), then,
+    after ``grace`` seconds, SIGKILL for those still running."""
+    workers = multiprocessing.active_children()
+    for w in workers:
+        w.terminate()
+    deadline = time.time() + grace
+    for w in workers:
+        w.join(max(0.0, deadline - time.time()))
+        if w.is_alive():
+            w.kill()
+            w.join()
 
 
 def _row(name, status, report, out, seconds):
@@ -284,11 +331,12 @@ def _run_batch(args, files):
             finished(k, path, name, out, _batch_task(path, out, opts, args.force))
     else:
         import concurrent.futures as cf
-        import multiprocessing
 
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
         threads = max(1, cores // jobs)  # Dr.Jit threads per worker: the cores shared out
-        with cf.ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        pool = cf.ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
+                                      initializer=_worker_signals)
+        try:
             futures = {pool.submit(_batch_task, path, out, opts, args.force, threads): (path, name, out)
                        for path, name, out in todo}
             for k, fut in enumerate(cf.as_completed(futures), 1):
@@ -298,6 +346,11 @@ def _run_batch(args, files):
                 except Exception as e:  # a worker that died (out of memory, a crash): named, the rest go on
                     result = (None, _error_line(path, RuntimeError(f"the fit's worker failed: {e}")))
                 finished(k, path, name, out, result)
+        except BaseException:   # Ctrl-C: the queued materials are not fitted, the running fits stopped
+            pool.shutdown(wait=False, cancel_futures=True)
+            _stop_workers()
+            raise
+        pool.shutdown()
     table = [rows[f] for f in files]
     text = "\t".join(COLUMNS) + "\n" + "".join("\t".join(str(r[c]) for c in COLUMNS) + "\n" for r in table)
     if args.out:

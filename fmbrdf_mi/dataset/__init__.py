@@ -42,6 +42,7 @@ import zlib
 
 import numpy as np
 
+from .._paths import describe_lock, holder_alive, lock_info, read_lock, release_lock
 from .config import (BUILTIN_SHAPES, FORMAT, DatasetConfig, DatasetConfigError, config_path, load_config,
                      read_config_file)
 
@@ -253,41 +254,11 @@ def _overlap(k1, n1, k2, n2, samples):
     return any(i % n2 == k2 for i in range(k1, min(samples, k1 + n1 * n2), n1))
 
 
-def _holder_alive(info):
-    import socket
-
-    if info.get("host") != socket.gethostname():
-        return True  # cannot tell: assume it runs
-    try:
-        os.kill(int(info["pid"]), 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, KeyError, ValueError, TypeError):
-        return True
-    return True
-
-
-def _read_lock(path):
-    try:
-        with open(path, encoding="utf-8") as f:
-            return json.load(f)
-    except (OSError, ValueError):
-        return None
-
-
-def _describe(info, path):
-    return (f"pid {info.get('pid')} on {info.get('host')}, started {info.get('started')} "
-            f"(lock file {path}; delete it if that process is gone)")
-
-
 def acquire_lock(out, k, n, samples):
     """Take the lock of shard k/n of the dataset in ``out``; ValueError if a live generator
     holds this shard or one that shares samples with it.  Locks of dead processes on this
     host are removed.  Returns the lock's path."""
-    import socket
-
-    me = {"pid": os.getpid(), "host": socket.gethostname(), "shard": f"{k}/{n}",
-          "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    me = lock_info(shard=f"{k}/{n}")
     path = os.path.join(out, _lock_name(k, n))
 
     def conflicts():
@@ -296,13 +267,13 @@ def acquire_lock(out, k, n, samples):
             if not m:
                 continue
             other = os.path.join(out, name)
-            info = _read_lock(other)
+            info = read_lock(other)
             if info is None or info.get("pid") == me["pid"] and info.get("host") == me["host"]:
                 continue
             k2, n2 = int(m.group(1)), int(m.group(2))
             if not _overlap(k, n, k2, n2, samples):
                 continue
-            if not _holder_alive(info):
+            if not holder_alive(info):
                 try:
                     os.remove(other)  # stale: its process is gone
                 except FileNotFoundError:
@@ -310,7 +281,7 @@ def acquire_lock(out, k, n, samples):
                 continue
             what = "this shard" if (k2, n2) == (k, n) else f"shard {k2}/{n2}, which shares samples with {k}/{n},"
             raise ValueError(f"--out {out}: another generator is rendering {what} into it: "
-                             f"{_describe(info, other)}")
+                             f"{describe_lock(info, other)}")
 
     conflicts()
     for _ in range(2):
@@ -328,13 +299,6 @@ def acquire_lock(out, k, n, samples):
             raise
         return path
     raise ValueError(f"--out {out}: could not take the lock {path}")
-
-
-def release_lock(path):
-    try:
-        os.remove(path)
-    except FileNotFoundError:
-        pass
 
 
 # ------------------------------------------------------------------ one sample

@@ -9,14 +9,20 @@ share, as Mitsuba's differentiable integrators share one base that runs the
 passes while each variant overrides one method:
 
 1. :meth:`~FitJob.check`: the options, before any file is read;
-2. :meth:`~FitJob.files`: the output paths (``fit.json`` first), refused
+2. the output directory locked (:func:`fmbrdf_mi._paths.locked_directory`)
+   until the run ends, so that a second run into it refuses at once;
+3. :meth:`~FitJob.files`: the output paths (``fit.json`` first), refused
    if any exists and ``force`` is not given (:func:`fmbrdf_mi.fit.outputs.writer.prepare`);
-3. :meth:`~FitJob.read`, :meth:`~FitJob.fit`: inputs to observations, the
+4. :meth:`~FitJob.read`, :meth:`~FitJob.fit`: inputs to observations, the
    library API (:mod:`fmbrdf_mi.fit.api`);
-4. :meth:`~FitJob.report`: the dict that becomes ``fit.json``;
-5. :meth:`~FitJob.write`: plots and the other output files;
-6. ``fit.json``, written last and atomically (one JSON encoder), so a run
-   that fails on the way leaves no record of a fit it did not finish.
+5. :meth:`~FitJob.report`: the dict that becomes ``fit.json``;
+6. :meth:`~FitJob.write`: plots and the other output files, and then
+   ``fit.json`` (one JSON encoder), all into a hidden staging directory
+   (:func:`fmbrdf_mi._paths.staged_directory`: the job's ``out`` points there
+   while it writes) whose files replace the earlier ones when every one is
+   written, ``fit.json`` last; an earlier fit's files that this one does not
+   write are removed then (:func:`~fmbrdf_mi.fit.outputs.writer.stale_outputs`).
+   A run that fails or is interrupted on the way leaves the directory as it was.
 
 The run returns the report (what the summary, :func:`fmbrdf_mi.fit.outputs.summary.print_summary`, prints).
 """
@@ -25,7 +31,8 @@ from __future__ import annotations
 import os
 import time
 
-from fmbrdf_mi.fit.outputs.writer import prepare, write_json
+from fmbrdf_mi._paths import locked_directory, staged_directory
+from fmbrdf_mi.fit.outputs.writer import prepare, relocate, stale_outputs, write_json
 
 
 class FitJob:
@@ -62,13 +69,22 @@ class FitJob:
 
     def run(self):
         self.check()
-        paths = list(self.files())
-        prepare(self.out, paths, self.force)
-        self.read()
-        self.fit()
-        report = self.report()
-        os.makedirs(self.out, exist_ok=True)
-        self.write(report)
-        write_json(paths[0], report)
+        with locked_directory(self.out):
+            paths = list(self.files())
+            prepare(self.out, paths, self.force)
+            self.read()
+            self.fit()
+            report = self.report()
+            out, record = self.out, os.path.basename(paths[0])
+            with staged_directory(out, last=(record,), remove=stale_outputs(out, paths)) as stage:
+                self.out = stage
+                try:
+                    self.files()       # the paths of the write phase, in the staging directory
+                    self.write(report)
+                    report = relocate(report, stage, out)
+                    write_json(os.path.join(stage, record), report)
+                finally:
+                    self.out = out
+                    self.files()
         self.paths = paths
         return self.finish(report)

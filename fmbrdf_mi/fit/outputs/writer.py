@@ -4,7 +4,11 @@ Every fit command (single image, joint, colour, normal refinement) checks
 its output directory and refuses to overwrite any of its files without
 ``force`` *before* it reads an input (:func:`prepare`), and writes its
 ``fit.json`` atomically through a temporary file (:func:`write_json`), so a
-fit stopped half-way leaves no half-written record.
+fit stopped half-way leaves no half-written record.  The files of an earlier
+fit in the same directory that a new one does not write (the maps of a
+per-pixel fit beside a shared fit's record) are found by :func:`stale_outputs`,
+from the names a fit writes (:data:`FIXED_OUTPUTS`, :data:`PER_IMAGE_OUTPUTS`),
+never a file of another name.
 """
 from __future__ import annotations
 
@@ -25,6 +29,47 @@ def prepare(out, files, force):
             if os.path.exists(p):
                 raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
     return list(files)
+
+
+#: Every file a fit writes whatever its mode (single image, colour mosaic, joint, normal refinement), by name.
+FIXED_OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stokes.exr", "relight.png",
+                 "k_s.exr", "k_b.exr", "k_s_se.exr", "k_b_se.exr", "albedo_maps.png", "materials.png", "labels.png",
+                 "colour_fit.png", "normals.npy", "normals.png", "normals_change.png")
+#: The files a joint fit writes per image (``{}``: the image's name, as its fit.json's ``images`` lists it).
+PER_IMAGE_OUTPUTS = ("relight_{}.png", "images_{}.png", "profiles_{}.png", "colour_fit_{}.png")
+
+
+def stale_outputs(out, paths):
+    """The files of the earlier fit recorded by ``out``/fit.json that a new fit writing ``paths`` does not
+    write: the names of :data:`FIXED_OUTPUTS`, and :data:`PER_IMAGE_OUTPUTS` of the images the earlier
+    fit.json lists.  None without an earlier fit.json (a directory that holds no fit)."""
+    record = os.path.join(out, "fit.json")
+    if not os.path.isfile(record):
+        return []
+    names = set(FIXED_OUTPUTS)
+    try:
+        with open(record, encoding="utf-8") as f:
+            earlier = json.load(f)
+    except (OSError, ValueError):
+        earlier = None
+    images = earlier.get("images") if isinstance(earlier, dict) else None
+    for im in images if isinstance(images, list) else ():
+        name = im.get("name") if isinstance(im, dict) else None
+        if isinstance(name, str) and name and os.path.basename(name) == name and name not in (".", ".."):
+            names.update(p.format(name) for p in PER_IMAGE_OUTPUTS)
+    keep = {os.path.basename(p) for p in paths}
+    return sorted(os.path.join(out, n) for n in names - keep if os.path.isfile(os.path.join(out, n)))
+
+
+def relocate(value, stage, out):
+    """``value`` (a report: dicts, lists, strings) with the paths inside directory ``stage`` moved to ``out``."""
+    if isinstance(value, dict):
+        return {k: relocate(v, stage, out) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(relocate(v, stage, out) for v in value)
+    if isinstance(value, str) and value.startswith(stage + os.sep):
+        return os.path.join(out, value[len(stage) + 1:])
+    return value
 
 
 def write_json(path, report):
