@@ -1,0 +1,74 @@
+"""Fit inputs that were accepted and then ignored or fitted as nonsense: each is applied, flagged or
+refused in one line naming the option or file and what is valid."""
+import json
+
+import numpy as np
+import pytest
+from conftest import one_line_error
+
+from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.files import build_observation
+
+
+def _capture(tmp_path, size=16):
+    """A raw PNG of the built-in sphere's render with its capture sidecar (``fmbrdf-mi render --raw``)."""
+    from PIL import Image
+
+    from fmbrdf_mi import camera as C
+
+    raw = np.random.default_rng(0).integers(100, 3000, (size, size)).astype(np.uint16)
+    path = tmp_path / "cap_raw.png"
+    Image.fromarray(raw).save(path)
+    extra = {"scene": "builtin:sphere", "capture": {"dn_per_input_unit": 100.0},
+             "parameters": {"width": size, "height": size, "camera": "orthographic", "fov": 25.0,
+                            "distance": 5.0, "light_dir": [0.0, 0.0, 1.0], "irradiance": 3.14}}
+    C.write_sidecar(path, C.CameraModel(), extra)
+    return path
+
+
+def _fit_cli(capsys, *argv):
+    from fmbrdf_mi.cli import main
+
+    rc = main(["fit", *argv])
+    return rc, capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- --mask with the built-in sphere's geometry
+def _save_png(path, a, mode=None):
+    from PIL import Image
+
+    Image.fromarray(a, mode).save(path)
+    return path
+
+
+def test_mask_is_applied_to_the_builtin_sphere(tmp_path):
+    """Before: the sidecar's geometry replaced --mask, which was ignored."""
+    raw = _capture(tmp_path, 32)
+    whole = build_observation(str(raw)).mask
+    half = np.zeros((32, 32), np.uint8)
+    half[:, :16] = 255                                   # left half of the raw mosaic: super-pixel columns 0..7
+    for name, a in (("m.npy", half), ("m.png", half), ("rgb.png", np.stack([half] * 3, axis=-1)),
+                    ("small.npy", half[::2, ::2])):      # a mask of the super-pixel grid
+        p = tmp_path / name
+        np.save(p, a) if name.endswith(".npy") else _save_png(p, a)
+        m = build_observation(str(raw), mask=str(p)).mask
+        assert m.sum() > 0 and not m[:, 8:].any() and np.array_equal(m, whole & (np.arange(16) < 8)), name
+
+
+@pytest.mark.parametrize("make,words", [
+    (lambda d: np.save(d / "m.npy", np.ones((5, 7))), ["m.npy", "(5, 7)", "(16, 16)", "(32, 32)"]),
+    (lambda d: np.save(d / "m.npy", np.zeros((32, 32))), ["m.npy", "selects no pixel"]),
+    (lambda d: np.save(d / "m.npy", np.pad(np.ones((2, 2)), ((0, 30), (0, 30)))),
+     ["m.npy", "selects no pixel of the sphere"]),
+    (lambda d: np.save(d / "m.npy", np.full((32, 32), np.nan)), ["m.npy", "NaN"]),
+    (lambda d: (d / "m.npy").mkdir(), ["m.npy", "directory"]),
+    (lambda d: (d / "m.npy").write_text("not a mask"), ["m.npy", "not a readable"]),
+])
+def test_a_bad_mask_with_the_builtin_sphere_is_one_line(tmp_path, capsys, make, words):
+    """Before: each was ignored and the fit ran on the whole sphere (exit 0)."""
+    raw = _capture(tmp_path, 32)
+    make(tmp_path)
+    rc, err = _fit_cli(capsys, str(raw), "--mask", str(tmp_path / "m.npy"), "-o", str(tmp_path / "out"),
+                       "--max-iter", "1")
+    one_line_error(rc, err, "fit", "mask", *words)
+    assert not (tmp_path / "out").exists()
