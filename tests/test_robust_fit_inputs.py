@@ -72,3 +72,33 @@ def test_a_bad_mask_with_the_builtin_sphere_is_one_line(tmp_path, capsys, make, 
                        "--max-iter", "1")
     one_line_error(rc, err, "fit", "mask", *words)
     assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------- too few fitted pixels through max_pixels
+@pytest.mark.parametrize("n", [1, 2, 3, 19])
+def test_max_pixels_below_the_minimum_is_refused_by_the_api(tmp_path, n):
+    """Before: max_pixels 1..3 fitted that many super-pixels and said "converged"."""
+    from fmbrdf_mi.fit import fit
+    from fmbrdf_mi.fit.problem.data import MIN_PIXELS
+
+    obs = build_observation(str(_capture(tmp_path, 64)))
+    with pytest.raises(InputError, match=rf"max_pixels \(--max-pixels\) {n}: .*at least {MIN_PIXELS}\b"):
+        fit(obs, max_pixels=n, max_iter=1, progress=False)
+
+
+def test_max_pixels_below_the_minimum_is_one_line(tmp_path, capsys):
+    raw = _capture(tmp_path, 64)
+    rc, err = _fit_cli(capsys, str(raw), "--max-pixels", "2", "-o", str(tmp_path / "out"), "--max-iter", "1")
+    one_line_error(rc, err, "fit", "(--max-pixels) 2", "at least 20", "0 for every usable pixel")
+    assert not (tmp_path / "out").exists()
+
+
+def test_max_pixels_split_over_a_joint_fit_is_refused_per_image(tmp_path, capsys):
+    """Two images and --max-pixels 30: 15 per image, fewer than a fit accepts from one image's mask."""
+    raw = _capture(tmp_path, 64)
+    (tmp_path / "m.json").write_text(json.dumps({"image": [{"input": str(raw)},
+                                                           {"input": str(raw), "light": [0.3, 0.0, 1.0]}]}))
+    rc, err = _fit_cli(capsys, "--manifest", str(tmp_path / "m.json"), "--max-pixels", "30", "-o",
+                       str(tmp_path / "out"), "--max-iter", "1")
+    one_line_error(rc, err, "fit", "(--max-pixels) 30", "15 pixels per image of 2", "at least 40")
+    assert not (tmp_path / "out").exists()
