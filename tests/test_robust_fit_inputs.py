@@ -102,3 +102,30 @@ def test_max_pixels_split_over_a_joint_fit_is_refused_per_image(tmp_path, capsys
                        str(tmp_path / "out"), "--max-iter", "1")
     one_line_error(rc, err, "fit", "(--max-pixels) 30", "15 pixels per image of 2", "at least 40")
     assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------- polarisation images of non-numeric samples
+@pytest.mark.parametrize("array", [
+    np.random.default_rng(1).random((16, 16)) > 0.5,                       # a boolean raw mosaic
+    np.random.default_rng(1).random((16, 16)) * (1 + 1j),                 # complex
+    np.random.default_rng(1).random((4, 16, 16)) > 0.5,                    # boolean angle images
+    np.full((16, 16), "12", dtype="<U2"),                                   # strings
+    np.full((16, 16), np.datetime64("2020-01-01")),                         # dates
+])
+def test_a_polarisation_image_of_non_numeric_samples_is_refused(tmp_path, capsys, array):
+    """Before: a boolean or complex .npy was fitted as a raw mosaic (complex parts dropped with a
+    warning), exit 0."""
+    np.save(tmp_path / "raw.npy", array)
+    rc, err = _fit_cli(capsys, str(tmp_path / "raw.npy"), "--sphere", "8,8,6", "--light", "0,0,1", "-o",
+                       str(tmp_path / "out"), "--max-iter", "1")
+    one_line_error(rc, err, "fit", "raw.npy", str(array.dtype), "integers or real numbers")
+    assert not (tmp_path / "out").exists()
+
+
+def test_four_angle_files_of_booleans_are_refused(tmp_path):
+    paths = []
+    for k in range(4):
+        np.save(tmp_path / f"a{k}.npy", np.ones((8, 8), bool))
+        paths.append(str(tmp_path / f"a{k}.npy"))
+    with pytest.raises(InputError, match=r"angle image .*a0.npy: samples of dtype bool; .*integers or real"):
+        build_observation(paths, sphere="4,4,3", light=(0, 0, 1))
