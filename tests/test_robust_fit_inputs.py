@@ -181,3 +181,44 @@ def test_the_summary_prints_the_overstated_noise_warning(capsys):
              "params": {"alpha": 0.1}, "uncertainty": info}
     summary.print_colour({"models": {"fmbrdf": model}, "outputs": ["fit.json"], "wall_s": 1.0})
     assert "warning: " + U.misfit_text(info) in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------- the same image twice in a joint fit
+@pytest.mark.parametrize("second,light2,words", [
+    ("same", [0.0, 0.0, 1.0], ["images 0 (cap_raw) and 1", "the same file", "cap_raw.png", "twice"]),
+    ("copy", [0.0, 0.0, 2.0], ["images 0 (cap_raw) and 1 (copy)", "same content", "copy.png", "twice"]),
+    ("same", None, ["images 0 (cap_raw) and 1", "the same file", "the input's own", "twice"]),
+])
+def test_the_same_image_twice_in_a_joint_fit_is_refused(tmp_path, capsys, second, light2, words):
+    """Before: the manifest's two entries of one file and light were fitted as two images (each pixel
+    counted twice, standard errors too small by sqrt(2)), exit 0."""
+    import shutil
+
+    raw = _capture(tmp_path, 32)
+    other = raw
+    if second == "copy":
+        other = tmp_path / "copy.png"
+        shutil.copy(raw, other)
+        shutil.copy(tmp_path / "cap_raw.json", tmp_path / "copy.json")
+    first = {"input": str(raw)} if light2 is None else {"input": str(raw), "light": [0.0, 0.0, 1.0]}
+    entry = {"input": str(other)} if light2 is None else {"input": str(other), "light": light2}
+    (tmp_path / "m.json").write_text(json.dumps({"image": [first, entry]}))
+    rc, err = _fit_cli(capsys, "--manifest", str(tmp_path / "m.json"), "-o", str(tmp_path / "out"),
+                       "--max-iter", "1")
+    one_line_error(rc, err, "fit", *words)
+    assert not (tmp_path / "out").exists()
+
+
+def test_distinct_lights_or_a_held_out_copy_are_accepted():
+    from fmbrdf_mi.fit.inputs.manifest import ImageSpec
+    from fmbrdf_mi.fit.outputs.joint import check_distinct
+
+    here = __file__
+    check_distinct([ImageSpec(here, [0, 0, 1]), ImageSpec(here, [0.1, 0, 1])])
+    check_distinct([ImageSpec(here, [0, 0, 1]), ImageSpec(here, [0, 0, 1], holdout=True)])
+    with pytest.raises(InputError, match="the same file"):
+        check_distinct([ImageSpec(here, [0, 0, 1]), ImageSpec(here, [0, 0, 3])])
+    with pytest.raises(InputError, match="images 0 .* and 2"):
+        check_distinct([ImageSpec([here] * 4, [1, 0, 1]), ImageSpec(here, [1, 0, 1]),
+                        ImageSpec([here] * 4, [1, 0, 1])])
+
