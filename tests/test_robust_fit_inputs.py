@@ -222,3 +222,39 @@ def test_distinct_lights_or_a_held_out_copy_are_accepted():
         check_distinct([ImageSpec([here] * 4, [1, 0, 1]), ImageSpec(here, [1, 0, 1]),
                         ImageSpec([here] * 4, [1, 0, 1])])
 
+
+# ---------------------------------------------------------------- the authors' viewing rays
+@pytest.fixture(scope="module")
+def authors_object(tmp_path_factory):
+    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+
+    root = tmp_path_factory.mktemp("authors") / "obj"
+    write_authors_object(root, {"eta": 1.5, "alpha": 0.2, "beta": 0.5, "kappa": 2.0, "k_s": 1.0, "r_k": 1.0},
+                         [[0.3, 0.2, 1.0], [-0.3, 0.1, 1.0]], res=24, fov=12.0, seed=1)
+    return root
+
+
+@pytest.mark.parametrize("fill,words", [
+    (lambda v, m: np.full_like(v, np.nan), ["vpL_img.npy", "no viewing ray", "NaN, infinite or zero"]),
+    (lambda v, m: np.zeros_like(v), ["vpL_img.npy", "no viewing ray"]),
+    (lambda v, m: np.full_like(v, np.inf), ["vpL_img.npy", "no viewing ray"]),
+    (lambda v, m: np.where(m[..., None] & (np.arange(v.shape[1]) < 3)[None, :, None], np.nan, v),
+     ["vpL_img.npy", "pixels of the mask", "no viewing ray"]),
+])
+def test_authors_viewing_rays_that_are_not_rays_are_refused(authors_object, tmp_path, fill, words):
+    """Before: NaN (or zero) rays were replaced by (0, 0, 1), the orthographic view, silently."""
+    import shutil
+
+    from fmbrdf_mi.fit.inputs.authors import read_object
+
+    bad = tmp_path / "bad"
+    shutil.copytree(authors_object, bad)
+    specs, _ = read_object(bad)
+    m = specs[0].input.mask
+    vfile = bad / "calibration" / "vpL_img.npy"
+    v = np.load(vfile)
+    m = np.pad(m, ((0, v.shape[0] - m.shape[0]), (0, v.shape[1] - m.shape[1])))
+    np.save(vfile, fill(v, m))
+    with pytest.raises(InputError) as exc:
+        read_object(bad)
+    assert all(w in str(exc.value) for w in words) and "\n" not in str(exc.value), str(exc.value)
