@@ -258,3 +258,29 @@ def test_authors_viewing_rays_that_are_not_rays_are_refused(authors_object, tmp_
     with pytest.raises(InputError) as exc:
         read_object(bad)
     assert all(w in str(exc.value) for w in words) and "\n" not in str(exc.value), str(exc.value)
+
+
+# ---------------------------------------------------------------- a dataset's sample count
+@pytest.mark.parametrize("samples", [10 ** 12, 10 ** 6 + 1, 2 ** 63])
+def test_dataset_samples_above_the_maximum_are_refused(tmp_path, capsys, samples):
+    """Before: samples = 10**12 was accepted and the run grew lists of every index before rendering."""
+    from fmbrdf_mi.cli import main
+    from fmbrdf_mi.dataset.config import MAX_SAMPLES, DatasetConfigError, load_config
+
+    with pytest.raises(DatasetConfigError, match=rf"^samples: expected an integer in \[1, {MAX_SAMPLES}\]"):
+        load_config({"samples": samples})
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f"samples = {samples}\n")
+    rc = main(["dataset", "--config", str(cfg), "--out", str(tmp_path / "ds"), "-q"])
+    one_line_error(rc, capsys.readouterr().err, "dataset", "samples", f"[1, {MAX_SAMPLES}]", str(samples))
+    assert not (tmp_path / "ds").exists()
+    rc = main(["dataset", "--config", "builtin:dataset_example", "--out", str(tmp_path / "ds"), "--samples",
+               str(samples), "-q"])
+    one_line_error(rc, capsys.readouterr().err, "dataset", "samples", f"[1, {MAX_SAMPLES}]")
+    assert not (tmp_path / "ds").exists()
+
+
+def test_dataset_samples_at_the_maximum_are_accepted():
+    from fmbrdf_mi.dataset.config import MAX_SAMPLES, load_config
+
+    assert load_config({"samples": MAX_SAMPLES}).samples == MAX_SAMPLES
