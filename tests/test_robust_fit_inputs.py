@@ -284,3 +284,11 @@ def test_dataset_samples_at_the_maximum_are_accepted():
     from fmbrdf_mi.dataset.config import MAX_SAMPLES, load_config
 
     assert load_config({"samples": MAX_SAMPLES}).samples == MAX_SAMPLES
+
+
+def test_a_zero_light_of_a_duplicate_is_one_line(tmp_path, capsys):
+    raw = _capture(tmp_path, 32)
+    (tmp_path / "m.json").write_text(json.dumps({"image": [{"input": str(raw), "light": [0, 0, 1]},
+                                                           {"input": str(raw), "light": [0, 0, 0]}]}))
+    rc, err = _fit_cli(capsys, "--manifest", str(tmp_path / "m.json"), "-o", str(tmp_path / "out"), "--max-iter", "1")
+    one_line_error(rc, err, "fit", "image 1: light", "non-zero")

@@ -56,6 +56,7 @@ from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
 from fmbrdf_mi.fit.inputs.colour import is_colour
 from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power, image_names
+from fmbrdf_mi.fit.inputs.observations import check_direction
 from fmbrdf_mi.fit.inputs.parse import parse_vector
 from fmbrdf_mi.fit.outputs import plots
 from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
@@ -95,17 +96,16 @@ def check_distinct(specs):
                  if isinstance(p, (str, os.PathLike))]
         if s.holdout or not paths or not all(os.path.isfile(p) for p in paths):
             continue
-        light = None
-        if s.light is not None:
-            light = np.asarray(parse_vector(s.light, f"image {k}: light"), float)
-            light = light / np.linalg.norm(light)
+        light = None if s.light is None else check_direction(parse_vector(s.light, f"image {k}: light"),
+                                                              f"image {k}: light")
         key = tuple(sha256(p) for p in paths)
         for j, other, where in seen.get(key, []):
             if (light is None) != (other is None) or (light is not None and not np.allclose(light, other, rtol=0,
                                                                                             atol=1e-12)):
                 continue
             same = [os.path.realpath(p) for p in paths] == [os.path.realpath(p) for p in where]
-            how = f"the same file {paths[0]}" if same else f"files of the same content (SHA-256), {where[0]} and {paths[0]},"
+            how = (f"the same file {paths[0]}" if same
+                   else f"files of the same content (SHA-256), {where[0]} and {paths[0]},")
             shown = "the input's own" if light is None else [round(float(x), 6) for x in light]
             raise InputError(f"images {j} ({names[j]}) and {k} ({names[k]}): {how} under the same light ({shown}); a "
                              "joint fit would count its pixels twice: give each image once")
