@@ -183,7 +183,7 @@ def test_manifest_footprint_is_named_as_the_manifest_gave_it(capsys, tmp_path, c
     '--footprint point', an option the user never gave)."""
     m = tmp_path / "m.toml"
     m.write_text(f'[[image]]\ninput = "{captures / "m_raw.png"}"\nfootprint = "point"\n'
-                 f'[[image]]\ninput = "{captures / "m_raw.png"}"\n')
+                 f'[[image]]\ninput = "{captures / "m_raw.png"}"\nlight = [0.3, 0.0, 1.0]\n')
     rc, _, err = run(capsys, "fit", "--manifest", str(m), "-o", str(tmp_path / "out"), "--max-iter", "1", "-q")
     one_line_error(rc, err, "fit", "image m_raw", "manifest's", "footprint point", "--area-points")
     assert not (tmp_path / "out").exists()

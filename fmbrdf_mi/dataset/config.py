@@ -62,6 +62,11 @@ SECTIONS = {
 }
 TOP_KEYS = ("samples", "seed", "description") + tuple(SECTIONS)
 
+#: The most samples a dataset may have: the run keeps lists of the sample indices (a shard's, those still
+#: to render) and checks every sample's files, so a count far beyond what can be rendered would fill memory
+#: before the first render; a larger collection is several datasets with their own seeds.
+MAX_SAMPLES = 10 ** 6
+
 INF = math.inf
 MATERIAL_KEYS = SECTIONS["material"]
 
@@ -379,6 +384,9 @@ class DatasetConfig:
         if "samples" not in raw:
             raise _err("samples", "missing (the number of samples N, an integer >= 1)")
         self.samples = _integer("samples", raw["samples"], 1)
+        if self.samples > MAX_SAMPLES:
+            raise _err("samples", f"expected an integer in [1, {MAX_SAMPLES}] (the number of samples N; more: several "
+                                  f"datasets with their own seeds), got {self.samples}")
         self.seed = _integer("seed", raw.get("seed", DEFAULTS["seed"]), 0)
         if self.seed >= 2 ** 63:
             raise _err("seed", f"expected an integer < 2**63, got {self.seed}")

@@ -9,7 +9,8 @@ The mechanisms, each a function, and what they serve:
   the covariance is multiplied by chi^2 / (N - p) (N the independent samples), which is then ~1 by
   construction; with the camera noise known, the same factor is applied when chi^2 / (N - p) is far
   above 1 (more than 5 of its standard deviations sqrt(2 / (N - p)), and at least 0.1: ``misfit``),
-  and the fit warns (:func:`misfit_text`).
+  and the fit warns (:func:`misfit_text`); as far below 1 it warns too (``noise_overstated``: the
+  stated noise exceeds the data's scatter) and keeps the scale 1.
 * :func:`paper_sandwich`: the paper's loss is not a likelihood, so J^T J says nothing about the
   spread of its minimiser.  A sandwich estimate H^-1 M H^-1 with H = J^T J and M the covariance of
   the estimating equation J^T r, summed over pixel neighbourhoods: each pixel's rows (its intensity
@@ -245,14 +246,22 @@ def noise_scale(problem, r, n_independent, p):
     """(scale, info, applied): the factor the covariance is multiplied by, fit.json's ``chi2_per_dof`` and
     ``misfit``, and the mechanisms applied.  Noise estimated from the residuals: chi^2 / (N - p); the camera
     noise known: 1, or chi^2 / (N - p) where that is far above 1 (the model or the stated noise does not
-    explain the data: the quasi-likelihood scale, as when the noise level is estimated; module docstring)."""
+    explain the data: the quasi-likelihood scale, as when the noise level is estimated; module docstring).
+    Far below 1 (as far as the misfit's threshold above it) the stated noise is larger than the data's
+    scatter: ``noise_overstated`` and ``noise_warning`` say so and the scale stays 1, so the errors are
+    those of the stated noise (too large, not shrunk to a scatter the noise model does not describe)."""
     n = int(n_independent if n_independent is not None else len(r))
     chi2 = float(r @ r)
     info = {"chi2_per_dof": chi2 / max(n - p, 1)}
     if not problem.obj.noise.known:
         return info["chi2_per_dof"], info, [("estimated-noise", "")]
     # chi^2 / dof has standard deviation sqrt(2 / dof)
-    info["misfit"] = bool(info["chi2_per_dof"] > 1.0 + max(0.1, 5.0 * math.sqrt(2.0 / max(n - p, 1))))
+    far = max(0.1, 5.0 * math.sqrt(2.0 / max(n - p, 1)))
+    info["misfit"] = bool(info["chi2_per_dof"] > 1.0 + far)
+    if info["chi2_per_dof"] < 1.0 - far:
+        # the stated noise exceeds the data's scatter: flagged, the errors kept (they are then too large)
+        info["noise_overstated"] = True
+        info["noise_warning"] = misfit_text(info)
     if info["misfit"]:
         return info["chi2_per_dof"], info, [("known-noise", ""), ("misfit", "")]
     return 1.0, info, [("known-noise", "")]
@@ -625,9 +634,20 @@ def profile_intervals(problem, st, unc, J, r, every=False):
     return [("profile", "")] if any(k != "fisher" for k in kinds.values()) else []
 
 
+def noise_flagged(unc):
+    """Whether the uncertainty block ``unc`` flags chi^2/dof far from 1 with the stated camera noise (above:
+    ``misfit``; below: ``noise_overstated``), which :func:`misfit_text` then describes."""
+    return bool(unc.get("misfit") or unc.get("noise_overstated"))
+
+
 def misfit_text(unc):
-    """The one-line warning of a misfit (``unc["misfit"]``: chi^2/dof far above 1 with the stated camera noise)."""
+    """The one-line warning of chi^2/dof far from 1 with the stated camera noise: far above (``unc["misfit"]``)
+    or far below it (``unc["noise_overstated"]``)."""
     c = unc["chi2_per_dof"]
+    if unc.get("noise_overstated"):
+        return (f"chi^2/dof = {c:.3g} with the stated camera noise: the data scatter less than that noise "
+                f"(by sqrt(chi^2/dof) = {math.sqrt(c):.3g}); the noise settings (gain, read noise) or the noise "
+                "model are wrong, and the standard errors, computed from the stated noise, are too large")
     return (f"chi^2/dof = {c:.3g} with the stated camera noise: the model (geometry, light, BSDF) or the noise "
             f"settings do not explain the data; the standard errors are inflated by sqrt(chi^2/dof) = "
             f"{math.sqrt(c):.3g}")

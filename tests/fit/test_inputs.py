@@ -410,7 +410,7 @@ def test_black_level_above_every_sample_is_refused(tmp_path, capsys, how):
         argv = [str(raw), "--black-level", "70000"]
     elif how == "manifest":
         (tmp_path / "m.json").write_text(json.dumps({"defaults": {"black_level": 70000},
-                                                     "image": [{"input": str(raw)}, {"input": str(raw)}]}))
+                                                     "image": [{"input": str(raw)}, {"input": str(raw), "light": [0.3, 0.0, 1.0]}]}))
         argv = ["--manifest", str(tmp_path / "m.json")]
     else:
         side = tmp_path / "cap_raw.json"

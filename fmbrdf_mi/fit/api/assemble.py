@@ -63,7 +63,7 @@ def assemble(fx):
         names, cov, info = U.covariance(problem, st, J, r, n_ind, parts)
         fx.applied = info.pop("applied")
         unc = U.summary(problem, st, names, cov, info)
-        if unc.get("misfit"):
+        if U.noise_flagged(unc):
             report("[fit] warning: " + U.misfit_text(unc))
         if problem.eliminates:
             groups = U.pixel_albedos(problem, st, parts, J, unc)

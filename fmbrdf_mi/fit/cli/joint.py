@@ -11,7 +11,7 @@ from fmbrdf_mi.fit.inputs.authors import read_object
 from fmbrdf_mi.fit.inputs.manifest import (PATH_KEYS, ImageSpec, absolute_paths, build_observations, image_names,
                                            read_manifest)
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_vector
-from fmbrdf_mi.fit.outputs.joint import fit_images, fitter
+from fmbrdf_mi.fit.outputs.joint import check_distinct, fit_images, fitter
 from fmbrdf_mi.fit.outputs.record import joint_block
 from fmbrdf_mi.fit.outputs.normals import run as refine
 
@@ -64,6 +64,7 @@ def run_joint(args, command):
                              ".npy, or a manifest)")
         specs = [ImageSpec(inp, parse_vector(li, f"--light {k + 1}"), options=dict(cli_opts))
                  for k, (inp, li) in enumerate(zip(args.inputs, args.light))]
+    check_distinct(specs)
     names = image_names(specs)
     fit_fn, outputs_fn = fitter(specs, args.albedo, args.materials)
     if fit_fn is not fit_images:

@@ -142,11 +142,18 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
         if vp.shape != (h, w, 3):
             raise InputError(f"{vfile}: shape {vp.shape} differs from the normals' ({h}, {w}, 3)")
         v = cv_to_ours(-vp)
-        norm = np.linalg.norm(v, axis=-1, keepdims=True)
-        v = np.where(norm > 0, v / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
+        with np.errstate(invalid="ignore", over="ignore"):
+            norm = np.linalg.norm(v, axis=-1, keepdims=True)
+        ray = np.all(np.isfinite(v), axis=-1) & np.isfinite(norm[..., 0]) & (norm[..., 0] > 0)
+        if not ray.any():
+            raise InputError(f"{vfile}: no viewing ray in the map (every vector is NaN, infinite or zero); expected "
+                             "(h, w, 3) finite non-zero rays camera -> surface in OpenCV camera axes (or remove it: "
+                             "the rays then come from IntrinsicL.npy)")
+        v = np.where(ray[..., None], v / np.where(ray[..., None], norm, 1.0), np.array([0.0, 0.0, 1.0]))
         view_src = "vpL_img.npy"
     elif K is not None:
         v, view_src = rays_from_intrinsics(K, (h, w), kfile), "IntrinsicL.npy"
+        ray = None
     else:
         raise InputError(f"{cal}: neither vpL_img.npy nor IntrinsicL.npy (the viewing rays)")
     if mask is None:
@@ -168,6 +175,9 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
         raise InputError(f"{nfile}: no unit normal inside the mask {os.fspath(mask)} ({bad_normals} pixels, each "
                          "NaN, zero or not of length 1); expected (h, w, 3) unit normals in OpenCV camera axes")
     m = m & unit
+    if ray is not None and (m & ~ray).any():
+        raise InputError(f"{vfile}: {int((m & ~ray).sum())} pixels of the mask {os.fspath(mask)} have no viewing ray "
+                         "(NaN, infinite or zero); expected finite non-zero rays camera -> surface on the object")
     n = np.where(m[..., None], n, np.array([0.0, 0.0, 1.0]))
     ifile = os.path.join(cal, "intensities.npy")
     power = np.ones(len(L))

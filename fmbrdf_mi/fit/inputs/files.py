@@ -59,6 +59,28 @@ def builtin_sphere_geometry(p, shape=None):
     return SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, fov)
 
 
+def user_mask(mask, shape, within=None, what=None):
+    """The mask a user gave (a file or an array) on the polarisation image's grid ``shape``: a mask of the
+    raw mosaic keeps the super-pixels wholly inside it.  InputError naming the file unless it is a 2-D
+    mask of the image's or its raw mosaic's size that selects some pixel (of ``within``, (H, W) bool, when
+    given: the geometry it is intersected with, ``what`` naming it)."""
+    name = f"--mask {os.fspath(mask)}" if isinstance(mask, (str, os.PathLike)) else "mask"
+    mk = read_mask(mask)
+    raw = (2 * shape[0], 2 * shape[1])
+    if mk.shape == raw:  # mask of the raw mosaic: super-pixels inside it
+        mk = mk.reshape(shape[0], 2, shape[1], 2).all(axis=(1, 3))
+    elif mk.shape != tuple(shape):
+        raise InputError(f"{name}: shape {mk.shape} matches neither the polarisation image {tuple(shape)} "
+                         f"nor its raw mosaic {raw}")
+    if within is not None and not (mk & within).any():
+        raise InputError(f"{name}: selects no pixel of {what}; a mask is non-zero on the object (a mask of the "
+                         "raw mosaic keeps the super-pixels wholly inside it)")
+    if not mk.any():
+        raise InputError(f"{name}: selects no pixel; a mask is non-zero on the object (a mask of the raw mosaic "
+                         "keeps the super-pixels wholly inside it)")
+    return mk
+
+
 def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
                       fov=None, light=None, irradiance=None, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0,
                       channel="mean", geometry=None, demosaic="bilinear", conversion_gain=None,
@@ -134,6 +156,8 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
         n, m, v = builtin["normals"], builtin["mask"], builtin["view_dirs"]
         if meta.get("source") == "raw mosaic" and n.shape[:2] == (2 * shape[0], 2 * shape[1]):
             n, m, v = downsample_geometry(n, m, v)
+        if mask is not None and n.shape[:2] == shape:
+            m = m & user_mask(mask, shape, m, f"the sphere whose geometry {source} gives")
         exact = builtin_sphere_geometry(meta["parameters"], shape)
         light = builtin["light_dir"] if light is None else light
         if irradiance is None:
@@ -168,14 +192,7 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
         else:
             cx, cy, radius = parse_vector(sphere, "sphere (cx,cy,r in pixels)")
             centre = (cx, cy)
-        mk = None
-        if mask is not None:
-            mk = read_mask(mask)
-            if mk.shape == (2 * shape[0], 2 * shape[1]):  # mask of the raw mosaic: super-pixels inside it
-                mk = mk.reshape(shape[0], 2, shape[1], 2).all(axis=(1, 3))
-            elif mk.shape != tuple(shape):
-                raise InputError(f"mask: shape {mk.shape} matches neither the polarisation image {tuple(shape)} "
-                                 f"nor its raw mosaic {(2 * shape[0], 2 * shape[1])}")
+        mk = None if mask is None else user_mask(mask, shape)
         if centre is None:
             centre, radius = find_sphere(mk)
         n, m, v = geometry_from_sphere(shape, centre, radius, mk, camera, fov)

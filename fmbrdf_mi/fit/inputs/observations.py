@@ -278,6 +278,15 @@ def read_array(path, what):
                      "Stokes images as .exr)")
 
 
+def check_samples(a, name):
+    """``a`` unless its samples are not integers or real numbers (booleans, complex numbers, strings,
+    dates): InputError naming ``name`` and the valid dtypes."""
+    if a.dtype.kind not in "uif":
+        raise InputError(f"{name}: samples of dtype {a.dtype}; a polarisation image holds integers or real numbers "
+                         "(uint8, uint16, int32, float32, float64, ...)")
+    return a
+
+
 def select_channel(stokes, channel="mean"):
     """(3, H, W) from a (4, H, W, C) Stokes array: one colour channel or their mean.
 
@@ -324,7 +333,8 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
         if len(paths) == 1:
             paths = paths[0]
         elif len(paths) == 4:
-            imgs = [read_array(p, f"angle image {a} deg") for p, a in zip(paths, polcam.ANGLES)]
+            imgs = [check_samples(read_array(p, f"angle image {a} deg"), f"angle image {p}")
+                    for p, a in zip(paths, polcam.ANGLES)]
             for p, im in zip(paths, imgs):
                 if im.ndim != 2:
                     raise InputError(f"angle image {p}: expected a 2-D single-channel image, got {im.shape}")
@@ -345,7 +355,7 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
         if np.ndim(stokes) == 3:
             one_channel(f"the Stokes EXR {path}")
         return select_channel(stokes, channel), meta
-    a = read_array(path, "polarisation image")
+    a = check_samples(read_array(path, "polarisation image"), f"polarisation image {path}")
     if a.ndim in (2, 3):
         one_channel(f"{path} ({'a raw mosaic' if a.ndim == 2 else 'angle images'})")
     if a.ndim == 2:

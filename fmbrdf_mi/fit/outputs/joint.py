@@ -46,6 +46,8 @@ from __future__ import annotations
 import dataclasses
 import os
 
+import numpy as np
+
 from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.api.options import (FIT_NAMES, OPTION, check_fit_options, check_resolved_loss, fit_options, flag,
                                         record_keys)
@@ -53,12 +55,14 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
 from fmbrdf_mi.fit.inputs.colour import is_colour
-from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power
+from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power, image_names
+from fmbrdf_mi.fit.inputs.observations import check_direction
+from fmbrdf_mi.fit.inputs.parse import parse_vector
 from fmbrdf_mi.fit.outputs import plots
 from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
 from fmbrdf_mi.fit.outputs.colour_joint import outputs as colour_outputs
 from fmbrdf_mi.fit.outputs.job import FitJob
-from fmbrdf_mi.fit.outputs.record import command_block
+from fmbrdf_mi.fit.outputs.record import command_block, sha256
 from fmbrdf_mi.fit.inputs.labels import read_labels
 from fmbrdf_mi.fit.api.find_materials import parse_auto
 from fmbrdf_mi.fit.outputs.single import MAP_OUTPUTS, MATERIAL_OUTPUTS, labels_of, write_albedo_maps, write_materials
@@ -80,6 +84,32 @@ def outputs(out, names, holdout, albedo="shared", materials=None):
     if materials is not None:
         files += list(MATERIAL_OUTPUTS)
     return [os.path.join(out, f) for f in files]
+
+
+def check_distinct(specs):
+    """InputError unless the fitted images of ``specs`` are distinct: two entries naming the same file (the
+    same path, or files of the same content: SHA-256) under the same light would count its pixels twice.
+    A light not given is the input's own (its capture sidecar's), the same for the same content."""
+    names, seen = image_names(specs), {}
+    for k, s in enumerate(specs):
+        paths = [os.fspath(p) for p in (s.input if isinstance(s.input, (list, tuple)) else [s.input])
+                 if isinstance(p, (str, os.PathLike))]
+        if s.holdout or not paths or not all(os.path.isfile(p) for p in paths):
+            continue
+        light = None if s.light is None else check_direction(parse_vector(s.light, f"image {k}: light"),
+                                                              f"image {k}: light")
+        key = tuple(sha256(p) for p in paths)
+        for j, other, where in seen.get(key, []):
+            if (light is None) != (other is None) or (light is not None and not np.allclose(light, other, rtol=0,
+                                                                                            atol=1e-12)):
+                continue
+            same = [os.path.realpath(p) for p in paths] == [os.path.realpath(p) for p in where]
+            how = (f"the same file {paths[0]}" if same
+                   else f"files of the same content (SHA-256), {where[0]} and {paths[0]},")
+            shown = "the input's own" if light is None else [round(float(x), 6) for x in light]
+            raise InputError(f"images {j} ({names[j]}) and {k} ({names[k]}): {how} under the same light ({shown}); a "
+                             "joint fit would count its pixels twice: give each image once")
+        seen.setdefault(key, []).append((k, light, paths))
 
 
 def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, progress=True, command=None,
@@ -106,6 +136,7 @@ class Joint(FitJob):
         self.obs, self.extra, self.reproduce = observations, extra, reproduce
 
     def check(self):
+        check_distinct(self.specs)
         if parse_auto(self.fit_kw.get("materials")):
             raise InputError(f"--materials {self.fit_kw['materials']}: finding the materials is for single-image "
                              "fits so far; for several images give a label image (e.g. the labels.png of a "

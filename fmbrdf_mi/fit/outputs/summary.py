@@ -5,7 +5,7 @@ import numpy as np
 
 from fmbrdf_mi.fit.outputs.single import output_files
 from fmbrdf_mi.fit.problem.free_power import power_text
-from fmbrdf_mi.fit.uncertainty import WEAK_REL, misfit_text
+from fmbrdf_mi.fit.uncertainty import WEAK_REL, misfit_text, noise_flagged
 
 #: Exit status of a fit that stopped before it converged (time limit, iteration limit).
 EXIT_NOT_CONVERGED = 3
@@ -68,7 +68,7 @@ def print_colour(report):
         unc = m.get("uncertainty") or {}
         if std:
             print(f"  uncertainty: {unc.get('method', 'inverse Fisher information of the raw samples')}")
-        if unc.get("misfit"):
+        if noise_flagged(unc):
             print("  warning: " + misfit_text(unc))
         if (unc.get("other_optima") or {}).get("warning"):
             print("  warning: " + unc["other_optima"]["warning"])
@@ -126,7 +126,7 @@ def print_report(report):
         if unc.get("method"):
             print(f"  uncertainty: {unc['method']}"
                   + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
-                  + ("\n  warning: " + misfit_text(unc) if unc.get("misfit") else ""))
+                  + ("\n  warning: " + misfit_text(unc) if noise_flagged(unc) else ""))
     ch = rn["angle_change"]
     print(f"  normals moved from the start by {ch['mean']:.2f} deg mean, {ch['median']:.2f} deg median")
     ae = rn.get("angular_error")
@@ -172,7 +172,7 @@ def print_summary(report, out, t0):
         if unc.get("method"):
             print(f"  uncertainty: {unc['method']}"
                   + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
-                  + ("\n  warning: " + misfit_text(unc) if unc.get("misfit") else "")
+                  + ("\n  warning: " + misfit_text(unc) if noise_flagged(unc) else "")
                   + ("\n  warning: " + unc["other_optima"]["warning"]
                      if (unc.get("other_optima") or {}).get("warning") else ""))
         if unc.get("correlation"):

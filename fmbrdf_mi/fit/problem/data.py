@@ -43,6 +43,19 @@ POLE_EXCLUSION_DEG = 3.0
 MIN_PIXELS = 20
 
 
+def check_max_pixels(max_pixels, images=1):
+    """InputError unless ``max_pixels`` (``--max-pixels``; 0 or None: every usable pixel) leaves each of
+    ``images`` images at least :data:`MIN_PIXELS` pixels, the fewest a fit accepts from a mask."""
+    if not max_pixels:
+        return
+    per_image = int(math.ceil(max_pixels / images))
+    if per_image < MIN_PIXELS:
+        split = f" per image of {images}" if images > 1 else ""
+        raise InputError(f"max_pixels (--max-pixels) {max_pixels}: {per_image} pixels{split} are fewer than the "
+                         f"{MIN_PIXELS} a fit needs from each image; give at least {MIN_PIXELS * images}, or 0 for "
+                         "every usable pixel")
+
+
 def select_pixels(obs, opts, use_samples=True, keep=None):
     """Flat indices of the pixels a fit uses, and what was excluded (see :class:`FitOptions`).
 
@@ -58,6 +71,7 @@ def select_pixels(obs, opts, use_samples=True, keep=None):
     (``obs.irradiance = -1``, ``obs.normals = colours``) is refused as at construction.
     """
     validate(obs)
+    check_max_pixels(opts.max_pixels)
     m = erode_mask(obs.mask, opts.erode)
     if keep is not None:
         m = m & keep
@@ -256,6 +270,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     (:mod:`fmbrdf_mi.fit.evaluate.materials`) and, with shared albedos, its own pair.
     """
     K = len(observations)
+    check_max_pixels(opts.max_pixels, K)
     lab = count = keep = None
     if materials is not None and opts.albedo_smooth is not None:
         raise InputError("materials: not with albedo_smooth (the albedo maps' smoothness prior) yet")
@@ -264,7 +279,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         keep = lab >= 0
         if count == 1:      # one material: the ordinary fit of the labelled pixels
             lab = None
-    per_image = None if not opts.max_pixels else max(1, int(math.ceil(opts.max_pixels / K)))
+    per_image = None if not opts.max_pixels else int(math.ceil(opts.max_pixels / K))
     idxs, excl = [], []
     for k, o in enumerate(observations):
         try:
