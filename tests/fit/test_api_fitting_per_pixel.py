@@ -83,7 +83,7 @@ def test_pixel_albedo_fit_is_refused_where_it_cannot_run():
     obs, _, _ = _exact_observation(res=8)
     with pytest.raises(InputError, match="per-pixel: needs the likelihood"):
         fit(obs, albedo="per-pixel", loss="paper", progress=False)
-    with pytest.raises(InputError, match="albedo: expected 'shared' or 'per-pixel'"):
+    with pytest.raises(InputError, match="albedo: expected one of shared, per-pixel"):
         fit(obs, albedo="pixel", progress=False)
 
 
