@@ -126,6 +126,23 @@ SLOW = (
     "tests/fit/test_api_joint.py::test_one_image_is_the_list_of_one",
     "tests/fit/test_api_normal_joint.py::test_joint_lowers_the_energy_monotonically_and_beats_the_alternation",
     "tests/fit/test_api_normal_joint.py::test_refine_normals_command",
+    "tests/fit/test_layout_check.py::test_a_swapped_capture_is_named",
+    "tests/fit/test_problem_free_power.py::test_free_powers_are_recovered_and_fixed_powers_bias_the_fit",
+    "tests/fit/test_api_fitting_quadrature.py",
+    "tests/fit/test_uncertainty_profile.py::test_a_parameter_at_its_bound_gets_a_profile_end_an_independent_fit_confirms",
+    "tests/fit/test_uncertainty_profile.py::test_cli_intervals_option_is_recorded_and_rerun",
+    "tests/fit/test_uncertainty_profile.py::test_intervals_profile_gives_every_end_from_the_profile_a_brute_force_profile_confirms",
+    "tests/fit/test_inputs_authors.py::test_joint_fits_rerun_from_fit_json",
+    "tests/fit/test_cli_materials.py::test_manifest_with_materials",
+    "tests/fit/test_cli_materials.py::test_command_fits_two_materials_and_reruns",
+    "tests/fit/test_api_colour_per_pixel.py::test_joint_command_relights_a_held_out_mosaic_with_the_maps",
+    "tests/fit/test_api_colour.py::test_colour_fit_recovers_per_channel_albedos",
+    "tests/fit/test_uncertainty_misfit.py::test_misfit_with_free_powers_and_per_pixel_albedos",
+    "tests/fit/test_uncertainty_misfit.py::test_misfit_of_the_normal_refinement",
+    "tests/fit/test_outputs_colour_joint.py::test_fit_cli_colour_joint_manifest",
+    "tests/fit/test_outputs_colour_joint.py::test_joint_colour_fit_of_one_image_twice_halves_the_variance",
+    "tests/test_fit_brdf_speed.py::test_jobs_run_in_worker_processes_with_the_same_results",
+    "tests/test_robust_outputs.py::test_ctrl_c_in_the_write_phase_keeps_the_earlier_output",
 )
 
 

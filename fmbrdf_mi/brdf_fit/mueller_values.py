@@ -19,32 +19,20 @@ S3: the package's frames, those of :class:`.mueller.MuellerTable`.
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 
 import numpy as np
+
+from .values import evaluation_variant
 
 #: Mitsuba variant of the evaluation: polarised, monochrome.
 VARIANT = "llvm_ad_mono_polarized"
 
 
-@contextlib.contextmanager
 def polarised_variant():
-    """A context in :data:`VARIANT` with the plugin registered: yields ``mitsuba``; the variant set before is set
-    again on leaving (as :func:`.values.evaluation_variant`)."""
-    import mitsuba as mi
-
-    import fmbrdf_mi
-
-    before = mi.variant()
-    if before != VARIANT:
-        mi.set_variant(VARIANT)
-    try:
-        fmbrdf_mi.register()
-        yield mi
-    finally:
-        if before is not None and before != VARIANT:
-            mi.set_variant(before)
+    """A context in :data:`VARIANT` with the plugin registered (:func:`.values.evaluation_variant`): yields
+    ``mitsuba``; the variant set before is set again on leaving."""
+    return evaluation_variant(VARIANT)
 
 
 @dataclasses.dataclass(frozen=True)

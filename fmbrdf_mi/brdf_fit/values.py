@@ -34,25 +34,26 @@ _TERMS = ("surface", "body")
 
 
 @contextlib.contextmanager
-def evaluation_variant():
-    """A context in :data:`VARIANT`, with the plugin registered there: yields the ``mitsuba`` module.
+def evaluation_variant(variant=VARIANT):
+    """A context in ``variant`` (:data:`VARIANT`: M00 only), with the plugin registered there: yields the
+    ``mitsuba`` module.
 
-    The variant set before is set again on leaving (none was set: :data:`VARIANT` stays).  Nothing
-    happens when :data:`VARIANT` is already set.  A switch costs about 70 ms (Mitsuba rebinds its
-    modules), as much as seven table builds: callers that evaluate many times (:func:`.fitting.fit_brdf`)
+    The variant set before is set again on leaving (none was set: ``variant`` stays).  Nothing
+    happens when ``variant`` is already set.  A switch costs as much as several table builds (Mitsuba
+    rebinds its modules): callers that evaluate many times (:func:`.fitting.fit_brdf`)
     enter this once around all of it, and the methods of :class:`FMBRDFValues` then switch nothing."""
     import mitsuba as mi
 
     import fmbrdf_mi
 
     before = mi.variant()
-    if before != VARIANT:
-        mi.set_variant(VARIANT)
+    if before != variant:
+        mi.set_variant(variant)
     try:
         fmbrdf_mi.register()
         yield mi
     finally:
-        if before is not None and before != VARIANT:
+        if before is not None and before != variant:
             mi.set_variant(before)
 
 
