@@ -265,6 +265,20 @@ def _stop_workers(grace=10.0):
             w.join()
 
 
+def _remove_partial(existed):
+    """After the workers are stopped: the staging directories a killed worker could not remove, and the
+    output directories the batch made that are left empty (``existed``: {output directory: whether it
+    existed before the batch})."""
+    import glob
+    import shutil
+
+    for out, was in existed.items():
+        for stage in glob.glob(os.path.join(glob.escape(out), ".staging.*.partial")):
+            shutil.rmtree(stage, ignore_errors=True)
+        if not was and os.path.isdir(out) and not os.listdir(out):
+            os.rmdir(out)
+
+
 def _row(name, status, report, out, seconds):
     if report is None:
         return {**dict.fromkeys(COLUMNS, ""), "material": name, "status": status, "out": out}
@@ -334,6 +348,7 @@ def _run_batch(args, files):
 
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
         threads = max(1, cores // jobs)  # Dr.Jit threads per worker: the cores shared out
+        existed = {out: os.path.isdir(out) for _, _, out in todo}
         pool = cf.ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
                                       initializer=_worker_signals)
         try:
@@ -349,6 +364,7 @@ def _run_batch(args, files):
         except BaseException:   # Ctrl-C: the queued materials are not fitted, the running fits stopped
             pool.shutdown(wait=False, cancel_futures=True)
             _stop_workers()
+            _remove_partial(existed)
             raise
         pool.shutdown()
     table = [rows[f] for f in files]
