@@ -153,6 +153,10 @@ def _edit(d, tmp_path, what):
         d.clear()
         d.update({"refine_normals": {"start": "ps"}, "reproduce": {"command": "fmbrdf-mi fit --authors OBJ "
                                                                                "--refine-normals -o out"}})
+    elif what == "refine rounds":       # a record of the alternation rounds that --rounds set before the joint step
+        d.clear()
+        d.update({"refine_normals": {"start": "ps", "rounds": 2, "alternation": []},
+                  "reproduce": {"command": "fmbrdf-mi fit --authors OBJ --refine-normals --rounds 2 -o out"}})
     return d
 
 
@@ -165,6 +169,7 @@ def _edit(d, tmp_path, what):
     (False, "no hashes", ["files_sha256", "cannot be verified"]),
     (True, "no hashes", ["files_sha256", "cannot be verified"]),
     (False, "refine", ["--refine-normals are not supported", "reproduce.command"]),
+    (False, "refine rounds", ["--refine-normals are not supported", "--rounds 2 -o out)", "without --rounds"]),
 ])
 def test_from_record_that_cannot_be_verified_is_refused(capsys, tmp_path, joint, what, words):
     """Before: a record pointing at another file reran on it (its hash was never recorded), a record

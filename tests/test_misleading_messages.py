@@ -304,14 +304,8 @@ def _obs():
 PARAMS = dict(eta=1.5, alpha=0.3, beta=2.0, kappa=1.0, k_s=1.0, r_k=1.0)
 
 
-def _refine_normals(obs, mask):
-    from fmbrdf_mi.fit import refine_normals
-
-    return refine_normals([obs] * 3, obs.normals, mask=mask, progress=False)
-
-
 def _photometric_stereo(obs, mask):
-    from fmbrdf_mi.fit.api.normal_refine import photometric_stereo
+    from fmbrdf_mi.fit.inputs.normal_maps import photometric_stereo
 
     return photometric_stereo([obs] * 3, mask=mask)
 
@@ -326,7 +320,6 @@ def _photometric_stereo(obs, mask):
     (lambda f, o, a: f.refine_joint([o] * 3, o.normals, dict(PARAMS, k_s="1")), ["k_s must be a number"]),
     (lambda f, o, a: f.refine_joint([o] * 3, o.normals, PARAMS, mask=a[1][:8]), ["mask", "(8, 16)"]),
     (lambda f, o, a: f.refine_joint([o, o, "x"], o.normals, PARAMS), ["item 2", "Observation"]),
-    (lambda f, o, a: _refine_normals(o, a[1][:8]), ["mask", "(8, 16)"]),
     (lambda f, o, a: _photometric_stereo(o, a[1][:, :8]), ["mask", "(16, 8)"]),
     (lambda f, o, a: f.predict_image("fmbrdf", dict(eta=9), o), ["parameters", "missing alpha"]),
 ])

@@ -1,7 +1,6 @@
-"""Normal refinement (fmbrdf_mi.fit.api.normal_refine) on a synthetic non-spherical object: angular errors before and after.
+"""Normal refinement (fmbrdf_mi.fit.api.normal_joint) on a synthetic non-spherical object: angular errors before and after.
 
-    python tools/bench_normal_refine.py [--res 40] [--lights 4] [--method joint] [--rounds 0] [--lam 0.3]
-                                        [--prior curvature] [--starts ps,sphere]
+    python tools/bench_normal_refine.py [--res 40] [--lights 4] [--lam 0.3] [--prior curvature] [--starts ps,sphere]
     python tools/bench_normal_refine.py --seeds 6 [--res 40] [--lights 4] [--lam 0.3[,0.03,...]] [--json OUT.json]
 
 The object (:mod:`fmbrdf_mi.fit.evaluate.synthetic_object`): a smooth mesh (ellipsoid
@@ -17,14 +16,10 @@ read noise known).  Starting normal maps:
 * ``sphere``: the sphere whose outline best fits the mask (an orthographic
   sphere: a user's crude prior).
 
-``--method alternation``: ROUNDS rounds of
-:func:`fmbrdf_mi.fit.api.normal_refine.refine_normals` (material by a joint
-likelihood fit, then 4 Gauss-Newton steps on the normals, membrane prior
-with weight LAM).  ``--method joint`` (what ``fmbrdf-mi fit --refine-normals``
-does): ROUNDS rounds of that alternation (0: one joint fit of the material on
-the start normals), then the joint Levenberg-Marquardt on material and
-normals (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`, prior PRIOR with
-weight LAM).  Reported: mean and median angle to the ray-cast normals over the refined
+From each start, what ``fmbrdf-mi fit --refine-normals`` does: one joint fit
+of the material on the start normals, then the joint Levenberg-Marquardt on
+material and normals (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`,
+prior PRIOR with weight LAM).  Reported: mean and median angle to the ray-cast normals over the refined
 pixels (the mask eroded by one super-pixel), before and after, the final
 material and the wall time.
 
@@ -64,8 +59,8 @@ def normal_fits(seed, res=40, lights=4, lams=(0.3,), threads=0):
     from fmbrdf_mi.fit.inputs.authors import read_object
     from fmbrdf_mi.fit.api.joint import fit_joint
     from fmbrdf_mi.fit.api.normal_joint import refine_joint
-    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, photometric_stereo
     from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, photometric_stereo
 
     if threads:
         import drjit as dr
@@ -110,8 +105,6 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--res", type=int, default=40)
     p.add_argument("--lights", type=int, default=4, help="K, 3 to 6 (default %(default)s)")
-    p.add_argument("--method", default="joint", choices=("joint", "alternation"))
-    p.add_argument("--rounds", type=int, default=None, help="alternation rounds (default: 6 alone, 0 before joint)")
     p.add_argument("--lam", default="0.3", help="smoothness weight; with --seeds, comma-separated (default %(default)s)")
     p.add_argument("--prior", default="curvature", choices=("curvature", "membrane"))
     p.add_argument("--starts", default="ps,sphere")
@@ -123,14 +116,12 @@ def main(argv=None):
     if args.seeds:
         return seeds_main(args)
     args.lam = float(args.lam.split(",")[0])
-    if args.rounds is None:
-        args.rounds = 6 if args.method == "alternation" else 0
     from fmbrdf_mi.fit.inputs.authors import read_object
     from fmbrdf_mi.fit.api.joint import fit_joint
     from fmbrdf_mi.fit.api.normal_joint import refine_joint
-    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, photometric_stereo, refine_normals
+    from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, photometric_stereo
     from fmbrdf_mi.fit.solve.optimise import default_progress
-    from fmbrdf_mi.fit.inputs.observations import erode, find_sphere, sphere_normals
+    from fmbrdf_mi.fit.inputs.observations import find_sphere, sphere_normals
     from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
 
     K = args.lights
@@ -156,49 +147,37 @@ def main(argv=None):
             else:
                 p.error(f"--starts: unknown {start!r} (ps, sphere)")
             t = time.time()
-            if args.method == "alternation":
-                res = refine_normals(obs, n0, rounds=args.rounds, lam=args.lam, progress=True)
-                n1, params, mask, hist = res.normals, res.params, res.mask, res["alternation"]
-            else:
-                if args.rounds:
-                    res = refine_normals(obs, n0, rounds=args.rounds, lam=args.lam, progress=True)
-                    n_mid, p_mid = res.normals, res.params
-                else:
-                    for o in obs:
-                        o.normals, o.geometry = n0, None
-                    n_mid, p_mid = n0, fit_joint(obs, progress=False).params
-                j = refine_joint(obs, n_mid, p_mid, lam=args.lam, prior=args.prior, progress=default_progress)
-                n1, params, mask, hist = j.normals, j.params, j.mask, j.history
-                se = {k: v / (ks_scale if k == "k_s" else 1.0) for k, v in j.std_errors.items()}
-                stop = {"converged": j.converged, "reason": j.stop_reason, "iterations": len(hist),
-                        "chi2_per_dof": j.uncertainty.get("chi2_per_dof")}
+            for o in obs:
+                o.normals, o.geometry = n0, None
+            p_start = fit_joint(obs, progress=False).params
+            j = refine_joint(obs, n0, p_start, lam=args.lam, prior=args.prior, progress=default_progress)
+            n1, params, mask, hist = j.normals, j.params, j.mask, j.history
+            se = {k: v / (ks_scale if k == "k_s" else 1.0) for k, v in j.std_errors.items()}
+            stop = {"converged": j.converged, "reason": j.stop_reason, "iterations": len(hist),
+                    "chi2_per_dof": j.uncertainty.get("chi2_per_dof")}
             e0 = angular_error_deg(n0, gt, mask)
             e1 = angular_error_deg(n1, gt, mask)
             params = dict(params)
             params["k_s"] /= ks_scale
-            joint = args.method == "joint"
-            rec = {"start": start, "pixels": int(mask.sum()), "std_errors": se if joint else None,
-                   "stop": stop if joint else None, "before_mean": float(e0.mean()),
+            rec = {"start": start, "pixels": int(mask.sum()), "std_errors": se, "stop": stop,
+                   "before_mean": float(e0.mean()),
                    "before_median": float(np.median(e0)), "after_mean": float(e1.mean()),
                    "after_median": float(np.median(e1)), "params": params, "time": time.time() - t,
                    "history": [{k: v for k, v in h.items() if k != "params"} for h in hist]}
             out.append(rec)
             print(f"# {start}: {rec['before_mean']:.2f} / {rec['before_median']:.2f} deg -> {rec['after_mean']:.2f} / "
                   f"{rec['after_median']:.2f} deg (mean / median), {rec['time']:.0f} s", file=sys.stderr, flush=True)
-    method = (f"{args.rounds} alternation rounds" if args.method == "alternation" else
-              (f"{args.rounds} alternation round(s) + " if args.rounds else "") + f"joint LM ({args.prior})")
+    method = f"joint LM ({args.prior})"
     print(f"| start | K | method | pixels | before: mean / median | after: mean / median | "
           "material after (k_s relative to the truth's scale; ± SE) | joint LM: iterations, χ²/dof | time (s) |")
     print("|---|---|---|---|---|---|---|---|---|")
     def conv(r):
-        st = r.get("stop")
-        if not st:
-            return "-"
+        st = r["stop"]
         c = f"{st['iterations']}" + ("" if st["converged"] else " (not converged)")
         return c + (f", {st['chi2_per_dof']:.2f}" if st.get("chi2_per_dof") else "")
 
     for r in out:
-        se = r.get("std_errors") or {}
+        se = r["std_errors"]
         mat = ", ".join(f"{k} {v:.3g}" + (f" ± {se[k]:.2g}" if k in se else "") for k, v in r["params"].items())
         print(f"| {r['start']} | {K} | {method}, λ {args.lam:g} | {r['pixels']} | {r['before_mean']:.2f}° / "
               f"{r['before_median']:.2f}° | {r['after_mean']:.2f}° / {r['after_median']:.2f}° | {mat} | {conv(r)} | "

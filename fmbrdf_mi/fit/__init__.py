@@ -37,7 +37,6 @@ from fmbrdf_mi.fit.api.find_materials import FoundMaterials, MaterialsNotSeparat
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit, usable_pixels
 from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.api.normal_joint import refine_joint
-from fmbrdf_mi.fit.api.normal_refine import refine_normals
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs.manifest import ImageSpec, read_manifest
@@ -46,6 +45,6 @@ from fmbrdf_mi.fit.outputs.joint import fit_images
 from fmbrdf_mi.fit.outputs.single import fit_files
 from fmbrdf_mi.fit.result import FitResult
 
-__all__ = ["fit", "fit_joint", "fit_colour", "refine_normals", "refine_joint", "fit_files", "fit_images",
+__all__ = ["fit", "fit_joint", "fit_colour", "refine_joint", "fit_files", "fit_images",
            "FitOptions", "FitResult", "predict_image", "usable_pixels", "Observation", "ImageSpec",
            "read_manifest", "InputError", "find_materials", "FoundMaterials", "MaterialsNotSeparated"]

@@ -30,7 +30,7 @@ class FitResult:
     images add ``images`` (per-image diagnostics), free light powers
     ``powers``, colour mosaics ``channels``, normal refinement ``normals``
     and ``mask``, and the mode's own numbers go in ``details`` (chi^2 per
-    sample, the alternation's rounds, ...).  ``result["key"]`` reads a field or
+    sample, the internal state, ...).  ``result["key"]`` reads a field or
     a ``details`` entry (the colour fit's results were dicts).
     """
 

@@ -29,7 +29,7 @@ GIVE = {"--baselines": ["--baselines"], "--relight": ["--relight", "b.exr"], "--
         "--relight-light": ["--relight-light", "0,0,1"], "--relight-irradiance": ["--relight-irradiance", "2"]}
 NEED_GIVE = {"--relight-light": ["--relight-light", "0,0,1"], "--holdout": ["--holdout", "1"],
              "--normals-start": ["--normals-start", "sphere"], "--smooth": ["--smooth", "0.5"],
-             "--rounds": ["--rounds", "2"], "--power-start": ["--power-start", "given"]}
+             "--power-start": ["--power-start", "given"]}
 
 
 def parse(argv):
@@ -111,7 +111,7 @@ def test_every_option_is_on_the_command_line_with_its_help():
     actions = {a.dest: a for a in p._actions if a.dest != "help"}
     assert set(actions) == {o.name for o in OPTIONS if o.flag is not None}
     assert all(a.help and "%(" not in (a.help % {"default": a.default}) for a in actions.values())
-    assert actions["fixed"].option_strings == ["--fix"] and actions["normal_rounds"].option_strings == ["--rounds"]
+    assert actions["fixed"].option_strings == ["--fix"] and actions["from_json"].option_strings == ["--from"]
 
 
 def test_typed_options_counts_values_at_their_default():

@@ -192,34 +192,6 @@ def test_manifest_and_repeated_light_give_the_authors_fit(blob, tmp_path, capsys
     assert "image 0: unknown key(s) colour" in capsys.readouterr().err
 
 
-def test_normal_refinement_on_the_mesh_object(blob):
-    """Three lights of the mesh object, normals tilted by a smooth field of ~6 degrees, the material known:
-    one round of per-pixel Gauss-Newton with the smoothness prior at least halves the mean angular error
-    against the ray-cast normals and moves 80 % of the pixels closer.  (Material and normals together, from
-    a sphere: tools/bench_normal_refine.py, README.)"""
-    from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, refine_normals
-    from fmbrdf_mi.fit.inputs.authors import read_object
-
-    root, truth = blob
-    specs, _ = read_object(root, conversion_gain=truth["camera"]["conversion_gain"], read_noise=2.5)
-    obs = [s.input for s in specs[:3]]
-    gt = obs[0].normals.copy()
-    h, w = gt.shape[:2]
-    y, x = np.mgrid[0:h, 0:w]
-    tilt = 0.1 * np.stack([np.sin(x / 5.0), np.cos(y / 4.0), np.zeros_like(x, float)], -1)
-    n0 = gt + np.where(obs[0].mask[..., None], tilt, 0.0)
-    n0 /= np.linalg.norm(n0, axis=-1, keepdims=True)
-    ks = truth["irradiance_dn"] * max(POWERS)
-    res = refine_normals(obs, n0, rounds=1, lam=0.3, progress=False, material={**TRUE, "k_s": ks})
-    e0 = angular_error_deg(n0, gt, res.mask)
-    e1 = angular_error_deg(res.normals, gt, res.mask)
-    assert 4.0 < e0.mean() < 8.0
-    assert e1.mean() < 0.5 * e0.mean(), (e0.mean(), e1.mean())
-    assert np.mean(e1 < e0) > 0.8
-    with pytest.raises(Exception, match="K >= 3"):
-        refine_normals(obs[:2], n0, progress=False)
-
-
 def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys):
     """`fmbrdf-mi fit --from fit.json` reruns a joint fit made through a manifest and through --authors: the
     record names every image with its SHA-256, light, power, geometry and held-out flag, and the rerun gives

@@ -4,10 +4,9 @@
     res = refine_joint(observations, normals, params, lam=0.3)
     res.normals, res.params, res.std_errors, res.history         # a FitResult
 
-The alternation of :func:`fmbrdf_mi.fit.api.normal_refine.refine_normals`
-(material with the normals fixed, then normals with the material fixed)
-converges slowly along the directions in which the material and the normals
-trade off.  Here both move in one Gauss-Newton step.  The unknowns are the
+An alternation (material with the normals fixed, then normals with the
+material fixed) converges slowly along the directions in which the material
+and the normals trade off.  Here both move in one Gauss-Newton step.  The unknowns are the
 material's unconstrained z (shape parameters through the sigmoid onto their
 bounds, log albedos: the problem :class:`fmbrdf_mi.fit.problem.normals.NormalProblem`) and, per
 pixel, two tangent-plane unknowns n_i = normalise(n_i + u_i t1_i + v_i t2_i).
@@ -27,11 +26,10 @@ The energy is
   (default) sums the squared second differences n_a - 2 n_b + n_c along
   rows and columns, which vanish where the normal changes linearly across
   the image (a surface of constant curvature is not pulled flat);
-  ``membrane``, the first differences n_i - n_j of 4-neighbours (the
-  alternation's prior: it penalises curvature itself and biases the normals
-  of a small object towards a plane).  ``lam`` has the units of
-  :func:`~fmbrdf_mi.fit.api.normal_refine.refine_normals` (Stokes residuals
-  divided by the image's mean intensity); c = mean over the images of
+  ``membrane``, the first differences n_i - n_j of 4-neighbours (it
+  penalises curvature itself and biases the normals of a small object
+  towards a plane).  ``lam`` is in units of the Stokes residuals divided by
+  the image's mean intensity; c = mean over the images of
   (mean intensity)^2 / (mean sample variance) converts it to chi^2 units.
 
 **Normal equations** (:mod:`fmbrdf_mi.fit.solve.normal_system`).  J = [J_m | J_n]:
@@ -77,9 +75,9 @@ import time
 import numpy as np
 
 from fmbrdf_mi.fit import uncertainty as U
-from fmbrdf_mi.fit.api.normal_refine import check_views
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+from fmbrdf_mi.fit.inputs.normal_maps import check_views
 from fmbrdf_mi.fit.inputs.observations import check_mask, erode
 from fmbrdf_mi.fit.problem.normals import NormalProblem
 from fmbrdf_mi.fit.result import FitResult

@@ -170,8 +170,6 @@ OPTIONS = (
     Option("smooth", 0.3, kind="number", lo=0.0, flag="--smooth", group=_NORMALS,
            cli={"type": float, "metavar": "LAMBDA"},
            help="smoothness weight (units of Stokes residuals / image mean; default %(default)s)"),
-    Option("normal_rounds", 0, kind="int", lo=0, flag="--rounds", group=_NORMALS, cli={"type": int},
-           help="alternation rounds (material fit, then normals) before the joint step (default %(default)s)"),
     Option("relight", None, records=("single",), flag="--relight", group=_RELIGHT,
            cli={"nargs": "+", "metavar": "INPUT"}, help="a second image of the object under another light"),
     Option("relight_light", None, records=("single",), flag="--relight-light", group=_RELIGHT,

@@ -132,7 +132,6 @@ NEEDS = {
     "--holdout": ("--authors", "--authors (in a manifest, mark images with holdout = true)"),
     "--normals-start": ("--refine-normals", "--refine-normals"),
     "--smooth": ("--refine-normals", "--refine-normals"),
-    "--rounds": ("--refine-normals", "--refine-normals"),
     "--power-start": ("--free-power", "--free-power"),
 }
 

@@ -84,8 +84,8 @@ def run_joint(args, command):
         obs = build_observations(specs)
         # the authors' layout carries the ground truth (normal/normal_GT.npy): it is the geometry read
         gt = obs[0].normals.copy() if args.authors else None
-        return refine(specs, names, obs, args.out, start=args.normals_start, lam=args.smooth, rounds=args.normal_rounds,
-                      model=args.model, fit_kw={k: v for k, v in fit_kw.items() if k not in ("model", "baselines")},
+        return refine(specs, names, obs, args.out, start=args.normals_start, lam=args.smooth, model=args.model,
+                      fit_kw={k: v for k, v in fit_kw.items() if k not in ("model", "baselines")},
                       ground_truth=gt, force=args.force, progress=not args.quiet, command=command)
 
     def reproduce(obs):

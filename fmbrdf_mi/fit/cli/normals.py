@@ -11,7 +11,7 @@ from fmbrdf_mi.fit.errors import InputError
 def check(args, joint):
     """One line per mistake, before any file is read."""
     if not args.refine_normals:
-        check_needs(args, ("--normals-start", "--smooth", "--rounds"))
+        check_needs(args, ("--normals-start", "--smooth"))
         return
     if args.from_json:
         raise InputError("--refine-normals: --from is not supported (rerun the command instead)")

@@ -1,15 +1,13 @@
 """``fmbrdf-mi fit ... --refine-normals``: per-pixel normals and the material from K >= 3 images of one view.
 
     fmbrdf-mi fit --authors OBJ --refine-normals -o out/                 # start: photometric stereo
-    fmbrdf-mi fit --manifest m.toml --refine-normals --normals-start sphere --smooth 0.3 --rounds 1 -o out/
+    fmbrdf-mi fit --manifest m.toml --refine-normals --normals-start sphere --smooth 0.3 -o out/
 
 The images of a joint fit (manifest, ``--authors``, or repeated ``--light``;
 held-out images are left out) must share one view.  From the start map
 (``ps``: Lambertian photometric stereo; ``sphere``: the sphere whose outline
 best fits the mask; or a (H, W, 3) ``.npy`` in this package's camera frame),
-``--rounds`` rounds of the alternation
-(:func:`fmbrdf_mi.fit.api.normal_refine.refine_normals`; 0, the default: one
-joint fit of the material on the start map) and then the joint
+a joint fit of the material on the start map and then the joint
 Levenberg-Marquardt on the material and the normals
 (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`) with smoothness weight
 ``--smooth`` (curvature prior), over the mask eroded by ``--erode`` (at
@@ -19,7 +17,7 @@ package's camera frame: x image right, y image up, z towards the camera),
 ``normals.png`` (the refined map, cropped to the object), ``normals_change.png``
 (start, refined, angle between them, and against the ground truth when the
 input has one: the authors' ``normal/normal_GT.npy``) and ``fit.json``
-(material with standard errors, angular errors, per-round history).
+(material with standard errors, angular errors, per-iteration history).
 """
 from __future__ import annotations
 
@@ -31,8 +29,8 @@ import numpy as np
 from fmbrdf_mi.fit.api.options import fit_options
 from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.api.normal_joint import refine_joint
-from fmbrdf_mi.fit.api.normal_refine import angular_error_deg, check_views, photometric_stereo, refine_normals
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, check_views, photometric_stereo
 from fmbrdf_mi.fit.inputs.observations import erode, find_sphere, read_vectors, sphere_normals
 from fmbrdf_mi.fit.outputs import normal_plots
 from fmbrdf_mi.fit.outputs.record import command_block
@@ -73,21 +71,21 @@ def _errors(n, gt, mask):
             "pixels": int(mask.sum())}
 
 
-def run(specs, names, obs, out, *, start="ps", lam=0.3, rounds=0, model="fmbrdf", fit_kw=None, ground_truth=None,
-        force=False, progress=True, command=None):
+def run(specs, names, obs, out, *, start="ps", lam=0.3, model="fmbrdf", fit_kw=None, ground_truth=None, force=False,
+        progress=True, command=None):
     """Refine the normals of the non-held-out images; write the outputs; returns the fit.json dict."""
 
-    return NormalRefinement(specs, names, obs, out, start=start, lam=lam, rounds=rounds, model=model, fit_kw=fit_kw,
+    return NormalRefinement(specs, names, obs, out, start=start, lam=lam, model=model, fit_kw=fit_kw,
                             ground_truth=ground_truth, force=force, progress=progress, command=command).run()
 
 
 class NormalRefinement(FitJob):
     """:func:`run` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob` (the observations are read by the caller)."""
 
-    def __init__(self, specs, names, obs, out, *, start, lam, rounds, model, fit_kw, ground_truth, **kw):
+    def __init__(self, specs, names, obs, out, *, start, lam, model, fit_kw, ground_truth, **kw):
         super().__init__(out, **kw)
         self.specs, self.names, self.obs = specs, names, obs
-        self.start, self.lam, self.rounds, self.model, self.fit_kw = start, lam, rounds, model, dict(fit_kw or {})
+        self.start, self.lam, self.model, self.fit_kw = start, lam, model, dict(fit_kw or {})
         self.gt = None if ground_truth is None else np.asarray(ground_truth, float).copy()
         self.keep = [k for k, s in enumerate(specs) if not s.holdout]
         self.say = default_progress if self.progress else (lambda m: None)
@@ -111,19 +109,13 @@ class NormalRefinement(FitJob):
         fit_obs, n0, say, kw = self.fit_obs, self.n0, self.say, self.fit_kw
         self.t_fit = time.time()
         opts = fit_options(kw, model=self.model)
-        say(f"[normals] start {self.start}; {len(fit_obs)} images; {self.rounds} alternation round(s), then the "
-            f"joint step; smoothness {self.lam:g}")
-        n1, params = n0, None
-        self.alt = []
-        if self.rounds > 0:
-            res = refine_normals(fit_obs, n0, rounds=self.rounds, lam=self.lam, fit_options=opts, progress=say)
-            n1, params, self.alt = res.normals, res.params, res["alternation"]
-        else:
-            for o in fit_obs:
-                o.normals = n0
-                o.geometry = None
-            params = fit_joint(fit_obs, opts, progress=False).params
-        self.joint = refine_joint(fit_obs, n1, params, mask=erode(fit_obs[0].mask, max(int(opts.erode), 1)),
+        say(f"[normals] start {self.start}; {len(fit_obs)} images; the material on the start map, then the joint "
+            f"step; smoothness {self.lam:g}")
+        for o in fit_obs:
+            o.normals = n0
+            o.geometry = None
+        params = fit_joint(fit_obs, opts, progress=False).params
+        self.joint = refine_joint(fit_obs, n0, params, mask=erode(fit_obs[0].mask, max(int(opts.erode), 1)),
                                   lam=self.lam, model=self.model, bounds=opts.bounds, fixed=opts.fixed,
                                   max_iter=opts.max_iter, progress=say)
 
@@ -134,15 +126,13 @@ class NormalRefinement(FitJob):
                               "irradiance": obs[k].irradiance, "holdout": specs[k].holdout}
                              for k in range(len(specs))],
                   "truth": next((o.meta.get("truth") for o in obs if o.meta.get("truth")), None),
-                  "refine_normals": {"start": self.start, "smooth": self.lam, "rounds": self.rounds,
-                                     "pixels": int(m.sum()),
+                  "refine_normals": {"start": self.start, "smooth": self.lam, "pixels": int(m.sum()),
                                      "frame": "x image right, y image up, z towards the camera",
                                      "converged": joint.converged, "stop_reason": joint.stop_reason,
                                      # the material's estimate: one more run with the prior weakened (refine_joint)
                                      "material_stage": joint.options.get("material_stage"),
                                      "energy": {"total": joint.loss, "data_chi2": joint.loss_terms["data_chi2"],
                                                 "prior": joint.loss_terms["prior"]},
-                                     "alternation": [{k: v for k, v in h.items()} for h in self.alt],
                                      "joint_history": joint.history, "time": time.time() - self.t_fit,
                                      "angle_change": _errors(joint.normals, n0, m),
                                      "angular_error": None, "outputs": self.files()},
@@ -151,7 +141,7 @@ class NormalRefinement(FitJob):
         unc = joint.uncertainty or {}
         if unc.get("calibrated"):
             # the material at the weakened prior (refine_joint's lam_material), whose errors are calibrated
-            # (tools/bench_normal_refine_seeds.py)
+            # (tools/bench_normal_refine.py --seeds)
             report["models"][self.model]["uncertainty"] = unc
         elif unc.get("std_errors"):
             # not reported as standard errors (unc["warning"] says why)

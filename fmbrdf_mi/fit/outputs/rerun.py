@@ -50,8 +50,14 @@ def load(path):
     rep = d.get("reproduce") if isinstance(d, dict) else None
     if isinstance(d, dict) and "refine_normals" in d:
         cmd = rep.get("command") if isinstance(rep, dict) else None
+        cmd = cmd if isinstance(cmd, str) else None
+        # a record made when --rounds (alternation rounds before the joint step) was an option: the command
+        # runs without it (the joint step alone; with --rounds 0, the default, the same refinement)
+        rounds = cmd is not None and any(t == "--rounds" or t.startswith("--rounds=") for t in cmd.split())
         raise InputError(f"--from {path}: reruns of --refine-normals are not supported: rerun the command in its "
-                         f"reproduce.command{f' ({cmd})' if isinstance(cmd, str) else ''}")
+                         f"reproduce.command{f' ({cmd})' if cmd else ''}"
+                         + (" without --rounds (no longer an option: the refinement is the joint step alone)"
+                            if rounds else ""))
     if not isinstance(rep, dict) or "arguments" not in rep:
         raise InputError(f"--from {path}: no 'reproduce' block (written by an older fmbrdf-mi?)")
     if not isinstance(rep["arguments"], dict):

@@ -34,8 +34,7 @@ PRIORS = {"curvature": (1.0, -2.0, 1.0), "membrane": (1.0, -1.0)}
 def stencils(mask, prior="curvature"):
     """(E, S) pixel indices (into the mask's pixels) of the prior's stencils, and their coefficients (S,).
 
-    ``membrane``: first differences n_i - n_j of 4-neighbours (each pair once;
-    :func:`~fmbrdf_mi.fit.api.normal_refine.refine_normals`' prior); ``curvature``:
+    ``membrane``: first differences n_i - n_j of 4-neighbours (each pair once); ``curvature``:
     second differences n_a - 2 n_b + n_c of three consecutive pixels in a row
     or a column, all in the mask: zero wherever the normal changes linearly
     across the image, so a surface of constant curvature is not pulled flat.
