@@ -14,7 +14,7 @@ def _capture(tmp_path, size=16):
     """A raw PNG of the built-in sphere's render with its capture sidecar (``fmbrdf-mi render --raw``)."""
     from PIL import Image
 
-    from fmbrdf_mi import camera as C
+    from fmbrdf_mi.sensor import camera as C
 
     raw = np.random.default_rng(0).integers(100, 3000, (size, size)).astype(np.uint16)
     path = tmp_path / "cap_raw.png"

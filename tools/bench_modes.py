@@ -57,7 +57,7 @@ class Runner:
     """Lazily built per-mode data (ideal images, colour case) shared by the seeds of a mode."""
 
     def __init__(self, args):
-        from fmbrdf_mi.camera import CameraModel
+        from fmbrdf_mi.sensor.camera import CameraModel
 
         self.args = args
         self.cam = CameraModel(full_well=10000.0, read_noise=2.5, bits=12)

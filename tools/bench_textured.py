@@ -19,7 +19,7 @@ exact ray-cast geometry at every point the fit evaluates), the
 * ``high``: a checkerboard of 3 x 3 super-pixel squares, k_s in {0.4, 1.0}, k_b in {0.25, 0.55}
   (uncorrelated with k_s: the squares of k_b are offset by one),
 
-captured by :func:`fmbrdf_mi.camera.capture` (IMX250MZR, 10 000 e- full well,
+captured by :func:`fmbrdf_mi.sensor.camera.capture` (IMX250MZR, 10 000 e- full well,
 2.5 e- read noise, 12 bits, brightest raw pixel at 80 % of full scale); K = 1
 (light (-0.5, 0.5, 1)) or 3 lights (that one and two more, 35 degrees from
 the view at azimuths 60 and 300 degrees), one more light held out (azimuth
@@ -104,14 +104,14 @@ def colour_texture(name, res):
 
 def one_colour(tex, K, seed, res, intervals="fisher", modes=("per-pixel", "shared")):
     """One noise seed of the colour bench (module docstring): the per-pixel and the shared colour fit."""
-    from fmbrdf_mi import polcam
-    from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit.api.colour import fit_colour, predict_samples
     from fmbrdf_mi.fit.evaluate.synthetic import capture_colour, textured_sphere
+    from fmbrdf_mi.sensor import mosaic
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     ks, kb = colour_texture(tex, res)
     fitted, held = lights(K)
-    cam = CameraModel(cfa=polcam.BAYER_RGGB)
+    cam = CameraModel(cfa=mosaic.BAYER_RGGB)
     caps = []
     for j, light in enumerate(fitted + [held]):
         o, s, noise, _ = capture_colour(textured_sphere(TRUTH, ks, kb, res=res, light=light), cam,
@@ -178,10 +178,10 @@ def ideal_of(obj, res, light):
 
 def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "uniform"), intervals="fisher",
         obj="sphere", smooth=None):
-    from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.evaluate.predict import relight_error
     from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     ks, kb = texture(tex, res)
     fitted, held = lights(K)

@@ -106,8 +106,8 @@ def read_map(path):
 
 
 def exact_data(kind, res, K, seed):
-    from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     fks = (lambda x, y: smooth((x + 0.5) / res, (y + 0.5) / res)[0])   # super-pixel (i, j) centre: x = j
     fkb = (lambda x, y: smooth((x + 0.5) / res, (y + 0.5) / res)[1])

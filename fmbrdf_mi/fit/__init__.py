@@ -10,7 +10,6 @@ before it (``tests/test_layers.py`` enforces it):
 
 =================  ===========================================================================
 ``errors``         :class:`InputError`, the one-line error of every input check
-``camera``         noise model, raw samples (mono 2x2, colour 4x4), demosaicking, footprints
 ``inputs``         :class:`Observation`, loaders of every input kind (files, sidecars,
                    manifests, the authors' layout, colour mosaics), values given as text
 ``evaluate``       the models and their pixel / render evaluators, the albedo layouts (shared,

@@ -20,9 +20,9 @@ def _ideal(res=16):
 def _exact_observation(res=16):
     """The two-material sphere captured without noise or rounding: the raw samples are the model's exact
     values (2 x 2 points per raw pixel, as the fit models them), the camera's noise stated."""
-    from fmbrdf_mi.camera import CameraModel, intensity_at_each_pixel
-    from fmbrdf_mi.fit.camera import samples as SM
     from fmbrdf_mi.fit.evaluate.synthetic import capture_observation
+    from fmbrdf_mi.sensor import samples as SM
+    from fmbrdf_mi.sensor.camera import CameraModel, intensity_at_each_pixel
 
     ideal = _ideal(res)
     cam = CameraModel(bits=16, full_well=1e6)

@@ -9,7 +9,7 @@ symmetric about the view axis) seen by a pinhole camera.  Geometry comes
 from Mitsuba ray casts against the mesh (shading normals), once per raw
 sensor pixel for the data and once per super-pixel for ``normal_GT.npy``;
 the Stokes image is the model (:func:`fmbrdf_mi.fit.evaluate.predict.predict_image`)
-at every raw pixel, captured by :func:`fmbrdf_mi.camera.capture` (shot and
+at every raw pixel, captured by :func:`fmbrdf_mi.sensor.camera.capture` (shot and
 read noise, 16-bit ADC, IMX250MZR layout 90 45 / 135 0) and written as
 16-bit PNG mosaics; lights, viewing rays and normals are written in OpenCV
 camera axes, as the authors' scripts expect
@@ -22,11 +22,11 @@ import os
 
 import numpy as np
 
-from fmbrdf_mi.camera import CameraModel, capture
 from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.fit.inputs.authors import cv_to_ours
+from fmbrdf_mi.sensor.camera import CameraModel, capture
 
 
 def blob_mesh(n_theta=48, n_phi=96, axes=(1.0, 0.75, 0.85), bump=0.12, rotation_deg=(25.0, -35.0)):

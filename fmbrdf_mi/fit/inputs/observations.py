@@ -21,9 +21,10 @@ import os
 
 import numpy as np
 
-from fmbrdf_mi import polcam, stokes_io
-from fmbrdf_mi.fit.camera.demosaic import stokes_from_angles, stokes_from_raw
+from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.sensor import mosaic
+from fmbrdf_mi.sensor.mosaic import stokes_from_angles, stokes_from_raw
 
 #: Largest accepted deviation of a normal / view vector from unit length.
 UNIT_TOL = 1e-3
@@ -59,10 +60,10 @@ class Observation:
     #: what a pixel integrates over: (offsets (K, 2) in pixels, dx right / dy down, weights (K,));
     #: None: the pixel centre (see camera_noise.demosaic_footprint, box_footprint)
     footprint: tuple = None
-    #: the camera's own samples (:class:`fmbrdf_mi.fit.camera.samples.Samples`), for the likelihood and
+    #: the camera's own samples (:class:`fmbrdf_mi.sensor.samples.Samples`), for the likelihood and
     #: the saturation test; None: the fit derives angle intensities from ``stokes`` when it needs them
     samples: object = None
-    #: the camera's noise (:class:`fmbrdf_mi.fit.camera.noise.NoiseModel`), if known
+    #: the camera's noise (:class:`fmbrdf_mi.sensor.noise.NoiseModel`), if known
     noise: object = None
     #: exact geometry at any image point (e.g. :class:`SphereGeometry`), or None: interpolate the maps
     geometry: object = None
@@ -305,7 +306,7 @@ def select_channel(stokes, channel="mean"):
     raise InputError(f"channel: expected 'mean' or one of {names}, got {channel!r}")
 
 
-def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", black_level=0.0,
+def load_polarisation(paths, *, layout=mosaic.IMX250MZR_LAYOUT, channel="mean", black_level=0.0,
                       demosaic="bilinear"):
     """Read a polarimetric image; returns ``(stokes (3, H, W) float64, meta dict)``.
 
@@ -334,7 +335,7 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
             paths = paths[0]
         elif len(paths) == 4:
             imgs = [check_samples(read_array(p, f"angle image {a} deg"), f"angle image {p}")
-                    for p, a in zip(paths, polcam.ANGLES)]
+                    for p, a in zip(paths, mosaic.ANGLES)]
             for p, im in zip(paths, imgs):
                 if im.ndim != 2:
                     raise InputError(f"angle image {p}: expected a 2-D single-channel image, got {im.shape}")
@@ -359,8 +360,11 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
     if a.ndim in (2, 3):
         one_channel(f"{path} ({'a raw mosaic' if a.ndim == 2 else 'angle images'})")
     if a.ndim == 2:
-        return (stokes_from_raw(a, layout, black_level, demosaic),
-                {"source": "raw mosaic", "layout": layout, "demosaic": demosaic, "_array": a})
+        try:
+            return (stokes_from_raw(a, layout, black_level, demosaic),
+                    {"source": "raw mosaic", "layout": layout, "demosaic": demosaic, "_array": a})
+        except ValueError as exc:  # the sensor's checks: odd size, layout, demosaic
+            raise InputError(str(exc)) from None
     if a.ndim == 3 and a.shape[0] == 4:
         return stokes_from_angles(a, black_level), {"source": "angle images", "_array": a}
     raise InputError(f"polarisation image {path}: expected a 2-D raw mosaic or (4, H, W) angle images, "
