@@ -30,7 +30,7 @@ FIT_LAYERS = ["errors", "inputs", "evaluate", "objectives", "problem", "solve", 
 
 #: The package's top level, bottom first; a module or sub-package not listed fails the test.
 TOP_LAYERS = [
-    {"model", "params", "stokes_io", "_llvm", "_paths", "interrupt"},
+    {"model", "params", "geometry", "stokes_io", "_llvm", "_paths", "interrupt"},
     {"bsdf", "oren_nayar_bsdf"},
     {"scene", "sensor", "previews"},
     {"fit"},

@@ -89,7 +89,7 @@ def test_mosaic_to_angles_to_stokes_is_exact():
     assert np.array_equal(mosaic.mosaic_from_angle_images(mosaic.angle_images_from_mosaic(raw16)), raw16)
 
 
-def test_polcam_rejects_bad_shapes():
+def test_mosaic_rejects_bad_shapes():
     with pytest.raises(ValueError, match="even height and width"):
         mosaic.angle_images_from_mosaic(np.zeros((5, 4)))
     with pytest.raises(ValueError, match="layout"):

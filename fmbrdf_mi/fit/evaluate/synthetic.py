@@ -15,6 +15,7 @@ from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.sensor import samples as SM
 from fmbrdf_mi.sensor.camera import CameraModel, capture
+from fmbrdf_mi.sensor.mosaic import stokes_from_raw
 from fmbrdf_mi.sensor.noise import NoiseModel, demosaic_footprint, linear_stokes_variance
 
 
@@ -60,7 +61,7 @@ def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fract
     cap = capture(ideal["stokes"], cam, exposure=exposure, peak_fraction=peak_fraction, seed=seed,
                   noiseless=noiseless)
     smp = SM.from_raw(cap["raw"], cam.layout, cam.black_level, cam.white_level)
-    stokes = ob.stokes_from_raw(cap["raw"], cam.layout, cam.black_level, demosaic)
+    stokes = stokes_from_raw(cap["raw"], cam.layout, cam.black_level, demosaic)
     noise = NoiseModel(cam.conversion_gain, cam.read_noise, 1.0) if known_noise else None
     # irradiance in DN: the albedos come back in the units of ``ideal`` (DN = input * exposure / gain)
     irr = cap["exposure"] / cam.conversion_gain

@@ -22,6 +22,7 @@ import os
 
 import numpy as np
 
+from fmbrdf_mi import geometry as G
 from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs import observations as ob
@@ -77,23 +78,15 @@ def _scene(mesh):
     return mi.load_dict({"type": "scene", "blob": m})
 
 
-def pinhole_rays(shape, fov_deg, distance):
-    """Camera position (ours) and unit ray directions (H, W, 3), ours, through pixel centres (x right, y up)."""
-    h, w = shape
-    f = 0.5 * w / np.tan(np.radians(fov_deg) / 2)
-    X, Y = np.meshgrid(np.arange(w) + 0.5 - 0.5 * w, np.arange(h) + 0.5 - 0.5 * h)
-    d = np.stack([X, -Y, np.full_like(X, -f)], -1)
-    return np.array([0.0, 0.0, distance]), d / np.linalg.norm(d, axis=-1, keepdims=True), f
-
-
-def ray_cast(scene, origin, dirs):
-    """Shading normals (H, W, 3) facing the ray origin, and the hit mask (front faces only)."""
+def ray_cast(scene, distance, view):
+    """Shading normals (H, W, 3) facing the camera at (0, 0, ``distance``), and the hit mask (front faces only),
+    of the rays from the camera along minus the view directions ``view`` (H, W, 3)."""
     import drjit as dr
     import mitsuba as mi
 
-    h, w = dirs.shape[:2]
-    d = dirs.reshape(-1, 3)
-    o = np.tile(origin, (len(d), 1))
+    h, w = view.shape[:2]
+    d = -view.reshape(-1, 3)
+    o = np.tile(np.array([0.0, 0.0, distance]), (len(d), 1))
     ray = mi.Ray3f(mi.Point3f(np.ascontiguousarray(o.T, np.float32)), mi.Vector3f(np.ascontiguousarray(d.T, np.float32)))
     si = scene.ray_intersect(ray)
     dr.eval(si)
@@ -122,15 +115,15 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
     cam = camera or CameraModel(full_well=20000.0, read_noise=2.5, bits=16)
     scene = _scene(mesh or blob_mesh())
     r2 = 2 * res
-    origin, d2, _ = pinhole_rays((r2, r2), fov, distance)
-    n2, m2 = ray_cast(scene, origin, d2)
-    _, d1, f1 = pinhole_rays((res, res), fov, distance)
-    n1, m1 = ray_cast(scene, origin, d1)
+    v2, v1 = (ob.pixel_rays((k, k), "perspective", fov) for k in (r2, res))
+    n2, m2 = ray_cast(scene, distance, v2)
+    n1, m1 = ray_cast(scene, distance, v1)
+    f1 = G.focal_length(res, fov)
     lights = [np.asarray(l, float) / np.linalg.norm(l) for l in lights]
     powers = np.ones(len(lights)) if powers is None else np.asarray(powers, float)
     stokes = []
     for l, p in zip(lights, powers):
-        o = ob.Observation(np.ones((3, r2, r2)), m2, n2, -d2, l, float(p))
+        o = ob.Observation(np.ones((3, r2, r2)), m2, n2, v2, l, float(p))
         stokes.append(predict_image("fmbrdf", params, o))
     exposure = peak_fraction * cam.full_well / max(float(np.max(s[0] + np.hypot(s[1], s[2])) / 2) for s in stokes)
     for sub in ("calibration", "normal", os.path.join("image", "img_ud")):
@@ -140,7 +133,7 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
         Image.fromarray(cap["raw"].astype(np.uint16)).save(os.path.join(root, "image", "img_ud", f"{k:03d}.png"))
     np.savetxt(os.path.join(root, "calibration", "L.txt"), np.array([cv_to_ours(l) for l in lights]),
                delimiter=",")
-    np.save(os.path.join(root, "calibration", "vpL_img.npy"), cv_to_ours(d1).astype(np.float32))
+    np.save(os.path.join(root, "calibration", "vpL_img.npy"), cv_to_ours(-v1).astype(np.float32))
     K = np.array([[2 * f1, 0, res - 0.5], [0, 2 * f1, res - 0.5], [0, 0, 1.0]])  # raw pixels, centres at integers
     np.save(os.path.join(root, "calibration", "IntrinsicL.npy"), K)
     if not np.allclose(powers, 1.0):
@@ -158,7 +151,7 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
 
 
 class MeshGeometry:
-    """Exact normals and view directions of a mesh seen by :func:`pinhole_rays`' camera at any image point
+    """Exact normals and view directions of a mesh seen by a pinhole camera at any image point
     (Mitsuba ray casts; the interface of :class:`fmbrdf_mi.fit.inputs.observations.SphereGeometry`), for
     sub-pixel samples of a synthetic object: ``shape`` (H, W) the super-pixel grid, ``X``, ``Y`` in its
     pixels (centres at + 0.5, x right, y down); points off the mesh get (0, 0, 1)."""
@@ -167,13 +160,10 @@ class MeshGeometry:
         self.scene, self.shape, self.fov, self.distance = scene, tuple(shape), float(fov), float(distance)
 
     def at(self, X, Y):
-        h, w = self.shape
-        f = 0.5 * w / np.tan(np.radians(self.fov) / 2)
         X, Y = np.broadcast_arrays(np.asarray(X, float), np.asarray(Y, float))
-        d = np.stack([X - 0.5 * w, -(Y - 0.5 * h), np.full_like(X, -f)], -1)
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        n, _ = ray_cast(self.scene, np.array([0.0, 0.0, self.distance]), d.reshape(-1, 1, 3))
-        return n.reshape(d.shape), -d
+        v = G.view_rays(X, Y, self.shape, "perspective", self.fov)
+        n, _ = ray_cast(self.scene, self.distance, v.reshape(-1, 1, 3))
+        return n.reshape(v.shape), v
 
 
 def ideal_object(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4, mesh=None, fov=20.0,
@@ -187,11 +177,11 @@ def ideal_object(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4
     a = int(area)
     scene = _scene(mesh or blob_mesh())
     r2 = 2 * res
-    origin, d2, _ = pinhole_rays((r2 * a, r2 * a), fov, distance)
-    n2, m2 = ray_cast(scene, origin, d2)
-    o2 = ob.Observation(np.ones((3, r2 * a, r2 * a)), m2, n2, -d2, light)
+    v2 = ob.pixel_rays((r2 * a, r2 * a), "perspective", fov)
+    n2, m2 = ray_cast(scene, distance, v2)
+    o2 = ob.Observation(np.ones((3, r2 * a, r2 * a)), m2, n2, v2, light)
     stokes = predict_image(model, params, o2).reshape(3, r2, a, r2, a).mean(axis=(2, 4))
-    _, d1, _ = pinhole_rays((res, res), fov, distance)
-    n1, m1 = ray_cast(scene, origin, d1)
-    return {"stokes": stokes, "normals": n1, "mask": m1, "view_dirs": -d1, "light": np.asarray(light, float),
+    v1 = ob.pixel_rays((res, res), "perspective", fov)
+    n1, m1 = ray_cast(scene, distance, v1)
+    return {"stokes": stokes, "normals": n1, "mask": m1, "view_dirs": v1, "light": np.asarray(light, float),
             "geometry": MeshGeometry(scene, (res, res), fov, distance), "params": dict(params), "model": model}

@@ -5,6 +5,7 @@ import os
 
 import numpy as np
 
+from fmbrdf_mi import geometry as G
 from fmbrdf_mi import scene as S
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.sensor import camera as C
@@ -54,8 +55,7 @@ def builtin_sphere_geometry(p, shape=None):
     if camera == "orthographic":
         radius = 0.5 * shape[1] / S.half_width(fov, distance)
         return SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, None)
-    f = 0.5 * shape[1] / np.tan(np.radians(fov) / 2)
-    radius = f * np.tan(np.arcsin(1.0 / distance))  # image radius of the silhouette: rad = R / D in _sphere_at
+    radius = G.focal_length(shape[1], fov) * np.tan(np.arcsin(1.0 / distance))  # silhouette: rad = R / D
     return SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, fov)
 
 
