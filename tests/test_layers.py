@@ -34,7 +34,7 @@ TOP_LAYERS = [
     {"bsdf", "oren_nayar_bsdf"},
     {"scene", "sensor", "previews"},
     {"fit"},
-    {"brdf_fit", "mesogeometry", "dataset", "render"},
+    {"brdf_fit", "mesogeometry", "dataset", "render", "synthetic"},
     {"cli", "__main__"},
 ]
 

@@ -8,7 +8,7 @@ One material (eta 1.5, alpha 0.25, beta 0.4, kappa 1; k_s / r_k 0.6 / 0.8, 0.4 /
 sphere filling PERIODS x PERIODS 4x4 periods of an IMX250MYR-type colour
 polarisation mosaic (RGGB), light (0.45, 0.35, 1).  The data are each
 channel's model Stokes image evaluated at every raw pixel's centre
-(:func:`fmbrdf_mi.fit.evaluate.synthetic.ideal_sphere`) captured by
+(:func:`fmbrdf_mi.synthetic.spheres.ideal_sphere`) captured by
 :func:`fmbrdf_mi.sensor.camera.capture` (full well 10 000 e-, read noise 2.5 e-,
 12 bits, brightest raw pixel at 80 %; seed = the noise seed), so only the
 camera's noise separates data and model.  Each capture is fitted by
@@ -101,7 +101,7 @@ def table(paths):
 def colour_case(periods):
     """The noise-free data of the bench: a sphere of ``periods`` x ``periods`` colour periods (module docstring)."""
     import mitsuba as mi  # noqa: F401  (the package sets its variant)
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
     from fmbrdf_mi.fit.inputs import observations as ob
     from fmbrdf_mi.sensor import mosaic
     from fmbrdf_mi.sensor.camera import CameraModel

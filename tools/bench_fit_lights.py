@@ -71,7 +71,7 @@ def subsets(ks, n=6):
 
 def ideal_images(truth, size, powers=(1.0,) * 6):
     """The six ring lights' noise-free images of the sphere, light j ``powers[j]`` times as bright."""
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
 
     ideals = [ideal_sphere(truth, res=size, light=l) for l in light_ring(6)]
     for i, p in zip(ideals, powers):   # the capture's exposure (what the fit is told) ignores p
@@ -81,7 +81,7 @@ def ideal_images(truth, size, powers=(1.0,) * 6):
 
 def capture_seed(ideals, cam, seed):
     """Seed ``seed``'s captures of the six images (image j: camera-noise seed 1000 seed + j)."""
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation
+    from fmbrdf_mi.synthetic.spheres import capture_observation
 
     return [capture_observation(i, cam, seed=1000 * seed + j)[0] for j, i in enumerate(ideals)]
 

@@ -89,7 +89,7 @@ def noise_fit(obs, cap, *, material, size, seed, loss, truth, fixed=None, max_ti
 
 
 def run(args):
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
     from fmbrdf_mi.fit.inputs.parse import parse_fixed
     from fmbrdf_mi.sensor.camera import CameraModel
 

@@ -87,7 +87,7 @@ class Runner:
         a = self.args
         if mode == "single":
             from bench_fit_noise import noise_fit
-            from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+            from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
 
             ideal = self._get("single", lambda: ideal_sphere(self.truth, res=a.size, light=LIGHT))
             obs, cap = capture_observation(ideal, self.cam, seed=seed)

@@ -25,7 +25,7 @@ Cases (all small: the whole run takes about 2 minutes on a 2-core machine):
   f_authors              ``--authors DIR --holdout 3`` on a 24 x 24 super-pixel mesh object, 4 lights
   g_fit_brdf             ``fit-brdf`` on a synthetic MERL file (Lambert + a GGX-like lobe), 5000 samples
 
-The mesh objects are those of fmbrdf_mi/fit/evaluate/synthetic_object.py (the code copied here, so that moving that
+The mesh objects are those of fmbrdf_mi/synthetic/mesh_object.py (the code copied here, so that moving that
 module changes nothing): for the same arguments the files come out byte for byte the same.
 Every input is deterministic (seeded camera noise, seeded renders); text inputs are hashed with the work
 directory's path replaced by <WORK>, so two work directories give the same hashes.

@@ -176,7 +176,7 @@ def test_colour_fit_recovers_per_channel_albedos(R):
     shot and read noise), and the SEs themselves must be small enough for that to mean something (< 25 %
     for the albedos, < 50 % for the shape parameters)."""
     from fmbrdf_mi.fit.api.colour import fit_colour
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
     from fmbrdf_mi.fit.inputs import observations as ob
     from fmbrdf_mi.sensor.noise import NoiseModel
     from fmbrdf_mi.sensor.samples import colour_samples

@@ -81,7 +81,7 @@ def test_per_channel_albedos_are_the_dense_least_squares_of_all_groups():
 def _exact(R, lights):
     """Exact colour captures (the samples are the model's values in DN: no noise, rounding or clipping) of a
     textured sphere of R x R periods, 2 x 2 points per raw pixel (as the fit models them), one exposure."""
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_colour, textured_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_colour, textured_sphere
     from fmbrdf_mi.sensor import mosaic
     from fmbrdf_mi.sensor.camera import CameraModel
 

@@ -4,7 +4,7 @@ against the fit with the finer quadrature from the start."""
 import pytest
 
 from fmbrdf_mi.fit import fit
-from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
 from fmbrdf_mi.sensor.camera import CameraModel
 
 GLOSSY = dict(eta=1.5, alpha=0.06, beta=1.4, kappa=30.0, k_s=0.9, r_k=1.0)

@@ -37,7 +37,7 @@ def _clean(res=24, lights=LIGHTS, params=TRUE, irradiances=None):
 
 
 def _captures(res=16, seed=0, lights=LIGHTS):
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
     from fmbrdf_mi.sensor.camera import CameraModel
 
     return [capture_observation(ideal_sphere(TRUE, res=res, light=l), CameraModel(), seed=seed + k)[0]

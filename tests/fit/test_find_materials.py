@@ -18,7 +18,7 @@ RES = 16
 def _capture(mats, seed=1):
     """A raw capture (the default camera, shot and read noise: S0 SNR ~ 100 at the peak) of a sphere whose
     left half is mats[0] and right half mats[1] (tests/fit/test_api_fitting_materials.py's sphere)."""
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, half_labels, material_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, half_labels, material_sphere
 
     ideal = material_sphere(list(mats), half_labels(RES), res=RES, light=LIGHT, area=2)
     return capture_observation(ideal, seed=seed)[0], ideal["labels"]
@@ -133,7 +133,7 @@ def test_command_auto_writes_labels_and_records_how(tmp_path, capsys):
     up to order), fit.json's materials_found (method, seed, separation) and materials block; a manifest
     (several images) is refused in one line."""
     from fmbrdf_mi.cli import main
-    from fmbrdf_mi.fit.evaluate.synthetic import half_labels, material_sphere
+    from fmbrdf_mi.synthetic.spheres import half_labels, material_sphere
     from fmbrdf_mi.fit.inputs.labels import read_labels
     from fmbrdf_mi.sensor.camera import CameraModel, capture
 
@@ -166,7 +166,7 @@ def test_command_refusal_is_one_line_and_writes_nothing(tmp_path, capsys, monkey
     find_materials' MaterialsNotSeparated is one line, exit 1, no output directory."""
     from fmbrdf_mi.cli import main
     from fmbrdf_mi.fit.api.find_materials import MaterialsNotSeparated
-    from fmbrdf_mi.fit.evaluate.synthetic import half_labels, material_sphere
+    from fmbrdf_mi.synthetic.spheres import half_labels, material_sphere
     from fmbrdf_mi.fit.outputs import single
     from fmbrdf_mi.sensor.camera import CameraModel, capture
 

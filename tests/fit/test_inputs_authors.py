@@ -67,7 +67,7 @@ def test_opencv_axes_conversion():
 
 @pytest.fixture(scope="module")
 def blob(tmp_path_factory):
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.synthetic.mesh_object import write_authors_object
 
     root = tmp_path_factory.mktemp("authors") / "blob"
     truth = write_authors_object(root, TRUE, LIGHTS, res=40, fov=12.0, powers=POWERS, seed=11)

@@ -92,7 +92,7 @@ def test_saturated_and_dark_superpixels_are_excluded_and_counted():
 
 # ---------------------------------------------------------------- likelihood derivatives
 def _small_capture(res=10, seed=0, camera=None, params=TRUE):
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
 
     ideal = ideal_sphere(params, res=res, light=LIGHT)
     return capture_observation(ideal, camera, seed=seed)[0], ideal
@@ -166,7 +166,7 @@ def test_likelihood_intervals_cover_the_truth(variant):
     """
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.api.fitting import FitOptions
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
     from fmbrdf_mi.fit.problem.data import prepare, select_pixels
     from fmbrdf_mi.sensor.camera import CameraModel
 
@@ -200,7 +200,7 @@ def test_likelihood_intervals_cover_the_truth(variant):
 def _raw_files(tmp_path, seed=4):
     from PIL import Image
 
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
     from fmbrdf_mi.sensor.camera import CameraModel, capture, write_sidecar
 
     ideal = ideal_sphere(TRUE, res=16, light=LIGHT)
@@ -290,7 +290,7 @@ def test_paper_loss_sandwich_intervals_cover_the_truth(variant):
     """
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.api.fitting import FitOptions
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
     from fmbrdf_mi.fit.problem.data import prepare, select_pixels
     from fmbrdf_mi.sensor.camera import CameraModel
 

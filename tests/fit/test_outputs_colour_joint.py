@@ -17,7 +17,7 @@ def _cli(*argv):
 
 
 def _sphere_capture(R, light, seed, noiseless=False):
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
     from fmbrdf_mi.fit.inputs import observations as ob
     from fmbrdf_mi.sensor.samples import colour_samples
 

@@ -27,7 +27,7 @@ def variant():
 def _captures(res=16, powers=POWERS, seed=0):
     """(observations, raw captures): one exposure for all images, image k's light ``powers[k]`` times as
     bright; every observation's irradiance is the same (the fit is told power 1 for all)."""
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
     from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     cam = CameraModel()

@@ -14,7 +14,7 @@ import pytest
 
 from fmbrdf_mi.fit import fit
 from fmbrdf_mi.fit.api.fitting import FitOptions
-from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
 from fmbrdf_mi.sensor.camera import CameraModel
 
 TRUE = {"eta": 1.55, "alpha": 0.35, "beta": 1.4, "kappa": 30.0, "k_s": 0.9, "r_k": 1.7}
@@ -140,7 +140,7 @@ def test_misfit_of_the_normal_refinement():
     """The joint refinement of material and normals (its covariance the sandwich of the penalised likelihood):
     the same flag and inflation, on a 16^2 mesh object read with its gain stated 9 times too high."""
     from fmbrdf_mi.fit.api.normal_joint import refine_joint
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.synthetic.mesh_object import write_authors_object
     from fmbrdf_mi.fit.inputs.authors import read_object
     import tempfile
 
@@ -173,7 +173,7 @@ def test_misfit_of_a_colour_per_pixel_fit():
     through the same code path as the mono per-pixel fit (chi^2/dof counts the eliminated albedos, three pairs
     per period), for the shape parameters and for each channel's maps."""
     from fmbrdf_mi.fit.api.colour import fit_colour
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_colour, textured_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_colour, textured_sphere
     from fmbrdf_mi.sensor import mosaic
     from fmbrdf_mi.sensor.noise import NoiseModel
 

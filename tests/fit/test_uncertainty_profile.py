@@ -19,7 +19,7 @@ from fmbrdf_mi.fit import uncertainty as U
 from fmbrdf_mi.fit.api.checks import check_intervals
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit
 from fmbrdf_mi.fit.evaluate.models import State, get_model
-from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
 from fmbrdf_mi.fit.problem.data import prepare
 from fmbrdf_mi.fit.solve.driver import refit_fixed, solve
 from fmbrdf_mi.sensor.camera import CameraModel

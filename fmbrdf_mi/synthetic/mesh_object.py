@@ -1,6 +1,6 @@
 """A synthetic non-spherical object captured under several lights, written in the paper authors' layout.
 
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.synthetic.mesh_object import write_authors_object
     info = write_authors_object("data/blob", params, lights, res=48, seed=0)
 
 The object is a triangle mesh (:func:`blob_mesh`: an ellipsoid with a
@@ -170,8 +170,8 @@ def ideal_object(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4
                  distance=8.0):
     """Noise-free Stokes (3, 2 res, 2 res) of the raw pixels of :func:`blob_mesh` (or ``mesh``) seen by a
     pinhole camera (``fov``, ``distance``), and the super-pixel geometry: the dict of
-    :func:`fmbrdf_mi.fit.evaluate.synthetic.ideal_sphere` (``geometry`` a :class:`MeshGeometry`, exact at any
-    point), so that :func:`~fmbrdf_mi.fit.evaluate.synthetic.capture_observation` and the textured
+    :func:`fmbrdf_mi.synthetic.spheres.ideal_sphere` (``geometry`` a :class:`MeshGeometry`, exact at any
+    point), so that :func:`~fmbrdf_mi.synthetic.spheres.capture_observation` and the textured
     captures take it as they take the sphere.  Each raw pixel is the mean of the model over ``area`` x
     ``area`` points of its area (points off the mesh count 0), as a sensor pixel integrates."""
     a = int(area)
