@@ -49,7 +49,7 @@ class Samples:
         return mosaic.analyser_matrix(self.angles)
 
     def footprint(self, points=1):
-        """Where each sample is modelled, for :meth:`Observation.sample_geometry`: (offsets, weights).
+        """Where each sample is modelled, for :meth:`fmbrdf_mi.fit.Observation.sample_geometry`: (offsets, weights).
 
         ``points`` = m: each sample is the mean over an m x m grid of points
         at the centres of equal sub-squares of its own pixel (side
