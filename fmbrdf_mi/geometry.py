@@ -1,4 +1,4 @@
-"""Pixel rays and the exact sphere a camera sees, in image units: one implementation for scenes, fits and synthetic data.
+"""Pixel rays and the exact sphere a camera sees, in image units: one implementation for scenes, fits, synthetic data.
 
 Image points (X, Y) are in pixels, x right, y down, a pixel's centre at
 (column + 0.5, row + 0.5); directions are in the camera frame (x right, y up,
