@@ -14,8 +14,8 @@ import dataclasses
 
 import numpy as np
 
-from fmbrdf_mi.sensor.camera import default_white_level
 from fmbrdf_mi.sensor import mosaic
+from fmbrdf_mi.sensor.camera import default_white_level
 
 
 @dataclasses.dataclass

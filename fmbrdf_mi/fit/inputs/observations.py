@@ -59,7 +59,7 @@ class Observation:
     #: per-pixel variance of S1 (= that of S2), (H, W), if known: the fit models the DoLP's noise bias
     lin_variance: np.ndarray = None
     #: what a pixel integrates over: (offsets (K, 2) in pixels, dx right / dy down, weights (K,));
-    #: None: the pixel centre (see camera_noise.demosaic_footprint, box_footprint)
+    #: None: the pixel centre (see fmbrdf_mi.sensor.noise.demosaic_footprint, box_footprint)
     footprint: tuple = None
     #: the camera's own samples (:class:`fmbrdf_mi.sensor.samples.Samples`), for the likelihood and
     #: the saturation test; None: the fit derives angle intensities from ``stokes`` when it needs them
