@@ -39,7 +39,7 @@ nitpick_ignore_regex = [
     # The fitting pipeline's internal layers (fmbrdf_mi/fit/<layer>/...): the API
     # reference documents the public entry points only (fmbrdf_mi.fit.__all__),
     # while their docstrings name the internals for readers of the source.
-    (r"py:.*", r"fmbrdf_mi\.fit\.(api|problem|camera|outputs|inputs|evaluate|objectives|solve)\..*"),
+    (r"py:.*", r"fmbrdf_mi\.fit\.(api|problem|outputs|inputs|evaluate|objectives|solve)\..*"),
     (r"py:.*", r"(select_pixels|colour_samples|predict_samples|SphereGeometry)"),
 ]
 

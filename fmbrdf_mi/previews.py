@@ -16,7 +16,7 @@ sRGB weights), a monochrome camera's view.
 * angle images: what ideal linear polarisers at 0, 45, 90, 135 degrees pass,
   with the intensity's exposure;
 * mosaic: the raw image of a quad-Bayer polarisation sensor (default layout of
-  Sony's IMX250MZR, :mod:`fmbrdf_mi.polcam`), 2H x 2W pixels, tone-mapped.
+  Sony's IMX250MZR, :mod:`fmbrdf_mi.sensor.mosaic`), 2H x 2W pixels, tone-mapped.
 
 Background pixels (S0 = 0) are black in every preview.
 """
@@ -26,7 +26,8 @@ import os
 
 import numpy as np
 
-from . import polcam, stokes_io
+from . import stokes_io
+from .sensor import mosaic
 
 #: Preview kinds and the suffix each adds to the output stem.
 PREVIEW_SUFFIXES = {"intensity": "_intensity.png", "dolp": "_dolp.png", "aolp": "_aolp.png",
@@ -172,11 +173,11 @@ def save_aolp(path, stokes, modulate=False, dolp_full=None):
     plt.close(fig)
 
 
-def save_angle_images(path, stokes, exposure=None, angles=polcam.ANGLES):
+def save_angle_images(path, stokes, exposure=None, angles=mosaic.ANGLES):
     """The four polariser-angle images in a 2 x 2 grid (labelled), with the intensity's exposure."""
     s = stokes_io._check_stokes(stokes)
     exposure = auto_exposure(stokes) if exposure is None else float(exposure)
-    imgs = [_tone_map(img, exposure) for img in polcam.angle_images_from_stokes(s.astype(np.float64), angles)]
+    imgs = [_tone_map(img, exposure) for img in mosaic.angle_images_from_stokes(s.astype(np.float64), angles)]
     h, w = s.shape[1:3]
     k, gap = _scale(h, w, 192), 4
     imgs = [np.kron(img, np.ones((k, k) + (1,) * (img.ndim - 2))) for img in imgs]
@@ -199,11 +200,11 @@ def save_angle_images(path, stokes, exposure=None, angles=polcam.ANGLES):
     plt.close(fig)
 
 
-def save_mosaic(path, stokes, exposure=None, layout=polcam.IMX250MZR_LAYOUT):
+def save_mosaic(path, stokes, exposure=None, layout=mosaic.IMX250MZR_LAYOUT):
     """Raw quad-Bayer mosaic (2H x 2W) of the luminance, tone-mapped, at native resolution."""
     exposure = auto_exposure(stokes) if exposure is None else float(exposure)
     s = luminance_stokes(stokes)
-    raw = polcam.mosaic_from_angle_images(polcam.angle_images_from_stokes(s), layout)
+    raw = mosaic.mosaic_from_angle_images(mosaic.angle_images_from_stokes(s), layout)
     _imsave(path, _tone_map(raw, exposure))
 
 

@@ -319,7 +319,7 @@ def add_render_arguments(p):
                         "-D NAME_m=... (e.g. -D eta_1=1.8); writes OUTPUT_labels.png (the material at each "
                         "pixel's centre, 255 off the object) and with --raw OUTPUT_raw_labels.png (super-pixels, "
                         "255 where the four raw pixels differ): fmbrdf-mi fit --materials takes either")
-    g = p.add_argument_group("raw capture (--raw): the camera model of fmbrdf_mi.camera")
+    g = p.add_argument_group("raw capture (--raw): the camera model of fmbrdf_mi.sensor.camera")
     g.add_argument("--raw", action="store_true",
                    help="also write OUTPUT_raw.png, a linear 16-bit quad-Bayer mosaic through the camera model "
                         "(shot and read noise, ADC), and OUTPUT_raw.json, its settings (read by fmbrdf-mi fit)")
@@ -744,10 +744,10 @@ def run_render(args):
 
 
 def _raw_camera(args):
-    from .camera import CameraModel
+    from .sensor.camera import CameraModel
     from fmbrdf_mi.fit.errors import InputError
     from fmbrdf_mi.fit.inputs.parse import parse_layout
-    from .polcam import parse_cfa
+    from .sensor.mosaic import parse_cfa
 
     try:
         cfa = None
@@ -770,7 +770,7 @@ def _write_raw(args, stokes, meta, output):
     import numpy as np
     from PIL import Image
 
-    from .camera import capture, write_sidecar
+    from .sensor.camera import capture, write_sidecar
 
     cam = _raw_camera(args)
     if cam.cfa is None:

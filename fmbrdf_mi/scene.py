@@ -44,6 +44,7 @@ import time
 
 import numpy as np
 
+from . import geometry as G
 from . import params as P
 from .params import ParameterError
 
@@ -314,45 +315,31 @@ def spheres_scene(materials, *, light_dir=DEFAULT_LIGHT_DIR, irradiance=DEFAULT_
 
 
 # ---------------------------------------------------------------- geometry
-def _pixel_rays(width, height, n_cells, camera, fov, distance):
-    """Ray origins and unit directions (H, W, 3) through the pixel centres."""
-    half_w = n_cells * half_width(fov, distance)
-    half_h = half_w * height / width
-    x = (2 * (np.arange(width) + 0.5) / width - 1) * half_w
-    y = (1 - 2 * (np.arange(height) + 0.5) / height) * half_h
-    X, Y = np.meshgrid(x, y)
-    if camera == "orthographic":
-        o = np.stack([X, Y, np.full_like(X, distance)], -1)
-        d = np.broadcast_to(np.array([0.0, 0.0, -1.0]), o.shape).copy()
-    else:
-        o = np.broadcast_to(np.array([0.0, 0.0, distance]), X.shape + (3,)).copy()
-        d = np.stack([X, Y, np.full_like(X, -distance)], -1)
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    return o, d
-
-
-def _intersect(o, d, centre, radius):
-    """Nearest hit distance of rays with a sphere (inf where missed)."""
-    oc = o - np.asarray(centre, dtype=np.float64)
-    b = np.sum(oc * d, -1)
-    c = np.sum(oc * oc, -1) - radius ** 2
-    disc = b * b - c
-    t = -b - np.sqrt(np.maximum(disc, 0.0))
-    return np.where((disc >= 0) & (t > 0), t, np.inf)
-
-
 def _geometry(width, height, n_cells, camera, fov, distance, centres, radius):
+    """Normals, view directions, mask and sphere index at the pixel centres: spheres (world units) seen by
+    :func:`_sensor`'s camera, the nearest where they overlap."""
     camera, fov, distance = _check_camera(camera, fov, distance)
-    o, d = _pixel_rays(width, height, n_cells, camera, fov, distance)
-    ts = np.stack([_intersect(o, d, c, radius) for c in centres])
-    label = np.argmin(ts, 0)
-    t = np.take_along_axis(ts, label[None], 0)[0]
-    mask = np.isfinite(t)
-    p = o + np.where(mask, t, 0.0)[..., None] * d
-    c = np.asarray(centres, dtype=np.float64)[label]
-    normals = np.where(mask[..., None], (p - c) / radius, 0.0)
-    view = np.where(mask[..., None], -d, 0.0)
-    return normals, view, mask, np.where(mask, label, -1)
+    half_w = n_cells * half_width(fov, distance)
+    fov = math.degrees(2 * math.atan(half_w / distance))  # of the whole image, as _sensor's
+    shape = (height, width)
+    X, Y = G.pixel_centres(shape)
+    cam = np.array([0.0, 0.0, distance])
+    normals, view, label, best = np.zeros(shape + (3,)), np.zeros(shape + (3,)), np.full(shape, -1), np.inf
+    for k, c in enumerate(np.asarray(centres, dtype=np.float64)):
+        if camera == "orthographic":
+            s = width / (2 * half_w)  # pixels per unit length
+            n, m, v = G.sphere_at(X, Y, shape, (0.5 * width + s * c[0], 0.5 * height - s * c[1]), s * radius)
+        else:
+            f, z = G.focal_length(width, fov), distance - c[2]
+            r = f * np.tan(np.arcsin(radius / np.linalg.norm(c - cam)))  # silhouette radius at angular radius
+            n, m, v = G.sphere_at(X, Y, shape, (0.5 * width + f * c[0] / z, 0.5 * height - f * c[1] / z), r,
+                                  camera, fov)
+        p = c + radius * n
+        depth = distance - p[..., 2] if camera == "orthographic" else np.linalg.norm(p - cam, axis=-1)
+        hit = m & (depth < best)
+        best = np.where(hit, depth, best)
+        normals[hit], view[hit], label[hit] = n[hit], v[hit], k
+    return normals, view, label >= 0, label
 
 
 def sphere_geometry(resolution=DEFAULT_RESOLUTION, camera=DEFAULT_CAMERA, fov=DEFAULT_FOV,

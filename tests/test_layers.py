@@ -7,7 +7,7 @@ a dependency), relative imports resolved.  Three rules:
 * **layers**: ``fmbrdf_mi.fit``'s sub-packages are ordered (the table in
   ``fmbrdf_mi/fit/__init__.py``); a module imports only from its own layer or
   the ones before it.  The package's top level is ordered too: the model's
-  maths, then the Mitsuba plugins, then scenes and the camera, then the
+  maths, then the Mitsuba plugins, then scenes and the sensor (the camera model), then the
   fits, then the tools built on them, then the command line.
 * **no cycles** among modules (a cycle is a layer in disguise);
 * **no private names** (``_x``, not dunder) imported from another module.
@@ -25,16 +25,16 @@ import pytest
 ROOT = os.path.join(os.path.dirname(__file__), "..", "fmbrdf_mi")
 
 #: fmbrdf_mi.fit's layers, bottom first (fmbrdf_mi/fit/__init__.py).
-FIT_LAYERS = ["errors", "camera", "inputs", "evaluate", "objectives", "problem", "solve", "uncertainty", "result",
+FIT_LAYERS = ["errors", "inputs", "evaluate", "objectives", "problem", "solve", "uncertainty", "result",
               "api", "outputs", "cli"]
 
 #: The package's top level, bottom first; a module or sub-package not listed fails the test.
 TOP_LAYERS = [
-    {"model", "params", "polcam", "stokes_io", "_llvm", "_paths", "interrupt"},
+    {"model", "params", "geometry", "stokes_io", "_llvm", "_paths", "interrupt"},
     {"bsdf", "oren_nayar_bsdf"},
-    {"scene", "camera", "previews"},
+    {"scene", "sensor", "previews"},
     {"fit"},
-    {"brdf_fit", "mesogeometry", "dataset", "render"},
+    {"brdf_fit", "mesogeometry", "dataset", "render", "synthetic"},
     {"cli", "__main__"},
 ]
 
@@ -174,7 +174,7 @@ def test_package_layers_cycles_private_names():
 
 
 @pytest.mark.parametrize("extra, expect", [
-    ({"fmbrdf_mi.fit.camera.x": "from fmbrdf_mi.fit.api.fitting import fit\n"}, "layer api is above camera"),
+    ({"fmbrdf_mi.sensor.x": "from fmbrdf_mi.fit.errors import InputError\n"}, "a higher layer of the package"),
     ({"fmbrdf_mi.fit.inputs.x": "from ..solve import optimise\n"}, "layer solve is above inputs"),
     ({"fmbrdf_mi.model.x": "from ..fit.errors import InputError\n"}, "a higher layer of the package"),
     ({"fmbrdf_mi.fit.api.x": "from .y import _helper\n", "fmbrdf_mi.fit.api.y": "def _helper(): pass\n"},

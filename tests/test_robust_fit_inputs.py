@@ -14,7 +14,7 @@ def _capture(tmp_path, size=16):
     """A raw PNG of the built-in sphere's render with its capture sidecar (``fmbrdf-mi render --raw``)."""
     from PIL import Image
 
-    from fmbrdf_mi import camera as C
+    from fmbrdf_mi.sensor import camera as C
 
     raw = np.random.default_rng(0).integers(100, 3000, (size, size)).astype(np.uint16)
     path = tmp_path / "cap_raw.png"
@@ -226,7 +226,7 @@ def test_distinct_lights_or_a_held_out_copy_are_accepted():
 # ---------------------------------------------------------------- the authors' viewing rays
 @pytest.fixture(scope="module")
 def authors_object(tmp_path_factory):
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.synthetic.mesh_object import write_authors_object
 
     root = tmp_path_factory.mktemp("authors") / "obj"
     write_authors_object(root, {"eta": 1.5, "alpha": 0.2, "beta": 0.5, "kappa": 2.0, "k_s": 1.0, "r_k": 1.0},

@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from fmbrdf_mi import polcam, stokes_io
+from fmbrdf_mi import stokes_io
+from fmbrdf_mi.sensor import mosaic
 
 
 def _random_stokes(rng, h=5, w=7, c=3):
@@ -64,8 +65,8 @@ def test_dolp_aolp_recover_construction():
 
 def test_angle_images_follow_malus_law():
     s, d, psi = _random_stokes(np.random.default_rng(2))
-    imgs = polcam.angle_images_from_stokes(s)
-    for k, a in enumerate(polcam.ANGLES):
+    imgs = mosaic.angle_images_from_stokes(s)
+    for k, a in enumerate(mosaic.ANGLES):
         t = np.deg2rad(a)
         malus = s[0] * ((1 - d) / 2 + d * np.cos(t - psi) ** 2)
         assert np.allclose(imgs[k], malus, rtol=1e-5, atol=1e-6)
@@ -74,24 +75,24 @@ def test_angle_images_follow_malus_law():
 def test_mosaic_to_angles_to_stokes_is_exact():
     rng = np.random.default_rng(3)
     s, _, _ = _random_stokes(rng, h=6, w=4, c=1)
-    imgs = polcam.angle_images_from_stokes(s.astype(np.float64))[..., 0]
-    for layout in (polcam.IMX250MZR_LAYOUT, ((0, 45), (135, 90))):
-        raw = polcam.mosaic_from_angle_images(imgs, layout)
+    imgs = mosaic.angle_images_from_stokes(s.astype(np.float64))[..., 0]
+    for layout in (mosaic.IMX250MZR_LAYOUT, ((0, 45), (135, 90))):
+        raw = mosaic.mosaic_from_angle_images(imgs, layout)
         assert raw.shape == (12, 8)
-        assert raw[0, 0] == imgs[polcam.ANGLES.index(layout[0][0]), 0, 0]
-        back = polcam.angle_images_from_mosaic(raw, layout)
+        assert raw[0, 0] == imgs[mosaic.ANGLES.index(layout[0][0]), 0, 0]
+        back = mosaic.angle_images_from_mosaic(raw, layout)
         assert np.array_equal(back, imgs)
-        st = polcam.stokes_from_angle_images(back)
+        st = mosaic.stokes_from_angle_images(back)
         assert np.allclose(st[:3], s[:3, ..., 0], rtol=0, atol=1e-12)
     # 16-bit integer mosaics survive unchanged
     raw16 = rng.integers(0, 65535, (8, 10), dtype=np.uint16)
-    assert np.array_equal(polcam.mosaic_from_angle_images(polcam.angle_images_from_mosaic(raw16)), raw16)
+    assert np.array_equal(mosaic.mosaic_from_angle_images(mosaic.angle_images_from_mosaic(raw16)), raw16)
 
 
-def test_polcam_rejects_bad_shapes():
+def test_mosaic_rejects_bad_shapes():
     with pytest.raises(ValueError, match="even height and width"):
-        polcam.angle_images_from_mosaic(np.zeros((5, 4)))
+        mosaic.angle_images_from_mosaic(np.zeros((5, 4)))
     with pytest.raises(ValueError, match="layout"):
-        polcam.angle_images_from_mosaic(np.zeros((4, 4)), ((0, 0), (90, 135)))
+        mosaic.angle_images_from_mosaic(np.zeros((4, 4)), ((0, 0), (90, 135)))
     with pytest.raises(ValueError, match="images"):
-        polcam.stokes_from_angle_images(np.zeros((3, 2, 2)))
+        mosaic.stokes_from_angle_images(np.zeros((3, 2, 2)))

@@ -10,12 +10,12 @@ beta 1-4, kappa 0-50, r_k 0.1-5, k_s 0.6-2):
   the average over its area) in ``llvm_ad_mono_polarized``;
   - noise-free: a res x res render at 64 spp;
   - noisy: a 2res x 2res render at 64 spp seen by the camera model of
-    ``fmbrdf_mi.fit.camera.noise`` (IMX250MZR quad-Bayer sampling, full well
+    ``fmbrdf_mi.sensor.noise`` (IMX250MZR quad-Bayer sampling, full well
     10 000 e-, read noise 2.5 e-, 12-bit ADC, brightest raw pixel at 90 % of
     full scale, seeded), demosaicked to res x res super-pixels (bilinear);
     the fit knows the camera's gain and read noise (as from a data sheet) and
     compares the observed DoLP with the mean DoLP that camera measures
-    (``fmbrdf_mi.fit.camera.rice``), and it averages its model
+    (``fmbrdf_mi.sensor.rice``), and it averages its model
     over the raw pixels each super-pixel comes from (``demosaic_footprint``);
   The renderer's own pixel-sampling noise is not part of the camera model,
   so it must stay well below the camera's: at 16 spp it alone moved k_s of
@@ -75,7 +75,9 @@ def render(material, light, res, spp, seed):
 
 def observe(material, light, res, noisy, seed, camera_seed=None, _cache={}):
     """(Stokes (3, res, res), var(S1) (res, res) or None, capture info) of the sphere under ``light``."""
-    from fmbrdf_mi.fit.camera import noise as cn
+    from fmbrdf_mi.sensor import noise as cn
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
+    from fmbrdf_mi.sensor.mosaic import stokes_from_raw
 
     key = (tuple(sorted(material.items())), tuple(light), res, noisy, seed)
     if key not in _cache:
@@ -85,11 +87,12 @@ def observe(material, light, res, noisy, seed, camera_seed=None, _cache={}):
     s = _cache[key]
     if not noisy:
         return s, None, None
-    noise = cn.CameraNoise()
-    stokes, cap = cn.noisy_stokes(s, noise, seed=seed if camera_seed is None else camera_seed)
+    noise = CameraModel()
+    cap = capture(s, noise, seed=seed if camera_seed is None else camera_seed)
+    stokes = stokes_from_raw(cap["raw"], noise.layout) * cap["dn_to_input"]
     # what a user knows from the camera's data sheet: electrons per DN and read noise
-    var = cn.linear_stokes_variance(stokes[0], cap["gain"], noise.read_noise, "bilinear",
-                                    adc_step_e=cap["gain"] * cap["dn_to_input"])
+    var = cn.linear_stokes_variance(stokes[0], cap["exposure"], noise.read_noise, "bilinear",
+                                    adc_step_e=cap["exposure"] * cap["dn_to_input"])
     return stokes, var, cap
 
 
@@ -120,8 +123,8 @@ def main():
     set_variant()
     from fmbrdf_mi import scene as S
     from fmbrdf_mi.fit import Observation, fit
-    from fmbrdf_mi.fit.camera import noise as cn
     from fmbrdf_mi.fit.evaluate.predict import relight_error
+    from fmbrdf_mi.sensor import noise as cn
 
     n, v, m = S.sphere_geometry(args.res)
     which = [int(x) - 1 for x in args.sets.split(",")] if args.sets else range(len(SETS))

@@ -8,8 +8,8 @@ One material (eta 1.5, alpha 0.25, beta 0.4, kappa 1; k_s / r_k 0.6 / 0.8, 0.4 /
 sphere filling PERIODS x PERIODS 4x4 periods of an IMX250MYR-type colour
 polarisation mosaic (RGGB), light (0.45, 0.35, 1).  The data are each
 channel's model Stokes image evaluated at every raw pixel's centre
-(:func:`fmbrdf_mi.fit.evaluate.synthetic.ideal_sphere`) captured by
-:func:`fmbrdf_mi.camera.capture` (full well 10 000 e-, read noise 2.5 e-,
+(:func:`fmbrdf_mi.synthetic.spheres.ideal_sphere`) captured by
+:func:`fmbrdf_mi.sensor.camera.capture` (full well 10 000 e-, read noise 2.5 e-,
 12 bits, brightest raw pixel at 80 %; seed = the noise seed), so only the
 camera's noise separates data and model.  Each capture is fitted by
 :func:`fmbrdf_mi.fit.api.colour.fit_colour` with the gain and read noise known.
@@ -101,15 +101,15 @@ def table(paths):
 def colour_case(periods):
     """The noise-free data of the bench: a sphere of ``periods`` x ``periods`` colour periods (module docstring)."""
     import mitsuba as mi  # noqa: F401  (the package sets its variant)
-    from fmbrdf_mi import polcam
-    from fmbrdf_mi.camera import CameraModel
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
     from fmbrdf_mi.fit.inputs import observations as ob
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.sensor import mosaic
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     R = periods
     st = np.stack([ideal_sphere({**SHAPE, "k_s": ks, "r_k": rk}, res=2 * R, light=LIGHT)["stokes"]
                    for ks, rk in ALBEDOS.values()])
-    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=12, full_well=10000.0, read_noise=2.5)
+    cam = CameraModel(cfa=mosaic.BAYER_RGGB, bits=12, full_well=10000.0, read_noise=2.5)
     centre, radius = (R / 2, R / 2), R / 2 - 0.5
     n, m, v = ob.sphere_normals((R, R), centre, radius)
     return {"periods": R, "stokes": st, "camera": cam, "normals": n, "mask": m, "view_dirs": v,
@@ -119,11 +119,11 @@ def colour_case(periods):
 def colour_fit(case, seed, fixed=None, noiseless=False, intervals="auto"):
     """One noise seed of ``case`` (:func:`colour_case`) captured and fitted; returns its record: params,
     std_errors and ci95 flattened to ``k_s[R]``, ..., converged, time, chi2_per_dof."""
-    from fmbrdf_mi.camera import capture
-    from fmbrdf_mi.fit.inputs import observations as ob
-    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
     from fmbrdf_mi.fit.api.colour import fit_colour
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
+    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.sensor.camera import capture
+    from fmbrdf_mi.sensor.noise import NoiseModel
+    from fmbrdf_mi.sensor.samples import colour_samples
 
     cam, R = case["camera"], case["periods"]
     cap = capture(case["stokes"], cam, peak_fraction=0.8, seed=seed, noiseless=noiseless)

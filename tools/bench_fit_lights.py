@@ -8,7 +8,7 @@
 The sibling of ``tools/bench_fit_noise.py`` with the same materials, camera
 and data: an orthographic sphere filling a SIZE x SIZE super-pixel image,
 the model evaluated at every raw pixel's centre, captured by
-:func:`fmbrdf_mi.camera.capture` (IMX250MZR, 10 000 e- full well, 2.5 e- read
+:func:`fmbrdf_mi.sensor.camera.capture` (IMX250MZR, 10 000 e- full well, 2.5 e- read
 noise, 12 bits, each image's brightest raw pixel at 80 % of full scale; the
 fit knows the gain and read noise and each image's exposure).  Six lights
 35 degrees from the view direction at azimuths 135 + 60 j degrees (light 0 is
@@ -71,7 +71,7 @@ def subsets(ks, n=6):
 
 def ideal_images(truth, size, powers=(1.0,) * 6):
     """The six ring lights' noise-free images of the sphere, light j ``powers[j]`` times as bright."""
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
 
     ideals = [ideal_sphere(truth, res=size, light=l) for l in light_ring(6)]
     for i, p in zip(ideals, powers):   # the capture's exposure (what the fit is told) ignores p
@@ -81,7 +81,7 @@ def ideal_images(truth, size, powers=(1.0,) * 6):
 
 def capture_seed(ideals, cam, seed):
     """Seed ``seed``'s captures of the six images (image j: camera-noise seed 1000 seed + j)."""
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation
+    from fmbrdf_mi.synthetic.spheres import capture_observation
 
     return [capture_observation(i, cam, seed=1000 * seed + j)[0] for j, i in enumerate(ideals)]
 
@@ -123,7 +123,7 @@ def lights_fits(obs, k, sets, *, material, seed, truth, powers=(1.0,) * 6, free_
 
 
 def run(args):
-    from fmbrdf_mi.camera import CameraModel
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     cam = CameraModel(full_well=args.full_well, read_noise=args.read_noise, bits=args.bits)
     sets = subsets(args.lights)

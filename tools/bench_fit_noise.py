@@ -10,7 +10,7 @@ super-pixel image, radius SIZE/2 - 1) x camera-noise seed x loss:
 
 * data: the model evaluated at every raw pixel's centre (the per-pixel path
   of :mod:`fmbrdf_mi.fit.evaluate.pixel_model`, exact sphere geometry), captured by
-  :func:`fmbrdf_mi.camera.capture` (IMX250MZR layout, full well 10 000 e-,
+  :func:`fmbrdf_mi.sensor.camera.capture` (IMX250MZR layout, full well 10 000 e-,
   read noise 2.5 e-, 12-bit ADC, brightest raw pixel at 80 % of full
   scale; seed = the noise seed).  The data thus follow the fitted model up
   to the camera's noise: what is measured is the estimator, not model
@@ -89,9 +89,9 @@ def noise_fit(obs, cap, *, material, size, seed, loss, truth, fixed=None, max_ti
 
 
 def run(args):
-    from fmbrdf_mi.camera import CameraModel
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
     from fmbrdf_mi.fit.inputs.parse import parse_fixed
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     cam = CameraModel(full_well=args.full_well, read_noise=args.read_noise, bits=args.bits)
     fixed = parse_fixed(args.fix) or {}

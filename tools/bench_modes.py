@@ -57,7 +57,7 @@ class Runner:
     """Lazily built per-mode data (ideal images, colour case) shared by the seeds of a mode."""
 
     def __init__(self, args):
-        from fmbrdf_mi.camera import CameraModel
+        from fmbrdf_mi.sensor.camera import CameraModel
 
         self.args = args
         self.cam = CameraModel(full_well=10000.0, read_noise=2.5, bits=12)
@@ -87,7 +87,7 @@ class Runner:
         a = self.args
         if mode == "single":
             from bench_fit_noise import noise_fit
-            from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+            from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
 
             ideal = self._get("single", lambda: ideal_sphere(self.truth, res=a.size, light=LIGHT))
             obs, cap = capture_observation(ideal, self.cam, seed=seed)

@@ -3,7 +3,7 @@
     python tools/bench_normal_refine.py [--res 40] [--lights 4] [--lam 0.3] [--prior curvature] [--starts ps,sphere]
     python tools/bench_normal_refine.py --seeds 6 [--res 40] [--lights 4] [--lam 0.3[,0.03,...]] [--json OUT.json]
 
-The object (:mod:`fmbrdf_mi.fit.evaluate.synthetic_object`): a smooth mesh (ellipsoid
+The object (:mod:`fmbrdf_mi.synthetic.mesh_object`): a smooth mesh (ellipsoid
 with a three-lobed bump, rotated), a pinhole camera (12 degree field of
 view), RES x RES super-pixels, K lights of unequal power (the first K of
 LIGHTS), the `medium` material of the noise bench, raw 16-bit mosaics with
@@ -59,7 +59,7 @@ def normal_fits(seed, res=40, lights=4, lams=(0.3,), threads=0):
     from fmbrdf_mi.fit.inputs.authors import read_object
     from fmbrdf_mi.fit.api.joint import fit_joint
     from fmbrdf_mi.fit.api.normal_joint import refine_joint
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.synthetic.mesh_object import write_authors_object
     from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, photometric_stereo
 
     if threads:
@@ -122,7 +122,7 @@ def main(argv=None):
     from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, photometric_stereo
     from fmbrdf_mi.fit.solve.optimise import default_progress
     from fmbrdf_mi.fit.inputs.observations import find_sphere, sphere_normals
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.synthetic.mesh_object import write_authors_object
 
     K = args.lights
     out = []

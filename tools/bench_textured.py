@@ -8,10 +8,10 @@
     python tools/bench_textured.py --sensor colour --res 24 --seeds 12 --textures smooth --lights 3 [--json c.json]
 
 Data, as a camera makes them: an orthographic sphere filling a RES x RES
-super-pixel image (:func:`fmbrdf_mi.fit.evaluate.synthetic.textured_sphere`: each raw pixel the mean of
+super-pixel image (:func:`fmbrdf_mi.synthetic.spheres.textured_sphere`: each raw pixel the mean of
 the model over 4 x 4 points of its area; the fit models it with 2 x 2), or (``--objects mesh``) the
-non-spherical blob mesh of :mod:`fmbrdf_mi.fit.evaluate.synthetic_object` seen by a pinhole camera
-(fov 20 degrees, about 30 % of the image; :func:`~fmbrdf_mi.fit.evaluate.synthetic_object.ideal_object`,
+non-spherical blob mesh of :mod:`fmbrdf_mi.synthetic.mesh_object` seen by a pinhole camera
+(fov 20 degrees, about 30 % of the image; :func:`~fmbrdf_mi.synthetic.mesh_object.ideal_object`,
 exact ray-cast geometry at every point the fit evaluates), the
 `medium` material's eta, alpha, beta, kappa, and albedo maps per super-pixel:
 
@@ -19,7 +19,7 @@ exact ray-cast geometry at every point the fit evaluates), the
 * ``high``: a checkerboard of 3 x 3 super-pixel squares, k_s in {0.4, 1.0}, k_b in {0.25, 0.55}
   (uncorrelated with k_s: the squares of k_b are offset by one),
 
-captured by :func:`fmbrdf_mi.camera.capture` (IMX250MZR, 10 000 e- full well,
+captured by :func:`fmbrdf_mi.sensor.camera.capture` (IMX250MZR, 10 000 e- full well,
 2.5 e- read noise, 12 bits, brightest raw pixel at 80 % of full scale); K = 1
 (light (-0.5, 0.5, 1)) or 3 lights (that one and two more, 35 degrees from
 the view at azimuths 60 and 300 degrees), one more light held out (azimuth
@@ -39,8 +39,8 @@ and the median relative error; the held-out light's relighting error
 same data; the mean time of the per-pixel fit against the uniform object's.
 
 ``--sensor colour``: a colour polarisation mosaic (IMX250MYR type, RGGB; the same camera otherwise) of RES x
-RES 4x4 periods (:func:`fmbrdf_mi.fit.evaluate.synthetic.textured_sphere` with (3, RES, RES) maps,
-:func:`~fmbrdf_mi.fit.evaluate.synthetic.capture_colour`), the maps per channel (:func:`colour_texture`),
+RES 4x4 periods (:func:`fmbrdf_mi.synthetic.spheres.textured_sphere` with (3, RES, RES) maps,
+:func:`~fmbrdf_mi.synthetic.spheres.capture_colour`), the maps per channel (:func:`colour_texture`),
 fitted by :func:`fmbrdf_mi.fit.api.colour.fit_colour` with ``albedo="per-pixel"`` (one k_s, k_b per period
 and channel) and, for the relighting comparison, ``albedo="shared"`` (per-channel albedos, uniform); the map
 rows are per channel (RMS z, 95 % cover, median relative error), the relighting error the held-out mosaic's
@@ -104,14 +104,14 @@ def colour_texture(name, res):
 
 def one_colour(tex, K, seed, res, intervals="fisher", modes=("per-pixel", "shared")):
     """One noise seed of the colour bench (module docstring): the per-pixel and the shared colour fit."""
-    from fmbrdf_mi import polcam
-    from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit.api.colour import fit_colour, predict_samples
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_colour, textured_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_colour, textured_sphere
+    from fmbrdf_mi.sensor import mosaic
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     ks, kb = colour_texture(tex, res)
     fitted, held = lights(K)
-    cam = CameraModel(cfa=polcam.BAYER_RGGB)
+    cam = CameraModel(cfa=mosaic.BAYER_RGGB)
     caps = []
     for j, light in enumerate(fitted + [held]):
         o, s, noise, _ = capture_colour(textured_sphere(TRUTH, ks, kb, res=res, light=light), cam,
@@ -166,8 +166,8 @@ def wilson(k, n, z=1.959963984540054):
 
 def ideal_of(obj, res, light):
     """The noise-free object of ``--objects``: params -> its ideal capture dict."""
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
-    from fmbrdf_mi.fit.evaluate.synthetic_object import ideal_object
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
+    from fmbrdf_mi.synthetic.mesh_object import ideal_object
 
     if obj == "sphere":
         return lambda p: ideal_sphere(p, res=res, light=light)
@@ -178,10 +178,10 @@ def ideal_of(obj, res, light):
 
 def one(tex, K, seed, res, area_points=None, modes=("per-pixel", "shared", "uniform"), intervals="fisher",
         obj="sphere", smooth=None):
-    from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.evaluate.predict import relight_error
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured
+    from fmbrdf_mi.synthetic.spheres import capture_observation, textured
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     ks, kb = texture(tex, res)
     fitted, held = lights(K)
@@ -353,7 +353,7 @@ def main(argv=None):
     p.add_argument("--seed0", type=int, default=0)
     p.add_argument("--textures", default="smooth,high")
     p.add_argument("--objects", default="sphere", help="sphere (orthographic) and/or mesh (the blob mesh of "
-                   "fmbrdf_mi.fit.evaluate.synthetic_object, pinhole camera, fov 20 degrees)")
+                   "fmbrdf_mi.synthetic.mesh_object, pinhole camera, fov 20 degrees)")
     p.add_argument("--lights", default="1,3", help="numbers of fitted lights (1 or 3)")
     p.add_argument("--area-points", type=int, default=None,
                    help="the fits' points per raw pixel side (default: the fit's, 2; the data average 4 x 4)")

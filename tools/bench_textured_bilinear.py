@@ -25,7 +25,7 @@ azimuths 60 and 300 degrees):
   with ``fmbrdf_mi.fit.inputs.files.build_observation`` of each OUT_raw.png (its sidecar: the camera, the
   light), every usable pixel, intervals +- 1.96 reported SE (no profile check); the maps against the
   render's OUT_raw_k_*.exr.
-* ``exact``: model-exact captures (:func:`fmbrdf_mi.fit.evaluate.synthetic.textured_sphere`, 4 x 4 points
+* ``exact``: model-exact captures (:func:`fmbrdf_mi.synthetic.spheres.textured_sphere`, 4 x 4 points
   per raw pixel), with the same smooth texture either per super-pixel (``constant``: the four raw pixels
   share the super-pixel's value) or ``continuous`` (each area point its own value), or no texture
   (``uniform``: k_s 0.6, k_b 0.4, which every layout models exactly), camera noise seeds.
@@ -106,8 +106,8 @@ def read_map(path):
 
 
 def exact_data(kind, res, K, seed):
-    from fmbrdf_mi.camera import CameraModel
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, textured_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     fks = (lambda x, y: smooth((x + 0.5) / res, (y + 0.5) / res)[0])   # super-pixel (i, j) centre: x = j
     fkb = (lambda x, y: smooth((x + 0.5) / res, (y + 0.5) / res)[1])

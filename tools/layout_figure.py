@@ -7,7 +7,7 @@ default IMX250MZR 90,45,135,0), each pixel's polariser transmission axis drawn a
 measured from image right (x) towards image up (y), the frame of the Stokes images (S1 = I0 - I90,
 S2 = I45 - I135).  Right: the same sensor seen through a mirror (or decoded with another sensor's
 convention): 45 and 135 trade places, S2 changes sign, and ``--layout 90,135,45,0`` reads it.  The
-angles come from :data:`fmbrdf_mi.polcam.IMX250MZR_LAYOUT` and the fit's own ``mirrored`` (the
+angles come from :data:`fmbrdf_mi.sensor.mosaic.IMX250MZR_LAYOUT` and the fit's own ``mirrored`` (the
 layout check), so the figure shows what the code uses.
 """
 from __future__ import annotations
@@ -27,7 +27,7 @@ def main(argv=None):
     import matplotlib.pyplot as plt
 
     from fmbrdf_mi.fit.cli.layout_check import layout_text, mirrored
-    from fmbrdf_mi.polcam import IMX250MZR_LAYOUT
+    from fmbrdf_mi.sensor.mosaic import IMX250MZR_LAYOUT
 
     layouts = [(IMX250MZR_LAYOUT, f"--layout {layout_text(IMX250MZR_LAYOUT)} (IMX250MZR, the default)"),
                (mirrored(IMX250MZR_LAYOUT), f"mirrored: --layout {layout_text(mirrored(IMX250MZR_LAYOUT))}")]

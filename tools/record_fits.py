@@ -8,7 +8,7 @@
 
 What it is for: the fit package (fmbrdf_mi/fit/) is refactored, and the fits must give the same numbers before
 and after.  So this script touches the package only through its stable interface: it makes its inputs with
-``fmbrdf-mi render`` (and, where no command makes them, with NumPy, Mitsuba and ``fmbrdf_mi.camera``, which is
+``fmbrdf-mi render`` (and, where no command makes them, with NumPy, Mitsuba and ``fmbrdf_mi.sensor.camera``, which is
 outside fmbrdf_mi/fit/), runs every fit as ``python -m fmbrdf_mi fit ...`` / ``fit-brdf ...`` in a subprocess,
 and reads what the commands write (fit.json, params.json).
 
@@ -25,7 +25,7 @@ Cases (all small: the whole run takes about 2 minutes on a 2-core machine):
   f_authors              ``--authors DIR --holdout 3`` on a 24 x 24 super-pixel mesh object, 4 lights
   g_fit_brdf             ``fit-brdf`` on a synthetic MERL file (Lambert + a GGX-like lobe), 5000 samples
 
-The mesh objects are those of fmbrdf_mi/fit/synthetic_object.py (the code copied here, so that moving that
+The mesh objects are those of fmbrdf_mi/synthetic/mesh_object.py (the code copied here, so that moving that
 module changes nothing): for the same arguments the files come out byte for byte the same.
 Every input is deterministic (seeded camera noise, seeded renders); text inputs are hashed with the work
 directory's path replaced by <WORK>, so two work directories give the same hashes.
@@ -160,7 +160,7 @@ def make_renders(inputs):
     return cmds
 
 
-# --- mesh objects in the authors' layout (NumPy + Mitsuba + fmbrdf_mi.camera: nothing from fmbrdf_mi/fit/) ---
+# --- mesh objects in the authors' layout (NumPy + Mitsuba + fmbrdf_mi.sensor.camera: nothing from fmbrdf_mi/fit/) ---
 
 def blob_mesh(n_theta=48, n_phi=96, axes=(1.0, 0.75, 0.85), bump=0.12, rotation_deg=(25.0, -35.0)):
     """(positions, faces, vertex normals) of an ellipsoid with a three-lobed bump, rotated."""
@@ -298,11 +298,11 @@ def cv_to_ours(v):
 def write_authors_object(root, params, lights, powers, *, res, fov=12.0, distance=8.0, seed=0):
     """An object in the paper authors' layout (docs/howto/fit-joint.md, "The paper authors' captured-data layout"): a mesh seen by
     a pinhole camera, geometry by ray casts (per raw pixel for the data, per super-pixel for normal_GT.npy),
-    the model at every raw pixel, 16-bit raw mosaics through fmbrdf_mi.camera (seed + k for image k), one
+    the model at every raw pixel, 16-bit raw mosaics through fmbrdf_mi.sensor.camera (seed + k for image k), one
     exposure (the brightest raw pixel of all images at 80 % of full scale).  Returns the camera's gain."""
     from PIL import Image
 
-    from fmbrdf_mi.camera import CameraModel, capture
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     cam = CameraModel(**OBJECT_CAMERA)
     scene = _mesh_scene(blob_mesh())

@@ -5,7 +5,7 @@ recovers the material from it, all through the command line:
 
 1. render the built-in sphere (alpha = 0.15, the other parameters at their
    defaults) in the monochrome polarised variant, and pass the Stokes image
-   through the camera model of ``fmbrdf_mi/camera.py`` (IMX250MZR quad-Bayer
+   through the camera model of ``fmbrdf_mi/sensor/camera.py`` (IMX250MZR quad-Bayer
    layout, shot and read noise, 16-bit PNG) with ``--raw``; the sidecar
    ``c_raw.json`` records the camera's settings and the scene (sphere, light,
    true parameters);

@@ -10,12 +10,11 @@ before it (``tests/test_layers.py`` enforces it):
 
 =================  ===========================================================================
 ``errors``         :class:`InputError`, the one-line error of every input check
-``camera``         noise model, raw samples (mono 2x2, colour 4x4), demosaicking, footprints
 ``inputs``         :class:`Observation`, loaders of every input kind (files, sidecars,
                    manifests, the authors' layout, colour mosaics), values given as text
 ``evaluate``       the models and their pixel / render evaluators, the albedo layouts (shared,
                    per colour channel, per pixel, with an optional smoothness prior on the maps),
-                   predictions, synthetic data
+                   predictions
 ``objectives``     the likelihood of the camera's samples, the paper's loss and its variants
 ``problem``        what a fit runs on (pixels, objective, evaluator: one builder for one image
                    or K) and its one problem (model, bounds, clock), with free light powers or

@@ -216,9 +216,9 @@ def test_chi2_degrees_of_freedom_rule_by_simulation():
 # ---------------------------------------------------------------- fits
 def _constant_exact(res=12, lights=((-0.5, 0.5, 1.0),)):
     """Noise-free exact raw samples of a sphere with constant maps (area 1)."""
-    from fmbrdf_mi.camera import CameraModel, intensity_at_each_pixel
-    from fmbrdf_mi.fit.camera import samples as SM
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, textured_sphere
+    from fmbrdf_mi.sensor import samples as SM
+    from fmbrdf_mi.sensor.camera import CameraModel, intensity_at_each_pixel
 
     out = []
     for L in lights:
@@ -259,9 +259,9 @@ def test_joint_fit_with_the_prior_and_bilinear_layout():
     """Two noisy lights of one view (camera noise), the bilinear layout with the prior: the fit's chi^2 is data
     chi^2 + penalty, the per-image diagnosis counts the samples' residuals only (their chi^2 sums to the data
     chi^2), and constant maps give eta, alpha, beta within 5 of their (posterior) standard errors."""
-    from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, textured_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     obs, exposure = [], None
     for k, L in enumerate(((-0.5, 0.5, 1.0), (0.287, 0.497, 0.819))):
@@ -316,9 +316,9 @@ def test_cli_writes_the_prior_and_reruns_it(tmp_path):
     and the posterior method), and ``--from`` reruns it with the same prior (the same maps)."""
     import json
 
-    from fmbrdf_mi.camera import CameraModel, capture
     from fmbrdf_mi.cli import main
-    from fmbrdf_mi.fit.evaluate.synthetic import textured_sphere
+    from fmbrdf_mi.synthetic.spheres import textured_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     ideal = textured_sphere(SHAPE, lambda x, y: 0.5 + 0.01 * x, lambda x, y: 0.35 + 0 * x, res=12,
                             light=(-0.5, 0.5, 1.0))

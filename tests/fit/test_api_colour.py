@@ -5,8 +5,8 @@ import statistics
 import numpy as np
 import pytest
 
-from fmbrdf_mi import polcam
-from fmbrdf_mi.camera import CameraModel, capture, read_sidecar, write_sidecar
+from fmbrdf_mi.sensor import mosaic
+from fmbrdf_mi.sensor.camera import CameraModel, capture, read_sidecar, write_sidecar
 
 
 def _random_stokes(rng, h, w):
@@ -25,7 +25,7 @@ def test_colour_layout_by_hand():
     for ch in range(3):
         for a in range(4):
             imgs[ch, a] = 10 * ch + a   # value = 10 * channel + index of the angle in (0, 45, 90, 135)
-    raw = polcam.colour_mosaic_from_angle_images(imgs)
+    raw = mosaic.colour_mosaic_from_angle_images(imgs)
     angle_idx = {90: 2, 45: 1, 135: 3, 0: 0}
     expected = np.array([[10 * ch + angle_idx[a] for ch, a in row] for row in [
         [(0, 90), (0, 45), (1, 90), (1, 45)],
@@ -40,44 +40,44 @@ def test_colour_round_trip():
     # parameters are recovered from 4 noise-free samples)
     rng = np.random.default_rng(1)
     s = _random_stokes(rng, 5, 7)
-    imgs = np.stack([polcam.angle_images_from_stokes(s[c]) for c in range(3)])
-    raw = polcam.colour_mosaic_from_angle_images(imgs)
+    imgs = np.stack([mosaic.angle_images_from_stokes(s[c]) for c in range(3)])
+    raw = mosaic.colour_mosaic_from_angle_images(imgs)
     assert raw.shape == (20, 28)
-    back = polcam.stokes_from_colour_mosaic(raw)
+    back = mosaic.stokes_from_colour_mosaic(raw)
     np.testing.assert_allclose(back[:, :3], s, atol=1e-12)
     np.testing.assert_array_equal(back[:, 3], 0)
     # the simulated camera (noise-free, 16-bit, no clipping) samples the same mosaic
-    cam = CameraModel(full_well=1e9, bits=16, read_noise=0.0, cfa=polcam.BAYER_RGGB)
+    cam = CameraModel(full_well=1e9, bits=16, read_noise=0.0, cfa=mosaic.BAYER_RGGB)
     up = np.repeat(np.repeat(s, 4, axis=2), 4, axis=3)   # constant over each 4x4 period
     cap = capture(up, cam, exposure=1.0, noiseless=True)
     g = cam.conversion_gain
     # noise-free capture = round(I * exposure / g): the Stokes back within half a DN per sample
-    got = polcam.stokes_from_colour_mosaic(cap["raw"].astype(float) * g)
+    got = mosaic.stokes_from_colour_mosaic(cap["raw"].astype(float) * g)
     np.testing.assert_allclose(got[:, :3], s, atol=2 * g)   # |dS| <= sum of 4 samples' rounding, each <= g / 2
 
 
 def test_other_cfa_and_bad_cfa():
     rng = np.random.default_rng(2)
     s = _random_stokes(rng, 2, 3)
-    imgs = np.stack([polcam.angle_images_from_stokes(s[c]) for c in range(3)])
-    cfa = polcam.parse_cfa("BGGR")
-    raw = polcam.colour_mosaic_from_angle_images(imgs, cfa=cfa)
-    np.testing.assert_allclose(polcam.stokes_from_colour_mosaic(raw, cfa=cfa)[:, :3], s, atol=1e-12)
+    imgs = np.stack([mosaic.angle_images_from_stokes(s[c]) for c in range(3)])
+    cfa = mosaic.parse_cfa("BGGR")
+    raw = mosaic.colour_mosaic_from_angle_images(imgs, cfa=cfa)
+    np.testing.assert_allclose(mosaic.stokes_from_colour_mosaic(raw, cfa=cfa)[:, :3], s, atol=1e-12)
     # read with the wrong arrangement: R and B swap
-    np.testing.assert_allclose(polcam.stokes_from_colour_mosaic(raw)[::-1, :3], s, atol=1e-12)
+    np.testing.assert_allclose(mosaic.stokes_from_colour_mosaic(raw)[::-1, :3], s, atol=1e-12)
     for bad in ("RGGG", "RGB", "RGGBX"):
         with pytest.raises(ValueError, match="cfa"):
-            polcam.parse_cfa(bad)
+            mosaic.parse_cfa(bad)
     with pytest.raises(ValueError, match="cfa"):
         CameraModel(cfa=(("R", "R"), ("G", "B")))
     with pytest.raises(ValueError, match="multiples of 4"):
-        polcam.stokes_from_colour_mosaic(np.zeros((6, 8)))
+        mosaic.stokes_from_colour_mosaic(np.zeros((6, 8)))
 
 
 def test_colour_capture_mean_and_variance():
     # per-pixel mean and variance over many captures of a constant scene against the camera model's law:
     # mean = exposure * I / g (DN), var = mu / g + (read / g)^2 + 1/12 (camera.py's docstring)
-    cam = CameraModel(full_well=4000.0, read_noise=3.0, bits=12, black_level=64, cfa=polcam.BAYER_RGGB)
+    cam = CameraModel(full_well=4000.0, read_noise=3.0, bits=12, black_level=64, cfa=mosaic.BAYER_RGGB)
     s = np.zeros((3, 3, 4, 4))
     for ch, (i0, d, phi) in enumerate([(0.3, 0.5, 0.3), (0.8, 0.2, 1.1), (0.5, 0.7, 2.0)]):
         s[ch] = np.array([i0, i0 * d * np.cos(2 * phi), i0 * d * np.sin(2 * phi)])[:, None, None]
@@ -103,11 +103,11 @@ def test_colour_capture_mean_and_variance():
 
 
 def test_colour_sidecar_round_trip(tmp_path):
-    cam = CameraModel(cfa=polcam.BAYER_RGGB)
+    cam = CameraModel(cfa=mosaic.BAYER_RGGB)
     p = tmp_path / "c_raw.png"
     write_sidecar(p, cam)
     d = read_sidecar(p)
-    assert d["sensor"].cfa == polcam.BAYER_RGGB and d["sensor"].period == 4
+    assert d["sensor"].cfa == mosaic.BAYER_RGGB and d["sensor"].period == 4
     # a monochrome sidecar has no cfa key and reads back monochrome (files written before colour sensors)
     write_sidecar(tmp_path / "m_raw.png", CameraModel())
     assert "cfa" not in json.load(open(tmp_path / "m_raw.json"))["sensor"]
@@ -135,7 +135,7 @@ def test_render_raw_colour(tmp_path, capsys):
                 "--read-noise", "0") == 0
     raw = np.array(Image.open(out[:-4] + "_raw.png"))
     side = read_sidecar(out[:-4] + "_raw.png")
-    assert side["sensor"].cfa == polcam.BAYER_RGGB
+    assert side["sensor"].cfa == mosaic.BAYER_RGGB
     stokes = np.asarray(read_stokes_exr(out)[0])           # (4, H, W, 3)
     # each raw pixel's expected DN, by hand: colour from its place in the 4x4 period, polariser angle from its
     # place in the 2x2 block, intensity from the EXR's channel at that pixel
@@ -176,17 +176,17 @@ def test_colour_fit_recovers_per_channel_albedos(R):
     shot and read noise), and the SEs themselves must be small enough for that to mean something (< 25 %
     for the albedos, < 50 % for the shape parameters)."""
     from fmbrdf_mi.fit.api.colour import fit_colour
-    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.sensor.noise import NoiseModel
+    from fmbrdf_mi.sensor.samples import colour_samples
 
     shape = dict(eta=1.5, alpha=0.25, beta=0.4, kappa=1.0)
     alb = {"R": (0.6, 0.8), "G": (0.4, 1.5), "B": (0.5, 0.4)}
     light = (0.45, 0.35, 1.0)
     st = np.stack([ideal_sphere({**shape, "k_s": ks, "r_k": rk}, res=2 * R, light=light)["stokes"]
                    for ks, rk in alb.values()])
-    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=16, full_well=60000, read_noise=2.5)
+    cam = CameraModel(cfa=mosaic.BAYER_RGGB, bits=16, full_well=60000, read_noise=2.5)
     cap = capture(st, cam, peak_fraction=0.8, noiseless=True)
     smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
     n, m, v = ob.sphere_normals((R, R), (R / 2, R / 2), R / 2 - 0.5)

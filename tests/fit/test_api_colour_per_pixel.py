@@ -24,11 +24,11 @@ def _texture(R):
 def _colour_layout(rng, n_cells):
     """The colour per-pixel layout as the fit builds it (problem.data.pixel_layout) for ``n_cells`` periods of
     two images of one view (each period in both), and the colour samples' channels."""
-    from fmbrdf_mi import polcam
-    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
     from fmbrdf_mi.fit.problem.data import pixel_layout
+    from fmbrdf_mi.sensor import mosaic
+    from fmbrdf_mi.sensor.samples import colour_samples
 
-    smp = colour_samples(np.full((8, 4 * n_cells), 100.0), cfa=polcam.BAYER_RGGB)
+    smp = colour_samples(np.full((8, 4 * n_cells), 100.0), cfa=mosaic.BAYER_RGGB)
     view = np.zeros((2, n_cells, 3))
     view[..., 2] = 1
     o = types.SimpleNamespace(shape=(2, n_cells), view_dirs=view)
@@ -81,12 +81,12 @@ def test_per_channel_albedos_are_the_dense_least_squares_of_all_groups():
 def _exact(R, lights):
     """Exact colour captures (the samples are the model's values in DN: no noise, rounding or clipping) of a
     textured sphere of R x R periods, 2 x 2 points per raw pixel (as the fit models them), one exposure."""
-    from fmbrdf_mi import polcam
-    from fmbrdf_mi.camera import CameraModel
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_colour, textured_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_colour, textured_sphere
+    from fmbrdf_mi.sensor import mosaic
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     ks, kb = _texture(R)
-    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=16, full_well=1e6)
+    cam = CameraModel(cfa=mosaic.BAYER_RGGB, bits=16, full_well=1e6)
     obs, smp = [], []
     for j, light in enumerate(lights):
         ideal = textured_sphere(SHAPE, ks, kb, res=R, light=light, area=2)

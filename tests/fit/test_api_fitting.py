@@ -145,10 +145,10 @@ def test_cli_writes_estimates_plots_and_relighting(tmp_path, capsys):
 
 def test_footprint_average_equals_averaged_evaluations(variant):
     from fmbrdf_mi.fit import Observation
-    from fmbrdf_mi.fit.camera import noise as cn
     from fmbrdf_mi.fit.evaluate.models import FMBRDF
     from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.sensor import noise as cn
 
     n, m, v = ob.sphere_normals((20, 20), (10, 10), 9)
     obs = Observation(np.ones((3, 20, 20)), m, n, v, LIGHT, footprint=cn.demosaic_footprint())
@@ -171,12 +171,12 @@ def test_footprint_average_equals_averaged_evaluations(variant):
 def test_cli_raw_mosaic_with_camera_noise(tmp_path, capsys):
     """Raw 12-bit mosaic in, geometry at raw resolution, the noisy-DoLP model and the demosaicking footprint."""
     from fmbrdf_mi.cli import main
-    from fmbrdf_mi.fit.camera import noise as cn
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     true = {"eta": 1.5, "alpha": 0.25, "specular_reflectance": 0.8, "diffuse_reflectance": 0.5}
     raw_obs = _sphere_obs(true, res=96, model="pplastic")
-    noise = cn.CameraNoise()
-    cap = cn.simulate_capture(raw_obs.stokes, noise, seed=2)
+    noise = CameraModel()
+    cap = capture(raw_obs.stokes, noise, seed=2)
     np.save(tmp_path / "raw.npy", cap["raw"])
     np.save(tmp_path / "n.npy", raw_obs.normals)
     np.save(tmp_path / "m.npy", raw_obs.mask)

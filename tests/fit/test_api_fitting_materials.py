@@ -12,7 +12,7 @@ LIGHT = (-0.5, 0.5, 1.0)
 
 
 def _ideal(res=16):
-    from fmbrdf_mi.fit.evaluate.synthetic import half_labels, material_sphere
+    from fmbrdf_mi.synthetic.spheres import half_labels, material_sphere
 
     return material_sphere([A, B], half_labels(res), res=res, light=LIGHT, area=2)
 
@@ -20,9 +20,9 @@ def _ideal(res=16):
 def _exact_observation(res=16):
     """The two-material sphere captured without noise or rounding: the raw samples are the model's exact
     values (2 x 2 points per raw pixel, as the fit models them), the camera's noise stated."""
-    from fmbrdf_mi.camera import CameraModel, intensity_at_each_pixel
-    from fmbrdf_mi.fit.camera import samples as SM
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation
+    from fmbrdf_mi.synthetic.spheres import capture_observation
+    from fmbrdf_mi.sensor import samples as SM
+    from fmbrdf_mi.sensor.camera import CameraModel, intensity_at_each_pixel
 
     ideal = _ideal(res)
     cam = CameraModel(bits=16, full_well=1e6)
@@ -32,7 +32,7 @@ def _exact_observation(res=16):
 
 
 def _noisy_observation(seed, res=16):
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation
+    from fmbrdf_mi.synthetic.spheres import capture_observation
 
     ideal = _ideal(res)
     return capture_observation(ideal, seed=seed)[0], ideal["labels"]
@@ -41,7 +41,7 @@ def _noisy_observation(seed, res=16):
 def test_material_sphere_is_each_material_on_its_pixels():
     """The synthetic two-material capture is, on each material's pixels, that material's one-material sphere
     (the test data are what they say)."""
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
 
     ideal = _ideal()
     up = np.repeat(np.repeat(ideal["labels"], 2, 0), 2, 1)

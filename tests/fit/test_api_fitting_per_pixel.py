@@ -20,9 +20,9 @@ def _texture(res):
 def _exact_observation(res=16, light=(-0.5, 0.5, 1.0)):
     """A textured sphere captured without noise and without rounding: the raw samples are the model's
     exact values (2 x 2 points per raw pixel, as the fit models them), the camera's noise stated."""
-    from fmbrdf_mi.camera import CameraModel, intensity_at_each_pixel
-    from fmbrdf_mi.fit.camera import samples as SM
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, textured_sphere
+    from fmbrdf_mi.sensor import samples as SM
+    from fmbrdf_mi.sensor.camera import CameraModel, intensity_at_each_pixel
 
     ks, kb = _texture(res)
     ideal = textured_sphere(SHAPE, ks, kb, res=res, light=light, area=2)
@@ -91,9 +91,9 @@ def test_command_writes_the_maps_and_reruns(tmp_path, capsys):
     """`fmbrdf-mi fit RAW --albedo per-pixel`: k_s.exr, k_b.exr and their standard errors (NaN outside the
     fitted pixels), albedo_maps.png and fit.json's albedo block; `--from` gives the same maps; the option
     with the paper's loss is one line and a non-zero exit, with no outputs."""
-    from fmbrdf_mi.camera import CameraModel, capture
     from fmbrdf_mi.cli import main
-    from fmbrdf_mi.fit.evaluate.synthetic import textured_sphere
+    from fmbrdf_mi.synthetic.spheres import textured_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     res = 16
     ks, kb = _texture(res)
@@ -133,9 +133,9 @@ def test_joint_manifest_with_maps_relights_the_held_out_image(tmp_path, capsys):
     `--albedo per-pixel`: the maps are written, the shape recovered within 4 standard errors, and the
     held-out image relit with the maps to RMSE / mean < 0.04 (noise alone: about 0.01; a uniform fit of
     these textures relights at about 0.12: tools/bench_textured.py, docs/benchmarks/textured.md)."""
-    from fmbrdf_mi.camera import CameraModel, capture
     from fmbrdf_mi.cli import main
-    from fmbrdf_mi.fit.evaluate.synthetic import textured_sphere
+    from fmbrdf_mi.synthetic.spheres import textured_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     res = 16
     ks, kb = _texture(res)

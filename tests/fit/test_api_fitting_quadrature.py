@@ -3,9 +3,9 @@ its predicted bias against two independent fits with fixed quadratures on the sa
 against the fit with the finer quadrature from the start."""
 import pytest
 
-from fmbrdf_mi.camera import CameraModel
 from fmbrdf_mi.fit import fit
-from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
+from fmbrdf_mi.sensor.camera import CameraModel
 
 GLOSSY = dict(eta=1.5, alpha=0.06, beta=1.4, kappa=30.0, k_s=0.9, r_k=1.0)
 MEDIUM = dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0, k_s=1.0, r_k=0.5)

@@ -37,8 +37,8 @@ def _clean(res=24, lights=LIGHTS, params=TRUE, irradiances=None):
 
 
 def _captures(res=16, seed=0, lights=LIGHTS):
-    from fmbrdf_mi.camera import CameraModel
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     return [capture_observation(ideal_sphere(TRUE, res=res, light=l), CameraModel(), seed=seed + k)[0]
             for k, l in enumerate(lights)]
@@ -101,7 +101,7 @@ def test_joint_fisher_information_is_the_sum_of_the_images(variant):
 def test_joint_fit_per_image_diagnostics_and_errors(variant):
     from fmbrdf_mi.fit import InputError
     from fmbrdf_mi.fit.api.joint import fit_joint
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
+    from fmbrdf_mi.sensor.noise import NoiseModel
 
     obs = _captures(res=12)
     res = fit_joint(obs, init=NEAR, progress=False, names=["a", "b", "c"])

@@ -250,7 +250,7 @@ def test_curvature_prior_is_zero_on_a_linear_normal_field():
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     """A 16 x 16 super-pixel mesh object (137 refined pixels), 3 lights, raw 16-bit mosaics, authors' layout."""
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.synthetic.mesh_object import write_authors_object
 
     root = tmp_path_factory.mktemp("tiny") / "blob"
     truth = write_authors_object(root, TRUE, LIGHTS, res=16, fov=12.0, powers=POWERS, seed=3)

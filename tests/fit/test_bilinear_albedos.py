@@ -235,9 +235,9 @@ def _exact_continuous(res=16, light=(-0.5, 0.5, 1.0)):
     """A continuously textured sphere without noise and rounding: each raw pixel the model at its centre
     times the texture there (area 1: what a fit with ``area_points=1`` models exactly where the texture is
     linear), the camera's noise stated."""
-    from fmbrdf_mi.camera import CameraModel, intensity_at_each_pixel
-    from fmbrdf_mi.fit.camera import samples as SM
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, textured_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, textured_sphere
+    from fmbrdf_mi.sensor import samples as SM
+    from fmbrdf_mi.sensor.camera import CameraModel, intensity_at_each_pixel
 
     fs, fb = _texture_funcs()
     ideal = textured_sphere(SHAPE, fs, fb, res=res, light=light, area=1)
@@ -283,9 +283,9 @@ def test_option_wiring_and_refusals(tmp_path, capsys):
     loss, free powers or several materials it is refused in one line; colour mosaics too (layout level)."""
     from fmbrdf_mi.cli import main
     from fmbrdf_mi.fit import fit
-    from fmbrdf_mi.fit.camera import samples as SM
     from fmbrdf_mi.fit.errors import InputError
     from fmbrdf_mi.fit.problem.data import bilinear_layout
+    from fmbrdf_mi.sensor import samples as SM
 
     obs, _ = _exact_continuous(res=16)
     with pytest.raises(InputError, match="per-pixel-bilinear: needs the likelihood"):
@@ -301,8 +301,8 @@ def test_option_wiring_and_refusals(tmp_path, capsys):
         bilinear_layout(obs.shape, np.array([0]), np.array([0]), np.array([0]), col)
     assert isinstance(obs.samples, SM.Samples)
     raw = tmp_path / "raw.npy"
-    from fmbrdf_mi.camera import CameraModel, capture
-    from fmbrdf_mi.fit.evaluate.synthetic import textured_sphere
+    from fmbrdf_mi.synthetic.spheres import textured_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     fs, fb = _texture_funcs()
     ideal = textured_sphere(SHAPE, fs, fb, res=12, light=(-0.5, 0.5, 1.0))
@@ -324,7 +324,7 @@ def test_textured_sphere_continuous_matches_per_super_pixel_for_a_step_texture()
     super-pixel units (super-pixel (i, j) covers x in [j - 1/2, j + 1/2), y in [i - 1/2, i + 1/2)): a texture
     that is constant over each super-pixel (a step function of the point) gives the per-super-pixel
     arrays' image to rounding, and its centre maps are the arrays."""
-    from fmbrdf_mi.fit.evaluate.synthetic import textured_sphere
+    from fmbrdf_mi.synthetic.spheres import textured_sphere
 
     res = 8
     rng = np.random.default_rng(4)

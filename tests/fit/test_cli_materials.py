@@ -21,8 +21,8 @@ def _labels_png(path, labels):
 
 
 def _raw(path, light, seed, exposure=None):
-    from fmbrdf_mi.camera import CameraModel, capture
-    from fmbrdf_mi.fit.evaluate.synthetic import half_labels, material_sphere
+    from fmbrdf_mi.synthetic.spheres import half_labels, material_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     cam = CameraModel()
     ideal = material_sphere([A, B], half_labels(RES), res=RES, light=light)

@@ -120,12 +120,12 @@ def test_degenerate_pixels_are_flagged_not_identified():
     Problem with the per-pixel layout)."""
     import types
 
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
     from fmbrdf_mi.fit.evaluate.albedos import PixelModel
     from fmbrdf_mi.fit.evaluate.models import Bounds, State, get_model
     from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective
     from fmbrdf_mi.fit.problem.problem import Problem
     from fmbrdf_mi.fit.uncertainty import pixel_albedos
+    from fmbrdf_mi.sensor.noise import NoiseModel
 
     rng = np.random.default_rng(5)
     n, m = 30, 4

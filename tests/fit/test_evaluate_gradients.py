@@ -7,7 +7,7 @@ observation comes from other parameters, so the loss is far from zero;
 steps of 1 % of each value keep float32 round-off (~1e-6 relative in the
 loss) and truncation well below the 2 % tolerance.  Each check runs without
 and with a known camera noise (the DoLP term then compares with the mean
-DoLP a noisy camera measures, fmbrdf_mi.fit.camera.rice).
+DoLP a noisy camera measures, fmbrdf_mi.sensor.rice).
 """
 import numpy as np
 import pytest

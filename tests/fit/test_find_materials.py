@@ -18,7 +18,7 @@ RES = 16
 def _capture(mats, seed=1):
     """A raw capture (the default camera, shot and read noise: S0 SNR ~ 100 at the peak) of a sphere whose
     left half is mats[0] and right half mats[1] (tests/fit/test_api_fitting_materials.py's sphere)."""
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, half_labels, material_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, half_labels, material_sphere
 
     ideal = material_sphere(list(mats), half_labels(RES), res=RES, light=LIGHT, area=2)
     return capture_observation(ideal, seed=seed)[0], ideal["labels"]
@@ -132,10 +132,10 @@ def test_command_auto_writes_labels_and_records_how(tmp_path, capsys):
     """``fmbrdf-mi fit --materials auto:2`` on a raw capture: labels.png (the labels found: >= 95 % the truth
     up to order), fit.json's materials_found (method, seed, separation) and materials block; a manifest
     (several images) is refused in one line."""
-    from fmbrdf_mi.camera import CameraModel, capture
     from fmbrdf_mi.cli import main
-    from fmbrdf_mi.fit.evaluate.synthetic import half_labels, material_sphere
+    from fmbrdf_mi.synthetic.spheres import half_labels, material_sphere
     from fmbrdf_mi.fit.inputs.labels import read_labels
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     cam = CameraModel()
     ideal = material_sphere([A, B], half_labels(RES), res=RES, light=LIGHT)
@@ -164,11 +164,11 @@ def test_command_auto_writes_labels_and_records_how(tmp_path, capsys):
 def test_command_refusal_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypatch):
     """The command's side of a refusal (the refusal itself: test_identical_materials_are_refused_as_not_separated):
     find_materials' MaterialsNotSeparated is one line, exit 1, no output directory."""
-    from fmbrdf_mi.camera import CameraModel, capture
     from fmbrdf_mi.cli import main
     from fmbrdf_mi.fit.api.find_materials import MaterialsNotSeparated
-    from fmbrdf_mi.fit.evaluate.synthetic import half_labels, material_sphere
+    from fmbrdf_mi.synthetic.spheres import half_labels, material_sphere
     from fmbrdf_mi.fit.outputs import single
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     def refuse(obs, count, *a, **kw):
         raise MaterialsNotSeparated(f"--materials auto:{count}: the {count} clusters found are not separated "

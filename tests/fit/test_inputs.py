@@ -6,12 +6,20 @@ import numpy as np
 import pytest
 from conftest import one_line_error
 
-from fmbrdf_mi import polcam, stokes_io
-from fmbrdf_mi.fit.camera import noise as cn
+from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.fit.inputs.observations import Observation
 from fmbrdf_mi.fit.inputs.parse import parse_layout
+from fmbrdf_mi.sensor import mosaic
+from fmbrdf_mi.sensor import noise as cn
+from fmbrdf_mi.sensor.camera import CameraModel, capture, intensity_at_each_pixel
+
+
+def _noisy_stokes(stokes, cam, *, demosaic="bilinear", **kw):
+    """Capture and demosaic: (Stokes (3, H/2, W/2) in the input's units, the capture's dict)."""
+    cap = capture(stokes, cam, **kw)
+    return mosaic.stokes_from_raw(cap["raw"], cam.layout, cam.black_level, demosaic) * cap["dn_to_input"], cap
 
 
 def _stokes(rng, h, w):
@@ -21,12 +29,12 @@ def _stokes(rng, h, w):
     return np.stack([s0, s0 * d * np.cos(2 * psi), s0 * d * np.sin(2 * psi)])
 
 
-@pytest.mark.parametrize("layout", [polcam.IMX250MZR_LAYOUT, ((0, 45), (135, 90))])
+@pytest.mark.parametrize("layout", [mosaic.IMX250MZR_LAYOUT, ((0, 45), (135, 90))])
 def test_raw_mosaic_to_angles_to_stokes_is_exact(tmp_path, layout):
     rng = np.random.default_rng(0)
     s = _stokes(rng, 6, 8)
-    angles = polcam.angle_images_from_stokes(s)
-    raw = polcam.mosaic_from_angle_images(angles, layout)
+    angles = mosaic.angle_images_from_stokes(s)
+    raw = mosaic.mosaic_from_angle_images(angles, layout)
     # each angle sits where the layout says: IMX250MZR top-left pixel is 90 deg
     r, c = next((r, c) for r in range(2) for c in range(2) if layout[r][c] == 90)
     assert np.array_equal(raw[r::2, c::2], angles[2])
@@ -49,21 +57,21 @@ def test_16bit_png_mosaic_and_angle_files(tmp_path):
     s, meta = ob.load_polarisation(str(tmp_path / "raw.png"), demosaic="superpixel")
     np.testing.assert_allclose(s, ob.stokes_from_raw(raw, demosaic="superpixel"), atol=1e-12)
     assert meta["source"] == "raw mosaic"
-    imgs = polcam.angle_images_from_mosaic(raw)
+    imgs = mosaic.angle_images_from_mosaic(raw)
     paths = []
-    for a, im in zip(polcam.ANGLES, imgs):
+    for a, im in zip(mosaic.ANGLES, imgs):
         paths.append(str(tmp_path / f"i{a}.png"))
         Image.fromarray(im.astype(np.uint16)).save(paths[-1])
     np.testing.assert_allclose(ob.load_polarisation(paths)[0], s, atol=1e-12)
 
 
-@pytest.mark.parametrize("layout", [polcam.IMX250MZR_LAYOUT, ((45, 0), (90, 135))])
+@pytest.mark.parametrize("layout", [mosaic.IMX250MZR_LAYOUT, ((45, 0), (90, 135))])
 def test_bilinear_demosaic_is_exact_for_a_linear_field(layout):
     """Each angle interpolated to the super-pixel centre: exact where the Stokes field is linear."""
     h, w = 12, 16  # raw pixels
     y, x = np.mgrid[0:h, 0:w] + 0.5
     field = lambda x, y: np.stack([1 + 0.03 * x + 0.02 * y, 0.01 * x - 0.02 * y, 0.2 - 0.01 * y])
-    raw = cn._angle_at_each_pixel(field(x, y), layout)
+    raw = intensity_at_each_pixel(field(x, y), layout)
     yc, xc = np.mgrid[0:h // 2, 0:w // 2] * 2.0 + 1.0  # super-pixel centres
     want = field(xc, yc)
     got = ob.stokes_from_raw(raw, layout)
@@ -76,25 +84,25 @@ def test_bilinear_demosaic_is_exact_for_a_linear_field(layout):
 def test_noise_model_is_seeded_unbiased_and_quantised():
     rng = np.random.default_rng(2)
     s = _stokes(rng, 64, 64)
-    noise = cn.CameraNoise()
-    a, info = cn.noisy_stokes(s, noise, seed=5)
-    b, _ = cn.noisy_stokes(s, noise, seed=5)
+    noise = CameraModel()
+    a, info = _noisy_stokes(s, noise, seed=5)
+    b, _ = _noisy_stokes(s, noise, seed=5)
     assert np.array_equal(a, b)
     assert a.shape == (3, 32, 32)
     assert info["raw"].dtype == np.uint16 and info["raw"].max() <= 4095
     # noiseless capture: only 12-bit quantisation and the 2x2 sampling remain
-    c, info = cn.noisy_stokes(s, noise, noiseless=True, demosaic="superpixel")
-    ideal = polcam.stokes_from_angle_images(
-        polcam.angle_images_from_mosaic(cn._angle_at_each_pixel(s, noise.layout), noise.layout))[:3]
+    c, info = _noisy_stokes(s, noise, noiseless=True, demosaic="superpixel")
+    ideal = mosaic.stokes_from_angle_images(
+        mosaic.angle_images_from_mosaic(intensity_at_each_pixel(s, noise.layout), noise.layout))[:3]
     assert np.max(np.abs(c - ideal)) <= 2 * info["dn_to_input"]
     # shot noise: relative S0 scatter ~ 1/sqrt(electrons)
     flat = np.stack([np.full((64, 64), 0.5), np.zeros((64, 64)), np.zeros((64, 64))])
-    d, info = cn.noisy_stokes(flat, noise, seed=1, demosaic="superpixel")
-    e_per_pixel = 0.25 * info["gain"]  # each polariser passes half of S0 = 0.5
+    d, info = _noisy_stokes(flat, noise, seed=1, demosaic="superpixel")
+    e_per_pixel = 0.25 * info["exposure"]  # each polariser passes half of S0 = 0.5
     assert abs(d[0].mean() / 0.5 - 1) < 2e-3
     assert d[0].std() / 0.5 == pytest.approx(1 / np.sqrt(4 * e_per_pixel), rel=0.15)
     # bilinear demosaicking averages neighbours: std x sqrt(81 + 9 + 9 + 1) / 16
-    d2, _ = cn.noisy_stokes(flat, noise, seed=1)
+    d2, _ = _noisy_stokes(flat, noise, seed=1)
     assert d2[0].std() / d[0].std() == pytest.approx(np.sqrt(100) / 16, rel=0.15)
 
 
@@ -191,11 +199,11 @@ def test_cli_input_errors_and_no_overwrite(tmp_path, capsys):
 @pytest.mark.parametrize("demosaic", ["bilinear", "superpixel"])
 def test_linear_stokes_variance_matches_simulated_captures(demosaic):
     """The variance model behind the noisy-DoLP model, against the camera simulation."""
-    noise = cn.CameraNoise()
+    noise = CameraModel()
     flat = np.stack([np.full((128, 128), 0.3), np.full((128, 128), 0.03), np.zeros((128, 128))])
-    s, info = cn.noisy_stokes(flat, noise, seed=3, gain=6000.0, demosaic=demosaic)
-    var = cn.linear_stokes_variance(s[0], info["gain"], noise.read_noise, demosaic,
-                                    adc_step_e=info["gain"] * info["dn_to_input"])
+    s, info = _noisy_stokes(flat, noise, seed=3, exposure=6000.0, demosaic=demosaic)
+    var = cn.linear_stokes_variance(s[0], info["exposure"], noise.read_noise, demosaic,
+                                    adc_step_e=info["exposure"] * info["dn_to_input"])
     inner = (slice(2, -2), slice(2, -2))
     for k in (1, 2):
         assert s[k][inner].var() == pytest.approx(var[inner].mean(), rel=0.1)
@@ -352,7 +360,7 @@ def _capture(tmp_path, builtin=False):
     """A 16 x 16 raw PNG with its capture sidecar (what ``fmbrdf-mi render --raw`` writes)."""
     from PIL import Image
 
-    from fmbrdf_mi import camera as C
+    from fmbrdf_mi.sensor import camera as C
 
     raw = np.random.default_rng(0).integers(100, 3000, (16, 16)).astype(np.uint16)
     path = tmp_path / "cap_raw.png"

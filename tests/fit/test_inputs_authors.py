@@ -30,7 +30,7 @@ def test_their_negated_aolp_is_ours_measured_with_y_down(psi_deg):
     """A linear polarisation at psi (ours: counter-clockwise from image right as displayed, y up) through
     this package's camera model: the authors' convention gives -psi, i.e. S2 theirs = -S2 ours, S0 and S1
     equal.  (Noise-free capture: exact to the ADC's rounding, 1 DN of ~2000.)"""
-    from fmbrdf_mi.camera import CameraModel, capture
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     psi = math.radians(psi_deg)
     ours = np.array([1.0, 0.6 * math.cos(2 * psi), 0.6 * math.sin(2 * psi)])
@@ -41,7 +41,7 @@ def test_their_negated_aolp_is_ours_measured_with_y_down(psi_deg):
     np.testing.assert_allclose(theirs, ours * np.array([1, 1, -1]), atol=2e-3)
     assert abs(math.remainder(aolp + psi, math.pi)) < 2e-3
     # and the package's own reading of that mosaic is ours, unchanged
-    from fmbrdf_mi.fit.camera.demosaic import stokes_from_raw
+    from fmbrdf_mi.sensor.mosaic import stokes_from_raw
 
     s = stokes_from_raw(cap["raw"], ((90, 45), (135, 0)), 0.0, "superpixel")[:, 2, 2] / 2000.0
     np.testing.assert_allclose(s, ours, atol=2e-3)
@@ -67,7 +67,7 @@ def test_opencv_axes_conversion():
 
 @pytest.fixture(scope="module")
 def blob(tmp_path_factory):
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.synthetic.mesh_object import write_authors_object
 
     root = tmp_path_factory.mktemp("authors") / "blob"
     truth = write_authors_object(root, TRUE, LIGHTS, res=40, fov=12.0, powers=POWERS, seed=11)

@@ -1,4 +1,4 @@
-"""The likelihood fit (fmbrdf_mi.fit.objectives.objective / uncertainty / samples) and the camera model (fmbrdf_mi.camera).
+"""The likelihood fit (fmbrdf_mi.fit.objectives.objective / uncertainty / samples) and the camera model (fmbrdf_mi.sensor.camera).
 
 Statistical tests state their tolerance from the number of Monte Carlo draws
 (false-alarm probability per check below ~1e-4), so that a wrong variance
@@ -25,16 +25,16 @@ def test_capture_mean_and_variance_match_camera_model():
     sqrt(v / n), the sample variance sqrt(2 / (n - 1)) v (near-Gaussian counts);
     both are checked to 4.5 standard errors (two-sided false alarm 7e-6 per check).
     """
-    from fmbrdf_mi import polcam
-    from fmbrdf_mi.camera import CameraModel, capture
+    from fmbrdf_mi.sensor import mosaic
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     cam = CameraModel(full_well=6000.0, read_noise=4.0, bits=12, conversion_gain=1.7, black_level=64.0)
     for s0, s1, s2 in ((0.05, 0.01, -0.02), (0.5, 0.1, 0.2), (1.0, -0.3, 0.05)):
         st = np.zeros((3, 200, 200))
         st[0], st[1], st[2] = s0, s1, s2
         cap = capture(st, cam, exposure=4000.0, seed=7)
-        ang = polcam.angle_images_from_mosaic(cap["raw"].astype(float) - cam.black_level, cam.layout)
-        ideal = polcam.angle_images_from_stokes(np.array([s0, s1, s2])) * 4000.0 / 1.7
+        ang = mosaic.angle_images_from_mosaic(cap["raw"].astype(float) - cam.black_level, cam.layout)
+        ideal = mosaic.angle_images_from_stokes(np.array([s0, s1, s2])) * 4000.0 / 1.7
         for k in range(4):
             x = ang[k].ravel()
             n = x.size
@@ -45,7 +45,7 @@ def test_capture_mean_and_variance_match_camera_model():
 
 
 def test_sidecar_round_trip_and_white_level(tmp_path):
-    from fmbrdf_mi.camera import CameraModel, default_white_level, read_sidecar, write_sidecar
+    from fmbrdf_mi.sensor.camera import CameraModel, default_white_level, read_sidecar, write_sidecar
 
     cam = CameraModel(full_well=20000.0, bits=12, conversion_gain=2.0, black_level=10.0)
     assert cam.white_level == 4095  # 20000 e- / 2 e-/DN + 10 > 4095: the ADC clips first
@@ -65,8 +65,8 @@ def test_sidecar_round_trip_and_white_level(tmp_path):
 def test_saturated_and_dark_superpixels_are_excluded_and_counted():
     from fmbrdf_mi.fit import FitOptions, InputError
     from fmbrdf_mi.fit.api.fitting import select_pixels
-    from fmbrdf_mi.fit.camera import samples as SM
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.sensor import samples as SM
 
     res = 20
     n, m, v = ob.sphere_normals((res, res), (10, 10), 9)
@@ -92,7 +92,7 @@ def test_saturated_and_dark_superpixels_are_excluded_and_counted():
 
 # ---------------------------------------------------------------- likelihood derivatives
 def _small_capture(res=10, seed=0, camera=None, params=TRUE):
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
 
     ideal = ideal_sphere(params, res=res, light=LIGHT)
     return capture_observation(ideal, camera, seed=seed)[0], ideal
@@ -164,11 +164,11 @@ def test_likelihood_intervals_cover_the_truth(variant):
     of the mean of 0, and the mean reported SE within 15 % of the observed
     spread (its own sampling error with N = 150 is ~6 %).
     """
-    from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.api.fitting import FitOptions
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
     from fmbrdf_mi.fit.problem.data import prepare, select_pixels
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     cam = CameraModel(full_well=3000.0, read_noise=6.0, bits=12)
     ideal = ideal_sphere(TRUE, res=12, light=LIGHT)
@@ -200,8 +200,8 @@ def test_likelihood_intervals_cover_the_truth(variant):
 def _raw_files(tmp_path, seed=4):
     from PIL import Image
 
-    from fmbrdf_mi.camera import CameraModel, capture, write_sidecar
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel, capture, write_sidecar
 
     ideal = ideal_sphere(TRUE, res=16, light=LIGHT)
     cam = CameraModel(black_level=32.0)
@@ -288,11 +288,11 @@ def test_paper_loss_sandwich_intervals_cover_the_truth(variant):
     spread (its sampling error is ~5 % at N = 200) and 1.5 x (CR3 is
     conservative for small objects, measured 1.2 x).
     """
-    from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.api.fitting import FitOptions
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
     from fmbrdf_mi.fit.problem.data import prepare, select_pixels
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     cam = CameraModel(full_well=3000.0, read_noise=6.0, bits=12)
     ideal = ideal_sphere(TRUE, res=16, light=LIGHT)

@@ -3,8 +3,8 @@ import json
 
 import numpy as np
 
-from fmbrdf_mi import polcam
-from fmbrdf_mi.camera import CameraModel, capture
+from fmbrdf_mi.sensor import mosaic
+from fmbrdf_mi.sensor.camera import CameraModel, capture
 
 
 def _cli(*argv):
@@ -17,15 +17,15 @@ def _cli(*argv):
 
 
 def _sphere_capture(R, light, seed, noiseless=False):
-    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
-    from fmbrdf_mi.fit.evaluate.synthetic import ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.sensor.samples import colour_samples
 
     shape = dict(eta=1.5, alpha=0.25, beta=0.4, kappa=1.0)
     alb = {"R": (0.6, 0.8), "G": (0.4, 1.5), "B": (0.5, 0.4)}
     st = np.stack([ideal_sphere({**shape, "k_s": ks, "r_k": rk}, res=2 * R, light=light)["stokes"]
                    for ks, rk in alb.values()])
-    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=12, full_well=10000, read_noise=2.5)
+    cam = CameraModel(cfa=mosaic.BAYER_RGGB, bits=12, full_well=10000, read_noise=2.5)
     cap = capture(st, cam, peak_fraction=0.8, seed=seed, noiseless=noiseless)
     smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
     n, m, v = ob.sphere_normals((R, R), (R / 2, R / 2), R / 2 - 0.5)
@@ -42,7 +42,7 @@ def test_joint_colour_fit_of_one_image_twice_halves_the_variance():
     with the wrong geometry.  Tolerances: both fits stop within ~0.1 SE of the same optimum (LM decrement
     < 0.01), so estimates agree to 0.15 SE; SE ratios to 2 % (the two stop at slightly different points)."""
     from fmbrdf_mi.fit.api.colour import fit_colour
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
+    from fmbrdf_mi.sensor.noise import NoiseModel
 
     obs, smp, cam = _sphere_capture(12, (0.45, 0.35, 1.0), seed=3)
     noise = NoiseModel(cam.conversion_gain, cam.read_noise, 1.0)

@@ -27,8 +27,8 @@ def variant():
 def _captures(res=16, powers=POWERS, seed=0):
     """(observations, raw captures): one exposure for all images, image k's light ``powers[k]`` times as
     bright; every observation's irradiance is the same (the fit is told power 1 for all)."""
-    from fmbrdf_mi.camera import CameraModel, capture
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel, capture
 
     cam = CameraModel()
     ideals = [ideal_sphere(TRUE, res=res, light=l) for l in LIGHTS]
@@ -172,8 +172,8 @@ def test_cli_free_power_through_a_manifest_and_rerun(tmp_path, capsys, variant):
     the truth; --from reproduces them; a single image with --free-power is refused in one line."""
     from PIL import Image
 
-    from fmbrdf_mi.camera import write_sidecar
     from fmbrdf_mi.cli import main
+    from fmbrdf_mi.sensor.camera import write_sidecar
 
     obs, caps, cam = _captures(res=12, seed=20)
     lines = ["[defaults]", 'sphere = "auto"', 'mask = "mask.npy"']

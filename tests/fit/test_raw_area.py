@@ -12,7 +12,7 @@ SHAPE = {"eta": 1.5, "alpha": 0.2, "beta": 2.0, "kappa": 10.0}
 
 def test_footprint_points_tile_each_raw_pixel():
     """m x m points per sample at the centres of equal sub-squares of its half-super-pixel pixel."""
-    from fmbrdf_mi.fit.camera import samples as SM
+    from fmbrdf_mi.sensor import samples as SM
 
     smp = SM.from_raw(np.full((8, 8), 100, np.uint16))
     off1, w1 = smp.footprint()
@@ -47,9 +47,9 @@ def test_builtin_sphere_geometry_matches_the_scene_at_raw_and_superpixel_grids()
 
 
 def _raw_observation(res=24):
-    from fmbrdf_mi.fit.camera import samples as SM
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.sensor import samples as SM
+    from fmbrdf_mi.sensor.noise import NoiseModel
 
     c, r = (res / 2, res / 2), res / 2 - 1
     n, m, v = ob.sphere_normals((res, res), c, r)
@@ -118,10 +118,10 @@ def test_render_raw_noise_free_capture_fit_recovers_kappa(tmp_path, variant):
     (six 64-spp renders: 9.87 +- 0.08)."""
     from PIL import Image
 
-    from fmbrdf_mi.camera import capture, read_sidecar
     from fmbrdf_mi.cli import main
     from fmbrdf_mi.fit.api.fitting import fit
     from fmbrdf_mi.fit.inputs.files import build_observation
+    from fmbrdf_mi.sensor.camera import capture, read_sidecar
     from fmbrdf_mi.stokes_io import read_stokes_exr
 
     out = str(tmp_path / "s.exr")

@@ -176,10 +176,10 @@ def test_fit_reports_the_sandwich_for_per_pixel_albedos_only():
     the Fisher ones it keeps in ``incidental``; the method says so; the profile thresholds follow them);
     the shared-albedo fit of the same data has no ``incidental`` block and the plain Fisher method
     (its numbers: tools/record_fits.py, bit for bit)."""
-    from fmbrdf_mi.camera import CameraModel
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.api.fitting import FitOptions
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
+    from fmbrdf_mi.sensor.camera import CameraModel
 
     true = {"eta": 1.55, "alpha": 0.35, "beta": 1.4, "kappa": 30.0, "k_s": 0.9, "r_k": 1.7}
     obs = capture_observation(ideal_sphere(true, res=16, light=(0.45, 0.35, 1.0)),

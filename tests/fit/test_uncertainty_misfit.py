@@ -12,10 +12,10 @@ import math
 import numpy as np
 import pytest
 
-from fmbrdf_mi.camera import CameraModel
 from fmbrdf_mi.fit import fit
 from fmbrdf_mi.fit.api.fitting import FitOptions
-from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
+from fmbrdf_mi.sensor.camera import CameraModel
 
 TRUE = {"eta": 1.55, "alpha": 0.35, "beta": 1.4, "kappa": 30.0, "k_s": 0.9, "r_k": 1.7}
 SHAPE = {k: TRUE[k] for k in ("eta", "alpha", "beta", "kappa")}
@@ -109,18 +109,18 @@ def test_misfit_with_free_powers_and_per_pixel_albedos():
 def test_misfit_of_a_colour_fit():
     """A colour mosaic (per-channel albedos) fitted with its gain stated 9 times too high: flagged and inflated
     to the honest errors, as the mono fit (the colour path once reported chi^2/dof 6 with no warning)."""
-    from fmbrdf_mi import polcam
     from fmbrdf_mi.fit.api.colour import fit_colour
-    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
     from fmbrdf_mi.fit.inputs import observations as ob
-    from fmbrdf_mi.camera import capture
+    from fmbrdf_mi.sensor import mosaic
+    from fmbrdf_mi.sensor.camera import capture
+    from fmbrdf_mi.sensor.noise import NoiseModel
+    from fmbrdf_mi.sensor.samples import colour_samples
 
     R, light = 12, (0.45, 0.35, 1.0)
     shape = dict(eta=1.5, alpha=0.25, beta=0.4, kappa=1.0)
     st = np.stack([ideal_sphere({**shape, "k_s": ks, "r_k": rk}, res=2 * R, light=light)["stokes"]
                    for ks, rk in ((0.6, 0.8), (0.4, 1.5), (0.5, 0.4))])
-    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=12, full_well=3000, read_noise=2.0)
+    cam = CameraModel(cfa=mosaic.BAYER_RGGB, bits=12, full_well=3000, read_noise=2.0)
     cap = capture(st, cam, peak_fraction=0.8, seed=5)
     smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
     n, m, v = ob.sphere_normals((R, R), (R / 2, R / 2), R / 2 - 0.5)
@@ -140,7 +140,7 @@ def test_misfit_of_the_normal_refinement():
     """The joint refinement of material and normals (its covariance the sandwich of the penalised likelihood):
     the same flag and inflation, on a 16^2 mesh object read with its gain stated 9 times too high."""
     from fmbrdf_mi.fit.api.normal_joint import refine_joint
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.synthetic.mesh_object import write_authors_object
     from fmbrdf_mi.fit.inputs.authors import read_object
     import tempfile
 
@@ -172,16 +172,16 @@ def test_misfit_of_a_colour_per_pixel_fit():
     """Per-pixel albedos of a colour mosaic (one pair per period and channel): the same flag and inflation
     through the same code path as the mono per-pixel fit (chi^2/dof counts the eliminated albedos, three pairs
     per period), for the shape parameters and for each channel's maps."""
-    from fmbrdf_mi import polcam
     from fmbrdf_mi.fit.api.colour import fit_colour
-    from fmbrdf_mi.fit.camera.noise import NoiseModel
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_colour, textured_sphere
+    from fmbrdf_mi.synthetic.spheres import capture_colour, textured_sphere
+    from fmbrdf_mi.sensor import mosaic
+    from fmbrdf_mi.sensor.noise import NoiseModel
 
     R = 12
     y, x = np.mgrid[0:R, 0:R] / R
     ks = np.stack([0.6 + 0.3 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.2 * np.cos(3 * x), 0.5 + 0.2 * np.sin(5 * y)])
     kb = np.stack([0.4 + 0.1 * np.cos(5 * x + 3 * y), 0.7 + 0.2 * np.sin(4 * x), 0.3 + 0.1 * np.cos(2 * y)])
-    cam = CameraModel(cfa=polcam.BAYER_RGGB, bits=12, full_well=3000, read_noise=2.0)
+    cam = CameraModel(cfa=mosaic.BAYER_RGGB, bits=12, full_well=3000, read_noise=2.0)
     obs, smp = [], []
     for k, light in enumerate(LIGHTS):
         o, s, noise, _ = capture_colour(textured_sphere(SHAPE, ks, kb, res=R, light=light), cam, seed=11 + k,

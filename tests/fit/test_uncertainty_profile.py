@@ -15,14 +15,14 @@ import math
 import numpy as np
 import pytest
 
-from fmbrdf_mi.camera import CameraModel
 from fmbrdf_mi.fit import uncertainty as U
 from fmbrdf_mi.fit.api.checks import check_intervals
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit
 from fmbrdf_mi.fit.evaluate.models import State, get_model
-from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+from fmbrdf_mi.synthetic.spheres import capture_observation, ideal_sphere
 from fmbrdf_mi.fit.problem.data import prepare
 from fmbrdf_mi.fit.solve.driver import refit_fixed, solve
+from fmbrdf_mi.sensor.camera import CameraModel
 
 TRUE = {"eta": 1.5, "alpha": 0.15, "beta": 0.8, "kappa": 10.0, "k_s": 0.6, "r_k": 1.0}
 FIXED = {"eta": 1.5, "beta": 0.8}

@@ -43,13 +43,13 @@ import time
 import numpy as np
 
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit
-from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
-from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, ChannelModel
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.problem.data import RAW_AREA_POINTS, prepare
+from fmbrdf_mi.sensor.mosaic import COLOURS
+from fmbrdf_mi.sensor.noise import NoiseModel
 
 
 def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=None, max_pixels=None, seed=0,
@@ -63,7 +63,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     joint fit: each its own light, irradiance, view and geometry; one camera):
     lists of both, one entry per mosaic; they share every parameter, and
     ``max_pixels`` is split evenly between them.  ``noise``: a
-    :class:`~fmbrdf_mi.fit.camera.noise.NoiseModel` (None: unknown, estimated from
+    :class:`~fmbrdf_mi.sensor.noise.NoiseModel` (None: unknown, estimated from
     the residuals).  ``max_time``: hard wall-clock limit in seconds; a fit it
     stops returns the last accepted estimate with ``converged`` False and no
     standard errors (as does one that runs out of ``max_iter`` LM iterations).
@@ -126,7 +126,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
         res.uncertainty["ci95"] = nest(res.uncertainty["ci95"])
     r = res.details.pop("residuals").reshape(len(data.pixels), -1)
     per_chi2 = [float(np.sum(r[a:b] ** 2) / max(r[a:b].size, 1)) for a, b in data.slices]
-    res.channels = list(CHANNELS)
+    res.channels = list(COLOURS)
     res.pixels = data.image_pixels if joint else data.image_pixels[0]
     res.options = {"model": model, "fixed": fixed, "bounds": bounds, "max_pixels": max_pixels, "seed": seed,
                    "irls_rounds": irls_rounds, "max_time": max_time, "max_iter": max_iter, "starts": starts,
@@ -168,7 +168,7 @@ def predict_samples(obs, samples, res):
                              f"{np.shape(res.maps['k_s'])[1]} periods, this mosaic {obs.mask.shape[1]}x"
                              f"{obs.mask.shape[0]}; the maps predict images of the fitted view only")
         f, ch = float(m.albedo_factor), np.asarray(samples.channel)
-        a_s, a_b = (np.asarray(res.maps[k], float).reshape(len(CHANNELS), -1)[:, idx] / f for k in ("k_s", "k_b"))
+        a_s, a_b = (np.asarray(res.maps[k], float).reshape(len(COLOURS), -1)[:, idx] / f for k in ("k_s", "k_b"))
         mu = a_s[ch].T * unit[0] + a_b[ch].T * unit[1]
     else:
         mu = ChannelAlbedos(samples.channel).mu(*unit, res["internal"]["a_s"], res["internal"]["a_b"])

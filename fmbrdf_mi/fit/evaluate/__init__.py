@@ -1,2 +1,1 @@
-"""The reflectance models and their evaluation at a fit's pixels (per pixel or by rendering); predictions;
-synthetic data."""
+"""The reflectance models and their evaluation at a fit's pixels (per pixel or by rendering); predictions."""

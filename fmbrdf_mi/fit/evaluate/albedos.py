@@ -46,9 +46,9 @@ import abc
 
 import numpy as np
 
-from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import RIDGE, BandCholesky, normal_band, stack_rows
 from fmbrdf_mi.fit.evaluate.models import ModelView
+from fmbrdf_mi.sensor.mosaic import COLOURS
 
 
 def nnls2(S, B, I, w=None):
@@ -203,7 +203,7 @@ class GroupAlbedos(AlbedoLayout):
 class ChannelAlbedos(GroupAlbedos):
     """One (a_s, a_b) per colour channel: ``channel`` (n,) is the group of each of a cell's n samples."""
 
-    def __init__(self, channel, labels=CHANNELS):
+    def __init__(self, channel, labels=COLOURS):
         super().__init__("per-channel", channel, len(labels), labels)
 
 

@@ -4,7 +4,7 @@ coupled albedo pairs.
 The per-pixel layout gives the four raw samples of a super-pixel one
 (a_s, a_b) pair.  A camera sees a *continuous* texture: its four polariser
 samples sit at four different points (a quarter super-pixel off the centre,
-:mod:`fmbrdf_mi.fit.camera.samples`) and see four different albedos, which
+:mod:`fmbrdf_mi.sensor.samples`) and see four different albedos, which
 one pair per super-pixel reads as polarisation.  Here the unknowns are
 still one pair per fitted pixel, but they are the albedos *at the pixel's
 centre*, and sample k of cell i predicts

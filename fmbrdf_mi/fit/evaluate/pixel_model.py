@@ -22,7 +22,7 @@ path therefore rotates each Stokes vector from the BSDF's outgoing basis
 (``mi.mueller.stokes_basis(wi)`` in the shading frame) to the camera's
 (x = image right projected perpendicular to the view direction, y = image up,
 light travelling towards the camera), the frame of the ``stokes`` integrator
-and of :mod:`fmbrdf_mi.polcam` (checked against a render in
+and of :mod:`fmbrdf_mi.sensor.mosaic` (checked against a render in
 ``tests/fit/test_objectives_likelihood.py``).
 """
 from __future__ import annotations

@@ -28,7 +28,7 @@ z > 0 as back-facing) and z > 0 here.
 AoLP = atan2(s2, s1) / 2 from the mosaic, and the fitting scripts build the
 observed Stokes vector from **-AoLP**: (S0, S1, -S2).  The sensor's angles run
 counter-clockwise as the image is displayed (x right, y up: this package's
-Stokes frame, :mod:`fmbrdf_mi.polcam`), so their negated AoLP is the same
+Stokes frame, :mod:`fmbrdf_mi.sensor.mosaic`), so their negated AoLP is the same
 angle measured in the OpenCV image frame (x right, y down), i.e. clockwise as
 displayed: theirs = -ours, S2 theirs = -S2 ours, S1 and S0 equal
 (``tests/fit/test_inputs_authors.py`` checks it on a mosaic made by the camera

@@ -6,14 +6,14 @@ import os
 
 import numpy as np
 
-from fmbrdf_mi import camera as C
 from fmbrdf_mi import scene as S
-from fmbrdf_mi.fit.camera.colour_samples import colour_samples
-from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.fit.inputs.manifest import file_stem
 from fmbrdf_mi.fit.inputs.parse import check_render_parameters, parse_vector
+from fmbrdf_mi.sensor import camera as C
+from fmbrdf_mi.sensor.noise import NoiseModel
+from fmbrdf_mi.sensor.samples import colour_samples
 
 
 def colour_sidecar(inputs):
@@ -130,7 +130,10 @@ def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, 
         raise InputError(f"{path}: expected a single-channel raw mosaic, got an array of shape {raw.shape}")
     black = cam.black_level if black_level is None else float(black_level)
     white = cam.white_level if white_level is None else float(white_level)
-    smp = colour_samples(raw, cam.layout, cam.cfa, black, white)
+    try:
+        smp = colour_samples(raw, cam.layout, cam.cfa, black, white)
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
     shape = smp.values.shape[1:]
     n, m, v, exact, gmeta = colour_geometry(shape, side, normals=normals, mask=mask, view=view, sphere=sphere,
                                             camera=camera, fov=fov)

@@ -5,12 +5,13 @@ import os
 
 import numpy as np
 
-from fmbrdf_mi import camera as C
-from fmbrdf_mi import polcam
+from fmbrdf_mi import geometry as G
 from fmbrdf_mi import scene as S
-from fmbrdf_mi.fit.camera import samples as SM
-from fmbrdf_mi.fit.camera.noise import NoiseModel, box_footprint, demosaic_footprint, linear_stokes_variance
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.sensor import camera as C
+from fmbrdf_mi.sensor import mosaic
+from fmbrdf_mi.sensor import samples as SM
+from fmbrdf_mi.sensor.noise import NoiseModel, box_footprint, demosaic_footprint, linear_stokes_variance
 from fmbrdf_mi.fit.inputs.observations import (IRRADIANCE_RANGE, Observation, SphereGeometry, check_direction,
                                                downsample_geometry, find_sphere, geometry_from_sphere,
                                                load_polarisation, pixel_rays, read_mask, read_vectors)
@@ -54,8 +55,7 @@ def builtin_sphere_geometry(p, shape=None):
     if camera == "orthographic":
         radius = 0.5 * shape[1] / S.half_width(fov, distance)
         return SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, None)
-    f = 0.5 * shape[1] / np.tan(np.radians(fov) / 2)
-    radius = f * np.tan(np.arcsin(1.0 / distance))  # image radius of the silhouette: rad = R / D in _sphere_at
+    radius = G.focal_length(shape[1], fov) * np.tan(np.arcsin(1.0 / distance))  # silhouette: rad = R / D
     return SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, fov)
 
 
@@ -82,13 +82,13 @@ def user_mask(mask, shape, within=None, what=None):
 
 
 def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
-                      fov=None, light=None, irradiance=None, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0,
+                      fov=None, light=None, irradiance=None, layout=mosaic.IMX250MZR_LAYOUT, black_level=0.0,
                       channel="mean", geometry=None, demosaic="bilinear", conversion_gain=None,
                       read_noise=None, footprint="auto", white_level=None, dark_level=None):
     """An :class:`Observation` from files (see :func:`fit_files` for the options).
 
     ``geometry``: (normals, mask, view_dirs) reused from another observation of the same object.
-    A raw mosaic with a capture sidecar (:func:`fmbrdf_mi.camera.read_sidecar`,
+    A raw mosaic with a capture sidecar (:func:`fmbrdf_mi.sensor.camera.read_sidecar`,
     written by ``fmbrdf-mi render --raw``) supplies the layout, black level,
     gain, read noise and white level that were not given, and the scene's
     geometry and light.  ``meta["settings"]`` records what was used.
@@ -116,7 +116,7 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
         if conversion_gain is None:
             conversion_gain, read_noise = cam.conversion_gain, cam.read_noise if read_noise is None else read_noise
         white_level = cam.white_level if white_level is None else white_level
-    layout = polcam.IMX250MZR_LAYOUT if layout is None else layout
+    layout = mosaic.IMX250MZR_LAYOUT if layout is None else layout
     black_level = 0.0 if black_level is None else float(black_level)
     if isinstance(layout, str):
         layout = parse_layout(layout)

@@ -21,9 +21,11 @@ import os
 
 import numpy as np
 
-from fmbrdf_mi import polcam, stokes_io
-from fmbrdf_mi.fit.camera.demosaic import stokes_from_angles, stokes_from_raw
+from fmbrdf_mi import geometry as G
+from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.sensor import mosaic
+from fmbrdf_mi.sensor.mosaic import stokes_from_angles, stokes_from_raw
 
 #: Largest accepted deviation of a normal / view vector from unit length.
 UNIT_TOL = 1e-3
@@ -57,12 +59,12 @@ class Observation:
     #: per-pixel variance of S1 (= that of S2), (H, W), if known: the fit models the DoLP's noise bias
     lin_variance: np.ndarray = None
     #: what a pixel integrates over: (offsets (K, 2) in pixels, dx right / dy down, weights (K,));
-    #: None: the pixel centre (see camera_noise.demosaic_footprint, box_footprint)
+    #: None: the pixel centre (see fmbrdf_mi.sensor.noise.demosaic_footprint, box_footprint)
     footprint: tuple = None
-    #: the camera's own samples (:class:`fmbrdf_mi.fit.camera.samples.Samples`), for the likelihood and
+    #: the camera's own samples (:class:`fmbrdf_mi.sensor.samples.Samples`), for the likelihood and
     #: the saturation test; None: the fit derives angle intensities from ``stokes`` when it needs them
     samples: object = None
-    #: the camera's noise (:class:`fmbrdf_mi.fit.camera.noise.NoiseModel`), if known
+    #: the camera's noise (:class:`fmbrdf_mi.sensor.noise.NoiseModel`), if known
     noise: object = None
     #: exact geometry at any image point (e.g. :class:`SphereGeometry`), or None: interpolate the maps
     geometry: object = None
@@ -305,7 +307,7 @@ def select_channel(stokes, channel="mean"):
     raise InputError(f"channel: expected 'mean' or one of {names}, got {channel!r}")
 
 
-def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", black_level=0.0,
+def load_polarisation(paths, *, layout=mosaic.IMX250MZR_LAYOUT, channel="mean", black_level=0.0,
                       demosaic="bilinear"):
     """Read a polarimetric image; returns ``(stokes (3, H, W) float64, meta dict)``.
 
@@ -334,7 +336,7 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
             paths = paths[0]
         elif len(paths) == 4:
             imgs = [check_samples(read_array(p, f"angle image {a} deg"), f"angle image {p}")
-                    for p, a in zip(paths, polcam.ANGLES)]
+                    for p, a in zip(paths, mosaic.ANGLES)]
             for p, im in zip(paths, imgs):
                 if im.ndim != 2:
                     raise InputError(f"angle image {p}: expected a 2-D single-channel image, got {im.shape}")
@@ -359,8 +361,11 @@ def load_polarisation(paths, *, layout=polcam.IMX250MZR_LAYOUT, channel="mean", 
     if a.ndim in (2, 3):
         one_channel(f"{path} ({'a raw mosaic' if a.ndim == 2 else 'angle images'})")
     if a.ndim == 2:
-        return (stokes_from_raw(a, layout, black_level, demosaic),
-                {"source": "raw mosaic", "layout": layout, "demosaic": demosaic, "_array": a})
+        try:
+            return (stokes_from_raw(a, layout, black_level, demosaic),
+                    {"source": "raw mosaic", "layout": layout, "demosaic": demosaic, "_array": a})
+        except ValueError as exc:  # the sensor's checks: odd size, layout, demosaic
+            raise InputError(str(exc)) from None
     if a.ndim == 3 and a.shape[0] == 4:
         return stokes_from_angles(a, black_level), {"source": "angle images", "_array": a}
     raise InputError(f"polarisation image {path}: expected a 2-D raw mosaic or (4, H, W) angle images, "
@@ -393,27 +398,13 @@ def read_vectors(path_or_array, name, shape=None):
 
 
 def pixel_rays(shape, camera="orthographic", fov=None):
-    """Unit view directions (H, W, 3) from the surface towards the camera.
-
-    ``orthographic``: (0, 0, 1) everywhere.  ``perspective``: a pinhole with
-    its principal point at the image centre and horizontal field of view
-    ``fov`` degrees; the view direction at a pixel is minus its ray direction
-    (exact for any depth).
-    """
-    h, w = shape
-    if camera == "orthographic":
-        v = np.zeros((h, w, 3))
-        v[..., 2] = 1.0
-        return v
-    if camera != "perspective":
+    """Unit view directions (H, W, 3) from the surface towards the camera at the pixel centres
+    (:func:`fmbrdf_mi.geometry.view_rays`): (0, 0, 1) for ``orthographic``; ``perspective``: a pinhole with
+    horizontal field of view ``fov`` degrees."""
+    if camera not in ("orthographic", "perspective"):
         raise InputError(f"camera: expected 'orthographic' or 'perspective', got {camera!r}")
-    fov = check_fov(fov)
-    f = 0.5 * w / np.tan(np.radians(float(fov)) / 2)
-    x = np.arange(w) + 0.5 - 0.5 * w
-    y = np.arange(h) + 0.5 - 0.5 * h
-    X, Y = np.meshgrid(x, y)
-    d = np.stack([-X, Y, np.full_like(X, f)], axis=-1)  # towards the camera: -(ray direction)
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+    fov = check_fov(fov) if camera == "perspective" else fov
+    return G.view_rays(*G.pixel_centres(shape), shape, camera, fov)
 
 
 def check_fov(fov, name="fov"):
@@ -424,45 +415,6 @@ def check_fov(fov, name="fov"):
         raise InputError(f"{name}: a perspective camera needs a horizontal field of view in (0, 180) degrees, "
                          f"got {fov!r}")
     return float(fov)
-
-
-def _rays_at(X, Y, shape, camera="orthographic", fov=None):
-    """Unit view directions at image points (X, Y) (x right, y down, pixel units)."""
-    h, w = shape
-    if camera == "orthographic":
-        v = np.zeros(X.shape + (3,))
-        v[..., 2] = 1.0
-        return v
-    f = 0.5 * w / np.tan(np.radians(float(fov)) / 2)
-    d = np.stack([-(X - 0.5 * w), Y - 0.5 * h, np.full_like(X, f)], axis=-1)
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
-
-def _sphere_at(X, Y, shape, centre, radius, camera="orthographic", fov=None):
-    """Normals, mask and view directions of the sphere at image points (X, Y)."""
-    h, w = shape
-    cx, cy = (float(c) for c in centre)
-    r = float(radius)
-    view = _rays_at(X, Y, shape, camera, fov)
-    if camera == "orthographic":
-        u, v = (X - cx) / r, -(Y - cy) / r
-        rr = u * u + v * v
-        mask = rr < 1.0
-        n = np.stack([u, v, np.sqrt(np.clip(1.0 - rr, 0.0, 1.0))], axis=-1)
-    else:
-        f = 0.5 * w / np.tan(np.radians(float(fov)) / 2)
-        c_dir = np.array([cx - 0.5 * w, -(cy - 0.5 * h), -f])
-        c_dir /= np.linalg.norm(c_dir)
-        rad = np.sin(np.arctan(r / f))  # sphere radius at unit distance from the pinhole
-        ray = -view  # from the pinhole into the scene
-        b = ray @ c_dir
-        disc = b * b - (1.0 - rad * rad)
-        mask = disc > 0
-        t = b - np.sqrt(np.clip(disc, 0.0, None))
-        p = ray * t[..., None] - c_dir
-        n = p / np.linalg.norm(p, axis=-1, keepdims=True)
-    n = np.where(mask[..., None], n, np.array([0.0, 0.0, 1.0]))
-    return n, mask, view
 
 
 def sphere_normals(shape, centre, radius, camera="orthographic", fov=None):
@@ -482,8 +434,7 @@ def sphere_normals(shape, centre, radius, camera="orthographic", fov=None):
         raise InputError(f"camera: expected 'orthographic' or 'perspective', got {camera!r}")
     if camera == "perspective":
         fov = check_fov(fov)
-    X, Y = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-    n, mask, view = _sphere_at(X, Y, shape, (cx, cy), r, camera, fov)
+    n, mask, view = G.sphere_at(*G.pixel_centres(shape), shape, (cx, cy), r, camera, fov)
     if not mask.any():
         raise InputError(f"sphere: centre {centre} and radius {radius} cover no pixel of a {w}x{h} image")
     return n, mask, view
@@ -501,8 +452,8 @@ class SphereGeometry:
         self.shape, self.centre, self.radius, self.camera, self.fov = tuple(shape), centre, radius, camera, fov
 
     def at(self, X, Y):
-        n, m, v = _sphere_at(np.asarray(X, float), np.asarray(Y, float), self.shape, self.centre, self.radius,
-                             self.camera, self.fov)
+        n, m, v = G.sphere_at(np.asarray(X, float), np.asarray(Y, float), self.shape, self.centre, self.radius,
+                              self.camera, self.fov)
         return n, v
 
     def to_dict(self):

@@ -1,9 +1,9 @@
 """Values given as text (command line, manifests): vectors, bounds, start values, fixed parameters, polariser layouts."""
 from __future__ import annotations
 
-from fmbrdf_mi.fit.camera.demosaic import check_layout
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.options import Option
+from fmbrdf_mi.sensor.mosaic import check_layout
 
 
 def parse_vector(text, name, n=3):
@@ -111,7 +111,11 @@ def parse_layout(text):
         raise InputError(f"layout: expected four comma-separated angles such as 90,45,135,0, got {text!r}") from None
     if len(a) != 4:
         raise InputError(f"layout: expected four angles (row-major 2x2), got {text!r}")
-    return check_layout(((a[0], a[1]), (a[2], a[3])))
+    try:
+        check_layout(((a[0], a[1]), (a[2], a[3])))
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    return ((a[0], a[1]), (a[2], a[3]))
 
 
 def check_render_parameters(p, where):

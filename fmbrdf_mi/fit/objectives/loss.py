@@ -26,9 +26,9 @@ AoLP not used.  Choices this implementation makes where the paper is silent:
   dielectrics, DoLP ~ 0.01 -- the bias is as large as the signal, and a
   rough material can trade body for surface albedo to explain it.  When the
   per-pixel variance sigma^2 of S1 and S2 is known (a camera model, e.g.
-  :func:`fmbrdf_mi.fit.camera.noise.linear_stokes_variance`) the model side
+  :func:`fmbrdf_mi.sensor.noise.linear_stokes_variance`) the model side
   of the DoLP term is the DoLP such a camera measures on average,
-  E[|(S1, S2) + noise|] / S0 (:mod:`fmbrdf_mi.fit.camera.rice`), and the observed
+  E[|(S1, S2) + noise|] / S0 (:mod:`fmbrdf_mi.sensor.rice`), and the observed
   DoLP is left as measured.  Both sides then have the same expectation;
   subtracting 2 sigma^2 from the observed S1^2 + S2^2 instead (and clipping
   at 0) leaves a bias of the same order for DoLP ~ sigma / S0.
@@ -39,7 +39,7 @@ import dataclasses
 
 import numpy as np
 
-from fmbrdf_mi.fit.camera import rice
+from fmbrdf_mi.sensor import rice
 
 DOLP_EPS = 1e-12
 

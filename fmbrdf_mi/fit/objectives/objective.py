@@ -45,9 +45,9 @@ import math
 
 import numpy as np
 
-from fmbrdf_mi.fit.camera import rice
 from fmbrdf_mi.fit.evaluate.albedos import nnls2
 from fmbrdf_mi.fit.objectives import loss as L
+from fmbrdf_mi.sensor import rice
 
 
 # ---------------------------------------------------------------- objectives

@@ -24,15 +24,15 @@ import time
 import numpy as np
 
 from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
-from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.inputs.colour import read_colour_inputs
 from fmbrdf_mi.fit.outputs.colour import model_entry
-from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
 from fmbrdf_mi.fit.outputs.job import FitJob
+from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
 from fmbrdf_mi.fit.outputs.single import MAP_OUTPUTS, write_albedo_maps
 from fmbrdf_mi.fit.outputs.writer import prepare_outputs
+from fmbrdf_mi.sensor.mosaic import COLOURS
 
 
 def outputs(out, names, holdout, albedo="shared"):
@@ -51,7 +51,7 @@ def sample_rmse(smp, pred, sel, channel):
     sel = sel & np.all(np.isfinite(pred), axis=0)
     o, p = smp.values[:, sel], pred[:, sel]
     out = {"rel_rmse": float(np.sqrt(np.mean((p - o) ** 2)) / np.mean(o)), "n_periods": int(sel.sum())}
-    for c, name in enumerate(CHANNELS):
+    for c, name in enumerate(COLOURS):
         m = np.asarray(channel) == c
         out[f"rel_rmse_{name}"] = float(np.sqrt(np.mean((p[m] - o[m]) ** 2)) / np.mean(o[m]))
     return out

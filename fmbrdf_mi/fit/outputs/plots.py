@@ -3,23 +3,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from fmbrdf_mi import polcam, stokes_io
-from fmbrdf_mi.fit.camera import rice
-from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
+from fmbrdf_mi import stokes_io
+from fmbrdf_mi.sensor import mosaic
+from fmbrdf_mi.sensor import rice
+from fmbrdf_mi.sensor.mosaic import COLOURS
 
 
 def _channel_stokes(values, cam):
-    """Per-channel Stokes (3, 3, H, W) of (16, H, W) samples, demosaicked as polcam.stokes_from_colour_mosaic."""
+    """Per-channel Stokes (3, 3, H, W) of (16, H, W) samples, demosaicked as mosaic.stokes_from_colour_mosaic."""
 
     h, w = values.shape[1:]
     raw = np.empty((4 * h, 4 * w))
     k = 0
-    for cr, cc, _ in polcam.colour_cells(cam.cfa):
+    for cr, cc, _ in mosaic.colour_cells(cam.cfa):
         for dr in range(2):
             for dc in range(2):
                 raw[2 * cr + dr::4, 2 * cc + dc::4] = values[k]
                 k += 1
-    return polcam.stokes_from_colour_mosaic(raw, cam.layout, cam.cfa)[:, :3]
+    return mosaic.stokes_from_colour_mosaic(raw, cam.layout, cam.cfa)[:, :3]
 
 
 def plot_colour_fit(smp, pred, sel, cam, path, title=""):
@@ -30,7 +31,7 @@ def plot_colour_fit(smp, pred, sel, cam, path, title=""):
     rows, cols = np.nonzero(sel)
     r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
     fig, axes = plt.subplots(6, 3, figsize=(10, 17))
-    for c, ch in enumerate(CHANNELS):
+    for c, ch in enumerate(COLOURS):
         for q, (name, f) in enumerate((("intensity", lambda s: s[0]), ("DoLP", stokes_io.dolp))):
             o = np.where(sel, f(obs_s[c]), np.nan)[r0:r1, c0:c1]
             p = np.where(sel, f(fit_s[c]), np.nan)[r0:r1, c0:c1]

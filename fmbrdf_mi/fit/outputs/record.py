@@ -33,8 +33,8 @@ import os
 import sys
 
 from fmbrdf_mi import __version__
-from fmbrdf_mi.camera import sidecar_path
 from fmbrdf_mi.fit.api.options import record_keys
+from fmbrdf_mi.sensor.camera import sidecar_path
 
 #: Arguments of fit_files that define a fit (not where it writes or how it talks): the schema's single-image
 #: record (:func:`fmbrdf_mi.fit.api.options.record_keys`).

@@ -14,13 +14,13 @@ import math
 
 import numpy as np
 
-from fmbrdf_mi.fit.camera import samples as SM
-from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.camera.colour_samples import CHANNELS
-from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos, PixelModel
 from fmbrdf_mi.fit.evaluate.albedo_prior import SmoothPrior, neighbour_pairs, smooth_pair
+from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos, PixelModel
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS, bilinear_weights
+from fmbrdf_mi.sensor import samples as SM
+from fmbrdf_mi.sensor.mosaic import COLOURS
+from fmbrdf_mi.sensor.noise import NoiseModel
 from fmbrdf_mi.fit.evaluate.materials import (MIN_MATERIAL_PIXELS, MaterialAlbedos, MaterialEvaluator,
                                               MaterialModel, check_labels, material_count)
 from fmbrdf_mi.fit.evaluate.models import get_model
@@ -61,7 +61,7 @@ def select_pixels(obs, opts, use_samples=True, keep=None):
 
     With raw samples (:attr:`Observation.samples`), super-pixels with a
     sample at or above the white level or at or below the dark level are
-    excluded (:mod:`fmbrdf_mi.fit.camera.samples`) and counted.
+    excluded (:mod:`fmbrdf_mi.sensor.samples`) and counted.
 
     ``keep``: (H, W) bool, the pixels a label image keeps (several materials: labels >= 0); applied after
     the mask's erosion, so that the borders between materials are not eroded (a label image can mark
@@ -145,7 +145,7 @@ def same_noise(observations):
 
 
 #: Likelihood of a raw mosaic: points per axis over which each raw sample's model value is averaged
-#: (:meth:`~fmbrdf_mi.fit.camera.samples.Samples.footprint`; ``FitOptions.area_points`` None).
+#: (:meth:`~fmbrdf_mi.sensor.samples.Samples.footprint`; ``FitOptions.area_points`` None).
 #: Chosen by ``tools/bench_raw_kappa.py``.
 RAW_AREA_POINTS = 2
 
@@ -184,10 +184,10 @@ def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, facto
     if samples.channel is None:
         groups, n_groups, gpix, ch, labels = np.repeat(cell[:, None], m, axis=1), len(pixels), pixels, None, None
     else:
-        C = len(CHANNELS)
+        C = len(COLOURS)
         chs = np.asarray(samples.channel, dtype=np.int64)
         groups = cell[:, None] * C + chs[None, :]
-        n_groups, gpix, ch, labels = len(pixels) * C, np.repeat(pixels, C), np.tile(np.arange(C), len(pixels)), CHANNELS
+        n_groups, gpix, ch, labels = len(pixels) * C, np.repeat(pixels, C), np.tile(np.arange(C), len(pixels)), COLOURS
     prior = None if smooth is None else SmoothPrior(neighbour_pairs(gpix, W, ch), n_groups, smooth, factor)
     return PixelAlbedos(groups, n_groups, gpix, prior=prior, channel_of=ch, labels=labels)
 

@@ -11,13 +11,13 @@ import math
 
 import numpy as np
 
-from fmbrdf_mi.fit.camera import samples as SM
-from fmbrdf_mi.fit.camera.noise import NoiseModel
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective
 from fmbrdf_mi.fit.problem.data import same_noise
 from fmbrdf_mi.fit.problem.problem import Problem
+from fmbrdf_mi.sensor import samples as SM
+from fmbrdf_mi.sensor.noise import NoiseModel
 
 def tangent_bases(n):
     """Two unit tangents (t1, t2), each (N, 3), orthogonal to the unit normals ``n`` (N, 3) and to each other."""

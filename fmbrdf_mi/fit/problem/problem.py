@@ -185,7 +185,7 @@ class FitData:
     (super-)pixels (several images: concatenated, image by image);
     ``excluded``: what pixel selection left out and why; ``objective``: the
     likelihood of the samples or the paper's loss over them; ``samples``: the
-    camera's :class:`~fmbrdf_mi.fit.camera.samples.Samples` (likelihood) or
+    camera's :class:`~fmbrdf_mi.sensor.samples.Samples` (likelihood) or
     None; ``evaluator``: the model at those pixels' points.  Several images:
     ``image_pixels`` (each image's flat indices) and ``slices`` ((start, stop)
     of each image among the pixels).  ``make_problem``: builds the problem

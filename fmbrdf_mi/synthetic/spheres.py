@@ -1,4 +1,4 @@
-"""Synthetic raw captures of a sphere for tests and benchmarks (the camera model of :mod:`fmbrdf_mi.camera`).
+"""Synthetic raw captures of a sphere for tests and benchmarks (the camera model of :mod:`fmbrdf_mi.sensor.camera`).
 
     ideal = ideal_sphere(params, res=40, light=(0.45, 0.35, 1.0))   # noise-free, per raw pixel
     obs = capture_observation(ideal, CameraModel(), seed=3)        # one noisy capture -> Observation
@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from fmbrdf_mi.camera import CameraModel, capture
-from fmbrdf_mi.fit.camera import samples as SM
-from fmbrdf_mi.fit.camera.noise import NoiseModel, demosaic_footprint, linear_stokes_variance
 from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs import observations as ob
+from fmbrdf_mi.sensor import samples as SM
+from fmbrdf_mi.sensor.camera import CameraModel, capture
+from fmbrdf_mi.sensor.mosaic import stokes_from_raw
+from fmbrdf_mi.sensor.noise import NoiseModel, demosaic_footprint, linear_stokes_variance
 
 
 def ideal_sphere(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4):
@@ -60,7 +61,7 @@ def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fract
     cap = capture(ideal["stokes"], cam, exposure=exposure, peak_fraction=peak_fraction, seed=seed,
                   noiseless=noiseless)
     smp = SM.from_raw(cap["raw"], cam.layout, cam.black_level, cam.white_level)
-    stokes = ob.stokes_from_raw(cap["raw"], cam.layout, cam.black_level, demosaic)
+    stokes = stokes_from_raw(cap["raw"], cam.layout, cam.black_level, demosaic)
     noise = NoiseModel(cam.conversion_gain, cam.read_noise, 1.0) if known_noise else None
     # irradiance in DN: the albedos come back in the units of ``ideal`` (DN = input * exposure / gain)
     irr = cap["exposure"] / cam.conversion_gain
@@ -130,7 +131,7 @@ def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1
 
 def textured(ideal_of, shape_params, k_s_map, k_b_map, res):
     """The textured capture of any ideal object: ``ideal_of(params)`` its noise-free dict
-    (:func:`ideal_sphere`, :func:`fmbrdf_mi.fit.evaluate.synthetic_object.ideal_object`), evaluated with unit
+    (:func:`ideal_sphere`, :func:`fmbrdf_mi.synthetic.mesh_object.ideal_object`), evaluated with unit
     surface and body albedos and combined per cell with ``k_s_map``, ``k_b_map`` (the model is linear in them:
     paper eq:fmbrdf): (res, res) per super-pixel (each 2 x 2 raw pixels), or (3, res, res) per colour channel
     and 4x4 period (``stokes`` then (3 channels, 3, 4 res, 4 res): ``ideal_of`` must give 4 res raw pixels)."""
@@ -158,16 +159,16 @@ def textured(ideal_of, shape_params, k_s_map, k_b_map, res):
 def capture_colour(ideal, camera=None, *, seed=0, exposure=None, peak_fraction=0.8, noiseless=False, exact=False,
                    erode=1):
     """One capture of a colour ``ideal`` (:func:`textured_sphere` with (3, res, res) maps) by a colour camera
-    (default: :class:`~fmbrdf_mi.camera.CameraModel` with an RGGB filter): ``(obs, samples, noise, cap)`` for
+    (default: :class:`~fmbrdf_mi.sensor.camera.CameraModel` with an RGGB filter): ``(obs, samples, noise, cap)`` for
     :func:`fmbrdf_mi.fit.api.colour.fit_colour` (the observation's mask eroded by ``erode`` periods: the
     outermost periods are partly off the sphere, which each raw pixel's mean over its area models only where
     the whole period is on it).  ``noiseless``: no shot or read noise (rounding and clipping stay);
     ``exact``: the samples are the model's values themselves in DN (no noise, rounding or clipping)."""
-    from fmbrdf_mi import polcam
-    from fmbrdf_mi.camera import intensity_at_each_pixel_colour
-    from fmbrdf_mi.fit.camera.colour_samples import colour_samples
+    from fmbrdf_mi.sensor import mosaic
+    from fmbrdf_mi.sensor.camera import intensity_at_each_pixel_colour
+    from fmbrdf_mi.sensor.samples import colour_samples
 
-    cam = camera or CameraModel(cfa=polcam.BAYER_RGGB)
+    cam = camera or CameraModel(cfa=mosaic.BAYER_RGGB)
     cap = capture(ideal["stokes"], cam, exposure=exposure, peak_fraction=peak_fraction, seed=seed,
                   noiseless=noiseless or exact)
     if exact:

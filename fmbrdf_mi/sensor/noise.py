@@ -1,97 +1,10 @@
-"""A polarisation camera's measurement of a Stokes image: quad-Bayer sampling, shot and read noise, ADC.
-
-The camera model itself lives in :mod:`fmbrdf_mi.camera` (rendering and fitting
-share it); this module keeps the fit's older interface to it.
-
-Model of a division-of-focal-plane sensor such as Sony's IMX250MZR:
-
-1. quad-Bayer sampling: raw pixel (r, c) sits behind the polariser of its
-   position in the 2x2 ``layout`` and sees the intensity of the Stokes image
-   *at that pixel*, so the four angles of a super-pixel are measured at four
-   adjacent points (the instantaneous-field-of-view error of real sensors);
-2. exposure: ``electrons = intensity * gain``, with ``gain`` chosen (unless
-   given) so that the brightest raw pixel collects ``peak_fraction`` of the
-   full well;
-3. shot noise (Poisson in electrons) and Gaussian read noise, clipped to
-   [0, full well];
-4. an ADC of ``bits`` bits spanning the full well, stored as uint16.
-
-:func:`simulate_capture` returns the raw mosaic and the factor that maps
-digital numbers back to the units of the input, so that the Stokes image
-recovered from the mosaic is comparable with the input.
-"""
+"""The noise of a sample in image units (:class:`NoiseModel`), of a demosaicked Stokes image, and the footprints
+of demosaicked and box-filtered pixels: what the fits weight and blur their model with."""
 from __future__ import annotations
 
 import dataclasses
 
 import numpy as np
-
-from fmbrdf_mi import polcam
-from fmbrdf_mi.camera import CameraModel, capture, intensity_at_each_pixel
-from fmbrdf_mi.fit.camera.demosaic import stokes_from_raw
-
-
-@dataclasses.dataclass
-class CameraNoise:
-    """Sensor parameters (defaults: a typical 5 MP polarisation sensor, 12-bit ADC)."""
-
-    full_well: float = 10000.0     # electrons
-    read_noise: float = 2.5        # electrons rms
-    bits: int = 12                 # ADC resolution
-    peak_fraction: float = 0.9     # brightest raw pixel / full well (when gain is chosen here)
-    layout: tuple = polcam.IMX250MZR_LAYOUT
-
-    def __post_init__(self):
-        if not (self.full_well > 0 and self.read_noise >= 0 and 1 <= int(self.bits) <= 16
-                and 0 < self.peak_fraction <= 1):
-            raise ValueError(f"camera noise: need full_well > 0, read_noise >= 0, bits in [1, 16], "
-                             f"peak_fraction in (0, 1]; got {self}")
-        polcam.check_layout(self.layout)
-
-
-def _angle_at_each_pixel(stokes3, layout):
-
-    return intensity_at_each_pixel(stokes3, layout)
-
-
-def _camera(noise):
-
-    return CameraModel(full_well=noise.full_well, read_noise=noise.read_noise, bits=noise.bits,
-                       layout=noise.layout)
-
-
-def simulate_capture(stokes, noise=None, *, seed=0, gain=None, noiseless=False):
-    """Raw quad-Bayer capture of a Stokes image (:func:`fmbrdf_mi.camera.capture`, black level 0).
-
-    ``stokes``: (>=3, 2H, 2W) linear Stokes image (one channel) at the
-    resolution of the raw sensor.  Returns a dict with
-
-    * ``raw``: (2H, 2W) uint16 digital numbers in [0, 2^bits - 1];
-    * ``dn_to_input``: multiply (raw - black level 0) by this to get back the
-      input's intensity units;
-    * ``gain``: electrons per input unit; ``saturated``: fraction of clipped pixels.
-
-    ``noiseless=True`` skips shot and read noise (quantisation and clipping stay).
-    """
-
-    noise = noise or CameraNoise()
-    cap = capture(stokes, _camera(noise), exposure=gain, peak_fraction=noise.peak_fraction, seed=seed,
-                  noiseless=noiseless)
-    return {"raw": cap["raw"], "dn_to_input": cap["dn_to_input"], "gain": cap["exposure"],
-            "saturated": cap["saturated"]}
-
-
-def noisy_stokes(stokes, noise=None, *, seed=0, gain=None, noiseless=False, demosaic="bilinear"):
-    """Convenience: capture and demosaic (one Stokes vector per super-pixel), in the input's units.
-
-    ``demosaic`` as in :func:`fmbrdf_mi.fit.camera.demosaic.stokes_from_raw`.
-    Returns ``(stokes (3, H, W), info)`` with ``info`` the dict of :func:`simulate_capture`.
-    """
-
-    noise = noise or CameraNoise()
-    cap = simulate_capture(stokes, noise, seed=seed, gain=gain, noiseless=noiseless)
-    s = stokes_from_raw(cap["raw"], noise.layout, demosaic=demosaic) * cap["dn_to_input"]
-    return s, cap
 
 
 #: Variance factor of bilinear demosaicking (weights 9, 3, 3, 1 / 16 per angle).
@@ -122,7 +35,7 @@ def demosaic_footprint(demosaic="bilinear"):
 
     Offsets (dx right, dy down) are in super-pixels from the super-pixel
     centre, at the centres of the raw pixels that contribute.  ``bilinear``
-    (:func:`fmbrdf_mi.fit.camera.demosaic.angle_images_at_superpixel_centres`):
+    (:func:`fmbrdf_mi.sensor.mosaic.angle_images_at_superpixel_centres`):
     each raw pixel of the 4 x 4 neighbourhood serves exactly one angle, with
     weight (3/4 or 1/4) x (3/4 or 1/4) per axis, i.e. [1, 3, 3, 1] / 8 at
     -0.75, -0.25, 0.25, 0.75 along each axis.  ``superpixel``: the 2 x 2 raw

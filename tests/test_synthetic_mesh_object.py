@@ -1,10 +1,10 @@
-"""The synthetic mesh object's capture (fmbrdf_mi.fit.evaluate.synthetic_object.ideal_object) against
+"""The synthetic mesh object's capture (fmbrdf_mi.synthetic.mesh_object.ideal_object) against
 independent constructions: its exact geometry against the ray-cast maps, its raw pixels against the model
 at the raw pixels' own points, and a noise-free fit."""
 import numpy as np
 import pytest
 
-from fmbrdf_mi.fit.evaluate.synthetic_object import blob_mesh, ideal_object, pinhole_rays
+from fmbrdf_mi.synthetic.mesh_object import blob_mesh, ideal_object
 
 
 @pytest.fixture(scope="module")
@@ -28,15 +28,15 @@ def test_exact_geometry_at_pixel_centres_is_the_normal_map(ideal):
 
 def test_a_raw_pixel_is_the_mean_of_the_model_at_its_area_points(ideal):
     """Raw pixel (i, j) with area=2: the mean of the model at the 4 points (j + (s + 1/2)/2)/2, the geometry
-    taken from an independent ray cast at each point (pinhole_rays at 4x the super-pixel resolution)."""
+    taken from an independent ray cast at each point (pixel rays at 4x the super-pixel resolution)."""
     from fmbrdf_mi.fit.evaluate.predict import predict_image
-    from fmbrdf_mi.fit.evaluate.synthetic_object import _scene, ray_cast
+    from fmbrdf_mi.synthetic.mesh_object import _scene, ray_cast
     from fmbrdf_mi.fit.inputs import observations as ob
 
     scene = _scene(blob_mesh())
-    origin, d, _ = pinhole_rays((80, 80), 20.0, 8.0)
-    n, m = ray_cast(scene, origin, d)
-    o = ob.Observation(np.ones((3, 80, 80)), m, n, -d, (-0.5, 0.5, 1.0))
+    v = ob.pixel_rays((80, 80), "perspective", 20.0)
+    n, m = ray_cast(scene, 8.0, v)
+    o = ob.Observation(np.ones((3, 80, 80)), m, n, v, (-0.5, 0.5, 1.0))
     pts = predict_image("fmbrdf", ideal["params"], o)
     ref = pts.reshape(3, 40, 2, 40, 2).mean(axis=(2, 4))
     assert np.max(np.abs(ideal["stokes"] - ref)) <= 1e-6 * np.max(np.abs(ref))
@@ -49,7 +49,7 @@ def test_a_noise_free_capture_is_fitted_to_the_truth(ideal):
     noise alone 1 DN): every parameter within 0.1 of its reported standard error (measured: 0.024 at most).  (At 16² the eroded mask
     keeps 25 super-pixels and the coarse search ends elsewhere.)"""
     from fmbrdf_mi.fit import fit
-    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation
+    from fmbrdf_mi.synthetic.spheres import capture_observation
 
     obs, _ = capture_observation(ideal, noiseless=True)
     r = fit(obs, progress=False, area_points=2)

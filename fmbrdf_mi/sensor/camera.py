@@ -1,38 +1,15 @@
-"""The camera model: how a division-of-focal-plane polarisation sensor turns a Stokes image into raw numbers.
+"""The camera model: how a polarisation sensor turns a Stokes image into raw numbers (``render --raw`` simulates
+it, the fits' likelihood assumes it).
 
-One home for what rendering (``fmbrdf-mi render --raw``) simulates and what
-fitting (the likelihood of ``fmbrdf_mi/fit/objectives/objective.py``) assumes:
-
-1. **sampling** (:mod:`fmbrdf_mi.polcam`): raw pixel (r, c) sits behind the
-   polariser of its position in the 2x2 ``layout`` and sees
-   I(phi) = (S0 + S1 cos 2 phi + S2 sin 2 phi) / 2 of the Stokes image *at
-   that pixel*;
-2. **exposure**: ``electrons = exposure * I`` (``exposure`` in electrons per
-   unit of the Stokes image);
-3. **noise**: Poisson shot noise in electrons plus Gaussian read noise
-   (``read_noise`` electrons rms), clipped to [0, ``full_well``];
-4. **ADC**: ``DN = round(electrons / conversion_gain) + black_level``,
-   clipped to [0, 2^bits - 1], stored as uint16.
-
-In digital numbers above the black level, a raw sample of mean mu (DN) then
-has, to the accuracy of the Gaussian approximation of the Poisson law::
-
-    var = mu / g + (read_noise / g)^2 + 1 / 12                     (DN^2)
-
-with g = ``conversion_gain`` in electrons per DN (shot noise, read noise,
-rounding): :meth:`CameraModel.variance`.  Samples at the white level
-(:attr:`CameraModel.white_level`) or at 0 are clipped and obey no such law.
-
-**Colour polarisation sensors** (Sony IMX250MYR type): ``cfa`` (e.g.
-``polcam.BAYER_RGGB``) puts a colour filter over each 2x2 polariser block, so
-the period is 4x4 raw pixels (:func:`fmbrdf_mi.polcam.colour_cells`); a raw
-pixel of colour c sees the Stokes image *of channel c* at that pixel, and
-:func:`capture` then takes (3 channels R, G, B; 3 or 4; H, W) Stokes.  The
-noise model is the same per pixel (one gain, one read noise: the colour
-filter changes the signal, not the electronics).  ``cfa=None``: monochrome.
-
-A capture's settings travel with it as a JSON *sidecar* (:func:`write_sidecar`,
-:func:`read_sidecar`), which ``fmbrdf-mi fit`` reads.
+Raw pixel (r, c) sees I = (S0 + S1 cos 2 phi + S2 sin 2 phi) / 2 of the Stokes
+image at that pixel behind the polariser phi of its mosaic position (a colour
+sensor, ``cfa`` set: the Stokes image of its own colour); ``electrons =
+exposure * I`` with Poisson shot noise and Gaussian read noise, clipped to the
+full well; ``DN = round(electrons / conversion_gain) + black_level``.  A
+sample of mean mu DN above the black level then has the variance
+mu / g + (read_noise / g)^2 + 1 / 12 (:meth:`CameraModel.variance`) unless it
+is clipped.  A capture's settings travel with it as a JSON sidecar, which
+``fmbrdf-mi fit`` reads.
 """
 from __future__ import annotations
 
@@ -43,7 +20,7 @@ import os
 
 import numpy as np
 
-from . import polcam
+from fmbrdf_mi.sensor import mosaic
 
 #: Key that marks a JSON file as a capture sidecar of this package.
 SIDECAR_KEY = "fmbrdf_mi_capture"
@@ -58,7 +35,7 @@ class CameraModel:
     bits: int = 12                   # ADC resolution
     conversion_gain: float = None    # electrons per DN (None: the ADC spans the full well)
     black_level: float = 0.0         # DN added to every sample (an offset keeps the read noise of dark pixels)
-    layout: tuple = polcam.IMX250MZR_LAYOUT
+    layout: tuple = mosaic.IMX250MZR_LAYOUT
     cfa: tuple = None                # colour filter per 2x2 polariser block (None: monochrome sensor)
 
     def __post_init__(self):
@@ -80,11 +57,11 @@ class CameraModel:
         try:
             self.layout = tuple(tuple(int(a) for a in row) for row in self.layout)
         except (TypeError, ValueError):
-            raise ValueError(f"camera: layout: expected a 2x2 arrangement of the angles {polcam.ANGLES}, "
+            raise ValueError(f"camera: layout: expected a 2x2 arrangement of the angles {mosaic.ANGLES}, "
                              f"got {self.layout!r}") from None
-        polcam.check_layout(self.layout)
+        mosaic.check_layout(self.layout)
         if self.cfa is not None:
-            self.cfa = polcam.check_cfa(self.cfa)
+            self.cfa = mosaic.check_cfa(self.cfa)
 
     @property
     def period(self):
@@ -159,7 +136,7 @@ def intensity_at_each_pixel_colour(stokes, layout, cfa):
     """
     s = np.asarray(stokes, dtype=np.float64)
     out = np.empty(s.shape[2:])
-    for r, c, ch in polcam.colour_cells(cfa):
+    for r, c, ch in mosaic.colour_cells(cfa):
         for dr in range(2):
             for dc in range(2):
                 sl = (slice(2 * r + dr, None, 4), slice(2 * c + dc, None, 4))

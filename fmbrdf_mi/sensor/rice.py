@@ -1,9 +1,9 @@
 """The mean length of a noisy 2-vector (the Rice distribution), for the DoLP a noisy camera measures.
 
 A camera measures the linear Stokes components (S1, S2) with independent
-noise of standard deviation sigma in each; the length it reports,
-L = |(S1, S2) + noise|, follows a Rice distribution whose mean is larger
-than the true length nu:
+noise of standard deviation sigma in each; the length of the noisy vector
+it reports, L, follows a Rice distribution whose mean is larger than the
+true length nu:
 
     E[L] = sigma sqrt(pi / 2) L_{1/2}(-nu^2 / (2 sigma^2))
          = sigma sqrt(pi / 2) [(1 + 2y) i0e(y) + 2y i1e(y)],   y = nu^2 / (4 sigma^2),

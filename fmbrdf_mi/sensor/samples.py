@@ -1,36 +1,12 @@
-"""The camera's own measurements: polariser samples per super-pixel, and which of them can be trusted.
+"""The camera's own measurements: the raw samples of each cell of the fit's grid, and which can be trusted.
 
-The likelihood (:mod:`fmbrdf_mi.fit.likelihood`) is written for what the sensor
-measured, not for a demosaicked Stokes image.  :class:`Samples` holds, per
-super-pixel (the grid the geometry lives on), its four polariser samples in
-the units of the image (raw DN minus the black level), the polariser angle of
-each and where on the super-pixel each was taken:
-
-* **raw mosaic**: the 2x2 raw pixels themselves, at offsets (+-1/4, +-1/4)
-  super-pixels from the centre, each 1/2 x 1/2 super-pixel in size (each
-  sample is modelled over its own pixel, the mean of the model over m x m
-  points of it, :meth:`Samples.footprint`; so the instantaneous-field-of-view
-  error of a mosaic is part of the model rather than of the noise).  The samples of different super-pixels are
-  independent; bilinear demosaicking would correlate neighbours, which is
-  why the likelihood never uses demosaicked values whatever ``--demosaic``
-  says (that option shapes the Stokes image of the paper's loss and plots);
-* **four angle images**: the four values at the pixel, at its centre;
-* **a Stokes image** (EXR): the intensities behind polarisers at 0, 45, 90
-  and 135 degrees computed from it (3 degrees of freedom per pixel, not 4:
-  :attr:`Samples.dof`).
-
-A super-pixel is **unusable** when any of its raw samples is at or above the
-white level (clipped: its value says only "at least this") or at or below
-the dark level (clipped at the bottom of the ADC).  Such samples obey no
-Gaussian law; the super-pixel is dropped from the fit and counted.  The
-choice depends on the observed values, so it selects: near the white level
-it keeps the super-pixels whose noise happened to stay below it, near the
-dark level those whose noise stayed above.  The resulting bias is confined
-to super-pixels within a few noise standard deviations of a clipping level;
-a camera with a black-level offset (``--black-level``) has no clipping at
-the bottom, and the default exposure of ``render --raw`` keeps the peak at
-80 % of the full well.  (A censored likelihood would use those samples
-without the selection; not implemented.)
+The likelihood is written for what the sensor measured, not for a
+demosaicked image: a cell (a mono 2x2 super-pixel, or a colour 4x4 period)
+holds its raw samples in image units (DN minus the black level), each with
+its polariser angle, its colour channel and its offset from the cell centre
+(the mosaic's instantaneous-field-of-view error is then part of the model,
+not of the noise).  A cell with a sample at the white level or at the dark
+level (clipped) obeys no Gaussian law and is unusable.
 """
 from __future__ import annotations
 
@@ -38,9 +14,8 @@ import dataclasses
 
 import numpy as np
 
-from fmbrdf_mi import polcam
-from fmbrdf_mi.camera import default_white_level
-from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.sensor import mosaic
+from fmbrdf_mi.sensor.camera import default_white_level
 
 
 @dataclasses.dataclass
@@ -71,11 +46,10 @@ class Samples:
 
     def analyser(self):
         """(n, 3): row k maps (S0, S1, S2) to the intensity behind polariser k."""
-        t = np.radians(np.asarray(self.angles, dtype=np.float64))
-        return 0.5 * np.stack([np.ones_like(t), np.cos(2 * t), np.sin(2 * t)], axis=1)
+        return mosaic.analyser_matrix(self.angles)
 
     def footprint(self, points=1):
-        """Where each sample is modelled, for :meth:`Observation.sample_geometry`: (offsets, weights).
+        """Where each sample is modelled, for :meth:`fmbrdf_mi.fit.Observation.sample_geometry`: (offsets, weights).
 
         ``points`` = m: each sample is the mean over an m x m grid of points
         at the centres of equal sub-squares of its own pixel (side
@@ -106,10 +80,10 @@ def _flags(raw4, white, dark):
     return sat, drk
 
 
-def from_raw(raw, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0, white_level=None, dark_level=None):
+def from_raw(raw, layout=mosaic.IMX250MZR_LAYOUT, black_level=0.0, white_level=None, dark_level=None):
     """:class:`Samples` of a raw mosaic (2H, 2W) in DN.
 
-    ``white_level``: None takes :func:`fmbrdf_mi.camera.default_white_level`;
+    ``white_level``: None takes :func:`~fmbrdf_mi.sensor.camera.default_white_level`;
     ``dark_level``: None takes the black level when it is 0 (samples at 0 may
     be clipped), else no dark test (an offset keeps the noise of dark pixels
     measurable; use ``dark_level`` to exclude dim super-pixels anyway).
@@ -117,7 +91,7 @@ def from_raw(raw, layout=polcam.IMX250MZR_LAYOUT, black_level=0.0, white_level=N
 
     raw = np.asarray(raw)
     if raw.ndim != 2 or raw.shape[0] % 2 or raw.shape[1] % 2:
-        raise InputError(f"raw mosaic: expected a 2-D image with even height and width, got {raw.shape}")
+        raise ValueError(f"raw mosaic: expected a 2-D image with even height and width, got {raw.shape}")
     white = default_white_level(raw) if white_level is None else float(white_level)
     dark = (0.0 if float(black_level) == 0 else None) if dark_level is None else float(dark_level)
     r = raw.astype(np.float64)
@@ -140,13 +114,41 @@ def from_angle_images(images, black_level=0.0, white_level=None, dark_level=None
     white = (default_white_level(imgs) if integer else None) if white_level is None else float(white_level)
     dark = (0.0 if (integer and float(black_level) == 0) else None) if dark_level is None else float(dark_level)
     sat, drk = _flags(imgs, white, dark)
-    return Samples(imgs - float(black_level), tuple(polcam.ANGLES), np.zeros((4, 2)), sat, drk,
+    return Samples(imgs - float(black_level), tuple(mosaic.ANGLES), np.zeros((4, 2)), sat, drk,
                    "angle images", white, dark, 1.0 if integer else 0.0, 4)
 
 
 def from_stokes(stokes):
     """:class:`Samples` computed from a (3, H, W) Stokes image (float data: no clipping, no quantisation)."""
     s = np.asarray(stokes, dtype=np.float64)
-    imgs = polcam.angle_images_from_stokes(s[:3])
+    imgs = mosaic.angle_images_from_stokes(s[:3])
     z = np.zeros(s.shape[1:], bool)
-    return Samples(imgs, tuple(polcam.ANGLES), np.zeros((4, 2)), z, z.copy(), "stokes", None, None, 0.0, 3)
+    return Samples(imgs, tuple(mosaic.ANGLES), np.zeros((4, 2)), z, z.copy(), "stokes", None, None, 0.0, 3)
+
+
+def colour_samples(raw, layout=mosaic.IMX250MZR_LAYOUT, cfa=mosaic.BAYER_RGGB, black_level=0.0,
+                   white_level=None):
+    """The :class:`Samples` (16 per 4x4 period, with their colour channels) of a raw
+    colour mosaic (4H, 4W) in DN; a period with a clipped sample is unusable."""
+
+    raw = np.asarray(raw)
+    if raw.ndim != 2 or raw.shape[0] % 4 or raw.shape[1] % 4:
+        raise ValueError(f"raw colour mosaic: expected a 2-D image with height and width multiples of 4, "
+                         f"got {raw.shape}")
+    white = default_white_level(raw) if white_level is None else float(white_level)
+    r = raw.astype(np.float64)
+    vals, chans, angles, offs = [], [], [], []
+    for cr, cc, ch in mosaic.colour_cells(cfa):
+        for dr in range(2):
+            for dc in range(2):
+                R, C = 2 * cr + dr, 2 * cc + dc
+                vals.append(r[R::4, C::4])
+                chans.append(ch)
+                angles.append(layout[dr][dc])
+                offs.append(((C + 0.5) / 4 - 0.5, (R + 0.5) / 4 - 0.5))   # (dx right, dy down) in periods
+    v = np.stack(vals)
+    saturated = np.any(v >= white, axis=0)
+    dark = np.any(v <= 0, axis=0) if float(black_level) == 0 else np.zeros(v.shape[1:], bool)
+    return Samples(v - float(black_level), tuple(angles), np.asarray(offs, float), saturated, dark,
+                   "colour raw mosaic", white, 0.0 if float(black_level) == 0 else None, 1.0, 16, np.asarray(chans),
+                   pixel=0.25)

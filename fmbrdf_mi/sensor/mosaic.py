@@ -1,4 +1,4 @@
-"""Division-of-focal-plane polarisation cameras: polariser-angle images and mosaics.
+"""Division-of-focal-plane polarisation mosaics: polariser-angle images, raw mosaics, demosaicking.
 
 An ideal linear polariser at angle theta (measured like the AoLP, from image
 right counter-clockwise, see :mod:`fmbrdf_mi.stokes_io`) passes::
@@ -20,7 +20,8 @@ ANGLES = (0, 45, 90, 135)
 IMX250MZR_LAYOUT = ((90, 45), (135, 0))
 
 
-def _analyser_matrix(angles):
+def analyser_matrix(angles):
+    """(n, 3): row k maps (S0, S1, S2) to the intensity behind an ideal polariser at ``angles[k]`` degrees."""
     t = np.deg2rad(np.asarray(angles, dtype=np.float64))
     return 0.5 * np.stack([np.ones_like(t), np.cos(2 * t), np.sin(2 * t)], axis=1)  # (n, 3)
 
@@ -30,7 +31,7 @@ def angle_images_from_stokes(stokes, angles=ANGLES):
     s = np.asarray(stokes)
     if s.shape[0] < 3:
         raise ValueError(f"stokes: expected S0, S1, S2 along axis 0, got shape {s.shape}")
-    a = _analyser_matrix(angles)
+    a = analyser_matrix(angles)
     return np.tensordot(a, s[:3], axes=(1, 0)).astype(s.dtype, copy=False)
 
 
@@ -44,7 +45,7 @@ def stokes_from_angle_images(images, angles=ANGLES):
     if imgs.shape[0] != len(angles) or len(angles) < 3:
         raise ValueError(f"images: expected {len(angles)} polariser-angle images along axis 0 "
                          f"(angles {tuple(angles)}), got shape {imgs.shape}")
-    pinv = np.linalg.pinv(_analyser_matrix(angles))  # (3, n)
+    pinv = np.linalg.pinv(analyser_matrix(angles))  # (3, n)
     lin = np.tensordot(pinv, imgs.astype(np.float64), axes=(1, 0))
     out = np.concatenate([lin, np.zeros_like(lin[:1])])
     return out.astype(np.result_type(imgs.dtype, np.float32), copy=False)
@@ -166,3 +167,68 @@ def stokes_from_colour_mosaic(raw, layout=IMX250MZR_LAYOUT, cfa=BAYER_RGGB):
     cells, chans = colour_cell_angle_images(raw, layout, cfa)
     per = [cells[chans == ch].astype(np.float64).mean(axis=0) for ch in range(3)]
     return np.stack([stokes_from_angle_images(a) for a in per])
+
+
+# ---------------------------------------------------------------- demosaicking
+def angle_images_at_superpixel_centres(raw, layout=IMX250MZR_LAYOUT):
+    """Angle images (4, H/2, W/2) of a raw mosaic, each interpolated to the super-pixel centres.
+
+    The four polarisers of a super-pixel sit at four different points; taking
+    them as they are (:func:`angle_images_from_mosaic`)
+    mixes spatial change into the Stokes vector (false polarisation at edges
+    and highlights).  Here each angle's samples, a lattice of spacing 2, are
+    interpolated bilinearly to the centre of every super-pixel (weights 9/16,
+    3/16, 3/16, 1/16 from the nearest four samples of that angle; edges
+    clamped), so all four angles describe the same point.
+    """
+    raw = np.asarray(raw, dtype=np.float64)
+    flat = [a for row in layout for a in row]
+    out = [None] * 4
+    for pos, angle in enumerate(flat):
+        r, c = divmod(pos, 2)
+        # sample (i, j) is raw pixel (2i + r, 2j + c); super-pixel (i, j) is centred at (2i + 0.5, 2j + 0.5)
+        lat = raw[r::2, c::2]
+        dr_, dc = (1 if r == 0 else -1), (1 if c == 0 else -1)  # direction of the second-nearest sample
+        p = np.pad(lat, 1, mode="edge")
+        h, w = lat.shape
+        near = p[1:h + 1, 1:w + 1]
+        row2 = p[1 + dr_:h + 1 + dr_, 1:w + 1]
+        col2 = p[1:h + 1, 1 + dc:w + 1 + dc]
+        diag = p[1 + dr_:h + 1 + dr_, 1 + dc:w + 1 + dc]
+        out[ANGLES.index(angle)] = (9 * near + 3 * row2 + 3 * col2 + diag) / 16.0
+    return np.stack(out)
+
+
+DEMOSAIC = ("bilinear", "superpixel")
+
+
+def stokes_from_raw(raw, layout=IMX250MZR_LAYOUT, black_level=0.0, demosaic="bilinear"):
+    """Linear Stokes (3, H/2, W/2) from a raw quad-Bayer mosaic, one vector per super-pixel.
+
+    ``demosaic``: ``bilinear`` (default) interpolates each angle to the
+    super-pixel centre (:func:`angle_images_at_superpixel_centres`);
+    ``superpixel`` takes the four pixels as they are.
+    """
+    raw = np.asarray(raw)
+    if raw.ndim != 2:
+        raise ValueError(f"raw mosaic: expected a 2-D single-channel image, got shape {raw.shape}")
+    if raw.shape[0] % 2 or raw.shape[1] % 2 or min(raw.shape) < 2:
+        raise ValueError(f"raw mosaic: height and width must be even (2x2 super-pixels), got {raw.shape}")
+    check_layout(layout)
+    if demosaic not in DEMOSAIC:
+        raise ValueError(f"demosaic: expected one of {DEMOSAIC}, got {demosaic!r}")
+    r = raw.astype(np.float64) - float(black_level)
+    if demosaic == "bilinear":
+        imgs = angle_images_at_superpixel_centres(r, layout)
+    else:
+        imgs = angle_images_from_mosaic(r, layout)
+    return stokes_from_angle_images(imgs)[:3].astype(np.float64)
+
+
+def stokes_from_angles(images, black_level=0.0):
+    """Linear Stokes (3, H, W) from four polariser-angle images in the order 0, 45, 90, 135 degrees."""
+    imgs = np.asarray(images, dtype=np.float64)
+    if imgs.ndim != 3 or imgs.shape[0] != 4:
+        raise ValueError(f"angle images: expected shape (4, H, W) in the order "
+                         f"{ANGLES} degrees, got {imgs.shape}")
+    return stokes_from_angle_images(imgs - float(black_level))[:3].astype(np.float64)

@@ -1,6 +1,6 @@
 """A synthetic non-spherical object captured under several lights, written in the paper authors' layout.
 
-    from fmbrdf_mi.fit.evaluate.synthetic_object import write_authors_object
+    from fmbrdf_mi.synthetic.mesh_object import write_authors_object
     info = write_authors_object("data/blob", params, lights, res=48, seed=0)
 
 The object is a triangle mesh (:func:`blob_mesh`: an ellipsoid with a
@@ -9,7 +9,7 @@ symmetric about the view axis) seen by a pinhole camera.  Geometry comes
 from Mitsuba ray casts against the mesh (shading normals), once per raw
 sensor pixel for the data and once per super-pixel for ``normal_GT.npy``;
 the Stokes image is the model (:func:`fmbrdf_mi.fit.evaluate.predict.predict_image`)
-at every raw pixel, captured by :func:`fmbrdf_mi.camera.capture` (shot and
+at every raw pixel, captured by :func:`fmbrdf_mi.sensor.camera.capture` (shot and
 read noise, 16-bit ADC, IMX250MZR layout 90 45 / 135 0) and written as
 16-bit PNG mosaics; lights, viewing rays and normals are written in OpenCV
 camera axes, as the authors' scripts expect
@@ -22,11 +22,12 @@ import os
 
 import numpy as np
 
-from fmbrdf_mi.camera import CameraModel, capture
+from fmbrdf_mi import geometry as G
 from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.fit.inputs.authors import cv_to_ours
+from fmbrdf_mi.sensor.camera import CameraModel, capture
 
 
 def blob_mesh(n_theta=48, n_phi=96, axes=(1.0, 0.75, 0.85), bump=0.12, rotation_deg=(25.0, -35.0)):
@@ -77,23 +78,15 @@ def _scene(mesh):
     return mi.load_dict({"type": "scene", "blob": m})
 
 
-def pinhole_rays(shape, fov_deg, distance):
-    """Camera position (ours) and unit ray directions (H, W, 3), ours, through pixel centres (x right, y up)."""
-    h, w = shape
-    f = 0.5 * w / np.tan(np.radians(fov_deg) / 2)
-    X, Y = np.meshgrid(np.arange(w) + 0.5 - 0.5 * w, np.arange(h) + 0.5 - 0.5 * h)
-    d = np.stack([X, -Y, np.full_like(X, -f)], -1)
-    return np.array([0.0, 0.0, distance]), d / np.linalg.norm(d, axis=-1, keepdims=True), f
-
-
-def ray_cast(scene, origin, dirs):
-    """Shading normals (H, W, 3) facing the ray origin, and the hit mask (front faces only)."""
+def ray_cast(scene, distance, view):
+    """Shading normals (H, W, 3) facing the camera at (0, 0, ``distance``), and the hit mask (front faces only),
+    of the rays from the camera along minus the view directions ``view`` (H, W, 3)."""
     import drjit as dr
     import mitsuba as mi
 
-    h, w = dirs.shape[:2]
-    d = dirs.reshape(-1, 3)
-    o = np.tile(origin, (len(d), 1))
+    h, w = view.shape[:2]
+    d = -view.reshape(-1, 3)
+    o = np.tile(np.array([0.0, 0.0, distance]), (len(d), 1))
     ray = mi.Ray3f(mi.Point3f(np.ascontiguousarray(o.T, np.float32)), mi.Vector3f(np.ascontiguousarray(d.T, np.float32)))
     si = scene.ray_intersect(ray)
     dr.eval(si)
@@ -122,15 +115,15 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
     cam = camera or CameraModel(full_well=20000.0, read_noise=2.5, bits=16)
     scene = _scene(mesh or blob_mesh())
     r2 = 2 * res
-    origin, d2, _ = pinhole_rays((r2, r2), fov, distance)
-    n2, m2 = ray_cast(scene, origin, d2)
-    _, d1, f1 = pinhole_rays((res, res), fov, distance)
-    n1, m1 = ray_cast(scene, origin, d1)
+    v2, v1 = (ob.pixel_rays((k, k), "perspective", fov) for k in (r2, res))
+    n2, m2 = ray_cast(scene, distance, v2)
+    n1, m1 = ray_cast(scene, distance, v1)
+    f1 = G.focal_length(res, fov)
     lights = [np.asarray(l, float) / np.linalg.norm(l) for l in lights]
     powers = np.ones(len(lights)) if powers is None else np.asarray(powers, float)
     stokes = []
     for l, p in zip(lights, powers):
-        o = ob.Observation(np.ones((3, r2, r2)), m2, n2, -d2, l, float(p))
+        o = ob.Observation(np.ones((3, r2, r2)), m2, n2, v2, l, float(p))
         stokes.append(predict_image("fmbrdf", params, o))
     exposure = peak_fraction * cam.full_well / max(float(np.max(s[0] + np.hypot(s[1], s[2])) / 2) for s in stokes)
     for sub in ("calibration", "normal", os.path.join("image", "img_ud")):
@@ -140,7 +133,7 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
         Image.fromarray(cap["raw"].astype(np.uint16)).save(os.path.join(root, "image", "img_ud", f"{k:03d}.png"))
     np.savetxt(os.path.join(root, "calibration", "L.txt"), np.array([cv_to_ours(l) for l in lights]),
                delimiter=",")
-    np.save(os.path.join(root, "calibration", "vpL_img.npy"), cv_to_ours(d1).astype(np.float32))
+    np.save(os.path.join(root, "calibration", "vpL_img.npy"), cv_to_ours(-v1).astype(np.float32))
     K = np.array([[2 * f1, 0, res - 0.5], [0, 2 * f1, res - 0.5], [0, 0, 1.0]])  # raw pixels, centres at integers
     np.save(os.path.join(root, "calibration", "IntrinsicL.npy"), K)
     if not np.allclose(powers, 1.0):
@@ -158,7 +151,7 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
 
 
 class MeshGeometry:
-    """Exact normals and view directions of a mesh seen by :func:`pinhole_rays`' camera at any image point
+    """Exact normals and view directions of a mesh seen by a pinhole camera at any image point
     (Mitsuba ray casts; the interface of :class:`fmbrdf_mi.fit.inputs.observations.SphereGeometry`), for
     sub-pixel samples of a synthetic object: ``shape`` (H, W) the super-pixel grid, ``X``, ``Y`` in its
     pixels (centres at + 0.5, x right, y down); points off the mesh get (0, 0, 1)."""
@@ -167,31 +160,28 @@ class MeshGeometry:
         self.scene, self.shape, self.fov, self.distance = scene, tuple(shape), float(fov), float(distance)
 
     def at(self, X, Y):
-        h, w = self.shape
-        f = 0.5 * w / np.tan(np.radians(self.fov) / 2)
         X, Y = np.broadcast_arrays(np.asarray(X, float), np.asarray(Y, float))
-        d = np.stack([X - 0.5 * w, -(Y - 0.5 * h), np.full_like(X, -f)], -1)
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        n, _ = ray_cast(self.scene, np.array([0.0, 0.0, self.distance]), d.reshape(-1, 1, 3))
-        return n.reshape(d.shape), -d
+        v = G.view_rays(X, Y, self.shape, "perspective", self.fov)
+        n, _ = ray_cast(self.scene, self.distance, v.reshape(-1, 1, 3))
+        return n.reshape(v.shape), v
 
 
 def ideal_object(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4, mesh=None, fov=20.0,
                  distance=8.0):
     """Noise-free Stokes (3, 2 res, 2 res) of the raw pixels of :func:`blob_mesh` (or ``mesh``) seen by a
     pinhole camera (``fov``, ``distance``), and the super-pixel geometry: the dict of
-    :func:`fmbrdf_mi.fit.evaluate.synthetic.ideal_sphere` (``geometry`` a :class:`MeshGeometry`, exact at any
-    point), so that :func:`~fmbrdf_mi.fit.evaluate.synthetic.capture_observation` and the textured
+    :func:`fmbrdf_mi.synthetic.spheres.ideal_sphere` (``geometry`` a :class:`MeshGeometry`, exact at any
+    point), so that :func:`~fmbrdf_mi.synthetic.spheres.capture_observation` and the textured
     captures take it as they take the sphere.  Each raw pixel is the mean of the model over ``area`` x
     ``area`` points of its area (points off the mesh count 0), as a sensor pixel integrates."""
     a = int(area)
     scene = _scene(mesh or blob_mesh())
     r2 = 2 * res
-    origin, d2, _ = pinhole_rays((r2 * a, r2 * a), fov, distance)
-    n2, m2 = ray_cast(scene, origin, d2)
-    o2 = ob.Observation(np.ones((3, r2 * a, r2 * a)), m2, n2, -d2, light)
+    v2 = ob.pixel_rays((r2 * a, r2 * a), "perspective", fov)
+    n2, m2 = ray_cast(scene, distance, v2)
+    o2 = ob.Observation(np.ones((3, r2 * a, r2 * a)), m2, n2, v2, light)
     stokes = predict_image(model, params, o2).reshape(3, r2, a, r2, a).mean(axis=(2, 4))
-    _, d1, _ = pinhole_rays((res, res), fov, distance)
-    n1, m1 = ray_cast(scene, origin, d1)
-    return {"stokes": stokes, "normals": n1, "mask": m1, "view_dirs": -d1, "light": np.asarray(light, float),
+    v1 = ob.pixel_rays((res, res), "perspective", fov)
+    n1, m1 = ray_cast(scene, distance, v1)
+    return {"stokes": stokes, "normals": n1, "mask": m1, "view_dirs": v1, "light": np.asarray(light, float),
             "geometry": MeshGeometry(scene, (res, res), fov, distance), "params": dict(params), "model": model}

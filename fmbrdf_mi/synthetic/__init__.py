@@ -1,0 +1,2 @@
+"""Synthetic captures for tests and benchmarks, made with the model and the sensor model: spheres (uniform,
+textured, several materials; mono and colour mosaics) and a mesh object written in the paper authors' layout."""
