@@ -66,12 +66,13 @@ def test_joint_fisher_information_is_the_sum_of_the_images(variant):
     from fmbrdf_mi.fit import FitOptions
     from fmbrdf_mi.fit import uncertainty as U
     from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.problem.data import prepare
     from fmbrdf_mi.fit.problem.problem import Problem
 
     obs = _captures(res=12)
     opts = FitOptions(loss="likelihood", max_pixels=None)
-    st = State(*FMBRDF.split(NEAR))
+    st = State(*Parameters(FMBRDF).split(NEAR))
     F = []
     for o in obs:
         one = prepare([o], opts, "likelihood", single=True)    # each image as a single-image fit has it
@@ -130,6 +131,7 @@ def test_loss_variants_values_against_numpy(variant):
     ((mean I - mean Ibar) / mean Ibar)^2; both computed here from predicted Stokes by hand."""
     from fmbrdf_mi.fit.api.fitting import FitOptions
     from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.objectives import loss as L
     from fmbrdf_mi.fit.problem.data import prepare, select_pixels
     from fmbrdf_mi.fit.problem.problem import Problem
@@ -139,7 +141,7 @@ def test_loss_variants_values_against_numpy(variant):
     o.stokes = o.stokes * (1 + 0.05 * rng.standard_normal(o.stokes.shape))
     opts = FitOptions(max_pixels=None)
     idx, _ = select_pixels(o, opts)
-    st = State(*FMBRDF.split(NEAR))
+    st = State(*Parameters(FMBRDF).split(NEAR))
     obs_s = o.stokes.reshape(3, -1)[:, idx]
     ibar = obs_s[0]
     rhobar = np.hypot(obs_s[1], obs_s[2]) / ibar

@@ -285,7 +285,7 @@ def test_normal_jacobian_matches_brute_force(tiny):
     m = erode(obs[0].mask, 1)
     mdl = get_model("fmbrdf")
     jp = NormalProblem(obs, m, mdl, Bounds(mdl), None, 0.3)
-    st = jp.state(*mdl.split(_start(ks)))
+    st = jp.state(*jp.params.split(_start(ks)))
     nmap = photometric_stereo(obs).reshape(-1, 3)
     r, _, (pix, val), (t1, t2), _ = jp.linearise(st, nmap)
     nb = jp.cpix
@@ -319,7 +319,7 @@ def test_border_ring_model_fits_the_ray_cast_data(tiny):
     m = erode(obs[0].mask, 1)
     mdl = get_model("fmbrdf")
     jp = NormalProblem(obs, m, mdl, Bounds(mdl), None, 0.3)
-    st = jp.state(*mdl.split(dict(TRUE, k_s=TRUE["k_s"] * ks)))
+    st = jp.state(*jp.params.split(dict(TRUE, k_s=TRUE["k_s"] * ks)))
     parts = jp.parts_at(st, obs[0].normals.reshape(-1, 3))
     jp.obj.refresh(parts, st)                               # variances from the true model
     r2 = jp.obj.residuals(parts, st).reshape(jp.K, jp.n, 4) ** 2
@@ -353,7 +353,7 @@ def test_joint_lowers_the_energy_monotonically_and_beats_the_alternation(tiny):
     alt = refine_normals(obs, n0, mask=res.mask, rounds=3, lam=0.3, material=res.params, progress=False)
     mdl = get_model("fmbrdf")
     jp = NormalProblem(obs, res.mask, mdl, Bounds(mdl), None, 0.3)
-    st = jp.state(*mdl.split(res.params))
+    st = jp.state(*jp.params.split(res.params))
     ed, ep, _ = jp.energy(st, res.normals.reshape(-1, 3))
     assert abs(ed + ep - res.loss) < 1e-6 * res.loss     # the same energy, rebuilt
     ea, pa, _ = jp.energy(st, alt.normals.reshape(-1, 3))

@@ -45,6 +45,7 @@ from fmbrdf_mi.fit.api.fitting import FitOptions
 from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import check_mask, check_observations, erode
 from fmbrdf_mi.fit.problem.normals import tangent_bases
@@ -207,7 +208,7 @@ def refine_normals(observations, normals, *, mask=None, lam=0.5, rounds=3, steps
             params = dict(material)
         model = get_model(opts.model)
         init = dict(params)
-        sh, a_s, a_b = model.split(params)
+        sh, a_s, a_b = Parameters(model).split(params)
         pred_fn = _Predictor(model, views, lights, irr)
         say(f"[normals] round {rnd}: material " + " ".join(f"{k}={v:.4g}" for k, v in params.items())
             + f" ({time.time() - t0:.1f} s)")

@@ -24,6 +24,7 @@ import dataclasses
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.models import MODELS, Bounds, get_model
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option, flag_of
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_smooth
 from fmbrdf_mi.fit.uncertainty import INTERVALS
@@ -266,13 +267,6 @@ def add_arguments(p, groups=GROUPS):
 
 
 # ---------------------------------------------------------------- the checks
-def reported_names(model):
-    """Names of the parameters a fit of ``model`` reports (and --init must give)."""
-    if model.name == "fmbrdf":
-        return tuple(model.shape_names) + ("k_s", "r_k")
-    return tuple(model.shape_names) + (model.surface_name, model.body_name)
-
-
 def parsed(name, value, flag=keyword):
     """``value`` of the option ``name`` in the form a fit takes (its text form parsed, :attr:`Option.parse`;
     ``flag(name)`` names the option in a message)."""
@@ -377,7 +371,7 @@ def check_init(init, m, flag=keyword):
     """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds."""
     if not isinstance(init, dict):
         raise InputError(f"{flag('init')}: expected {{name: value}}, got {init!r}")
-    names = reported_names(m)
+    names = Parameters(m).reported_names
     unknown = [k for k in init if k not in names]
     if unknown:
         raise InputError(f"{flag('init')}: unknown parameter '{unknown[0]}' of {m.name}; give all of "

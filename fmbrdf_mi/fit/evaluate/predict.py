@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
 
@@ -42,7 +43,7 @@ def predict_image(model_name, params, obs, pixels=None, maps=None, labels=None):
         return out.reshape(3, *obs.shape)
     model = get_model(model_name)
     if maps is None:
-        shape, a_s, a_b = model.split(params)
+        shape, a_s, a_b = Parameters(model).split(params)
     else:
         shape = {n: float(params[n]) for n in model.shape_names}
         a_s, a_b = (np.asarray(maps[k], dtype=np.float64).ravel()[idx] / model.albedo_factor
