@@ -81,6 +81,7 @@ class Parameters:
         self.row = {r.name: r for r in rows}
         self.shape = tuple(r for r in rows if r.kind != "albedo")
         self.powers = tuple(r for r in rows if r.kind == "power")
+        self.albedo_names = tuple(r.name for r in rows if r.kind == "albedo")
 
     def name_of(self, base, material=None, channel=None, image=None):
         """The reported name of parameter ``base`` of a group: ``eta``, ``eta[1]`` (material 1), ``k_s[R]``
@@ -106,10 +107,6 @@ class Parameters:
     def reported_names(self):
         """The names of :meth:`report`'s parameters."""
         return tuple(r.name for r in self.rows)
-
-    @property
-    def albedo_names(self):
-        return tuple(r.name for r in self.rows if r.kind == "albedo")
 
     def param(self, name):
         return self.row[name]

@@ -15,13 +15,6 @@ from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
 
 
-def material_params(params, m):
-    """Material ``m``'s parameters under the model's names from a fit of several materials' flat ``eta[m]``
-    names (:mod:`fmbrdf_mi.fit.evaluate.materials`)."""
-    tail = f"[{m}]"
-    return {k[:-len(tail)]: v for k, v in params.items() if k.endswith(tail)}
-
-
 def predict_image(model_name, params, obs, pixels=None, maps=None, labels=None):
     """Predicted Stokes (3, H, W) of ``obs``'s geometry and light with reported ``params`` (pixel path).
 
@@ -35,11 +28,11 @@ def predict_image(model_name, params, obs, pixels=None, maps=None, labels=None):
     if labels is not None:
         lab = np.asarray(labels).ravel()
         out = np.zeros((3, obs.shape[0] * obs.shape[1]))
-        for m in range(int(lab.max()) + 1):
+        per = Parameters(get_model(model_name), materials=int(lab.max()) + 1).per_material(params)
+        for m, pm in enumerate(per):
             sub = idx[lab[idx] == m]
             if len(sub):
-                out[:, sub] = predict_image(model_name, material_params(params, m), obs, sub,
-                                            maps).reshape(3, -1)[:, sub]
+                out[:, sub] = predict_image(model_name, pm, obs, sub, maps).reshape(3, -1)[:, sub]
         return out.reshape(3, *obs.shape)
     model = get_model(model_name)
     if maps is None:

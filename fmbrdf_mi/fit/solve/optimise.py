@@ -134,7 +134,7 @@ MATERIAL_CANDIDATES = 6
 
 class _FirstMaterialBounds:
     """The bounds of material 0's parameters under the model's names (every material has the same:
-    ``bounds`` and ``fixed`` are given per model parameter); ``rows``: {model's name: material 0's row}."""
+    ``bounds`` and ``fixed`` are given per model parameter); ``rows``: {model's name: material 0's row name}."""
 
     def __init__(self, bounds, rows):
         self.bounds, self.rows = bounds, rows
