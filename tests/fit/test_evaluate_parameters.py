@@ -96,3 +96,19 @@ def test_free_powers_rows_bounds_and_defaults():
     shape, _, _ = t.split({**SHAPE, "k_s": 0.4, "r_k": 0.25, "power_2": 0.7})
     assert shape["power_1"] == 2.0 and shape["power_2"] == 0.7
     assert t.report({**SHAPE, "power_1": 1.9, "power_2": 0.6}, 0.4, 0.1)["power_2"] == 0.6
+
+
+def test_predict_image_takes_each_material_from_its_rows():
+    """A label image's prediction is, pixel by pixel, the one-material prediction with that material's values."""
+    from fmbrdf_mi.fit.evaluate.predict import predict_image
+    from fmbrdf_mi.fit.evaluate.synthetic import capture_observation, ideal_sphere
+
+    p0 = {**SHAPE, "k_s": 0.5, "r_k": 0.6}
+    p1 = {"eta": 1.8, "alpha": 0.4, "beta": 1.5, "kappa": 5.0, "k_s": 0.3, "r_k": 1.2}
+    obs, _ = capture_observation(ideal_sphere(p0, res=12, area=1), noiseless=True)
+    lab = np.arange(obs.mask.size).reshape(obs.mask.shape) % 2
+    flat = {**{f"{k}[0]": v for k, v in p0.items()}, **{f"{k}[1]": v for k, v in p1.items()}}
+    both = predict_image("fmbrdf", flat, obs, labels=lab)
+    ref = np.where(lab[None] == 0, predict_image("fmbrdf", p0, obs), predict_image("fmbrdf", p1, obs))
+    assert np.abs(both).max() > 0
+    np.testing.assert_array_equal(both, ref * obs.mask[None])
