@@ -106,7 +106,7 @@ def test_degenerate_pixels_are_flagged_not_identified():
     import types
 
     from fmbrdf_mi.fit.camera.noise import NoiseModel
-    from fmbrdf_mi.fit.evaluate.models import Bounds, State, get_model
+    from fmbrdf_mi.fit.evaluate.models import State, get_model
     from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective
     from fmbrdf_mi.fit.problem.problem import Problem
@@ -130,7 +130,7 @@ def test_degenerate_pixels_are_flagged_not_identified():
     base = get_model("fmbrdf")
     fixed = {k: 1.5 if k == "eta" else 0.3 if k == "alpha" else 1.0 if k == "beta" else 0.0
              for k in base.shape_names}
-    prob = Problem(Parameters(base, maps=True), None, obj, Bounds(base), fixed=fixed)
+    prob = Problem(Parameters(base, maps=True, fixed=fixed), None, obj)
     st = State(dict(fixed), *obj.albedos(parts))
     J = np.zeros((y.size, 0))
     out = pixel_albedos(prob, st, parts, J, {"chi2_per_dof": 1.0})

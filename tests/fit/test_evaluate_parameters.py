@@ -75,8 +75,23 @@ def test_materials_rows_in_report_and_optimiser_order():
     shape, a_s, a_b = t.split({"eta": 1.5, "alpha": 0.2, "specular_reflectance": 0.3, "diffuse_reflectance": 0.4})
     assert shape == {"eta[0]": 1.5, "alpha[0]": 0.2, "eta[1]": 1.5, "alpha[1]": 0.2}
     assert a_s.tolist() == [0.3, 0.3] and a_b.tolist() == [0.4, 0.4]
-    b = Bounds(t, t.expand({"alpha": (0.05, 0.5)}))
+    b = Bounds(Parameters(get_model("pplastic"), materials=2, bounds={"alpha": (0.05, 0.5)}))
     assert b.lims["alpha[1]"][2:] == (0.05, 0.5) and b.lims["eta[1]"][2:] == (1.01, 3.0)
+
+
+def test_bounds_and_fixed_values_are_the_rows():
+    t = Parameters(get_model("fmbrdf"), materials=2, bounds={"kappa": (1.0, 50.0), "alpha[1]": (0.1, 0.2)},
+                   fixed={"beta": 2.0, "eta[0]": 1.4})
+    assert (t.param("kappa[0]").lo, t.param("kappa[1]").hi) == (1.0, 50.0)
+    assert (t.param("alpha[0]").lo, t.param("alpha[1]").lo, t.param("alpha[1]").hi) == (0.01, 0.1, 0.2)
+    assert {r.name: r.fixed for r in t.shape if r.fixed is not None} == {"eta[0]": 1.4, "beta[0]": 2.0, "beta[1]": 2.0}
+    assert t.with_fixed({"kappa[1]": 3.0}).param("kappa[1]").fixed == 3.0 and t.param("kappa[1]").fixed is None
+    with pytest.raises(ValueError, match=r"bounds of eta\[0\]: need 1.01 <= lo < hi <= 3, got \(0.5, 2\)"):
+        Parameters(get_model("fmbrdf"), materials=2, bounds={"eta": (0.5, 2.0)})
+    with pytest.raises(ValueError, match=r"bounds: fmbrdf has no shape parameter 'k_s' \(it has eta, alpha, beta, "):
+        Parameters(get_model("fmbrdf"), bounds={"k_s": (0.1, 0.2)})
+    with pytest.raises(ValueError, match=r"fixed: fmbrdf has no shape parameter sigma \(it has eta, alpha"):
+        Parameters(get_model("fmbrdf"), fixed={"sigma": 0.1})
 
 
 def test_albedo_maps_report_the_shape_only():

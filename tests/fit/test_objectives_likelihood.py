@@ -104,7 +104,7 @@ def test_likelihood_jacobian_and_fisher_information_against_finite_differences(v
     gradient 2 J^T r of chi^2 and the Fisher information J^T J too."""
     from fmbrdf_mi.fit import FitOptions
     from fmbrdf_mi.fit import uncertainty as U
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, State
     from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.problem.data import prepare
     from fmbrdf_mi.fit.problem.problem import Problem
@@ -113,7 +113,7 @@ def test_likelihood_jacobian_and_fisher_information_against_finite_differences(v
     opts = FitOptions(loss="likelihood")
     data = prepare([obs], opts, "likelihood", single=True)
     obj = data.objective
-    pb = Problem(FMBRDF, data.evaluator, obj, Bounds(FMBRDF))
+    pb = Problem(FMBRDF, data.evaluator, obj)
     start = {"eta": 1.5, "alpha": 0.3, "beta": 1.6, "kappa": 20.0, "k_s": 0.8, "r_k": 1.5}
     st = State(*Parameters(FMBRDF).split(start))
     obj.refresh(pb.parts(st), st)   # variances frozen from here on (IRLS)

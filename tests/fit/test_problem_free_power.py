@@ -102,7 +102,7 @@ def test_power_columns_of_the_jacobian_are_the_derivative(variant):
 
     from fmbrdf_mi.fit import FitOptions
     from fmbrdf_mi.fit import uncertainty as U
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, State
     from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.problem import free_power as FP
     from fmbrdf_mi.fit.problem.data import prepare
@@ -128,7 +128,7 @@ def test_power_columns_of_the_jacobian_are_the_derivative(variant):
     def plain_residuals(p):   # the unwrapped joint path at irradiance x P_k / G_k
         scaled = [dataclasses.replace(o, irradiance=o.irradiance * pk / g) for o, pk, g in zip(obs, p, given)]
         prep = prepare(scaled, opts, "likelihood")
-        plain = Problem(FMBRDF, prep.evaluator, prep.objective, Bounds(FMBRDF))
+        plain = Problem(FMBRDF, prep.evaluator, prep.objective)
         plain.obj.var = var
         s = State(*Parameters(FMBRDF).split(NEAR))
         return plain.obj.residuals(plain.parts(s), s)

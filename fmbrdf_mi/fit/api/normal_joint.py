@@ -79,7 +79,8 @@ import numpy as np
 from fmbrdf_mi.fit import uncertainty as U
 from fmbrdf_mi.fit.api.normal_refine import check_views
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.inputs.observations import check_mask, erode
 from fmbrdf_mi.fit.problem.normals import NormalProblem
 from fmbrdf_mi.fit.result import FitResult
@@ -154,7 +155,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     if m.sum() < 2:
         raise InputError("normal refinement: fewer than 2 usable pixels in the mask")
     mdl = get_model(model)
-    jp = NormalProblem(obs, m, mdl, Bounds(mdl, bounds), fixed, lam, prior)
+    jp = NormalProblem(obs, m, Parameters(mdl, bounds=bounds, fixed=fixed), lam, prior)
     shape, a_s, a_b = jp.params.split(params)
     st = jp.state(shape, a_s, a_b)
     n_map /= np.where(np.linalg.norm(n_map, axis=-1, keepdims=True) > 0,

@@ -214,24 +214,13 @@ Z_MAX = 12.0
 class Bounds:
     """Maps unconstrained z to parameters inside [lo, hi] (sigmoid on the parameter's scale).
 
-    ``overrides``: {name: (lo, hi)} narrowing the model's default bounds.
+    ``model``: what has the shape parameters (``shape``, ``param``): a :class:`Model` (its bounds) or a fit's
+    :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (its rows' bounds, narrowed by the fit's options).
     """
 
-    def __init__(self, model, overrides=None):
+    def __init__(self, model):
         self.model = model
-        self.lims = {}
-        for p in model.shape:
-            lo, hi = p.lo, p.hi
-            if overrides and p.name in overrides:
-                lo, hi = (float(x) for x in overrides[p.name])
-                if not (p.lo <= lo < hi <= p.hi):
-                    raise ValueError(f"bounds of {p.name}: need {p.lo:g} <= lo < hi <= {p.hi:g}, "
-                                     f"got ({lo:g}, {hi:g})")
-            self.lims[p.name] = (_fwd(p.scale, lo), _fwd(p.scale, hi), lo, hi)
-        for name in (overrides or {}):
-            if name not in self.lims:
-                raise ValueError(f"bounds: {model.name} has no shape parameter {name!r} "
-                                 f"(it has {', '.join(self.lims)})")
+        self.lims = {p.name: (_fwd(p.scale, p.lo), _fwd(p.scale, p.hi), p.lo, p.hi) for p in model.shape}
 
     def to_value(self, name, z):
         tlo, thi, lo, hi = self.lims[name]

@@ -14,6 +14,7 @@ uncertainty and the report read the rows, and no name is parsed back.
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from collections.abc import Mapping
@@ -31,7 +32,8 @@ class Param:
     """One named parameter: ``name`` (as reported), ``base`` (the model's name of it), ``kind`` (``shape``: a
     BSDF parameter, traverse ``key``; ``power``: image ``image``'s light power; ``albedo``: reported from the
     albedos of its group), bounds ``lo``, ``hi``, ``scale`` of the bounded reparameterisation, coarse-search
-    ``grid``; its group: ``material`` index, ``channel`` index (None: not per material / channel)."""
+    ``grid``; its group: ``material`` index, ``channel`` index (None: not per material / channel); ``fixed``:
+    the value it is held at (None: free)."""
 
     name: str
     base: str
@@ -44,6 +46,7 @@ class Param:
     material: int = None
     channel: int = None
     image: int = None
+    fixed: float = None
 
 
 class Parameters:
@@ -52,14 +55,16 @@ class Parameters:
     ``materials``: M (per-material shape parameters and, without maps, albedos; None: one material);
     ``channels``: the colour channels' labels of per-channel albedos (None: none); ``maps``: the albedos are
     maps (no albedo rows); ``powers``: the given relative powers G_0 .. G_{K-1} of a joint fit whose powers
-    P_1 .. P_{K-1} are free (image 0 is the reference; None: none).
+    P_1 .. P_{K-1} are free (image 0 is the reference; None: none); ``bounds``: {name: (lo, hi)} narrowing
+    the model's bounds, ``fixed``: {name: value} held fixed (the model's names stand for every material's;
+    ValueError naming a bound outside the model's or a name that is not a shape parameter).
 
     ``rows`` are in the order of :meth:`report` (per material its shape parameters then its albedos; per
     channel each albedo name over the channels; the powers last); ``shape`` the rows the optimiser sees
     through the bounds (shape parameters and powers), in the order of z.
     """
 
-    def __init__(self, model, *, materials=None, channels=None, maps=False, powers=None):
+    def __init__(self, model, *, materials=None, channels=None, maps=False, powers=None, bounds=None, fixed=None):
         self.model = model
         self.count = None if materials is None else int(materials)
         self.channels = None if channels is None else tuple(channels)
@@ -77,11 +82,38 @@ class Parameters:
                      for b in self.albedo_pair for c in range(len(self.channels))]
         rows += [Param(self.name_of("power", image=k), "power", "power", None, g / POWER_RANGE, g * POWER_RANGE,
                        "log", (g,), image=k) for k, g in enumerate(self.given or ()) if k]
+        self._index(rows)
+        bounds, fixed = self.expand(bounds) or {}, self.expand(fixed) or {}
+        self._index([self._narrowed(r, *bounds[r.name]) if r.name in bounds else r for r in rows])
+        names = self.shape_names
+        unknown = [k for k in bounds if k not in names]
+        if unknown:
+            raise ValueError(f"bounds: {model.name} has no shape parameter {unknown[0]!r} (it has {', '.join(names)})")
+        unknown = [k for k in fixed if k not in names]
+        if unknown:
+            raise ValueError(f"fixed: {model.name} has no shape parameter {', '.join(unknown)} "
+                             f"(it has {', '.join(names)})")
+        self._index([dataclasses.replace(r, fixed=fixed[r.name]) if r.name in fixed else r for r in self.rows])
+
+    def _index(self, rows):
         self.rows = tuple(rows)
         self.row = {r.name: r for r in rows}
         self.shape = tuple(r for r in rows if r.kind != "albedo")
         self.powers = tuple(r for r in rows if r.kind == "power")
         self.albedo_names = tuple(r.name for r in rows if r.kind == "albedo")
+
+    @staticmethod
+    def _narrowed(row, lo, hi):
+        lo, hi = float(lo), float(hi)
+        if not (row.lo <= lo < hi <= row.hi):
+            raise ValueError(f"bounds of {row.name}: need {row.lo:g} <= lo < hi <= {row.hi:g}, got ({lo:g}, {hi:g})")
+        return dataclasses.replace(row, lo=lo, hi=hi)
+
+    def with_fixed(self, values):
+        """This table with the rows ``values`` ({name: value}) held fixed too."""
+        out = copy.copy(self)
+        out._index([dataclasses.replace(r, fixed=values[r.name]) if r.name in values else r for r in self.rows])
+        return out
 
     def name_of(self, base, material=None, channel=None, image=None):
         """The reported name of parameter ``base`` of a group: ``eta``, ``eta[1]`` (material 1), ``k_s[R]``

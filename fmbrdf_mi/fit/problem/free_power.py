@@ -47,6 +47,7 @@ import math
 import numpy as np
 
 from fmbrdf_mi.fit.evaluate.models import State
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import Parts
 from fmbrdf_mi.fit.problem.problem import Problem
 
@@ -163,9 +164,10 @@ def problem_factory(evaluator, pixel_slices, start="ratio"):
     """What :func:`fmbrdf_mi.fit.api.fitting.fit` calls to build its problem for a free-power joint fit
     (``evaluator``: its :class:`PowerEvaluator`, whose parameter table has the powers)."""
 
-    def make(_base, _ev, objective, bounds, progress, fixed, deadline):
-        return PowerProblem(evaluator.params, evaluator, objective, bounds, progress, fixed=fixed,
-                            deadline=deadline, pixel_slices=pixel_slices, start=start)
+    def make(base, _ev, objective, bounds, progress, fixed, deadline):
+        params = Parameters(base, powers=evaluator.params.given, bounds=bounds, fixed=fixed)
+        return PowerProblem(params, evaluator, objective, progress, deadline, pixel_slices=pixel_slices,
+                            start=start)
 
     return make
 

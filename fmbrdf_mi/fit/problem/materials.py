@@ -32,8 +32,8 @@ class MaterialProblem(Problem):
         self.cell_material = np.asarray(cell_material, dtype=np.int64)
 
     def with_fixed(self, values):
-        return MaterialProblem(self.params, self.ev, self.obj, self.bounds, self.progress,
-                               fixed={**self.fixed, **values}, cell_material=self.cell_material)
+        return MaterialProblem(self.params.with_fixed(values), self.ev, self.obj, self.progress,
+                               cell_material=self.cell_material)
 
     def material_scores(self, parts, st):
         """(M,) the objective's score (the likelihood's negative log, :meth:`LikelihoodObjective.nll`) of each
@@ -50,8 +50,8 @@ def problem_factory(cell_material, count, maps):
     materials; ``maps``: whether the albedos are maps (the per-pixel layout), else one pair per material."""
 
     def make(base, evaluator, objective, bounds, progress, fixed, deadline):
-        return MaterialProblem(Parameters(base, materials=count, maps=maps), evaluator, objective, bounds, progress,
-                               fixed=fixed, deadline=deadline, cell_material=cell_material)
+        params = Parameters(base, materials=count, maps=maps, bounds=bounds, fixed=fixed)
+        return MaterialProblem(params, evaluator, objective, progress, deadline, cell_material=cell_material)
 
     return make
 

@@ -22,32 +22,27 @@ class TimeUp(Exception):
 class Problem:
     """A parameter table, an evaluator at the fitted pixels, the objective, the bounds, the clock.
 
-    ``params``: the fit's :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (a model alone: its
-    table of one material and shared albedos); ``model`` is its model.  ``bounds``: a
-    :class:`~fmbrdf_mi.fit.evaluate.models.Bounds`, or {model's name: (lo, hi)} narrowing the model's.
+    ``params``: the fit's :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (its rows' bounds and fixed
+    values; a model alone: its table of one material and shared albedos, all free); ``model`` is its model,
+    ``bounds`` the :class:`~fmbrdf_mi.fit.evaluate.models.Bounds` of its rows, ``fixed`` {name: value} of
+    the rows held fixed (not estimated), ``names`` the free ones.
     ``objective``: :class:`fmbrdf_mi.fit.objectives.objective.PaperObjective` or
     :class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective` (a
     :class:`fmbrdf_mi.fit.objectives.loss.Target` is wrapped in the former).
-    ``fixed``: {shape name: value} held fixed (not estimated).  ``deadline``:
-    absolute ``time.time()`` after which no model evaluation may end: each
+    ``deadline``: absolute ``time.time()`` after which no model evaluation may end: each
     evaluation first checks that the slowest one of its kind so far would
     still finish in time, else raises :class:`TimeUp` (so the limit holds
     inside every loop, coarse search included).
     """
 
-    def __init__(self, params, evaluator, objective, bounds=None, progress=None, fixed=None, deadline=None):
+    def __init__(self, params, evaluator, objective, progress=None, deadline=None):
         self.params = params if isinstance(params, Parameters) else Parameters(params)
         self.model, self.ev = self.params.model, evaluator
         self.obj = PaperObjective(objective) if isinstance(objective, L.Target) else objective
-        self.bounds = bounds if isinstance(bounds, Bounds) else Bounds(self.params, self.params.expand(bounds))
+        self.bounds = Bounds(self.params)
         self.progress = progress or (lambda msg: None)
-        self.fixed = dict(self.params.expand(fixed) or {})
-        names = self.params.shape_names
-        unknown = [k for k in self.fixed if k not in names]
-        if unknown:
-            raise ValueError(f"fixed: {self.model.name} has no shape parameter {', '.join(unknown)} "
-                             f"(it has {', '.join(names)})")
-        self.names = tuple(n for n in names if n not in self.fixed)
+        self.fixed = {r.name: r.fixed for r in self.params.shape if r.fixed is not None}
+        self.names = tuple(r.name for r in self.params.shape if r.fixed is None)
         self.n_evals = 0
         self.n_nonfinite = 0
         self.t0 = time.time()
@@ -64,7 +59,7 @@ class Problem:
         unknowns (subclasses), which do not support it."""
         if type(self) is not Problem:
             return None
-        return Problem(self.params, self.ev, self.obj, self.bounds, self.progress, fixed={**self.fixed, **values})
+        return Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress)
 
     # the paper objective's weights, as before (tests and Adam use them)
     @property
@@ -221,8 +216,8 @@ class FitData:
         if self.make_problem is None:
             layout = self.objective.layout   # per-channel albedos or maps: a table that reports them
             maps = layout is not None and layout.eliminates
-            params = Parameters(model, channels=None if layout is None or maps else layout.labels, maps=maps)
-            return Problem(params, self.evaluator, self.objective, Bounds(model, bounds), progress, fixed=fixed,
-                           deadline=deadline)
+            params = Parameters(model, channels=None if layout is None or maps else layout.labels, maps=maps,
+                                bounds=bounds, fixed=fixed)
+            return Problem(params, self.evaluator, self.objective, progress, deadline)
         return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
 
