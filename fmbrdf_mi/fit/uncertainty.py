@@ -93,9 +93,7 @@ WEAK_FLOOR = {"kappa": 10.0}
 
 
 def _free_names(problem):
-    rep = problem.model.report({n: 1.5 for n in problem.model.shape_names}, 1.0, 1.0)
-    albedo_names = [k for k in rep if k not in problem.model.shape_names]
-    return list(problem.names) + albedo_names
+    return list(problem.names) + list(problem.params.albedo_names)
 
 
 def dtheta_dz(problem, st, names):
@@ -109,7 +107,7 @@ def dtheta_dz(problem, st, names):
             zp = z.copy()
             zp[j] += d
             sp = problem.from_z(zp)
-            rp = problem.model.report(sp.shape, sp.a_s, sp.a_b)
+            rp = problem.params.report(sp.shape, sp.a_s, sp.a_b)
             vals.append(np.array([rp[n] for n in names]))
         G[:, j] = (vals[0] - vals[1]) / (2 * h)
     return G
@@ -404,7 +402,8 @@ def summary(problem, st, names, cov, info):
     """The uncertainty block of fit.json from a :func:`covariance` (``info`` without ``applied``):
     std_errors, ci95, correlation, at_bound, bound_distance_se and ``info`` (chi2_per_dof, misfit, method;
     per-pixel albedos ``incidental``)."""
-    rep = problem.model.report(st.shape, st.a_s, st.a_b)
+    rep = problem.params.report(st.shape, st.a_s, st.a_b)
+    albedos = set(problem.params.albedo_names)
     out = {"std_errors": {}, "ci95": {}, "correlation": None, "at_bound": at_bound(problem, st), **info}
     if cov is None:
         return out
@@ -419,7 +418,7 @@ def summary(problem, st, names, cov, info):
         if n in problem.names:
             _, _, blo, bhi = problem.bounds.lims[n]
             lo, hi = max(lo, blo), min(hi, bhi)
-        elif n.split("[")[0] in ("r_k", "k_s", "k_b", "k_d", "specular_reflectance", "diffuse_reflectance"):
+        elif n in albedos:
             lo = max(lo, 0.0)
         out["std_errors"][n] = float(sd[i])
         out["ci95"][n] = [float(lo), float(hi)]
@@ -653,9 +652,16 @@ def misfit_text(unc):
             f"{math.sqrt(c):.3g}")
 
 
-def weakly_identified(params, std, at_bound_=()):
+def weakly_identified(table, params, std, at_bound_=()):
+    """The names of the reported ``params`` whose standard error (``std``) exceeds :data:`WEAK_REL` of
+    max(|value|, :data:`WEAK_FLOOR` of the row's model name; ``table``: the fit's
+    :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`), or that are in ``at_bound_``."""
+
+    def floor(k):
+        return WEAK_FLOOR.get(table.row[k].base if k in table.row else k, 0.0)
+
     return [k for k, v in params.items()
-            if (k in std and (not math.isfinite(std[k]) or std[k] > WEAK_REL * max(abs(v), WEAK_FLOOR.get(k.split("[")[0], 0.0))))
+            if (k in std and (not math.isfinite(std[k]) or std[k] > WEAK_REL * max(abs(v), floor(k))))
             or k in at_bound_]
 
 

@@ -67,6 +67,7 @@ def test_render_path_agrees_with_pixel_path(render_setup):
 def _render_problem(render_setup):
     from fmbrdf_mi.fit import Observation
     from fmbrdf_mi.fit.evaluate.models import FMBRDF, State
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.evaluate.pixel_model import RenderEvaluator
     from fmbrdf_mi.fit.objectives import loss as L
     from fmbrdf_mi.fit.problem.problem import Problem
@@ -74,14 +75,14 @@ def _render_problem(render_setup):
     scene, obs, idx, rev, _ = render_setup
     # observation: the same scene rendered at the true parameters with other samples
     ev = RenderEvaluator(FMBRDF, scene, "sphere.bsdf", None, spp=64, seed=11)
-    shape, a_s, a_b = FMBRDF.split(TRUE)
+    shape, a_s, a_b = Parameters(FMBRDF).split(TRUE)
     p = ev.parts(shape)
     img = (a_s * p.surface + a_b * p.body).reshape(3, *obs.shape)
     obs_t = Observation(img, obs.mask, obs.normals, obs.view_dirs, LIGHT)
     target = L.Target.from_stokes(img.reshape(3, -1)[:, idx])
     pb = Problem(FMBRDF, rev, target)
     start = {**TRUE, "eta": 1.45, "alpha": 0.3, "kappa": 20.0, "r_k": 1.5}
-    st = State(*FMBRDF.split(start))
+    st = State(*Parameters(FMBRDF).split(start))
     pb.set_weights(pb.parts(st), st)
     return pb, st, start, obs_t, scene
 
@@ -99,7 +100,7 @@ def test_render_path_reverse_gradient_matches_finite_differences(render_setup):
         h = 1e-2 * start[name]
         vals = []
         for d in (1, -1):
-            s2 = State(*pb.model.split({**start, name: start[name] + d * h}))
+            s2 = State(*pb.params.split({**start, name: start[name] + d * h}))
             vals.append(pb.loss(pb.parts(s2), s2))
         fd = (vals[0] - vals[1]) / (2 * h)
         assert abs(fd) > 1e-5, name
@@ -197,9 +198,10 @@ def test_oren_nayar_ts_baseline_recovers_its_own_render(variant):
     from fmbrdf_mi import scene as S
     from fmbrdf_mi.fit import Observation, fit
     from fmbrdf_mi.fit.evaluate.models import OREN_NAYAR_TS as M
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
 
     true = {"eta": 1.6, "alpha": 0.2, "sigma": 0.6, "k_s": 0.7, "k_d": 0.9}  # sigma off the search grid
-    shape, a_s, a_b = M.split(true)
+    shape, a_s, a_b = Parameters(M).split(true)
     bsdf = M.bsdf_dict(shape)
     bsdf["bsdf_1"]["specular_reflectance"], bsdf["bsdf_0"]["reflectance"] = a_s, a_b
     res = 48

@@ -65,25 +65,26 @@ def test_joint_fisher_information_is_the_sum_of_the_images(variant):
     reported joint covariance is the inverse of that sum (to float32 noise, 1e-6 relative)."""
     from fmbrdf_mi.fit import FitOptions
     from fmbrdf_mi.fit import uncertainty as U
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, State
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.problem.data import prepare
     from fmbrdf_mi.fit.problem.problem import Problem
 
     obs = _captures(res=12)
     opts = FitOptions(loss="likelihood", max_pixels=None)
-    st = State(*FMBRDF.split(NEAR))
+    st = State(*Parameters(FMBRDF).split(NEAR))
     F = []
     for o in obs:
         one = prepare([o], opts, "likelihood", single=True)    # each image as a single-image fit has it
         obj = one.objective
-        pb = Problem(FMBRDF, one.evaluator, obj, Bounds(FMBRDF))
+        pb = Problem(FMBRDF, one.evaluator, obj)
         obj.refresh(pb.parts(st), st)
         r, J = pb.residuals_and_jacobian(pb.parts(st, jac=True), st, pb.to_z(st))
         F.append(U.jacobian_in_reported(pb, st, J)[1])
     F_sum = sum(j.T @ j for j in F)
     data = prepare(obs, opts, "likelihood")
     obj, ev = data.objective, data.evaluator
-    pb = Problem(FMBRDF, ev, obj, Bounds(FMBRDF))
+    pb = Problem(FMBRDF, ev, obj)
     obj.refresh(pb.parts(st), st)
     r, J = pb.residuals_and_jacobian(pb.parts(st, jac=True), st, pb.to_z(st))
     names, Jt = U.jacobian_in_reported(pb, st, J)
@@ -129,7 +130,8 @@ def test_loss_variants_values_against_numpy(variant):
     """intensity: (1/M) sum ((I - Ibar) / mean Ibar)^2; dolp: the paper's weighted DoLP MSE plus
     ((mean I - mean Ibar) / mean Ibar)^2; both computed here from predicted Stokes by hand."""
     from fmbrdf_mi.fit.api.fitting import FitOptions
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, State
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.objectives import loss as L
     from fmbrdf_mi.fit.problem.data import prepare, select_pixels
     from fmbrdf_mi.fit.problem.problem import Problem
@@ -139,14 +141,14 @@ def test_loss_variants_values_against_numpy(variant):
     o.stokes = o.stokes * (1 + 0.05 * rng.standard_normal(o.stokes.shape))
     opts = FitOptions(max_pixels=None)
     idx, _ = select_pixels(o, opts)
-    st = State(*FMBRDF.split(NEAR))
+    st = State(*Parameters(FMBRDF).split(NEAR))
     obs_s = o.stokes.reshape(3, -1)[:, idx]
     ibar = obs_s[0]
     rhobar = np.hypot(obs_s[1], obs_s[2]) / ibar
     for loss in ("intensity", "dolp"):
         one = prepare([o], opts, loss, single=True)
         obj = one.objective
-        pb = Problem(FMBRDF, one.evaluator, obj, Bounds(FMBRDF))
+        pb = Problem(FMBRDF, one.evaluator, obj)
         parts = pb.parts(st)
         obj.refresh(parts, st)
         s = st.a_s * parts.surface + st.a_b * parts.body

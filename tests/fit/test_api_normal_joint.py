@@ -278,14 +278,15 @@ def test_normal_jacobian_matches_brute_force(tiny):
     noise on derivatives of size ~100: 1e-3 relative to the largest entry is 10x that."""
     from fmbrdf_mi.fit.problem.normals import NormalProblem
     from fmbrdf_mi.fit.inputs.normal_maps import photometric_stereo
-    from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+    from fmbrdf_mi.fit.evaluate.models import get_model
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.inputs.observations import erode
 
     obs, ks = _observations(tiny)
     m = erode(obs[0].mask, 1)
     mdl = get_model("fmbrdf")
-    jp = NormalProblem(obs, m, mdl, Bounds(mdl), None, 0.3)
-    st = jp.state(*mdl.split(_start(ks)))
+    jp = NormalProblem(obs, m, Parameters(mdl), 0.3)
+    st = jp.state(*jp.params.split(_start(ks)))
     nmap = photometric_stereo(obs).reshape(-1, 3)
     r, _, (pix, val), (t1, t2), _ = jp.linearise(st, nmap)
     nb = jp.cpix
@@ -312,14 +313,15 @@ def test_border_ring_model_fits_the_ray_cast_data(tiny):
     pixel's own normal) leaves a model error in the ring, where the normal turns fast towards the
     silhouette, that biases the material (tools/bench_normal_refine.py --seeds, docs/benchmarks/joint.md)."""
     from fmbrdf_mi.fit.problem.normals import NormalProblem
-    from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+    from fmbrdf_mi.fit.evaluate.models import get_model
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.inputs.observations import erode
 
     obs, ks = _observations(tiny)
     m = erode(obs[0].mask, 1)
     mdl = get_model("fmbrdf")
-    jp = NormalProblem(obs, m, mdl, Bounds(mdl), None, 0.3)
-    st = jp.state(*mdl.split(dict(TRUE, k_s=TRUE["k_s"] * ks)))
+    jp = NormalProblem(obs, m, Parameters(mdl), 0.3)
+    st = jp.state(*jp.params.split(dict(TRUE, k_s=TRUE["k_s"] * ks)))
     parts = jp.parts_at(st, obs[0].normals.reshape(-1, 3))
     jp.obj.refresh(parts, st)                               # variances from the true model
     r2 = jp.obj.residuals(parts, st).reshape(jp.K, jp.n, 4) ** 2
@@ -338,7 +340,8 @@ def test_joint_lowers_the_energy_monotonically_to_a_minimum_near_the_truth(tiny)
     tangent raises that energy: at the start, some of these moves lower it); the normals end much closer to
     the ray-cast ones and every material parameter closer to the truth than it started."""
     from fmbrdf_mi.fit.api.normal_joint import refine_joint
-    from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+    from fmbrdf_mi.fit.evaluate.models import get_model
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, photometric_stereo
     from fmbrdf_mi.fit.problem.normals import NormalProblem, tangent_bases
 
@@ -351,8 +354,8 @@ def test_joint_lowers_the_energy_monotonically_to_a_minimum_near_the_truth(tiny)
     e = [h["energy"] for h in res.history]
     assert res.converged and len(e) >= 3 and all(b < a for a, b in zip(e, e[1:])), e
     mdl = get_model("fmbrdf")
-    jp = NormalProblem(obs, res.mask, mdl, Bounds(mdl), None, 0.3)
-    st = jp.state(*mdl.split(res.params))
+    jp = NormalProblem(obs, res.mask, Parameters(mdl), 0.3)
+    st = jp.state(*jp.params.split(res.params))
     ed, ep, _ = jp.energy(st, res.normals.reshape(-1, 3))
     assert abs(ed + ep - res.loss) < 1e-6 * res.loss     # the same energy, rebuilt
 

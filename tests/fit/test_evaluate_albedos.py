@@ -1,8 +1,7 @@
 """The per-channel albedo layout against NumPy's least squares and finite differences."""
 import numpy as np
 
-from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, ChannelModel
-from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos
 
 
 def _data(seed=0):
@@ -37,20 +36,6 @@ def test_columns_are_derivatives_in_log_albedo():
         zm[j] -= h
         fd = (lay.mu(S, B, np.exp(zp[:3]), np.exp(zp[3:])) - lay.mu(S, B, np.exp(zm[:3]), np.exp(zm[3:]))) / (2 * h)
         assert np.allclose(cols[j], fd, rtol=1e-6, atol=1e-12), j
-
-
-def test_channel_model_reports_flat_names_and_nests_them():
-    lay = ChannelAlbedos(np.arange(16) % 3)
-    m = ChannelModel(get_model("fmbrdf"), lay)
-    shape = {"eta": 1.5, "alpha": 0.3, "beta": 2.0, "kappa": 10.0}
-    a_s, a_b = np.array([0.6, 0.4, 0.5]), np.array([0.42, 0.2, 0.1])
-    flat = m.report(shape, a_s, a_b)
-    f = get_model("fmbrdf").albedo_factor
-    assert list(flat) == ["eta", "alpha", "beta", "kappa", "k_s[R]", "k_s[G]", "k_s[B]", "r_k[R]", "r_k[G]", "r_k[B]"]
-    assert np.isclose(flat["k_s[G]"], f * 0.4) and np.isclose(flat["r_k[B]"], 0.1 / 0.5)
-    nested = m.nest(flat)
-    assert nested["k_s"] == {"R": flat["k_s[R]"], "G": flat["k_s[G]"], "B": flat["k_s[B]"]}
-    assert nested["eta"] == 1.5
 
 
 # ---------------------------------------------------------------- per-pixel albedos (textured objects)
@@ -120,8 +105,9 @@ def test_degenerate_pixels_are_flagged_not_identified():
     Problem with the per-pixel layout)."""
     import types
 
-    from fmbrdf_mi.fit.evaluate.albedos import PixelModel
-    from fmbrdf_mi.fit.evaluate.models import Bounds, State, get_model
+    from fmbrdf_mi.sensor.noise import NoiseModel
+    from fmbrdf_mi.fit.evaluate.models import State, get_model
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective
     from fmbrdf_mi.fit.problem.problem import Problem
     from fmbrdf_mi.fit.uncertainty import pixel_albedos
@@ -145,7 +131,7 @@ def test_degenerate_pixels_are_flagged_not_identified():
     base = get_model("fmbrdf")
     fixed = {k: 1.5 if k == "eta" else 0.3 if k == "alpha" else 1.0 if k == "beta" else 0.0
              for k in base.shape_names}
-    prob = Problem(PixelModel(base, lay), None, obj, Bounds(base), fixed=fixed)
+    prob = Problem(Parameters(base, maps=True, fixed=fixed), None, obj)
     st = State(dict(fixed), *obj.albedos(parts))
     J = np.zeros((y.size, 0))
     out = pixel_albedos(prob, st, parts, J, {"chi2_per_dof": 1.0})

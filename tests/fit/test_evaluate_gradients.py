@@ -23,6 +23,7 @@ NAMES = list(AT)
 def problem(request):
     from fmbrdf_mi.fit import FitOptions, Observation, predict_image, usable_pixels
     from fmbrdf_mi.fit.evaluate.models import FMBRDF
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
     from fmbrdf_mi.fit.inputs import observations as ob
     from fmbrdf_mi.fit.objectives import loss as L
@@ -39,7 +40,7 @@ def problem(request):
     target = L.Target.from_stokes(obs.stokes.reshape(3, -1)[:, idx], lin_variance=var)
     ev = PixelEvaluator(FMBRDF, n.reshape(-1, 3)[idx], v.reshape(-1, 3)[idx], light)
     pb = Problem(FMBRDF, ev, target)
-    shape, a_s, a_b = FMBRDF.split(AT)
+    shape, a_s, a_b = Parameters(FMBRDF).split(AT)
     from fmbrdf_mi.fit.evaluate.models import State
 
     st = State(shape, a_s, a_b)
@@ -51,7 +52,7 @@ def problem(request):
 def _loss_at(pb, params):
     from fmbrdf_mi.fit.evaluate.models import State
 
-    st = State(*pb.model.split(params))
+    st = State(*pb.params.split(params))
     return pb.loss(pb.parts(st), st)
 
 
@@ -78,7 +79,7 @@ def test_reverse_mode_gradient_matches_finite_differences(variant, problem, fini
     from fmbrdf_mi.fit.evaluate.models import State
     from fmbrdf_mi.fit.solve.optimise import loss_and_grad_reverse
 
-    st = State(*problem.model.split(AT))
+    st = State(*problem.params.split(AT))
     f, g = loss_and_grad_reverse(problem, st)
     assert f == pytest.approx(_loss_at(problem, AT), rel=1e-4)
     grad = _paper_gradient(g, AT)
@@ -90,7 +91,7 @@ def test_reverse_mode_gradient_matches_finite_differences(variant, problem, fini
 def test_forward_mode_jacobian_gradient_matches_finite_differences(variant, problem, finite_differences):
     from fmbrdf_mi.fit.evaluate.models import State
 
-    st = State(*problem.model.split(AT))
+    st = State(*problem.params.split(AT))
     z = problem.to_z(st)
     r, J = problem.residuals_and_jacobian(problem.parts(st, jac=True), st, z)
     gz = 2 * J.T @ r

@@ -104,7 +104,8 @@ def test_likelihood_jacobian_and_fisher_information_against_finite_differences(v
     gradient 2 J^T r of chi^2 and the Fisher information J^T J too."""
     from fmbrdf_mi.fit import FitOptions
     from fmbrdf_mi.fit import uncertainty as U
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, State
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.problem.data import prepare
     from fmbrdf_mi.fit.problem.problem import Problem
 
@@ -112,9 +113,9 @@ def test_likelihood_jacobian_and_fisher_information_against_finite_differences(v
     opts = FitOptions(loss="likelihood")
     data = prepare([obs], opts, "likelihood", single=True)
     obj = data.objective
-    pb = Problem(FMBRDF, data.evaluator, obj, Bounds(FMBRDF))
+    pb = Problem(FMBRDF, data.evaluator, obj)
     start = {"eta": 1.5, "alpha": 0.3, "beta": 1.6, "kappa": 20.0, "k_s": 0.8, "r_k": 1.5}
-    st = State(*FMBRDF.split(start))
+    st = State(*Parameters(FMBRDF).split(start))
     obj.refresh(pb.parts(st), st)   # variances frozen from here on (IRLS)
     r, J = pb.residuals_and_jacobian(pb.parts(st, jac=True), st, pb.to_z(st))
     names, Jt = U.jacobian_in_reported(pb, st, J)
@@ -123,7 +124,7 @@ def test_likelihood_jacobian_and_fisher_information_against_finite_differences(v
         h = 1e-2 * start[name]  # tables in kappa, beta: a step over several interpolation cells
         rr = []
         for d in (1, -1):
-            s2 = State(*FMBRDF.split({**start, name: start[name] + d * h}))
+            s2 = State(*Parameters(FMBRDF).split({**start, name: start[name] + d * h}))
             rr.append(obj.residuals(pb.parts(s2), s2))
         Jfd[:, j] = (rr[0] - rr[1]) / (2 * h)
     for j, name in enumerate(names):

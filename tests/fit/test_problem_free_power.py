@@ -102,7 +102,8 @@ def test_power_columns_of_the_jacobian_are_the_derivative(variant):
 
     from fmbrdf_mi.fit import FitOptions
     from fmbrdf_mi.fit import uncertainty as U
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF, Bounds, State
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, State
+    from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.problem import free_power as FP
     from fmbrdf_mi.fit.problem.data import prepare
     from fmbrdf_mi.fit.problem.problem import Problem
@@ -113,9 +114,9 @@ def test_power_columns_of_the_jacobian_are_the_derivative(variant):
     obs = [dataclasses.replace(o, irradiance=o.irradiance * g) for o, g in zip(obs, given)]
     data = prepare(obs, opts, "likelihood")
     slices = data.slices
-    pm = FP.PowerModel(FMBRDF, given)
+    pm = Parameters(FMBRDF, powers=given)
     pev = FP.PowerEvaluator(data.evaluator, pm, [b - a for a, b in slices])
-    pb = FP.problem_factory(pm, pev, slices)(FMBRDF, pev, data.objective, None, None, None, None)
+    pb = FP.problem_factory(pev, slices)(FMBRDF, pev, data.objective, None, None, None, None)
     powers = {"power_1": 0.7, "power_2": 1.9}
     shape, a_s, a_b = pm.split({**NEAR, **powers})
     st = State(shape, a_s, a_b)
@@ -127,9 +128,9 @@ def test_power_columns_of_the_jacobian_are_the_derivative(variant):
     def plain_residuals(p):   # the unwrapped joint path at irradiance x P_k / G_k
         scaled = [dataclasses.replace(o, irradiance=o.irradiance * pk / g) for o, pk, g in zip(obs, p, given)]
         prep = prepare(scaled, opts, "likelihood")
-        plain = Problem(FMBRDF, prep.evaluator, prep.objective, Bounds(FMBRDF))
+        plain = Problem(FMBRDF, prep.evaluator, prep.objective)
         plain.obj.var = var
-        s = State(*FMBRDF.split(NEAR))
+        s = State(*Parameters(FMBRDF).split(NEAR))
         return plain.obj.residuals(plain.parts(s), s)
 
     p0 = [1.0, powers["power_1"], powers["power_2"]]

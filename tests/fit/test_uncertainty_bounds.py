@@ -9,12 +9,12 @@ import types
 
 from fmbrdf_mi.fit import uncertainty as U
 from fmbrdf_mi.fit.evaluate.models import Bounds, State, get_model
-from fmbrdf_mi.fit.problem.free_power import PowerModel
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 
 
 def _problem(given=(1.0, 1.0, 1.0)):
-    model = PowerModel(get_model("fmbrdf"), list(given))
-    return types.SimpleNamespace(names=model.shape_names, bounds=Bounds(model), model=model)
+    params = Parameters(get_model("fmbrdf"), powers=list(given))
+    return types.SimpleNamespace(names=params.shape_names, bounds=Bounds(params), params=params)
 
 
 def _state(**kw):

@@ -79,7 +79,7 @@ def assemble(fx):
     if problem.n_nonfinite:
         report(f"[fit] {problem.n_nonfinite} pixels had non-finite BSDF derivatives; their Jacobian rows were zeroed")
     model = problem.model
-    params = model.report(st.shape, st.a_s, st.a_b)
+    params = problem.params.report(st.shape, st.a_s, st.a_b)
     albedo = maps = None
     if problem.eliminates:
         albedo, maps = albedo_block(problem, st, parts, groups, fx.image_shape, value, report)
@@ -109,13 +109,12 @@ def settle(res):
     fx, unc = res.fitted, res.uncertainty
     if fx.applied:
         unc["method"] = U.method_text(fx.applied)
-    res.weakly_identified = U.weakly_identified(res.params, res.std_errors, unc.get("at_bound", ()))
+    table = fx.problem.params
+    res.weakly_identified = U.weakly_identified(table, res.params, res.std_errors, unc.get("at_bound", ()))
     mat = fx.data.materials
-    if mat is not None:
-        res.materials = material_block(res.params, res.std_errors, unc.get("ci95"), mat["count"], mat["pixels"])
-    elif fx.labels is not None:     # one material: the ordinary fit of the labelled pixels
-        res.materials = material_block(res.params, res.std_errors, unc.get("ci95"), 1, [res.n_pixels],
-                                       base_names=tuple(res.params))
+    if mat is not None or fx.labels is not None:    # one material: the ordinary fit of the labelled pixels
+        res.materials = material_block(table, res.params, res.std_errors, unc.get("ci95"),
+                                       [res.n_pixels] if mat is None else mat["pixels"])
     return res
 
 

@@ -44,8 +44,9 @@ import numpy as np
 
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, ChannelModel
+from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos
 from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.problem.data import RAW_AREA_POINTS, prepare
 from fmbrdf_mi.sensor.mosaic import COLOURS
@@ -117,7 +118,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     data = prepare(obs_l, opts, "likelihood", single=not joint)
     res = fit(obs_l[0], opts, progress=progress or False, data=data)
     layout, m = data.objective.layout, get_model(model)
-    nest = ChannelModel(m, layout).nest
+    nest = Parameters(m, channels=layout.labels).nest
     res.params = nest(res.params)
     res.std_errors = None
     if res.converged:

@@ -63,7 +63,9 @@ import numpy as np
 
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit, usable_pixels
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.predict import material_params, predict_image
+from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
+from fmbrdf_mi.fit.evaluate.predict import predict_image
 
 #: A pixel is decided when its material's predicted Stokes and the nearest other's are this far apart (squared,
 #: noise units: 4 standard deviations, a misassignment probability Phi(-2) = 2.3 %).
@@ -180,8 +182,8 @@ def material_chi2(obs, model, params, count, idx):
         var = np.repeat((s0 + 0.01 * np.median(s0))[None], 3, axis=0)
     var = np.maximum(var, 1e-12 * np.max(var))
     pred = np.empty((count, 3, len(idx)))
-    for m in range(count):
-        pred[m] = predict_image(model, material_params(params, m), obs, idx).reshape(3, -1)[:, idx]
+    for m, pm in enumerate(Parameters(get_model(model), materials=count).per_material(params)):
+        pred[m] = predict_image(model, pm, obs, idx).reshape(3, -1)[:, idx]
     r2 = (obs_s[None] - pred) ** 2 / var[None]
     best = np.argmin(r2.sum(axis=1), axis=0)
     own = r2[best, :, np.arange(len(idx))].T                 # (3, n)

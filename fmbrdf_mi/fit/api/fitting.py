@@ -13,6 +13,7 @@ from fmbrdf_mi.fit.api.checks import check_footprint, check_intervals, find_othe
 from fmbrdf_mi.fit.api.options import FitOptions, check_fit_options, check_resolved_loss
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import State, get_model
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import RenderEvaluator
 from fmbrdf_mi.fit.inputs.observations import check_observations
 from fmbrdf_mi.fit.objectives import loss_variants as LV
@@ -86,7 +87,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     problem = data.problem(get_model(opts.model), opts.bounds, report, opts.fixed, deadline)
     report_start(problem, data, opts, report)
     history = []
-    init = None if not opts.init else problem.state(*problem.model.split(opts.init))
+    init = None if not opts.init else problem.state(*problem.params.split(opts.init))
     sol = solve(problem, init=init, starts=opts.starts, rounds=max(1, opts.rounds) + 2 * (data.loss == "likelihood"),
                 optimizer=opts.optimizer, max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit,
                 lr=opts.lr, max_time=opts.max_time, history=history, report=report)
@@ -201,15 +202,15 @@ def _fit_images(observations, opts, *, names=None, progress=True, powers=None, m
     check_fit_options(**dataclasses.asdict(opts))
     data = prepare(observations, opts, loss, materials=materials)
     idxs, slices = data.image_pixels, data.slices
-    pmodel = None
+    table = None
     if opts.free_power:
-        pmodel = FP.PowerModel(get_model(opts.model), given)
+        table = Parameters(get_model(opts.model), powers=given)
 
         def powered(d):     # the data with the free powers' evaluator and problem (their remakes too)
-            pev = FP.PowerEvaluator(d.evaluator, pmodel, [b - a for a, b in slices])
+            pev = FP.PowerEvaluator(d.evaluator, table, [b - a for a, b in slices])
             remake = None if d.remake is None else (lambda m, f=d.remake: powered(f(m)))
             return dataclasses.replace(d, evaluator=pev, remake=remake,
-                                       make_problem=FP.problem_factory(pmodel, pev, slices, opts.power_start))
+                                       make_problem=FP.problem_factory(pev, slices, opts.power_start))
 
         data = powered(data)
     report = O.default_progress if progress is True else progress
@@ -221,31 +222,31 @@ def _fit_images(observations, opts, *, names=None, progress=True, powers=None, m
     m = (res.uncertainty or {}).get("quadrature", {}).get("area_points")
     if m is not None and m != data.area_points:     # the fit refined its pixel-area quadrature: diagnose on it
         data = data.remake(m)
-    images = diagnose(res, data, observations, names, pmodel)
+    images = diagnose(res, data, observations, names, table)
     block = None
-    if pmodel is not None:
-        block = split_result(res, pmodel, names)
+    if table is not None:
+        block = split_result(res, table, names)
         for k, im in enumerate(images):
             im.update({"power": block["values"][k], "power_given": given[k], "power_se": block["std_errors"][k],
                        "power_ci95": block["ci95"][k], "power_reference": k == 0})
     for im in images:
         say(f"[joint] {im['name']}: " + ", ".join(f"{k} {im[k]:.4g}" for k in ("chi2_per_dof", "intensity_rel_rmse",
                                                                              "dolp_rmse") if im.get(k) is not None)
-            + ("" if pmodel is None else ", " + power_text(im)))
+            + ("" if table is None else ", " + power_text(im)))
     res.images, res.powers, res.pixels = images, block, idxs
     return res
 
 
-def diagnose(res, data, observations, names, power_model=None):
+def diagnose(res, data, observations, names, params=None):
     """Per image: pixels, light, irradiance, and how well the shared estimate explains it."""
     loss, excluded, objective, ev = data.loss, data.excluded, data.objective, data.evaluator
     idxs, slices = data.image_pixels, data.slices
-    model = power_model or get_model(res.model)
+    params = params or Parameters(get_model(res.model))
     if res.maps is not None or data.materials is not None:    # the fitted state (albedos per group / material)
         internal = res.details["internal"]
         shape, a_s, a_b = internal["shape"], np.asarray(internal["a_s"]), np.asarray(internal["a_b"])
     else:
-        shape, a_s, a_b = model.split(res.params)
+        shape, a_s, a_b = params.split(res.params)
     parts = ev.parts(shape)
     pts = parts.surface.shape[1] // max(sum(len(i) for i in idxs), 1)
     st = State(shape, a_s, a_b)

@@ -76,7 +76,8 @@ import numpy as np
 
 from fmbrdf_mi.fit import uncertainty as U
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.models import Bounds, get_model
+from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.inputs.normal_maps import check_views
 from fmbrdf_mi.fit.inputs.observations import check_mask, erode
 from fmbrdf_mi.fit.problem.normals import NormalProblem
@@ -152,8 +153,8 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     if m.sum() < 2:
         raise InputError("normal refinement: fewer than 2 usable pixels in the mask")
     mdl = get_model(model)
-    jp = NormalProblem(obs, m, mdl, Bounds(mdl, bounds), fixed, lam, prior)
-    shape, a_s, a_b = mdl.split(params)
+    jp = NormalProblem(obs, m, Parameters(mdl, bounds=bounds, fixed=fixed), lam, prior)
+    shape, a_s, a_b = jp.params.split(params)
     st = jp.state(shape, a_s, a_b)
     n_map /= np.where(np.linalg.norm(n_map, axis=-1, keepdims=True) > 0,
                       np.linalg.norm(n_map, axis=-1, keepdims=True), 1.0)
@@ -214,7 +215,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
 
         def on_accept(it, x, f):
             st, jp.nmap = x[0], x[1]
-            rep = mdl.report(st.shape, st.a_s, st.a_b)
+            rep = jp.params.report(st.shape, st.a_s, st.a_b)
             decreases.append((history[-1]["energy"] if history and history[-1]["round"] == rnd
                               else last["ed"] + last["ep"]) - f)
             history.append({"round": rnd, "iter": it, "energy": f, "data": x[2], "prior": x[3],
@@ -283,7 +284,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
                               f"standard errors; leave lam_material at its default to estimate the material at "
                               f"lam <= {LAM_MATERIAL:g} (docs: benchmarks, normal refinement)")
     out = n_out.reshape(n_map.shape)
-    params_out = mdl.report(st.shape, st.a_s, st.a_b)
+    params_out = jp.params.report(st.shape, st.a_s, st.a_b)
     say(f"[joint-normals] done in {time.time() - t0:.1f} s ({reason}): "
         + " ".join(f"{k}={v:.4g}" for k, v in params_out.items()))
     return FitResult(model=mdl.name, params=params_out, loss=f, loss_terms={"data_chi2": ed, "prior": ep},

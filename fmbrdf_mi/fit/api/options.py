@@ -23,7 +23,8 @@ import dataclasses
 
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
-from fmbrdf_mi.fit.evaluate.models import MODELS, Bounds, get_model
+from fmbrdf_mi.fit.evaluate.models import MODELS, get_model
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option, flag_of
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_smooth
 from fmbrdf_mi.fit.uncertainty import INTERVALS
@@ -264,13 +265,6 @@ def add_arguments(p, groups=GROUPS):
 
 
 # ---------------------------------------------------------------- the checks
-def reported_names(model):
-    """Names of the parameters a fit of ``model`` reports (and --init must give)."""
-    if model.name == "fmbrdf":
-        return tuple(model.shape_names) + ("k_s", "r_k")
-    return tuple(model.shape_names) + (model.surface_name, model.body_name)
-
-
 def parsed(name, value, flag=keyword):
     """``value`` of the option ``name`` in the form a fit takes (its text form parsed, :attr:`Option.parse`;
     ``flag(name)`` names the option in a message)."""
@@ -347,12 +341,11 @@ def check_relations(v, flag=keyword):
     if v["fixed"] is not None:
         if not isinstance(v["fixed"], dict):
             raise InputError(f"{flag('fixed')}: expected {{name: value}}, got {v['fixed']!r}")
-        lims = Bounds(m, None).lims
         for name, x in v["fixed"].items():
             if name not in m.shape_names:
                 raise InputError(f"{flag('fixed')}: '{name}' is not a shape parameter of {m.name} "
                                  f"({', '.join(m.shape_names)})")
-            within(f"{flag('fixed')} {name}", x, lims[name][2], lims[name][3])
+            within(f"{flag('fixed')} {name}", x, m.param(name).lo, m.param(name).hi)
     if v["bounds"] is not None:
         if not isinstance(v["bounds"], dict):
             raise InputError(f"{flag('bounds')}: expected {{name: (lo, hi)}}, got {v['bounds']!r}")
@@ -364,7 +357,7 @@ def check_relations(v, flag=keyword):
             Option(name, kind="number").check(lo, f"{flag('bounds')} {name} low")
             Option(name, kind="number").check(hi, f"{flag('bounds')} {name} high")
         try:
-            Bounds(m, v["bounds"])
+            Parameters(m, bounds=v["bounds"])
         except ValueError as e:
             raise InputError(f"{flag('bounds')}: {e}") from None
     if v["init"] is not None:
@@ -375,7 +368,8 @@ def check_init(init, m, flag=keyword):
     """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds."""
     if not isinstance(init, dict):
         raise InputError(f"{flag('init')}: expected {{name: value}}, got {init!r}")
-    names = reported_names(m)
+    table = Parameters(m)
+    names = table.reported_names
     unknown = [k for k in init if k not in names]
     if unknown:
         raise InputError(f"{flag('init')}: unknown parameter '{unknown[0]}' of {m.name}; give all of "
@@ -383,10 +377,9 @@ def check_init(init, m, flag=keyword):
     missing = [k for k in names if k not in init]
     if missing:
         raise InputError(f"{flag('init')}: missing {', '.join(missing)} (give all of {', '.join(names)})")
-    lims = Bounds(m, None).lims
     for k in names:
-        if k in lims:
-            within(f"{flag('init')} {k}", init[k], lims[k][2], lims[k][3])
+        if table.row[k].kind == "shape":
+            within(f"{flag('init')} {k}", init[k], table.row[k].lo, table.row[k].hi)
         else:
             Option(k, kind="number", lo=0.0).check(init[k], f"{flag('init')} {k}")
 

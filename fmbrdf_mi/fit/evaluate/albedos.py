@@ -47,7 +47,6 @@ import abc
 import numpy as np
 
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import RIDGE, BandCholesky, normal_band, stack_rows
-from fmbrdf_mi.fit.evaluate.models import ModelView
 from fmbrdf_mi.sensor.mosaic import COLOURS
 
 
@@ -521,51 +520,3 @@ def ls2_groups(S, B, y, w, groups, n_groups):
     b = np.stack([total(w * S * y), total(w * B * y)], 1)
     x = np.einsum("gij,gj->gi", np.linalg.pinv(G, rcond=1e-10, hermitian=True), b)
     return x[:, 0], x[:, 1]
-
-
-class ChannelModel(ModelView):
-    """A model whose albedos are per channel (``layout``: :class:`ChannelAlbedos`).
-
-    :meth:`report` gives the shape parameters and, per channel, the model's
-    albedo names with the channel in brackets (``k_s[R]``, ``r_k[R]``, ...):
-    one flat name per estimated quantity, as :mod:`fmbrdf_mi.fit.uncertainty`
-    needs; :meth:`nest` turns them into ``{"k_s": {"R": ..}}``.
-    """
-
-    def __init__(self, base, layout):
-        super().__init__(base)
-        self.layout = layout
-
-    def report(self, shape_values, a_s, a_b):
-        n = self.layout.n_groups
-        a_s, a_b = np.broadcast_to(a_s, (n,)), np.broadcast_to(a_b, (n,))
-        per = [self.base.report(shape_values, a_s[g], a_b[g]) for g in range(n)]
-        out = {k: per[0][k] for k in self.base.shape_names}
-        for key in per[0]:
-            if key not in self.base.shape_names:
-                out.update({f"{key}[{c}]": per[g][key] for g, c in enumerate(self.layout.labels)})
-        return out
-
-    def nest(self, flat):
-        """``{"k_s[R]": x, ...}`` -> ``{"k_s": {"R": x, ...}}`` (shape names stay as they are)."""
-        out = {}
-        for k, v in flat.items():
-            if k.endswith("]") and "[" in k:
-                name, label = k[:-1].split("[", 1)
-                out.setdefault(name, {})[label] = v
-            else:
-                out[k] = v
-        return out
-
-
-class PixelModel(ModelView):
-    """A model whose albedos are maps (``layout``: :class:`PixelAlbedos`): :meth:`report` gives the shape
-    parameters only (the albedo maps are reported as maps: :func:`fmbrdf_mi.fit.api.fitting.fit`'s
-    ``res.maps``)."""
-
-    def __init__(self, base, layout):
-        super().__init__(base)
-        self.layout = layout
-
-    def report(self, shape_values, a_s, a_b):
-        return {n: float(shape_values[n]) for n in self.base.shape_names}

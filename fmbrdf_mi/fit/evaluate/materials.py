@@ -6,13 +6,13 @@ and albedos (paper eq:fmbrdf, one BRDF per material):
     S(x_i) = E (k_s[m] f_s(x_i; eta[m], alpha[m], beta[m]) + k_b[m] f_b(x_i; eta[m], kappa[m])),
 
 and every pixel of every material enters the one objective (one camera noise
-model: :mod:`fmbrdf_mi.fit.objectives.objective`).  Three pieces, each a
-wrapper of what one material already has:
+model: :mod:`fmbrdf_mi.fit.objectives.objective`).  Three pieces, each
+built on what one material already has:
 
-* :class:`MaterialModel`: the model with per-material shape parameters
-  ``eta[0] .. kappa[0], eta[1] ..`` (the bracket names of the per-channel
-  albedos, :class:`~fmbrdf_mi.fit.evaluate.albedos.ChannelModel`); with
-  shared albedos it reports ``k_s[m]``, ``r_k[m]`` per material;
+* the parameter table with per-material shape parameters
+  ``eta[0] .. kappa[0], eta[1] ..`` and, with shared albedos, ``k_s[m]``,
+  ``r_k[m]`` per material
+  (:class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` with ``materials``);
 * :class:`MaterialEvaluator`: one evaluator per material over that
   material's points, assembled into the :class:`Parts` of all points (the
   derivative with respect to ``eta[m]`` is material m's derivative on its
@@ -33,18 +33,12 @@ import numpy as np
 
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.albedos import GroupAlbedos
-from fmbrdf_mi.fit.evaluate.models import ModelView, ShapeParam
 from fmbrdf_mi.fit.evaluate.pixel_model import Parts
 
 #: Fewest fitted (super-)pixels a material must have: as many as a whole fit
 #: needs (:data:`fmbrdf_mi.fit.problem.data.MIN_PIXELS`), since each material's
 #: shape parameters are estimated from its own pixels.
 MIN_MATERIAL_PIXELS = 20
-
-
-def material_name(name, m):
-    """``eta[1]``: parameter ``name`` of material ``m``."""
-    return f"{name}[{m}]"
 
 
 def check_labels(labels, shape, what="materials"):
@@ -87,77 +81,6 @@ def material_count(labels, what="materials"):
     return top + 1
 
 
-class MaterialModel(ModelView):
-    """A model with ``count`` materials: per-material shape parameters (``eta[m]`` ...) and, with the shared
-    layout, per-material albedos (:meth:`report`: ``k_s[m]``, ``r_k[m]`` for fmbrdf)."""
-
-    def __init__(self, base, count):
-        super().__init__(base)
-        self.count = int(count)
-        self._shape = tuple(ShapeParam(material_name(p.name, m), p.key, p.lo, p.hi, p.scale, p.grid)
-                            for m in range(self.count) for p in base.shape)
-        self._params = {p.name: p for p in self.shape}
-
-    @property
-    def shape(self):
-        return self._shape
-
-    @property
-    def shape_names(self):
-        return tuple(p.name for p in self.shape)
-
-    def param(self, name):
-        return self._params[name]
-
-    def of(self, values, m):
-        """Material ``m``'s shape values under the base model's names."""
-        return {n: values[material_name(n, m)] for n in self.base.shape_names}
-
-    def expand(self, values):
-        """{name: v} of the base model's names (``bounds``, ``fixed``) -> the same for every material; names
-        that already carry a material (``eta[1]``) are kept."""
-        if not values:
-            return values
-        out = {}
-        for k, v in values.items():
-            if k in self.base.shape_names:
-                out.update({material_name(k, m): v for m in range(self.count)})
-            else:
-                out[k] = v
-        return out
-
-    def report(self, shape_values, a_s, a_b):
-        a_s = np.broadcast_to(np.asarray(a_s, dtype=np.float64), (self.count,))
-        a_b = np.broadcast_to(np.asarray(a_b, dtype=np.float64), (self.count,))
-        out = {}
-        for m in range(self.count):
-            out.update({material_name(k, m): v for k, v in self.base.report(self.of(shape_values, m), a_s[m],
-                                                                           a_b[m]).items()})
-        return out
-
-    @property
-    def reported_names(self):
-        return tuple(material_name(k, m) for m in range(self.count) for k in self.base.reported_names)
-
-    def split(self, reported):
-        """(shape values, a_s (M,), a_b (M,)) from reported parameters: the base model's names (every material
-        starts there) or per material (``eta[0]`` ...)."""
-        if all(n in reported for n in self.base.reported_names) and not any("[" in k for k in reported):
-            shape, a_s, a_b = self.base.split(reported)
-            return {material_name(n, m): v for m in range(self.count) for n, v in shape.items()}, \
-                np.full(self.count, a_s), np.full(self.count, a_b)
-        shape, a_s, a_b = {}, np.zeros(self.count), np.zeros(self.count)
-        for m in range(self.count):
-            sub = {k: reported.get(material_name(k, m)) for k in self.base.reported_names}
-            missing = [material_name(k, m) for k, v in sub.items() if v is None]
-            if missing:
-                raise InputError(f"{self.base.name} parameters of {self.count} materials: missing "
-                                 f"{', '.join(missing)} (give the model's names for all, or each with [m])")
-            s, a_s[m], a_b[m] = self.base.split(sub)
-            shape.update({material_name(n, m): v for n, v in s.items()})
-        return shape, a_s, a_b
-
-
 class MaterialAlbedos(GroupAlbedos):
     """One (a_s, a_b) per material: ``material`` (cells,) the material of each cell, ``n`` samples per cell
     (each sample's group is its cell's material)."""
@@ -171,20 +94,21 @@ class MaterialAlbedos(GroupAlbedos):
 class MaterialEvaluator:
     """:class:`Parts` of all points from one evaluator per material.
 
-    ``evaluators``: material m's evaluator over its own points (the base
-    model's shape names); ``columns``: for each material the indices of its
-    points among all ``n_points`` (the order of the objective's points).
+    ``params``: the fit's :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (with ``materials``);
+    ``evaluators``: material m's evaluator over its own points (the model's
+    shape names); ``columns``: for each material the indices of its points
+    among all ``n_points`` (the order of the objective's points).
     """
 
-    def __init__(self, model, evaluators, columns, n_points):
-        self.model = model
+    def __init__(self, params, evaluators, columns, n_points):
+        self.params = params
         self.evaluators = list(evaluators)
         self.columns = [np.asarray(c, dtype=np.int64) for c in columns]
         self.n_points = int(n_points)
         self._cache = [None] * len(self.evaluators)   # (shape key, wrt, Parts) per material
 
     def _material_parts(self, m, values, wrt):
-        key = tuple(round(float(values[n]), 12) for n in self.model.base.shape_names)
+        key = tuple(round(float(values[n]), 12) for n in self.params.model.shape_names)
         c = self._cache[m]
         if c is not None and c[0] == key and set(wrt) <= set(c[1]):
             return c[2]
@@ -197,13 +121,14 @@ class MaterialEvaluator:
         surface, body = np.zeros((3, N)), np.zeros((3, N))
         d_s, d_b, bad = {}, {}, None
         for m, cols in enumerate(self.columns):
-            sub_wrt = [n for n in self.model.base.shape_names if material_name(n, m) in wrt]
-            p = self._material_parts(m, self.model.of(shape_values, m), sub_wrt)
+            rows = [r for r in self.params.shape if r.material == m and r.name in wrt]
+            sub_wrt = [r.base for r in rows]
+            p = self._material_parts(m, self.params.of(shape_values, m), sub_wrt)
             surface[:, cols], body[:, cols] = p.surface, p.body
-            for n in sub_wrt:
+            for r in rows:
                 ds, db = np.zeros((3, N)), np.zeros((3, N))
-                ds[:, cols], db[:, cols] = p.d_surface[n], p.d_body[n]
-                d_s[material_name(n, m)], d_b[material_name(n, m)] = ds, db
+                ds[:, cols], db[:, cols] = p.d_surface[r.base], p.d_body[r.base]
+                d_s[r.name], d_b[r.name] = ds, db
             if p.nonfinite is not None and sub_wrt:
                 bad = np.zeros(N, bool) if bad is None else bad
                 bad[cols] |= p.nonfinite

@@ -30,8 +30,6 @@ import math
 
 import numpy as np
 
-from fmbrdf_mi.fit.errors import InputError
-
 
 @dataclasses.dataclass(frozen=True)
 class ShapeParam:
@@ -58,8 +56,9 @@ class Model:
     body_key: str           # traverse key of the body albedo
     albedo_factor: float    # reported albedo = factor * BSDF albedo
     base_dict: dict         # BSDF dict with placeholders filled by bsdf_dict()
-    surface_name: str = "k_s"
-    body_name: str = "k_b"
+    surface_name: str = "k_s"   # reported name of the surface albedo
+    body_name: str = "k_b"      # ... of the body albedo (or of k_b / k_s: ``body_ratio``)
+    body_ratio: bool = False    # the body albedo is reported as its ratio to the surface's
 
     @property
     def shape_names(self):
@@ -76,92 +75,6 @@ class Model:
         vals = {p.name: p.grid[len(p.grid) // 2] for p in self.shape}
         vals.update(shape_values or {})
         return _fill(self.base_dict, vals)
-
-    def report(self, shape_values, a_s, a_b):
-        """The parameters as reported to the user (the paper's six for fmbrdf)."""
-        out = {n: float(shape_values[n]) for n in self.shape_names}
-        ks, kb = self.albedo_factor * a_s, self.albedo_factor * a_b
-        if self.name == "fmbrdf":
-            out["k_s"] = float(ks)
-            out["r_k"] = float(kb / ks) if ks > 0 else float("inf")
-        else:
-            out[self.surface_name] = float(ks)
-            out[self.body_name] = float(kb)
-        return out
-
-    @property
-    def reported_names(self):
-        """The names of :meth:`report`'s parameters (the paper's six for fmbrdf)."""
-        return self.shape_names + (("k_s", "r_k") if self.name == "fmbrdf" else (self.surface_name, self.body_name))
-
-    def split(self, reported):
-        """Inverse of :meth:`report`: (shape values, a_s, a_b) from reported parameters.
-
-        InputError naming what is missing or not a number (``dict(eta=9)`` for fmbrdf).
-        """
-        from collections.abc import Mapping
-
-        names = self.reported_names
-        if not isinstance(reported, Mapping):
-            raise InputError(f"{self.name} parameters: expected a dict of {', '.join(names)}, got {reported!r:.80}")
-        missing = [n for n in names if n not in reported]
-        if missing:
-            raise InputError(f"{self.name} parameters: missing {', '.join(missing)} (give all of "
-                             f"{', '.join(names)}), got {reported!r:.80}")
-
-        def number(v):
-            if isinstance(v, (bool, str, bytes)):
-                return False
-            try:
-                float(v)
-            except (TypeError, ValueError):
-                return False
-            return True
-
-        bad = [n for n in names if not number(reported[n])]
-        if bad:
-            raise InputError(f"{self.name} parameters: {bad[0]} must be a number, got {reported[bad[0]]!r}")
-        shape = {n: float(reported[n]) for n in self.shape_names}
-        if self.name == "fmbrdf":
-            ks = float(reported["k_s"])
-            kb = ks * float(reported["r_k"])
-        else:
-            ks, kb = float(reported[self.surface_name]), float(reported[self.body_name])
-        return shape, ks / self.albedo_factor, kb / self.albedo_factor
-
-
-
-class ModelView:
-    """A :class:`Model` seen through a wrapper that changes what it estimates or reports (per-channel albedos,
-    per-material parameters, albedo maps, free light powers): every attribute of the model's interface is
-    the ``base`` model's, listed here, and a wrapper overrides the ones it changes."""
-
-    def __init__(self, base):
-        self.base = base
-
-    name = property(lambda self: self.base.name)
-    description = property(lambda self: self.base.description)
-    shape = property(lambda self: self.base.shape)
-    shape_names = property(lambda self: self.base.shape_names)
-    surface_key = property(lambda self: self.base.surface_key)
-    body_key = property(lambda self: self.base.body_key)
-    albedo_factor = property(lambda self: self.base.albedo_factor)
-    base_dict = property(lambda self: self.base.base_dict)
-    surface_name = property(lambda self: self.base.surface_name)
-    body_name = property(lambda self: self.base.body_name)
-    reported_names = property(lambda self: self.base.reported_names)
-
-    def param(self, name):
-        return self.base.param(name)
-
-    def bsdf_dict(self, shape_values=None):
-        return self.base.bsdf_dict(shape_values)
-
-    def report(self, shape_values, a_s, a_b):
-        return self.base.report(shape_values, a_s, a_b)
-
-    def split(self, reported):
-        return self.base.split(reported)
 
 
 def _fill(template, vals):
@@ -188,6 +101,8 @@ FMBRDF = Model(
     # tables, smooth in the parameters (the compact ones round the ratios to 3e-5)
     base_dict={"type": "fmbrdf", "eta": "$eta", "alpha": "$alpha", "beta": "$beta",
                "kappa": "$kappa", "k_s": 1.0, "k_b": 1.0, "tables": "float32"},
+    body_name="r_k",
+    body_ratio=True,
 )
 
 
@@ -299,24 +214,13 @@ Z_MAX = 12.0
 class Bounds:
     """Maps unconstrained z to parameters inside [lo, hi] (sigmoid on the parameter's scale).
 
-    ``overrides``: {name: (lo, hi)} narrowing the model's default bounds.
+    ``model``: what has the shape parameters (``shape``, ``param``): a :class:`Model` (its bounds) or a fit's
+    :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (its rows' bounds, narrowed by the fit's options).
     """
 
-    def __init__(self, model, overrides=None):
+    def __init__(self, model):
         self.model = model
-        self.lims = {}
-        for p in model.shape:
-            lo, hi = p.lo, p.hi
-            if overrides and p.name in overrides:
-                lo, hi = (float(x) for x in overrides[p.name])
-                if not (p.lo <= lo < hi <= p.hi):
-                    raise ValueError(f"bounds of {p.name}: need {p.lo:g} <= lo < hi <= {p.hi:g}, "
-                                     f"got ({lo:g}, {hi:g})")
-            self.lims[p.name] = (_fwd(p.scale, lo), _fwd(p.scale, hi), lo, hi)
-        for name in (overrides or {}):
-            if name not in self.lims:
-                raise ValueError(f"bounds: {model.name} has no shape parameter {name!r} "
-                                 f"(it has {', '.join(self.lims)})")
+        self.lims = {p.name: (_fwd(p.scale, p.lo), _fwd(p.scale, p.hi), p.lo, p.hi) for p in model.shape}
 
     def to_value(self, name, z):
         tlo, thi, lo, hi = self.lims[name]

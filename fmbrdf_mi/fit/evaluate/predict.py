@@ -10,15 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
-
-
-def material_params(params, m):
-    """Material ``m``'s parameters under the model's names from a fit of several materials' flat ``eta[m]``
-    names (:mod:`fmbrdf_mi.fit.evaluate.materials`)."""
-    tail = f"[{m}]"
-    return {k[:-len(tail)]: v for k, v in params.items() if k.endswith(tail)}
 
 
 def predict_image(model_name, params, obs, pixels=None, maps=None, labels=None):
@@ -34,15 +28,15 @@ def predict_image(model_name, params, obs, pixels=None, maps=None, labels=None):
     if labels is not None:
         lab = np.asarray(labels).ravel()
         out = np.zeros((3, obs.shape[0] * obs.shape[1]))
-        for m in range(int(lab.max()) + 1):
+        per = Parameters(get_model(model_name), materials=int(lab.max()) + 1).per_material(params)
+        for m, pm in enumerate(per):
             sub = idx[lab[idx] == m]
             if len(sub):
-                out[:, sub] = predict_image(model_name, material_params(params, m), obs, sub,
-                                            maps).reshape(3, -1)[:, sub]
+                out[:, sub] = predict_image(model_name, pm, obs, sub, maps).reshape(3, -1)[:, sub]
         return out.reshape(3, *obs.shape)
     model = get_model(model_name)
     if maps is None:
-        shape, a_s, a_b = model.split(params)
+        shape, a_s, a_b = Parameters(model).split(params)
     else:
         shape = {n: float(params[n]) for n in model.shape_names}
         a_s, a_b = (np.asarray(maps[k], dtype=np.float64).ravel()[idx] / model.albedo_factor

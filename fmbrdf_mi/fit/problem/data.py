@@ -16,14 +16,15 @@ import numpy as np
 
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.albedo_prior import SmoothPrior, neighbour_pairs, smooth_pair
-from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos, PixelModel
+from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS, bilinear_weights
 from fmbrdf_mi.sensor import samples as SM
 from fmbrdf_mi.sensor.mosaic import COLOURS
 from fmbrdf_mi.sensor.noise import NoiseModel
 from fmbrdf_mi.fit.evaluate.materials import (MIN_MATERIAL_PIXELS, MaterialAlbedos, MaterialEvaluator,
-                                              MaterialModel, check_labels, material_count)
+                                              check_labels, material_count)
 from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
 from fmbrdf_mi.fit.inputs.observations import validate
@@ -253,7 +254,7 @@ def material_evaluators(model, count, cell_material, normals, views, lights, irr
         i = irr[rows]
         evs.append(PixelEvaluator(model, normals[rows], views[rows], lights[rows],
                                   float(i[0]) if np.allclose(i, i[0]) else i, weights=weights))
-    return MaterialEvaluator(MaterialModel(model, count), evs, cols, cells * outs)
+    return MaterialEvaluator(Parameters(model, materials=count), evs, cols, cells * outs)
 
 
 def prepare(observations, opts, loss, *, single=False, evaluator=None, materials=None):
@@ -389,8 +390,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     if lab is not None:
         evaluator = material_evaluators(get_model(opts.model), count, cell_material, normals, views, lights, irr,
                                         weights)
-        wrap = (lambda mm: PixelModel(mm, layout)) if layout is not None and layout.eliminates else (lambda mm: mm)
-        make_problem = MT.problem_factory(cell_material, count, wrap)
+        make_problem = MT.problem_factory(cell_material, count, layout is not None and layout.eliminates)
         mat = {"labels": lab, "count": count, "cell_material": cell_material,
                "pixels": np.bincount(cell_material, minlength=count).tolist()}
     if evaluator is None:

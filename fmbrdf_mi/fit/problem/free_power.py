@@ -17,9 +17,11 @@ presentation changes, and the first image is the one the user chose and can
 reorder (the manifest's first entry, the authors' lowest index).
 
 **Parameterisation.**  Each free power is one more non-linear parameter of
-the optimiser (:class:`PowerModel`): log P_k through the same bounded
-sigmoid as the shape parameters (:class:`~fmbrdf_mi.fit.evaluate.models.Bounds`,
-``scale="log"``) on [G_k / 1000, 1000 G_k], so every iterate is positive.
+the optimiser (a ``power`` row of the fit's
+:class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`, ``powers``): log P_k
+through the same bounded sigmoid as the shape parameters
+(:class:`~fmbrdf_mi.fit.evaluate.models.Bounds`, ``scale="log"``) on
+[G_k / 1000, 1000 G_k], so every iterate is positive.
 The prediction is linear in P_k, so its derivative is the image's own
 prediction divided by G_k (:class:`PowerEvaluator`): no BSDF evaluation, no
 table rebuild; a step that changes only the powers reuses the last BSDF
@@ -44,79 +46,27 @@ import math
 
 import numpy as np
 
-from fmbrdf_mi.fit.evaluate.models import Bounds, ModelView, ShapeParam, State
+from fmbrdf_mi.fit.evaluate.models import State
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import Parts
 from fmbrdf_mi.fit.problem.problem import Problem
 
-#: The free powers are searched in [G / POWER_RANGE, G * POWER_RANGE].
-POWER_RANGE = 1000.0
-
-
 #: Starting values: ``ratio`` (closed form at each grid point) or ``given``.
 POWER_STARTS = ("ratio", "given")
-
-
-def power_names(k):
-    """Names of the free powers of a K-image fit: power_1 .. power_{K-1} (image 0 is the reference)."""
-    return tuple(f"power_{j}" for j in range(1, k))
-
-
-class PowerModel(ModelView):
-    """A :class:`~fmbrdf_mi.fit.evaluate.models.Model` with the powers P_1 .. P_{K-1} as extra shape parameters.
-
-    ``given``: G_0 .. G_{K-1}.  :meth:`report` adds ``power_k`` (P_k) to
-    the model's parameters; :meth:`split` takes them from the reported
-    values, else from :attr:`start`.  Everything else is the model's
-    (:class:`~fmbrdf_mi.fit.evaluate.models.ModelView`).
-    """
-
-    def __init__(self, base, given):
-        super().__init__(base)
-        self.given = [float(g) for g in given]
-        self.power_names = power_names(len(self.given))
-        self.start = {n: g for n, g in zip(self.power_names, self.given[1:])}
-
-    def _power_param(self, name):
-        g = self.given[int(name.split("_")[1])]
-        return ShapeParam(name, None, g / POWER_RANGE, g * POWER_RANGE, "log", (self.start[name],))
-
-    @property
-    def shape(self):
-        return tuple(self.base.shape) + tuple(self._power_param(n) for n in self.power_names)
-
-    @property
-    def shape_names(self):
-        return tuple(self.base.shape_names) + self.power_names
-
-    def param(self, name):
-        return self._power_param(name) if name in self.power_names else self.base.param(name)
-
-    def report(self, shape_values, a_s, a_b):
-        out = self.base.report(shape_values, a_s, a_b)
-        out.update({n: float(shape_values[n]) for n in self.power_names})
-        return out
-
-    def split(self, reported):
-        shape, a_s, a_b = self.base.split(reported)
-        shape.update({n: float(reported.get(n, self.start[n])) for n in self.power_names})
-        return shape, a_s, a_b
-
-    def factors(self, shape_values):
-        """P_k / G_k for every image (1 for the reference)."""
-        return np.array([1.0] + [shape_values[n] / g for n, g in zip(self.power_names, self.given[1:])])
 
 
 class PowerEvaluator:
     """An evaluator's parts with image k's points scaled by P_k / G_k, and d/dP_k analytically.
 
     ``base``: the joint fit's :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`
-    (at the given irradiances); ``pixels_per_image``: fitted (super-)pixels
-    of each image, in the order of the evaluator's points (each pixel has
-    the same number of points: its samples or footprint).
+    (at the given irradiances); ``params``: the fit's
+    :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` with its ``powers``; ``pixels_per_image``:
+    fitted (super-)pixels of each image, in the order of the evaluator's points (each pixel has the same
+    number of points: its samples or footprint).
     """
 
-    def __init__(self, base, model, pixels_per_image):
-        self.base, self.model = base, model
+    def __init__(self, base, params, pixels_per_image):
+        self.base, self.params = base, params
         self.counts = np.asarray(pixels_per_image, int)
         self._cache = None   # (shape key, wrt, Parts) of the last BSDF evaluation
 
@@ -126,7 +76,7 @@ class PowerEvaluator:
         return np.repeat(np.arange(len(self.counts)), self.counts * pts)
 
     def base_parts(self, shape_values, wrt=()):
-        names = self.model.base.shape_names
+        names = self.params.model.shape_names
         key = tuple(round(float(shape_values[n]), 12) for n in names)
         wrt = tuple(n for n in wrt if n in names)
         c = self._cache
@@ -139,16 +89,19 @@ class PowerEvaluator:
     def parts(self, shape_values, wrt=()):
         p = self.base_parts(shape_values, wrt)
         img = self.image_of(p.surface.shape[1])
-        f = self.model.factors(shape_values)[img]
+        f = self.factors(shape_values)[img]
         out = Parts(p.surface * f, p.body * f, {n: d * f for n, d in p.d_surface.items()},
                     {n: d * f for n, d in p.d_body.items()}, p.nonfinite)
-        for n in wrt:
-            if n in self.model.power_names:
-                k = int(n.split("_")[1])
-                on = (img == k) / self.model.given[k]       # d (P_k / G_k) / d P_k on image k's points
-                out.d_surface[n] = p.surface * on
-                out.d_body[n] = p.body * on
+        for r in self.params.powers:
+            if r.name in wrt:
+                on = (img == r.image) / self.params.given[r.image]    # d (P_k / G_k) / d P_k on image k's points
+                out.d_surface[r.name] = p.surface * on
+                out.d_body[r.name] = p.body * on
         return out
+
+    def factors(self, shape_values):
+        """P_k / G_k for every image (1 for the reference)."""
+        return np.array([1.0] + [shape_values[r.name] / self.params.given[r.image] for r in self.params.powers])
 
 
 class PowerProblem(Problem):
@@ -173,12 +126,12 @@ class PowerProblem(Problem):
         """P_1 .. P_{K-1} (dict) that best scale the prediction at unit power onto each image."""
         y, mu, w = self._pairs(a_s * base.surface + a_b * base.body)
         out = {}
-        for n, (a, b) in zip(self.model.power_names, self.slices[1:]):
-            k = int(n.split("_")[1])
+        for r in self.params.powers:
+            n, k, (a, b) = r.name, r.image, self.slices[r.image]
             den = float(np.sum(w[a:b] * mu[a:b] ** 2))
             f = float(np.sum(w[a:b] * y[a:b] * mu[a:b])) / den if den > 0 else 1.0
             _, _, lo, hi = self.bounds.lims[n]
-            out[n] = min(max(self.model.given[k] * f, lo), hi) if math.isfinite(f) else shape[n]
+            out[n] = min(max(self.params.given[k] * f, lo), hi) if math.isfinite(f) else shape[n]
         return out
 
     def closed_form(self, shape):
@@ -207,19 +160,19 @@ class PowerProblem(Problem):
         return st
 
 
-def problem_factory(model, evaluator, pixel_slices, start="ratio"):
+def problem_factory(evaluator, pixel_slices, start="ratio"):
     """What :func:`fmbrdf_mi.fit.api.fitting.fit` calls to build its problem for a free-power joint fit
-    (``model``: a :class:`PowerModel`, ``evaluator``: its :class:`PowerEvaluator`)."""
+    (``evaluator``: its :class:`PowerEvaluator`, whose parameter table has the powers)."""
 
-    def make(_base, _ev, objective, bounds, progress, fixed, deadline):
-
-        return PowerProblem(model, evaluator, objective, Bounds(model, bounds), progress, fixed=fixed,
-                            deadline=deadline, pixel_slices=pixel_slices, start=start)
+    def make(base, _ev, objective, bounds, progress, fixed, deadline):
+        params = Parameters(base, powers=evaluator.params.given, bounds=bounds, fixed=fixed)
+        return PowerProblem(params, evaluator, objective, progress, deadline, pixel_slices=pixel_slices,
+                            start=start)
 
     return make
 
 
-def split_result(res, model, names):
+def split_result(res, params, names):
     """Move the powers out of a fit's params / std_errors; returns the ``powers`` block of fit.json.
 
     ``{"reference": name of image 0, "names": [...], "given": [...], "values": [...],
@@ -227,15 +180,15 @@ def split_result(res, model, names):
     """
     unc = res.uncertainty or {}
     ci = unc.get("ci95", {})
-    values, ses, cis = [model.given[0]], [0.0], [[model.given[0], model.given[0]]]
-    for n in model.power_names:
+    given = params.given
+    values, ses, cis = [given[0]], [0.0], [[given[0], given[0]]]
+    for n in (r.name for r in params.powers):
         values.append(float(res.params.pop(n)))
         se = res.std_errors.pop(n, None)
         ses.append(None if se is None else float(se))
         cis.append(ci.get(n))
-    return {"reference": names[0], "names": list(names), "given": list(model.given), "values": values,
-            "std_errors": ses, "ci95": cis,
-            "parameters": {nm: pn for nm, pn in zip(names[1:], model.power_names)}}
+    return {"reference": names[0], "names": list(names), "given": list(given), "values": values,
+            "std_errors": ses, "ci95": cis, "parameters": {names[r.image]: r.name for r in params.powers}}
 
 
 def power_text(im):

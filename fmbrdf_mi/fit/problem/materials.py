@@ -19,24 +19,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from fmbrdf_mi.fit.evaluate.materials import MaterialModel
-from fmbrdf_mi.fit.evaluate.models import Bounds
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.problem.problem import Problem
 
 
 class MaterialProblem(Problem):
-    """A :class:`~fmbrdf_mi.fit.problem.problem.Problem` over M materials: ``materials`` the
-    :class:`~fmbrdf_mi.fit.evaluate.materials.MaterialModel`, ``cell_material`` (cells,) each fitted
-    cell's material."""
+    """A :class:`~fmbrdf_mi.fit.problem.problem.Problem` over M materials (its parameter table's
+    ``count``): ``cell_material`` (cells,) each fitted cell's material."""
 
-    def __init__(self, *args, materials, cell_material, **kw):
+    def __init__(self, *args, cell_material, **kw):
         super().__init__(*args, **kw)
-        self.materials = materials
         self.cell_material = np.asarray(cell_material, dtype=np.int64)
 
     def with_fixed(self, values):
-        return MaterialProblem(self.model, self.ev, self.obj, self.bounds, self.progress,
-                               fixed={**self.fixed, **values}, materials=self.materials,
+        return MaterialProblem(self.params.with_fixed(values), self.ev, self.obj, self.progress,
                                cell_material=self.cell_material)
 
     def material_scores(self, parts, st):
@@ -46,39 +42,24 @@ class MaterialProblem(Problem):
         mu = obj.mu(parts, st)
         v = np.maximum(obj.noise.variance(mu), 1e-300)
         per_cell = 0.5 * np.sum((obj.y - mu) ** 2 / v + np.log(v), axis=1)
-        return np.bincount(self.cell_material, weights=per_cell, minlength=self.materials.count)
+        return np.bincount(self.cell_material, weights=per_cell, minlength=self.params.count)
 
 
-def problem_factory(cell_material, count, wrap):
+def problem_factory(cell_material, count, maps):
     """What :class:`~fmbrdf_mi.fit.problem.problem.FitData` calls to build the problem of a fit of ``count``
-    materials; ``wrap(model)``: the model the problem reports with (the per-pixel layout's
-    :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelModel`, else the material model itself)."""
+    materials; ``maps``: whether the albedos are maps (the per-pixel layout), else one pair per material."""
 
     def make(base, evaluator, objective, bounds, progress, fixed, deadline):
-        mm = MaterialModel(base, count)
-        return MaterialProblem(wrap(mm), evaluator, objective, Bounds(mm, mm.expand(bounds)), progress,
-                               fixed=mm.expand(fixed), deadline=deadline, materials=mm,
-                               cell_material=cell_material)
+        params = Parameters(base, materials=count, maps=maps, bounds=bounds, fixed=fixed)
+        return MaterialProblem(params, evaluator, objective, progress, deadline, cell_material=cell_material)
 
     return make
 
 
-def material_block(params, std_errors, ci95, count, pixels, base_names=None):
+def material_block(params, reported, std_errors, ci95, pixels):
     """fit.json's ``materials`` block: ``{"count": M, "pixels": [fitted pixels of each], "parameters": [{eta:
-    ..} per material], "std_errors": [...], "ci95": [...]}`` from the flat ``eta[m]`` names of a fit (or, one
-    material, the model's own names: ``base_names`` given)."""
-
-    def nest(flat):
-        out = [{} for _ in range(count)]
-        for k, v in (flat or {}).items():
-            if base_names is not None:
-                if k in base_names:
-                    out[0][k] = v
-            elif k.endswith("]") and "[" in k:
-                name, label = k[:-1].split("[", 1)
-                if label.isdigit() and int(label) < count:
-                    out[int(label)][name] = v
-        return out
-
-    return {"count": int(count), "pixels": [int(p) for p in pixels], "parameters": nest(params),
-            "std_errors": nest(std_errors), "ci95": nest(ci95)}
+    ..} per material], "std_errors": [...], "ci95": [...]}`` from a fit's reported parameters, standard errors
+    and intervals, by the rows of its parameter table ``params`` (one material: the rows' own names)."""
+    return {"count": params.count or 1, "pixels": [int(p) for p in pixels],
+            "parameters": params.per_material(reported), "std_errors": params.per_material(std_errors),
+            "ci95": params.per_material(ci95)}

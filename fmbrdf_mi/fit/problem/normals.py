@@ -89,7 +89,7 @@ class NormalProblem(Problem):
     everywhere, are interpolated bilinearly.
     """
 
-    def __init__(self, obs, m, model, bounds, fixed, lam, prior="curvature"):
+    def __init__(self, obs, m, params, lam, prior="curvature"):
 
         self.K = len(obs)
         self.shape = obs[0].shape
@@ -109,8 +109,8 @@ class NormalProblem(Problem):
         irr = np.repeat(np.array([o.irradiance for o in obs], float), N * 4)
         y = np.concatenate([s.at(self.idx) for s in smps])                  # (K N, 4), image-major
         noise = same_noise(obs) or NoiseModel(step=smps[0].step)
-        ev = PixelEvaluator(model, self.sample_views, self.sample_views, self.lights, irr)
-        super().__init__(model, ev, LikelihoodObjective(y, A, noise, smps[0].dof), bounds, fixed=fixed)
+        ev = PixelEvaluator(params.model, self.sample_views, self.sample_views, self.lights, irr)
+        super().__init__(params, ev, LikelihoodObjective(y, A, noise, smps[0].dof))
         self.nmap = None
         self.p = len(self.names) + 2
         self.stencils, self.coef = stencils(m, prior)

@@ -8,8 +8,9 @@ import time
 
 import numpy as np
 
-from fmbrdf_mi.fit.evaluate.albedos import ChannelModel, PixelModel, floored
+from fmbrdf_mi.fit.evaluate.albedos import floored
 from fmbrdf_mi.fit.evaluate.models import Bounds, State
+from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.objectives.objective import PaperObjective
 
@@ -19,30 +20,29 @@ class TimeUp(Exception):
 
 
 class Problem:
-    """A model, an evaluator at the fitted pixels, the objective, the bounds, the clock.
+    """A parameter table, an evaluator at the fitted pixels, the objective, the bounds, the clock.
 
+    ``params``: the fit's :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (its rows' bounds and fixed
+    values; a model alone: its table of one material and shared albedos, all free); ``model`` is its model,
+    ``bounds`` the :class:`~fmbrdf_mi.fit.evaluate.models.Bounds` of its rows, ``fixed`` {name: value} of
+    the rows held fixed (not estimated), ``names`` the free ones.
     ``objective``: :class:`fmbrdf_mi.fit.objectives.objective.PaperObjective` or
     :class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective` (a
     :class:`fmbrdf_mi.fit.objectives.loss.Target` is wrapped in the former).
-    ``fixed``: {shape name: value} held fixed (not estimated).  ``deadline``:
-    absolute ``time.time()`` after which no model evaluation may end: each
+    ``deadline``: absolute ``time.time()`` after which no model evaluation may end: each
     evaluation first checks that the slowest one of its kind so far would
     still finish in time, else raises :class:`TimeUp` (so the limit holds
     inside every loop, coarse search included).
     """
 
-    def __init__(self, model, evaluator, objective, bounds=None, progress=None, fixed=None, deadline=None):
-
-        self.model, self.ev = model, evaluator
+    def __init__(self, params, evaluator, objective, progress=None, deadline=None):
+        self.params = params if isinstance(params, Parameters) else Parameters(params)
+        self.model, self.ev = self.params.model, evaluator
         self.obj = PaperObjective(objective) if isinstance(objective, L.Target) else objective
-        self.bounds = bounds if isinstance(bounds, Bounds) else Bounds(model, bounds)
+        self.bounds = Bounds(self.params)
         self.progress = progress or (lambda msg: None)
-        self.fixed = dict(fixed or {})
-        unknown = [k for k in self.fixed if k not in model.shape_names]
-        if unknown:
-            raise ValueError(f"fixed: {model.name} has no shape parameter {', '.join(unknown)} "
-                             f"(it has {', '.join(model.shape_names)})")
-        self.names = tuple(n for n in model.shape_names if n not in self.fixed)
+        self.fixed = {r.name: r.fixed for r in self.params.shape if r.fixed is not None}
+        self.names = tuple(r.name for r in self.params.shape if r.fixed is None)
         self.n_evals = 0
         self.n_nonfinite = 0
         self.t0 = time.time()
@@ -59,7 +59,7 @@ class Problem:
         unknowns (subclasses), which do not support it."""
         if type(self) is not Problem:
             return None
-        return Problem(self.model, self.ev, self.obj, self.bounds, self.progress, fixed={**self.fixed, **values})
+        return Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress)
 
     # the paper objective's weights, as before (tests and Adam use them)
     @property
@@ -104,7 +104,7 @@ class Problem:
     def from_z(self, z):
         shape = dict(self.fixed)
         shape.update({n: self.bounds.to_value(n, z[i]) for i, n in enumerate(self.names)})
-        shape = {n: shape[n] for n in self.model.shape_names}
+        shape = {n: shape[n] for n in self.params.shape_names}
         k = len(self.names)
         if self.eliminates:
             return State(shape, *self.albedos_now)
@@ -115,7 +115,7 @@ class Problem:
 
     def state(self, shape, a_s, a_b):
         """A State with the fixed values imposed."""
-        return State({n: float(self.fixed.get(n, shape[n])) for n in self.model.shape_names}, a_s, a_b)
+        return State({n: float(self.fixed.get(n, shape[n])) for n in self.params.shape_names}, a_s, a_b)
 
     # ---- evaluation
     def time_left(self):
@@ -126,7 +126,7 @@ class Problem:
             raise TimeUp()
 
     def parts(self, st, jac=False):
-        key = tuple(round(float(st.shape[n]), 12) for n in self.model.shape_names)
+        key = tuple(round(float(st.shape[n]), 12) for n in self.params.shape_names)
         for k, j, p in self._cache:
             if k == key and (j or not jac):
                 return p
@@ -214,10 +214,10 @@ class FitData:
     def problem(self, model, bounds, progress, fixed, deadline):
         """The :class:`Problem` of these data (the free-power one when ``make_problem`` says so)."""
         if self.make_problem is None:
-            layout = self.objective.layout   # per-channel albedos: a model that reports them
-            wrap = (model if layout is None else PixelModel(model, layout) if layout.eliminates
-                    else ChannelModel(model, layout))
-            return Problem(wrap, self.evaluator, self.objective, Bounds(model, bounds), progress, fixed=fixed,
-                           deadline=deadline)
+            layout = self.objective.layout   # per-channel albedos or maps: a table that reports them
+            maps = layout is not None and layout.eliminates
+            params = Parameters(model, channels=None if layout is None or maps else layout.labels, maps=maps,
+                                bounds=bounds, fixed=fixed)
+            return Problem(params, self.evaluator, self.objective, progress, deadline)
         return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
 

@@ -53,13 +53,13 @@ def distinct_starts(problem, cands, n):
     """Up to ``n`` starts: the best candidate, then the best ones differing from all chosen in a
     shape parameter other than eta and kappa (those the coarse search tuned last), preferring
     candidates with both lobes switched on."""
-    material = getattr(problem.model, "base", problem.model).shape_names   # not the free light powers
-    first = [k for k in problem.names if k in material and k not in ("eta", "kappa")] or list(problem.names)
+    first = [k for k in problem.names if problem.params.row[k].kind == "shape"   # not the free light powers
+             and k not in ("eta", "kappa")] or list(problem.names)
     chosen = [cands[0][1]]
     pool = [c for _, c in cands[1:]]
 
     def off(c):  # from the coarse search's own evaluation (no new table rebuild)
-        key = tuple(round(c.shape[n], 9) for n in problem.model.shape_names)
+        key = tuple(round(c.shape[n], 9) for n in problem.params.shape_names)
         return not problem.both_lobes.get(key, True)
 
     pool.sort(key=off)  # stable: keeps the score order otherwise
@@ -144,7 +144,7 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
     every accepted step.
     """
     say = report or (lambda m: None)
-    model = problem.model
+    params = problem.params
     history = [] if history is None else history
     out = Solution(None, "", False)
     t0 = time.time()
@@ -155,7 +155,7 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
             cands = O.coarse_search(problem)
             out.t_search = time.time() - t0
             history.append({"stage": "search", "iter": 0, "loss": cands[0][0], "time": out.t_search,
-                            "params": model.report(cands[0][1].shape, cands[0][1].a_s, cands[0][1].a_b)})
+                            "params": params.report(cands[0][1].shape, cands[0][1].a_s, cands[0][1].a_b)})
             chosen = distinct_starts(problem, cands, max(1, int(starts)))
         best = None
         for k, st0 in enumerate(chosen):
@@ -164,8 +164,8 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
             res = refine(problem, st0, rounds=rounds, optimizer=optimizer, max_iter=max_iter, tol=tol,
                          time_limit=time_limit, lr=lr, history=history, report=say)
             score = problem.obj.score(problem.parts(res[0]), res[0])
-            out.starts.append({"start": model.report(st0.shape, st0.a_s, st0.a_b),
-                               "end": model.report(res[0].shape, res[0].a_s, res[0].a_b),
+            out.starts.append({"start": params.report(st0.shape, st0.a_s, st0.a_b),
+                               "end": params.report(res[0].shape, res[0].a_s, res[0].a_b),
                                "score": score, "converged": res[2], "reason": res[1]})
             say(f"[fit] start {k + 1} ended at score {score:.6e} ({res[1]})")
             if best is None or score < best[0]:

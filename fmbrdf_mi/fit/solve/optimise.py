@@ -108,10 +108,10 @@ def coarse_search(problem, keep=2):
     closed form (the objective's weighted least squares) and the objective
     with the candidate's own weights decides.
     """
-    if getattr(problem, "materials", None) is not None:
+    if problem.params.count is not None:
         return material_search(problem, keep)
-    model = problem.model
-    grids, first, later, mids = search_grids(model, problem.bounds, problem.fixed, problem.names)
+    params = problem.params
+    grids, first, later, mids = search_grids(params, problem.bounds, problem.fixed, problem.names)
     lobes = {}
 
     def evaluate(shape):
@@ -124,7 +124,7 @@ def coarse_search(problem, keep=2):
         problem.both_lobes[key] = lobes["last"]
         problem.current = min(results.values(), key=lambda x: x[0])[1]
 
-    return staged_search(model.shape_names, grids, first, later, mids, evaluate, shape_of=lambda st: st.shape,
+    return staged_search(params.shape_names, grids, first, later, mids, evaluate, shape_of=lambda st: st.shape,
                          keep=keep, on_point=on_point, progress=problem.progress)
 
 
@@ -133,14 +133,14 @@ MATERIAL_CANDIDATES = 6
 
 
 class _FirstMaterialBounds:
-    """The bounds of material 0's parameters under the base model's names (every material has the same:
-    ``bounds`` and ``fixed`` are given per model parameter)."""
+    """The bounds of material 0's parameters under the model's names (every material has the same:
+    ``bounds`` and ``fixed`` are given per model parameter); ``rows``: {model's name: material 0's row name}."""
 
-    def __init__(self, bounds):
-        self.bounds = bounds
+    def __init__(self, bounds, rows):
+        self.bounds, self.rows = bounds, rows
 
     def clip_grid(self, name, grid):
-        return self.bounds.clip_grid(f"{name}[0]", grid)
+        return self.bounds.clip_grid(self.rows[name], grid)
 
 
 def material_search(problem, keep=2):
@@ -155,15 +155,15 @@ def material_search(problem, keep=2):
     its own pixels at about the cost of one search.  Candidate j combines
     every material's j-th best point.
     """
-    mm = problem.materials
-    base, M = mm.base, mm.count
-    fixed0 = {n: problem.fixed[f"{n}[0]"] for n in base.shape_names if f"{n}[0]" in problem.fixed}
-    names0 = [n for n in base.shape_names if f"{n}[0]" in problem.names]
-    grids, first, later, mids = search_grids(base, _FirstMaterialBounds(problem.bounds), fixed0, names0)
+    base, rows = problem.model, problem.params.shape
+    first0 = {r.base: r.name for r in rows if r.material == 0}     # material 0's rows by the model's names
+    fixed0 = {n: problem.fixed[r] for n, r in first0.items() if r in problem.fixed}
+    names0 = [n for n, r in first0.items() if r in problem.names]
+    grids, first, later, mids = search_grids(base, _FirstMaterialBounds(problem.bounds, first0), fixed0, names0)
     scores = {}
 
     def full(shape):
-        return {f"{n}[{m}]": shape[n] for m in range(M) for n in base.shape_names}
+        return {r.name: shape[r.base] for r in rows}
 
     def tied(shape):
         key = tuple(round(shape[n], 9) for n in base.shape_names)
@@ -177,10 +177,10 @@ def material_search(problem, keep=2):
     ranked = [staged_search(base.shape_names, grids, first, later, mids,
                             lambda s, m=m: (float(tied(s)[m]), dict(s)), shape_of=lambda s: s, keep=keep,
                             progress=problem.progress if m == 0 else None)
-              for m in range(M)]
+              for m in range(problem.params.count)]
     out = []
     for j in range(min(MATERIAL_CANDIDATES, min(len(r) for r in ranked))):
-        shape = {f"{n}[{m}]": ranked[m][j][1][n] for m in range(M) for n in base.shape_names}
+        shape = {r.name: ranked[r.material][j][1][r.base] for r in rows}
         st, parts = problem.closed_form(shape)
         out.append((problem.obj.score(parts, st), st))
     out.sort(key=lambda x: x[0])
@@ -190,7 +190,7 @@ def material_search(problem, keep=2):
 
 # ---------------------------------------------------------------- refinement
 def format_state(problem, st):
-    rep = problem.model.report(st.shape, st.a_s, st.a_b)
+    rep = problem.params.report(st.shape, st.a_s, st.a_b)
     return " ".join(f"{k}={v:.4g}" for k, v in rep.items())
 
 
@@ -243,7 +243,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         if history is not None:
             history.append({"stage": f"lm{round_no}", "iter": it, "loss": f,
                             "time": time.time() - problem.t0,
-                            "params": problem.model.report(st.shape, st.a_s, st.a_b)})
+                            "params": problem.params.report(st.shape, st.a_s, st.a_b)})
         problem.progress(f"[lm {round_no}] iter {it:2d}  {obj.name} {f:.6e}  {format_state(problem, st)}  "
                          f"({time.time() - problem.t0:.1f} s)")
 
@@ -334,7 +334,7 @@ def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limi
         if history is not None:
             history.append({"stage": f"adam{round_no}", "iter": it, "loss": f,
                             "time": time.time() - problem.t0,
-                            "params": problem.model.report(st.shape, st.a_s, st.a_b)})
+                            "params": problem.params.report(st.shape, st.a_s, st.a_b)})
         if it % 5 == 0 or it == 1:
             problem.progress(f"[adam {round_no}] iter {it:3d}  loss {f:.6e}  {format_state(problem, st)}  "
                              f"({time.time() - problem.t0:.1f} s)")
