@@ -109,7 +109,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     returned normals' state).  ``lam_material``: the smoothness weight of the material's estimate and
     standard errors (one more run from the refinement's result, when below ``lam``; None: the material at
     ``lam``); ``options["material_stage"]`` its energy and stop reason.  ``uncertainty["calibrated"]`` is
-    true when the material's weight is at most :data:`LAM_MATERIAL` (module docstring).
+    true when the material's weight is at most ``LAM_MATERIAL`` (module docstring).
     Raises :class:`~fmbrdf_mi.fit.InputError` with fewer than 2 usable pixels.
     """
 
