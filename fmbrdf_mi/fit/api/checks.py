@@ -8,9 +8,9 @@
 :func:`~fmbrdf_mi.fit.api.fitting.fit` applies those its options ask for (``area_points=None``,
 ``intervals="auto"`` or ``"profile"``; the optima always), as does the command line.  Each takes a
 converged pixel-path result with its ``fitted`` (:class:`~fmbrdf_mi.fit.api.assemble.Fitted`) and
-returns it with its uncertainty block extended (``quadrature``, ``interval_kind`` and ``profile``,
-``other_optima``) and its ``method`` naming what was applied: the same result, updated, or, where the
-quadrature check refits, a new one; any other result is returned as it is.
+returns it (or, where the quadrature check refits, a new one) with its uncertainty block extended
+(``quadrature``, ``interval_kind`` and ``profile``, ``other_optima``) and
+its ``method`` naming what was applied; any other result is returned as it is.
 """
 from __future__ import annotations
 

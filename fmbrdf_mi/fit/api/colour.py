@@ -13,27 +13,17 @@ phi_k, at its own point in the 4x4 period) is
     mu_ik = 1/2 (1, cos 2 phi_k, sin 2 phi_k) . (a_s[c_k] S_ik + a_b[c_k] B_ik)
 
 with S, B the unit-albedo surface and body Stokes vectors
-(:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts`): the per-channel albedo
-layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.ChannelAlbedos`) of the one
-:class:`~fmbrdf_mi.fit.problem.problem.Problem` and of the mono fit's
-likelihood (:class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`:
-Gaussian, Poisson-Gaussian variance, iteratively reweighted): every raw
-sample, of every channel, is one independent measurement.
+(:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts`) and the per-channel
+albedo layout :class:`~fmbrdf_mi.fit.evaluate.albedos.ChannelAlbedos`; every
+raw sample of every channel is one independent measurement of the mono fit's
+likelihood (:class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`).
 
-The fit is the one fit (:func:`~fmbrdf_mi.fit.api.fitting.fit`) of the
-observations carrying these samples: :func:`~fmbrdf_mi.fit.problem.data.prepare`
-sees the samples' colour channels and gives the objective the per-channel
-layout, and everything else is every fit's: the pixel selection, the coarse
-search (each channel's two albedos in closed form, the non-negative weighted
-least squares of that channel's samples), the starts, the reweighting
-rounds and the one Levenberg-Marquardt of :mod:`fmbrdf_mi.fit.solve.driver`
-(with a layout it re-solves the albedos in closed form at every trial point:
-variable projection, :meth:`~fmbrdf_mi.fit.problem.problem.Problem.projected`),
-and the uncertainty of :func:`fmbrdf_mi.fit.uncertainty.summarise` (inverse
-Fisher information of the standardised residuals, in the reported
-parameters ``k_s[R]`` ...; the same misfit flag and 95 % intervals).  This
-module adds the colour fit's own reporting: nested per-channel parameters,
-chi^2 per sample of each image, the predicted samples.
+The fit is :func:`~fmbrdf_mi.fit.api.fitting.fit` of the observations
+carrying these samples (:func:`~fmbrdf_mi.fit.problem.data.prepare` gives the
+objective the per-channel layout); pixel selection, search, solver and
+uncertainty are every fit's.  This module adds the colour fit's reporting:
+nested per-channel parameters, chi^2 per sample of each image, the predicted
+samples.
 """
 from __future__ import annotations
 
@@ -83,10 +73,7 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     albedos eliminated by variable projection, their standard errors and the shape's incidental-parameter
     sandwich as in a mono per-pixel fit).  Several mosaics must then be of one view.
 
-    The fit is :func:`~fmbrdf_mi.fit.api.fitting.fit` of the observations
-    with these samples: the same pixel selection (grazing and polar periods
-    left out; the caller erodes the mask), search, solver and uncertainty.
-    Returns a :class:`~fmbrdf_mi.fit.result.FitResult`: params, std_errors
+    The caller erodes the mask; grazing and polar periods are left out.  Returns a :class:`~fmbrdf_mi.fit.result.FitResult`: params, std_errors
     (per-channel entries as {"R", "G", "B"} dicts; None when not converged),
     loss (chi^2), n_pixels, noise, converged, stop_reason, pixels (the fitted
     flat period indices; a list per image for lists), channels, and in
@@ -163,7 +150,7 @@ def predict_samples(obs, samples, res):
                        weights=None if len(w) == 1 else w).parts(res["internal"]["shape"], ())
     A, n = samples.analyser(), len(idx)
     unit = [np.einsum("kc,cik->ik", A, s.reshape(3, n, -1)) for s in (p.surface, p.body)]
-    if getattr(res, "maps", None) is not None:      # per period and channel: the maps' albedos
+    if getattr(res, "maps", None) is not None:
         if np.shape(res.maps["k_s"])[1:] != obs.mask.shape:
             raise InputError(f"per-pixel albedos: the maps are {np.shape(res.maps['k_s'])[2]}x"
                              f"{np.shape(res.maps['k_s'])[1]} periods, this mosaic {obs.mask.shape[1]}x"

@@ -3,56 +3,32 @@
     found = find_materials(obs, 2)           # FoundMaterials: labels (H, W), record (for fit.json)
     res = fit(obs, materials=found.labels)   # the ordinary fit of several materials
 
-What it does, in three steps (every step deterministic for a given ``seed``):
+Three steps, deterministic for a given ``seed``:
 
-1. **Features: per-pixel albedos.**  The pipeline's per-pixel albedo fit
-   (``fit(obs, albedo="per-pixel")``: shared eta, alpha, beta, kappa; k_s and
-   k_b per pixel, with their standard errors) divides the geometry (normal,
-   view, light) out of each pixel through the model, so a pixel's (k_s, k_b)
-   is a property of its material, not of where it sits on the object -- which
-   raw intensity, DoLP or AoLP are not (they follow the normal).  The features
-   are k_s and k_b in units of each pixel's own standard error (a pixel far
-   from the highlight has an undetermined k_s, SE up to 10-100 times k_s from
-   one image: it then counts by its k_b alone).
-2. **Clustering.**  k-means in those units (each pixel's squared distance to a
-   centre is sum_f (x_f - c_f)^2 / se_f^2, centres the precision-weighted
-   means): k-means++ starts from ``numpy.random.default_rng(seed)``, 10 of
-   them, the lowest total kept; then a 3 x 3 majority filter over the
-   labelled pixels (``clean`` passes) removes isolated pixels.
+1. **Features.**  The per-pixel albedo fit (``albedo="per-pixel"``) divides
+   the geometry out of each pixel through the model, so a pixel's (k_s, k_b)
+   belongs to its material, not to where it sits on the object (raw
+   intensity, DoLP and AoLP follow the normal).  The features are k_s and k_b
+   in units of each pixel's own standard error, so a pixel far from the
+   highlight (k_s undetermined) counts by its k_b alone.
+2. **Clustering.**  :func:`weighted_kmeans` in those units, then
+   :func:`majority_filter` removes isolated pixels.
 3. **Refinement on the model (hard EM).**  The fit of M materials with these
-   labels (refused at once if they are not separated, below), then each pixel
-   goes to the material whose fitted model predicts its Stokes (S0, S1, S2)
-   with the smallest chi^2, majority filter again, and the fit is repeated
-   while labels change (at most ``rounds`` fits; the labels returned are those
-   of the last fit, ``fit``).  The per-pixel albedo
-   fit assumed one shape for all materials; this step uses each material's
-   own eta, alpha, beta, kappa and albedos.
+   labels, then each pixel goes to the material whose fitted model predicts
+   its Stokes (S0, S1, S2) with the least chi^2 (:func:`material_chi2`), and
+   the fit is repeated while labels change (at most ``rounds`` fits).  This
+   uses each material's own shape, which step 1 shares.
 
-**The check that the materials are separated.**  With the last fit, each
-pixel's distance D: the squared difference, in units of the noise, between the
-Stokes (S0, S1, S2) its material's fitted model predicts there and what the
-nearest other material predicts (the noise unit from the residuals: the
-median per-pixel chi^2 is set to that of chi^2 with 3 degrees of freedom,
-2.37, so no noise model is needed).  Two Gaussians D apart are told apart
-with error probability Phi(-sqrt(D)/2); a pixel is **decided** when D >= 16
-(4 noise sd, error <= 2.3 %).  The materials are **separated** when, for each
-material, at least half its pixels are decided (``min_decided``); otherwise
-:class:`MaterialsNotSeparated` is raised (one line: each material's
-fraction), never labels that mean nothing.  D compares the materials' models,
-not the pixel's own residuals: picking for each pixel the material its noise
-favours (which a chi^2 difference would reward, even between identical
-materials) does not make it grow.
+After each fit :func:`separation` checks that the materials are told apart at
+each pixel; otherwise :class:`MaterialsNotSeparated` is raised, never labels
+that mean nothing.
 
-**When it fails.**  Materials whose albedos are equal and that differ only in
-eta, alpha, beta or kappa by less than the noise shows at each pixel (each
-pixel must tell its material on its own: a uniform region of a 1 % different
-roughness is not found); materials with identical appearance (refused, as
-above); a material on fewer pixels than the filter's 3 x 3 (thin lines and
-dots are cleaned away); M larger than the number of materials present (a
-material is split: its two halves' fits agree, refused as not separated); a
-material that is everywhere dark or saturated (no albedo per pixel).  The
-labels are on the fit's pixel grid and cover the pixels the fit uses (the
-eroded mask less saturated pixels); the rest are -1.
+**When it fails.**  Materials with equal albedos that differ in eta, alpha,
+beta or kappa by less than the noise shows at each pixel; materials that look
+identical, or M larger than the number present (refused as not separated); a
+material on fewer pixels than the 3 x 3 filter; a material everywhere dark or
+saturated.  The labels are on the fit's pixel grid and cover the pixels the
+fit uses; the rest are -1.
 """
 from __future__ import annotations
 
@@ -168,11 +144,10 @@ def majority_filter(labels, count, passes=1):
 def material_chi2(obs, model, params, count, idx):
     """Each material's fitted model at pixels ``idx`` in units of the noise: (chi2 (count, n), the per-pixel
     chi^2 of the Stokes (S0, S1, S2) residuals; pred (count, 3, n), the predictions divided by the noise's
-    standard deviation; the 3 noise scales).  Each pixel's variance: the capture's ``lin_variance`` when
-    known (S1, S2; S0 half of it, the four polariser samples' mean), else proportional to S0 plus 1 % of its
-    median (shot noise); then each component is scaled so that the median of the best material's per-pixel
-    sum is the median of chi^2 with 3 degrees of freedom (the noise unit from the residuals: no noise model
-    needed, and none trusted beyond its shape)."""
+    standard deviation; the 3 noise scales).  Each pixel's variance is the capture's ``lin_variance`` when
+    known (S0: half of it), else shot noise (S0 plus 1 % of its median); each component is then scaled so
+    that the median of the best material's per-pixel chi^2 is that of chi^2 with 3 degrees of freedom, so the
+    noise model is trusted for its shape only."""
     obs_s = np.asarray(obs.stokes, dtype=np.float64).reshape(3, -1)[:, idx]
     if obs.lin_variance is not None:
         lin = np.asarray(obs.lin_variance, dtype=np.float64).ravel()[idx]
@@ -195,9 +170,9 @@ def material_chi2(obs, model, params, count, idx):
 def separation(pred, labels_flat, count):
     """Per material: the fraction of its pixels decided and the median distance D (squared, noise units)
     between the pixel's own material's predicted Stokes and the nearest other material's.  Two Gaussians D
-    apart are told apart by the likelihood with error probability Phi(-sqrt(D) / 2): a pixel is decided when
-    D >= DECIDED_D (error <= 2.3 %).  D measures the materials, not the pixel's noise: it does not grow by
-    picking, for each pixel, the material its noise happens to favour."""
+    apart are told apart with error probability Phi(-sqrt(D) / 2); a pixel is decided when D >= DECIDED_D.
+    D compares the materials' models, not the pixel's residuals, so it does not grow by assigning each pixel
+    the material its noise happens to favour (as a chi^2 difference would, even for identical materials)."""
     n = pred.shape[2]
     own = pred[labels_flat, :, np.arange(n)]                 # (n, 3)
     d = np.sum((pred - own.T[None]) ** 2, axis=1)            # (count, n)
@@ -245,7 +220,6 @@ def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_d
     if len(idx) < 9 * count:
         raise InputError(f"--materials auto:{count}: {len(idx)} usable pixels, too few to find {count} materials "
                          f"(at least {9 * count})")
-    # 1. per-pixel albedos (all usable pixels)
     say(f"per-pixel albedo fit of {len(idx)} pixels")
     pp = fit(obs, dataclasses.replace(opts, albedo="per-pixel", max_pixels=None, intervals="fisher"),
              progress=False)
@@ -257,7 +231,6 @@ def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_d
     if len(have) < 9 * count:
         raise InputError(f"--materials auto:{count}: only {len(have)} pixels have per-pixel albedos with standard "
                          f"errors, too few to find {count} materials")
-    # 2. k-means in standard-error units, then the majority filter
     floor = np.median(ses[have], axis=0) * 1e-3          # a pixel with an SE near 0 must not dominate
     wts = 1.0 / np.maximum(ses[have], floor) ** 2
     lab_have, centres, _ = weighted_kmeans(feats[have], wts, count, seed=seed)
@@ -267,8 +240,6 @@ def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_d
     kmeans = {"centres": {"k_s": centres[:, 0].tolist(), "k_b": centres[:, 1].tolist()},
               "pixels": [int(np.sum(lab == m)) for m in range(count)]}
     say(f"k-means: {kmeans['pixels']} pixels, k_b centres {np.round(centres[:, 1], 4).tolist()}")
-    # 3. fit M materials; stop if they are not separated; else reassign each usable pixel to its least-chi^2
-    # material and fit again while labels change (at most ``rounds`` fits)
     record = {"method": METHOD, "count": count, "seed": int(seed), "features": ["k_s", "k_b"],
               "clean_passes": int(clean), "kmeans": kmeans, "rounds": [],
               "decided_distance": DECIDED_D, "min_decided": float(min_decided),

@@ -5,33 +5,19 @@
     res.params, res.std_errors                   # the six parameters, from the joint likelihood
     res.images[k]["chi2_per_dof"]                # how well image k is explained
 
-Each image is an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` with its
-own light direction, irradiance (relative light power: ``irradiance`` of
-image k is its power relative to the others; the albedos absorb a common
-factor), normals, view directions, mask, samples and footprint.  What they
-share is the material: eta, alpha, beta, kappa, k_s, r_k.  The images are
-independent measurements, so
-
-* the **likelihood** (:class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`)
-  of all images is the product of theirs: the samples of every image's
-  fitted super-pixels are stacked into one objective, with one camera noise
-  model (one camera: gain and read noise must agree, or be unknown for all,
-  then estimated from all residuals together);
-* the **paper's loss** and its variants (:mod:`fmbrdf_mi.fit.objectives.loss_variants`)
-  are computed over the union of the images' pixels (one intensity scale,
-  one DoLP-term threshold, one inlier / outlier balance);
-* the model is evaluated for all images in **one** BSDF evaluation (one
-  table build per parameter change, one light direction per direction:
-  :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`), so K images cost
-  about as much as one image with K times the pixels.
-
-With ``free_power`` the relative powers of images 1 .. K-1 are estimated
-too (:mod:`fmbrdf_mi.fit.problem.free_power`; image 0's is the reference).
-
-The standard errors are the inverse of the joint Fisher information
-(:mod:`fmbrdf_mi.fit.uncertainty`): J^T J over the standardised residuals of
-all images.  ``max_pixels`` is split evenly between the images (each draws
-its random subset with seed ``seed + k``).
+Each image is an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` with
+its own light direction, irradiance (image k's light power relative to the
+others; the albedos absorb a common factor), geometry, mask, samples and
+footprint; they share the material (eta, alpha, beta, kappa, k_s, r_k).  The
+images are independent measurements, so the likelihood of all is the product
+of theirs (one camera: the noise models must agree, or be unknown for all);
+the paper's loss and its variants are computed over the union of their
+pixels.  All images are evaluated in one BSDF evaluation, so K images cost
+about as much as one with K times the pixels.  The standard errors are the
+inverse of the joint Fisher information (:mod:`fmbrdf_mi.fit.uncertainty`).
+``max_pixels`` is split evenly between the images (image k's subset drawn
+with seed ``seed + k``).  With ``free_power`` the relative powers of images
+1 .. K-1 are estimated too (:mod:`fmbrdf_mi.fit.problem.free_power`).
 """
 from __future__ import annotations
 

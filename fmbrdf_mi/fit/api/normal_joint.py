@@ -4,68 +4,44 @@
     res = refine_joint(observations, normals, params, lam=0.3)
     res.normals, res.params, res.std_errors, res.history         # a FitResult
 
-An alternation (material with the normals fixed, then normals with the
-material fixed) converges slowly along the directions in which the material
-and the normals trade off.  Here both move in one Gauss-Newton step.  The unknowns are the
-material's unconstrained z (shape parameters through the sigmoid onto their
-bounds, log albedos: the problem :class:`fmbrdf_mi.fit.problem.normals.NormalProblem`) and, per
-pixel, two tangent-plane unknowns n_i = normalise(n_i + u_i t1_i + v_i t2_i).
+Material and normals move in one Gauss-Newton step, because an alternation
+converges slowly along the directions in which they trade off.  The unknowns
+are the material's unconstrained z (:class:`fmbrdf_mi.fit.problem.normals.NormalProblem`)
+and, per pixel, two tangent-plane unknowns n_i = normalise(n_i + u_i t1_i + v_i t2_i).
 The energy is
 
     E = sum_{k, i, s} ((y_kis - mu_kis) / sd_kis)^2  +  lam c sum_e |sum_s coef_s n_{e_s}|^2
 
 * the first term is the likelihood of the camera's samples
-  (:class:`fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`: image k, pixel i,
-  polariser sample s, variances frozen between IRLS refreshes), with mu
-  the model at the sample's own point, as the fit has it: its normal is
-  the bilinear interpolation of the normal map there (a corner outside the
-  refined pixels is extrapolated linearly from the inside, 2 n_i - n_o:
-  :class:`~fmbrdf_mi.fit.problem.normals.NormalProblem`), so a sample's
-  prediction depends on up to 4 pixels' normals (6 on the region's border);
-* the second is the smoothness prior (:func:`fmbrdf_mi.fit.problem.normals.stencils`): ``curvature``
-  (default) sums the squared second differences n_a - 2 n_b + n_c along
-  rows and columns, which vanish where the normal changes linearly across
-  the image (a surface of constant curvature is not pulled flat);
-  ``membrane``, the first differences n_i - n_j of 4-neighbours (it
-  penalises curvature itself and biases the normals of a small object
-  towards a plane).  ``lam`` is in units of the Stokes residuals divided by
-  the image's mean intensity; c = mean over the images of
-  (mean intensity)^2 / (mean sample variance) converts it to chi^2 units.
+  (:class:`fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`), with mu
+  the model at each sample's own point, whose normal is the bilinear
+  interpolation of the normal map there;
+* the second is the smoothness prior (:func:`fmbrdf_mi.fit.problem.normals.stencils`):
+  ``curvature`` (default, second differences: a surface of constant
+  curvature is not pulled flat) or ``membrane`` (first differences of
+  4-neighbours: biases a small object's normals towards a plane).  ``lam``
+  is in units of the Stokes residuals divided by the image's mean intensity;
+  c = mean over the images of (mean intensity)^2 / (mean sample variance)
+  converts it to chi^2 units.
 
-**Normal equations** (:mod:`fmbrdf_mi.fit.solve.normal_system`).  J = [J_m | J_n]:
-the material's columns dense, the normals' sparse (each data row touches at
-most 4 pixels, each prior row 2 or 3).  The damped Gauss-Newton system is
-solved by the Schur complement onto the material (the bundle-adjustment
-trick): conjugate gradients with H_nn (2 x 2 block-preconditioned; assembled
-once per linearisation as 2 x 2 blocks of the coupled pixel pairs, each
-damping adding only its ridge), then a p x p solve.  The material Jacobian is the fit's
-(forward-mode Dr.Jit AD through the BSDF, one table build per shape
-parameter; analytic in the albedos); the normals' comes from central
-differences of every sample's prediction in its own normal's tangent plane
-(all samples at once: one BSDF evaluation per perturbation), chained
-through the bilinear weights.  A step is accepted only if it lowers E
-(Levenberg-Marquardt damping otherwise), so E decreases monotonically
-between IRLS refreshes; a step that turns a normal away from the camera
-(n . v < 0.05) keeps that pixel's old normal.  Converged: E falls by less
-than 0.01 twice in a row (chi^2 units), or no step lowers it.
+The normal equations are solved by :mod:`fmbrdf_mi.fit.solve.normal_system`.
+A step is accepted only if it lowers E, so E decreases monotonically between
+IRLS refreshes; a step that turns a normal away from the camera (n . v < 0.05)
+keeps that pixel's old normal.  Converged: E falls by less than 0.01 (chi^2
+units) twice in a row, or no step lowers it.
 
-**Uncertainty.**  The material's covariance is the sandwich
-[H^-1 F H^-1]_mm of the penalised likelihood (H with the prior, F the data's
-J^T J: :func:`fmbrdf_mi.fit.solve.normal_system.material_covariance`), the normals
-free, not held fixed; the inverse Schur complement alone would count the
-prior as information.  It measures the spread over noise, but not the
-prior's bias: the prior pulls the normals, and through them the material,
-by an amount that grows with lam.  So the material, and its
-covariance, come from one more Levenberg-Marquardt run from the refinement's
-result with the prior weakened to ``lam_material`` (0.03); the normals
-returned are those of the requested lam.  These standard errors are
-calibrated (``uncertainty["calibrated"]``; measured with
-``tools/bench_normal_refine.py --seeds``, docs/benchmarks/joint.md); with
-``lam_material=None`` and lam > 0.03 they are not, and
-``uncertainty["warning"]`` says so.  It is mapped to the reported
-parameters as the fit does (:mod:`fmbrdf_mi.fit.uncertainty`), inflated by
-chi^2/dof where that is far above 1 (the fit's misfit rule); with unknown
-camera noise it is scaled by chi^2 / (N - p - 2 n).  Only after convergence.
+**Uncertainty.**  The material's covariance is the sandwich of the penalised
+likelihood with the normals free
+(:func:`fmbrdf_mi.fit.solve.normal_system.material_covariance`).  It does
+not contain the prior's bias, which grows with lam, so the material and its
+covariance come from one more run from the refinement's result with the prior
+weakened to ``lam_material``; the normals returned are those of ``lam``.
+These standard errors are calibrated at ``lam_material <= LAM_MATERIAL``
+(``uncertainty["calibrated"]``; ``tools/bench_normal_refine.py --seeds``,
+docs/benchmarks/joint.md); otherwise ``uncertainty["warning"]`` says so.
+They are mapped to the reported parameters as the fit does
+(:mod:`fmbrdf_mi.fit.uncertainty`), with the normals' 2 n unknowns counted in
+the degrees of freedom.  Only after convergence.
 """
 from __future__ import annotations
 
@@ -86,18 +62,15 @@ from fmbrdf_mi.fit.solve import lm as LM
 from fmbrdf_mi.fit.solve import normal_system as NS
 from fmbrdf_mi.fit.solve.irls import reweighted
 
-#: The smoothness weight at which the material (and its covariance) is estimated: after the refinement at the
-#: requested ``lam`` (which gives the normals), one more Levenberg-Marquardt run from its result with the prior
-#: weakened to this.  The prior biases the material through the normals it pulls, by an amount that grows
-#: with lam and that the covariance does not contain (module docstring, Uncertainty).
+#: The smoothness weight at which the material and its covariance are estimated, after the refinement at the
+#: requested ``lam`` (module docstring, Uncertainty).
 LAM_MATERIAL = 0.03
 
 
 def round_time_left(decreases, per_iter, most, tol=0.01):
-    """Seconds a Levenberg-Marquardt round of :func:`refine_joint` probably has left (its progress lines): the
-    energy's last three decreases extrapolated geometrically to the stopping rule (a decrease below ``tol``
-    twice in a row), at ``per_iter`` seconds an iteration, at most ``most`` iterations; None while there are
-    fewer than three decreases or they do not shrink."""
+    """Seconds a Levenberg-Marquardt round of :func:`refine_joint` probably has left: the energy's last three
+    ``decreases`` extrapolated geometrically to a decrease below ``tol``, at ``per_iter`` seconds an iteration
+    and at most ``most`` iterations; None while there are fewer than three decreases or they do not shrink."""
     d = decreases[-3:]
     if len(d) < 3 or min(d) <= 0 or d[2] >= d[0]:
         return None
@@ -107,12 +80,10 @@ def round_time_left(decreases, per_iter, most, tol=0.01):
 
 
 def refinement_time_left(left, round_times, elapsed, rounds_after):
-    """Seconds the whole refinement probably has left (its progress lines): ``left`` this round's
-    (:func:`round_time_left`, None: not known yet), ``round_times`` the durations of the rounds already
-    finished, ``elapsed`` this round's time so far, ``rounds_after`` how many rounds follow this one.  Each
-    later round is taken to last as long as the finished ones did on average (before the first has finished:
-    as long as this one will); later rounds start nearer the optimum, so this errs long.  None when neither
-    this round's time left nor a finished round is known."""
+    """Seconds the whole refinement probably has left: ``left`` this round's (:func:`round_time_left`, None:
+    not known), ``round_times`` the finished rounds' durations, ``elapsed`` this round's time so far,
+    ``rounds_after`` the rounds still to come, each taken to last as long as the finished ones on average
+    (errs long: later rounds start nearer the optimum).  None when nothing is known yet."""
     if rounds_after <= 0:
         return left
     if round_times:
@@ -138,9 +109,9 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     and ``mask``; ``loss`` is the energy, ``loss_terms`` its data (chi^2) and prior parts (at ``lam``, the
     returned normals' state).  ``lam_material``: the smoothness weight of the material's estimate and
     standard errors (one more run from the refinement's result, when below ``lam``; None: the material at
-    ``lam``); ``options["material_stage"]`` its energy and stop reason.  The standard errors are the sandwich
-    of the penalised likelihood, calibrated (``uncertainty["calibrated"]``) when the material's weight is
-    at most ``LAM_MATERIAL`` (0.03) (module docstring).
+    ``lam``); ``options["material_stage"]`` its energy and stop reason.  ``uncertainty["calibrated"]`` is
+    true when the material's weight is at most ``LAM_MATERIAL`` (module docstring).
+    Raises :class:`~fmbrdf_mi.fit.InputError` with fewer than 2 usable pixels.
     """
 
     say = progress or (lambda msg: None)
@@ -171,7 +142,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         Hmm, Hmn, gm, gn = NS.data_products(Jn[0], Jn[1], Jm, r, jp.n)
         return Hmm, Hmn, gm, jp.prior_gradient(gn, t, n)
 
-    def block(Jn, t, mu=0.0):       # H_nn + mu I, never formed
+    def block(Jn, t, mu=0.0):
         return NS.NormalBlock(Jn[0], Jn[1], jp.stencils, jp.coef, t[0], t[1], jp.w_prior, mu)
 
     def before(x, rnd):     # from the second round: the variances (and the prior's scale) from the model
@@ -193,7 +164,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
 
     def solve(lin, mu):
         (Hmm, Hmn, gm, gn), Jn, t, _, _, cache = lin
-        if "block" not in cache:    # H_nn's assembly, once per linearisation; each damping adds its ridge
+        if "block" not in cache:    # assembled once per linearisation; each damping adds only its ridge
             cache["block"] = block(Jn, t)
         return NS.solve_step(Hmm, Hmn, cache["block"].damped(mu), gm, gn, mu)
 
@@ -248,7 +219,6 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     f, ed, ep, reason = last["f"], last["ed"], last["ep"], last["reason"]
     n_out, stage = nmap, None
     if converged and staged:
-        # the material's estimate: the prior weakened (the normals keep the requested smoothing)
         jp.lam = float(lam_material)
         jp.set_scale()
         ed_m, ep_m, _ = jp.energy(st, nmap)
@@ -258,7 +228,6 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         (st, nmap), converged = minimise((st, nmap), refreshes + 1)
         stage = {"lam": float(lam_material), "energy": last["f"], "data_chi2": last["ed"], "prior": last["ep"],
                  "stop_reason": last["reason"]}
-    # uncertainty of the material with the normals free (module docstring)
     r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
     unc = {"std_errors": {}, "method": "not computed: the refinement did not converge"}
     if converged:
@@ -276,7 +245,6 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         if stage is not None:
             unc["method"] += f"; material with the prior weakened to lam {stage['lam']:g} (the normals: lam {lam:g})"
         if jp.lam <= LAM_MATERIAL:
-            # at the weakened prior the spread over noise matches these errors (docs/benchmarks/joint.md)
             unc["calibrated"] = True
         else:
             unc["calibrated"] = False

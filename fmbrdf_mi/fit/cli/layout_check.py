@@ -1,13 +1,11 @@
 """After a raw-mosaic likelihood fit that does not explain its data: would the mirrored polariser layout?
 
 A raw capture decoded with its 45 and 135 degree polarisers swapped (a mirrored optical path, a camera
-mounted upside down, another sensor's convention) negates S2: the fit then explains the data poorly, with
-wrong estimates or no convergence.  The data say which layout is right:
-after a single-image fit of a raw mosaic with the likelihood whose chi^2 per sample is poor (the misfit
-flag of :mod:`fmbrdf_mi.fit.uncertainty`, or a fit stopped before convergence, and chi^2 per sample at
-least :data:`POOR_CHI2`), the same fit runs again with 45 and 135 swapped, into a temporary directory;
-if its chi^2 is at least :data:`MUCH_BETTER` times lower, one line says so, naming ``--layout``.
-Nothing of the first fit's outputs changes.
+mounted upside down, another sensor's convention) negates S2, and the fit explains the data poorly.
+After a raw-mosaic likelihood fit with a misfit or no convergence and chi^2 per sample at least
+:data:`POOR_CHI2`, the same fit runs again with 45 and 135 swapped, into a temporary directory; if its
+chi^2 is at least :data:`MUCH_BETTER` times lower, one line names ``--layout``.  The first fit's outputs
+do not change.
 """
 from __future__ import annotations
 

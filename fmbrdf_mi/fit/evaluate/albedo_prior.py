@@ -9,12 +9,11 @@ k_s and k_b, i.e. the model's albedo factor times the BSDF's a_s, a_b):
     penalty = sum over 4-neighbour pairs (i, j) of ((k_s,i - k_s,j) / tau_s)^2 + ((k_b,i - k_b,j) / tau_b)^2
 
 (a first-difference Gaussian Markov random field; pairs of the same colour channel only for colour
-mosaics).  The residuals of the likelihood are whitened by the camera noise, so the penalty is in chi^2
-units and is added to chi^2: the fit minimises data chi^2 + penalty (the negative log posterior, up to a
-constant).  It is written as 2 E extra rows of the albedos' design, D a / tau with data 0 (E pairs;
-:meth:`SmoothPrior.rows`, :meth:`SmoothPrior.residuals`), which do not depend on the shape parameters; the
-albedos stay eliminated (variable projection), now by the penalised least squares (G + Lambda) a = A^T y,
-Lambda = D^T diag(1 / tau^2) D.
+mosaics).  The likelihood's residuals are whitened, so the penalty is in chi^2 units and the fit minimises
+data chi^2 + penalty (the negative log posterior, up to a constant).  It is written as 2 E extra rows of
+the albedos' design, D a / tau with data 0 (:meth:`SmoothPrior.rows`, :meth:`SmoothPrior.residuals`),
+independent of the shape parameters; the albedos stay eliminated (variable projection) by the penalised
+least squares (G + Lambda) a = A^T y, Lambda = D^T diag(1 / tau^2) D.
 
 The prior is improper: each connected set of fitted pixels keeps its mean k_s and k_b free
 (:meth:`SmoothPrior.null_dims`: 2 per component and channel), so a constant map costs nothing.

@@ -1,52 +1,33 @@
 """The bilinear design of per-pixel albedos (``albedo="per-pixel-bilinear"``) and the banded algebra of
 coupled albedo pairs.
 
-The per-pixel layout gives the four raw samples of a super-pixel one
-(a_s, a_b) pair.  A camera sees a *continuous* texture: its four polariser
-samples sit at four different points (a quarter super-pixel off the centre,
-:mod:`fmbrdf_mi.sensor.samples`) and see four different albedos, which
-one pair per super-pixel reads as polarisation.  Here the unknowns are
-still one pair per fitted pixel, but they are the albedos *at the pixel's
-centre*, and sample k of cell i predicts
+A camera sees a continuous texture: a super-pixel's four polariser samples
+sit at four different points (:mod:`fmbrdf_mi.sensor.samples`) and see four
+different albedos, which one (a_s, a_b) pair per super-pixel would read as
+polarisation.  Here the unknowns are the albedos at each fitted pixel's
+*centre*, and sample k of cell i predicts
 
     mu_ik = (sum_g w_ikg a_s[g]) S_ik + (sum_g w_ikg a_b[g]) B_ik,
 
-w_ikg the bilinear interpolation weights of the sample's point (its raw
-pixel's centre) between the up to four pixel centres around it (a raw
-mosaic's sample at offset (+-1/4, +-1/4): 9/16 its own pixel, 3/16 each
-edge neighbour, 1/16 the diagonal one): the corners of the design of
-:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos` (:func:`bilinear_weights`).
-For an albedo bilinear between the centres the weighted value equals its
-mean over the raw pixel (the raw pixel lies inside one interpolation
-square), so a linear gradient across a super-pixel is modelled exactly.
-
-**At the mask's edge** (a neighbour that is not fitted in any image: off
-the object, excluded, or not selected): along each axis the sample's value
-is interpolated towards the neighbour on its side; that one missing, it is
-extrapolated linearly from the neighbour on the other side; both missing,
-the albedo is held constant along that axis.  The 2-D weights are the
-products of the two axes' (a weight can then be negative), and an off-axis
-corner that is missing is taken as the plane through the other three
-(a_h + a_v - a_own).  A linear texture is thus modelled exactly at every
-sample of a pixel with a neighbour on at least one side in each direction;
-a lone pixel predicts with its own pair, as the per-pixel layout.
-Samples without an offset (angle images, Stokes images) use their own
-pixel's pair only: the layout is then the per-pixel one.
+w_ikg the bilinear interpolation weights of the sample's point between the
+up to four pixel centres around it (:func:`bilinear_weights`), the corners
+of the design of :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`.  An
+albedo linear across a super-pixel is thus modelled exactly, also at the
+mask's edge where a neighbour is missing (extrapolation, see
+:func:`bilinear_weights`).  Samples without an offset (angle images, Stokes
+images) use their own pixel's pair only.
 
 **The banded algebra.**  Coupled pairs (these corners, or the smoothness
-prior's rows) make the normal matrix G = A^T A (A (N, 2 n_groups): the
-whitened design; unknowns interleaved a_s[0], a_b[0], a_s[1], ...) banded
-when the pixels are in row-major order, half bandwidth b about twice the
-object's width in pixels: :func:`normal_band` assembles it, :class:`BandCholesky`
-factors it (NumPy only, O(n b^2)) and gives the diagonal blocks and the band
-of its inverse by the selected inverse (Takahashi's recursion).  An unknown
-without signal (its diagonal of G zero: a pixel without light) is set to 0;
-where G is singular otherwise (a pair whose columns are parallel) its
-Jacobi-scaled G (unit diagonal) gets a ridge, the smallest of :data:`RIDGE`
-that makes it positive definite: the near-null directions are then solved
-to about the minimum norm, as the block diagonal pseudo-inverse does, and
-their standard errors are large.  The pixels at a sphere's centre, where
-surface and body are both unpolarised, are such directions.
+prior's rows) make the normal matrix G = A^T A (A the whitened design;
+unknowns interleaved a_s[0], a_b[0], a_s[1], ...) banded in row-major pixel
+order, half bandwidth about twice the object's width:
+:func:`normal_band` assembles it, :class:`BandCholesky` factors it
+(O(n b^2)) and gives the diagonal blocks and band of its inverse by
+Takahashi's selected inverse.  An unknown without signal (zero diagonal) is
+set to 0; where G is singular otherwise (e.g. a sphere's centre, where
+surface and body are both unpolarised) its Jacobi-scaled G gets the smallest
+:data:`RIDGE` that makes it positive definite, so near-null directions are
+solved to about the minimum norm and get large standard errors.
 """
 from __future__ import annotations
 
@@ -68,7 +49,7 @@ def bilinear_weights(rows, cols, offsets, present):
 
     ``rows``, ``cols`` (cells,): each cell's pixel; ``offsets`` (n, 2): each sample's (dx right, dy down)
     from its cell's centre, in cells (``|d|`` < 1/2 ... 1); ``present(r, c)`` -> bool array: whether pixel
-    (r, c) has albedos (fitted; False off the image).  The rule at missing neighbours: module docstring.
+    (r, c) has albedos (fitted; False off the image).
     Per axis the sample's value is interpolated towards the neighbour on its side, or, that one missing,
     extrapolated linearly from the opposite neighbour, or, both missing, held constant; the 2-D weights are
     the product of the two axes', and a missing off-axis corner is the plane through the other three."""
@@ -203,10 +184,8 @@ class BandCholesky:
         return np.concatenate(x)
 
     def diagonal_blocks(self):
-        """The 2 x 2 diagonal blocks (n / 2, 2, 2) of G^-1 (n even; blocks of size b even or 1 ... any: each
-        2 x 2 block lies in one factor block when the factor's blocks have even sizes, else it is assembled
-        from the full diagonal block of the inverse).  Selected inversion (Takahashi) on the block-bidiagonal
-        factor: Z_KK = L_K^-T L_K^-1, and from the last block up
+        """The 2 x 2 diagonal blocks (n / 2, 2, 2) of G^-1 (n even).  Selected inversion (Takahashi) on the
+        block-bidiagonal factor: Z_KK = L_K^-T L_K^-1, and from the last block up
 
             Z_{k+1,k} = -Z_{k+1,k+1} M_k L_k^-1,   Z_kk = L_k^-T (L_k^-1 - M_k^T Z_{k+1,k}),
 

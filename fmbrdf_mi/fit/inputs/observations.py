@@ -31,8 +31,7 @@ from fmbrdf_mi.sensor.mosaic import stokes_from_angles, stokes_from_raw
 UNIT_TOL = 1e-3
 
 #: The irradiances (light power x irradiance, image units) a fit can work with: beyond them the albedos
-#: (image / irradiance) leave the range of the fit's arithmetic (1e40 ended in NaN parameters, 1e-200 in
-#: a Dr.Jit error).
+#: (image / irradiance) leave the range of the fit's arithmetic (NaN parameters or Dr.Jit errors).
 IRRADIANCE_RANGE = (1e-20, 1e20)
 
 
@@ -465,15 +464,13 @@ def find_sphere(mask):
     """Centre (x, y) and radius in pixels of the disc in ``mask`` (least-squares circle through its outline).
 
     A mask pixel is taken to be in the disc when its centre is (a renderer's
-    coverage mask, or a thresholded image at half coverage).  The outline
-    then crosses the segment between each mask pixel and each of its
-    4-neighbours outside the mask, at a point uniformly distributed along it
-    over the disc's sub-pixel positions: the segment's midpoint (a point on
-    the pixels' shared edge) is an unbiased sample of the outline.  A circle
-    is fitted to those midpoints (Kasa); the boundary pixels' centres moved out
-    by half a pixel would overestimate the radius (``tools/check_find_sphere.py``
-    measures the error).  Segments to the image border are
-    skipped, so a sphere cut by the frame is fitted to its visible outline.
+    coverage mask, or a thresholded image at half coverage).  The outline then
+    crosses the segment between each mask pixel and each of its 4-neighbours
+    outside the mask at a uniformly distributed point, so the segment's
+    midpoint is an unbiased sample of the outline; a circle is fitted to those
+    midpoints (Kasa; ``tools/check_find_sphere.py`` measures the error).
+    Segments to the image border are skipped, so a sphere cut by the frame is
+    fitted to its visible outline.
     """
     m = read_mask(mask)
     if m.sum() < 12:

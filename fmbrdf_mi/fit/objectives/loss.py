@@ -20,18 +20,16 @@ AoLP not used.  Choices this implementation makes where the paper is silent:
 * **DoLP term pixels**: only pixels whose observed intensity exceeds
   ``dolp_min_intensity`` times the 99th percentile enter the DoLP term (the
   DoLP of a dark pixel is noise); all fitted pixels enter the intensity term;
-* **noise bias of the DoLP**: a camera's DoLP sqrt(S1^2 + S2^2) / S0 is
-  biased upwards by noise (the length of a noisy 2-vector follows a Rice
-  distribution); for dim, weakly polarised pixels -- the body of rough
-  dielectrics, DoLP ~ 0.01 -- the bias is as large as the signal, and a
-  rough material can trade body for surface albedo to explain it.  When the
-  per-pixel variance sigma^2 of S1 and S2 is known (a camera model, e.g.
-  :func:`fmbrdf_mi.sensor.noise.linear_stokes_variance`) the model side
+* **noise bias of the DoLP**: a camera's DoLP is biased upwards by noise
+  (Rice distribution), as much as the signal for dim, weakly polarised
+  pixels, which a rough material can explain by trading body for surface
+  albedo.  When the variance sigma^2 of S1 and S2 is known
+  (e.g. :func:`fmbrdf_mi.sensor.noise.linear_stokes_variance`) the model side
   of the DoLP term is the DoLP such a camera measures on average,
   E[|(S1, S2) + noise|] / S0 (:mod:`fmbrdf_mi.sensor.rice`), and the observed
-  DoLP is left as measured.  Both sides then have the same expectation;
-  subtracting 2 sigma^2 from the observed S1^2 + S2^2 instead (and clipping
-  at 0) leaves a bias of the same order for DoLP ~ sigma / S0.
+  DoLP is left as measured, so both sides have the same expectation
+  (subtracting 2 sigma^2 from the observed side leaves a bias of the same
+  order for DoLP ~ sigma / S0).
 """
 from __future__ import annotations
 

@@ -11,14 +11,11 @@ the measurement:
 * ``dolp`` (:class:`DolpObjective`): the DoLP term alone, with the paper's
   inlier / outlier weights and, when the camera noise is known, the Rice
   mean of the measured DoLP (:mod:`fmbrdf_mi.fit.objectives.loss`) -- "ours without
-  radiance".  The DoLP does not change when both albedos are scaled
-  together, so it leaves the overall albedo undetermined; one extra
-  residual, (mean predicted intensity - mean observed intensity) / scale
-  over the fitted pixels, fixes it.  That direction (both albedos times a
-  common factor) changes nothing else, so at the optimum this residual is
-  exactly 0 and the shape parameters and r_k are those of the DoLP term
-  alone; k_s is then the value that reproduces the mean intensity
-  (what a relighting check needs), not an intensity fit.
+  radiance".  The DoLP leaves the overall albedo undetermined, so one extra
+  residual, (mean predicted intensity - mean observed intensity) / scale,
+  fixes it; that direction changes nothing else, so the residual is 0 at
+  the optimum, the shape parameters and r_k are those of the DoLP term
+  alone, and k_s reproduces the mean intensity (for the relighting check).
 
 Both are sums of squares of a subset of :class:`PaperObjective`'s
 residuals (the same Jacobian code), so the same optimiser, coarse search

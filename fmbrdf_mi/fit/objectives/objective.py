@@ -16,25 +16,20 @@ with (S0, S1, S2) the model's Stokes vector at that sample's own point
 (paper eq:optimization replaced by the likelihood of what was measured) and
 v the camera's Poisson-Gaussian variance in image units,
 v(mu) = mu / g + sigma_read^2 + Delta^2 / 12 (:class:`NoiseModel`).
-It is minimised by **iteratively reweighted least squares**: with the
-variances v_ik held at the current model's prediction, LM minimises
-sum (y - mu)^2 / v; the variances are then recomputed from the new
-prediction and the fit repeated until the estimate moves by less than a few
-hundredths of its standard error.  Why not the full negative log-likelihood
-sum [(y - mu)^2 / v(mu) + log v(mu)]: its fixed point differs from IRLS's
-only by terms of relative size 1 / (electrons per sample) (the information
-the variance's own dependence on mu carries), while IRLS's estimating
-equation sum (y - mu) / v * dmu/dtheta = 0 has zero mean whenever the mean
-model is right, whether or not the variance model is exact: it stays
-consistent if gain or read noise are a little off, and it keeps the
-Gauss-Newton structure, so J^T J of the standardised residuals is the
-Fisher information.  The full NLL (with log v) is used to compare
-candidates from different starts.
+It is minimised by **iteratively reweighted least squares**: LM minimises
+sum (y - mu)^2 / v with the variances held at the current prediction, then
+the variances are recomputed, until the estimate settles.  IRLS rather than
+the full negative log-likelihood (with log v): its estimating equation
+sum (y - mu) / v * dmu/dtheta = 0 has zero mean whenever the mean model is
+right, even if gain or read noise are a little off, and it keeps the
+Gauss-Newton structure (J^T J of the standardised residuals is the Fisher
+information); the two differ only by terms of relative size
+1 / (electrons per sample).  The full NLL compares candidates from
+different starts.
 
 **Unknown noise.**  Without the camera's gain the variance is modelled as
-v = a mu + b, with (a, b) fitted to the squared residuals of the previous
-round (first round: equal weights), and the residual chi^2 / dof is
-reported; the fit says which it did.
+v = a mu + b, fitted to the previous round's squared residuals (first
+round: equal weights).
 
 **Paper** (:class:`PaperObjective`, ``--loss paper``): :mod:`fmbrdf_mi.fit.objectives.loss`.
 """
@@ -65,8 +60,8 @@ class PaperObjective:
         self.outliers = np.zeros(len(target.intensity), bool)
         self.grid = None    # (rows, cols) of the pixels when neighbours are correlated (uncertainty.py)
 
-    # weights of the DoLP term: the paper's inlier / outlier balance
     def refresh(self, parts, st):
+        """Reweight the DoLP term by the paper's inlier / outlier split at this prediction."""
         self.outliers = L.outlier_mask(parts.surface[0], parts.body[0], st.a_s, st.a_b)
         self.w = L.weights(self.outliers, self.target.dolp_valid)
 
@@ -181,7 +176,7 @@ class LikelihoodObjective:
         #: the albedo maps' smoothness prior (its rows are residuals too), or None
         self.prior = None if layout is None else layout.prior
         self.n, self.m = self.y.shape
-        # start: variance from the observations themselves (only for the first round / coarse search)
+        # first round and coarse search: variance from the observations themselves
         self.var = np.maximum(noise.variance(self.y), 1e-300)
         self.rounds = 0
 
@@ -199,7 +194,7 @@ class LikelihoodObjective:
     def refresh(self, parts, st):
         mu = self.mu(parts, st)
         if not self.noise.known:
-            # m samples carry self.dof independent values: correct the residual variance for it
+            # m samples carry only self.dof independent values
             self.noise.estimate(mu, (self.y - mu) ** 2, self.dof / self.m)
         self.var = np.maximum(self.noise.variance(mu), 1e-300)
         self.rounds += 1
@@ -275,7 +270,7 @@ class LikelihoodObjective:
         if self.layout is None:
             inv_sd = 1.0 / np.sqrt(self.var)
 
-            def cols(ds):  # d residual = -d mu / sd
+            def cols(ds):
                 return (-self._mu_of(ds) * inv_sd).ravel()
 
             return r, _jacobian(cols, parts, st, z, names, bounds, len(r)), bad

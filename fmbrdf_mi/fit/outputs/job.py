@@ -5,8 +5,7 @@
 Every mode of ``fmbrdf-mi fit`` (one image, several images, a colour mosaic,
 several colour mosaics, the normal refinement) is a subclass that fills in
 the steps; :meth:`FitJob.run` alone decides their order and does what they
-share, as Mitsuba's differentiable integrators share one base that runs the
-passes while each variant overrides one method:
+share:
 
 1. :meth:`~FitJob.check`: the options, before any file is read;
 2. the output directory locked (:func:`fmbrdf_mi._paths.locked_directory`)

@@ -226,8 +226,6 @@ def plot_albedo_maps(maps, path, title=""):
         fitted = np.isfinite(ks)
         ident = np.where(fitted, layer("identified", c, float), np.nan)
         tag = "" if label is None else f"{label}: "
-        # the grey scales from the albedos with a relative standard error <= 0.5 (where there are some): a
-        # k_s where the surface lobe is dark is noise, whose extremes would otherwise set the scale
         with np.errstate(invalid="ignore"):
             sel_s, sel_b = (fitted & (layer(k + "_se", c) <= 0.5 * v) for k, v in (("k_s", ks), ("k_b", kb)))
         sel_s, sel_b = (sel if sel.any() else fitted for sel in (sel_s, sel_b))

@@ -1,30 +1,25 @@
 """What fit.json records so that a fit can be rerun (``fmbrdf-mi fit --from fit.json -o DIR``,
 :mod:`fmbrdf_mi.fit.outputs.rerun`): its ``reproduce`` block.
 
-Every block holds ``command``, ``cwd`` and ``versions`` (this package,
+Every block holds ``command``, ``cwd``, ``versions`` (this package,
 Mitsuba, Dr.Jit, NumPy, Python), the options as resolved in ``arguments``
-(so defaults that change in a later version do not change the rerun) and
+(so a default changed in a later version does not change the rerun) and
 the SHA-256 of every file the fit read in ``files_sha256``.
 
 * A single-image or colour fit (:func:`reproduce_block`): ``arguments`` are
-  :func:`fmbrdf_mi.fit.outputs.single.fit_files`'s (:data:`ARGUMENTS`; a colour
-  fit's: :data:`COLOUR_ARGUMENTS`); ``settings`` are those the input implied
-  (layout, black and white level, demosaicking, footprint, gain and read
-  noise, possibly from a capture sidecar), ``sphere`` what ``--sphere auto``
-  found, ``sidecar`` the capture sidecar read.
-* A joint fit (:func:`joint_block`: ``--manifest``, ``--authors`` or
-  repeated ``--light``): ``arguments`` are the fit options (:data:`FIT_KEYS`);
+  :data:`ARGUMENTS` (colour: :data:`COLOUR_ARGUMENTS`); ``settings`` those
+  the input implied (layout, levels, demosaicking, footprint, gain, read
+  noise), ``sphere`` what ``--sphere auto`` found, ``sidecar`` the capture
+  sidecar read.
+* A joint fit (:func:`joint_block`): ``arguments`` are :data:`FIT_KEYS`;
   ``joint`` says how the images were given (``kind`` ``manifest``,
-  ``authors`` or ``lights``) and, per image, its name, input file(s) with
-  SHA-256 (and the capture sidecar's), the light (this package's camera
-  frame), the relative power, the irradiance used, the held-out flag, the
-  geometry source (normal / mask / view files, a sphere and what ``--sphere
-  auto`` found, the built-in scene's metadata, or the authors' calibration
-  files) and the settings the input implied; ``files_sha256`` also holds
+  ``authors`` or ``lights``) and, per image, its name, input files with
+  SHA-256, the light (camera frame), relative power, irradiance, held-out
+  flag, geometry source and implied settings; ``files_sha256`` also holds
   the manifest and the authors' ``calibration/*``.
 
-A rerun checks every hash first and refuses, in one line naming the file,
-an input that changed or disappeared.
+A rerun refuses, in one line naming the file, an input that changed or
+disappeared.
 """
 from __future__ import annotations
 

@@ -51,8 +51,8 @@ def load(path):
     if isinstance(d, dict) and "refine_normals" in d:
         cmd = rep.get("command") if isinstance(rep, dict) else None
         cmd = cmd if isinstance(cmd, str) else None
-        # a record made when --rounds (alternation rounds before the joint step) was an option: the command
-        # runs without it (the joint step alone; with --rounds 0, the default, the same refinement)
+        # an older record's --rounds (alternation rounds before the joint step): dropped; with --rounds 0,
+        # its default, the refinement is the same
         rounds = cmd is not None and any(t == "--rounds" or t.startswith("--rounds=") for t in cmd.split())
         raise InputError(f"--from {path}: reruns of --refine-normals are not supported: rerun the command in its "
                          f"reproduce.command{f' ({cmd})' if cmd else ''}"

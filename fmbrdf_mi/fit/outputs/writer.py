@@ -1,15 +1,6 @@
-"""The one writer of fit outputs: overwrite refusal, atomic JSON, the JSON encoder.
-
-Every fit command (single image, joint, colour, normal refinement) checks
-its output directory and refuses to overwrite any of its files without
-``force`` *before* it reads an input (:func:`prepare`), and writes its
-``fit.json`` atomically through a temporary file (:func:`write_json`), so a
-fit stopped half-way leaves no half-written record.  The files of an earlier
-fit in the same directory that a new one does not write (the maps of a
-per-pixel fit beside a shared fit's record) are found by :func:`stale_outputs`,
-from the names a fit writes (:data:`FIXED_OUTPUTS`, :data:`PER_IMAGE_OUTPUTS`),
-never a file of another name.
-"""
+"""The one writer of fit outputs (:class:`~fmbrdf_mi.fit.outputs.job.FitJob` runs it): overwrite refusal
+before any input is read (:func:`prepare`), atomic ``fit.json`` (:func:`write_json`), and an earlier fit's
+files that a new one does not write (:func:`stale_outputs`, only names a fit writes)."""
 from __future__ import annotations
 
 import json

@@ -147,7 +147,7 @@ def same_noise(observations):
 
 #: Likelihood of a raw mosaic: points per axis over which each raw sample's model value is averaged
 #: (:meth:`~fmbrdf_mi.sensor.samples.Samples.footprint`; ``FitOptions.area_points`` None).
-#: Chosen by ``tools/bench_raw_kappa.py``.
+#: The 2 x 2 quadrature's bias is checked per fit (:func:`~fmbrdf_mi.fit.api.checks.check_footprint`).
 RAW_AREA_POINTS = 2
 
 

@@ -1,10 +1,6 @@
-"""The joint normal refinement's problem: the fit's problem with per-pixel normals as extra unknowns and a prior.
-
-The energy, the samples' geometry (bilinear normals at each sample's own
-point) and the priors are described in :mod:`fmbrdf_mi.fit.api.normal_joint`,
-which minimises it; this module holds the problem it minimises
-(:class:`NormalProblem`), the priors' stencils and the normals' tangent bases.
-"""
+"""The joint normal refinement's problem (:mod:`fmbrdf_mi.fit.api.normal_joint` minimises it): the fit's
+problem with per-pixel normals as extra unknowns and a smoothness prior; the priors' stencils and the
+normals' tangent bases."""
 from __future__ import annotations
 
 import math
@@ -64,11 +60,8 @@ class NormalProblem(Problem):
     unknowns and the smoothness prior (the joint normal refinement:
     :func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`).
 
-    The material's part is the Problem's own (z, bounds, the likelihood's
-    residuals and Jacobian); this class adds the normals' geometry, their
-    Jacobian, the prior and the blocks of the normal equations
-    (:mod:`fmbrdf_mi.fit.solve.normal_system`).  Model evaluations take the
-    normal map they are at (:meth:`parts_at`); :meth:`parts` is at
+    This class adds the normals' geometry, their Jacobian and the prior to the Problem's material part.
+    Model evaluations take the normal map they are at (:meth:`parts_at`); :meth:`parts` is at
     :attr:`nmap`, the map last accepted.
 
     Residual rows are ordered (image k, pixel i, sample s), as the
@@ -82,10 +75,9 @@ class NormalProblem(Problem):
     2 n_i - n_o with o the refined pixel opposite it across i (the pixel
     itself, n_i, where o is not refined): each sample's normal is
     ``self.nw``-weighted sum of the refined pixels ``self.cpix`` (N, 4, 8).
-    (Constant extrapolation, n_i for every outside corner, was the model
-    error of the region's border ring: near the silhouette, where the normal
-    turns fast, chi^2 per sample 7 there against 1.0 inside, biasing the
-    material by several standard errors.)  The view directions, known
+    Linear rather than constant extrapolation, because near the silhouette the
+    normal turns fast and a constant one biases the material
+    (docs/benchmarks/investigations.md).  The view directions, known
     everywhere, are interpolated bilinearly.
     """
 
@@ -129,9 +121,7 @@ class NormalProblem(Problem):
         self.cw = np.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], 2)   # (N, 4, 4)
         pos = -np.ones(h * w, int)
         pos[self.idx] = np.arange(len(self.idx))
-        # a corner outside the refined pixels (its value in the map is the start map's, which may be far off):
-        # linear extrapolation from the sample's pixel i through it, 2 n_i - n_o, o the pixel opposite the corner
-        # across i, where o is refined; else constant (n_i)
+        # a corner outside the refined pixels holds the start map's value, which may be far off: extrapolate
         own = self.idx[:, None, None]
         out = pos[self.corner] < 0
         cy, cx = np.divmod(self.corner, w)

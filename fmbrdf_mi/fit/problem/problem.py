@@ -61,7 +61,7 @@ class Problem:
             return None
         return Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress)
 
-    # the paper objective's weights, as before (tests and Adam use them)
+    # the paper objective's target and weights (Adam uses them)
     @property
     def target(self):
         return self.obj.target
@@ -126,6 +126,8 @@ class Problem:
             raise TimeUp()
 
     def parts(self, st, jac=False):
+        """The model's :class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` at ``st`` (with shape derivatives
+        when ``jac``), from a two-entry cache; raises :class:`TimeUp` before an evaluation past the deadline."""
         key = tuple(round(float(st.shape[n]), 12) for n in self.params.shape_names)
         for k, j, p in self._cache:
             if k == key and (j or not jac):
@@ -169,8 +171,8 @@ class Problem:
         """r (m,) and dr/dz (m, k + 2) of the objective's residuals."""
         r, J, bad = self.obj.residuals_and_jacobian(parts, st, z, self.names, self.bounds)
         if bad is not None and bad.any():
-            # a few directions where the BSDF's forward-mode derivative is NaN: those rows are
-            # left out of the Jacobian (their residuals still count in the loss)
+            # the BSDF's forward-mode derivative is NaN in a few directions: their rows leave the Jacobian,
+            # their residuals still count in the loss
             J[bad] = 0.0
             self.n_nonfinite = max(self.n_nonfinite, int(parts.nonfinite.sum()))
         J[~np.isfinite(J)] = 0.0

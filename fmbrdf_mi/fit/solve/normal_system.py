@@ -19,25 +19,13 @@ smoothness prior's rows), the Gauss-Newton system of (1/2) r.r is
   prior's (first or second differences along rows and columns, projected
   on each pixel's tangent plane), w the prior's weight.
 
-H_nn is assembled once per :class:`NormalBlock` as 2 x 2 blocks of the coupled
-pixel pairs (at most a few tens per pixel: the data's 8-neighbours and
-border extrapolation terms, the prior's stencils), each pixel's row of blocks
-in a padded neighbour list, so that a product is a gather and a batched
-2 x (2 Qmax) times (2 Qmax) x R product, O(pixels) with no scatter-add; the
-sparsity pattern depends on the rows' pixel lists and the stencils only and
-is kept across the blocks of one refinement.  The assembly depends on the
-Jacobian only: a damped copy (:meth:`NormalBlock.damped`) adds its ridge to
-the diagonal pairs, so an LM step rejected and re-solved with more damping
-costs no new assembly.  :class:`NormalBlock` solves
-with it by conjugate gradients preconditioned by its
-2 x 2 diagonal blocks (the data's own block + the prior's, a multiple of I:
-the tangent bases are orthonormal),
-several right-hand sides at once.  The full system is solved by the Schur
-complement onto the material, S = H_mm - H_mn H_nn^-1 H_nm (the
-bundle-adjustment reduction): p + 1 solves with H_nn, then a p x p one.
-The material's covariance (:func:`material_covariance`) is the sandwich of
-the penalised likelihood, with the normals free.  NumPy only: no
-sparse-matrix library.
+:class:`NormalBlock` stores H_nn as 2 x 2 blocks of the coupled pixel pairs in
+a padded neighbour list (a product is a gather and a batched matmul, O(pixels))
+and solves with it by block-Jacobi preconditioned conjugate gradients, several
+right-hand sides at once.  The full system is solved by the Schur complement
+onto the material, S = H_mm - H_mn H_nn^-1 H_nm (the bundle-adjustment
+reduction).  :func:`material_covariance` is the sandwich covariance of the
+penalised likelihood with the normals free.  NumPy only.
 """
 from __future__ import annotations
 
@@ -47,8 +35,8 @@ import numpy as np
 
 
 def _sums(idx, w, n):
-    """(n, C) sums of the rows of ``w`` (k, C) by ``idx`` (k,): one bincount over all C columns at once, each sum
-    in the rows' order (as a sequential scatter-add would; float also when k is 0)."""
+    """(n, C) sums of the rows of ``w`` (k, C) by ``idx`` (k,), each in the rows' order (as a sequential
+    scatter-add would give)."""
     k, C = w.shape
     flat = (idx[:, None] * C + np.arange(C)).ravel()
     out = np.bincount(flat, weights=np.ascontiguousarray(w, dtype=float).ravel(), minlength=n * C)
@@ -64,8 +52,7 @@ def data_products(pix, val, Jm, r, N):
     """
     p = Jm.shape[1]
     m, Q = pix.shape
-    # the terms that contribute: a fixed pixel (-1) or a zero derivative (the unused extrapolation slots of an
-    # inside sample) adds nothing, so they are left out (each sum keeps its order: the same result)
+    # fixed pixels (-1) and zero derivatives add nothing; dropping them keeps each sum's order
     row, slot = np.nonzero((pix >= 0) & np.any(val != 0, axis=2))
     q, v = pix[row, slot], val[row, slot]
     Hmn = _sums(q, (v[:, :, None] * Jm[row][:, None, :]).reshape(len(q), 2 * p), N).reshape(N, 2, p)
@@ -77,8 +64,8 @@ _PAIRS = {}
 
 
 def _pairs(pix, stencils, N):
-    """The pixel pairs coupled by H_nn (the sparsity pattern, which depends on the rows' pixel lists and the
-    stencils only; the last one is kept, as the refinement builds many blocks on one pattern).
+    """The pixel pairs coupled by H_nn (the sparsity pattern); the last one is cached, as a refinement builds
+    many blocks on one pattern.
 
     Returns ``G``, the number of distinct pixel lists (-1: left out) and ``groups``: (lists (n,), their rows
     (n, c)) for each number c of rows per list; ``dsel``: the valid entries of the (G, Q, Q) term pairs (None:
@@ -150,24 +137,22 @@ class NormalBlock:
         self._damp(mu)
 
     def damped(self, mu):
-        """The same H_nn with damping ``mu`` instead: a new block sharing this one's undamped assembly (what
-        depends on the Jacobian only is built once per linearisation; a damping costs O(pixels) more)."""
+        """The same H_nn with damping ``mu``: a copy sharing this one's undamped assembly, so a rejected LM step
+        re-solved with more damping costs no new assembly."""
         out = copy.copy(self)
         out._damp(mu)
         return out
 
     def _damp(self, mu):
-        """Add the ridge (Marquardt's damping mu diag(H_nn) and a tiny constant) to the diagonal blocks, with the
-        same operations in the same order as one assembly of the damped matrix would do them."""
+        """Add the ridge (Marquardt's damping mu diag(H_nn) and a tiny constant) to the diagonal blocks, summing
+        in the order one assembly of the damped matrix would (bit-identical results)."""
         diag = self._diag.copy()
         d = np.stack([diag[:, 0, 0], diag[:, 1, 1]], 1)
-        # Marquardt damping on the diagonal of H_nn; a tiny ridge keeps a pixel with neither data nor
-        # neighbours from making the system singular
+        # the tiny ridge keeps a pixel with neither data nor neighbours from making the system singular
         self.ridge = mu * np.maximum(d, 1e-12) + 1e-12 * max(float(d.max()), 1e-300)
         diag[:, 0, 0] += self.ridge[:, 0]
         diag[:, 1, 1] += self.ridge[:, 1]
         self.pre = np.linalg.inv(diag)
-        # the diagonal pairs' blocks: the data's sum, then the ridge, then the prior's terms in their order
         N, dg = self.N, self._dg
         ridge = np.stack([self.ridge[:, 0], np.zeros(N), np.zeros(N), self.ridge[:, 1]], 1)
         blocks = _sums(dg["idx"], np.concatenate([dg["data"], ridge, dg["prior"]]), N)
@@ -184,7 +169,7 @@ class NormalBlock:
         summed, -1 terms left out; the rows with the same pixel list are summed first); prior: each stencil
         e contributes w c_s c_s' T_{k_s}^T T_{k_s'} to the pair of its pixels s, s' (T_k = [t1_k t2_k],
         3 x 2); the ridge: diag(ridge_i) to (i, i).  Each pair's block is the sum of its terms in that order
-        (data, ridge, prior), as one scatter-add over them all would give.
+        (data, ridge, prior).
         """
         N, (m, Q) = self.N, self.q.shape
         prior = bool(len(self.st) and self.w)
@@ -242,8 +227,8 @@ class NormalBlock:
         return np.matmul(self.B, np.take(x, self.nbr, axis=0).reshape(N, -1, R))
 
     def precondition(self, r):
-        """The 2 x 2 block-diagonal preconditioner's inverse applied to r (N, 2, R) (written out: the same
-        products and sums as ``einsum("nab,nbr->nar", pre, r)``, faster)."""
+        """The 2 x 2 block-diagonal preconditioner's inverse applied to r (N, 2, R); ``einsum("nab,nbr->nar",
+        pre, r)`` written out, which is faster."""
         P = self.pre
         z = np.empty_like(r)
         np.multiply(P[:, 0, 0, None], r[:, 0], out=z[:, 0])
