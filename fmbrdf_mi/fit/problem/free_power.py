@@ -23,7 +23,7 @@ columns in J.
 
 **Starting values** (``power_start``): ``given`` starts every P_k at G_k;
 ``ratio`` (default) solves the albedos and the powers together at every
-coarse-search grid point (:meth:`PowerProblem.closed_form`), so the search
+coarse-search grid point (:class:`PowerProblem`), so the search
 ranks shapes with the powers that suit them (docs/benchmarks.md,
 ``tools/bench_fit_lights.py --free-power``).
 """
