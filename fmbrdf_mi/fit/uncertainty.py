@@ -215,7 +215,6 @@ def noise_scale(problem, r, n_independent, p):
     far = max(0.1, 5.0 * math.sqrt(2.0 / max(n - p, 1)))
     info["misfit"] = bool(info["chi2_per_dof"] > 1.0 + far)
     if info["chi2_per_dof"] < 1.0 - far:
-        # the stated noise exceeds the data's scatter: flagged, the errors kept (they are then too large)
         info["noise_overstated"] = True
         info["noise_warning"] = misfit_text(info)
     if info["misfit"]:
@@ -349,8 +348,7 @@ def block_meat(J, r, row_pix, Hi, grid=None):
 
 
 def summarise(problem, st, J, r, n_independent=None, parts=None):
-    """The uncertainty block of fit.json (:func:`summary` of :func:`covariance`); the mechanisms applied are
-    named by its ``method``."""
+    """The uncertainty block of fit.json: :func:`summary` of :func:`covariance`."""
     names, cov, info = covariance(problem, st, J, r, n_independent, parts)
     info.pop("applied")
     return summary(problem, st, names, cov, info)

@@ -168,7 +168,7 @@ class AlbedoLayout(abc.ABC):
 
 class GroupAlbedos(AlbedoLayout):
     """A few albedo pairs that are unknowns of the optimiser (their logs in z): one corner of weight 1 per
-    sample, its group; each group's pair is solved non-negatively (:func:`nnls2`)."""
+    sample, its group; each group's pair is solved non-negatively (``nnls2``)."""
 
     def __init__(self, name, groups, n_groups, labels):
         super().__init__(name, groups, n_groups, labels=labels)
@@ -423,7 +423,7 @@ class PixelAlbedos(AlbedoLayout):
             C_jk = tr(G^-1 A_j^T (I - P) A_k).
 
         J^T J at the estimated albedos is on average H + C (Neyman and Scott's incidental parameters), which
-        :func:`fmbrdf_mi.fit.uncertainty.incidental_sandwich` corrects.  C is positive semi-definite.
+        ``fmbrdf_mi.fit.uncertainty.incidental_sandwich`` corrects.  C is positive semi-definite.
 
         Block diagonal G: exact, by sums per group, C_jk = sum_g [tr(A_gj^T A_gk G_g^+) -
         tr(Y_gj^T G_g^+ Y_gk G_g^+)], G_g = U_g^T U_g, Y_gj = U_g^T A_gj, U_g = [us, ub].  Banded G: G^-1 is not
