@@ -1,26 +1,18 @@
 """Standard errors, 95 % intervals and correlations of the estimates: one function per mechanism.
 
-Runs after the solve (:mod:`fmbrdf_mi.fit.solve.driver`) and fills fit.json's ``uncertainty`` block.
+Runs after the solve (:mod:`fmbrdf_mi.fit.solve.driver`) and fills fit.json's ``uncertainty`` block
+(:func:`covariance`, :func:`summary`):
 
-* :func:`fisher`: the inverse Fisher information J^T J of the standardised residuals
-  r = (y - mu) / sd (Gauss-Newton; exact for a Gaussian with known variances at the IRLS fixed point).
-* :func:`noise_scale`: the covariance's scale chi^2 / (N - p) when the noise level is estimated, or
-  when the camera noise is known but chi^2 / (N - p) lies more than 5 of its standard deviations
-  sqrt(2 / (N - p)) (and at least 0.1) above 1 (``misfit``); as far below 1 it flags
-  ``noise_overstated`` and keeps the scale 1.
-* :func:`paper_sandwich`: the paper's loss is not a likelihood, so its covariance is the sandwich
-  H^-1 M H^-1, H = J^T J, M summed over pixel neighbourhoods (:func:`block_meat`) with leave-
-  neighbourhood-out residuals (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster jackknife "CR3"), because
-  plain residuals at the estimate underestimate M for objects of few pixels.  It describes the
-  estimate's spread, not its bias (docs/computed.md).
-* :func:`incidental`: per-pixel albedos eliminated.  J^T J at the noisy estimated albedos is on average
-  H + C (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`), so the shape's covariance is
-  the sandwich H^-1 J^T J H^-1, H = J^T J - C (:func:`incidental_sandwich`); (J^T J)^-1 understates the
-  spread when each pixel is seen in few images (docs/howto/fit-textured.md).
-* With the albedo maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) J^T J includes
-  the prior's rows and its inverse is the posterior covariance (:data:`POSTERIOR`); chi^2's degrees of
-  freedom: ``fmbrdf_mi.fit.api.assemble.PRIOR_DOF_RULE``.
-* :func:`profile_intervals`: the profile likelihood's ends where the Fisher interval fails.
+* :func:`fisher`: the inverse Fisher information J^T J of the standardised residuals r = (y - mu) / sd
+  (Gauss-Newton; exact for a Gaussian with known variances at the IRLS fixed point), scaled by
+  :func:`noise_scale`;
+* :func:`paper_sandwich`: the paper's loss, which is not a likelihood;
+* :func:`incidental`: per-pixel albedos eliminated (the incidental-parameter sandwich;
+  docs/howto/fit-textured.md);
+* with the albedo maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) J^T J includes the
+  prior's rows and its inverse is the posterior covariance (:data:`POSTERIOR`); chi^2's degrees of
+  freedom: ``fmbrdf_mi.fit.api.assemble.PRIOR_DOF_RULE``;
+* :func:`profile_intervals`: the profile likelihood's ends where the Fisher interval fails;
 * :func:`other_optima` and :func:`widen_for_optima`: competing optima among a multi-start fit's ends.
 
 Each mechanism applied adds ``(kind, detail)`` to a list that :func:`method_text` turns into
@@ -29,10 +21,7 @@ fit.json's ``uncertainty.method``.
 The covariance is that of the reported parameters, J_theta = J_z (d theta / d z)^-1 (delta method;
 z is the optimiser's unconstrained scale).  Intervals are theta +- 1.96 SE cut at the bounds; a
 parameter at a bound (:func:`at_bound`) is listed in ``at_bound`` because its interval is not a
-confidence interval there.  Likelihood fits check each Fisher interval against chi^2
-(:func:`profile_intervals`) because the quadratic approximation fails where kappa's effect saturates,
-parameters sit near bounds or pairs are strongly correlated; problems with extra unknowns (free light
-powers, per-pixel normals) keep Fisher intervals.
+confidence interval there.
 """
 from __future__ import annotations
 
@@ -202,10 +191,13 @@ def fisher(Jt):
 
 def noise_scale(problem, r, n_independent, p):
     """(scale, info, applied): the factor the covariance is multiplied by, fit.json's ``chi2_per_dof`` and
-    ``misfit``, and the mechanisms applied (rule: module docstring).
+    ``misfit``, and the mechanisms applied.
 
-    Where chi^2 / dof is far below 1 the scale stays 1 (``noise_overstated``, ``noise_warning``): the errors
-    are those of the stated noise rather than shrunk to a scatter the noise model does not describe."""
+    The scale is chi^2 / (N - p) (N the independent samples) when the noise level is estimated, and also
+    with the camera noise known where chi^2 / (N - p) lies more than 5 of its standard deviations
+    sqrt(2 / (N - p)), and at least 0.1, above 1 (``misfit``: the quasi-likelihood scale).  As far below 1
+    the scale stays 1 (``noise_overstated``, ``noise_warning``): the errors are those of the stated noise
+    rather than shrunk to a scatter the noise model does not describe."""
     n = int(n_independent if n_independent is not None else len(r))
     chi2 = float(r @ r)
     info = {"chi2_per_dof": chi2 / max(n - p, 1)}
@@ -246,8 +238,10 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
 
 
 def paper_sandwich(problem, Jt, r, Hi):
-    """(cov, applied): the sandwich covariance of the paper's loss (module docstring, :func:`block_meat`),
-    the neighbours of a demosaicked mosaic correlated (the objective's ``grid``)."""
+    """(cov, applied): the sandwich covariance H^-1 M H^-1 of the paper's loss, H = J^T J, M the covariance
+    of the estimating equation J^T r summed over pixel neighbourhoods (:func:`block_meat`; the neighbours
+    of a demosaicked mosaic correlated: the objective's ``grid``).  It describes the estimate's spread, not
+    its bias (docs/computed.md)."""
     grid = problem.obj.grid
     M = block_meat(Jt, r, problem.obj.row_pixels(len(r)), Hi, grid)
     return Hi @ M @ Hi, [("paper-sandwich", "")] + ([("demosaic", "")] if grid is not None else [])
@@ -317,7 +311,11 @@ def _blocks(row_pix, grid):
 
 
 def block_meat(J, r, row_pix, Hi, grid=None):
-    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals (module docstring).
+    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals.
+
+    Each neighbourhood g's residuals are replaced by (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster
+    jackknife "CR3"; one pixel per block: "HC3"), because the fit has pulled the plain residuals towards
+    the data and they underestimate M for objects of few pixels; for large objects P_gg -> 0.
 
     ``row_pix``: the pixel of each residual row; ``grid``: (rows, cols) of the pixels when neighbours
     (|dr|, |dc| <= 1) are correlated (a bilinear-demosaicked mosaic shares raw samples), else None (one
@@ -524,7 +522,9 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
 
 def profile_intervals(problem, st, unc, J, r, every=False):
     """Check every free shape parameter's Fisher 95 % interval against the likelihood; where it fails,
-    replace that end by the profile likelihood's (:func:`profile_end`).
+    replace that end by the profile likelihood's (:func:`profile_end`).  The Fisher interval assumes
+    chi^2 is quadratic over it, which fails where kappa's effect saturates, parameters sit near bounds or
+    pairs are strongly correlated.
 
     At each end of the Fisher interval chi^2 along :func:`chi2_along_covariance` must rise by
     delta = 1.96^2 x the covariance's scale to within :data:`PROFILE_TOL` (a quadratic likelihood's rise
@@ -536,7 +536,8 @@ def profile_intervals(problem, st, unc, J, r, every=False):
 
     Adds ``interval_kind`` {name: "fisher" | "profile" | ...} and ``profile`` (the rises tried) to ``unc``
     and replaces the profiled ends in ``unc["ci95"]``; the standard errors stay Fisher's.  Likelihood fits
-    only; parameters without a finite standard error are left alone.  ``every``: profile both ends of every
+    only, and not for problems with extra unknowns (free light powers, per-pixel normals); parameters
+    without a finite standard error are left alone.  ``every``: profile both ends of every
     parameter whatever the criterion says (``intervals="profile"``).  Returns the mechanisms applied
     (:func:`method_text`).
     """
