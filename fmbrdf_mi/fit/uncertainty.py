@@ -218,7 +218,7 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
     """(cov_theta / scale, info, applied): the incidental-parameter sandwich of an eliminating layout
     (:func:`incidental_sandwich`; C scales with ``scale`` because the albedos' noise does), with the Fisher
     errors it replaces and the directions capped in ``info``; a layout without the term (the smoothness
-    prior) keeps ``Hi`` and says why.  ``J``: the Jacobian in z; ``parts``: the model at ``st`` with
+    prior) keeps ``Hi`` and says why.  ``J``: Kaufman's (projected) Jacobian in z; ``parts``: the model at ``st`` with
     derivatives (evaluated when not given).  Raises LinAlgError."""
     if problem.layout.incidental_reason is not None:
         reason = problem.layout.incidental_reason
