@@ -31,7 +31,7 @@ class FitResult:
     ``powers``, colour mosaics ``channels``, normal refinement ``normals``
     and ``mask``, and the mode's own numbers go in ``details`` (chi^2 per
     sample, the internal state, ...).  ``result["key"]`` reads a field or
-    a ``details`` entry (the colour fit's results were dicts).
+    a ``details`` entry.
     """
 
     model: str
@@ -103,7 +103,7 @@ class FitResult:
 
     @property
     def fit(self):
-        """The result itself (joint fits returned a wrapper whose ``fit`` held the estimate)."""
+        """The result itself, so that code reading ``result.fit`` of a joint fit keeps working."""
         return self
 
     def save_json(self, path, extra=None):

@@ -1,76 +1,27 @@
 """Standard errors, 95 % intervals and correlations of the estimates: one function per mechanism.
 
-The mechanisms, each a function, and what they serve:
+Runs after the solve (:mod:`fmbrdf_mi.fit.solve.driver`) and fills fit.json's ``uncertainty`` block
+(:func:`covariance`, :func:`summary`):
 
-* :func:`fisher`: the inverse Fisher information of a likelihood fit.  The residuals are standardised,
-  r = (y - mu) / sd, so with J their Jacobian the Fisher information is J^T J (Gauss-Newton, exact for
-  a Gaussian with known variances at the IRLS fixed point).
-* :func:`noise_scale`: the covariance's scale.  When the noise level was estimated from the residuals
-  the covariance is multiplied by chi^2 / (N - p) (N the independent samples), which is then ~1 by
-  construction; with the camera noise known, the same factor is applied when chi^2 / (N - p) is far
-  above 1 (more than 5 of its standard deviations sqrt(2 / (N - p)), and at least 0.1: ``misfit``),
-  and the fit warns (:func:`misfit_text`); as far below 1 it warns too (``noise_overstated``: the
-  stated noise exceeds the data's scatter) and keeps the scale 1.
-* :func:`paper_sandwich`: the paper's loss is not a likelihood, so J^T J says nothing about the
-  spread of its minimiser.  A sandwich estimate H^-1 M H^-1 with H = J^T J and M the covariance of
-  the estimating equation J^T r, summed over pixel neighbourhoods: each pixel's rows (its intensity
-  and DoLP residuals are correlated) and, for a bilinear-demosaicked mosaic, those of its 8
-  neighbours, whose values share raw samples (:func:`block_meat`).  Plain residuals r at the
-  estimate underestimate M (the fit has pulled them towards the data; most for objects of few
-  pixels), so the residuals of each neighbourhood g are replaced by its leave-g-out prediction
-  residuals (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster jackknife, "CR3" of the econometrics
-  literature; with one pixel per block the "HC3" estimate), which is unbiased to first order and
-  slightly conservative for small objects; for large ones P_gg -> 0 and it is the plain sandwich.  It
-  describes the spread of the estimate, not its bias (the DoLP of a noisy pixel is biased:
-  docs/computed.md).
-* :func:`incidental`: per-pixel albedos (an eliminating layout).  With two albedos per pixel
-  eliminated, J (Kaufman's) is evaluated at the noisy estimated albedos, and on average
-  J^T J = H + C (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`): the shape
-  estimate's covariance is the sandwich H^-1 J^T J H^-1, H = J^T J - C, not (J^T J)^-1, which
-  understates the spread when each pixel is seen in few images (docs/howto/fit-textured.md).  The
-  sandwich is reported (capped where H is not positive definite: :func:`incidental_sandwich`), the
-  Fisher errors kept in ``incidental``, and the profile check's threshold follows it.  Where the pairs
-  are coupled (bilinear corners) C is a Monte Carlo estimate of the same trace.
-* posterior with a prior: with the albedo maps' smoothness prior
-  (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) the residuals carry the prior's rows, and J^T J of
-  Kaufman's Jacobian over them is the shape's information with the albedos eliminated under the
-  prior: its inverse is the posterior covariance (Bayesian; :data:`POSTERIOR`), and each pixel's is
-  the 2 x 2 block of the penalised information's inverse.  The incidental-parameter sandwich is not
-  computed there (the prior shrinks the albedos' noise, so C shrinks; not derived for the penalised
-  solve).  chi^2 includes the penalty; its degrees of freedom:
-  ``fmbrdf_mi.fit.api.assemble.PRIOR_DOF_RULE``.
-* :func:`profile_intervals`: the profile likelihood's ends where the Fisher interval fails (below).
-* :func:`other_optima` and :func:`widen_for_optima`: competing optima among a multi-start fit's ends,
-  and the intervals stretched over them.
+* :func:`fisher`: the inverse Fisher information J^T J of the standardised residuals r = (y - mu) / sd
+  (Gauss-Newton; exact for a Gaussian with known variances at the IRLS fixed point), scaled by
+  :func:`noise_scale`;
+* :func:`paper_sandwich`: the paper's loss, which is not a likelihood;
+* :func:`incidental`: per-pixel albedos eliminated (the incidental-parameter sandwich;
+  docs/howto/fit-textured.md);
+* with the albedo maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) J^T J includes the
+  prior's rows and its inverse is the posterior covariance (:data:`POSTERIOR`); chi^2's degrees of
+  freedom: ``fmbrdf_mi.fit.api.assemble.PRIOR_DOF_RULE``;
+* :func:`profile_intervals`: the profile likelihood's ends where the Fisher interval fails;
+* :func:`other_optima` and :func:`widen_for_optima`: competing optima among a multi-start fit's ends.
 
-Each mechanism applied adds an entry ``(kind, detail)`` to a list, and fit.json's
-``uncertainty.method`` is composed from that list once (:func:`method_text`).
+Each mechanism applied adds ``(kind, detail)`` to a list that :func:`method_text` turns into
+fit.json's ``uncertainty.method``.
 
-**Transforms and bounds.**  The optimiser works in unconstrained z (sigmoid
-onto the bounds, log albedos); the covariance is computed for the reported
-parameters directly: J_theta = J_z (d theta / d z)^-1, so the standard
-errors are those of the reported parameters at the optimum (delta method),
-not of z.  Intervals are theta +- 1.96 SE, cut at the parameter's bounds;
-a parameter within 1e-3 of its range of a bound (on the scale the optimiser
-works on: log for log-scale parameters), or closer to a bound than 1.96 SE,
-is listed in ``at_bound``: its interval is not a confidence interval there.
-``bound_distance_se`` gives each free shape parameter's distance from its
-nearest bound in standard errors.
-
-**Where the quadratic approximation fails** (likelihood fits,
-:func:`profile_intervals`).  A Fisher interval assumes chi^2 is quadratic
-over it; kappa's effect saturates, parameters sit near bounds, pairs are
-strongly correlated.  So each free shape parameter's interval is checked:
-at both its ends chi^2 along the covariance's own path (the other unknowns
-at their regression on the parameter: one model evaluation each) must have
-risen by the 95 % threshold 1.96^2 (times the covariance's scale) to within
-:data:`PROFILE_TOL`.  Where it has not, that end is replaced by the
-profile likelihood's (refits with the parameter held fixed, the other
-unknowns free, the variances frozen at the fit's:
-:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed`): ``interval_kind`` says
-per parameter which kind each interval is, and the standard errors stay the
-Fisher ones.  Problems with extra unknowns (free light powers, per-pixel
-normals) keep Fisher intervals.
+The covariance is that of the reported parameters, J_theta = J_z (d theta / d z)^-1 (delta method;
+z is the optimiser's unconstrained scale).  Intervals are theta +- 1.96 SE cut at the bounds; a
+parameter at a bound (:func:`at_bound`) is listed in ``at_bound`` because its interval is not a
+confidence interval there.
 """
 from __future__ import annotations
 
@@ -84,8 +35,7 @@ Z95 = 1.959963984540054
 
 
 #: A parameter is weakly identified when its standard error exceeds this
-#: fraction of max(|value|, WEAK_FLOOR[name]) (the image does not pin it
-#: down to 5 %), or when it ended at a bound.
+#: fraction of max(|value|, WEAK_FLOOR[name]), or when it ended at a bound.
 WEAK_REL = 0.05
 
 
@@ -115,7 +65,7 @@ def dtheta_dz(problem, st, names):
 
 def bound_distance(problem, st):
     """{free shape parameter: (distance from its nearest bound in its own units, the same as a fraction of its
-    range on the scale the optimiser works on: log for log-scale parameters, linear for linear ones)}."""
+    range on the optimiser's scale: log for log-scale parameters)}."""
     out = {}
     for n in problem.names:
         tlo, thi, lo, hi = problem.bounds.lims[n]
@@ -127,9 +77,9 @@ def bound_distance(problem, st):
 
 def at_bound(problem, st, sd=None):
     """Free shape parameters whose interval is not a confidence interval because of a bound: those within 1e-3
-    of their range of a bound on the optimiser's scale (:func:`bound_distance`: a light power, searched over
-    six decades, is at its bound near G / 1000, not anywhere below 1.001 G), and, given the standard errors
-    ``sd`` {name: SE}, those closer to a bound than 1.96 SE (the 95 % interval is cut there)."""
+    of their range of a bound on the optimiser's scale (:func:`bound_distance`; a log scale, so a power
+    searched over decades is at its bound only near it), and, given the standard errors ``sd`` {name: SE},
+    those closer to a bound than 1.96 SE."""
     out = []
     for n, (d, frac) in bound_distance(problem, st).items():
         se = (sd or {}).get(n)
@@ -215,13 +165,12 @@ def incidental_term(problem, st, parts):
 
 def incidental_sandwich(F, C):
     """(cov, capped): the shape estimate's covariance H^-1 F H^-1, H = F - C (F = J^T J at the estimated
-    albedos, C :func:`incidental_term` times the covariance's scale: the albedos' noise is scale x G^-1
-    when the data's is scale x the stated), and how many directions had H not positive definite.  In F's
-    metric, H = F^1/2 V (I - L) V^T F^1/2 with L the eigenvalues of F^-1/2 C F^-1/2 (>= 0: C is positive
-    semi-definite), so cov = F^-1/2 V (I - L)^-2 V^T F^-1/2: each direction's Fisher variance inflated by
-    (1 - lambda)^-2.  1 - lambda is floored at :data:`INCIDENTAL_FLOOR` (a C estimated from few samples
-    per albedo is noisy, and H then need not be positive definite), i.e. the inflation is capped there, and
-    the cap is reported."""
+    albedos, C :func:`incidental_term` times the covariance's scale), and how many directions were capped.
+
+    In F's metric cov = F^-1/2 V (I - L)^-2 V^T F^-1/2, L the eigenvalues of F^-1/2 C F^-1/2: each
+    direction's Fisher variance is inflated by (1 - lambda)^-2.  1 - lambda is floored at
+    :data:`INCIDENTAL_FLOOR` because a C estimated from few samples per albedo is noisy and H then need not
+    be positive definite.  Raises LinAlgError when F is singular."""
     w, V = np.linalg.eigh(F)
     if w.min() <= 0:
         raise np.linalg.LinAlgError("singular information matrix")
@@ -242,12 +191,13 @@ def fisher(Jt):
 
 def noise_scale(problem, r, n_independent, p):
     """(scale, info, applied): the factor the covariance is multiplied by, fit.json's ``chi2_per_dof`` and
-    ``misfit``, and the mechanisms applied.  Noise estimated from the residuals: chi^2 / (N - p); the camera
-    noise known: 1, or chi^2 / (N - p) where that is far above 1 (the model or the stated noise does not
-    explain the data: the quasi-likelihood scale, as when the noise level is estimated; module docstring).
-    Far below 1 (as far as the misfit's threshold above it) the stated noise is larger than the data's
-    scatter: ``noise_overstated`` and ``noise_warning`` say so and the scale stays 1, so the errors are
-    those of the stated noise (too large, not shrunk to a scatter the noise model does not describe)."""
+    ``misfit``, and the mechanisms applied.
+
+    The scale is chi^2 / (N - p) (N the independent samples) when the noise level is estimated, and also
+    with the camera noise known where chi^2 / (N - p) lies more than 5 of its standard deviations
+    sqrt(2 / (N - p)), and at least 0.1, above 1 (``misfit``: the quasi-likelihood scale).  As far below 1
+    the scale stays 1 (``noise_overstated``, ``noise_warning``): the errors are those of the stated noise
+    rather than shrunk to a scatter the noise model does not describe."""
     n = int(n_independent if n_independent is not None else len(r))
     chi2 = float(r @ r)
     info = {"chi2_per_dof": chi2 / max(n - p, 1)}
@@ -257,7 +207,6 @@ def noise_scale(problem, r, n_independent, p):
     far = max(0.1, 5.0 * math.sqrt(2.0 / max(n - p, 1)))
     info["misfit"] = bool(info["chi2_per_dof"] > 1.0 + far)
     if info["chi2_per_dof"] < 1.0 - far:
-        # the stated noise exceeds the data's scatter: flagged, the errors kept (they are then too large)
         info["noise_overstated"] = True
         info["noise_warning"] = misfit_text(info)
     if info["misfit"]:
@@ -267,10 +216,10 @@ def noise_scale(problem, r, n_independent, p):
 
 def incidental(problem, st, J, names, Hi, scale, parts=None):
     """(cov_theta / scale, info, applied): the incidental-parameter sandwich of an eliminating layout
-    (:func:`incidental_sandwich`; the albedos' noise is scale x G^-1 when the data's is scale x the stated,
-    so C scales with it), the Fisher errors it replaces and the directions capped in ``info``; a layout
-    without the term (the smoothness prior) keeps ``Hi`` and says why.  ``J``: the Jacobian in z;
-    ``parts``: the model at ``st`` with derivatives (evaluated when not given).  Raises LinAlgError."""
+    (:func:`incidental_sandwich`; C scales with ``scale`` because the albedos' noise does), with the Fisher
+    errors it replaces and the directions capped in ``info``; a layout without the term (the smoothness
+    prior) keeps ``Hi`` and says why.  ``J``: Kaufman's (projected) Jacobian in z; ``parts``: the model at ``st`` with
+    derivatives (evaluated when not given).  Raises LinAlgError."""
     if problem.layout.incidental_reason is not None:
         reason = problem.layout.incidental_reason
         return Hi, {"incidental_not_computed": reason}, [("incidental-not-computed", reason)]
@@ -289,8 +238,10 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
 
 
 def paper_sandwich(problem, Jt, r, Hi):
-    """(cov, applied): the sandwich covariance of the paper's loss (module docstring, :func:`block_meat`),
-    the neighbours of a demosaicked mosaic correlated (the objective's ``grid``)."""
+    """(cov, applied): the sandwich covariance H^-1 M H^-1 of the paper's loss, H = J^T J, M the covariance
+    of the estimating equation J^T r summed over pixel neighbourhoods (:func:`block_meat`; the neighbours
+    of a demosaicked mosaic correlated: the objective's ``grid``).  It describes the estimate's spread, not
+    its bias (docs/computed.md)."""
     grid = problem.obj.grid
     M = block_meat(Jt, r, problem.obj.row_pixels(len(r)), Hi, grid)
     return Hi @ M @ Hi, [("paper-sandwich", "")] + ([("demosaic", "")] if grid is not None else [])
@@ -299,10 +250,10 @@ def paper_sandwich(problem, Jt, r, Hi):
 def covariance(problem, st, J, r, n_independent=None, parts=None):
     """Covariance of the reported free parameters; returns (names, cov (p, p) or None, info dict).
 
-    The paper's loss: :func:`paper_sandwich`.  A likelihood: :func:`fisher` times :func:`noise_scale`; an
-    eliminating layout (per-pixel albedos) gets :func:`incidental` (``parts``: the model at ``st`` with
-    derivatives, evaluated when not given), with the smoothness prior the covariance is the posterior one.
-    ``info["applied"]``: the mechanisms applied, ``info["method"]`` their :func:`method_text`."""
+    The paper's loss: :func:`paper_sandwich`.  A likelihood: :func:`fisher` times :func:`noise_scale`, with
+    :func:`incidental` for an eliminating layout (``parts``: the model at ``st`` with derivatives, evaluated
+    when not given).  ``info["applied"]``: the mechanisms applied, ``info["method"]`` their
+    :func:`method_text`."""
     try:
         names, Jt = jacobian_in_reported(problem, st, J)
     except np.linalg.LinAlgError:
@@ -360,10 +311,14 @@ def _blocks(row_pix, grid):
 
 
 def block_meat(J, r, row_pix, Hi, grid=None):
-    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals (module docstring).
+    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals.
 
-    ``row_pix``: the pixel of each residual row; ``grid``: (rows, cols) of the
-    pixels when neighbours (|dr|, |dc| <= 1) are correlated, else None (one
+    Each neighbourhood g's residuals are replaced by (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster
+    jackknife "CR3"; one pixel per block: "HC3"), because the fit has pulled the plain residuals towards
+    the data and they underestimate M for objects of few pixels; for large objects P_gg -> 0.
+
+    ``row_pix``: the pixel of each residual row; ``grid``: (rows, cols) of the pixels when neighbours
+    (|dr|, |dc| <= 1) are correlated (a bilinear-demosaicked mosaic shares raw samples), else None (one
     pixel per block).  Symmetrised, negative eigenvalues removed.
     """
     rows, nb = _blocks(row_pix, grid)
@@ -391,8 +346,7 @@ def block_meat(J, r, row_pix, Hi, grid=None):
 
 
 def summarise(problem, st, J, r, n_independent=None, parts=None):
-    """The uncertainty block of fit.json (:func:`summary` of :func:`covariance`); the mechanisms applied are
-    named by its ``method``."""
+    """The uncertainty block of fit.json: :func:`summary` of :func:`covariance`."""
     names, cov, info = covariance(problem, st, J, r, n_independent, parts)
     info.pop("applied")
     return summary(problem, st, names, cov, info)
@@ -410,7 +364,6 @@ def summary(problem, st, names, cov, info):
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     se = dict(zip(names, sd.tolist()))
     out["at_bound"] = at_bound(problem, st, se)
-    # each free shape parameter's distance from its nearest bound in standard errors
     out["bound_distance_se"] = {n: (float(d / se[n]) if se.get(n, 0.0) > 0 else math.inf)
                                 for n, (d, _) in bound_distance(problem, st).items()}
     for i, n in enumerate(names):
@@ -424,7 +377,7 @@ def summary(problem, st, names, cov, info):
         out["ci95"][n] = [float(lo), float(hi)]
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         corr = cov / np.outer(sd, sd)
-    # a degenerate covariance (a noise-free fit: sd ~ 1e-160) can give inf/nan; a correlation is in [-1, 1]
+    # a degenerate covariance (a noise-free fit) gives inf/nan; a correlation is in [-1, 1]
     corr = np.clip(np.nan_to_num(corr, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
     out["correlation"] = {"names": names, "matrix": np.round(corr, 4).tolist()}
     return out
@@ -432,7 +385,7 @@ def summary(problem, st, names, cov, info):
 
 #: The likelihood's pixel-area quadrature (m x m points per raw sample) is refined to 2m x 2m while its
 #: estimated bias (:func:`quadrature_bias`) exceeds this many standard errors for a shape parameter
-#: (:func:`fmbrdf_mi.fit.api.fitting.fit`; 0.2 SE lowers a 95 % interval's coverage by under half a point).
+#: (:func:`fmbrdf_mi.fit.api.fitting.fit`), so the bias costs a 95 % interval little coverage.
 QUADRATURE_TOL = 0.2
 
 #: ... up to this many points per raw-pixel side.
@@ -442,10 +395,9 @@ MAX_AREA_POINTS = 8
 def quadrature_bias(problem, fine, st, J, r):
     """Each free shape parameter's bias from the pixel-area quadrature, in its standard errors (first order, at
     ``st``): ``problem`` the fit with m x m points per raw sample (``J``, ``r`` its Jacobian and residuals at
-    ``st``), ``fine`` the same data with 2m x 2m.  With d = r - r_fine = (mu_fine - mu) / sd (the whitened
-    difference of the two quadratures of each sample's pixel area), data following the finer quadrature move
-    the coarse estimate by -(J^T J)^-1 J^T d: the midpoint rule's error falls 4x per halving, so this is 3/4
-    of the coarse quadrature's own bias.  Returns {name: bias / SE} (SE: the unscaled Fisher one)."""
+    ``st``), ``fine`` the same data with 2m x 2m.  The shift -(J^T J)^-1 J^T d, d = r - r_fine, is 3/4 of
+    the coarse quadrature's own bias because the midpoint rule's error falls 4x per halving.  Returns
+    {name: bias / SE} (SE: the unscaled Fisher one)."""
     parts = fine.parts(st)
     fine.set_weights(parts, st)
     d = r - fine.obj.residuals(parts, st)
@@ -477,16 +429,17 @@ def interval_scale(problem, unc):
 def chi2_along_covariance(problem, st, J, scale):
     """f(name, value): chi^2 (the objective's current weights) with shape parameter ``name`` at ``value`` and
     every other unknown at its regression on it under the covariance scale (J^T J)^-1 in z: the path a
-    quadratic likelihood's profile would follow.  One model evaluation per call; >= the profile."""
+    quadratic likelihood's profile would follow.  One model evaluation per call; >= the profile.
+    ``f.state(name, value)`` is the path's State there."""
     z0 = problem.to_z(st)
-    # a shape parameter at a bound (its z clipped, its Jacobian column ~0, its z-variance huge) stays there:
-    # the regression on it would throw it to its other bound for a small step of the parameter profiled
+    # a shape parameter at a bound (its Jacobian column ~0, its z-variance huge) stays there: the regression
+    # on it would throw it to its other bound
     pinned = [i for i, (n, (_, frac)) in enumerate(bound_distance(problem, st).items()) if frac <= 1e-3]
     cz = {}
 
     def path_cov(j):
         keep = [i for i in range(len(z0)) if i == j or i not in pinned]
-        if len(keep) == len(z0):        # nothing pinned: the whole covariance (as before, bit for bit)
+        if len(keep) == len(z0):        # nothing pinned: the whole covariance
             if "all" not in cz:
                 cz["all"] = np.linalg.pinv(J.T @ J) * scale
             return cz["all"]
@@ -501,16 +454,15 @@ def chi2_along_covariance(problem, st, J, scale):
         zt = problem.bounds.to_z(name, value)
         if j in pinned:
             # the parameter profiled is itself at a bound: the others' regression on it is not defined (its
-            # Jacobian column ~0: it threw them to chi^2 ~ 1e49, and the profile's end collapsed onto the
-            # estimate); they stay at the estimate and the refit starts from there
+            # Jacobian column ~0), so they stay at the estimate and the refit starts from there
             z = z0.copy()
             z[j] = zt
         else:
             c = path_cov(j)
             z = z0 + c[:, j] / c[j, j] * (zt - z0[j])
         s = problem.from_z(z)
-        s.shape[name] = float(value)   # exactly (z is clipped to +-Z_MAX)
-        if problem.eliminates:   # albedo maps: re-solved at the point (the profile over them)
+        s.shape[name] = float(value)   # exactly: z is clipped to +-Z_MAX
+        if problem.eliminates:   # albedo maps: re-solved at the point
             s = problem.projected(s.shape)[0]
         return s
 
@@ -518,19 +470,20 @@ def chi2_along_covariance(problem, st, J, scale):
         s = state(name, value)
         return problem.obj.value(problem.parts(s), s)
 
-    f.state = state      # the path's point: where a refit of the profile starts
+    f.state = state
     return f
 
 
 def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refits=3):
     """One end of ``name``'s profile-likelihood 95 % interval: where the best chi^2 with ``name`` held fixed
-    (:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed`, from the covariance path ``path``'s point there:
+    (:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed`, started from ``path.state``:
     :func:`chi2_along_covariance`) rises by ``delta`` above ``chi2_min``, on ``side`` (-1 or +1) of the
-    estimate ``st``, from a first guess ``start``.  The search runs on the parameter's own scale (log for
-    log-scale parameters), by the square root of the rise, which is linear in the distance for a quadratic
-    likelihood: a step to where that line meets sqrt(delta), then false position once the end is
-    bracketed.  Returns (end, kind, points): kind "profile", or "profile, open at the bound" when even
-    the bound does not raise chi^2 by ``delta``; points: [(value, rise)] tried."""
+    estimate ``st``, from a first guess ``start``.
+
+    The search is on the parameter's own scale and on sqrt(rise), which is linear in the distance for a
+    quadratic likelihood: a secant step towards sqrt(delta), then false position once bracketed.  Returns
+    (end, kind, points): kind "profile", "profile, open at the bound" (even the bound does not raise chi^2
+    by ``delta``) or "profile, at least" (``max_refits`` spent unbracketed); points: [(value, rise)] tried."""
     b = problem.bounds
     _, _, lo, hi = b.lims[name]
     value = st.shape[name]
@@ -569,25 +522,24 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
 
 def profile_intervals(problem, st, unc, J, r, every=False):
     """Check every free shape parameter's Fisher 95 % interval against the likelihood; where it fails,
-    replace that end by the profile likelihood's.
+    replace that end by the profile likelihood's (:func:`profile_end`).  The Fisher interval assumes
+    chi^2 is quadratic over it, which fails where kappa's effect saturates, parameters sit near bounds or
+    pairs are strongly correlated.
 
-    The criterion: at each end of the Fisher interval (cut at a bound), chi^2 along the
-    covariance's path (:func:`chi2_along_covariance`, one model evaluation) must rise by the 95 %
-    threshold delta = 1.96^2 x the covariance's scale to within :data:`PROFILE_TOL` (a quadratic
-    likelihood's rise is exactly delta there); at a bound, by at most delta (1 + tol): the bound is then
-    inside the interval.  Where it does not, that end is the profile likelihood's
-    (:func:`profile_end`: refits with the parameter held fixed, each from the path's State there).
-    Adds ``interval_kind`` {name: "fisher" | "profile" | ...} and ``profile`` {name: the rises tried} to
-    ``unc`` and replaces the profiled ends in ``unc["ci95"]``; the standard errors stay Fisher's.
-    With the incidental-parameter sandwich (per-pixel albedos, ``unc["incidental"]``) the threshold is
-    per parameter, delta (SE / Fisher SE)^2 (``profile["thresholds"]``): chi^2's curvature along the path
-    is J^T J's, so that is its rise at +-1.96 sandwich SE, and it is the profile likelihood-ratio statistic
-    rescaled to the sandwich variance (the one-parameter adjusted likelihood ratio of composite-likelihood
-    inference: Varin, Reid and Firth 2011, sec. 4.2).  The path itself stays J^T J's regression.
-    Likelihood fits only (the paper's loss is not a likelihood); parameters without a finite
-    standard error are left alone.  ``every``: both ends of every such parameter from the profile
-    likelihood, whatever the criterion says (``intervals="profile"``; the criterion's rises are still
-    recorded).  Returns the mechanisms applied (:func:`method_text`): ``profile`` where an end was replaced.
+    At each end of the Fisher interval chi^2 along :func:`chi2_along_covariance` must rise by
+    delta = 1.96^2 x the covariance's scale to within :data:`PROFILE_TOL` (a quadratic likelihood's rise
+    is exactly delta there); at a bound, by at most delta (1 + tol).  With the incidental-parameter
+    sandwich (``unc["incidental"]``) delta is per parameter, delta (SE / Fisher SE)^2
+    (``profile["thresholds"]``): the path's curvature is J^T J's, so that is chi^2's rise at +-1.96
+    sandwich SE (the adjusted likelihood ratio of composite-likelihood inference: Varin, Reid and Firth
+    2011, sec. 4.2).
+
+    Adds ``interval_kind`` {name: "fisher" | "profile" | ...} and ``profile`` (the rises tried) to ``unc``
+    and replaces the profiled ends in ``unc["ci95"]``; the standard errors stay Fisher's.  Likelihood fits
+    only, and not for problems with extra unknowns (free light powers, per-pixel normals); parameters
+    without a finite standard error are left alone.  ``every``: profile both ends of every
+    parameter whatever the criterion says (``intervals="profile"``).  Returns the mechanisms applied
+    (:func:`method_text`).
     """
     if not problem.obj.is_likelihood or not unc.get("ci95") or problem.with_fixed({}) is None:
         return []
@@ -710,18 +662,15 @@ MODE_SEPARATION_SE = 2.0
 
 def other_optima(starts, params, unc, names):
     """The separate optima among a multi-start fit's ends (:func:`fmbrdf_mi.fit.solve.driver.solve`'s
-    ``starts``: each with its ``end``, ``score`` (the negative log-likelihood, ``objective.nll``) and
-    ``converged``), for fit.json's ``uncertainty.other_optima`` and a warning.
+    ``starts``: each with its ``end``, ``score`` (the negative log-likelihood) and ``converged``), for
+    fit.json's ``uncertainty.other_optima`` and a warning.
 
     An end is another optimum when one of the shape parameters ``names`` differs from the estimate
-    ``params`` by more than :data:`MODE_SEPARATION_SE` of its standard error (``unc["std_errors"]``).  Its
-    ``delta_chi2`` = 2 (score - the best start's score) is how much worse the data say it is.  It is
-    *competing* when that is below the joint 95 % threshold of the shape parameters,
-    :data:`CHI2_95` [p] x the covariance's scale x the largest (SE / Fisher SE)^2 of the incidental-parameter
-    sandwich (as the profile check rescales its threshold, :func:`profile_intervals`): the likelihood's 95 %
-    region then has a second part there, which the intervals around the estimate do not describe (a tie
-    between two modes whose noise-free difference is small: per-pixel albedos from one image,
-    docs/howto/fit-textured.md).  Returns (list of {params, delta_chi2, distance_se, converged,
+    ``params`` by more than :data:`MODE_SEPARATION_SE` standard errors; ``delta_chi2`` = 2 (score - best
+    score).  It is *competing* when that is below the joint 95 % threshold :data:`CHI2_95` [p] x the
+    covariance's scale x the largest (SE / Fisher SE)^2 (rescaled as in :func:`profile_intervals`): the
+    likelihood's 95 % region then has a second part that the intervals around the estimate miss
+    (docs/howto/fit-textured.md).  Returns (list of {params, delta_chi2, distance_se, converged,
     competing}, the threshold); an empty list for a single start or a fit without standard errors."""
     se = unc.get("std_errors") or {}
     names = [n for n in names if se.get(n) and math.isfinite(se[n]) and se[n] > 0]
@@ -748,14 +697,13 @@ def other_optima(starts, params, unc, names):
 
 def widen_for_optima(unc, params, optima, lims=None):
     """Stretch each shape parameter's 95 % interval (``unc["ci95"]``) over the *competing* optima of
-    :func:`other_optima`: the likelihood's 95 % region has a part around each, so the interval is the hull
-    of the estimate's interval and, around every competing optimum, an interval of the same half-widths
-    (that optimum's own curvature is not computed: its errors are taken to be the estimate's), cut at the
-    parameter's bounds ``lims`` {name: (lo, hi)} where given.  The hull is conservative (the joint region's
-    projection, as the threshold is the joint one); it raises the coverage of the intervals where such an
-    optimum competes, and cannot where no optimum near the truth was found (docs/howto/fit-textured.md).
-    The standard errors stay the estimate's own.  Widened parameters get ``interval_kind`` "optima" (the others keep theirs, "fisher" where none was set);
-    ``unc["other_optima"]["widened"]`` lists {name: the interval before}.  Returns the names widened."""
+    :func:`other_optima`: the hull of the estimate's interval and, around every competing optimum, an
+    interval of the same half-widths (that optimum's curvature is not computed), cut at the bounds ``lims``
+    {name: (lo, hi)} where given.  The hull is conservative (the joint region's projection).
+
+    The standard errors stay the estimate's.  Widened parameters get ``interval_kind`` "optima" (the
+    others keep theirs, "fisher" where none was set); ``unc["other_optima"]["widened"]`` lists {name: the
+    interval before widening}.  Returns the names widened."""
     comp = [o for o in optima if o["competing"]]
     ci = unc.get("ci95") or {}
     if not comp:

@@ -52,8 +52,8 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     ``powers`` and the ``free_power`` option are for lists).  Keyword arguments override fields of
     :class:`FitOptions` (the CLI's options have the same names).  ``progress``: True prints to stderr, a
     callable receives each progress line, False is silent.  ``evaluator``: the evaluator of
-    :func:`~fmbrdf_mi.fit.problem.data.prepare` for the same geometry, pixels and objective (reused across
-    noise seeds by the benchmarks).  ``data``: a :class:`~fmbrdf_mi.fit.problem.problem.FitData` built by
+    :func:`~fmbrdf_mi.fit.problem.data.prepare` for the same geometry, pixels and objective, reused to skip
+    its setup.  ``data``: a :class:`~fmbrdf_mi.fit.problem.problem.FitData` built by
     the caller (several images of one object, a colour mosaic); ``obs`` then gives only its noise model
     and pixel grid.
 

@@ -34,7 +34,7 @@ ALBEDO_LAYOUTS = ("shared",) + PER_PIXEL_LAYOUTS
 
 #: The smallest smoothness scale tau of the albedo maps' prior (in the maps' units): the prior adds 1 / tau^2
 #: to the maps' normal equations, and far below this the data's information is lost beside it in double
-#: precision (the fit breaks down; maps tied to one value are ``albedo="shared"``).
+#: precision (maps tied to one value are ``albedo="shared"``).
 SMOOTH_MIN = 1e-6
 
 _IMAGE, _GEOMETRY = IMAGE_OPTIONS[0].group, IMAGE_OPTIONS[-1].group

@@ -25,20 +25,13 @@ its design, i.e. its corners (:class:`AlbedoLayout`):
   (:class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior`): rows appended
   to the design, with data 0.
 
-The shared pair of mono and joint fits is the one-group design and needs no
-layout (``layout=None``: a :class:`~fmbrdf_mi.fit.evaluate.models.State`
-holds two floats).  (The free light powers of a joint fit scale whole images
-and are non-linear unknowns of the problem: :mod:`fmbrdf_mi.fit.problem.free_power`.)
+A single shared pair needs no layout (``layout=None``).
 
-Two kinds of layout differ in what the optimiser sees.  A few albedos
-(:class:`GroupAlbedos`: channels, materials) are unknowns of the optimiser,
-their logs in z beside the shape parameters, re-solved in closed form
-(non-negative, ``nnls2``) at trial points.  Maps (:class:`PixelAlbedos`:
-thousands of pairs) are eliminated by variable projection (Golub and
-Pereyra): at every shape point a = A^+ y, the optimiser sees the shape
-parameters only, with Kaufman's Jacobian (I - P) J_theta, P = A (A^T A)^-1 A^T;
-one incidental-parameter term corrects the information for the eliminated
-albedos' noise, and one covariance maps the shape's back to each pair.
+A few albedos (:class:`GroupAlbedos`: channels, materials) are unknowns of the
+optimiser (their logs in z), re-solved in closed form (:func:`nnls2`) at trial
+points.  Maps (:class:`PixelAlbedos`: thousands of pairs) are eliminated by
+variable projection (Golub and Pereyra): a = A^+ y at every shape point, and
+the optimiser sees Kaufman's Jacobian (I - P) J_theta, P = A (A^T A)^-1 A^T.
 """
 from __future__ import annotations
 
@@ -83,13 +76,12 @@ class AlbedoLayout(abc.ABC):
     """The albedos of a fit as the sparse design A(theta) of the module docstring.
 
     ``name``: the ``albedo`` option's value; ``groups``: each sample's own group, an int array broadcastable
-    to (cells, n) (the maps, the split rule and the images per pixel use it); ``n_groups``: how many albedo
-    pairs; ``corner_groups``, ``corner_weights`` (groups' shape + (c,)): the design's corners (default: one
-    corner of weight 1, the own group); ``labels``: each group's label where the groups are named (channels,
-    materials; for maps: the channels' names or None); ``pixels`` (n_groups,): the flat pixel index of each
+    to (cells, n); ``n_groups``: how many albedo pairs; ``corner_groups``, ``corner_weights`` (groups' shape
+    + (c,)): the design's corners (default: one corner of weight 1, the own group); ``labels``: each group's
+    label where the groups are named (None otherwise); ``pixels`` (n_groups,): the flat pixel index of each
     group of a map (None otherwise); ``channel_of`` (n_groups,): a map's colour channel per group (None:
-    mono or not a map); ``prior``: the smoothness prior's rows (None: none).  Every attribute is always
-    present; a layout supplies its design, the base its algebra."""
+    mono or not a map); ``prior``: the smoothness prior's rows (None: none).  Subclasses supply the design,
+    this base its algebra."""
 
     #: Whether the albedos are eliminated by variable projection (:class:`PixelAlbedos`: it gives ``project``,
     #: ``covariance``, ``incidental``), not unknowns of the optimiser (:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos`: ``columns``).
@@ -176,8 +168,7 @@ class AlbedoLayout(abc.ABC):
 
 class GroupAlbedos(AlbedoLayout):
     """A few albedo pairs that are unknowns of the optimiser (their logs in z): one corner of weight 1 per
-    sample, its group; each group's pair solved non-negatively (``nnls2``) where the optimiser re-solves
-    them, d mu / d log a_s[g] = a_s[g] S on the group's samples and 0 elsewhere (:meth:`columns`)."""
+    sample, its group; each group's pair is solved non-negatively (``nnls2``)."""
 
     def __init__(self, name, groups, n_groups, labels):
         super().__init__(name, groups, n_groups, labels=labels)
@@ -207,8 +198,7 @@ class ChannelAlbedos(GroupAlbedos):
 
 
 #: Why the incidental-parameter sandwich is not reported with the albedo maps' smoothness prior
-#: (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`; fit.json's uncertainty method): the errors are the posterior
-#: ones, from the penalised information.
+#: (fit.json's uncertainty method).
 PRIOR_INCIDENTAL = ("the incidental-parameter sandwich is not computed with the albedo smoothness prior (the "
                     "posterior covariance of the penalised likelihood is reported)")
 
@@ -230,34 +220,30 @@ class PixelAlbedos(AlbedoLayout):
     matrix G = A^T A (+ R^T R) has one of two structures, and the algebra follows it:
 
     * **block diagonal** (``coupled`` False: one corner per sample, no prior): one 2 x 2 block per group,
-      inverted in closed form for all groups at once (a pseudo-inverse: a group whose two columns are
-      parallel gets the minimum-norm pair, and one degree of freedom); the incidental-parameter term is
-      exact (:meth:`incidental`);
-    * **banded** (``coupled`` True: bilinear corners, or the prior's rows): the pixels in row-major order make
-      G banded, half bandwidth about twice the object's width in pixels; it is factored once per point
-      (:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`, with a ridge where it is singular to
-      rounding: :data:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.RIDGE`) and the factor reused by the
-      projection; each pair's block of G^-1 is its selected inverse, and the incidental-parameter term is a
-      Monte Carlo estimate of the same trace (none with the prior: :data:`~fmbrdf_mi.fit.evaluate.albedos.PRIOR_INCIDENTAL`).
+      pseudo-inverted in closed form (parallel columns give the minimum-norm pair and one degree of
+      freedom); the incidental-parameter term is exact;
+    * **banded** (``coupled`` True: bilinear corners, or the prior's rows): row-major pixels make G banded;
+      it is factored once per point (:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`, with
+      :data:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.RIDGE` where singular to rounding), each pair's block
+      of G^-1 is its selected inverse, and the incidental-parameter term is a Monte Carlo estimate (none with
+      the prior: :data:`~fmbrdf_mi.fit.evaluate.albedos.PRIOR_INCIDENTAL`).
 
-    The albedos are not held non-negative: they are thousands of nuisance parameters of the shape, and
-    clipping the poorly determined ones at 0 (k_s away from the highlight) biases the shape; an estimate
-    below 0 is a small albedo measured with noise, and its standard error says so.
+    The albedos are not held non-negative: clipping the poorly determined ones at 0 (k_s away from the
+    highlight) biases the shape, while a negative estimate is a small albedo measured with noise.
     """
 
     eliminates = True
 
     #: Monte Carlo draws of the coupled :meth:`incidental`: about INCIDENTAL_DRAWS[1] / pairs, at least [0], at
-    #: most [2].  Each draw's estimate of a diagonal entry of C is a sum over all the pixels, its relative spread
-    #: about sqrt(6 / pairs) (tests/fit/test_bilinear_albedos.py), so the mean over the draws is good to about
-    #: 1 % from about a hundred pixels up, at a cost of (1 + p) x draws banded solves.
+    #: most [2].  One draw's relative spread on a diagonal entry of C is about sqrt(6 / pairs), so fewer draws
+    #: suffice for larger maps; each draw costs (1 + p) banded solves.
     INCIDENTAL_DRAWS = (8, 60000, 512)
 
     def __init__(self, groups, n_groups, pixels, *, corner_groups=None, corner_weights=None, name="per-pixel",
                  prior=None, channel_of=None, labels=None):
         super().__init__(name, groups, n_groups, corner_groups, corner_weights, labels=labels, pixels=pixels,
                          channel_of=channel_of, prior=prior)
-        #: whether the pairs are coupled (G banded) or not (G block diagonal): class docstring
+        #: whether the pairs are coupled (G banded) or not (G block diagonal)
         self.coupled = not self.one_corner or prior is not None
         lo, k, hi = self.INCIDENTAL_DRAWS
         self.incidental_draws = int(np.clip(np.ceil(k / max(self.n_groups, 1)), lo, hi))
@@ -311,9 +297,9 @@ class PixelAlbedos(AlbedoLayout):
 
     # ---- banded G
     def _factorised(self, us, ub):
-        """(A, factor) at the columns ``us``, ``ub``: the last factor when the columns are those it came
-        from (to a relative 1e-12: the solve's S sqrt(w) and the Jacobian's -S / sd differ in rounding),
-        else a new one (BandCholesky of A^T A (+ R^T R) with the ridge).  A: the data's design."""
+        """(A, factor) at the columns ``us``, ``ub``: the last factor when the columns match those it came
+        from to a relative 1e-12 (the solve's S sqrt(w) and the Jacobian's -S / sd differ in rounding and
+        sign), else a new BandCholesky of A^T A (+ R^T R).  A: the data's design."""
         key = (np.abs(np.asarray(us, float).ravel()), np.abs(np.asarray(ub, float).ravel()))
         A = self.design(us, ub)
         f = self._factor
@@ -345,8 +331,8 @@ class PixelAlbedos(AlbedoLayout):
     def free(self):
         """How many albedos the data spent unknowns on: two per group, one where a block diagonal G's group
         has parallel columns (the last :meth:`project`'s ranks); with the prior the dimension of its null
-        space (:meth:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior.null_dims`: the expected penalised
-        chi^2 at the optimum is N - p - that when the maps follow the prior)."""
+        space (:meth:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior.null_dims`), since the expected
+        penalised chi^2 is then N - p - that."""
         if self.prior is not None:
             return self.prior.null_dims()
         return int(2 * self.n_groups if self._rank is None else self._rank.sum())
@@ -379,9 +365,8 @@ class PixelAlbedos(AlbedoLayout):
         """(n_groups, 2, 2) covariance of each group's (a_s, a_b) with the shape unknowns free: the diagonal
         blocks of scale G^-1 + K cov_z K^T, K = G^-1 A^T J (the block inverse of the full information matrix;
         ``J`` (N, p) the residuals' unprojected shape derivatives, ``cov_z`` their covariance, already
-        scaled).  A pair the data do not determine gets infinite variances: a block whose two columns are
-        parallel (singular to 1e-10: the data fix one combination of a_s and a_b, not the split), or a
-        coupled pair without signal (its diagonal of A^T A zero)."""
+        scaled).  A pair the data do not determine gets infinite variances: parallel columns (singular to
+        1e-10), or a coupled pair without signal (its diagonal of A^T A zero)."""
         if not self.coupled:
             Gi, ok = self._block_inverse(self._gram(us, ub))
             K = np.einsum("gij,gjp->gip", Gi, self._cross(us, ub, J))
@@ -409,13 +394,10 @@ class PixelAlbedos(AlbedoLayout):
     def maps(self, S, B, a_s, a_b, cov, factor, split_rel):
         """The maps of every group: a dict of arrays (n_groups,): ``k_s``, ``k_b`` (the model's reported
         albedos: ``factor`` times a_s, a_b), ``k_s_se``, ``k_b_se`` (from ``cov`` (n_groups, 2, 2), the pairs'
-        :meth:`covariance`), ``correlation`` of the two, and ``identified``: False where the split is not
-        identified, i.e. where the standard error of the surface's or the body's contribution to the pixel's
-        brightness (a_s mean S, a_b mean B over the group's own samples; ``S``, ``B`` (cells, n) the unit-albedo
-        intensities) exceeds ``split_rel`` of the pixel's mean predicted brightness (both parts' signatures
-        alike behind the polarisers, or too little light); a group with no signal is not identified either;
-        parallel signatures give infinite standard errors.  The albedos are unconstrained estimates (a poorly
-        determined one can be below 0)."""
+        :meth:`covariance`), ``correlation`` of the two, and ``identified``: False where the standard error of
+        the surface's or the body's contribution to the pixel's brightness (a_s mean S, a_b mean B over the
+        group's own samples; ``S``, ``B`` (cells, n) the unit-albedo intensities) exceeds ``split_rel`` of the
+        pixel's mean predicted brightness, or where the group has no signal."""
         f = float(factor)
         a_s, a_b = np.asarray(a_s, float), np.asarray(a_b, float)
         se_s, se_b = np.sqrt(np.clip(cov[:, 0, 0], 0, None)), np.sqrt(np.clip(cov[:, 1, 1], 0, None))
@@ -440,18 +422,15 @@ class PixelAlbedos(AlbedoLayout):
 
             C_jk = tr(G^-1 A_j^T (I - P) A_k).
 
-        J^T J evaluated at the estimated albedos is on average H + C (H: the profile score's mean
-        derivative), so the shape estimate's covariance is H^-1 J^T J H^-1 with H = J^T J - C (the sandwich;
-        Neyman and Scott's incidental parameters, here two per group).  C is positive semi-definite.
+        J^T J at the estimated albedos is on average H + C (Neyman and Scott's incidental parameters), which
+        ``fmbrdf_mi.fit.uncertainty.incidental_sandwich`` corrects.  C is positive semi-definite.
 
-        Block diagonal G: per group g, with U_g = [us, ub] its columns, G_g = U_g^T U_g and
-        Y_gj = U_g^T A_gj, C_jk = sum_g [tr(A_gj^T A_gk G_g^+) - tr(Y_gj^T G_g^+ Y_gk G_g^+)], exactly, by
-        sums per group.  Banded G: G^-1 is not banded, so C is estimated by Monte Carlo: with e ~ N(0, I_N)
-        and b = G^-1 A^T e (covariance G^-1, the albedos' noise; in a direction the ridge regularises its
-        variance goes to 0, as the pseudo-inverse drops it), v_j = (I - P) A_j b has E[v_j^T v_k] = C_jk; the
-        mean of v^T v over ``draws`` (default ``incidental_draws``) draws from the generator seeded ``seed``:
-        positive semi-definite, the same at every call with the same columns (the last result is kept: the
-        covariance and the maps ask for it at the same point)."""
+        Block diagonal G: exact, by sums per group, C_jk = sum_g [tr(A_gj^T A_gk G_g^+) -
+        tr(Y_gj^T G_g^+ Y_gk G_g^+)], G_g = U_g^T U_g, Y_gj = U_g^T A_gj, U_g = [us, ub].  Banded G: G^-1 is not
+        banded, so C is the mean of v_j^T v_k over ``draws`` (default ``incidental_draws``) draws,
+        v_j = (I - P) A_j G^-1 A^T e, e ~ N(0, I_N) from the generator seeded ``seed``; deterministic for the
+        same columns, and the last result is cached because the covariance and the maps ask at the same
+        point."""
         if self.prior is not None:
             return None
         if not self.coupled:

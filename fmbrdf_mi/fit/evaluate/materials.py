@@ -6,26 +6,22 @@ and albedos (paper eq:fmbrdf, one BRDF per material):
     S(x_i) = E (k_s[m] f_s(x_i; eta[m], alpha[m], beta[m]) + k_b[m] f_b(x_i; eta[m], kappa[m])),
 
 and every pixel of every material enters the one objective (one camera noise
-model: :mod:`fmbrdf_mi.fit.objectives.objective`).  Three pieces, each
-built on what one material already has:
+model: :mod:`fmbrdf_mi.fit.objectives.objective`).  The pieces:
 
 * the parameter table with per-material shape parameters
   ``eta[0] .. kappa[0], eta[1] ..`` and, with shared albedos, ``k_s[m]``,
   ``r_k[m]`` per material
   (:class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` with ``materials``);
-* :class:`MaterialEvaluator`: one evaluator per material over that
-  material's points, assembled into the :class:`Parts` of all points (the
-  derivative with respect to ``eta[m]`` is material m's derivative on its
-  points and 0 elsewhere); a material whose parameters did not change is
-  not evaluated again;
-* :class:`MaterialAlbedos`: the albedo design with one (a_s, a_b) per
-  material (:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos`, each
-  sample's group its material).  Per-pixel
-  albedo maps (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) need
-  nothing new: each pixel has its own pair whatever its material.
+* :class:`MaterialEvaluator`: one evaluator per material over its points,
+  assembled into the :class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` of
+  all points (d/d ``eta[m]`` is 0 off material m's points); a material whose
+  parameters did not change is not evaluated again;
+* :class:`MaterialAlbedos`: one (a_s, a_b) per material.  Per-pixel albedo
+  maps (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) need nothing
+  new: each pixel has its own pair whatever its material.
 
-A fit of one material (every label 0) is the ordinary fit and runs on the
-ordinary pipeline (:func:`fmbrdf_mi.fit.api.fitting.fit`).
+A fit of one material (every label 0) is the ordinary fit
+(:func:`fmbrdf_mi.fit.api.fitting.fit`).
 """
 from __future__ import annotations
 

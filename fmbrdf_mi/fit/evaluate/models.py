@@ -2,10 +2,9 @@
 
 Every model is a Mitsuba BSDF that is linear in two albedos, a *surface*
 (specular) one and a *body* (diffuse) one, and depends non-linearly on a few
-*shape* parameters.  The fit works on that structure (closed-form albedos in
-the coarse search, analytic albedo derivatives); the BSDF itself is only ever
-evaluated through Mitsuba, so the per-pixel and the rendering paths run the
-same code.
+*shape* parameters; the fit uses that linearity (closed-form albedos,
+analytic albedo derivatives).  The BSDF is only evaluated through Mitsuba,
+so the per-pixel and the rendering paths run the same code.
 
 * ``fmbrdf``: this package's FMBRDF; reported as the paper's six parameters
   (eta, alpha, beta, kappa, k_s, r_k = k_b / k_s).
@@ -16,12 +15,11 @@ same code.
   ``roughconductor`` with k = 0), added as a ``blendbsdf`` with weight 1/2
   (its albedos are reported as the effective ones, k_d and k_s).
 * ``oren_nayar_ts``: Oren-Nayar + Torrance-Sparrow, the paper's third
-  comparison: this package's ``orennayar`` BSDF in its qualitative form
-  (Oren & Nayar, SIGGRAPH 1994; linear in the albedo, which the fit's
-  closed-form albedos need: the full form's interreflection term is
-  quadratic in it) in place of the Lambertian of ``lambert_ts``, the same
-  Torrance-Sparrow term, the same blend; shape parameters eta, alpha and
-  sigma (facet slope deviation, radians).
+  comparison: ``lambert_ts`` with this package's ``orennayar`` BSDF
+  (Oren & Nayar, SIGGRAPH 1994) in place of the Lambertian; its qualitative
+  form, because the full form's interreflection term is quadratic in the
+  albedo; shape parameters eta, alpha and sigma (facet slope deviation,
+  radians).
 """
 from __future__ import annotations
 
@@ -36,7 +34,8 @@ class ShapeParam:
     """A non-linear parameter, its traverse key, bounds and coarse-search values.
 
     ``scale``: the bounded reparameterisation works on ``log`` (for
-    parameters spanning decades), ``log1p`` (from 0) or ``linear`` values.
+    parameters spanning decades), ``log1p`` (from 0), ``log_minus_1`` (above 1)
+    or ``linear`` values.
     """
 
     name: str
@@ -98,7 +97,7 @@ FMBRDF = Model(
     body_key="k_b.value",
     albedo_factor=1.0,
     # float32 tables: residuals and their forward-mode derivatives come from the same
-    # tables, smooth in the parameters (the compact ones round the ratios to 3e-5)
+    # tables, smooth in the parameters (the compact ones round the ratios)
     base_dict={"type": "fmbrdf", "eta": "$eta", "alpha": "$alpha", "beta": "$beta",
                "kappa": "$kappa", "k_s": 1.0, "k_b": 1.0, "tables": "float32"},
     body_name="r_k",

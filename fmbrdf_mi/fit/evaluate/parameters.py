@@ -144,7 +144,7 @@ class Parameters:
         return self.row[name]
 
     def report(self, shape_values, a_s, a_b):
-        """The parameters as reported to the user, {name: value} in the order of :attr:`rows`: the shape
+        """The parameters as reported to the user, {name: value} in the order of ``rows``: the shape
         values and powers as they are, each group's albedos through the model's ``albedo_factor`` (the fmbrdf's
         k_s and r_k = k_b / k_s)."""
         groups = self.count if self.channels is None else len(self.channels)

@@ -7,37 +7,25 @@ Image k of a joint fit (:mod:`fmbrdf_mi.fit.api.joint`) is predicted as
 with E_k the irradiance the image was given (its ``irradiance`` times its
 given relative power G_k: the manifest's ``power``, the authors'
 ``intensities.npy`` / max, 1 if none) and P_k its light power.  Without
-``free_power`` P_k = G_k.  With it, P_1 .. P_{K-1} are estimated with the
-six material parameters and **P_0 stays at G_0**: k_s and k_b already scale
-every image, so one power must be fixed.  The reference is the *first*
-image (not the brightest) because the estimate does not depend on the
-choice -- fixing image j instead multiplies k_s, k_b and every P_k by the
-same factor (the likelihood is invariant to that rescaling) -- so only the
-presentation changes, and the first image is the one the user chose and can
-reorder (the manifest's first entry, the authors' lowest index).
+``free_power`` P_k = G_k.  With it, P_1 .. P_{K-1} are estimated and
+**P_0 stays at G_0**, because k_s and k_b already scale every image.  The
+choice of reference does not change the estimate (fixing another image
+rescales k_s, k_b and every P_k alike), so it is the first image, which the
+user orders.
 
-**Parameterisation.**  Each free power is one more non-linear parameter of
-the optimiser (a ``power`` row of the fit's
-:class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`, ``powers``): log P_k
-through the same bounded sigmoid as the shape parameters
-(:class:`~fmbrdf_mi.fit.evaluate.models.Bounds`, ``scale="log"``) on
-[G_k / 1000, 1000 G_k], so every iterate is positive.
-The prediction is linear in P_k, so its derivative is the image's own
-prediction divided by G_k (:class:`PowerEvaluator`): no BSDF evaluation, no
-table rebuild; a step that changes only the powers reuses the last BSDF
-evaluation.  The standard errors come from the same covariance as the six
-parameters (:mod:`fmbrdf_mi.fit.uncertainty`: inverse Fisher information
-for the likelihood, sandwich for the paper's loss), with the power
+Each free power is a ``power`` row of the fit's
+:class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`, bounded on a log
+scale (:class:`~fmbrdf_mi.fit.evaluate.models.Bounds`) to
+[G_k / 1000, 1000 G_k].  The prediction is linear in P_k, so its derivative
+needs no BSDF evaluation (:class:`PowerEvaluator`); the standard errors come
+from the shared covariance (:mod:`fmbrdf_mi.fit.uncertainty`) with the power
 columns in J.
 
-**Starting values** (``power_start``): ``given`` starts every P_k at G_k
-(the coarse search runs at the given powers); ``ratio`` (default) solves,
-at every coarse-search grid point, the albedos and the powers together in
-closed form -- alternating the two-albedo non-negative least squares and,
-per image, the least-squares ratio of the observed intensities (the
-likelihood: the samples, weighted by 1 / variance) to the prediction at
-unit power -- so the search ranks shapes with the powers that suit them.
-Both are measured in ``tools/bench_fit_lights.py --free-power`` (docs/benchmarks.md).
+**Starting values** (``power_start``): ``given`` starts every P_k at G_k;
+``ratio`` (default) solves the albedos and the powers together at every
+coarse-search grid point (:class:`PowerProblem`), so the search
+ranks shapes with the powers that suit them (docs/benchmarks.md,
+``tools/bench_fit_lights.py --free-power``).
 """
 from __future__ import annotations
 
@@ -106,8 +94,7 @@ class PowerEvaluator:
 
 class PowerProblem(Problem):
     """A :class:`~fmbrdf_mi.fit.problem.problem.Problem` whose coarse-search points solve the powers too
-    (``start="ratio"``: module docstring); ``pixel_slices``: (start, stop) of each image's pixels
-    among the objective's."""
+    (``start="ratio"``); ``pixel_slices``: (start, stop) of each image's pixels among the objective's."""
 
     def __init__(self, *args, pixel_slices, start="ratio", **kw):
         super().__init__(*args, **kw)
@@ -123,7 +110,8 @@ class PowerProblem(Problem):
         return i, pred[0][:, None], np.ones_like(i)
 
     def closed_form_powers(self, shape, a_s, a_b, base):
-        """P_1 .. P_{K-1} (dict) that best scale the prediction at unit power onto each image."""
+        """P_1 .. P_{K-1} (dict): per image the least-squares ratio of the observations to the prediction at
+        unit power (weighted by 1 / variance for the likelihood), clipped to the bounds."""
         y, mu, w = self._pairs(a_s * base.surface + a_b * base.body)
         out = {}
         for r in self.params.powers:
@@ -192,7 +180,7 @@ def split_result(res, params, names):
 
 
 def power_text(im):
-    """``power 0.61 +- 0.004 (given 1)`` of one image of a free-power fit (its entry of ``images``)."""
+    """``power P +- SE (given G)`` of one image of a free-power fit (its entry of ``images``)."""
     if im.get("power_reference"):
         return f"power {im['power']:.4g} (reference, fixed)"
     se = im.get("power_se")

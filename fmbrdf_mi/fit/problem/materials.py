@@ -8,12 +8,10 @@ material's grid points on its own pixels:
 parameters held fixed (the profile likelihood), and the ``materials`` block
 of fit.json.
 
-With the camera noise known the likelihood is a sum over pixels, and with
-per-material (or per-pixel) albedos each material's unknowns enter only its
-own pixels' terms: the fit of M materials is then the M fits of each
-material's pixels, solved together (one optimiser, one covariance; the
-cross-material covariances are 0 up to rounding).  With unknown noise the
-noise model's two parameters, estimated from all pixels, couple them.
+With the camera noise known and per-material (or per-pixel) albedos, each
+material's unknowns enter only its own pixels' terms, so the fit of M
+materials equals the M separate fits solved together (cross-material
+covariances are 0); with unknown noise the noise model couples them.
 """
 from __future__ import annotations
 
@@ -36,8 +34,8 @@ class MaterialProblem(Problem):
                                cell_material=self.cell_material)
 
     def material_scores(self, parts, st):
-        """(M,) the objective's score (the likelihood's negative log, :meth:`LikelihoodObjective.nll`) of each
-        material's own cells: their sum is the score of the whole."""
+        """(M,) the objective's score (for the likelihood its negative log) of each material's own cells:
+        their sum is the score of the whole."""
         obj = self.obj
         mu = obj.mu(parts, st)
         v = np.maximum(obj.noise.variance(mu), 1e-300)

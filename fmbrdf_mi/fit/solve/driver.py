@@ -1,22 +1,16 @@
-"""The one solver of every fit: coarse search, multistart, reweighting rounds, deadline, the one LM (or Adam).
+"""The solver of every fit: coarse search, multistart, reweighting rounds, deadline.
 
-:func:`solve` minimises a :class:`~fmbrdf_mi.fit.problem.problem.Problem`
-(one image or K, shared or per-channel albedos, free light powers):
+:func:`solve` minimises a :class:`~fmbrdf_mi.fit.problem.problem.Problem`:
 
-1. **start**: a given state (``init``), or the coarse search's grid
-   (:func:`~fmbrdf_mi.fit.solve.optimise.coarse_search`, each point's
-   albedos in closed form, ranked by the objective's own score) and up to
-   ``starts`` distinct points of it (:func:`distinct_starts`);
-2. **refinement** from each start (:func:`refine`): rounds of the one
-   reweighting loop (:mod:`fmbrdf_mi.fit.solve.irls`), each the one
-   Levenberg-Marquardt (:func:`~fmbrdf_mi.fit.solve.optimise.levenberg_marquardt`)
-   or Adam with the objective's weights frozen, until a round moves the
-   estimate by less than 0.05 standard errors (likelihood) or the
-   inlier / outlier split stops changing (paper's loss);
-3. the start whose end scores best wins (the objective's weights with it);
-4. a wall-clock deadline (:class:`~fmbrdf_mi.fit.problem.problem.TimeUp`,
-   checked before every model evaluation) ends the fit at its latest
-   accepted estimate, not converged.
+1. **start**: a given state (``init``), or up to ``starts`` distinct points
+   (:func:`distinct_starts`) of the coarse search
+   (:func:`~fmbrdf_mi.fit.solve.optimise.coarse_search`);
+2. **refinement** from each start (:func:`refine`): reweighting rounds
+   (:mod:`fmbrdf_mi.fit.solve.irls`) of Levenberg-Marquardt or Adam with the
+   objective's weights frozen;
+3. the start whose end scores best wins, with its weights;
+4. a wall-clock deadline (:class:`~fmbrdf_mi.fit.problem.problem.TimeUp`)
+   ends the fit at its latest accepted estimate, not converged.
 
 :func:`fmbrdf_mi.fit.api.assemble.assemble` turns the :class:`Solution`
 into a result with its uncertainty.
@@ -51,18 +45,18 @@ class Solution:
 
 def distinct_starts(problem, cands, n):
     """Up to ``n`` starts: the best candidate, then the best ones differing from all chosen in a
-    shape parameter other than eta and kappa (those the coarse search tuned last), preferring
-    candidates with both lobes switched on."""
-    first = [k for k in problem.names if problem.params.row[k].kind == "shape"   # not the free light powers
+    shape parameter other than eta and kappa (which the coarse search tunes last, so they differ only
+    locally), preferring candidates with both lobes switched on."""
+    first = [k for k in problem.names if problem.params.row[k].kind == "shape"
              and k not in ("eta", "kappa")] or list(problem.names)
     chosen = [cands[0][1]]
     pool = [c for _, c in cands[1:]]
 
-    def off(c):  # from the coarse search's own evaluation (no new table rebuild)
+    def off(c):  # from the coarse search's own evaluation: no table rebuild
         key = tuple(round(c.shape[n], 9) for n in problem.params.shape_names)
         return not problem.both_lobes.get(key, True)
 
-    pool.sort(key=off)  # stable: keeps the score order otherwise
+    pool.sort(key=off)  # stable: keeps the score order within each kind
     for c in pool:
         if len(chosen) >= n:
             break
@@ -88,10 +82,9 @@ def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_l
            report=None):
     """Refinement rounds from ``st``: the objective's weights are refreshed between rounds until they settle.
 
-    Paper's loss: the inlier/outlier split; likelihood: the variances from
-    the model (IRLS), until a round moves the estimate by < 0.05 standard
-    errors.  At most ``rounds`` rounds.  Returns (State, stop reason,
-    converged, Jacobian or None, residuals or None).
+    Paper's loss: the inlier/outlier split, until it stops changing; likelihood: the variances from the
+    model (IRLS), until a round moves the estimate by < 0.05 standard errors.  At most ``rounds`` rounds.
+    Returns (State, stop reason, converged, Jacobian or None, residuals or None).
     """
     obj = problem.obj
     say = report or (lambda m: None)
@@ -187,7 +180,7 @@ def refit_fixed(problem, st, name, value, start=None, max_iter=10):
     with the objective's current weights: one point of the profile likelihood
     (:func:`fmbrdf_mi.fit.uncertainty.profile_intervals`).  From ``start`` (a State: the covariance path's
     point there) or ``st`` with ``name`` moved (the albedos then from their closed form); at most
-    ``max_iter`` LM iterations (the profile needs chi^2 to ~0.1, not the optimum to 0.1 SE).  None for
+    ``max_iter`` LM iterations, since the profile needs chi^2 only roughly.  None for
     problems that cannot hold a parameter fixed (:meth:`~fmbrdf_mi.fit.problem.problem.Problem.with_fixed`)."""
     sub = problem.with_fixed({name: float(value)})
     if sub is None:

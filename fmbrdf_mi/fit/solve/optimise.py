@@ -1,29 +1,16 @@
-"""Minimising an objective (:mod:`fmbrdf_mi.fit.objectives.objective`): bounded reparameterisation, coarse search, LM or Adam.
+"""Minimising an objective (:mod:`fmbrdf_mi.fit.objectives.objective`): coarse search, then LM or Adam.
 
-Unknowns: the model's free shape parameters (for FMBRDF eta, alpha, beta,
-kappa, less any held fixed) and its two albedos a_s, a_b (FMBRDF: k_s and
-k_b = r_k k_s).  The optimiser works on unconstrained z: shape parameters
-through a sigmoid onto their bounds (on a log scale for those spanning
-decades, :class:`models.Bounds`), albedos through exp.  So every iterate is
-a valid material.
+Unknowns are the free shape parameters and the albedos a_s, a_b, optimised on an unconstrained z
+(:class:`~fmbrdf_mi.fit.evaluate.models.Bounds`: a sigmoid onto each shape parameter's bounds, exp for
+albedos), so every iterate is a valid material.
 
-1. **Coarse search** (needs no answer): shape parameters on a grid over the
-   box; at each grid point the albedos follow in closed form (the model is
-   linear in them: a two-unknown non-negative weighted least squares), and
-   the objective decides.  The grid is searched in stages to bound the
-   number of BSDF table rebuilds.
-2. **Refinement** on the same objective:
-   * ``lm`` (default): Levenberg-Marquardt on the objective's residuals, the
-     Jacobian from forward-mode Dr.Jit AD through the BSDF for each shape
-     parameter and analytic for the albedos;
-   * ``adam`` (paper's loss only): Adam (the paper's optimiser) on the
-     reverse-mode Dr.Jit gradient of the loss.
-3. **Stopping rule** (:func:`levenberg_marquardt`): converged when the
-   decrease falls below tolerance twice in a row (the paper's loss:
-   relative ``tol``; the likelihood: 0.01 in chi^2) or the Gauss-Newton
-   decrement says the optimum is within ~0.1 standard error; *not*
-   converged at ``max_iter`` or a time limit.  The wall-clock deadline of
-   :class:`Problem` is checked before every model evaluation.
+1. **Coarse search** (:func:`coarse_search`): shape parameters on a grid, searched in stages to bound
+   the number of BSDF table rebuilds; at each point the albedos follow in closed form because the model
+   is linear in them.
+2. **Refinement**: ``lm`` (default, :func:`levenberg_marquardt`) on the objective's residuals with a
+   forward-mode Dr.Jit Jacobian, or ``adam`` (paper's loss only, the paper's optimiser) on the
+   reverse-mode gradient.  Not converged at ``max_iter`` or a time limit; the deadline of
+   :class:`~fmbrdf_mi.fit.problem.problem.Problem` is checked before every model evaluation.
 """
 from __future__ import annotations
 
@@ -57,14 +44,10 @@ def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of,
                   progress=None):
     """The coarse search's stages over any point evaluation; returns [(score, point)] best first.
 
-    Stage 1: the ``first`` parameters on their grids, the ``later`` ones at
-    their middle values ``mids``; then each ``later`` parameter on its grid
-    for the ``keep`` best points so far.  ``evaluate(shape)`` returns
-    (score, point) (a model evaluation with the linear unknowns in closed
-    form), ``shape_of(point)`` its shape values; each grid point is
-    evaluated once.  ``on_point(key, results)`` follows every new point;
-    ``progress(message)`` gets a line every 6 points of stage 1 and after
-    each later stage.
+    Stage 1: the ``first`` parameters on their grids, the ``later`` ones at their middle values ``mids``;
+    then each ``later`` parameter on its grid for the ``keep`` best points so far.  ``evaluate(shape)``
+    returns (score, point), ``shape_of(point)`` its shape values; each grid point is evaluated once.
+    ``on_point(key, results)`` follows every new point; ``progress(message)`` gets progress lines.
     """
     results = {}
 
@@ -100,13 +83,10 @@ def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of,
 def coarse_search(problem, keep=2):
     """Grid search in stages (:func:`staged_search`); returns candidates [(score, State)] best first.
 
-    Stage 1: every free shape parameter but eta and kappa on its grid, eta
-    and kappa at their middle grid values; stage 2: eta on its grid for the
-    ``keep`` best; stage 3: kappa on its grid for the ``keep`` best (kappa
-    changes the body term least, and is often weakly identifiable: docs/benchmarks.md).
-    Each grid point costs one BSDF table rebuild; the albedos follow in
-    closed form (the objective's weighted least squares) and the objective
-    with the candidate's own weights decides.
+    Stage 1: every free shape parameter but eta and kappa on its grid, eta and kappa at their middle grid
+    values; then eta, then kappa, on their grids for the ``keep`` best (kappa last: it changes the body
+    term least, docs/benchmarks.md).  Each grid point costs one BSDF table rebuild; the albedos follow in
+    closed form and the objective with the candidate's own weights decides.
     """
     if problem.params.count is not None:
         return material_search(problem, keep)
@@ -147,13 +127,10 @@ def material_search(problem, keep=2):
     """The coarse search of a fit of several materials
     (:class:`~fmbrdf_mi.fit.problem.materials.MaterialProblem`); returns candidates [(score, State)].
 
-    Every grid point of the one-material search (:func:`staged_search`) is
-    evaluated once with all materials at it (one evaluation per material,
-    the albedos in closed form per material or pixel), and scored on each
-    material's own pixels (:meth:`material_scores`); each material's stages
-    then run on those scores, so each material gets the best grid point for
-    its own pixels at about the cost of one search.  Candidate j combines
-    every material's j-th best point.
+    Every grid point of the one-material search (:func:`staged_search`) is evaluated once with all
+    materials at it and scored on each material's own pixels
+    (:meth:`~fmbrdf_mi.fit.problem.materials.MaterialProblem.material_scores`), so each material gets its
+    best grid point at about the cost of one search.  Candidate j combines every material's j-th best point.
     """
     base, rows = problem.model, problem.params.shape
     first0 = {r.base: r.name for r in rows if r.material == 0}     # material 0's rows by the model's names
@@ -198,25 +175,18 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
                         round_no=0, refresh=3, final_jacobian=True):
     """Minimise the objective from ``st`` with its current weights (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`).
 
-    The Jacobian comes from forward-mode AD at the start and at least every
-    ``refresh`` accepted steps; in between it is kept current with Broyden's
-    rank-one secant update from every trial point (each AD Jacobian costs one
-    table rebuild with AD per shape parameter, a trial point one without).
-    A step that fails on a secant Jacobian triggers a fresh AD Jacobian
-    before the damping is raised.  Converged: the objective's small-decrease
-    test twice in a row, or (likelihood) a Gauss-Newton decrement below
-    :data:`~fmbrdf_mi.fit.solve.lm.DECREMENT_TOL` on a fresh Jacobian, or no step lowers the
-    objective at float32 precision.  ``final_jacobian`` False: no AD
-    Jacobian at the result (J, r are then those of the last linearisation).
-    A problem that projects its albedos
-    (:attr:`~fmbrdf_mi.fit.problem.problem.Problem.projects`: per-channel
-    albedos) re-solves them in closed form at the start and at every trial
-    point (variable projection) and takes an AD Jacobian at every step (no
-    secant: the albedo coordinates jump).  Returns (State, value, stop
-    reason, converged, J, r) with an AD Jacobian at the result.
+    The Jacobian comes from forward-mode AD at the start and at least every ``refresh`` accepted steps,
+    and from Broyden's secant update in between, because an AD Jacobian costs one table rebuild per shape
+    parameter.  Converged: the objective's small-decrease test twice in a row, or (likelihood) a
+    Gauss-Newton decrement below :data:`~fmbrdf_mi.fit.solve.lm.DECREMENT_TOL`, or no step lowers the
+    objective at float32 precision.  A problem that projects its albedos
+    (:attr:`~fmbrdf_mi.fit.problem.problem.Problem.projects`) re-solves them at every trial point and
+    takes an AD Jacobian at every step (a secant update fails because the albedo coordinates jump).
+    Returns (State, value, stop reason, converged, J, r); J, r are an AD Jacobian at the result unless
+    ``final_jacobian`` is False (then those of the last linearisation).
     """
     obj = problem.obj
-    project = problem.projects   # per-channel albedos: re-solved at every trial point, AD Jacobian every step
+    project = problem.projects
 
     def linearise(x):
         st, z = x
