@@ -171,10 +171,10 @@ def shown_pixels(observed, predicted, mask, pixels=None, dolp_min_intensity=0.02
 
     Intensity: the fitted pixels (``pixels``, flat indices; default the mask
     pixels the prediction covers, i.e. finite and not zero: predict_image
-    leaves the others at 0).  DoLP: of those, the ones the fit's DoLP term
-    uses (:class:`fmbrdf_mi.fit.objectives.loss.Target`: observed intensity
-    above ``dolp_min_intensity`` times its 99th percentile over the fitted
-    pixels); the DoLP of an unlit pixel is noise.  Unlit pixels, the eroded
+    leaves the others at 0).  DoLP: of those, the ones bright enough for
+    their DoLP not to be noise, by the rule of the paper's loss's DoLP term
+    (:class:`fmbrdf_mi.fit.objectives.loss.Target`: observed intensity above
+    ``dolp_min_intensity`` times its 99th percentile over the fitted pixels).  Unlit pixels, the eroded
     rim (pixels partly off the object) and the pixels near the pole are not
     fitted, so their difference is not a misfit and is not shown.
     """
@@ -202,7 +202,7 @@ def residuals(observed, predicted, mask, pixels=None, lin_variance=None, dolp_mi
     ``lin_variance`` = var(S1) = var(S2) known, residuals are in units of the
     noise standard deviation: S0 = (I0 + I45 + I90 + I135) / 2 has half the
     variance of S1 = I0 - I90, and the DoLP's standard deviation is sigma / S0
-    (the noise along (S1, S2)); without it, in image and DoLP units.
+    to first order (the noise along (S1, S2)); without it, in image and DoLP units.
     """
     shown = shown_pixels(observed, predicted, mask, pixels, dolp_min_intensity)
     o = np.asarray(observed, dtype=np.float64)
