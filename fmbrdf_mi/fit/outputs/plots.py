@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from fmbrdf_mi import stokes_io
+from fmbrdf_mi.fit.objectives.loss import Target
 from fmbrdf_mi.sensor import mosaic
 from fmbrdf_mi.sensor import rice
 from fmbrdf_mi.sensor.mosaic import COLOURS
@@ -23,11 +24,30 @@ def _channel_stokes(values, cam):
     return mosaic.stokes_from_colour_mosaic(raw, cam.layout, cam.cfa)[:, :3]
 
 
+def colour_shown(obs_s, sel, dolp_min_intensity=0.02):
+    """Which cells :func:`plot_colour_fit`'s residual panels show, per channel: (3, 2, H, W) bool
+    (channel; intensity, DoLP).  Intensity: the fitted cells ``sel``; DoLP: of those, the ones whose
+    observed intensity in that channel exceeds ``dolp_min_intensity`` times its 99th percentile over
+    ``sel`` (the rule of the DoLP term, :class:`fmbrdf_mi.fit.objectives.loss.Target`: the DoLP of an
+    unlit cell is noise)."""
+    sel = np.asarray(sel, bool)
+    out = np.zeros((len(obs_s), 2) + sel.shape, bool)
+    for c, s in enumerate(obs_s):
+        i = np.asarray(s[0], dtype=np.float64)
+        ok = sel & np.all(np.isfinite(s), axis=0)
+        out[c, 0] = ok
+        if ok.any():
+            out[c, 1] = ok & (i > dolp_min_intensity * np.percentile(i[ok], 99))
+    return out
+
+
 def plot_colour_fit(smp, pred, sel, cam, path, title=""):
-    """Observed vs fitted intensity and DoLP per channel, cropped to the fitted periods; errors beside."""
+    """Observed vs fitted intensity and DoLP per channel, cropped to the fitted periods; residuals beside,
+    shown on the cells :func:`colour_shown` selects (the object's other cells grey and hatched)."""
     plt = pyplot()
     obs_s = _channel_stokes(np.where(sel, smp.values, np.nan), cam)
     fit_s = _channel_stokes(pred, cam)
+    shown = colour_shown(obs_s, sel)
     rows, cols = np.nonzero(sel)
     r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
     fig, axes = plt.subplots(6, 3, figsize=(10, 17))
@@ -35,15 +55,18 @@ def plot_colour_fit(smp, pred, sel, cam, path, title=""):
         for q, (name, f) in enumerate((("intensity", lambda s: s[0]), ("DoLP", stokes_io.dolp))):
             o = np.where(sel, f(obs_s[c]), np.nan)[r0:r1, c0:c1]
             p = np.where(sel, f(fit_s[c]), np.nan)[r0:r1, c0:c1]
-            s = sel[r0:r1, c0:c1]
+            s = shown[c, q, r0:r1, c0:c1]
+            err = np.where(s, p - o, np.nan)
             vmax = scale_from(o, s)
-            emax = scale_from(p - o, s)
+            emax = scale_from(err, s)
             row = 2 * c + q
             for k, (img, t, kw) in enumerate(((o, f"{ch} observed {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
                                               (p, f"{ch} fitted {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
-                                              (p - o, f"{ch} fitted - observed",
+                                              (err, f"{ch} fitted - observed (hatched: not fitted)",
                                                dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
                 im = axes[row, k].imshow(img, **kw)
+                if k == 2:
+                    _not_shown(axes[row, k], np.asarray(sel, bool)[r0:r1, c0:c1] & ~s)
                 axes[row, k].set_title(t, fontsize=9)
                 axes[row, k].axis("off")
                 fig.colorbar(im, ax=axes[row, k], fraction=0.046)
@@ -143,33 +166,97 @@ def scale_from(values, sel, q=99.0, floor=1e-6):
     return max(float(np.percentile(v, q)), floor) if v.size else 1.0
 
 
-def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_variance=None, pixels=None):
-    """Intensity and DoLP: observed | predicted | error, masked (``lin_variance``: see :func:`model_dolp`).
+def shown_pixels(observed, predicted, mask, pixels=None, dolp_min_intensity=0.02):
+    """Which pixels the residual panels of :func:`plot_images` show: {"intensity": (H, W), "DoLP": (H, W)} bool.
 
-    Colour scales and error ranges come from the 99th percentile over
-    ``pixels`` (flat indices of the fitted pixels; default the mask).
+    Intensity: the fitted pixels (``pixels``, flat indices; default the mask
+    pixels the prediction covers, i.e. finite and not zero: predict_image
+    leaves the others at 0).  DoLP: of those, the ones bright enough for
+    their DoLP not to be noise, by the rule of the paper's loss's DoLP term
+    (:class:`fmbrdf_mi.fit.objectives.loss.Target`: observed intensity above
+    ``dolp_min_intensity`` times its 99th percentile over the fitted pixels).  Unlit pixels, the eroded
+    rim (pixels partly off the object) and the pixels near the pole are not
+    fitted, so their difference is not a misfit and is not shown.
+    """
+    m = np.asarray(mask, bool)
+    o = np.asarray(observed, dtype=np.float64)
+    p = np.asarray(predicted, dtype=np.float64)
+    if pixels is None:
+        fitted = m & np.all(np.isfinite(p), axis=0) & (p[0] != 0)
+    else:
+        fitted = np.zeros(m.size, bool)
+        fitted[np.asarray(pixels, dtype=np.int64)] = True
+        fitted = fitted.reshape(m.shape) & m
+    fitted &= np.all(np.isfinite(o), axis=0)
+    dolp = np.zeros_like(fitted)
+    if fitted.any() and np.mean(o[0][fitted]) > 0:
+        dolp[fitted] = Target.from_stokes(o[:, fitted], dolp_min_intensity=dolp_min_intensity).dolp_valid
+    return {"intensity": fitted, "DoLP": dolp}
+
+
+def residuals(observed, predicted, mask, pixels=None, lin_variance=None, dolp_min_intensity=0.02):
+    """The "fitted - observed" panels of :func:`plot_images`: {name: (residual (H, W), unit)}, name
+    "intensity" or "DoLP", the residual NaN where :func:`shown_pixels` does not show it.
+
+    The model's DoLP is the one the fit compares (:func:`model_dolp`).  With
+    ``lin_variance`` = var(S1) = var(S2) known, residuals are in units of the
+    noise standard deviation: S0 = (I0 + I45 + I90 + I135) / 2 has half the
+    variance of S1 = I0 - I90, and the DoLP's standard deviation is sigma / S0
+    to first order (the noise along (S1, S2)); without it, in image and DoLP units.
+    """
+    shown = shown_pixels(observed, predicted, mask, pixels, dolp_min_intensity)
+    o = np.asarray(observed, dtype=np.float64)
+    p = np.asarray(predicted, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        diff = {"intensity": p[0] - o[0], "DoLP": model_dolp(p, lin_variance) - stokes_io.dolp(o)}
+        unit = {"intensity": "image units", "DoLP": "DoLP"}
+        if lin_variance is not None:
+            sigma = np.sqrt(np.clip(np.asarray(lin_variance, dtype=np.float64), 0.0, None))
+            sd = {"intensity": sigma / np.sqrt(2.0), "DoLP": sigma / np.where(o[0] > 0, o[0], np.nan)}
+            for k in diff:
+                diff[k] = np.where(sd[k] > 0, diff[k] / sd[k], np.nan)
+            unit = {k: "noise s.d." for k in diff}
+    return {k: (np.where(shown[k], diff[k], np.nan), unit[k]) for k in diff}
+
+
+def _not_shown(ax, hidden):
+    """Grey, hatched, where a residual panel does not show the pixel (object pixels outside its set)."""
+    if hidden.any():
+        ax.contourf(hidden.astype(float), levels=[0.5, 1.5], colors=["0.8"], hatches=["////"],
+                    origin="upper", extent=(-0.5, hidden.shape[1] - 0.5, hidden.shape[0] - 0.5, -0.5))
+
+
+def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_variance=None, pixels=None):
+    """Intensity and DoLP: observed | predicted | residual (``lin_variance``: see :func:`model_dolp`).
+
+    The residual panels (:func:`residuals`) show the pixels the fit used
+    (``pixels``, flat indices; default the mask pixels with a prediction; the
+    DoLP only where its term uses it), in units of the noise standard
+    deviation when ``lin_variance`` is known; the object's other pixels are
+    grey and hatched.  Colour scales come from the 99th percentile over the
+    shown pixels.
     """
     plt = pyplot()
     m = np.asarray(mask, bool)
-    sel = m.copy()
-    if pixels is not None:
-        sel = np.zeros(m.size, bool)
-        sel[np.asarray(pixels)] = True
-        sel = sel.reshape(m.shape)
+    res = residuals(observed, predicted, m, pixels, lin_variance)
     rows = (("intensity", observed[0], predicted[0]),
             ("DoLP", stokes_io.dolp(observed), model_dolp(predicted, lin_variance)))
     fig, axes = plt.subplots(2, 3, figsize=(11, 7))
     for r, (name, o, p) in enumerate(rows):
+        err, unit = res[name]
+        shown = np.isfinite(err)
         o = np.where(m, o, np.nan)
         p = np.where(m, p, np.nan)
-        vmax = scale_from(o, sel, 99.0)
-        err = p - o
-        emax = scale_from(err, sel, 99.0)
+        vmax = scale_from(o, shown, 99.0)
+        emax = scale_from(err, shown, 99.0)
         for c, (img, t, kw) in enumerate(((o, f"observed {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
                                           (p, f"{label} {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
-                                          (err, f"{label} - observed", dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
+                                          (err, f"{label} - observed ({unit})\nhatched: not fitted",
+                                           dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
             im = axes[r, c].imshow(img, **kw)
-            axes[r, c].set_title(t)
+            if c == 2:
+                _not_shown(axes[r, c], m & ~shown)
+            axes[r, c].set_title(t, fontsize=10)
             axes[r, c].axis("off")
             fig.colorbar(im, ax=axes[r, c], fraction=0.046)
     if title:
