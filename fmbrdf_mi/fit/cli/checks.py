@@ -151,7 +151,3 @@ def check_needs(args, flags=None):
         if given(args, f) and not given(args, needed):
             raise InputError(f"{f} needs {text}")
 
-
-def check_colour_args(args):
-    """Options the colour path does not take: one line naming them."""
-    refuse(args, "colour")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import sys
 import time
 
-from fmbrdf_mi.fit.cli.checks import check_args, check_colour_args
+from fmbrdf_mi.fit.cli.checks import check_args, refuse
 from fmbrdf_mi.fit.cli.joint import run_joint
 from fmbrdf_mi.fit.cli.layout_check import mirrored_layout_hint
 from fmbrdf_mi.fit.cli.normals import check as check_normal_args
@@ -19,7 +19,6 @@ from fmbrdf_mi.fit.cli.request import request
 from fmbrdf_mi.fit.api.options import add_arguments
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.colour import colour_sidecar
-from fmbrdf_mi.fit.inputs.parse import parse_vector
 from fmbrdf_mi.fit.outputs.colour import fit_colour_files
 from fmbrdf_mi.fit.outputs.rerun import rerun
 from fmbrdf_mi.fit.outputs.single import fit_files
@@ -60,11 +59,8 @@ def run_rerun(args, command):
 
 def run_colour(args, command):
     """A colour polarisation mosaic (its capture sidecar says so)."""
-    check_colour_args(args)
-    lights = args.light or []
-    return fit_colour_files(**request("colour", args, inputs=args.inputs[0],
-                                      light=parse_vector(lights[0] if lights else None, "--light"),
-                                      max_pixels=args.max_pixels or None), out=args.out, force=args.force,
+    refuse(args, "colour")
+    return fit_colour_files(**request("colour", args, inputs=args.inputs[0]), out=args.out, force=args.force,
                             progress=not args.quiet, command=command)
 
 
@@ -72,12 +68,9 @@ def run_single(args, command):
     """One polarimetric image (a Stokes EXR, a raw mosaic, angle images)."""
     if not args.inputs:
         raise InputError("no INPUT given: a Stokes .exr, a raw mosaic, angle images, or --from fit.json")
-    lights = args.light or []
     kw = request(
         "single", args, out=args.out, force=args.force, inputs=args.inputs if len(args.inputs) > 1 else args.inputs[0],
-        light=parse_vector(lights[0] if lights else None, "--light"),
         relight=None if not args.relight else (args.relight if len(args.relight) > 1 else args.relight[0]),
-        relight_light=parse_vector(args.relight_light, "--relight-light"), max_pixels=args.max_pixels or None,
         progress=not args.quiet, command=command)
     report = fit_files(**kw)
     hint = mirrored_layout_hint(report, kw, fit_files, progress=not args.quiet)

@@ -3,17 +3,17 @@ from __future__ import annotations
 
 import os
 
-from fmbrdf_mi.fit.cli.checks import check_colour_args
+from fmbrdf_mi.fit.cli.checks import refuse
 from fmbrdf_mi.fit.cli.request import request
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS
 from fmbrdf_mi.fit.inputs.authors import read_object
+from fmbrdf_mi.fit.inputs.colour import is_colour
 from fmbrdf_mi.fit.inputs.manifest import (PATH_KEYS, ImageSpec, absolute_paths, build_observations, image_names,
                                            read_manifest)
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_vector
-from fmbrdf_mi.fit.outputs.joint import check_distinct, fit_images, fitter
-from fmbrdf_mi.fit.outputs.record import joint_block
-from fmbrdf_mi.fit.outputs.normals import run as refine
+from fmbrdf_mi.fit.outputs.joint import check_distinct, run_images
+from fmbrdf_mi.fit.outputs.normals import NormalRefinement
 
 
 # ---------------------------------------------------------------- the command
@@ -65,33 +65,25 @@ def run_joint(args, command):
         specs = [ImageSpec(inp, parse_vector(li, f"--light {k + 1}"), options=dict(cli_opts))
                  for k, (inp, li) in enumerate(zip(args.inputs, args.light))]
     check_distinct(specs)
-    names = image_names(specs)
-    fit_fn, outputs_fn = fitter(specs, args.albedo, args.materials)
-    if fit_fn is not fit_images:
-        check_colour_args(args)
-    files = outputs_fn(args.out, names, [s.holdout for s in specs])
+    if is_colour(specs):
+        refuse(args, "colour")
     if not args.authors:   # the record names files by absolute path (a rerun may start elsewhere)
         for s in specs:
             s.input = absolute_paths(s.input)
             s.options.update({k: absolute_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
     fit_kw = request("joint", args, fixed=parse_fixed(args.fixed), bounds=parse_bounds(args.bounds),
-                     init=parse_init(args.init), max_pixels=args.max_pixels or None)
+                     init=parse_init(args.init))
     for k in ("materials", "area_points", "albedo_smooth"):   # at their default: left to the fit (a colour fit
-        if fit_kw[k] is None:                                 # does not take them: check_colour_args)
+        if fit_kw[k] is None:                                 # does not take them: REFUSED["colour"])
             del fit_kw[k]
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
     if args.refine_normals:
         obs = build_observations(specs)
         # the authors' layout carries the ground truth (normal/normal_GT.npy): it is the geometry read
         gt = obs[0].normals.copy() if args.authors else None
-        return refine(specs, names, obs, args.out, start=args.normals_start, lam=args.smooth, model=args.model,
-                      fit_kw={k: v for k, v in fit_kw.items() if k not in ("model", "baselines")},
-                      ground_truth=gt, force=args.force, progress=not args.quiet, command=command)
-
-    def reproduce(obs):
-
-        return joint_block(kind, specs, names, obs, fit_kw, command, manifest=args.manifest, authors=authors, info=info)
-
-    report = fit_fn(specs, args.out, force=args.force, progress=not args.quiet, command=command,
-                    extra={"joint": {"outputs": files, "authors_layout": info}}, reproduce=reproduce, **fit_kw)
-    return report
+        return NormalRefinement(specs, image_names(specs), obs, args.out, start=args.normals_start, lam=args.smooth,
+                                model=args.model, fit_kw={k: v for k, v in fit_kw.items()
+                                                          if k not in ("model", "baselines")},
+                                ground_truth=gt, force=args.force, progress=not args.quiet, command=command).run()
+    return run_images(kind, specs, args.out, fit_kw, command=command, force=args.force, progress=not args.quiet,
+                      manifest=args.manifest, authors=authors, info=info)

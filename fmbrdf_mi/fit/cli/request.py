@@ -2,12 +2,20 @@
 from __future__ import annotations
 
 from fmbrdf_mi.fit.api.options import record_keys
+from fmbrdf_mi.fit.inputs.parse import parse_vector
 
 
 def request(record, args, **converted):
     """The options of ``record`` (``single``, ``colour`` or ``joint``:
-    :func:`~fmbrdf_mi.fit.api.options.record_keys`) as parsed, then ``converted`` (the values the command turns
-    into another form: one input or several, a parsed vector, ``--max-pixels 0`` for all).  ``--from`` builds
-    the same request from a fit.json (:mod:`fmbrdf_mi.fit.outputs.record`)."""
+    :func:`~fmbrdf_mi.fit.api.options.record_keys`) as parsed, ``--max-pixels 0`` (all) as None and, for one
+    image, its ``--light`` (and ``--relight-light``) parsed; then ``converted`` (the values the command turns
+    into another form: one input or several).  ``--from`` builds the same request from a fit.json
+    (:mod:`fmbrdf_mi.fit.outputs.record`)."""
     values = vars(args)
-    return {**{k: values[k] for k in record_keys(record)}, **converted}
+    kw = {k: values[k] for k in record_keys(record)}
+    kw["max_pixels"] = kw["max_pixels"] or None
+    if "light" in kw:
+        kw["light"] = parse_vector((kw["light"] or [None])[0], "--light")
+    if "relight_light" in kw:
+        kw["relight_light"] = parse_vector(kw["relight_light"], "--relight-light")
+    return {**kw, **converted}

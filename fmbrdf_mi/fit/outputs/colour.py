@@ -29,7 +29,8 @@ from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed
 from fmbrdf_mi.fit.outputs import record
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
-from fmbrdf_mi.fit.outputs.single import MAP_OUTPUTS, write_albedo_maps
+from fmbrdf_mi.fit.outputs.single import write_maps
+from fmbrdf_mi.fit.outputs.writer import MAP_OUTPUTS
 
 OUTPUTS = ("fit.json", "colour_fit.png")
 
@@ -121,9 +122,8 @@ class Colour(FitJob):
 
     def report(self):
         obs, model = self.ci.obs, self.a["model"]
-        meta = {k: obs.meta[k] for k in ("settings", "sphere", "sidecar")}
         return {"inputs": self.path, "sensor": "colour", "truth": self.ci.truth,
-                "reproduce": record.reproduce_block(self.a, self.path, self.command, type("O", (), {"meta": meta})),
+                "reproduce": record.reproduce_block(self.a, self.command, obs.meta),
                 "models": {model: model_entry(model, self.res, self.bounds, self.fixed, self.ci.truth)}}
 
     def write(self, report):
@@ -131,11 +131,10 @@ class Colour(FitJob):
         pred = predict_samples(ci.obs, ci.samples, res)
         plot_colour_fit(ci.samples, pred, ci.obs.mask & ci.samples.usable, ci.camera, self.outs["colour_fit.png"],
                         title=f"{self.a['model']}: " + format_result(res).replace("\n", "; "))
-        if res.maps is not None:
-            write_albedo_maps(res, self.outs, self.a["model"])
-            report["albedo_maps"] = {k: self.outs[k] for k in MAP_OUTPUTS}
+        write_maps(res, self.a["model"], self.out, report)
 
     def finish(self, report):
-        report["outputs"] = list(self.outs.values())
-        report["wall_s"] = time.time() - self.t0
+        """The report and what :func:`~fmbrdf_mi.fit.outputs.summary.print_colour` prints besides: the files
+        written and the run's wall time."""
+        report["outputs"], report["wall_s"] = self.paths, time.time() - self.t0
         return report

@@ -19,7 +19,6 @@ held-out images are relit with them.
 from __future__ import annotations
 
 import os
-import time
 
 import numpy as np
 
@@ -27,21 +26,12 @@ from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.inputs.colour import read_colour_inputs
-from fmbrdf_mi.fit.outputs.colour import model_entry
+from fmbrdf_mi.fit.outputs.colour import Colour, model_entry
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
-from fmbrdf_mi.fit.outputs.single import MAP_OUTPUTS, write_albedo_maps
+from fmbrdf_mi.fit.outputs.single import write_maps
 from fmbrdf_mi.fit.outputs.writer import prepare_outputs
 from fmbrdf_mi.sensor.mosaic import COLOURS
-
-
-def outputs(out, names, holdout, albedo="shared"):
-    files = ["fit.json"]
-    for n, h in zip(names, holdout):
-        files.append(f"relight_{n}.png" if h else f"colour_fit_{n}.png")
-    if albedo == "per-pixel":
-        files += list(MAP_OUTPUTS)
-    return [os.path.join(out, f) for f in files]
 
 
 def sample_rmse(smp, pred, sel, channel):
@@ -96,9 +86,8 @@ class ColourJoint(FitJob):
         get_model(self.model)
 
     def files(self):
-        albedo = self.fit_kw["albedo"]
-        self.names, self.holdout, files = prepare_outputs(
-            self.specs, self.out, lambda out, names, holdout: outputs(out, names, holdout, albedo), self.force)
+        self.names, self.holdout, files = prepare_outputs(self.specs, self.out, self.force, self.fit_kw["albedo"],
+                                                          colour=True)
         return files
 
     def read(self):
@@ -147,11 +136,6 @@ class ColourJoint(FitJob):
             else:
                 plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"colour_fit_{n}.png"),
                                 title=f"{n}: {title}")
-        if res.maps is not None:
-            outs = {f: os.path.join(out, f) for f in MAP_OUTPUTS}
-            write_albedo_maps(res, outs, model)
-            report["albedo_maps"] = outs
+        write_maps(res, model, out, report)
 
-    def finish(self, report):
-        report["outputs"], report["wall_s"] = self.paths, time.time() - self.t0
-        return report
+    finish = Colour.finish

@@ -43,7 +43,6 @@ errors), ``images_NAME.png`` and ``profiles_NAME.png`` per fitted image,
 """
 from __future__ import annotations
 
-import dataclasses
 import os
 
 import numpy as np
@@ -52,38 +51,25 @@ from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.api.options import (FIT_NAMES, OPTION, check_fit_options, check_resolved_loss, fit_options, flag,
                                         record_keys)
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
-from fmbrdf_mi.fit.evaluate.predict import predict_image, relight_error
+from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs.colour import is_colour
 from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power, image_names
 from fmbrdf_mi.fit.inputs.observations import check_direction
 from fmbrdf_mi.fit.inputs.parse import parse_vector
-from fmbrdf_mi.fit.outputs import plots
 from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
-from fmbrdf_mi.fit.outputs.colour_joint import outputs as colour_outputs
 from fmbrdf_mi.fit.outputs.job import FitJob
-from fmbrdf_mi.fit.outputs.record import command_block, sha256
+from fmbrdf_mi.fit.outputs.record import command_block, joint_block, sha256
 from fmbrdf_mi.fit.inputs.labels import read_labels
 from fmbrdf_mi.fit.api.find_materials import parse_auto
-from fmbrdf_mi.fit.outputs.single import MAP_OUTPUTS, MATERIAL_OUTPUTS, labels_of, write_albedo_maps, write_materials
-from fmbrdf_mi.fit.outputs.writer import prepare_outputs
+from fmbrdf_mi.fit.outputs.single import (baseline_options, labels_of, model_entries, plot_fit, plot_relight,
+                                          relight_check, write_common)
+from fmbrdf_mi.fit.outputs.writer import joint_outputs, prepare_outputs
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
 
 
 #: The keywords :func:`fit_images` takes besides its own: the joint record's options and :class:`FitOptions`'.
 TAKES = tuple(dict.fromkeys(k for k in record_keys("joint") + FIT_NAMES if k not in ("model", "baselines")))
-
-
-def outputs(out, names, holdout, albedo="shared", materials=None):
-    files = ["fit.json", "history.png"]
-    for n, h in zip(names, holdout):
-        files += [f"relight_{n}.png"] if h else [f"images_{n}.png", f"profiles_{n}.png"]
-    if albedo in PER_PIXEL_LAYOUTS:
-        files += list(MAP_OUTPUTS)
-    if materials is not None:
-        files += list(MATERIAL_OUTPUTS)
-    return [os.path.join(out, f) for f in files]
 
 
 def check_distinct(specs):
@@ -148,10 +134,9 @@ class Joint(FitJob):
         check_fit_options(model=self.model, **self.fit_kw)
 
     def files(self):
-        albedo, labels = self.fit_kw.get("albedo", OPTION["albedo"].default), self.fit_kw.get("materials")
         self.names, self.holdout, files = prepare_outputs(
-            self.specs, self.out, lambda out, names, holdout: outputs(out, names, holdout, albedo, labels),
-            self.force)
+            self.specs, self.out, self.force, self.fit_kw.get("albedo", OPTION["albedo"].default),
+            self.fit_kw.get("materials"))
         return files
 
     def read(self):
@@ -180,7 +165,7 @@ class Joint(FitJob):
         models = [model] + ([m for m in ("pplastic", "lambert_ts") if m != model] if self.baselines else [])
         self.results = {}
         for name in models:
-            o = opts if name == model else dataclasses.replace(opts, model=name, bounds=None, init=None, fixed=None)
+            o = opts if name == model else baseline_options(opts, name)
             self.results[name] = fit_joint(fit_obs, o, names=fit_names, progress=self.progress, powers=given,
                                            materials=self.labels)
 
@@ -204,12 +189,7 @@ class Joint(FitJob):
         elif self.command is not None:
             report["reproduce"] = command_block(self.command)
         report.update(self.extra or {})
-        for name, res in self.results.items():
-            entry = res.to_json()
-            if name == model and truth:
-                entry["relative_error"] = {k: (res.params[k] - truth[k]) / truth[k] for k in res.params
-                                           if isinstance(truth.get(k), (int, float)) and truth[k] != 0}
-            report["models"][name] = entry
+        report["models"] = model_entries(self.results, model, truth)
         return report
 
     def write(self, report):
@@ -217,48 +197,35 @@ class Joint(FitJob):
         main = results[model]
         for n, o, h, idx in zip(self.names, self.obs, self.holdout, _pixels_of(main, self.holdout)):
             if h:
-                errs, relit = {}, None
-                for name, res in results.items():
-                    e = relight_error(name, res.params, o, erode=self.opts.erode, maps=res.maps,
-                                      labels=labels_of(res, self.labels, o.shape))
-                    errs[name] = {k: v for k, v in e.items() if k != "predicted"}
-                    if name == model:
-                        relit = e["predicted"]
-                report["relight"][n] = errs
-                plots.plot_images(o.stokes, relit, o.mask, os.path.join(out, f"relight_{n}.png"),
-                                  title=f"{n}: relit with the {model} estimates, RMSE/mean = "
-                                        f"{errs[model]['rel_rmse']:.4f}", label="relit", lin_variance=o.lin_variance)
-            else:
-                im = {m: next(x for x in r.images if x["name"] == n) for m, r in results.items()}
-                pred = predict_image(model, main.params, fitted_observation(o, im[model]), maps=main.maps,
-                                     labels=labels_of(main, self.labels, o.shape))
-                others = {f"{m} (baseline)": predict_image(m, r.params, fitted_observation(o, im[m]), maps=r.maps,
-                                                           labels=labels_of(r, self.labels, o.shape))
-                          for m, r in results.items() if m != model}
-                power = "" if main.powers is None else "; " + power_text(im[model])
-                plots.plot_profiles(o, pred, os.path.join(out, f"profiles_{n}.png"), pixels=idx,
-                                    title=f"{n}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items())
-                                    + power, others=others)
-                plots.plot_images(o.stokes, pred, o.mask, os.path.join(out, f"images_{n}.png"),
-                                  title=f"{n}: joint {model} fit (per-pixel re-render){power}",
-                                  lin_variance=o.lin_variance, pixels=idx)
-        plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
-        if main.maps is not None:
-            outs = {f: os.path.join(out, f) for f in MAP_OUTPUTS}
-            write_albedo_maps(main, outs, model)
-            report["albedo_maps"] = outs
-        if main.materials is not None:
-            write_materials(main, self.labels, self.obs[0].shape, os.path.join(out, "materials.png"), model)
+                report["relight"][n], relit = relight_check(results, o, model, self.opts.erode, self.labels)
+                plot_relight(o, relit, report["relight"][n][model], model, out, name=n)
+                continue
+            im = {m: next(x for x in r.images if x["name"] == n) for m, r in results.items()}
+            preds = {m: predict_image(m, r.params, fitted_observation(o, im[m]), maps=r.maps,
+                                      labels=labels_of(r, self.labels, o.shape)) for m, r in results.items()}
+            plot_fit(o, preds.pop(model), preds, idx, main.params, model, out, name=n,
+                     power="" if main.powers is None else "; " + power_text(im[model]))
+        write_common(results, model, self.labels, self.obs[0].shape, out, report)
 
 
-def fitter(specs, albedo="shared", materials=None):
-    """(fit function, outputs function) for the images of ``specs``: :func:`fit_images` and :func:`outputs`
-    (with the albedo maps' files when ``albedo`` is ``per-pixel``), or their colour counterparts in
-    :mod:`fmbrdf_mi.fit.outputs.colour_joint` when the images are colour mosaics."""
-
-    if is_colour(specs):
-        return fit_colour_images, (lambda out, names, holdout: colour_outputs(out, names, holdout, albedo))
-    return fit_images, (lambda out, names, holdout: outputs(out, names, holdout, albedo, materials))
+def run_images(kind, specs, out, fit_kw, *, command, force=False, progress=True, manifest=None, authors=None,
+               info=None, rerun_of=None):
+    """The joint fit of ``specs`` as the command runs it, and as ``--from`` reruns it: :func:`fit_images`, or
+    :func:`~fmbrdf_mi.fit.outputs.colour_joint.fit_colour_images` when the images are colour mosaics, with the
+    ``reproduce`` block of :func:`~fmbrdf_mi.fit.outputs.record.joint_block` (``kind``, ``manifest``,
+    ``authors``, ``info``: how the images were given) and fit.json's ``joint`` block (the files written, the
+    authors' layout, ``rerun_of``: the fit.json rerun).  Returns the dict written to fit.json."""
+    names, holdout = image_names(specs), [s.holdout for s in specs]
+    albedo, materials = fit_kw.get("albedo", "shared"), fit_kw.get("materials")
+    colour = is_colour(specs)
+    fit_fn = fit_colour_images if colour else fit_images
+    files = joint_outputs(out, names, holdout, albedo, materials, colour)
+    joint = {"outputs": files, "authors_layout": info}
+    if rerun_of is not None:
+        joint["rerun_of"] = rerun_of
+    return fit_fn(specs, out, force=force, progress=progress, command=command, extra={"joint": joint},
+                  reproduce=lambda obs: joint_block(kind, specs, names, obs, fit_kw, command, manifest=manifest,
+                                                    authors=authors, info=info), **fit_kw)
 
 
 def _pixels_of(res, holdout):

@@ -71,16 +71,10 @@ def _errors(n, gt, mask):
             "pixels": int(mask.sum())}
 
 
-def run(specs, names, obs, out, *, start="ps", lam=0.3, model="fmbrdf", fit_kw=None, ground_truth=None, force=False,
-        progress=True, command=None):
-    """Refine the normals of the non-held-out images; write the outputs; returns the fit.json dict."""
-
-    return NormalRefinement(specs, names, obs, out, start=start, lam=lam, model=model, fit_kw=fit_kw,
-                            ground_truth=ground_truth, force=force, progress=progress, command=command).run()
-
-
 class NormalRefinement(FitJob):
-    """:func:`run` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob` (the observations are read by the caller)."""
+    """Refine the normals of the non-held-out images and write the outputs (module docstring): a
+    :class:`~fmbrdf_mi.fit.outputs.job.FitJob` whose :meth:`run` returns the fit.json dict (the observations are
+    read by the caller)."""
 
     def __init__(self, specs, names, obs, out, *, start, lam, model, fit_kw, ground_truth, **kw):
         super().__init__(out, **kw)

@@ -64,9 +64,15 @@ def jsonable(v):
     return {"not_recorded": type(v).__name__}
 
 
+#: The arguments of a single-image or colour fit that name files it reads.
+FILE_KEYS = ("inputs", "normals", "mask", "view", "relight", "materials")
+
+
 def single_files(arguments):
+    """The files a single-image or colour fit with ``arguments`` reads (:data:`FILE_KEYS`) and the capture sidecars
+    beside its images."""
     out = []
-    for key in ("inputs", "normals", "mask", "view", "relight", "materials"):
+    for key in FILE_KEYS:
         v = arguments.get(key)
         for p in (v if isinstance(v, (list, tuple)) else [v]):
             if isinstance(p, (str, os.PathLike)) and os.path.isfile(p):
@@ -93,17 +99,18 @@ def command_block(command):
     return {"command": command, "cwd": os.getcwd(), "versions": versions()}
 
 
-def reproduce_block(arguments, inputs, command, obs, relight=None):
-    """The ``reproduce`` block of a single-image fit (module docstring); ``--from`` reruns it."""
+def reproduce_block(arguments, command, meta):
+    """The ``reproduce`` block of a single-image or colour fit (module docstring; ``meta``: the input's
+    metadata); ``--from`` reruns it."""
     files = single_files(arguments)
     return {
         "command": command,
         "cwd": os.getcwd(),
         "arguments": jsonable(arguments),
         "files_sha256": {os.path.abspath(p): sha256(p) for p in files},
-        "settings": jsonable(obs.meta.get("settings")),
-        "sphere": jsonable(obs.meta.get("sphere")),
-        "sidecar": obs.meta.get("sidecar"),
+        "settings": jsonable(meta.get("settings")),
+        "sphere": jsonable(meta.get("sphere")),
+        "sidecar": meta.get("sidecar"),
         "versions": versions(),
     }
 

@@ -21,25 +21,24 @@ from fmbrdf_mi.fit.inputs.authors import read_object
 from fmbrdf_mi.fit.inputs.manifest import (INPUT_KEYS, ImageSpec, check_entry, check_input, check_light,
                                            check_options, image_names)
 from fmbrdf_mi.fit.outputs.colour import fit_colour_files
-from fmbrdf_mi.fit.outputs.joint import fitter
-from fmbrdf_mi.fit.outputs.record import (ARGUMENTS, AUTHORS_KEYS, COLOUR_ARGUMENTS, FIT_KEYS, joint_block,
-                                          read_files, sha256, single_files)
+from fmbrdf_mi.fit.outputs.joint import run_images
+from fmbrdf_mi.fit.outputs.record import (ARGUMENTS, AUTHORS_KEYS, COLOUR_ARGUMENTS, FILE_KEYS, FIT_KEYS, read_files,
+                                          sha256, single_files)
 from fmbrdf_mi.fit.outputs.single import fit_files
 
 
 def rerun(path, out, *, force=False, progress=True, command=None):
     """Rerun the fit recorded in ``path`` (a fit.json) into ``out``; returns the dict written to fit.json."""
-    rep = load(path)
+    record, rep = load(path)
     if "joint" in rep:
         return joint_rerun(path, rep, out, force=force, progress=progress, command=command)
-    with open(path) as f:
-        colour = json.load(f).get("sensor") == "colour"
+    colour = record.get("sensor") == "colour"
     run = fit_colour_files if colour else fit_files
     return run(out=out, force=force, progress=progress, command=command, **single_arguments(path, rep, colour))
 
 
 def load(path):
-    """The ``reproduce`` block of a fit.json."""
+    """(the fit.json's dict, its ``reproduce`` block)."""
     try:
         with open(path) as f:
             d = json.load(f)
@@ -69,7 +68,7 @@ def load(path):
     if not isinstance(rep["files_sha256"], dict) or not all(isinstance(k, str) and isinstance(v, str)
                                                             for k, v in rep["files_sha256"].items()):
         raise InputError(f"--from {path}: reproduce.files_sha256: expected a table of file: SHA-256")
-    return rep
+    return d, rep
 
 
 def check_recorded(path, rep, files):
@@ -96,7 +95,7 @@ def single_arguments(path, rep, colour):
     bad = [k for k, v in args.items() if isinstance(v, dict) and "not_recorded" in v]
     if bad:
         raise InputError(f"--from {path}: arguments {', '.join(bad)} were arrays, not files; cannot rerun")
-    for key in ("inputs", "normals", "mask", "view", "relight", "materials"):
+    for key in FILE_KEYS:
         v = args.get(key)
         paths = v if isinstance(v, list) else [v]
         if (v is None and key != "inputs") or (paths and all(isinstance(p, str) and p for p in paths)):
@@ -113,14 +112,14 @@ def single_arguments(path, rep, colour):
         auto = None
     # relative paths were relative to the directory the fit ran in
     if cwd:
-        for key in ("inputs", "normals", "mask", "view", "relight", "materials"):
+        for key in FILE_KEYS:
             v = args.get(key)
             if isinstance(v, str) and not os.path.isabs(v):
                 args[key] = os.path.join(cwd, v)
             elif isinstance(v, list):
                 args[key] = [os.path.join(cwd, x) if isinstance(x, str) and not os.path.isabs(x) else x for x in v]
     # every file the rerun reads (inputs, geometry, the capture sidecars beside them) must have been hashed
-    given = [p for key in ("inputs", "normals", "mask", "view", "relight", "materials")
+    given = [p for key in FILE_KEYS
              for p in (args.get(key) if isinstance(args.get(key), list) else [args.get(key)]) if isinstance(p, str)]
     check_recorded(path, rep, given + single_files(args))
     if auto is not None:
@@ -184,10 +183,5 @@ def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
     recorded = [im["name"] for im in joint["images"]]
     if names != recorded:
         raise InputError(f"--from {path}: the images are now {names}, the fit had {recorded}")
-    fit_fn, outputs_fn = fitter(specs, fit_kw.get("albedo", "shared"), fit_kw.get("materials"))
-    files = outputs_fn(out, names, [s.holdout for s in specs])
-    return fit_fn(specs, out, force=force, progress=progress, command=command,
-                      extra={"joint": {"outputs": files, "authors_layout": info, "rerun_of": os.path.abspath(path)}},
-                      reproduce=lambda obs: joint_block(joint["kind"], specs, names, obs, fit_kw, command,
-                                                  manifest=joint.get("manifest"), authors=authors, info=info),
-                      **fit_kw)
+    return run_images(joint["kind"], specs, out, fit_kw, command=command, force=force, progress=progress,
+                      manifest=joint.get("manifest"), authors=authors, info=info, rerun_of=os.path.abspath(path))

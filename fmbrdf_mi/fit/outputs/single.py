@@ -11,7 +11,7 @@ from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.api.find_materials import find_materials, parse_auto
 from fmbrdf_mi.fit.api.fitting import fit
 from fmbrdf_mi.fit.api.options import arguments as arguments_of
-from fmbrdf_mi.fit.api.options import (FitOptions, check_fit_options, check_input_options, check_resolved_loss,
+from fmbrdf_mi.fit.api.options import (check_fit_options, check_input_options, check_resolved_loss,
                                         fit_options, flag)
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
@@ -24,6 +24,7 @@ from fmbrdf_mi.fit.inputs.labels import read_labels, write_labels
 from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS
 from fmbrdf_mi.fit.outputs import plots, record
 from fmbrdf_mi.fit.outputs.job import FitJob
+from fmbrdf_mi.fit.outputs.writer import MAP_OUTPUTS, MATERIAL_OUTPUTS
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 
 OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stokes.exr")
@@ -32,12 +33,6 @@ OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stok
 RELIGHT_OUTPUTS = ("relight.png",)
 
 
-#: A fit with per-pixel albedos (``albedo="per-pixel"``) writes the maps too.
-MAP_OUTPUTS = ("k_s.exr", "k_b.exr", "k_s_se.exr", "k_b_se.exr", "albedo_maps.png")
-
-
-#: A fit of several materials (``materials``: a label image) writes the label map it used.
-MATERIAL_OUTPUTS = ("materials.png",)
 #: ``materials="auto:M"`` (labels found by :func:`~fmbrdf_mi.fit.api.find_materials.find_materials`) also
 #: writes the labels it found (8-bit PNG, 255 not labelled: ``--materials labels.png`` reruns with them).
 FOUND_OUTPUTS = ("labels.png",)
@@ -55,14 +50,6 @@ def labels_of(res, labels, shape):
     if labels is None or res.materials is None or res.materials["count"] < 2:
         return None
     return check_labels(labels, shape)
-
-
-def write_materials(res, labels, shape, path, model):
-    """materials.png: the label map a fit used (:func:`fmbrdf_mi.fit.outputs.plots.plot_materials`)."""
-    lab = check_labels(labels, shape)
-    pixels = res.pixels if not isinstance(res.pixels, list) else res.pixels[0]
-    plots.plot_materials(lab, pixels, res.materials, path,
-                         title=f"{model}: {res.materials['count']} material(s) (faint: labelled, not fitted)")
 
 
 def fit_files(inputs, out, *, force=False, progress=True, command=None, **options):
@@ -160,8 +147,7 @@ class SingleImage(FitJob):
         self.models = [model] + ([m for m in BASELINES if m != model] if a["baselines"] else [])
         self.results, self.preds = {}, {}
         for name in self.models:
-            o = opts if name == model else FitOptions(**{**opts.__dict__, "model": name, "bounds": None,
-                                                          "init": None, "path": "pixel", "fixed": None})
+            o = opts if name == model else baseline_options(opts, name)
             if self.found is not None and name == model and scene is None \
                     and o == dataclasses.replace(o, albedo="shared", intervals="fisher"):
                 res = self.found.fit    # find_materials' last fit: these labels and these options
@@ -176,56 +162,101 @@ class SingleImage(FitJob):
         a, obs, model = self.a, self.obs, self.a["model"]
         inputs = a["inputs"]
         report = {"inputs": inputs if isinstance(inputs, str) else list(inputs), "truth": obs.meta.get("truth"),
-                  "reproduce": record.reproduce_block(self.a, inputs, self.command, obs, a["relight"]), "models": {}}
-        for name, res in self.results.items():
-            entry = res.to_json()
-            if name == model and obs.meta.get("truth"):
-                t = obs.meta["truth"]
-                entry["relative_error"] = {k: (res.params[k] - t[k]) / t[k] for k in res.params
-                                           if k in t and isinstance(t[k], (int, float)) and t[k] != 0}
-            report["models"][name] = entry
+                  "reproduce": record.reproduce_block(self.a, self.command, obs.meta),
+                  "models": model_entries(self.results, model, obs.meta.get("truth"))}
         if self.found is not None:
             report["materials_found"] = dict(self.found.record, labels=self.outs["labels.png"])
         return report
 
     def write(self, report):
-        obs, obs2, outs, model = self.obs, self.obs2, self.outs, self.a["model"]
+        obs, obs2, model = self.obs, self.obs2, self.a["model"]
         if obs2 is not None:
-            report["relight"] = {"light_dir": obs2.light_dir.tolist()}
-            relit = {}
-            for name, res in self.results.items():
-                err = relight_error(name, res.params, obs2, erode=self.opts.erode, maps=res.maps,
-                                    labels=labels_of(res, self.labels, obs.shape))
-                relit[name] = err["predicted"]
-                report["relight"][name] = {k: v for k, v in err.items() if k != "predicted"}
-            plots.plot_images(obs2.stokes, relit[model], obs2.mask, outs["relight.png"],
-                              title=f"relighting with the {model} estimates: RMSE/mean = "
-                                    f"{report['relight'][model]['rel_rmse']:.4f}", label="relit",
-                              lin_variance=obs2.lin_variance)
-        main = self.results[model]
-        fitted = self.preds[model]
-        plots.plot_profiles(obs, fitted, outs["profiles.png"], pixels=main.pixels,
-                            title=f"{model}: " + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()),
-                            others={f"{n} (baseline)": self.preds[n] for n in self.models[1:]})
-        plots.plot_images(obs.stokes, fitted, obs.mask, outs["images.png"],
-                          title=f"{model} fit (per-pixel re-render)", lin_variance=obs.lin_variance,
-                          pixels=main.pixels)
-        plots.plot_loss_history({n: r.history for n, r in self.results.items()}, outs["history.png"])
+            errs, relit = relight_check(self.results, obs2, model, self.opts.erode, self.labels)
+            report["relight"] = {"light_dir": obs2.light_dir.tolist(), **errs}
+            plot_relight(obs2, relit, errs[model], model, self.out)
+        main, fitted = self.results[model], self.preds[model]
+        plot_fit(obs, fitted, {n: self.preds[n] for n in self.models[1:]}, main.pixels, main.params, model, self.out)
         s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
-        stokes_io.write_stokes_exr(outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
+        stokes_io.write_stokes_exr(self.outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
                                    force=True)
-        if main.maps is not None:
-            write_albedo_maps(main, outs, model)
-            report["albedo_maps"] = {k: outs[k] for k in MAP_OUTPUTS}
-        if main.materials is not None:
-            write_materials(main, self.labels, obs.shape, outs["materials.png"], model)
+        write_common(self.results, model, self.labels, obs.shape, self.out, report)
         if self.found is not None:
-            write_labels(outs["labels.png"], self.labels)
+            write_labels(self.outs["labels.png"], self.labels)
 
 
-def write_albedo_maps(res, outs, model):
+# ---------------------------------------------------------------- what the one- and K-image writers share
+def model_entries(results, model, truth):
+    """fit.json's ``models``: each fit's record, ``model``'s with its ``relative_error`` to the input's ``truth``
+    (the parameters the input was rendered with) when there is one."""
+    entries = {}
+    for name, res in results.items():
+        entry = res.to_json()
+        if name == model and truth:
+            entry["relative_error"] = {k: (v - truth[k]) / truth[k] for k, v in res.params.items()
+                                       if isinstance(truth.get(k), (int, float)) and truth[k] != 0}
+        entries[name] = entry
+    return entries
+
+
+def baseline_options(opts, name):
+    """The options of the baseline ``name`` fitted beside the model: the same loss and data, the baseline's own
+    bounds and start, nothing fixed, the pixel path."""
+    return dataclasses.replace(opts, model=name, bounds=None, init=None, fixed=None, path="pixel")
+
+
+def relight_check(results, o, model, erode, labels):
+    """The relighting check on a held-out observation ``o``: (each fit's errors, ``model``'s prediction)."""
+    errs, relit = {}, None
+    for name, res in results.items():
+        e = relight_error(name, res.params, o, erode=erode, maps=res.maps, labels=labels_of(res, labels, o.shape))
+        errs[name] = {k: v for k, v in e.items() if k != "predicted"}
+        if name == model:
+            relit = e["predicted"]
+    return errs, relit
+
+
+def plot_relight(o, relit, err, model, out, name=None):
+    """relight.png (``name``: relight_NAME.png of a held-out image of a joint fit)."""
+    title = (f"relighting with the {model} estimates: RMSE/mean = " if name is None
+             else f"{name}: relit with the {model} estimates, RMSE/mean = ")
+    plots.plot_images(o.stokes, relit, o.mask, os.path.join(out, "relight.png" if name is None else
+                                                            f"relight_{name}.png"),
+                      title=f"{title}{err['rel_rmse']:.4f}", label="relit", lin_variance=o.lin_variance)
+
+
+def plot_fit(o, pred, others, pixels, params, model, out, name=None, power=""):
+    """profiles.png and images.png of a fitted image (``name``: profiles_NAME.png and images_NAME.png of one of a
+    joint fit's images, ``power`` its fitted light power): ``model``'s prediction ``pred`` and, in the profiles,
+    the baselines' (``others``)."""
+    tail = "" if name is None else f"_{name}"
+    plots.plot_profiles(o, pred, os.path.join(out, f"profiles{tail}.png"), pixels=pixels,
+                        title=f"{model if name is None else name}: "
+                              + ", ".join(f"{k}={v:.3g}" for k, v in params.items()) + power,
+                        others={f"{n} (baseline)": p for n, p in others.items()})
+    plots.plot_images(o.stokes, pred, o.mask, os.path.join(out, f"images{tail}.png"),
+                      title=(f"{model} fit" if name is None else f"{name}: joint {model} fit")
+                            + f" (per-pixel re-render){power}", lin_variance=o.lin_variance, pixels=pixels)
+
+
+def write_common(results, model, labels, shape, out, report):
+    """history.png, and ``model``'s albedo maps (:func:`write_maps`) and materials.png (the label map it used,
+    :func:`fmbrdf_mi.fit.outputs.plots.plot_materials`) when it has them."""
+    plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
+    main = results[model]
+    write_maps(main, model, out, report)
+    if main.materials is not None:
+        pixels = main.pixels if not isinstance(main.pixels, list) else main.pixels[0]
+        plots.plot_materials(check_labels(labels, shape), pixels, main.materials, os.path.join(out, "materials.png"),
+                             title=f"{model}: {main.materials['count']} material(s) (faint: labelled, not fitted)")
+
+
+def write_maps(res, model, out, report):
     """k_s.exr, k_b.exr, k_s_se.exr, k_b_se.exr and albedo_maps.png of a per-pixel albedo fit ``res`` (NaN
-    where no pixel was fitted; the shape parameters in each EXR's metadata)."""
+    where no pixel was fitted; the shape parameters in each EXR's metadata), named in ``report["albedo_maps"]``;
+    nothing for a fit without maps."""
+    if res.maps is None:
+        return
+    outs = {f: os.path.join(out, f) for f in MAP_OUTPUTS}
     meta = {"fit": res.params, "model": model, "albedo": res.albedo}
     for key in ("k_s", "k_b", "k_s_se", "k_b_se"):
         stokes_io.write_map_exr(outs[f"{key}.exr"], res.maps[key], dict(meta, map=key), force=True)
@@ -234,6 +265,7 @@ def write_albedo_maps(res, outs, model):
                            title=f"{model} per-pixel albedos: {a['pixels']} pixels, split identified in "
                                  f"{a['identified_fraction']:.0%}; " + ", ".join(f"{k}={v:.3g}"
                                                                                  for k, v in res.params.items()))
+    report["albedo_maps"] = outs
 
 
 def _render_scene(obs, model):

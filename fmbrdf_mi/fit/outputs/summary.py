@@ -1,6 +1,9 @@
 """The text summaries a fit prints to stdout, and the exit status they imply."""
 from __future__ import annotations
 
+import sys
+import time
+
 import numpy as np
 
 from fmbrdf_mi.fit.outputs.single import output_files
@@ -34,10 +37,18 @@ def albedo_text(a):
             f"{a['identified_fraction']:.0%}" + per + (f"\n  warning: {a['warning']}" if a.get("warning") else ""))
 
 
+def convergence_status(name, m):
+    """0, or :data:`EXIT_NOT_CONVERGED` and one line on stderr when the fit ``name`` (fit.json's ``models[name]``,
+    ``m``) stopped before it converged."""
+    if m["converged"]:
+        return 0
+    print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are the last "
+          f"accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})", file=sys.stderr)
+    return EXIT_NOT_CONVERGED
+
+
 def print_colour(report):
     """The stdout summary of a colour fit; returns the exit status (3: stopped before convergence)."""
-    import sys
-
     status = 0
     for name, m in report["models"].items():
         kind = "albedo maps per pixel and channel" if m.get("albedo") else "per-channel albedos"
@@ -78,11 +89,7 @@ def print_colour(report):
             print("  " + albedo_text(m["albedo"]))
         for img, c2 in (m.get("chi2_per_sample") or {}).items():
             print(f"  {img}: chi2 per raw sample {c2:.3f}")
-        if not m["converged"]:
-            print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
-                  f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
-                  file=sys.stderr)
-            status = EXIT_NOT_CONVERGED
+        status = max(status, convergence_status(name, m))
     for img, errs in report.get("relight", {}).items():
         for name, e in errs.items():
             print(f"relighting {img} ({name}): raw-sample RMSE / mean = {e['rel_rmse']:.4f} (R "
@@ -139,10 +146,6 @@ def print_report(report):
 def print_summary(report, out, t0):
     """The stdout summary of any fit's report (single image, joint, colour, normal refinement); returns the exit
     status: 0, or :data:`EXIT_NOT_CONVERGED` when a fit stopped before it converged."""
-    import sys
-    import time
-
-
     if report.get("sensor") == "colour":
         return print_colour(report)
     if report.get("refine_normals"):
@@ -190,11 +193,7 @@ def print_summary(report, out, t0):
             b = m["materials"]
             print(f"  {b['count']} material(s), fitted pixels " + ", ".join(f"{k}: {n}" for k, n in enumerate(b["pixels"]))
                   + ("; parameter[m] is material m's" if b["count"] > 1 else ""))
-        if not m["converged"]:
-            print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are "
-                  f"the last accepted ones and have no standard errors (exit status {EXIT_NOT_CONVERGED})",
-                  file=sys.stderr)
-            status = EXIT_NOT_CONVERGED
+        status = max(status, convergence_status(name, m))
     if report.get("joint"):
         print_joint(report)
         print(f"wrote {', '.join(report['joint']['outputs'])} ({time.time() - t0:.1f} s)")

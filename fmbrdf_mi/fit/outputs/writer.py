@@ -1,6 +1,7 @@
 """The one writer of fit outputs (:class:`~fmbrdf_mi.fit.outputs.job.FitJob` runs it): overwrite refusal
 before any input is read (:func:`prepare`), atomic ``fit.json`` (:func:`write_json`), and an earlier fit's
-files that a new one does not write (:func:`stale_outputs`, only names a fit writes)."""
+files that a new one does not write (:func:`stale_outputs`, only names a fit writes), and the files a joint fit
+writes (:func:`joint_outputs`, mono or colour)."""
 from __future__ import annotations
 
 import json
@@ -8,6 +9,7 @@ import os
 
 from fmbrdf_mi._paths import check_output_dir
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.inputs.manifest import image_names
 from fmbrdf_mi.fit.result import json_default
 
@@ -77,11 +79,28 @@ def write_json(path, report):
     os.replace(tmp, path)
 
 
-def prepare_outputs(specs, out, outputs_fn, force):
-    """(names, held-out flags, output files) of a joint fit; refuses an all-held-out set, an unusable ``out``
-    and, without ``force``, existing outputs (before anything is read or written)."""
+#: A fit with per-pixel albedos (``albedo="per-pixel"``) writes the maps too.
+MAP_OUTPUTS = ("k_s.exr", "k_b.exr", "k_s_se.exr", "k_b_se.exr", "albedo_maps.png")
+#: A fit of several materials (``materials``: a label image) writes the label map it used.
+MATERIAL_OUTPUTS = ("materials.png",)
+
+
+def joint_outputs(out, names, holdout, albedo="shared", materials=None, colour=False):
+    """The files a joint fit of the images ``names`` writes (``colour``: of colour mosaics), ``fit.json`` first."""
+    files = ["fit.json"] + ([] if colour else ["history.png"])
+    for n, h in zip(names, holdout):
+        files += ([f"relight_{n}.png"] if h else [f"colour_fit_{n}.png"] if colour
+                  else [f"images_{n}.png", f"profiles_{n}.png"])
+    files += list(MAP_OUTPUTS) if albedo in PER_PIXEL_LAYOUTS else []
+    files += list(MATERIAL_OUTPUTS) if materials is not None else []
+    return [os.path.join(out, f) for f in files]
+
+
+def prepare_outputs(specs, out, force, albedo="shared", materials=None, colour=False):
+    """(names, held-out flags, output files: :func:`joint_outputs`) of a joint fit; refuses an all-held-out set,
+    an unusable ``out`` and, without ``force``, existing outputs (before anything is read or written)."""
     names = image_names(specs)
     holdout = [s.holdout for s in specs]
     if all(holdout):
         raise InputError("joint fit: every image is held out; fit at least one")
-    return names, holdout, prepare(out, outputs_fn(out, names, holdout), force)
+    return names, holdout, prepare(out, joint_outputs(out, names, holdout, albedo, materials, colour), force)
