@@ -62,7 +62,7 @@ from fmbrdf_mi.fit.outputs.record import command_block, joint_block, sha256
 from fmbrdf_mi.fit.inputs.labels import read_labels
 from fmbrdf_mi.fit.api.find_materials import parse_auto
 from fmbrdf_mi.fit.outputs.single import (baseline_options, labels_of, model_entries, plot_fit, plot_relight,
-                                          relight_check, write_common)
+                                          relight_check, shown_pixels, write_common)
 from fmbrdf_mi.fit.outputs.writer import joint_outputs, prepare_outputs
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
@@ -203,7 +203,8 @@ class Joint(FitJob):
             im = {m: next(x for x in r.images if x["name"] == n) for m, r in results.items()}
             preds = {m: predict_image(m, r.params, fitted_observation(o, im[m]), maps=r.maps,
                                       labels=labels_of(r, self.labels, o.shape)) for m, r in results.items()}
-            plot_fit(o, preds.pop(model), preds, idx, main.params, model, out, name=n,
+            shown = shown_pixels(o, idx, self.opts, labels_of(main, self.labels, o.shape))
+            plot_fit(o, preds.pop(model), preds, shown, main.params, model, out, name=n,
                      power="" if main.powers is None else "; " + power_text(im[model]))
         write_common(results, model, self.labels, self.obs[0].shape, out, report)
 

@@ -9,7 +9,7 @@ import numpy as np
 from fmbrdf_mi import scene as S
 from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.api.find_materials import find_materials, parse_auto
-from fmbrdf_mi.fit.api.fitting import fit
+from fmbrdf_mi.fit.api.fitting import fit, usable_pixels
 from fmbrdf_mi.fit.api.options import arguments as arguments_of
 from fmbrdf_mi.fit.api.options import (check_fit_options, check_input_options, check_resolved_loss,
                                         fit_options, flag)
@@ -175,7 +175,9 @@ class SingleImage(FitJob):
             report["relight"] = {"light_dir": obs2.light_dir.tolist(), **errs}
             plot_relight(obs2, relit, errs[model], model, self.out)
         main, fitted = self.results[model], self.preds[model]
-        plot_fit(obs, fitted, {n: self.preds[n] for n in self.models[1:]}, main.pixels, main.params, model, self.out)
+        plot_fit(obs, fitted, {n: self.preds[n] for n in self.models[1:]},
+                 shown_pixels(obs, main.pixels, self.opts, labels_of(main, self.labels, obs.shape)), main.params,
+                 model, self.out)
         s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
         stokes_io.write_stokes_exr(self.outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
                                    force=True)
@@ -222,6 +224,18 @@ def plot_relight(o, relit, err, model, out, name=None):
     plots.plot_images(o.stokes, relit, o.mask, os.path.join(out, "relight.png" if name is None else
                                                             f"relight_{name}.png"),
                       title=f"{title}{err['rel_rmse']:.4f}", label="relit", lin_variance=o.lin_variance)
+
+
+def shown_pixels(o, pixels, opts, labels=None):
+    """The pixels the figures of a fit show: every pixel the fit could use (its pixel selection before the
+    random draw of ``max_pixels``, less unlabelled ones), so that the residual panels are images, not the
+    speckle of a random sample; ``pixels`` (the ones fitted) where they are not all among them."""
+    if pixels is None:
+        return None
+    every = usable_pixels(o, dataclasses.replace(opts, max_pixels=0))
+    if labels is not None:
+        every = every[np.asarray(labels).reshape(-1)[every] >= 0]
+    return every if np.isin(pixels, every).all() else pixels
 
 
 def plot_fit(o, pred, others, pixels, params, model, out, name=None, power=""):
