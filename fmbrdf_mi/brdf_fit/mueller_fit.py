@@ -34,7 +34,7 @@ ranked by the weighted cost; from the ``starts`` best, Levenberg-Marquardt
 the shape parameters through the bounded reparameterisation of the image fits
 and the albedos in log space, Jacobian by forward differences (one table build
 per shape column); then the noise is re-estimated and the best start refined
-again, from its optimum and the Jacobian there (rescaled to the new weights).
+again from its optimum.
 
 A depolarising material (normalised elements near 0) leaves the shape
 parameters to f_r11 alone: eta is then fixed mainly by the Fresnel factor of
@@ -115,11 +115,9 @@ class MuellerFitResult:
     seconds: float
 
 
-def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0, lin=None):
+def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
     """Minimise |prob.fun|^2 from ``x0`` with the package's Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.lm`):
-    (x, residuals, Jacobian at x (None where the last one is a secant update, not a fresh one), trials,
-    converged, stop reason).  ``lin``: (residuals, Jacobian) at ``x0`` when the caller has them (they are not
-    rebuilt then).
+    (x, residuals, Jacobian at x, trials, converged, stop reason).
 
     What this fit plugs in: a forward-difference Jacobian (one table build per shape parameter) refreshed after
     ``refresh`` accepted steps and carried between by Broyden's update from every trial (a trial costs one
@@ -129,7 +127,7 @@ def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0, lin=None):
     decrease says little; three say that the iteration creeps along a flat valley, as kappa's); steps shortened to ``max_step`` in every coordinate (as the MERL
     fit's, :func:`.fitting.levenberg_marquardt`); a budget of ``max_evals`` trials."""
     state = {"trials": 0, "fresh_step": True, "n_small": 0}
-    r0 = prob.fun(x0) if lin is None else lin[0]
+    r0 = prob.fun(x0)
 
     def linearise(x):     # (residuals, Jacobian, fresh)
         return (prob.fun(x), prob.jac(x), True)
@@ -155,16 +153,15 @@ def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0, lin=None):
         return tiny and (state["fresh_step"] or state["n_small"] >= 3)
 
     res = LM.levenberg_marquardt(
-        x0, float(r0 @ r0), linearise, solve, trial, max_iter=max_evals, lin=None if lin is None else (*lin, True),
-        refresh=refresh, secant=secant,
+        x0, float(r0 @ r0), linearise, solve, trial, max_iter=max_evals, refresh=refresh, secant=secant,
         moved=lambda lin, x_new, r_new: (r_new, lin[1], False),
         decrement=lambda lin: LM.gn_decrement(lin[1], lin[0]), small=small, small_count=1,
         budget=lambda: state["trials"] >= max_evals, final_linearise=True)
-    r, J, fresh = res.lin
+    r, J, _ = res.lin
     why = {"decrement": "converged: Gauss-Newton decrement below 0.01",
            "small_decrease": "converged: chi^2 decrease below 0.01",
            "no_step": "converged: no step lowers chi^2"}.get(res.reason, f"stopped: {res.reason} ({max_evals} trials)")
-    return res.x, r, J if fresh else None, state["trials"], res.converged, why
+    return res.x, r, J, state["trials"], res.converged, why
 
 
 def _z_quantile(level):
@@ -362,16 +359,12 @@ def fit_model(model, table, options=None, vanishing=None):
             for _ in range(o.noise_rounds):
                 ef, em = prob.estimate_noise(x)
                 new = (o.noise_f if o.noise_f is not None else ef, sm if fixed_m else em)
-                old = (prob.sigma_f, prob.sigma_m)
-                change = max(abs(math.log(a / b)) for a, b in zip(new, old))
+                change = max(abs(math.log(a / b)) for a, b in zip(new, (prob.sigma_f, prob.sigma_m)))
                 prob.sigma_f, prob.sigma_m = new
                 if change < 0.05:   # weights within 5 %: the optimum moves by a small fraction of its error
                     history.append({"stage": "noise", "sigma_f": new[0], "sigma_m": new[1], "change": change})
                     break
-                # the refinement starts from the optimum's Jacobian: the weighted residuals' rows scale with 1/sigma
-                lin = None if J is None else (prob.fun(x), J * np.concatenate(
-                    [np.full(prob.n, old[0] / new[0]), np.full(r.size - prob.n, old[1] / new[1])])[:, None])
-                x, r, J, nfev, ok, status = solve_lm(prob, x, o.max_evals, lin=lin)
+                x, r, J, nfev, ok, status = solve_lm(prob, x, o.max_evals)
                 history.append({"stage": "noise", "sigma_f": new[0], "sigma_m": new[1], "change": change,
                                 "cost": float(r @ r), "trials": nfev, "status": status})
         how.append("sigma_f given" if o.noise_f is not None else "sigma_f from the fit residuals")
