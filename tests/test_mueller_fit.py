@@ -55,8 +55,8 @@ def test_pplastic_round_trip_within_intervals(tmp_path, name):
 
 
 def test_refinement_after_the_noise_estimate_reaches_the_optimum_of_its_weights(tmp_path):
-    """The refit after the noise is estimated (started from the first optimum and its Jacobian rescaled to the new
-    weights) ends where a fit with those sigmas given from the start ends: within a small fraction of the SE."""
+    """The refit after the noise is estimated (started from the first optimum) ends where a fit with those sigmas
+    given from the start ends: within a small fraction of the SE."""
     truth = {"eta": 1.55, "alpha": 0.12, "specular_reflectance": 0.7, "diffuse_reflectance": 0.35}
     _, tab = _table(tmp_path, "pplastic", truth, 0.05, 0.01, 4)
     r = F.fit_model("pplastic", tab)
