@@ -54,6 +54,20 @@ def test_pplastic_round_trip_within_intervals(tmp_path, name):
     assert r.noise["sigma_m"] == pytest.approx(0.01, rel=0.1)
 
 
+def test_refinement_after_the_noise_estimate_reaches_the_optimum_of_its_weights(tmp_path):
+    """The refit after the noise is estimated (started from the first optimum) ends where a fit with those sigmas
+    given from the start ends: within a small fraction of the SE."""
+    truth = {"eta": 1.55, "alpha": 0.12, "specular_reflectance": 0.7, "diffuse_reflectance": 0.35}
+    _, tab = _table(tmp_path, "pplastic", truth, 0.05, 0.01, 4)
+    r = F.fit_model("pplastic", tab)
+    assert [h["stage"] for h in r.history].count("noise") == 2 and "trials" in r.history[-2]   # a refit ran
+    given = F.fit_model("pplastic", tab, F.MuellerFitOptions(noise_f=r.noise["sigma_f"], noise_m=r.noise["sigma_m"]))
+    assert r.converged and given.converged
+    for k in truth:
+        assert abs(r.params[k] - given.params[k]) < 0.1 * given.se[k], (k, r.params[k], given.params[k])
+        assert r.se[k] == pytest.approx(given.se[k], rel=0.02)
+
+
 def test_vanishing_elements_estimate_the_noise(tmp_path):
     _, tab = _table(tmp_path, "pplastic", {"eta": 1.5, "alpha": 0.2, "specular_reflectance": 1.0,
                                            "diffuse_reflectance": 0.3}, 0.02, 0.01, 4)

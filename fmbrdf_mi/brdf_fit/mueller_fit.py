@@ -34,7 +34,7 @@ ranked by the weighted cost; from the ``starts`` best, Levenberg-Marquardt
 the shape parameters through the bounded reparameterisation of the image fits
 and the albedos in log space, Jacobian by forward differences (one table build
 per shape column); then the noise is re-estimated and the best start refined
-again.
+again from its optimum.
 
 A depolarising material (normalised elements near 0) leaves the shape
 parameters to f_r11 alone: eta is then fixed mainly by the Fresnel factor of
@@ -117,7 +117,7 @@ class MuellerFitResult:
 
 def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
     """Minimise |prob.fun|^2 from ``x0`` with the package's Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.lm`):
-    (x, residuals, Jacobian at x, table builds, converged, stop reason).
+    (x, residuals, Jacobian at x, trials, converged, stop reason).
 
     What this fit plugs in: a forward-difference Jacobian (one table build per shape parameter) refreshed after
     ``refresh`` accepted steps and carried between by Broyden's update from every trial (a trial costs one
@@ -207,12 +207,13 @@ class _Problem:
     def shape_of(self, x):
         return {p.name: self.bounds.to_value(p.name, x[k]) for k, p in enumerate(self.model.shape)}
 
-    def parts(self, x):
+    def parts(self, x, parts=None):
+        """The terms at x (kept for the last few x); ``parts``: those to keep for x (already evaluated)."""
         key = tuple(np.round(x[:self.nsh], 12))
         if key not in self._cache:
             if len(self._cache) > 16:
                 self._cache.clear()
-            self._cache[key] = self.values.parts(self.shape_of(x))
+            self._cache[key] = self.values.parts(self.shape_of(x)) if parts is None else parts
         return self._cache[key]
 
     def raw(self, x):
@@ -274,8 +275,11 @@ class _Problem:
         return float(r @ r)
 
     def albedos_at(self, shape):
-        """Albedos >= 0 minimising sum (f_model / f_obs - 1)^2 at ``shape`` (the grid's start)."""
-        P = self.values.parts(shape)[:, :, 0, 0] / self.f_obs          # (terms, n)
+        """Albedos >= 0 minimising sum (f_model / f_obs - 1)^2 at ``shape`` (the grid's start).  The terms at
+        ``shape`` are kept as those of its point x: one table build for the start's albedos and cost."""
+        P = self.values.parts(shape)
+        self.parts(self.x_of(shape, np.ones(self.nal)), parts=P)
+        P = P[:, :, 0, 0] / self.f_obs          # (terms, n)
         A = P.T
         sol = np.linalg.lstsq(A, np.ones(self.n), rcond=None)[0]
         if (sol <= 0).any():
