@@ -77,6 +77,14 @@ def run(capsys, *argv):
     return rc, out, err
 
 
+@pytest.fixture
+def a_file(tmp_path):
+    """A regular file where a command's output directory (or a folder above it) is named."""
+    f = tmp_path / "plain_file"
+    f.write_text("not a directory")
+    return f
+
+
 def one_line_error(rc, err, command, *words):
     """A user error as the project promises it: exit status 1, one line ``fmbrdf-mi COMMAND: error: ...``
     naming each of ``words``, no traceback."""
@@ -140,8 +148,8 @@ SLOW = (
     "tests/fit/test_uncertainty_misfit.py::test_misfit_of_the_normal_refinement",
     "tests/fit/test_outputs_colour_joint.py::test_fit_cli_colour_joint_manifest",
     "tests/fit/test_outputs_colour_joint.py::test_joint_colour_fit_of_one_image_twice_halves_the_variance",
-    "tests/test_fit_brdf_speed.py::test_jobs_run_in_worker_processes_with_the_same_results",
-    "tests/test_robust_outputs.py::test_ctrl_c_in_the_write_phase_keeps_the_earlier_output",
+    "tests/test_fit_brdf.py::test_jobs_run_in_worker_processes_with_the_same_results",
+    "tests/fit/test_outputs_writer.py::test_ctrl_c_in_the_write_phase_keeps_the_earlier_output",
 )
 
 

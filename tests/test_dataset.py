@@ -1,4 +1,5 @@
-"""Synthetic datasets (fmbrdf_mi.dataset): determinism, resume, shards, labels vs images, config errors.
+"""Synthetic datasets (fmbrdf_mi.dataset): determinism, resume, shards, labels vs images, config errors, locks
+per shard, back faces out of the mask, configs and paths refused in one line.
 
 One small dataset (6 samples: spheres, a cube and an .obj mesh, orthographic and
 perspective cameras, random rotations, RGB body colours) is rendered once per
@@ -12,6 +13,7 @@ import json
 import math
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -21,6 +23,8 @@ import pytest
 
 from fmbrdf_mi.dataset import DatasetConfigError, generate, load_config, read_sample
 from fmbrdf_mi.stokes_io import read_stokes_exr
+
+from conftest import one_line_error, run
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -408,3 +412,185 @@ def test_broken_mesh_refused_before_writing(tmp_path):
         generate({"samples": 2, "shape": {"type": "bad.obj"}}, tmp_path / "out", base_dir=tmp_path,
                  progress=False)
     assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------- the dataset command and API: bad configs and paths
+def test_dataset_api_config_and_out_of_the_wrong_type(tmp_path):
+    """Before: TypeError from os.fspath / 'dictionary update sequence element' for a list."""
+    from fmbrdf_mi import dataset
+
+    cfg = tmp_path / "c.json"
+    cfg.write_text(json.dumps({"samples": 1}))
+    for call in (lambda: dataset.generate([str(cfg)], tmp_path / "out"),
+                 lambda: dataset.load_config([str(cfg)]),
+                 lambda: dataset.read_config_file([str(cfg)]),
+                 lambda: dataset.load_config({"samples": 1}, base_dir=[str(tmp_path)])):
+        with pytest.raises(dataset.DatasetConfigError) as e:
+            call()
+        assert "expected" in str(e.value) and ("config" in str(e.value) or "base_dir" in str(e.value))
+    with pytest.raises(ValueError, match="out: expected a directory name"):
+        dataset.generate(str(cfg), [str(tmp_path / "out")])
+    assert sorted(os.listdir(tmp_path)) == ["c.json"]
+
+
+@pytest.mark.parametrize("shape", [["sphere"], {"choice": [["a.ply"]]}])
+def test_dataset_config_list_where_a_mesh_path_is_expected(capsys, tmp_path, shape):
+    cfg = tmp_path / "c.json"
+    cfg.write_text(json.dumps({"samples": 1, "shape": {"type": shape}}))
+    rc, _, err = run(capsys, "dataset", "--config", str(cfg), "--out", str(tmp_path / "ds"))
+    one_line_error(rc, err, "dataset", "shape.type", ".ply/.obj")
+    assert not (tmp_path / "ds").exists()
+
+
+# ---------------------------------------------------------------- empty meshes
+@pytest.mark.parametrize("name,text,words", [
+    ("m.ply", "", ["shape.type", "m.ply", "empty (0 bytes)"]),
+    ("m.obj", "v 0 0 0\nv 1 0 0\n", ["shape.type", "m.obj", "no faces"]),
+])
+def test_empty_mesh_in_a_dataset_config(capsys, tmp_path, name, text, words):
+    """Before: "cannot load mesh ... [parser.cpp:1718] At dictionary node "root": ...", from Mitsuba."""
+    (tmp_path / name).write_text(text)
+    (tmp_path / "c.toml").write_text(f'samples = 1\n[render]\nresolution = 8\nspp = 1\n'
+                                     f'variant = "llvm_ad_mono_polarized"\n[shape]\ntype = "{name}"\n')
+    rc, _, err = run(capsys, "dataset", "--config", str(tmp_path / "c.toml"), "--out", str(tmp_path / "out"), "-q")
+    one_line_error(rc, err, "dataset", *words)
+    assert not (tmp_path / "out").exists()
+
+
+# ---------------------------------------------------------------- configs refused up front, locks per shard, back faces
+HUGE = 100000  # 100000 x 100000 pixels: terabytes, more than any machine here
+
+
+def _cfg(tmp_path, **over):
+    cfg = {"samples": 2, "render": {"resolution": 8, "spp": 1, "variant": "llvm_ad_mono_polarized"}}
+    for k, v in over.items():
+        cfg.setdefault(k, {}).update(v) if isinstance(v, dict) else cfg.__setitem__(k, v)
+    p = tmp_path / "cfg.json"
+    p.write_text(json.dumps(cfg))
+    return p
+
+
+@pytest.mark.parametrize("over,words", [
+    ({"render": {"resolution": HUGE}}, ["render.resolution", "memory"]),
+    ({"samples": 0}, ["samples", ">= 1"]),
+])
+def test_dataset_config_refused_up_front(capsys, tmp_path, monkeypatch, over, words):
+    from fmbrdf_mi import _paths
+
+    monkeypatch.setattr(_paths, "available_memory", lambda: 16 << 30)
+    rc, _, err = run(capsys, "dataset", "--config", str(_cfg(tmp_path, **over)), "--out", str(tmp_path / "ds"))
+    one_line_error(rc, err, "dataset", *words)
+    assert not (tmp_path / "ds").exists()
+
+
+def test_dataset_out_under_a_file(capsys, tmp_path, a_file):
+    rc, _, err = run(capsys, "dataset", "--config", str(_cfg(tmp_path)), "--out", str(a_file / "ds"))
+    one_line_error(rc, err, "dataset", str(a_file))
+
+
+def test_dataset_inclusive_bounds_drawn(tmp_path):
+    """Before: a dataset drawing alpha = 0.01 (or pi/2) was refused by the BSDF's update
+    (float32 rounding), and loguniform could draw exp(log(0.01)) < 0.01."""
+    from fmbrdf_mi.dataset import generate, read_sample
+
+    cfg = json.loads(_cfg(tmp_path).read_text())
+    cfg["material"] = {"alpha": {"choice": [0.01, 0.5 * math.pi]}, "beta": {"loguniform": [0.4, 0.4]}}
+    cfg["samples"] = 4
+    generate(cfg, tmp_path / "ds", progress=False)
+    alphas = {read_sample(tmp_path / "ds", i)["label"]["material"]["alpha"] for i in range(4)}
+    assert alphas <= {0.01, 0.5 * math.pi} and alphas
+
+
+def _write_lock(out, k, n, pid, host=None):
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, f".lock.shard-{k}-of-{n}"), "w") as f:
+        json.dump({"pid": pid, "host": host or socket.gethostname(), "shard": f"{k}/{n}",
+                   "started": "2026-01-01T00:00:00"}, f)
+
+
+@pytest.mark.parametrize("held,mine,refused", [
+    ((0, 1), None, True), ((0, 2), None, True), ((0, 2), "0/2", True), ((0, 2), "1/2", False),
+    ((1, 3), "0/3", False),
+])
+def test_dataset_lock_per_shard(capsys, tmp_path, held, mine, refused):
+    """Before: two generators on one directory silently rendered the same samples twice."""
+    out = tmp_path / "ds"
+    _write_lock(out, *held, pid=os.getppid())  # a live process on this host
+    argv = ["dataset", "--config", str(_cfg(tmp_path)), "--out", str(out), "-q"]
+    rc, _, err = run(capsys, *argv, *(["--shard", mine] if mine else []))
+    if refused:
+        one_line_error(rc, err, "dataset", f"pid {os.getppid()}", socket.gethostname(), "2026-01-01",
+                       f".lock.shard-{held[0]}-of-{held[1]}")
+        assert not os.path.exists(out / "samples" / "000000.json")
+    else:
+        assert rc == 0, err
+        assert not os.path.exists(out / f".lock.shard-{mine.replace('/', '-of-')}")  # released
+
+
+def test_dataset_stale_lock_is_taken_over(capsys, tmp_path):
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()  # its pid is now free: the lock is stale
+    out = tmp_path / "ds"
+    _write_lock(out, 0, 1, pid=p.pid)
+    rc, _, err = run(capsys, "dataset", "--config", str(_cfg(tmp_path)), "--out", str(out), "-q")
+    assert rc == 0, err
+    assert os.path.exists(out / "manifest.jsonl") and not os.path.exists(out / ".lock.shard-0-of-1")
+
+
+def test_dataset_back_faces_not_in_mask(tmp_path):
+    """The open cylinder seen along its axis: its inner surface faces away from the camera.
+    Before: those pixels were in the mask with normals facing away (about a third of it)."""
+    from fmbrdf_mi.dataset import generate, read_sample
+
+    cfg = json.loads(_cfg(tmp_path).read_text())
+    cfg["render"]["resolution"] = 32
+    cfg["samples"] = 1
+    cfg["shape"] = {"type": "cylinder"}
+    cfg["camera"] = {"elevation": 0.0, "azimuth": 20.0}  # nearly along the axis (+z): sees inside
+    generate(cfg, tmp_path / "ds", progress=False)
+    s = read_sample(tmp_path / "ds", 0)
+    n, m = s["normal"], s["mask"]
+    assert m.any() and s["label"]["shape"]["back_face_pixels"] > 0
+    # orthographic camera: every pixel looks along -z of the camera frame
+    assert np.all(n[m][:, 2] > 0)
+    assert np.all(n[~m] == 0)
+
+
+# ---------------------------------------------------------------- the sample count
+@pytest.mark.parametrize("samples", [10 ** 12, 10 ** 6 + 1, 2 ** 63])
+def test_dataset_samples_above_the_maximum_are_refused(tmp_path, capsys, samples):
+    """Before: samples = 10**12 was accepted and the run grew lists of every index before rendering."""
+    from fmbrdf_mi.cli import main
+    from fmbrdf_mi.dataset.config import MAX_SAMPLES, DatasetConfigError, load_config
+
+    with pytest.raises(DatasetConfigError, match=rf"^samples: expected an integer in \[1, {MAX_SAMPLES}\]"):
+        load_config({"samples": samples})
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f"samples = {samples}\n")
+    rc = main(["dataset", "--config", str(cfg), "--out", str(tmp_path / "ds"), "-q"])
+    one_line_error(rc, capsys.readouterr().err, "dataset", "samples", f"[1, {MAX_SAMPLES}]", str(samples))
+    assert not (tmp_path / "ds").exists()
+    rc = main(["dataset", "--config", "builtin:dataset_example", "--out", str(tmp_path / "ds"), "--samples",
+               str(samples), "-q"])
+    one_line_error(rc, capsys.readouterr().err, "dataset", "samples", f"[1, {MAX_SAMPLES}]")
+    assert not (tmp_path / "ds").exists()
+
+
+def test_dataset_samples_at_the_maximum_are_accepted():
+    from fmbrdf_mi.dataset.config import MAX_SAMPLES, load_config
+
+    assert load_config({"samples": MAX_SAMPLES}).samples == MAX_SAMPLES
+
+
+# ---------------------------------------------------------------- variants
+def test_dataset_cuda_variant_without_a_device_is_one_line(capsys, tmp_path):
+    import drjit as dr
+
+    if dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("a CUDA device is present")
+    cfg = tmp_path / "ds.toml"
+    cfg.write_text('samples = 1\n[render]\nresolution = 8\nspp = 1\nvariant = "cuda_ad_mono_polarized"\n')
+    out = tmp_path / "ds"
+    rc, _, err = run(capsys, "dataset", "--config", str(cfg), "--out", str(out), "-q")
+    one_line_error(rc, err, "dataset", "cuda_ad_mono_polarized", "no CUDA device", "llvm_ad_mono_polarized")
+    assert not out.exists()

@@ -11,6 +11,7 @@
   plane of incidence, body reflection parallel to the plane of normal and view
   (radial on the image of a sphere seen head-on).
 * The analytic mask against the rendered alpha (pixel coverage).
+* The scene API's checks: a scene without a sensor, a huge light direction.
 """
 import os
 
@@ -289,3 +290,23 @@ def test_scene_arguments_are_validated():
     d = S.sphere_scene(dict(k_b=0.5), light_dir=(0, 0, 2))
     assert d["light"]["direction"] == [-0.0, -0.0, -1.0]
     assert "r_k" not in d["sphere"]["bsdf"] and d["sphere"]["bsdf"]["k_b"] == 0.5
+
+
+# ---------------------------------------------------------------- the scene API's checks
+def test_render_stokes_without_a_sensor(variant):
+    from fmbrdf_mi import scene as S
+
+    mi = variant
+    sc = mi.load_dict({"type": "scene", "integrator": {"type": "stokes", "nested": {"type": "direct"}}})
+    with pytest.raises(ValueError, match="no sensor"):
+        S.render_stokes(sc, progress=False)
+
+
+# ---------------------------------------------------------------- the scene API's checks: light directions
+def test_render_light_dir_of_1e308():
+    """Before: the norm overflowed and the light became (0, 0, 0)."""
+    from fmbrdf_mi import scene as S
+
+    assert S.check_light_dir([1e308, 0, 0]) == (1.0, 0.0, 0.0)
+    v = np.array([0.1, -0.6, 0.8])
+    assert S.check_light_dir(v) == tuple(v / np.linalg.norm(v))      # ordinary vectors: exactly as before

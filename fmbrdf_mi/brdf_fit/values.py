@@ -16,7 +16,7 @@ In it the body table holds only the log M00 channel (body.py,
 of the Fourier series and of the synthesis of the polarised variant, the same
 M00 (every element of the Mueller matrix is its own sum; the values of both
 variants were compared bit for bit on 50 000 MERL direction pairs at four
-parameter sets, tests/test_fit_brdf_speed.py checks it), and a table build about three
+parameter sets, tests/test_fit_brdf.py checks it), and a table build about three
 times faster (10 ms against 32 ms on one core), which is most of the time of a
 fit-brdf start grid (docs/benchmarks.md, Measured BRDFs).
 """

@@ -1,4 +1,4 @@
-"""Issue 24: an edited fit.json given to ``fmbrdf-mi fit --from fit.json -o DIR`` is refused in one line
+"""An edited fit.json given to ``fmbrdf-mi fit --from fit.json -o DIR`` is refused in one line
 naming the file and the key (fmbrdf_mi.fit.outputs.rerun); before, unknown keys, wrong
 types and a removed ``joint`` block ended in TypeError tracebacks.  No fit runs here: every record is
 refused before one would start."""
@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from conftest import fit_record, one_line_error
+from conftest import fit_record, one_line_error, run
 
 from fmbrdf_mi.cli import main
 
@@ -60,3 +60,52 @@ def test_edited_fit_json_is_refused_in_one_line(tmp_path, capsys, joint, key, va
             or "joint" in key or key in ("reproduce.cwd", "reproduce.files_sha256"):
         assert str(path) in lines[0]
     assert not (tmp_path / "out" / "fit.json").exists()
+
+
+# ---------------------------------------------------------------- --from: records whose rerun cannot be verified
+def _edit(d, tmp_path, what):
+    rep = d["reproduce"]
+    if what == "inputs":
+        rep["arguments"]["inputs"] = str(tmp_path / "other.npy")
+    elif what == "relative inputs":
+        rep["arguments"]["inputs"] = "other.npy"
+    elif what == "mask":
+        rep["arguments"]["mask"] = str(tmp_path / "other.npy")
+    elif what == "joint input":
+        rep["joint"]["images"][1]["spec"]["input"] = str(tmp_path / "other.npy")
+    elif what == "joint mask":
+        rep["joint"]["images"][0]["spec"]["options"]["mask"] = str(tmp_path / "other.npy")
+    elif what == "no hashes":
+        del rep["files_sha256"]
+    elif what == "refine":
+        d.clear()
+        d.update({"refine_normals": {"start": "ps"}, "reproduce": {"command": "fmbrdf-mi fit --authors OBJ "
+                                                                               "--refine-normals -o out"}})
+    elif what == "refine rounds":       # a record of the alternation rounds that --rounds set before the joint step
+        d.clear()
+        d.update({"refine_normals": {"start": "ps", "rounds": 2, "alternation": []},
+                  "reproduce": {"command": "fmbrdf-mi fit --authors OBJ --refine-normals --rounds 2 -o out"}})
+    return d
+
+
+@pytest.mark.parametrize("joint,what,words", [
+    (False, "inputs", ["other.npy", "no recorded SHA-256"]),
+    (False, "relative inputs", ["other.npy", "no recorded SHA-256"]),
+    (False, "mask", ["other.npy", "no recorded SHA-256"]),
+    (True, "joint input", ["other.npy", "no recorded SHA-256"]),
+    (True, "joint mask", ["other.npy", "no recorded SHA-256"]),
+    (False, "no hashes", ["files_sha256", "cannot be verified"]),
+    (True, "no hashes", ["files_sha256", "cannot be verified"]),
+    (False, "refine", ["--refine-normals are not supported", "reproduce.command"]),
+    (False, "refine rounds", ["--refine-normals are not supported", "--rounds 2 -o out)", "without --rounds"]),
+])
+def test_from_record_that_cannot_be_verified_is_refused(capsys, tmp_path, joint, what, words):
+    """Before: a record pointing at another file reran on it (its hash was never recorded), a record
+    without files_sha256 reran unverified, a --refine-normals record was 'written by an older fmbrdf-mi?'."""
+    import json
+
+    path = tmp_path / "fit.json"
+    path.write_text(json.dumps(_edit(fit_record(tmp_path, joint), tmp_path, what)))
+    rc, _, err = run(capsys, "fit", "--from", str(path), "-o", str(tmp_path / "out"))
+    one_line_error(rc, err, "fit", str(path), *words)
+    assert not (tmp_path / "out").exists()

@@ -204,3 +204,55 @@ def test_misfit_of_a_colour_per_pixel_fit():
             sel = np.isfinite(h) & np.isfinite(w)
             ratio = np.median(w[sel] / h[sel])
             assert sel.sum() > 40 and 0.8 < ratio < 1.25, (key, c, ratio)
+
+
+# ---------------------------------------------------------------- chi^2/dof far below 1 with the stated noise
+def _noise_scale(sd, n=4000, p=5, known=True):
+    from types import SimpleNamespace
+
+    from fmbrdf_mi.fit import uncertainty as U
+
+    problem = SimpleNamespace(obj=SimpleNamespace(noise=SimpleNamespace(known=known)))
+    r = np.random.default_rng(2).normal(0.0, sd, n)       # standardised residuals: sd 1 when the noise is right
+    return U.noise_scale(problem, r, None, p)
+
+
+@pytest.mark.parametrize("sd", [np.sqrt(1e-5), 0.1, 0.9])
+def test_chi2_far_below_one_is_flagged_and_the_errors_kept(sd):
+    """Before: chi^2/dof 1e-5 with the camera noise known passed silently (the check was one-sided)."""
+    from fmbrdf_mi.fit import uncertainty as U
+
+    scale, info, applied = _noise_scale(sd)
+    assert abs(info["chi2_per_dof"] - sd ** 2) < 0.1 * sd ** 2
+    assert scale == 1.0 and not info["misfit"]            # the errors are those of the stated noise
+    assert info["noise_overstated"] is True and U.noise_flagged(info)
+    text = U.misfit_text(info)
+    assert info["noise_warning"] == text and "scatter less than that noise" in text and "too large" in text
+    assert f"{sd ** 2:.3g}"[:3] in text
+
+
+@pytest.mark.parametrize("sd,misfit", [(1.0, False), (0.97, False), (1.03, False), (3.0, True)])
+def test_chi2_near_or_above_one_is_not_flagged_as_overstated(sd, misfit):
+    """The threshold mirrors the misfit's: 5 standard deviations of chi^2/dof (sqrt(2 / dof)), at least 0.1."""
+    from fmbrdf_mi.fit import uncertainty as U
+
+    scale, info, _ = _noise_scale(sd)
+    assert "noise_overstated" not in info and info["misfit"] is misfit and U.noise_flagged(info) is misfit
+    assert scale == (info["chi2_per_dof"] if misfit else 1.0)
+
+
+def test_estimated_noise_is_never_flagged_overstated():
+    scale, info, _ = _noise_scale(1e-3, known=False)
+    assert "noise_overstated" not in info and scale == info["chi2_per_dof"]
+
+
+def test_the_summary_prints_the_overstated_noise_warning(capsys):
+    from fmbrdf_mi.fit import uncertainty as U
+    from fmbrdf_mi.fit.outputs import summary
+
+    _, info, _ = _noise_scale(np.sqrt(1e-5))
+    model = {"chi2_per_dof": info["chi2_per_dof"], "n_samples": 4000, "n_pixels": 1000, "converged": True,
+             "stop_reason": "tol", "noise": {"description": "known"}, "std_errors": {}, "ci95": {},
+             "params": {"alpha": 0.1}, "uncertainty": info}
+    summary.print_colour({"models": {"fmbrdf": model}, "outputs": ["fit.json"], "wall_s": 1.0})
+    assert "warning: " + U.misfit_text(info) in capsys.readouterr().out

@@ -1,51 +1,66 @@
-"""Issue 24, "Options and files silently ignored" and "--from integrity": an option the
-command would ignore, or a fit.json whose rerun cannot be verified, is refused in one line
-naming it (exit status 1, no traceback, nothing written).  Each test failed on the code
-before the fix: the option was dropped and the command ran, or the rerun read files no
-hash covered."""
-import os
+"""``fmbrdf-mi fit``'s options: each is checked before any work (the image named need not exist), and an option
+the fit would ignore (for its mode, or overridden by the capture) is refused in one line naming it.
+"""
+import math
 
+import numpy as np
 import pytest
 
-from conftest import fit_record, one_line_error, run
+from conftest import one_line_error, run
 
 from fmbrdf_mi import cli
 
 
-# ------------------------------------------------------------------ render
+# ---------------------------------------------------------------- options checked before work
 @pytest.mark.parametrize("argv,words", [
-    (["--sensor", "colour"], ["--sensor colour", "--raw"]),
-    (["--raw", "--cfa", "BGGR"], ["--cfa BGGR", "--sensor colour"]),
-    (["--cfa", "RGGB"], ["--cfa RGGB", "--sensor colour"]),
-    (["--variant", "llvm_ad_mono_polarized", "-D", "k_s=1,0.5,0.2"], ["k_s=1,0.5,0.2", "RGB", "mono"]),
-    (["--variant", "llvm_ad_mono_polarized", "-D", "r_k=0.2,0.5,1"], ["r_k=0.2,0.5,1", "RGB"]),
-    (["--raw-seed", "3"], ["--raw-seed", "--raw"]),
-    (["--full-well", "5000", "--bits", "10"], ["--full-well, --bits", "--raw"]),
-    (["--layout", "90,135,45,0", "--mosaic"], ["--layout", "--raw"]),
-    (["--conversion-gain", "2", "--raw-exposure", "100"], ["--conversion-gain, --raw-exposure", "--raw"]),
+    (["--read-noise", "2.5"], ["--read-noise needs --conversion-gain"]),
+    (["--conversion-gain", "2"], ["--conversion-gain needs --read-noise"]),
+    (["--conversion-gain", "0", "--read-noise", "1"], ["--conversion-gain", "(0, inf)"]),
+    (["--black-level", "-1"], ["--black-level", "[0, inf)"]),
+    (["--erode", "-1"], ["--erode"]),
+    (["--max-time", "-5"], ["--max-time"]),
+    (["--tol", "nan"], ["--tol", "finite"]),
+    (["--max-iter", "0"], ["--max-iter"]),
+    (["--max-pixels=-1"], ["--max-pixels", "[0, inf)"]),
+    (["--irradiance", "nan"], ["--irradiance"]),
+    (["--fov", "200"], ["--fov"]),
+    (["--init", "eta=1.5,alpha=0.3"], ["--init", "missing", "beta", "kappa", "k_s", "r_k"]),
+    (["--init", "eta=1.5,alpha=0.3,beta=2,kappa=10,k_s=1,r_k=1,foo=2"], ["--init", "'foo'"]),
+    (["--init", "eta=9,alpha=0.3,beta=2,kappa=10,k_s=1,r_k=1"], ["--init eta", "bounds"]),
+    (["--bounds", "alpha=0.5:0.1"], ["--bounds", "alpha"]),
+    (["--bounds", "gamma=0.1:0.5"], ["--bounds", "gamma"]),
 ])
-def test_render_ignored_options_refused(capsys, tmp_path, argv, words):
-    """Before: the EXR was written, the option dropped (no raw mosaic, the mono sensor, the RGB
-    albedo averaged by the mono variant)."""
-    rc, _, err = run(capsys, "render", "--res", "8", "--spp", "1", "-q", *argv, str(tmp_path / "x.exr"))
-    one_line_error(rc, err, "render", *words)
-    assert not os.listdir(tmp_path)
+def test_fit_options_checked_before_work(capsys, tmp_path, argv, words):
+    """Before: --read-noise alone was ignored, negative --black-level/--erode/--max-time and
+    --tol nan were accepted, an incomplete --init ended in KeyError, --max-pixels=-1 in a
+    NumPy message; the image here does not even exist: options come first."""
+    rc, _, err = run(capsys, "fit", str(tmp_path / "missing.exr"), "--light", "0,0,1",
+                     "-o", str(tmp_path / "out"), *argv)
+    one_line_error(rc, err, "fit", *words)
+    assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("argv", [
-    ["--raw", "--sensor", "colour", "--cfa", "BGGR"],
-    ["--raw", "--raw-seed", "3", "--full-well", "5000"],
-    ["--variant", "llvm_ad_mono_polarized", "-D", "k_s=0.5"],
-    ["-D", "k_s=1,0.5,0.2"],
+def test_fit_output_under_a_file(capsys, tmp_path, a_file):
+    rc, _, err = run(capsys, "fit", str(tmp_path / "missing.exr"), "--light", "0,0,1",
+                     "-o", str(a_file / "out"))
+    one_line_error(rc, err, "fit", str(a_file))
+
+
+@pytest.mark.parametrize("kw,words", [
+    ({"max_pixels": "many"}, ["max_pixels", "'many'"]), ({"tol": math.nan}, ["tol"]),
+    ({"erode": -1}, ["erode"]), ({"init": {"eta": 1.5}}, ["init", "missing"]),
 ])
-def test_render_valid_camera_options_still_run(capsys, tmp_path, argv):
-    rc, _, err = run(capsys, "render", "--res", "8", "--spp", "1", "-q", "--no-previews", *argv,
-                     str(tmp_path / "x.exr"))
-    assert rc == 0, err
-    assert (tmp_path / "x.exr").exists()
+def test_fit_api_options(kw, words):
+    from fmbrdf_mi.fit import fit
+    from fmbrdf_mi.fit.errors import InputError
+
+    with pytest.raises(InputError) as e:
+        fit(None, progress=False, **kw)
+    for w in words:
+        assert w in str(e.value)
 
 
-# ------------------------------------------------------------------ fit: the option table
+# ---------------------------------------------------------------- options the fit would ignore
 @pytest.mark.parametrize("argv,words", [
     (["--manifest", "{d}/missing.toml", "--light", "0,0,1"], ["--manifest: --light not supported"]),
     (["--authors", "{d}/missing_dir", "--light", "0,0,1"], ["--authors: --light not supported"]),
@@ -131,55 +146,6 @@ def test_fit_likelihood_options_on_an_input_without_noise_model_refused(capsys, 
     rc, _, err = run(capsys, "fit", str(captures / "m.exr"), "-o", str(tmp_path / "out"), "--max-iter", "1",
                      "--starts", "1", "--max-pixels", "100", "-q", *argv)
     one_line_error(rc, err, "fit", *words)
-    assert not (tmp_path / "out").exists()
-
-
-# ------------------------------------------------------------------ fit --from: integrity
-def _edit(d, tmp_path, what):
-    rep = d["reproduce"]
-    if what == "inputs":
-        rep["arguments"]["inputs"] = str(tmp_path / "other.npy")
-    elif what == "relative inputs":
-        rep["arguments"]["inputs"] = "other.npy"
-    elif what == "mask":
-        rep["arguments"]["mask"] = str(tmp_path / "other.npy")
-    elif what == "joint input":
-        rep["joint"]["images"][1]["spec"]["input"] = str(tmp_path / "other.npy")
-    elif what == "joint mask":
-        rep["joint"]["images"][0]["spec"]["options"]["mask"] = str(tmp_path / "other.npy")
-    elif what == "no hashes":
-        del rep["files_sha256"]
-    elif what == "refine":
-        d.clear()
-        d.update({"refine_normals": {"start": "ps"}, "reproduce": {"command": "fmbrdf-mi fit --authors OBJ "
-                                                                               "--refine-normals -o out"}})
-    elif what == "refine rounds":       # a record of the alternation rounds that --rounds set before the joint step
-        d.clear()
-        d.update({"refine_normals": {"start": "ps", "rounds": 2, "alternation": []},
-                  "reproduce": {"command": "fmbrdf-mi fit --authors OBJ --refine-normals --rounds 2 -o out"}})
-    return d
-
-
-@pytest.mark.parametrize("joint,what,words", [
-    (False, "inputs", ["other.npy", "no recorded SHA-256"]),
-    (False, "relative inputs", ["other.npy", "no recorded SHA-256"]),
-    (False, "mask", ["other.npy", "no recorded SHA-256"]),
-    (True, "joint input", ["other.npy", "no recorded SHA-256"]),
-    (True, "joint mask", ["other.npy", "no recorded SHA-256"]),
-    (False, "no hashes", ["files_sha256", "cannot be verified"]),
-    (True, "no hashes", ["files_sha256", "cannot be verified"]),
-    (False, "refine", ["--refine-normals are not supported", "reproduce.command"]),
-    (False, "refine rounds", ["--refine-normals are not supported", "--rounds 2 -o out)", "without --rounds"]),
-])
-def test_from_record_that_cannot_be_verified_is_refused(capsys, tmp_path, joint, what, words):
-    """Before: a record pointing at another file reran on it (its hash was never recorded), a record
-    without files_sha256 reran unverified, a --refine-normals record was 'written by an older fmbrdf-mi?'."""
-    import json
-
-    path = tmp_path / "fit.json"
-    path.write_text(json.dumps(_edit(fit_record(tmp_path, joint), tmp_path, what)))
-    rc, _, err = run(capsys, "fit", "--from", str(path), "-o", str(tmp_path / "out"))
-    one_line_error(rc, err, "fit", str(path), *words)
     assert not (tmp_path / "out").exists()
 
 

@@ -1,16 +1,23 @@
-"""``fmbrdf-mi fit-brdf`` made fast (issue 26): the unpolarised evaluation variant, the coarse-to-fine start
-grid, progress lines, and the batch mode (several files or a directory, ``--jobs``).
+"""``fmbrdf-mi fit-brdf`` (fmbrdf_mi/brdf_fit): the unpolarised evaluation variant, the coarse-to-fine start
+grid, progress lines, the batch mode (several files or a directory, ``--jobs``), the batch options with one
+file, and Ctrl-C stopping a batch (a real SIGINT to a subprocess).
 
 Full-size MERL files (35 MB) are written into tmp_path; fits use a small start grid and a few thousand bins.
 """
 import json
 import os
+import signal
 import struct
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
 
 from fmbrdf_mi.brdf_fit import merl
+
+from conftest import one_line_error, run
 
 TRUE = {"eta": 1.55, "alpha": 0.23, "beta": 1.7, "kappa": 15.0, "k_s": [0.5, 0.6, 0.7], "k_b": [0.3, 0.1, 0.05]}
 OTHER = {"eta": 1.35, "alpha": 0.08, "beta": 0.9, "kappa": 4.0, "k_s": [1.0, 0.9, 0.8], "k_b": [0.2, 0.3, 0.4]}
@@ -223,3 +230,105 @@ def test_jobs_run_in_worker_processes_with_the_same_results(tmp_path, capsys, tw
         assert _params(tmp_path / "two" / name / "params.json") == _params(tmp_path / "one" / name / "params.json")
     assert main(["fit-brdf", str(two_files), "--jobs", "0"]) == 1
     assert "--jobs" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- batch options with one file
+def test_fit_brdf_force_with_skip_existing_refused(capsys, tmp_path):
+    """Before: both taken, --force winning silently for one file and overwriting for a batch."""
+    rc, _, err = run(capsys, "fit-brdf", str(tmp_path / "missing.binary"), "--force", "--skip-existing")
+    one_line_error(rc, err, "fit-brdf", "--force and --skip-existing")
+
+
+def _fitted(tmp_path):
+    """A MERL file name and its output directory holding a params.json (an earlier fit)."""
+    path = tmp_path / "gold.binary"
+    path.write_bytes(b"")
+    out = tmp_path / "gold_fit"
+    out.mkdir()
+    report = {"params": {"eta": 1.5, "alpha": 0.2, "beta": 1.0, "kappa": 3.0, "k_s": [1, 1, 1], "k_b": [1, 1, 1]},
+              "at_bound": [], "log10_rmse": {"all_usable_bins": 0.1}, "n_usable_bins": 10}
+    (out / "params.json").write_text(json.dumps(report))
+    return path, out
+
+
+def test_fit_brdf_skip_existing_with_one_file_skips_it(capsys, tmp_path):
+    """Before: one FILE with --skip-existing was refused as existing (pass --force) although its fit exists."""
+    path, out = _fitted(tmp_path)
+    stamp = os.stat(out / "params.json").st_mtime_ns
+    rc, stdout, err = run(capsys, "fit-brdf", str(path), "--skip-existing", "-q")
+    assert rc == 0, err
+    assert "gold: eta 1.5" in stdout and "skipped" in stdout and os.stat(out / "params.json").st_mtime_ns == stamp
+
+
+def test_fit_brdf_jobs_with_one_file_says_what_it_does(capsys, tmp_path):
+    """Before: --jobs dropped silently with one FILE; now one line says it is fitted in this process."""
+    path, _ = _fitted(tmp_path)
+    rc, _, err = run(capsys, "fit-brdf", str(path), "--skip-existing", "--jobs", "3", "-q")
+    assert rc == 0 and "--jobs 3: one FILE is fitted in this process" in err
+
+
+# ---------------------------------------------------------------- --jobs: Ctrl-C
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _env():
+    return dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""),
+                DRJIT_NUM_THREADS="1")
+
+
+def _start(*argv, **kw):
+    return subprocess.Popen([sys.executable, "-m", "fmbrdf_mi", *argv], env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True, **kw)
+
+
+def _finish(proc, timeout):
+    """(exit status, stderr) of ``proc`` within ``timeout`` seconds; None as the status if it is still
+    running then (its whole process group is killed)."""
+    try:
+        _, err = proc.communicate(timeout=timeout)
+        return proc.returncode, err
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        _, err = proc.communicate()
+        return None, err
+
+
+@pytest.fixture(scope="module")
+def merl_files(tmp_path_factory):
+    import numpy as np
+
+    from fmbrdf_mi.brdf_fit import merl
+    from fmbrdf_mi.brdf_fit.fitting import model_brdf
+
+    d = tmp_path_factory.mktemp("merl")
+    table = model_brdf({"eta": 1.55, "alpha": 0.23, "beta": 1.7, "kappa": 15.0, "k_s": [0.5, 0.6, 0.7],
+                        "k_b": [0.3, 0.1, 0.05]})
+    table = table * np.exp(0.2 * np.random.default_rng(1).standard_normal(table.shape))   # not fitted exactly
+    for name in ("a", "b", "c", "d"):
+        merl.write_merl(d / f"{name}.binary", table)
+    return d
+
+
+def test_ctrl_c_stops_a_fit_brdf_batch_promptly(tmp_path, merl_files):
+    out = tmp_path / "fits"
+    (out / "a").mkdir(parents=True)
+    (out / "a" / "params.json").write_text('{"earlier": true}')
+    (out / "a" / "slices.png").write_bytes(b"earlier")
+    proc = _start("fit-brdf", str(merl_files), "-o", str(out), "--jobs", "2", "--force", "--full-grid",
+                  "--samples", "400000")
+    line = "-"
+    while line and "[fit-brdf] batch of" not in line:   # the batch's first line: the workers start now
+        line = proc.stderr.readline()
+    assert "[fit-brdf] batch of 4 materials" in line, line
+    time.sleep(8)                            # the workers are fitting (each fit takes far longer)
+    assert proc.poll() is None, "the batch ended before it was interrupted"
+    proc.send_signal(signal.SIGINT)
+    t0 = time.time()
+    rc, err = _finish(proc, 45)
+    assert rc is not None, "the batch went on fitting after Ctrl-C"
+    assert rc != 0 and time.time() - t0 < 45
+    assert (out / "a" / "params.json").read_text() == '{"earlier": true}'
+    assert (out / "a" / "slices.png").read_bytes() == b"earlier"
+    left = sorted(os.path.relpath(os.path.join(dp, f), out) for dp, ds, fs in os.walk(out) for f in fs + ds)
+    assert left == ["a", os.path.join("a", "params.json"), os.path.join("a", "slices.png")], left
+    assert not os.path.exists(out / "summary.tsv")

@@ -1,6 +1,6 @@
-"""Issue 12, BSDF state: a rejected update leaves no trace, inclusive bounds survive
-float32, tables never outlive the AD variables they were built from, retro-reflection,
-errors at load time.  Each test failed on the code before the fix (see the comments)."""
+"""The BSDF plugin's state (fmbrdf_mi/bsdf.py): a rejected update leaves no trace, inclusive bounds survive
+float32, tables never outlive the AD variables they were built from, retro-reflection, errors at load time,
+registration after a variant switch, untested versions."""
 import math
 
 import numpy as np
