@@ -141,9 +141,11 @@ def staged_directory(directory, last=(), remove=()):
     while not os.path.exists(os.path.dirname(made)) and os.path.dirname(made) != made:
         made = os.path.dirname(made)
     made = None if os.path.exists(directory) else made
-    os.makedirs(directory, exist_ok=True)
-    stage = tempfile.mkdtemp(prefix=".staging.", suffix=".partial", dir=directory)
+    stage = None
     try:
+        with _sigint_held():      # a Ctrl-C now arrives inside the try, which removes what was made
+            os.makedirs(directory, exist_ok=True)
+            stage = tempfile.mkdtemp(prefix=".staging.", suffix=".partial", dir=directory)
         yield stage
         names = sorted(n for n in os.listdir(stage) if not n.startswith("."))  # a writer's own temporary file
         names = [n for n in names if n not in last] + [n for n in last if n in names]
@@ -153,12 +155,14 @@ def staged_directory(directory, last=(), remove=()):
                     os.remove(p)
             for name in names:
                 os.replace(os.path.join(stage, name), os.path.join(directory, name))
+            shutil.rmtree(stage, ignore_errors=True)
     except BaseException:
-        shutil.rmtree(stage, ignore_errors=True)
-        if made is not None:
-            shutil.rmtree(made, ignore_errors=True)
+        with _sigint_held():
+            if stage is not None:
+                shutil.rmtree(stage, ignore_errors=True)
+            if made is not None:
+                shutil.rmtree(made, ignore_errors=True)
         raise
-    shutil.rmtree(stage, ignore_errors=True)
 
 
 @contextlib.contextmanager
@@ -222,9 +226,10 @@ def take_lock(path, what):
     written file); PathError naming ``what`` and the holder if a live process holds it.  A lock left by a
     process that is gone (on this host) is replaced.  Returns ``path``."""
     tmp = f"{path}.{os.getpid()}.{threading.get_ident()}"
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(json.dumps(lock_info()) + "\n")
     try:
+        with _sigint_held():      # a Ctrl-C now arrives inside the try, whose finally removes tmp
+            with open(tmp, "w", encoding="utf-8") as f:
+                f.write(json.dumps(lock_info()) + "\n")
         for _ in range(3):
             try:
                 os.link(tmp, path)
@@ -238,7 +243,8 @@ def take_lock(path, what):
                 release_lock(path)  # stale: its process is gone
         raise PathError(f"{what}: could not take the lock {path}")
     finally:
-        release_lock(tmp)
+        with _sigint_held():
+            release_lock(tmp)
 
 
 #: The lock file of an output directory a run is writing (:func:`locked_directory`).
@@ -259,14 +265,17 @@ def locked_directory(directory, what="output directory"):
         made.append(d)
         d = os.path.dirname(d)
     os.makedirs(directory, exist_ok=True)
+    path = os.path.join(directory, LOCK_NAME)
     ok = False
     try:
-        path = take_lock(os.path.join(directory, LOCK_NAME), what)
         try:
-            yield path
+            yield take_lock(path, what)
             ok = True
         finally:
-            release_lock(path)
+            with _sigint_held():   # ours however the block ended (a Ctrl-C just after the lock was taken too)
+                info = read_lock(path)
+                if info is not None and info.get("pid") == os.getpid() and info.get("host") == socket.gethostname():
+                    release_lock(path)
     finally:
         if not ok:
             for d in made:           # deepest first; one that is not empty stays

@@ -113,9 +113,9 @@ def test_ctrl_c_in_the_write_phase_keeps_the_earlier_output(tmp_path, stokes_exr
     mtimes = {n: os.stat(os.path.join(out, n)).st_mtime_ns for n in before}
     proc = _start("fit", stokes_exr, "-o", out, "--force", "-q", "--baselines")
 
-    def writing():   # a new entry besides the lock (a staging directory, a new file) or a file rewritten
-        try:
-            names = set(os.listdir(out)) - {LOCK_NAME}
+    def writing():   # a new entry besides the lock and its temporary file (a staging directory, a new file) or
+        try:         # a file rewritten
+            names = {n for n in os.listdir(out) if not n.startswith(LOCK_NAME)}
             return names != set(before) or any(os.stat(os.path.join(out, n)).st_mtime_ns != t
                                                for n, t in mtimes.items())
         except FileNotFoundError:
