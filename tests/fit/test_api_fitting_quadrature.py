@@ -20,7 +20,9 @@ def capture(params, res, seed=3):
 @pytest.fixture(scope="module")
 def glossy_fits():
     obs = capture(GLOSSY, 28)
-    return {m: fit(obs, progress=False, area_points=m, intervals="fisher") for m in (None, 2, 4)}
+    # from the truth, one start: the quadrature's bias is a property of the optimum, not of the search
+    return {m: fit(obs, progress=False, area_points=m, intervals="fisher", init=GLOSSY, starts=1)
+            for m in (None, 2, 4)}
 
 
 def test_the_predicted_quadrature_bias_is_the_difference_of_two_fits(glossy_fits):
@@ -55,8 +57,8 @@ def test_a_broad_highlight_keeps_two_points_and_the_same_estimate():
     """medium material (alpha 0.25): the 2 x 2 quadrature's bias is below 0.2 SE; the fit is the 2 x 2 fit,
     number for number."""
     obs = capture(MEDIUM, 24)
-    auto = fit(obs, progress=False, intervals="fisher")
-    two = fit(obs, progress=False, area_points=2, intervals="fisher")
+    auto = fit(obs, progress=False, intervals="fisher", init=MEDIUM, starts=1)
+    two = fit(obs, progress=False, area_points=2, intervals="fisher", init=MEDIUM, starts=1)
     q = auto.uncertainty["quadrature"]
     assert q["area_points"] == 2 and len(q["checks"]) == 1
     assert max(abs(v) for v in q["checks"][0]["bias_se"].values()) < 0.2

@@ -228,7 +228,7 @@ def test_one_image_is_the_list_of_one():
     the list's result adds the per-image block."""
     from fmbrdf_mi.fit import fit
 
-    cases = [(_captures(res=12)[0], {}), (_clean(res=16, lights=LIGHTS[:1])[0], {"loss": "paper"})]
+    cases = [(_captures(res=12)[0], {}), (_clean(res=16, lights=LIGHTS[:1])[0], {"loss": "paper", "intervals": "fisher"})]
     for o, kw in cases:
         a = fit(o, progress=False, init=NEAR, **kw)
         b = fit([o], progress=False, init=NEAR, **kw)

@@ -51,7 +51,7 @@ def test_a_swapped_capture_is_named(capsys, tmp_path):
     assert rc == 0, err
     out = tmp_path / "fit"
     rc, _, err = run(capsys, "fit", str(tmp_path / "c_raw.png"), "--layout", "90,135,45,0", "--max-iter", "10",
-                     "-o", str(out), "-q")
+                     "--intervals", "fisher", "-o", str(out), "-q")
     assert rc in (0, 3), err
     lines = [ln for ln in err.splitlines() if "mirrored polariser layout" in ln]
     assert len(lines) == 1, err
