@@ -117,6 +117,32 @@ def fit_record(tmp_path, joint=False):
                           "joint": {"kind": "manifest", "images": images}, "files_sha256": hashes}}
 
 
+def start_command(*argv, **kw):
+    """``python -m fmbrdf_mi ARGV`` in a new process group (so that a test can send it SIGINT), this checkout
+    first on its path, Dr.Jit on one thread; stdout and stderr piped as text."""
+    import subprocess
+
+    env = dict(os.environ, PYTHONPATH=os.path.dirname(HERE) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               DRJIT_NUM_THREADS="1")
+    return subprocess.Popen([sys.executable, "-m", "fmbrdf_mi", *argv], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True, **kw)
+
+
+def finish_command(proc, timeout):
+    """(exit status, stderr) of ``proc`` within ``timeout`` seconds; None as the status if it is still
+    running then (its whole process group is killed)."""
+    import signal
+    import subprocess
+
+    try:
+        _, err = proc.communicate(timeout=timeout)
+        return proc.returncode, err
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        _, err = proc.communicate()
+        return None, err
+
+
 # ---------------------------------------------------------------- the two tiers
 #: The slow tier (``python -m pytest -q tests -m slow``; ``.ci/run`` runs both tiers): coverage loops over
 #: noise seeds, end-to-end refinements, the documentation's code and tutorials.  Node-id prefixes, marked

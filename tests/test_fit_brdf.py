@@ -8,8 +8,6 @@ import json
 import os
 import signal
 import struct
-import subprocess
-import sys
 import time
 
 import numpy as np
@@ -17,7 +15,7 @@ import pytest
 
 from fmbrdf_mi.brdf_fit import merl
 
-from conftest import one_line_error, run
+from conftest import finish_command, one_line_error, run, start_command
 
 TRUE = {"eta": 1.55, "alpha": 0.23, "beta": 1.7, "kappa": 15.0, "k_s": [0.5, 0.6, 0.7], "k_b": [0.3, 0.1, 0.05]}
 OTHER = {"eta": 1.35, "alpha": 0.08, "beta": 0.9, "kappa": 4.0, "k_s": [1.0, 0.9, 0.8], "k_b": [0.2, 0.3, 0.4]}
@@ -268,29 +266,6 @@ def test_fit_brdf_jobs_with_one_file_says_what_it_does(capsys, tmp_path):
 
 
 # ---------------------------------------------------------------- --jobs: Ctrl-C
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
-
-def _env():
-    return dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""),
-                DRJIT_NUM_THREADS="1")
-
-
-def _start(*argv, **kw):
-    return subprocess.Popen([sys.executable, "-m", "fmbrdf_mi", *argv], env=_env(), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True, **kw)
-
-
-def _finish(proc, timeout):
-    """(exit status, stderr) of ``proc`` within ``timeout`` seconds; None as the status if it is still
-    running then (its whole process group is killed)."""
-    try:
-        _, err = proc.communicate(timeout=timeout)
-        return proc.returncode, err
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        _, err = proc.communicate()
-        return None, err
 
 
 @pytest.fixture(scope="module")
@@ -314,7 +289,7 @@ def test_ctrl_c_stops_a_fit_brdf_batch_promptly(tmp_path, merl_files):
     (out / "a").mkdir(parents=True)
     (out / "a" / "params.json").write_text('{"earlier": true}')
     (out / "a" / "slices.png").write_bytes(b"earlier")
-    proc = _start("fit-brdf", str(merl_files), "-o", str(out), "--jobs", "2", "--force", "--full-grid",
+    proc = start_command("fit-brdf", str(merl_files), "-o", str(out), "--jobs", "2", "--force", "--full-grid",
                   "--samples", "400000")
     line = "-"
     while line and "[fit-brdf] batch of" not in line:   # the batch's first line: the workers start now
@@ -324,7 +299,7 @@ def test_ctrl_c_stops_a_fit_brdf_batch_promptly(tmp_path, merl_files):
     assert proc.poll() is None, "the batch ended before it was interrupted"
     proc.send_signal(signal.SIGINT)
     t0 = time.time()
-    rc, err = _finish(proc, 45)
+    rc, err = finish_command(proc, 45)
     assert rc is not None, "the batch went on fitting after Ctrl-C"
     assert rc != 0 and time.time() - t0 < 45
     assert (out / "a" / "params.json").read_text() == '{"earlier": true}'

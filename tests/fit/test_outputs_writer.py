@@ -5,8 +5,6 @@ point read from the outside, and the earlier output is checked afterwards, byte 
 import json
 import os
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
@@ -14,31 +12,10 @@ import pytest
 from fmbrdf_mi._paths import LOCK_NAME
 from fmbrdf_mi.cli import main
 
+from conftest import finish_command, start_command
+
 
 # ---------------------------------------------------------------- the fit's outputs
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-
-def _env():
-    return dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""),
-                DRJIT_NUM_THREADS="1")
-
-
-def _start(*argv, **kw):
-    return subprocess.Popen([sys.executable, "-m", "fmbrdf_mi", *argv], env=_env(), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True, **kw)
-
-
-def _finish(proc, timeout):
-    """(exit status, stderr) of ``proc`` within ``timeout`` seconds; None as the status if it is still
-    running then (its whole process group is killed)."""
-    try:
-        _, err = proc.communicate(timeout=timeout)
-        return proc.returncode, err
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        _, err = proc.communicate()
-        return None, err
 
 
 def _snapshot(d):
@@ -60,7 +37,7 @@ def stokes_exr(tmp_path_factory):
 
 def test_two_fits_into_one_directory_do_not_both_succeed(tmp_path, stokes_exr, capsys):
     out = str(tmp_path / "fit")
-    first = _start("fit", stokes_exr, "-o", out, "-q")
+    first = start_command("fit", stokes_exr, "-o", out, "-q")
     try:
         deadline = time.time() + 120
         while not os.path.exists(os.path.join(out, LOCK_NAME)) and first.poll() is None and time.time() < deadline:
@@ -72,7 +49,7 @@ def test_two_fits_into_one_directory_do_not_both_succeed(tmp_path, stokes_exr, c
         assert len(err.splitlines()) == 1, err
         assert out in err and LOCK_NAME in err and str(first.pid) in err
     finally:
-        rc1, err1 = _finish(first, 300)
+        rc1, err1 = finish_command(first, 300)
     assert rc1 == 0, err1
     assert sorted(os.listdir(out)) == ["fit.json", "fitted_stokes.exr", "history.png", "images.png", "profiles.png"]
 
@@ -111,7 +88,7 @@ def test_ctrl_c_in_the_write_phase_keeps_the_earlier_output(tmp_path, stokes_exr
     assert main(["fit", stokes_exr, "-o", out, "-q"]) == 0
     before = _snapshot(out)
     mtimes = {n: os.stat(os.path.join(out, n)).st_mtime_ns for n in before}
-    proc = _start("fit", stokes_exr, "-o", out, "--force", "-q", "--baselines")
+    proc = start_command("fit", stokes_exr, "-o", out, "--force", "-q", "--baselines")
 
     def writing():   # a new entry besides the lock and its temporary file (a staging directory, a new file) or
         try:         # a file rewritten
@@ -127,7 +104,7 @@ def test_ctrl_c_in_the_write_phase_keeps_the_earlier_output(tmp_path, stokes_exr
     assert proc.poll() is None, "the fit ended before it was interrupted"
     proc.send_signal(signal.SIGINT)
     t0 = time.time()
-    rc, err = _finish(proc, 60)
+    rc, err = finish_command(proc, 60)
     assert rc is not None and time.time() - t0 < 60, err     # stopped promptly
     after = _snapshot(out)
     if after == before:                      # stopped before the new files moved in: every earlier file as it
