@@ -65,31 +65,8 @@ def test_render_gradient_is_the_derivative_of_the_gradient_pass_render(variant, 
 
 
 def test_body_table_derivative_is_that_of_the_float32_computation():
-    import drjit as dr
-    from drjit.llvm.ad import Float as F32
-    from drjit.llvm.ad import Float64 as F64
+    from check_scene_gradient import table_check   # tools/ (on the path: tests/conftest.py)
 
-    from fmbrdf_mi.model.body import BodyGrid, body_tables
-    from fmbrdf_mi.model.distribution import Distribution
-
-    grid = BodyGrid()
-
-    def build(F, a):
-        t, f = body_tables(Distribution(F, a, F(MAT["beta"])), F(MAT["eta"]), F(MAT["kappa"]), grid)
-        return t.values, f.values
-
-    a = F32(MAT["alpha"])
-    dr.enable_grad(a)
-    tv, fv = build(F32, a)
-    dr.set_grad(a, 1.0)
-    dr.forward_to(tv, fv)
-    ad = np.concatenate([np.asarray(dr.grad(tv), np.float64), np.asarray(dr.grad(fv), np.float64)])
-
-    def err(F, rel_step):
-        h = rel_step * MAT["alpha"]
-        up, down = (np.concatenate([np.asarray(v, np.float64) for v in build(F, F(MAT["alpha"] + s * h))])
-                    for s in (1, -1))
-        return np.max(np.abs((up - down) / (2 * h) - ad)) / np.max(np.abs(ad))
-
-    assert err(F64, 1e-3) < 1e-4  # the same table in float64: its differences converge to the AD
-    assert err(F32, 1e-4) > 1e-3  # float32 round-off over a small step: the differences, not the AD, are off
+    err = table_check()   # max |central difference - AD| / max |AD| over the body tables, per (dtype, relative step)
+    assert err["float64", 1e-3] < 1e-4  # the same table in float64: its differences converge to the AD
+    assert err["float32", 1e-4] > 1e-3  # float32 round-off over a small step: the differences, not the AD, are off
