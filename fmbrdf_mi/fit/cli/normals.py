@@ -13,8 +13,6 @@ def check(args, joint):
     if not args.refine_normals:
         check_needs(args, ("--normals-start", "--smooth"))
         return
-    if args.from_json:
-        raise InputError("--refine-normals: --from is not supported (rerun the command instead)")
     if not joint:
         raise InputError("--refine-normals: needs K >= 3 images of one view under different lights (--manifest, "
                          "--authors, or INPUT files with one --light each)")
