@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import sys
 
-from fmbrdf_mi.fit.cli.checks import check_args, refuse
+from fmbrdf_mi.fit.cli.checks import check_args, check_normals, refuse
 from fmbrdf_mi.fit.cli.joint import run_joint
 from fmbrdf_mi.fit.cli.layout_check import mirrored_layout_hint
-from fmbrdf_mi.fit.cli.normals import check as check_normal_args
 from fmbrdf_mi.fit.cli.request import request
 from fmbrdf_mi.fit.api.options import add_arguments
 from fmbrdf_mi.fit.errors import InputError
@@ -91,7 +90,7 @@ def run_fit(args):
     if args.free_power and not joint:
         raise InputError("--free-power: needs a joint fit of two or more images (--manifest, --authors, or several "
                          "INPUTs with one --light each)")
-    check_normal_args(args, joint)
+    check_normals(args, joint)
     report = RUN[fit_mode(args)](args, command)
     return print_summary(report)
 

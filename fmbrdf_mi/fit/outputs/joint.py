@@ -101,7 +101,8 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     ``fit_kw``: :class:`~fmbrdf_mi.fit.api.options.FitOptions` fields (loss,
     fixed, bounds, init, max_pixels, ...).  ``reproduce``: called with the
     observations, returns fit.json's ``reproduce`` block (the command's:
-    :func:`fmbrdf_mi.fit.outputs.record.joint_block`).  Returns the dict written to fit.json.
+    :func:`fmbrdf_mi.fit.outputs.record.joint_block`).  Returns the dict written to fit.json, with ``outputs``
+    (the files written) and ``wall_s`` besides.
     """
 
     return Joint(specs, out, model=model, baselines=baselines, force=force, progress=progress, command=command,

@@ -31,53 +31,27 @@ from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
 OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stokes.exr")
 
 
-RELIGHT_OUTPUTS = ("relight.png",)
-
-
-#: ``materials="auto:M"`` (labels found by :func:`~fmbrdf_mi.fit.api.find_materials.find_materials`) also
-#: writes the labels it found (8-bit PNG, 255 not labelled: ``--materials labels.png`` reruns with them).
-FOUND_OUTPUTS = ("labels.png",)
-
-
 def output_files(out, relight, albedo="shared", materials=None):
-    names = OUTPUTS + (RELIGHT_OUTPUTS if relight else ()) + (MAP_OUTPUTS if albedo in PER_PIXEL_LAYOUTS else ()) \
-        + (MATERIAL_OUTPUTS if materials is not None else ()) + (FOUND_OUTPUTS if parse_auto(materials) else ())
+    """The files a fit of one image writes, by name; ``materials="auto:M"`` writes the labels it found too
+    (labels.png: 8-bit, 255 not labelled, so that ``--materials labels.png`` reruns with them)."""
+    names = OUTPUTS + (("relight.png",) if relight else ()) + (MAP_OUTPUTS if albedo in PER_PIXEL_LAYOUTS else ()) \
+        + (MATERIAL_OUTPUTS if materials is not None else ()) + (("labels.png",) if parse_auto(materials) else ())
     return {n: os.path.join(out, n) for n in names}
 
 
 def fit_files(inputs, out, *, force=False, progress=True, command=None, **options):
-    """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
+    """Fit ``model`` (with ``baselines``, the baselines too) to one polarimetric image and write the outputs.
 
-    ``options``: the single-image options of :data:`fmbrdf_mi.fit.api.options.OPTIONS` (the command line's,
-    names with underscores; those not given take their defaults, others are refused).
+    ``inputs``: a Stokes EXR, a raw mosaic (.npy / 16-bit .png / .tif), a (4, H, W) .npy of angle images or four
+    angle-image files (0, 45, 90, 135 degrees); an EXR written by ``fmbrdf-mi render`` (built-in sphere) brings
+    its own geometry, light and true parameters.  ``options``: the single-image options of
+    :data:`fmbrdf_mi.fit.api.options.OPTIONS` (the command line's, names with underscores, each described by its
+    help; those not given take their defaults, others are refused).
 
-    Inputs: ``inputs`` a Stokes EXR, a raw mosaic (.npy / 16-bit .png / .tif,
-    ``layout`` row-major 2x2 polariser angles, default IMX250MZR ``90,45,135,0``),
-    a (4, H, W) .npy of angle images or four angle-image files (0, 45, 90, 135).
-    Geometry: ``normals`` (.npy, H x W x 3, unit, camera frame) with ``mask``,
-    or ``sphere`` ``"cx,cy,r"`` (pixels) or ``"auto"`` (found from ``mask``);
-    view directions from ``view`` (.npy) or ``camera`` (``orthographic``, or
-    ``perspective`` with ``fov`` degrees).  ``light`` x,y,z towards the light.
-    An EXR written by ``fmbrdf-mi render`` (built-in sphere) brings its own
-    geometry, light and true parameters.  ``conversion_gain`` (electrons per
-    image unit) and ``read_noise`` (electrons): the DoLP term then compares the
-    observed DoLP with the mean DoLP a camera with that noise measures.
-    ``footprint``: ``point`` (pixel centres), ``box`` (3 x 3 over the pixel),
-    ``demosaic`` (the raw pixels a demosaicked super-pixel comes from) or
-    ``auto`` (the paper's loss).  ``area_points``: the likelihood models each
-    raw sample as the mean over that many points squared of its pixel (None: 2
-    for raw mosaics, 1 otherwise).  ``intervals``: ``auto``, ``profile`` or ``fisher``
-    (:class:`~fmbrdf_mi.fit.api.options.FitOptions`).  ``albedo``: ``shared`` (one k_s, r_k) or
-    ``per-pixel`` (albedo maps of a textured object, the likelihood only); ``albedo_smooth``: the maps'
-    smoothness prior (tau or (tau_s, tau_b); :class:`~fmbrdf_mi.fit.api.options.FitOptions`).
-    ``materials``: a label image (.png / .npy: :mod:`fmbrdf_mi.fit.inputs.labels`) giving each pixel's
-    material, each fitted with its own parameters (the likelihood only); writes materials.png.  ``relight``: a
-    second image of the same object under ``relight_light`` for the relighting check.
-
-    Writes ``out``/fit.json, profiles.png, images.png, history.png,
-    fitted_stokes.exr (and relight.png; per-pixel albedos: k_s.exr, k_b.exr, their standard errors
-    k_s_se.exr, k_b_se.exr and albedo_maps.png); refuses to overwrite them without
-    ``force``.  Returns the dict written to fit.json.
+    Writes ``out``/fit.json, profiles.png, images.png, history.png and fitted_stokes.exr (with ``relight``:
+    relight.png; per-pixel albedos: k_s.exr, k_b.exr, k_s_se.exr, k_b_se.exr, albedo_maps.png; ``materials``:
+    materials.png, and labels.png for ``auto:M``), refusing to overwrite them without ``force``.  Returns the dict
+    written to fit.json, with ``outputs`` (the files written) and ``wall_s`` besides.
     """
 
     arguments = arguments_of("single", dict(options, inputs=inputs), "fit_files()")
