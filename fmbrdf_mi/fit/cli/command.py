@@ -23,10 +23,8 @@ from fmbrdf_mi.fit.outputs.single import fit_files
 from fmbrdf_mi.fit.outputs.summary import print_summary
 
 
-# ---------------------------------------------------------------- command line
-def add_fit_arguments(p):
-    """The options of ``fmbrdf-mi fit`` (:data:`fmbrdf_mi.fit.api.options.OPTIONS`)."""
-    add_arguments(p)
+#: The options of ``fmbrdf-mi fit`` on a parser (:data:`fmbrdf_mi.fit.api.options.OPTIONS`).
+add_fit_arguments = add_arguments
 
 
 def is_joint(args):

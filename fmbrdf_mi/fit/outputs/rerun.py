@@ -25,6 +25,7 @@ from fmbrdf_mi.fit.outputs.single import fit_files
 def rerun(path, out, *, force=False, progress=True, command=None):
     """Rerun the fit recorded in ``path`` (a fit.json) into ``out``; returns the dict written to fit.json."""
     record, rep = load(path)
+    check_files(path, rep)
     if "joint" in rep:
         return joint_rerun(path, rep, out, force=force, progress=progress, command=command)
     colour = record.get("sensor") == "colour"
@@ -87,7 +88,7 @@ def check_keys(path, args, kind):
 
 def single_arguments(path, rep, kind):
     """fit_files (``kind`` ``colour``: fit_colour_files) arguments recorded in ``rep``, the ``reproduce`` block of
-    ``path``; checks that the input files are unchanged."""
+    ``path``."""
     args = dict(rep["arguments"])
     if "inputs" not in args:
         raise InputError(f"--from {path}: reproduce has no 'joint' block (a joint fit) and no arguments.inputs "
@@ -106,7 +107,6 @@ def single_arguments(path, rep, kind):
     cwd = rep.get("cwd")
     if cwd is not None and not isinstance(cwd, str):
         raise InputError(f"--from {path}: reproduce.cwd: expected the directory the fit ran in, got {cwd!r}")
-    check_files(path, rep)
     if parse_auto(args.get("materials")):     # --materials auto:M: found again, not a file
         auto = args.pop("materials")
     else:
@@ -142,7 +142,6 @@ def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
     joint = rep.get("joint")
     if not isinstance(joint, dict) or joint.get("kind") not in ("manifest", "authors", "lights"):
         raise InputError(f"--from {path}: not the record of a joint fit")
-    check_files(path, rep)
     fit_kw = dict(rep["arguments"])
     check_keys(path, fit_kw, "joint")
     info = None
