@@ -7,6 +7,7 @@ and what goes with ``--from`` (nothing but where to write: :func:`check_rerun_ar
 from __future__ import annotations
 
 import argparse
+import os
 
 from fmbrdf_mi.fit.api.options import (OPTION, add_arguments, check_fit_options, check_input_options, flag,
                                         record_keys)
@@ -29,7 +30,7 @@ def check_args(args):
     check_fit_options(**values, flag=flag)
     if args.from_json:
         check_rerun_args(args)
-    check_needs(args, ("--relight-light", "--holdout", "--power-start"))
+    check_needs(args)
     if args.manifest and args.authors:
         raise InputError("--manifest and --authors: give one of them")
     for mode in ("manifest", "authors"):
@@ -144,10 +145,23 @@ def refuse(args, mode):
         raise InputError(f"{head}: {', '.join(bad)} not supported ({why})")
 
 
-def check_needs(args, flags=None):
+def check_needs(args):
     """One line for the first option given without the one it needs (:data:`NEEDS`)."""
-    for f in (flags or NEEDS):
+    for f in NEEDS:
         needed, text = NEEDS[f]
         if given(args, f) and not given(args, needed):
             raise InputError(f"{f} needs {text}")
 
+
+
+def check_normals(args, joint):
+    """The normal refinement's mode (``joint``: the arguments give several images)."""
+    if not args.refine_normals:
+        return
+    if not joint:
+        raise InputError("--refine-normals: needs K >= 3 images of one view under different lights (--manifest, "
+                         "--authors, or INPUT files with one --light each)")
+    refuse(args, "refine")
+    start = args.normals_start
+    if start not in ("ps", "sphere") and not (start.endswith(".npy") and os.path.isfile(start)):
+        raise InputError(f"--normals-start {start!r}: expected ps, sphere or an existing .npy file")

@@ -9,12 +9,10 @@ the mode (:func:`fit_mode`), its run (:data:`RUN`), the summary.
 from __future__ import annotations
 
 import sys
-import time
 
-from fmbrdf_mi.fit.cli.checks import check_args, refuse
+from fmbrdf_mi.fit.cli.checks import check_args, check_normals, refuse
 from fmbrdf_mi.fit.cli.joint import run_joint
 from fmbrdf_mi.fit.cli.layout_check import mirrored_layout_hint
-from fmbrdf_mi.fit.cli.normals import check as check_normal_args
 from fmbrdf_mi.fit.cli.request import request
 from fmbrdf_mi.fit.api.options import add_arguments
 from fmbrdf_mi.fit.errors import InputError
@@ -25,10 +23,8 @@ from fmbrdf_mi.fit.outputs.single import fit_files
 from fmbrdf_mi.fit.outputs.summary import print_summary
 
 
-# ---------------------------------------------------------------- command line
-def add_fit_arguments(p):
-    """The options of ``fmbrdf-mi fit`` (:data:`fmbrdf_mi.fit.api.options.OPTIONS`)."""
-    add_arguments(p)
+#: The options of ``fmbrdf-mi fit`` on a parser (:data:`fmbrdf_mi.fit.api.options.OPTIONS`).
+add_fit_arguments = add_arguments
 
 
 def is_joint(args):
@@ -51,9 +47,8 @@ def fit_mode(args):
 
 
 def run_rerun(args, command):
-    """``--from fit.json``: the recorded fit again (single image, colour or joint)."""
-    if args.inputs:
-        raise InputError("--from: give no INPUT files (they come from the fit.json)")
+    """``--from fit.json``: the recorded fit again (single image, colour or joint; the options given with it are
+    refused by :func:`~fmbrdf_mi.fit.cli.checks.check_rerun_args`)."""
     return rerun(args.from_json, args.out, force=args.force, progress=not args.quiet, command=command)
 
 
@@ -87,17 +82,15 @@ def run_fit(args):
     """``fmbrdf-mi fit``: the option checks (before any file is read), the mode, its run, the summary."""
     import shlex
 
-    t0 = time.time()
     check_args(args)
     command = shlex.join(["fmbrdf-mi", "fit", *args.argv])
     joint = is_joint(args)
     if args.free_power and not joint:
-        raise InputError("--free-power: with --from the fit.json's options apply (give none)" if args.from_json
-                         else "--free-power: needs a joint fit of two or more images (--manifest, --authors, "
-                              "or several INPUTs with one --light each)")
-    check_normal_args(args, joint and not args.from_json)
+        raise InputError("--free-power: needs a joint fit of two or more images (--manifest, --authors, or several "
+                         "INPUTs with one --light each)")
+    check_normals(args, joint)
     report = RUN[fit_mode(args)](args, command)
-    return print_summary(report, args.out, t0)
+    return print_summary(report)
 
 
 def main(argv=None):

@@ -27,8 +27,6 @@ def image_options(args):
 def run_joint(args, command):
     """``fmbrdf-mi fit --manifest M | --authors DIR | IMG1 IMG2 ... --light L1 --light L2 ...``."""
 
-    if args.from_json:
-        raise InputError("--from: give no --manifest, --authors or INPUT files (they come from the fit.json)")
     if args.relight:
         raise InputError("--relight: in a joint fit, mark held-out images instead (holdout = true in the "
                          "manifest, --holdout with --authors)")

@@ -1,29 +1,13 @@
 """The one skeleton of every fit the command writes: :class:`FitJob`.
 
-    report = SingleImage(inputs, out, ...).run()      # what fit_files(inputs, out, ...) does
-
-Every mode of ``fmbrdf-mi fit`` (one image, several images, a colour mosaic,
-several colour mosaics, the normal refinement) is a subclass that fills in
-the steps; :meth:`FitJob.run` alone decides their order and does what they
-share:
-
-1. :meth:`~FitJob.check`: the options, before any file is read;
-2. the output directory locked (:func:`fmbrdf_mi._paths.locked_directory`)
-   until the run ends, so that a second run into it refuses at once;
-3. :meth:`~FitJob.files`: the output paths (``fit.json`` first), refused
-   if any exists and ``force`` is not given (:func:`fmbrdf_mi.fit.outputs.writer.prepare`);
-4. :meth:`~FitJob.read`, :meth:`~FitJob.fit`: inputs to observations, the
-   library API (:mod:`fmbrdf_mi.fit.api`);
-5. :meth:`~FitJob.report`: the dict that becomes ``fit.json``;
-6. :meth:`~FitJob.write`: plots and the other output files, and then
-   ``fit.json`` (one JSON encoder), all into a hidden staging directory
-   (:func:`fmbrdf_mi._paths.staged_directory`: the job's ``out`` points there
-   while it writes) whose files replace the earlier ones when every one is
-   written, ``fit.json`` last; an earlier fit's files that this one does not
-   write are removed then (:func:`~fmbrdf_mi.fit.outputs.writer.stale_outputs`).
-   A run that fails or is interrupted on the way leaves the directory as it was.
-
-The run returns the report (what the summary, :func:`fmbrdf_mi.fit.outputs.summary.print_summary`, prints).
+Each mode of ``fmbrdf-mi fit`` (one image, several images, colour mosaics, the normal refinement) is a subclass
+that fills in the steps; :meth:`FitJob.run` alone orders them: :meth:`~FitJob.check` (the options, before any
+file is read), the output directory locked (a second run into it refuses at once), :meth:`~FitJob.files` (the
+output paths, ``fit.json`` first, refused if any exists without ``force``), :meth:`~FitJob.read`,
+:meth:`~FitJob.fit`, :meth:`~FitJob.report` (the dict that becomes ``fit.json``) and :meth:`~FitJob.write`,
+into a hidden staging directory whose files replace the earlier ones when every one is written, ``fit.json``
+last (an earlier fit's files that this one does not write are removed then): a run that fails or is interrupted
+leaves the directory as it was.
 """
 from __future__ import annotations
 
@@ -63,7 +47,9 @@ class FitJob:
         """The outputs besides ``fit.json`` (plots, maps, images); ``report`` may still be added to."""
 
     def finish(self, report):
-        """What :meth:`run` returns (the report, with what the summary needs besides fit.json)."""
+        """What :meth:`run` returns: the report and what the summary prints besides (the files written and the
+        run's wall time, not in fit.json)."""
+        report["outputs"], report["wall_s"] = self.paths, time.time() - self.t0
         return report
 
     def run(self):

@@ -51,21 +51,17 @@ from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.api.options import (FIT_NAMES, OPTION, check_fit_options, check_resolved_loss, fit_options, flag,
                                         record_keys)
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs.colour import is_colour
 from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power, image_names
 from fmbrdf_mi.fit.inputs.observations import check_direction
 from fmbrdf_mi.fit.inputs.parse import parse_vector
 from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
-from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.record import command_block, joint_block, sha256
 from fmbrdf_mi.fit.inputs.labels import read_labels
 from fmbrdf_mi.fit.api.find_materials import parse_auto
-from fmbrdf_mi.fit.outputs.single import (baseline_options, labels_of, model_entries, plot_fit, plot_relight,
-                                          relight_check, shown_pixels, write_common)
+from fmbrdf_mi.fit.outputs.single import ImageFits, model_entries
 from fmbrdf_mi.fit.outputs.writer import joint_outputs, prepare_outputs
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
-from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
 
 
 #: The keywords :func:`fit_images` takes besides its own: the joint record's options and :class:`FitOptions`'.
@@ -105,14 +101,15 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     ``fit_kw``: :class:`~fmbrdf_mi.fit.api.options.FitOptions` fields (loss,
     fixed, bounds, init, max_pixels, ...).  ``reproduce``: called with the
     observations, returns fit.json's ``reproduce`` block (the command's:
-    :func:`fmbrdf_mi.fit.outputs.record.joint_block`).  Returns the dict written to fit.json.
+    :func:`fmbrdf_mi.fit.outputs.record.joint_block`).  Returns the dict written to fit.json, with ``outputs``
+    (the files written) and ``wall_s`` besides.
     """
 
     return Joint(specs, out, model=model, baselines=baselines, force=force, progress=progress, command=command,
                  observations=observations, extra=extra, reproduce=reproduce, **fit_kw).run()
 
 
-class Joint(FitJob):
+class Joint(ImageFits):
     """:func:`fit_images` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob`."""
 
     def __init__(self, specs, out, *, model, baselines, observations, extra, reproduce, **kw):
@@ -162,12 +159,9 @@ class Joint(FitJob):
                             f"the camera noise from {o.meta.get('sidecar') or 'conversion_gain'}",
                             name=f"image {n}: the manifest's (or --footprint's) footprint")
         given = [given_power(s, o) for s, o, h in zip(specs, obs, holdout) if not h]
-        models = [model] + ([m for m in ("pplastic", "lambert_ts") if m != model] if self.baselines else [])
-        self.results = {}
-        for name in models:
-            o = opts if name == model else baseline_options(opts, name)
-            self.results[name] = fit_joint(fit_obs, o, names=fit_names, progress=self.progress, powers=given,
-                                           materials=self.labels)
+        self.fit_models(("pplastic", "lambert_ts") if self.baselines else (),
+                        lambda name, o: fit_joint(fit_obs, o, names=fit_names, progress=self.progress, powers=given,
+                                                  materials=self.labels))
 
     def report(self):
         specs, obs, model = self.specs, self.obs, self.model
@@ -193,20 +187,14 @@ class Joint(FitJob):
         return report
 
     def write(self, report):
-        out, model, results = self.out, self.model, self.results
-        main = results[model]
-        for n, o, h, idx in zip(self.names, self.obs, self.holdout, _pixels_of(main, self.holdout)):
+        results = self.results
+        for n, o, h, idx in zip(self.names, self.obs, self.holdout, _pixels_of(results[self.model], self.holdout)):
             if h:
-                report["relight"][n], relit = relight_check(results, o, model, self.opts.erode, self.labels)
-                plot_relight(o, relit, report["relight"][n][model], model, out, name=n)
-                continue
-            im = {m: next(x for x in r.images if x["name"] == n) for m, r in results.items()}
-            preds = {m: predict_image(m, r.params, fitted_observation(o, im[m]), maps=r.maps,
-                                      labels=labels_of(r, self.labels, o.shape)) for m, r in results.items()}
-            shown = shown_pixels(o, idx, self.opts, labels_of(main, self.labels, o.shape))
-            plot_fit(o, preds.pop(model), preds, shown, main.params, model, out, name=n,
-                     power="" if main.powers is None else "; " + power_text(im[model]))
-        write_common(results, model, self.labels, self.obs[0].shape, out, report)
+                report["relight"][n] = self.write_image(o, name=n, holdout=True)
+            else:
+                self.write_image(o, name=n, pixels=idx,
+                                 im={m: next(x for x in r.images if x["name"] == n) for m, r in results.items()})
+        self.write_common(report, self.obs[0].shape)
 
 
 def run_images(kind, specs, out, fit_kw, *, command, force=False, progress=True, manifest=None, authors=None,

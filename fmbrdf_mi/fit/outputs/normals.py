@@ -1,23 +1,11 @@
 """``fmbrdf-mi fit ... --refine-normals``: per-pixel normals and the material from K >= 3 images of one view.
 
-    fmbrdf-mi fit --authors OBJ --refine-normals -o out/                 # start: photometric stereo
-    fmbrdf-mi fit --manifest m.toml --refine-normals --normals-start sphere --smooth 0.3 -o out/
-
-The images of a joint fit (manifest, ``--authors``, or repeated ``--light``;
-held-out images are left out) must share one view.  From the start map
-(``ps``: Lambertian photometric stereo; ``sphere``: the sphere whose outline
-best fits the mask; or a (H, W, 3) ``.npy`` in this package's camera frame),
-a joint fit of the material on the start map and then the joint
-Levenberg-Marquardt on the material and the normals
-(:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`) with smoothness weight
-``--smooth`` (curvature prior), over the mask eroded by ``--erode`` (at
-least 1) less super-pixels with a clipped sample; ``--max-iter`` bounds its
-iterations per IRLS round.  Outputs in ``-o DIR``: ``normals.npy`` (H, W, 3, this
-package's camera frame: x image right, y image up, z towards the camera),
-``normals.png`` (the refined map, cropped to the object), ``normals_change.png``
-(start, refined, angle between them, and against the ground truth when the
-input has one: the authors' ``normal/normal_GT.npy``) and ``fit.json``
-(material with standard errors, angular errors, per-iteration history).
+From the start map (``ps``: photometric stereo; ``sphere``: the mask's sphere; or a (H, W, 3) ``.npy`` in this
+package's camera frame), a joint fit of the material on it, then the joint Levenberg-Marquardt on the material
+and the normals (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`, smoothness weight ``--smooth``) over the
+mask eroded by ``--erode`` (at least 1).  Writes ``normals.npy`` (H, W, 3: x image right, y image up, z towards
+the camera), ``normals.png``, ``normals_change.png`` (start, refined, their angle, and against the ground truth
+when the input has one) and ``fit.json``.
 """
 from __future__ import annotations
 
@@ -72,9 +60,7 @@ def _errors(n, gt, mask):
 
 
 class NormalRefinement(FitJob):
-    """Refine the normals of the non-held-out images and write the outputs (module docstring): a
-    :class:`~fmbrdf_mi.fit.outputs.job.FitJob` whose :meth:`run` returns the fit.json dict (the observations are
-    read by the caller)."""
+    """Refine the normals of the non-held-out images (the caller's observations ``obs``) and write the outputs."""
 
     def __init__(self, specs, names, obs, out, *, start, lam, model, fit_kw, ground_truth, **kw):
         super().__init__(out, **kw)

@@ -24,57 +24,26 @@ def _channel_stokes(values, cam):
     return mosaic.stokes_from_colour_mosaic(raw, cam.layout, cam.cfa)[:, :3]
 
 
-def colour_shown(obs_s, sel, dolp_min_intensity=0.02):
-    """Which cells :func:`plot_colour_fit`'s residual panels show, per channel: (3, 2, H, W) bool
-    (channel; intensity, DoLP).  Intensity: the fitted cells ``sel``; DoLP: of those, the ones whose
-    observed intensity in that channel exceeds ``dolp_min_intensity`` times its 99th percentile over
-    ``sel`` (the rule of the DoLP term, :class:`fmbrdf_mi.fit.objectives.loss.Target`: the DoLP of an
-    unlit cell is noise)."""
-    sel = np.asarray(sel, bool)
-    out = np.zeros((len(obs_s), 2) + sel.shape, bool)
-    for c, s in enumerate(obs_s):
-        i = np.asarray(s[0], dtype=np.float64)
-        ok = sel & np.all(np.isfinite(s), axis=0)
-        out[c, 0] = ok
-        if ok.any():
-            out[c, 1] = ok & (i > dolp_min_intensity * np.percentile(i[ok], 99))
-    return out
-
-
 def plot_colour_fit(smp, pred, sel, cam, path, title=""):
-    """Observed vs fitted intensity and DoLP per channel, cropped to the fitted periods; residuals beside,
-    shown on the cells :func:`colour_shown` selects (the object's other cells grey and hatched)."""
+    """Observed vs fitted intensity and DoLP per channel, cropped to the fitted periods ``sel``; residuals beside,
+    on the cells :func:`shown_pixels` selects in each channel (the object's other cells grey and hatched)."""
     plt = pyplot()
+    sel = np.asarray(sel, bool)
     obs_s = _channel_stokes(np.where(sel, smp.values, np.nan), cam)
     fit_s = _channel_stokes(pred, cam)
-    shown = colour_shown(obs_s, sel)
     rows, cols = np.nonzero(sel)
-    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    crop = slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1)
     fig, axes = plt.subplots(6, 3, figsize=(10, 17))
     for c, ch in enumerate(COLOURS):
+        shown = shown_pixels(obs_s[c], obs_s[c], sel, np.flatnonzero(sel))
         for q, (name, f) in enumerate((("intensity", lambda s: s[0]), ("DoLP", stokes_io.dolp))):
-            o = np.where(sel, f(obs_s[c]), np.nan)[r0:r1, c0:c1]
-            p = np.where(sel, f(fit_s[c]), np.nan)[r0:r1, c0:c1]
-            s = shown[c, q, r0:r1, c0:c1]
-            err = np.where(s, p - o, np.nan)
-            vmax = scale_from(o, s)
-            emax = scale_from(err, s)
-            row = 2 * c + q
-            for k, (img, t, kw) in enumerate(((o, f"{ch} observed {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
-                                              (p, f"{ch} fitted {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
-                                              (err, f"{ch} fitted - observed (hatched: not fitted)",
-                                               dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
-                im = axes[row, k].imshow(img, **kw)
-                if k == 2:
-                    _not_shown(axes[row, k], np.asarray(sel, bool)[r0:r1, c0:c1] & ~s)
-                axes[row, k].set_title(t, fontsize=9)
-                axes[row, k].axis("off")
-                fig.colorbar(im, ax=axes[row, k], fraction=0.046)
-    if title:
-        fig.suptitle(title, fontsize=8, wrap=True)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+            o = np.where(sel, f(obs_s[c]), np.nan)[crop]
+            p = np.where(sel, f(fit_s[c]), np.nan)[crop]
+            s = shown[name][crop]
+            compare_row(fig, axes[2 * c + q], o, p, np.where(s, p - o, np.nan), s, sel[crop] & ~s,
+                        (f"{ch} observed {name}", f"{ch} fitted {name}", f"{ch} fitted - observed (hatched: not fitted)"),
+                        fontsize=9)
+    save(fig, path, 90, title, fontsize=8, wrap=True)
 
 
 def pyplot():
@@ -84,6 +53,30 @@ def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def save(fig, path, dpi, title="", **kw):
+    """The figure titled ``title`` (``kw``: its keywords), laid out, written to ``path`` and closed."""
+    if title:
+        fig.suptitle(title, **kw)
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    pyplot().close(fig)
+
+
+def compare_row(fig, axes, o, p, err, shown, hidden, titles, fontsize):
+    """Observed ``o`` | predicted ``p`` | residual ``err`` on one row of ``axes``: the scales from the ``shown``
+    pixels' 99th percentile, the residual's ``hidden`` pixels grey and hatched."""
+    vmax, emax = scale_from(o, shown), scale_from(err, shown)
+    for c, (img, kw) in enumerate(((o, dict(vmin=0, vmax=vmax, cmap="gray")), (p, dict(vmin=0, vmax=vmax, cmap="gray")),
+                                   (err, dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
+        im = axes[c].imshow(img, **kw)
+        if c == 2 and hidden.any():
+            axes[c].contourf(hidden.astype(float), levels=[0.5, 1.5], colors=["0.8"], hatches=["////"],
+                             origin="upper", extent=(-0.5, hidden.shape[1] - 0.5, hidden.shape[0] - 0.5, -0.5))
+        axes[c].set_title(titles[c], fontsize=fontsize)
+        axes[c].axis("off")
+        fig.colorbar(im, ax=axes[c], fraction=0.046)
 
 
 def model_dolp(stokes, lin_variance=None):
@@ -148,11 +141,7 @@ def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_poi
     axes[0].set_title(f"DoLP RMSE {rmse_d:.4f}")
     axes[1].set_title(f"intensity RMSE / mean {rmse_i:.4f}")
     axes[1].legend(fontsize=7, loc="upper right")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save(fig, path, 120, title)
 
 
 def scale_from(values, sel, q=99.0, floor=1e-6):
@@ -219,13 +208,6 @@ def residuals(observed, predicted, mask, pixels=None, lin_variance=None, dolp_mi
     return {k: (np.where(shown[k], diff[k], np.nan), unit[k]) for k in diff}
 
 
-def _not_shown(ax, hidden):
-    """Grey, hatched, where a residual panel does not show the pixel (object pixels outside its set)."""
-    if hidden.any():
-        ax.contourf(hidden.astype(float), levels=[0.5, 1.5], colors=["0.8"], hatches=["////"],
-                    origin="upper", extent=(-0.5, hidden.shape[1] - 0.5, hidden.shape[0] - 0.5, -0.5))
-
-
 def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_variance=None, pixels=None):
     """Intensity and DoLP: observed | predicted | residual (``lin_variance``: see :func:`model_dolp`).
 
@@ -245,25 +227,10 @@ def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_v
     for r, (name, o, p) in enumerate(rows):
         err, unit = res[name]
         shown = np.isfinite(err)
-        o = np.where(m, o, np.nan)
-        p = np.where(m, p, np.nan)
-        vmax = scale_from(o, shown, 99.0)
-        emax = scale_from(err, shown, 99.0)
-        for c, (img, t, kw) in enumerate(((o, f"observed {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
-                                          (p, f"{label} {name}", dict(vmin=0, vmax=vmax, cmap="gray")),
-                                          (err, f"{label} - observed ({unit})\nhatched: not fitted",
-                                           dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
-            im = axes[r, c].imshow(img, **kw)
-            if c == 2:
-                _not_shown(axes[r, c], m & ~shown)
-            axes[r, c].set_title(t, fontsize=10)
-            axes[r, c].axis("off")
-            fig.colorbar(im, ax=axes[r, c], fraction=0.046)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+        compare_row(fig, axes[r], np.where(m, o, np.nan), np.where(m, p, np.nan), err, shown, m & ~shown,
+                    (f"observed {name}", f"{label} {name}", f"{label} - observed ({unit})\nhatched: not fitted"),
+                    fontsize=10)
+    save(fig, path, 110, title)
 
 
 def plot_loss_history(histories, path):
@@ -278,9 +245,7 @@ def plot_loss_history(histories, path):
     ax.grid(alpha=0.3)
     if any(histories.values()):
         ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path, 110)
 
 
 def plot_albedo_maps(maps, path, title=""):
@@ -331,11 +296,7 @@ def plot_albedo_maps(maps, path, title=""):
             ax.set_title(name)
             ax.axis("off")
             fig.colorbar(im, ax=ax, fraction=0.046)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path, 110, title)
 
 
 def plot_materials(labels, pixels, block, path, title=""):
@@ -369,6 +330,4 @@ def plot_materials(labels, pixels, block, path, title=""):
         handles.append(Patch(color=cmap(m % cmap.N), label=f"{m}: {block['pixels'][m]} px; {text}"))
     ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02), fontsize=7, frameon=False)
     ax.set_title(title or f"{M} materials (faint: labelled, not fitted; grey: no material)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path, 110)

@@ -7,11 +7,11 @@ Mitsuba, Dr.Jit, NumPy, Python), the options as resolved in ``arguments``
 the SHA-256 of every file the fit read in ``files_sha256``.
 
 * A single-image or colour fit (:func:`reproduce_block`): ``arguments`` are
-  :data:`ARGUMENTS` (colour: :data:`COLOUR_ARGUMENTS`); ``settings`` those
+  the options of its record (:func:`~fmbrdf_mi.fit.api.options.record_keys`); ``settings`` those
   the input implied (layout, levels, demosaicking, footprint, gain, read
   noise), ``sphere`` what ``--sphere auto`` found, ``sidecar`` the capture
   sidecar read.
-* A joint fit (:func:`joint_block`): ``arguments`` are :data:`FIT_KEYS`;
+* A joint fit (:func:`joint_block`): ``arguments`` are the joint record's options;
   ``joint`` says how the images were given (``kind`` ``manifest``,
   ``authors`` or ``lights``) and, per image, its name, input files with
   SHA-256, the light (camera frame), relative power, irradiance, held-out
@@ -30,16 +30,6 @@ import sys
 from fmbrdf_mi import __version__
 from fmbrdf_mi.fit.api.options import record_keys
 from fmbrdf_mi.sensor.camera import sidecar_path
-
-#: Arguments of fit_files that define a fit (not where it writes or how it talks): the schema's single-image
-#: record (:func:`fmbrdf_mi.fit.api.options.record_keys`).
-ARGUMENTS = record_keys("single")
-
-#: The arguments of :func:`fmbrdf_mi.fit.outputs.colour.fit_colour_files` (a colour fit's record).
-COLOUR_ARGUMENTS = record_keys("colour")
-
-#: fit_images keywords that define a joint fit (not where it writes or how it talks).
-FIT_KEYS = record_keys("joint")
 
 
 def sha256(path):
@@ -102,17 +92,9 @@ def command_block(command):
 def reproduce_block(arguments, command, meta):
     """The ``reproduce`` block of a single-image or colour fit (module docstring; ``meta``: the input's
     metadata); ``--from`` reruns it."""
-    files = single_files(arguments)
-    return {
-        "command": command,
-        "cwd": os.getcwd(),
-        "arguments": jsonable(arguments),
-        "files_sha256": {os.path.abspath(p): sha256(p) for p in files},
-        "settings": jsonable(meta.get("settings")),
-        "sphere": jsonable(meta.get("sphere")),
-        "sidecar": meta.get("sidecar"),
-        "versions": versions(),
-    }
+    return {"command": command, "cwd": os.getcwd(), "arguments": jsonable(arguments),
+            "files_sha256": _hashes(single_files(arguments)), "settings": jsonable(meta.get("settings")),
+            "sphere": jsonable(meta.get("sphere")), "sidecar": meta.get("sidecar"), "versions": versions()}
 
 
 #: read_object keywords recorded for an authors' object.
@@ -169,16 +151,10 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
     ``authors``: read_object's keywords for ``kind == "authors"`` with
     ``info`` its description of what it read.
     """
-    images, files = [], []
+    images = []
     if kind == "authors":
         root = info["root"]
         cal = os.path.join(root, "calibration")
-        files += [os.path.join(cal, f) for f in ("L.txt", "vpL_img.npy", "IntrinsicL.npy", "intensities.npy")]
-        files += [os.path.join(root, "normal", "normal_GT.npy"), _abs(info["mask"])]
-    if manifest is not None:
-        files.append(_abs(manifest))
-    if fit_kw.get("materials") is not None:      # the label image (several materials)
-        files.append(_abs(fit_kw["materials"]))
     for k, (s, n, o) in enumerate(zip(specs, names, observations)):
         if kind == "authors":
             inp = o.meta["authors_layout"]["file"]
@@ -194,7 +170,6 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
             power = s.power
         mine = _with_sidecar(inp)
         geo_files = [geo.get(x) for x in ("normals", "mask", "view") if isinstance(geo.get(x), str)]
-        files += mine + geo_files
         images.append({"name": n, "input": inp, "files_sha256": _hashes(mine + geo_files),
                        "light": [float(x) for x in o.light_dir], "power": float(power),
                        "irradiance": float(o.irradiance), "holdout": bool(s.holdout), "geometry": geo,
@@ -204,7 +179,9 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
         joint["manifest"] = _abs(manifest)
     if kind == "authors":
         joint["authors"] = {"root": info["root"], **authors}
-    arguments = {k: fit_kw.get(k) for k in FIT_KEYS if k in fit_kw}
+    # every file a rerun reads (read_files), the manifest and the label image
+    files = read_files(kind, specs, info) + [_abs(p) for p in (manifest, fit_kw.get("materials")) if p is not None]
+    arguments = {k: fit_kw.get(k) for k in record_keys("joint") if k in fit_kw}
     if arguments.get("materials") is not None:
         arguments["materials"] = _abs(arguments["materials"])
     return jsonable({"command": command, "cwd": os.getcwd(), "arguments": arguments,

@@ -1,14 +1,9 @@
 """``fmbrdf-mi fit --from fit.json -o DIR``: the one rerun of a recorded fit (single image, colour or joint).
 
-:func:`rerun` reads the ``reproduce`` block (:mod:`fmbrdf_mi.fit.outputs.record`),
-checks every recorded input's SHA-256 and refuses, in one line naming the
-file and the key, an input that changed or disappeared and a record that
-was edited into something the fit does not take; then it rebuilds the
-request (a single-image or colour fit: the recorded arguments with paths
-made absolute; a joint fit: the manifest's images with the options they
-resolved to, or an authors' object read again with the recorded options)
-and runs it with the recorded options: same data, same pixel subsets (same
-seed), same estimates.
+:func:`rerun` reads the ``reproduce`` block (:mod:`fmbrdf_mi.fit.outputs.record`), refuses in one line naming
+the file and the key an input that changed or disappeared and a record edited into something the fit does not
+take, rebuilds the request (one image: the recorded arguments, paths made absolute; several: the images with
+the options they resolved to, or an authors' object read again) and runs it with the recorded options.
 """
 from __future__ import annotations
 
@@ -22,19 +17,21 @@ from fmbrdf_mi.fit.inputs.manifest import (INPUT_KEYS, ImageSpec, check_entry, c
                                            check_options, image_names)
 from fmbrdf_mi.fit.outputs.colour import fit_colour_files
 from fmbrdf_mi.fit.outputs.joint import run_images
-from fmbrdf_mi.fit.outputs.record import (ARGUMENTS, AUTHORS_KEYS, COLOUR_ARGUMENTS, FILE_KEYS, FIT_KEYS, read_files,
-                                          sha256, single_files)
+from fmbrdf_mi.fit.api.options import record_keys
+from fmbrdf_mi.fit.outputs.record import AUTHORS_KEYS, FILE_KEYS, read_files, sha256, single_files
 from fmbrdf_mi.fit.outputs.single import fit_files
 
 
 def rerun(path, out, *, force=False, progress=True, command=None):
     """Rerun the fit recorded in ``path`` (a fit.json) into ``out``; returns the dict written to fit.json."""
     record, rep = load(path)
+    check_files(path, rep)
     if "joint" in rep:
         return joint_rerun(path, rep, out, force=force, progress=progress, command=command)
     colour = record.get("sensor") == "colour"
     run = fit_colour_files if colour else fit_files
-    return run(out=out, force=force, progress=progress, command=command, **single_arguments(path, rep, colour))
+    return run(out=out, force=force, progress=progress, command=command,
+               **single_arguments(path, rep, "colour" if colour else "single"))
 
 
 def load(path):
@@ -80,18 +77,23 @@ def check_recorded(path, rep, files):
                              "record cannot be verified for it")
 
 
-def single_arguments(path, rep, colour):
-    """fit_files (``colour``: fit_colour_files) arguments recorded in ``rep``, the ``reproduce`` block of
-    ``path``; checks that the input files are unchanged."""
-    args = dict(rep["arguments"])
-    valid = COLOUR_ARGUMENTS if colour else ARGUMENTS
-    if "inputs" not in args and "joint" not in rep:
-        raise InputError(f"--from {path}: reproduce has no 'joint' block (a joint fit) and no arguments.inputs "
-                         "(a single-image fit): the record is incomplete")
+def check_keys(path, args, kind):
+    """Refuse the recorded ``args`` that the ``kind`` of fit (``single``, ``colour``, ``joint``) does not take."""
+    valid = record_keys(kind)
     unknown = [k for k in args if k not in valid]
     if unknown:
         raise InputError(f"--from {path}: reproduce.arguments: unknown key(s) {', '.join(map(str, unknown))} "
-                         f"(valid: {', '.join(valid)})")
+                         f"(valid{' for a joint fit' if kind == 'joint' else ''}: {', '.join(valid)})")
+
+
+def single_arguments(path, rep, kind):
+    """fit_files (``kind`` ``colour``: fit_colour_files) arguments recorded in ``rep``, the ``reproduce`` block of
+    ``path``."""
+    args = dict(rep["arguments"])
+    if "inputs" not in args:
+        raise InputError(f"--from {path}: reproduce has no 'joint' block (a joint fit) and no arguments.inputs "
+                         "(a single-image fit): the record is incomplete")
+    check_keys(path, args, kind)
     bad = [k for k, v in args.items() if isinstance(v, dict) and "not_recorded" in v]
     if bad:
         raise InputError(f"--from {path}: arguments {', '.join(bad)} were arrays, not files; cannot rerun")
@@ -105,7 +107,6 @@ def single_arguments(path, rep, colour):
     cwd = rep.get("cwd")
     if cwd is not None and not isinstance(cwd, str):
         raise InputError(f"--from {path}: reproduce.cwd: expected the directory the fit ran in, got {cwd!r}")
-    check_files(path, rep)
     if parse_auto(args.get("materials")):     # --materials auto:M: found again, not a file
         auto = args.pop("materials")
     else:
@@ -141,12 +142,8 @@ def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
     joint = rep.get("joint")
     if not isinstance(joint, dict) or joint.get("kind") not in ("manifest", "authors", "lights"):
         raise InputError(f"--from {path}: not the record of a joint fit")
-    check_files(path, rep)
     fit_kw = dict(rep["arguments"])
-    unknown = [k for k in fit_kw if k not in FIT_KEYS]
-    if unknown:
-        raise InputError(f"--from {path}: reproduce.arguments: unknown key(s) {', '.join(map(str, unknown))} "
-                         f"(valid for a joint fit: {', '.join(FIT_KEYS)})")
+    check_keys(path, fit_kw, "joint")
     info = None
     try:
         if joint["kind"] == "authors":

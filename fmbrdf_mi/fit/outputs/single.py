@@ -26,77 +26,106 @@ from fmbrdf_mi.fit.outputs import plots, record
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.writer import MAP_OUTPUTS, MATERIAL_OUTPUTS
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
+from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
 
 OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stokes.exr")
 
 
-RELIGHT_OUTPUTS = ("relight.png",)
-
-
-#: ``materials="auto:M"`` (labels found by :func:`~fmbrdf_mi.fit.api.find_materials.find_materials`) also
-#: writes the labels it found (8-bit PNG, 255 not labelled: ``--materials labels.png`` reruns with them).
-FOUND_OUTPUTS = ("labels.png",)
-
-
 def output_files(out, relight, albedo="shared", materials=None):
-    names = OUTPUTS + (RELIGHT_OUTPUTS if relight else ()) + (MAP_OUTPUTS if albedo in PER_PIXEL_LAYOUTS else ()) \
-        + (MATERIAL_OUTPUTS if materials is not None else ()) + (FOUND_OUTPUTS if parse_auto(materials) else ())
+    """The files a fit of one image writes, by name; ``materials="auto:M"`` writes the labels it found too
+    (labels.png: 8-bit, 255 not labelled, so that ``--materials labels.png`` reruns with them)."""
+    names = OUTPUTS + (("relight.png",) if relight else ()) + (MAP_OUTPUTS if albedo in PER_PIXEL_LAYOUTS else ()) \
+        + (MATERIAL_OUTPUTS if materials is not None else ()) + (("labels.png",) if parse_auto(materials) else ())
     return {n: os.path.join(out, n) for n in names}
 
 
-def labels_of(res, labels, shape):
-    """The label image (on the fit's grid ``shape``) to predict a result ``res`` with: per material when the fit
-    had several, else None (one material's parameters are the model's own)."""
-    if labels is None or res.materials is None or res.materials["count"] < 2:
-        return None
-    return check_labels(labels, shape)
-
-
 def fit_files(inputs, out, *, force=False, progress=True, command=None, **options):
-    """Fit ``model`` (and with ``baselines`` the two baselines) to a polarimetric image; write the outputs.
+    """Fit ``model`` (with ``baselines``, the baselines too) to one polarimetric image and write the outputs.
 
-    ``options``: the single-image options of :data:`fmbrdf_mi.fit.api.options.OPTIONS` (the command line's,
-    names with underscores; those not given take their defaults, others are refused).
+    ``inputs``: a Stokes EXR, a raw mosaic (.npy / 16-bit .png / .tif), a (4, H, W) .npy of angle images or four
+    angle-image files (0, 45, 90, 135 degrees); an EXR written by ``fmbrdf-mi render`` (built-in sphere) brings
+    its own geometry, light and true parameters.  ``options``: the single-image options of
+    :data:`fmbrdf_mi.fit.api.options.OPTIONS` (the command line's, names with underscores, each described by its
+    help; those not given take their defaults, others are refused).
 
-    Inputs: ``inputs`` a Stokes EXR, a raw mosaic (.npy / 16-bit .png / .tif,
-    ``layout`` row-major 2x2 polariser angles, default IMX250MZR ``90,45,135,0``),
-    a (4, H, W) .npy of angle images or four angle-image files (0, 45, 90, 135).
-    Geometry: ``normals`` (.npy, H x W x 3, unit, camera frame) with ``mask``,
-    or ``sphere`` ``"cx,cy,r"`` (pixels) or ``"auto"`` (found from ``mask``);
-    view directions from ``view`` (.npy) or ``camera`` (``orthographic``, or
-    ``perspective`` with ``fov`` degrees).  ``light`` x,y,z towards the light.
-    An EXR written by ``fmbrdf-mi render`` (built-in sphere) brings its own
-    geometry, light and true parameters.  ``conversion_gain`` (electrons per
-    image unit) and ``read_noise`` (electrons): the DoLP term then compares the
-    observed DoLP with the mean DoLP a camera with that noise measures.
-    ``footprint``: ``point`` (pixel centres), ``box`` (3 x 3 over the pixel),
-    ``demosaic`` (the raw pixels a demosaicked super-pixel comes from) or
-    ``auto`` (the paper's loss).  ``area_points``: the likelihood models each
-    raw sample as the mean over that many points squared of its pixel (None: 2
-    for raw mosaics, 1 otherwise).  ``intervals``: ``auto``, ``profile`` or ``fisher``
-    (:class:`~fmbrdf_mi.fit.api.options.FitOptions`).  ``albedo``: ``shared`` (one k_s, r_k) or
-    ``per-pixel`` (albedo maps of a textured object, the likelihood only); ``albedo_smooth``: the maps'
-    smoothness prior (tau or (tau_s, tau_b); :class:`~fmbrdf_mi.fit.api.options.FitOptions`).
-    ``materials``: a label image (.png / .npy: :mod:`fmbrdf_mi.fit.inputs.labels`) giving each pixel's
-    material, each fitted with its own parameters (the likelihood only); writes materials.png.  ``relight``: a
-    second image of the same object under ``relight_light`` for the relighting check.
-
-    Writes ``out``/fit.json, profiles.png, images.png, history.png,
-    fitted_stokes.exr (and relight.png; per-pixel albedos: k_s.exr, k_b.exr, their standard errors
-    k_s_se.exr, k_b_se.exr and albedo_maps.png); refuses to overwrite them without
-    ``force``.  Returns the dict written to fit.json.
+    Writes ``out``/fit.json, profiles.png, images.png, history.png and fitted_stokes.exr (with ``relight``:
+    relight.png; per-pixel albedos: k_s.exr, k_b.exr, k_s_se.exr, k_b_se.exr, albedo_maps.png; ``materials``:
+    materials.png, and labels.png for ``auto:M``), refusing to overwrite them without ``force``.  Returns the dict
+    written to fit.json, with ``outputs`` (the files written) and ``wall_s`` besides.
     """
 
     arguments = arguments_of("single", dict(options, inputs=inputs), "fit_files()")
     return SingleImage(arguments, out, force=force, progress=progress, command=command).run()
 
 
-class SingleImage(FitJob):
+class ImageFits(FitJob):
+    """What a fit of one image and a joint fit of several share: the models fitted (``model`` and its baselines,
+    :meth:`fit_models`), each image's figures (:meth:`write_image`) and the figures of the whole fit
+    (:meth:`write_common`).  Subclasses set ``model``, ``opts``, ``labels`` and ``results``."""
+
+    def fit_models(self, baselines, solve):
+        """``results``: ``solve(name, options)`` for ``model`` and each baseline of ``baselines`` (the same loss
+        and data: :func:`baseline_options`)."""
+        names = [self.model] + [m for m in baselines if m != self.model]
+        self.results = {n: solve(n, self.opts if n == self.model else baseline_options(self.opts, n)) for n in names}
+
+    def write_image(self, o, name=None, pixels=None, holdout=False, im=None):
+        """The figures of one image ``o`` (``name``: one of a joint fit's, the files named after it): a held-out
+        image's relighting check (relight.png; returns each fit's errors), else profiles.png and images.png of
+        its fit on ``pixels`` (``im``: each fit's entry of the image in ``images``, its fitted light power;
+        returns ``model``'s prediction)."""
+        results, model, labels, out = self.results, self.model, self.labels, self.out
+        main = results[model]
+        if holdout:
+            errs, relit = {}, None
+            for n, res in results.items():
+                e = relight_error(n, res.params, o, erode=self.opts.erode, maps=res.maps,
+                                  labels=labels_of(res, labels, o.shape))
+                errs[n] = {k: v for k, v in e.items() if k != "predicted"}
+                relit = e["predicted"] if n == model else relit
+            title = (f"relighting with the {model} estimates: RMSE/mean = " if name is None
+                     else f"{name}: relit with the {model} estimates, RMSE/mean = ")
+            plots.plot_images(o.stokes, relit, o.mask, os.path.join(out, "relight.png" if name is None else
+                                                                    f"relight_{name}.png"),
+                              title=f"{title}{errs[model]['rel_rmse']:.4f}", label="relit",
+                              lin_variance=o.lin_variance)
+            return errs
+        preds = {n: predict_image(n, r.params, o if im is None else fitted_observation(o, im[n]), maps=r.maps,
+                                  labels=labels_of(r, labels, o.shape)) for n, r in results.items()}
+        pred = preds.pop(model)
+        power = "" if im is None or main.powers is None else "; " + power_text(im[model])
+        shown = shown_pixels(o, pixels, self.opts, labels_of(main, labels, o.shape))
+        tail = "" if name is None else f"_{name}"
+        plots.plot_profiles(o, pred, os.path.join(out, f"profiles{tail}.png"), pixels=shown,
+                            title=f"{model if name is None else name}: "
+                                  + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()) + power,
+                            others={f"{n} (baseline)": p for n, p in preds.items()})
+        plots.plot_images(o.stokes, pred, o.mask, os.path.join(out, f"images{tail}.png"),
+                          title=(f"{model} fit" if name is None else f"{name}: joint {model} fit")
+                                + f" (per-pixel re-render){power}", lin_variance=o.lin_variance, pixels=shown)
+        return pred
+
+    def write_common(self, report, shape):
+        """history.png, and ``model``'s albedo maps (:func:`write_maps`) and materials.png (the label map it used)
+        when it has them."""
+        results, model, out = self.results, self.model, self.out
+        plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
+        main = results[model]
+        write_maps(main, model, out, report)
+        if main.materials is not None:
+            pixels = main.pixels if not isinstance(main.pixels, list) else main.pixels[0]
+            plots.plot_materials(check_labels(self.labels, shape), pixels, main.materials,
+                                 os.path.join(out, "materials.png"),
+                                 title=f"{model}: {main.materials['count']} material(s) (faint: labelled, not fitted)")
+
+
+class SingleImage(ImageFits):
     """:func:`fit_files` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob` (``a``: its arguments by name)."""
 
     def __init__(self, arguments, out, **kw):
         super().__init__(out, **kw)
         self.a = dict(arguments)
+        self.model = self.a["model"]
 
     def check(self):
         a = self.a
@@ -126,8 +155,7 @@ class SingleImage(FitJob):
                 raise InputError(f"relight image: shape {self.obs2.shape} differs from the fitted image {obs.shape}")
 
     def fit(self):
-        a, obs = self.a, self.obs
-        model = a["model"]
+        a, obs, model = self.a, self.obs, self.model
         opts = fit_options(a, path="pixel", max_time=a["max_time"] or None)
         loss = resolve_loss(obs, dataclasses.replace(opts, path=a["path"]))
         check_resolved_loss(a, loss, "--loss likelihood" if a["loss"] == "likelihood" else
@@ -144,49 +172,39 @@ class SingleImage(FitJob):
         if self.auto:
             self.found = find_materials(obs, self.auto, opts, seed=int(a["seed"]), progress=self.progress)
             self.labels = self.found.labels
-        self.models = [model] + ([m for m in BASELINES if m != model] if a["baselines"] else [])
-        self.results, self.preds = {}, {}
-        for name in self.models:
-            o = opts if name == model else baseline_options(opts, name)
+
+        def solve(name, o):
             if self.found is not None and name == model and scene is None \
                     and o == dataclasses.replace(o, albedo="shared", intervals="fisher"):
-                res = self.found.fit    # find_materials' last fit: these labels and these options
-            else:
-                res = fit(obs, o, scene=scene if name == model else None, progress=self.progress,
-                          materials=self.labels)
-            self.results[name] = res
-            self.preds[name] = predict_image(name, res.params, obs, maps=res.maps,
-                                             labels=labels_of(res, self.labels, obs.shape))
+                return self.found.fit    # find_materials' last fit: these labels and these options
+            return fit(obs, o, scene=scene if name == model else None, progress=self.progress, materials=self.labels)
+
+        self.fit_models(BASELINES if a["baselines"] else (), solve)
 
     def report(self):
-        a, obs, model = self.a, self.obs, self.a["model"]
+        a, obs = self.a, self.obs
         inputs = a["inputs"]
         report = {"inputs": inputs if isinstance(inputs, str) else list(inputs), "truth": obs.meta.get("truth"),
                   "reproduce": record.reproduce_block(self.a, self.command, obs.meta),
-                  "models": model_entries(self.results, model, obs.meta.get("truth"))}
+                  "models": model_entries(self.results, self.model, obs.meta.get("truth"))}
         if self.found is not None:
             report["materials_found"] = dict(self.found.record, labels=self.outs["labels.png"])
         return report
 
     def write(self, report):
-        obs, obs2, model = self.obs, self.obs2, self.a["model"]
+        obs, obs2, model = self.obs, self.obs2, self.model
         if obs2 is not None:
-            errs, relit = relight_check(self.results, obs2, model, self.opts.erode, self.labels)
-            report["relight"] = {"light_dir": obs2.light_dir.tolist(), **errs}
-            plot_relight(obs2, relit, errs[model], model, self.out)
-        main, fitted = self.results[model], self.preds[model]
-        plot_fit(obs, fitted, {n: self.preds[n] for n in self.models[1:]},
-                 shown_pixels(obs, main.pixels, self.opts, labels_of(main, self.labels, obs.shape)), main.params,
-                 model, self.out)
+            report["relight"] = {"light_dir": obs2.light_dir.tolist(), **self.write_image(obs2, holdout=True)}
+        main = self.results[model]
+        fitted = self.write_image(obs, pixels=main.pixels)
         s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
         stokes_io.write_stokes_exr(self.outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
                                    force=True)
-        write_common(self.results, model, self.labels, obs.shape, self.out, report)
+        self.write_common(report, obs.shape)
         if self.found is not None:
             write_labels(self.outs["labels.png"], self.labels)
 
 
-# ---------------------------------------------------------------- what the one- and K-image writers share
 def model_entries(results, model, truth):
     """fit.json's ``models``: each fit's record, ``model``'s with its ``relative_error`` to the input's ``truth``
     (the parameters the input was rendered with) when there is one."""
@@ -206,24 +224,12 @@ def baseline_options(opts, name):
     return dataclasses.replace(opts, model=name, bounds=None, init=None, fixed=None, path="pixel")
 
 
-def relight_check(results, o, model, erode, labels):
-    """The relighting check on a held-out observation ``o``: (each fit's errors, ``model``'s prediction)."""
-    errs, relit = {}, None
-    for name, res in results.items():
-        e = relight_error(name, res.params, o, erode=erode, maps=res.maps, labels=labels_of(res, labels, o.shape))
-        errs[name] = {k: v for k, v in e.items() if k != "predicted"}
-        if name == model:
-            relit = e["predicted"]
-    return errs, relit
-
-
-def plot_relight(o, relit, err, model, out, name=None):
-    """relight.png (``name``: relight_NAME.png of a held-out image of a joint fit)."""
-    title = (f"relighting with the {model} estimates: RMSE/mean = " if name is None
-             else f"{name}: relit with the {model} estimates, RMSE/mean = ")
-    plots.plot_images(o.stokes, relit, o.mask, os.path.join(out, "relight.png" if name is None else
-                                                            f"relight_{name}.png"),
-                      title=f"{title}{err['rel_rmse']:.4f}", label="relit", lin_variance=o.lin_variance)
+def labels_of(res, labels, shape):
+    """The label image (on the fit's grid ``shape``) to predict a result ``res`` with: per material when the fit
+    had several, else None (one material's parameters are the model's own)."""
+    if labels is None or res.materials is None or res.materials["count"] < 2:
+        return None
+    return check_labels(labels, shape)
 
 
 def shown_pixels(o, pixels, opts, labels=None):
@@ -236,32 +242,6 @@ def shown_pixels(o, pixels, opts, labels=None):
     if labels is not None:
         every = every[np.asarray(labels).reshape(-1)[every] >= 0]
     return every if np.isin(pixels, every).all() else pixels
-
-
-def plot_fit(o, pred, others, pixels, params, model, out, name=None, power=""):
-    """profiles.png and images.png of a fitted image (``name``: profiles_NAME.png and images_NAME.png of one of a
-    joint fit's images, ``power`` its fitted light power): ``model``'s prediction ``pred`` and, in the profiles,
-    the baselines' (``others``)."""
-    tail = "" if name is None else f"_{name}"
-    plots.plot_profiles(o, pred, os.path.join(out, f"profiles{tail}.png"), pixels=pixels,
-                        title=f"{model if name is None else name}: "
-                              + ", ".join(f"{k}={v:.3g}" for k, v in params.items()) + power,
-                        others={f"{n} (baseline)": p for n, p in others.items()})
-    plots.plot_images(o.stokes, pred, o.mask, os.path.join(out, f"images{tail}.png"),
-                      title=(f"{model} fit" if name is None else f"{name}: joint {model} fit")
-                            + f" (per-pixel re-render){power}", lin_variance=o.lin_variance, pixels=pixels)
-
-
-def write_common(results, model, labels, shape, out, report):
-    """history.png, and ``model``'s albedo maps (:func:`write_maps`) and materials.png (the label map it used,
-    :func:`fmbrdf_mi.fit.outputs.plots.plot_materials`) when it has them."""
-    plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
-    main = results[model]
-    write_maps(main, model, out, report)
-    if main.materials is not None:
-        pixels = main.pixels if not isinstance(main.pixels, list) else main.pixels[0]
-        plots.plot_materials(check_labels(labels, shape), pixels, main.materials, os.path.join(out, "materials.png"),
-                             title=f"{model}: {main.materials['count']} material(s) (faint: labelled, not fitted)")
 
 
 def write_maps(res, model, out, report):

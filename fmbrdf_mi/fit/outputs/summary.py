@@ -2,11 +2,9 @@
 from __future__ import annotations
 
 import sys
-import time
 
 import numpy as np
 
-from fmbrdf_mi.fit.outputs.single import output_files
 from fmbrdf_mi.fit.problem.free_power import power_text
 from fmbrdf_mi.fit.uncertainty import WEAK_REL, misfit_text, noise_flagged
 
@@ -14,15 +12,31 @@ from fmbrdf_mi.fit.uncertainty import WEAK_REL, misfit_text, noise_flagged
 EXIT_NOT_CONVERGED = 3
 
 
-
 def kind_text(model_entry, name):
-    """`` (profile likelihood ...)`` after an interval that is not the Fisher one (uncertainty.profile_intervals,
-    uncertainty.widen_for_optima)."""
+    """`` (profile likelihood ...)`` after an interval that is not the Fisher one."""
     unc = model_entry.get("uncertainty") or {}
     kind = (unc.get("interval_kind") or {}).get(name, "fisher")
     if kind == "optima":
         return " (widened over another optimum)"
     return "" if kind == "fisher" else f" ({kind.replace('profile', 'profile likelihood')})"
+
+
+def param_line(name, value, std, ci, width=6, tail=""):
+    """``  name  value  +- se  95% [lo, hi]``: the interval where there is a standard error."""
+    line = f"  {name:<{width}} {value:10.5g}"
+    if std is not None:
+        line += f"  +- {std:.3g}  95% [{ci[0]:.5g}, {ci[1]:.5g}]{tail}"
+    return line
+
+
+def uncertainty_text(unc):
+    """The ``uncertainty:`` line of a model (its method, chi^2/dof) and its warnings."""
+    return (f"  uncertainty: {unc['method']}"
+            + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
+            + ("\n  warning: " + misfit_text(unc) if noise_flagged(unc) else "")
+            + ("\n  warning: " + unc["other_optima"]["warning"] if (unc.get("other_optima") or {}).get("warning")
+               else ""))
+
 
 def albedo_text(a):
     """One line on a per-pixel albedo fit's maps (fit.json's ``albedo`` block; a colour fit's: one more line per
@@ -47,6 +61,11 @@ def convergence_status(name, m):
     return EXIT_NOT_CONVERGED
 
 
+def wrote(report):
+    """The last line: the files written (the job's ``outputs``) and the run's wall time."""
+    print(f"wrote {', '.join(report['outputs'])} ({report['wall_s']:.1f} s)")
+
+
 def print_colour(report):
     """The stdout summary of a colour fit; returns the exit status (3: stopped before convergence)."""
     status = 0
@@ -61,18 +80,14 @@ def print_colour(report):
         for k, v in m["params"].items():
             if isinstance(v, dict):
                 for c, x in v.items():
-                    line = f"  {k + '[' + c + ']':<8} {x:10.5g}"
-                    if k in std:
-                        line += f"  +- {std[k][c]:.3g}  95% [{ci[k][c][0]:.5g}, {ci[k][c][1]:.5g}]"
+                    line = param_line(f"{k}[{c}]", x, std[k][c] if k in std else None, ci.get(k, {}).get(c), 8)
                     if isinstance(rel.get(k), dict) and c in rel[k]:
                         line += f"  (vs metadata {rel[k][c]:+.2%})"
                     print(line)
             else:
-                line = f"  {k:<8} {v:10.5g}"
-                if k in (m.get("fixed") or {}):
-                    line += "  (fixed)"
-                elif std.get(k) is not None:
-                    line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]{kind_text(m, k)}"
+                fixed = k in (m.get("fixed") or {})
+                line = param_line(k, v, None if fixed else std.get(k), ci.get(k), 8, kind_text(m, k))
+                line += "  (fixed)" if fixed else ""
                 if isinstance(rel.get(k), float):
                     line += f"  (vs metadata {rel[k]:+.2%})"
                 print(line)
@@ -94,26 +109,12 @@ def print_colour(report):
         for name, e in errs.items():
             print(f"relighting {img} ({name}): raw-sample RMSE / mean = {e['rel_rmse']:.4f} (R "
                   f"{e['rel_rmse_R']:.4f}, G {e['rel_rmse_G']:.4f}, B {e['rel_rmse_B']:.4f})")
-    print(f"wrote {', '.join(report['outputs'])} ({report['wall_s']:.1f} s)")
+    wrote(report)
     return status
 
 
-def print_joint(report):
-    for name, m in report["models"].items():
-        for im in m.get("images", []):
-            line = f"  {im['name']}: {im['n_pixels']} px, light {np.round(im['light_dir'], 3).tolist()}"
-            if im.get("chi2_per_dof") is not None:
-                line += f", chi2/dof {im['chi2_per_dof']:.3f}"
-            line += f", intensity RMSE/mean {im['intensity_rel_rmse']:.4f}"
-            if im.get("power") is not None:
-                line += ", " + power_text(im)
-            print(f"{name}{line}" if len(report["models"]) > 1 else line)
-    for img, errs in report.get("relight", {}).items():
-        for name, e in errs.items():
-            print(f"relighting {img} ({name}): RMSE / mean intensity = {e['rel_rmse']:.4f}")
-
-
-def print_report(report):
+def print_normals(report):
+    """The stdout summary of a normal refinement; returns the exit status."""
     rn = report["refine_normals"]
     for name, mdl in report["models"].items():
         unc = mdl.get("uncertainty") or {}
@@ -122,18 +123,13 @@ def print_report(report):
               f", {rn['pixels']} pixels, start {rn['start']}, smoothness {rn['smooth']:g}"
               + (f" (material at {rn['material_stage']['lam']:g})" if rn.get("material_stage") else ""))
         for k, v in mdl["params"].items():
-            line = f"  {k:<6} {v:10.5g}"
-            if k in std:
-                line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]"
-            print(line)
+            print(param_line(k, v, std.get(k), ci.get(k)))
         if mdl.get("uncertainty_uncalibrated"):
             print("  no standard errors: " + mdl["uncertainty_uncalibrated"].get("warning", "not calibrated")
                   + " (fit.json: uncertainty_uncalibrated; docs: how-to 'Fit several images of one object', "
                   "Normal refinement)")
         if unc.get("method"):
-            print(f"  uncertainty: {unc['method']}"
-                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
-                  + ("\n  warning: " + misfit_text(unc) if noise_flagged(unc) else ""))
+            print(uncertainty_text(unc))
     ch = rn["angle_change"]
     print(f"  normals moved from the start by {ch['mean']:.2f} deg mean, {ch['median']:.2f} deg median")
     ae = rn.get("angular_error")
@@ -141,18 +137,18 @@ def print_report(report):
         b, a = ae["before"], ae["after"]
         print(f"  angle to the ground truth: before {b['mean']:.2f} / {b['median']:.2f} deg, after "
               f"{a['mean']:.2f} / {a['median']:.2f} deg (mean / median, {a['pixels']} pixels)")
+    wrote(report)
+    return 0 if rn["converged"] else EXIT_NOT_CONVERGED
 
 
-def print_summary(report, out, t0):
-    """The stdout summary of any fit's report (single image, joint, colour, normal refinement); returns the exit
-    status: 0, or :data:`EXIT_NOT_CONVERGED` when a fit stopped before it converged."""
+def print_summary(report):
+    """The stdout summary of any fit's report (single image, joint, colour, normal refinement: what
+    :meth:`~fmbrdf_mi.fit.outputs.job.FitJob.run` returns); returns the exit status: 0, or
+    :data:`EXIT_NOT_CONVERGED` when a fit stopped before it converged."""
     if report.get("sensor") == "colour":
         return print_colour(report)
     if report.get("refine_normals"):
-        print_report(report)
-        print(f"wrote {', '.join(report['refine_normals']['outputs'])} ({time.time() - t0:.1f} s)")
-        return 0 if report["refine_normals"]["converged"] else EXIT_NOT_CONVERGED
-
+        return print_normals(report)
     status = 0
     for name, m in report["models"].items():
         unc = m.get("uncertainty") or {}
@@ -166,18 +162,12 @@ def print_summary(report, out, t0):
                   f"{ex['candidates']}; fitted {ex['used']}")
         std, ci = unc.get("std_errors", {}), unc.get("ci95", {})
         for k, v in m["params"].items():
-            line = f"  {k:<6} {v:10.5g}"
-            if k in std:
-                line += f"  +- {std[k]:.3g}  95% [{ci[k][0]:.5g}, {ci[k][1]:.5g}]{kind_text(m, k)}"
+            line = param_line(k, v, std.get(k), ci.get(k), tail=kind_text(m, k))
             if "relative_error" in m and k in m["relative_error"]:
                 line += f"  (vs metadata {m['relative_error'][k]:+.2%})"
             print(line)
         if unc.get("method"):
-            print(f"  uncertainty: {unc['method']}"
-                  + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
-                  + ("\n  warning: " + misfit_text(unc) if noise_flagged(unc) else "")
-                  + ("\n  warning: " + unc["other_optima"]["warning"]
-                     if (unc.get("other_optima") or {}).get("warning") else ""))
+            print(uncertainty_text(unc))
         if unc.get("correlation"):
             c = unc["correlation"]
             big = [(c["names"][i], c["names"][j], c["matrix"][i][j]) for i in range(len(c["names"]))
@@ -194,15 +184,20 @@ def print_summary(report, out, t0):
             print(f"  {b['count']} material(s), fitted pixels " + ", ".join(f"{k}: {n}" for k, n in enumerate(b["pixels"]))
                   + ("; parameter[m] is material m's" if b["count"] > 1 else ""))
         status = max(status, convergence_status(name, m))
-    if report.get("joint"):
-        print_joint(report)
-        print(f"wrote {', '.join(report['joint']['outputs'])} ({time.time() - t0:.1f} s)")
-        return status
-    if "relight" in report:
-        for name, r in report["relight"].items():
-            if isinstance(r, dict):
-                print(f"relighting {name}: RMSE / mean intensity = {r['rel_rmse']:.4f}")
-    args = report.get("reproduce", {}).get("arguments", {})
-    print(f"wrote {', '.join(output_files(out, args.get('relight'), args.get('albedo', 'shared'), args.get('materials')))} "
-          f"({time.time() - t0:.1f} s)")
+    for name, m in report["models"].items() if report.get("joint") else ():
+        for im in m.get("images", []):
+            line = f"  {im['name']}: {im['n_pixels']} px, light {np.round(im['light_dir'], 3).tolist()}"
+            if im.get("chi2_per_dof") is not None:
+                line += f", chi2/dof {im['chi2_per_dof']:.3f}"
+            line += f", intensity RMSE/mean {im['intensity_rel_rmse']:.4f}"
+            if im.get("power") is not None:
+                line += ", " + power_text(im)
+            print(f"{name}{line}" if len(report["models"]) > 1 else line)
+    for img, errs in (report.get("relight") or {}).items():
+        if report.get("joint"):
+            for name, e in errs.items():
+                print(f"relighting {img} ({name}): RMSE / mean intensity = {e['rel_rmse']:.4f}")
+        elif isinstance(errs, dict):
+            print(f"relighting {img}: RMSE / mean intensity = {errs['rel_rmse']:.4f}")
+    wrote(report)
     return status
