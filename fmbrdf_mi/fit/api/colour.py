@@ -26,7 +26,7 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
-from fmbrdf_mi.fit.problem.data import RAW_AREA_POINTS, prepare
+from fmbrdf_mi.fit.problem.data import prepare
 from fmbrdf_mi.sensor.mosaic import COLOURS
 from fmbrdf_mi.sensor.noise import NoiseModel
 
@@ -79,24 +79,15 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     return res
 
 
-def used_area_points(res):
-    """m of the m x m points per raw pixel a colour fit ``res`` modelled its samples with: the refined
-    quadrature's (fit.json ``uncertainty.quadrature``), else the one asked for, else :data:`RAW_AREA_POINTS`."""
-    q = (res.uncertainty or {}).get("quadrature") or {}
-    m = q.get("area_points", (res.options or {}).get("area_points"))
-    return int(RAW_AREA_POINTS if m is None else m)
-
-
 def predict_samples(obs, samples, res):
-    """The fitted model's 16 samples (16, H, W) per period (image units, NaN outside mask & usable, and for
-    a per-pixel albedo fit where its maps have no value: periods it did not fit)."""
-
+    """The fitted model's 16 samples (16, H, W) per period of a mosaic of the fitted object (image units, each
+    at the fit's pixel-area quadrature; NaN outside mask & usable and, for albedo maps, off the fitted periods)."""
     m = get_model(res["model"])
     idx = np.flatnonzero((obs.mask & samples.usable).ravel())
     out = np.full(samples.values.shape, np.nan)
     if len(idx) == 0:
         return out
-    n, v, w = obs.sample_geometry(idx, footprint=samples.footprint(used_area_points(res)))
+    n, v, w = obs.sample_geometry(idx, footprint=samples.footprint(res.fitted.data.area_points))
     p = PixelEvaluator(m, n, v, obs.light_dir, obs.irradiance,
                        weights=None if len(w) == 1 else w).parts(res["internal"]["shape"], ())
     A, n = samples.analyser(), len(idx)

@@ -123,8 +123,9 @@ class ColourFit(FitJob):
             specs, arguments, extra, reproduce, model, erode, kw)
 
     def check(self):
-        get_model(self.model)
-        if self.specs is None:
+        if self.specs is not None:
+            get_model(self.model)
+        else:
             inputs = self.a["inputs"]
             self.path = os.fspath(inputs[0] if isinstance(inputs, (list, tuple)) else inputs)
             if colour_sidecar(self.path) is None:
