@@ -1,4 +1,4 @@
-"""Joint fits of several colour polarisation mosaics (fit/colour_joint.py, fit_colour with lists)."""
+"""Joint fits of several colour polarisation mosaics (fit/outputs/colour.py, fit_colour with lists)."""
 import json
 
 import numpy as np
@@ -133,7 +133,7 @@ def test_colour_joint_fit_takes_the_albedo_layouts(tmp_path):
     import pytest
 
     from fmbrdf_mi.fit.errors import InputError
-    from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
+    from fmbrdf_mi.fit.outputs.colour import fit_colour_images
 
     with pytest.raises(InputError, match=r"albedo 'per-channel' \(--albedo; expected 'shared' or 'per-pixel'\)"):
         fit_colour_images([], str(tmp_path / "out"), albedo="per-channel")

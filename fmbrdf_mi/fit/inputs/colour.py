@@ -1,7 +1,7 @@
 """Colour polarisation mosaics read for a fit: sidecar, geometry on the 4x4-period grid, samples."""
 from __future__ import annotations
 
-import math
+import collections
 import os
 
 import numpy as np
@@ -9,7 +9,9 @@ import numpy as np
 from fmbrdf_mi import scene as S
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs import observations as ob
+from fmbrdf_mi.fit.inputs.files import builtin_sphere_geometry
 from fmbrdf_mi.fit.inputs.manifest import file_stem
+from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS
 from fmbrdf_mi.fit.inputs.parse import check_render_parameters, parse_vector
 from fmbrdf_mi.sensor import camera as C
 from fmbrdf_mi.sensor.noise import NoiseModel
@@ -86,14 +88,12 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
         if (h, w) != (4 * shape[0], 4 * shape[1]):
             raise InputError(f"{side['path']}: describes a {w}x{h} render, the mosaic is "
                              f"{4 * shape[1]}x{4 * shape[0]}")
-        if params["camera"] == "orthographic":
-            # the built-in scene: unit sphere at the origin, image half-width distance * tan(fov / 2)
-            r = w / 2 / (params["distance"] * math.tan(math.radians(params["fov"]) / 2)) / 4
-            centre = (shape[1] / 2, shape[0] / 2)
-            n, m, v = ob.sphere_normals(shape, centre, r)
-            meta["sphere"] = {"centre": list(centre), "radius": r, "from": "sidecar (built-in sphere)",
-                              "units": "4x4 periods"}
-            return n, m, v, ob.SphereGeometry(shape, centre, r), meta
+        if params["camera"] == "orthographic":   # the built-in scene's unit sphere, exact
+            exact = builtin_sphere_geometry(params, shape)
+            n, m, v = ob.sphere_normals(shape, exact.centre, exact.radius)
+            meta["sphere"] = {"centre": list(exact.centre), "radius": exact.radius,
+                              "from": "sidecar (built-in sphere)", "units": "4x4 periods"}
+            return n, m, v, exact, meta
         n, v, m = S.sphere_geometry((w, h), camera=params["camera"], fov=params["fov"],
                                     distance=params["distance"])
         n, m, v = _pool4(n, m, v)
@@ -102,11 +102,8 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
                      "4x4 periods, or --sphere auto --mask M.png)")
 
 
-class ColourInput:
-    """One colour mosaic read for a fit: its Observation on the period grid, samples, camera, noise and metadata."""
-
-    def __init__(self, obs, samples, camera, noise, truth, side):
-        self.obs, self.samples, self.camera, self.noise, self.truth, self.side = obs, samples, camera, noise, truth, side
+#: One colour mosaic read for a fit: its Observation on the period grid, samples, camera, noise and metadata.
+ColourInput = collections.namedtuple("ColourInput", "obs samples camera noise truth side")
 
 
 def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic", fov=None,
@@ -163,13 +160,11 @@ def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, 
     return ColourInput(obs, smp, cam, NoiseModel(gain, rn, 1.0), truth, side)
 
 
-#: Manifest / command-line options a colour image may take (read_colour_input's).
-COLOUR_KEYS = ("normals", "mask", "view", "sphere", "camera", "fov", "irradiance", "black_level", "white_level",
-               "conversion_gain", "read_noise")
+#: The image options a colour mosaic takes (read_colour_input's keywords; the schema's colour record's).
+COLOUR_KEYS = tuple(o.name for o in IMAGE_OPTIONS if "colour" in o.records)
 
-
-#: Mono-only options at the values that mean "not given" (the command's defaults): ignored for colour mosaics.
-_UNSET = {"channel": "mean", "demosaic": "bilinear", "footprint": "auto", "layout": None, "dark_level": None}
+#: The other image options at their defaults ("not given"): ignored for colour mosaics.
+_UNSET = {o.name: o.default for o in IMAGE_OPTIONS if "colour" not in o.records}
 
 
 def is_colour(specs):

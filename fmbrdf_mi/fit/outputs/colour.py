@@ -1,140 +1,204 @@
-"""``fmbrdf-mi fit RAW`` on a colour polarisation mosaic (a capture sidecar with ``"cfa"``).
+"""``fmbrdf-mi fit`` on colour polarisation mosaics (capture sidecars with ``"cfa"``): one, or several of one object.
 
-:func:`fit_colour_files` reads the mosaic and its sidecar, builds the geometry
-on the grid of 4x4 periods (the mono path's 2x2 super-pixels, one level
-coarser), fits shared eta, alpha, beta, kappa with per-channel k_s, r_k by
-:func:`fmbrdf_mi.fit.api.colour.fit_colour` and writes ``fit.json`` and
-``colour_fit.png`` (with ``albedo="per-pixel"``: the albedo maps per period and
-colour channel too, k_s.exr, k_b.exr, k_s_se.exr, k_b_se.exr with channels
-R, G, B, and albedo_maps.png); :func:`print_colour` is the stdout summary.
+:func:`fit_colour_files` fits one mosaic, :func:`fit_colour_images` several (``--manifest`` / repeated
+``--light``: each its own light, power and geometry, one camera; held-out images are relit with the estimates),
+both by :func:`fmbrdf_mi.fit.api.colour.fit_colour` (shared eta, alpha, beta, kappa; per-channel k_s, r_k, or
+with ``albedo="per-pixel"`` maps per period and channel) as one :class:`ColourFit` job.
 
-Geometry: ``--sphere cx,cy,r`` (period units: pixel centres at +0.5 periods)
-or ``--sphere auto --mask M``, or ``--normals N --mask M``; maps at the raw
-mosaic's resolution are pooled over each 4x4 period (mean normal, mask = all
-16 pixels), maps at the period resolution are taken as they are.  Without
-either, a sidecar written by ``fmbrdf-mi render --raw --sensor colour``
-(built-in sphere) gives the scene's own sphere, light and irradiance.
+Outputs: ``fit.json`` (a joint fit's with per image its light, power, irradiance and chi^2 per raw sample, the
+relighting errors and the ``reproduce`` block of :func:`fmbrdf_mi.fit.outputs.record.joint_block`),
+``colour_fit.png`` (joint: ``colour_fit_NAME.png`` per fitted image, ``relight_NAME.png`` per held-out one:
+observed, predicted and their difference in intensity and DoLP per channel) and with per-pixel albedos the maps
+(k_s.exr, k_b.exr, k_s_se.exr, k_b_se.exr with channels R, G, B; albedo_maps.png).
+
+Geometry: ``--sphere cx,cy,r`` (period units: pixel centres at +0.5 periods) or ``--sphere auto --mask M``, or
+``--normals N --mask M`` (maps of the raw mosaic are pooled over each 4x4 period); without either, a sidecar of
+``fmbrdf-mi render --raw --sensor colour`` (built-in sphere) gives the scene's sphere, light and irradiance.
 """
 from __future__ import annotations
 
 import os
-import time
+
+import numpy as np
 
 from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
 from fmbrdf_mi.fit.api.options import arguments as arguments_of
 from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.colour import colour_sidecar, read_colour_input
+from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.inputs.colour import COLOUR_KEYS, colour_sidecar, read_colour_input, read_colour_inputs
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed
 from fmbrdf_mi.fit.outputs import record
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
 from fmbrdf_mi.fit.outputs.single import write_maps
-from fmbrdf_mi.fit.outputs.writer import MAP_OUTPUTS
+from fmbrdf_mi.fit.outputs.writer import MAP_OUTPUTS, prepare_outputs
+from fmbrdf_mi.sensor.mosaic import COLOURS
 
 OUTPUTS = ("fit.json", "colour_fit.png")
 
+#: The keywords of :func:`~fmbrdf_mi.fit.api.colour.fit_colour` the command sets.
+FIT_KEYS = ("fixed", "bounds", "max_pixels", "seed", "max_time", "max_iter", "starts", "intervals", "albedo")
+
 
 def output_names(albedo="shared"):
-    """The files a colour fit writes (``albedo="per-pixel"``: the maps too)."""
+    """The files a colour fit of one mosaic writes (``albedo="per-pixel"``: the maps too)."""
     return OUTPUTS + (MAP_OUTPUTS if albedo == "per-pixel" else ())
 
 
-def model_entry(model, res, bounds, fixed, truth):
-    """fit.json's ``models[model]`` of a :func:`~fmbrdf_mi.fit.api.colour.fit_colour` result (intervals, errors)."""
-    std = res["std_errors"]
+def model_entry(res, truth, fixed):
+    """fit.json's ``models[model]`` of a :func:`~fmbrdf_mi.fit.api.colour.fit_colour` result, with its
+    ``relative_error`` to the input's ``truth`` when there is one."""
     entry = {k: res[k] for k in ("model", "params", "std_errors", "chi2", "chi2_per_dof", "n_pixels", "n_samples",
                                  "noise", "evaluations", "time_s", "channels", "converged", "stop_reason")}
     unc = res.uncertainty or {}
-    entry["ci95"] = None if std is None else unc.get("ci95")
+    entry["ci95"] = None if res.std_errors is None else unc.get("ci95")
     entry["uncertainty"] = {k: v for k, v in unc.items() if k not in ("std_errors", "ci95")}
     entry["weakly_identified"] = res.weakly_identified
     entry["fixed"] = fixed or {}
-    if getattr(res, "albedo", None) is not None:      # per-pixel albedos: the maps' summary (per channel)
+    if res.albedo is not None:
         entry["albedo"] = res.albedo
     if truth:
         rel = {}
         for k, t in truth.items():
-            val = res["params"].get(k)
+            val = res.params.get(k)
             if isinstance(val, dict):
                 tt = t if isinstance(t, (list, tuple)) else [t] * 3
-                rel[k] = {c: (val[c] - tt[i]) / tt[i] for i, c in enumerate(res["channels"]) if tt[i]}
+                rel[k] = {c: (val[c] - tt[i]) / tt[i] for i, c in enumerate(res.channels) if tt[i]}
             elif val is not None and not isinstance(t, (list, tuple)) and t:
                 rel[k] = (val - t) / t
         entry["relative_error"] = rel
     return entry
 
 
+def sample_rmse(smp, pred, sel):
+    """RMSE / mean of the raw samples in ``sel`` with a prediction (all, and per colour channel)."""
+    sel = sel & np.all(np.isfinite(pred), axis=0)
+    o, p = smp.values[:, sel], pred[:, sel]
+    out = {"rel_rmse": float(np.sqrt(np.mean((p - o) ** 2)) / np.mean(o)), "n_periods": int(sel.sum())}
+    for c, name in enumerate(COLOURS):
+        m = np.asarray(smp.channel) == c
+        out[f"rel_rmse_{name}"] = float(np.sqrt(np.mean((p[m] - o[m]) ** 2)) / np.mean(o[m]))
+    return out
+
+
 def fit_colour_files(inputs, out, *, force=False, progress=True, command=None, **options):
-    """Fit a colour polarisation mosaic (module docstring); write ``out``/fit.json and colour_fit.png.
-
-    Returns the dict written to fit.json (``models[model]``: params with
-    per-channel k_s and r_k, std_errors, ci95, converged, stop_reason ...).
-    ``albedo="per-pixel"``: k_s and k_b per period and channel (maps; ``models[model]["albedo"]``
-    their summary), the shape parameters shared.  ``options``: the colour record's options of
-    :data:`fmbrdf_mi.fit.api.options.OPTIONS` (those not given take their defaults, others are refused).
-    """
-    arguments = arguments_of("colour", dict(options, inputs=inputs), "fit_colour_files()")
-    return Colour(arguments, out, force=force, progress=progress, command=command).run()
+    """Fit one colour mosaic (module docstring); returns the dict written to fit.json.  ``options``: the colour
+    record's options of :data:`fmbrdf_mi.fit.api.options.OPTIONS` (those not given take their defaults)."""
+    a = arguments_of("colour", dict(options, inputs=inputs), "fit_colour_files()")
+    return ColourFit(None, out, force=force, progress=progress, command=command, arguments=a, model=a["model"],
+                     erode=a["erode"], **{k: a[k] for k in FIT_KEYS}).run()
 
 
-class Colour(FitJob):
-    """:func:`fit_colour_files` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob` (``a``: its arguments by name)."""
+def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True, command=None, extra=None,
+                      reproduce=None, baselines=False, loss="auto", init=None, fixed=None, bounds=None, starts=2,
+                      max_iter=40, max_time=None, max_pixels=None, erode=2, seed=0, tol=None, time_limit=None,
+                      free_power=False, power_start=None, intervals="auto", albedo="shared"):
+    """Joint colour fit of the non-held-out images of ``specs`` (colour mosaics; module docstring); returns the
+    dict written to fit.json.  Keywords as :func:`~fmbrdf_mi.fit.outputs.joint.fit_images`'s; ``baselines``,
+    ``init``, ``free_power`` and losses other than the likelihood are refused; ``tol``, ``time_limit`` do not
+    apply."""
+    refused = [f for f, on in (("baselines", baselines), ("init", init), ("free_power (--free-power)", free_power),
+                               (f"loss {loss}", loss not in ("auto", "likelihood", None)),
+                               (f"albedo {albedo!r} (--albedo; expected 'shared' or 'per-pixel')",
+                                albedo not in ("shared", "per-pixel"))) if on]
+    if refused:
+        raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
+                         "of the raw samples)")
+    return ColourFit(specs, out, force=force, progress=progress, command=command, extra=extra, reproduce=reproduce,
+                     model=model, fixed=fixed, bounds=bounds, starts=starts, max_iter=max_iter, max_time=max_time,
+                     max_pixels=max_pixels, erode=erode, seed=seed, intervals=intervals, albedo=albedo).run()
 
-    def __init__(self, arguments, out, **kw):
-        super().__init__(out, **kw)
-        self.a = dict(arguments)
-        inputs = self.a["inputs"]
-        self.path = os.fspath(inputs[0] if isinstance(inputs, (list, tuple)) else inputs)
+
+class ColourFit(FitJob):
+    """A colour fit as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob`: of one mosaic (``specs`` None, ``arguments``
+    :func:`fit_colour_files`') or of the images ``specs``; ``kw``: :func:`~fmbrdf_mi.fit.api.colour.fit_colour`'s
+    keywords."""
+
+    def __init__(self, specs, out, *, force, progress, command, model, erode, arguments=None, extra=None,
+                 reproduce=None, **kw):
+        super().__init__(out, force=force, progress=progress, command=command)
+        self.specs, self.a, self.extra, self.reproduce, self.model, self.erode, self.kw = (
+            specs, arguments, extra, reproduce, model, erode, kw)
 
     def check(self):
-        if colour_sidecar(self.path) is None:
-            raise InputError(f"{self.path}: no colour capture sidecar ({os.path.splitext(self.path)[0]}.json "
-                             "with \"cfa\")")
-        check_input_options(**self.a)
-        check_fit_options(**self.a)
-        self.bounds, self.fixed = parse_bounds(self.a["bounds"]), parse_fixed(self.a["fixed"])
+        if self.specs is not None:
+            get_model(self.model)
+        else:
+            inputs = self.a["inputs"]
+            self.path = os.fspath(inputs[0] if isinstance(inputs, (list, tuple)) else inputs)
+            if colour_sidecar(self.path) is None:
+                raise InputError(f"{self.path}: no colour capture sidecar ({os.path.splitext(self.path)[0]}.json "
+                                 "with \"cfa\")")
+            check_input_options(**self.a)
+            check_fit_options(**self.a)
+            self.kw.update(bounds=parse_bounds(self.a["bounds"]), fixed=parse_fixed(self.a["fixed"]))
 
     def files(self):
-        self.outs = {n: os.path.join(self.out, n) for n in output_names(self.a["albedo"])}
-        return list(self.outs.values())
+        if self.specs is None:
+            self.names, self.holdout = [None], [False]
+            return [os.path.join(self.out, n) for n in output_names(self.kw["albedo"])]
+        self.names, self.holdout, files = prepare_outputs(self.specs, self.out, self.force, self.kw["albedo"],
+                                                          colour=True)
+        return files
 
     def read(self):
+        if self.specs is not None:
+            self.inputs = read_colour_inputs(self.specs, self.erode)
+            return
         a = self.a
-        self.ci = ci = read_colour_input(
-            self.path, normals=a["normals"], mask=a["mask"], view=a["view"], sphere=a["sphere"], camera=a["camera"],
-            fov=a["fov"], light=a["light"], irradiance=a["irradiance"], black_level=a["black_level"],
-            white_level=a["white_level"], conversion_gain=a["conversion_gain"], read_noise=a["read_noise"],
-            erode=a["erode"])
+        c = read_colour_input(self.path, light=a["light"], erode=self.erode, **{k: a[k] for k in COLOUR_KEYS})
+        self.inputs = [c]
         if self.progress:
-            obs, smp = ci.obs, ci.samples
-            print(f"colour fit of {self.path}: {obs.shape[1]}x{obs.shape[0]} periods, "
-                  f"{int((obs.mask & smp.usable).sum())} usable in the mask (eroded by {a['erode']}), "
-                  f"cfa {''.join(c for r in ci.camera.cfa for c in r)}", flush=True)
+            print(f"colour fit of {self.path}: {c.obs.shape[1]}x{c.obs.shape[0]} periods, "
+                  f"{int((c.obs.mask & c.samples.usable).sum())} usable in the mask (eroded by {self.erode}), "
+                  f"cfa {''.join(x for r in c.camera.cfa for x in r)}", flush=True)
 
     def fit(self):
-        a, ci = self.a, self.ci
-        say = (lambda s: print(s, flush=True)) if self.progress else None
-        self.res = fit_colour(ci.obs, ci.samples, ci.noise, model=a["model"], fixed=self.fixed, bounds=self.bounds,
-                              max_pixels=a["max_pixels"] or None, seed=a["seed"], progress=say,
-                              max_time=a["max_time"], max_iter=a["max_iter"], starts=int(a["starts"]),
-                              intervals=a["intervals"], albedo=a["albedo"])
+        fit_in = [c for c, h in zip(self.inputs, self.holdout) if not h]
+        if self.progress and self.specs is not None:
+            print(f"colour joint fit: {len(fit_in)} image(s) fitted, {sum(self.holdout)} held out; "
+                  + ", ".join(f"{n}: {int((c.obs.mask & c.samples.usable).sum())} periods"
+                              for n, c, h in zip(self.names, self.inputs, self.holdout) if not h), flush=True)
+        obs, smp = [c.obs for c in fit_in], [c.samples for c in fit_in]
+        kw = dict(self.kw, max_pixels=self.kw["max_pixels"] or None, starts=int(self.kw["starts"]))
+        self.res = fit_colour(obs[0] if self.specs is None else obs, smp[0] if self.specs is None else smp,
+                              fit_in[0].noise, model=self.model, progress=(lambda s: print(s, flush=True))
+                              if self.progress else None, **kw)
 
     def report(self):
-        obs, model = self.ci.obs, self.a["model"]
-        return {"inputs": self.path, "sensor": "colour", "truth": self.ci.truth,
-                "reproduce": record.reproduce_block(self.a, self.command, obs.meta),
-                "models": {model: model_entry(model, self.res, self.bounds, self.fixed, self.ci.truth)}}
+        inputs, res = self.inputs, self.res
+        truth = next((c.truth for c in inputs if c.truth), None)
+        entry = model_entry(res, truth, self.kw["fixed"])
+        if self.specs is None:
+            return {"inputs": self.path, "sensor": "colour", "truth": truth,
+                    "reproduce": record.reproduce_block(self.a, self.command, inputs[0].obs.meta),
+                    "models": {self.model: entry}}
+        fitted = [n for n, h in zip(self.names, self.holdout) if not h]
+        entry["chi2_per_sample"] = dict(zip(fitted, res["chi2_per_sample"]))
+        report = {"sensor": "colour", "truth": truth,
+                  "images": [{"name": n, "input": s.input if isinstance(s.input, (str, list)) else None,
+                              "light_dir": c.obs.light_dir.tolist(), "irradiance": c.obs.irradiance,
+                              "power": s.power, "holdout": s.holdout} for n, s, c in zip(self.names, self.specs, inputs)],
+                  "models": {self.model: entry}, "relight": {}}
+        if self.reproduce is not None:
+            report["reproduce"] = self.reproduce([c.obs for c in inputs])
+        report.update(self.extra or {})
+        return report
 
     def write(self, report):
-        ci, res = self.ci, self.res
-        pred = predict_samples(ci.obs, ci.samples, res)
-        plot_colour_fit(ci.samples, pred, ci.obs.mask & ci.samples.usable, ci.camera, self.outs["colour_fit.png"],
-                        title=f"{self.a['model']}: " + format_result(res).replace("\n", "; "))
-        write_maps(res, self.a["model"], self.out, report)
-
-    def finish(self, report):
-        """The report and what :func:`~fmbrdf_mi.fit.outputs.summary.print_colour` prints besides: the files
-        written and the run's wall time."""
-        report["outputs"], report["wall_s"] = self.paths, time.time() - self.t0
-        return report
+        out, model, res = self.out, self.model, self.res
+        title = f"{model}: " + format_result(res).replace("\n", "; ")
+        for n, c, h in zip(self.names, self.inputs, self.holdout):
+            pred = predict_samples(c.obs, c.samples, res)
+            sel = c.obs.mask & c.samples.usable
+            if h:
+                err = report["relight"][n] = {model: sample_rmse(c.samples, pred, sel)}
+                plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"relight_{n}.png"),
+                                title=f"{n}: relit with the joint estimates, raw-sample RMSE/mean "
+                                      f"{err[model]['rel_rmse']:.4f}")
+            else:
+                plot_colour_fit(c.samples, pred, sel, c.camera,
+                                os.path.join(out, "colour_fit.png" if n is None else f"colour_fit_{n}.png"),
+                                title=title if n is None else f"{n}: {title}")
+        write_maps(res, model, out, report)

@@ -55,7 +55,7 @@ from fmbrdf_mi.fit.inputs.colour import is_colour
 from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power, image_names
 from fmbrdf_mi.fit.inputs.observations import check_direction
 from fmbrdf_mi.fit.inputs.parse import parse_vector
-from fmbrdf_mi.fit.outputs.colour_joint import fit_colour_images
+from fmbrdf_mi.fit.outputs.colour import fit_colour_images
 from fmbrdf_mi.fit.outputs.record import command_block, joint_block, sha256
 from fmbrdf_mi.fit.inputs.labels import read_labels
 from fmbrdf_mi.fit.api.find_materials import parse_auto
@@ -200,7 +200,7 @@ class Joint(ImageFits):
 def run_images(kind, specs, out, fit_kw, *, command, force=False, progress=True, manifest=None, authors=None,
                info=None, rerun_of=None):
     """The joint fit of ``specs`` as the command runs it, and as ``--from`` reruns it: :func:`fit_images`, or
-    :func:`~fmbrdf_mi.fit.outputs.colour_joint.fit_colour_images` when the images are colour mosaics, with the
+    :func:`~fmbrdf_mi.fit.outputs.colour.fit_colour_images` when the images are colour mosaics, with the
     ``reproduce`` block of :func:`~fmbrdf_mi.fit.outputs.record.joint_block` (``kind``, ``manifest``,
     ``authors``, ``info``: how the images were given) and fit.json's ``joint`` block (the files written, the
     authors' layout, ``rerun_of``: the fit.json rerun).  Returns the dict written to fit.json."""
