@@ -25,6 +25,7 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.models import MODELS, get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
+from fmbrdf_mi.fit.inputs.files import check_image_options
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option, flag_of
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_smooth
 from fmbrdf_mi.fit.uncertainty import INTERVALS
@@ -193,11 +194,6 @@ OPTION = {o.name: o for o in OPTIONS}
 LONG = {"-o": "--out", "-q": "--quiet"}
 
 
-def keyword(name):
-    """How a function's keyword names the option ``name`` (its name): the default of the checks' ``flag``."""
-    return name
-
-
 def flag(name):
     """How the command line names the option ``name`` (``max_pixels`` -> ``--max-pixels``)."""
     o = OPTION.get(name)
@@ -265,22 +261,16 @@ def add_arguments(p, groups=GROUPS):
 
 
 # ---------------------------------------------------------------- the checks
-def parsed(name, value, flag=keyword):
-    """``value`` of the option ``name`` in the form a fit takes (its text form parsed, :attr:`Option.parse`;
-    ``flag(name)`` names the option in a message)."""
-    o = OPTION[name]
-    return o.parse(value, flag(name)) if o.parse is not None and value is not None else value
-
-
-def check_values(values, flag=keyword):
+def check_values(values, flag=str):
     """Each value of ``values`` (option name -> value; names outside the schema are left alone) checked against
-    its option's kind and range; returns them parsed (:func:`parsed`)."""
+    its option's kind and range; returns them parsed (their text forms, :attr:`Option.parse`)."""
     out = dict(values)
     for name, v in values.items():
         o = OPTION.get(name)
         if o is None:
             continue
-        out[name] = v = parsed(name, v, flag)
+        if o.parse is not None and v is not None:
+            out[name] = v = o.parse(v, flag(name))
         if name == "albedo_smooth" and v is not None:
             vals = list(v) if isinstance(v, (tuple, list)) else [v]
             if len(vals) not in (1, 2):
@@ -292,12 +282,11 @@ def check_values(values, flag=keyword):
     return out
 
 
-def check_fit_options(*, flag=keyword, **values):
+def check_fit_options(*, flag=str, **values):
     """Raise InputError for the first invalid fit option (its value, then its relations to the others:
     :func:`check_relations`).  ``values``: option name -> value, the defaults for those not given; names
     outside the schema are ignored.  ``flag`` maps an option name to how the user wrote it."""
-    fit_names = [o.name for o in OPTIONS if o.fit] + ["baselines", "materials"]
-    v = {k: OPTION[k].default for k in fit_names}
+    v = {k: OPTION[k].default for k in FIT_NAMES + ("baselines", "materials")}
     v.update({k: x for k, x in values.items() if k in OPTION})
     for k in ("max_iter", "tol", "erode", "seed", "lr", "spp", "rounds", "starts"):
         if v[k] is None:
@@ -308,7 +297,7 @@ def check_fit_options(*, flag=keyword, **values):
     check_relations(v, flag)
 
 
-def check_relations(v, flag=keyword):
+def check_relations(v, flag=str):
     """The relations between the fit options ``v`` (all given, parsed): pairs that do not go together and
     parameter tables that must name the model's parameters within its bounds; one line each."""
     m = get_model(v["model"])
@@ -364,7 +353,7 @@ def check_relations(v, flag=keyword):
         check_init(v["init"], m, flag)
 
 
-def check_init(init, m, flag=keyword):
+def check_init(init, m, flag=str):
     """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds."""
     if not isinstance(init, dict):
         raise InputError(f"{flag('init')}: expected {{name: value}}, got {init!r}")
@@ -392,13 +381,11 @@ def within(name, value, lo, hi):
     return v
 
 
-def check_input_options(*, flag=keyword, **values):
+def check_input_options(*, flag=str, **values):
     """Raise InputError for the first invalid option about the image and the light (names outside the schema
     are ignored)."""
     v = check_values({k: x for k, x in values.items() if k in OPTION and not OPTION[k].fit}, flag)
-    white, dark = v.get("white_level"), v.get("dark_level")
-    if white is not None and dark is not None and not dark < white:
-        raise InputError(f"{flag('dark_level')} {dark:g} must be below {flag('white_level')} {white:g}")
+    check_image_options(v, name=flag)
     if (v.get("conversion_gain") is None) != (v.get("read_noise") is None):
         given, other = ("read_noise", "conversion_gain") if v.get("conversion_gain") is None else \
             ("conversion_gain", "read_noise")
@@ -406,7 +393,7 @@ def check_input_options(*, flag=keyword, **values):
                          "(electrons per image unit and read noise in electrons)")
 
 
-def check_resolved_loss(values, loss, source, flag=keyword):
+def check_resolved_loss(values, loss, source, flag=str):
     """Refuse, before the fit, the options that need the likelihood when the loss resolved to another
     (``loss="auto"`` on an input without a camera noise model): they would be dropped.  ``source``: why the
     loss is what it is, for the message."""

@@ -17,7 +17,10 @@ import math
 import numbers
 
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.observations import IRRADIANCE_RANGE
+
+#: The irradiances (light power x irradiance, image units) a fit can work with: beyond them the albedos
+#: (image / irradiance) leave the range of the fit's arithmetic (NaN parameters or Dr.Jit errors).
+IRRADIANCE_RANGE = (1e-20, 1e20)
 
 #: The records of a fit.json that can keep an option (``Option.records``): a single-image fit's, a colour
 #: mosaic's, a joint fit's.

@@ -1,6 +1,8 @@
 """Values given as text (command line, manifests): vectors, bounds, start values, fixed parameters, polariser layouts."""
 from __future__ import annotations
 
+import math
+
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.options import Option
 from fmbrdf_mi.sensor.mosaic import check_layout
@@ -22,6 +24,19 @@ def parse_vector(text, name, n=3):
     if len(vals) != n:
         raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}")
     return vals
+
+
+def parse_sphere(value, name="sphere"):
+    """``auto`` or a sphere's centre and radius in pixels (``"cx,cy,r"`` or three numbers) -> ``"auto"`` or
+    (cx, cy, r), a finite centre and a radius > 0."""
+    if value is None or (isinstance(value, str) and value == "auto"):
+        return value
+    if isinstance(value, bool) or not isinstance(value, (str, list, tuple)):
+        raise InputError(f"{name}: expected auto, \"cx,cy,r\" or [cx, cy, r] (pixels), got {value!r}")
+    cx, cy, r = parse_vector(value, f"{name} (cx,cy,r in pixels)")
+    if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(r) and r > 0):
+        raise InputError(f"{name}: expected a finite centre and a radius > 0 (pixels), got {value!r}")
+    return cx, cy, r
 
 
 def parse_smooth(text, name="--albedo-smooth"):
