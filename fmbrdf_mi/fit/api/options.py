@@ -1,21 +1,13 @@
-"""The one option schema of a fit: every option declared once, the rest generated.
+"""The one option schema of a fit: every option declared once in :data:`OPTIONS`, the rest generated.
 
-:data:`OPTIONS` holds each option of ``fmbrdf-mi fit`` and of the fitting
-functions as an :class:`~fmbrdf_mi.fit.inputs.options.Option` (name, flag,
-kind, valid range or choices, default, help, which fit.json records keep it,
-whether a manifest image gives it).  Generated from it:
-
-* :class:`FitOptions`, the options of :func:`fmbrdf_mi.fit.fit` (the options with ``fit=True``);
-* the command line (:func:`add_arguments`);
-* the checks (:func:`check_fit_options`, :func:`check_input_options`): each value against its kind and
-  range, one line naming the option and what is valid, then the relations between options
-  (:func:`check_relations`), all before any file is read;
-* the keys a ``reproduce`` record keeps (:func:`record_keys`) and the keywords the writing functions take
-  (:func:`arguments`);
-* a manifest image's keys (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`).
-
-A new option is one more :class:`~fmbrdf_mi.fit.inputs.options.Option` here (or, for an option of one
-image, in :mod:`fmbrdf_mi.fit.inputs.options`) and the code that uses it.
+Each option is an :class:`~fmbrdf_mi.fit.inputs.options.Option` (name, flag, kind, valid range or choices,
+default, help, the fit.json records that keep it; the options of one image, which the manifest and
+:func:`~fmbrdf_mi.fit.inputs.files.build_observation` read, are declared at the inputs layer as
+:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`).  Generated from the table: :class:`FitOptions`, the
+command line (:func:`add_arguments`), the checks (:func:`check_fit_options`, :func:`check_input_options`:
+kind and range, one line naming the option and what is valid, then the relations between options), the keys
+a record keeps (:func:`record_keys`, :func:`arguments`) and a manifest image's keys.  A new option is one
+more row here (or in :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`) and the code that uses it.
 """
 from __future__ import annotations
 
@@ -26,7 +18,7 @@ from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.models import MODELS, get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.inputs.files import check_image_options
-from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option, flag_of
+from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_smooth
 from fmbrdf_mi.fit.uncertainty import INTERVALS
 
@@ -115,8 +107,8 @@ OPTIONS = (
                 "super-pixel; per-pixel-bilinear: the pairs at the super-pixel centres, each raw sample's albedo "
                 "interpolated bilinearly at its own point (textures that change within a super-pixel, as a camera "
                 "sees them)"),
-    Option("albedo_smooth", None, fit=True, records=_SJ, flag="--albedo-smooth", group=_FIT, parse=parse_smooth,
-           cli={"metavar": "TAU[,TAU_B]"},
+    Option("albedo_smooth", None, kind="number", lo=SMOOTH_MIN, many=2, fit=True, records=_SJ, flag="--albedo-smooth",
+           group=_FIT, parse=parse_smooth, cli={"metavar": "TAU[,TAU_B]"},
            help="with --albedo per-pixel or per-pixel-bilinear: a Gaussian smoothness prior on the maps, TAU the "
                 "expected difference of 4-neighbouring pixels' k_s (and k_b; TAU_B for k_b apart) in the maps' "
                 f"units, at least {SMOOTH_MIN:g}; added to chi^2, the maps and the shape's "
@@ -198,7 +190,7 @@ def flag(name):
     """How the command line names the option ``name`` (``max_pixels`` -> ``--max-pixels``)."""
     o = OPTION.get(name)
     if o is None or o.flag is None or not o.flag.startswith("-"):
-        return flag_of(name)
+        return "--" + name.replace("_", "-")
     return LONG.get(o.flag, o.flag)
 
 
@@ -271,14 +263,7 @@ def check_values(values, flag=str):
             continue
         if o.parse is not None and v is not None:
             out[name] = v = o.parse(v, flag(name))
-        if name == "albedo_smooth" and v is not None:
-            vals = list(v) if isinstance(v, (tuple, list)) else [v]
-            if len(vals) not in (1, 2):
-                raise InputError(f"{flag(name)}: expected tau or (tau_s, tau_b), got {v!r}")
-            for x in vals:
-                Option(name, kind="number", lo=SMOOTH_MIN).check(x, flag(name))
-        else:
-            o.check(v, flag(name))
+        o.check(v, flag(name))
     return out
 
 
@@ -334,7 +319,7 @@ def check_relations(v, flag=str):
             if name not in m.shape_names:
                 raise InputError(f"{flag('fixed')}: '{name}' is not a shape parameter of {m.name} "
                                  f"({', '.join(m.shape_names)})")
-            within(f"{flag('fixed')} {name}", x, m.param(name).lo, m.param(name).hi)
+            number(f"{flag('fixed')} {name}", x, m.param(name).lo, m.param(name).hi)
     if v["bounds"] is not None:
         if not isinstance(v["bounds"], dict):
             raise InputError(f"{flag('bounds')}: expected {{name: (lo, hi)}}, got {v['bounds']!r}")
@@ -353,8 +338,8 @@ def check_relations(v, flag=str):
         check_init(v["init"], m, flag)
 
 
-def check_init(init, m, flag=str):
-    """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds."""
+def check_init(init, m, flag):
+    """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds (albedos >= 0)."""
     if not isinstance(init, dict):
         raise InputError(f"{flag('init')}: expected {{name: value}}, got {init!r}")
     table = Parameters(m)
@@ -367,18 +352,16 @@ def check_init(init, m, flag=str):
     if missing:
         raise InputError(f"{flag('init')}: missing {', '.join(missing)} (give all of {', '.join(names)})")
     for k in names:
-        if table.row[k].kind == "shape":
-            within(f"{flag('init')} {k}", init[k], table.row[k].lo, table.row[k].hi)
-        else:
-            Option(k, kind="number", lo=0.0).check(init[k], f"{flag('init')} {k}")
+        row = table.row[k]
+        number(f"{flag('init')} {k}", init[k], *((row.lo, row.hi) if row.kind == "shape" else (0.0, None)))
 
 
-def within(name, value, lo, hi):
-    """``value`` a finite number within the fit's bounds [``lo``, ``hi``] of a parameter, else InputError."""
-    v = Option(name, kind="number").check(value, name)
-    if v is None or not lo <= v <= hi:
-        raise InputError(f"{name}: {value!r} is outside the fit's bounds [{lo:g}, {hi:g}]")
-    return v
+def number(name, value, lo=None, hi=None):
+    """``value`` a finite number in [``lo``, ``hi``] (None refused), else InputError naming ``name``."""
+    o = Option(name, kind="number", lo=lo, hi=hi)
+    if value is None:
+        raise InputError(f"{name}: expected a number in {o.range_text()}, got None")
+    return o.check(value)
 
 
 def check_input_options(*, flag=str, **values):

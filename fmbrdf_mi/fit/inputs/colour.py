@@ -57,7 +57,8 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
             raise InputError("normals: give the object mask too (--mask, .npy or .png, non-zero = object)")
         n = ob.read_vectors(normals, "normals")
         m = ob.read_mask(mask)
-        v = ob.read_vectors(view, "view") if view is not None else ob.pixel_rays(n.shape[:2], *ob.check_camera(camera, fov))
+        v = ob.read_vectors(view, "view") if view is not None else \
+            ob.pixel_rays(n.shape[:2], *ob.check_camera(camera, fov))
         if n.shape[:2] == (4 * shape[0], 4 * shape[1]):
             n, m, v = _pool4(n, m, v)
         for name, a in (("normals", n), ("mask", m), ("view", v)):

@@ -50,8 +50,8 @@ def _builtin_sphere(meta):
 
 
 def builtin_sphere_geometry(p, shape=None):
-    """The exact :class:`~fmbrdf_mi.geometry.SphereGeometry` of the built-in scene's unit sphere (render parameters ``p``)
-    on a grid of ``shape`` (rows, cols) covering the rendered image (default: the image itself; a raw
+    """The exact :class:`~fmbrdf_mi.geometry.SphereGeometry` of the built-in scene's unit sphere (render
+    parameters ``p``) on a grid of ``shape`` (rows, cols) covering the rendered image (default: the image itself; a raw
     mosaic's super-pixel grid is half of it).
 
     The scene (:func:`fmbrdf_mi.scene.sphere_scene`) puts a unit sphere at the origin, the camera at

@@ -41,22 +41,7 @@ def check_options(opts, where):
             raise InputError(f"{name}: expected " + ("mean, R, G or B" if key == "channel" else "a file name (text)")
                              + f", got {v!r}")
         elif key == "layout":
-            flat = v
-            if isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(r, (list, tuple)) for r in v):
-                flat = [a for r in v for a in r]
-            if isinstance(flat, (list, tuple)):
-                if len(flat) != 4 or any(isinstance(a, bool) or not isinstance(a, int) for a in flat):
-                    raise InputError(f"{name}: expected four angles in degrees (row-major 2x2) such as "
-                                     f"\"90,45,135,0\" or [90, 45, 135, 0], got {v!r}")
-                flat = ",".join(str(a) for a in flat)
-            if not isinstance(flat, str):
-                raise InputError(f"{name}: expected four angles in degrees (row-major 2x2) such as "
-                                 f"\"90,45,135,0\", got {v!r}")
-            try:
-                parse_layout(flat)
-            except InputError as exc:
-                raise InputError(f"{where}: {exc}") from None
-            out[key] = flat
+            out[key] = ",".join(str(a) for row in parse_layout(v, name) for a in row)
     return out
 
 

@@ -64,7 +64,7 @@ class Observation:
     samples: object = None
     #: the camera's noise (:class:`fmbrdf_mi.sensor.noise.NoiseModel`), if known
     noise: object = None
-    #: exact geometry at any image point (e.g. :class:`fmbrdf_mi.geometry.SphereGeometry`), or None: interpolate the maps
+    #: exact geometry at any image point (:class:`fmbrdf_mi.geometry.SphereGeometry`), or None: interpolate the maps
     geometry: object = None
 
     def __post_init__(self):

@@ -118,18 +118,25 @@ def parse_fixed(items, name="--fix"):
     return out
 
 
-def parse_layout(text):
-    """``"90,45,135,0"`` (row-major 2x2, top row first) -> ((90, 45), (135, 0))."""
+def parse_layout(value, name="layout"):
+    """``"90,45,135,0"`` or four whole angles in degrees, flat or 2x2 (row-major, top row first) ->
+    ((90, 45), (135, 0))."""
+    flat = value
+    if isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(r, (list, tuple)) for r in value):
+        flat = [a for r in value for a in r]
+    if isinstance(flat, (list, tuple)) and not any(isinstance(a, bool) or not isinstance(a, int) for a in flat):
+        flat = ",".join(map(str, flat))
     try:
-        a = [int(x) for x in str(text).replace(" ", "").split(",")]
-    except ValueError:
-        raise InputError(f"layout: expected four comma-separated angles such as 90,45,135,0, got {text!r}") from None
+        a = [int(x) for x in flat.replace(" ", "").split(",")]
+    except (AttributeError, ValueError):
+        raise InputError(f"{name}: expected four angles in degrees (row-major 2x2) such as \"90,45,135,0\" or "
+                         f"[90, 45, 135, 0], got {value!r}") from None
     if len(a) != 4:
-        raise InputError(f"layout: expected four angles (row-major 2x2), got {text!r}")
+        raise InputError(f"{name}: expected four angles (row-major 2x2), got {value!r}")
     try:
         check_layout(((a[0], a[1]), (a[2], a[3])))
     except ValueError as exc:
-        raise InputError(str(exc)) from None
+        raise InputError(f"{name}{str(exc).removeprefix('layout')}") from None
     return ((a[0], a[1]), (a[2], a[3]))
 
 
