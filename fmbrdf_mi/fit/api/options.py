@@ -357,11 +357,15 @@ def check_init(init, m, flag):
 
 
 def number(name, value, lo=None, hi=None):
-    """``value`` a finite number in [``lo``, ``hi``] (None refused), else InputError naming ``name``."""
+    """``value`` a finite number within the fit's bounds [``lo``, ``hi``] of a parameter, else InputError
+    naming ``name``."""
     o = Option(name, kind="number", lo=lo, hi=hi)
-    if value is None:
-        raise InputError(f"{name}: expected a number in {o.range_text()}, got None")
-    return o.check(value)
+    try:
+        if value is not None:
+            return o.check(value)
+    except InputError:
+        pass
+    raise InputError(f"{name}: expected a number within the fit's bounds {o.range_text()}, got {value!r}")
 
 
 def check_input_options(*, flag=str, **values):

@@ -62,60 +62,44 @@ def check_number(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True):
     return Option(name, kind="number", lo=lo, lo_open=not lo_incl, hi=hi, hi_open=not hi_incl).check(value)
 
 
-def parse_bounds(items, name="--bounds"):
-    """``["alpha=0.05:0.5", ...]`` -> {"alpha": (0.05, 0.5)}; ``name``: the option in messages."""
-    if isinstance(items, dict) or items is None:
-        return items
-    if isinstance(items, str):
-        items = [items]
-    if not isinstance(items, (list, tuple)):
-        raise InputError(f"{name}: expected NAME=LO:HI items, e.g. alpha=0.05:0.5, got {items!r}")
-    out = {}
-    for item in items:
-        name, sep, rng = str(item).partition("=")
-        lo, sep2, hi = rng.partition(":")
-        try:
-            out[name.strip()] = (float(lo), float(hi))
-        except ValueError:
-            raise InputError(f"{name} {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5") from None
-        if not (sep and sep2):
-            raise InputError(f"{name} {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5")
-    return out
-
-
-def parse_init(text, name="--init"):
-    """``"eta=1.5,alpha=0.3,..."`` -> dict (all reported parameters of the model); ``name``: the option in
-    messages."""
-    if isinstance(text, dict) or text is None:
-        return text
-    out = {}
-    for item in str(text).split(","):
-        name, sep, value = item.partition("=")
-        try:
-            out[name.strip()] = float(value)
-        except ValueError:
-            raise InputError(f"{name} {text!r}: expected NAME=VALUE,..., e.g. eta=1.5,alpha=0.3,beta=2,"
-                             "kappa=10,k_s=1,r_k=1") from None
-    return out
-
-
-def parse_fixed(items, name="--fix"):
-    """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (shape parameters held fixed)."""
+def parse_pairs(items, name, form, example, value=float):
+    """``NAME=...`` items (a list, or text of comma-separated items) -> {NAME: value(...)}, else InputError naming
+    ``name`` (the option) with the ``form`` and an ``example``; a table (or None) is returned as it is."""
     if isinstance(items, dict) or items is None:
         return items
     if not isinstance(items, (str, list, tuple)):
-        raise InputError(f"{name}: expected NAME=VALUE items, e.g. kappa=0, got {items!r}")
-    items = [items] if isinstance(items, str) else [str(x) for x in items]
+        raise InputError(f"{name}: expected {form} items, e.g. {example}, got {items!r}")
     out = {}
-    for item in ",".join(items).split(","):
-        name, sep, value = item.partition("=")
+    for item in ",".join([items] if isinstance(items, str) else map(str, items)).split(","):
+        key, sep, text = item.partition("=")
         try:
-            out[name.strip()] = float(value)
+            if not sep:
+                raise ValueError
+            out[key.strip()] = value(text)
         except ValueError:
-            raise InputError(f"{name} {item!r}: expected NAME=VALUE, e.g. kappa=0") from None
-        if not sep:
-            raise InputError(f"{name} {item!r}: expected NAME=VALUE, e.g. kappa=0")
+            raise InputError(f"{name} {item!r}: expected {form}, e.g. {example}") from None
     return out
+
+
+def _interval(text):
+    lo, hi = text.split(":")
+    return float(lo), float(hi)
+
+
+def parse_bounds(items, name="--bounds"):
+    """``["alpha=0.05:0.5", ...]`` -> {"alpha": (0.05, 0.5)} (bounds narrowed)."""
+    return parse_pairs(items, name, "NAME=LO:HI", "alpha=0.05:0.5", _interval)
+
+
+def parse_init(text, name="--init"):
+    """``"eta=1.5,alpha=0.3,..."`` -> {"eta": 1.5, ...} (start values of all reported parameters)."""
+    return parse_pairs(text, name, "NAME=VALUE,...", "eta=1.5,alpha=0.3,beta=2,kappa=10,k_s=1,r_k=1")
+
+
+def parse_fixed(items, name="--fix"):
+    """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (shape parameters
+    held fixed)."""
+    return parse_pairs(items, name, "NAME=VALUE", "kappa=0")
 
 
 def parse_layout(value, name="layout"):
