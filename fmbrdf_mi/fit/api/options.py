@@ -273,11 +273,9 @@ def check_fit_options(*, flag=str, **values):
     outside the schema are ignored.  ``flag`` maps an option name to how the user wrote it."""
     v = {k: OPTION[k].default for k in FIT_NAMES + ("baselines", "materials")}
     v.update({k: x for k, x in values.items() if k in OPTION})
-    for k in ("max_iter", "tol", "erode", "seed", "lr", "spp", "rounds", "starts"):
+    for k in ("model", "max_iter", "tol", "erode", "seed", "lr", "spp", "rounds", "starts"):
         if v[k] is None:
             raise InputError(f"{flag(k)}: a value is needed")
-    if not isinstance(v["model"], str):
-        raise InputError(f"{flag('model')}: expected one of {', '.join(MODELS)}, got {v['model']!r}")
     v = check_values(v, flag)
     check_relations(v, flag)
 
