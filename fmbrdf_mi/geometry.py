@@ -68,3 +68,26 @@ def sphere_at(X, Y, shape, centre, radius, camera="orthographic", fov=None):
         n = p / np.linalg.norm(p, axis=-1, keepdims=True)
     n = np.where(mask[..., None], n, np.array([0.0, 0.0, 1.0]))
     return n, mask, view
+
+
+def pixel_rays(shape, camera="orthographic", fov=None):
+    """Unit view directions (H, W, 3) at the pixel centres of an image of ``shape`` (:func:`view_rays`)."""
+    return view_rays(*pixel_centres(shape), shape, camera, fov)
+
+
+def sphere_normals(shape, centre, radius, camera="orthographic", fov=None):
+    """Unit normals (H, W, 3), mask and view directions of a sphere at the pixel centres (:func:`sphere_at`)."""
+    return sphere_at(*pixel_centres(shape), shape, centre, radius, camera, fov)
+
+
+class SphereGeometry:
+    """A sphere's exact normals and view directions at any image point (:func:`sphere_at`): a fit evaluates
+    it at each sub-pixel sample instead of interpolating the normal map, which errs near the silhouette."""
+
+    def __init__(self, shape, centre, radius, camera="orthographic", fov=None):
+        self.shape, self.centre, self.radius, self.camera, self.fov = tuple(shape), centre, radius, camera, fov
+
+    def at(self, X, Y):
+        n, _, v = sphere_at(np.asarray(X, float), np.asarray(Y, float), self.shape, self.centre, self.radius,
+                            self.camera, self.fov)
+        return n, v

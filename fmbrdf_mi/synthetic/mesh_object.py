@@ -152,7 +152,7 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
 
 class MeshGeometry:
     """Exact normals and view directions of a mesh seen by a pinhole camera at any image point
-    (Mitsuba ray casts; the interface of :class:`fmbrdf_mi.fit.inputs.observations.SphereGeometry`), for
+    (Mitsuba ray casts; the interface of :class:`fmbrdf_mi.geometry.SphereGeometry`), for
     sub-pixel samples of a synthetic object: ``shape`` (H, W) the super-pixel grid, ``X``, ``Y`` in its
     pixels (centres at + 0.5, x right, y down); points off the mesh get (0, 0, 1)."""
 

@@ -185,17 +185,22 @@ def test_nan_mask_file_is_refused(capsys, tmp_path):
     one_line_error(rc, err, "fit", "mask.npy", "NaN")
 
 
-@pytest.mark.parametrize("call", [
-    lambda ob: ob.pixel_rays((4, 4), "perspective", "wide"),
-    lambda ob: ob.sphere_normals((16, 16), (8, 8), 6, camera="perspective", fov="wide"),
-])
-def test_fov_as_a_word_is_named(call):
+@pytest.mark.parametrize("fov,words", [("wide", r"fov: expected a number in \(0, 180\), got 'wide'"),
+                                       (None, r"fov: a perspective camera needs .* \(0, 180\) degrees")])
+@pytest.mark.parametrize("geometry", ["sphere", "normals"])
+def test_fov_as_a_word_is_named(tmp_path, fov, words, geometry):
     """Before: "could not convert string to float: 'wide'" with no key."""
     from fmbrdf_mi.fit import InputError
-    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi.fit.inputs.files import build_observation
+    from fmbrdf_mi.geometry import sphere_normals
 
-    with pytest.raises(InputError, match=r"fov: a perspective camera needs .* \(0, 180\) degrees, got 'wide'"):
-        call(ob)
+    n, m, _ = sphere_normals((16, 16), (8, 8), 6)
+    np.save(tmp_path / "n.npy", n)
+    np.save(tmp_path / "m.npy", m)
+    given = dict(sphere="8,8,6") if geometry == "sphere" else dict(normals=str(tmp_path / "n.npy"),
+                                                                    mask=str(tmp_path / "m.npy"))
+    with pytest.raises(InputError, match=words):
+        build_observation(raw_input(tmp_path), camera="perspective", fov=fov, light=[0, 0, 1], **given)
 
 
 def test_render_metadata_fov_is_named():

@@ -37,11 +37,13 @@ import time
 
 import numpy as np
 
-from fmbrdf_mi.fit.api.fitting import FitOptions, fit, usable_pixels
+from fmbrdf_mi.fit.api.fitting import fit, fit_options, usable_pixels
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.predict import predict_image
+from fmbrdf_mi.fit.inputs.options import Option
+from fmbrdf_mi.fit.solve.optimise import default_progress
 
 #: A pixel is decided when its material's predicted Stokes and the nearest other's are this far apart (squared,
 #: noise units: 4 standard deviations, a misassignment probability Phi(-2) = 2.3 %).
@@ -190,29 +192,23 @@ def separation(pred, labels_flat, count):
 def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_decided=0.5, progress=False,
                    **kw):
     """Labels of ``count`` materials for ``obs`` (one :class:`Observation`, mono), found from its pixels
-    (module docstring): a :class:`FoundMaterials`.  ``options`` / ``kw``: the :class:`FitOptions` of the
+    (module docstring): a :class:`FoundMaterials`.  ``options`` / ``kw``: the
+    :class:`~fmbrdf_mi.fit.api.options.FitOptions` of the
     fits it runs (the likelihood; ``albedo`` and ``materials`` are its own); ``seed``: k-means++'s;
     ``rounds``: at most this many fits of M materials; ``clean``: majority-filter passes; ``min_decided``:
     the fraction of each material's pixels that must be decided.  Raises :class:`MaterialsNotSeparated`
     (an InputError) when they are not, and InputError for a bad ``count``."""
     if isinstance(obs, (list, tuple)):
         raise InputError("find_materials: one image (an Observation); several images are not supported yet")
-    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or not 2 <= count <= 254:
-        raise InputError(f"find_materials: count: expected an integer 2 .. 254, got {count!r}")
-    if not 0 < min_decided <= 1:
-        raise InputError(f"find_materials: min_decided: expected a fraction in (0, 1], got {min_decided!r}")
-    count = int(count)
-    opts = dataclasses.replace(options or FitOptions(), **kw) if (options or kw) else FitOptions()
+    count = Option("count", kind="int", lo=2, hi=254).check(count, "find_materials: count")
+    Option("min_decided", kind="number", lo=0.0, lo_open=True, hi=1.0).check(min_decided,
+                                                                            "find_materials: min_decided")
     # its own fits: shared albedos per material, Fisher intervals (only the estimates are used)
-    opts = dataclasses.replace(opts, albedo="shared", intervals="fisher")
+    opts = dataclasses.replace(fit_options(options, kw), albedo="shared", intervals="fisher")
+    report = default_progress if progress is True else (progress or (lambda m: None))
 
     def say(msg):
-        if progress is True:
-            import sys
-
-            print(f"find materials: {msg} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
-        elif callable(progress):
-            progress(f"find materials: {msg} ({time.perf_counter() - t0:.0f} s)")
+        report(f"find materials: {msg} ({time.perf_counter() - t0:.0f} s)")
 
     t0 = time.perf_counter()
     h, w = obs.shape

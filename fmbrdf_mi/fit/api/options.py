@@ -1,21 +1,13 @@
-"""The one option schema of a fit: every option declared once, the rest generated.
+"""The one option schema of a fit: every option declared once in :data:`OPTIONS`, the rest generated.
 
-:data:`OPTIONS` holds each option of ``fmbrdf-mi fit`` and of the fitting
-functions as an :class:`~fmbrdf_mi.fit.inputs.options.Option` (name, flag,
-kind, valid range or choices, default, help, which fit.json records keep it,
-whether a manifest image gives it).  Generated from it:
-
-* :class:`FitOptions`, the options of :func:`fmbrdf_mi.fit.fit` (the options with ``fit=True``);
-* the command line (:func:`add_arguments`);
-* the checks (:func:`check_fit_options`, :func:`check_input_options`): each value against its kind and
-  range, one line naming the option and what is valid, then the relations between options
-  (:func:`check_relations`), all before any file is read;
-* the keys a ``reproduce`` record keeps (:func:`record_keys`) and the keywords the writing functions take
-  (:func:`arguments`);
-* a manifest image's keys (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`).
-
-A new option is one more :class:`~fmbrdf_mi.fit.inputs.options.Option` here (or, for an option of one
-image, in :mod:`fmbrdf_mi.fit.inputs.options`) and the code that uses it.
+Each option is an :class:`~fmbrdf_mi.fit.inputs.options.Option` (name, flag, kind, valid range or choices,
+default, help, the fit.json records that keep it; the options of one image, which the manifest and
+:func:`~fmbrdf_mi.fit.inputs.files.build_observation` read, are declared at the inputs layer as
+:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`).  Generated from the table: :class:`FitOptions`, the
+command line (:func:`add_arguments`), the checks (:func:`check_fit_options`, :func:`check_input_options`:
+kind and range, one line naming the option and what is valid, then the relations between options), the keys
+a record keeps (:func:`record_keys`, :func:`arguments`) and a manifest image's keys.  A new option is one
+more row here (or in :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`) and the code that uses it.
 """
 from __future__ import annotations
 
@@ -25,7 +17,8 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.models import MODELS, get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
-from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option, flag_of
+from fmbrdf_mi.fit.inputs.files import check_image_options
+from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_smooth
 from fmbrdf_mi.fit.uncertainty import INTERVALS
 
@@ -114,8 +107,8 @@ OPTIONS = (
                 "super-pixel; per-pixel-bilinear: the pairs at the super-pixel centres, each raw sample's albedo "
                 "interpolated bilinearly at its own point (textures that change within a super-pixel, as a camera "
                 "sees them)"),
-    Option("albedo_smooth", None, fit=True, records=_SJ, flag="--albedo-smooth", group=_FIT, parse=parse_smooth,
-           cli={"metavar": "TAU[,TAU_B]"},
+    Option("albedo_smooth", None, kind="number", lo=SMOOTH_MIN, many=2, fit=True, records=_SJ, flag="--albedo-smooth",
+           group=_FIT, parse=parse_smooth, cli={"metavar": "TAU[,TAU_B]"},
            help="with --albedo per-pixel or per-pixel-bilinear: a Gaussian smoothness prior on the maps, TAU the "
                 "expected difference of 4-neighbouring pixels' k_s (and k_b; TAU_B for k_b apart) in the maps' "
                 f"units, at least {SMOOTH_MIN:g}; added to chi^2, the maps and the shape's "
@@ -193,16 +186,11 @@ OPTION = {o.name: o for o in OPTIONS}
 LONG = {"-o": "--out", "-q": "--quiet"}
 
 
-def keyword(name):
-    """How a function's keyword names the option ``name`` (its name): the default of the checks' ``flag``."""
-    return name
-
-
 def flag(name):
     """How the command line names the option ``name`` (``max_pixels`` -> ``--max-pixels``)."""
     o = OPTION.get(name)
     if o is None or o.flag is None or not o.flag.startswith("-"):
-        return flag_of(name)
+        return "--" + name.replace("_", "-")
     return LONG.get(o.flag, o.flag)
 
 
@@ -265,50 +253,34 @@ def add_arguments(p, groups=GROUPS):
 
 
 # ---------------------------------------------------------------- the checks
-def parsed(name, value, flag=keyword):
-    """``value`` of the option ``name`` in the form a fit takes (its text form parsed, :attr:`Option.parse`;
-    ``flag(name)`` names the option in a message)."""
-    o = OPTION[name]
-    return o.parse(value, flag(name)) if o.parse is not None and value is not None else value
-
-
-def check_values(values, flag=keyword):
+def check_values(values, flag=str):
     """Each value of ``values`` (option name -> value; names outside the schema are left alone) checked against
-    its option's kind and range; returns them parsed (:func:`parsed`)."""
+    its option's kind and range; returns them parsed (their text forms, :attr:`Option.parse`)."""
     out = dict(values)
     for name, v in values.items():
         o = OPTION.get(name)
         if o is None:
             continue
-        out[name] = v = parsed(name, v, flag)
-        if name == "albedo_smooth" and v is not None:
-            vals = list(v) if isinstance(v, (tuple, list)) else [v]
-            if len(vals) not in (1, 2):
-                raise InputError(f"{flag(name)}: expected tau or (tau_s, tau_b), got {v!r}")
-            for x in vals:
-                Option(name, kind="number", lo=SMOOTH_MIN).check(x, flag(name))
-        else:
-            o.check(v, flag(name))
+        if o.parse is not None and v is not None:
+            out[name] = v = o.parse(v, flag(name))
+        o.check(v, flag(name))
     return out
 
 
-def check_fit_options(*, flag=keyword, **values):
+def check_fit_options(*, flag=str, **values):
     """Raise InputError for the first invalid fit option (its value, then its relations to the others:
     :func:`check_relations`).  ``values``: option name -> value, the defaults for those not given; names
     outside the schema are ignored.  ``flag`` maps an option name to how the user wrote it."""
-    fit_names = [o.name for o in OPTIONS if o.fit] + ["baselines", "materials"]
-    v = {k: OPTION[k].default for k in fit_names}
+    v = {k: OPTION[k].default for k in FIT_NAMES + ("baselines", "materials")}
     v.update({k: x for k, x in values.items() if k in OPTION})
-    for k in ("max_iter", "tol", "erode", "seed", "lr", "spp", "rounds", "starts"):
+    for k in ("model", "max_iter", "tol", "erode", "seed", "lr", "spp", "rounds", "starts"):
         if v[k] is None:
             raise InputError(f"{flag(k)}: a value is needed")
-    if not isinstance(v["model"], str):
-        raise InputError(f"{flag('model')}: expected one of {', '.join(MODELS)}, got {v['model']!r}")
     v = check_values(v, flag)
     check_relations(v, flag)
 
 
-def check_relations(v, flag=keyword):
+def check_relations(v, flag=str):
     """The relations between the fit options ``v`` (all given, parsed): pairs that do not go together and
     parameter tables that must name the model's parameters within its bounds; one line each."""
     m = get_model(v["model"])
@@ -345,7 +317,7 @@ def check_relations(v, flag=keyword):
             if name not in m.shape_names:
                 raise InputError(f"{flag('fixed')}: '{name}' is not a shape parameter of {m.name} "
                                  f"({', '.join(m.shape_names)})")
-            within(f"{flag('fixed')} {name}", x, m.param(name).lo, m.param(name).hi)
+            number(f"{flag('fixed')} {name}", x, m.param(name).lo, m.param(name).hi)
     if v["bounds"] is not None:
         if not isinstance(v["bounds"], dict):
             raise InputError(f"{flag('bounds')}: expected {{name: (lo, hi)}}, got {v['bounds']!r}")
@@ -364,8 +336,8 @@ def check_relations(v, flag=keyword):
         check_init(v["init"], m, flag)
 
 
-def check_init(init, m, flag=keyword):
-    """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds."""
+def check_init(init, m, flag):
+    """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds (albedos >= 0)."""
     if not isinstance(init, dict):
         raise InputError(f"{flag('init')}: expected {{name: value}}, got {init!r}")
     table = Parameters(m)
@@ -378,27 +350,27 @@ def check_init(init, m, flag=keyword):
     if missing:
         raise InputError(f"{flag('init')}: missing {', '.join(missing)} (give all of {', '.join(names)})")
     for k in names:
-        if table.row[k].kind == "shape":
-            within(f"{flag('init')} {k}", init[k], table.row[k].lo, table.row[k].hi)
-        else:
-            Option(k, kind="number", lo=0.0).check(init[k], f"{flag('init')} {k}")
+        row = table.row[k]
+        number(f"{flag('init')} {k}", init[k], *((row.lo, row.hi) if row.kind == "shape" else (0.0, None)))
 
 
-def within(name, value, lo, hi):
-    """``value`` a finite number within the fit's bounds [``lo``, ``hi``] of a parameter, else InputError."""
-    v = Option(name, kind="number").check(value, name)
-    if v is None or not lo <= v <= hi:
-        raise InputError(f"{name}: {value!r} is outside the fit's bounds [{lo:g}, {hi:g}]")
-    return v
+def number(name, value, lo=None, hi=None):
+    """``value`` a finite number within the fit's bounds [``lo``, ``hi``] of a parameter, else InputError
+    naming ``name``."""
+    o = Option(name, kind="number", lo=lo, hi=hi)
+    try:
+        if value is not None:
+            return o.check(value)
+    except InputError:
+        pass
+    raise InputError(f"{name}: expected a number within the fit's bounds {o.range_text()}, got {value!r}")
 
 
-def check_input_options(*, flag=keyword, **values):
+def check_input_options(*, flag=str, **values):
     """Raise InputError for the first invalid option about the image and the light (names outside the schema
     are ignored)."""
     v = check_values({k: x for k, x in values.items() if k in OPTION and not OPTION[k].fit}, flag)
-    white, dark = v.get("white_level"), v.get("dark_level")
-    if white is not None and dark is not None and not dark < white:
-        raise InputError(f"{flag('dark_level')} {dark:g} must be below {flag('white_level')} {white:g}")
+    check_image_options(v, name=flag)
     if (v.get("conversion_gain") is None) != (v.get("read_noise") is None):
         given, other = ("read_noise", "conversion_gain") if v.get("conversion_gain") is None else \
             ("conversion_gain", "read_noise")
@@ -406,7 +378,7 @@ def check_input_options(*, flag=keyword, **values):
                          "(electrons per image unit and read noise in electrons)")
 
 
-def check_resolved_loss(values, loss, source, flag=keyword):
+def check_resolved_loss(values, loss, source, flag=str):
     """Refuse, before the fit, the options that need the likelihood when the loss resolved to another
     (``loss="auto"`` on an input without a camera noise model): they would be dropped.  ``source``: why the
     loss is what it is, for the message."""

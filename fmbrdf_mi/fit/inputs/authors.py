@@ -49,7 +49,7 @@ import numpy as np
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.files import build_observation
 from fmbrdf_mi.fit.inputs.manifest import ImageSpec
-from fmbrdf_mi.fit.inputs.observations import UNIT_TOL, read_mask
+from fmbrdf_mi.fit.inputs.observations import UNIT_TOL, read_array, read_mask
 
 #: OpenCV camera axes (x right, y down, z forward) -> this package's (x right, y up, z towards the camera)
 CV_TO_OURS = np.array([1.0, -1.0, -1.0])
@@ -61,13 +61,6 @@ AUTHORS_LAYOUT = ((90, 45), (135, 0))
 def cv_to_ours(v):
     """Directions (..., 3) in OpenCV camera axes -> this package's camera frame."""
     return np.asarray(v, dtype=np.float64) * CV_TO_OURS
-
-
-def _load(path, what):
-    try:
-        return np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{what} {path}: not a readable .npy file ({exc})") from None
 
 
 def rays_from_intrinsics(K, shape, path=None):
@@ -126,7 +119,7 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
     nfile = os.path.join(root, "normal", "normal_GT.npy")
     if not os.path.isfile(nfile):
         raise InputError(f"{nfile}: no such file (ground-truth normals, h x w x 3)")
-    n = _load(nfile, "normals")
+    n = read_array(nfile, "normals")
     if n.ndim != 3 or n.shape[2] != 3:
         raise InputError(f"{nfile}: expected shape (h, w, 3), got {n.shape}")
     h, w = n.shape[:2]
@@ -136,9 +129,9 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
         raise InputError(f"{nfile}: no unit normal in the map (every vector is NaN, zero or not of length 1); "
                          "expected (h, w, 3) unit normals in OpenCV camera axes")
     vfile, kfile = os.path.join(cal, "vpL_img.npy"), os.path.join(cal, "IntrinsicL.npy")
-    K = _load(kfile, "intrinsics") if os.path.isfile(kfile) else None
+    K = read_array(kfile, "intrinsics") if os.path.isfile(kfile) else None
     if os.path.isfile(vfile):
-        vp = _load(vfile, "viewing rays")
+        vp = read_array(vfile, "viewing rays")
         if vp.shape != (h, w, 3):
             raise InputError(f"{vfile}: shape {vp.shape} differs from the normals' ({h}, {w}, 3)")
         v = cv_to_ours(-vp)
@@ -182,7 +175,7 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
     ifile = os.path.join(cal, "intensities.npy")
     power = np.ones(len(L))
     if os.path.isfile(ifile):
-        p = _load(ifile, "light intensities")
+        p = read_array(ifile, "light intensities")
         if not np.issubdtype(p.dtype, np.number):
             raise InputError(f"{ifile}: expected {len(L)} positive light intensities, got an array of {p.dtype}")
         p = p.astype(np.float64).ravel()

@@ -12,7 +12,7 @@ from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.fit.inputs.files import builtin_sphere_geometry
 from fmbrdf_mi.fit.inputs.manifest import file_stem
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS
-from fmbrdf_mi.fit.inputs.parse import check_render_parameters, parse_vector
+from fmbrdf_mi.fit.inputs.parse import check_render_parameters, parse_sphere, parse_vector
 from fmbrdf_mi.sensor import camera as C
 from fmbrdf_mi.sensor.noise import NoiseModel
 from fmbrdf_mi.sensor.samples import colour_samples
@@ -59,7 +59,8 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
             raise InputError("normals: give the object mask too (--mask, .npy or .png, non-zero = object)")
         n = ob.read_vectors(normals, "normals")
         m = ob.read_mask(mask)
-        v = ob.read_vectors(view, "view") if view is not None else ob.pixel_rays(n.shape[:2], camera, fov)
+        v = ob.read_vectors(view, "view") if view is not None else \
+            ob.pixel_rays(n.shape[:2], *ob.check_camera(camera, fov))
         if n.shape[:2] == (4 * shape[0], 4 * shape[1]):
             n, m, v = _pool4(n, m, v)
         for name, a in (("normals", n), ("mask", m), ("view", v)):
@@ -74,7 +75,7 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
                 raise InputError("--sphere auto: needs --mask to find the sphere in")
             centre, radius = ob.find_sphere(mk)
         else:
-            cx, cy, radius = parse_vector(sphere, "--sphere (cx,cy,r in 4x4 periods)")
+            cx, cy, radius = parse_sphere(sphere, "--sphere (cx,cy,r in 4x4 periods)")
             centre = (cx, cy)
         n, m, v = ob.geometry_from_sphere(shape, centre, radius, mk, camera, fov)
         meta["sphere"] = {"centre": [float(c) for c in centre], "radius": float(radius),

@@ -12,17 +12,28 @@ from fmbrdf_mi.sensor import camera as C
 from fmbrdf_mi.sensor import mosaic
 from fmbrdf_mi.sensor import samples as SM
 from fmbrdf_mi.sensor.noise import NoiseModel, box_footprint, demosaic_footprint, linear_stokes_variance
-from fmbrdf_mi.fit.inputs.observations import (IRRADIANCE_RANGE, Observation, SphereGeometry, check_direction,
-                                               downsample_geometry, find_sphere, geometry_from_sphere,
-                                               load_polarisation, pixel_rays, read_mask, read_vectors)
-from fmbrdf_mi.fit.inputs.parse import check_number, check_render_parameters, parse_layout, parse_vector
+from fmbrdf_mi.fit.inputs.observations import (Observation, check_camera, check_direction, downsample_geometry,
+                                               find_sphere, geometry_from_sphere, load_polarisation, read_mask,
+                                               read_vectors)
+from fmbrdf_mi.fit.inputs.options import IMAGE_OPTION
+from fmbrdf_mi.fit.inputs.parse import check_number, check_render_parameters, parse_layout, parse_sphere
 
-#: Ranges of the numeric options of :func:`build_observation`: (low, low included, high, high included).
-NUMBER_OPTIONS = {"irradiance": (IRRADIANCE_RANGE[0], True, IRRADIANCE_RANGE[1], True),
-                  "black_level": (0.0, True, None, True),
-                  "white_level": (0.0, False, None, True), "dark_level": (0.0, True, None, True),
-                  "conversion_gain": (0.0, False, None, True), "read_noise": (0.0, True, None, True),
-                  "fov": (0.0, False, 180.0, False)}
+
+def check_image_options(values, where=None, name=str):
+    """The image options among ``values`` checked as :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`
+    declare them (kind, range; a sphere parsed) and the dark level below the white level; InputError naming
+    ``where`` and ``name(key)`` (how the user wrote the key)."""
+    def label(k):
+        return f"{where}: {name(k)}" if where else name(k)
+
+    for k, v in values.items():
+        if k == "sphere":
+            parse_sphere(v, label(k))
+        elif k in IMAGE_OPTION:
+            IMAGE_OPTION[k].check(v, label(k))
+    white, dark = values.get("white_level"), values.get("dark_level")
+    if white is not None and dark is not None and not dark < white:
+        raise InputError(f"{label('dark_level')} {dark:g} must be below {name('white_level')} {white:g}")
 
 
 def _builtin_sphere(meta):
@@ -39,8 +50,8 @@ def _builtin_sphere(meta):
 
 
 def builtin_sphere_geometry(p, shape=None):
-    """The exact :class:`SphereGeometry` of the built-in scene's unit sphere (render parameters ``p``)
-    on a grid of ``shape`` (rows, cols) covering the rendered image (default: the image itself; a raw
+    """The exact :class:`~fmbrdf_mi.geometry.SphereGeometry` of the built-in scene's unit sphere (render
+    parameters ``p``) on a grid of ``shape`` (rows, cols) covering the rendered image (default: the image itself; a raw
     mosaic's super-pixel grid is half of it).
 
     The scene (:func:`fmbrdf_mi.scene.sphere_scene`) puts a unit sphere at the origin, the camera at
@@ -54,9 +65,9 @@ def builtin_sphere_geometry(p, shape=None):
     camera, fov, distance = p["camera"], float(p["fov"]), float(p["distance"])
     if camera == "orthographic":
         radius = 0.5 * shape[1] / S.half_width(fov, distance)
-        return SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, None)
+        return G.SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, None)
     radius = G.focal_length(shape[1], fov) * np.tan(np.arcsin(1.0 / distance))  # silhouette: rad = R / D
-    return SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, fov)
+    return G.SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, fov)
 
 
 def user_mask(mask, shape, within=None, what=None):
@@ -93,11 +104,7 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     gain, read noise and white level that were not given, and the scene's
     geometry and light.  ``meta["settings"]`` records what was used.
     """
-
-    given = {"irradiance": irradiance, "black_level": black_level, "white_level": white_level,
-             "dark_level": dark_level, "conversion_gain": conversion_gain, "read_noise": read_noise, "fov": fov}
-    for key, (lo, lo_incl, hi, hi_incl) in NUMBER_OPTIONS.items():
-        check_number(key, given[key], lo=lo, lo_incl=lo_incl, hi=hi, hi_incl=hi_incl)
+    check_image_options(locals())     # the keywords, before anything is read
     sidecar = None
     if isinstance(inputs, (str, os.PathLike)) and not os.fspath(inputs).lower().endswith(".exr"):
         try:
@@ -177,7 +184,7 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
         if view is not None:
             v = read_vectors(view, "view")
         else:
-            v = pixel_rays(n.shape[:2], camera, fov)
+            v = G.pixel_rays(n.shape[:2], *check_camera(camera, fov))
         if n.shape[:2] == (2 * shape[0], 2 * shape[1]):  # geometry at raw-sensor resolution
             n, m, v = downsample_geometry(n, m, v)
         for name, a in (("normals", n), ("mask", m), ("view", v)):
@@ -185,23 +192,18 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                 raise InputError(f"{name}: shape {a.shape[:2]} does not match the polarisation image "
                                  f"{shape} (a raw mosaic gives half its resolution)")
     elif sphere is not None:
-        if isinstance(sphere, str) and sphere == "auto":
-            if mask is None:
-                raise InputError("--sphere auto: needs --mask to find the sphere in")
-            centre = radius = None
-        else:
-            cx, cy, radius = parse_vector(sphere, "sphere (cx,cy,r in pixels)")
-            centre = (cx, cy)
+        sphere = parse_sphere(sphere)
+        if sphere == "auto" and mask is None:
+            raise InputError("--sphere auto: needs --mask to find the sphere in")
         mk = None if mask is None else user_mask(mask, shape)
-        if centre is None:
-            centre, radius = find_sphere(mk)
+        centre, radius = find_sphere(mk) if sphere == "auto" else (sphere[:2], sphere[2])
         n, m, v = geometry_from_sphere(shape, centre, radius, mk, camera, fov)
         meta["sphere"] = {"centre": [float(c) for c in centre], "radius": float(radius),
                           "found_from_mask": sphere == "auto"}
         if view is not None:
             v = read_vectors(view, "view", shape)
         else:
-            exact = SphereGeometry(shape, centre, radius, camera, fov)
+            exact = G.SphereGeometry(shape, centre, radius, camera, fov)
     else:
         raise InputError("geometry: give a normal map (--normals N.npy --mask M.png) or a sphere "
                          "(--sphere cx,cy,r or --sphere auto --mask M.png)")
@@ -220,14 +222,10 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                                      adc_step_e=float(conversion_gain) if src in ("raw mosaic", "angle images")
                                      else None)
 
-    if not isinstance(footprint, str):
-        raise InputError(f"footprint: expected auto, point, box or demosaic, got {footprint!r}")
     if footprint == "auto":
         footprint = "demosaic" if meta.get("source") == "raw mosaic" else "point"
     fp = {"point": lambda: None, "box": lambda: box_footprint(3),
-          "demosaic": lambda: demosaic_footprint(demosaic)}.get(footprint)
-    if fp is None:
-        raise InputError(f"footprint: expected auto, point, box or demosaic, got {footprint!r}")
+          "demosaic": lambda: demosaic_footprint(demosaic)}[footprint]
     src = meta.get("source")
     samples = None
     if src == "raw mosaic":

@@ -20,7 +20,7 @@ import os
 import numpy as np
 
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.observations import check_file
+from fmbrdf_mi.fit.inputs.observations import check_file, read_array
 
 #: The value of a pixel that is not fitted, by the PNG's bit depth.
 PNG_NOT_FITTED = {8: 255, 16: 65535}
@@ -34,10 +34,7 @@ def read_labels(path, what="--materials"):
     ext = os.path.splitext(path)[1].lower()
     name = f"{what} {path}"
     if ext == ".npy":
-        try:
-            a = np.load(path, allow_pickle=False)
-        except Exception as exc:  # noqa: BLE001 - any unreadable file is the user's to fix
-            raise InputError(f"{name}: not a readable .npy file ({exc})") from None
+        a = read_array(path, what)
         if a.ndim != 2 or a.dtype.kind not in "iuf":
             raise InputError(f"{name}: expected a 2-D integer array of labels (0 .. M-1, < 0 not fitted), got "
                              f"{a.dtype} of shape {a.shape}")

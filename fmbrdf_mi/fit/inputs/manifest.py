@@ -6,12 +6,10 @@ import json
 import os
 import re
 
-import numpy as np
-
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.files import build_observation
-from fmbrdf_mi.fit.inputs.observations import IRRADIANCE_RANGE, check_direction, check_file
-from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS, IMAGE_OPTION
+from fmbrdf_mi.fit.inputs.files import build_observation, check_image_options
+from fmbrdf_mi.fit.inputs.observations import check_direction, check_file
+from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS, IRRADIANCE_RANGE, Option
 from fmbrdf_mi.fit.inputs.parse import parse_layout, parse_vector
 
 #: Options an image entry (or [defaults]) may give: :func:`fmbrdf_mi.fit.inputs.files.build_observation`'s
@@ -30,53 +28,20 @@ def _is_path(v):
 
 
 def check_options(opts, where):
-    """The input options of one image (or of [defaults]) with their types and ranges checked.
-
-    Raises :class:`InputError` naming ``where`` and the key, with what is valid, for a value of the
-    wrong type (``conversion_gain = "2.4"``), NaN, an infinity or one out of range; returns the options
-    with a layout given as a list turned into its text form (``"90,45,135,0"``).
-    """
+    """The input options of one image (or of [defaults]) with their types and ranges checked
+    (:func:`~fmbrdf_mi.fit.inputs.files.check_image_options`, file names as text); InputError naming ``where``
+    and the key.  Returns them with a layout given as a list in its text form (``"90,45,135,0"``)."""
+    check_image_options(opts, where)
     out = dict(opts)
     for key, v in opts.items():
         if v is None:
             continue
         name = f"{where}: {key}"
-        if key in IMAGE_OPTION and IMAGE_OPTION[key].kind is not None:
-            IMAGE_OPTION[key].check(v, name)
-        elif key in ("normals", "mask", "view"):
-            if not _is_path(v):
-                raise InputError(f"{name}: expected a file name (text), got {v!r}")
-        elif key == "channel":
-            if not isinstance(v, str):
-                raise InputError(f"{name}: expected mean, R, G or B, got {v!r}")
-        elif key == "sphere":
-            if v != "auto":
-                if isinstance(v, bool) or not isinstance(v, (str, list, tuple)):
-                    raise InputError(f"{name}: expected auto, \"cx,cy,r\" or [cx, cy, r] (pixels), got {v!r}")
-                cx, cy, r = parse_vector(v, f"{name} (cx,cy,r in pixels)")
-                if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r) and r > 0):
-                    raise InputError(f"{name}: expected a finite centre and a radius > 0 (pixels), got {v!r}")
+        if key in ("normals", "mask", "view", "channel") and not _is_path(v):
+            raise InputError(f"{name}: expected " + ("mean, R, G or B" if key == "channel" else "a file name (text)")
+                             + f", got {v!r}")
         elif key == "layout":
-            flat = v
-            if isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(r, (list, tuple)) for r in v):
-                flat = [a for r in v for a in r]
-            if isinstance(flat, (list, tuple)):
-                if len(flat) != 4 or any(isinstance(a, bool) or not isinstance(a, int) for a in flat):
-                    raise InputError(f"{name}: expected four angles in degrees (row-major 2x2) such as "
-                                     f"\"90,45,135,0\" or [90, 45, 135, 0], got {v!r}")
-                flat = ",".join(str(a) for a in flat)
-            if not isinstance(flat, str):
-                raise InputError(f"{name}: expected four angles in degrees (row-major 2x2) such as "
-                                 f"\"90,45,135,0\", got {v!r}")
-            try:
-                parse_layout(flat)
-            except InputError as exc:
-                raise InputError(f"{where}: {exc}") from None
-            out[key] = flat
-    if opts.get("white_level") is not None and opts.get("dark_level") is not None \
-            and not opts["dark_level"] < opts["white_level"]:
-        raise InputError(f"{where}: dark_level {opts['dark_level']:g} must be below white_level "
-                         f"{opts['white_level']:g}")
+            out[key] = ",".join(str(a) for row in parse_layout(v, name) for a in row)
     return out
 
 
@@ -98,9 +63,7 @@ def check_light(v, where):
 
 def check_entry(power, holdout, name, where):
     """An image's ``power`` (a positive number), ``holdout`` (true or false) and ``name`` (text or None)."""
-    lo, hi = IRRADIANCE_RANGE
-    if isinstance(power, bool) or not isinstance(power, (int, float)) or not (np.isfinite(power) and lo <= power <= hi):
-        raise InputError(f"{where}: power must be a positive number in [{lo:g}, {hi:g}], got {power!r}")
+    Option("power", kind="number", lo=IRRADIANCE_RANGE[0], hi=IRRADIANCE_RANGE[1]).check(power, f"{where}: power")
     if not isinstance(holdout, bool):
         raise InputError(f"{where}: holdout must be true or false")
     if name is not None and (isinstance(name, bool) or not isinstance(name, (str, int))):

@@ -21,18 +21,17 @@ import os
 
 import numpy as np
 
-from fmbrdf_mi import geometry as G
 from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.inputs.options import IMAGE_OPTION, IRRADIANCE_RANGE
+# the sphere and pixel rays of fmbrdf_mi.geometry, by the names the fits' callers use
+from fmbrdf_mi.geometry import SphereGeometry, pixel_rays, sphere_normals  # noqa: F401
 from fmbrdf_mi.sensor import mosaic
 from fmbrdf_mi.sensor.mosaic import stokes_from_angles, stokes_from_raw
 
 #: Largest accepted deviation of a normal / view vector from unit length.
 UNIT_TOL = 1e-3
 
-#: The irradiances (light power x irradiance, image units) a fit can work with: beyond them the albedos
-#: (image / irradiance) leave the range of the fit's arithmetic (NaN parameters or Dr.Jit errors).
-IRRADIANCE_RANGE = (1e-20, 1e20)
 
 
 # ---------------------------------------------------------------- the container
@@ -65,7 +64,7 @@ class Observation:
     samples: object = None
     #: the camera's noise (:class:`fmbrdf_mi.sensor.noise.NoiseModel`), if known
     noise: object = None
-    #: exact geometry at any image point (e.g. :class:`SphereGeometry`), or None: interpolate the maps
+    #: exact geometry at any image point (:class:`fmbrdf_mi.geometry.SphereGeometry`), or None: interpolate the maps
     geometry: object = None
 
     def __post_init__(self):
@@ -396,68 +395,13 @@ def read_vectors(path_or_array, name, shape=None):
     return a
 
 
-def pixel_rays(shape, camera="orthographic", fov=None):
-    """Unit view directions (H, W, 3) from the surface towards the camera at the pixel centres
-    (:func:`fmbrdf_mi.geometry.view_rays`): (0, 0, 1) for ``orthographic``; ``perspective``: a pinhole with
-    horizontal field of view ``fov`` degrees."""
-    if camera not in ("orthographic", "perspective"):
-        raise InputError(f"camera: expected 'orthographic' or 'perspective', got {camera!r}")
-    fov = check_fov(fov) if camera == "perspective" else fov
-    return G.view_rays(*G.pixel_centres(shape), shape, camera, fov)
-
-
-def check_fov(fov, name="fov"):
-    """A perspective camera's horizontal field of view: a number in (0, 180) degrees."""
-    import numbers
-
-    if isinstance(fov, bool) or not isinstance(fov, numbers.Real) or not (0.0 < float(fov) < 180.0):
-        raise InputError(f"{name}: a perspective camera needs a horizontal field of view in (0, 180) degrees, "
-                         f"got {fov!r}")
-    return float(fov)
-
-
-def sphere_normals(shape, centre, radius, camera="orthographic", fov=None):
-    """Normals, mask and view directions of a sphere seen at ``centre`` (x, y pixels) with ``radius`` pixels.
-
-    Orthographic: exact.  Perspective: the sphere is placed on the ray through
-    ``centre`` at the distance where its silhouette radius is ``radius``
-    (exact for a sphere on the optical axis; off axis its silhouette is an
-    ellipse and this is an approximation).
-    """
-    h, w = shape
-    cx, cy = (float(c) for c in centre)
-    r = float(radius)
-    if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r) and r > 0):
-        raise InputError(f"sphere: centre must be finite and radius > 0, got centre {centre}, radius {radius}")
-    if camera not in ("orthographic", "perspective"):
-        raise InputError(f"camera: expected 'orthographic' or 'perspective', got {camera!r}")
-    if camera == "perspective":
-        fov = check_fov(fov)
-    n, mask, view = G.sphere_at(*G.pixel_centres(shape), shape, (cx, cy), r, camera, fov)
-    if not mask.any():
-        raise InputError(f"sphere: centre {centre} and radius {radius} cover no pixel of a {w}x{h} image")
-    return n, mask, view
-
-
-class SphereGeometry:
-    """Exact normals and view directions of a sphere at any image point (for sub-pixel samples).
-
-    Stored as :attr:`Observation.geometry`; :meth:`Observation.sample_geometry`
-    then evaluates it at each sample's point instead of interpolating the
-    normal map (which errs near the silhouette of a small sphere).
-    """
-
-    def __init__(self, shape, centre, radius, camera="orthographic", fov=None):
-        self.shape, self.centre, self.radius, self.camera, self.fov = tuple(shape), centre, radius, camera, fov
-
-    def at(self, X, Y):
-        n, m, v = G.sphere_at(np.asarray(X, float), np.asarray(Y, float), self.shape, self.centre, self.radius,
-                              self.camera, self.fov)
-        return n, v
-
-    def to_dict(self):
-        return {"centre": [float(c) for c in self.centre], "radius": float(self.radius),
-                "camera": self.camera, "fov": self.fov}
+def check_camera(camera, fov):
+    """``camera`` and ``fov`` checked as :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS` declare them; a
+    perspective camera needs its field of view."""
+    IMAGE_OPTION["camera"].check(camera)
+    if camera == "perspective" and fov is None:
+        raise InputError("fov: a perspective camera needs its horizontal field of view in (0, 180) degrees")
+    return camera, IMAGE_OPTION["fov"].check(fov)
 
 
 def find_sphere(mask):
@@ -496,14 +440,18 @@ def find_sphere(mask):
 
 
 def geometry_from_sphere(shape, centre=None, radius=None, mask=None, camera="orthographic", fov=None):
-    """(normals, mask, view_dirs) of a sphere; centre and radius found from ``mask`` when not given."""
+    """(normals, mask, view_dirs) of a sphere given by a user (:func:`fmbrdf_mi.geometry.sphere_normals`),
+    intersected with ``mask``; its centre and radius found from ``mask`` when not given."""
     if centre is None or radius is None:
         if mask is None:
             raise InputError("sphere: give its centre and radius, or a mask to find them from")
         (cx, cy), r = find_sphere(mask)
         centre = (cx, cy) if centre is None else centre
         radius = r if radius is None else radius
-    n, m, v = sphere_normals(shape, centre, radius, camera, fov)
+    n, m, v = sphere_normals(shape, centre, radius, *check_camera(camera, fov))
+    if not m.any():
+        raise InputError(f"sphere: centre {tuple(centre)} and radius {radius} cover no pixel of a "
+                         f"{shape[1]}x{shape[0]} image")
     if mask is not None:
         m = m & read_mask(mask, shape)
     return n, m, v

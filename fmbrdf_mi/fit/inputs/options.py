@@ -1,14 +1,9 @@
-"""The option schema's record type, its value check, and the options of one image.
+"""The option schema's row type :class:`Option` with its value check, and the options of one image.
 
-Every option of a fit is one :class:`Option`: its name, command-line flag,
-kind and valid range or choices, default, help, which ``reproduce`` records
-keep it and whether an image of a manifest may give it.  The options that
-describe one image (its geometry, light, sensor settings: the keywords of
-:func:`~fmbrdf_mi.fit.inputs.files.build_observation`, the keys of a manifest
-image) are :data:`IMAGE_OPTIONS`, here at the inputs layer where the manifest
-reads them; the fit's own options and the command's are declared with them in
-:mod:`fmbrdf_mi.fit.api.options`, which generates the command line, the checks,
-the record's key lists and :class:`~fmbrdf_mi.fit.api.options.FitOptions`.
+The options of one image (geometry, light, sensor settings: the keywords of
+:func:`~fmbrdf_mi.fit.inputs.files.build_observation`, the keys of a manifest image) are
+:data:`IMAGE_OPTIONS`, here at the inputs layer that reads them; the rest of the schema and what it
+generates is :mod:`fmbrdf_mi.fit.api.options`.
 """
 from __future__ import annotations
 
@@ -17,7 +12,10 @@ import math
 import numbers
 
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.observations import IRRADIANCE_RANGE
+
+#: The irradiances (light power x irradiance, image units) a fit can work with: beyond them the albedos
+#: (image / irradiance) leave the range of the fit's arithmetic (NaN parameters or Dr.Jit errors).
+IRRADIANCE_RANGE = (1e-20, 1e20)
 
 #: The records of a fit.json that can keep an option (``Option.records``): a single-image fit's, a colour
 #: mosaic's, a joint fit's.
@@ -32,11 +30,12 @@ class Option:
     end), ``"choice"`` (one of ``choices``), ``"bool"``, or None (a value checked by the relations of
     :func:`fmbrdf_mi.fit.api.options.check_fit_options`: a table, a file name, a vector).  ``fit``: a field of
     :class:`~fmbrdf_mi.fit.api.options.FitOptions`.  ``records``: the fit.json records that keep it
-    (:data:`RECORDS`).  ``image``: an image's option (a manifest key).  ``flag``: its command-line flag
+    (:data:`RECORDS`).  ``flag``: its command-line flag
     (None: not on the command line), with ``group`` its help section and ``cli`` further
     :meth:`argparse.ArgumentParser.add_argument` keywords (``metavar``, ``action``, ``nargs``, ``type``, and
     ``default`` where the command line's differs).  ``parse``: the text form the command line gives to the
-    value a fit takes (``"kappa=0"`` -> ``{"kappa": 0.0}``).
+    value a fit takes (``"kappa=0"`` -> ``{"kappa": 0.0}``).  ``many``: a value may also be a list of up to this
+    many, each checked.
     """
 
     name: str
@@ -52,9 +51,9 @@ class Option:
     choices: tuple = ()
     fit: bool = False
     records: tuple = ()
-    image: bool = False
     cli: dict = dataclasses.field(default_factory=dict)
     parse: object = None
+    many: int = 1
 
     def range_text(self):
         """The valid range as an interval, e.g. ``(0, 180)``, ``[1, inf)``."""
@@ -70,6 +69,10 @@ class Option:
         name = name or self.name
         if value is None or self.kind is None:
             return value
+        if self.many > 1 and isinstance(value, (tuple, list)):
+            if not 1 <= len(value) <= self.many:
+                raise InputError(f"{name}: expected one value or up to {self.many}, got {value!r}")
+            return tuple(dataclasses.replace(self, many=1).check(x, name) for x in value)
         if self.kind == "choice":
             if not isinstance(value, str) or value not in self.choices:
                 raise InputError(f"{name}: expected one of {', '.join(self.choices)}, got {value!r}")
@@ -92,62 +95,57 @@ class Option:
         return int(v) if whole else v
 
 
-def flag_of(name):
-    """How the command line writes the option ``name``: ``max_pixels`` -> ``--max-pixels``."""
-    return "--" + name.replace("_", "-")
-
-
 _IMAGE = "polarimetric image"
 _GEOMETRY = "geometry and light (camera frame: x image right, y image up, z towards the camera)"
 
 #: The options of one image: build_observation's keywords, a manifest image's (or its [defaults]') keys.
 IMAGE_OPTIONS = (
-    Option("layout", None, flag="--layout", group=_IMAGE, image=True, records=("single",),
+    Option("layout", None, flag="--layout", group=_IMAGE, records=("single",),
            help="mosaic polariser angles, 2x2 row-major from the top left (default: the capture sidecar's, else "
                 "IMX250MZR 90,45,135,0)"),
-    Option("black_level", None, kind="number", lo=0.0, flag="--black-level", group=_IMAGE, image=True,
+    Option("black_level", None, kind="number", lo=0.0, flag="--black-level", group=_IMAGE,
            records=("single", "colour"), cli={"type": float},
            help="subtracted from raw / angle images (default: the sidecar's, else 0)"),
-    Option("white_level", None, kind="number", lo=0.0, lo_open=True, flag="--white-level", group=_IMAGE, image=True,
+    Option("white_level", None, kind="number", lo=0.0, lo_open=True, flag="--white-level", group=_IMAGE,
            records=("single", "colour"), cli={"type": float, "metavar": "DN"},
            help="raw samples at or above this are clipped: their super-pixel is left out (default: the sidecar's, "
                 "else the smallest 2^b - 1, b in 8,10,12,14,16, holding the data)"),
-    Option("dark_level", None, kind="number", lo=0.0, flag="--dark-level", group=_IMAGE, image=True,
+    Option("dark_level", None, kind="number", lo=0.0, flag="--dark-level", group=_IMAGE,
            records=("single",), cli={"type": float, "metavar": "DN"},
            help="raw samples at or below this (raw value, black level included) are clipped: their super-pixel "
                 "is left out (default: 0 when the black level is 0, else none)"),
     Option("demosaic", "bilinear", kind="choice", choices=("bilinear", "superpixel"), flag="--demosaic",
-           group=_IMAGE, image=True, records=("single",),
+           group=_IMAGE, records=("single",),
            help="raw mosaics: interpolate each angle to the super-pixel centre (default) or take the 2x2 pixels "
                 "as they are"),
-    Option("channel", "mean", flag="--channel", group=_IMAGE, image=True, records=("single",),
+    Option("channel", "mean", flag="--channel", group=_IMAGE, records=("single",),
            help="colour channel of an RGB Stokes EXR: mean, R, G or B"),
     Option("conversion_gain", None, kind="number", lo=0.0, lo_open=True, flag="--conversion-gain", group=_IMAGE,
-           image=True, records=("single", "colour"), cli={"type": float, "metavar": "E_PER_UNIT"},
+           records=("single", "colour"), cli={"type": float, "metavar": "E_PER_UNIT"},
            help="camera gain in electrons per image unit (e-/DN for raw images); with --read-noise, the DoLP term "
                 "accounts for the noise bias of the observed DoLP"),
-    Option("read_noise", None, kind="number", lo=0.0, flag="--read-noise", group=_IMAGE, image=True,
+    Option("read_noise", None, kind="number", lo=0.0, flag="--read-noise", group=_IMAGE,
            records=("single", "colour"), cli={"type": float, "metavar": "E"}, help="read noise in electrons rms"),
     Option("footprint", "auto", kind="choice", choices=("auto", "point", "box", "demosaic"), flag="--footprint",
-           group=_IMAGE, image=True, records=("single",),
+           group=_IMAGE, records=("single",),
            help="what a pixel integrates over, modelled by averaging the BSDF over it: the pixel centre, a 3x3 "
                 "box, or the demosaicking's raw pixels (auto: demosaic for raw mosaics, point otherwise)"),
-    Option("normals", None, flag="--normals", group=_GEOMETRY, image=True, records=("single", "colour"),
+    Option("normals", None, flag="--normals", group=_GEOMETRY, records=("single", "colour"),
            cli={"metavar": "N.npy"}, help="normal map, H x W x 3 unit vectors"),
-    Option("mask", None, flag="--mask", group=_GEOMETRY, image=True, records=("single", "colour"),
+    Option("mask", None, flag="--mask", group=_GEOMETRY, records=("single", "colour"),
            cli={"metavar": "M"}, help="object mask (.npy or .png, non-zero = object)"),
-    Option("sphere", None, flag="--sphere", group=_GEOMETRY, image=True, records=("single", "colour"),
+    Option("sphere", None, flag="--sphere", group=_GEOMETRY, records=("single", "colour"),
            cli={"metavar": "CX,CY,R|auto"},
            help="a sphere: centre and radius in pixels (pixel centres at +0.5), or auto (from --mask)"),
-    Option("view", None, flag="--view", group=_GEOMETRY, image=True, records=("single", "colour"),
+    Option("view", None, flag="--view", group=_GEOMETRY, records=("single", "colour"),
            cli={"metavar": "V.npy"}, help="view directions, H x W x 3 (default: from --camera)"),
     Option("camera", "orthographic", kind="choice", choices=("orthographic", "perspective"), flag="--camera",
-           group=_GEOMETRY, image=True, records=("single", "colour"), help="the camera's projection"),
+           group=_GEOMETRY, records=("single", "colour"), help="the camera's projection"),
     Option("fov", None, kind="number", lo=0.0, lo_open=True, hi=180.0, hi_open=True, flag="--fov", group=_GEOMETRY,
-           image=True, records=("single", "colour"), cli={"type": float},
+           records=("single", "colour"), cli={"type": float},
            help="horizontal field of view (degrees) of a perspective camera"),
     Option("irradiance", None, kind="number", lo=IRRADIANCE_RANGE[0], hi=IRRADIANCE_RANGE[1], flag="--irradiance",
-           group=_GEOMETRY, image=True, records=("single", "colour"), cli={"type": float},
+           group=_GEOMETRY, records=("single", "colour"), cli={"type": float},
            help="light irradiance in image units (default 1: absorbed by k_s)"),
 )
 

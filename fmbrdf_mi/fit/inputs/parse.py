@@ -1,6 +1,8 @@
 """Values given as text (command line, manifests): vectors, bounds, start values, fixed parameters, polariser layouts."""
 from __future__ import annotations
 
+import math
+
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.options import Option
 from fmbrdf_mi.sensor.mosaic import check_layout
@@ -22,6 +24,19 @@ def parse_vector(text, name, n=3):
     if len(vals) != n:
         raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}")
     return vals
+
+
+def parse_sphere(value, name="sphere"):
+    """``auto`` or a sphere's centre and radius in pixels (``"cx,cy,r"`` or three numbers) -> ``"auto"`` or
+    (cx, cy, r), a finite centre and a radius > 0."""
+    if value is None or (isinstance(value, str) and value == "auto"):
+        return value
+    if isinstance(value, bool) or not isinstance(value, (str, list, tuple)):
+        raise InputError(f"{name}: expected auto, \"cx,cy,r\" or [cx, cy, r] (pixels), got {value!r}")
+    cx, cy, r = parse_vector(value, f"{name} (cx,cy,r in pixels)")
+    if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(r) and r > 0):
+        raise InputError(f"{name}: expected a finite centre and a radius > 0 (pixels), got {value!r}")
+    return cx, cy, r
 
 
 def parse_smooth(text, name="--albedo-smooth"):
@@ -47,74 +62,65 @@ def check_number(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True):
     return Option(name, kind="number", lo=lo, lo_open=not lo_incl, hi=hi, hi_open=not hi_incl).check(value)
 
 
-def parse_bounds(items, name="--bounds"):
-    """``["alpha=0.05:0.5", ...]`` -> {"alpha": (0.05, 0.5)}; ``name``: the option in messages."""
-    if isinstance(items, dict) or items is None:
-        return items
-    if isinstance(items, str):
-        items = [items]
-    if not isinstance(items, (list, tuple)):
-        raise InputError(f"{name}: expected NAME=LO:HI items, e.g. alpha=0.05:0.5, got {items!r}")
-    out = {}
-    for item in items:
-        name, sep, rng = str(item).partition("=")
-        lo, sep2, hi = rng.partition(":")
-        try:
-            out[name.strip()] = (float(lo), float(hi))
-        except ValueError:
-            raise InputError(f"{name} {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5") from None
-        if not (sep and sep2):
-            raise InputError(f"{name} {item!r}: expected NAME=LO:HI, e.g. alpha=0.05:0.5")
-    return out
-
-
-def parse_init(text, name="--init"):
-    """``"eta=1.5,alpha=0.3,..."`` -> dict (all reported parameters of the model); ``name``: the option in
-    messages."""
-    if isinstance(text, dict) or text is None:
-        return text
-    out = {}
-    for item in str(text).split(","):
-        name, sep, value = item.partition("=")
-        try:
-            out[name.strip()] = float(value)
-        except ValueError:
-            raise InputError(f"{name} {text!r}: expected NAME=VALUE,..., e.g. eta=1.5,alpha=0.3,beta=2,"
-                             "kappa=10,k_s=1,r_k=1") from None
-    return out
-
-
-def parse_fixed(items, name="--fix"):
-    """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (shape parameters held fixed)."""
+def parse_pairs(items, name, form, example, value=float):
+    """``NAME=...`` items (a list, or text of comma-separated items) -> {NAME: value(...)}, else InputError naming
+    ``name`` (the option) with the ``form`` and an ``example``; a table (or None) is returned as it is."""
     if isinstance(items, dict) or items is None:
         return items
     if not isinstance(items, (str, list, tuple)):
-        raise InputError(f"{name}: expected NAME=VALUE items, e.g. kappa=0, got {items!r}")
-    items = [items] if isinstance(items, str) else [str(x) for x in items]
+        raise InputError(f"{name}: expected {form} items, e.g. {example}, got {items!r}")
     out = {}
-    for item in ",".join(items).split(","):
-        name, sep, value = item.partition("=")
+    for item in ",".join([items] if isinstance(items, str) else map(str, items)).split(","):
+        key, sep, text = item.partition("=")
         try:
-            out[name.strip()] = float(value)
+            if not sep:
+                raise ValueError
+            out[key.strip()] = value(text)
         except ValueError:
-            raise InputError(f"{name} {item!r}: expected NAME=VALUE, e.g. kappa=0") from None
-        if not sep:
-            raise InputError(f"{name} {item!r}: expected NAME=VALUE, e.g. kappa=0")
+            raise InputError(f"{name} {item!r}: expected {form}, e.g. {example}") from None
     return out
 
 
-def parse_layout(text):
-    """``"90,45,135,0"`` (row-major 2x2, top row first) -> ((90, 45), (135, 0))."""
+def _interval(text):
+    lo, hi = text.split(":")
+    return float(lo), float(hi)
+
+
+def parse_bounds(items, name="--bounds"):
+    """``["alpha=0.05:0.5", ...]`` -> {"alpha": (0.05, 0.5)} (bounds narrowed)."""
+    return parse_pairs(items, name, "NAME=LO:HI", "alpha=0.05:0.5", _interval)
+
+
+def parse_init(text, name="--init"):
+    """``"eta=1.5,alpha=0.3,..."`` -> {"eta": 1.5, ...} (start values of all reported parameters)."""
+    return parse_pairs(text, name, "NAME=VALUE,...", "eta=1.5,alpha=0.3,beta=2,kappa=10,k_s=1,r_k=1")
+
+
+def parse_fixed(items, name="--fix"):
+    """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (shape parameters
+    held fixed)."""
+    return parse_pairs(items, name, "NAME=VALUE", "kappa=0")
+
+
+def parse_layout(value, name="layout"):
+    """``"90,45,135,0"`` or four whole angles in degrees, flat or 2x2 (row-major, top row first) ->
+    ((90, 45), (135, 0))."""
+    flat = value
+    if isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(r, (list, tuple)) for r in value):
+        flat = [a for r in value for a in r]
+    if isinstance(flat, (list, tuple)) and not any(isinstance(a, bool) or not isinstance(a, int) for a in flat):
+        flat = ",".join(map(str, flat))
     try:
-        a = [int(x) for x in str(text).replace(" ", "").split(",")]
-    except ValueError:
-        raise InputError(f"layout: expected four comma-separated angles such as 90,45,135,0, got {text!r}") from None
+        a = [int(x) for x in flat.replace(" ", "").split(",")]
+    except (AttributeError, ValueError):
+        raise InputError(f"{name}: expected four angles in degrees (row-major 2x2) such as \"90,45,135,0\" or "
+                         f"[90, 45, 135, 0], got {value!r}") from None
     if len(a) != 4:
-        raise InputError(f"layout: expected four angles (row-major 2x2), got {text!r}")
+        raise InputError(f"{name}: expected four angles (row-major 2x2), got {value!r}")
     try:
         check_layout(((a[0], a[1]), (a[2], a[3])))
     except ValueError as exc:
-        raise InputError(str(exc)) from None
+        raise InputError(f"{name}{str(exc).removeprefix('layout')}") from None
     return ((a[0], a[1]), (a[2], a[3]))
 
 
