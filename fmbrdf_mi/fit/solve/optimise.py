@@ -275,15 +275,17 @@ def loss_and_grad_reverse(problem, st):
 
 def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limit=None, history=None,
          round_no=0):
-    """Adam on z with the reverse-mode gradient; returns (best State, loss, reason, converged)."""
-    z = problem.to_z(st)
-    m = np.zeros_like(z)
-    v = np.zeros_like(z)
-    b1, b2, eps = 0.9, 0.999, 1e-8
+    """:class:`drjit.opt.Adam` on z with the reverse-mode gradient; returns (best State, loss, reason, converged)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    opt = dr.opt.Adam(lr=lr)
+    opt["z"] = mi.Float64(problem.to_z(st))
     best = (math.inf, st)
     since, reason, t0 = 0, "max_iter", time.time()
     converged = False
     for it in range(1, max_iter + 1):
+        z = np.clip(np.array(opt["z"], dtype=np.float64), -40, 40)
         st = problem.from_z(z)
         problem.check_time(True)
         t_it = time.time()
@@ -294,10 +296,7 @@ def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limi
         if not np.all(np.isfinite(gz)):
             reason = "non-finite gradient"
             break
-        if f < best[0] * (1 - tol):
-            since = 0
-        else:
-            since += 1
+        since = 0 if f < best[0] * (1 - tol) else since + 1
         if f < best[0]:
             best = (f, st.copy())
             problem.current = best[1]
@@ -315,10 +314,8 @@ def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limi
         if time_limit is not None and time.time() - t0 > time_limit:
             reason = f"time limit {time_limit:g} s"
             break
-        m = b1 * m + (1 - b1) * gz
-        v = b2 * v + (1 - b2) * gz * gz
-        mh, vh = m / (1 - b1 ** it), v / (1 - b2 ** it)
-        z = np.clip(z - lr * mh / (np.sqrt(vh) + eps), -40, 40)
+        dr.set_grad(opt["z"], mi.Float64(gz))
+        opt.step()
     return best[1], best[0], reason, converged
 
 
