@@ -4,7 +4,7 @@ The model, evaluator and albedo layout are
 :mod:`fmbrdf_mi.fit.evaluate.materials`'; this module adds what the solver
 needs: the objective's score per material (the coarse search ranks each
 material's grid points on its own pixels:
-:func:`fmbrdf_mi.fit.solve.optimise.material_search`), the problem with
+:func:`fmbrdf_mi.fit.solve.optimise.coarse_search`), the problem with
 parameters held fixed (the profile likelihood), and the ``materials`` block
 of fit.json.
 
@@ -36,10 +36,7 @@ class MaterialProblem(Problem):
     def material_scores(self, parts, st):
         """(M,) the objective's score (for the likelihood its negative log) of each material's own cells:
         their sum is the score of the whole."""
-        obj = self.obj
-        mu = obj.mu(parts, st)
-        v = np.maximum(obj.noise.variance(mu), 1e-300)
-        per_cell = 0.5 * np.sum((obj.y - mu) ** 2 / v + np.log(v), axis=1)
+        per_cell = 0.5 * np.sum(self.obj.nll_terms(parts, st), axis=1)
         return np.bincount(self.cell_material, weights=per_cell, minlength=self.params.count)
 
 

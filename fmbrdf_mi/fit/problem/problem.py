@@ -61,19 +61,6 @@ class Problem:
             return None
         return Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress)
 
-    # the paper objective's target and weights (Adam uses them)
-    @property
-    def target(self):
-        return self.obj.target
-
-    @property
-    def w(self):
-        return self.obj.w
-
-    @property
-    def outliers(self):
-        return self.obj.outliers
-
     # ---- z <-> state: z = (free shape parameters through the bounds, log a_s, log a_b), with an albedo
     # layout (objective.layout: per channel) log a_s[0 ..], then log a_b[0 ..]
     @property
@@ -118,9 +105,6 @@ class Problem:
         return State({n: float(self.fixed.get(n, shape[n])) for n in self.params.shape_names}, a_s, a_b)
 
     # ---- evaluation
-    def time_left(self):
-        return None if self.deadline is None else self.deadline - time.time()
-
     def check_time(self, jac=False):
         if self.deadline is not None and time.time() + self._cost[jac] > self.deadline:
             raise TimeUp()
@@ -163,9 +147,6 @@ class Problem:
 
     def set_weights(self, parts, st):
         self.obj.refresh(parts, st)
-
-    def loss(self, parts, st, w=None):
-        return self.obj.value(parts, st) if w is None else self.obj.value(parts, st, w)
 
     def residuals_and_jacobian(self, parts, st, z):
         """r (m,) and dr/dz (m, k + 2) of the objective's residuals."""

@@ -30,34 +30,29 @@ from fmbrdf_mi.fit.solve import lm as LM
 ALBEDO_BOUND = 1e-3
 
 
-def search_grids(model, bounds, fixed, names):
-    """The coarse search's grids: ({shape parameter: its grid values (one if fixed)},
+def search_grids(model, clip, fixed, names):
+    """The coarse search's grids: ({shape parameter: its grid values (one if fixed; else ``clip(name, grid)``)},
     the stage-1 parameters, the later ones (eta, kappa, when free), their middle values)."""
-    grids = {n: ([fixed[n]] if n in fixed else bounds.clip_grid(n, model.param(n).grid))
-             for n in model.shape_names}
+    grids = {n: ([fixed[n]] if n in fixed else clip(n, model.param(n).grid)) for n in model.shape_names}
     later = [n for n in ("eta", "kappa") if n in names]
     first = [n for n in model.shape_names if n not in later]
     return grids, first, later, {n: grids[n][len(grids[n]) // 2] for n in later}
 
 
-def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of, keep=2, on_point=None,
-                  progress=None):
+def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of, keep=2, progress=None):
     """The coarse search's stages over any point evaluation; returns [(score, point)] best first.
 
     Stage 1: the ``first`` parameters on their grids, the ``later`` ones at their middle values ``mids``;
     then each ``later`` parameter on its grid for the ``keep`` best points so far.  ``evaluate(shape)``
     returns (score, point), ``shape_of(point)`` its shape values; each grid point is evaluated once.
-    ``on_point(key, results)`` follows every new point; ``progress(message)`` gets progress lines.
+    ``progress(message)`` gets progress lines.
     """
     results = {}
 
     def try_point(shape):
         key = tuple(round(shape[n], 9) for n in shape_names)
-        if key in results:
-            return
-        results[key] = evaluate(shape)
-        if on_point is not None:
-            on_point(key, results)
+        if key not in results:
+            results[key] = evaluate(shape)
 
     def best():
         return min(results.values(), key=lambda x: x[0])
@@ -80,85 +75,59 @@ def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of,
     return sorted(results.values(), key=lambda x: x[0])
 
 
+#: How many combined candidates the search of several materials returns (each costs one evaluation).
+MATERIAL_CANDIDATES = 6
+
+
 def coarse_search(problem, keep=2):
     """Grid search in stages (:func:`staged_search`); returns candidates [(score, State)] best first.
 
     Stage 1: every free shape parameter but eta and kappa on its grid, eta and kappa at their middle grid
     values; then eta, then kappa, on their grids for the ``keep`` best (kappa last: it changes the body
-    term least, docs/benchmarks.md).  Each grid point costs one BSDF table rebuild; the albedos follow in
-    closed form and the objective with the candidate's own weights decides.
+    term least).  Each grid point costs one BSDF table rebuild; the albedos follow in closed form and the
+    objective with the candidate's own weights decides.
+
+    Several materials (:class:`~fmbrdf_mi.fit.problem.materials.MaterialProblem`): every grid point of the
+    one-material search is evaluated once with all materials at it and scored on each material's own
+    pixels (:meth:`~fmbrdf_mi.fit.problem.materials.MaterialProblem.material_scores`), so each material
+    gets its best grid point at about the cost of one search; candidate j combines every material's j-th
+    best point.
     """
-    if problem.params.count is not None:
-        return material_search(problem, keep)
-    params = problem.params
-    grids, first, later, mids = search_grids(params, problem.bounds, problem.fixed, problem.names)
-    lobes = {}
+    params, M = problem.params, problem.params.count or 1
+    if M == 1:
+        model, rows, clip, fixed, names = params, None, problem.bounds.clip_grid, problem.fixed, problem.names
+    else:   # material 0's rows under the model's names: every material has their bounds and fixed values
+        model, rows = problem.model, params.shape
+        row0 = {r.base: r.name for r in rows if r.material == 0}
+        clip = lambda n, g: problem.bounds.clip_grid(row0[n], g)  # noqa: E731
+        fixed = {n: problem.fixed[r] for n, r in row0.items() if r in problem.fixed}
+        names = [n for n, r in row0.items() if r in problem.names]
+    grids, first, later, mids = search_grids(model, clip, fixed, names)
+    points, best = {}, [math.inf]
 
-    def evaluate(shape):
-        st, parts = problem.closed_form(shape)
-        c_s, c_b = st.a_s * float(np.mean(parts.surface[0])), st.a_b * float(np.mean(parts.body[0]))
-        lobes["last"] = bool(np.all(np.minimum(c_s, c_b) >= ALBEDO_BOUND * np.maximum(c_s, c_b)))  # every channel
-        return problem.obj.score(parts, st), st
+    def at(shape):   # (scores per material, State), one evaluation per grid point
+        key = tuple(round(shape[n], 9) for n in model.shape_names)
+        if key not in points:
+            st, parts = problem.closed_form(shape if rows is None else {r.name: shape[r.base] for r in rows})
+            if M == 1:
+                c_s, c_b = st.a_s * float(np.mean(parts.surface[0])), st.a_b * float(np.mean(parts.body[0]))
+                problem.both_lobes[key] = bool(np.all(np.minimum(c_s, c_b) >= ALBEDO_BOUND * np.maximum(c_s, c_b)))
+                points[key] = ([problem.obj.score(parts, st)], st)
+            else:
+                points[key] = (problem.material_scores(parts, st), st)
+            if sum(points[key][0]) < best[0]:
+                best[0], problem.current = sum(points[key][0]), st
+        return points[key]
 
-    def on_point(key, results):
-        problem.both_lobes[key] = lobes["last"]
-        problem.current = min(results.values(), key=lambda x: x[0])[1]
-
-    return staged_search(params.shape_names, grids, first, later, mids, evaluate, shape_of=lambda st: st.shape,
-                         keep=keep, on_point=on_point, progress=problem.progress)
-
-
-#: How many combined candidates the search of several materials returns (each costs one evaluation).
-MATERIAL_CANDIDATES = 6
-
-
-class _FirstMaterialBounds:
-    """The bounds of material 0's parameters under the model's names (every material has the same:
-    ``bounds`` and ``fixed`` are given per model parameter); ``rows``: {model's name: material 0's row name}."""
-
-    def __init__(self, bounds, rows):
-        self.bounds, self.rows = bounds, rows
-
-    def clip_grid(self, name, grid):
-        return self.bounds.clip_grid(self.rows[name], grid)
-
-
-def material_search(problem, keep=2):
-    """The coarse search of a fit of several materials
-    (:class:`~fmbrdf_mi.fit.problem.materials.MaterialProblem`); returns candidates [(score, State)].
-
-    Every grid point of the one-material search (:func:`staged_search`) is evaluated once with all
-    materials at it and scored on each material's own pixels
-    (:meth:`~fmbrdf_mi.fit.problem.materials.MaterialProblem.material_scores`), so each material gets its
-    best grid point at about the cost of one search.  Candidate j combines every material's j-th best point.
-    """
-    base, rows = problem.model, problem.params.shape
-    first0 = {r.base: r.name for r in rows if r.material == 0}     # material 0's rows by the model's names
-    fixed0 = {n: problem.fixed[r] for n, r in first0.items() if r in problem.fixed}
-    names0 = [n for n, r in first0.items() if r in problem.names]
-    grids, first, later, mids = search_grids(base, _FirstMaterialBounds(problem.bounds, first0), fixed0, names0)
-    scores = {}
-
-    def full(shape):
-        return {r.name: shape[r.base] for r in rows}
-
-    def tied(shape):
-        key = tuple(round(shape[n], 9) for n in base.shape_names)
-        if key not in scores:
-            st, parts = problem.closed_form(full(shape))
-            scores[key] = problem.material_scores(parts, st)
-            if problem.current is None:
-                problem.current = st
-        return scores[key]
-
-    ranked = [staged_search(base.shape_names, grids, first, later, mids,
-                            lambda s, m=m: (float(tied(s)[m]), dict(s)), shape_of=lambda s: s, keep=keep,
-                            progress=problem.progress if m == 0 else None)
-              for m in range(problem.params.count)]
+    if M == 1:     # the point is the State: a problem's closed form may set more than the grid's values
+        return staged_search(model.shape_names, grids, first, later, mids, lambda s: (at(s)[0][0], at(s)[1]),
+                             shape_of=lambda st: st.shape, keep=keep, progress=problem.progress)
+    ranked = [staged_search(model.shape_names, grids, first, later, mids, lambda s, m=m: (float(at(s)[0][m]), s),
+                            shape_of=lambda s: s, keep=keep, progress=problem.progress if m == 0 else None)
+              for m in range(M)]
     out = []
     for j in range(min(MATERIAL_CANDIDATES, min(len(r) for r in ranked))):
-        shape = {r.name: ranked[r.material][j][1][r.base] for r in rows}
-        st, parts = problem.closed_form(shape)
+        st, parts = problem.closed_form({r.name: ranked[r.material][j][1][r.base] for r in rows})
         out.append((problem.obj.score(parts, st), st))
     out.sort(key=lambda x: x[0])
     problem.current = out[0][1]
