@@ -105,9 +105,15 @@ class Problem:
         return State({n: float(self.fixed.get(n, shape[n])) for n in self.params.shape_names}, a_s, a_b)
 
     # ---- evaluation
-    def check_time(self, jac=False):
+    def timed(self, jac, evaluate, *args):
+        """``evaluate(*args)``, a model evaluation (with derivatives: ``jac``); raises :class:`TimeUp` first
+        if the slowest one of its kind so far would end past the deadline."""
         if self.deadline is not None and time.time() + self._cost[jac] > self.deadline:
             raise TimeUp()
+        t = time.time()
+        out = evaluate(*args)
+        self._cost[jac] = max(self._cost[jac], time.time() - t)
+        return out
 
     def parts(self, st, jac=False):
         """The model's :class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` at ``st`` (with shape derivatives
@@ -116,11 +122,8 @@ class Problem:
         for k, j, p in self._cache:
             if k == key and (j or not jac):
                 return p
-        self.check_time(jac)
-        t = time.time()
+        p = self.timed(jac, self.ev.parts, st.shape, self.names if jac else ())
         self.n_evals += 1
-        p = self.ev.parts(st.shape, self.names if jac else ())
-        self._cost[jac] = max(self._cost[jac], time.time() - t)
         self._cache = [(key, jac, p)] + self._cache[:1]
         return p
 

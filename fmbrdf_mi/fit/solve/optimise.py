@@ -140,6 +140,16 @@ def format_state(problem, st):
     return " ".join(f"{k}={v:.4g}" for k, v in rep.items())
 
 
+def log_step(problem, history, name, round_no, it, f, st, say=True):
+    """An iterate of optimiser ``name``: its entry in ``history`` (a list, or None) and, if ``say``, a progress line."""
+    if history is not None:
+        history.append({"stage": f"{name}{round_no}", "iter": it, "loss": f, "time": time.time() - problem.t0,
+                        "params": problem.params.report(st.shape, st.a_s, st.a_b)})
+    if say:
+        problem.progress(f"[{name} {round_no}] iter {it:3d}  {problem.obj.name} {f:.6e}  {format_state(problem, st)}  "
+                         f"({time.time() - problem.t0:.1f} s)")
+
+
 def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, history=None,
                         round_no=0, refresh=3, final_jacobian=True):
     """Minimise the objective from ``st`` with its current weights (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`).
@@ -177,14 +187,8 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         return r, LM.broyden(J, x_new[1] - x[1], r_new - r)
 
     def on_accept(it, x, f):
-        st = x[0]
-        problem.current = st
-        if history is not None:
-            history.append({"stage": f"lm{round_no}", "iter": it, "loss": f,
-                            "time": time.time() - problem.t0,
-                            "params": problem.params.report(st.shape, st.a_s, st.a_b)})
-        problem.progress(f"[lm {round_no}] iter {it:2d}  {obj.name} {f:.6e}  {format_state(problem, st)}  "
-                         f"({time.time() - problem.t0:.1f} s)")
+        problem.current = x[0]
+        log_step(problem, history, "lm", round_no, it, f, x[0])
 
     if project:
         st = problem.projected(st.shape)[0]
@@ -256,10 +260,7 @@ def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limi
     for it in range(1, max_iter + 1):
         z = np.clip(np.array(opt["z"], dtype=np.float64), -40, 40)
         st = problem.from_z(z)
-        problem.check_time(True)
-        t_it = time.time()
-        f, g = loss_and_grad_reverse(problem, st)
-        problem._cost[True] = max(problem._cost[True], time.time() - t_it)
+        f, g = problem.timed(True, loss_and_grad_reverse, problem, st)
         gz = np.array([g[n] * problem.bounds.derivative(n, z[j]) for j, n in enumerate(problem.names)]
                       + [g["a_s"] * st.a_s, g["a_b"] * st.a_b])
         if not np.all(np.isfinite(gz)):
@@ -269,13 +270,7 @@ def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limi
         if f < best[0]:
             best = (f, st.copy())
             problem.current = best[1]
-        if history is not None:
-            history.append({"stage": f"adam{round_no}", "iter": it, "loss": f,
-                            "time": time.time() - problem.t0,
-                            "params": problem.params.report(st.shape, st.a_s, st.a_b)})
-        if it % 5 == 0 or it == 1:
-            problem.progress(f"[adam {round_no}] iter {it:3d}  loss {f:.6e}  {format_state(problem, st)}  "
-                             f"({time.time() - problem.t0:.1f} s)")
+        log_step(problem, history, "adam", round_no, it, f, st, say=it % 5 == 0 or it == 1)
         if since >= patience:
             reason = f"best loss not improved by {tol:g} (relative) in {patience} iterations"
             converged = True
