@@ -31,7 +31,6 @@ from fmbrdf_mi.fit.inputs.observations import validate
 from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective, PaperObjective
-from fmbrdf_mi.fit.problem import materials as MT
 from fmbrdf_mi.fit.problem.problem import FitData
 
 #: Pixels whose view or light direction is within this angle (degrees) of the
@@ -389,11 +388,10 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     views = np.concatenate([g[1] for g in geo])
     lights = np.concatenate([np.tile(o.light_dir, (len(g[0]), 1)) for o, g in zip(observations, geo)])
     irr = np.concatenate([np.full(len(g[0]), o.irradiance) for o, g in zip(observations, geo)])
-    make_problem = mat = None
+    mat = None
     if lab is not None:
         evaluator = material_evaluators(get_model(opts.model), count, cell_material, normals, views, lights, irr,
                                         weights)
-        make_problem = MT.problem_factory(cell_material, count, layout is not None and layout.eliminates)
         mat = {"labels": lab, "count": count, "cell_material": cell_material,
                "pixels": np.bincount(cell_material, minlength=count).tolist()}
     if evaluator is None:
@@ -407,5 +405,5 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
                        materials=materials)
 
     return FitData(loss, flat_idx, excluded, objective, smp, evaluator, image_pixels=idxs, slices=slices,
-                   make_problem=make_problem, materials=mat, area_points=m if loss == "likelihood" else None,
+                   materials=mat, area_points=m if loss == "likelihood" else None,
                    remake=remake if loss == "likelihood" else None)

@@ -32,10 +32,11 @@ class Problem:
     ``deadline``: absolute ``time.time()`` after which no model evaluation may end: each
     evaluation first checks that the slowest one of its kind so far would
     still finish in time, else raises :class:`TimeUp` (so the limit holds
-    inside every loop, coarse search included).
+    inside every loop, coarse search included).  ``cell_material``: several materials (the table's
+    ``count``): each fitted cell's material (:mod:`fmbrdf_mi.fit.problem.materials`).
     """
 
-    def __init__(self, params, evaluator, objective, progress=None, deadline=None):
+    def __init__(self, params, evaluator, objective, progress=None, deadline=None, cell_material=None):
         self.params = params if isinstance(params, Parameters) else Parameters(params)
         self.model, self.ev = self.params.model, evaluator
         self.obj = PaperObjective(objective) if isinstance(objective, L.Target) else objective
@@ -52,6 +53,7 @@ class Problem:
         self.current = None     # latest accepted state (what a fit stopped by the clock reports)
         self.both_lobes = {}    # coarse-search point -> both albedos switched on
         self.albedos_now = (1.0, 1.0)   # an eliminating layout's last albedos (from_z)
+        self.cell_material = None if cell_material is None else np.asarray(cell_material, dtype=np.int64)
 
     def with_fixed(self, values):
         """The same problem (model, evaluator, objective with its current weights, bounds) with the shape
@@ -59,7 +61,14 @@ class Problem:
         unknowns (subclasses), which do not support it."""
         if type(self) is not Problem:
             return None
-        return Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress)
+        return Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress,
+                       cell_material=self.cell_material)
+
+    def material_scores(self, parts, st):
+        """(M,) the likelihood's score (its negative log) of each material's own cells: their sum is the
+        score of the whole (the coarse search of several materials ranks each one's grid points by it)."""
+        per_cell = 0.5 * np.sum(self.obj.nll_terms(parts, st), axis=1)
+        return np.bincount(self.cell_material, weights=per_cell, minlength=self.params.count)
 
     # ---- z <-> state: z = (free shape parameters through the bounds, log a_s, log a_b), with an albedo
     # layout (objective.layout: per channel) log a_s[0 ..], then log a_b[0 ..]
@@ -175,9 +184,8 @@ class FitData:
     None; ``evaluator``: the model at those pixels' points.  Several images:
     ``image_pixels`` (each image's flat indices) and ``slices`` ((start, stop)
     of each image among the pixels).  ``make_problem``: builds the problem
-    when it is not a plain :class:`Problem` (free light powers:
-    :func:`fmbrdf_mi.fit.problem.free_power.problem_factory`; several materials:
-    :func:`fmbrdf_mi.fit.problem.materials.problem_factory`).
+    when it is not a :class:`Problem` (free light powers:
+    :func:`fmbrdf_mi.fit.problem.free_power.problem_factory`).
     """
 
     loss: str
@@ -198,12 +206,12 @@ class FitData:
     remake: object = None
 
     def problem(self, model, bounds, progress, fixed, deadline):
-        """The :class:`Problem` of these data (the free-power one when ``make_problem`` says so)."""
-        if self.make_problem is None:
-            layout = self.objective.layout   # per-channel albedos or maps: a table that reports them
-            maps = layout is not None and layout.eliminates
-            params = Parameters(model, channels=None if layout is None or maps else layout.labels, maps=maps,
-                                bounds=bounds, fixed=fixed)
-            return Problem(params, self.evaluator, self.objective, progress, deadline)
-        return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
+        """The :class:`Problem` of these data (``make_problem``'s when it is set)."""
+        if self.make_problem is not None:
+            return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
+        layout, mat = self.objective.layout, self.materials or {}
+        maps = layout is not None and layout.eliminates   # per-channel albedos: a table that reports them
+        params = Parameters(model, materials=mat.get("count"), maps=maps, bounds=bounds, fixed=fixed,
+                            channels=None if layout is None or maps or mat else layout.labels)
+        return Problem(params, self.evaluator, self.objective, progress, deadline, mat.get("cell_material"))
 

@@ -87,9 +87,9 @@ def coarse_search(problem, keep=2):
     term least).  Each grid point costs one BSDF table rebuild; the albedos follow in closed form and the
     objective with the candidate's own weights decides.
 
-    Several materials (:class:`~fmbrdf_mi.fit.problem.materials.MaterialProblem`): every grid point of the
-    one-material search is evaluated once with all materials at it and scored on each material's own
-    pixels (:meth:`~fmbrdf_mi.fit.problem.materials.MaterialProblem.material_scores`), so each material
+    Several materials (the parameter table's ``count``): every grid point of the one-material search is
+    evaluated once with all materials at it and scored on each material's own pixels
+    (:meth:`~fmbrdf_mi.fit.problem.problem.Problem.material_scores`), so each material
     gets its best grid point at about the cost of one search; candidate j combines every material's j-th
     best point.
     """
