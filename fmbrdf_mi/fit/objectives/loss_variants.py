@@ -29,7 +29,6 @@ import math
 import numpy as np
 
 from fmbrdf_mi.fit.evaluate.models import State
-from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.objectives.objective import PaperObjective
 
 #: Loss names a fit accepts: the polarimetric ones and the two variants.

@@ -325,10 +325,8 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         per_point = m > 1 or any(np.any(s.offsets) for s in smps)
         ys = []
         for o, s, idx in zip(observations, smps, idxs):
-            if per_point:  # n m^2 points per super-pixel: each sample the mean over m x m points of its pixel
-                n, v, w = o.sample_geometry(idx, footprint=s.footprint(m))
-            else:
-                n, v, w = o.sample_geometry(idx, footprint=None)
+            # per point: n m^2 points per super-pixel, each sample the mean over m x m points of its pixel
+            n, v, w = o.sample_geometry(idx, footprint=s.footprint(m) if per_point else None)
             geo.append((n, v))
             ys.append(s.at(idx))
         noise = same_noise(observations)
