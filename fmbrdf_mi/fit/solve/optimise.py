@@ -220,14 +220,10 @@ def loss_and_grad_reverse(problem, st):
     import drjit as dr
     import mitsuba as mi
 
-    ev = problem.ev
+    ev, model = problem.ev, problem.model
     xs = {}
-    for p in problem.model.shape:
-        x = mi.Float(float(st.shape[p.name]))
-        dr.enable_grad(x)
-        ev._assign(p.key, x)
-        xs[p.name] = x
-    for name, key, v in (("a_s", problem.model.surface_key, st.a_s), ("a_b", problem.model.body_key, st.a_b)):
+    for name, key, v in ([(p.name, p.key, st.shape[p.name]) for p in model.shape]
+                         + [("a_s", model.surface_key, st.a_s), ("a_b", model.body_key, st.a_b)]):
         x = mi.Float(float(v))
         dr.enable_grad(x)
         ev._assign(key, x)
