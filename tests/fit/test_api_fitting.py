@@ -101,7 +101,7 @@ def test_render_path_reverse_gradient_matches_finite_differences(render_setup):
         vals = []
         for d in (1, -1):
             s2 = State(*pb.params.split({**start, name: start[name] + d * h}))
-            vals.append(pb.loss(pb.parts(s2), s2))
+            vals.append(pb.obj.value(pb.parts(s2), s2))
         fd = (vals[0] - vals[1]) / (2 * h)
         assert abs(fd) > 1e-5, name
         assert grad[name] == pytest.approx(fd, rel=0.05, abs=0.02 * abs(fd) + 1e-5), name
@@ -111,7 +111,7 @@ def test_short_adam_fit_through_the_renderer(render_setup):
     from fmbrdf_mi.fit import fit
 
     pb, st, start, obs_t, scene = _render_problem(render_setup)
-    f0 = pb.loss(pb.parts(st), st)
+    f0 = pb.obj.value(pb.parts(st), st)
     res = fit(obs_t, path="render", optimizer="adam", scene=scene, init=start, erode=1, spp=16,
               max_iter=5, rounds=1, progress=False)
     assert res.loss < 0.7 * f0

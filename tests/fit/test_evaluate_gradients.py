@@ -45,7 +45,7 @@ def problem(request):
 
     st = State(shape, a_s, a_b)
     pb.set_weights(pb.parts(st), st)
-    assert 0 < pb.outliers.sum() < len(pb.outliers)  # both kinds of pixels present
+    assert 0 < pb.obj.outliers.sum() < len(pb.obj.outliers)  # both kinds of pixels present
     return pb
 
 
@@ -53,7 +53,7 @@ def _loss_at(pb, params):
     from fmbrdf_mi.fit.evaluate.models import State
 
     st = State(*pb.params.split(params))
-    return pb.loss(pb.parts(st), st)
+    return pb.obj.value(pb.parts(st), st)
 
 
 def _paper_gradient(g, params):

@@ -29,14 +29,31 @@ import math
 import numpy as np
 
 from fmbrdf_mi.fit.evaluate.models import State
-from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.objectives.objective import PaperObjective
 
 #: Loss names a fit accepts: the polarimetric ones and the two variants.
 VARIANTS = ("intensity", "dolp")
 
 
-class IntensityObjective(PaperObjective):
+class _Rows(PaperObjective):
+    """A loss that is r' . r' of a linear map r' = :meth:`rows` (r) of :class:`PaperObjective`'s residuals r."""
+
+    def residuals(self, parts, st, w=None):
+        return self.rows(super().residuals(parts, st, self.w if w is None else w))
+
+    def value(self, parts, st, w=None):
+        r = self.residuals(parts, st, w)
+        return float(r @ r)
+
+    def residuals_and_jacobian(self, parts, st, z, names, bounds):
+        r, J, bad = super().residuals_and_jacobian(parts, st, z, names, bounds)
+        if bad is None:
+            return self.rows(r), self.rows(J), None
+        # a row whose derivative is not finite stays out of every combined row's Jacobian
+        return self.rows(r), self.rows(J, ~bad), self.rows(bad, ~bad).astype(bool)
+
+
+class IntensityObjective(_Rows):
     """Intensity MSE of eq:optimization alone (no DoLP term, no inlier / outlier weights)."""
 
     name = "intensity"
@@ -50,18 +67,8 @@ class IntensityObjective(PaperObjective):
     def describe_round(self):
         return "intensity only"
 
-    def _m(self):
-        return len(self.target.intensity)
-
-    def residuals(self, parts, st, w=None):
-        return super().residuals(parts, st, self.w)[: self._m()]
-
-    def value(self, parts, st, w=None):
-        r = self.residuals(parts, st)
-        return float(r @ r)
-
-    def score(self, parts, st):
-        return self.value(parts, st)
+    def rows(self, x, keep=None):
+        return x[:len(self.target.intensity)]
 
     def loss_terms(self, parts, st):
         return {"intensity": self.value(parts, st)}
@@ -69,13 +76,8 @@ class IntensityObjective(PaperObjective):
     def row_pixels(self, n_rows):
         return np.arange(n_rows)
 
-    def residuals_and_jacobian(self, parts, st, z, names, bounds):
-        r, J, bad = super().residuals_and_jacobian(parts, st, z, names, bounds)
-        m = self._m()
-        return r[:m], J[:m], (None if bad is None else bad[:m])
 
-
-class DolpObjective(PaperObjective):
+class DolpObjective(_Rows):
     """DoLP term of eq:optimization alone, plus one residual that sets the overall albedo (module docstring)."""
 
     name = "dolp"
@@ -85,36 +87,21 @@ class DolpObjective(PaperObjective):
     def describe_round(self):
         return super().describe_round() + " (DoLP only)"
 
-    def _m(self):
-        return len(self.target.intensity)
-
-    def _split(self, r):
-        m = self._m()
-        return r[:m], r[m:]
-
-    def residuals(self, parts, st, w=None):
-        r = super().residuals(parts, st, self.w if w is None else w)
-        r_i, r_rho = self._split(r)
-        return np.concatenate([r_rho, [r_i.sum() / math.sqrt(self._m())]])
-
-    def value(self, parts, st, w=None):
-        r = self.residuals(parts, st, w)
-        return float(r @ r)
-
-    def score(self, parts, st):
-        out = L.outlier_mask(parts.surface[0], parts.body[0], st.a_s, st.a_b)
-        return self.value(parts, st, L.weights(out, self.target.dolp_valid))
+    def rows(self, x, keep=None):
+        """The DoLP rows, then the sum of the intensity rows (those in ``keep``) / sqrt(M)."""
+        m = len(self.target.intensity)
+        head = x[:m] if keep is None else x[:m][keep[:m]]
+        return np.concatenate([x[m:], [head.sum(axis=0) / math.sqrt(m)]])
 
     def loss_terms(self, parts, st):
         r = self.residuals(parts, st)
         return {"dolp": float(r[:-1] @ r[:-1]), "scale": float(r[-1] ** 2)}
 
     def row_pixels(self, n_rows):
-        return np.concatenate([np.arange(n_rows - 1) % self._m(), [0]])
+        return np.concatenate([np.arange(n_rows - 1) % len(self.target.intensity), [0]])
 
     def albedos(self, parts):
         """Ratio a_b / a_s minimising the DoLP term (a log grid), overall scale from the mean intensity."""
-
         best = None
         for t in self.RATIOS:
             st = State({}, 1.0, float(t))
@@ -125,18 +112,6 @@ class DolpObjective(PaperObjective):
         i = parts.surface[0] + t * parts.body[0]
         c = float(np.mean(self.target.intensity)) / max(float(np.mean(i)), 1e-300)
         return c, c * t
-
-    def residuals_and_jacobian(self, parts, st, z, names, bounds):
-        r, J, bad = super().residuals_and_jacobian(parts, st, z, names, bounds)
-        m = self._m()
-        s = 1.0 / math.sqrt(m)
-        r2 = np.concatenate([r[m:], [r[:m].sum() * s]])
-        J2 = np.concatenate([J[m:], J[:m].sum(axis=0, keepdims=True) * s])
-        bad2 = None if bad is None else np.concatenate([bad[m:], [False]])
-        if bad is not None and bad[:m].any():
-            # a pixel with a non-finite derivative: keep it out of the scale row too
-            J2[-1] = (J[:m][~bad[:m]]).sum(axis=0) * s
-        return r2, J2, bad2
 
 
 def make(name, target):

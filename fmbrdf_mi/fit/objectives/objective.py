@@ -116,19 +116,14 @@ class PaperObjective:
 
     def residuals_and_jacobian(self, parts, st, z, names, bounds):
         """r (m,) and dr/dz (m, k + 2)."""
-        S, B = parts.surface, parts.body
-        a_s, a_b = st.a_s, st.a_b
-        s = a_s * S + a_b * B
-        i = s[0]
+        s = st.a_s * parts.surface + st.a_b * parts.body
         nu = np.sqrt(s[1] ** 2 + s[2] ** 2 + L.DOLP_EPS ** 2)
         sigma = self.target.lin_sigma
-        lin = nu if sigma is None else rice.mean_length(nu, sigma)
         dlin = 1.0 if sigma is None else rice.mean_length_derivative(nu, sigma)
+        i, rho = self._predict(parts, st)
         safe_i = np.where(i > 0, i, 1.0)
-        rho = lin / safe_i
         r = L.residuals(self.target, self.w, i, rho)
-        m = len(i)
-        ci = 1.0 / (self.target.scale * math.sqrt(m))
+        ci = 1.0 / (self.target.scale * math.sqrt(len(i)))
         cr = np.sqrt(self.w / self.w.sum())
 
         def cols(ds):
@@ -228,11 +223,16 @@ class LikelihoodObjective:
         r = self.residuals(parts, st)
         return float(r @ r)
 
-    def nll(self, parts, st):
-        """Negative log-likelihood (up to a constant) with the variance from this prediction."""
+    def nll_terms(self, parts, st):
+        """(n, m) twice each sample's term of the negative log-likelihood, with the variance from this
+        prediction: (y - mu)^2 / v + log v."""
         mu = self.mu(parts, st)
         v = np.maximum(self.noise.variance(mu), 1e-300)
-        out = 0.5 * float(np.sum((self.y - mu) ** 2 / v + np.log(v)))
+        return (self.y - mu) ** 2 / v + np.log(v)
+
+    def nll(self, parts, st):
+        """Negative log-likelihood (up to a constant) with the variance from this prediction."""
+        out = 0.5 * float(np.sum(self.nll_terms(parts, st)))
         return out if self.prior is None else out + 0.5 * self.penalty(st)
 
     def score(self, parts, st):

@@ -31,7 +31,6 @@ from fmbrdf_mi.fit.inputs.observations import validate
 from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective, PaperObjective
-from fmbrdf_mi.fit.problem import materials as MT
 from fmbrdf_mi.fit.problem.problem import FitData
 
 #: Pixels whose view or light direction is within this angle (degrees) of the
@@ -161,6 +160,17 @@ def area_points(samples, opts):
     return int(m)
 
 
+def one_view(observations, what, why):
+    """The first of ``observations``; InputError naming ``what`` (and ``why`` it must be one view) unless
+    every image is of its view (one pixel grid and the same view directions)."""
+    o0 = observations[0]
+    for k, o in enumerate(observations[1:], 1):
+        if o.shape != o0.shape or not np.allclose(o.view_dirs, o0.view_dirs):
+            raise InputError(f"{what}: image {k} is not of the same view as image 0 (pixel grid and view "
+                             f"directions must agree: {why})")
+    return o0
+
+
 def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, factor=1.0):
     """The per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) of the fitted cells
     ``idxs`` (one flat index array per image): one group per pixel of the view (per pixel and colour
@@ -169,11 +179,7 @@ def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, facto
     ``smooth``: (tau_s, tau_b) of the maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`, in
     the reported albedos' units; ``factor`` the model's albedo factor), or None: no prior.  ``bilinear``: each
     sample's albedos interpolated between the pixel centres (:func:`bilinear_layout`), else its own pixel's."""
-    o0 = observations[0]
-    for k, o in enumerate(observations[1:], 1):
-        if o.shape != o0.shape or not np.allclose(o.view_dirs, o0.view_dirs):
-            raise InputError(f"albedo per-pixel: image {k} is not of the same view as image 0 (pixel grid and "
-                             "view directions must agree: a pixel's albedo is that of one point of the object)")
+    o0 = one_view(observations, "albedo per-pixel", "a pixel's albedo is that of one point of the object")
     flat = np.concatenate(idxs)
     pixels = np.unique(flat)
     cell = np.searchsorted(pixels, flat)                               # (cells,) the pixel's group
@@ -219,11 +225,7 @@ def bilinear_layout(shape, flat, pixels, cell, samples, prior=None):
 def material_labels(observations, materials, loss, opts, evaluator=None):
     """The checked label image of a fit of several materials (:func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`
     on the images' pixel grid, one view) and M; InputError in one line for what the materials do not work with."""
-    o0 = observations[0]
-    for k, o in enumerate(observations[1:], 1):
-        if o.shape != o0.shape or not np.allclose(o.view_dirs, o0.view_dirs):
-            raise InputError(f"materials: image {k} is not of the same view as image 0 (one label image labels "
-                             "the pixels of one view: pixel grid and view directions must agree)")
+    o0 = one_view(observations, "materials", "one label image labels the pixels of one view")
     if loss != "likelihood":
         raise InputError("materials: needs the likelihood of the camera's samples (loss likelihood, or auto with "
                          f"the camera noise known; got loss {loss!r})")
@@ -323,10 +325,8 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         per_point = m > 1 or any(np.any(s.offsets) for s in smps)
         ys = []
         for o, s, idx in zip(observations, smps, idxs):
-            if per_point:  # n m^2 points per super-pixel: each sample the mean over m x m points of its pixel
-                n, v, w = o.sample_geometry(idx, footprint=s.footprint(m))
-            else:
-                n, v, w = o.sample_geometry(idx, footprint=None)
+            # per point: n m^2 points per super-pixel, each sample the mean over m x m points of its pixel
+            n, v, w = o.sample_geometry(idx, footprint=s.footprint(m) if per_point else None)
             geo.append((n, v))
             ys.append(s.at(idx))
         noise = same_noise(observations)
@@ -386,11 +386,10 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     views = np.concatenate([g[1] for g in geo])
     lights = np.concatenate([np.tile(o.light_dir, (len(g[0]), 1)) for o, g in zip(observations, geo)])
     irr = np.concatenate([np.full(len(g[0]), o.irradiance) for o, g in zip(observations, geo)])
-    make_problem = mat = None
+    mat = None
     if lab is not None:
         evaluator = material_evaluators(get_model(opts.model), count, cell_material, normals, views, lights, irr,
                                         weights)
-        make_problem = MT.problem_factory(cell_material, count, layout is not None and layout.eliminates)
         mat = {"labels": lab, "count": count, "cell_material": cell_material,
                "pixels": np.bincount(cell_material, minlength=count).tolist()}
     if evaluator is None:
@@ -404,5 +403,5 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
                        materials=materials)
 
     return FitData(loss, flat_idx, excluded, objective, smp, evaluator, image_pixels=idxs, slices=slices,
-                   make_problem=make_problem, materials=mat, area_points=m if loss == "likelihood" else None,
+                   materials=mat, area_points=m if loss == "likelihood" else None,
                    remake=remake if loss == "likelihood" else None)

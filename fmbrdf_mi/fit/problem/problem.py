@@ -32,10 +32,11 @@ class Problem:
     ``deadline``: absolute ``time.time()`` after which no model evaluation may end: each
     evaluation first checks that the slowest one of its kind so far would
     still finish in time, else raises :class:`TimeUp` (so the limit holds
-    inside every loop, coarse search included).
+    inside every loop, coarse search included).  ``cell_material``: several materials (the table's
+    ``count``): each fitted cell's material (:mod:`fmbrdf_mi.fit.problem.materials`).
     """
 
-    def __init__(self, params, evaluator, objective, progress=None, deadline=None):
+    def __init__(self, params, evaluator, objective, progress=None, deadline=None, cell_material=None):
         self.params = params if isinstance(params, Parameters) else Parameters(params)
         self.model, self.ev = self.params.model, evaluator
         self.obj = PaperObjective(objective) if isinstance(objective, L.Target) else objective
@@ -52,6 +53,7 @@ class Problem:
         self.current = None     # latest accepted state (what a fit stopped by the clock reports)
         self.both_lobes = {}    # coarse-search point -> both albedos switched on
         self.albedos_now = (1.0, 1.0)   # an eliminating layout's last albedos (from_z)
+        self.cell_material = None if cell_material is None else np.asarray(cell_material, dtype=np.int64)
 
     def with_fixed(self, values):
         """The same problem (model, evaluator, objective with its current weights, bounds) with the shape
@@ -59,20 +61,14 @@ class Problem:
         unknowns (subclasses), which do not support it."""
         if type(self) is not Problem:
             return None
-        return Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress)
+        return Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress,
+                       cell_material=self.cell_material)
 
-    # the paper objective's target and weights (Adam uses them)
-    @property
-    def target(self):
-        return self.obj.target
-
-    @property
-    def w(self):
-        return self.obj.w
-
-    @property
-    def outliers(self):
-        return self.obj.outliers
+    def material_scores(self, parts, st):
+        """(M,) the likelihood's score (its negative log) of each material's own cells: their sum is the
+        score of the whole (the coarse search of several materials ranks each one's grid points by it)."""
+        per_cell = 0.5 * np.sum(self.obj.nll_terms(parts, st), axis=1)
+        return np.bincount(self.cell_material, weights=per_cell, minlength=self.params.count)
 
     # ---- z <-> state: z = (free shape parameters through the bounds, log a_s, log a_b), with an albedo
     # layout (objective.layout: per channel) log a_s[0 ..], then log a_b[0 ..]
@@ -118,12 +114,15 @@ class Problem:
         return State({n: float(self.fixed.get(n, shape[n])) for n in self.params.shape_names}, a_s, a_b)
 
     # ---- evaluation
-    def time_left(self):
-        return None if self.deadline is None else self.deadline - time.time()
-
-    def check_time(self, jac=False):
+    def timed(self, jac, evaluate, *args):
+        """``evaluate(*args)``, a model evaluation (with derivatives: ``jac``); raises :class:`TimeUp` first
+        if the slowest one of its kind so far would end past the deadline."""
         if self.deadline is not None and time.time() + self._cost[jac] > self.deadline:
             raise TimeUp()
+        t = time.time()
+        out = evaluate(*args)
+        self._cost[jac] = max(self._cost[jac], time.time() - t)
+        return out
 
     def parts(self, st, jac=False):
         """The model's :class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` at ``st`` (with shape derivatives
@@ -132,11 +131,8 @@ class Problem:
         for k, j, p in self._cache:
             if k == key and (j or not jac):
                 return p
-        self.check_time(jac)
-        t = time.time()
+        p = self.timed(jac, self.ev.parts, st.shape, self.names if jac else ())
         self.n_evals += 1
-        p = self.ev.parts(st.shape, self.names if jac else ())
-        self._cost[jac] = max(self._cost[jac], time.time() - t)
         self._cache = [(key, jac, p)] + self._cache[:1]
         return p
 
@@ -164,9 +160,6 @@ class Problem:
     def set_weights(self, parts, st):
         self.obj.refresh(parts, st)
 
-    def loss(self, parts, st, w=None):
-        return self.obj.value(parts, st) if w is None else self.obj.value(parts, st, w)
-
     def residuals_and_jacobian(self, parts, st, z):
         """r (m,) and dr/dz (m, k + 2) of the objective's residuals."""
         r, J, bad = self.obj.residuals_and_jacobian(parts, st, z, self.names, self.bounds)
@@ -191,9 +184,8 @@ class FitData:
     None; ``evaluator``: the model at those pixels' points.  Several images:
     ``image_pixels`` (each image's flat indices) and ``slices`` ((start, stop)
     of each image among the pixels).  ``make_problem``: builds the problem
-    when it is not a plain :class:`Problem` (free light powers:
-    :func:`fmbrdf_mi.fit.problem.free_power.problem_factory`; several materials:
-    :func:`fmbrdf_mi.fit.problem.materials.problem_factory`).
+    when it is not a :class:`Problem` (free light powers:
+    :func:`fmbrdf_mi.fit.problem.free_power.problem_factory`).
     """
 
     loss: str
@@ -214,12 +206,12 @@ class FitData:
     remake: object = None
 
     def problem(self, model, bounds, progress, fixed, deadline):
-        """The :class:`Problem` of these data (the free-power one when ``make_problem`` says so)."""
-        if self.make_problem is None:
-            layout = self.objective.layout   # per-channel albedos or maps: a table that reports them
-            maps = layout is not None and layout.eliminates
-            params = Parameters(model, channels=None if layout is None or maps else layout.labels, maps=maps,
-                                bounds=bounds, fixed=fixed)
-            return Problem(params, self.evaluator, self.objective, progress, deadline)
-        return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
+        """The :class:`Problem` of these data (``make_problem``'s when it is set)."""
+        if self.make_problem is not None:
+            return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
+        layout, mat = self.objective.layout, self.materials or {}
+        maps = layout is not None and layout.eliminates   # per-channel albedos: a table that reports them
+        params = Parameters(model, materials=mat.get("count"), maps=maps, bounds=bounds, fixed=fixed,
+                            channels=None if layout is None or maps or mat else layout.labels)
+        return Problem(params, self.evaluator, self.objective, progress, deadline, mat.get("cell_material"))
 

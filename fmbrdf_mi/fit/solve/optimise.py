@@ -30,34 +30,29 @@ from fmbrdf_mi.fit.solve import lm as LM
 ALBEDO_BOUND = 1e-3
 
 
-def search_grids(model, bounds, fixed, names):
-    """The coarse search's grids: ({shape parameter: its grid values (one if fixed)},
+def search_grids(model, clip, fixed, names):
+    """The coarse search's grids: ({shape parameter: its grid values (one if fixed; else ``clip(name, grid)``)},
     the stage-1 parameters, the later ones (eta, kappa, when free), their middle values)."""
-    grids = {n: ([fixed[n]] if n in fixed else bounds.clip_grid(n, model.param(n).grid))
-             for n in model.shape_names}
+    grids = {n: ([fixed[n]] if n in fixed else clip(n, model.param(n).grid)) for n in model.shape_names}
     later = [n for n in ("eta", "kappa") if n in names]
     first = [n for n in model.shape_names if n not in later]
     return grids, first, later, {n: grids[n][len(grids[n]) // 2] for n in later}
 
 
-def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of, keep=2, on_point=None,
-                  progress=None):
+def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of, keep=2, progress=None):
     """The coarse search's stages over any point evaluation; returns [(score, point)] best first.
 
     Stage 1: the ``first`` parameters on their grids, the ``later`` ones at their middle values ``mids``;
     then each ``later`` parameter on its grid for the ``keep`` best points so far.  ``evaluate(shape)``
     returns (score, point), ``shape_of(point)`` its shape values; each grid point is evaluated once.
-    ``on_point(key, results)`` follows every new point; ``progress(message)`` gets progress lines.
+    ``progress(message)`` gets progress lines.
     """
     results = {}
 
     def try_point(shape):
         key = tuple(round(shape[n], 9) for n in shape_names)
-        if key in results:
-            return
-        results[key] = evaluate(shape)
-        if on_point is not None:
-            on_point(key, results)
+        if key not in results:
+            results[key] = evaluate(shape)
 
     def best():
         return min(results.values(), key=lambda x: x[0])
@@ -80,85 +75,59 @@ def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of,
     return sorted(results.values(), key=lambda x: x[0])
 
 
+#: How many combined candidates the search of several materials returns (each costs one evaluation).
+MATERIAL_CANDIDATES = 6
+
+
 def coarse_search(problem, keep=2):
     """Grid search in stages (:func:`staged_search`); returns candidates [(score, State)] best first.
 
     Stage 1: every free shape parameter but eta and kappa on its grid, eta and kappa at their middle grid
     values; then eta, then kappa, on their grids for the ``keep`` best (kappa last: it changes the body
-    term least, docs/benchmarks.md).  Each grid point costs one BSDF table rebuild; the albedos follow in
-    closed form and the objective with the candidate's own weights decides.
+    term least).  Each grid point costs one BSDF table rebuild; the albedos follow in closed form and the
+    objective with the candidate's own weights decides.
+
+    Several materials (the parameter table's ``count``): every grid point of the one-material search is
+    evaluated once with all materials at it and scored on each material's own pixels
+    (:meth:`~fmbrdf_mi.fit.problem.problem.Problem.material_scores`), so each material
+    gets its best grid point at about the cost of one search; candidate j combines every material's j-th
+    best point.
     """
-    if problem.params.count is not None:
-        return material_search(problem, keep)
-    params = problem.params
-    grids, first, later, mids = search_grids(params, problem.bounds, problem.fixed, problem.names)
-    lobes = {}
+    params, M = problem.params, problem.params.count or 1
+    if M == 1:
+        model, rows, clip, fixed, names = params, None, problem.bounds.clip_grid, problem.fixed, problem.names
+    else:   # material 0's rows under the model's names: every material has their bounds and fixed values
+        model, rows = problem.model, params.shape
+        row0 = {r.base: r.name for r in rows if r.material == 0}
+        clip = lambda n, g: problem.bounds.clip_grid(row0[n], g)  # noqa: E731
+        fixed = {n: problem.fixed[r] for n, r in row0.items() if r in problem.fixed}
+        names = [n for n, r in row0.items() if r in problem.names]
+    grids, first, later, mids = search_grids(model, clip, fixed, names)
+    points, best = {}, [math.inf]
 
-    def evaluate(shape):
-        st, parts = problem.closed_form(shape)
-        c_s, c_b = st.a_s * float(np.mean(parts.surface[0])), st.a_b * float(np.mean(parts.body[0]))
-        lobes["last"] = bool(np.all(np.minimum(c_s, c_b) >= ALBEDO_BOUND * np.maximum(c_s, c_b)))  # every channel
-        return problem.obj.score(parts, st), st
+    def at(shape):   # (scores per material, State), one evaluation per grid point
+        key = tuple(round(shape[n], 9) for n in model.shape_names)
+        if key not in points:
+            st, parts = problem.closed_form(shape if rows is None else {r.name: shape[r.base] for r in rows})
+            if M == 1:
+                c_s, c_b = st.a_s * float(np.mean(parts.surface[0])), st.a_b * float(np.mean(parts.body[0]))
+                problem.both_lobes[key] = bool(np.all(np.minimum(c_s, c_b) >= ALBEDO_BOUND * np.maximum(c_s, c_b)))
+                points[key] = ([problem.obj.score(parts, st)], st)
+            else:
+                points[key] = (problem.material_scores(parts, st), st)
+            if sum(points[key][0]) < best[0]:
+                best[0], problem.current = sum(points[key][0]), st
+        return points[key]
 
-    def on_point(key, results):
-        problem.both_lobes[key] = lobes["last"]
-        problem.current = min(results.values(), key=lambda x: x[0])[1]
-
-    return staged_search(params.shape_names, grids, first, later, mids, evaluate, shape_of=lambda st: st.shape,
-                         keep=keep, on_point=on_point, progress=problem.progress)
-
-
-#: How many combined candidates the search of several materials returns (each costs one evaluation).
-MATERIAL_CANDIDATES = 6
-
-
-class _FirstMaterialBounds:
-    """The bounds of material 0's parameters under the model's names (every material has the same:
-    ``bounds`` and ``fixed`` are given per model parameter); ``rows``: {model's name: material 0's row name}."""
-
-    def __init__(self, bounds, rows):
-        self.bounds, self.rows = bounds, rows
-
-    def clip_grid(self, name, grid):
-        return self.bounds.clip_grid(self.rows[name], grid)
-
-
-def material_search(problem, keep=2):
-    """The coarse search of a fit of several materials
-    (:class:`~fmbrdf_mi.fit.problem.materials.MaterialProblem`); returns candidates [(score, State)].
-
-    Every grid point of the one-material search (:func:`staged_search`) is evaluated once with all
-    materials at it and scored on each material's own pixels
-    (:meth:`~fmbrdf_mi.fit.problem.materials.MaterialProblem.material_scores`), so each material gets its
-    best grid point at about the cost of one search.  Candidate j combines every material's j-th best point.
-    """
-    base, rows = problem.model, problem.params.shape
-    first0 = {r.base: r.name for r in rows if r.material == 0}     # material 0's rows by the model's names
-    fixed0 = {n: problem.fixed[r] for n, r in first0.items() if r in problem.fixed}
-    names0 = [n for n, r in first0.items() if r in problem.names]
-    grids, first, later, mids = search_grids(base, _FirstMaterialBounds(problem.bounds, first0), fixed0, names0)
-    scores = {}
-
-    def full(shape):
-        return {r.name: shape[r.base] for r in rows}
-
-    def tied(shape):
-        key = tuple(round(shape[n], 9) for n in base.shape_names)
-        if key not in scores:
-            st, parts = problem.closed_form(full(shape))
-            scores[key] = problem.material_scores(parts, st)
-            if problem.current is None:
-                problem.current = st
-        return scores[key]
-
-    ranked = [staged_search(base.shape_names, grids, first, later, mids,
-                            lambda s, m=m: (float(tied(s)[m]), dict(s)), shape_of=lambda s: s, keep=keep,
-                            progress=problem.progress if m == 0 else None)
-              for m in range(problem.params.count)]
+    if M == 1:     # the point is the State: a problem's closed form may set more than the grid's values
+        return staged_search(model.shape_names, grids, first, later, mids, lambda s: (at(s)[0][0], at(s)[1]),
+                             shape_of=lambda st: st.shape, keep=keep, progress=problem.progress)
+    ranked = [staged_search(model.shape_names, grids, first, later, mids, lambda s, m=m: (float(at(s)[0][m]), s),
+                            shape_of=lambda s: s, keep=keep, progress=problem.progress if m == 0 else None)
+              for m in range(M)]
     out = []
     for j in range(min(MATERIAL_CANDIDATES, min(len(r) for r in ranked))):
-        shape = {r.name: ranked[r.material][j][1][r.base] for r in rows}
-        st, parts = problem.closed_form(shape)
+        st, parts = problem.closed_form({r.name: ranked[r.material][j][1][r.base] for r in rows})
         out.append((problem.obj.score(parts, st), st))
     out.sort(key=lambda x: x[0])
     problem.current = out[0][1]
@@ -169,6 +138,16 @@ def material_search(problem, keep=2):
 def format_state(problem, st):
     rep = problem.params.report(st.shape, st.a_s, st.a_b)
     return " ".join(f"{k}={v:.4g}" for k, v in rep.items())
+
+
+def log_step(problem, history, name, round_no, it, f, st, say=True):
+    """An iterate of optimiser ``name``: its entry in ``history`` (a list, or None) and, if ``say``, a progress line."""
+    if history is not None:
+        history.append({"stage": f"{name}{round_no}", "iter": it, "loss": f, "time": time.time() - problem.t0,
+                        "params": problem.params.report(st.shape, st.a_s, st.a_b)})
+    if say:
+        problem.progress(f"[{name} {round_no}] iter {it:3d}  {problem.obj.name} {f:.6e}  {format_state(problem, st)}  "
+                         f"({time.time() - problem.t0:.1f} s)")
 
 
 def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, history=None,
@@ -208,14 +187,8 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         return r, LM.broyden(J, x_new[1] - x[1], r_new - r)
 
     def on_accept(it, x, f):
-        st = x[0]
-        problem.current = st
-        if history is not None:
-            history.append({"stage": f"lm{round_no}", "iter": it, "loss": f,
-                            "time": time.time() - problem.t0,
-                            "params": problem.params.report(st.shape, st.a_s, st.a_b)})
-        problem.progress(f"[lm {round_no}] iter {it:2d}  {obj.name} {f:.6e}  {format_state(problem, st)}  "
-                         f"({time.time() - problem.t0:.1f} s)")
+        problem.current = x[0]
+        log_step(problem, history, "lm", round_no, it, f, x[0])
 
     if project:
         st = problem.projected(st.shape)[0]
@@ -247,14 +220,10 @@ def loss_and_grad_reverse(problem, st):
     import drjit as dr
     import mitsuba as mi
 
-    ev = problem.ev
+    ev, model = problem.ev, problem.model
     xs = {}
-    for p in problem.model.shape:
-        x = mi.Float(float(st.shape[p.name]))
-        dr.enable_grad(x)
-        ev._assign(p.key, x)
-        xs[p.name] = x
-    for name, key, v in (("a_s", problem.model.surface_key, st.a_s), ("a_b", problem.model.body_key, st.a_b)):
+    for name, key, v in ([(p.name, p.key, st.shape[p.name]) for p in model.shape]
+                         + [("a_s", model.surface_key, st.a_s), ("a_b", model.body_key, st.a_b)]):
         x = mi.Float(float(v))
         dr.enable_grad(x)
         ev._assign(key, x)
@@ -275,39 +244,29 @@ def loss_and_grad_reverse(problem, st):
 
 def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limit=None, history=None,
          round_no=0):
-    """Adam on z with the reverse-mode gradient; returns (best State, loss, reason, converged)."""
-    z = problem.to_z(st)
-    m = np.zeros_like(z)
-    v = np.zeros_like(z)
-    b1, b2, eps = 0.9, 0.999, 1e-8
+    """:class:`drjit.opt.Adam` on z with the reverse-mode gradient; returns (best State, loss, reason, converged)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    opt = dr.opt.Adam(lr=lr)
+    opt["z"] = mi.Float64(problem.to_z(st))
     best = (math.inf, st)
     since, reason, t0 = 0, "max_iter", time.time()
     converged = False
     for it in range(1, max_iter + 1):
+        z = np.clip(np.array(opt["z"], dtype=np.float64), -40, 40)
         st = problem.from_z(z)
-        problem.check_time(True)
-        t_it = time.time()
-        f, g = loss_and_grad_reverse(problem, st)
-        problem._cost[True] = max(problem._cost[True], time.time() - t_it)
+        f, g = problem.timed(True, loss_and_grad_reverse, problem, st)
         gz = np.array([g[n] * problem.bounds.derivative(n, z[j]) for j, n in enumerate(problem.names)]
                       + [g["a_s"] * st.a_s, g["a_b"] * st.a_b])
         if not np.all(np.isfinite(gz)):
             reason = "non-finite gradient"
             break
-        if f < best[0] * (1 - tol):
-            since = 0
-        else:
-            since += 1
+        since = 0 if f < best[0] * (1 - tol) else since + 1
         if f < best[0]:
             best = (f, st.copy())
             problem.current = best[1]
-        if history is not None:
-            history.append({"stage": f"adam{round_no}", "iter": it, "loss": f,
-                            "time": time.time() - problem.t0,
-                            "params": problem.params.report(st.shape, st.a_s, st.a_b)})
-        if it % 5 == 0 or it == 1:
-            problem.progress(f"[adam {round_no}] iter {it:3d}  loss {f:.6e}  {format_state(problem, st)}  "
-                             f"({time.time() - problem.t0:.1f} s)")
+        log_step(problem, history, "adam", round_no, it, f, st, say=it % 5 == 0 or it == 1)
         if since >= patience:
             reason = f"best loss not improved by {tol:g} (relative) in {patience} iterations"
             converged = True
@@ -315,10 +274,8 @@ def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limi
         if time_limit is not None and time.time() - t0 > time_limit:
             reason = f"time limit {time_limit:g} s"
             break
-        m = b1 * m + (1 - b1) * gz
-        v = b2 * v + (1 - b2) * gz * gz
-        mh, vh = m / (1 - b1 ** it), v / (1 - b2 ** it)
-        z = np.clip(z - lr * mh / (np.sqrt(vh) + eps), -40, 40)
+        dr.set_grad(opt["z"], mi.Float64(gz))
+        opt.step()
     return best[1], best[0], reason, converged
 
 
