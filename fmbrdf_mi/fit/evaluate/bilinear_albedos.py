@@ -128,8 +128,9 @@ class BandCholesky:
         band = np.array(band, dtype=np.float64)
         n = band.shape[0]
         self.n = n
-        self.raw_diagonal = band[:, 0].copy()
-        d = band[:, 0]
+        d = band[:, 0].copy()
+        #: pairs (unknowns 2g, 2g + 1) of which an unknown has no signal (its diagonal of G is 0)
+        self.undetermined = np.any(d.reshape(-1, 2) <= 0, axis=1) if n % 2 == 0 else None
         self.scale = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
         for k in range(b + 1):
             i = np.arange(k, n)
