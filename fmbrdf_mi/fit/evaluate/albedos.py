@@ -389,10 +389,6 @@ class GroupAlbedos(AlbedoLayout):
         return ([a_s[g] * S * m for g, m in enumerate(self.masks)]
                 + [a_b[g] * B * m for g, m in enumerate(self.masks)])
 
-    def free(self):
-        """Two per group (they are unknowns of the optimiser: counted in z, not here)."""
-        return 2 * self.n_groups
-
 
 class ChannelAlbedos(GroupAlbedos):
     """One (a_s, a_b) per colour channel: ``channel`` (n,) is the group of each of a cell's n samples."""
