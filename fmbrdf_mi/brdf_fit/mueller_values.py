@@ -37,7 +37,7 @@ def polarised_variant():
 
 @dataclasses.dataclass(frozen=True)
 class MuellerModel:
-    """A model of :class:`MuellerValues`: its shape parameters (ShapeParam of fit.evaluate.models: name, traverse
+    """A model of :class:`MuellerValues`: its shape parameters (as fit.evaluate.models' models: name, traverse
     key, bounds, scale, coarse grid), its terms (name, Mitsuba component flag name, albedo name) and its BSDF."""
 
     name: str

@@ -54,7 +54,7 @@ def _pixel_data(seed=0, n_cells=40, m=4):
 
 
 def test_pixel_albedos_are_each_groups_least_squares():
-    """The closed-form step (ls2_groups, all groups at once) against NumPy's least squares of each group,
+    """The closed-form step (PairBlocks, all groups at once) against NumPy's least squares of each group,
     unconstrained (some groups built to have a negative albedo: nuisance parameters are not clipped), and
     a group with parallel columns (B = 2 S) gets the minimum-norm solution and counts one free albedo."""
     lay, S, B, y, w = _pixel_data(2)

@@ -95,7 +95,8 @@ class SmoothPrior:
         return cols, vals.astype(np.float64)
 
     def residuals(self, a_s, a_b):
-        """The prior's residuals (2E,): factor (a_s,i - a_s,j) / tau_s, then the same of a_b."""
+        """The prior's residuals (2E,): factor (a_s,i - a_s,j) / tau_s, then the same of a_b ((2E, p) for
+        albedos (n_groups, p))."""
         a_s, a_b = np.asarray(a_s, dtype=np.float64), np.asarray(a_b, dtype=np.float64)
         i, j = self.pairs[:, 0], self.pairs[:, 1]
         return np.concatenate([self.weights[0] * (a_s[i] - a_s[j]), self.weights[1] * (a_b[i] - a_b[j])])
@@ -103,8 +104,7 @@ class SmoothPrior:
     def apply(self, x):
         """D x / tau for interleaved unknowns x (2 n_groups,) or (2 n_groups, p): (2E,) or (2E, p)."""
         x = np.asarray(x, dtype=np.float64)
-        return self.residuals(x[0::2], x[1::2]) if x.ndim == 1 else np.stack(
-            [self.residuals(x[0::2, k], x[1::2, k]) for k in range(x.shape[1])], 1)
+        return self.residuals(x[0::2], x[1::2])
 
     def penalty(self, a_s, a_b):
         """The prior's term of chi^2: the sum of the squared :meth:`residuals`."""

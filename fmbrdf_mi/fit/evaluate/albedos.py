@@ -11,7 +11,7 @@ which depend on the shape parameters theta,
 a = (a_s[0], a_b[0], a_s[1], ...) the 2 n_groups albedos and A(theta) a sparse
 design: row k has w_kc S_k at a_s[g_kc] and w_kc B_k at a_b[g_kc], for the
 sample's corners c (its groups g_kc and their weights w_kc).  A layout is
-its design, i.e. its corners (:class:`AlbedoLayout`):
+its design, i.e. its corners; :class:`AlbedoLayout` owns the algebra:
 
 * **per channel** (:class:`ChannelAlbedos`, colour mosaics) and **per
   material** (:class:`~fmbrdf_mi.fit.evaluate.materials.MaterialAlbedos`):
@@ -27,15 +27,14 @@ its design, i.e. its corners (:class:`AlbedoLayout`):
 
 A single shared pair needs no layout (``layout=None``).
 
-A few albedos (:class:`GroupAlbedos`: channels, materials) are unknowns of the
-optimiser (their logs in z), re-solved in closed form (:func:`nnls2`) at trial
-points.  Maps (:class:`PixelAlbedos`: thousands of pairs) are eliminated by
-variable projection (Golub and Pereyra): a = A^+ y at every shape point, and
-the optimiser sees Kaufman's Jacobian (I - P) J_theta, P = A (A^T A)^-1 A^T.
+The albedos of a design are eliminated by variable projection (Golub and
+Pereyra): a = A^+ y at every shape point, the optimiser seeing Kaufman's
+Jacobian (I - P) J_theta, P = A (A^T A)^-1 A^T (:meth:`AlbedoLayout.project`).
+The few albedos of :class:`GroupAlbedos` (channels, materials) are instead
+unknowns of the optimiser (their logs in z), re-solved non-negatively in
+closed form (:func:`nnls2`) at trial points.
 """
 from __future__ import annotations
-
-import abc
 
 import numpy as np
 
@@ -72,27 +71,87 @@ def floored(a_s, a_b):
     return np.maximum(a_s, floor), np.maximum(a_b, floor)
 
 
-class AlbedoLayout(abc.ABC):
-    """The albedos of a fit as the sparse design A(theta) of the module docstring.
+class PairBlocks:
+    """The normal matrix G = A^T A of a design with one corner of weight 1 per sample: block diagonal, one
+    2 x 2 block per group (``blocks`` (n_groups, 2, 2)), pseudo-inverted in closed form (parallel columns give
+    the minimum-norm pair and one degree of freedom).  The same interface as
+    :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`: :meth:`solve`, :meth:`diagonal_blocks`,
+    ``undetermined``."""
 
-    ``name``: the ``albedo`` option's value; ``groups``: each sample's own group, an int array broadcastable
-    to (cells, n); ``n_groups``: how many albedo pairs; ``corner_groups``, ``corner_weights`` (groups' shape
-    + (c,)): the design's corners (default: one corner of weight 1, the own group); ``labels``: each group's
-    label where the groups are named (None otherwise); ``pixels`` (n_groups,): the flat pixel index of each
-    group of a map (None otherwise); ``channel_of`` (n_groups,): a map's colour channel per group (None:
-    mono or not a map); ``prior``: the smoothness prior's rows (None: none).  Subclasses supply the design,
-    this base its algebra."""
+    def __init__(self, blocks):
+        self.inverse = np.linalg.pinv(blocks, rcond=1e-10, hermitian=True)
+        #: each block's rank: the albedos the data spent unknowns on
+        self.rank = np.linalg.matrix_rank(blocks, rtol=1e-10, hermitian=True)
+        det = blocks[:, 0, 0] * blocks[:, 1, 1] - blocks[:, 0, 1] ** 2
+        #: pairs whose columns are parallel (det at most 1e-10 of G_ss G_bb) or empty
+        self.undetermined = ~(det > 1e-10 * np.maximum(blocks[:, 0, 0] * blocks[:, 1, 1], 1e-300))
 
-    #: Whether the albedos are eliminated by variable projection (:class:`PixelAlbedos`: it gives ``project``,
-    #: ``covariance``, ``incidental``), not unknowns of the optimiser (:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos`: ``columns``).
-    eliminates = False
-    #: Why the incidental-parameter term is not computed (None: it is, or nothing is eliminated).
-    incidental_reason = None
-    #: How the incidental-parameter term is computed, where the uncertainty method names it (None: exactly).
-    incidental_method = None
+    def solve(self, r):
+        """G^+ r for r (2 n_groups,) or (2 n_groups, p)."""
+        r = np.asarray(r, dtype=np.float64)
+        x = np.einsum("gij,gj...->gi...", self.inverse, r.reshape((len(self.inverse), 2) + r.shape[1:]))
+        return x.reshape(r.shape)
 
-    def __init__(self, name, groups, n_groups, corner_groups=None, corner_weights=None, *, labels=None,
-                 pixels=None, channel_of=None, prior=None):
+    def diagonal_blocks(self):
+        """The 2 x 2 diagonal blocks of G^+ (n_groups, 2, 2)."""
+        return self.inverse
+
+
+def pair_sums(X, Y, n_groups):
+    """Per group the 2 x 2 block X^T Y (n_groups, 2, 2) of two designs of one corner per sample (the same
+    groups: columns 2g, 2g + 1 of each row)."""
+    g = X[0][:, 0] // 2
+    out = np.empty((n_groups, 2, 2))
+    for a in range(2):
+        for b in range(2):
+            out[:, a, b] = np.bincount(g, weights=X[1][:, a] * Y[1][:, b], minlength=n_groups)
+    return out
+
+
+#: Why the incidental-parameter sandwich is not reported with the albedo maps' smoothness prior
+#: (fit.json's uncertainty method).
+PRIOR_INCIDENTAL = ("the incidental-parameter sandwich is not computed with the albedo smoothness prior (the "
+                    "posterior covariance of the penalised likelihood is reported)")
+
+
+class AlbedoLayout:
+    """The albedos of a fit as the sparse design A(theta) of the module docstring, and their elimination.
+
+    ``groups``: each sample's own group, an int array broadcastable to (cells, n); ``n_groups``: how many
+    albedo pairs; ``corner_groups``, ``corner_weights`` (groups' shape + (c,)): the design's corners (default:
+    one corner of weight 1, the own group); ``name``: the ``albedo`` option's value; ``labels``: each group's
+    label where the groups are named (None otherwise); ``prior``: the smoothness prior
+    (:class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior`), whose rows R are appended to the design
+    (data 0; None: none).  Subclasses supply the design, this class its algebra.
+
+    At every shape point the albedos are the least squares a = (A^T A + R^T R)^-1 A^T y (:meth:`solve`),
+    the optimiser's Jacobian is Kaufman's, (I - P) J_theta (:meth:`project`), and at the optimum each pair's
+    covariance is the diagonal block of the full information's inverse (:meth:`covariance`).  The normal
+    matrix G = A^T A (+ R^T R) is factored once per point and has one of two structures:
+
+    * **block diagonal** (``coupled`` False: one corner per sample, no prior): :class:`PairBlocks`; the
+      incidental-parameter term is exact;
+    * **banded** (``coupled`` True: bilinear corners, or the prior's rows): row-major pixels make G banded
+      (:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`, with
+      :data:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.RIDGE` where singular to rounding); each pair's block
+      of G^-1 is its selected inverse, and the incidental-parameter term a Monte Carlo estimate (none with
+      the prior: :data:`PRIOR_INCIDENTAL`).
+
+    The albedos are not held non-negative: clipping the poorly determined ones at 0 (k_s away from the
+    highlight) biases the shape, while a negative estimate is a small albedo measured with noise.
+    """
+
+    #: Whether the albedos are eliminated by variable projection (False: unknowns of the optimiser,
+    #: :class:`GroupAlbedos`).
+    eliminates = True
+
+    #: Monte Carlo draws of the coupled :meth:`incidental`: about INCIDENTAL_DRAWS[1] / pairs, at least [0], at
+    #: most [2].  One draw's relative spread on a diagonal entry of C is about sqrt(6 / pairs), so fewer draws
+    #: suffice for larger maps; each draw costs (1 + p) banded solves.
+    INCIDENTAL_DRAWS = (8, 60000, 512)
+
+    def __init__(self, groups, n_groups, *, corner_groups=None, corner_weights=None, name="per-pixel",
+                 labels=None, prior=None):
         self.name = name
         self.groups = np.asarray(groups, dtype=np.int64)
         self.n_groups = int(n_groups)
@@ -101,12 +160,16 @@ class AlbedoLayout(abc.ABC):
         self.corner_weights = (np.ones(self.corner_groups.shape) if corner_weights is None
                                else np.asarray(corner_weights, dtype=np.float64).reshape(self.corner_groups.shape))
         self.labels = None if labels is None else tuple(labels)
-        self.pixels = None if pixels is None else np.asarray(pixels, dtype=np.int64)
-        self.channel_of = None if channel_of is None else np.asarray(channel_of, dtype=np.int64)
         self.prior = prior
         #: one corner of weight 1 per sample: A's columns of different groups never share a row
         self.one_corner = self.corner_groups.shape[-1] == 1 and bool(np.all(self.corner_weights == 1.0))
         self._single = np.ascontiguousarray(self.corner_groups[..., 0]) if self.one_corner else None
+        #: whether the pairs are coupled (G banded) or not (G block diagonal)
+        self.coupled = not self.one_corner or prior is not None
+        lo, k, hi = self.INCIDENTAL_DRAWS
+        self.incidental_draws = int(np.clip(np.ceil(k / max(self.n_groups, 1)), lo, hi))
+        self._factor = None             # (key columns, factor of G) at the last columns
+        self._incidental_last = None    # (draws, seed, count), the columns, C of the last incidental
 
     # ---- the design
     def interpolate(self, a):
@@ -155,165 +218,28 @@ class AlbedoLayout(abc.ABC):
         """The prior's term of chi^2 (0 without a prior)."""
         return 0.0 if self.prior is None else self.prior.penalty(a_s, a_b)
 
-    # ---- what each kind does
-    @abc.abstractmethod
-    def solve(self, S, B, y, w):
-        """Every group's (a_s, a_b) from the unit-albedo intensities S, B, the data y and weights w (cells, n):
-        two arrays (n_groups,)."""
-
-    @abc.abstractmethod
-    def free(self):
-        """How many albedos the data spent unknowns on (degrees of freedom)."""
-
-
-class GroupAlbedos(AlbedoLayout):
-    """A few albedo pairs that are unknowns of the optimiser (their logs in z): one corner of weight 1 per
-    sample, its group; each group's pair is solved non-negatively (``nnls2``)."""
-
-    def __init__(self, name, groups, n_groups, labels):
-        super().__init__(name, groups, n_groups, labels=labels)
-        self.masks = [self.groups == g for g in range(self.n_groups)]
-
-    def solve(self, S, B, y, w):
-        """Each group's (a_s, a_b) by ``nnls2`` of its samples: two arrays (n_groups,)."""
-        S, B, y, w = (np.asarray(a) for a in (S, B, y, w))
-        out = [nnls2(*(a[np.broadcast_to(m, a.shape)] for a in (S, B, y, w))) for m in self.masks]
-        return np.array([o[0] for o in out]), np.array([o[1] for o in out])
-
-    def columns(self, S, B, a_s, a_b):
-        """d mu / d log a_s[g] for every g, then d mu / d log a_b[g]: 2 n_groups arrays (cells, n)."""
-        return ([a_s[g] * S * m for g, m in enumerate(self.masks)]
-                + [a_b[g] * B * m for g, m in enumerate(self.masks)])
-
-    def free(self):
-        """Two per group (they are unknowns of the optimiser: counted in z, not here)."""
-        return 2 * self.n_groups
-
-
-class ChannelAlbedos(GroupAlbedos):
-    """One (a_s, a_b) per colour channel: ``channel`` (n,) is the group of each of a cell's n samples."""
-
-    def __init__(self, channel, labels=COLOURS):
-        super().__init__("per-channel", channel, len(labels), labels)
-
-
-#: Why the incidental-parameter sandwich is not reported with the albedo maps' smoothness prior
-#: (fit.json's uncertainty method).
-PRIOR_INCIDENTAL = ("the incidental-parameter sandwich is not computed with the albedo smoothness prior (the "
-                    "posterior covariance of the penalised likelihood is reported)")
-
-
-class PixelAlbedos(AlbedoLayout):
-    """Albedo maps, eliminated by variable projection: one (a_s, a_b) per fitted pixel (per pixel and colour
-    channel: ``channel_of``, ``labels``), the same pixel in every image of a joint fit sharing it.
-
-    ``groups`` (cells, n): each sample's own pixel's group; ``n_groups``; ``pixels`` (n_groups,) the flat
-    pixel index of each group; ``corner_groups``, ``corner_weights`` (cells, n, c): the design's corners (default
-    the own group: ``albedo="per-pixel"``; bilinear interpolation between pixel centres:
-    ``albedo="per-pixel-bilinear"``, :func:`~fmbrdf_mi.fit.problem.data.bilinear_layout`); ``prior``: the
-    smoothness prior (:class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior`), whose rows R are appended
-    to the design (data 0).
-
-    At every shape point the albedos are the least squares a = (A^T A + R^T R)^-1 A^T y (:meth:`solve`),
-    the optimiser's Jacobian is Kaufman's, (I - P) J_theta (:meth:`project`), and at the optimum each pair's
-    covariance is the diagonal block of the full information's inverse (:meth:`covariance`).  The normal
-    matrix G = A^T A (+ R^T R) has one of two structures, and the algebra follows it:
-
-    * **block diagonal** (``coupled`` False: one corner per sample, no prior): one 2 x 2 block per group,
-      pseudo-inverted in closed form (parallel columns give the minimum-norm pair and one degree of
-      freedom); the incidental-parameter term is exact;
-    * **banded** (``coupled`` True: bilinear corners, or the prior's rows): row-major pixels make G banded;
-      it is factored once per point (:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`, with
-      :data:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.RIDGE` where singular to rounding), each pair's block
-      of G^-1 is its selected inverse, and the incidental-parameter term is a Monte Carlo estimate (none with
-      the prior: :data:`~fmbrdf_mi.fit.evaluate.albedos.PRIOR_INCIDENTAL`).
-
-    The albedos are not held non-negative: clipping the poorly determined ones at 0 (k_s away from the
-    highlight) biases the shape, while a negative estimate is a small albedo measured with noise.
-    """
-
-    eliminates = True
-
-    #: Monte Carlo draws of the coupled :meth:`incidental`: about INCIDENTAL_DRAWS[1] / pairs, at least [0], at
-    #: most [2].  One draw's relative spread on a diagonal entry of C is about sqrt(6 / pairs), so fewer draws
-    #: suffice for larger maps; each draw costs (1 + p) banded solves.
-    INCIDENTAL_DRAWS = (8, 60000, 512)
-
-    def __init__(self, groups, n_groups, pixels, *, corner_groups=None, corner_weights=None, name="per-pixel",
-                 prior=None, channel_of=None, labels=None):
-        super().__init__(name, groups, n_groups, corner_groups, corner_weights, labels=labels, pixels=pixels,
-                         channel_of=channel_of, prior=prior)
-        #: whether the pairs are coupled (G banded) or not (G block diagonal)
-        self.coupled = not self.one_corner or prior is not None
-        lo, k, hi = self.INCIDENTAL_DRAWS
-        self.incidental_draws = int(np.clip(np.ceil(k / max(self.n_groups, 1)), lo, hi))
-        self._block = self.corner_groups[..., 0].ravel()    # block diagonal G: each sample's group
-        self._rank = None      # the block diagonal G's ranks per group at the last projection
-        self._factor = None    # (key columns, BandCholesky) of the last banded G
-        self._incidental_last = None    # (draws, seed, count), the columns, C of the last coupled incidental
-
-    @property
-    def incidental_reason(self):
-        """Why :meth:`incidental` gives None (with the prior), else None."""
-        return None if self.prior is None else PRIOR_INCIDENTAL
-
-    @property
-    def incidental_method(self):
-        """How C is computed, where the uncertainty method names it (the coupled pairs' estimate), else None."""
-        if self.coupled and self.prior is None:
-            return (f"C estimated by Monte Carlo over {self.incidental_draws} noise draws (the albedo pairs are "
-                    "coupled)")
-        return None
-
-    # ---- block diagonal G: one 2 x 2 block per group
-    def _gram(self, us, ub):
-        """Per group the Gram matrix U^T U of its two albedo columns (n_groups, 2, 2)."""
-        g = self._block
-        G = np.zeros((self.n_groups, 2, 2))
-        for i, u in enumerate((us, ub)):
-            for j, v in enumerate((us, ub)):
-                G[:, i, j] = np.bincount(g, weights=u * v, minlength=self.n_groups)
-        return G
-
-    def _cross(self, us, ub, J):
-        """U^T J per group (n_groups, 2, p)."""
-        g = self._block
-        c = np.zeros((self.n_groups, 2, J.shape[1]))
-        for i, u in enumerate((us, ub)):
-            for k in range(J.shape[1]):
-                c[:, i, k] = np.bincount(g, weights=u * J[:, k], minlength=self.n_groups)
-        return c
-
-    def _block_inverse(self, G):
-        """Per group the inverse of its 2 x 2 Gram block and whether it is regular (det above 1e-10 of
-        G_ss G_bb): (Gi (n_groups, 2, 2), ok (n_groups,)); a singular block's inverse is 0."""
-        det = G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] ** 2
-        ok = det > 1e-10 * np.maximum(G[:, 0, 0] * G[:, 1, 1], 1e-300)
-        Gi = np.zeros_like(G)
-        d = np.where(ok, det, 1.0)
-        Gi[:, 0, 0], Gi[:, 1, 1] = G[:, 1, 1] / d, G[:, 0, 0] / d
-        Gi[:, 0, 1] = Gi[:, 1, 0] = -G[:, 0, 1] / d
-        return Gi, ok
-
-    # ---- banded G
+    # ---- the factored normal matrix
     def _factorised(self, us, ub):
-        """(A, factor) at the columns ``us``, ``ub``: the last factor when the columns match those it came
-        from to a relative 1e-12 (the solve's S sqrt(w) and the Jacobian's -S / sd differ in rounding and
-        sign), else a new BandCholesky of A^T A (+ R^T R).  A: the data's design."""
+        """(A, factor of G) at the columns ``us``, ``ub``: A the design, the factor the last one when the columns
+        match those it came from to a relative 1e-12 (the solve's S sqrt(w) and the Jacobian's -S / sd differ
+        in rounding and sign), else a new one of A^T A (+ R^T R)."""
         key = (np.abs(np.asarray(us, float).ravel()), np.abs(np.asarray(ub, float).ravel()))
         A = self.design(us, ub)
         f = self._factor
         if f is not None and all(a.shape == b.shape and np.allclose(a, b, rtol=1e-12, atol=0.0)
                                  for a, b in zip(key, f[0])):
             return A, f[1]
-        band = normal_band(A if self.prior is None else stack_rows(A, self.prior.rows()), 2 * self.n_groups)
-        for ridge in (0.0,) + RIDGE:       # G singular to rounding (parallel columns): the ridge
-            try:
-                fac = BandCholesky(*band, ridge=ridge)
-                break
-            except np.linalg.LinAlgError:
-                if ridge == RIDGE[-1]:
-                    raise
+        if not self.coupled:
+            fac = PairBlocks(pair_sums(A, A, self.n_groups))
+        else:
+            band = normal_band(A if self.prior is None else stack_rows(A, self.prior.rows()), 2 * self.n_groups)
+            for ridge in (0.0,) + RIDGE:       # G singular to rounding (parallel columns): the ridge
+                try:
+                    fac = BandCholesky(*band, ridge=ridge)
+                    break
+                except np.linalg.LinAlgError:
+                    if ridge == RIDGE[-1]:
+                        raise
         self._factor = (key, fac)
         return A, fac
 
@@ -321,8 +247,6 @@ class PixelAlbedos(AlbedoLayout):
     def solve(self, S, B, y, w):
         """Every group's (a_s, a_b), the weighted least squares of all samples at once (penalised by the
         prior's rows): two arrays (n_groups,)."""
-        if not self.coupled:
-            return ls2_groups(S, B, y, w, self._block, self.n_groups)
         sw = np.sqrt(np.asarray(w, dtype=np.float64)).ravel()
         A, fac = self._factorised(np.asarray(S, float).ravel() * sw, np.asarray(B, float).ravel() * sw)
         x = fac.solve(self.t_at(A, np.asarray(y, float).ravel() * sw))
@@ -330,12 +254,14 @@ class PixelAlbedos(AlbedoLayout):
 
     def free(self):
         """How many albedos the data spent unknowns on: two per group, one where a block diagonal G's group
-        has parallel columns (the last :meth:`project`'s ranks); with the prior the dimension of its null
-        space (:meth:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior.null_dims`), since the expected
-        penalised chi^2 is then N - p - that."""
+        has parallel columns (at the last factored point); with the prior the dimension of its null space
+        (:meth:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior.null_dims`), since the expected penalised
+        chi^2 is then N - p - that."""
         if self.prior is not None:
             return self.prior.null_dims()
-        return int(2 * self.n_groups if self._rank is None else self._rank.sum())
+        if self._factor is not None and not self.coupled:
+            return int(self._factor[1].rank.sum())
+        return 2 * self.n_groups
 
     def project(self, J, us, ub):
         """Kaufman's Jacobian (I - P) J: ``J`` (N, p) the residuals' derivatives with respect to the shape
@@ -345,12 +271,6 @@ class PixelAlbedos(AlbedoLayout):
         its rows R (which do not depend on the shape: their J rows are 0) are in G, and the projected
         Jacobian has the rows -R K appended: (N + 2E, p)."""
         p = J.shape[1]
-        if not self.coupled:
-            g = self._block
-            G = self._gram(us, ub)
-            self._rank = np.linalg.matrix_rank(G, rtol=1e-10, hermitian=True)
-            K = np.einsum("gij,gjp->gip", np.linalg.pinv(G, rcond=1e-10, hermitian=True), self._cross(us, ub, J))
-            return J - us[:, None] * K[g, 0] - ub[:, None] * K[g, 1], K
         A, fac = self._factorised(us, ub)
         extra = 0 if self.prior is None else self.prior.n_rows
         if not p:
@@ -365,31 +285,133 @@ class PixelAlbedos(AlbedoLayout):
         """(n_groups, 2, 2) covariance of each group's (a_s, a_b) with the shape unknowns free: the diagonal
         blocks of scale G^-1 + K cov_z K^T, K = G^-1 A^T J (the block inverse of the full information matrix;
         ``J`` (N, p) the residuals' unprojected shape derivatives, ``cov_z`` their covariance, already
-        scaled).  A pair the data do not determine gets infinite variances: parallel columns (singular to
-        1e-10), or a coupled pair without signal (its diagonal of A^T A zero)."""
-        if not self.coupled:
-            Gi, ok = self._block_inverse(self._gram(us, ub))
-            K = np.einsum("gij,gjp->gip", Gi, self._cross(us, ub, J))
-            C = scale * Gi + np.einsum("gip,pq,gjq->gij", K, cov_z, K)
-            C[~ok] = np.inf
-            return C
+        scaled).  A pair the data do not determine (the factor's ``undetermined``: parallel columns, or no
+        signal) gets infinite variances."""
         A, fac = self._factorised(us, ub)
         C = scale * fac.diagonal_blocks()
         if J.shape[1]:
             K = fac.solve(self.t_at(A, J)).reshape(self.n_groups, 2, J.shape[1])
             C = C + np.einsum("gip,pq,gjq->gij", K, cov_z, K)
-        C[np.any(fac.raw_diagonal.reshape(self.n_groups, 2) <= 0, axis=1)] = np.inf
+        C[fac.undetermined] = np.inf
         return C
 
     def effective_parameters(self, us, ub):
         """tr(A (A^T A + R^T R)^-1 A^T): the albedos' effective number of parameters (the trace of the hat
         matrix; the rank of A without a prior), from G^-1's entries within G's band."""
-        if not self.coupled:
-            return float(np.linalg.matrix_rank(self._gram(us, ub), rtol=1e-10, hermitian=True).sum())
         A, fac = self._factorised(us, ub)
+        if not self.coupled:
+            return float(fac.rank.sum())
         band, b = normal_band(A, 2 * self.n_groups)
         Z = fac.inverse_band(b)
         return float(np.sum(Z[:, 0] * band[:, 0]) + 2.0 * np.sum(Z[:, 1:] * band[:, 1:]))
+
+    @property
+    def incidental_reason(self):
+        """Why :meth:`incidental` gives None (with the prior), else None."""
+        return None if self.prior is None else PRIOR_INCIDENTAL
+
+    @property
+    def incidental_method(self):
+        """How C is computed, where the uncertainty method names it (the coupled pairs' estimate), else None."""
+        if self.coupled and self.prior is None:
+            return (f"C estimated by Monte Carlo over {self.incidental_draws} noise draws (the albedo pairs are "
+                    "coupled)")
+        return None
+
+    def incidental(self, us, ub, dcols, draws=None, seed=0):
+        """The incidental-parameter term C (p, p) of the eliminated albedos' noise in Kaufman's information,
+        or None with the prior (:attr:`incidental_reason`).  With A the design at the whitened unit-albedo
+        columns ``us``, ``ub`` (N,), A_j the design at their derivatives ``dcols`` (p pairs (dus, dub) of (N,)
+        arrays: d A / d z_j, the corner weights being fixed) and P = A G^-1 A^T,
+
+            C_jk = tr(G^-1 A_j^T (I - P) A_k) = tr(G^-1 A_j^T A_k) - tr(G^-1 A_j^T A G^-1 A^T A_k).
+
+        J^T J at the estimated albedos is on average H + C (Neyman and Scott's incidental parameters), which
+        ``fmbrdf_mi.fit.uncertainty.incidental_sandwich`` corrects.  C is positive semi-definite.
+
+        Block diagonal G: exact, by the sums per group of the second form.  Banded G: G^-1 is not banded, so C
+        is the mean of v_j^T v_k over ``draws`` (default ``incidental_draws``) draws,
+        v_j = (I - P) A_j G^-1 A^T e, e ~ N(0, I_N) from the generator seeded ``seed``.  Deterministic for the
+        same columns; the last result is cached because the covariance and the maps ask at the same point."""
+        if self.prior is not None:
+            return None
+        p = len(dcols)
+        if not p:
+            return np.zeros((0, 0))
+        args = [np.asarray(c, dtype=np.float64).ravel() for c in (us, ub, *(c for pair in dcols for c in pair))]
+        last = self._incidental_last
+        if (last is not None and last[0] == (draws, seed, len(args))
+                and all(np.array_equal(a, b) for a, b in zip(args, last[1]))):
+            return last[2].copy()
+        A, fac = self._factorised(us, ub)
+        Aj = [self.design(dus, dub) for dus, dub in dcols]
+        if not self.coupled:
+            Gi, n = fac.inverse, self.n_groups
+            Y = [pair_sums(A, a, n) for a in Aj]                        # A^T A_j per group
+            GY = [Gi @ y for y in Y]
+            C = np.empty((p, p))
+            for j in range(p):
+                for k in range(j, p):
+                    C[j, k] = C[k, j] = (np.einsum("gab,gba->", pair_sums(Aj[j], Aj[k], n), Gi)
+                                         - np.einsum("gba,gbc,gca->", Y[j], GY[k], Gi))
+        else:
+            m = int(draws or self.incidental_draws)
+            e = np.random.default_rng(seed).standard_normal((A[0].shape[0], m))
+            b = fac.solve(self.t_at(A, e))                           # (2 n_groups, m), covariance G^-1
+            V = []
+            for a in Aj:
+                v = self.at(a, b)                                    # A_j b (N, m)
+                V.append(v - self.at(A, fac.solve(self.t_at(A, v))))
+            V = np.stack(V, 1)                                       # (N, p, m)
+            C = np.einsum("njd,nkd->jk", V, V) / m
+        self._incidental_last = ((draws, seed, len(args)), [a.copy() for a in args], C)
+        return C.copy()
+
+
+class GroupAlbedos(AlbedoLayout):
+    """A few albedo pairs that are unknowns of the optimiser (their logs in z): one corner of weight 1 per
+    sample, its group; each group's pair is solved non-negatively (:func:`nnls2`)."""
+
+    eliminates = False
+
+    def __init__(self, name, groups, n_groups, labels):
+        super().__init__(groups, n_groups, name=name, labels=labels)
+        self.masks = [self.groups == g for g in range(self.n_groups)]
+
+    def solve(self, S, B, y, w):
+        """Each group's (a_s, a_b) by :func:`nnls2` of its samples: two arrays (n_groups,)."""
+        S, B, y, w = (np.asarray(a) for a in (S, B, y, w))
+        out = [nnls2(*(a[np.broadcast_to(m, a.shape)] for a in (S, B, y, w))) for m in self.masks]
+        return np.array([o[0] for o in out]), np.array([o[1] for o in out])
+
+    def columns(self, S, B, a_s, a_b):
+        """d mu / d log a_s[g] for every g, then d mu / d log a_b[g]: 2 n_groups arrays (cells, n)."""
+        return ([a_s[g] * S * m for g, m in enumerate(self.masks)]
+                + [a_b[g] * B * m for g, m in enumerate(self.masks)])
+
+
+class ChannelAlbedos(GroupAlbedos):
+    """One (a_s, a_b) per colour channel: ``channel`` (n,) is the group of each of a cell's n samples."""
+
+    def __init__(self, channel, labels=COLOURS):
+        super().__init__("per-channel", channel, len(labels), labels)
+
+
+class PixelAlbedos(AlbedoLayout):
+    """Albedo maps: one (a_s, a_b) per fitted pixel (per pixel and colour channel: ``channel_of`` (n_groups,),
+    ``labels``), the same pixel in every image of a joint fit sharing it.
+
+    ``groups`` (cells, n): each sample's own pixel's group; ``pixels`` (n_groups,) the flat pixel index of
+    each group; the corners default to the own group (``albedo="per-pixel"``), or are the bilinear
+    interpolation between pixel centres (``albedo="per-pixel-bilinear"``,
+    :func:`~fmbrdf_mi.fit.problem.data.bilinear_layout`).  The rest is :class:`AlbedoLayout`'s."""
+
+    def __init__(self, groups, n_groups, pixels, *, corner_groups=None, corner_weights=None, name="per-pixel",
+                 prior=None, channel_of=None, labels=None):
+        super().__init__(groups, n_groups, corner_groups=corner_groups, corner_weights=corner_weights, name=name,
+                         labels=labels, prior=prior)
+        self.pixels = np.asarray(pixels, dtype=np.int64)
+        self.channel_of = None if channel_of is None else np.asarray(channel_of, dtype=np.int64)
 
     def maps(self, S, B, a_s, a_b, cov, factor, split_rel):
         """The maps of every group: a dict of arrays (n_groups,): ``k_s``, ``k_b`` (the model's reported
@@ -404,98 +426,12 @@ class PixelAlbedos(AlbedoLayout):
         with np.errstate(invalid="ignore", divide="ignore"):
             corr = np.where(np.isfinite(se_s * se_b) & (se_s * se_b > 0), cov[:, 0, 1] / (se_s * se_b), np.nan)
         g = self.groups.ravel()
+        n = np.maximum(np.bincount(g, minlength=self.n_groups), 1)
 
         def mean(v):
             return np.bincount(g, weights=np.abs(v).ravel(), minlength=self.n_groups) / n
 
-        n = np.maximum(np.bincount(g, minlength=self.n_groups), 1)
         mean_s, mean_b, total = mean(S), mean(B), mean(self.mu(S, B, a_s, a_b))
         ident = (total > 0) & (se_s * mean_s <= split_rel * total) & (se_b * mean_b <= split_rel * total)
         return {"k_s": f * a_s, "k_b": f * a_b, "k_s_se": f * se_s, "k_b_se": f * se_b,
                 "correlation": np.clip(corr, -1.0, 1.0), "identified": ident}
-
-    def incidental(self, us, ub, dcols, draws=None, seed=0):
-        """The incidental-parameter term C (p, p) of the eliminated albedos' noise in Kaufman's information,
-        or None with the prior (:attr:`incidental_reason`).  With A the design at the whitened unit-albedo
-        columns ``us``, ``ub`` (N,), A_j the design at their derivatives ``dcols`` (p pairs (dus, dub) of (N,)
-        arrays: d A / d z_j, the corner weights being fixed) and P = A G^-1 A^T,
-
-            C_jk = tr(G^-1 A_j^T (I - P) A_k).
-
-        J^T J at the estimated albedos is on average H + C (Neyman and Scott's incidental parameters), which
-        ``fmbrdf_mi.fit.uncertainty.incidental_sandwich`` corrects.  C is positive semi-definite.
-
-        Block diagonal G: exact, by sums per group, C_jk = sum_g [tr(A_gj^T A_gk G_g^+) -
-        tr(Y_gj^T G_g^+ Y_gk G_g^+)], G_g = U_g^T U_g, Y_gj = U_g^T A_gj, U_g = [us, ub].  Banded G: G^-1 is not
-        banded, so C is the mean of v_j^T v_k over ``draws`` (default ``incidental_draws``) draws,
-        v_j = (I - P) A_j G^-1 A^T e, e ~ N(0, I_N) from the generator seeded ``seed``; deterministic for the
-        same columns, and the last result is cached because the covariance and the maps ask at the same
-        point."""
-        if self.prior is not None:
-            return None
-        if not self.coupled:
-            return self._block_incidental(us, ub, dcols)
-        p = len(dcols)
-        if not p:
-            return np.zeros((0, 0))
-        args = [np.asarray(c, dtype=np.float64).ravel() for c in (us, ub, *(c for pair in dcols for c in pair))]
-        last = self._incidental_last
-        if (last is not None and last[0] == (draws, seed, len(args))
-                and all(np.array_equal(a, b) for a, b in zip(args, last[1]))):
-            return last[2].copy()
-        A, fac = self._factorised(us, ub)
-        N = A[0].shape[0]
-        m = int(draws or self.incidental_draws)
-        e = np.random.default_rng(seed).standard_normal((N, m))
-        b = fac.solve(self.t_at(A, e))                           # (2 n_groups, m), covariance G^-1
-        V = []
-        for dus, dub in dcols:
-            v = self.at(self.design(dus, dub), b)                # A_j b (N, m)
-            V.append(v - self.at(A, fac.solve(self.t_at(A, v))))
-        V = np.stack(V, 1)                                       # (N, p, m)
-        C = np.einsum("njd,nkd->jk", V, V) / m
-        self._incidental_last = ((draws, seed, len(args)), [a.copy() for a in args], C)
-        return C.copy()
-
-    def _block_incidental(self, us, ub, dcols):
-        """:meth:`incidental` of a block diagonal G, exactly, by bincount sums per group (no loop over groups)."""
-        g = self._block
-        p = len(dcols)
-        Gi = np.linalg.pinv(self._gram(us, ub), rcond=1e-10, hermitian=True)      # (n_groups, 2, 2)
-        A = [np.stack(d, -1) for d in dcols]                                       # p x (N, 2)
-        U = np.stack([us, ub], -1)                                                  # (N, 2)
-
-        def total(v):   # (N, 2, 2) -> (n_groups, 2, 2)
-            out = np.empty((self.n_groups, 2, 2))
-            for a in range(2):
-                for b in range(2):
-                    out[:, a, b] = np.bincount(g, weights=v[:, a, b], minlength=self.n_groups)
-            return out
-
-        Y = [total(U[:, :, None] * Aj[:, None, :]) for Aj in A]                    # U^T A_j per group
-        GY = [np.einsum("gab,gbc->gac", Gi, y) for y in Y]                          # G^+ U^T A_j
-        C = np.empty((p, p))
-        for j in range(p):
-            for k in range(j, p):
-                X = total(A[j][:, :, None] * A[k][:, None, :])                     # A_j^T A_k per group
-                C[j, k] = C[k, j] = (np.einsum("gab,gba->", X, Gi)
-                                     - np.einsum("gba,gbc,gca->", Y[j], GY[k], Gi))
-        return C
-
-
-def ls2_groups(S, B, y, w, groups, n_groups):
-    """The weighted least squares of I ~ a_s S + a_b B of every group at once, unconstrained: ``groups``
-    (same shape as S) the group of each sample.  Returns (a_s, a_b) arrays (n_groups,); a group whose
-    two columns are parallel (or empty) gets the minimum-norm solution (its split undetermined)."""
-    g = np.asarray(groups).ravel()
-    S, B, y, w = (np.asarray(a, dtype=np.float64).ravel() for a in (S, B, y, w))
-
-    def total(v):
-        return np.bincount(g, weights=v, minlength=n_groups)
-
-    G = np.empty((n_groups, 2, 2))
-    G[:, 0, 0], G[:, 1, 1] = total(w * S * S), total(w * B * B)
-    G[:, 0, 1] = G[:, 1, 0] = total(w * S * B)
-    b = np.stack([total(w * S * y), total(w * B * y)], 1)
-    x = np.einsum("gij,gj->gi", np.linalg.pinv(G, rcond=1e-10, hermitian=True), b)
-    return x[:, 0], x[:, 1]

@@ -128,8 +128,9 @@ class BandCholesky:
         band = np.array(band, dtype=np.float64)
         n = band.shape[0]
         self.n = n
-        self.raw_diagonal = band[:, 0].copy()
-        d = band[:, 0]
+        d = band[:, 0].copy()
+        #: pairs (unknowns 2g, 2g + 1) of which an unknown has no signal (its diagonal of G is 0)
+        self.undetermined = np.any(d.reshape(-1, 2) <= 0, axis=1) if n % 2 == 0 else None
         self.scale = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
         for k in range(b + 1):
             i = np.arange(k, n)
@@ -184,30 +185,19 @@ class BandCholesky:
         return np.concatenate(x)
 
     def diagonal_blocks(self):
-        """The 2 x 2 diagonal blocks (n / 2, 2, 2) of G^-1 (n even).  Selected inversion (Takahashi) on the
-        block-bidiagonal factor: Z_KK = L_K^-T L_K^-1, and from the last block up
-
-            Z_{k+1,k} = -Z_{k+1,k+1} M_k L_k^-1,   Z_kk = L_k^-T (L_k^-1 - M_k^T Z_{k+1,k}),
-
-        which needs only the diagonal blocks of Z (of Gs; G's are D^-1/2 Z D^-1/2).  O(n b^2)."""
-        e = self.edges
-        diag = np.empty(self.n)
-        off = np.zeros(self.n)               # Z[i, i + 1]
-        for k, Z, Zlow, _ in self._selected_inverse():
-            if Zlow is not None:
-                off[e[k + 1] - 1] = Zlow[0, -1]          # Z[e_{k+1}, e_{k+1} - 1]
-            diag[e[k]:e[k + 1]] = np.diag(Z)
-            off[e[k]:e[k + 1] - 1] = np.diag(Z, 1)
-        sc = self.scale
+        """The 2 x 2 diagonal blocks (n / 2, 2, 2) of G^-1 (n even), from :meth:`inverse_band`'s first two
+        diagonals."""
+        Z = self.inverse_band(1)
         out = np.empty((self.n // 2, 2, 2))
-        out[:, 0, 0], out[:, 1, 1] = diag[0::2] * sc[0::2] ** 2, diag[1::2] * sc[1::2] ** 2
-        out[:, 0, 1] = out[:, 1, 0] = off[0::2] * sc[0::2] * sc[1::2]
+        out[:, 0, 0], out[:, 1, 1] = Z[0::2, 0], Z[1::2, 0]
+        out[:, 0, 1] = out[:, 1, 0] = Z[1::2, 1]
         return out
 
     def inverse_band(self, bw):
         """The lower band (n, bw + 1) of G^-1 (Z[i, i - d] at [i, d]; 0 where i - d < 0), bw at most the
-        factor's half bandwidth: the same selected inversion as :meth:`diagonal_blocks`, keeping each block
-        row's Z_{k,k-1} and Z_kk (an entry within the band lies in one of them).  O(n b^2)."""
+        factor's half bandwidth, by Takahashi's selected inversion on the block-bidiagonal factor
+        (:meth:`_selected_inverse`), keeping each block row's Z_{k,k-1} and Z_kk (an entry within the band lies
+        in one of them).  O(n b^2)."""
         e = self.edges
         K = len(e) - 1
         s = max(e[1] - e[0], 1) if K else 1
@@ -227,8 +217,12 @@ class BandCholesky:
         return out
 
     def _selected_inverse(self):
-        """Takahashi's recursion on the block-bidiagonal factor, from the last block up (:meth:`diagonal_blocks`):
-        yields (k, Z_kk, Z_{k+1,k} or None for the last block, Z_{k+1,k+1} or None), Z = Gs^-1."""
+        """Takahashi's recursion on the block-bidiagonal factor: Z_KK = L_K^-T L_K^-1, and from the last block up
+
+            Z_{k+1,k} = -Z_{k+1,k+1} M_k L_k^-1,   Z_kk = L_k^-T (L_k^-1 - M_k^T Z_{k+1,k}),
+
+        which needs only blocks within the band of Z = Gs^-1 (G^-1 = D^-1/2 Z D^-1/2): yields (k, Z_kk,
+        Z_{k+1,k} or None for the last block, Z_{k+1,k+1} or None)."""
         Znext = None
         for k in range(len(self.edges) - 2, -1, -1):
             Li = self.Linv[k]

@@ -28,29 +28,21 @@ import math
 
 import numpy as np
 
+from fmbrdf_mi.fit.evaluate.parameters import Param
 
-@dataclasses.dataclass(frozen=True)
-class ShapeParam:
-    """A non-linear parameter, its traverse key, bounds and coarse-search values.
 
-    ``scale``: the bounded reparameterisation works on ``log`` (for
-    parameters spanning decades), ``log1p`` (from 0), ``log_minus_1`` (above 1)
-    or ``linear`` values.
-    """
-
-    name: str
-    key: str
-    lo: float
-    hi: float
-    scale: str
-    grid: tuple
+def shape_param(name, key, lo, hi, scale, grid):
+    """A non-linear parameter as a row of the parameter table (:class:`~fmbrdf_mi.fit.evaluate.parameters.Param`):
+    its traverse key, bounds, scale of the bounded reparameterisation (``log`` for parameters spanning decades,
+    ``log1p`` from 0, ``log_minus_1`` above 1, ``linear``) and coarse-search values."""
+    return Param(name, name, "shape", key, lo, hi, scale, tuple(grid))
 
 
 @dataclasses.dataclass(frozen=True)
 class Model:
     name: str
     description: str
-    shape: tuple            # ShapeParam, ...
+    shape: tuple            # Param rows of kind shape (shape_param)
     surface_key: str        # traverse key of the surface albedo
     body_key: str           # traverse key of the body albedo
     albedo_factor: float    # reported albedo = factor * BSDF albedo
@@ -88,10 +80,10 @@ FMBRDF = Model(
     name="fmbrdf",
     description="Fresnel Microfacet BRDF (this package)",
     shape=(
-        ShapeParam("eta", "eta", 1.01, 3.0, "log_minus_1", (1.2, 1.4, 1.6, 1.9, 2.3)),
-        ShapeParam("alpha", "alpha", 0.01, 1.5, "log", (0.03, 0.06, 0.12, 0.25, 0.5, 1.0)),
-        ShapeParam("beta", "beta", 0.4, 5.0, "log", (0.8, 1.6, 3.2)),
-        ShapeParam("kappa", "kappa", 0.0, 100.0, "log1p", (0.0, 10.0, 40.0)),
+        shape_param("eta", "eta", 1.01, 3.0, "log_minus_1", (1.2, 1.4, 1.6, 1.9, 2.3)),
+        shape_param("alpha", "alpha", 0.01, 1.5, "log", (0.03, 0.06, 0.12, 0.25, 0.5, 1.0)),
+        shape_param("beta", "beta", 0.4, 5.0, "log", (0.8, 1.6, 3.2)),
+        shape_param("kappa", "kappa", 0.0, 100.0, "log1p", (0.0, 10.0, 40.0)),
     ),
     surface_key="k_s.value",
     body_key="k_b.value",
@@ -109,8 +101,8 @@ PPLASTIC = Model(
     name="pplastic",
     description="Mitsuba pplastic (Baek et al. 2018 pBRDF, GGX)",
     shape=(
-        ShapeParam("eta", "eta.value", 1.01, 3.0, "log_minus_1", (1.2, 1.35, 1.5, 1.7, 2.0, 2.4)),
-        ShapeParam("alpha", "alpha.value", 0.01, 1.0, "log", (0.02, 0.04, 0.08, 0.15, 0.3, 0.6)),
+        shape_param("eta", "eta.value", 1.01, 3.0, "log_minus_1", (1.2, 1.35, 1.5, 1.7, 2.0, 2.4)),
+        shape_param("alpha", "alpha.value", 0.01, 1.0, "log", (0.02, 0.04, 0.08, 0.15, 0.3, 0.6)),
     ),
     surface_key="specular_reflectance.value",
     body_key="diffuse_reflectance.value",
@@ -126,8 +118,8 @@ LAMBERT_TS = Model(
     name="lambert_ts",
     description="Lambertian + Torrance-Sparrow (Beckmann, Smith, dielectric Fresnel)",
     shape=(
-        ShapeParam("eta", "bsdf_1.eta.value", 1.01, 3.0, "log_minus_1", (1.2, 1.5, 2.0)),
-        ShapeParam("alpha", "bsdf_1.alpha.value", 0.01, 1.0, "log", (0.02, 0.04, 0.08, 0.15, 0.3, 0.6)),
+        shape_param("eta", "bsdf_1.eta.value", 1.01, 3.0, "log_minus_1", (1.2, 1.5, 2.0)),
+        shape_param("alpha", "bsdf_1.alpha.value", 0.01, 1.0, "log", (0.02, 0.04, 0.08, 0.15, 0.3, 0.6)),
     ),
     surface_key="bsdf_1.specular_reflectance.value",
     body_key="bsdf_0.reflectance.value",
@@ -145,9 +137,9 @@ OREN_NAYAR_TS = Model(
     name="oren_nayar_ts",
     description="Oren-Nayar (qualitative form) + Torrance-Sparrow (Beckmann, Smith, dielectric Fresnel)",
     shape=(
-        ShapeParam("eta", "bsdf_1.eta.value", 1.01, 3.0, "log_minus_1", (1.2, 1.5, 2.0)),
-        ShapeParam("alpha", "bsdf_1.alpha.value", 0.01, 1.0, "log", (0.02, 0.04, 0.08, 0.15, 0.3, 0.6)),
-        ShapeParam("sigma", "bsdf_0.sigma", 0.0, 1.5, "linear", (0.0, 0.25, 0.5, 0.9)),
+        shape_param("eta", "bsdf_1.eta.value", 1.01, 3.0, "log_minus_1", (1.2, 1.5, 2.0)),
+        shape_param("alpha", "bsdf_1.alpha.value", 0.01, 1.0, "log", (0.02, 0.04, 0.08, 0.15, 0.3, 0.6)),
+        shape_param("sigma", "bsdf_0.sigma", 0.0, 1.5, "linear", (0.0, 0.25, 0.5, 0.9)),
     ),
     surface_key="bsdf_1.specular_reflectance.value",
     body_key="bsdf_0.reflectance.value",
@@ -199,11 +191,7 @@ def _inv(scale, t):
 
 
 def _dinv(scale, t):
-    if scale in ("log", "log_minus_1"):
-        return np.exp(t)
-    if scale == "log1p":
-        return np.exp(t)
-    return 1.0
+    return 1.0 if scale == "linear" else np.exp(t)
 
 
 #: |z| is kept below this so that sigmoid(z) stays away from 0 and 1 in float32.
@@ -218,44 +206,46 @@ class Bounds:
     """
 
     def __init__(self, model):
-        self.model = model
+        #: {name: (lo, hi on the parameter's scale, lo, hi)}
         self.lims = {p.name: (_fwd(p.scale, p.lo), _fwd(p.scale, p.hi), p.lo, p.hi) for p in model.shape}
+        self.scales = {p.name: p.scale for p in model.shape}
+
+    def _sigmoid(self, name, z):
+        """(s, t): the sigmoid of ``z`` (clipped to Z_MAX) and the point t it maps to on the parameter's scale."""
+        tlo, thi, _, _ = self.lims[name]
+        s = 1.0 / (1.0 + math.exp(-float(np.clip(z, -Z_MAX, Z_MAX))))
+        return s, tlo + (thi - tlo) * s
 
     def to_value(self, name, z):
-        tlo, thi, lo, hi = self.lims[name]
-        z = float(np.clip(z, -Z_MAX, Z_MAX))
-        s = 1.0 / (1.0 + math.exp(-z))
-        v = float(_inv(self.model.param(name).scale, tlo + (thi - tlo) * s))
+        _, _, lo, hi = self.lims[name]
+        v = float(_inv(self.scales[name], self._sigmoid(name, z)[1]))
         return min(max(v, lo), hi)
 
     def derivative(self, name, z):
         """d value / d z."""
         tlo, thi, _, _ = self.lims[name]
-        z = float(np.clip(z, -Z_MAX, Z_MAX))
-        s = 1.0 / (1.0 + math.exp(-z))
-        return float(_dinv(self.model.param(name).scale, tlo + (thi - tlo) * s)) * (thi - tlo) * s * (1 - s)
+        s, t = self._sigmoid(name, z)
+        return float(_dinv(self.scales[name], t)) * (thi - tlo) * s * (1 - s)
 
     def to_z(self, name, value):
         tlo, thi, lo, hi = self.lims[name]
         v = min(max(float(value), lo), hi)
-        s = (_fwd(self.model.param(name).scale, v) - tlo) / (thi - tlo)
+        s = (_fwd(self.scales[name], v) - tlo) / (thi - tlo)
         s = min(max(s, 1e-5), 1 - 1e-5)
         return math.log(s / (1 - s))
 
     def to_scale(self, name, value):
         """``value`` on the parameter's scale (log, log1p, ...: where the sigmoid of :meth:`to_value` is linear)."""
-        return float(_fwd(self.model.param(name).scale, float(value)))
+        return float(_fwd(self.scales[name], float(value)))
 
     def from_scale(self, name, t):
         """Inverse of :meth:`to_scale`."""
-        return float(_inv(self.model.param(name).scale, float(t)))
+        return float(_inv(self.scales[name], float(t)))
 
     def clip_grid(self, name, grid):
+        """The coarse-search values ``grid`` clipped to the bounds, sorted, without repeats."""
         _, _, lo, hi = self.lims[name]
-        g = sorted({min(max(float(x), lo), hi) for x in grid})
-        if len(g) == 1 and lo < hi:
-            g = [g[0]]
-        return g
+        return sorted({min(max(float(x), lo), hi) for x in grid})
 
 
 @dataclasses.dataclass

@@ -73,8 +73,7 @@ class Parameters:
         self.albedo_pair = (model.surface_name, model.body_name)
         rows = []
         for m in ([None] if self.count is None else range(self.count)):
-            rows += [Param(self.name_of(p.name, material=m), p.name, "shape", p.key, p.lo, p.hi, p.scale, p.grid,
-                           material=m) for p in model.shape]
+            rows += [dataclasses.replace(p, name=self.name_of(p.name, material=m), material=m) for p in model.shape]
             if not maps and self.channels is None:
                 rows += [Param(self.name_of(b, material=m), b, "albedo", material=m) for b in self.albedo_pair]
         if not maps and self.channels is not None:
@@ -124,14 +123,6 @@ class Parameters:
         return base if label is None else f"{base}[{label}]"
 
     @property
-    def name(self):
-        return self.model.name
-
-    @property
-    def albedo_factor(self):
-        return self.model.albedo_factor
-
-    @property
     def shape_names(self):
         return tuple(r.name for r in self.shape)
 
@@ -156,7 +147,7 @@ class Parameters:
                 out[r.name] = float(shape_values[r.name])
                 continue
             g = r.material if r.channel is None else r.channel
-            ks, kb = (self.albedo_factor * a for a in ((a_s, a_b) if g is None else (a_s[g], a_b[g])))
+            ks, kb = (self.model.albedo_factor * a for a in ((a_s, a_b) if g is None else (a_s[g], a_b[g])))
             if r.base == self.albedo_pair[0]:
                 out[r.name] = float(ks)
             elif self.model.body_ratio:

@@ -78,13 +78,10 @@ class _Evaluator:
         self.prefix = prefix
         self._current = {}
 
-    def key(self, k):
-        return self.prefix + k
-
     def _assign(self, key, value):
         import mitsuba as mi
 
-        self.params[self.key(key)] = mi.Float(value) if not hasattr(value, "index") else value
+        self.params[self.prefix + key] = mi.Float(value) if isinstance(value, (int, float)) else value
 
     def set_shape(self, values):
         """Set shape parameters (only those that changed: each change of an FMBRDF one rebuilds its table)."""
@@ -105,12 +102,6 @@ class _Evaluator:
 
     def _stokes(self):  # -> (S0, S1, S2) Dr.Jit Float arrays
         raise NotImplementedError
-
-    def stokes(self, shape_values, a_s, a_b):
-        """Dr.Jit (S0, S1, S2) for the given parameters (differentiable if their variables are)."""
-        self.set_shape(shape_values)
-        self.set_albedos(a_s, a_b)
-        return self._stokes()
 
     def parts(self, shape_values, wrt=()):
         """:class:`Parts` at ``shape_values``; derivatives for the shape parameters in ``wrt``."""
@@ -161,11 +152,6 @@ class _Evaluator:
             self._current[name] = float(shape_values[name])
         self.params.update()
         return parts
-
-
-def _stokes_components(M, irradiance):
-    """(S0, S1, S2) of M @ [1, 0, 0, 0] times the irradiance, first (only) channel."""
-    return tuple(M[i, 0][0] * irradiance for i in range(3))
 
 
 class PixelEvaluator(_Evaluator):
@@ -244,7 +230,7 @@ class PixelEvaluator(_Evaluator):
         import drjit as dr
 
         M = self.bsdf.eval(self.ctx, self.si, self.wo)
-        s0, s1, s2 = _stokes_components(M, self.irradiance)
+        s0, s1, s2 = (M[i, 0][0] * self.irradiance for i in range(3))   # M @ [1, 0, 0, 0], first channel
         r11, r12, r21, r22 = self._rot
         s = (s0, r11 * s1 + r12 * s2, r21 * s1 + r22 * s2)  # in the camera's Stokes frame
         if self._w is None:
