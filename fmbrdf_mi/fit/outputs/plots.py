@@ -80,11 +80,8 @@ def compare_row(fig, axes, o, p, err, shown, hidden, titles, fontsize):
 
 
 def model_dolp(stokes, lin_variance=None):
-    """DoLP of a model's Stokes image; with the camera's var(S1) = var(S2), the DoLP it measures on average.
-
-    That is what the fit compares with a noisy observation (loss.py); the
-    noise-free DoLP of a dim, weakly polarised pixel lies below the observed one.
-    """
+    """DoLP of a model's Stokes image; given the camera's var(S1) = var(S2) (``lin_variance``), the DoLP it
+    measures on average, which is what the fit compares with a noisy observation."""
     if lin_variance is None:
         return stokes_io.dolp(stokes)
     s = np.asarray(stokes, dtype=np.float64)
@@ -104,12 +101,9 @@ def _binned(x, y, bins):
 
 
 def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_points=4000, seed=0):
-    """DoLP against the angle between normal and view, intensity against the angle between normal and light.
-
-    ``fitted``: predicted Stokes (3, H, W); ``others``: {label: Stokes} of
-    further models (baselines) drawn as binned means; ``pixels``: flat indices
-    (default: the mask).
-    """
+    """DoLP against the normal-view angle, intensity against the normal-light angle. ``fitted``: predicted
+    Stokes (3, H, W); ``others``: {label: Stokes} of baselines, drawn as binned means; ``pixels``: flat
+    indices (default: the mask)."""
     plt = pyplot()
     idx = np.flatnonzero(obs.mask.ravel()) if pixels is None else np.asarray(pixels)
     n = obs.normals.reshape(-1, 3)[idx]
@@ -145,11 +139,8 @@ def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_poi
 
 
 def scale_from(values, sel, q=99.0, floor=1e-6):
-    """Colour-scale maximum: the ``q``-th percentile of |values| over the selected (fitted) pixels.
-
-    Unlit pixels (whose DoLP is noise) and the one-pixel rim (whose DoLP and
-    error are extreme) are not fitted, so they do not set the scale.
-    """
+    """Colour-scale maximum: the ``q``-th percentile of |values| over the selected (fitted) pixels, so that
+    unfitted unlit and rim pixels do not set the scale."""
     v = np.abs(np.asarray(values, dtype=np.float64)[sel])
     v = v[np.isfinite(v)]
     return max(float(np.percentile(v, q)), floor) if v.size else 1.0
@@ -158,14 +149,10 @@ def scale_from(values, sel, q=99.0, floor=1e-6):
 def shown_pixels(observed, predicted, mask, pixels=None, dolp_min_intensity=0.02):
     """Which pixels the residual panels of :func:`plot_images` show: {"intensity": (H, W), "DoLP": (H, W)} bool.
 
-    Intensity: the fitted pixels (``pixels``, flat indices; default the mask
-    pixels the prediction covers, i.e. finite and not zero: predict_image
-    leaves the others at 0).  DoLP: of those, the ones bright enough for
-    their DoLP not to be noise, by the rule of the paper's loss's DoLP term
-    (:class:`fmbrdf_mi.fit.objectives.loss.Target`: observed intensity above
-    ``dolp_min_intensity`` times its 99th percentile over the fitted pixels).  Unlit pixels, the eroded
-    rim (pixels partly off the object) and the pixels near the pole are not
-    fitted, so their difference is not a misfit and is not shown.
+    Intensity: the fitted pixels (``pixels``, flat indices; default the mask pixels with a finite, non-zero
+    prediction).  DoLP: of those, the ones the loss's DoLP term uses
+    (:class:`fmbrdf_mi.fit.objectives.loss.Target` with ``dolp_min_intensity``).  Unfitted pixels are not
+    shown: their difference is not a misfit.
     """
     m = np.asarray(mask, bool)
     o = np.asarray(observed, dtype=np.float64)
@@ -185,13 +172,10 @@ def shown_pixels(observed, predicted, mask, pixels=None, dolp_min_intensity=0.02
 
 def residuals(observed, predicted, mask, pixels=None, lin_variance=None, dolp_min_intensity=0.02):
     """The "fitted - observed" panels of :func:`plot_images`: {name: (residual (H, W), unit)}, name
-    "intensity" or "DoLP", the residual NaN where :func:`shown_pixels` does not show it.
+    "intensity" or "DoLP", NaN where :func:`shown_pixels` hides it; the model's DoLP is :func:`model_dolp`'s.
 
-    The model's DoLP is the one the fit compares (:func:`model_dolp`).  With
-    ``lin_variance`` = var(S1) = var(S2) known, residuals are in units of the
-    noise standard deviation: S0 = (I0 + I45 + I90 + I135) / 2 has half the
-    variance of S1 = I0 - I90, and the DoLP's standard deviation is sigma / S0
-    to first order (the noise along (S1, S2)); without it, in image and DoLP units.
+    With ``lin_variance`` = var(S1) = var(S2) = sigma^2 the residuals are in noise standard deviations
+    (S0's is sigma / sqrt(2), the DoLP's sigma / S0 to first order); without it, in image and DoLP units.
     """
     shown = shown_pixels(observed, predicted, mask, pixels, dolp_min_intensity)
     o = np.asarray(observed, dtype=np.float64)
@@ -209,15 +193,8 @@ def residuals(observed, predicted, mask, pixels=None, lin_variance=None, dolp_mi
 
 
 def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_variance=None, pixels=None):
-    """Intensity and DoLP: observed | predicted | residual (``lin_variance``: see :func:`model_dolp`).
-
-    The residual panels (:func:`residuals`) show the pixels the fit used
-    (``pixels``, flat indices; default the mask pixels with a prediction; the
-    DoLP only where its term uses it), in units of the noise standard
-    deviation when ``lin_variance`` is known; the object's other pixels are
-    grey and hatched.  Colour scales come from the 99th percentile over the
-    shown pixels.
-    """
+    """Intensity and DoLP: observed | predicted | residual (:func:`residuals`; ``lin_variance``: see
+    :func:`model_dolp`; ``pixels``: see :func:`shown_pixels`), the object's unshown pixels grey and hatched."""
     plt = pyplot()
     m = np.asarray(mask, bool)
     res = residuals(observed, predicted, m, pixels, lin_variance)
@@ -249,12 +226,10 @@ def plot_loss_history(histories, path):
 
 
 def plot_albedo_maps(maps, path, title=""):
-    """Per-pixel albedos (a fit with ``albedo="per-pixel"``): k_s, k_b, their relative standard errors and
-    where the surface / body split is identified, cropped to the fitted pixels; a colour fit's maps
-    ((3, H, W): R, G, B) one row per channel, each map's grey scale its own channel's (the channels' albedos
-    differ by the colour filters' transmission).  The grey scales are set by the albedos whose relative
-    standard error is at most 0.5 (poorly determined ones, e.g. k_s where the surface lobe is dark, show
-    clipped)."""
+    """Per-pixel albedos (``albedo="per-pixel"``): k_s, k_b, their relative standard errors and where the
+    surface / body split is identified, cropped to the fitted pixels; a colour fit's (3, H, W) maps one row
+    per channel, each on its own grey scale.  Grey scales come from the albedos with relative standard error
+    at most 0.5, so poorly determined ones show clipped."""
     plt = pyplot()
     ks_all = np.asarray(maps["k_s"], dtype=np.float64)
     colour = ks_all.ndim == 3
@@ -300,10 +275,9 @@ def plot_albedo_maps(maps, path, title=""):
 
 
 def plot_materials(labels, pixels, block, path, title=""):
-    """The label map a fit of several materials used (``materials.png``): each material in its colour
-    (grey: not fitted), its fitted pixels opaque and its labelled but unused pixels (eroded border, pole,
-    saturated, subset) faint; the legend gives each material's pixels and parameters (``block``: fit.json's
-    ``materials`` block)."""
+    """The label map of a fit of several materials (``materials.png``): fitted pixels opaque, labelled but
+    unfitted ones faint, unlabelled grey; the legend gives each material's pixels and parameters (``block``:
+    fit.json's ``materials`` block)."""
     plt = pyplot()
     from matplotlib import colors
 
