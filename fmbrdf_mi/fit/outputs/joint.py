@@ -1,45 +1,6 @@
-"""Several images of one object from files: a manifest, the command's outputs per image.
-
-A **manifest** (JSON or TOML; paths relative to it) lists the images of a
-joint fit (:mod:`fmbrdf_mi.fit.api.joint`) and the options they share::
-
-    # capture.toml
-    [defaults]                 # any input option of `fmbrdf-mi fit`, shared by every image
-    normals = "normal.npy"     # geometry (camera frame), or sphere = "auto" with mask
-    mask = "mask.png"
-    conversion_gain = 2.44     # the camera (one camera for all images)
-    read_noise = 2.5
-
-    [[image]]
-    input = "light0.png"       # raw mosaic, Stokes EXR, (4, H, W) .npy, or a list of four angle images
-    light = [-0.42, 0.31, 0.85]
-    power = 1.0                # relative light power (default 1): multiplies the irradiance
-
-    [[image]]
-    input = "light1.png"
-    light = [0.5, 0.1, 0.86]
-    power = 0.8
-    normals = "view2_normal.npy"   # per-image geometry: another view of the object
-    mask = "view2_mask.png"
-
-    [[image]]
-    input = "light2.png"
-    light = [0.1, -0.6, 0.8]
-    holdout = true             # not fitted: predicted from the estimates (relighting check)
-
-Keys of an image entry: ``input`` (required), ``light`` (required unless
-the input carries it), ``power``, ``holdout``, ``name`` (default: the input's
-file stem) and any key of ``[defaults]``, which it overrides: ``normals``,
-``mask``, ``view``, ``sphere``, ``camera``, ``fov``, ``irradiance``,
-``layout``, ``black_level``, ``white_level``, ``dark_level``, ``channel``,
-``demosaic``, ``footprint``, ``conversion_gain``, ``read_noise``.  Unknown
-keys are refused, naming them.
-
-:func:`fit_images` fits the images (optionally the baselines too, with the
-same loss) and writes ``fit.json`` (the shared estimate, its uncertainty
-from the joint Fisher information, per-image diagnostics and relighting
-errors), ``images_NAME.png`` and ``profiles_NAME.png`` per fitted image,
-``relight_NAME.png`` per held-out image and ``history.png``.
+"""Several images of one object from files: :func:`fit_images` fits a manifest's images jointly
+(:mod:`fmbrdf_mi.fit.api.joint`) and writes fit.json and the figures per image; :func:`run_images` is the
+command's entry.  The manifest's format: docs/howto/fit-joint.md.
 """
 from __future__ import annotations
 
@@ -69,9 +30,8 @@ TAKES = tuple(dict.fromkeys(k for k in record_keys("joint") + FIT_NAMES if k not
 
 
 def check_distinct(specs):
-    """InputError unless the fitted images of ``specs`` are distinct: two entries naming the same file (the
-    same path, or files of the same content: SHA-256) under the same light would count its pixels twice.
-    A light not given is the input's own (its capture sidecar's), the same for the same content."""
+    """InputError unless the fitted images of ``specs`` are distinct: the same file (path or SHA-256 content)
+    under the same light would count its pixels twice.  A light not given is the input's own."""
     names, seen = image_names(specs), {}
     for k, s in enumerate(specs):
         paths = [os.fspath(p) for p in (s.input if isinstance(s.input, (list, tuple)) else [s.input])
@@ -98,11 +58,10 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
                observations=None, extra=None, reproduce=None, **fit_kw):
     """Joint fit of the non-held-out images of ``specs``, relighting check on the held-out ones; write outputs.
 
-    ``fit_kw``: :class:`~fmbrdf_mi.fit.api.options.FitOptions` fields (loss,
-    fixed, bounds, init, max_pixels, ...).  ``reproduce``: called with the
-    observations, returns fit.json's ``reproduce`` block (the command's:
-    :func:`fmbrdf_mi.fit.outputs.record.joint_block`).  Returns the dict written to fit.json, with ``outputs``
-    (the files written) and ``wall_s`` besides.
+    ``fit_kw``: :class:`~fmbrdf_mi.fit.api.options.FitOptions` fields (loss, fixed, bounds, init, max_pixels,
+    ...).  ``reproduce``: called with the observations, returns fit.json's ``reproduce`` block (the command's:
+    :func:`fmbrdf_mi.fit.outputs.record.joint_block`).  Returns the dict written to fit.json, plus ``outputs``
+    (the files written) and ``wall_s``.
     """
 
     return Joint(specs, out, model=model, baselines=baselines, force=force, progress=progress, command=command,
@@ -199,11 +158,10 @@ class Joint(ImageFits):
 
 def run_images(kind, specs, out, fit_kw, *, command, force=False, progress=True, manifest=None, authors=None,
                info=None, rerun_of=None):
-    """The joint fit of ``specs`` as the command runs it, and as ``--from`` reruns it: :func:`fit_images`, or
-    :func:`~fmbrdf_mi.fit.outputs.colour.fit_colour_images` when the images are colour mosaics, with the
-    ``reproduce`` block of :func:`~fmbrdf_mi.fit.outputs.record.joint_block` (``kind``, ``manifest``,
-    ``authors``, ``info``: how the images were given) and fit.json's ``joint`` block (the files written, the
-    authors' layout, ``rerun_of``: the fit.json rerun).  Returns the dict written to fit.json."""
+    """The joint fit of ``specs`` as the command (and ``--from``) runs it: :func:`fit_images`, or
+    :func:`~fmbrdf_mi.fit.outputs.colour.fit_colour_images` for colour mosaics, with the ``reproduce`` block
+    of :func:`~fmbrdf_mi.fit.outputs.record.joint_block` (``kind``, ``manifest``, ``authors``, ``info``: how
+    the images were given) and a ``joint`` block (``rerun_of``: the fit.json rerun).  Returns fit.json's dict."""
     names, holdout = image_names(specs), [s.holdout for s in specs]
     albedo, materials = fit_kw.get("albedo", "shared"), fit_kw.get("materials")
     colour = is_colour(specs)
