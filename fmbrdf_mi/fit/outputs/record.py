@@ -1,25 +1,11 @@
-"""What fit.json records so that a fit can be rerun (``fmbrdf-mi fit --from fit.json -o DIR``,
-:mod:`fmbrdf_mi.fit.outputs.rerun`): its ``reproduce`` block.
+"""fit.json's ``reproduce`` block, from which ``fmbrdf-mi fit --from`` reruns a fit
+(:mod:`fmbrdf_mi.fit.outputs.rerun`).
 
-Every block holds ``command``, ``cwd``, ``versions`` (this package,
-Mitsuba, Dr.Jit, NumPy, Python), the options as resolved in ``arguments``
-(so a default changed in a later version does not change the rerun) and
-the SHA-256 of every file the fit read in ``files_sha256``.
-
-* A single-image or colour fit (:func:`reproduce_block`): ``arguments`` are
-  the options of its record (:func:`~fmbrdf_mi.fit.api.options.record_keys`); ``settings`` those
-  the input implied (layout, levels, demosaicking, footprint, gain, read
-  noise), ``sphere`` what ``--sphere auto`` found, ``sidecar`` the capture
-  sidecar read.
-* A joint fit (:func:`joint_block`): ``arguments`` are the joint record's options;
-  ``joint`` says how the images were given (``kind`` ``manifest``,
-  ``authors`` or ``lights``) and, per image, its name, input files with
-  SHA-256, the light (camera frame), relative power, irradiance, held-out
-  flag, geometry source and implied settings; ``files_sha256`` also holds
-  the manifest and the authors' ``calibration/*``.
-
-A rerun refuses, in one line naming the file, an input that changed or
-disappeared.
+Every block holds ``command``, ``cwd``, ``versions``, the resolved options in ``arguments`` (so a changed
+default does not change the rerun) and the SHA-256 of every file read in ``files_sha256``.  A single-image or
+colour fit's (:func:`reproduce_block`) adds the input's implied ``settings``, ``sphere`` and ``sidecar``; a
+joint fit's (:func:`joint_block`) adds ``joint``: how the images were given and, per image, its files,
+light, power, irradiance, held-out flag, geometry and settings.
 """
 from __future__ import annotations
 
@@ -144,13 +130,9 @@ def _geometry(spec, obs):
 
 
 def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=None, authors=None, info=None):
-    """The ``reproduce`` block of a joint fit (see the module docstring).
-
-    ``specs``: the :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` s as fitted
-    (paths resolved); ``observations``: the Observations built from them;
-    ``authors``: read_object's keywords for ``kind == "authors"`` with
-    ``info`` its description of what it read.
-    """
+    """The ``reproduce`` block of a joint fit (module docstring).  ``specs``: the
+    :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` s as fitted (paths resolved); ``observations``: built
+    from them; ``authors``: read_object's keywords for ``kind == "authors"``, ``info`` what it read."""
     images = []
     if kind == "authors":
         root = info["root"]
@@ -179,7 +161,6 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
         joint["manifest"] = _abs(manifest)
     if kind == "authors":
         joint["authors"] = {"root": info["root"], **authors}
-    # every file a rerun reads (read_files), the manifest and the label image
     files = read_files(kind, specs, info) + [_abs(p) for p in (manifest, fit_kw.get("materials")) if p is not None]
     arguments = {k: fit_kw.get(k) for k in record_keys("joint") if k in fit_kw}
     if arguments.get("materials") is not None:
