@@ -45,13 +45,10 @@ def fit_files(inputs, out, *, force=False, progress=True, command=None, **option
     ``inputs``: a Stokes EXR, a raw mosaic (.npy / 16-bit .png / .tif), a (4, H, W) .npy of angle images or four
     angle-image files (0, 45, 90, 135 degrees); an EXR written by ``fmbrdf-mi render`` (built-in sphere) brings
     its own geometry, light and true parameters.  ``options``: the single-image options of
-    :data:`fmbrdf_mi.fit.api.options.OPTIONS` (the command line's, names with underscores, each described by its
-    help; those not given take their defaults, others are refused).
+    :data:`fmbrdf_mi.fit.api.options.OPTIONS` (the command line's, underscored; unknown ones are refused).
 
-    Writes ``out``/fit.json, profiles.png, images.png, history.png and fitted_stokes.exr (with ``relight``:
-    relight.png; per-pixel albedos: k_s.exr, k_b.exr, k_s_se.exr, k_b_se.exr, albedo_maps.png; ``materials``:
-    materials.png, and labels.png for ``auto:M``), refusing to overwrite them without ``force``.  Returns the dict
-    written to fit.json, with ``outputs`` (the files written) and ``wall_s`` besides.
+    Writes the files of :func:`output_files` under ``out``, refusing to overwrite them without ``force``.
+    Returns the dict written to fit.json, plus ``outputs`` (the files written) and ``wall_s``.
     """
 
     arguments = arguments_of("single", dict(options, inputs=inputs), "fit_files()")
@@ -70,10 +67,9 @@ class ImageFits(FitJob):
         self.results = {n: solve(n, self.opts if n == self.model else baseline_options(self.opts, n)) for n in names}
 
     def write_image(self, o, name=None, pixels=None, holdout=False, im=None):
-        """The figures of one image ``o`` (``name``: one of a joint fit's, the files named after it): a held-out
-        image's relighting check (relight.png; returns each fit's errors), else profiles.png and images.png of
-        its fit on ``pixels`` (``im``: each fit's entry of the image in ``images``, its fitted light power;
-        returns ``model``'s prediction)."""
+        """The figures of image ``o`` (``name``: a joint fit's image, naming the files): for a ``holdout``,
+        relight.png, returning each fit's errors; else profiles.png and images.png of its fit on ``pixels``
+        (``im``: each fit's ``images`` entry, with its fitted power), returning ``model``'s prediction."""
         results, model, labels, out = self.results, self.model, self.labels, self.out
         main = results[model]
         if holdout:
@@ -233,9 +229,8 @@ def labels_of(res, labels, shape):
 
 
 def shown_pixels(o, pixels, opts, labels=None):
-    """The pixels the figures of a fit show: every pixel the fit could use (its pixel selection before the
-    random draw of ``max_pixels``, less unlabelled ones), so that the residual panels are images, not the
-    speckle of a random sample; ``pixels`` (the ones fitted) where they are not all among them."""
+    """The pixels a fit's figures show: every usable, labelled pixel before the ``max_pixels`` draw, so the
+    residual panels are images rather than a random speckle; ``pixels`` (those fitted) if not all among them."""
     if pixels is None:
         return None
     every = usable_pixels(o, dataclasses.replace(opts, max_pixels=0))
