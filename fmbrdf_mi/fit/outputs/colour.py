@@ -1,19 +1,9 @@
 """``fmbrdf-mi fit`` on colour polarisation mosaics (capture sidecars with ``"cfa"``): one, or several of one object.
 
-:func:`fit_colour_files` fits one mosaic, :func:`fit_colour_images` several (``--manifest`` / repeated
-``--light``: each its own light, power and geometry, one camera; held-out images are relit with the estimates),
-both by :func:`fmbrdf_mi.fit.api.colour.fit_colour` (shared eta, alpha, beta, kappa; per-channel k_s, r_k, or
-with ``albedo="per-pixel"`` maps per period and channel) as one :class:`ColourFit` job.
-
-Outputs: ``fit.json`` (a joint fit's with per image its light, power, irradiance and chi^2 per raw sample, the
-relighting errors and the ``reproduce`` block of :func:`fmbrdf_mi.fit.outputs.record.joint_block`),
-``colour_fit.png`` (joint: ``colour_fit_NAME.png`` per fitted image, ``relight_NAME.png`` per held-out one:
-observed, predicted and their difference in intensity and DoLP per channel) and with per-pixel albedos the maps
-(k_s.exr, k_b.exr, k_s_se.exr, k_b_se.exr with channels R, G, B; albedo_maps.png).
-
-Geometry: ``--sphere cx,cy,r`` (period units: pixel centres at +0.5 periods) or ``--sphere auto --mask M``, or
-``--normals N --mask M`` (maps of the raw mosaic are pooled over each 4x4 period); without either, a sidecar of
-``fmbrdf-mi render --raw --sensor colour`` (built-in sphere) gives the scene's sphere, light and irradiance.
+:func:`fit_colour_files` fits one mosaic, :func:`fit_colour_images` several (held-out ones relit with the
+estimates), both by :func:`fmbrdf_mi.fit.api.colour.fit_colour` as one :class:`ColourFit` job, writing fit.json,
+``colour_fit[_NAME].png`` / ``relight_NAME.png`` and, with ``albedo="per-pixel"``, the albedo maps (R, G, B).
+Geometry lives on the grid of 4x4 periods (``--sphere`` in period units); docs/howto/fit-colour.md has the rest.
 """
 from __future__ import annotations
 
@@ -94,10 +84,9 @@ def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True,
                       reproduce=None, baselines=False, loss="auto", init=None, fixed=None, bounds=None, starts=2,
                       max_iter=40, max_time=None, max_pixels=None, erode=2, seed=0, tol=None, time_limit=None,
                       free_power=False, power_start=None, intervals="auto", albedo="shared"):
-    """Joint colour fit of the non-held-out images of ``specs`` (colour mosaics; module docstring); returns the
-    dict written to fit.json.  Keywords as :func:`~fmbrdf_mi.fit.outputs.joint.fit_images`'s; ``baselines``,
-    ``init``, ``free_power`` and losses other than the likelihood are refused; ``tol``, ``time_limit`` do not
-    apply."""
+    """Joint colour fit of the non-held-out images of ``specs``; returns the dict written to fit.json.  Keywords
+    as :func:`~fmbrdf_mi.fit.outputs.joint.fit_images`'s; ``baselines``, ``init``, ``free_power`` and losses
+    other than the likelihood are refused; ``tol``, ``time_limit`` are ignored."""
     refused = [f for f, on in (("baselines", baselines), ("init", init), ("free_power (--free-power)", free_power),
                                (f"loss {loss}", loss not in ("auto", "likelihood", None)),
                                (f"albedo {albedo!r} (--albedo; expected 'shared' or 'per-pixel')",
