@@ -1,13 +1,9 @@
-"""The one skeleton of every fit the command writes: :class:`FitJob`.
+"""The one skeleton of every fit the command writes: :class:`FitJob`, whose subclasses are the modes of
+``fmbrdf-mi fit``.
 
-Each mode of ``fmbrdf-mi fit`` (one image, several images, colour mosaics, the normal refinement) is a subclass
-that fills in the steps; :meth:`FitJob.run` alone orders them: :meth:`~FitJob.check` (the options, before any
-file is read), the output directory locked (a second run into it refuses at once), :meth:`~FitJob.files` (the
-output paths, ``fit.json`` first, refused if any exists without ``force``), :meth:`~FitJob.read`,
-:meth:`~FitJob.fit`, :meth:`~FitJob.report` (the dict that becomes ``fit.json``) and :meth:`~FitJob.write`,
-into a hidden staging directory whose files replace the earlier ones when every one is written, ``fit.json``
-last (an earlier fit's files that this one does not write are removed then): a run that fails or is interrupted
-leaves the directory as it was.
+:meth:`FitJob.run` checks the options, locks ``out``, refuses existing outputs without ``force``, reads, fits
+and writes into a staging directory whose files replace the old ones (``fit.json`` last, stale outputs
+removed) only when all are written: a failed or interrupted run leaves ``out`` as it was.
 """
 from __future__ import annotations
 
@@ -47,8 +43,7 @@ class FitJob:
         """The outputs besides ``fit.json`` (plots, maps, images); ``report`` may still be added to."""
 
     def finish(self, report):
-        """What :meth:`run` returns: the report and what the summary prints besides (the files written and the
-        run's wall time, not in fit.json)."""
+        """What :meth:`run` returns: the report plus the files written and the wall time (not in fit.json)."""
         report["outputs"], report["wall_s"] = self.paths, time.time() - self.t0
         return report
 
