@@ -1,9 +1,6 @@
-"""``fmbrdf-mi fit --from fit.json -o DIR``: the one rerun of a recorded fit (single image, colour or joint).
-
-:func:`rerun` reads the ``reproduce`` block (:mod:`fmbrdf_mi.fit.outputs.record`), refuses in one line naming
-the file and the key an input that changed or disappeared and a record edited into something the fit does not
-take, rebuilds the request (one image: the recorded arguments, paths made absolute; several: the images with
-the options they resolved to, or an authors' object read again) and runs it with the recorded options.
+"""``fmbrdf-mi fit --from fit.json -o DIR``: :func:`rerun` reruns a recorded fit (single image, colour or joint)
+from its ``reproduce`` block (:mod:`fmbrdf_mi.fit.outputs.record`), refusing in one line a changed or missing
+input and a record the fit does not take.
 """
 from __future__ import annotations
 
@@ -47,8 +44,6 @@ def load(path):
     if isinstance(d, dict) and "refine_normals" in d:
         cmd = rep.get("command") if isinstance(rep, dict) else None
         cmd = cmd if isinstance(cmd, str) else None
-        # an older record's --rounds (alternation rounds before the joint step): dropped; with --rounds 0,
-        # its default, the refinement is the same
         rounds = cmd is not None and any(t == "--rounds" or t.startswith("--rounds=") for t in cmd.split())
         raise InputError(f"--from {path}: reruns of --refine-normals are not supported: rerun the command in its "
                          f"reproduce.command{f' ({cmd})' if cmd else ''}"
@@ -111,7 +106,7 @@ def single_arguments(path, rep, kind):
         auto = args.pop("materials")
     else:
         auto = None
-    # relative paths were relative to the directory the fit ran in
+    # relative paths are relative to the directory the fit ran in
     if cwd:
         for key in FILE_KEYS:
             v = args.get(key)
@@ -119,7 +114,6 @@ def single_arguments(path, rep, kind):
                 args[key] = os.path.join(cwd, v)
             elif isinstance(v, list):
                 args[key] = [os.path.join(cwd, x) if isinstance(x, str) and not os.path.isabs(x) else x for x in v]
-    # every file the rerun reads (inputs, geometry, the capture sidecars beside them) must have been hashed
     given = [p for key in FILE_KEYS
              for p in (args.get(key) if isinstance(args.get(key), list) else [args.get(key)]) if isinstance(p, str)]
     check_recorded(path, rep, given + single_files(args))

@@ -1,7 +1,6 @@
-"""The one writer of fit outputs (:class:`~fmbrdf_mi.fit.outputs.job.FitJob` runs it): overwrite refusal
-before any input is read (:func:`prepare`), atomic ``fit.json`` (:func:`write_json`), and an earlier fit's
-files that a new one does not write (:func:`stale_outputs`, only names a fit writes), and the files a joint fit
-writes (:func:`joint_outputs`, mono or colour)."""
+"""The file handling of :class:`~fmbrdf_mi.fit.outputs.job.FitJob`: overwrite refusal (:func:`prepare`),
+atomic ``fit.json`` (:func:`write_json`), an earlier fit's stale files (:func:`stale_outputs`) and a joint
+fit's file names (:func:`joint_outputs`)."""
 from __future__ import annotations
 
 import json
@@ -33,9 +32,8 @@ PER_IMAGE_OUTPUTS = ("relight_{}.png", "images_{}.png", "profiles_{}.png", "colo
 
 
 def stale_outputs(out, paths):
-    """The files of the earlier fit recorded by ``out``/fit.json that a new fit writing ``paths`` does not
-    write: the names of :data:`FIXED_OUTPUTS`, and :data:`PER_IMAGE_OUTPUTS` of the images the earlier
-    fit.json lists.  None without an earlier fit.json (a directory that holds no fit)."""
+    """The files of the earlier fit in ``out`` (:data:`FIXED_OUTPUTS`, and :data:`PER_IMAGE_OUTPUTS` of the
+    images its fit.json lists) that a new fit writing ``paths`` does not write; none without a fit.json."""
     record = os.path.join(out, "fit.json")
     if not os.path.isfile(record):
         return []
