@@ -1,11 +1,8 @@
 """``fmbrdf-mi fit ... --refine-normals``: per-pixel normals and the material from K >= 3 images of one view.
 
-From the start map (``ps``: photometric stereo; ``sphere``: the mask's sphere; or a (H, W, 3) ``.npy`` in this
-package's camera frame), a joint fit of the material on it, then the joint Levenberg-Marquardt on the material
-and the normals (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`, smoothness weight ``--smooth``) over the
-mask eroded by ``--erode`` (at least 1).  Writes ``normals.npy`` (H, W, 3: x image right, y image up, z towards
-the camera), ``normals.png``, ``normals_change.png`` (start, refined, their angle, and against the ground truth
-when the input has one) and ``fit.json``.
+:class:`NormalRefinement` fits the material on a start map (:func:`start_normals`), then material and normals
+jointly (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`), and writes ``normals.npy`` (H, W, 3: x image
+right, y image up, z towards the camera), ``normals.png``, ``normals_change.png`` and ``fit.json``.
 """
 from __future__ import annotations
 
@@ -29,7 +26,8 @@ OUTPUTS = ("fit.json", "normals.npy", "normals.png", "normals_change.png")
 
 
 def start_normals(obs, start):
-    """(H, W, 3) start map and the mask of pixels it covers."""
+    """(H, W, 3) start map and the mask of pixels it covers; ``start``: ``ps`` (photometric stereo), ``sphere``
+    (the mask's sphere) or a ``.npy`` in this package's camera frame."""
 
     m = obs[0].mask.copy()
     if start == "ps":
@@ -109,7 +107,6 @@ class NormalRefinement(FitJob):
                   "refine_normals": {"start": self.start, "smooth": self.lam, "pixels": int(m.sum()),
                                      "frame": "x image right, y image up, z towards the camera",
                                      "converged": joint.converged, "stop_reason": joint.stop_reason,
-                                     # the material's estimate: one more run with the prior weakened (refine_joint)
                                      "material_stage": joint.options.get("material_stage"),
                                      "energy": {"total": joint.loss, "data_chi2": joint.loss_terms["data_chi2"],
                                                 "prior": joint.loss_terms["prior"]},
@@ -120,11 +117,9 @@ class NormalRefinement(FitJob):
                                           "converged": joint.converged, "stop_reason": joint.stop_reason}}}
         unc = joint.uncertainty or {}
         if unc.get("calibrated"):
-            # the material at the weakened prior (refine_joint's lam_material), whose errors are calibrated
-            # (tools/bench_normal_refine.py --seeds)
+            # the material at refine_joint's weakened prior (lam_material), whose errors are calibrated
             report["models"][self.model]["uncertainty"] = unc
         elif unc.get("std_errors"):
-            # not reported as standard errors (unc["warning"] says why)
             report["models"][self.model]["uncertainty_uncalibrated"] = dict(unc, note=UNCALIBRATED)
         if self.gt is not None:
             report["refine_normals"]["angular_error"] = {"before": _errors(n0, self.gt, m),

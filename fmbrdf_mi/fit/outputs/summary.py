@@ -39,8 +39,7 @@ def uncertainty_text(unc):
 
 
 def albedo_text(a):
-    """One line on a per-pixel albedo fit's maps (fit.json's ``albedo`` block; a colour fit's: one more line per
-    channel)."""
+    """One line on a per-pixel albedo fit's maps (fit.json's ``albedo`` block), plus one per colour channel."""
     per = "".join(f"\n    {c}: median k_s {p['k_s_median']:.4g}, k_b {p['k_b_median']:.4g}; relative standard error "
                   f"<= 0.5 for k_s in {p['k_s_determined_fraction']:.0%}, for k_b in "
                   f"{p['k_b_determined_fraction']:.0%}; split identified in {p['identified_fraction']:.0%}"
@@ -142,9 +141,8 @@ def print_normals(report):
 
 
 def print_summary(report):
-    """The stdout summary of any fit's report (single image, joint, colour, normal refinement: what
-    :meth:`~fmbrdf_mi.fit.outputs.job.FitJob.run` returns); returns the exit status: 0, or
-    :data:`EXIT_NOT_CONVERGED` when a fit stopped before it converged."""
+    """The stdout summary of any fit's report (what :meth:`~fmbrdf_mi.fit.outputs.job.FitJob.run` returns);
+    returns the exit status: 0, or :data:`EXIT_NOT_CONVERGED` when a fit stopped before it converged."""
     if report.get("sensor") == "colour":
         return print_colour(report)
     if report.get("refine_normals"):
