@@ -147,13 +147,9 @@ def scale_from(values, sel, q=99.0, floor=1e-6):
 
 
 def shown_pixels(observed, predicted, mask, pixels=None, dolp_min_intensity=0.02):
-    """Which pixels the residual panels of :func:`plot_images` show: {"intensity": (H, W), "DoLP": (H, W)} bool.
-
-    Intensity: the fitted pixels (``pixels``, flat indices; default the mask pixels with a finite, non-zero
-    prediction).  DoLP: of those, the ones the loss's DoLP term uses
-    (:class:`fmbrdf_mi.fit.objectives.loss.Target` with ``dolp_min_intensity``).  Unfitted pixels are not
-    shown: their difference is not a misfit.
-    """
+    """The pixels :func:`plot_images`' residual panels show, {"intensity", "DoLP"}: (H, W) bool: the fitted ones
+    (``pixels``, flat indices; default the mask pixels with a finite, non-zero prediction), and for the DoLP
+    those the loss's DoLP term uses (:class:`fmbrdf_mi.fit.objectives.loss.Target`)."""
     m = np.asarray(mask, bool)
     o = np.asarray(observed, dtype=np.float64)
     p = np.asarray(predicted, dtype=np.float64)
@@ -171,12 +167,9 @@ def shown_pixels(observed, predicted, mask, pixels=None, dolp_min_intensity=0.02
 
 
 def residuals(observed, predicted, mask, pixels=None, lin_variance=None, dolp_min_intensity=0.02):
-    """The "fitted - observed" panels of :func:`plot_images`: {name: (residual (H, W), unit)}, name
-    "intensity" or "DoLP", NaN where :func:`shown_pixels` hides it; the model's DoLP is :func:`model_dolp`'s.
-
-    With ``lin_variance`` = var(S1) = var(S2) = sigma^2 the residuals are in noise standard deviations
-    (S0's is sigma / sqrt(2), the DoLP's sigma / S0 to first order); without it, in image and DoLP units.
-    """
+    """:func:`plot_images`' "fitted - observed" panels, {"intensity", "DoLP"}: (residual (H, W), unit), NaN where
+    :func:`shown_pixels` hides it.  With ``lin_variance`` = var(S1) = var(S2) = sigma^2, in noise standard
+    deviations (S0's is sigma / sqrt(2), the DoLP's sigma / S0 to first order); else image and DoLP units."""
     shown = shown_pixels(observed, predicted, mask, pixels, dolp_min_intensity)
     o = np.asarray(observed, dtype=np.float64)
     p = np.asarray(predicted, dtype=np.float64)
@@ -226,10 +219,9 @@ def plot_loss_history(histories, path):
 
 
 def plot_albedo_maps(maps, path, title=""):
-    """Per-pixel albedos (``albedo="per-pixel"``): k_s, k_b, their relative standard errors and where the
-    surface / body split is identified, cropped to the fitted pixels; a colour fit's (3, H, W) maps one row
-    per channel, each on its own grey scale.  Grey scales come from the albedos with relative standard error
-    at most 0.5, so poorly determined ones show clipped."""
+    """Per-pixel albedo maps (k_s, k_b, their relative standard errors, where the split is identified), cropped
+    to the fitted pixels, a colour fit's one row per channel; grey scales from the albedos with relative
+    standard error at most 0.5, so poorly determined ones show clipped."""
     plt = pyplot()
     ks_all = np.asarray(maps["k_s"], dtype=np.float64)
     colour = ks_all.ndim == 3

@@ -2,10 +2,8 @@
 (:mod:`fmbrdf_mi.fit.outputs.rerun`).
 
 Every block holds ``command``, ``cwd``, ``versions``, the resolved options in ``arguments`` (so a changed
-default does not change the rerun) and the SHA-256 of every file read in ``files_sha256``.  A single-image or
-colour fit's (:func:`reproduce_block`) adds the input's implied ``settings``, ``sphere`` and ``sidecar``; a
-joint fit's (:func:`joint_block`) adds ``joint``: how the images were given and, per image, its files,
-light, power, irradiance, held-out flag, geometry and settings.
+default does not change the rerun) and the SHA-256 of every file read in ``files_sha256``; see
+:func:`reproduce_block` (single image, colour) and :func:`joint_block` for the rest.
 """
 from __future__ import annotations
 
@@ -76,8 +74,8 @@ def command_block(command):
 
 
 def reproduce_block(arguments, command, meta):
-    """The ``reproduce`` block of a single-image or colour fit (module docstring; ``meta``: the input's
-    metadata); ``--from`` reruns it."""
+    """The ``reproduce`` block of a single-image or colour fit, with the input's implied ``settings``,
+    ``sphere`` and ``sidecar`` from its metadata ``meta``."""
     return {"command": command, "cwd": os.getcwd(), "arguments": jsonable(arguments),
             "files_sha256": _hashes(single_files(arguments)), "settings": jsonable(meta.get("settings")),
             "sphere": jsonable(meta.get("sphere")), "sidecar": meta.get("sidecar"), "versions": versions()}
@@ -130,7 +128,8 @@ def _geometry(spec, obs):
 
 
 def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=None, authors=None, info=None):
-    """The ``reproduce`` block of a joint fit (module docstring).  ``specs``: the
+    """The ``reproduce`` block of a joint fit, with ``joint``: how the images were given and each image's
+    files, light, power, irradiance, held-out flag, geometry and settings.  ``specs``: the
     :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` s as fitted (paths resolved); ``observations``: built
     from them; ``authors``: read_object's keywords for ``kind == "authors"``, ``info`` what it read."""
     images = []

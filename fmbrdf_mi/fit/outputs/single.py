@@ -47,7 +47,8 @@ def fit_files(inputs, out, *, force=False, progress=True, command=None, **option
     its own geometry, light and true parameters.  ``options``: the single-image options of
     :data:`fmbrdf_mi.fit.api.options.OPTIONS` (the command line's, underscored; unknown ones are refused).
 
-    Writes the files of :func:`output_files` under ``out``, refusing to overwrite them without ``force``.
+    Writes ``out``/fit.json, profiles.png, images.png, history.png, fitted_stokes.exr and those its options add
+    (relight, per-pixel albedo maps, materials), refusing to overwrite them without ``force``.
     Returns the dict written to fit.json, plus ``outputs`` (the files written) and ``wall_s``.
     """
 
@@ -102,8 +103,7 @@ class ImageFits(FitJob):
         return pred
 
     def write_common(self, report, shape):
-        """history.png, and ``model``'s albedo maps (:func:`write_maps`) and materials.png (the label map it used)
-        when it has them."""
+        """history.png, and ``model``'s albedo maps (:func:`write_maps`) and materials.png when it has them."""
         results, model, out = self.results, self.model, self.out
         plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
         main = results[model]
@@ -215,8 +215,7 @@ def model_entries(results, model, truth):
 
 
 def baseline_options(opts, name):
-    """The options of the baseline ``name`` fitted beside the model: the same loss and data, the baseline's own
-    bounds and start, nothing fixed, the pixel path."""
+    """Options of the baseline ``name``: the model's loss and data, its own bounds and start, nothing fixed."""
     return dataclasses.replace(opts, model=name, bounds=None, init=None, fixed=None, path="pixel")
 
 
@@ -240,9 +239,8 @@ def shown_pixels(o, pixels, opts, labels=None):
 
 
 def write_maps(res, model, out, report):
-    """k_s.exr, k_b.exr, k_s_se.exr, k_b_se.exr and albedo_maps.png of a per-pixel albedo fit ``res`` (NaN
-    where no pixel was fitted; the shape parameters in each EXR's metadata), named in ``report["albedo_maps"]``;
-    nothing for a fit without maps."""
+    """:data:`~fmbrdf_mi.fit.outputs.writer.MAP_OUTPUTS` of a per-pixel albedo fit ``res`` (NaN where not
+    fitted; the shape parameters in each EXR's metadata), named in ``report["albedo_maps"]``."""
     if res.maps is None:
         return
     outs = {f: os.path.join(out, f) for f in MAP_OUTPUTS}
