@@ -94,7 +94,7 @@ class AlbedoLayout:
     1); ``name``: the ``albedo`` option; ``labels``: group labels or None; ``prior``: a
     :class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior` whose rows R join the design with data 0.
 
-    G = A^T A (+ R^T R) is block diagonal (``coupled`` False: :class:`PairBlocks`) or banded (``coupled``
+    G = A^T A (+ R^T R) is block diagonal (``coupled`` False: ``PairBlocks``) or banded (``coupled``
     True: :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`).  The albedos are not held
     non-negative: clipping poorly determined ones at 0 biases the shape.
     """
@@ -309,7 +309,7 @@ class AlbedoLayout:
 
 
 class GroupAlbedos(AlbedoLayout):
-    """A few albedo pairs kept as unknowns of the optimiser (logs in z), solved by :func:`nnls2`."""
+    """A few albedo pairs kept as unknowns of the optimiser (logs in z), solved by ``nnls2``."""
 
     eliminates = False
 
@@ -318,7 +318,7 @@ class GroupAlbedos(AlbedoLayout):
         self.masks = [self.groups == g for g in range(self.n_groups)]
 
     def solve(self, S, B, y, w):
-        """Each group's (a_s, a_b) by :func:`nnls2` of its samples: two arrays (n_groups,)."""
+        """Each group's (a_s, a_b) by ``nnls2`` of its samples: two arrays (n_groups,)."""
         S, B, y, w = (np.asarray(a) for a in (S, B, y, w))
         out = [nnls2(*(a[np.broadcast_to(m, a.shape)] for a in (S, B, y, w))) for m in self.masks]
         return np.array([o[0] for o in out]), np.array([o[1] for o in out])
@@ -350,7 +350,7 @@ class PixelAlbedos(AlbedoLayout):
 
     def maps(self, S, B, a_s, a_b, cov, factor, split_rel):
         """The maps, a dict of arrays (n_groups,): ``k_s``, ``k_b`` (``factor`` times a_s, a_b), ``k_s_se``,
-        ``k_b_se`` (from ``cov``, the :meth:`covariance`), ``correlation``, and ``identified``: False where the
+        ``k_b_se`` (from ``cov``, the :meth:`~AlbedoLayout.covariance`), ``correlation``, and ``identified``: False where the
         surface's or body's contribution to the brightness has a standard error over ``split_rel`` of the
         mean predicted brightness, or the group has no signal."""
         f = float(factor)
