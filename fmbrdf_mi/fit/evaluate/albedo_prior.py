@@ -1,22 +1,13 @@
 """A Gaussian smoothness prior on per-pixel albedo maps (``FitOptions.albedo_smooth``, ``--albedo-smooth``).
 
-The maps of a per-pixel albedo fit (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`, per pixel or
-bilinear) are two unknowns per pixel, which
-one image's four polariser samples determine poorly.  The prior says that the albedos of 4-neighbouring
-fitted pixels i, j differ by a Gaussian amount of standard deviation tau (in the maps' units: the reported
-k_s and k_b, i.e. the model's albedo factor times the BSDF's a_s, a_b):
+Neighbouring fitted pixels' albedos differ by a Gaussian amount of standard deviation tau (in the reported
+k_s, k_b units; same colour channel only):
 
-    penalty = sum over 4-neighbour pairs (i, j) of ((k_s,i - k_s,j) / tau_s)^2 + ((k_b,i - k_b,j) / tau_b)^2
+    penalty = sum over 4-neighbour pairs (i, j) of ((k_s,i - k_s,j) / tau_s)^2 + ((k_b,i - k_b,j) / tau_b)^2,
 
-(a first-difference Gaussian Markov random field; pairs of the same colour channel only for colour
-mosaics).  The likelihood's residuals are whitened, so the penalty is in chi^2 units and the fit minimises
-data chi^2 + penalty (the negative log posterior, up to a constant).  It is written as 2 E extra rows of
-the albedos' design, D a / tau with data 0 (:meth:`SmoothPrior.rows`, :meth:`SmoothPrior.residuals`),
-independent of the shape parameters; the albedos stay eliminated (variable projection) by the penalised
-least squares (G + Lambda) a = A^T y, Lambda = D^T diag(1 / tau^2) D.
-
-The prior is improper: each connected set of fitted pixels keeps its mean k_s and k_b free
-(:meth:`SmoothPrior.null_dims`: 2 per component and channel), so a constant map costs nothing.
+added to the whitened chi^2 as 2 E design rows with data 0 (:meth:`SmoothPrior.rows`), so the albedos stay
+eliminated.  The prior is improper: each connected component keeps its mean free
+(:meth:`SmoothPrior.null_dims`).
 """
 from __future__ import annotations
 
@@ -32,9 +23,8 @@ def smooth_pair(value):
 
 
 def neighbour_pairs(pixels, width, channel_of=None):
-    """The 4-neighbour pairs of groups: (E, 2) group indices (i, j), i < j, of groups whose pixels (flat
-    indices ``pixels`` (n_groups,) on an image ``width`` wide) are right or down neighbours and, for a colour
-    mosaic (``channel_of`` (n_groups,)), of the same channel.  Groups are sorted by (pixel, channel)."""
+    """(E, 2) group indices (i, j), i < j, of right or down neighbours (flat ``pixels`` (n_groups,) on an
+    image ``width`` wide) of the same channel (``channel_of``)."""
     pixels = np.asarray(pixels, dtype=np.int64)
     ch = np.zeros(len(pixels), np.int64) if channel_of is None else np.asarray(channel_of, dtype=np.int64)
     C = int(ch.max()) + 1 if len(ch) else 1
@@ -58,7 +48,7 @@ def components(n, pairs):
     label = np.arange(n)
     if len(pairs):
         i, j = pairs[:, 0], pairs[:, 1]
-        while True:            # min-label propagation with pointer jumping: O(E log n) passes at most
+        while True:            # min-label propagation with pointer jumping
             m = np.minimum(label[i], label[j])
             new = label.copy()
             np.minimum.at(new, i, m)
@@ -71,10 +61,8 @@ def components(n, pairs):
 
 
 class SmoothPrior:
-    """The smoothness prior of the module docstring on ``n_groups`` albedo pairs, unknowns interleaved
-    (a_s[g] at 2g, a_b[g] at 2g + 1): ``pairs`` (E, 2) the neighbouring groups, ``tau`` (tau_s, tau_b) in the
-    maps' units, ``factor`` the model's albedo factor (k = factor a), so that a row is
-    factor (a_i - a_j) / tau."""
+    """The prior on ``n_groups`` interleaved albedo pairs: ``pairs`` (E, 2) neighbours, ``tau`` (tau_s,
+    tau_b) in the maps' units, ``factor`` the albedo factor (k = factor a); a row is factor (a_i - a_j) / tau."""
 
     def __init__(self, pairs, n_groups, tau, factor=1.0):
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
@@ -86,8 +74,7 @@ class SmoothPrior:
         self._null = None
 
     def rows(self):
-        """The prior's rows of the augmented design: (columns (2E, 2), values (2E, 2)), first the E k_s
-        differences, then the E k_b ones."""
+        """The design rows (columns (2E, 2), values (2E, 2)): the E k_s differences, then the k_b ones."""
         i, j = self.pairs[:, 0], self.pairs[:, 1]
         ws, wb = self.weights
         cols = np.concatenate([np.stack([2 * i, 2 * j], 1), np.stack([2 * i + 1, 2 * j + 1], 1)])
@@ -95,8 +82,7 @@ class SmoothPrior:
         return cols, vals.astype(np.float64)
 
     def residuals(self, a_s, a_b):
-        """The prior's residuals (2E,): factor (a_s,i - a_s,j) / tau_s, then the same of a_b ((2E, p) for
-        albedos (n_groups, p))."""
+        """The residuals (2E,) (or (2E, p)): the a_s rows, then the a_b rows."""
         a_s, a_b = np.asarray(a_s, dtype=np.float64), np.asarray(a_b, dtype=np.float64)
         i, j = self.pairs[:, 0], self.pairs[:, 1]
         return np.concatenate([self.weights[0] * (a_s[i] - a_s[j]), self.weights[1] * (a_b[i] - a_b[j])])
@@ -112,8 +98,7 @@ class SmoothPrior:
         return float(r @ r)
 
     def null_dims(self):
-        """The dimension of the prior's null space: 2 per connected component of the neighbour graph (each
-        component's mean k_s and k_b are not penalised)."""
+        """The null space's dimension: 2 per connected component of the neighbour graph."""
         if self._null is None:
             self._null = 2 * components(self.n_groups, self.pairs)
         return self._null

@@ -1,38 +1,14 @@
 """The albedo layouts of a fit: each a sparse design A(theta) of the albedos.
 
-Every model is linear in two albedos (paper eq:fmbrdf: k_s scales the
-surface term, k_b = r_k k_s the body term), so with S_k, B_k the unit-albedo
-intensities of sample k behind its polariser
-(:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` through the analyser),
-which depend on the shape parameters theta,
+Every model is linear in its albedos (paper eq:fmbrdf), so with S_k, B_k the unit-albedo intensities of
+sample k (:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` through the analyser),
 
     mu_k = sum_c w_kc (a_s[g_kc] S_k + a_b[g_kc] B_k) = (A(theta) a)_k,
 
-a = (a_s[0], a_b[0], a_s[1], ...) the 2 n_groups albedos and A(theta) a sparse
-design: row k has w_kc S_k at a_s[g_kc] and w_kc B_k at a_b[g_kc], for the
-sample's corners c (its groups g_kc and their weights w_kc).  A layout is
-its design, i.e. its corners; :class:`AlbedoLayout` owns the algebra:
-
-* **per channel** (:class:`ChannelAlbedos`, colour mosaics) and **per
-  material** (:class:`~fmbrdf_mi.fit.evaluate.materials.MaterialAlbedos`):
-  one corner of weight 1, the sample's colour channel or material;
-* **per pixel** (:class:`PixelAlbedos`, ``albedo="per-pixel"``): one corner
-  of weight 1, the sample's pixel (per pixel and channel for colour mosaics);
-* **per pixel, bilinear** (``albedo="per-pixel-bilinear"``): up to four
-  corners, the pixel centres around the sample's point with their bilinear
-  weights (:func:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.bilinear_weights`);
-* the maps' **smoothness prior**
-  (:class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior`): rows appended
-  to the design, with data 0.
-
-A single shared pair needs no layout (``layout=None``).
-
-The albedos of a design are eliminated by variable projection (Golub and
-Pereyra): a = A^+ y at every shape point, the optimiser seeing Kaufman's
-Jacobian (I - P) J_theta, P = A (A^T A)^-1 A^T (:meth:`AlbedoLayout.project`).
-The few albedos of :class:`GroupAlbedos` (channels, materials) are instead
-unknowns of the optimiser (their logs in z), re-solved non-negatively in
-closed form (:func:`nnls2`) at trial points.
+a = (a_s[0], a_b[0], a_s[1], ...), over the sample's corners c (groups g_kc, weights w_kc).  A layout is its
+corners; :class:`AlbedoLayout` owns the algebra and eliminates the albedos by variable projection
+(:meth:`AlbedoLayout.project`).  :class:`GroupAlbedos` (channels, materials) keeps its few albedos as
+unknowns of the optimiser instead.  A single shared pair needs no layout (``layout=None``).
 """
 from __future__ import annotations
 
@@ -72,11 +48,9 @@ def floored(a_s, a_b):
 
 
 class PairBlocks:
-    """The normal matrix G = A^T A of a design with one corner of weight 1 per sample: block diagonal, one
-    2 x 2 block per group (``blocks`` (n_groups, 2, 2)), pseudo-inverted in closed form (parallel columns give
-    the minimum-norm pair and one degree of freedom).  The same interface as
-    :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`: :meth:`solve`, :meth:`diagonal_blocks`,
-    ``undetermined``."""
+    """G = A^T A of a one-corner design: one 2 x 2 block per group (``blocks`` (n_groups, 2, 2)),
+    pseudo-inverted (parallel columns give the minimum-norm pair).  Interface of
+    :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`."""
 
     def __init__(self, blocks):
         self.inverse = np.linalg.pinv(blocks, rcond=1e-10, hermitian=True)
@@ -98,8 +72,7 @@ class PairBlocks:
 
 
 def pair_sums(X, Y, n_groups):
-    """Per group the 2 x 2 block X^T Y (n_groups, 2, 2) of two designs of one corner per sample (the same
-    groups: columns 2g, 2g + 1 of each row)."""
+    """Per group the 2 x 2 block X^T Y (n_groups, 2, 2) of two one-corner designs on the same groups."""
     g = X[0][:, 0] // 2
     out = np.empty((n_groups, 2, 2))
     for a in range(2):
@@ -108,46 +81,29 @@ def pair_sums(X, Y, n_groups):
     return out
 
 
-#: Why the incidental-parameter sandwich is not reported with the albedo maps' smoothness prior
-#: (fit.json's uncertainty method).
+#: Why there is no incidental-parameter sandwich with the smoothness prior (fit.json's uncertainty method).
 PRIOR_INCIDENTAL = ("the incidental-parameter sandwich is not computed with the albedo smoothness prior (the "
                     "posterior covariance of the penalised likelihood is reported)")
 
 
 class AlbedoLayout:
-    """The albedos of a fit as the sparse design A(theta) of the module docstring, and their elimination.
+    """The sparse design A(theta) of the albedos (module docstring) and their elimination.
 
-    ``groups``: each sample's own group, an int array broadcastable to (cells, n); ``n_groups``: how many
-    albedo pairs; ``corner_groups``, ``corner_weights`` (groups' shape + (c,)): the design's corners (default:
-    one corner of weight 1, the own group); ``name``: the ``albedo`` option's value; ``labels``: each group's
-    label where the groups are named (None otherwise); ``prior``: the smoothness prior
-    (:class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior`), whose rows R are appended to the design
-    (data 0; None: none).  Subclasses supply the design, this class its algebra.
+    ``groups``: each sample's own group (int, broadcastable to (cells, n)); ``n_groups``: albedo pairs;
+    ``corner_groups``, ``corner_weights`` (groups' shape + (c,)): the corners (default: the own group, weight
+    1); ``name``: the ``albedo`` option; ``labels``: group labels or None; ``prior``: a
+    :class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior` whose rows R join the design with data 0.
 
-    At every shape point the albedos are the least squares a = (A^T A + R^T R)^-1 A^T y (:meth:`solve`),
-    the optimiser's Jacobian is Kaufman's, (I - P) J_theta (:meth:`project`), and at the optimum each pair's
-    covariance is the diagonal block of the full information's inverse (:meth:`covariance`).  The normal
-    matrix G = A^T A (+ R^T R) is factored once per point and has one of two structures:
-
-    * **block diagonal** (``coupled`` False: one corner per sample, no prior): :class:`PairBlocks`; the
-      incidental-parameter term is exact;
-    * **banded** (``coupled`` True: bilinear corners, or the prior's rows): row-major pixels make G banded
-      (:class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`, with
-      :data:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.RIDGE` where singular to rounding); each pair's block
-      of G^-1 is its selected inverse, and the incidental-parameter term a Monte Carlo estimate (none with
-      the prior: :data:`PRIOR_INCIDENTAL`).
-
-    The albedos are not held non-negative: clipping the poorly determined ones at 0 (k_s away from the
-    highlight) biases the shape, while a negative estimate is a small albedo measured with noise.
+    G = A^T A (+ R^T R) is block diagonal (``coupled`` False: ``PairBlocks``) or banded (``coupled``
+    True: :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`).  The albedos are not held
+    non-negative: clipping poorly determined ones at 0 biases the shape.
     """
 
-    #: Whether the albedos are eliminated by variable projection (False: unknowns of the optimiser,
-    #: :class:`GroupAlbedos`).
+    #: Whether the albedos are eliminated by variable projection (False: :class:`GroupAlbedos`).
     eliminates = True
 
-    #: Monte Carlo draws of the coupled :meth:`incidental`: about INCIDENTAL_DRAWS[1] / pairs, at least [0], at
-    #: most [2].  One draw's relative spread on a diagonal entry of C is about sqrt(6 / pairs), so fewer draws
-    #: suffice for larger maps; each draw costs (1 + p) banded solves.
+    #: Monte Carlo draws of the coupled :meth:`incidental`: [1] / pairs, clipped to [[0], [2]] (one draw's
+    #: relative spread on C's diagonal is about sqrt(6 / pairs), so larger maps need fewer).
     INCIDENTAL_DRAWS = (8, 60000, 512)
 
     def __init__(self, groups, n_groups, *, corner_groups=None, corner_weights=None, name="per-pixel",
@@ -161,7 +117,7 @@ class AlbedoLayout:
                                else np.asarray(corner_weights, dtype=np.float64).reshape(self.corner_groups.shape))
         self.labels = None if labels is None else tuple(labels)
         self.prior = prior
-        #: one corner of weight 1 per sample: A's columns of different groups never share a row
+        #: one corner of weight 1 per sample
         self.one_corner = self.corner_groups.shape[-1] == 1 and bool(np.all(self.corner_weights == 1.0))
         self._single = np.ascontiguousarray(self.corner_groups[..., 0]) if self.one_corner else None
         #: whether the pairs are coupled (G banded) or not (G block diagonal)
@@ -220,9 +176,8 @@ class AlbedoLayout:
 
     # ---- the factored normal matrix
     def _factorised(self, us, ub):
-        """(A, factor of G) at the columns ``us``, ``ub``: A the design, the factor the last one when the columns
-        match those it came from to a relative 1e-12 (the solve's S sqrt(w) and the Jacobian's -S / sd differ
-        in rounding and sign), else a new one of A^T A (+ R^T R)."""
+        """(A, factor of G) at the columns ``us``, ``ub``; the last factor is reused when |columns| match to a
+        relative 1e-12 (the solve's and the Jacobian's columns differ in rounding and sign)."""
         key = (np.abs(np.asarray(us, float).ravel()), np.abs(np.asarray(ub, float).ravel()))
         A = self.design(us, ub)
         f = self._factor
@@ -245,18 +200,15 @@ class AlbedoLayout:
 
     # ---- solve, project, covariance, incidental term
     def solve(self, S, B, y, w):
-        """Every group's (a_s, a_b), the weighted least squares of all samples at once (penalised by the
-        prior's rows): two arrays (n_groups,)."""
+        """Every group's (a_s, a_b) by (penalised) weighted least squares: two arrays (n_groups,)."""
         sw = np.sqrt(np.asarray(w, dtype=np.float64)).ravel()
         A, fac = self._factorised(np.asarray(S, float).ravel() * sw, np.asarray(B, float).ravel() * sw)
         x = fac.solve(self.t_at(A, np.asarray(y, float).ravel() * sw))
         return x[0::2].copy(), x[1::2].copy()
 
     def free(self):
-        """How many albedos the data spent unknowns on: two per group, one where a block diagonal G's group
-        has parallel columns (at the last factored point); with the prior the dimension of its null space
-        (:meth:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior.null_dims`), since the expected penalised
-        chi^2 is then N - p - that."""
+        """Albedos the data spent unknowns on: the blocks' ranks at the last factored point; with the prior its
+        null space's dimension (the expected penalised chi^2 is N - p - that)."""
         if self.prior is not None:
             return self.prior.null_dims()
         if self._factor is not None and not self.coupled:
@@ -264,12 +216,9 @@ class AlbedoLayout:
         return 2 * self.n_groups
 
     def project(self, J, us, ub):
-        """Kaufman's Jacobian (I - P) J: ``J`` (N, p) the residuals' derivatives with respect to the shape
-        unknowns, ``us``, ``ub`` (N,) those with respect to each sample's unit albedos (the design's columns
-        before the corner weights); P = A G^-1 A^T projects onto the albedos' columns.  Returns (J_projected,
-        K), K (n_groups, 2, p) = G^-1 A^T J (the albedos' regression on the shape unknowns).  With the prior
-        its rows R (which do not depend on the shape: their J rows are 0) are in G, and the projected
-        Jacobian has the rows -R K appended: (N + 2E, p)."""
+        """Kaufman's Jacobian (I - P) J, P = A G^-1 A^T: ``J`` (N, p) the residuals' shape derivatives, ``us``,
+        ``ub`` (N,) the unit-albedo columns.  Returns (J_projected, K), K = G^-1 A^T J (n_groups, 2, p); with
+        the prior the rows -R K are appended: (N + 2E, p)."""
         p = J.shape[1]
         A, fac = self._factorised(us, ub)
         extra = 0 if self.prior is None else self.prior.n_rows
@@ -282,11 +231,9 @@ class AlbedoLayout:
         return Jp, K.reshape(self.n_groups, 2, p)
 
     def covariance(self, us, ub, J, cov_z, scale=1.0):
-        """(n_groups, 2, 2) covariance of each group's (a_s, a_b) with the shape unknowns free: the diagonal
-        blocks of scale G^-1 + K cov_z K^T, K = G^-1 A^T J (the block inverse of the full information matrix;
-        ``J`` (N, p) the residuals' unprojected shape derivatives, ``cov_z`` their covariance, already
-        scaled).  A pair the data do not determine (the factor's ``undetermined``: parallel columns, or no
-        signal) gets infinite variances."""
+        """(n_groups, 2, 2) covariance of each (a_s, a_b) with the shape free: the diagonal blocks of
+        scale G^-1 + K cov_z K^T, K = G^-1 A^T J (``J`` unprojected, ``cov_z`` already scaled).  Undetermined
+        pairs get infinite variances."""
         A, fac = self._factorised(us, ub)
         C = scale * fac.diagonal_blocks()
         if J.shape[1]:
@@ -296,8 +243,7 @@ class AlbedoLayout:
         return C
 
     def effective_parameters(self, us, ub):
-        """tr(A (A^T A + R^T R)^-1 A^T): the albedos' effective number of parameters (the trace of the hat
-        matrix; the rank of A without a prior), from G^-1's entries within G's band."""
+        """tr(A (A^T A + R^T R)^-1 A^T): the albedos' effective number of parameters."""
         A, fac = self._factorised(us, ub)
         if not self.coupled:
             return float(fac.rank.sum())
@@ -319,20 +265,14 @@ class AlbedoLayout:
         return None
 
     def incidental(self, us, ub, dcols, draws=None, seed=0):
-        """The incidental-parameter term C (p, p) of the eliminated albedos' noise in Kaufman's information,
-        or None with the prior (:attr:`incidental_reason`).  With A the design at the whitened unit-albedo
-        columns ``us``, ``ub`` (N,), A_j the design at their derivatives ``dcols`` (p pairs (dus, dub) of (N,)
-        arrays: d A / d z_j, the corner weights being fixed) and P = A G^-1 A^T,
+        """The incidental-parameter term C (p, p) of the eliminated albedos in Kaufman's information (J^T J is
+        on average H + C, Neyman and Scott), or None with the prior.  ``us``, ``ub``: whitened unit-albedo
+        columns (N,); ``dcols``: p pairs (dus, dub), their derivatives d A / d z_j:
 
-            C_jk = tr(G^-1 A_j^T (I - P) A_k) = tr(G^-1 A_j^T A_k) - tr(G^-1 A_j^T A G^-1 A^T A_k).
+            C_jk = tr(G^-1 A_j^T (I - P) A_k).
 
-        J^T J at the estimated albedos is on average H + C (Neyman and Scott's incidental parameters), which
-        ``fmbrdf_mi.fit.uncertainty.incidental_sandwich`` corrects.  C is positive semi-definite.
-
-        Block diagonal G: exact, by the sums per group of the second form.  Banded G: G^-1 is not banded, so C
-        is the mean of v_j^T v_k over ``draws`` (default ``incidental_draws``) draws,
-        v_j = (I - P) A_j G^-1 A^T e, e ~ N(0, I_N) from the generator seeded ``seed``.  Deterministic for the
-        same columns; the last result is cached because the covariance and the maps ask at the same point."""
+        Exact for block diagonal G; for banded G the mean of v_j^T v_k over ``draws`` draws,
+        v_j = (I - P) A_j G^-1 A^T e, e ~ N(0, I_N) seeded ``seed``.  The last result is cached."""
         if self.prior is not None:
             return None
         p = len(dcols)
@@ -369,8 +309,7 @@ class AlbedoLayout:
 
 
 class GroupAlbedos(AlbedoLayout):
-    """A few albedo pairs that are unknowns of the optimiser (their logs in z): one corner of weight 1 per
-    sample, its group; each group's pair is solved non-negatively (:func:`nnls2`)."""
+    """A few albedo pairs kept as unknowns of the optimiser (logs in z), solved by ``nnls2``."""
 
     eliminates = False
 
@@ -379,7 +318,7 @@ class GroupAlbedos(AlbedoLayout):
         self.masks = [self.groups == g for g in range(self.n_groups)]
 
     def solve(self, S, B, y, w):
-        """Each group's (a_s, a_b) by :func:`nnls2` of its samples: two arrays (n_groups,)."""
+        """Each group's (a_s, a_b) by ``nnls2`` of its samples: two arrays (n_groups,)."""
         S, B, y, w = (np.asarray(a) for a in (S, B, y, w))
         out = [nnls2(*(a[np.broadcast_to(m, a.shape)] for a in (S, B, y, w))) for m in self.masks]
         return np.array([o[0] for o in out]), np.array([o[1] for o in out])
@@ -398,13 +337,9 @@ class ChannelAlbedos(GroupAlbedos):
 
 
 class PixelAlbedos(AlbedoLayout):
-    """Albedo maps: one (a_s, a_b) per fitted pixel (per pixel and colour channel: ``channel_of`` (n_groups,),
-    ``labels``), the same pixel in every image of a joint fit sharing it.
-
-    ``groups`` (cells, n): each sample's own pixel's group; ``pixels`` (n_groups,) the flat pixel index of
-    each group; the corners default to the own group (``albedo="per-pixel"``), or are the bilinear
-    interpolation between pixel centres (``albedo="per-pixel-bilinear"``,
-    :func:`~fmbrdf_mi.fit.problem.data.bilinear_layout`).  The rest is :class:`AlbedoLayout`'s."""
+    """Albedo maps: one (a_s, a_b) per fitted pixel (and colour channel: ``channel_of``), shared by the
+    images of a joint fit.  ``pixels`` (n_groups,): each group's flat pixel index; bilinear corners come from
+    :func:`~fmbrdf_mi.fit.problem.data.bilinear_layout`."""
 
     def __init__(self, groups, n_groups, pixels, *, corner_groups=None, corner_weights=None, name="per-pixel",
                  prior=None, channel_of=None, labels=None):
@@ -414,12 +349,10 @@ class PixelAlbedos(AlbedoLayout):
         self.channel_of = None if channel_of is None else np.asarray(channel_of, dtype=np.int64)
 
     def maps(self, S, B, a_s, a_b, cov, factor, split_rel):
-        """The maps of every group: a dict of arrays (n_groups,): ``k_s``, ``k_b`` (the model's reported
-        albedos: ``factor`` times a_s, a_b), ``k_s_se``, ``k_b_se`` (from ``cov`` (n_groups, 2, 2), the pairs'
-        :meth:`covariance`), ``correlation`` of the two, and ``identified``: False where the standard error of
-        the surface's or the body's contribution to the pixel's brightness (a_s mean S, a_b mean B over the
-        group's own samples; ``S``, ``B`` (cells, n) the unit-albedo intensities) exceeds ``split_rel`` of the
-        pixel's mean predicted brightness, or where the group has no signal."""
+        """The maps, a dict of arrays (n_groups,): ``k_s``, ``k_b`` (``factor`` times a_s, a_b), ``k_s_se``,
+        ``k_b_se`` (from ``cov``, the :meth:`~AlbedoLayout.covariance`), ``correlation``, and ``identified``: False where the
+        surface's or body's contribution to the brightness has a standard error over ``split_rel`` of the
+        mean predicted brightness, or the group has no signal."""
         f = float(factor)
         a_s, a_b = np.asarray(a_s, float), np.asarray(a_b, float)
         se_s, se_b = np.sqrt(np.clip(cov[:, 0, 0], 0, None)), np.sqrt(np.clip(cov[:, 1, 1], 0, None))

@@ -1,33 +1,15 @@
 """The bilinear design of per-pixel albedos (``albedo="per-pixel-bilinear"``) and the banded algebra of
 coupled albedo pairs.
 
-A camera sees a continuous texture: a super-pixel's four polariser samples
-sit at four different points (:mod:`fmbrdf_mi.sensor.samples`) and see four
-different albedos, which one (a_s, a_b) pair per super-pixel would read as
-polarisation.  Here the unknowns are the albedos at each fitted pixel's
-*centre*, and sample k of cell i predicts
+A super-pixel's four polariser samples sit at different points (:mod:`fmbrdf_mi.sensor.samples`) and see
+different albedos, which one pair per super-pixel would read as polarisation.  The unknowns are therefore
+the albedos at pixel centres, each sample interpolating them bilinearly (:func:`bilinear_weights`):
 
-    mu_ik = (sum_g w_ikg a_s[g]) S_ik + (sum_g w_ikg a_b[g]) B_ik,
+    mu_ik = (sum_g w_ikg a_s[g]) S_ik + (sum_g w_ikg a_b[g]) B_ik.
 
-w_ikg the bilinear interpolation weights of the sample's point between the
-up to four pixel centres around it (:func:`bilinear_weights`), the corners
-of the design of :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`.  An
-albedo linear across a super-pixel is thus modelled exactly, also at the
-mask's edge where a neighbour is missing (extrapolation, see
-:func:`bilinear_weights`).  Samples without an offset (angle images, Stokes
-images) use their own pixel's pair only.
-
-**The banded algebra.**  Coupled pairs (these corners, or the smoothness
-prior's rows) make the normal matrix G = A^T A (A the whitened design;
-unknowns interleaved a_s[0], a_b[0], a_s[1], ...) banded in row-major pixel
-order, half bandwidth about twice the object's width:
-:func:`normal_band` assembles it, :class:`BandCholesky` factors it
-(O(n b^2)) and gives the diagonal blocks and band of its inverse by
-Takahashi's selected inverse.  An unknown without signal (zero diagonal) is
-set to 0; where G is singular otherwise (e.g. a sphere's centre, where
-surface and body are both unpolarised) its Jacobi-scaled G gets the smallest
-:data:`RIDGE` that makes it positive definite, so near-null directions are
-solved to about the minimum norm and get large standard errors.
+Coupled pairs (these corners, or the smoothness prior) make G = A^T A banded in row-major pixel order:
+:func:`normal_band` assembles it, :class:`BandCholesky` factors it and gives its inverse's band by
+Takahashi's selected inverse.
 """
 from __future__ import annotations
 
@@ -37,22 +19,20 @@ import numpy as np
 #: :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`).
 PER_PIXEL_LAYOUTS = ("per-pixel", "per-pixel-bilinear")
 
-#: The ridges tried, in turn, on the Jacobi-scaled normal matrix (unit diagonal) when it is singular to
-#: rounding (module docstring).
+#: The ridges tried, in turn, on the Jacobi-scaled normal matrix when it is singular to rounding (e.g. a
+#: sphere's centre, where surface and body are both unpolarised): near-null directions get about the
+#: minimum norm and large standard errors.
 RIDGE = (1e-12, 1e-10, 1e-8)
 
 
 def bilinear_weights(rows, cols, offsets, present):
-    """The interpolation of each sample's albedo from pixel centres: (corners (cells, n, 4, 2), weights
-    (cells, n, 4)): each corner's pixel (row, col) and weight (0 for an unused corner, which then points at
-    the sample's own pixel; the weights sum to 1).
+    """Each sample's albedo as a combination of pixel centres: (corners (cells, n, 4, 2) (row, col),
+    weights (cells, n, 4) summing to 1; an unused corner has weight 0 and points at the own pixel).
 
     ``rows``, ``cols`` (cells,): each cell's pixel; ``offsets`` (n, 2): each sample's (dx right, dy down)
-    from its cell's centre, in cells (``|d|`` < 1/2 ... 1); ``present(r, c)`` -> bool array: whether pixel
-    (r, c) has albedos (fitted; False off the image).
-    Per axis the sample's value is interpolated towards the neighbour on its side, or, that one missing,
-    extrapolated linearly from the opposite neighbour, or, both missing, held constant; the 2-D weights are
-    the product of the two axes', and a missing off-axis corner is the plane through the other three."""
+    from its cell's centre, in cells; ``present(r, c)`` -> bool array: whether pixel (r, c) is fitted.
+    Per axis: interpolation towards the neighbour, else linear extrapolation from the opposite one, else
+    constant; a missing diagonal corner is the plane through the other three, so a linear albedo is exact."""
     rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
     off = np.asarray(offsets, dtype=np.float64)
     cells, n = len(rows), len(off)
@@ -62,8 +42,7 @@ def bilinear_weights(rows, cols, offsets, present):
     r0, c0 = np.broadcast_to(rows[:, None], (cells, n)), np.broadcast_to(cols[:, None], (cells, n))
 
     def stencil(fwd, back, s, a):
-        """One axis: (neighbour step, own weight, neighbour weight): interpolation towards a present
-        neighbour, else linear extrapolation from the opposite one, else constant."""
+        """One axis: (neighbour step, own weight, neighbour weight)."""
         inter, extra = fwd & (s != 0), ~fwd & back & (s != 0)
         step = np.where(inter, s, np.where(extra, -s, 0))
         w_own = np.where(inter, 1 - a, np.where(extra, 1 + a, 1.0))
@@ -79,7 +58,7 @@ def bilinear_weights(rows, cols, offsets, present):
     idx = np.stack([np.stack([r0, c0], -1), np.stack([r0, c0 + kx], -1), np.stack([r0 + ky, c0], -1),
                     np.stack([r0 + ky, c0 + kx], -1)], 2)            # (cells, n, 4, 2) (row, col)
     wt = np.stack([w_o, w_h, w_v, w_d], 2)
-    # unused corners (weight 0) point at the own pixel (always present): their index stays valid
+    # unused corners point at the own pixel (always present)
     idx = np.where((wt != 0)[..., None], idx, np.stack([r0, c0], -1)[:, :, None, :])
     return idx, wt
 
@@ -118,18 +97,16 @@ def normal_band(A, n):
 
 
 class BandCholesky:
-    """Cholesky factor of a symmetric positive semi-definite banded matrix G (lower band ``band`` (n, b + 1),
-    half bandwidth ``b``), Jacobi-scaled: G = D^1/2 Gs D^1/2 with Gs of unit diagonal (an unknown whose
-    diagonal is 0: Gs_ii = 1, D_ii = 1), and Gs + ``ridge`` I = L L^T factored as a block-tridiagonal matrix
-    with blocks of size max(b, 1): L block lower bidiagonal, diagonal blocks L_k, sub-diagonal blocks M_k.
-    Dense NumPy per block: O(n b^2) time.  LinAlgError where Gs + ridge I is not positive definite."""
+    """Cholesky factor of a symmetric positive semi-definite banded G (lower band ``band`` (n, b + 1)),
+    Jacobi-scaled, G = D^1/2 Gs D^1/2 (a zero diagonal: unknown set to 0), and Gs + ``ridge`` I = L L^T
+    with L block lower bidiagonal (blocks max(b, 1)): O(n b^2).  LinAlgError where not positive definite."""
 
     def __init__(self, band, b, ridge=0.0):
         band = np.array(band, dtype=np.float64)
         n = band.shape[0]
         self.n = n
         d = band[:, 0].copy()
-        #: pairs (unknowns 2g, 2g + 1) of which an unknown has no signal (its diagonal of G is 0)
+        #: pairs (unknowns 2g, 2g + 1) of which an unknown has no signal
         self.undetermined = np.any(d.reshape(-1, 2) <= 0, axis=1) if n % 2 == 0 else None
         self.scale = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
         for k in range(b + 1):
@@ -185,8 +162,7 @@ class BandCholesky:
         return np.concatenate(x)
 
     def diagonal_blocks(self):
-        """The 2 x 2 diagonal blocks (n / 2, 2, 2) of G^-1 (n even), from :meth:`inverse_band`'s first two
-        diagonals."""
+        """The 2 x 2 diagonal blocks (n / 2, 2, 2) of G^-1 (n even)."""
         Z = self.inverse_band(1)
         out = np.empty((self.n // 2, 2, 2))
         out[:, 0, 0], out[:, 1, 1] = Z[0::2, 0], Z[1::2, 0]
@@ -194,10 +170,8 @@ class BandCholesky:
         return out
 
     def inverse_band(self, bw):
-        """The lower band (n, bw + 1) of G^-1 (Z[i, i - d] at [i, d]; 0 where i - d < 0), bw at most the
-        factor's half bandwidth, by Takahashi's selected inversion on the block-bidiagonal factor
-        (:meth:`_selected_inverse`), keeping each block row's Z_{k,k-1} and Z_kk (an entry within the band lies
-        in one of them).  O(n b^2)."""
+        """The lower band (n, bw + 1) of G^-1 (Z[i, i - d] at [i, d]), bw at most the factor's half
+        bandwidth, by Takahashi's selected inversion: O(n b^2)."""
         e = self.edges
         K = len(e) - 1
         s = max(e[1] - e[0], 1) if K else 1
@@ -217,12 +191,11 @@ class BandCholesky:
         return out
 
     def _selected_inverse(self):
-        """Takahashi's recursion on the block-bidiagonal factor: Z_KK = L_K^-T L_K^-1, and from the last block up
+        """Takahashi's recursion, from the last block up, Z = Gs^-1:
 
-            Z_{k+1,k} = -Z_{k+1,k+1} M_k L_k^-1,   Z_kk = L_k^-T (L_k^-1 - M_k^T Z_{k+1,k}),
+            Z_{k+1,k} = -Z_{k+1,k+1} M_k L_k^-1,   Z_kk = L_k^-T (L_k^-1 - M_k^T Z_{k+1,k});
 
-        which needs only blocks within the band of Z = Gs^-1 (G^-1 = D^-1/2 Z D^-1/2): yields (k, Z_kk,
-        Z_{k+1,k} or None for the last block, Z_{k+1,k+1} or None)."""
+        yields (k, Z_kk, Z_{k+1,k}, Z_{k+1,k+1}), the last two None for the last block."""
         Znext = None
         for k in range(len(self.edges) - 2, -1, -1):
             Li = self.Linv[k]

@@ -1,27 +1,9 @@
 """Several materials in one fit: a label image assigns each fitted pixel to one of M materials.
 
-Pixel i with label m(i) is predicted with its material's own shape parameters
-and albedos (paper eq:fmbrdf, one BRDF per material):
-
-    S(x_i) = E (k_s[m] f_s(x_i; eta[m], alpha[m], beta[m]) + k_b[m] f_b(x_i; eta[m], kappa[m])),
-
-and every pixel of every material enters the one objective (one camera noise
-model: :mod:`fmbrdf_mi.fit.objectives.objective`).  The pieces:
-
-* the parameter table with per-material shape parameters
-  ``eta[0] .. kappa[0], eta[1] ..`` and, with shared albedos, ``k_s[m]``,
-  ``r_k[m]`` per material
-  (:class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` with ``materials``);
-* :class:`MaterialEvaluator`: one evaluator per material over its points,
-  assembled into the :class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` of
-  all points (d/d ``eta[m]`` is 0 off material m's points); a material whose
-  parameters did not change is not evaluated again;
-* :class:`MaterialAlbedos`: one (a_s, a_b) per material.  Per-pixel albedo
-  maps (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) need nothing
-  new: each pixel has its own pair whatever its material.
-
-A fit of one material (every label 0) is the ordinary fit
-(:func:`fmbrdf_mi.fit.api.fitting.fit`).
+Pixel i with label m(i) has its material's own shape parameters and albedos (paper eq:fmbrdf, one BRDF
+per material), and all pixels enter one objective.  :class:`MaterialEvaluator` assembles the
+:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` of all points from one evaluator per material;
+:class:`MaterialAlbedos` holds one albedo pair per material (per-pixel maps need nothing new).
 """
 from __future__ import annotations
 
@@ -31,20 +13,16 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.albedos import GroupAlbedos
 from fmbrdf_mi.fit.evaluate.pixel_model import Parts
 
-#: Fewest fitted (super-)pixels a material must have: as many as a whole fit
-#: needs (:data:`fmbrdf_mi.fit.problem.data.MIN_PIXELS`), since each material's
-#: shape parameters are estimated from its own pixels.
+#: Fewest fitted (super-)pixels a material must have: as many as a whole fit needs
+#: (:data:`fmbrdf_mi.fit.problem.data.MIN_PIXELS`), each material's shape coming from its own pixels.
 MIN_MATERIAL_PIXELS = 20
 
 
 def check_labels(labels, shape, what="materials"):
     """The label image ``labels`` on the fit's pixel grid ``shape`` (H, W): an int array (H, W).
 
-    Accepted: (H, W) (the grid the fit runs on: the super-pixel grid of a raw
-    mosaic), or (2H, 2W) (a raw mosaic's sensor pixels: a super-pixel takes
-    its 2 x 2 block's label when the four agree, else it is not fitted).
-    Integer values; 0 .. M-1 are materials, any value < 0 is not fitted.
-    InputError in one line naming ``what`` otherwise.
+    Accepted: (H, W), or (2H, 2W) sensor pixels (a super-pixel takes its 2 x 2 block's label when the four
+    agree, else it is not fitted).  0 .. M-1 are materials, < 0 not fitted.  InputError naming ``what``.
     """
     H, W = shape
     try:
@@ -88,12 +66,11 @@ class MaterialAlbedos(GroupAlbedos):
 
 
 class MaterialEvaluator:
-    """:class:`Parts` of all points from one evaluator per material.
+    """:class:`Parts` of all points from one evaluator per material (d/d ``eta[m]`` is 0 off material m).
 
     ``params``: the fit's :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (with ``materials``);
-    ``evaluators``: material m's evaluator over its own points (the model's
-    shape names); ``columns``: for each material the indices of its points
-    among all ``n_points`` (the order of the objective's points).
+    ``evaluators``: each material's evaluator over its own points; ``columns``: each material's point
+    indices among all ``n_points``.  An unchanged material is not evaluated again.
     """
 
     def __init__(self, params, evaluators, columns, n_points):

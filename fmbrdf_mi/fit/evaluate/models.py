@@ -1,25 +1,14 @@
 """The reflectance models a fit can use, described as Mitsuba BSDFs with named parameters.
 
-Every model is a Mitsuba BSDF that is linear in two albedos, a *surface*
-(specular) one and a *body* (diffuse) one, and depends non-linearly on a few
-*shape* parameters; the fit uses that linearity (closed-form albedos,
-analytic albedo derivatives).  The BSDF is only evaluated through Mitsuba,
-so the per-pixel and the rendering paths run the same code.
+Every model is linear in a *surface* and a *body* albedo (closed-form albedos) and non-linear in a few
+*shape* parameters; it is evaluated only through Mitsuba, as in rendering.
 
-* ``fmbrdf``: this package's FMBRDF; reported as the paper's six parameters
-  (eta, alpha, beta, kappa, k_s, r_k = k_b / k_s).
-* ``pplastic``: Mitsuba's polarised plastic (Baek et al. 2018 pBRDF: GGX
-  specular with Fresnel reflection, Fresnel-transmitted depolarised diffuse).
-* ``lambert_ts``: Lambertian + Torrance-Sparrow (Beckmann distribution,
-  Smith shadowing, dielectric Fresnel reflectance through Mitsuba's
-  ``roughconductor`` with k = 0), added as a ``blendbsdf`` with weight 1/2
-  (its albedos are reported as the effective ones, k_d and k_s).
-* ``oren_nayar_ts``: Oren-Nayar + Torrance-Sparrow, the paper's third
-  comparison: ``lambert_ts`` with this package's ``orennayar`` BSDF
-  (Oren & Nayar, SIGGRAPH 1994) in place of the Lambertian; its qualitative
-  form, because the full form's interreflection term is quadratic in the
-  albedo; shape parameters eta, alpha and sigma (facet slope deviation,
-  radians).
+* ``fmbrdf``: this package's FMBRDF, reported as (eta, alpha, beta, kappa, k_s, r_k = k_b / k_s).
+* ``pplastic``: Mitsuba's polarised plastic (Baek et al. 2018 pBRDF, GGX).
+* ``lambert_ts``: Lambertian + Torrance-Sparrow (Beckmann, Smith, dielectric Fresnel via
+  ``roughconductor`` with k = 0) as a ``blendbsdf`` of weight 1/2; albedos reported as the effective ones.
+* ``oren_nayar_ts``: ``lambert_ts`` with the qualitative ``orennayar`` (the full form is quadratic in the
+  albedo); shape eta, alpha, sigma (radians).
 """
 from __future__ import annotations
 
@@ -32,9 +21,8 @@ from fmbrdf_mi.fit.evaluate.parameters import Param
 
 
 def shape_param(name, key, lo, hi, scale, grid):
-    """A non-linear parameter as a row of the parameter table (:class:`~fmbrdf_mi.fit.evaluate.parameters.Param`):
-    its traverse key, bounds, scale of the bounded reparameterisation (``log`` for parameters spanning decades,
-    ``log1p`` from 0, ``log_minus_1`` above 1, ``linear``) and coarse-search values."""
+    """A :class:`~fmbrdf_mi.fit.evaluate.parameters.Param` row of kind shape: traverse key, bounds, scale
+    (``log``, ``log1p``, ``log_minus_1``, ``linear``) and coarse-search values."""
     return Param(name, name, "shape", key, lo, hi, scale, tuple(grid))
 
 
@@ -88,8 +76,7 @@ FMBRDF = Model(
     surface_key="k_s.value",
     body_key="k_b.value",
     albedo_factor=1.0,
-    # float32 tables: residuals and their forward-mode derivatives come from the same
-    # tables, smooth in the parameters (the compact ones round the ratios)
+    # float32 tables: residuals and derivatives smooth in the parameters (the compact ones round)
     base_dict={"type": "fmbrdf", "eta": "$eta", "alpha": "$alpha", "beta": "$beta",
                "kappa": "$kappa", "k_s": 1.0, "k_b": 1.0, "tables": "float32"},
     body_name="r_k",
@@ -199,11 +186,8 @@ Z_MAX = 12.0
 
 
 class Bounds:
-    """Maps unconstrained z to parameters inside [lo, hi] (sigmoid on the parameter's scale).
-
-    ``model``: what has the shape parameters (``shape``, ``param``): a :class:`Model` (its bounds) or a fit's
-    :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (its rows' bounds, narrowed by the fit's options).
-    """
+    """Maps unconstrained z to parameters inside [lo, hi] (sigmoid on the parameter's scale); ``model``: a
+    :class:`Model` or a fit's :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`."""
 
     def __init__(self, model):
         #: {name: (lo, hi on the parameter's scale, lo, hi)}

@@ -1,16 +1,8 @@
-"""The parameters of a fit as one table (as lmfit's ``Parameters``): one row per named parameter.
+"""The parameters of a fit as one table (as lmfit's ``Parameters``): one :class:`Param` row per name.
 
-A fit estimates a model's shape parameters (per material with a label
-image), the light powers of a joint fit's images after the first
-(:mod:`fmbrdf_mi.fit.problem.free_power`) and two albedos per group (shared,
-per colour channel, per material; albedo maps are reported as maps, not
-rows).  Each is a :class:`Param` row: its name as fit.json and the summaries
-write it, the model's name of it, what it is (``shape``, ``power``,
-``albedo``), its bounds and scale for the bounded reparameterisation
-(:class:`~fmbrdf_mi.fit.evaluate.models.Bounds`), its coarse-search grid,
-and its group: the material, colour channel or image it belongs to.
-:class:`Parameters` builds the rows of one fit in one place; the solver, the
-uncertainty and the report read the rows, and no name is parsed back.
+Rows are the model's shape parameters (per material), the free light powers of a joint fit
+(:mod:`fmbrdf_mi.fit.problem.free_power`) and the albedos per group (maps are reported as maps, not rows).
+:class:`Parameters` builds them in one place, and no name is parsed back.
 """
 from __future__ import annotations
 
@@ -29,11 +21,10 @@ POWER_RANGE = 1000.0
 
 @dataclasses.dataclass(frozen=True)
 class Param:
-    """One named parameter: ``name`` (as reported), ``base`` (the model's name of it), ``kind`` (``shape``: a
-    BSDF parameter, traverse ``key``; ``power``: image ``image``'s light power; ``albedo``: reported from the
-    albedos of its group), bounds ``lo``, ``hi``, ``scale`` of the bounded reparameterisation, coarse-search
-    ``grid``; its group: ``material`` index, ``channel`` index (None: not per material / channel); ``fixed``:
-    the value it is held at (None: free)."""
+    """One named parameter: ``name`` (as reported), ``base`` (the model's name), ``kind`` (``shape``: BSDF
+    traverse ``key``; ``power``: image ``image``'s light power; ``albedo``), bounds ``lo``, ``hi``, ``scale``
+    (:class:`~fmbrdf_mi.fit.evaluate.models.Bounds`), coarse-search ``grid``, ``material`` / ``channel``
+    index (None: not per group), ``fixed`` value (None: free)."""
 
     name: str
     base: str
@@ -52,16 +43,13 @@ class Param:
 class Parameters:
     """The parameter table of a fit of ``model``.
 
-    ``materials``: M (per-material shape parameters and, without maps, albedos; None: one material);
-    ``channels``: the colour channels' labels of per-channel albedos (None: none); ``maps``: the albedos are
-    maps (no albedo rows); ``powers``: the given relative powers G_0 .. G_{K-1} of a joint fit whose powers
-    P_1 .. P_{K-1} are free (image 0 is the reference; None: none); ``bounds``: {name: (lo, hi)} narrowing
-    the model's bounds, ``fixed``: {name: value} held fixed (the model's names stand for every material's;
-    ValueError naming a bound outside the model's or a name that is not a shape parameter).
+    ``materials``: M (None: one); ``channels``: labels of per-channel albedos; ``maps``: no albedo rows;
+    ``powers``: the given relative powers G_0 .. G_{K-1} of a joint fit whose P_1 .. P_{K-1} are free;
+    ``bounds``: {name: (lo, hi)} narrowing the model's, ``fixed``: {name: value} (a model name stands for
+    every material's; ValueError for a bound outside the model's or an unknown name).
 
-    ``rows`` are in the order of :meth:`report` (per material its shape parameters then its albedos; per
-    channel each albedo name over the channels; the powers last); ``shape`` the rows the optimiser sees
-    through the bounds (shape parameters and powers), in the order of z.
+    ``rows`` are in :meth:`report`'s order; ``shape`` the rows the optimiser sees (shape parameters and
+    powers), in the order of z.
     """
 
     def __init__(self, model, *, materials=None, channels=None, maps=False, powers=None, bounds=None, fixed=None):
@@ -115,8 +103,7 @@ class Parameters:
         return out
 
     def name_of(self, base, material=None, channel=None, image=None):
-        """The reported name of parameter ``base`` of a group: ``eta``, ``eta[1]`` (material 1), ``k_s[R]``
-        (channel R), ``power_2`` (image 2's light power).  The one place these names are made."""
+        """The reported name: ``eta``, ``eta[1]`` (material 1), ``k_s[R]`` (channel R), ``power_2`` (image 2)."""
         if image is not None:
             return f"{base}_{image}"
         label = material if channel is None else self.channels[channel]
@@ -135,8 +122,7 @@ class Parameters:
         return self.row[name]
 
     def report(self, shape_values, a_s, a_b):
-        """The parameters as reported to the user, {name: value} in the order of ``rows``: the shape
-        values and powers as they are, each group's albedos through the model's ``albedo_factor`` (the fmbrdf's
+        """{name: value} in the order of ``rows``; albedos through the model's ``albedo_factor`` (the fmbrdf's
         k_s and r_k = k_b / k_s)."""
         groups = self.count if self.channels is None else len(self.channels)
         if groups is not None and self.albedo_names:
@@ -157,9 +143,9 @@ class Parameters:
         return out
 
     def split(self, reported):
-        """Inverse of :meth:`report` for a start (``init``): (shape values, a_s, a_b) from the model's own
-        names (every material starts there: a_s, a_b arrays (M,)); the powers from their names, else the
-        given ones.  InputError naming what is missing or not a number (``dict(eta=9)`` for fmbrdf)."""
+        """Inverse of :meth:`report` for a start: (shape values, a_s, a_b) from the model's names (every
+        material starts there); the powers from their names, else the given ones.  InputError naming what is
+        missing or not a number."""
         model = self.model
         names = model.shape_names + self.albedo_pair
         if not isinstance(reported, Mapping):
@@ -195,8 +181,7 @@ class Parameters:
         return {r.base: values[r.name] for r in self.shape if r.kind == "shape" and r.material == m}
 
     def expand(self, values):
-        """{name: v} of the model's shape names (``bounds``, ``fixed``) -> the same for every material; names of
-        the table's rows (``eta[1]``) are kept."""
+        """{name: v} of the model's shape names -> the same for every material (``eta[1]`` kept as is)."""
         if not values or self.count is None:
             return values
         out = {}
@@ -206,8 +191,7 @@ class Parameters:
         return out
 
     def nest(self, flat):
-        """``{"k_s[R]": x, ...}`` -> ``{"k_s": {"R": x, ...}}``: each channel's row under its model's name and
-        channel label, in the order of ``flat``; other names stay as they are."""
+        """``{"k_s[R]": x, ...}`` -> ``{"k_s": {"R": x, ...}}``; other names stay as they are."""
         out = {}
         for k, v in flat.items():
             r = self.row.get(k)
@@ -218,8 +202,7 @@ class Parameters:
         return out
 
     def per_material(self, flat):
-        """[{name: x} per material] of the rows of ``flat`` (a report, standard errors, intervals): under the
-        model's names (one material: under the rows' own names); names not in the table are left out."""
+        """[{name: x} per material] of ``flat``'s rows under the model's names; other names are left out."""
         out = [{} for _ in range(self.count or 1)]
         for k, v in (flat or {}).items():
             r = self.row.get(k)

@@ -1,29 +1,15 @@
 """Differentiable evaluation of a model's Stokes output at given pixels: two paths, one BSDF.
 
-Both evaluators return the same thing, :class:`Parts`: for unit albedos, the
-linear Stokes components (S0, S1, S2) that the *surface* and the *body* terms
-of the model send to the camera at each selected pixel under unpolarised
-light, and, on request, their derivatives with respect to the shape
-parameters by forward-mode Dr.Jit AD through the BSDF (and the renderer).
-The model is linear in its two albedos, so any prediction is
-``a_s * surface + a_b * body``.
+Both evaluators return :class:`Parts`: the (S0, S1, S2) that the surface and the body term send to the
+camera at unit albedos under unpolarised light, and their forward-mode derivatives in the shape parameters;
+a prediction is ``a_s * surface + a_b * body`` (paper eq:fmbrdf).
 
-* :class:`PixelEvaluator`: no ray tracing; one ``SurfaceInteraction3f`` per
-  pixel whose shading frame is built from the normal, ``bsdf.eval`` with
-  wi = view and wo = light.  What captured data (a normal map) needs.
-* :class:`RenderEvaluator`: ``mi.render`` of a scene that contains the BSDF,
-  with the ``stokes`` integrator; what synthetic scenes need.  Only its
-  reverse-mode gradient is usable (:func:`optimise.loss_and_grad_reverse`):
-  forward-mode derivatives through ``mi.render`` miss the body term.
+* :class:`PixelEvaluator`: ``bsdf.eval`` per pixel from a normal map, no ray tracing (captured data).
+* :class:`RenderEvaluator`: ``mi.render`` with the ``stokes`` integrator (synthetic scenes; reverse-mode
+  gradients only, :func:`optimise.loss_and_grad_reverse`).
 
-Intensity and DoLP of ``M @ [1, 0, 0, 0]`` are invariant under rotations of
-the Stokes frames; the polariser samples a camera measures are not.  The pixel
-path therefore rotates each Stokes vector from the BSDF's outgoing basis
-(``mi.mueller.stokes_basis(wi)`` in the shading frame) to the camera's
-(x = image right projected perpendicular to the view direction, y = image up,
-light travelling towards the camera), the frame of the ``stokes`` integrator
-and of :mod:`fmbrdf_mi.sensor.mosaic` (checked against a render in
-``tests/fit/test_objectives_likelihood.py``).
+Stokes vectors are in the camera's frame (x = image right perpendicular to the view, y = image up), that
+of the ``stokes`` integrator and :mod:`fmbrdf_mi.sensor.mosaic`.
 """
 from __future__ import annotations
 
@@ -59,10 +45,8 @@ class Parts:
     nonfinite: np.ndarray = None
 
 
-#: Albedo that switches a term "off" when the parts are evaluated.  Not 0: with
-#: k_s exactly 0, forward-mode derivatives of a Mitsuba render of the fmbrdf
-#: sphere come out exactly 0 for the whole image (body included), while the
-#: primal is right; 1e-20 leaves the parts unchanged to float32 precision.
+#: Albedo that switches a term "off".  Not 0: with k_s exactly 0 the forward-mode derivatives of a render
+#: come out 0 (body included); 1e-20 is 0 to float32 precision.
 OFF = 1e-20
 
 
@@ -118,8 +102,7 @@ class _Evaluator:
         parts = Parts(out[0], out[1])
         if not wrt:
             return parts
-        # One table build with gradients on every parameter in ``wrt``, then one forward pass
-        # per parameter through the same graph (edges kept, interior gradients cleared).
+        # one table build with gradients on all of ``wrt``, then one forward pass per parameter
         xs = {}
         for name in wrt:
             xs[name] = mi.Float(float(shape_values[name]))
@@ -138,7 +121,7 @@ class _Evaluator:
             g[name] = [[dr.grad(c) for c in s] for s in s_all]
             for c in outputs:
                 dr.clear_grad(c)
-        dr.eval(g)      # one kernel for every parameter's six derivatives (not one per output and parameter)
+        dr.eval(g)      # one kernel for all derivatives
         for name in wrt:
             grads = [np.stack([np.asarray(c, dtype=np.float64) for c in s]) for s in g[name]]
             parts.d_surface[name], parts.d_body[name] = grads
@@ -146,7 +129,7 @@ class _Evaluator:
             parts.nonfinite = parts.nonfinite | bad if parts.nonfinite is not None else bad
         del g
         del outputs, s_all
-        # leave detached values in place (no graph kept alive)
+        # detached values: no graph kept alive
         for name in wrt:
             self._assign(self.model.param(name).key, float(shape_values[name]))
             self._current[name] = float(shape_values[name])
@@ -157,11 +140,9 @@ class _Evaluator:
 class PixelEvaluator(_Evaluator):
     """Per-pixel BSDF evaluation at normals ``(n, 3)``, view directions ``(n, 3)`` and one light direction.
 
-    With ``weights`` (K,), the directions are (n K, 3), K samples per pixel
-    (a pixel's footprint, :meth:`Observation.sample_geometry`), and each
-    pixel's Stokes vector is their weighted sum.  ``light_dir`` may also be
-    (n K, 3) and ``irradiance`` (n K,): one light per direction (several
-    images of one object in one evaluation, :mod:`fmbrdf_mi.fit.api.joint`).
+    With ``weights`` (K,) the directions are (n K, 3), K footprint samples per pixel
+    (:meth:`Observation.sample_geometry`) summed with those weights.  ``light_dir`` (n K, 3) and
+    ``irradiance`` (n K,) give one light per direction (:mod:`fmbrdf_mi.fit.api.joint`).
     """
 
     def __init__(self, model, normals, view_dirs, light_dir, irradiance=1.0, variant=None, weights=None):
@@ -241,12 +222,9 @@ class PixelEvaluator(_Evaluator):
 class RenderEvaluator(_Evaluator):
     """The model's BSDF inside a Mitsuba scene, rendered with the ``stokes`` integrator.
 
-    ``scene``: a loaded scene whose integrator is ``stokes`` (over ``direct``)
-    and in which the object carrying the model's BSDF has traverse prefix
-    ``bsdf_prefix`` (e.g. ``"sphere.bsdf."``).  ``pixels``: flat indices
-    (row-major) of the pixels to return.  Each evaluation renders with the
-    same ``seed`` and ``spp``, so the two albedo parts add up to the full
-    image exactly and derivatives are those of a fixed sample set.
+    ``scene``: a loaded scene (``stokes`` integrator) whose object has the model's BSDF at traverse prefix
+    ``bsdf_prefix`` (e.g. ``"sphere.bsdf."``); ``pixels``: flat row-major indices to return.  Every render
+    uses the same ``seed`` and ``spp``, so the two parts add up to the full image exactly.
     """
 
     def __init__(self, model, scene, bsdf_prefix, pixels=None, spp=16, seed=0, variant=None):

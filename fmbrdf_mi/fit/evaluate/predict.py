@@ -1,9 +1,7 @@
 """Relighting check (paper section 6.3): predict an image under another light from the estimates.
 
-The error is the paper's: RMSE of the predicted intensity against the
-observed one, divided by the mean observed intensity, over the object's
-pixels (mask eroded by ``erode`` pixels against silhouette aliasing, facing
-the camera with n . v > ``min_cos_view``; attached shadows included).
+The error is the paper's: RMSE of the predicted intensity over the mean observed one, on the mask eroded
+by ``erode`` pixels, facing the camera (n . v > ``min_cos_view``), attached shadows included.
 """
 from __future__ import annotations
 
@@ -18,11 +16,9 @@ from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
 def predict_image(model_name, params, obs, pixels=None, maps=None, labels=None):
     """Predicted Stokes (3, H, W) of ``obs``'s geometry and light with reported ``params`` (pixel path).
 
-    Pixels outside ``pixels`` (flat indices; default: the mask) are 0.  ``maps``: per-pixel albedos (a fit
-    with ``albedo="per-pixel"``: its ``res.maps``, ``k_s`` and ``k_b`` (H, W)); ``params`` then hold the
-    shape parameters only, and pixels without a value in the maps (not fitted) are NaN.  ``labels``: the
-    label image (H, W) of a fit of several materials, whose ``params`` are per material (``eta[0]``, ...):
-    each pixel is predicted with its material's, those with a label < 0 are 0.
+    Pixels outside ``pixels`` (flat indices; default: the mask) are 0.  ``maps``: ``k_s``, ``k_b`` (H, W)
+    of a per-pixel fit (``params`` then shape only; unfitted pixels NaN).  ``labels``: the label image of a
+    fit of several materials (``params`` per material; label < 0 gives 0).
     """
     idx = np.flatnonzero(obs.mask.ravel()) if pixels is None else np.asarray(pixels)
     if labels is not None:
@@ -59,10 +55,9 @@ def relight_pixels(obs, erode=2, min_cos_view=0.1):
 def relight_error(model_name, params, obs, erode=2, min_cos_view=0.1, maps=None, labels=None):
     """Predict ``obs`` (the object under a second light) and compare intensities.
 
-    Returns a dict: ``rel_rmse`` (RMSE / mean observed intensity), ``rmse``,
-    ``mean_observed``, ``n_pixels`` and ``predicted`` (3, H, W) Stokes.
-    ``maps``: per-pixel albedos (:func:`predict_image`); the error is then over the pixels that have them.
-    ``labels``: several materials (:func:`predict_image`); the error is over the labelled pixels.
+    Returns a dict: ``rel_rmse`` (RMSE / mean observed intensity), ``rmse``, ``mean_observed``,
+    ``n_pixels`` and ``predicted`` (3, H, W) Stokes.  ``maps``, ``labels``: as :func:`predict_image`; the
+    error is over the pixels they cover.
     """
     idx = relight_pixels(obs, erode, min_cos_view)
     if maps is not None:

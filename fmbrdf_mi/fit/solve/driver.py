@@ -1,19 +1,9 @@
 """The solver of every fit: coarse search, multistart, reweighting rounds, deadline.
 
-:func:`solve` minimises a :class:`~fmbrdf_mi.fit.problem.problem.Problem`:
-
-1. **start**: a given state (``init``), or up to ``starts`` distinct points
-   (:func:`distinct_starts`) of the coarse search
-   (:func:`~fmbrdf_mi.fit.solve.optimise.coarse_search`);
-2. **refinement** from each start (:func:`refine`): reweighting rounds
-   (:mod:`fmbrdf_mi.fit.solve.irls`) of Levenberg-Marquardt or Adam with the
-   objective's weights frozen;
-3. the start whose end scores best wins, with its weights;
-4. a wall-clock deadline (:class:`~fmbrdf_mi.fit.problem.problem.TimeUp`)
-   ends the fit at its latest accepted estimate, not converged.
-
-:func:`fmbrdf_mi.fit.api.assemble.assemble` turns the :class:`Solution`
-into a result with its uncertainty.
+:func:`solve` minimises a :class:`~fmbrdf_mi.fit.problem.problem.Problem` from ``init`` or from up to
+``starts`` :func:`distinct_starts` of :func:`~fmbrdf_mi.fit.solve.optimise.coarse_search`, refines each
+(:func:`refine`), and keeps the best end; a deadline
+(:class:`~fmbrdf_mi.fit.problem.problem.TimeUp`) ends it at the latest accepted estimate, not converged.
 """
 from __future__ import annotations
 
@@ -31,8 +21,7 @@ from fmbrdf_mi.fit.solve.irls import reweighted
 
 @dataclasses.dataclass
 class Solution:
-    """Where :func:`solve` ended: the state, why it stopped, whether that counts as converged, the Jacobian
-    and residuals there (None after a deadline or Adam), the log of each start, the coarse search's time."""
+    """Where :func:`solve` ended; ``J``, ``r`` are None after a deadline or Adam."""
 
     state: object
     reason: str
@@ -44,9 +33,8 @@ class Solution:
 
 
 def distinct_starts(problem, cands, n):
-    """Up to ``n`` starts: the best candidate, then the best ones differing from all chosen in a
-    shape parameter other than eta and kappa (which the coarse search tunes last, so they differ only
-    locally), preferring candidates with both lobes switched on."""
+    """Up to ``n`` starts: the best candidate, then the best differing from all chosen in a shape parameter
+    other than eta and kappa (tuned last by the search, so only locally different), both lobes on first."""
     first = [k for k in problem.names if problem.params.row[k].kind == "shape"
              and k not in ("eta", "kappa")] or list(problem.names)
     chosen = [cands[0][1]]
@@ -66,8 +54,7 @@ def distinct_starts(problem, cands, n):
 
 
 def step_in_se(problem, st_old, st_new, J):
-    """Largest |change| of z between two states in units of its standard error (from J^T J); 0 when no
-    unknown is iterated (every shape parameter fixed and the albedos solved in closed form)."""
+    """Largest |change| of z between two states in standard errors (from J^T J); 0 with no iterated unknown."""
     if J.shape[1] == 0:
         return 0.0
     try:
@@ -80,24 +67,22 @@ def step_in_se(problem, st_old, st_new, J):
 
 def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02, history=None,
            report=None):
-    """Refinement rounds from ``st``: the objective's weights are refreshed between rounds until they settle.
-
-    Paper's loss: the inlier/outlier split, until it stops changing; likelihood: the variances from the
-    model (IRLS), until a round moves the estimate by < 0.05 standard errors.  At most ``rounds`` rounds.
+    """At most ``rounds`` reweighting rounds from ``st`` (:func:`~fmbrdf_mi.fit.solve.irls.reweighted`); the
+    likelihood's are settled when a round moves the estimate by < 0.05 standard errors.
     Returns (State, stop reason, converged, Jacobian or None, residuals or None).
     """
     obj = problem.obj
     say = report or (lambda m: None)
     last = {"reason": "", "J": None, "r": None, "step_se": None}
 
-    def before(st, k):      # the weights from the current estimate; settled when they no longer move it
+    def before(st, k):
         parts = problem.parts(st)
         saved = obj.save()
         if k > 0 and obj.is_likelihood and obj.settled(saved, parts, st, step_se=last["step_se"]):
             return True
         obj.refresh(parts, st)
         if k > 0 and not obj.is_likelihood and obj.settled(saved, parts, st):
-            obj.restore(saved)  # the weighting is settled
+            obj.restore(saved)
             return True
         say(f"[fit] round {k + 1}: {obj.describe_round()}")
         return False
@@ -129,12 +114,9 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
           max_time=None, history=None, report=None):
     """Minimise ``problem`` (module docstring); returns a :class:`Solution`.
 
-    ``init``: a State to start from (no coarse search); ``starts``: refine
-    from this many distinct coarse-search points; ``rounds``: reweighting
-    rounds of each refinement; ``max_time``: the deadline's length in
-    seconds, for the message of a fit it stops (the deadline itself is the
-    problem's).  ``history`` (a list) gets the coarse search's best point and
-    every accepted step.
+    ``init``: a State (no coarse search); ``rounds``: reweighting rounds per start; ``max_time``: the
+    deadline in seconds, for the message only (the problem owns the deadline); ``history`` (a list) gets
+    the search's best point and every accepted step.
     """
     say = report or (lambda m: None)
     params = problem.params
@@ -142,7 +124,7 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
     out = Solution(None, "", False)
     t0 = time.time()
     try:
-        if init is not None:    # a problem that projects its albedos solves them at the start's shape
+        if init is not None:
             chosen = [problem.projected(init.shape)[0] if problem.projects else init]
         else:
             cands = O.coarse_search(problem)
@@ -176,12 +158,10 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
 
 
 def refit_fixed(problem, st, name, value, start=None, max_iter=10):
-    """chi^2 of the best fit with shape parameter ``name`` held at ``value`` and every other unknown free,
-    with the objective's current weights: one point of the profile likelihood
-    (:func:`fmbrdf_mi.fit.uncertainty.profile_intervals`).  From ``start`` (a State: the covariance path's
-    point there) or ``st`` with ``name`` moved (the albedos then from their closed form); at most
-    ``max_iter`` LM iterations, since the profile needs chi^2 only roughly.  None for
-    problems that cannot hold a parameter fixed (:meth:`~fmbrdf_mi.fit.problem.problem.Problem.with_fixed`)."""
+    """chi^2 with shape parameter ``name`` held at ``value``, the rest free, under the current weights: one
+    point of the profile likelihood (:func:`fmbrdf_mi.fit.uncertainty.profile_intervals`).  From ``start``
+    (a State) or ``st`` with ``name`` moved; few LM iterations, as the profile needs chi^2 only roughly.
+    None where :meth:`~fmbrdf_mi.fit.problem.problem.Problem.with_fixed` cannot hold it."""
     sub = problem.with_fixed({name: float(value)})
     if sub is None:
         return None
@@ -192,7 +172,7 @@ def refit_fixed(problem, st, name, value, start=None, max_iter=10):
     else:
         shape = dict(st.shape, **{name: float(value)})
         start = (sub.projected(shape) if sub.projects else sub.closed_form(shape))[0]
-    if not sub.names and not sub.projects:   # only the albedos free: the closed form is the fit
+    if not sub.names and not sub.projects:   # only the albedos free: closed form
         start = sub.closed_form(start.shape)[0]
         r = sub.obj.residuals(sub.parts(start), start)
         return float(r @ r)

@@ -1,12 +1,8 @@
-"""The one reweighting loop: minimise with the objective's weights frozen, refresh them, repeat until they settle.
+"""The one reweighting loop (IRLS): minimise with the objective's weights frozen, refresh them, repeat.
 
-Iteratively reweighted least squares: the likelihood's variances come from
-the model's prediction (:class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`),
-the paper's loss has its inlier / outlier split, the normal refinement its
-variances and prior scale.  A round is ``before`` (refresh the weights from
-the current estimate; says "settled" when they no longer move it), then the
-minimisation (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`, or Adam).
-The fits differ only in those two.
+The fits differ only in ``before`` (weights from the estimate: the likelihood's model variances
+(:class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`), the paper's inlier / outlier split) and
+``minimise`` (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`, or Adam).
 """
 from __future__ import annotations
 
@@ -14,9 +10,8 @@ from __future__ import annotations
 def reweighted(x, minimise, *, rounds, before):
     """At most ``rounds`` rounds from ``x``; returns (x, converged of the last minimisation, settled, rounds run).
 
-    ``before(x, k)`` (k = 0, 1, ...) refreshes the weights and returns True when they are settled (the loop
-    stops there); ``minimise(x, k)`` returns (x, converged).  A minimisation that does not converge (a time
-    or iteration limit) ends the rounds.
+    ``before(x, k)`` refreshes the weights, True when settled (the loop stops); ``minimise(x, k)`` returns
+    (x, converged), and a minimisation that does not converge ends the rounds.
     """
     converged, k = False, 0
     for k in range(rounds):

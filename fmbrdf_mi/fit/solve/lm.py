@@ -1,33 +1,7 @@
 """The one Levenberg-Marquardt of every fit, with a pluggable linearisation, linear solve and trial step.
 
-Each fit supplies what differs and nothing else:
-
-* ``linearise(x)``: the system at point ``x`` (residuals and Jacobian, or
-  the blocks of the normal refinement's Schur complement); may carry ``.f``,
-  the objective it implies (then it replaces the trial's value after a
-  re-linearisation);
-* ``solve(lin, lam)``: the damped step for damping ``lam`` (dense
-  :func:`dense_step`, or :func:`fmbrdf_mi.fit.solve.normal_system.solve_step`);
-  a ``numpy.linalg.LinAlgError`` raises the damping;
-* ``trial(x, step, lin)``: ``(x_new, f_new, r_new)``, the point a step leads
-  to, its objective and residuals (a trial may also re-solve linear unknowns:
-  the colour fit's variable projection);
-* optionally ``secant(lin, x, x_new, r_new)``: a rank-one update of the
-  Jacobian from what every trial taught (Broyden), and ``moved(lin, x_new,
-  r_new)``: the linearisation carried to an accepted point (its residuals
-  there), so that ``refresh`` > 1 accepted steps can share one Jacobian;
-* stopping rules: a Gauss-Newton ``decrement(lin)`` below ``decrement_tol``
-  on a fresh linearisation, ``small(f_old, f_new)`` ``small_count`` times in
-  a row (2), ``step_small(x_old, x_new)``, ``time_up()``, ``max_iter``, a
-  spent ``budget()`` (checked before every linearisation and trial: a
-  budget of objective evaluations); and no step lowering the objective at
-  any damping (converged to rounding).
-
-The damping starts at ``lam``, falls by 3 after an accepted step (not
-below 1e-9) and rises by 4 after a rejected one (giving up at 1e10).  A
-rejected step on a secant Jacobian re-linearises before it raises the
-damping.  The result says why it stopped (:data:`REASONS`) and whether that
-counts as converged; the caller words it.
+Each fit supplies only what differs (:func:`levenberg_marquardt`); the result says why it stopped
+(:data:`REASONS`) and whether that counts as converged, and the caller words it.
 """
 from __future__ import annotations
 
@@ -36,8 +10,7 @@ import math
 
 import numpy as np
 
-#: Converged when a full Gauss-Newton step would lower chi^2 by less than this (the estimate is then
-#: within ~0.1 standard error of the optimum).
+#: Converged when a full Gauss-Newton step would lower chi^2 by less than this (about 0.1 standard error).
 DECREMENT_TOL = 0.01
 
 #: Why the iteration stopped: code -> converged.
@@ -86,12 +59,21 @@ def broyden(J, dz, dr):
 def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None, refresh=1, secant=None,
                         moved=None, decrement=None, decrement_tol=DECREMENT_TOL, small=None, small_count=2,
                         step_small=None, time_up=None, budget=None, on_accept=None, final_linearise=True, lam=1e-3):
-    """Minimise from ``x`` (objective ``f``); returns :class:`LMResult` (module docstring).
+    """Minimise from ``x`` (objective ``f``); returns :class:`LMResult`.
 
-    ``lin``: the linearisation at ``x`` if the caller has it (else made here).
-    ``final_linearise``: end with a fresh linearisation at the result (the
-    uncertainty needs one).  ``on_accept(it, x, f)`` is called after every
-    accepted step.
+    * ``linearise(x)``: the system at ``x`` (residuals and Jacobian, or the normal refinement's Schur blocks);
+      its ``.f``, if any, replaces the trial's objective;
+    * ``solve(lin, lam)``: the damped step (:func:`dense_step`,
+      :func:`fmbrdf_mi.fit.solve.normal_system.solve_step`); ``LinAlgError`` raises the damping;
+    * ``trial(x, step, lin)``: ``(x_new, f_new, r_new)`` (it may re-solve linear unknowns);
+    * ``secant(lin, x, x_new, r_new)``: a Broyden update from every trial; ``moved(lin, x_new, r_new)``: the
+      linearisation carried to an accepted point, so ``refresh`` accepted steps share one Jacobian (a
+      rejected step on a secant Jacobian re-linearises first);
+    * stops: ``decrement(lin)`` < ``decrement_tol`` on a fresh linearisation, ``small(f_old, f_new)``
+      ``small_count`` times in a row, ``step_small(x_old, x_new)``, ``time_up()``, ``max_iter``,
+      ``budget()`` spent, or no step lowers f at any damping;
+    * ``lin``: the linearisation at ``x``, if known; ``final_linearise``: end on a fresh one (the uncertainty
+      needs it); ``on_accept(it, x, f)``: called after every accepted step.
     """
     if lin is None:
         lin = linearise(x)

@@ -1,31 +1,15 @@
 """The normal equations of the joint material + normals refinement (:mod:`fmbrdf_mi.fit.api.normal_joint`).
 
-Unknowns: p material values and two tangent-plane values per pixel.  With
-J = [J_m | J_n] the Jacobian of the residuals r (data rows, then the
-smoothness prior's rows), the Gauss-Newton system of (1/2) r.r is
+Unknowns: p material values and two tangent-plane values per pixel.  With J = [J_m | J_n] the Jacobian of
+the residuals r (data rows, then the smoothness prior's), the Gauss-Newton system of (1/2) r.r is
 
     [H_mm  H_mn] [dm]     [g_m]
     [H_nm  H_nn] [dn] = - [g_n]
 
-* H_mm = J_m^T J_m (p x p, dense: p is 6 for the FMBRDF);
-* J_n: a polariser sample of pixel i is modelled at its own point, whose
-  normal is the bilinear interpolation of the normal map there, so its row
-  depends on the normals of at most 4 pixels (i and 3 neighbours; only i
-  for samples at the centre; on the region's border a corner outside it is
-  extrapolated from i and the pixel opposite, so a row lists Q = 8 terms,
-  repeated pixels summed; -1 in ``pix`` marks a corner held fixed): kept as (pixel, value)
-  lists, never as a matrix;
-* H_nn = J_n^T J_n + w P: the data's part couples 8-neighbours, P is the
-  prior's (first or second differences along rows and columns, projected
-  on each pixel's tangent plane), w the prior's weight.
-
-:class:`NormalBlock` stores H_nn as 2 x 2 blocks of the coupled pixel pairs in
-a padded neighbour list (a product is a gather and a batched matmul, O(pixels))
-and solves with it by block-Jacobi preconditioned conjugate gradients, several
-right-hand sides at once.  The full system is solved by the Schur complement
-onto the material, S = H_mm - H_mn H_nn^-1 H_nm (the bundle-adjustment
-reduction).  :func:`material_covariance` is the sandwich covariance of the
-penalised likelihood with the normals free.  NumPy only.
+A sample's normal interpolates the normal map bilinearly, so a row of J_n touches at most a few pixels
+and is kept as (pixel, value) lists; H_nn = J_n^T J_n + w P (:class:`NormalBlock`) is solved by
+block-Jacobi preconditioned conjugate gradients, the full system by the Schur complement onto the material
+(:func:`solve_step`).  NumPy only.
 """
 from __future__ import annotations
 
@@ -35,8 +19,7 @@ import numpy as np
 
 
 def _sums(idx, w, n):
-    """(n, C) sums of the rows of ``w`` (k, C) by ``idx`` (k,), each in the rows' order (as a sequential
-    scatter-add would give)."""
+    """(n, C) sums of the rows of ``w`` (k, C) by ``idx`` (k,), each in the rows' order."""
     k, C = w.shape
     flat = (idx[:, None] * C + np.arange(C)).ravel()
     out = np.bincount(flat, weights=np.ascontiguousarray(w, dtype=float).ravel(), minlength=n * C)
@@ -46,13 +29,12 @@ def _sums(idx, w, n):
 def data_products(pix, val, Jm, r, N):
     """H_mm, H_mn (p, N, 2), g_m, g_n (N, 2) of the data rows.
 
-    ``pix`` (m, Q): the unknown pixels each residual row depends on (-1: a
-    fixed pixel), ``val`` (m, Q, 2) the row's derivatives with respect to
-    their two tangent unknowns, ``Jm`` (m, p) the material columns, ``r`` (m,).
+    ``pix`` (m, Q): the unknown pixels each row depends on (-1: fixed; repeats are summed), ``val``
+    (m, Q, 2) the row's derivatives in their tangent unknowns, ``Jm`` (m, p) the material columns, ``r`` (m,).
     """
     p = Jm.shape[1]
     m, Q = pix.shape
-    # fixed pixels (-1) and zero derivatives add nothing; dropping them keeps each sum's order
+    # dropping fixed pixels and zero derivatives keeps each sum's order
     row, slot = np.nonzero((pix >= 0) & np.any(val != 0, axis=2))
     q, v = pix[row, slot], val[row, slot]
     Hmn = _sums(q, (v[:, :, None] * Jm[row][:, None, :]).reshape(len(q), 2 * p), N).reshape(N, 2, p)
@@ -64,15 +46,12 @@ _PAIRS = {}
 
 
 def _pairs(pix, stencils, N):
-    """The pixel pairs coupled by H_nn (the sparsity pattern); the last one is cached, as a refinement builds
-    many blocks on one pattern.
+    """The pixel pairs coupled by H_nn (its sparsity pattern); the last one is cached.
 
-    Returns ``G``, the number of distinct pixel lists (-1: left out) and ``groups``: (lists (n,), their rows
-    (n, c)) for each number c of rows per list; ``dsel``: the valid entries of the (G, Q, Q) term pairs (None:
-    all); ``inv``: the pair index of each valid term pair, then of each pixel's diagonal (the ridge), then of
-    each (E, S, S) stencil pair; ``rows``, ``pos`` (P,): each pair's pixel i and place in the (N, ``qmax``)
-    neighbour list ``nbr`` (pairs sorted by i then j; every i has its diagonal; the padding points at pixel 0
-    with a zero block).
+    A dict: ``G`` distinct pixel lists; ``groups``: (lists (n,), their rows (n, c)) per row count c;
+    ``dsel``: the valid entries of the (G, Q, Q) term pairs (None: all); ``inv``: the pair index of each
+    valid term pair, then of each pixel's diagonal, then of each stencil pair; ``rows``, ``pos`` (P,): each
+    pair's pixel i and place in the (N, ``qmax``) neighbour list ``nbr`` (padding: pixel 0, zero block).
     """
     c = _PAIRS.get("key")
     if c is not None and c[0] == N and np.array_equal(c[1], pix) and np.array_equal(c[2], stencils):
@@ -109,11 +88,10 @@ def _pairs(pix, stencils, N):
 class NormalBlock:
     """H_nn = J_n^T J_n (data) + w P (prior) (+ damping mu diag) as an operator on (N, 2, R) arrays.
 
-    ``pix``, ``val``: the data rows' dependence on the unknown normals
-    (:func:`data_products`); ``stencils`` (E, S) pixel indices and ``coef``
-    (S,): the prior's residuals sqrt(w) sum_s coef_s n_{stencil_s} (first
-    differences: (1, -1); second: (1, -2, 1)); ``t1``, ``t2`` (N, 3): each
-    pixel's tangent basis; ``w``: the prior's weight.
+    ``pix``, ``val``: as :func:`data_products`; ``stencils`` (E, S) and ``coef`` (S,): the prior's residuals
+    sqrt(w) sum_s coef_s n_{stencil_s} (e.g. (1, -1), (1, -2, 1)); ``t1``, ``t2`` (N, 3): each pixel's
+    tangent basis; ``w``: the prior's weight.  Stored as 2 x 2 blocks of coupled pixel pairs in a padded
+    neighbour list, so a product is a gather and a batched matmul.
     """
 
     def __init__(self, pix, val, stencils, coef, t1, t2, w, mu=0.0):
@@ -126,8 +104,8 @@ class NormalBlock:
         self.csum = np.zeros(N)
         if len(stencils):
             self.csum = _sums(stencils.ravel(), np.tile(self.coef ** 2, len(stencils))[:, None], N)[:, 0]
-        nonzero = np.any(self.v != 0, axis=2)                          # (m, Q): slots with a derivative
-        row, slot = np.nonzero(ok & nonzero)                            # the terms that add something
+        nonzero = np.any(self.v != 0, axis=2)                          # (m, Q)
+        row, slot = np.nonzero(ok & nonzero)
         vs = self.v[row, slot]
         diag = _sums(self.q[row, slot], (vs[:, :, None] * vs[:, None, :]).reshape(-1, 4), N).reshape(N, 2, 2)
         diag[:, 0, 0] += self.w * self.csum      # the tangent bases are orthonormal
@@ -137,18 +115,17 @@ class NormalBlock:
         self._damp(mu)
 
     def damped(self, mu):
-        """The same H_nn with damping ``mu``: a copy sharing this one's undamped assembly, so a rejected LM step
-        re-solved with more damping costs no new assembly."""
+        """The same H_nn with damping ``mu``, sharing the undamped assembly."""
         out = copy.copy(self)
         out._damp(mu)
         return out
 
     def _damp(self, mu):
-        """Add the ridge (Marquardt's damping mu diag(H_nn) and a tiny constant) to the diagonal blocks, summing
-        in the order one assembly of the damped matrix would (bit-identical results)."""
+        """Add the ridge (mu diag(H_nn) and a tiny constant) to the diagonal blocks, in the order a damped
+        assembly would sum (bit-identical results)."""
         diag = self._diag.copy()
         d = np.stack([diag[:, 0, 0], diag[:, 1, 1]], 1)
-        # the tiny ridge keeps a pixel with neither data nor neighbours from making the system singular
+        # the tiny constant: a pixel with neither data nor neighbours keeps the system regular
         self.ridge = mu * np.maximum(d, 1e-12) + 1e-12 * max(float(d.max()), 1e-300)
         diag[:, 0, 0] += self.ridge[:, 0]
         diag[:, 1, 1] += self.ridge[:, 1]
@@ -162,27 +139,21 @@ class NormalBlock:
         self.B = B
 
     def _assemble(self, ok, nonzero):
-        """H_nn as 2 x 2 blocks B_ij of the coupled pixel pairs (i, j) (:func:`_pairs`), in a padded (N, Qmax)
-        neighbour list for :meth:`apply`; without the ridge, which :meth:`_damp` adds to the diagonal pairs.
-
-        Data: each row contributes v_a v_b^T to the pair of its terms a, b (Q x Q pairs, repeated pixels
-        summed, -1 terms left out; the rows with the same pixel list are summed first); prior: each stencil
-        e contributes w c_s c_s' T_{k_s}^T T_{k_s'} to the pair of its pixels s, s' (T_k = [t1_k t2_k],
-        3 x 2); the ridge: diag(ridge_i) to (i, i).  Each pair's block is the sum of its terms in that order
-        (data, ridge, prior).
-        """
+        """The undamped 2 x 2 blocks B_ij of H_nn (:func:`_pairs`): data rows add v_a v_b^T, prior stencils
+        w c_s c_s' T_s^T T_s' (T = [t1 t2]); :meth:`_damp` adds the ridge.  Each block sums its terms in the
+        order data, ridge, prior."""
         N, (m, Q) = self.N, self.q.shape
         prior = bool(len(self.st) and self.w)
         sp = _pairs(np.where(ok, self.q, -1), self.st if prior else self.st[:0], N)
         V = self.v.reshape(m, 2 * Q)
         G = sp["G"]
         W = np.empty((G, 2 * Q, 2 * Q))                         # sum over a list's rows of V_r V_r^T
-        used = np.empty((G, Q), bool)                           # slots with a nonzero derivative in some row
+        used = np.empty((G, Q), bool)
         for gs, rs in sp["groups"]:
             Vg = V[rs]                                          # (groups, rows each, 2Q)
             W[gs] = np.matmul(Vg.transpose(0, 2, 1), Vg)
             used[gs] = np.any(nonzero[rs], axis=1)
-        # the valid term pairs (g, a, b) in their order, less those with an unused slot (they add only zeros)
+        # the valid term pairs (g, a, b) in order, less those with an unused slot
         valid = np.ones(G * Q * Q, bool) if sp["dsel"] is None else sp["dsel"]
         at = np.cumsum(valid) - 1                               # each valid pair's place among them (inv)
         g, a, b = np.unravel_index(np.flatnonzero(valid & (used[:, :, None] & used[:, None, :]).ravel()),
@@ -205,7 +176,7 @@ class NormalBlock:
         B[sp["rows"], sp["pos"]] = blocks.reshape(P, 2, 2)
         self.nbr = sp["nbr"]
         self.B0 = np.ascontiguousarray(B.transpose(0, 2, 1, 3).reshape(N, 2, -1))  # [B_i,j1 B_i,j2 ...]
-        # for the damped diagonal pairs (i, i): their data sums, then the ridge, then the prior's terms on them
+        # the diagonal pairs' terms for _damp: data, ridge, prior
         dpair = inv[nd:nd + N]                                   # pair index of (i, i)
         on = np.zeros(P, np.int64) - 1
         on[dpair] = np.arange(N)
@@ -227,8 +198,7 @@ class NormalBlock:
         return np.matmul(self.B, np.take(x, self.nbr, axis=0).reshape(N, -1, R))
 
     def precondition(self, r):
-        """The 2 x 2 block-diagonal preconditioner's inverse applied to r (N, 2, R); ``einsum("nab,nbr->nar",
-        pre, r)`` written out, which is faster."""
+        """The block-Jacobi preconditioner applied to r (N, 2, R) (an einsum written out, for speed)."""
         P = self.pre
         z = np.empty_like(r)
         np.multiply(P[:, 0, 0, None], r[:, 0], out=z[:, 0])
@@ -286,13 +256,9 @@ def schur(Hmm, Hmn, Hnn):
 
 
 def material_covariance(Hmm, Hmn, Hnn, Jm):
-    """Covariance of the material (p x p, in the unknowns' units) with the normals free: the sandwich
-    [H^-1 F H^-1]_mm of the penalised likelihood, F = J^T J of the data rows only (``Hnn`` undamped).
-
-    The prior is a regulariser, not information about the data: counting it
-    in the covariance (the inverse Schur complement alone) understates the
-    material's spread when it constrains the normals.  The material rows of
-    H^-1 are Y_m = S^-1 and Y_n = -H_nn^-1 H_nm S^-1; then C = (J Y)^T (J Y).
+    """Covariance of the material (p x p, the unknowns' units) with the normals free: the sandwich
+    [H^-1 F H^-1]_mm of the penalised likelihood, F = J^T J of the data rows only (``Hnn`` undamped), since
+    the prior is a regulariser, not information about the data.
     """
     Si = np.linalg.inv(schur(Hmm, Hmn, Hnn))
     Yn = -Hnn.solve(np.einsum("pna,pq->naq", Hmn, Si))                        # (N, 2, p)

@@ -1,16 +1,9 @@
 """Minimising an objective (:mod:`fmbrdf_mi.fit.objectives.objective`): coarse search, then LM or Adam.
 
-Unknowns are the free shape parameters and the albedos a_s, a_b, optimised on an unconstrained z
-(:class:`~fmbrdf_mi.fit.evaluate.models.Bounds`: a sigmoid onto each shape parameter's bounds, exp for
-albedos), so every iterate is a valid material.
-
-1. **Coarse search** (:func:`coarse_search`): shape parameters on a grid, searched in stages to bound
-   the number of BSDF table rebuilds; at each point the albedos follow in closed form because the model
-   is linear in them.
-2. **Refinement**: ``lm`` (default, :func:`levenberg_marquardt`) on the objective's residuals with a
-   forward-mode Dr.Jit Jacobian, or ``adam`` (paper's loss only, the paper's optimiser) on the
-   reverse-mode gradient.  Not converged at ``max_iter`` or a time limit; the deadline of
-   :class:`~fmbrdf_mi.fit.problem.problem.Problem` is checked before every model evaluation.
+The unknowns are optimised on an unconstrained z (:class:`~fmbrdf_mi.fit.evaluate.models.Bounds` for the
+shape, exp for albedos), so every iterate is a valid material.  :func:`coarse_search` grids the shape with
+closed-form albedos; :func:`levenberg_marquardt` (forward-mode Jacobian) or :func:`adam` (the paper's
+optimiser, reverse-mode gradient) refines.
 """
 from __future__ import annotations
 
@@ -25,14 +18,12 @@ from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.solve import lm as LM
 
 
-#: An albedo whose lobe contributes less than this fraction of the other's
-#: mean intensity over the fitted pixels counts as switched off.
+#: A lobe contributing less than this fraction of the other's mean intensity counts as switched off.
 ALBEDO_BOUND = 1e-3
 
 
 def search_grids(model, clip, fixed, names):
-    """The coarse search's grids: ({shape parameter: its grid values (one if fixed; else ``clip(name, grid)``)},
-    the stage-1 parameters, the later ones (eta, kappa, when free), their middle values)."""
+    """(grids {shape name: values}, stage-1 names, later names (free eta, kappa), the later ones' middles)."""
     grids = {n: ([fixed[n]] if n in fixed else clip(n, model.param(n).grid)) for n in model.shape_names}
     later = [n for n in ("eta", "kappa") if n in names]
     first = [n for n in model.shape_names if n not in later]
@@ -42,10 +33,10 @@ def search_grids(model, clip, fixed, names):
 def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of, keep=2, progress=None):
     """The coarse search's stages over any point evaluation; returns [(score, point)] best first.
 
-    Stage 1: the ``first`` parameters on their grids, the ``later`` ones at their middle values ``mids``;
-    then each ``later`` parameter on its grid for the ``keep`` best points so far.  ``evaluate(shape)``
-    returns (score, point), ``shape_of(point)`` its shape values; each grid point is evaluated once.
-    ``progress(message)`` gets progress lines.
+    Stage 1: the ``first`` parameters on their grids, the ``later`` ones at ``mids``; then each ``later``
+    parameter on its grid for the ``keep`` best points so far, which bounds the BSDF table rebuilds (kappa
+    last: it changes the body term least).  ``evaluate(shape)`` returns (score, point), ``shape_of(point)``
+    its shape values; each grid point is evaluated once.
     """
     results = {}
 
@@ -80,23 +71,16 @@ MATERIAL_CANDIDATES = 6
 
 
 def coarse_search(problem, keep=2):
-    """Grid search in stages (:func:`staged_search`); returns candidates [(score, State)] best first.
+    """:func:`staged_search` with closed-form albedos; returns candidates [(score, State)] best first.
 
-    Stage 1: every free shape parameter but eta and kappa on its grid, eta and kappa at their middle grid
-    values; then eta, then kappa, on their grids for the ``keep`` best (kappa last: it changes the body
-    term least).  Each grid point costs one BSDF table rebuild; the albedos follow in closed form and the
-    objective with the candidate's own weights decides.
-
-    Several materials (the parameter table's ``count``): every grid point of the one-material search is
-    evaluated once with all materials at it and scored on each material's own pixels
-    (:meth:`~fmbrdf_mi.fit.problem.problem.Problem.material_scores`), so each material
-    gets its best grid point at about the cost of one search; candidate j combines every material's j-th
-    best point.
+    With several materials each grid point is evaluated once for all and scored per material
+    (:meth:`~fmbrdf_mi.fit.problem.problem.Problem.material_scores`); candidate j combines every material's
+    j-th best point.
     """
     params, M = problem.params, problem.params.count or 1
     if M == 1:
         model, rows, clip, fixed, names = params, None, problem.bounds.clip_grid, problem.fixed, problem.names
-    else:   # material 0's rows under the model's names: every material has their bounds and fixed values
+    else:   # material 0's rows under the model's names (all materials share bounds and fixed values)
         model, rows = problem.model, params.shape
         row0 = {r.base: r.name for r in rows if r.material == 0}
         clip = lambda n, g: problem.bounds.clip_grid(row0[n], g)  # noqa: E731
@@ -105,7 +89,7 @@ def coarse_search(problem, keep=2):
     grids, first, later, mids = search_grids(model, clip, fixed, names)
     points, best = {}, [math.inf]
 
-    def at(shape):   # (scores per material, State), one evaluation per grid point
+    def at(shape):   # (scores per material, State)
         key = tuple(round(shape[n], 9) for n in model.shape_names)
         if key not in points:
             st, parts = problem.closed_form(shape if rows is None else {r.name: shape[r.base] for r in rows})
@@ -119,7 +103,7 @@ def coarse_search(problem, keep=2):
                 best[0], problem.current = sum(points[key][0]), st
         return points[key]
 
-    if M == 1:     # the point is the State: a problem's closed form may set more than the grid's values
+    if M == 1:     # the point is the State: the closed form may set more than the grid's values
         return staged_search(model.shape_names, grids, first, later, mids, lambda s: (at(s)[0][0], at(s)[1]),
                              shape_of=lambda st: st.shape, keep=keep, progress=problem.progress)
     ranked = [staged_search(model.shape_names, grids, first, later, mids, lambda s, m=m: (float(at(s)[0][m]), s),
@@ -141,7 +125,7 @@ def format_state(problem, st):
 
 
 def log_step(problem, history, name, round_no, it, f, st, say=True):
-    """An iterate of optimiser ``name``: its entry in ``history`` (a list, or None) and, if ``say``, a progress line."""
+    """Log an iterate of optimiser ``name`` to ``history`` (a list, or None) and, if ``say``, to progress."""
     if history is not None:
         history.append({"stage": f"{name}{round_no}", "iter": it, "loss": f, "time": time.time() - problem.t0,
                         "params": problem.params.report(st.shape, st.a_s, st.a_b)})
@@ -154,15 +138,11 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
                         round_no=0, refresh=3, final_jacobian=True):
     """Minimise the objective from ``st`` with its current weights (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`).
 
-    The Jacobian comes from forward-mode AD at the start and at least every ``refresh`` accepted steps,
-    and from Broyden's secant update in between, because an AD Jacobian costs one table rebuild per shape
-    parameter.  Converged: the objective's small-decrease test twice in a row, or (likelihood) a
-    Gauss-Newton decrement below :data:`~fmbrdf_mi.fit.solve.lm.DECREMENT_TOL`, or no step lowers the
-    objective at float32 precision.  A problem that projects its albedos
-    (:attr:`~fmbrdf_mi.fit.problem.problem.Problem.projects`) re-solves them at every trial point and
-    takes an AD Jacobian at every step (a secant update fails because the albedo coordinates jump).
-    Returns (State, value, stop reason, converged, J, r); J, r are an AD Jacobian at the result unless
-    ``final_jacobian`` is False (then those of the last linearisation).
+    The AD Jacobian (one table rebuild per shape parameter) is refreshed every ``refresh`` accepted steps,
+    with Broyden updates between; a problem that
+    :attr:`~fmbrdf_mi.fit.problem.problem.Problem.projects` its albedos re-solves them at every trial and
+    takes an AD Jacobian every step (its albedo coordinates jump).  Returns (State, value, stop reason,
+    converged, J, r); J, r at the result unless ``final_jacobian`` is False.
     """
     obj = problem.obj
     project = problem.projects
@@ -182,7 +162,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         r_new = obj.residuals(parts, st_new)
         return (st_new, z_new), float(r_new @ r_new), r_new
 
-    def secant(lin, x, x_new, r_new):   # Broyden's update with what the trial taught
+    def secant(lin, x, x_new, r_new):
         r, J = lin
         return r, LM.broyden(J, x_new[1] - x[1], r_new - r)
 
@@ -234,7 +214,7 @@ def loss_and_grad_reverse(problem, st):
     dr.backward(val)
     grad = {k: float(dr.grad(x)[0]) for k, x in xs.items()}
     f = float(val[0])
-    # restore detached values
+    # detached values: no graph kept alive
     for p in problem.model.shape:
         ev._assign(p.key, float(st.shape[p.name]))
         ev._current[p.name] = float(st.shape[p.name])
