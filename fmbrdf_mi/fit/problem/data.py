@@ -1,11 +1,7 @@
-"""What a fit runs on: the pixels it uses and the data made into an objective and an evaluator at them.
+"""What a fit runs on: its pixels, one objective over them and one evaluator at them.
 
-One builder (:func:`prepare`) for one image or several: a single-image fit
-is the list of its one image, a joint fit the list of K.  The samples of
-every image's fitted super-pixels are stacked into one objective (the
-likelihood of all images is the product of theirs; the paper's loss is
-computed over the union of their pixels) and the model is evaluated for all
-of them in one BSDF evaluation.
+:func:`prepare` builds it for K >= 1 images (a single-image fit is a list of one): the samples of all
+images' fitted super-pixels are stacked into one objective and evaluated in one BSDF evaluation.
 """
 from __future__ import annotations
 
@@ -33,9 +29,8 @@ from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective, PaperObjective
 from fmbrdf_mi.fit.problem.problem import FitData
 
-#: Pixels whose view or light direction is within this angle (degrees) of the
-#: normal are left out of the fit: the BSDF's reverse-mode derivative with
-#: respect to alpha is NaN there for some alpha (docs/computed.md).
+#: Pixels whose view or light direction is within this angle (degrees) of the normal are not fitted:
+#: the BSDF's reverse-mode derivative in alpha is NaN there for some alpha (docs/computed.md).
 POLE_EXCLUSION_DEG = 3.0
 
 
@@ -57,18 +52,12 @@ def check_max_pixels(max_pixels, images=1):
 
 
 def select_pixels(obs, opts, use_samples=True, keep=None):
-    """Flat indices of the pixels a fit uses, and what was excluded (see :class:`FitOptions`).
+    """Flat indices of the pixels a fit uses, and the counts of what was excluded (see :class:`FitOptions`).
 
-    With raw samples (:attr:`Observation.samples`), super-pixels with a
-    sample at or above the white level or at or below the dark level are
-    excluded (:mod:`fmbrdf_mi.sensor.samples`) and counted.
-
-    ``keep``: (H, W) bool, the pixels a label image keeps (several materials: labels >= 0); applied after
-    the mask's erosion, so that the borders between materials are not eroded (a label image can mark
-    the pixels it is not sure of with -1).
-
-    The observation is validated again first: one changed after it was built
-    (``obs.irradiance = -1``, ``obs.normals = colours``) is refused as at construction.
+    With raw samples, super-pixels with a sample at or above the white level or at or below the dark
+    level are excluded (:mod:`fmbrdf_mi.sensor.samples`).  ``keep``: (H, W) bool, the pixels a label
+    image keeps, applied after the mask's erosion so the borders between materials are not eroded.
+    ``obs`` is validated again, since it may have been changed after it was built.
     """
     validate(obs)
     check_max_pixels(opts.max_pixels)
@@ -144,9 +133,9 @@ def same_noise(observations):
     return None
 
 
-#: Likelihood of a raw mosaic: points per axis over which each raw sample's model value is averaged
-#: (:meth:`~fmbrdf_mi.sensor.samples.Samples.footprint`; ``FitOptions.area_points`` None).
-#: The 2 x 2 quadrature's bias is checked per fit (:func:`~fmbrdf_mi.fit.api.checks.check_footprint`).
+#: Likelihood of a raw mosaic with ``FitOptions.area_points`` None: points per axis over which each raw
+#: sample's model value is averaged (:meth:`~fmbrdf_mi.sensor.samples.Samples.footprint`); the
+#: quadrature's bias is checked per fit (:func:`~fmbrdf_mi.fit.api.checks.check_footprint`).
 RAW_AREA_POINTS = 2
 
 
@@ -173,12 +162,10 @@ def one_view(observations, what, why):
 
 def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, factor=1.0):
     """The per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) of the fitted cells
-    ``idxs`` (one flat index array per image): one group per pixel of the view (per pixel and colour
-    channel for a colour mosaic), the same pixel in every image sharing it.  Several images must be of
-    one view (one pixel grid and the same view directions), else a pixel is not one point of the object.
-    ``smooth``: (tau_s, tau_b) of the maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`, in
-    the reported albedos' units; ``factor`` the model's albedo factor), or None: no prior.  ``bilinear``: each
-    sample's albedos interpolated between the pixel centres (:func:`bilinear_layout`), else its own pixel's."""
+    ``idxs`` (one flat index array per image, all images of one view): one group per pixel (and colour
+    channel), shared by that pixel in every image.  ``smooth``: (tau_s, tau_b) of the maps' smoothness prior
+    (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) in the reported albedos' units, ``factor`` the model's albedo
+    factor; None: no prior.  ``bilinear``: interpolate between pixel centres (:func:`bilinear_layout`)."""
     o0 = one_view(observations, "albedo per-pixel", "a pixel's albedo is that of one point of the object")
     flat = np.concatenate(idxs)
     pixels = np.unique(flat)
@@ -200,11 +187,9 @@ def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, facto
 
 
 def bilinear_layout(shape, flat, pixels, cell, samples, prior=None):
-    """The bilinear per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos` whose corners
-    are :func:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.bilinear_weights`') of cells at flat indices ``flat`` of
-    the pixel grid ``shape``, ``pixels`` the sorted fitted pixels (the groups), ``cell`` each cell's group: each
-    sample interpolated at its offset between the fitted pixels' centres; ``prior``: the maps' smoothness prior
-    or None."""
+    """The bilinear per-pixel albedo layout (corners from
+    :func:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.bilinear_weights`) of cells at flat indices ``flat`` of the
+    grid ``shape``; ``pixels``: the sorted fitted pixels (the groups), ``cell``: each cell's group."""
     if samples.channel is not None:
         raise InputError("albedo per-pixel-bilinear: not for colour mosaics (mono captures, raw or angle images)")
     H, W = shape
@@ -263,14 +248,10 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images: one objective over all their
     pixels, one evaluator, each image's pixels and slice.
 
-    A single-image fit is the list of its one image (``single=True``: its
-    messages name no image and ``excluded`` is that image's own block).
-    ``evaluator``: the model's evaluator at these pixels, if the caller has
-    one (reused across noise seeds by the benchmarks; the render path's);
-    else a :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`.
-    ``materials``: a label image (:func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`) of two or more
-    materials: pixels with a label < 0 are not fitted, each material has its own shape parameters
-    (:mod:`fmbrdf_mi.fit.evaluate.materials`) and, with shared albedos, its own pair.
+    ``single``: messages name no image and ``excluded`` is the image's own block.  ``evaluator``: the
+    model's evaluator at these pixels, else a :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`.
+    ``materials``: a label image (:func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`); label < 0 is not
+    fitted, each material has its own shape parameters (:mod:`fmbrdf_mi.fit.evaluate.materials`).
     """
     K = len(observations)
     check_max_pixels(opts.max_pixels, K)
@@ -368,8 +349,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         target = L.Target.from_stokes(np.concatenate(stokes, axis=1), opts.dolp_min_intensity,
                                       None if var[0] is None else np.concatenate(var))
         objective = PaperObjective(target) if loss == "paper" else LV.make(loss, target)
-        # neighbouring super-pixels of a bilinear-demosaicked mosaic are correlated (uncertainty.py):
-        # stack the images' pixel grids one below the other, apart, so no two images are neighbours
+        # demosaicked neighbours are correlated: stack the grids apart so no two images neighbour
         if all(o.samples is not None and o.samples.source == "raw mosaic" and o.meta.get("demosaic") != "superpixel"
                for o in observations):
             rows, cols, off = [], [], 0
