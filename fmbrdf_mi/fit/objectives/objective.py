@@ -1,8 +1,7 @@
 """What a fit minimises: the likelihood of the camera's samples, or the paper's loss.
 
 Both are sums of squared residuals, so one Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.optimise`)
-minimises either, and both map residual rows to pixels for the sandwich covariance
-(:mod:`fmbrdf_mi.fit.uncertainty`).  The model is linear in its two albedos.
+minimises either; both map residual rows to pixels (:mod:`fmbrdf_mi.fit.uncertainty`).
 
 **Likelihood** (:class:`LikelihoodObjective`, replacing eq:optimization by the likelihood of what was
 measured).  Sample k of super-pixel i is
@@ -78,7 +77,7 @@ class PaperObjective:
         return L.loss(self.target, self.w if w is None else w, i, rho)
 
     def score(self, parts, st):
-        """Loss with the candidate's own inlier / outlier split (coarse search, comparing starts)."""
+        """Loss with the candidate's own inlier / outlier split (for comparing candidates)."""
         out = L.outlier_mask(parts.surface[0], parts.body[0], st.a_s, st.a_b)
         return self.value(parts, st, L.weights(out, self.target.dolp_valid))
 

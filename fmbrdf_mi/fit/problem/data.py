@@ -39,8 +39,8 @@ MIN_PIXELS = 20
 
 
 def check_max_pixels(max_pixels, images=1):
-    """InputError unless ``max_pixels`` (``--max-pixels``; 0 or None: every usable pixel) leaves each of
-    ``images`` images at least :data:`MIN_PIXELS` pixels, the fewest a fit accepts from a mask."""
+    """InputError unless ``max_pixels`` (0 or None: every usable pixel) leaves each of ``images`` images
+    at least :data:`MIN_PIXELS` pixels."""
     if not max_pixels:
         return
     per_image = int(math.ceil(max_pixels / images))
@@ -105,9 +105,8 @@ def resolve_loss(obs, opts):
 
 
 def check_footprint(footprint, loss, why="the camera noise is known", name="--footprint"):
-    """A footprint (``--footprint point|box|demosaic``) shapes only the paper's loss: refuse it in one line
-    when ``loss`` (resolved) is the likelihood, which models each raw sample over its own pixel with
-    ``area_points`` (``--area-points``).  ``name``: how the user gave it."""
+    """Refuse a footprint when the resolved ``loss`` is the likelihood: it shapes only the paper's loss
+    (the likelihood uses ``area_points``).  ``name``: how the user gave it."""
     if footprint not in (None, "auto") and loss == "likelihood":
         raise InputError(f"{name} {footprint}: only the paper's loss uses it; the likelihood ({why}) models "
                          "each sample over its own pixel with --area-points (or give --loss paper)")
@@ -140,9 +139,8 @@ RAW_AREA_POINTS = 2
 
 
 def area_points(samples, opts):
-    """m of the likelihood's m x m points per sample: ``opts.area_points``, or when None
-    :data:`RAW_AREA_POINTS` for a raw mosaic (a sensor pixel integrates over its area) and 1 (the
-    pixel's centre) for angle images and Stokes images."""
+    """m of the likelihood's m x m points per sample: ``opts.area_points``, else :data:`RAW_AREA_POINTS`
+    for a raw mosaic (a sensor pixel integrates over its area) and 1 (the pixel's centre) otherwise."""
     m = opts.area_points
     if m is None:
         m = RAW_AREA_POINTS if samples.source in ("raw mosaic", "colour raw mosaic") else 1
@@ -150,8 +148,7 @@ def area_points(samples, opts):
 
 
 def one_view(observations, what, why):
-    """The first of ``observations``; InputError naming ``what`` (and ``why`` it must be one view) unless
-    every image is of its view (one pixel grid and the same view directions)."""
+    """The first of ``observations``; InputError naming ``what`` and ``why`` unless all are of its view."""
     o0 = observations[0]
     for k, o in enumerate(observations[1:], 1):
         if o.shape != o0.shape or not np.allclose(o.view_dirs, o0.view_dirs):
@@ -227,8 +224,7 @@ def material_labels(observations, materials, loss, opts, evaluator=None):
 
 def material_evaluators(model, count, cell_material, normals, views, lights, irr, weights):
     """:class:`~fmbrdf_mi.fit.evaluate.materials.MaterialEvaluator`: one
-    :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator` per material over its cells' points (the
-    directions pixel-major: each cell's directions, then the next cell's)."""
+    :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator` per material over its cells' points."""
     cells = len(cell_material)
     dirs = len(normals) // cells                         # directions per cell
     outs = dirs // (1 if weights is None else len(weights))   # evaluator outputs per cell
@@ -314,7 +310,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         if noise is None:
             o0 = observations[0]
             noise = dataclasses.replace(o0.noise) if single and o0.noise is not None else NoiseModel(step=smps[0].step)
-        # a colour mosaic's samples carry their colour channels: one pair of albedos per channel
+        # a colour mosaic: one pair of albedos per channel
         layout = None if smps[0].channel is None else ChannelAlbedos(smps[0].channel)
         if lab is not None and layout is not None:
             raise InputError("materials: not yet for colour mosaics (mono captures, raw or angle images)")

@@ -4,8 +4,7 @@ Image k is predicted as S_k(x) = (P_k / G_k) E_k (k_s f_s(x; eta, alpha, beta) +
 E_k its given irradiance, G_k its given relative power and P_k its light power.  P_1 .. P_{K-1} are
 ``power`` rows of the :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`, log-bounded to
 [G_k / 1000, 1000 G_k]; P_0 stays at G_0 since k_s and k_b already scale every image.  The prediction is
-linear in P_k, so d/dP_k needs no BSDF evaluation (:class:`PowerEvaluator`).  ``power_start`` ``ratio``
-solves the powers with the albedos at every coarse-search point (:class:`PowerProblem`); ``given`` starts at G_k.
+linear in P_k, so d/dP_k needs no BSDF evaluation (:class:`PowerEvaluator`).
 """
 from __future__ import annotations
 
@@ -27,9 +26,7 @@ class PowerEvaluator:
     """An evaluator's parts with image k's points scaled by P_k / G_k, and d/dP_k analytically.
 
     ``base``: the joint fit's :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator` at the given
-    irradiances; ``params``: :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` with ``powers``;
-    ``pixels_per_image``: fitted pixels of each image, in the evaluator's point order.
-    """
+    irradiances; ``pixels_per_image``: fitted pixels of each image, in the evaluator's point order."""
 
     def __init__(self, base, params, pixels_per_image):
         self.base, self.params = base, params

@@ -104,7 +104,7 @@ class NormalProblem(Problem):
         self.cw = np.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], 2)   # (N, 4, 4)
         pos = -np.ones(h * w, int)
         pos[self.idx] = np.arange(len(self.idx))
-        # a corner outside the refined pixels holds the start map's value, which may be far off: extrapolate
+        # a corner outside the refined pixels holds the start map's value, maybe far off: extrapolate
         own = self.idx[:, None, None]
         out = pos[self.corner] < 0
         cy, cx = np.divmod(self.corner, w)
@@ -126,7 +126,6 @@ class NormalProblem(Problem):
         self.c = float(np.mean(s ** 2 / v.mean(axis=(1, 2))))
         self.w_prior = self.lam * self.c
 
-    # ---- geometry
     def full(self, base, n):
         """The flat (H W, 3) normal map: ``base`` with the refined pixels set to ``n``."""
         out = base.reshape(-1, 3).copy()
@@ -142,7 +141,6 @@ class NormalProblem(Problem):
     def _set(self, ns):
         self.ev.set_geometry(np.tile(ns.reshape(-1, 3), (self.K, 1)), self.sample_views, self.lights)
 
-    # ---- evaluation
     def parts_at(self, st, nmap, jac=False):
         """The model's parts at the material ``st`` and the flat normal map ``nmap`` (one BSDF evaluation)."""
         self._set(self.sample_normals(nmap)[0])

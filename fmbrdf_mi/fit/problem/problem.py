@@ -24,9 +24,8 @@ class Problem:
 
     ``params``: :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (a model alone: one material, shared
     albedos, all free); ``fixed``: {name: value} of the rows held fixed, ``names``: the free ones.
-    ``objective``: :class:`fmbrdf_mi.fit.objectives.objective.PaperObjective` or
-    :class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective` (a
-    :class:`fmbrdf_mi.fit.objectives.loss.Target` is wrapped in the former).
+    ``objective``: a :class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective` or
+    :class:`~fmbrdf_mi.fit.objectives.objective.PaperObjective` (a bare ``Target`` is wrapped in the latter).
     ``deadline``: absolute ``time.time()`` after which no model evaluation may end (see :meth:`timed`).
     ``cell_material``: each fitted cell's material, for several materials.
     """
@@ -63,8 +62,7 @@ class Problem:
         per_cell = 0.5 * np.sum(self.obj.nll_terms(parts, st), axis=1)
         return np.bincount(self.cell_material, weights=per_cell, minlength=self.params.count)
 
-    # ---- z <-> state: z = (free shape parameters through the bounds, log a_s, log a_b), with an albedo
-    # layout (objective.layout: per channel) log a_s[0 ..], then log a_b[0 ..]
+    # z = (free shape parameters through the bounds, log a_s, log a_b); a layout: log a_s[..], log a_b[..]
     @property
     def layout(self):
         return self.obj.layout
@@ -105,7 +103,6 @@ class Problem:
         """A State with the fixed values imposed."""
         return State({n: float(self.fixed.get(n, shape[n])) for n in self.params.shape_names}, a_s, a_b)
 
-    # ---- evaluation
     def timed(self, jac, evaluate, *args):
         """``evaluate(*args)`` (with derivatives: ``jac``); raises :class:`TimeUp` first if the slowest
         evaluation of its kind so far would end past the deadline, so the limit holds inside every loop."""
