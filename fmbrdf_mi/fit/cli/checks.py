@@ -57,8 +57,7 @@ def typed_options(argv):
 
 
 def given_options(args, keep=RERUN_TAKES):
-    """The options of ``args`` typed on the command line (``args.argv``; without it, those whose value is not
-    the default), as flags; ``keep``: options not counted."""
+    """The options typed (from ``args.argv``, else those not at their default) as flags, less ``keep``."""
     if "argv" in vars(args):
         names = typed_options(args.argv)
     else:
@@ -68,8 +67,7 @@ def given_options(args, keep=RERUN_TAKES):
 
 
 def check_rerun_args(args):
-    """``--from fit.json`` reruns the recorded inputs and options: any other option typed would be ignored, even
-    at its default value."""
+    """Refuse every option typed with ``--from`` (even at its default): the record is rerun as it is."""
     bad = given_options(args)
     if bad:
         raise InputError(f"--from: give no {', '.join(bad)} (the fit.json's inputs and options are rerun as "

@@ -55,8 +55,7 @@ class Target:
 
 
 def predict(parts_surface, parts_body, a_s, a_b, lin_sigma=None):
-    """Intensity and DoLP (n,) of a_s * surface + a_b * body (arrays (3, n)); with ``lin_sigma`` the
-    DoLP's Rice mean (module docstring)."""
+    """Intensity and DoLP (n,) of a_s * surface + a_b * body (3, n); with ``lin_sigma`` the DoLP's Rice mean."""
     s = a_s * parts_surface + a_b * parts_body
     i = s[0]
     lin = np.sqrt(s[1] ** 2 + s[2] ** 2 + DOLP_EPS ** 2)

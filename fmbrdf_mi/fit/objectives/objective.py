@@ -201,8 +201,7 @@ class LikelihoodObjective:
         return float(r @ r)
 
     def nll_terms(self, parts, st):
-        """(n, m) twice each sample's term of the negative log-likelihood, with the variance from this
-        prediction: (y - mu)^2 / v + log v."""
+        """(n, m) twice each sample's NLL term, (y - mu)^2 / v + log v, v from this prediction."""
         mu = self.mu(parts, st)
         v = np.maximum(self.noise.variance(mu), 1e-300)
         return (self.y - mu) ** 2 / v + np.log(v)

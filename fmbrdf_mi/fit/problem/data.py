@@ -52,13 +52,10 @@ def check_max_pixels(max_pixels, images=1):
 
 
 def select_pixels(obs, opts, use_samples=True, keep=None):
-    """Flat indices of the pixels a fit uses, and the counts of what was excluded (see :class:`FitOptions`).
-
-    With raw samples, super-pixels with a sample at or above the white level or at or below the dark
-    level are excluded (:mod:`fmbrdf_mi.sensor.samples`).  ``keep``: (H, W) bool, the pixels a label
-    image keeps, applied after the mask's erosion so the borders between materials are not eroded.
-    ``obs`` is validated again, since it may have been changed after it was built.
-    """
+    """Flat indices of the pixels a fit uses, and the counts of what was excluded (see :class:`FitOptions`),
+    saturated and dark super-pixels included (:mod:`fmbrdf_mi.sensor.samples`).  ``keep``: (H, W) bool,
+    the pixels a label image keeps, applied after the mask's erosion so material borders are not eroded.
+    ``obs`` is validated again, since it may have changed after it was built."""
     validate(obs)
     check_max_pixels(opts.max_pixels)
     m = erode_mask(obs.mask, opts.erode)

@@ -26,8 +26,8 @@ class Problem:
     albedos, all free); ``fixed``: {name: value} of the rows held fixed, ``names``: the free ones.
     ``objective``: a :class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective` or
     :class:`~fmbrdf_mi.fit.objectives.objective.PaperObjective` (a bare ``Target`` is wrapped in the latter).
-    ``deadline``: absolute ``time.time()`` after which no model evaluation may end (see :meth:`timed`).
-    ``cell_material``: each fitted cell's material, for several materials.
+    ``deadline``: ``time.time()`` after which no model evaluation may end (:meth:`timed`);
+    ``cell_material``: each fitted cell's material.
     """
 
     def __init__(self, params, evaluator, objective, progress=None, deadline=None, cell_material=None):
