@@ -102,5 +102,5 @@ class DolpObjective(_Rows):
 
 
 def make(name, target):
-    """The objective for loss ``name`` ('intensity' or 'dolp') on ``target`` (:class:`fmbrdf_mi.fit.objectives.loss.Target`)."""
+    """The objective for loss ``name`` ('intensity' or 'dolp') on a :class:`~fmbrdf_mi.fit.objectives.loss.Target`."""
     return {"intensity": IntensityObjective, "dolp": DolpObjective}[name](target)

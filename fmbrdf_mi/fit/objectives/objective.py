@@ -9,10 +9,10 @@ measured).  Sample k of super-pixel i is
     y_ik ~ N(mu_ik, v(mu_ik)),   mu_ik = 1/2 (S0 + S1 cos 2 phi_k + S2 sin 2 phi_k),
 
 (S0, S1, S2) the model at the sample's own point, v(mu) = mu / g + sigma_read^2 + Delta^2 / 12
-(:class:`NoiseModel`), in image units; without the gain, v = a mu + b fitted to the last round's squared
-residuals.  It is minimised by iteratively reweighted least squares (variances frozen at the current
-prediction between rounds): its estimating equation stays unbiased when gain or read noise are slightly
-off, and J^T J is the Fisher information.  The full NLL compares candidates from different starts.
+(:class:`~fmbrdf_mi.sensor.noise.NoiseModel`), in image units; without the gain, v = a mu + b fitted to
+the last round's squared residuals.  It is minimised by iteratively reweighted least squares (variances
+frozen at the current prediction between rounds): its estimating equation stays unbiased when gain or
+read noise are slightly off, and J^T J is the Fisher information.  The full NLL compares candidates from different starts.
 
 **Paper** (:class:`PaperObjective`): :mod:`fmbrdf_mi.fit.objectives.loss`.
 """
