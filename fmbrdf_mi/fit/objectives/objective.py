@@ -12,7 +12,7 @@ measured).  Sample k of super-pixel i is
 (:class:`~fmbrdf_mi.sensor.noise.NoiseModel`), in image units; without the gain, v = a mu + b fitted to
 the last round's squared residuals.  It is minimised by iteratively reweighted least squares (variances
 frozen at the current prediction between rounds): its estimating equation stays unbiased when gain or
-read noise are slightly off, and J^T J is the Fisher information.  The full NLL compares candidates from different starts.
+read noise are slightly off, and J^T J is the Fisher information.  The full NLL compares candidates.
 
 **Paper** (:class:`PaperObjective`): :mod:`fmbrdf_mi.fit.objectives.loss`.
 """
