@@ -1,8 +1,7 @@
 """Checks of the ``fmbrdf-mi fit`` command line made before any file is read: one line per mistake.
 
-The values and their relations are the schema's (:mod:`fmbrdf_mi.fit.api.options`); here are the rules of
-the command's modes: which options a mode refuses (:data:`REFUSED`), which need another (:data:`NEEDS`),
-and what goes with ``--from`` (nothing but where to write: :func:`check_rerun_args`).
+The options' values are checked by :mod:`fmbrdf_mi.fit.api.options`; here are the modes' rules: what a
+mode refuses (:data:`REFUSED`), what needs another option (:data:`NEEDS`), what goes with ``--from``.
 """
 from __future__ import annotations
 
@@ -22,7 +21,7 @@ DEFAULTS = {o.name: o.cli.get("default", o.default) for o in OPTION.values() if 
 
 
 def check_args(args):
-    """Validate the command line's options before any file is read (one line per mistake)."""
+    """Validate the command line's options."""
     if isinstance(args.albedo_smooth, str):    # TAU[,TAU_B] -> tau or (tau_s, tau_b)
         args.albedo_smooth = parse_smooth(args.albedo_smooth, "--albedo-smooth")
     values = vars(args)
@@ -48,9 +47,8 @@ class Unset(list):
 
 
 def typed_options(argv):
-    """The options typed on the command line ``argv`` (those of ``fmbrdf-mi fit``), whatever their value: the
-    arguments parsed into a namespace that already holds a marker for every option, which argparse replaces only
-    for the options given."""
+    """The options typed on the command line ``argv``, whatever their value (argparse replaces the
+    :class:`Unset` marker only for the options given)."""
     p = argparse.ArgumentParser(add_help=False)
     add_arguments(p)
     ns = argparse.Namespace(**{name: Unset() for name in DEFAULTS})
@@ -59,8 +57,7 @@ def typed_options(argv):
 
 
 def given_options(args, keep=RERUN_TAKES):
-    """The options of ``args`` typed on the command line (``args.argv``; without it, those whose value is not
-    the default), as flags; ``keep``: options not counted."""
+    """The options typed (from ``args.argv``, else those not at their default) as flags, less ``keep``."""
     if "argv" in vars(args):
         names = typed_options(args.argv)
     else:
@@ -70,8 +67,7 @@ def given_options(args, keep=RERUN_TAKES):
 
 
 def check_rerun_args(args):
-    """``--from fit.json`` reruns the recorded inputs and options: any other option typed would be ignored, even
-    at its default value."""
+    """Refuse every option typed with ``--from`` (even at its default): the record is rerun as it is."""
     bad = given_options(args)
     if bad:
         raise InputError(f"--from: give no {', '.join(bad)} (the fit.json's inputs and options are rerun as "
@@ -79,8 +75,8 @@ def check_rerun_args(args):
 
 
 def check_footprint_args(args):
-    """``--footprint`` shapes only the paper's loss: refused when the loss is (or resolves to) the likelihood
-    from the command line alone (a capture sidecar's noise: :func:`fmbrdf_mi.fit.problem.data.check_footprint`)."""
+    """Refuse ``--footprint`` when the command line alone resolves the loss to the likelihood (a sidecar's
+    noise: :func:`fmbrdf_mi.fit.problem.data.check_footprint`)."""
     if args.footprint == "auto":
         return
     auto = args.loss == "auto" and args.conversion_gain is not None and args.path == "pixel" \
@@ -99,8 +95,7 @@ ALSO_TAKEN = {"loss": ("likelihood",)}
 
 
 def given(args, option):
-    """Whether the option ``option`` (a flag) holds a value other than its default (and, for ``--loss``, other
-    than the likelihood)."""
+    """Whether the flag ``option`` holds a value other than its default (or :data:`ALSO_TAKEN`)."""
     name = DEST[option]
     v = vars(args)[name]
     return not (v is None or v is False or v == [] or v == DEFAULTS[name] or v in ALSO_TAKEN.get(name, ()))

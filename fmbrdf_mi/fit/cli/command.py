@@ -35,8 +35,7 @@ def is_joint(args):
 
 
 def fit_mode(args):
-    """The mode the arguments ask for: ``joint``, ``rerun`` (``--from``), ``colour`` (a colour mosaic) or
-    ``single``; a colour sidecar is read only to tell the last two apart."""
+    """The mode the arguments ask for: ``joint``, ``rerun`` (``--from``), ``colour`` or ``single``."""
     if is_joint(args):
         return "joint"
     if args.from_json:
@@ -47,8 +46,7 @@ def fit_mode(args):
 
 
 def run_rerun(args, command):
-    """``--from fit.json``: the recorded fit again (single image, colour or joint; the options given with it are
-    refused by :func:`~fmbrdf_mi.fit.cli.checks.check_rerun_args`)."""
+    """``--from fit.json``: the recorded fit again (single image, colour or joint)."""
     return rerun(args.from_json, args.out, force=args.force, progress=not args.quiet, command=command)
 
 

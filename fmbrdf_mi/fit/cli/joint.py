@@ -16,10 +16,8 @@ from fmbrdf_mi.fit.outputs.joint import check_distinct, run_images
 from fmbrdf_mi.fit.outputs.normals import NormalRefinement
 
 
-# ---------------------------------------------------------------- the command
 def image_options(args):
-    """The image options given on the command line (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`): the
-    defaults of every image of the joint fit."""
+    """The image options given (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`): every image's defaults."""
     values = vars(args)
     return {k: values[k] for k in IMAGE_KEYS if values[k] is not None}
 
@@ -71,13 +69,13 @@ def run_joint(args, command):
             s.options.update({k: absolute_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
     fit_kw = request("joint", args, fixed=parse_fixed(args.fixed), bounds=parse_bounds(args.bounds),
                      init=parse_init(args.init))
-    for k in ("materials", "area_points", "albedo_smooth"):   # at their default: left to the fit (a colour fit
-        if fit_kw[k] is None:                                 # does not take them: REFUSED["colour"])
+    for k in ("materials", "area_points", "albedo_smooth"):   # a colour fit does not take them
+        if fit_kw[k] is None:
             del fit_kw[k]
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
     if args.refine_normals:
         obs = build_observations(specs)
-        # the authors' layout carries the ground truth (normal/normal_GT.npy): it is the geometry read
+        # the authors' normals (normal/normal_GT.npy) are the ground truth
         gt = obs[0].normals.copy() if args.authors else None
         return NormalRefinement(specs, image_names(specs), obs, args.out, start=args.normals_start, lam=args.smooth,
                                 model=args.model, fit_kw={k: v for k, v in fit_kw.items()

@@ -1,11 +1,9 @@
 """After a raw-mosaic likelihood fit that does not explain its data: would the mirrored polariser layout?
 
-A raw capture decoded with its 45 and 135 degree polarisers swapped (a mirrored optical path, a camera
-mounted upside down, another sensor's convention) negates S2, and the fit explains the data poorly.
-After a raw-mosaic likelihood fit with a misfit or no convergence and chi^2 per sample at least
-:data:`POOR_CHI2`, the same fit runs again with 45 and 135 swapped, into a temporary directory; if its
-chi^2 is at least :data:`MUCH_BETTER` times lower, one line names ``--layout``.  The first fit's outputs
-do not change.
+A raw capture decoded with 45 and 135 degrees swapped (mirrored optics, another sensor's convention)
+negates S2.  When chi^2 per sample is at least :data:`POOR_CHI2` and the fit misfits or did not converge,
+the fit reruns swapped in a temporary directory; if that is :data:`MUCH_BETTER` times lower, one line
+names ``--layout``.  The first fit's outputs do not change.
 """
 from __future__ import annotations
 
@@ -15,9 +13,8 @@ import tempfile
 
 from fmbrdf_mi.interrupt import interrupted
 
-#: chi^2 per raw sample from which a misfit (or an unconverged fit) is checked against the mirrored layout:
-#: a fit of the right layout sits near 1 (a little above on a render, its Monte Carlo noise), a mirrored one
-#: several times higher.
+#: chi^2 per raw sample from which a misfit is checked against the mirrored layout (the right layout
+#: gives about 1, a mirrored one several times more).
 POOR_CHI2 = 1.5
 
 #: How many times lower the mirrored layout's chi^2 must be to be named.
@@ -53,12 +50,8 @@ def needs_check(report, model):
 
 
 def mirrored_layout_hint(report, kw, fit_files, progress=True):
-    """One line naming ``--layout`` when the mirrored layout explains the data much better, else None.
-
-    ``kw``: the keyword arguments the fit ran with (:func:`~fmbrdf_mi.fit.outputs.single.fit_files`); the
-    mirrored fit runs with the same, the layout swapped, into a temporary directory, no baselines and no
-    relighting check.
-    """
+    """One line naming ``--layout`` when the mirrored layout explains the data much better, else None;
+    ``kw``: the keyword arguments the fit ran with (:func:`~fmbrdf_mi.fit.outputs.single.fit_files`)."""
     model = kw.get("model", "fmbrdf")
     if not needs_check(report, model):
         return None

@@ -7,10 +7,8 @@ from fmbrdf_mi.fit.inputs.parse import parse_vector
 
 def request(record, args, **converted):
     """The options of ``record`` (``single``, ``colour`` or ``joint``:
-    :func:`~fmbrdf_mi.fit.api.options.record_keys`) as parsed, ``--max-pixels 0`` (all) as None and, for one
-    image, its ``--light`` (and ``--relight-light``) parsed; then ``converted`` (the values the command turns
-    into another form: one input or several).  ``--from`` builds the same request from a fit.json
-    (:mod:`fmbrdf_mi.fit.outputs.record`)."""
+    :func:`~fmbrdf_mi.fit.api.options.record_keys`) as parsed, ``--max-pixels 0`` as None, ``--light`` and
+    ``--relight-light`` parsed, then ``converted`` (values the command converts itself)."""
     values = vars(args)
     kw = {k: values[k] for k in record_keys(record)}
     kw["max_pixels"] = kw["max_pixels"] or None

@@ -2,34 +2,16 @@
 
     loss = 1/M sum_i (Ibar_i - I_i)^2  +  sum_i w_i (rhobar_i - rho_i)^2 / sum_i w_i
 
-over the M fitted pixels, I the intensity and rho the DoLP (observed: bar),
-AoLP not used.  Choices this implementation makes where the paper is silent:
+over the M fitted pixels, I the intensity and rho the DoLP (observed: bar).  Where the paper is silent:
 
-* **units**: intensities are divided by the mean observed intensity of the
-  fitted pixels (``scale``), so both terms are dimensionless and the loss
-  does not depend on exposure;
-* **inliers / outliers**: the paper weighs a pixel by (number of inliers) /
-  (number of outliers) when it is an outlier and by 1 otherwise, "to account
-  for the imbalance in the surface areas dominated with surface or body
-  reflection".  Here a pixel is an *outlier* when the model at the current
-  estimate says surface reflection dominates its intensity
-  (a_s * S0_surface > a_b * S0_body), an *inlier* otherwise; the classification
-  is fixed while the optimiser runs and refreshed between its rounds
-  (:mod:`fmbrdf_mi.fit.solve.optimise`).  Outliers and inliers then carry equal
-  total weight in the DoLP term;
-* **DoLP term pixels**: only pixels whose observed intensity exceeds
-  ``dolp_min_intensity`` times the 99th percentile enter the DoLP term (the
-  DoLP of a dark pixel is noise); all fitted pixels enter the intensity term;
-* **noise bias of the DoLP**: a camera's DoLP is biased upwards by noise
-  (Rice distribution), as much as the signal for dim, weakly polarised
-  pixels, which a rough material can explain by trading body for surface
-  albedo.  When the variance sigma^2 of S1 and S2 is known
-  (e.g. :func:`fmbrdf_mi.sensor.noise.linear_stokes_variance`) the model side
-  of the DoLP term is the DoLP such a camera measures on average,
-  E[|(S1, S2) + noise|] / S0 (:mod:`fmbrdf_mi.sensor.rice`), and the observed
-  DoLP is left as measured, so both sides have the same expectation
-  (subtracting 2 sigma^2 from the observed side leaves a bias of the same
-  order for DoLP ~ sigma / S0).
+* intensities are divided by the mean observed intensity (``scale``), so the loss is dimensionless;
+* a pixel is an *outlier* when the current model says surface reflection dominates its intensity
+  (a_s S0_surface > a_b S0_body); outliers and inliers carry equal total weight in the DoLP term, the
+  classification refreshed between optimiser rounds (:mod:`fmbrdf_mi.fit.solve.optimise`);
+* only pixels brighter than ``dolp_min_intensity`` times the 99th percentile enter the DoLP term;
+* with var(S1) = var(S2) = sigma^2 known, the model side of the DoLP term is the Rice mean
+  E[|(S1, S2) + noise|] / S0 (:mod:`fmbrdf_mi.sensor.rice`) and the observed DoLP is left as measured,
+  since the noise biases a camera's DoLP upwards and correcting the observed side leaves a bias.
 """
 from __future__ import annotations
 
@@ -73,11 +55,7 @@ class Target:
 
 
 def predict(parts_surface, parts_body, a_s, a_b, lin_sigma=None):
-    """Intensity and DoLP (n,) of a_s * surface + a_b * body (arrays (3, n)).
-
-    With ``lin_sigma`` the DoLP is the one a camera with that noise in S1
-    and S2 measures on average (module docstring).
-    """
+    """Intensity and DoLP (n,) of a_s * surface + a_b * body (3, n); with ``lin_sigma`` the DoLP's Rice mean."""
     s = a_s * parts_surface + a_b * parts_body
     i = s[0]
     lin = np.sqrt(s[1] ** 2 + s[2] ** 2 + DOLP_EPS ** 2)

@@ -1,26 +1,13 @@
-"""The loss variants of the paper's comparison (its relighting figure): intensity only, DoLP only.
+"""The loss variants of the paper's relighting comparison: intensity only, DoLP only.
 
-The paper fits FMBRDF and its baselines with the polarimetric loss
-(eq:optimization: intensity MSE + weighted DoLP MSE; here also the default
-likelihood of the raw samples) and compares against fits that use less of
-the measurement:
+* ``intensity`` (:class:`IntensityObjective`): the intensity term of eq:optimization alone, what a
+  radiometric method fits;
+* ``dolp`` (:class:`DolpObjective`): the DoLP term alone ("ours without radiance").  The DoLP leaves the
+  overall albedo undetermined, so one extra residual, (mean predicted - mean observed intensity) / scale,
+  fixes it; it is 0 at the optimum and changes nothing else.
 
-* ``intensity`` (:class:`IntensityObjective`): the intensity term of
-  eq:optimization alone, (1/M) sum_i ((Ibar_i - I_i) / scale)^2 -- what a
-  radiometric method fits ("radiometric baselines");
-* ``dolp`` (:class:`DolpObjective`): the DoLP term alone, with the paper's
-  inlier / outlier weights and, when the camera noise is known, the Rice
-  mean of the measured DoLP (:mod:`fmbrdf_mi.fit.objectives.loss`) -- "ours without
-  radiance".  The DoLP leaves the overall albedo undetermined, so one extra
-  residual, (mean predicted intensity - mean observed intensity) / scale,
-  fixes it; that direction changes nothing else, so the residual is 0 at
-  the optimum, the shape parameters and r_k are those of the DoLP term
-  alone, and k_s reproduces the mean intensity (for the relighting check).
-
-Both are sums of squares of a subset of :class:`PaperObjective`'s
-residuals (the same Jacobian code), so the same optimiser, coarse search
-and sandwich covariance apply (:mod:`fmbrdf_mi.fit.uncertainty`; the scale
-residual is counted with the first pixel, and is 0 at the optimum).
+Both are sums of squares of linear maps of :class:`PaperObjective`'s residuals, so the same optimiser,
+coarse search and sandwich covariance apply.
 """
 from __future__ import annotations
 
@@ -78,10 +65,10 @@ class IntensityObjective(_Rows):
 
 
 class DolpObjective(_Rows):
-    """DoLP term of eq:optimization alone, plus one residual that sets the overall albedo (module docstring)."""
+    """DoLP term of eq:optimization alone, plus one residual that sets the overall albedo."""
 
     name = "dolp"
-    #: albedo ratios a_b / a_s tried by the coarse search (log grid)
+    #: albedo ratios a_b / a_s tried by the coarse search
     RATIOS = np.logspace(-3, 3, 37)
 
     def describe_round(self):
@@ -115,5 +102,5 @@ class DolpObjective(_Rows):
 
 
 def make(name, target):
-    """The objective for loss ``name`` ('intensity' or 'dolp') on ``target`` (:class:`fmbrdf_mi.fit.objectives.loss.Target`)."""
+    """The objective for loss ``name`` ('intensity' or 'dolp') on a :class:`~fmbrdf_mi.fit.objectives.loss.Target`."""
     return {"intensity": IntensityObjective, "dolp": DolpObjective}[name](target)

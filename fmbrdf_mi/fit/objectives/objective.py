@@ -1,37 +1,20 @@
 """What a fit minimises: the likelihood of the camera's samples, or the paper's loss.
 
-Both objectives are sums of squared residuals r(theta) . r(theta), so the
-same Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.optimise`) minimises either, and
-both state which residual rows belong to which pixel (for the sandwich
-covariance, :mod:`fmbrdf_mi.fit.uncertainty`).  The model is linear in its
-two albedos; :class:`Parts` (unit-albedo surface and body Stokes vectors and
-their shape derivatives) are what an evaluator gives.
+Both are sums of squared residuals, so one Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.optimise`)
+minimises either; both map residual rows to pixels (:mod:`fmbrdf_mi.fit.uncertainty`).
 
-**Likelihood** (:class:`LikelihoodObjective`, ``--loss likelihood``).  Sample
-k of super-pixel i (a raw mosaic pixel, or an angle-image pixel) is
+**Likelihood** (:class:`LikelihoodObjective`, replacing eq:optimization by the likelihood of what was
+measured).  Sample k of super-pixel i is
 
     y_ik ~ N(mu_ik, v(mu_ik)),   mu_ik = 1/2 (S0 + S1 cos 2 phi_k + S2 sin 2 phi_k),
 
-with (S0, S1, S2) the model's Stokes vector at that sample's own point
-(paper eq:optimization replaced by the likelihood of what was measured) and
-v the camera's Poisson-Gaussian variance in image units,
-v(mu) = mu / g + sigma_read^2 + Delta^2 / 12 (:class:`NoiseModel`).
-It is minimised by **iteratively reweighted least squares**: LM minimises
-sum (y - mu)^2 / v with the variances held at the current prediction, then
-the variances are recomputed, until the estimate settles.  IRLS rather than
-the full negative log-likelihood (with log v): its estimating equation
-sum (y - mu) / v * dmu/dtheta = 0 has zero mean whenever the mean model is
-right, even if gain or read noise are a little off, and it keeps the
-Gauss-Newton structure (J^T J of the standardised residuals is the Fisher
-information); the two differ only by terms of relative size
-1 / (electrons per sample).  The full NLL compares candidates from
-different starts.
+(S0, S1, S2) the model at the sample's own point, v(mu) = mu / g + sigma_read^2 + Delta^2 / 12
+(:class:`~fmbrdf_mi.sensor.noise.NoiseModel`), in image units; without the gain, v = a mu + b fitted to
+the last round's squared residuals.  It is minimised by iteratively reweighted least squares (variances
+frozen at the current prediction between rounds): its estimating equation stays unbiased when gain or
+read noise are slightly off, and J^T J is the Fisher information.  The full NLL compares candidates.
 
-**Unknown noise.**  Without the camera's gain the variance is modelled as
-v = a mu + b, fitted to the previous round's squared residuals (first
-round: equal weights).
-
-**Paper** (:class:`PaperObjective`, ``--loss paper``): :mod:`fmbrdf_mi.fit.objectives.loss`.
+**Paper** (:class:`PaperObjective`): :mod:`fmbrdf_mi.fit.objectives.loss`.
 """
 from __future__ import annotations
 
@@ -45,7 +28,6 @@ from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.sensor import rice
 
 
-# ---------------------------------------------------------------- objectives
 class PaperObjective:
     """The paper's loss (eq:optimization, :mod:`fmbrdf_mi.fit.objectives.loss`): intensity MSE + weighted DoLP MSE."""
 
@@ -95,7 +77,7 @@ class PaperObjective:
         return L.loss(self.target, self.w if w is None else w, i, rho)
 
     def score(self, parts, st):
-        """Loss with the candidate's own inlier / outlier split (coarse search, comparing starts)."""
+        """Loss with the candidate's own inlier / outlier split (for comparing candidates)."""
         out = L.outlier_mask(parts.surface[0], parts.body[0], st.a_s, st.a_b)
         return self.value(parts, st, L.weights(out, self.target.dolp_valid))
 
@@ -149,14 +131,10 @@ def _jacobian(cols, parts, st, z, names, bounds, m):
 class LikelihoodObjective:
     """Gaussian likelihood of the polariser samples with Poisson-Gaussian variance (module docstring).
 
-    ``y``: (n, m) observed samples of the fitted cells (a mono super-pixel:
-    m = 4; a colour period: 16); ``analyser`` (m, 3); parts come from an
-    evaluator at the samples' own points, (3, m n) pixel-major, or at the
-    cells' centres, (3, n).  ``dof``: independent values among a cell's m
-    samples.  ``layout``: the albedo layout (:mod:`fmbrdf_mi.fit.evaluate.albedos`;
-    None: one pair shared by every sample).  The residuals are
-    r_ik = (y_ik - mu_ik) / sqrt(v_ik) with v_ik frozen between
-    :meth:`refresh` calls (IRLS).
+    ``y``: (n, m) observed samples of the fitted cells (m = 4 mono, 16 colour); ``analyser`` (m, 3); parts
+    are (3, m n) pixel-major at the samples' points or (3, n) at the cells' centres.  ``dof``: independent
+    values among a cell's m samples.  ``layout``: the albedo layout (:mod:`fmbrdf_mi.fit.evaluate.albedos`;
+    None: one shared pair).  Residuals are (y - mu) / sqrt(v), v frozen between :meth:`refresh` calls.
     """
 
     name = "likelihood"
@@ -171,7 +149,6 @@ class LikelihoodObjective:
         #: the albedo maps' smoothness prior (its rows are residuals too), or None
         self.prior = None if layout is None else layout.prior
         self.n, self.m = self.y.shape
-        # first round and coarse search: variance from the observations themselves
         self.var = np.maximum(noise.variance(self.y), 1e-300)
         self.rounds = 0
 
@@ -208,8 +185,8 @@ class LikelihoodObjective:
         return f"variances from the model ({self.noise.describe()})"
 
     def residuals(self, parts, st):
-        """The whitened residuals of the samples (N,), then, with the albedo maps' smoothness prior
-        (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`), its rows: r @ r is then data chi^2 + penalty."""
+        """The whitened residuals of the samples (N,), then the albedo prior's rows if any
+        (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`): r @ r = data chi^2 + penalty."""
         r = ((self.y - self.mu(parts, st)) / np.sqrt(self.var)).ravel()
         if self.prior is None:
             return r
@@ -224,8 +201,7 @@ class LikelihoodObjective:
         return float(r @ r)
 
     def nll_terms(self, parts, st):
-        """(n, m) twice each sample's term of the negative log-likelihood, with the variance from this
-        prediction: (y - mu)^2 / v + log v."""
+        """(n, m) twice each sample's NLL term, (y - mu)^2 / v + log v, v from this prediction."""
         mu = self.mu(parts, st)
         v = np.maximum(self.noise.variance(mu), 1e-300)
         return (self.y - mu) ** 2 / v + np.log(v)
@@ -294,16 +270,15 @@ class LikelihoodObjective:
         return J
 
     def albedo_columns(self, parts):
-        """(us, ub): each residual's derivative with respect to its sample's unit albedos (N,): the whitened
-        columns of an eliminating layout's design (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`)."""
+        """(us, ub) (N,): each residual's derivative in its sample's unit albedos, the whitened design
+        columns of an eliminating layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`)."""
         sd = np.sqrt(self.var)
         S, B = self.unit_samples(parts)
         return (-S / sd).ravel(), (-B / sd).ravel()
 
     def albedo_column_derivatives(self, parts, z, names, bounds):
-        """[(d us / d z_j, d ub / d z_j)] per free shape parameter ``names``: the derivatives of
-        :meth:`albedo_columns` (N,) (an eliminating layout's incidental-parameter term,
-        :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`)."""
+        """[(d us / d z_j, d ub / d z_j)] of :meth:`albedo_columns` per free shape parameter, for
+        :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`."""
         sd = np.sqrt(self.var)
         U = self._mu_of
         return [tuple((-U(d[n]) / sd).ravel() * bounds.derivative(n, z[j]) for d in (parts.d_surface, parts.d_body))

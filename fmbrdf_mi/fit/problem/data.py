@@ -1,11 +1,7 @@
-"""What a fit runs on: the pixels it uses and the data made into an objective and an evaluator at them.
+"""What a fit runs on: its pixels, one objective over them and one evaluator at them.
 
-One builder (:func:`prepare`) for one image or several: a single-image fit
-is the list of its one image, a joint fit the list of K.  The samples of
-every image's fitted super-pixels are stacked into one objective (the
-likelihood of all images is the product of theirs; the paper's loss is
-computed over the union of their pixels) and the model is evaluated for all
-of them in one BSDF evaluation.
+:func:`prepare` builds it for K >= 1 images (a single-image fit is a list of one): the samples of all
+images' fitted super-pixels are stacked into one objective and evaluated in one BSDF evaluation.
 """
 from __future__ import annotations
 
@@ -33,9 +29,8 @@ from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective, PaperObjective
 from fmbrdf_mi.fit.problem.problem import FitData
 
-#: Pixels whose view or light direction is within this angle (degrees) of the
-#: normal are left out of the fit: the BSDF's reverse-mode derivative with
-#: respect to alpha is NaN there for some alpha (docs/computed.md).
+#: Pixels whose view or light direction is within this angle (degrees) of the normal are not fitted:
+#: the BSDF's reverse-mode derivative in alpha is NaN there for some alpha (docs/computed.md).
 POLE_EXCLUSION_DEG = 3.0
 
 
@@ -44,8 +39,8 @@ MIN_PIXELS = 20
 
 
 def check_max_pixels(max_pixels, images=1):
-    """InputError unless ``max_pixels`` (``--max-pixels``; 0 or None: every usable pixel) leaves each of
-    ``images`` images at least :data:`MIN_PIXELS` pixels, the fewest a fit accepts from a mask."""
+    """InputError unless ``max_pixels`` (0 or None: every usable pixel) leaves each of ``images`` images
+    at least :data:`MIN_PIXELS` pixels."""
     if not max_pixels:
         return
     per_image = int(math.ceil(max_pixels / images))
@@ -57,19 +52,10 @@ def check_max_pixels(max_pixels, images=1):
 
 
 def select_pixels(obs, opts, use_samples=True, keep=None):
-    """Flat indices of the pixels a fit uses, and what was excluded (see :class:`FitOptions`).
-
-    With raw samples (:attr:`Observation.samples`), super-pixels with a
-    sample at or above the white level or at or below the dark level are
-    excluded (:mod:`fmbrdf_mi.sensor.samples`) and counted.
-
-    ``keep``: (H, W) bool, the pixels a label image keeps (several materials: labels >= 0); applied after
-    the mask's erosion, so that the borders between materials are not eroded (a label image can mark
-    the pixels it is not sure of with -1).
-
-    The observation is validated again first: one changed after it was built
-    (``obs.irradiance = -1``, ``obs.normals = colours``) is refused as at construction.
-    """
+    """Flat indices of the pixels a fit uses (:class:`~fmbrdf_mi.fit.api.options.FitOptions`) and the counts
+    of what was excluded, saturated and dark super-pixels included (:mod:`fmbrdf_mi.sensor.samples`).
+    ``keep``: (H, W) bool, the pixels a label image keeps, applied after the mask's erosion so material
+    borders are not eroded.  ``obs`` is validated again, since it may have changed after it was built."""
     validate(obs)
     check_max_pixels(opts.max_pixels)
     m = erode_mask(obs.mask, opts.erode)
@@ -116,9 +102,8 @@ def resolve_loss(obs, opts):
 
 
 def check_footprint(footprint, loss, why="the camera noise is known", name="--footprint"):
-    """A footprint (``--footprint point|box|demosaic``) shapes only the paper's loss: refuse it in one line
-    when ``loss`` (resolved) is the likelihood, which models each raw sample over its own pixel with
-    ``area_points`` (``--area-points``).  ``name``: how the user gave it."""
+    """Refuse a footprint when the resolved ``loss`` is the likelihood: it shapes only the paper's loss
+    (the likelihood uses ``area_points``).  ``name``: how the user gave it."""
     if footprint not in (None, "auto") and loss == "likelihood":
         raise InputError(f"{name} {footprint}: only the paper's loss uses it; the likelihood ({why}) models "
                          "each sample over its own pixel with --area-points (or give --loss paper)")
@@ -144,16 +129,15 @@ def same_noise(observations):
     return None
 
 
-#: Likelihood of a raw mosaic: points per axis over which each raw sample's model value is averaged
-#: (:meth:`~fmbrdf_mi.sensor.samples.Samples.footprint`; ``FitOptions.area_points`` None).
-#: The 2 x 2 quadrature's bias is checked per fit (:func:`~fmbrdf_mi.fit.api.checks.check_footprint`).
+#: Likelihood of a raw mosaic with ``FitOptions.area_points`` None: points per axis over which each raw
+#: sample's model value is averaged (:meth:`~fmbrdf_mi.sensor.samples.Samples.footprint`); the
+#: quadrature's bias is checked per fit (:func:`~fmbrdf_mi.fit.api.checks.check_footprint`).
 RAW_AREA_POINTS = 2
 
 
 def area_points(samples, opts):
-    """m of the likelihood's m x m points per sample: ``opts.area_points``, or when None
-    :data:`RAW_AREA_POINTS` for a raw mosaic (a sensor pixel integrates over its area) and 1 (the
-    pixel's centre) for angle images and Stokes images."""
+    """m of the likelihood's m x m points per sample: ``opts.area_points``, else :data:`RAW_AREA_POINTS`
+    for a raw mosaic (a sensor pixel integrates over its area) and 1 (the pixel's centre) otherwise."""
     m = opts.area_points
     if m is None:
         m = RAW_AREA_POINTS if samples.source in ("raw mosaic", "colour raw mosaic") else 1
@@ -161,8 +145,7 @@ def area_points(samples, opts):
 
 
 def one_view(observations, what, why):
-    """The first of ``observations``; InputError naming ``what`` (and ``why`` it must be one view) unless
-    every image is of its view (one pixel grid and the same view directions)."""
+    """The first of ``observations``; InputError naming ``what`` and ``why`` unless all are of its view."""
     o0 = observations[0]
     for k, o in enumerate(observations[1:], 1):
         if o.shape != o0.shape or not np.allclose(o.view_dirs, o0.view_dirs):
@@ -173,12 +156,10 @@ def one_view(observations, what, why):
 
 def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, factor=1.0):
     """The per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) of the fitted cells
-    ``idxs`` (one flat index array per image): one group per pixel of the view (per pixel and colour
-    channel for a colour mosaic), the same pixel in every image sharing it.  Several images must be of
-    one view (one pixel grid and the same view directions), else a pixel is not one point of the object.
-    ``smooth``: (tau_s, tau_b) of the maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`, in
-    the reported albedos' units; ``factor`` the model's albedo factor), or None: no prior.  ``bilinear``: each
-    sample's albedos interpolated between the pixel centres (:func:`bilinear_layout`), else its own pixel's."""
+    ``idxs`` (one flat index array per image, all images of one view): one group per pixel (and colour
+    channel), shared by that pixel in every image.  ``smooth``: (tau_s, tau_b) of the maps' smoothness prior
+    (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) in the reported albedos' units, ``factor`` the model's albedo
+    factor; None: no prior.  ``bilinear``: interpolate between pixel centres (:func:`bilinear_layout`)."""
     o0 = one_view(observations, "albedo per-pixel", "a pixel's albedo is that of one point of the object")
     flat = np.concatenate(idxs)
     pixels = np.unique(flat)
@@ -200,11 +181,9 @@ def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, facto
 
 
 def bilinear_layout(shape, flat, pixels, cell, samples, prior=None):
-    """The bilinear per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos` whose corners
-    are :func:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.bilinear_weights`') of cells at flat indices ``flat`` of
-    the pixel grid ``shape``, ``pixels`` the sorted fitted pixels (the groups), ``cell`` each cell's group: each
-    sample interpolated at its offset between the fitted pixels' centres; ``prior``: the maps' smoothness prior
-    or None."""
+    """The bilinear per-pixel albedo layout (corners from
+    :func:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.bilinear_weights`) of cells at flat indices ``flat`` of the
+    grid ``shape``; ``pixels``: the sorted fitted pixels (the groups), ``cell``: each cell's group."""
     if samples.channel is not None:
         raise InputError("albedo per-pixel-bilinear: not for colour mosaics (mono captures, raw or angle images)")
     H, W = shape
@@ -242,8 +221,7 @@ def material_labels(observations, materials, loss, opts, evaluator=None):
 
 def material_evaluators(model, count, cell_material, normals, views, lights, irr, weights):
     """:class:`~fmbrdf_mi.fit.evaluate.materials.MaterialEvaluator`: one
-    :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator` per material over its cells' points (the
-    directions pixel-major: each cell's directions, then the next cell's)."""
+    :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator` per material over its cells' points."""
     cells = len(cell_material)
     dirs = len(normals) // cells                         # directions per cell
     outs = dirs // (1 if weights is None else len(weights))   # evaluator outputs per cell
@@ -263,14 +241,10 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images: one objective over all their
     pixels, one evaluator, each image's pixels and slice.
 
-    A single-image fit is the list of its one image (``single=True``: its
-    messages name no image and ``excluded`` is that image's own block).
-    ``evaluator``: the model's evaluator at these pixels, if the caller has
-    one (reused across noise seeds by the benchmarks; the render path's);
-    else a :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`.
-    ``materials``: a label image (:func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`) of two or more
-    materials: pixels with a label < 0 are not fitted, each material has its own shape parameters
-    (:mod:`fmbrdf_mi.fit.evaluate.materials`) and, with shared albedos, its own pair.
+    ``single``: messages name no image and ``excluded`` is the image's own block.  ``evaluator``: the
+    model's evaluator at these pixels, else a :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`.
+    ``materials``: a label image (:func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`); label < 0 is not
+    fitted, each material has its own shape parameters (:mod:`fmbrdf_mi.fit.evaluate.materials`).
     """
     K = len(observations)
     check_max_pixels(opts.max_pixels, K)
@@ -333,7 +307,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         if noise is None:
             o0 = observations[0]
             noise = dataclasses.replace(o0.noise) if single and o0.noise is not None else NoiseModel(step=smps[0].step)
-        # a colour mosaic's samples carry their colour channels: one pair of albedos per channel
+        # a colour mosaic: one pair of albedos per channel
         layout = None if smps[0].channel is None else ChannelAlbedos(smps[0].channel)
         if lab is not None and layout is not None:
             raise InputError("materials: not yet for colour mosaics (mono captures, raw or angle images)")
@@ -368,8 +342,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         target = L.Target.from_stokes(np.concatenate(stokes, axis=1), opts.dolp_min_intensity,
                                       None if var[0] is None else np.concatenate(var))
         objective = PaperObjective(target) if loss == "paper" else LV.make(loss, target)
-        # neighbouring super-pixels of a bilinear-demosaicked mosaic are correlated (uncertainty.py):
-        # stack the images' pixel grids one below the other, apart, so no two images are neighbours
+        # demosaicked neighbours are correlated: stack the grids apart so no two images neighbour
         if all(o.samples is not None and o.samples.source == "raw mosaic" and o.meta.get("demosaic") != "superpixel"
                for o in observations):
             rows, cols, off = [], [], 0

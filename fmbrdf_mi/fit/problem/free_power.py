@@ -1,31 +1,10 @@
 """Relative light powers as free parameters of a joint fit (``fit_joint(..., free_power=True)``, ``--free-power``).
 
-Image k of a joint fit (:mod:`fmbrdf_mi.fit.api.joint`) is predicted as
-
-    S_k(x) = (P_k / G_k) E_k (k_s f_s(x; eta, alpha, beta) + k_b f_b(x; eta, kappa)),
-
-with E_k the irradiance the image was given (its ``irradiance`` times its
-given relative power G_k: the manifest's ``power``, the authors'
-``intensities.npy`` / max, 1 if none) and P_k its light power.  Without
-``free_power`` P_k = G_k.  With it, P_1 .. P_{K-1} are estimated and
-**P_0 stays at G_0**, because k_s and k_b already scale every image.  The
-choice of reference does not change the estimate (fixing another image
-rescales k_s, k_b and every P_k alike), so it is the first image, which the
-user orders.
-
-Each free power is a ``power`` row of the fit's
-:class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`, bounded on a log
-scale (:class:`~fmbrdf_mi.fit.evaluate.models.Bounds`) to
-[G_k / 1000, 1000 G_k].  The prediction is linear in P_k, so its derivative
-needs no BSDF evaluation (:class:`PowerEvaluator`); the standard errors come
-from the shared covariance (:mod:`fmbrdf_mi.fit.uncertainty`) with the power
-columns in J.
-
-**Starting values** (``power_start``): ``given`` starts every P_k at G_k;
-``ratio`` (default) solves the albedos and the powers together at every
-coarse-search grid point (:class:`PowerProblem`), so the search
-ranks shapes with the powers that suit them (docs/benchmarks.md,
-``tools/bench_fit_lights.py --free-power``).
+Image k is predicted as S_k(x) = (P_k / G_k) E_k (k_s f_s(x; eta, alpha, beta) + k_b f_b(x; eta, kappa)),
+E_k its given irradiance, G_k its given relative power and P_k its light power.  P_1 .. P_{K-1} are
+``power`` rows of the :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`, log-bounded to
+[G_k / 1000, 1000 G_k]; P_0 stays at G_0 since k_s and k_b already scale every image.  The prediction is
+linear in P_k, so d/dP_k needs no BSDF evaluation (:class:`PowerEvaluator`).
 """
 from __future__ import annotations
 
@@ -46,12 +25,8 @@ POWER_STARTS = ("ratio", "given")
 class PowerEvaluator:
     """An evaluator's parts with image k's points scaled by P_k / G_k, and d/dP_k analytically.
 
-    ``base``: the joint fit's :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`
-    (at the given irradiances); ``params``: the fit's
-    :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` with its ``powers``; ``pixels_per_image``:
-    fitted (super-)pixels of each image, in the order of the evaluator's points (each pixel has the same
-    number of points: its samples or footprint).
-    """
+    ``base``: the joint fit's :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator` at the given
+    irradiances; ``pixels_per_image``: fitted pixels of each image, in the evaluator's point order."""
 
     def __init__(self, base, params, pixels_per_image):
         self.base, self.params = base, params
@@ -149,8 +124,8 @@ class PowerProblem(Problem):
 
 
 def problem_factory(evaluator, pixel_slices, start="ratio"):
-    """What :func:`fmbrdf_mi.fit.api.fitting.fit` calls to build its problem for a free-power joint fit
-    (``evaluator``: its :class:`PowerEvaluator`, whose parameter table has the powers)."""
+    """The problem builder :func:`fmbrdf_mi.fit.api.fitting.fit` calls for a free-power joint fit;
+    ``evaluator``: its :class:`PowerEvaluator`."""
 
     def make(base, _ev, objective, bounds, progress, fixed, deadline):
         params = Parameters(base, powers=evaluator.params.given, bounds=bounds, fixed=fixed)

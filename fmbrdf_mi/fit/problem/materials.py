@@ -1,13 +1,7 @@
-"""A fit of several materials (``fit(..., materials=labels)``, ``fmbrdf-mi fit --materials``): its fit.json block.
+"""fit.json's block of a fit of several materials (``fit(..., materials=labels)``, ``--materials``).
 
-The model, evaluator and albedo layout are :mod:`fmbrdf_mi.fit.evaluate.materials`'; the problem is a
-:class:`~fmbrdf_mi.fit.problem.problem.Problem` that knows each cell's material, so that the coarse search
-ranks each material's grid points on its own pixels (:func:`fmbrdf_mi.fit.solve.optimise.coarse_search`).
-
-With the camera noise known and per-material (or per-pixel) albedos, each
-material's unknowns enter only its own pixels' terms, so the fit of M
-materials equals the M separate fits solved together (cross-material
-covariances are 0); with unknown noise the noise model couples them.
+The model, evaluator and albedo layout are in :mod:`fmbrdf_mi.fit.evaluate.materials`.  With known noise
+and per-material albedos the M materials' unknowns do not interact (cross-material covariances are 0).
 """
 from __future__ import annotations
 

@@ -1,6 +1,5 @@
-"""The joint normal refinement's problem (:mod:`fmbrdf_mi.fit.api.normal_joint` minimises it): the fit's
-problem with per-pixel normals as extra unknowns and a smoothness prior; the priors' stencils and the
-normals' tangent bases."""
+"""The joint normal refinement's problem (minimised by :mod:`fmbrdf_mi.fit.api.normal_joint`): the fit's
+problem with per-pixel normals as extra unknowns and a smoothness prior on them."""
 from __future__ import annotations
 
 import math
@@ -30,10 +29,8 @@ PRIORS = {"curvature": (1.0, -2.0, 1.0), "membrane": (1.0, -1.0)}
 def stencils(mask, prior="curvature"):
     """(E, S) pixel indices (into the mask's pixels) of the prior's stencils, and their coefficients (S,).
 
-    ``membrane``: first differences n_i - n_j of 4-neighbours (each pair once); ``curvature``:
-    second differences n_a - 2 n_b + n_c of three consecutive pixels in a row
-    or a column, all in the mask: zero wherever the normal changes linearly
-    across the image, so a surface of constant curvature is not pulled flat.
+    ``membrane``: first differences of 4-neighbours; ``curvature``: second differences n_a - 2 n_b + n_c
+    along rows and columns, zero where the normal changes linearly, so constant curvature is not pulled flat.
     """
     try:
         coef = PRIORS[prior]
@@ -57,28 +54,14 @@ def stencils(mask, prior="curvature"):
 
 class NormalProblem(Problem):
     """The fit's :class:`~fmbrdf_mi.fit.problem.problem.Problem` with every refined pixel's normal as two more
-    unknowns and the smoothness prior (the joint normal refinement:
-    :func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`).
+    unknowns and the smoothness prior (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`).
 
-    This class adds the normals' geometry, their Jacobian and the prior to the Problem's material part.
-    Model evaluations take the normal map they are at (:meth:`parts_at`); :meth:`parts` is at
-    :attr:`nmap`, the map last accepted.
-
-    Residual rows are ordered (image k, pixel i, sample s), as the
-    :class:`LikelihoodObjective` of the stacked (K N, 4) samples has them.
-    Sample s of pixel i is modelled at its own point (offset from the
-    super-pixel centre, :attr:`Samples.offsets`); its normal is the bilinear
-    interpolation of the normal map there (the corners: ``self.corner``
-    (N, 4, 4) flat map indices, ``self.cw`` their weights, as
-    :meth:`Observation.sample_geometry` interpolates).  A corner outside the
-    refined pixels is extrapolated linearly from the pixel i through it,
-    2 n_i - n_o with o the refined pixel opposite it across i (the pixel
-    itself, n_i, where o is not refined): each sample's normal is
-    ``self.nw``-weighted sum of the refined pixels ``self.cpix`` (N, 4, 8).
-    Linear rather than constant extrapolation, because near the silhouette the
-    normal turns fast and a constant one biases the material
-    (docs/benchmarks/investigations.md).  The view directions, known
-    everywhere, are interpolated bilinearly.
+    :meth:`parts_at` evaluates at a given normal map, :meth:`parts` at :attr:`nmap`, the last accepted.
+    Residual rows are ordered (image k, pixel i, sample s).  Each sample's normal is the bilinear
+    interpolation of the map at its own point (``self.corner``, ``self.cw``); a corner outside the refined
+    pixels is extrapolated linearly, 2 n_i - n_o (n_i where o is not refined), since near the silhouette
+    the normal turns fast and constant extrapolation biases the material.  So each sample's normal is the
+    ``self.nw``-weighted sum of refined pixels ``self.cpix`` (N, 4, 8).
     """
 
     def __init__(self, obs, m, params, lam, prior="curvature"):
@@ -121,7 +104,7 @@ class NormalProblem(Problem):
         self.cw = np.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], 2)   # (N, 4, 4)
         pos = -np.ones(h * w, int)
         pos[self.idx] = np.arange(len(self.idx))
-        # a corner outside the refined pixels holds the start map's value, which may be far off: extrapolate
+        # a corner outside the refined pixels holds the start map's value, maybe far off: extrapolate
         own = self.idx[:, None, None]
         out = pos[self.corner] < 0
         cy, cx = np.divmod(self.corner, w)
@@ -136,14 +119,13 @@ class NormalProblem(Problem):
         self.cpix = pos[self.ncorner]                                           # unknown index of every term
 
     def set_scale(self):
-        """c of the module docstring from the current variances: lam c is the prior's weight in chi^2 units."""
+        """c = mean S0^2 / variance from the current variances, so lam c is the prior's weight in chi^2 units."""
         y = self.obj.y.reshape(self.K, self.n, 4)
         v = self.obj.var.reshape(self.K, self.n, 4)
         s = y.sum(axis=2).mean(axis=1) / 2.0                                  # mean S0 per image
         self.c = float(np.mean(s ** 2 / v.mean(axis=(1, 2))))
         self.w_prior = self.lam * self.c
 
-    # ---- geometry
     def full(self, base, n):
         """The flat (H W, 3) normal map: ``base`` with the refined pixels set to ``n``."""
         out = base.reshape(-1, 3).copy()
@@ -159,7 +141,6 @@ class NormalProblem(Problem):
     def _set(self, ns):
         self.ev.set_geometry(np.tile(ns.reshape(-1, 3), (self.K, 1)), self.sample_views, self.lights)
 
-    # ---- evaluation
     def parts_at(self, st, nmap, jac=False):
         """The model's parts at the material ``st`` and the flat normal map ``nmap`` (one BSDF evaluation)."""
         self._set(self.sample_normals(nmap)[0])
@@ -210,10 +191,8 @@ class NormalProblem(Problem):
         return r, Jm, (pix, val.reshape(-1, Q, 2)), (t1, t2), z
 
     def prior_gradient(self, gn, t, n):
-        """Add the prior's gradient (w coef_s (sum_s' coef_s' n_s') on pixel s's tangents) to ``gn``.
-
-        One bincount over every (stencil, place) term, in the order of a scatter-add per place s (and ``gn``
-        itself first), so each pixel's sum is the same as that sequence of adds would give."""
+        """Add the prior's gradient (w coef_s (sum_s' coef_s' n_s') on pixel s's tangents) to ``gn``, in
+        place; one bincount, in the order of a scatter-add per place s so the sums are bit-identical."""
         if len(self.stencils):
             t1, t2 = t
             d = self.w_prior * sum(c * n[self.stencils[:, s]] for s, c in enumerate(self.coef))    # (E, 3)

@@ -22,18 +22,12 @@ class TimeUp(Exception):
 class Problem:
     """A parameter table, an evaluator at the fitted pixels, the objective, the bounds, the clock.
 
-    ``params``: the fit's :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (its rows' bounds and fixed
-    values; a model alone: its table of one material and shared albedos, all free); ``model`` is its model,
-    ``bounds`` the :class:`~fmbrdf_mi.fit.evaluate.models.Bounds` of its rows, ``fixed`` {name: value} of
-    the rows held fixed (not estimated), ``names`` the free ones.
-    ``objective``: :class:`fmbrdf_mi.fit.objectives.objective.PaperObjective` or
-    :class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective` (a
-    :class:`fmbrdf_mi.fit.objectives.loss.Target` is wrapped in the former).
-    ``deadline``: absolute ``time.time()`` after which no model evaluation may end: each
-    evaluation first checks that the slowest one of its kind so far would
-    still finish in time, else raises :class:`TimeUp` (so the limit holds
-    inside every loop, coarse search included).  ``cell_material``: several materials (the table's
-    ``count``): each fitted cell's material (:mod:`fmbrdf_mi.fit.problem.materials`).
+    ``params``: :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (a model alone: one material, shared
+    albedos, all free); ``fixed``: {name: value} of the rows held fixed, ``names``: the free ones.
+    ``objective``: a :class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective` or
+    :class:`~fmbrdf_mi.fit.objectives.objective.PaperObjective` (a bare ``Target`` is wrapped in the latter).
+    ``deadline``: ``time.time()`` after which no model evaluation may end (:meth:`timed`);
+    ``cell_material``: each fitted cell's material.
     """
 
     def __init__(self, params, evaluator, objective, progress=None, deadline=None, cell_material=None):
@@ -56,32 +50,28 @@ class Problem:
         self.cell_material = None if cell_material is None else np.asarray(cell_material, dtype=np.int64)
 
     def with_fixed(self, values):
-        """The same problem (model, evaluator, objective with its current weights, bounds) with the shape
-        parameters ``values`` ({name: value}) held fixed too, and no deadline; None for problems with extra
-        unknowns (subclasses), which do not support it."""
+        """The same problem with the shape parameters ``values`` ({name: value}) held fixed too and no
+        deadline; None for subclasses (problems with extra unknowns)."""
         if type(self) is not Problem:
             return None
         return Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress,
                        cell_material=self.cell_material)
 
     def material_scores(self, parts, st):
-        """(M,) the likelihood's score (its negative log) of each material's own cells: their sum is the
-        score of the whole (the coarse search of several materials ranks each one's grid points by it)."""
+        """(M,) the negative log-likelihood of each material's own cells; they sum to the whole's."""
         per_cell = 0.5 * np.sum(self.obj.nll_terms(parts, st), axis=1)
         return np.bincount(self.cell_material, weights=per_cell, minlength=self.params.count)
 
-    # ---- z <-> state: z = (free shape parameters through the bounds, log a_s, log a_b), with an albedo
-    # layout (objective.layout: per channel) log a_s[0 ..], then log a_b[0 ..]
+    # z = (free shape parameters through the bounds, log a_s, log a_b); a layout: log a_s[..], log a_b[..]
     @property
     def layout(self):
         return self.obj.layout
 
     @property
     def eliminates(self):
-        """Whether the albedos are not unknowns of the optimiser but solved at every shape point (per-pixel
-        albedo maps: :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`); z is then the free shape
-        parameters only, and a State from :meth:`from_z` carries the last solved albedos (re-solve them
-        with :meth:`projected` before evaluating the objective)."""
+        """Whether the albedos are solved at every shape point rather than optimised (per-pixel maps:
+        :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`); z is then the free shape parameters only,
+        and :meth:`from_z` carries the last solved albedos (re-solve with :meth:`projected`)."""
         return self.layout is not None and self.layout.eliminates
 
     def n_eliminated(self, st):
@@ -113,10 +103,9 @@ class Problem:
         """A State with the fixed values imposed."""
         return State({n: float(self.fixed.get(n, shape[n])) for n in self.params.shape_names}, a_s, a_b)
 
-    # ---- evaluation
     def timed(self, jac, evaluate, *args):
-        """``evaluate(*args)``, a model evaluation (with derivatives: ``jac``); raises :class:`TimeUp` first
-        if the slowest one of its kind so far would end past the deadline."""
+        """``evaluate(*args)`` (with derivatives: ``jac``); raises :class:`TimeUp` first if the slowest
+        evaluation of its kind so far would end past the deadline, so the limit holds inside every loop."""
         if self.deadline is not None and time.time() + self._cost[jac] > self.deadline:
             raise TimeUp()
         t = time.time()
@@ -126,7 +115,7 @@ class Problem:
 
     def parts(self, st, jac=False):
         """The model's :class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` at ``st`` (with shape derivatives
-        when ``jac``), from a two-entry cache; raises :class:`TimeUp` before an evaluation past the deadline."""
+        when ``jac``), from a two-entry cache."""
         key = tuple(round(float(st.shape[n]), 12) for n in self.params.shape_names)
         for k, j, p in self._cache:
             if k == key and (j or not jac):
@@ -144,14 +133,14 @@ class Problem:
 
     @property
     def projects(self):
-        """Whether the one LM re-solves the albedos in closed form at every trial point (variable
-        projection): with per-channel albedos (a layout), whose log-albedo column vanishes with a
-        channel's albedo, so that without it a channel the first steps drive towards 0 stays there."""
+        """Whether LM re-solves the albedos in closed form at every trial point (variable projection):
+        with an albedo layout, since a log-albedo column vanishes with its albedo and a channel driven
+        towards 0 would stay there."""
         return self.layout is not None
 
     def projected(self, shape):
         """(State, parts) at ``shape`` with the albedos at their closed-form optimum (:meth:`closed_form`),
-        those at 0 raised to 1e-9 of the largest so that z stays finite.  One model evaluation."""
+        those at 0 raised to 1e-9 of the largest so that z stays finite."""
         st, parts = self.closed_form(shape)
         if self.eliminates:      # albedos at 0 stay there: they are not in z
             return st, parts
@@ -164,8 +153,7 @@ class Problem:
         """r (m,) and dr/dz (m, k + 2) of the objective's residuals."""
         r, J, bad = self.obj.residuals_and_jacobian(parts, st, z, self.names, self.bounds)
         if bad is not None and bad.any():
-            # the BSDF's forward-mode derivative is NaN in a few directions: their rows leave the Jacobian,
-            # their residuals still count in the loss
+            # NaN forward-mode derivatives: the rows leave J, their residuals still count
             J[bad] = 0.0
             self.n_nonfinite = max(self.n_nonfinite, int(parts.nonfinite.sum()))
         J[~np.isfinite(J)] = 0.0
@@ -174,18 +162,13 @@ class Problem:
 
 @dataclasses.dataclass
 class FitData:
-    """What one fit runs on, for one image or several: the data made into an objective at chosen pixels.
+    """What one fit runs on (built by :func:`fmbrdf_mi.fit.problem.data.prepare`).
 
-    ``loss``: the objective's name; ``pixels``: flat indices of the fitted
-    (super-)pixels (several images: concatenated, image by image);
-    ``excluded``: what pixel selection left out and why; ``objective``: the
-    likelihood of the samples or the paper's loss over them; ``samples``: the
-    camera's :class:`~fmbrdf_mi.sensor.samples.Samples` (likelihood) or
-    None; ``evaluator``: the model at those pixels' points.  Several images:
-    ``image_pixels`` (each image's flat indices) and ``slices`` ((start, stop)
-    of each image among the pixels).  ``make_problem``: builds the problem
-    when it is not a :class:`Problem` (free light powers:
-    :func:`fmbrdf_mi.fit.problem.free_power.problem_factory`).
+    ``pixels``: flat indices of the fitted super-pixels, image by image; ``excluded``: what pixel
+    selection left out; ``samples``: the camera's :class:`~fmbrdf_mi.sensor.samples.Samples` (likelihood)
+    or None; ``image_pixels``, ``slices``: each image's flat indices and (start, stop) among ``pixels``;
+    ``make_problem``: builds a problem other than :class:`Problem`
+    (:func:`fmbrdf_mi.fit.problem.free_power.problem_factory`).
     """
 
     loss: str
@@ -201,8 +184,7 @@ class FitData:
     materials: dict = None
     #: likelihood: m of the m x m points per sample over which the model is averaged (None: not a likelihood)
     area_points: int = None
-    #: m -> the same data prepared with m x m points per sample (the pixel-area quadrature's refinement:
-    #: :func:`fmbrdf_mi.fit.api.fitting.fit`); None where it cannot be remade
+    #: m -> the same data with m x m points per sample (refining the quadrature); None: cannot be remade
     remake: object = None
 
     def problem(self, model, bounds, progress, fixed, deadline):
@@ -210,7 +192,7 @@ class FitData:
         if self.make_problem is not None:
             return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
         layout, mat = self.objective.layout, self.materials or {}
-        maps = layout is not None and layout.eliminates   # per-channel albedos: a table that reports them
+        maps = layout is not None and layout.eliminates   # per-pixel albedo maps: a table that reports them
         params = Parameters(model, materials=mat.get("count"), maps=maps, bounds=bounds, fixed=fixed,
                             channels=None if layout is None or maps or mat else layout.labels)
         return Problem(params, self.evaluator, self.objective, progress, deadline, mat.get("cell_material"))
