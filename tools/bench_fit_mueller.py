@@ -13,6 +13,7 @@ the true ones, and the seconds per fit (one wavelength).
     python tools/bench_fit_mueller.py --table fm30.json --linearised 400   # the same, added to a result
     python tools/bench_fit_mueller.py --dense --seeds 2 --models pplastic,fmbrdf   # times on a few thousand rows
     python tools/bench_fit_mueller.py --table bench_mueller.json      # the markdown table of a result
+    python tools/bench_fit_mueller.py --share-check --models pplastic,fmbrdf --seed0 10   # shared over wavelengths
     python tools/bench_fit_mueller.py --make-comparison cmp && fmbrdf-mi fit-brdf cmp/fmbrdf_scan.csv --holdout cmp/fmbrdf_random.npz
 """
 from __future__ import annotations
@@ -141,6 +142,51 @@ def add_linearised(res, n):
     return res
 
 
+def share_check(model, noise_f, noise_m, seed0):
+    """Parameters shared over wavelengths: a three-wavelength table of ``model`` (TRUTH's shape but eta 0.05
+    above, at and below TRUTH's, and the first albedo 1.1, 1, 0.9 times TRUTH's; the goniometric scan, noise seeds
+    seed0, seed0 + 1, seed0 + 2) fitted with every shape parameter but eta common: the common parameters' joint
+    standard errors against the separate fits' and their inverse-variance combination; every estimate's
+    distance from its truth in SE.  Returns the markdown lines."""
+    from fmbrdf_mi.brdf_fit import mueller as T
+    from fmbrdf_mi.brdf_fit import mueller_fit as F
+    from fmbrdf_mi.brdf_fit.mueller_values import get_model
+
+    m = get_model(model)
+    first = m.albedo_names[0]
+    truths = [dict(TRUTH[model], eta=TRUTH[model]["eta"] + de, **{first: TRUTH[model][first] * f})
+              for de, f in ((0.05, 1.1), (0.0, 1.0), (-0.05, 0.9))]
+    w_in, w_out = F.goniometer_geometries()
+    M = np.concatenate([F.synthetic_table(model, t, w_in, w_out, noise_f, noise_m, seed0 + k)
+                        for k, t in enumerate(truths)])
+    wl = np.repeat([0.45, 0.55, 0.65], len(w_in))
+    share = tuple(n for n in m.shape_names if n != "eta")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "three.npz")
+        T.write_plain(path, np.tile(w_in, (3, 1)), np.tile(w_out, (3, 1)), M, wl)
+        tab = T.read_table(path)
+        t0 = time.time()
+        res = F.fit_table(tab, F.MuellerFitOptions(models=(model,), share=share))
+        seconds = time.time() - t0
+    rs = [res[w][model] for w in (0.45, 0.55, 0.65)]
+    sep = rs[0].history[0]["separate"]
+    lines = [f"{model}: {len(w_in)} rows x 3 wavelengths, sigma_f {noise_f:g}, sigma_m {noise_m:g}, noise seeds "
+             f"{seed0}-{seed0 + 2}; {', '.join(share)} common; {seconds:.0f} s in all "
+             f"({'converged' if rs[0].converged else 'NOT converged'})", "",
+             "| parameter | true | joint estimate | joint SE | separate SEs | inverse-variance combination "
+             "| joint SE / mean separate SE |", "|---|---|---|---|---|---|---|"]
+    for k in share:
+        se = np.array(sep[k]["se"])
+        lines.append(f"| {k} | {TRUTH[model][k]:g} | {rs[0].params[k]:.4g} | {rs[0].se[k]:.3g} | "
+                     f"{', '.join(f'{v:.3g}' for v in se)} | {1 / np.sqrt(np.sum(1 / se ** 2)):.3g} | "
+                     f"{rs[0].se[k] / se.mean():.3f} (1/sqrt(3) = 0.577) |")
+    lines += ["", "| wavelength | " + " | ".join(f"{k}: (estimate - true) / SE" for k in rs[0].params) + " |",
+              "|---|" + "---|" * len(rs[0].params)]
+    for w, r, t in zip((0.45, 0.55, 0.65), rs, truths):
+        lines.append(f"| {w} | " + " | ".join(f"{(r.params[k] - t[k]) / r.se[k]:+.2f}" for k in r.params) + " |")
+    return lines
+
+
 def make_comparison(out_dir):
     """The inputs of the comparison on the benchmark page: FMBRDF at TRUTH on the goniometric scan (noise seed 1,
     SCATMECH layout) and on 400 random direction pairs (seed 2, plain NPZ), both with sigma_f 0.03, sigma_m 0.01."""
@@ -191,10 +237,16 @@ def main(argv=None):
     p.add_argument("-o", "--out", help="write the result as JSON")
     p.add_argument("--table", metavar="JSON", help="print the markdown table of a result (with --linearised: "
                    "that added, and written to --out when given) and exit")
+    p.add_argument("--share-check", action="store_true",
+                   help="fit a three-wavelength table with the shape parameters but eta common (share_check) and exit")
     p.add_argument("--make-comparison", metavar="DIR", help="write the comparison's two tables to DIR and exit")
     a = p.parse_args(argv)
     if a.make_comparison:
         make_comparison(a.make_comparison)
+        return 0
+    if a.share_check:
+        for m in [m.strip() for m in a.models.split(",") if m.strip()]:
+            print("\n".join(share_check(m, a.noise_f, a.noise_m, a.seed0)) + "\n")
         return 0
     if a.table:
         res = json.load(open(a.table))
