@@ -1,5 +1,5 @@
-"""``fmbrdf-mi fit-brdf TABLE.csv|TABLE.npz``: a Mueller-matrix BRDF table, fitted per wavelength by FMBRDF and
-the polarised baselines (:mod:`.mueller_fit`), with the conventions of the MERL fits (DIR/params.json written
+"""``fmbrdf-mi fit-brdf TABLE.csv|TABLE.npz``: a Mueller-matrix BRDF table, fitted per wavelength (``--share``:
+some parameters common to every wavelength) by FMBRDF and the polarised baselines (:mod:`.mueller_fit`), with the conventions of the MERL fits (DIR/params.json written
 last and atomically, the summary to stdout, exit status 3 when a fit did not converge).
 
 Outputs in DIR: params.json (per wavelength and model: parameters, standard errors and intervals, the noise

@@ -1,5 +1,5 @@
-"""Fitting models to a Mueller-matrix BRDF table, per wavelength: weighted least squares on f_r11 and the
-normalised Mueller elements, with the solver of the MERL fits.
+"""Fitting models to a Mueller-matrix BRDF table, per wavelength or with chosen parameters common to every
+wavelength: weighted least squares on f_r11 and the normalised Mueller elements, with the solver of the MERL fits.
 
 Residuals of a row (observed f_r11 and normalised elements m_ij = f_ij / f_r11,
 15 of them, in the package's frames; the model's from
@@ -36,6 +36,12 @@ the shape parameters through the bounded reparameterisation of the image fits
 and the albedos in log space, Jacobian by forward differences (one table build
 per shape column); then the noise is re-estimated and the best start refined
 again from its optimum.
+
+Parameters common to every wavelength (``share``, :func:`fit_shared`): one
+joint least squares over all the wavelengths' rows, the common parameters one
+column each and the others one per wavelength, by the same solver from the
+separate fits; the joint covariance gives a common parameter the information
+of every wavelength.
 
 A depolarising material (normalised elements near 0) leaves the shape
 parameters to f_r11 alone: eta is then fixed mainly by the Fresnel factor of
@@ -497,7 +503,7 @@ def fit_shared(model, tables, share, options=None, vanishing=None):
     One joint weighted least squares: the residuals of every wavelength with that wavelength's sigmas, minimised
     by the solver of :func:`fit_model` over the common parameters and every wavelength's own.  It starts from
     the wavelengths' separate fits (each :func:`fit_model`, which also gives each wavelength's first noise
-    estimate): the common parameters at the median of their separate estimates.  The sigmas estimated from the
+    estimate): the common parameters at the inverse-variance mean of their separate estimates.  The sigmas estimated from the
     residuals are then re-estimated per wavelength at the joint optimum, each wavelength's residuals over their
     degrees of freedom (less the parameters they absorb, :func:`leverages`: its own and part of the common
     ones), and the joint fit repeated while they change.  The covariance
@@ -513,7 +519,8 @@ def fit_shared(model, tables, share, options=None, vanishing=None):
                          f"{', '.join(names)}")
     vanishing = vanishing or [None] * len(tables)
     alone = [fit_model(model, t, o, vanishing=v) for t, v in zip(tables, vanishing)]
-    common = [names.index(n) for n in names if n in share]
+    share_names = [n for n in names if n in share]
+    common = [names.index(n) for n in share_names]
     fixed_m = o.noise_m is not None or o.noise == "vanishing"
     with polarised_variant():
         probs = []
@@ -522,10 +529,13 @@ def fit_shared(model, tables, share, options=None, vanishing=None):
             prob.sigma_f, prob.sigma_m = r.noise["sigma_f"], r.noise["sigma_m"]
             probs.append(prob)
         joint = _Joint(probs, common)
-        xs = [p.x_of(r.params, [r.params[n] for n in m.albedo_names]) for p, r in zip(probs, alone)]
-        start = np.median([x[common] for x in xs], axis=0)
-        for x in xs:
-            x[common] = start
+        # the common parameters start at the inverse-variance mean of their separate estimates (inside the
+        # bounds unless every wavelength ends at one: a start at a bound would hold the fit there)
+        est = np.array([[r.params[n] for n in share_names] for r in alone])
+        w = 1.0 / np.maximum(np.array([[r.se[n] for n in share_names] for r in alone]), 1e-300) ** 2
+        start = dict(zip(share_names, (w * est).sum(axis=0) / w.sum(axis=0)))
+        xs = [p.x_of(dict(r.params, **start), [start.get(n, r.params[n]) for n in m.albedo_names])
+              for p, r in zip(probs, alone)]
         x = joint.join(xs)
         history = [{"stage": "separate", "seconds": time.time() - t0,
                     "separate": {n: {"estimates": [r.params[n] for r in alone], "se": [r.se[n] for r in alone]}
@@ -557,7 +567,7 @@ def fit_shared(model, tables, share, options=None, vanishing=None):
     for p, t, xw, idx, u in zip(probs, tables, joint.split(x), joint.index, used):
         n = p.n * 16
         out.append(_result(p, t, xw, cov[np.ix_(idx, idx)], r[row:row + n], n - u, fixed_m, ok, status,
-                           history, seconds, shared=[n_ for n_ in names if n_ in share]))
+                           history, seconds, shared=share_names))
         row += n
     return out
 
