@@ -23,8 +23,9 @@ def _table(tmp_path, model, params, noise_f, noise_m, seed, name="t.csv", geomet
 
 
 def test_lambert_is_the_closed_form(tmp_path):
-    """Log residuals: ln rho = mean ln(pi f); the SE from the residual sigma over sqrt(n); sigma_m the RMS of
-    the (all non-zero by noise) normalised elements over their share of the degrees of freedom."""
+    """Log residuals: ln rho = mean ln(pi f); sigma_f the sample standard deviation of ln(pi f) (n - 1 degrees
+    of freedom: the one parameter acts on f_r11 alone), the SE sigma_f / sqrt(n); sigma_m the RMS of the
+    normalised elements (all non-zero by noise, none depending on the parameter: 15 n degrees of freedom)."""
     _, tab = _table(tmp_path, "lambert", {"reflectance": 0.4}, 0.05, 0.01, 1)
     r = F.fit_model("lambert", tab)
     n = len(tab)
@@ -32,11 +33,11 @@ def test_lambert_is_the_closed_form(tmp_path):
     rho = np.exp(lr.mean())
     assert r.params["reflectance"] == pytest.approx(rho, rel=1e-6)
     rf = lr - lr.mean()
-    sigma_f = np.sqrt(rf @ rf / (n - 1 / 16))
+    sigma_f = np.sqrt(rf @ rf / (n - 1))
     assert r.noise["sigma_f"] == pytest.approx(sigma_f, rel=1e-4)
     assert r.se["reflectance"] == pytest.approx(rho * sigma_f / np.sqrt(n), rel=1e-3)
     m = tab.normalised.reshape(-1, 16)[:, 1:]
-    assert r.noise["sigma_m"] == pytest.approx(np.sqrt(np.sum(m ** 2) / (15 * n - 15 / 16)), rel=1e-4)
+    assert r.noise["sigma_m"] == pytest.approx(np.sqrt(np.sum(m ** 2) / (15 * n)), rel=1e-4)
     assert r.converged
 
 
@@ -144,6 +145,8 @@ def test_options_of_the_other_kind_are_refused(tmp_path, capsys):
     merl.write_bytes(b"")
     assert main(["fit-brdf", str(merl), "-o", str(tmp_path / "o"), "-q", "--holdout", str(path)]) == 1
     assert "--holdout" in capsys.readouterr().err
+    assert main(["fit-brdf", str(merl), "-o", str(tmp_path / "o"), "-q", "--share", "alpha"]) == 1
+    assert "--share" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
 
 
@@ -169,3 +172,101 @@ def test_each_wavelength_is_fitted_alone(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(path) in err and "0.65" in err, err
     assert not (tmp_path / "few").exists()
+
+
+def _multi(tmp_path, model, truths, geometries=None, name="multi.npz", seed0=10):
+    """One table, one wavelength per truth (each its own noise draw)."""
+    w_in, w_out = geometries or F.goniometer_geometries()
+    M = np.concatenate([F.synthetic_table(model, t, w_in, w_out, 0.03, 0.01, seed0 + k) for k, t in enumerate(truths)])
+    wl = np.repeat(0.45 + 0.1 * np.arange(len(truths)), len(w_in))
+    path = tmp_path / name
+    T.write_plain(path, np.tile(w_in, (len(truths), 1)), np.tile(w_out, (len(truths), 1)), M, wl)
+    return path, T.read_table(path)
+
+
+def _combined_se(se):
+    """The standard error of a parameter common to fits with standard errors ``se`` (inverse-variance sum)."""
+    return 1.0 / np.sqrt(np.sum(1.0 / np.asarray(se) ** 2))
+
+
+def test_shared_parameter_combines_the_wavelengths(tmp_path):
+    """pplastic over three wavelengths, alpha common, eta and the albedos per wavelength: alpha's one value and
+    its standard error the inverse-variance combination of the separate fits' (the joint Gauss-Newton covariance
+    of independent blocks), about 1/sqrt(3) of one wavelength's; every estimate within 4 SE of its truth."""
+    truths = [{"eta": e, "alpha": 0.12, "specular_reflectance": ks, "diffuse_reflectance": 0.35}
+              for e, ks in ((1.6, 0.8), (1.5, 0.7), (1.4, 0.6))]
+    _, tab = _multi(tmp_path, "pplastic", truths)
+    res = F.fit_table(tab, F.MuellerFitOptions(models=("pplastic",), share=("alpha",)))
+    rs = [d["pplastic"] for d in res.values()]
+    assert len(rs) == 3 and all(r.converged and r.shared == ["alpha"] for r in rs)
+    assert len({r.params["alpha"] for r in rs}) == 1 and len({r.se["alpha"] for r in rs}) == 1
+    assert len({r.params["eta"] for r in rs}) == 3
+    separate = [F.fit_model("pplastic", tab.at_wavelength(wl)) for wl in tab.wavelengths()]
+    se_alone = [r.se["alpha"] for r in separate]
+    assert rs[0].se["alpha"] == pytest.approx(_combined_se(se_alone), rel=0.05)
+    assert rs[0].se["alpha"] == pytest.approx(np.mean(se_alone) / np.sqrt(3), rel=0.25)
+    for r, t in zip(rs, truths):
+        for k, v in t.items():
+            assert abs(r.params[k] - v) < 4 * r.se[k], (k, r.params[k], v, r.se[k])
+        assert r.noise["sigma_f"] == pytest.approx(0.03, rel=0.15) and r.noise["sigma_m"] == pytest.approx(0.01, rel=0.1)
+        assert "alpha common to every wavelength" in r.noise["model"]
+
+
+@pytest.mark.slow
+def test_fmbrdf_shared_shape_over_wavelengths(tmp_path):
+    """FMBRDF with alpha, beta, kappa common and eta, k_s, k_b per wavelength (a dispersive material): every
+    estimate within 4 SE of its truth (as the single-wavelength round trips), and the common parameters'
+    standard errors below every wavelength's own, about their inverse-variance combination."""
+    truths = [{"eta": e, "alpha": 0.2, "beta": 2.0, "kappa": 5.0, "k_s": ks, "k_b": 0.3}
+              for e, ks in ((1.55, 0.9), (1.5, 0.8), (1.45, 0.7))]
+    _, tab = _multi(tmp_path, "fmbrdf", truths)
+    grid = {"fmbrdf": {"eta": (1.4,), "alpha": (0.1, 0.3), "beta": (1.5,), "kappa": (1.0,)}}   # the test's time
+    opts = F.MuellerFitOptions(models=("fmbrdf",), starts=1, start_grids=grid, share=("alpha", "beta", "kappa"))
+    res = F.fit_table(tab, opts)
+    rs = [d["fmbrdf"] for d in res.values()]
+    assert all(r.converged for r in rs)
+    sep = rs[0].history[0]["separate"]     # the separate fits the joint one starts from
+    for r, t in zip(rs, truths):
+        assert r.shared == ["alpha", "beta", "kappa"]
+        for k, v in t.items():
+            assert abs(r.params[k] - v) < 4 * r.se[k], (k, r.params[k], v, r.se[k])
+    for k in ("alpha", "beta", "kappa"):
+        assert rs[0].se[k] < min(sep[k]["se"]), (k, rs[0].se[k], sep[k]["se"])
+        assert rs[0].se[k] == pytest.approx(_combined_se(sep[k]["se"]), rel=0.3), (k, rs[0].se[k], sep[k]["se"])
+
+
+def test_command_shares_parameters(tmp_path, capsys):
+    truths = [{"eta": e, "alpha": 0.1, "specular_reflectance": 0.6, "diffuse_reflectance": 0.4} for e in (1.5, 1.4)]
+    geo = F.goniometer_geometries(theta_i=(30.0, 50.0), phi_o=(0.0, 90.0))
+    path, _ = _multi(tmp_path, "pplastic", truths, geo)
+    out = tmp_path / "fit"
+    assert main(["fit-brdf", str(path), "-o", str(out), "-q", "--models", "pplastic,lambert",
+                 "--share", "alpha"]) == 0
+    rep = json.load(open(out / "params.json"))
+    fits = [w["models"] for w in rep["wavelengths"]]
+    assert [f["pplastic"]["shared"] for f in fits] == [["alpha"], ["alpha"]]
+    assert [f["lambert"]["shared"] for f in fits] == [[], []]      # no alpha: per wavelength
+    assert fits[0]["pplastic"]["params"]["alpha"] == fits[1]["pplastic"]["params"]["alpha"]
+    capsys.readouterr()
+    # a parameter no model has; one wavelength: one line each, nothing written
+    assert main(["fit-brdf", str(path), "-o", str(tmp_path / "o"), "-q", "--models", "lambert", "--share",
+                 "alpha"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--share" in err and "alpha" in err, err
+    one, _ = _table(tmp_path, "pplastic", truths[0], 0.02, 0.01, 1)
+    assert main(["fit-brdf", str(one), "-o", str(tmp_path / "o"), "-q", "--share", "alpha"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "one wavelength" in err and str(one) in err, err
+    assert not (tmp_path / "o").exists()
+
+
+def test_leverages_count_the_parameters_each_group_absorbs():
+    """The hat matrix's diagonal summed per group: p in all for a full-rank J; a parameter acting on one group
+    only is absorbed by that group; a vanishing column (a parameter at a bound) by none."""
+    rng = np.random.default_rng(0)
+    J = rng.standard_normal((50, 4))
+    assert sum(F.leverages(J, (20, 30))) == pytest.approx(4.0)
+    J = np.zeros((50, 3))
+    J[:20, 0] = rng.standard_normal(20)          # acts on the first group only
+    J[20:, 1] = rng.standard_normal(30)          # on the second only
+    assert F.leverages(J, (20, 30)) == pytest.approx([1.0, 1.0])

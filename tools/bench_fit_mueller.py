@@ -9,8 +9,11 @@ spread of the estimates over the seeds against the mean reported standard error,
 the true ones, and the seconds per fit (one wavelength).
 
     python tools/bench_fit_mueller.py --seeds 20 --models pplastic,fmbrdf -o bench_mueller.json
+    python tools/bench_fit_mueller.py --seeds 30 --models fmbrdf --linearised 400 -o fm30.json
+    python tools/bench_fit_mueller.py --table fm30.json --linearised 400   # the same, added to a result
     python tools/bench_fit_mueller.py --dense --seeds 2 --models pplastic,fmbrdf   # times on a few thousand rows
     python tools/bench_fit_mueller.py --table bench_mueller.json      # the markdown table of a result
+    python tools/bench_fit_mueller.py --share-check --models pplastic,fmbrdf --seed0 10   # shared over wavelengths
     python tools/bench_fit_mueller.py --make-comparison cmp && fmbrdf-mi fit-brdf cmp/fmbrdf_scan.csv --holdout cmp/fmbrdf_random.npz
 """
 from __future__ import annotations
@@ -34,12 +37,49 @@ TRUTH = {
 DENSE = {"theta_i": (10.0, 30.0, 50.0, 70.0), "theta_o": tuple(range(-79, 80, 2)), "phi_o": tuple(range(0, 180, 15))}
 
 
-def run(models, seeds, seed0, noise_f, noise_m, dense=False):
+def linearised(model, truth, w_in, w_out, noise_f, noise_m, seeds):
+    """Standardised errors (estimate - truth) / SE of the model linearised at ``truth``, for the noise draws of
+    ``seeds`` (those of ``synthetic_table``): {parameter: [z per seed]}.  Parameters: the shape parameters'
+    values and the albedos' logarithms (the fit's covariance coordinates)."""
+    from fmbrdf_mi.brdf_fit import mueller_fit as F
+    from fmbrdf_mi.brdf_fit.mueller_values import get_model
+
+    m = get_model(model)
+    names = F.parameter_names(model)
+    M0 = F.predict(model, truth, w_in, w_out)
+
+    def residuals(M, data):
+        f, fd = M[:, 0, 0], data[:, 0, 0]
+        e = (M / f[:, None, None] - data / fd[:, None, None]).reshape(-1, 16)[:, 1:]
+        return np.concatenate([np.log(f / fd) / noise_f, e.ravel() / noise_m])
+
+    cols = []
+    for k in names:
+        albedo = k in m.albedo_names
+        h = 1e-4 if albedo else 1e-3 * max(abs(truth[k]), 1e-2)
+        side = []
+        for sgn in (1, -1):
+            p = dict(truth)
+            p[k] = truth[k] * np.exp(sgn * h) if albedo else truth[k] + sgn * h
+            side.append(residuals(F.predict(model, p, w_in, w_out), M0))
+        cols.append((side[0] - side[1]) / (2 * h))
+    J = np.stack(cols, axis=1)
+    cov = np.linalg.inv(J.T @ J)
+    se = np.sqrt(np.diag(cov))
+    z = []
+    for s in seeds:
+        r = residuals(M0, F.synthetic_table(model, truth, w_in, w_out, noise_f, noise_m, s))
+        z.append(-(cov @ (J.T @ r)) / se)
+    return dict(zip(names, np.array(z).T.tolist()))
+
+
+def run(models, seeds, seed0, noise_f, noise_m, dense=False, n_linear=0):
     from fmbrdf_mi.brdf_fit import mueller as T
     from fmbrdf_mi.brdf_fit import mueller_fit as F
 
     w_in, w_out = F.goniometer_geometries(**(DENSE if dense else {}))
     out = {"rows": len(w_in), "noise_f": noise_f, "noise_m": noise_m, "seeds": seeds, "seed0": seed0,
+           "dense": dense,
            "level": F.MuellerFitOptions().level, "models": {}}
     with tempfile.TemporaryDirectory() as tmp:
         for model in models:
@@ -63,6 +103,7 @@ def run(models, seeds, seed0, noise_f, noise_m, dense=False):
                 se = np.array([r["se"][k] for r in runs])
                 cover = np.mean([r["interval"][k][0] <= v <= r["interval"][k][1] for r in runs])
                 summary[k] = {"true": v, "mean": float(est.mean()), "coverage": float(cover),
+                              "covered": int(round(cover * len(runs))),
                               "spread": float(est.std(ddof=1)) if len(est) > 1 else None,
                               "mean_se": float(se.mean())}
             out["models"][model] = {"truth": truth, "summary": summary, "runs": runs,
@@ -70,7 +111,81 @@ def run(models, seeds, seed0, noise_f, noise_m, dense=False):
                                     "converged": int(sum(r["converged"] for r in runs)),
                                     "sigma_f_mean": float(np.mean([r["sigma_f"] for r in runs])),
                                     "sigma_m_mean": float(np.mean([r["sigma_m"] for r in runs]))}
+    if n_linear:
+        add_linearised(out, n_linear)
     return out
+
+
+def add_linearised(res, n):
+    """Adds to a result of :func:`run` its models' linearised coverage over ``n`` noise seeds (from its first
+    seed; at least its fitted ones) and each fit's distance from its linearisation, per parameter."""
+    from statistics import NormalDist
+
+    from fmbrdf_mi.brdf_fit import mueller_fit as F
+
+    w_in, w_out = F.goniometer_geometries(**(DENSE if res.get("dense") else {}))
+    zq = NormalDist().inv_cdf(0.5 + res["level"] / 2)
+    for model, m in res["models"].items():
+        runs, truth = m["runs"], m["truth"]
+        seeds = [r["seed"] for r in runs]
+        lin = linearised(model, truth, w_in, w_out, res["noise_f"], res["noise_m"],
+                         seeds + [s for s in range(res["seed0"], res["seed0"] + n) if s not in seeds])
+        for k, v in truth.items():
+            est = np.array([r["params"][k] for r in runs])
+            se = np.array([r["se"][k] for r in runs])
+            log = k in F.get_model(model).albedo_names
+            z_fit = np.log(est / v) * est / se if log else (est - v) / se
+            zl = np.array(lin[k])
+            m["summary"][k].update({"linear_seeds": len(zl), "linear_covered": int(np.sum(np.abs(zl) < zq)),
+                                    "linear_covered_fitted": int(np.sum(np.abs(zl[:len(runs)]) < zq)),
+                                    "linear_z_std": float(zl.std(ddof=1)),
+                                    "fit_minus_linear_z_max": float(np.max(np.abs(z_fit - zl[:len(runs)])))})
+    return res
+
+
+def share_check(model, noise_f, noise_m, seed0):
+    """Parameters shared over wavelengths: a three-wavelength table of ``model`` (TRUTH's shape but eta 0.05
+    above, at and below TRUTH's, and the first albedo 1.1, 1, 0.9 times TRUTH's; the goniometric scan, noise seeds
+    seed0, seed0 + 1, seed0 + 2) fitted with every shape parameter but eta common: the common parameters' joint
+    standard errors against the separate fits' and their inverse-variance combination; every estimate's
+    distance from its truth in SE.  Returns the markdown lines."""
+    from fmbrdf_mi.brdf_fit import mueller as T
+    from fmbrdf_mi.brdf_fit import mueller_fit as F
+    from fmbrdf_mi.brdf_fit.mueller_values import get_model
+
+    m = get_model(model)
+    first = m.albedo_names[0]
+    truths = [dict(TRUTH[model], eta=TRUTH[model]["eta"] + de, **{first: TRUTH[model][first] * f})
+              for de, f in ((0.05, 1.1), (0.0, 1.0), (-0.05, 0.9))]
+    w_in, w_out = F.goniometer_geometries()
+    M = np.concatenate([F.synthetic_table(model, t, w_in, w_out, noise_f, noise_m, seed0 + k)
+                        for k, t in enumerate(truths)])
+    wl = np.repeat([0.45, 0.55, 0.65], len(w_in))
+    share = tuple(n for n in m.shape_names if n != "eta")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "three.npz")
+        T.write_plain(path, np.tile(w_in, (3, 1)), np.tile(w_out, (3, 1)), M, wl)
+        tab = T.read_table(path)
+        t0 = time.time()
+        res = F.fit_table(tab, F.MuellerFitOptions(models=(model,), share=share))
+        seconds = time.time() - t0
+    rs = [res[w][model] for w in (0.45, 0.55, 0.65)]
+    sep = rs[0].history[0]["separate"]
+    lines = [f"{model}: {len(w_in)} rows x 3 wavelengths, sigma_f {noise_f:g}, sigma_m {noise_m:g}, noise seeds "
+             f"{seed0}-{seed0 + 2}; {', '.join(share)} common; {seconds:.0f} s in all "
+             f"({'converged' if rs[0].converged else 'NOT converged'})", "",
+             "| parameter | true | joint estimate | joint SE | separate SEs | inverse-variance combination "
+             "| joint SE / mean separate SE |", "|---|---|---|---|---|---|---|"]
+    for k in share:
+        se = np.array(sep[k]["se"])
+        lines.append(f"| {k} | {TRUTH[model][k]:g} | {rs[0].params[k]:.4g} | {rs[0].se[k]:.3g} | "
+                     f"{', '.join(f'{v:.3g}' for v in se)} | {1 / np.sqrt(np.sum(1 / se ** 2)):.3g} | "
+                     f"{rs[0].se[k] / se.mean():.3f} (1/sqrt(3) = 0.577) |")
+    lines += ["", "| wavelength | " + " | ".join(f"{k}: (estimate - true) / SE" for k in rs[0].params) + " |",
+              "|---|" + "---|" * len(rs[0].params)]
+    for w, r, t in zip((0.45, 0.55, 0.65), rs, truths):
+        lines.append(f"| {w} | " + " | ".join(f"{(r.params[k] - t[k]) / r.se[k]:+.2f}" for k in r.params) + " |")
+    return lines
 
 
 def make_comparison(out_dir):
@@ -92,12 +207,17 @@ def make_comparison(out_dir):
 def table(res):
     lines = [f"{res['rows']} rows (goniometric scan), sigma_f {res['noise_f']:g}, sigma_m {res['noise_m']:g}, "
              f"{res['seeds']} seeds from {res['seed0']}, intervals at {res['level']:.0%}", "",
-             "| model | parameter | true | mean estimate | coverage | spread / mean SE |",
-             "|---|---|---|---|---|---|"]
+             "| model | parameter | true | mean estimate | coverage | spread / mean SE | linearised, fitted seeds "
+             "| linearised coverage | linearised z s.d. | max abs(z fit - z linearised) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for model, m in res["models"].items():
         for k, s in m["summary"].items():
             ratio = "" if s["spread"] is None else f"{s['spread'] / s['mean_se']:.2f}"
-            lines.append(f"| {model} | {k} | {s['true']:g} | {s['mean']:.4g} | {s['coverage']:.0%} | {ratio} |")
+            n = len(m["runs"])
+            lin = (f"{s['linear_covered_fitted']}/{n} | {s['linear_covered']}/{s['linear_seeds']} ({s['linear_covered'] / s['linear_seeds']:.1%}) | "
+                   f"{s['linear_z_std']:.3f} | {s['fit_minus_linear_z_max']:.2f}") if "linear_seeds" in s else " | | |"
+            lines.append(f"| {model} | {k} | {s['true']:g} | {s['mean']:.4g} | "
+                         f"{s.get('covered', round(s['coverage'] * n))}/{n} ({s['coverage']:.0%}) | {ratio} | {lin} |")
     lines += ["", "| model | converged | median s per wavelength | mean sigma_f | mean sigma_m |", "|---|---|---|---|---|"]
     for model, m in res["models"].items():
         lines.append(f"| {model} | {m['converged']}/{len(m['runs'])} | {m['seconds_median']:.1f} | "
@@ -112,22 +232,38 @@ def main(argv=None):
     p.add_argument("--seed0", type=int, default=0)
     p.add_argument("--noise-f", type=float, default=0.03)
     p.add_argument("--noise-m", type=float, default=0.01)
+    p.add_argument("--linearised", type=int, default=0, metavar="N",
+                   help="also the linearised estimator's coverage over N noise seeds (and each fit against it)")
     p.add_argument("--dense", action="store_true", help="the dense scan (DENSE, a few thousand rows) for timing")
     p.add_argument("-o", "--out", help="write the result as JSON")
-    p.add_argument("--table", metavar="JSON", help="print the markdown table of a result and exit")
+    p.add_argument("--table", metavar="JSON", help="print the markdown table of a result (with --linearised: "
+                   "that added, and written to --out when given) and exit")
+    p.add_argument("--share-check", action="store_true",
+                   help="fit a three-wavelength table with the shape parameters but eta common (share_check) and exit")
     p.add_argument("--make-comparison", metavar="DIR", help="write the comparison's two tables to DIR and exit")
     a = p.parse_args(argv)
     if a.make_comparison:
         make_comparison(a.make_comparison)
         return 0
+    if a.share_check:
+        for m in [m.strip() for m in a.models.split(",") if m.strip()]:
+            print("\n".join(share_check(m, a.noise_f, a.noise_m, a.seed0)) + "\n")
+        return 0
     if a.table:
-        print(table(json.load(open(a.table))))
+        res = json.load(open(a.table))
+        if a.linearised:
+            res = add_linearised(res, a.linearised)
+            if a.out:
+                with open(a.out + ".part", "w") as f:
+                    json.dump(res, f, indent=1, default=float)
+                os.replace(a.out + ".part", a.out)
+        print(table(res))
         return 0
     models = [m.strip() for m in a.models.split(",") if m.strip()]
     bad = [m for m in models if m not in TRUTH]
     if bad or a.seeds < 1:
         p.error(f"--models: choose from {', '.join(TRUTH)}; --seeds >= 1")
-    res = run(models, a.seeds, a.seed0, a.noise_f, a.noise_m, a.dense)
+    res = run(models, a.seeds, a.seed0, a.noise_f, a.noise_m, a.dense, a.linearised)
     if a.out:
         with open(a.out + ".part", "w") as f:
             json.dump(res, f, indent=1, default=float)

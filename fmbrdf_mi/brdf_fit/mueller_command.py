@@ -1,5 +1,5 @@
-"""``fmbrdf-mi fit-brdf TABLE.csv|TABLE.npz``: a Mueller-matrix BRDF table, fitted per wavelength by FMBRDF and
-the polarised baselines (:mod:`.mueller_fit`), with the conventions of the MERL fits (DIR/params.json written
+"""``fmbrdf-mi fit-brdf TABLE.csv|TABLE.npz``: a Mueller-matrix BRDF table, fitted per wavelength (``--share``:
+some parameters common to every wavelength) by FMBRDF and the polarised baselines (:mod:`.mueller_fit`), with the conventions of the MERL fits (DIR/params.json written
 last and atomically, the summary to stdout, exit status 3 when a fit did not converge).
 
 Outputs in DIR: params.json (per wavelength and model: parameters, standard errors and intervals, the noise
@@ -26,6 +26,10 @@ def add_mueller_arguments(p):
                              "plain table; .npz: the plain table; see docs/howto/fit-mueller.md)")
     g.add_argument("--models", default="fmbrdf,pplastic,lambert", metavar="LIST",
                    help="comma-separated models to fit and compare (fmbrdf, pplastic, lambert; default all)")
+    g.add_argument("--share", metavar="LIST",
+                   help="comma-separated parameters common to every wavelength (e.g. alpha,beta,kappa), fitted "
+                        "jointly over the wavelengths by each model that has them; the others per wavelength "
+                        "(default: every parameter per wavelength)")
     g.add_argument("--holdout", metavar="TABLE", help="a second table evaluated with the fitted parameters")
     g.add_argument("--residual", choices=("log", "relative"), default="log",
                    help="residual of f_r11: ln(f_fit / f) (default) or f_fit / f - 1")
@@ -39,7 +43,8 @@ def add_mueller_arguments(p):
 
 
 #: The Mueller options and their defaults (refused on MERL files when changed).
-_MUELLER_DEFAULTS = {"models": "fmbrdf,pplastic,lambert", "holdout": None, "residual": "log", "noise": "residuals",
+_MUELLER_DEFAULTS = {"models": "fmbrdf,pplastic,lambert", "share": None, "holdout": None, "residual": "log",
+                     "noise": "residuals",
                      "noise_f": None, "noise_m": None, "physical_tolerance": None}
 
 
@@ -69,7 +74,8 @@ def _options(args):
     models = tuple(m.strip() for m in args.models.split(",") if m.strip())
     o = MuellerFitOptions(models=models, residual=args.residual, noise=args.noise, noise_f=args.noise_f,
                           noise_m=args.noise_m, starts=args.starts, max_evals=args.max_evals,
-                          max_rows=args.samples, seed=args.seed)
+                          max_rows=args.samples, seed=args.seed,
+                          share=tuple(n.strip() for n in (args.share or "").split(",") if n.strip()))
     try:
         o.check()
     except ValueError as e:
@@ -93,7 +99,7 @@ def _tolerance(args):
 def _result_dict(r):
     return {"params": r.params, "se": r.se, "interval": r.interval, "noise": r.noise, "rmse": r.rmse,
             "chi2": r.chi2, "dof": r.dof, "n_rows": r.n_rows, "at_bound": r.at_bound, "converged": r.converged,
-            "stop_reason": r.stop_reason, "history": r.history, "seconds": r.seconds}
+            "stop_reason": r.stop_reason, "history": r.history, "seconds": r.seconds, "shared": r.shared}
 
 
 def _fmt(v, spec=".4g"):

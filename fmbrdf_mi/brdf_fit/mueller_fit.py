@@ -1,5 +1,5 @@
-"""Fitting models to a Mueller-matrix BRDF table, per wavelength: weighted least squares on f_r11 and the
-normalised Mueller elements, with the solver of the MERL fits.
+"""Fitting models to a Mueller-matrix BRDF table, per wavelength or with chosen parameters common to every
+wavelength: weighted least squares on f_r11 and the normalised Mueller elements, with the solver of the MERL fits.
 
 Residuals of a row (observed f_r11 and normalised elements m_ij = f_ij / f_r11,
 15 of them, in the package's frames; the model's from
@@ -12,9 +12,10 @@ Residuals of a row (observed f_r11 and normalised elements m_ij = f_ij / f_r11,
 **Noise model**: independent Gaussian errors, relative with standard
 deviation sigma_f on f_r11 and additive with sigma_m on every normalised
 element.  The two are given (``noise_f``, ``noise_m``) or estimated from the
-data: by default from the fit's own residuals (each group's mean square at the
-optimum, over its share of the degrees of freedom: chi^2 / dof = 1 per group;
-the fit is repeated with those weights), or, with ``noise="vanishing"``,
+data: by default from the fit's own residuals (each group's sum of squares at
+the optimum over its degrees of freedom, its size less the parameters it
+absorbs, :func:`leverages`: chi^2 / dof = 1 per group; the fit is repeated
+with those weights), or, with ``noise="vanishing"``,
 sigma_m from the elements that must vanish for an isotropic surface in the
 plane of incidence (in the s/p bases of the planes of incidence and exit, the
 off-diagonal 2 x 2 blocks m13, m14, m23, m24, m31, m32, m41, m42 are odd
@@ -35,6 +36,12 @@ the shape parameters through the bounded reparameterisation of the image fits
 and the albedos in log space, Jacobian by forward differences (one table build
 per shape column); then the noise is re-estimated and the best start refined
 again from its optimum.
+
+Parameters common to every wavelength (``share``, :func:`fit_shared`): one
+joint least squares over all the wavelengths' rows, the common parameters one
+column each and the others one per wavelength, by the same solver from the
+separate fits; the joint covariance gives a common parameter the information
+of every wavelength.
 
 A depolarising material (normalised elements near 0) leaves the shape
 parameters to f_r11 alone: eta is then fixed mainly by the Fresnel factor of
@@ -82,6 +89,7 @@ class MuellerFitOptions:
     max_rows: int = 50_000          # rows fitted per wavelength (a seeded subset beyond)
     seed: int = 0
     start_grids: dict = None        # {model: {shape parameter: values}} replacing START_GRIDS' entries
+    share: tuple = ()               # parameters common to every wavelength (of the models that have them)
 
     def check(self):
         for m in self.models:
@@ -94,6 +102,17 @@ class MuellerFitOptions:
             v = getattr(self, name)
             if v is not None and not (v > 0 and math.isfinite(v)):
                 raise ValueError(f"{name}: must be a number > 0, got {v}")
+        known = [n for m in self.models for n in parameter_names(m)]
+        unknown = [n for n in self.share if n not in known]
+        if unknown:
+            raise ValueError(f"share: {unknown[0]!r} is not a parameter of {', '.join(self.models)}; valid: "
+                             f"{', '.join(dict.fromkeys(known)) or 'none'}")
+
+
+def parameter_names(model):
+    """The fitted parameters of a model: its shape parameters, then its albedos."""
+    m = get_model(model)
+    return m.shape_names + m.albedo_names
 
 
 @dataclasses.dataclass
@@ -112,7 +131,8 @@ class MuellerFitResult:
     converged: bool
     stop_reason: str
     history: list
-    seconds: float
+    seconds: float                   # of this wavelength's fit (a joint fit: its share of the joint time)
+    shared: list = dataclasses.field(default_factory=list)   # parameters fitted jointly over the wavelengths
 
 
 def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
@@ -298,15 +318,25 @@ class _Problem:
         return np.concatenate([[self.bounds.to_z(p.name, shape[p.name]) for p in self.model.shape],
                                np.log(albedos)])
 
-    def estimate_noise(self, x):
-        """sigma_f, sigma_m from the residuals at x: each group's sum of squares over its share of the dof."""
+    def estimate_noise(self, x, used):
+        """sigma_f, sigma_m from the residuals at x: each group's sum of squares over its degrees of freedom, its
+        number of residuals less ``used`` (the parameters it absorbs: :func:`leverages`)."""
         rf, rm = self.raw(x)
-        p = x.size
-        nf, nm = rf.size, rm.size
-        dof_f = max(nf - p * nf / (nf + nm), 1.0)
-        dof_m = max(nm - p * nm / (nf + nm), 1.0)
+        dof_f = max(rf.size - used[0], 1.0)
+        dof_m = max(rm.size - used[1], 1.0)
         return (max(float(np.sqrt(rf @ rf / dof_f)), 1e-6),
                 max(float(np.sqrt(np.sum(rm ** 2) / dof_m)), 1e-6))
+
+
+def leverages(J, groups):
+    """The parameters that each group of residuals absorbs: the sums over its rows of the hat matrix
+    J (J^T J)^+ J^T's diagonal (its trace is the number of identified parameters).  A group's sum of squared
+    residuals at a linear least squares optimum has expectation sigma^2 (its size - this), so it is what an
+    unbiased noise estimate subtracts from each group; a parameter at a bound (a vanishing column of the
+    bounded coordinates) absorbs nothing.  ``groups``: the sizes of consecutive row groups."""
+    h = np.einsum("ij,jk,ik->i", J, np.linalg.pinv(J.T @ J), J)
+    edges = np.cumsum([0] + list(groups))
+    return [float(h[a:b].sum()) for a, b in zip(edges[:-1], edges[1:])]
 
 
 def fit_model(model, table, options=None, vanishing=None):
@@ -318,7 +348,6 @@ def fit_model(model, table, options=None, vanishing=None):
         prob = _Problem(model, table, o)
         m = prob.model
         # noise: given, else a first guess refined from the residuals
-        how = []
         sf = o.noise_f if o.noise_f is not None else 0.05
         sm = o.noise_m if o.noise_m is not None else 0.02
         fixed_m = o.noise_m is not None
@@ -357,7 +386,7 @@ def fit_model(model, table, options=None, vanishing=None):
         # 3. the noise from the residuals at the optimum, then refined again while the weights change
         if o.noise_f is None or not fixed_m:
             for _ in range(o.noise_rounds):
-                ef, em = prob.estimate_noise(x)
+                ef, em = prob.estimate_noise(x, leverages(J, (prob.n, 15 * prob.n)))
                 new = (o.noise_f if o.noise_f is not None else ef, sm if fixed_m else em)
                 change = max(abs(math.log(a / b)) for a, b in zip(new, (prob.sigma_f, prob.sigma_m)))
                 prob.sigma_f, prob.sigma_m = new
@@ -367,17 +396,31 @@ def fit_model(model, table, options=None, vanishing=None):
                 x, r, J, nfev, ok, status = solve_lm(prob, x, o.max_evals)
                 history.append({"stage": "noise", "sigma_f": new[0], "sigma_m": new[1], "change": change,
                                 "cost": float(r @ r), "trials": nfev, "status": status})
-        how.append("sigma_f given" if o.noise_f is not None else "sigma_f from the fit residuals")
-        how.append("sigma_m given" if o.noise_m is not None else
-                   "sigma_m from the elements that vanish in the plane of incidence" if fixed_m else
-                   "sigma_m from the fit residuals")
         # 4. covariance: the Gauss-Newton one of the weighted residuals with the final sigmas, in the reported
         #    parameters (delta method on the albedos' logarithms)
         r, J = prob.value_jacobian(x)
-        try:
-            cov = np.linalg.inv(J.T @ J)
-        except np.linalg.LinAlgError:
-            cov = np.linalg.pinv(J.T @ J)
+        cov = _inverse(J.T @ J)
+        return _result(prob, table, x, cov, r, r.size - x.size, fixed_m, ok, status, history, time.time() - t0)
+
+
+def _inverse(A):
+    try:
+        return np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(A)
+
+
+def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, shared=()):
+    """The :class:`MuellerFitResult` of ``prob`` at its optimum ``x`` with covariance ``cov`` of the reported
+    parameters (shape values, the albedos' logarithms) and weighted residuals ``r``."""
+    o, m = prob.o, prob.model
+    how = ["sigma_f given" if o.noise_f is not None else "sigma_f from the fit residuals",
+           "sigma_m given" if o.noise_m is not None else
+           "sigma_m from the elements that vanish in the plane of incidence" if fixed_m else
+           "sigma_m from the fit residuals"]
+    if shared:
+        how.append(f"{', '.join(shared)} common to every wavelength")
+    with polarised_variant():
         rf, rm = prob.raw(x)
     se_v = np.sqrt(np.maximum(np.diag(cov), 0.0))
     zq = _z_quantile(o.level)
@@ -401,34 +444,168 @@ def fit_model(model, table, options=None, vanishing=None):
                "model": f"independent Gaussian: {'ln' if o.residual == 'log' else 'relative'} f_r11 with sigma_f, "
                         f"each normalised element with sigma_m ({'; '.join(how)})"},
         rmse={"log10_f_r11": float(np.sqrt(np.mean(log10_f ** 2))), "elements": float(np.sqrt(np.mean(rm ** 2)))},
-        chi2=float(r @ r), dof=int(r.size - x.size), n_rows=prob.n,
+        chi2=float(r @ r), dof=int(round(dof)), n_rows=prob.n,
         at_bound=[p.name for k, p in enumerate(m.shape) if abs(x[k]) > AT_BOUND_Z],
-        converged=ok, stop_reason=status, history=history,
-        seconds=time.time() - t0)
+        converged=ok, stop_reason=status, history=history, seconds=seconds, shared=list(shared))
+
+
+class _Joint:
+    """One model on several wavelengths with some parameters common to all: the wavelengths' weighted residuals
+    stacked, each wavelength's parameter vector (its :class:`_Problem`'s layout) a selection of the joint vector
+    ``[common..., own of the first wavelength..., own of the second..., ...]``; the Jacobian is block-sparse (a
+    wavelength's rows depend on the common columns and its own), built from each wavelength's own Jacobian."""
+
+    def __init__(self, probs, common):
+        self.probs = probs
+        p = probs[0].nsh + probs[0].nal
+        self.common = list(common)
+        own = [k for k in range(p) if k not in self.common]
+        self.index = []
+        for w in range(len(probs)):
+            idx = np.empty(p, dtype=int)
+            idx[self.common] = np.arange(len(self.common))
+            idx[own] = len(self.common) + w * len(own) + np.arange(len(own))
+            self.index.append(idx)
+        self.size = len(self.common) + len(probs) * len(own)
+
+    def split(self, xj):
+        return [xj[idx] for idx in self.index]
+
+    def join(self, xs):
+        xj = np.empty(self.size)
+        for idx, x in zip(self.index, xs):
+            xj[idx] = x
+        return xj
+
+    def fun(self, xj):
+        return np.concatenate([p.fun(x) for p, x in zip(self.probs, self.split(xj))])
+
+    def _stack(self, blocks):
+        J = np.zeros((sum(b.shape[0] for b in blocks), self.size))
+        row = 0
+        for idx, b in zip(self.index, blocks):
+            J[row:row + b.shape[0], idx] = b
+            row += b.shape[0]
+        return J
+
+    def jac(self, xj):
+        return self._stack([p.jac(x) for p, x in zip(self.probs, self.split(xj))])
+
+    def value_jacobian(self, xj):
+        parts = [p.value_jacobian(x) for p, x in zip(self.probs, self.split(xj))]
+        return np.concatenate([r for r, _ in parts]), self._stack([J for _, J in parts])
+
+
+def fit_shared(model, tables, share, options=None, vanishing=None):
+    """Fit one model to several wavelengths' rows (:class:`.mueller.MuellerTable` each) with the parameters
+    ``share`` common to all and the others per wavelength: [:class:`MuellerFitResult`] per table.
+
+    One joint weighted least squares: the residuals of every wavelength with that wavelength's sigmas, minimised
+    by the solver of :func:`fit_model` over the common parameters and every wavelength's own.  It starts from
+    the wavelengths' separate fits (each :func:`fit_model`, which also gives each wavelength's first noise
+    estimate): the common parameters at the inverse-variance mean of their separate estimates.  The sigmas estimated from the
+    residuals are then re-estimated per wavelength at the joint optimum, each wavelength's residuals over their
+    degrees of freedom (less the parameters they absorb, :func:`leverages`: its own and part of the common
+    ones), and the joint fit repeated while they change.  The covariance
+    is the Gauss-Newton one of the joint residuals: a common parameter's interval combines the information of
+    every wavelength (n wavelengths of equal information: 1/sqrt(n) of one wavelength's standard error)."""
+    o = options or MuellerFitOptions()
+    t0 = time.time()
+    m = get_model(model)
+    names = parameter_names(model)
+    unknown = [n for n in share if n not in names]
+    if unknown or not share:
+        raise ValueError(f"share: {unknown[0] if unknown else 'nothing'!r} is not a parameter of {m.name}; valid: "
+                         f"{', '.join(names)}")
+    vanishing = vanishing or [None] * len(tables)
+    alone = [fit_model(model, t, o, vanishing=v) for t, v in zip(tables, vanishing)]
+    share_names = [n for n in names if n in share]
+    common = [names.index(n) for n in share_names]
+    fixed_m = o.noise_m is not None or o.noise == "vanishing"
+    with polarised_variant():
+        probs = []
+        for t, r in zip(tables, alone):
+            prob = _Problem(model, t, o)
+            prob.sigma_f, prob.sigma_m = r.noise["sigma_f"], r.noise["sigma_m"]
+            probs.append(prob)
+        joint = _Joint(probs, common)
+        # the common parameters start at the inverse-variance mean of their separate estimates (inside the
+        # bounds unless every wavelength ends at one: a start at a bound would hold the fit there)
+        est = np.array([[r.params[n] for n in share_names] for r in alone])
+        w = 1.0 / np.maximum(np.array([[r.se[n] for n in share_names] for r in alone]), 1e-300) ** 2
+        start = dict(zip(share_names, (w * est).sum(axis=0) / w.sum(axis=0)))
+        xs = [p.x_of(dict(r.params, **start), [start.get(n, r.params[n]) for n in m.albedo_names])
+              for p, r in zip(probs, alone)]
+        x = joint.join(xs)
+        history = [{"stage": "separate", "seconds": time.time() - t0,
+                    "separate": {n: {"estimates": [r.params[n] for r in alone], "se": [r.se[n] for r in alone]}
+                                 for n in share}}]
+        x, r, J, nfev, ok, status = solve_lm(joint, x, o.max_evals)
+        history.append({"stage": "joint", "cost": float(r @ r), "trials": nfev, "status": status})
+        if o.noise_f is None or not fixed_m:
+            for _ in range(o.noise_rounds):
+                old = [(p.sigma_f, p.sigma_m) for p in probs]
+                used = leverages(J, [k for p in probs for k in (p.n, 15 * p.n)])
+                for w, (p, xw) in enumerate(zip(probs, joint.split(x))):
+                    ef, em = p.estimate_noise(xw, used[2 * w:2 * w + 2])
+                    p.sigma_f = o.noise_f if o.noise_f is not None else ef
+                    p.sigma_m = p.sigma_m if fixed_m else em
+                change = max(abs(math.log(a / b)) for p, ob in zip(probs, old)
+                             for a, b in zip((p.sigma_f, p.sigma_m), ob))
+                sig = [{"sigma_f": p.sigma_f, "sigma_m": p.sigma_m} for p in probs]
+                if change < 0.05:
+                    history.append({"stage": "noise", "sigmas": sig, "change": change})
+                    break
+                x, r, J, nfev, ok, status = solve_lm(joint, x, o.max_evals)
+                history.append({"stage": "noise", "sigmas": sig, "change": change, "cost": float(r @ r),
+                                "trials": nfev, "status": status})
+        r, J = joint.value_jacobian(x)
+        cov = _inverse(J.T @ J)
+    seconds = (time.time() - t0) / len(probs)
+    used = leverages(J, [16 * p.n for p in probs])
+    out, row = [], 0
+    for p, t, xw, idx, u in zip(probs, tables, joint.split(x), joint.index, used):
+        n = p.n * 16
+        out.append(_result(p, t, xw, cov[np.ix_(idx, idx)], r[row:row + n], n - u, fixed_m, ok, status,
+                           history, seconds, shared=share_names))
+        row += n
+    return out
 
 
 def fit_table(table, options=None, progress=None):
-    """Fit every model of ``options.models`` at every wavelength: {wavelength: {model: MuellerFitResult}}."""
+    """Fit every model of ``options.models`` at every wavelength: {wavelength: {model: MuellerFitResult}}.  The
+    parameters of ``options.share`` that a model has are common to every wavelength (:func:`fit_shared`); a
+    model with none of them is fitted per wavelength (:func:`fit_model`)."""
     o = options or MuellerFitOptions()
     o.check()
     say = progress or (lambda msg: None)
-    for wl in table.wavelengths():   # every wavelength checked before any is fitted
+    wls = table.wavelengths()
+    for wl in wls:   # every wavelength checked before any is fitted
         n = len(table.at_wavelength(wl))
         if n < 8:
             raise ValueError(f"{table.path}: wavelength {wl:g} µm has {n} rows; a fit needs at least 8")
-    out = {}
-    for wl in table.wavelengths():
+    if o.share and len(wls) < 2:
+        raise ValueError(f"share: {table.path} has one wavelength; parameters are shared over two or more")
+    subs = []
+    for wl in wls:
         sub = table.at_wavelength(wl)
         if len(sub) > o.max_rows:
             pick = np.sort(np.random.default_rng(o.seed).choice(len(sub), o.max_rows, replace=False))
             sub = sub.subset(pick)
-        van = vanishing_noise(sub)[0]
-        out[wl] = {}
-        for name in o.models:
-            res = fit_model(name, sub, o, vanishing=van)
+        subs.append(sub)
+    vans = [vanishing_noise(sub)[0] for sub in subs]
+    out = {wl: {} for wl in wls}
+    for name in o.models:
+        share = [n for n in parameter_names(name) if n in o.share]
+        if share:
+            results = fit_shared(name, subs, share, o, vanishing=vans)
+        else:
+            results = [fit_model(name, sub, o, vanishing=v) for sub, v in zip(subs, vans)]
+        for wl, res in zip(wls, results):
             out[wl][name] = res
             say(f"[fit-brdf] {_wl(wl)}: {name}: log10 RMSE of f_r11 {res.rmse['log10_f_r11']:.4f}, RMSE of the "
-                f"normalised elements {res.rmse['elements']:.4f} ({res.seconds:.1f} s, {res.stop_reason})")
+                f"normalised elements {res.rmse['elements']:.4f} ({res.seconds:.1f} s, {res.stop_reason}"
+                f"{'; ' + ', '.join(share) + ' shared' if share else ''})")
     return out
 
 
