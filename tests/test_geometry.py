@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from fmbrdf_mi import scene as S
-from fmbrdf_mi.fit.inputs import observations as ob
+from fmbrdf_mi import geometry as G
 
 
 def reference(w, h, camera, fov, distance, centres, radius, n_cells=1):
@@ -70,13 +70,13 @@ def test_pixel_rays_and_the_fits_sphere_match_the_brute_force_ray_cast():
     X, Y = np.meshgrid((2 * (np.arange(w) + 0.5) / w - 1) * t, (1 - 2 * (np.arange(h) + 0.5) / h) * t)
     p = np.stack([X, Y, -np.ones_like(X)], -1)  # pixel centres on the plane z = -1 of a pinhole at the origin
     want_rays = -p / np.linalg.norm(p, axis=-1, keepdims=True)
-    np.testing.assert_allclose(ob.pixel_rays((h, w), "perspective", fov), want_rays, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(G.pixel_rays((h, w), "perspective", fov), want_rays, rtol=0, atol=1e-15)
     r = 0.5 * w / t * math.tan(math.asin(1.0 / distance))
-    n, m, v = ob.sphere_normals((h, w), (w / 2, h / 2), r, camera="perspective", fov=fov)
+    n, m, v = G.sphere_normals((h, w), (w / 2, h / 2), r, camera="perspective", fov=fov)
     assert np.array_equal(m, label == 0)
     np.testing.assert_allclose(n[m], want_n[m], rtol=0, atol=1e-9)
     np.testing.assert_allclose(v[m], want_v[m], rtol=0, atol=1e-12)
-    n, m, v = ob.sphere_normals((h, w), (w / 2, h / 2), 10.0)  # orthographic: n = ((x - cx) / r, -(y - cy) / r, nz)
+    n, m, v = G.sphere_normals((h, w), (w / 2, h / 2), 10.0)  # orthographic: n = ((x - cx) / r, -(y - cy) / r, nz)
     X, Y = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
     assert np.array_equal(m, (X - w / 2) ** 2 + (Y - h / 2) ** 2 < 100.0)
     np.testing.assert_allclose(n[m][:, :2], np.stack([(X - w / 2) / 10, -(Y - h / 2) / 10], -1)[m],

@@ -32,9 +32,10 @@ def test_a_raw_pixel_is_the_mean_of_the_model_at_its_area_points(ideal):
     from fmbrdf_mi.fit.evaluate.predict import predict_image
     from fmbrdf_mi.synthetic.mesh_object import _scene, ray_cast
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
 
     scene = _scene(blob_mesh())
-    v = ob.pixel_rays((80, 80), "perspective", 20.0)
+    v = G.pixel_rays((80, 80), "perspective", 20.0)
     n, m = ray_cast(scene, 8.0, v)
     o = ob.Observation(np.ones((3, 80, 80)), m, n, v, (-0.5, 0.5, 1.0))
     pts = predict_image("fmbrdf", ideal["params"], o)

@@ -102,7 +102,7 @@ def colour_case(periods):
     """The noise-free data of the bench: a sphere of ``periods`` x ``periods`` colour periods (module docstring)."""
     import mitsuba as mi  # noqa: F401  (the package sets its variant)
     from fmbrdf_mi.synthetic.spheres import ideal_sphere
-    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
     from fmbrdf_mi.sensor import mosaic
     from fmbrdf_mi.sensor.camera import CameraModel
 
@@ -111,9 +111,9 @@ def colour_case(periods):
                    for ks, rk in ALBEDOS.values()])
     cam = CameraModel(cfa=mosaic.BAYER_RGGB, bits=12, full_well=10000.0, read_noise=2.5)
     centre, radius = (R / 2, R / 2), R / 2 - 0.5
-    n, m, v = ob.sphere_normals((R, R), centre, radius)
+    n, m, v = G.sphere_normals((R, R), centre, radius)
     return {"periods": R, "stokes": st, "camera": cam, "normals": n, "mask": m, "view_dirs": v,
-            "geometry": ob.SphereGeometry((R, R), centre, radius)}
+            "geometry": G.SphereGeometry((R, R), centre, radius)}
 
 
 def colour_fit(case, seed, fixed=None, noiseless=False, intervals="auto"):

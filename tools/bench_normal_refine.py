@@ -121,7 +121,8 @@ def main(argv=None):
     from fmbrdf_mi.fit.api.normal_joint import refine_joint
     from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, photometric_stereo
     from fmbrdf_mi.fit.solve.optimise import default_progress
-    from fmbrdf_mi.fit.inputs.observations import find_sphere, sphere_normals
+    from fmbrdf_mi.fit.inputs.observations import find_sphere
+    from fmbrdf_mi.geometry import sphere_normals
     from fmbrdf_mi.synthetic.mesh_object import write_authors_object
 
     K = args.lights

@@ -115,7 +115,7 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
     cam = camera or CameraModel(full_well=20000.0, read_noise=2.5, bits=16)
     scene = _scene(mesh or blob_mesh())
     r2 = 2 * res
-    v2, v1 = (ob.pixel_rays((k, k), "perspective", fov) for k in (r2, res))
+    v2, v1 = (G.pixel_rays((k, k), "perspective", fov) for k in (r2, res))
     n2, m2 = ray_cast(scene, distance, v2)
     n1, m1 = ray_cast(scene, distance, v1)
     f1 = G.focal_length(res, fov)
@@ -177,11 +177,11 @@ def ideal_object(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4
     a = int(area)
     scene = _scene(mesh or blob_mesh())
     r2 = 2 * res
-    v2 = ob.pixel_rays((r2 * a, r2 * a), "perspective", fov)
+    v2 = G.pixel_rays((r2 * a, r2 * a), "perspective", fov)
     n2, m2 = ray_cast(scene, distance, v2)
     o2 = ob.Observation(np.ones((3, r2 * a, r2 * a)), m2, n2, v2, light)
     stokes = predict_image(model, params, o2).reshape(3, r2, a, r2, a).mean(axis=(2, 4))
-    v1 = ob.pixel_rays((res, res), "perspective", fov)
+    v1 = G.pixel_rays((res, res), "perspective", fov)
     n1, m1 = ray_cast(scene, distance, v1)
     return {"stokes": stokes, "normals": n1, "mask": m1, "view_dirs": v1, "light": np.asarray(light, float),
             "geometry": MeshGeometry(scene, (res, res), fov, distance), "params": dict(params), "model": model}

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fmbrdf_mi import geometry as G
 from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.sensor import samples as SM
@@ -30,8 +31,8 @@ def ideal_sphere(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4
     a = int(area)
     r2 = 2 * res
     stokes = sphere_points(params, res, light, model, a).reshape(3, r2, a, r2, a).mean(axis=(2, 4))
-    n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
-    geom = ob.SphereGeometry((res, res), (res / 2, res / 2), res / 2 - 1)
+    n, m, v = G.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
+    geom = G.SphereGeometry((res, res), (res / 2, res / 2), res / 2 - 1)
     return {"stokes": stokes, "normals": n, "mask": m, "view_dirs": v, "light": np.asarray(light, float),
             "geometry": geom,
             "params": dict(params), "model": model}
@@ -42,7 +43,7 @@ def sphere_points(params, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=
     (sub-pixel centres; 0 off the sphere): what :func:`ideal_sphere` averages per raw pixel."""
     a = int(area)
     r2 = 2 * res
-    n2, m2, v2 = ob.sphere_normals((r2 * a, r2 * a), (r2 * a / 2, r2 * a / 2), (r2 / 2 - 2) * a)
+    n2, m2, v2 = G.sphere_normals((r2 * a, r2 * a), (r2 * a / 2, r2 * a / 2), (r2 / 2 - 2) * a)
     obs2 = ob.Observation(np.ones((3, r2 * a, r2 * a)), m2, n2, v2, light)
     return predict_image(model, params, obs2)
 
@@ -123,9 +124,9 @@ def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1
     out = textured(lambda p: ideal_sphere(p, res=sub, light=light, model=model, area=area),
                    shape_params, k_s_map, k_b_map, res)
     if colour:
-        n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 0.5)
+        n, m, v = G.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 0.5)
         out.update(normals=n, mask=m, view_dirs=v,
-                   geometry=ob.SphereGeometry((res, res), (res / 2, res / 2), res / 2 - 0.5))
+                   geometry=G.SphereGeometry((res, res), (res / 2, res / 2), res / 2 - 0.5))
     return out
 
 

@@ -178,6 +178,7 @@ def test_colour_fit_recovers_per_channel_albedos(R):
     from fmbrdf_mi.fit.api.colour import fit_colour
     from fmbrdf_mi.synthetic.spheres import ideal_sphere
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
     from fmbrdf_mi.sensor.noise import NoiseModel
     from fmbrdf_mi.sensor.samples import colour_samples
 
@@ -189,8 +190,8 @@ def test_colour_fit_recovers_per_channel_albedos(R):
     cam = CameraModel(cfa=mosaic.BAYER_RGGB, bits=16, full_well=60000, read_noise=2.5)
     cap = capture(st, cam, peak_fraction=0.8, noiseless=True)
     smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
-    n, m, v = ob.sphere_normals((R, R), (R / 2, R / 2), R / 2 - 0.5)
-    geom = ob.SphereGeometry((R, R), (R / 2, R / 2), R / 2 - 0.5)
+    n, m, v = G.sphere_normals((R, R), (R / 2, R / 2), R / 2 - 0.5)
+    geom = G.SphereGeometry((R, R), (R / 2, R / 2), R / 2 - 0.5)
     obs = ob.Observation(np.ones((3, R, R)), ob.erode(m, 1), n, v, np.asarray(light, float),
                          cap["exposure"] / cam.conversion_gain, geometry=geom)
     # ideal_sphere averages each raw pixel over 4 x 4 points: the same points in the fit make the model exact

@@ -20,9 +20,9 @@ LIGHT = (0.45, 0.35, 1.0)
 
 def _sphere_obs(params, res=40, model="fmbrdf", light=LIGHT):
     from fmbrdf_mi.fit import Observation, predict_image
-    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
 
-    n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
+    n, m, v = G.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
     obs = Observation(np.ones((3, res, res)), m, n, v, light)
     return Observation(predict_image(model, params, obs), m, n, v, light, meta={"truth": params})
 
@@ -149,9 +149,10 @@ def test_footprint_average_equals_averaged_evaluations(variant):
     from fmbrdf_mi.fit.evaluate.models import FMBRDF
     from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
     from fmbrdf_mi.sensor import noise as cn
 
-    n, m, v = ob.sphere_normals((20, 20), (10, 10), 9)
+    n, m, v = G.sphere_normals((20, 20), (10, 10), 9)
     obs = Observation(np.ones((3, 20, 20)), m, n, v, LIGHT, footprint=cn.demosaic_footprint())
     idx = np.flatnonzero(ob.erode(m, 2).ravel())[::7]
     N, V, w = obs.sample_geometry(idx)
@@ -218,9 +219,9 @@ def test_oren_nayar_ts_baseline_recovers_its_own_render(variant):
 # ---------------------------------------------------------------- issue 24: nonsense fitted with exit 0
 def _plain_obs(res=24):
     from fmbrdf_mi.fit import Observation
-    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
 
-    n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
+    n, m, v = G.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
     s = np.zeros((3, res, res))
     s[0] = 0.1 + np.clip(n[..., 2], 0, None)
     return Observation(s, m, n, v, LIGHT)

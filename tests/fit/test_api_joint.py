@@ -26,8 +26,9 @@ def _clean(res=24, lights=LIGHTS, params=TRUE, irradiances=None):
     """Noise-free Stokes images at the pixel centres of an orthographic sphere, one per light."""
     from fmbrdf_mi.fit.evaluate.predict import predict_image
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
 
-    n, m, v = ob.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
+    n, m, v = G.sphere_normals((res, res), (res / 2, res / 2), res / 2 - 1)
     out = []
     for k, l in enumerate(lights):
         o = ob.Observation(np.ones((3, res, res)), m, n, v, l, 1.0 if irradiances is None else irradiances[k])
@@ -205,13 +206,14 @@ def test_joint_fit_of_different_views(variant):
     from fmbrdf_mi.fit.api.joint import fit_joint
     from fmbrdf_mi.fit.evaluate.predict import predict_image
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
 
     views = [((16, 16), (8, 8), 7, "orthographic", None, LIGHTS[0]),
              ((14, 20), (11, 6.5), 6, "orthographic", None, LIGHTS[1]),
              ((18, 18), (9, 9), 8, "perspective", 30.0, LIGHTS[2])]
     obs = []
     for shape, c, r, cam, fov, l in views:
-        n, m, v = ob.sphere_normals(shape, c, r, cam, fov)
+        n, m, v = G.sphere_normals(shape, c, r, cam, fov)
         o = ob.Observation(np.ones((3,) + shape), m, n, v, l)
         o.stokes = predict_image("fmbrdf", TRUE, o)
         obs.append(o)

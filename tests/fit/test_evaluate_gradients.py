@@ -25,11 +25,11 @@ def problem(request):
     from fmbrdf_mi.fit.evaluate.models import FMBRDF
     from fmbrdf_mi.fit.evaluate.parameters import Parameters
     from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
-    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
     from fmbrdf_mi.fit.objectives import loss as L
     from fmbrdf_mi.fit.problem.problem import Problem
 
-    n, m, v = ob.sphere_normals((32, 32), (16, 16), 15)
+    n, m, v = G.sphere_normals((32, 32), (16, 16), 15)
     light = [0.4, 0.3, 1.0]
     obs = Observation(np.ones((3, 32, 32)), m, n, v, light)
     obs = Observation(predict_image("fmbrdf", TRUE, obs), m, n, v, light)

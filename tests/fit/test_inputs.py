@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from conftest import one_line_error
 
+from fmbrdf_mi import geometry as G
 from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs import observations as ob
@@ -107,7 +108,7 @@ def test_noise_model_is_seeded_unbiased_and_quantised():
 
 
 def test_find_sphere_and_sphere_normals():
-    n, m, v = ob.sphere_normals((90, 120), (61.3, 40.2), 30.7)
+    n, m, v = G.sphere_normals((90, 120), (61.3, 40.2), 30.7)
     (cx, cy), r = ob.find_sphere(m)
     assert (cx, cy, r) == pytest.approx((61.3, 40.2, 30.7), abs=0.3)
     assert np.allclose(np.linalg.norm(n[m], axis=1), 1)
@@ -119,7 +120,7 @@ def test_find_sphere_and_sphere_normals():
         n_ref, v_ref, m_ref = S.sphere_geometry(64, camera=camera, fov=30, distance=5)
         f = 32 / np.tan(np.radians(15))
         r = f * np.tan(np.arcsin(1 / 5)) if camera == "perspective" else 32 / (5 * np.tan(np.radians(15)))
-        n, m, v = ob.sphere_normals((64, 64), (32, 32), r, camera=camera, fov=30)
+        n, m, v = G.sphere_normals((64, 64), (32, 32), r, camera=camera, fov=30)
         both = m & m_ref
         assert (m != m_ref).sum() <= 4
         assert np.abs(n[both] - n_ref[both]).max() < 1e-9
@@ -127,7 +128,7 @@ def test_find_sphere_and_sphere_normals():
 
 
 def _good(h=16, w=16):
-    n, m, v = ob.sphere_normals((h, w), (w / 2, h / 2), h / 2 - 1)
+    n, m, v = G.sphere_normals((h, w), (w / 2, h / 2), h / 2 - 1)
     return dict(stokes=np.ones((3, h, w)) * [[[1]], [[0.1]], [[0]]], mask=m, normals=n, view_dirs=v,
                 light_dir=[0.3, 0.2, 1.0])
 
@@ -239,7 +240,7 @@ def test_sphere_auto_accepts_a_mask_at_raw_mosaic_resolution(tmp_path):
 
     raw = np.full((80, 96), 1000, np.uint16)
     np.save(tmp_path / "raw.npy", raw)
-    _, m_raw, _ = ob.sphere_normals((80, 96), (50.0, 38.0), 30.0)
+    _, m_raw, _ = G.sphere_normals((80, 96), (50.0, 38.0), 30.0)
     m_sp = m_raw.reshape(40, 2, 48, 2).all(axis=(1, 3))
     for name, m in (("raw", m_raw), ("superpixel", m_sp)):
         np.save(tmp_path / f"m_{name}.npy", m)

@@ -72,9 +72,9 @@ def test_huge_manifest_power_is_refused(capsys, tmp_path, image0, words):
 
 def test_observation_irradiance_out_of_range():
     from fmbrdf_mi.fit import InputError, Observation
-    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
 
-    n, m, v = ob.sphere_normals((16, 16), (8, 8), 6)
+    n, m, v = G.sphere_normals((16, 16), (8, 8), 6)
     s = np.stack([np.ones((16, 16)), np.zeros((16, 16)), np.zeros((16, 16))])
     for e in (1e40, 1e-200):
         with pytest.raises(InputError, match=r"irradiance: must be a positive number in \[1e-20, 1e\+20\]"):
@@ -215,9 +215,9 @@ def test_render_metadata_fov_is_named():
 
 def _obs():
     from fmbrdf_mi.fit import Observation
-    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
 
-    n, m, v = ob.sphere_normals((16, 16), (8, 8), 6)
+    n, m, v = G.sphere_normals((16, 16), (8, 8), 6)
     s = np.stack([np.ones((16, 16)), np.zeros((16, 16)), np.zeros((16, 16))])
     return Observation(s, m, n, v, [0, 0, 1]), (s, m, n, v)
 

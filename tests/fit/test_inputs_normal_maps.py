@@ -5,7 +5,7 @@ import pytest
 
 from fmbrdf_mi.fit import InputError, Observation
 from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, check_views, photometric_stereo
-from fmbrdf_mi.fit.inputs.observations import sphere_normals
+from fmbrdf_mi.geometry import sphere_normals
 
 LIGHTS = [(-0.4, 0.3, 1.0), (0.5, 0.1, 1.0), (0.0, -0.5, 1.0), (0.2, 0.4, 0.9)]
 

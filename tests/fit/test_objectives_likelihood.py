@@ -66,10 +66,11 @@ def test_saturated_and_dark_superpixels_are_excluded_and_counted():
     from fmbrdf_mi.fit import FitOptions, InputError
     from fmbrdf_mi.fit.api.fitting import select_pixels
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
     from fmbrdf_mi.sensor import samples as SM
 
     res = 20
-    n, m, v = ob.sphere_normals((res, res), (10, 10), 9)
+    n, m, v = G.sphere_normals((res, res), (10, 10), 9)
     raw = np.full((2 * res, 2 * res), 1000, np.uint16)
     raw[0:10, 0:40:2] = 4095        # one sample in each super-pixel of rows 0-4 (left column of their 2x2)
     raw[21, 21] = 0                 # one dark sample
@@ -263,9 +264,9 @@ def test_likelihood_on_a_stokes_image_recovers_noise_free_albedos(variant):
     """A Stokes image (no raw samples): the likelihood uses the four angle intensities computed from it;
     noise-free, with the noise level estimated from the (float32-sized) residuals, the albedos come back."""
     from fmbrdf_mi.fit import Observation, fit, predict_image
-    from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
 
-    n, m, v = ob.sphere_normals((16, 16), (8, 8), 7)
+    n, m, v = G.sphere_normals((16, 16), (8, 8), 7)
     obs = Observation(np.ones((3, 16, 16)), m, n, v, LIGHT)
     obs = Observation(predict_image("fmbrdf", TRUE, obs), m, n, v, LIGHT)
     r = fit(obs, loss="likelihood", fixed=SHAPE, starts=1, progress=False)

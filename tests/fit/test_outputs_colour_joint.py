@@ -19,6 +19,7 @@ def _cli(*argv):
 def _sphere_capture(R, light, seed, noiseless=False):
     from fmbrdf_mi.synthetic.spheres import ideal_sphere
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
     from fmbrdf_mi.sensor.samples import colour_samples
 
     shape = dict(eta=1.5, alpha=0.25, beta=0.4, kappa=1.0)
@@ -28,8 +29,8 @@ def _sphere_capture(R, light, seed, noiseless=False):
     cam = CameraModel(cfa=mosaic.BAYER_RGGB, bits=12, full_well=10000, read_noise=2.5)
     cap = capture(st, cam, peak_fraction=0.8, seed=seed, noiseless=noiseless)
     smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
-    n, m, v = ob.sphere_normals((R, R), (R / 2, R / 2), R / 2 - 0.5)
-    geom = ob.SphereGeometry((R, R), (R / 2, R / 2), R / 2 - 0.5)
+    n, m, v = G.sphere_normals((R, R), (R / 2, R / 2), R / 2 - 0.5)
+    geom = G.SphereGeometry((R, R), (R / 2, R / 2), R / 2 - 0.5)
     obs = ob.Observation(np.ones((3, R, R)), ob.erode(m, 1), n, v, np.asarray(light, float),
                          cap["exposure"] / cam.conversion_gain, geometry=geom)
     return obs, smp, cam

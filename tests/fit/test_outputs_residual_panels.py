@@ -19,9 +19,10 @@ def exact_fit():
     from fmbrdf_mi.fit import FitOptions, Observation, predict_image, usable_pixels
     from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
 
     set_variant()
-    n, m, v = ob.sphere_normals((32, 32), (16, 16), 14)
+    n, m, v = G.sphere_normals((32, 32), (16, 16), 14)
     exact = predict_image("fmbrdf", TRUE, Observation(np.ones((3, 32, 32)), m, n, v, LIGHT))
     stokes = exact.copy()
     rng = np.random.default_rng(1)

@@ -48,12 +48,13 @@ def test_builtin_sphere_geometry_matches_the_scene_at_raw_and_superpixel_grids()
 
 def _raw_observation(res=24):
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
     from fmbrdf_mi.sensor import samples as SM
     from fmbrdf_mi.sensor.noise import NoiseModel
 
     c, r = (res / 2, res / 2), res / 2 - 1
-    n, m, v = ob.sphere_normals((res, res), c, r)
-    geom = ob.SphereGeometry((res, res), c, r)
+    n, m, v = G.sphere_normals((res, res), c, r)
+    geom = G.SphereGeometry((res, res), c, r)
     raw = np.full((2 * res, 2 * res), 500, np.uint16)
     return ob.Observation(np.ones((3, res, res)), m, n, v, np.asarray(LIGHT), 1.0, {},
                           samples=SM.from_raw(raw), noise=NoiseModel(2.0, 2.5, 1.0), geometry=geom), geom

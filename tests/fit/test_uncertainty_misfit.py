@@ -111,6 +111,7 @@ def test_misfit_of_a_colour_fit():
     to the honest errors, as the mono fit (the colour path once reported chi^2/dof 6 with no warning)."""
     from fmbrdf_mi.fit.api.colour import fit_colour
     from fmbrdf_mi.fit.inputs import observations as ob
+    from fmbrdf_mi import geometry as G
     from fmbrdf_mi.sensor import mosaic
     from fmbrdf_mi.sensor.camera import capture
     from fmbrdf_mi.sensor.noise import NoiseModel
@@ -123,8 +124,8 @@ def test_misfit_of_a_colour_fit():
     cam = CameraModel(cfa=mosaic.BAYER_RGGB, bits=12, full_well=3000, read_noise=2.0)
     cap = capture(st, cam, peak_fraction=0.8, seed=5)
     smp = colour_samples(cap["raw"], cam.layout, cam.cfa, cam.black_level, cam.white_level)
-    n, m, v = ob.sphere_normals((R, R), (R / 2, R / 2), R / 2 - 0.5)
-    geom = ob.SphereGeometry((R, R), (R / 2, R / 2), R / 2 - 0.5)
+    n, m, v = G.sphere_normals((R, R), (R / 2, R / 2), R / 2 - 0.5)
+    geom = G.SphereGeometry((R, R), (R / 2, R / 2), R / 2 - 0.5)
     obs = ob.Observation(np.ones((3, R, R)), ob.erode(m, 1), n, v, np.asarray(light, float),
                          cap["exposure"] / cam.conversion_gain, geometry=geom)
     kw = dict(fixed={"beta": 0.4, "kappa": 1.0}, intervals="fisher")

@@ -21,7 +21,8 @@ import dataclasses
 
 import numpy as np
 
-from fmbrdf_mi.fit.api.fitting import FitOptions, fit
+from fmbrdf_mi.fit.api.fitting import fit
+from fmbrdf_mi.fit.api.options import FIT_NAMES, fit_options, record_keys
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
@@ -31,17 +32,26 @@ from fmbrdf_mi.sensor.mosaic import COLOURS
 from fmbrdf_mi.sensor.noise import NoiseModel
 
 
-def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=None, max_pixels=None, seed=0,
-               irls_rounds=4, progress=None, max_time=None, max_iter=40, starts=2, area_points=None,
-               intervals="auto", albedo="shared"):
+#: The colour record's fit options (:func:`~fmbrdf_mi.fit.api.options.record_keys`) that :func:`fit_colour`
+#: takes (all but ``erode``: the caller erodes the mask).
+RECORD_OPTIONS = tuple(k for k in record_keys("colour") if k in FIT_NAMES and k != "erode")
+
+#: The options of :func:`fit_colour`.
+COLOUR_OPTIONS = RECORD_OPTIONS + ("rounds", "area_points")
+
+#: Where :func:`fit_colour`'s defaults differ from the schema's: every usable period, two reweighting rounds.
+DEFAULTS = {"max_pixels": None, "rounds": 2}
+
+
+def fit_colour(obs, samples, noise=None, *, progress=None, **options):
     """:func:`~fmbrdf_mi.fit.api.fitting.fit` of a colour mosaic's samples (module docstring).
 
     ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` on the mosaic's 4x4-period grid (its
     ``stokes`` gives only the shape), ``samples``: :func:`~fmbrdf_mi.sensor.samples.colour_samples`; lists of
     both: a joint fit of several mosaics of one object and one camera (``max_pixels`` split between them).
     ``noise``: a :class:`~fmbrdf_mi.sensor.noise.NoiseModel` (None: unknown, estimated from the residuals).
-    ``irls_rounds``: at most this many reweighting rounds (at least 3); the other options are
-    :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`' (``area_points`` None: 2, checked by
+    ``options``: the :data:`COLOUR_OPTIONS` of :class:`~fmbrdf_mi.fit.api.options.FitOptions` (defaults the
+    schema's but :data:`DEFAULTS`; ``area_points`` None: 2, checked by
     :func:`~fmbrdf_mi.fit.api.checks.check_footprint`).  ``albedo="per-pixel"``: one k_s, k_b per period and
     channel (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`; several mosaics must then be of one view).
 
@@ -50,21 +60,23 @@ def fit_colour(obs, samples, noise=None, *, model="fmbrdf", fixed=None, bounds=N
     ``std_errors`` None when not converged), ``channels``, ``pixels`` (a list per image for lists) and in
     ``details``: chi2, chi2_per_dof, n_samples, evaluations, time_s, chi2_per_sample (per image for lists).
     """
+    unknown = [k for k in options if k not in COLOUR_OPTIONS]
+    if unknown:
+        raise InputError(f"fit_colour(): unknown option(s) {', '.join(unknown)} (valid: {', '.join(COLOUR_OPTIONS)})")
     joint = isinstance(obs, (list, tuple))
     obs_l, smp_l = (list(obs), list(samples)) if joint else ([obs], [samples])
     if len(obs_l) != len(smp_l) or not obs_l:
         raise InputError(f"colour fit: {len(obs_l)} geometries for {len(smp_l)} mosaics; give one per mosaic")
     noise = noise if noise is not None else NoiseModel(step=1.0)
     obs_l = [dataclasses.replace(o, samples=smp, noise=noise) for o, smp in zip(obs_l, smp_l)]
-    opts = FitOptions(model=model, loss="likelihood", fixed=fixed, bounds=bounds, max_pixels=max_pixels, seed=seed,
-                      rounds=max(1, int(irls_rounds) - 2), max_time=max_time, max_iter=max_iter, starts=starts,
-                      area_points=area_points, erode=0, intervals=intervals, albedo=albedo)
+    opts = fit_options({**DEFAULTS, **options}, loss="likelihood", erode=0)
     data = prepare(obs_l, opts, "likelihood", single=not joint)
     res = fit(obs_l[0], opts, progress=progress or False, data=data)
-    nest = Parameters(get_model(model), channels=data.objective.layout.labels).nest
+    m = get_model(opts.model)
+    nest = Parameters(m, channels=data.objective.layout.labels).nest
     res.params, res.std_errors = nest(res.params), None
     if res.converged:
-        res.std_errors = {n: None for n in get_model(model).shape_names}
+        res.std_errors = {n: None for n in m.shape_names}
         res.std_errors.update(nest(res.uncertainty["std_errors"]))
         res.uncertainty["ci95"] = nest(res.uncertainty["ci95"])
     r = res.details.pop("residuals").reshape(len(data.pixels), -1)

@@ -7,12 +7,14 @@ import os
 import numpy as np
 
 from fmbrdf_mi import scene as S
+from fmbrdf_mi.geometry import sphere_normals
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs import observations as ob
-from fmbrdf_mi.fit.inputs.files import builtin_sphere_geometry
+from fmbrdf_mi.fit.inputs.files import builtin_sphere_geometry, user_geometry
+from fmbrdf_mi.fit.inputs.observations import downsample_geometry
 from fmbrdf_mi.fit.inputs.manifest import file_stem
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS
-from fmbrdf_mi.fit.inputs.parse import check_render_parameters, parse_sphere, parse_vector
+from fmbrdf_mi.fit.inputs.parse import check_render_parameters, parse_vector
 from fmbrdf_mi.sensor import camera as C
 from fmbrdf_mi.sensor.noise import NoiseModel
 from fmbrdf_mi.sensor.samples import colour_samples
@@ -34,73 +36,27 @@ def colour_sidecar(inputs):
     return side if side is not None and side["sensor"].cfa is not None else None
 
 
-def _pool4(n, m, v):
-    """Raw-resolution maps -> 4x4-period maps (two 2x2 poolings: the mean of 16, mask = all 16)."""
-    return ob.downsample_geometry(*ob.downsample_geometry(n, m, v))
-
-
-def _mask_at(mask, shape):
-    mk = ob.read_mask(mask)
-    if mk.shape == (4 * shape[0], 4 * shape[1]):      # mask of the raw mosaic: periods wholly inside it
-        return mk.reshape(shape[0], 4, shape[1], 4).all(axis=(1, 3))
-    if mk.shape != tuple(shape):
-        raise InputError(f"mask: shape {mk.shape} matches neither the mosaic's 4x4 periods {tuple(shape)} nor the "
-                         f"raw mosaic {(4 * shape[0], 4 * shape[1])}")
-    return mk
-
-
 def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
                     fov=None):
-    """(normals, mask, view_dirs, exact geometry or None, meta) on the period grid ``shape``."""
-    meta = {}
+    """(normals, mask, view_dirs, exact geometry or None, sphere record or None) on the period grid ``shape``:
+    the user's (:func:`~fmbrdf_mi.fit.inputs.files.user_geometry`), else the sidecar's built-in sphere (exact
+    when orthographic, the render's maps pooled per period when perspective)."""
     params = side.get("parameters") if side.get("scene") == "builtin:sphere" else None
-    if normals is not None:
-        if mask is None:
-            raise InputError("normals: give the object mask too (--mask, .npy or .png, non-zero = object)")
-        n = ob.read_vectors(normals, "normals")
-        m = ob.read_mask(mask)
-        v = ob.read_vectors(view, "view") if view is not None else \
-            ob.pixel_rays(n.shape[:2], *ob.check_camera(camera, fov))
-        if n.shape[:2] == (4 * shape[0], 4 * shape[1]):
-            n, m, v = _pool4(n, m, v)
-        for name, a in (("normals", n), ("mask", m), ("view", v)):
-            if a.shape[:2] != tuple(shape):
-                raise InputError(f"{name}: shape {a.shape[:2]} matches neither the mosaic's 4x4 periods "
-                                 f"{tuple(shape)} nor the raw mosaic {(4 * shape[0], 4 * shape[1])}")
-        return n, m, v, None, meta
-    if sphere is not None:
-        mk = _mask_at(mask, shape) if mask is not None else None
-        if isinstance(sphere, str) and sphere == "auto":
-            if mk is None:
-                raise InputError("--sphere auto: needs --mask to find the sphere in")
-            centre, radius = ob.find_sphere(mk)
-        else:
-            cx, cy, radius = parse_sphere(sphere, "--sphere (cx,cy,r in 4x4 periods)")
-            centre = (cx, cy)
-        n, m, v = ob.geometry_from_sphere(shape, centre, radius, mk, camera, fov)
-        meta["sphere"] = {"centre": [float(c) for c in centre], "radius": float(radius),
-                          "found_from_mask": sphere == "auto", "units": "4x4 periods"}
-        if view is not None:
-            return n, m, ob.read_vectors(view, "view", shape), None, meta
-        return n, m, v, ob.SphereGeometry(shape, centre, radius, camera, fov), meta
-    if params is not None:
-        check_render_parameters(params, side["path"])
-        w, h = int(params["width"]), int(params["height"])
-        if (h, w) != (4 * shape[0], 4 * shape[1]):
-            raise InputError(f"{side['path']}: describes a {w}x{h} render, the mosaic is "
-                             f"{4 * shape[1]}x{4 * shape[0]}")
-        if params["camera"] == "orthographic":   # the built-in scene's unit sphere, exact
-            exact = builtin_sphere_geometry(params, shape)
-            n, m, v = ob.sphere_normals(shape, exact.centre, exact.radius)
-            meta["sphere"] = {"centre": list(exact.centre), "radius": exact.radius,
-                              "from": "sidecar (built-in sphere)", "units": "4x4 periods"}
-            return n, m, v, exact, meta
-        n, v, m = S.sphere_geometry((w, h), camera=params["camera"], fov=params["fov"],
-                                    distance=params["distance"])
-        n, m, v = _pool4(n, m, v)
-        return n, m, v, None, meta
-    raise InputError("geometry: give a normal map (--normals N.npy --mask M.png) or a sphere (--sphere cx,cy,r in "
-                     "4x4 periods, or --sphere auto --mask M.png)")
+    if normals is not None or sphere is not None or params is None:
+        n, m, v, exact, sph = user_geometry(shape, 4, normals=normals, mask=mask, view=view, sphere=sphere,
+                                            camera=camera, fov=fov)
+        return n, m, v, exact, None if sph is None else dict(sph, units="4x4 periods")
+    check_render_parameters(params, side["path"])
+    w, h = int(params["width"]), int(params["height"])
+    if (h, w) != (4 * shape[0], 4 * shape[1]):
+        raise InputError(f"{side['path']}: describes a {w}x{h} render, the mosaic is {4 * shape[1]}x{4 * shape[0]}")
+    if params["camera"] == "orthographic":   # the built-in scene's unit sphere, exact
+        exact = builtin_sphere_geometry(params, shape)
+        n, m, v = sphere_normals(shape, exact.centre, exact.radius)
+        return n, m, v, exact, {"centre": list(exact.centre), "radius": exact.radius,
+                                "from": "sidecar (built-in sphere)", "units": "4x4 periods"}
+    n, v, m = S.sphere_geometry((w, h), camera=params["camera"], fov=params["fov"], distance=params["distance"])
+    return (*downsample_geometry(n, m, v, 4), None, None)
 
 
 #: One colour mosaic read for a fit: its Observation on the period grid, samples, camera, noise and metadata.
@@ -133,8 +89,8 @@ def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, 
     except ValueError as exc:
         raise InputError(f"{path}: {exc}") from None
     shape = smp.values.shape[1:]
-    n, m, v, exact, gmeta = colour_geometry(shape, side, normals=normals, mask=mask, view=view, sphere=sphere,
-                                            camera=camera, fov=fov)
+    n, m, v, exact, sph = colour_geometry(shape, side, normals=normals, mask=mask, view=view, sphere=sphere,
+                                          camera=camera, fov=fov)
     params = side.get("parameters") if side.get("scene") == "builtin:sphere" else {}
     if light is None:
         light = params.get("light_dir") if params else None
@@ -155,7 +111,7 @@ def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, 
                 "white_level": white, "conversion_gain": gain, "read_noise": rn,
                 "light": [float(x) for x in light], "irradiance": irradiance, "erode": int(erode),
                 "grid": "4x4 periods", "geometry": "exact sphere" if exact is not None else "maps"}
-    meta = {"settings": settings, "sphere": gmeta.get("sphere"), "sidecar": side["path"], "truth": truth}
+    meta = {"settings": settings, "sphere": sph, "sidecar": side["path"], "truth": truth}
     obs = ob.Observation(np.ones((3,) + tuple(shape)), ob.erode(m, int(erode)), n, v, light, irradiance,
                          geometry=exact, meta=meta)
     return ColourInput(obs, smp, cam, NoiseModel(gain, rn, 1.0), truth, side)

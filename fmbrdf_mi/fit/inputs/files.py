@@ -70,26 +70,65 @@ def builtin_sphere_geometry(p, shape=None):
     return G.SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, fov)
 
 
-def user_mask(mask, shape, within=None, what=None):
-    """The mask a user gave (a file or an array) on the polarisation image's grid ``shape``: a mask of the
-    raw mosaic keeps the super-pixels wholly inside it.  InputError naming the file unless it is a 2-D
-    mask of the image's or its raw mosaic's size that selects some pixel (of ``within``, (H, W) bool, when
-    given: the geometry it is intersected with, ``what`` naming it)."""
+#: The grid of an image whose cells are ``cell`` x ``cell`` raw pixels: its name and its cells' in messages.
+GRIDS = {2: ("polarisation image", "super-pixels"), 4: ("mosaic's 4x4 periods", "4x4 periods")}
+
+
+def user_mask(mask, shape, within=None, what=None, cell=2):
+    """The mask a user gave (a file or an array) on the image's grid ``shape`` of ``cell`` x ``cell`` raw
+    pixels (:data:`GRIDS`): a mask of the raw mosaic keeps the cells wholly inside it.  InputError naming the
+    file unless it is a 2-D mask of the grid's or its raw mosaic's size that selects some pixel (of ``within``,
+    (H, W) bool, when given: the geometry it is intersected with, ``what`` naming it)."""
     name = f"--mask {os.fspath(mask)}" if isinstance(mask, (str, os.PathLike)) else "mask"
+    grid, cells = GRIDS[cell]
     mk = read_mask(mask)
-    raw = (2 * shape[0], 2 * shape[1])
-    if mk.shape == raw:  # mask of the raw mosaic: super-pixels inside it
-        mk = mk.reshape(shape[0], 2, shape[1], 2).all(axis=(1, 3))
+    raw = (cell * shape[0], cell * shape[1])
+    if mk.shape == raw:  # mask of the raw mosaic: cells inside it
+        mk = mk.reshape(shape[0], cell, shape[1], cell).all(axis=(1, 3))
     elif mk.shape != tuple(shape):
-        raise InputError(f"{name}: shape {mk.shape} matches neither the polarisation image {tuple(shape)} "
-                         f"nor its raw mosaic {raw}")
+        raise InputError(f"{name}: shape {mk.shape} matches neither the {grid} {tuple(shape)} nor its raw mosaic "
+                         f"{raw}")
+    hint = f"a mask is non-zero on the object (a mask of the raw mosaic keeps the {cells} wholly inside it)"
     if within is not None and not (mk & within).any():
-        raise InputError(f"{name}: selects no pixel of {what}; a mask is non-zero on the object (a mask of the "
-                         "raw mosaic keeps the super-pixels wholly inside it)")
+        raise InputError(f"{name}: selects no pixel of {what}; {hint}")
     if not mk.any():
-        raise InputError(f"{name}: selects no pixel; a mask is non-zero on the object (a mask of the raw mosaic "
-                         "keeps the super-pixels wholly inside it)")
+        raise InputError(f"{name}: selects no pixel; {hint}")
     return mk
+
+
+def user_geometry(shape, cell=2, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
+                  fov=None):
+    """(normals, mask, view_dirs, exact geometry or None, the sphere's record or None) on the image's grid
+    ``shape`` of ``cell`` x ``cell`` raw pixels from a normal map with its mask (maps of the raw mosaic pooled
+    per cell) or a sphere (``cx,cy,r`` in cells, or ``auto``: found in the mask); InputError without either."""
+    grid, cells = GRIDS[cell]
+    raw = (cell * shape[0], cell * shape[1])
+    if normals is not None:
+        if mask is None:
+            raise InputError("normals: give the object mask too (--mask, .npy or .png, non-zero = object)")
+        n, m = read_vectors(normals, "normals"), read_mask(mask)
+        v = read_vectors(view, "view") if view is not None else G.pixel_rays(n.shape[:2], *check_camera(camera, fov))
+        if n.shape[:2] == raw:  # geometry at raw-sensor resolution
+            n, m, v = downsample_geometry(n, m, v, cell)
+        for name, a in (("normals", n), ("mask", m), ("view", v)):
+            if a.shape[:2] != tuple(shape):
+                raise InputError(f"{name}: shape {a.shape[:2]} does not match the {grid} {tuple(shape)} or its "
+                                 f"raw mosaic {raw}")
+        return n, m, v, None, None
+    if sphere is None:
+        unit = "" if cell == 2 else f" in {cells},"
+        raise InputError(f"geometry: give a normal map (--normals N.npy --mask M.png) or a sphere (--sphere cx,cy,r"
+                         f"{unit} or --sphere auto --mask M.png)")
+    sphere = parse_sphere(sphere)
+    if sphere == "auto" and mask is None:
+        raise InputError("--sphere auto: needs --mask to find the sphere in")
+    mk = None if mask is None else user_mask(mask, shape, cell=cell)
+    centre, radius = find_sphere(mk) if sphere == "auto" else (sphere[:2], sphere[2])
+    n, m, v = geometry_from_sphere(shape, centre, radius, mk, camera, fov)
+    record = {"centre": [float(c) for c in centre], "radius": float(radius), "found_from_mask": sphere == "auto"}
+    if view is not None:
+        return n, m, read_vectors(view, "view", shape), None, record
+    return n, m, v, G.SphereGeometry(shape, centre, radius, camera, fov), record
 
 
 def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
@@ -176,37 +215,11 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                              f"{shape[1]}x{shape[0]}")
     elif geometry is not None:
         n, m, v = geometry
-    elif normals is not None:
-        if mask is None:
-            raise InputError("normals: give the object mask too (--mask, .npy or .png, non-zero = object)")
-        n = read_vectors(normals, "normals")
-        m = read_mask(mask)
-        if view is not None:
-            v = read_vectors(view, "view")
-        else:
-            v = G.pixel_rays(n.shape[:2], *check_camera(camera, fov))
-        if n.shape[:2] == (2 * shape[0], 2 * shape[1]):  # geometry at raw-sensor resolution
-            n, m, v = downsample_geometry(n, m, v)
-        for name, a in (("normals", n), ("mask", m), ("view", v)):
-            if a.shape[:2] != shape:
-                raise InputError(f"{name}: shape {a.shape[:2]} does not match the polarisation image "
-                                 f"{shape} (a raw mosaic gives half its resolution)")
-    elif sphere is not None:
-        sphere = parse_sphere(sphere)
-        if sphere == "auto" and mask is None:
-            raise InputError("--sphere auto: needs --mask to find the sphere in")
-        mk = None if mask is None else user_mask(mask, shape)
-        centre, radius = find_sphere(mk) if sphere == "auto" else (sphere[:2], sphere[2])
-        n, m, v = geometry_from_sphere(shape, centre, radius, mk, camera, fov)
-        meta["sphere"] = {"centre": [float(c) for c in centre], "radius": float(radius),
-                          "found_from_mask": sphere == "auto"}
-        if view is not None:
-            v = read_vectors(view, "view", shape)
-        else:
-            exact = G.SphereGeometry(shape, centre, radius, camera, fov)
     else:
-        raise InputError("geometry: give a normal map (--normals N.npy --mask M.png) or a sphere "
-                         "(--sphere cx,cy,r or --sphere auto --mask M.png)")
+        n, m, v, exact, sph = user_geometry(shape, normals=normals, mask=mask, view=view, sphere=sphere,
+                                            camera=camera, fov=fov)
+        if sph is not None:
+            meta["sphere"] = sph
     if light is None:
         raise InputError("light: give the light direction (--light x,y,z, from the surface towards the light; "
                          "x image right, y image up, z towards the camera)")

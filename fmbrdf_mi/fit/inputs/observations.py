@@ -24,8 +24,7 @@ import numpy as np
 from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTION, IRRADIANCE_RANGE
-# the sphere and pixel rays of fmbrdf_mi.geometry, by the names the fits' callers use
-from fmbrdf_mi.geometry import SphereGeometry, pixel_rays, sphere_normals  # noqa: F401
+from fmbrdf_mi.geometry import sphere_normals
 from fmbrdf_mi.sensor import mosaic
 from fmbrdf_mi.sensor.mosaic import stokes_from_angles, stokes_from_raw
 
@@ -466,15 +465,18 @@ def erode(mask, pixels=1):
     return m
 
 
-def downsample_geometry(normals, mask, view_dirs):
-    """Geometry of 2x2 super-pixels (for a quad-Bayer image): mean vectors renormalised, mask = all four."""
+def downsample_geometry(normals, mask, view_dirs, cell=2):
+    """Geometry of ``cell`` x ``cell`` pixels (2: a quad-Bayer image's super-pixels; 4, 8, ...: 2x2 poolings
+    repeated): mean vectors renormalised, mask = all of them."""
     def pool(a):
         h, w = a.shape[:2]
         a = a[: h - h % 2, : w - w % 2]
         return 0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2])
 
-    n, v = pool(np.asarray(normals, float)), pool(np.asarray(view_dirs, float))
-    m = pool(np.asarray(mask, float)) > 0.999
-    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-    v /= np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+    n, m, v = normals, mask, view_dirs
+    for _ in range(int(cell).bit_length() - 1):
+        n, v = pool(np.asarray(n, float)), pool(np.asarray(v, float))
+        m = pool(np.asarray(m, float)) > 0.999
+        n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+        v /= np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
     return n, m, v

@@ -11,7 +11,7 @@ import os
 
 import numpy as np
 
-from fmbrdf_mi.fit.api.colour import fit_colour, format_result, predict_samples
+from fmbrdf_mi.fit.api.colour import RECORD_OPTIONS, fit_colour, format_result, predict_samples
 from fmbrdf_mi.fit.api.options import arguments as arguments_of
 from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
 from fmbrdf_mi.fit.errors import InputError
@@ -28,7 +28,7 @@ from fmbrdf_mi.sensor.mosaic import COLOURS
 OUTPUTS = ("fit.json", "colour_fit.png")
 
 #: The keywords of :func:`~fmbrdf_mi.fit.api.colour.fit_colour` the command sets.
-FIT_KEYS = ("fixed", "bounds", "max_pixels", "seed", "max_time", "max_iter", "starts", "intervals", "albedo")
+FIT_KEYS = tuple(k for k in RECORD_OPTIONS if k != "model")
 
 
 def output_names(albedo="shared"):

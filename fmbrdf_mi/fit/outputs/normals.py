@@ -11,12 +11,13 @@ import time
 
 import numpy as np
 
+from fmbrdf_mi.geometry import sphere_normals
 from fmbrdf_mi.fit.api.options import fit_options
 from fmbrdf_mi.fit.api.joint import fit_joint
 from fmbrdf_mi.fit.api.normal_joint import refine_joint
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, check_views, photometric_stereo
-from fmbrdf_mi.fit.inputs.observations import erode, find_sphere, read_vectors, sphere_normals
+from fmbrdf_mi.fit.inputs.observations import erode, find_sphere, read_vectors
 from fmbrdf_mi.fit.outputs import normal_plots
 from fmbrdf_mi.fit.outputs.record import command_block
 from fmbrdf_mi.fit.outputs.job import FitJob
