@@ -534,6 +534,10 @@ def profile_intervals(problem, st, unc, J, r, every=False):
     sandwich SE (the adjusted likelihood ratio of composite-likelihood inference: Varin, Reid and Firth
     2011, sec. 4.2).
 
+    With the sandwich a profile end only widens the interval: chi^2 there has the albedos eliminated, so its
+    profile does not carry their noise, and each refit is local (an upper bound of the profile); a rise past
+    the threshold inside +-1.96 sandwich SE does not show that the likelihood rules that range out.
+
     Adds ``interval_kind`` {name: "fisher" | "profile" | ...} and ``profile`` (the rises tried) to ``unc``
     and replaces the profiled ends in ``unc["ci95"]``; the standard errors stay Fisher's.  Likelihood fits
     only, and not for problems with extra unknowns (free light powers, per-pixel normals); parameters
@@ -572,9 +576,13 @@ def profile_intervals(problem, st, unc, J, r, every=False):
             if ok and not every:
                 kind.append("fisher")
                 continue
-            ends[i], k, pts = profile_end(problem, st, n, side, end, delta, chi2_min, path)
-            kind.append(k)
+            prof, k, pts = profile_end(problem, st, n, side, end, delta, chi2_min, path)
             tried["lower" if side < 0 else "upper"] = pts
+            if fse is not None and side * (prof - end) < 0:     # the sandwich's end is the narrowest
+                k = "fisher"
+            else:
+                ends[i] = prof
+            kind.append(k)
         kinds[n] = kind[0] if kind[0] == kind[1] else f"lower {kind[0]}, upper {kind[1]}"
         details[n] = tried
         unc["ci95"][n] = [float(min(ends[0], v)), float(max(ends[1], v))]
@@ -617,9 +625,16 @@ def weakly_identified(table, params, std, at_bound_=()):
             or k in at_bound_]
 
 
-#: A pixel's surface / body split is *not identified* when the standard error of either part's share of
-#: the pixel's brightness exceeds this fraction of the pixel's brightness (:func:`pixel_albedos`).
+#: An albedo is *determined* where its standard error is at most this fraction of its value; a pixel's
+#: surface / body split is *identified* where both its k_s and its k_b are (:func:`pixel_albedos`).
 SPLIT_REL = 0.5
+
+
+def determined(value, se, rel=SPLIT_REL):
+    """Boolean array: where the standard error ``se`` is at most ``rel`` of ``value``."""
+    value, se = np.asarray(value, float), np.asarray(se, float)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(se) & (se <= rel * value)
 
 
 def pixel_albedos(problem, st, parts, J, unc):
@@ -630,8 +645,8 @@ def pixel_albedos(problem, st, parts, J, unc):
     uncertainty block (its covariance scale: misfit inflation or an estimated noise level).  Each group's
     (a_s, a_b) covariance is the layout's (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.covariance`)
     with C_z the shape's covariance the block reports (the incidental-parameter sandwich where
-    ``unc["incidental"]``); the maps and their split rule (:data:`SPLIT_REL`):
-    :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.maps`.
+    ``unc["incidental"]``); the maps: :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.maps`, with
+    ``identified`` where both albedos are :func:`determined`.
     """
     obj, lay = problem.obj, problem.layout
     z = problem.to_z(st)
@@ -647,8 +662,10 @@ def pixel_albedos(problem, st, parts, J, unc):
             cov_z = np.linalg.pinv(J.T @ J) * scale
     except np.linalg.LinAlgError:
         cov_z = np.full((J.shape[1], J.shape[1]), np.nan)
-    return lay.maps(*obj.unit_samples(parts), st.a_s, st.a_b, lay.covariance(us, ub, Jt, cov_z, scale),
-                    problem.model.albedo_factor, SPLIT_REL)
+    groups = lay.maps(*obj.unit_samples(parts), st.a_s, st.a_b, lay.covariance(us, ub, Jt, cov_z, scale),
+                      problem.model.albedo_factor, SPLIT_REL)
+    groups["identified"] &= determined(groups["k_s"], groups["k_s_se"]) & determined(groups["k_b"], groups["k_b_se"])
+    return groups
 
 
 #: 95 % quantiles of chi^2 with 1 ... 8 degrees of freedom: the joint 95 % region of that many shape parameters

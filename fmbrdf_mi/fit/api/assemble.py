@@ -206,8 +206,8 @@ def albedo_maps(layout, shape, groups, prior=False):
     n_pix = len(np.unique(layout.pixels))
     summary = {"layout": layout.name, "pixels": int(n_pix), "groups": int(layout.n_groups),
                "identified_fraction": float(ident.mean()) if ident.size else 0.0,
-               "split_rule": f"identified where the standard error of the surface's and of the body's share of "
-                             f"the pixel's brightness are at most {U.SPLIT_REL:g} of it",
+               "split_rule": f"identified where the standard errors of k_s and of k_b are at most {U.SPLIT_REL:g} "
+                             "of their values",
                "k_s_median": float(np.nanmedian(groups["k_s"])), "k_b_median": float(np.nanmedian(groups["k_b"])),
                "k_s_determined_fraction": determined(groups["k_s"], groups["k_s_se"]),
                "k_b_determined_fraction": determined(groups["k_b"], groups["k_b_se"]),
@@ -232,9 +232,7 @@ def albedo_maps(layout, shape, groups, prior=False):
     return summary, maps
 
 
-def determined(value, se, rel=0.5):
-    """Fraction of the groups whose albedo has a relative standard error of at most ``rel``."""
-    value, se = np.asarray(value, float), np.asarray(se, float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ok = np.isfinite(se) & (se <= rel * value)
+def determined(value, se):
+    """Fraction of the groups whose albedo is :func:`~fmbrdf_mi.fit.uncertainty.determined`."""
+    ok = U.determined(value, se)
     return float(ok.mean()) if ok.size else 0.0
