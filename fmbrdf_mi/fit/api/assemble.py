@@ -20,18 +20,13 @@ from fmbrdf_mi.fit.result import FitResult
 
 @dataclasses.dataclass
 class Fitted:
-    """What the checks after a fit need of it (a result's ``fitted``, not serialised).
-
-    ``problem``, ``data`` (its :class:`~fmbrdf_mi.fit.problem.problem.FitData`) and ``solution`` (the
-    solver's :class:`~fmbrdf_mi.fit.solve.driver.Solution`; once the covariance is computed its ``J`` and
-    ``r`` are those at the estimate, without a deadline); ``options``: the
-    :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`; ``report``: the progress callable; ``deadline``: the
-    fit's wall-clock limit (``time.time()``, None: none); ``image_shape``: (H, W) of the albedo maps;
-    ``labels``: the label image the fit was given (one material: its ``materials`` block); ``history``:
-    the fit's list of accepted steps; ``applied``: the uncertainty mechanisms applied
-    (:func:`~fmbrdf_mi.fit.uncertainty.method_text`); ``evaluations``: model evaluations of problems
-    before this one (a refined quadrature's coarser fit); ``t0``: when the fit started.
-    """
+    """What the checks after a fit need of it (a result's ``fitted``, not serialised): the problem, its
+    :class:`~fmbrdf_mi.fit.problem.problem.FitData`, the solver's
+    :class:`~fmbrdf_mi.fit.solve.driver.Solution` (``J``, ``r`` at the estimate once the covariance is
+    computed), the :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`, the progress callable, the wall-clock
+    deadline, the maps' (H, W), the label image given, the accepted steps, the uncertainty mechanisms
+    ``applied`` (:func:`~fmbrdf_mi.fit.uncertainty.method_text`), the model evaluations of earlier problems
+    (a refined quadrature's coarser fit) and the start time."""
 
     problem: object
     data: object
@@ -60,13 +55,12 @@ def assemble(fx):
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
         fx.solution = dataclasses.replace(sol, J=J, r=r)
         n_ind = None if loss != "likelihood" else len(data.pixels) * objective.dof - problem.n_eliminated(st)
-        names, cov, info = U.covariance(problem, st, J, r, n_ind, parts)
-        fx.applied = info.pop("applied")
-        unc = U.summary(problem, st, names, cov, info)
+        c = U.covariance(problem, st, J, r, n_ind, parts)
+        fx.applied, unc = c.applied, U.summary(problem, st, c)
         if U.noise_flagged(unc):
             report("[fit] warning: " + U.misfit_text(unc))
         if problem.eliminates:
-            groups = U.pixel_albedos(problem, st, parts, J, unc)
+            groups = U.pixel_albedos(problem, st, parts, J, unc, c.cov_z)
     elif not sol.converged:
         fx.applied, unc = [("not-converged", "")], {"std_errors": {}}
     if parts is None:
@@ -175,17 +169,14 @@ def prior_block(problem, st, parts):
 #: optimum that the noise makes win (docs/howto/fit-textured.md).
 MIN_IMAGES_PER_PIXEL = 3
 
-#: The warning of a per-pixel albedo fit from fewer than :data:`MIN_IMAGES_PER_PIXEL` images of each pixel.
+#: The warning of a per-pixel albedo fit from fewer than :data:`MIN_IMAGES_PER_PIXEL` images of each pixel
+#: (``{}``: what the reported errors are, without and with the smoothness prior).
 PER_PIXEL_FEW_IMAGES = (f"per-pixel albedos from fewer than {MIN_IMAGES_PER_PIXEL} images of each pixel: eta, "
-                        "alpha, beta, kappa are poorly determined and a second optimum can win; the reported "
-                        "incidental-parameter sandwich covers most of their spread.  Fit several lights of the "
-                        "same view (docs/howto/fit-textured.md)")
-
-#: ... with the albedo maps' smoothness prior, whose errors are posterior ones.
-PER_PIXEL_FEW_IMAGES_PRIOR = (f"per-pixel albedos from fewer than {MIN_IMAGES_PER_PIXEL} images of each pixel: "
-                              "eta, alpha, beta, kappa are poorly determined; the smoothness prior narrows them at "
-                              "the cost of its bias (the reported errors are posterior ones).  Fit several lights "
-                              "of the same view (docs/howto/fit-textured.md)")
+                        "alpha, beta, kappa are poorly determined{}.  Fit several lights of the same view "
+                        "(docs/howto/fit-textured.md)")
+FEW_IMAGES_ERRORS = (" and a second optimum can win; the reported incidental-parameter sandwich covers most of "
+                     "their spread", "; the smoothness prior narrows them at the cost of its bias (the reported "
+                     "errors are posterior ones)")
 
 
 def albedo_maps(layout, shape, groups, prior=False):
@@ -228,7 +219,7 @@ def albedo_maps(layout, shape, groups, prior=False):
     per = float(np.median(np.bincount(cells, minlength=layout.n_groups))) if layout.n_groups else 0.0
     summary["images_per_pixel"] = per
     if per < MIN_IMAGES_PER_PIXEL:
-        summary["warning"] = PER_PIXEL_FEW_IMAGES_PRIOR if prior else PER_PIXEL_FEW_IMAGES
+        summary["warning"] = PER_PIXEL_FEW_IMAGES.format(FEW_IMAGES_ERRORS[bool(prior)])
     return summary, maps
 
 
