@@ -154,11 +154,9 @@ def incidental_term(problem, st, parts):
 def incidental_sandwich(F, C):
     """(cov, capped): the shape estimate's covariance H^-1 F H^-1, H = F - C (F = J^T J at the estimated
     albedos, C :func:`incidental_term` times the covariance's scale), and how many directions were capped.
-
-    In F's metric cov = F^-1/2 V (I - L)^-2 V^T F^-1/2, L the eigenvalues of F^-1/2 C F^-1/2: each
-    direction's Fisher variance is inflated by (1 - lambda)^-2.  1 - lambda is floored at
-    :data:`INCIDENTAL_FLOOR` because a C estimated from few samples per albedo is noisy and H then need not
-    be positive definite.  Raises LinAlgError when F is singular."""
+    In F's metric each direction's Fisher variance is inflated by (1 - lambda)^-2, lambda the eigenvalues of
+    F^-1/2 C F^-1/2; 1 - lambda is floored at :data:`INCIDENTAL_FLOOR` because a C estimated from few samples
+    per albedo is noisy.  Raises LinAlgError when F is singular."""
     w, V = np.linalg.eigh(F)
     if w.min() <= 0:
         raise np.linalg.LinAlgError("singular information matrix")
@@ -178,14 +176,11 @@ def fisher(Jt):
 
 
 def noise_scale(problem, r, n_independent, p):
-    """(scale, info, applied): the factor the covariance is multiplied by, fit.json's ``chi2_per_dof`` and
-    ``misfit``, and the mechanisms applied.
-
-    The scale is chi^2 / (N - p) (N the independent samples) when the noise level is estimated, and also
-    with the camera noise known where chi^2 / (N - p) lies more than 5 of its standard deviations
-    sqrt(2 / (N - p)), and at least 0.1, above 1 (``misfit``: the quasi-likelihood scale).  As far below 1
-    the scale stays 1 (``noise_overstated``, ``noise_warning``): the errors are those of the stated noise
-    rather than shrunk to a scatter the noise model does not describe."""
+    """(scale, info, applied): the covariance's factor, fit.json's ``chi2_per_dof`` and ``misfit``, and the
+    mechanisms applied.  The scale is chi^2 / (N - p) (N the independent samples) when the noise level is
+    estimated, or when, with the camera noise known, chi^2 / (N - p) exceeds 1 by more than 5 of its standard
+    deviations sqrt(2 / (N - p)) and at least 0.1 (``misfit``).  As far below 1 it stays 1
+    (``noise_overstated``, ``noise_warning``): the errors are those of the stated noise."""
     n = int(n_independent if n_independent is not None else len(r))
     chi2 = float(r @ r)
     info = {"chi2_per_dof": chi2 / max(n - p, 1)}
@@ -304,16 +299,11 @@ def _blocks(row_pix, grid):
 
 
 def block_meat(J, r, row_pix, Hi, grid=None):
-    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals.
-
-    Each neighbourhood g's residuals are replaced by (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster
-    jackknife "CR3"; one pixel per block: "HC3"), because the fit has pulled the plain residuals towards
-    the data and they underestimate M for objects of few pixels; for large objects P_gg -> 0.
-
-    ``row_pix``: the pixel of each residual row; ``grid``: (rows, cols) of the pixels when neighbours
-    (|dr|, |dc| <= 1) are correlated (a bilinear-demosaicked mosaic shares raw samples), else None (one
-    pixel per block).  Symmetrised, negative eigenvalues removed.
-    """
+    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals: each neighbourhood g's residuals
+    replaced by (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster jackknife "CR3"; one pixel per block "HC3"),
+    because the fit pulls the plain residuals towards the data.  ``row_pix``: each residual row's pixel;
+    ``grid``: the pixels' (rows, cols) when neighbours (|dr|, |dc| <= 1) are correlated (a demosaicked
+    mosaic), else None.  Symmetrised, negative eigenvalues removed."""
     rows, nb = _blocks(row_pix, grid)
     npx, R = rows.shape
     p = J.shape[1]
