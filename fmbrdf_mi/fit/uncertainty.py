@@ -1,30 +1,21 @@
-"""Standard errors, 95 % intervals and correlations of the estimates: one function per mechanism.
+"""Standard errors, 95 % intervals and correlations of the estimates (fit.json's ``uncertainty``), one
+function per mechanism:
 
-Runs after the solve (:mod:`fmbrdf_mi.fit.solve.driver`) and fills fit.json's ``uncertainty`` block
-(:func:`covariance`, :func:`summary`):
-
-* :func:`fisher`: the inverse Fisher information J^T J of the standardised residuals r = (y - mu) / sd
-  (Gauss-Newton; exact for a Gaussian with known variances at the IRLS fixed point), scaled by
-  :func:`noise_scale`;
-* :func:`paper_sandwich`: the paper's loss, which is not a likelihood;
-* :func:`incidental`: per-pixel albedos eliminated (the incidental-parameter sandwich;
-  docs/howto/fit-textured.md);
-* with the albedo maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) J^T J includes the
-  prior's rows and its inverse is the posterior covariance (:data:`POSTERIOR`); chi^2's degrees of
-  freedom: ``fmbrdf_mi.fit.api.assemble.PRIOR_DOF_RULE``;
+* :func:`fisher`: (J^T J)^-1 of the standardised residuals, scaled by :func:`noise_scale`; with the albedo
+  maps' smoothness prior J^T J holds the prior's rows and its inverse is the posterior covariance;
+* :func:`paper_sandwich` with :func:`block_meat`: the paper's loss, which is not a likelihood;
+* :func:`incidental`: per-pixel albedos eliminated (the incidental-parameter sandwich);
 * :func:`profile_intervals`: the profile likelihood's ends where the Fisher interval fails;
-* :func:`other_optima` and :func:`widen_for_optima`: competing optima among a multi-start fit's ends.
+* :func:`other_optima`, :func:`widen_for_optima`: competing optima among a multi-start fit's ends.
 
-Each mechanism applied adds ``(kind, detail)`` to a list that :func:`method_text` turns into
-fit.json's ``uncertainty.method``.
-
-The covariance is that of the reported parameters, J_theta = J_z (d theta / d z)^-1 (delta method;
-z is the optimiser's unconstrained scale).  Intervals are theta +- 1.96 SE cut at the bounds; a
-parameter at a bound (:func:`at_bound`) is listed in ``at_bound`` because its interval is not a
-confidence interval there.
+Each mechanism applied adds ``(kind, detail)`` to a list that :func:`method_text` composes into
+``uncertainty.method``.  The covariance is that of the reported parameters (delta method through
+d theta / d z, z the optimiser's scale); intervals are theta +- 1.96 SE cut at the bounds, and a parameter at a
+bound (:func:`at_bound`) is listed in ``at_bound``.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -34,12 +25,13 @@ from fmbrdf_mi.fit.solve.driver import refit_fixed
 Z95 = 1.959963984540054
 
 
-#: A parameter is weakly identified when its standard error exceeds this
-#: fraction of max(|value|, WEAK_FLOOR[name]), or when it ended at a bound.
+#: A parameter is weakly identified when its standard error exceeds this fraction of max(|value|,
+#: WEAK_FLOOR[name]), or when it ended at a bound.
 WEAK_REL = 0.05
-
-
 WEAK_FLOOR = {"kappa": 10.0}
+
+#: A shape parameter within this fraction of its range (optimiser's scale) of a bound is at it.
+AT_BOUND_FRAC = 1e-3
 
 
 def _free_names(problem):
@@ -76,14 +68,13 @@ def bound_distance(problem, st):
 
 
 def at_bound(problem, st, sd=None):
-    """Free shape parameters whose interval is not a confidence interval because of a bound: those within 1e-3
-    of their range of a bound on the optimiser's scale (:func:`bound_distance`; a log scale, so a power
-    searched over decades is at its bound only near it), and, given the standard errors ``sd`` {name: SE},
-    those closer to a bound than 1.96 SE."""
+    """Free shape parameters whose interval is not a confidence interval because of a bound: those within
+    :data:`AT_BOUND_FRAC` of their range of it on the optimiser's scale (:func:`bound_distance`), and, given
+    the standard errors ``sd`` {name: SE}, those closer to it than 1.96 SE."""
     out = []
     for n, (d, frac) in bound_distance(problem, st).items():
         se = (sd or {}).get(n)
-        if frac <= 1e-3 or (se is not None and math.isfinite(se) and d < Z95 * se):
+        if frac <= AT_BOUND_FRAC or (se is not None and math.isfinite(se) and d < Z95 * se):
             out.append(n)
     return out
 
@@ -101,16 +92,13 @@ def jacobian_in_reported(problem, st, J):
 INCIDENTAL_FLOOR = 0.1
 
 
-#: How the method string names the covariance of a fit with the albedo maps' smoothness prior.
-POSTERIOR = ("posterior covariance (Bayesian): the inverse of the information penalised by the albedo maps' "
-             "smoothness prior (J^T J of the residuals with the prior's rows, the albedos eliminated)")
-
 #: The estimators a covariance comes from (one per fit), as fit.json's ``uncertainty.method`` names them.
 ESTIMATORS = {
     "fisher": "inverse Fisher information",
     "incidental": "incidental-parameter sandwich H^-1 (J^T J) H^-1, H = J^T J - C (the per-pixel albedos' noise "
                   "removed from the information)",
-    "posterior": POSTERIOR,
+    "posterior": "posterior covariance (Bayesian): the inverse of the information penalised by the albedo maps' "
+                 "smoothness prior (J^T J of the residuals with the prior's rows, the albedos eliminated)",
     "paper-sandwich": "sandwich estimate for the paper's loss, leave-neighbourhood-out residuals (CR3)",
     "not-converged": "not computed: the fit did not converge",
     "singular-reparameterisation": "singular reparameterisation",
@@ -166,11 +154,9 @@ def incidental_term(problem, st, parts):
 def incidental_sandwich(F, C):
     """(cov, capped): the shape estimate's covariance H^-1 F H^-1, H = F - C (F = J^T J at the estimated
     albedos, C :func:`incidental_term` times the covariance's scale), and how many directions were capped.
-
-    In F's metric cov = F^-1/2 V (I - L)^-2 V^T F^-1/2, L the eigenvalues of F^-1/2 C F^-1/2: each
-    direction's Fisher variance is inflated by (1 - lambda)^-2.  1 - lambda is floored at
-    :data:`INCIDENTAL_FLOOR` because a C estimated from few samples per albedo is noisy and H then need not
-    be positive definite.  Raises LinAlgError when F is singular."""
+    In F's metric each direction's Fisher variance is inflated by (1 - lambda)^-2, lambda the eigenvalues of
+    F^-1/2 C F^-1/2; 1 - lambda is floored at :data:`INCIDENTAL_FLOOR` because a C estimated from few samples
+    per albedo is noisy.  Raises LinAlgError when F is singular."""
     w, V = np.linalg.eigh(F)
     if w.min() <= 0:
         raise np.linalg.LinAlgError("singular information matrix")
@@ -190,14 +176,11 @@ def fisher(Jt):
 
 
 def noise_scale(problem, r, n_independent, p):
-    """(scale, info, applied): the factor the covariance is multiplied by, fit.json's ``chi2_per_dof`` and
-    ``misfit``, and the mechanisms applied.
-
-    The scale is chi^2 / (N - p) (N the independent samples) when the noise level is estimated, and also
-    with the camera noise known where chi^2 / (N - p) lies more than 5 of its standard deviations
-    sqrt(2 / (N - p)), and at least 0.1, above 1 (``misfit``: the quasi-likelihood scale).  As far below 1
-    the scale stays 1 (``noise_overstated``, ``noise_warning``): the errors are those of the stated noise
-    rather than shrunk to a scatter the noise model does not describe."""
+    """(scale, info, applied): the covariance's factor, fit.json's ``chi2_per_dof`` and ``misfit``, and the
+    mechanisms applied.  The scale is chi^2 / (N - p) (N the independent samples) when the noise level is
+    estimated, or when, with the camera noise known, chi^2 / (N - p) exceeds 1 by more than 5 of its standard
+    deviations sqrt(2 / (N - p)) and at least 0.1 (``misfit``).  As far below 1 it stays 1
+    (``noise_overstated``, ``noise_warning``): the errors are those of the stated noise."""
     n = int(n_independent if n_independent is not None else len(r))
     chi2 = float(r @ r)
     info = {"chi2_per_dof": chi2 / max(n - p, 1)}
@@ -215,14 +198,14 @@ def noise_scale(problem, r, n_independent, p):
 
 
 def incidental(problem, st, J, names, Hi, scale, parts=None):
-    """(cov_theta / scale, info, applied): the incidental-parameter sandwich of an eliminating layout
-    (:func:`incidental_sandwich`; C scales with ``scale`` because the albedos' noise does), with the Fisher
-    errors it replaces and the directions capped in ``info``; a layout without the term (the smoothness
-    prior) keeps ``Hi`` and says why.  ``J``: Kaufman's (projected) Jacobian in z; ``parts``: the model at ``st`` with
-    derivatives (evaluated when not given).  Raises LinAlgError."""
+    """(cov_theta / scale, cov_z / scale, info, applied): the incidental-parameter sandwich of an eliminating
+    layout (:func:`incidental_sandwich`; C scales with ``scale`` because the albedos' noise does), with the
+    Fisher errors it replaces and the directions capped in ``info``; a layout without the term (the
+    smoothness prior) keeps ``Hi`` (cov_z None) and says why.  ``J``: Kaufman's (projected) Jacobian in z;
+    ``parts``: the model at ``st`` with derivatives (evaluated when not given).  Raises LinAlgError."""
     if problem.layout.incidental_reason is not None:
         reason = problem.layout.incidental_reason
-        return Hi, {"incidental_not_computed": reason}, [("incidental-not-computed", reason)]
+        return Hi, None, {"incidental_not_computed": reason}, [("incidental-not-computed", reason)]
     if parts is None:
         parts = problem.parts(st, jac=True)
     Gd = dtheta_dz(problem, st, names)                   # theta = theta(z): cov_theta = G cov_z G^T
@@ -234,7 +217,7 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
         applied.append(("incidental-layout", problem.layout.incidental_method))
     if capped:
         applied.append(("incidental-capped", capped))
-    return Gd @ cz @ Gd.T, info, applied
+    return Gd @ cz @ Gd.T, cz, info, applied
 
 
 def paper_sandwich(problem, Jt, r, Hi):
@@ -247,45 +230,50 @@ def paper_sandwich(problem, Jt, r, Hi):
     return Hi @ M @ Hi, [("paper-sandwich", "")] + ([("demosaic", "")] if grid is not None else [])
 
 
-def covariance(problem, st, J, r, n_independent=None, parts=None):
-    """Covariance of the reported free parameters; returns (names, cov (p, p) or None, info dict).
+@dataclasses.dataclass
+class Covariance:
+    """A fit's covariance (:func:`covariance`): of the reported free parameters ``names`` (``cov``, None where
+    not computed), fit.json's entries ``info``, the mechanisms ``applied`` (:func:`method_text`) and, for an
+    eliminating layout, the free shape parameters' in z, ``cov_z`` (the albedo maps': :func:`pixel_albedos`)."""
 
-    The paper's loss: :func:`paper_sandwich`.  A likelihood: :func:`fisher` times :func:`noise_scale`, with
-    :func:`incidental` for an eliminating layout (``parts``: the model at ``st`` with derivatives, evaluated
-    when not given).  ``info["applied"]``: the mechanisms applied, ``info["method"]`` their
-    :func:`method_text`."""
+    names: list
+    cov: object
+    info: dict
+    applied: list
+    cov_z: object = None
+
+    @property
+    def method(self):
+        return method_text(self.applied)
+
+
+def covariance(problem, st, J, r, n_independent=None, parts=None):
+    """The :class:`Covariance` of the reported free parameters.  The paper's loss: :func:`paper_sandwich`.  A
+    likelihood: :func:`fisher` times :func:`noise_scale`, with :func:`incidental` for an eliminating layout
+    (``parts``: the model at ``st`` with derivatives, evaluated when not given)."""
     try:
         names, Jt = jacobian_in_reported(problem, st, J)
     except np.linalg.LinAlgError:
-        return _free_names(problem), None, with_method({}, [("singular-reparameterisation", "")])
+        return Covariance(_free_names(problem), None, {}, [("singular-reparameterisation", "")])
     p = Jt.shape[1]
     try:
         Hi = fisher(Jt)
     except np.linalg.LinAlgError:
-        return names, None, with_method({}, [("singular-information", "")])
+        return Covariance(names, None, {}, [("singular-information", "")])
     if not problem.obj.is_likelihood:
         cov, applied = paper_sandwich(problem, Jt, r, Hi)
-        return names, cov, with_method({}, applied)
+        return Covariance(names, cov, {}, applied)
     scale, info, applied = noise_scale(problem, r, n_independent, p)
-    estimator = "fisher"
+    estimator, cz = "posterior" if problem.obj.prior is not None else "fisher", None
     if problem.eliminates and p:
         try:
-            Hi, more, used = incidental(problem, st, J, names, Hi, scale, parts)
+            Hi, cz, more, used = incidental(problem, st, J, names, Hi, scale, parts)
         except np.linalg.LinAlgError:
-            return names, None, with_method({}, [("singular-information", "")])
+            return Covariance(names, None, {}, [("singular-information", "")])
         info.update(more)
         applied += used
-        estimator = "incidental" if "incidental" in more else estimator
-    if estimator == "fisher" and problem.obj.prior is not None:
-        estimator = "posterior"
-    return names, scale * Hi, with_method(info, [(estimator, "")] + applied)
-
-
-def with_method(info, applied):
-    """``info`` with the mechanisms ``applied`` and their :func:`method_text`."""
-    info["applied"] = list(applied)
-    info["method"] = method_text(applied)
-    return info
+        estimator = "incidental" if cz is not None else estimator
+    return Covariance(names, scale * Hi, info, [(estimator, "")] + applied, None if cz is None else cz * scale)
 
 
 def _blocks(row_pix, grid):
@@ -311,16 +299,11 @@ def _blocks(row_pix, grid):
 
 
 def block_meat(J, r, row_pix, Hi, grid=None):
-    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals.
-
-    Each neighbourhood g's residuals are replaced by (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster
-    jackknife "CR3"; one pixel per block: "HC3"), because the fit has pulled the plain residuals towards
-    the data and they underestimate M for objects of few pixels; for large objects P_gg -> 0.
-
-    ``row_pix``: the pixel of each residual row; ``grid``: (rows, cols) of the pixels when neighbours
-    (|dr|, |dc| <= 1) are correlated (a bilinear-demosaicked mosaic shares raw samples), else None (one
-    pixel per block).  Symmetrised, negative eigenvalues removed.
-    """
+    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals: each neighbourhood g's residuals
+    replaced by (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster jackknife "CR3"; one pixel per block "HC3"),
+    because the fit pulls the plain residuals towards the data.  ``row_pix``: each residual row's pixel;
+    ``grid``: the pixels' (rows, cols) when neighbours (|dr|, |dc| <= 1) are correlated (a demosaicked
+    mosaic), else None.  Symmetrised, negative eigenvalues removed."""
     rows, nb = _blocks(row_pix, grid)
     npx, R = rows.shape
     p = J.shape[1]
@@ -347,18 +330,18 @@ def block_meat(J, r, row_pix, Hi, grid=None):
 
 def summarise(problem, st, J, r, n_independent=None, parts=None):
     """The uncertainty block of fit.json: :func:`summary` of :func:`covariance`."""
-    names, cov, info = covariance(problem, st, J, r, n_independent, parts)
-    info.pop("applied")
-    return summary(problem, st, names, cov, info)
+    return summary(problem, st, covariance(problem, st, J, r, n_independent, parts))
 
 
-def summary(problem, st, names, cov, info):
-    """The uncertainty block of fit.json from a :func:`covariance` (``info`` without ``applied``):
-    std_errors, ci95, correlation, at_bound, bound_distance_se and ``info`` (chi2_per_dof, misfit, method;
-    per-pixel albedos ``incidental``)."""
+def summary(problem, st, c):
+    """The uncertainty block of fit.json from a :class:`Covariance` ``c``: std_errors, ci95, correlation,
+    at_bound, bound_distance_se, its ``info`` (chi2_per_dof, misfit; per-pixel albedos ``incidental``) and
+    method."""
+    names, cov = c.names, c.cov
     rep = problem.params.report(st.shape, st.a_s, st.a_b)
     albedos = set(problem.params.albedo_names)
-    out = {"std_errors": {}, "ci95": {}, "correlation": None, "at_bound": at_bound(problem, st), **info}
+    out = {"std_errors": {}, "ci95": {}, "correlation": None, "at_bound": at_bound(problem, st), **c.info,
+           "method": c.method}
     if cov is None:
         return out
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
@@ -422,8 +405,16 @@ PROFILE_ROOT_TOL = 0.1
 def interval_scale(problem, unc):
     """The factor the covariance was scaled by (chi^2/dof when inflated or when the noise level was
     estimated, else 1): the 95 % threshold of a chi^2 rise is 1.96^2 times it."""
-    inflated = unc.get("misfit") or not problem.obj.noise.known
-    return float(unc["chi2_per_dof"]) if inflated and unc.get("chi2_per_dof") else 1.0
+    if not unc.get("chi2_per_dof"):
+        return 1.0
+    return float(unc["chi2_per_dof"]) if unc.get("misfit") or not problem.obj.noise.known else 1.0
+
+
+def sandwich_ratio(unc, name):
+    """(SE / Fisher SE)^2 of ``name`` under the incidental sandwich (``unc["incidental"]``), else 1: chi^2's
+    curvature is J^T J's, so its rise at +-1.96 sandwich SE is 1.96^2 times this."""
+    fse = unc.get("incidental", {}).get("fisher_std_errors") or {}
+    return (unc["std_errors"][name] / fse[name]) ** 2 if fse.get(name) else 1.0
 
 
 def chi2_along_covariance(problem, st, J, scale):
@@ -434,7 +425,7 @@ def chi2_along_covariance(problem, st, J, scale):
     z0 = problem.to_z(st)
     # a shape parameter at a bound (its Jacobian column ~0, its z-variance huge) stays there: the regression
     # on it would throw it to its other bound
-    pinned = [i for i, (n, (_, frac)) in enumerate(bound_distance(problem, st).items()) if frac <= 1e-3]
+    pinned = [i for i, (_, frac) in enumerate(bound_distance(problem, st).values()) if frac <= AT_BOUND_FRAC]
     cz = {}
 
     def path_cov(j):
@@ -527,12 +518,12 @@ def profile_intervals(problem, st, unc, J, r, every=False):
     pairs are strongly correlated.
 
     At each end of the Fisher interval chi^2 along :func:`chi2_along_covariance` must rise by
-    delta = 1.96^2 x the covariance's scale to within :data:`PROFILE_TOL` (a quadratic likelihood's rise
-    is exactly delta there); at a bound, by at most delta (1 + tol).  With the incidental-parameter
-    sandwich (``unc["incidental"]``) delta is per parameter, delta (SE / Fisher SE)^2
-    (``profile["thresholds"]``): the path's curvature is J^T J's, so that is chi^2's rise at +-1.96
-    sandwich SE (the adjusted likelihood ratio of composite-likelihood inference: Varin, Reid and Firth
-    2011, sec. 4.2).
+    delta = 1.96^2 x the covariance's scale to within :data:`PROFILE_TOL` (at a bound, by at most
+    delta (1 + tol)).  With the incidental-parameter sandwich delta is per parameter, times
+    :func:`sandwich_ratio` (``profile["thresholds"]``: the adjusted likelihood ratio of composite-likelihood
+    inference, Varin, Reid and Firth 2011, sec. 4.2), and a profile end only widens the interval: chi^2 has
+    the albedos eliminated, so its profile does not carry their noise, and each refit is local (an upper
+    bound of the profile).
 
     Adds ``interval_kind`` {name: "fisher" | "profile" | ...} and ``profile`` (the rises tried) to ``unc``
     and replaces the profiled ends in ``unc["ci95"]``; the standard errors stay Fisher's.  Likelihood fits
@@ -557,9 +548,8 @@ def profile_intervals(problem, st, unc, J, r, every=False):
         se = unc["std_errors"].get(n)
         if se is None or not math.isfinite(se) or se <= 0:
             continue
-        if fse is not None:     # the sandwich: the rise of chi^2 (curvature J^T J) at +-1.96 of its SE
-            delta = Z95 ** 2 * scale * (se / fse[n]) ** 2 if fse.get(n, 0.0) > 0 else Z95 ** 2 * scale
-            thresholds[n] = delta
+        if fse is not None:
+            delta = thresholds[n] = Z95 ** 2 * scale * sandwich_ratio(unc, n)
         _, _, lo, hi = problem.bounds.lims[n]
         v = st.shape[n]
         ends, kind, tried = list(unc["ci95"][n]), [], {}
@@ -572,9 +562,13 @@ def profile_intervals(problem, st, unc, J, r, every=False):
             if ok and not every:
                 kind.append("fisher")
                 continue
-            ends[i], k, pts = profile_end(problem, st, n, side, end, delta, chi2_min, path)
-            kind.append(k)
+            prof, k, pts = profile_end(problem, st, n, side, end, delta, chi2_min, path)
             tried["lower" if side < 0 else "upper"] = pts
+            if fse is not None and side * (prof - end) < 0:     # the sandwich's end is the narrowest
+                k = "fisher"
+            else:
+                ends[i] = prof
+            kind.append(k)
         kinds[n] = kind[0] if kind[0] == kind[1] else f"lower {kind[0]}, upper {kind[1]}"
         details[n] = tried
         unc["ci95"][n] = [float(min(ends[0], v)), float(max(ends[1], v))]
@@ -617,38 +611,42 @@ def weakly_identified(table, params, std, at_bound_=()):
             or k in at_bound_]
 
 
-#: A pixel's surface / body split is *not identified* when the standard error of either part's share of
-#: the pixel's brightness exceeds this fraction of the pixel's brightness (:func:`pixel_albedos`).
+#: An albedo is *determined* where its standard error is at most this fraction of its value; a pixel's
+#: surface / body split is *identified* where both its k_s and its k_b are (:func:`pixel_albedos`).
 SPLIT_REL = 0.5
 
 
-def pixel_albedos(problem, st, parts, J, unc):
-    """The albedo maps' values and uncertainty per group of an eliminating layout (albedo maps,
-    :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`), the shape parameters free.
+def determined(value, se, rel=SPLIT_REL):
+    """Boolean array: where the standard error ``se`` is at most ``rel`` of ``value``."""
+    value, se = np.asarray(value, float), np.asarray(se, float)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(se) & (se <= rel * value)
 
-    ``J``: the projected Jacobian at ``st`` (z: the free shape parameters); ``unc``: the fit's
-    uncertainty block (its covariance scale: misfit inflation or an estimated noise level).  Each group's
-    (a_s, a_b) covariance is the layout's (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.covariance`)
-    with C_z the shape's covariance the block reports (the incidental-parameter sandwich where
-    ``unc["incidental"]``); the maps and their split rule (:data:`SPLIT_REL`):
-    :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.maps`.
+
+def pixel_albedos(problem, st, parts, J, unc, cov_z=None):
+    """The albedo maps' values and uncertainty per group of an eliminating layout
+    (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.maps`), the shape parameters free, with
+    ``identified`` where both albedos are :func:`determined`.
+
+    Each group's (a_s, a_b) covariance is the layout's
+    (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.covariance`) with ``cov_z`` the shape's covariance
+    in z (:class:`Covariance`; not given: (J^T J)^-1 of the projected Jacobian ``J``) times the scale of the
+    uncertainty block ``unc``.
     """
     obj, lay = problem.obj, problem.layout
     z = problem.to_z(st)
     us, ub = obj.albedo_columns(parts)
     Jt = obj.shape_jacobian(parts, st, z, problem.names, problem.bounds)
-    scale = interval_scale(problem, unc) if unc.get("chi2_per_dof") is not None else 1.0
+    scale = interval_scale(problem, unc)
     try:
-        if not J.shape[1]:
-            cov_z = np.zeros((0, 0))
-        elif "incidental" in unc and obj.is_likelihood:   # the shape's covariance fit.json reports
-            cov_z = incidental_sandwich(J.T @ J, scale * incidental_term(problem, st, parts))[0] * scale
-        else:
-            cov_z = np.linalg.pinv(J.T @ J) * scale
+        if cov_z is None:
+            cov_z = np.linalg.pinv(J.T @ J) * scale if J.shape[1] else np.zeros((0, 0))
     except np.linalg.LinAlgError:
         cov_z = np.full((J.shape[1], J.shape[1]), np.nan)
-    return lay.maps(*obj.unit_samples(parts), st.a_s, st.a_b, lay.covariance(us, ub, Jt, cov_z, scale),
-                    problem.model.albedo_factor, SPLIT_REL)
+    groups = lay.maps(*obj.unit_samples(parts), st.a_s, st.a_b, lay.covariance(us, ub, Jt, cov_z, scale),
+                      problem.model.albedo_factor, SPLIT_REL)
+    groups["identified"] &= determined(groups["k_s"], groups["k_s_se"]) & determined(groups["k_b"], groups["k_b_se"])
+    return groups
 
 
 #: 95 % quantiles of chi^2 with 1 ... 8 degrees of freedom: the joint 95 % region of that many shape parameters
@@ -661,25 +659,21 @@ MODE_SEPARATION_SE = 2.0
 
 
 def other_optima(starts, params, unc, names):
-    """The separate optima among a multi-start fit's ends (:func:`fmbrdf_mi.fit.solve.driver.solve`'s
-    ``starts``: each with its ``end``, ``score`` (the negative log-likelihood) and ``converged``), for
-    fit.json's ``uncertainty.other_optima`` and a warning.
-
-    An end is another optimum when one of the shape parameters ``names`` differs from the estimate
-    ``params`` by more than :data:`MODE_SEPARATION_SE` standard errors; ``delta_chi2`` = 2 (score - best
-    score).  It is *competing* when that is below the joint 95 % threshold :data:`CHI2_95` [p] x the
-    covariance's scale x the largest (SE / Fisher SE)^2 (rescaled as in :func:`profile_intervals`): the
-    likelihood's 95 % region then has a second part that the intervals around the estimate miss
-    (docs/howto/fit-textured.md).  Returns (list of {params, delta_chi2, distance_se, converged,
-    competing}, the threshold); an empty list for a single start or a fit without standard errors."""
+    """The separate optima among a multi-start fit's ends (``starts`` of
+    :func:`fmbrdf_mi.fit.solve.driver.solve`: ``end``, ``score`` (negative log-likelihood), ``converged``):
+    ends where a shape parameter of ``names`` is more than :data:`MODE_SEPARATION_SE` standard errors from
+    the estimate ``params``, with delta_chi2 = 2 (score - best score).  One *competes* when that is below the
+    joint 95 % threshold :data:`CHI2_95` [p] x the covariance's scale x the largest :func:`sandwich_ratio`:
+    the likelihood's 95 % region then has a second part the intervals miss.  Returns (list of {params,
+    delta_chi2, distance_se, converged, competing}, the threshold); ([], None) for a single start or no
+    standard errors."""
     se = unc.get("std_errors") or {}
     names = [n for n in names if se.get(n) and math.isfinite(se[n]) and se[n] > 0]
     scored = [s for s in starts if s.get("score") is not None and math.isfinite(s["score"])]
     if len(scored) < 2 or not names:
         return [], None
     best = min(s["score"] for s in scored)
-    fse = unc.get("incidental", {}).get("fisher_std_errors") or {}
-    inflation = max([1.0] + [(se[n] / fse[n]) ** 2 for n in names if fse.get(n)])
+    inflation = max([1.0] + [sandwich_ratio(unc, n) for n in names])
     scale = float(unc["chi2_per_dof"]) if unc.get("misfit") and unc.get("chi2_per_dof") else 1.0
     threshold = CHI2_95[min(len(names), len(CHI2_95)) - 1] * scale * inflation
     out = []
@@ -696,14 +690,11 @@ def other_optima(starts, params, unc, names):
 
 
 def widen_for_optima(unc, params, optima, lims=None):
-    """Stretch each shape parameter's 95 % interval (``unc["ci95"]``) over the *competing* optima of
-    :func:`other_optima`: the hull of the estimate's interval and, around every competing optimum, an
-    interval of the same half-widths (that optimum's curvature is not computed), cut at the bounds ``lims``
-    {name: (lo, hi)} where given.  The hull is conservative (the joint region's projection).
-
-    The standard errors stay the estimate's.  Widened parameters get ``interval_kind`` "optima" (the
-    others keep theirs, "fisher" where none was set); ``unc["other_optima"]["widened"]`` lists {name: the
-    interval before widening}.  Returns the names widened."""
+    """Stretch each shape parameter's 95 % interval over the competing optima of :func:`other_optima`: the
+    hull of the estimate's interval and, around each competing optimum, one of the same half-widths, cut at
+    the bounds ``lims`` {name: (lo, hi)}.  The standard errors stay the estimate's; widened parameters get
+    ``interval_kind`` "optima" and ``other_optima["widened"]`` {name: the interval before}.  Returns the
+    names widened."""
     comp = [o for o in optima if o["competing"]]
     ci = unc.get("ci95") or {}
     if not comp:

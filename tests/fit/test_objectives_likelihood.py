@@ -138,7 +138,8 @@ def test_likelihood_jacobian_and_fisher_information_against_finite_differences(v
     d = np.sqrt(np.outer(np.diag(Ffd), np.diag(Ffd)))
     assert np.abs(F - Ffd).max() / d.max() < 0.03 and np.all(np.abs(F - Ffd) < 0.05 * d + 1e-12)
     # and what the fit reports is the inverse of that information
-    _, cov, info = U.covariance(pb, st, J, r)
+    c = U.covariance(pb, st, J, r)
+    cov, info = c.cov, dict(c.info, method=c.method)
     scale = info["chi2_per_dof"] if info["misfit"] else 1.0   # off the optimum: inflated by chi^2/dof (misfit)
     assert info["misfit"] == ("inflated" in info["method"])
     np.testing.assert_allclose(np.sqrt(np.diag(cov) / scale), np.sqrt(np.diag(np.linalg.inv(Ffd))), rtol=0.05)

@@ -20,18 +20,13 @@ from fmbrdf_mi.fit.result import FitResult
 
 @dataclasses.dataclass
 class Fitted:
-    """What the checks after a fit need of it (a result's ``fitted``, not serialised).
-
-    ``problem``, ``data`` (its :class:`~fmbrdf_mi.fit.problem.problem.FitData`) and ``solution`` (the
-    solver's :class:`~fmbrdf_mi.fit.solve.driver.Solution`; once the covariance is computed its ``J`` and
-    ``r`` are those at the estimate, without a deadline); ``options``: the
-    :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`; ``report``: the progress callable; ``deadline``: the
-    fit's wall-clock limit (``time.time()``, None: none); ``image_shape``: (H, W) of the albedo maps;
-    ``labels``: the label image the fit was given (one material: its ``materials`` block); ``history``:
-    the fit's list of accepted steps; ``applied``: the uncertainty mechanisms applied
-    (:func:`~fmbrdf_mi.fit.uncertainty.method_text`); ``evaluations``: model evaluations of problems
-    before this one (a refined quadrature's coarser fit); ``t0``: when the fit started.
-    """
+    """What the checks after a fit need of it (a result's ``fitted``, not serialised): the problem, its
+    :class:`~fmbrdf_mi.fit.problem.problem.FitData`, the solver's
+    :class:`~fmbrdf_mi.fit.solve.driver.Solution` (``J``, ``r`` at the estimate once the covariance is
+    computed), the :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`, the progress callable, the wall-clock
+    deadline, the maps' (H, W), the label image given, the accepted steps, the uncertainty mechanisms
+    ``applied`` (:func:`~fmbrdf_mi.fit.uncertainty.method_text`), the model evaluations of earlier problems
+    (a refined quadrature's coarser fit) and the start time."""
 
     problem: object
     data: object
@@ -60,13 +55,12 @@ def assemble(fx):
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
         fx.solution = dataclasses.replace(sol, J=J, r=r)
         n_ind = None if loss != "likelihood" else len(data.pixels) * objective.dof - problem.n_eliminated(st)
-        names, cov, info = U.covariance(problem, st, J, r, n_ind, parts)
-        fx.applied = info.pop("applied")
-        unc = U.summary(problem, st, names, cov, info)
+        c = U.covariance(problem, st, J, r, n_ind, parts)
+        fx.applied, unc = c.applied, U.summary(problem, st, c)
         if U.noise_flagged(unc):
             report("[fit] warning: " + U.misfit_text(unc))
         if problem.eliminates:
-            groups = U.pixel_albedos(problem, st, parts, J, unc)
+            groups = U.pixel_albedos(problem, st, parts, J, unc, c.cov_z)
     elif not sol.converged:
         fx.applied, unc = [("not-converged", "")], {"std_errors": {}}
     if parts is None:
@@ -175,17 +169,14 @@ def prior_block(problem, st, parts):
 #: optimum that the noise makes win (docs/howto/fit-textured.md).
 MIN_IMAGES_PER_PIXEL = 3
 
-#: The warning of a per-pixel albedo fit from fewer than :data:`MIN_IMAGES_PER_PIXEL` images of each pixel.
+#: The warning of a per-pixel albedo fit from fewer than :data:`MIN_IMAGES_PER_PIXEL` images of each pixel
+#: (``{}``: what the reported errors are, without and with the smoothness prior).
 PER_PIXEL_FEW_IMAGES = (f"per-pixel albedos from fewer than {MIN_IMAGES_PER_PIXEL} images of each pixel: eta, "
-                        "alpha, beta, kappa are poorly determined and a second optimum can win; the reported "
-                        "incidental-parameter sandwich covers most of their spread.  Fit several lights of the "
-                        "same view (docs/howto/fit-textured.md)")
-
-#: ... with the albedo maps' smoothness prior, whose errors are posterior ones.
-PER_PIXEL_FEW_IMAGES_PRIOR = (f"per-pixel albedos from fewer than {MIN_IMAGES_PER_PIXEL} images of each pixel: "
-                              "eta, alpha, beta, kappa are poorly determined; the smoothness prior narrows them at "
-                              "the cost of its bias (the reported errors are posterior ones).  Fit several lights "
-                              "of the same view (docs/howto/fit-textured.md)")
+                        "alpha, beta, kappa are poorly determined{}.  Fit several lights of the same view "
+                        "(docs/howto/fit-textured.md)")
+FEW_IMAGES_ERRORS = (" and a second optimum can win; the reported incidental-parameter sandwich covers most of "
+                     "their spread", "; the smoothness prior narrows them at the cost of its bias (the reported "
+                     "errors are posterior ones)")
 
 
 def albedo_maps(layout, shape, groups, prior=False):
@@ -206,8 +197,8 @@ def albedo_maps(layout, shape, groups, prior=False):
     n_pix = len(np.unique(layout.pixels))
     summary = {"layout": layout.name, "pixels": int(n_pix), "groups": int(layout.n_groups),
                "identified_fraction": float(ident.mean()) if ident.size else 0.0,
-               "split_rule": f"identified where the standard error of the surface's and of the body's share of "
-                             f"the pixel's brightness are at most {U.SPLIT_REL:g} of it",
+               "split_rule": f"identified where the standard errors of k_s and of k_b are at most {U.SPLIT_REL:g} "
+                             "of their values",
                "k_s_median": float(np.nanmedian(groups["k_s"])), "k_b_median": float(np.nanmedian(groups["k_b"])),
                "k_s_determined_fraction": determined(groups["k_s"], groups["k_s_se"]),
                "k_b_determined_fraction": determined(groups["k_b"], groups["k_b_se"]),
@@ -228,13 +219,11 @@ def albedo_maps(layout, shape, groups, prior=False):
     per = float(np.median(np.bincount(cells, minlength=layout.n_groups))) if layout.n_groups else 0.0
     summary["images_per_pixel"] = per
     if per < MIN_IMAGES_PER_PIXEL:
-        summary["warning"] = PER_PIXEL_FEW_IMAGES_PRIOR if prior else PER_PIXEL_FEW_IMAGES
+        summary["warning"] = PER_PIXEL_FEW_IMAGES.format(FEW_IMAGES_ERRORS[bool(prior)])
     return summary, maps
 
 
-def determined(value, se, rel=0.5):
-    """Fraction of the groups whose albedo has a relative standard error of at most ``rel``."""
-    value, se = np.asarray(value, float), np.asarray(se, float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ok = np.isfinite(se) & (se <= rel * value)
+def determined(value, se):
+    """Fraction of the groups whose albedo is :func:`~fmbrdf_mi.fit.uncertainty.determined`."""
+    ok = U.determined(value, se)
     return float(ok.mean()) if ok.size else 0.0

@@ -99,12 +99,10 @@ def check_footprint(res, progress=None):
         fine = fine_data.problem(get_model(opts.model), opts.bounds, fx.report, opts.fixed, fx.deadline)
         bias = U.quadrature_bias(problem, fine, st, J, r)
         block["checks"].append({"area_points": m, "against": 2 * m, "bias_se": bias})
-        worst = max(bias, key=lambda n: abs(bias[n])) if bias else None
-        if worst is None or abs(bias[worst]) <= U.QUADRATURE_TOL:
+        if not bias or max(abs(b) for b in bias.values()) <= U.QUADRATURE_TOL:
             break
-        say(f"[fit] pixel-area quadrature: {m} x {m} points per raw pixel bias {worst} by about "
-            f"{bias[worst] / 0.75:+.2f} standard errors here (the highlight spans few pixels); the fit goes on "
-            f"with {2 * m} x {2 * m}")
+        say(f"[fit] pixel-area quadrature: {m} x {m} points per raw pixel bias {worst_bias(bias)} standard errors "
+            f"here (the highlight spans few pixels); the fit goes on with {2 * m} x {2 * m}")
         try:
             sol = solve(fine, init=st, starts=1, rounds=max(1, opts.rounds) + 2, optimizer=opts.optimizer,
                         max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit, lr=opts.lr,
@@ -126,10 +124,15 @@ def check_footprint(res, progress=None):
     if fine_fx is not None:
         res = assemble(fine_fx)
     res.uncertainty["quadrature"] = block
-    first = block["checks"][0]
-    if m != first["area_points"]:
-        worst = max(first["bias_se"], key=lambda n: abs(first["bias_se"][n]))
-        res.fitted.applied.append(("quadrature", f"{m} x {m} points per raw pixel ({first['area_points']} x "
-                                                 f"{first['area_points']} would bias {worst} by about "
-                                                 f"{first['bias_se'][worst] / 0.75:+.2f} SE)"))
+    m0 = block["checks"][0]["area_points"]
+    if m != m0:
+        res.fitted.applied.append(("quadrature", f"{m} x {m} points per raw pixel ({m0} x {m0} would bias "
+                                                 f"{worst_bias(block['checks'][0]['bias_se'])} SE)"))
     return settle(res)
+
+
+def worst_bias(bias):
+    """'name by about +x.xx': the parameter most biased by the coarser quadrature, its own bias in its
+    standard errors (:func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias` gives 3/4 of it)."""
+    worst = max(bias, key=lambda n: abs(bias[n]))
+    return f"{worst} by about {bias[worst] / 0.75:+.2f}"

@@ -112,12 +112,10 @@ def fit_options(options, kw):
 
 def check_request(obs, opts, data):
     """The objective (:func:`~fmbrdf_mi.fit.problem.data.resolve_loss`) of a fit of ``obs`` with ``opts``
-    (``data``: the caller's data, or None), after the options and their combinations are checked (one
-    line naming what is not valid)."""
+    (``data``: the caller's data, or None), after the options (their schema) and the combinations with the
+    observation are checked (one line naming what is not valid)."""
     check_fit_options(**dataclasses.asdict(opts))
     check_observations(obs, "fit()")
-    if opts.optimizer not in ("lm", "adam"):
-        raise ValueError(f"optimizer: expected 'lm' or 'adam', got {opts.optimizer!r}")
     if opts.path == "render" and opts.optimizer != "adam":
         raise InputError("path 'render' works with optimizer 'adam' only (reverse-mode gradient through "
                          "mi.render; its forward-mode derivatives, which 'lm' needs, miss the body term)")
@@ -125,8 +123,6 @@ def check_request(obs, opts, data):
         raise InputError("free_power: the relative light powers are estimated in joint fits of two or more "
                          "images (fit_joint; fmbrdf-mi fit --free-power with --manifest, --authors or several "
                          "--light)")
-    if opts.intervals not in U.INTERVALS:
-        raise InputError(f"intervals: expected one of {', '.join(U.INTERVALS)}, got {opts.intervals!r}")
     loss = resolve_loss(obs, opts)
     check_resolved_loss(dataclasses.asdict(opts), loss, "loss 'paper'" if opts.loss == "paper" else
                         "the observation has no camera noise model")
@@ -135,8 +131,6 @@ def check_request(obs, opts, data):
                          "for adam or the render path)")
     if loss in LV.VARIANTS and opts.optimizer != "lm":
         raise InputError(f"loss '{loss}' works with optimizer 'lm' (Adam minimises the full paper's loss)")
-    if opts.path not in ("pixel", "render"):
-        raise InputError(f"path: expected 'pixel' or 'render', got {opts.path!r}")
     return loss
 
 

@@ -22,7 +22,6 @@ with seed ``seed + k``).  With ``free_power`` the relative powers of images
 from __future__ import annotations
 
 from fmbrdf_mi.fit.api.fitting import fit
-from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs.observations import check_observations
 
 
@@ -47,7 +46,3 @@ def fit_joint(observations, options=None, *, names=None, progress=True, powers=N
     return fit(check_observations(observations, "fit_joint()", least=0), options, names=names, progress=progress,
                powers=powers, **kw)
 
-
-def predict(model_name, params, obs):
-    """Predicted Stokes (3, H, W) of one image of the object (its light, irradiance and geometry)."""
-    return predict_image(model_name, params, obs)

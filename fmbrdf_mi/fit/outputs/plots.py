@@ -254,7 +254,7 @@ def plot_albedo_maps(maps, path, title=""):
                                                       cmap="magma")),
                      (tag + "SE(k_b) / k_b", rb, dict(vmin=0, vmax=min(scale_from(rb, fitted, 95.0), 1.0),
                                                       cmap="magma")),
-                     (tag + "split identified", ident, dict(vmin=0, vmax=1, cmap="RdYlGn"))))
+                     (tag + "split identified (both SE <= 0.5)", ident, dict(vmin=0, vmax=1, cmap="RdYlGn"))))
     ncol = len(rows[0])
     fig, axes = plt.subplots(len(rows), ncol, figsize=(3.2 * ncol, 3.6 * len(rows)), squeeze=False)
     for r, panels in enumerate(rows):
