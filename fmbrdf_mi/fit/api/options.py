@@ -1,13 +1,9 @@
 """The one option schema of a fit: every option declared once in :data:`OPTIONS`, the rest generated.
 
-Each option is an :class:`~fmbrdf_mi.fit.inputs.options.Option` (name, flag, kind, valid range or choices,
-default, help, the fit.json records that keep it; the options of one image, which the manifest and
-:func:`~fmbrdf_mi.fit.inputs.files.build_observation` read, are declared at the inputs layer as
-:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`).  Generated from the table: :class:`FitOptions`, the
-command line (:func:`add_arguments`), the checks (:func:`check_fit_options`, :func:`check_input_options`:
-kind and range, one line naming the option and what is valid, then the relations between options), the keys
-a record keeps (:func:`record_keys`, :func:`arguments`) and a manifest image's keys.  A new option is one
-more row here (or in :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`) and the code that uses it.
+Each row is an :class:`~fmbrdf_mi.fit.inputs.options.Option`; one image's options are
+:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`.  Generated: :class:`FitOptions`, the command line
+(:func:`add_arguments`), the checks (:func:`check_fit_options`, :func:`check_input_options`) and the keys a
+record keeps (:func:`record_keys`, :func:`arguments`).
 """
 from __future__ import annotations
 
@@ -25,9 +21,8 @@ from fmbrdf_mi.fit.uncertainty import INTERVALS
 #: The albedo layouts a fit can be asked for (``FitOptions.albedo``, ``--albedo``).
 ALBEDO_LAYOUTS = ("shared",) + PER_PIXEL_LAYOUTS
 
-#: The smallest smoothness scale tau of the albedo maps' prior (in the maps' units): the prior adds 1 / tau^2
-#: to the maps' normal equations, and far below this the data's information is lost beside it in double
-#: precision (maps tied to one value are ``albedo="shared"``).
+#: The smallest smoothness scale tau of the albedo maps' prior (maps' units): below it the prior's 1 / tau^2
+#: drowns the data in double precision.
 SMOOTH_MIN = 1e-6
 
 _IMAGE, _GEOMETRY = IMAGE_OPTIONS[0].group, IMAGE_OPTIONS[-1].group
@@ -42,7 +37,7 @@ _SJ = ("single", "joint")
 #: The command line's help sections, in order.
 GROUPS = (_IMAGE, _GEOMETRY, _FIT, _JOINT, _NORMALS, _RELIGHT, _OUTPUT)
 
-#: Every option, declared once (module docstring).
+#: Every option, declared once.
 OPTIONS = (
     Option("inputs", None, flag="inputs", group=_IMAGE, records=("single", "colour"),
            cli={"nargs": "*", "metavar": "INPUT", "default": []},
