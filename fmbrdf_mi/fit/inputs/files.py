@@ -54,11 +54,8 @@ def builtin_sphere_geometry(p, shape=None):
     parameters ``p``) on a grid of ``shape`` (rows, cols) covering the rendered image (default: the image itself; a raw
     mosaic's super-pixel grid is half of it).
 
-    The scene (:func:`fmbrdf_mi.scene.sphere_scene`) puts a unit sphere at the origin, the camera at
-    ``distance`` on +z, the image spanning ``2 * half_width(fov, distance)`` horizontally.  Exact
-    geometry matters to the likelihood of a raw mosaic, whose samples sit a quarter super-pixel off the
-    centre, and bilinear interpolation of the pooled super-pixel normal map errs near the silhouette by
-    enough to bias kappa (docs/benchmarks/coverage.md).
+    The scene: :func:`fmbrdf_mi.scene.sphere_scene`.  A raw mosaic's samples sit off the super-pixel
+    centres, and interpolating the pooled normal map errs near the silhouette enough to bias kappa.
     """
     w, h = int(p["width"]), int(p["height"])
     shape = (h, w) if shape is None else tuple(shape)
@@ -138,10 +135,8 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     """An :class:`Observation` from files (see :func:`fit_files` for the options).
 
     ``geometry``: (normals, mask, view_dirs) reused from another observation of the same object.
-    A raw mosaic with a capture sidecar (:func:`fmbrdf_mi.sensor.camera.read_sidecar`,
-    written by ``fmbrdf-mi render --raw``) supplies the layout, black level,
-    gain, read noise and white level that were not given, and the scene's
-    geometry and light.  ``meta["settings"]`` records what was used.
+    A raw mosaic's capture sidecar (:func:`fmbrdf_mi.sensor.camera.read_sidecar`) supplies the sensor
+    settings not given, and the scene's geometry and light.  ``meta["settings"]`` records what was used.
     """
     check_image_options(locals())     # the keywords, before anything is read
     sidecar = None
