@@ -43,16 +43,13 @@ DEFAULTS = {"max_pixels": None, "rounds": 2}
 def fit_colour(obs, samples, noise=None, *, progress=None, **options):
     """:func:`~fmbrdf_mi.fit.api.fitting.fit` of a colour mosaic's samples (module docstring).
 
-    ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` on the mosaic's 4x4-period grid (its
-    ``stokes`` gives only the shape), ``samples``: :func:`~fmbrdf_mi.sensor.samples.colour_samples`; lists of
-    both: a joint fit of several mosaics of one object and one camera (``max_pixels`` split between them).
+    ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` on the 4x4-period grid, ``samples``:
+    :func:`~fmbrdf_mi.sensor.samples.colour_samples`; lists of both: a joint fit of one object and camera.
     ``noise``: a :class:`~fmbrdf_mi.sensor.noise.NoiseModel` (None: estimated from the residuals).
     ``options``: the :data:`COLOUR_OPTIONS` (defaults the schema's but :data:`DEFAULTS`).
     ``albedo="per-pixel"``: one k_s, k_b per period and channel (several mosaics then of one view).
-    The caller erodes the mask.  Returns the :class:`~fmbrdf_mi.fit.result.FitResult` with ``params``,
-    ``std_errors`` and ``uncertainty["ci95"]`` nested per channel (``{"k_s": {"R": .., "G": .., "B": ..}}``;
-    ``std_errors`` None when not converged), ``channels``, ``pixels`` (a list per image for lists) and in
-    ``details``: chi2, chi2_per_dof, n_samples, evaluations, time_s, chi2_per_sample (per image for lists).
+    The caller erodes the mask.  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with ``params``,
+    ``std_errors`` (None unless converged) and ``uncertainty["ci95"]`` nested per channel, and ``details``.
     """
     unknown = [k for k in options if k not in COLOUR_OPTIONS]
     if unknown:

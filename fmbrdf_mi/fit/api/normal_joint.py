@@ -37,9 +37,8 @@ LAM_MATERIAL = 0.03
 
 
 def round_time_left(decreases, per_iter, most, tol=0.01):
-    """Seconds a Levenberg-Marquardt round of :func:`refine_joint` probably has left: the energy's last three
-    ``decreases`` extrapolated geometrically to a decrease below ``tol``, at ``per_iter`` seconds an iteration
-    and at most ``most`` iterations; None while there are fewer than three decreases or they do not shrink."""
+    """Seconds a round of :func:`refine_joint` probably has left: the last three energy ``decreases``
+    extrapolated geometrically below ``tol``; None until three decreases shrink."""
     d = decreases[-3:]
     if len(d) < 3 or min(d) <= 0 or d[2] >= d[0]:
         return None
@@ -49,10 +48,8 @@ def round_time_left(decreases, per_iter, most, tol=0.01):
 
 
 def refinement_time_left(left, round_times, elapsed, rounds_after):
-    """Seconds the whole refinement probably has left: ``left`` this round's (:func:`round_time_left`, None:
-    not known), ``round_times`` the finished rounds' durations, ``elapsed`` this round's time so far,
-    ``rounds_after`` the rounds still to come, each taken to last as long as the finished ones on average
-    (errs long: later rounds start nearer the optimum).  None when nothing is known yet."""
+    """Seconds the whole refinement probably has left: this round's ``left`` plus ``rounds_after`` rounds of
+    the finished ones' mean duration (errs long); None when nothing is known yet."""
     if rounds_after <= 0:
         return left
     if round_times:

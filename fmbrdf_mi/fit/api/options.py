@@ -195,9 +195,8 @@ def record_keys(record):
 
 
 def arguments(record, given, where):
-    """``given`` (keyword arguments) checked to be options of ``record``, completed by the defaults: the
-    arguments of a writing function (:func:`~fmbrdf_mi.fit.outputs.single.fit_files`, ...), as fit.json's
-    ``reproduce.arguments`` keeps them."""
+    """``given`` checked to be options of ``record`` and completed by the defaults (fit.json's
+    ``reproduce.arguments``)."""
     keys = record_keys(record)
     unknown = [k for k in given if k not in keys]
     if unknown:
@@ -223,8 +222,7 @@ FIT_NAMES = tuple(o.name for o in OPTIONS if o.fit)
 
 
 def fit_options(values, **changes):
-    """The :class:`FitOptions` of ``values`` (option name -> value; names that are not fit options are left
-    out), parsed and checked (:func:`check_values`), with ``changes``."""
+    """The :class:`FitOptions` of ``values`` (other names left out), checked, with ``changes``."""
     return FitOptions(**{**check_values({k: x for k, x in values.items() if k in FIT_NAMES}), **changes})
 
 
@@ -249,8 +247,7 @@ def add_arguments(p, groups=GROUPS):
 
 # ---------------------------------------------------------------- the checks
 def check_values(values, flag=str):
-    """Each value of ``values`` (option name -> value; names outside the schema are left alone) checked against
-    its option's kind and range; returns them parsed (their text forms, :attr:`Option.parse`)."""
+    """``values`` checked against their options' kind and range and parsed (names outside the schema kept)."""
     out = dict(values)
     for name, v in values.items():
         o = OPTION.get(name)
@@ -263,9 +260,8 @@ def check_values(values, flag=str):
 
 
 def check_fit_options(*, flag=str, **values):
-    """Raise InputError for the first invalid fit option (its value, then its relations to the others:
-    :func:`check_relations`).  ``values``: option name -> value, the defaults for those not given; names
-    outside the schema are ignored.  ``flag`` maps an option name to how the user wrote it."""
+    """Raise InputError for the first invalid fit option, then :func:`check_relations`.  ``flag`` maps an
+    option name to how the user wrote it."""
     v = {k: OPTION[k].default for k in FIT_NAMES + ("baselines", "materials")}
     v.update({k: x for k, x in values.items() if k in OPTION})
     for k in ("model", "max_iter", "tol", "erode", "seed", "lr", "spp", "rounds", "starts"):
@@ -276,8 +272,7 @@ def check_fit_options(*, flag=str, **values):
 
 
 def check_relations(v, flag=str):
-    """The relations between the fit options ``v`` (all given, parsed): pairs that do not go together and
-    parameter tables that must name the model's parameters within its bounds; one line each."""
+    """The relations between the parsed fit options ``v``: incompatible pairs, parameter tables in bounds."""
     m = get_model(v["model"])
     loss, albedo, materials = v["loss"], v["albedo"], v.get("materials")
     likelihood = loss in ("auto", "likelihood")
@@ -350,8 +345,7 @@ def check_init(init, m, flag):
 
 
 def number(name, value, lo=None, hi=None):
-    """``value`` a finite number within the fit's bounds [``lo``, ``hi``] of a parameter, else InputError
-    naming ``name``."""
+    """``value`` a finite number in [``lo``, ``hi``], else InputError naming ``name``."""
     o = Option(name, kind="number", lo=lo, hi=hi)
     try:
         if value is not None:
@@ -362,8 +356,7 @@ def number(name, value, lo=None, hi=None):
 
 
 def check_input_options(*, flag=str, **values):
-    """Raise InputError for the first invalid option about the image and the light (names outside the schema
-    are ignored)."""
+    """Raise InputError for the first invalid option about the image and the light."""
     v = check_values({k: x for k, x in values.items() if k in OPTION and not OPTION[k].fit}, flag)
     check_image_options(v, name=flag)
     if (v.get("conversion_gain") is None) != (v.get("read_noise") is None):
@@ -374,9 +367,8 @@ def check_input_options(*, flag=str, **values):
 
 
 def check_resolved_loss(values, loss, source, flag=str):
-    """Refuse, before the fit, the options that need the likelihood when the loss resolved to another
-    (``loss="auto"`` on an input without a camera noise model): they would be dropped.  ``source``: why the
-    loss is what it is, for the message."""
+    """Refuse the options that need the likelihood when ``loss`` resolved to another (they would be
+    dropped).  ``source``: why the loss is what it is, for the message."""
     if loss == "likelihood":
         return
     if values.get("albedo", "shared") != "shared":

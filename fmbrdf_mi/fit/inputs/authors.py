@@ -5,15 +5,12 @@ Per object directory ``OBJ/``:
 =================================  ===========================================================
 ``calibration/L.txt``              one light direction per image, comma-separated x,y,z (towards the light)
 ``calibration/vpL_img.npy``        (h, w, 3) per-super-pixel viewing rays, camera -> surface; v = -vpL
-``calibration/IntrinsicL.npy``     3 x 3 camera matrix (raw-sensor pixels); used here only when
-                                   vpL_img.npy is missing, for the rays through the super-pixel centres
-``calibration/intensities.npy``    optional (K,) light power per image; the scripts divide image k by
-                                   intensities[k] / max: here it is the image's relative light power
+``calibration/IntrinsicL.npy``     3 x 3 camera matrix (raw-sensor pixels), used when vpL_img.npy is missing
+``calibration/intensities.npy``    optional (K,) light power per image (relative: divided by the max)
 ``normal/normal_GT.npy``           (h, w, 3) unit normals
 ``image/img_ud/*.png``             K undistorted 16-bit raw polarisation mosaics (2h, 2w), sorted by name =
                                    image index; 2 x 2 layout 90 45 / 135 0 (IMX250MZR: this package's default)
-``mask_ud.npy``                    (2h, 2w) object mask at the raw resolution (or ``mask.npy`` / ``mask.png``,
-                                   at either resolution)
+``mask_ud.npy``                    (2h, 2w) object mask (or ``mask.npy`` / ``mask.png``, either resolution)
 =================================  ===========================================================
 
 Their vectors are in OpenCV camera axes (x right, y down, z into the scene); directions convert as

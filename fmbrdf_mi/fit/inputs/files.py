@@ -20,9 +20,8 @@ from fmbrdf_mi.fit.inputs.parse import check_number, check_render_parameters, pa
 
 
 def check_image_options(values, where=None, name=str):
-    """The image options among ``values`` checked as :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`
-    declare them (kind, range; a sphere parsed) and the dark level below the white level; InputError naming
-    ``where`` and ``name(key)`` (how the user wrote the key)."""
+    """The image options among ``values`` checked (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`),
+    else InputError naming ``where`` and ``name(key)`` (how the user wrote the key)."""
     def label(k):
         return f"{where}: {name(k)}" if where else name(k)
 
@@ -72,15 +71,13 @@ GRIDS = {2: ("polarisation image", "super-pixels"), 4: ("mosaic's 4x4 periods", 
 
 
 def user_mask(mask, shape, within=None, what=None, cell=2):
-    """The mask a user gave (a file or an array) on the image's grid ``shape`` of ``cell`` x ``cell`` raw
-    pixels (:data:`GRIDS`): a mask of the raw mosaic keeps the cells wholly inside it.  InputError naming the
-    file unless it is a 2-D mask of the grid's or its raw mosaic's size that selects some pixel (of ``within``,
-    (H, W) bool, when given: the geometry it is intersected with, ``what`` naming it)."""
+    """The user's mask on the grid ``shape`` of ``cell`` x ``cell`` raw pixels (:data:`GRIDS`); a raw-mosaic
+    mask keeps the cells wholly inside it.  It must select some pixel (of ``within``, named ``what``)."""
     name = f"--mask {os.fspath(mask)}" if isinstance(mask, (str, os.PathLike)) else "mask"
     grid, cells = GRIDS[cell]
     mk = read_mask(mask)
     raw = (cell * shape[0], cell * shape[1])
-    if mk.shape == raw:  # mask of the raw mosaic: cells inside it
+    if mk.shape == raw:
         mk = mk.reshape(shape[0], cell, shape[1], cell).all(axis=(1, 3))
     elif mk.shape != tuple(shape):
         raise InputError(f"{name}: shape {mk.shape} matches neither the {grid} {tuple(shape)} nor its raw mosaic "

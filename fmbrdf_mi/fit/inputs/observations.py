@@ -45,8 +45,7 @@ class Observation:
     #: what a pixel integrates over: (offsets (K, 2) in pixels, dx right / dy down, weights (K,));
     #: None: the pixel centre (see fmbrdf_mi.sensor.noise.demosaic_footprint, box_footprint)
     footprint: tuple = None
-    #: the camera's own samples (:class:`fmbrdf_mi.sensor.samples.Samples`), for the likelihood and
-    #: the saturation test; None: the fit derives angle intensities from ``stokes`` when it needs them
+    #: the camera's samples (:class:`fmbrdf_mi.sensor.samples.Samples`); None: derived from ``stokes``
     samples: object = None
     #: the camera's noise (:class:`fmbrdf_mi.sensor.noise.NoiseModel`), if known
     noise: object = None
@@ -207,8 +206,7 @@ def check_mask(mask, shape, name="mask"):
 
 
 def check_observations(observations, where, least=1):
-    """A list of :class:`Observation` s (an :class:`Observation` alone is a list of one), else InputError
-    naming ``where`` and what was given (a file name: read it with build_observation / fit_files)."""
+    """A list of at least ``least`` :class:`Observation` s (one alone is a list of one), else InputError."""
     items = [observations] if isinstance(observations, Observation) else observations
     if isinstance(items, (str, bytes, os.PathLike)) or not isinstance(items, (list, tuple)):
         items = [observations]
@@ -260,8 +258,7 @@ def read_array(path, what):
 
 
 def check_samples(a, name):
-    """``a`` unless its samples are not integers or real numbers (booleans, complex numbers, strings,
-    dates): InputError naming ``name`` and the valid dtypes."""
+    """``a`` if its samples are integers or real numbers, else InputError naming ``name``."""
     if a.dtype.kind not in "uif":
         raise InputError(f"{name}: samples of dtype {a.dtype}; a polarisation image holds integers or real numbers "
                          "(uint8, uint16, int32, float32, float64, ...)")
@@ -366,8 +363,7 @@ def read_vectors(path_or_array, name, shape=None):
 
 
 def check_camera(camera, fov):
-    """``camera`` and ``fov`` checked as :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS` declare them; a
-    perspective camera needs its field of view."""
+    """``camera`` and ``fov`` checked (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`)."""
     IMAGE_OPTION["camera"].check(camera)
     if camera == "perspective" and fov is None:
         raise InputError("fov: a perspective camera needs its horizontal field of view in (0, 180) degrees")
@@ -430,8 +426,7 @@ def erode(mask, pixels=1):
 
 
 def downsample_geometry(normals, mask, view_dirs, cell=2):
-    """Geometry of ``cell`` x ``cell`` pixels (2: a quad-Bayer image's super-pixels; 4, 8, ...: 2x2 poolings
-    repeated): mean vectors renormalised, mask = all of them."""
+    """Geometry pooled over ``cell`` x ``cell`` pixels (a power of 2): mean vectors renormalised, mask all."""
     def pool(a):
         h, w = a.shape[:2]
         a = a[: h - h % 2, : w - w % 2]
