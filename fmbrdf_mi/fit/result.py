@@ -64,8 +64,7 @@ class FitResult:
 
     #: several materials: the block of :func:`fmbrdf_mi.fit.problem.materials.material_block`; in :meth:`to_json`
     materials: dict = None
-    #: the problem behind the result for :mod:`fmbrdf_mi.fit.api.checks`
-    #: (:class:`fmbrdf_mi.fit.api.assemble.Fitted`); not in :meth:`to_json`
+    #: the problem behind the result (:class:`fmbrdf_mi.fit.api.assemble.Fitted`); not in :meth:`to_json`
     fitted: object = dataclasses.field(repr=False, default=None, compare=False)
 
     #: written by :meth:`to_json` only when set

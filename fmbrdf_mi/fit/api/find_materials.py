@@ -24,8 +24,7 @@ from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs.options import Option
 from fmbrdf_mi.fit.solve.optimise import default_progress
 
-#: A pixel is decided when its material's predicted Stokes and the nearest other's are this far apart (squared,
-#: noise units: 4 standard deviations, a misassignment probability Phi(-2) = 2.3 %).
+#: A pixel is decided at this squared distance (noise units) to the nearest other material: 4 sd, error Phi(-2).
 DECIDED_D = 16.0
 #: Median chi^2 of 3 degrees of freedom (the per-pixel Stokes S0, S1, S2): the residuals' noise unit.
 CHI2_3_MEDIAN = 2.3659738843753377

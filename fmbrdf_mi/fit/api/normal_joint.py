@@ -194,8 +194,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         Hmm, Hmn, gm, gn = system(r, Jm, Jn, t, nmap[jp.idx])
         C = NS.material_covariance(Hmm, Hmn, block(Jn, t), Jm)
         w, V = np.linalg.eigh(C)
-        # a p x p "Jacobian" L^T with (L L^T)^-1 = C, so that the fit's summary (reported parameters through
-        # d theta / d z, intervals, correlations, at_bound) applies unchanged
+        # a p x p "Jacobian" L^T with (L L^T)^-1 = C, so that the fit's summary applies unchanged
         L = V / np.sqrt(np.clip(w, 1e-300, None))
         chi2 = float(r @ r)
         n_ind = jp.K * jp.n * jp.obj.dof - 2 * jp.n   # the normals' unknowns take their share of the dof

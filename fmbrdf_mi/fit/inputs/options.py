@@ -11,8 +11,7 @@ import numbers
 
 from fmbrdf_mi.fit.errors import InputError
 
-#: The irradiances (light power x irradiance, image units) a fit can work with: beyond them the albedos
-#: (image / irradiance) leave the range of the fit's arithmetic (NaN parameters or Dr.Jit errors).
+#: The irradiances (image units) a fit can work with: beyond them the albedos leave its arithmetic's range.
 IRRADIANCE_RANGE = (1e-20, 1e20)
 
 #: The records of a fit.json that can keep an option (``Option.records``).
