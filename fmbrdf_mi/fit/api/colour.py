@@ -46,7 +46,7 @@ def fit_colour(obs, samples, noise=None, *, progress=None, **options):
     ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` on the 4x4-period grid, ``samples``:
     :func:`~fmbrdf_mi.sensor.samples.colour_samples`; lists of both: a joint fit of one object and camera.
     ``noise``: a :class:`~fmbrdf_mi.sensor.noise.NoiseModel` (None: estimated from the residuals).
-    ``options``: the :data:`COLOUR_OPTIONS` (defaults the schema's but :data:`DEFAULTS`).
+    ``options``: the ``COLOUR_OPTIONS`` (defaults the schema's but ``DEFAULTS``).
     ``albedo="per-pixel"``: one k_s, k_b per period and channel (several mosaics then of one view).
     The caller erodes the mask.  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with ``params``,
     ``std_errors`` (None unless converged) and ``uncertainty["ci95"]`` nested per channel, and ``details``.
