@@ -5,29 +5,19 @@
     result.params                         # eta, alpha, beta, kappa, k_s, r_k
     joint = fit([obs_1, obs_2, obs_3])    # several images of one object: one material (= fit_joint)
 
-One pipeline in layers; each sub-package imports only from the ones listed
-before it (``tests/test_layers.py`` enforces it):
+Layers, each importing only from those above it (``tests/test_layers.py``):
 
 =================  ===========================================================================
 ``errors``         :class:`InputError`, the one-line error of every input check
-``inputs``         :class:`Observation`, loaders of every input kind (files, sidecars,
-                   manifests, the authors' layout, colour mosaics), values given as text
-``evaluate``       the models and their pixel / render evaluators, the albedo layouts (shared,
-                   per colour channel, per pixel, with an optional smoothness prior on the maps),
-                   predictions
+``inputs``         :class:`Observation` and the loaders of every input kind
+``evaluate``       the models, their evaluators, the albedo layouts, predictions
 ``objectives``     the likelihood of the camera's samples, the paper's loss and its variants
-``problem``        what a fit runs on (pixels, objective, evaluator: one builder for one image
-                   or K) and its one problem (model, bounds, clock), with free light powers or
-                   per-pixel normals and their prior as extra unknowns
-``solve``          the one solver (``driver.solve``: coarse search, starts, reweighting rounds,
-                   deadline) over the one Levenberg-Marquardt or Adam; the normal refinement's
-                   system
+``problem``        what a fit runs on (pixels, objective, evaluator) and its unknowns
+``solve``          the one solver (``driver.solve``) over Levenberg-Marquardt or Adam
 ``uncertainty``    covariances (Fisher, sandwich), intervals, flags
 ``result``         :class:`FitResult` and the JSON encoder of every output
 ``api``            :func:`fit`, :func:`fit_joint`, :func:`fit_colour`, normal refinement
-``outputs``        the one skeleton of every run that writes a fit (:class:`~fmbrdf_mi.fit.outputs.job.FitJob`:
-                   checks, overwrite refusal, atomic JSON), ``reproduce`` records and reruns,
-                   plots, summaries
+``outputs``        the skeleton of every run that writes a fit (:class:`~fmbrdf_mi.fit.outputs.job.FitJob`)
 ``cli``            ``fmbrdf-mi fit``: arguments, their checks, dispatch
 =================  ===========================================================================
 """

@@ -21,17 +21,8 @@ def json_default(x):
 class FitResult:
     """The result of every fit: one image or several, one albedo pair or per-channel albedos, free powers.
 
-    The estimate (``params``: the model's reported parameters; per-channel
-    albedos as ``{"R": .., "G": .., "B": ..}``), its ``std_errors`` and
-    ``uncertainty`` block, the objective's value (``loss``, ``loss_terms``),
-    how the fit ended (``converged``, ``stop_reason``, ``history``,
-    ``starts``) and what it used (``n_pixels``, ``pixels``,
-    ``pixels_excluded``, ``noise``, ``options``, ``timings``).  Several
-    images add ``images`` (per-image diagnostics), free light powers
-    ``powers``, colour mosaics ``channels``, normal refinement ``normals``
-    and ``mask``, and the mode's own numbers go in ``details`` (chi^2 per
-    sample, the internal state, ...).  ``result["key"]`` reads a field or
-    a ``details`` entry.
+    ``params``: the model's reported parameters (per-channel albedos as ``{"R": .., "G": .., "B": ..}``).
+    ``result["key"]`` reads a field or a ``details`` entry.
     """
 
     model: str
@@ -65,20 +56,15 @@ class FitResult:
     #: normal refinement: the refined normal map (H, W, 3) and the pixels refined (H, W); not in :meth:`to_json`
     normals: np.ndarray = dataclasses.field(repr=False, default=None)
     mask: np.ndarray = dataclasses.field(repr=False, default=None)
-    #: per-pixel albedos (``FitOptions.albedo="per-pixel"``): what the maps hold, in numbers (pixels, how many
-    #: have their surface / body split identified, medians); in :meth:`to_json`
+    #: per-pixel albedos (``FitOptions.albedo="per-pixel"``): the maps' summary numbers; in :meth:`to_json`
     albedo: dict = None
-    #: ... and the maps themselves (:func:`fmbrdf_mi.fit.api.assemble.albedo_maps`): ``k_s``, ``k_b``, their
-    #: standard errors ``k_s_se``, ``k_b_se``, ``identified`` (H, W), or (C, H, W) per colour channel
-    #: ``channels``; NaN (``identified``: False) where no pixel was fitted; not in :meth:`to_json`
+    #: the maps (:func:`fmbrdf_mi.fit.api.assemble.albedo_maps`): ``k_s``, ``k_b``, ``k_s_se``, ``k_b_se``,
+    #: ``identified``, (H, W) or (C, H, W); NaN where no pixel was fitted; not in :meth:`to_json`
     maps: dict = dataclasses.field(repr=False, default=None)
 
-    #: several materials (``fit(..., materials=labels)``): the ``materials`` block of
-    #: :func:`fmbrdf_mi.fit.problem.materials.material_block` (per material: pixels, parameters, standard
-    #: errors, 95 % intervals); in :meth:`to_json`
+    #: several materials: the block of :func:`fmbrdf_mi.fit.problem.materials.material_block`; in :meth:`to_json`
     materials: dict = None
-    #: what the checks after a fit (:mod:`fmbrdf_mi.fit.api.checks`) need: the problem, data and solution
-    #: behind the result (:class:`fmbrdf_mi.fit.api.assemble.Fitted`); not in :meth:`to_json`
+    #: the problem behind the result (:class:`fmbrdf_mi.fit.api.assemble.Fitted`); not in :meth:`to_json`
     fitted: object = dataclasses.field(repr=False, default=None, compare=False)
 
     #: written by :meth:`to_json` only when set

@@ -4,16 +4,13 @@
     res = fit_colour(obs, smp, noise)                     # obs: geometry on the period grid
     res.params["k_s"]      # {"R": ..., "G": ..., "B": ...}; res.std_errors likewise
 
-The colour filter changes how much light reaches a pixel, not the geometry of reflection: the shape
-parameters (eta, alpha, beta, kappa; paper eq:fmbrdf) are one material's, the albedos k_s and k_b = r_k k_s
-are per colour channel.  Raw sample k (colour c_k, polariser phi_k, at its own point of the period) is
+The shape parameters (paper eq:fmbrdf) are one material's; the albedos are per colour channel.  Raw
+sample k (colour c_k, polariser phi_k) is
 
     mu_ik = 1/2 (1, cos 2 phi_k, sin 2 phi_k) . (a_s[c_k] S_ik + a_b[c_k] B_ik)
 
-with S, B the unit-albedo Stokes vectors: the mono likelihood with the per-channel albedo layout
-(:class:`~fmbrdf_mi.fit.evaluate.albedos.ChannelAlbedos`, given by
-:func:`~fmbrdf_mi.fit.problem.data.prepare` to samples that carry channels).  The fit is
-:func:`~fmbrdf_mi.fit.api.fitting.fit`'s; this module adds the per-channel report and the predicted samples.
+with S, B the unit-albedo Stokes vectors (:class:`~fmbrdf_mi.fit.evaluate.albedos.ChannelAlbedos`).  The
+fit is :func:`~fmbrdf_mi.fit.api.fitting.fit`'s; this module adds the per-channel report and predictions.
 """
 from __future__ import annotations
 
@@ -46,19 +43,13 @@ DEFAULTS = {"max_pixels": None, "rounds": 2}
 def fit_colour(obs, samples, noise=None, *, progress=None, **options):
     """:func:`~fmbrdf_mi.fit.api.fitting.fit` of a colour mosaic's samples (module docstring).
 
-    ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` on the mosaic's 4x4-period grid (its
-    ``stokes`` gives only the shape), ``samples``: :func:`~fmbrdf_mi.sensor.samples.colour_samples`; lists of
-    both: a joint fit of several mosaics of one object and one camera (``max_pixels`` split between them).
-    ``noise``: a :class:`~fmbrdf_mi.sensor.noise.NoiseModel` (None: unknown, estimated from the residuals).
-    ``options``: the :data:`COLOUR_OPTIONS` of :class:`~fmbrdf_mi.fit.api.options.FitOptions` (defaults the
-    schema's but :data:`DEFAULTS`; ``area_points`` None: 2, checked by
-    :func:`~fmbrdf_mi.fit.api.checks.check_footprint`).  ``albedo="per-pixel"``: one k_s, k_b per period and
-    channel (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`; several mosaics must then be of one view).
-
-    The caller erodes the mask.  Returns the :class:`~fmbrdf_mi.fit.result.FitResult` with ``params``,
-    ``std_errors`` and ``uncertainty["ci95"]`` nested per channel (``{"k_s": {"R": .., "G": .., "B": ..}}``;
-    ``std_errors`` None when not converged), ``channels``, ``pixels`` (a list per image for lists) and in
-    ``details``: chi2, chi2_per_dof, n_samples, evaluations, time_s, chi2_per_sample (per image for lists).
+    ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` on the 4x4-period grid, ``samples``:
+    :func:`~fmbrdf_mi.sensor.samples.colour_samples`; lists of both: a joint fit of one object and camera.
+    ``noise``: a :class:`~fmbrdf_mi.sensor.noise.NoiseModel` (None: estimated from the residuals).
+    ``options``: the ``COLOUR_OPTIONS`` (defaults the schema's but ``DEFAULTS``).
+    ``albedo="per-pixel"``: one k_s, k_b per period and channel (several mosaics then of one view).
+    The caller erodes the mask.  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with ``params``,
+    ``std_errors`` (None unless converged) and ``uncertainty["ci95"]`` nested per channel, and ``details``.
     """
     unknown = [k for k in options if k not in COLOUR_OPTIONS]
     if unknown:

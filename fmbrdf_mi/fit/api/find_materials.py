@@ -1,34 +1,13 @@
-"""Finding the label image of several materials when the user has none (``fmbrdf-mi fit --materials auto:M``).
+"""The label image of several materials when the user has none (``fmbrdf-mi fit --materials auto:M``).
 
     found = find_materials(obs, 2)           # FoundMaterials: labels (H, W), record (for fit.json)
-    res = fit(obs, materials=found.labels)   # the ordinary fit of several materials
+    res = fit(obs, materials=found.labels)
 
-Three steps, deterministic for a given ``seed``:
-
-1. **Features.**  The per-pixel albedo fit (``albedo="per-pixel"``) divides
-   the geometry out of each pixel through the model, so a pixel's (k_s, k_b)
-   belongs to its material, not to where it sits on the object (raw
-   intensity, DoLP and AoLP follow the normal).  The features are k_s and k_b
-   in units of each pixel's own standard error, so a pixel far from the
-   highlight (k_s undetermined) counts by its k_b alone.
-2. **Clustering.**  :func:`weighted_kmeans` in those units, then
-   :func:`majority_filter` removes isolated pixels.
-3. **Refinement on the model (hard EM).**  The fit of M materials with these
-   labels, then each pixel goes to the material whose fitted model predicts
-   its Stokes (S0, S1, S2) with the least chi^2 (:func:`material_chi2`), and
-   the fit is repeated while labels change (at most ``rounds`` fits).  This
-   uses each material's own shape, which step 1 shares.
-
-After each fit :func:`separation` checks that the materials are told apart at
-each pixel; otherwise :class:`MaterialsNotSeparated` is raised, never labels
-that mean nothing.
-
-**When it fails.**  Materials with equal albedos that differ in eta, alpha,
-beta or kappa by less than the noise shows at each pixel; materials that look
-identical, or M larger than the number present (refused as not separated); a
-material on fewer pixels than the 3 x 3 filter; a material everywhere dark or
-saturated.  The labels are on the fit's pixel grid and cover the pixels the
-fit uses; the rest are -1.
+Features: the per-pixel albedo fit's (k_s, k_b) in units of their standard errors (the model divides the
+geometry out); :func:`weighted_kmeans`, then :func:`majority_filter`; then hard EM on the model: fit M
+materials, move each pixel to the material of least chi^2 (:func:`material_chi2`), refit while labels
+change.  :func:`separation` must show the materials told apart at each pixel, else
+:class:`MaterialsNotSeparated`.  Labels cover the fit's pixels; the rest are -1.
 """
 from __future__ import annotations
 
@@ -45,8 +24,7 @@ from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs.options import Option
 from fmbrdf_mi.fit.solve.optimise import default_progress
 
-#: A pixel is decided when its material's predicted Stokes and the nearest other's are this far apart (squared,
-#: noise units: 4 standard deviations, a misassignment probability Phi(-2) = 2.3 %).
+#: A pixel is decided at this squared distance (noise units) to the nearest other material: 4 sd, error Phi(-2).
 DECIDED_D = 16.0
 #: Median chi^2 of 3 degrees of freedom (the per-pixel Stokes S0, S1, S2): the residuals' noise unit.
 CHI2_3_MEDIAN = 2.3659738843753377
@@ -87,10 +65,8 @@ def parse_auto(value):
 
 # ------------------------------------------------------------------ clustering (NumPy)
 def weighted_kmeans(x, w, count, seed=0, starts=10, max_iter=100):
-    """k-means of points ``x`` (n, F) under per-point, per-feature weights ``w`` (n, F) (1 / variance):
-    distance sum_f w_f (x_f - c_f)^2, centres the weighted means.  k-means++ starts from
-    ``numpy.random.default_rng(seed)``; the start of least total distance is kept.  Returns
-    (labels (n,), centres (count, F), total)."""
+    """k-means of ``x`` (n, F) with weights ``w`` (n, F) (1 / variance): distance sum_f w_f (x_f - c_f)^2;
+    the best of ``starts`` k-means++ starts.  Returns (labels (n,), centres (count, F), total)."""
     x, w = np.asarray(x, dtype=np.float64), np.asarray(w, dtype=np.float64)
     n = len(x)
     rng = np.random.default_rng(seed)
@@ -123,8 +99,7 @@ def weighted_kmeans(x, w, count, seed=0, starts=10, max_iter=100):
 
 
 def majority_filter(labels, count, passes=1):
-    """Each labelled pixel (>= 0) takes the most frequent label of its 3 x 3 neighbourhood's labelled pixels
-    (itself included; a tie keeps its own); -1 stays -1.  ``passes`` times."""
+    """Each labelled pixel takes its 3 x 3 neighbourhood's most frequent label (a tie keeps its own)."""
     lab = np.asarray(labels).copy()
     h, w = lab.shape
     for _ in range(passes):
@@ -144,12 +119,10 @@ def majority_filter(labels, count, passes=1):
 
 # ------------------------------------------------------------------ the model's per-pixel chi^2
 def material_chi2(obs, model, params, count, idx):
-    """Each material's fitted model at pixels ``idx`` in units of the noise: (chi2 (count, n), the per-pixel
-    chi^2 of the Stokes (S0, S1, S2) residuals; pred (count, 3, n), the predictions divided by the noise's
-    standard deviation; the 3 noise scales).  Each pixel's variance is the capture's ``lin_variance`` when
-    known (S0: half of it), else shot noise (S0 plus 1 % of its median); each component is then scaled so
-    that the median of the best material's per-pixel chi^2 is that of chi^2 with 3 degrees of freedom, so the
-    noise model is trusted for its shape only."""
+    """Each material's model at pixels ``idx`` in noise units: (chi2 (count, n) of the S0, S1, S2 residuals,
+    pred (count, 3, n) over the noise sd, the 3 noise scales).  Variances: ``lin_variance`` or shot noise,
+    each component scaled so the best material's median chi^2 is that of 3 dof (the noise model is trusted
+    for its shape only)."""
     obs_s = np.asarray(obs.stokes, dtype=np.float64).reshape(3, -1)[:, idx]
     if obs.lin_variance is not None:
         lin = np.asarray(obs.lin_variance, dtype=np.float64).ravel()[idx]
@@ -170,11 +143,9 @@ def material_chi2(obs, model, params, count, idx):
 
 
 def separation(pred, labels_flat, count):
-    """Per material: the fraction of its pixels decided and the median distance D (squared, noise units)
-    between the pixel's own material's predicted Stokes and the nearest other material's.  Two Gaussians D
-    apart are told apart with error probability Phi(-sqrt(D) / 2); a pixel is decided when D >= DECIDED_D.
-    D compares the materials' models, not the pixel's residuals, so it does not grow by assigning each pixel
-    the material its noise happens to favour (as a chi^2 difference would, even for identical materials)."""
+    """Per material: the fraction of its pixels decided (D >= DECIDED_D) and the median D, the squared
+    noise-unit distance between the own material's predicted Stokes and the nearest other's.  D compares
+    models, not residuals, so noise cannot inflate it for identical materials."""
     n = pred.shape[2]
     own = pred[labels_flat, :, np.arange(n)]                 # (n, 3)
     d = np.sum((pred - own.T[None]) ** 2, axis=1)            # (count, n)
@@ -191,19 +162,16 @@ def separation(pred, labels_flat, count):
 # ------------------------------------------------------------------ the method
 def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_decided=0.5, progress=False,
                    **kw):
-    """Labels of ``count`` materials for ``obs`` (one :class:`Observation`, mono), found from its pixels
-    (module docstring): a :class:`FoundMaterials`.  ``options`` / ``kw``: the
-    :class:`~fmbrdf_mi.fit.api.options.FitOptions` of the
-    fits it runs (the likelihood; ``albedo`` and ``materials`` are its own); ``seed``: k-means++'s;
-    ``rounds``: at most this many fits of M materials; ``clean``: majority-filter passes; ``min_decided``:
-    the fraction of each material's pixels that must be decided.  Raises :class:`MaterialsNotSeparated`
-    (an InputError) when they are not, and InputError for a bad ``count``."""
+    """A :class:`FoundMaterials` of ``count`` materials for one mono :class:`Observation`.
+
+    ``options`` / ``kw``: :class:`~fmbrdf_mi.fit.api.options.FitOptions` of its fits (``albedo``,
+    ``materials`` are its own); ``rounds``: most fits of M materials; ``clean``: majority-filter passes;
+    ``min_decided``: each material's fraction of decided pixels.  Raises :class:`MaterialsNotSeparated`."""
     if isinstance(obs, (list, tuple)):
         raise InputError("find_materials: one image (an Observation); several images are not supported yet")
     count = Option("count", kind="int", lo=2, hi=254).check(count, "find_materials: count")
     Option("min_decided", kind="number", lo=0.0, lo_open=True, hi=1.0).check(min_decided,
                                                                             "find_materials: min_decided")
-    # its own fits: shared albedos per material, Fisher intervals (only the estimates are used)
     opts = dataclasses.replace(fit_options(options, kw), albedo="shared", intervals="fisher")
     report = default_progress if progress is True else (progress or (lambda m: None))
 
@@ -272,6 +240,6 @@ def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_d
                 f"{min_decided:.0%} each): the materials look alike at each pixel (give a label image, or fewer "
                 f"materials)", record)
         if changed == 0 or r == rounds - 1:
-            break      # the labels of the last fit are kept (its separation is the one recorded)
+            break      # keep the last fit's labels (its separation is the one recorded)
         lab = new
     return FoundMaterials(lab.reshape(h, w), record, res)

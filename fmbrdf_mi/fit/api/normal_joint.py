@@ -1,47 +1,17 @@
 """Normal refinement, final step: one Levenberg-Marquardt on the material and every pixel's normal together.
 
-    from fmbrdf_mi.fit.api.normal_joint import refine_joint
-    res = refine_joint(observations, normals, params, lam=0.3)
-    res.normals, res.params, res.std_errors, res.history         # a FitResult
+    res = refine_joint(observations, normals, params, lam=0.3)   # a FitResult with normals and mask
 
-Material and normals move in one Gauss-Newton step, because an alternation
-converges slowly along the directions in which they trade off.  The unknowns
-are the material's unconstrained z (:class:`fmbrdf_mi.fit.problem.normals.NormalProblem`)
-and, per pixel, two tangent-plane unknowns n_i = normalise(n_i + u_i t1_i + v_i t2_i).
-The energy is
+Joint steps, because an alternation converges slowly where material and normals trade off.  Unknowns: the
+material's z (:class:`fmbrdf_mi.fit.problem.normals.NormalProblem`) and two tangent-plane unknowns per pixel.
+Energy: the samples' likelihood (:class:`fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`) plus
+``lam c`` times the smoothness prior (:func:`fmbrdf_mi.fit.problem.normals.stencils`, ``curvature`` or
+``membrane``); ``lam`` is in Stokes residuals over the mean intensity, c converts it to chi^2 units.  Steps
+(:mod:`fmbrdf_mi.fit.solve.normal_system`) are accepted only when they lower the energy.
 
-    E = sum_{k, i, s} ((y_kis - mu_kis) / sd_kis)^2  +  lam c sum_e |sum_s coef_s n_{e_s}|^2
-
-* the first term is the likelihood of the camera's samples
-  (:class:`fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`), with mu
-  the model at each sample's own point, whose normal is the bilinear
-  interpolation of the normal map there;
-* the second is the smoothness prior (:func:`fmbrdf_mi.fit.problem.normals.stencils`):
-  ``curvature`` (default, second differences: a surface of constant
-  curvature is not pulled flat) or ``membrane`` (first differences of
-  4-neighbours: biases a small object's normals towards a plane).  ``lam``
-  is in units of the Stokes residuals divided by the image's mean intensity;
-  c = mean over the images of (mean intensity)^2 / (mean sample variance)
-  converts it to chi^2 units.
-
-The normal equations are solved by :mod:`fmbrdf_mi.fit.solve.normal_system`.
-A step is accepted only if it lowers E, so E decreases monotonically between
-IRLS refreshes; a step that turns a normal away from the camera (n . v < 0.05)
-keeps that pixel's old normal.  Converged: E falls by less than 0.01 (chi^2
-units) twice in a row, or no step lowers it.
-
-**Uncertainty.**  The material's covariance is the sandwich of the penalised
-likelihood with the normals free
-(:func:`fmbrdf_mi.fit.solve.normal_system.material_covariance`).  It does
-not contain the prior's bias, which grows with lam, so the material and its
-covariance come from one more run from the refinement's result with the prior
-weakened to ``lam_material``; the normals returned are those of ``lam``.
-These standard errors are calibrated at ``lam_material <= LAM_MATERIAL``
-(``uncertainty["calibrated"]``; ``tools/bench_normal_refine.py --seeds``,
-docs/benchmarks/joint.md); otherwise ``uncertainty["warning"]`` says so.
-They are mapped to the reported parameters as the fit does
-(:mod:`fmbrdf_mi.fit.uncertainty`), with the normals' 2 n unknowns counted in
-the degrees of freedom.  Only after convergence.
+The material's covariance is the sandwich of the penalised likelihood with the normals free
+(:func:`fmbrdf_mi.fit.solve.normal_system.material_covariance`); it omits the prior's bias, so the material
+is re-estimated at the weaker ``lam_material`` and is calibrated for ``lam_material <= LAM_MATERIAL``.
 """
 from __future__ import annotations
 
@@ -62,15 +32,13 @@ from fmbrdf_mi.fit.solve import lm as LM
 from fmbrdf_mi.fit.solve import normal_system as NS
 from fmbrdf_mi.fit.solve.irls import reweighted
 
-#: The smoothness weight at which the material and its covariance are estimated, after the refinement at the
-#: requested ``lam`` (module docstring, Uncertainty).
+#: The smoothness weight of the material's estimate and covariance, after the refinement at ``lam``.
 LAM_MATERIAL = 0.03
 
 
 def round_time_left(decreases, per_iter, most, tol=0.01):
-    """Seconds a Levenberg-Marquardt round of :func:`refine_joint` probably has left: the energy's last three
-    ``decreases`` extrapolated geometrically to a decrease below ``tol``, at ``per_iter`` seconds an iteration
-    and at most ``most`` iterations; None while there are fewer than three decreases or they do not shrink."""
+    """Seconds a round of :func:`refine_joint` probably has left: the last three energy ``decreases``
+    extrapolated geometrically below ``tol``; None until three decreases shrink."""
     d = decreases[-3:]
     if len(d) < 3 or min(d) <= 0 or d[2] >= d[0]:
         return None
@@ -80,10 +48,8 @@ def round_time_left(decreases, per_iter, most, tol=0.01):
 
 
 def refinement_time_left(left, round_times, elapsed, rounds_after):
-    """Seconds the whole refinement probably has left: ``left`` this round's (:func:`round_time_left`, None:
-    not known), ``round_times`` the finished rounds' durations, ``elapsed`` this round's time so far,
-    ``rounds_after`` the rounds still to come, each taken to last as long as the finished ones on average
-    (errs long: later rounds start nearer the optimum).  None when nothing is known yet."""
+    """Seconds the whole refinement probably has left: this round's ``left`` plus ``rounds_after`` rounds of
+    the finished ones' mean duration (errs long); None when nothing is known yet."""
     if rounds_after <= 0:
         return left
     if round_times:
@@ -98,20 +64,14 @@ def refinement_time_left(left, round_times, elapsed, rounds_after):
 def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="curvature", model="fmbrdf",
                  bounds=None, fixed=None, max_iter=50, refreshes=2, h=1e-3, progress=None, time_limit=None,
                  lam_material=LAM_MATERIAL):
-    """Jointly refine the material ``params`` (reported, e.g. from a joint fit) and ``normals`` (H, W, 3).
+    """Jointly refine the material ``params`` (reported) and ``normals`` (H, W, 3).
 
-    ``observations``: K >= 3 :class:`Observation` s of one view (one pixel
-    grid, one set of view directions), different lights.  ``mask``: the
-    pixels refined (default: the first observation's mask eroded by 1, less
-    super-pixels with a clipped sample in any image).  ``lam``: smoothness
-    weight (module docstring).  ``refreshes``: IRLS rounds (variances from the
-    model, then LM again).  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with ``normals``
-    and ``mask``; ``loss`` is the energy, ``loss_terms`` its data (chi^2) and prior parts (at ``lam``, the
-    returned normals' state).  ``lam_material``: the smoothness weight of the material's estimate and
-    standard errors (one more run from the refinement's result, when below ``lam``; None: the material at
-    ``lam``); ``options["material_stage"]`` its energy and stop reason.  ``uncertainty["calibrated"]`` is
-    true when the material's weight is at most ``LAM_MATERIAL`` (module docstring).
-    Raises :class:`~fmbrdf_mi.fit.InputError` with fewer than 2 usable pixels.
+    ``observations``: K >= 3 :class:`Observation` s of one view under different lights.  ``mask``: the
+    pixels refined (default: the first mask eroded by 1, less clipped super-pixels).  ``refreshes``: IRLS
+    rounds.  ``lam_material``: the material's smoothness weight (None: ``lam``); ``options["material_stage"]``
+    records that run.  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with ``normals`` and ``mask``;
+    ``loss_terms``: data (chi^2) and prior at ``lam``.  Raises :class:`~fmbrdf_mi.fit.InputError` with fewer
+    than 2 usable pixels.
     """
 
     say = progress or (lambda msg: None)
@@ -135,7 +95,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     history = []
     last = {}
     staged = lam_material is not None and lam_material < lam
-    n_rounds = refreshes + 1 + int(staged)     # IRLS rounds, then the material's (module docstring)
+    n_rounds = refreshes + 1 + int(staged)     # IRLS rounds, then the material's
     round_times = []
 
     def system(r, Jm, Jn, t, n):    # the normal equations' blocks: data, then the prior's gradient
@@ -145,7 +105,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     def block(Jn, t, mu=0.0):
         return NS.NormalBlock(Jn[0], Jn[1], jp.stencils, jp.coef, t[0], t[1], jp.w_prior, mu)
 
-    def before(x, rnd):     # from the second round: the variances (and the prior's scale) from the model
+    def before(x, rnd):     # from the second round: variances and the prior's scale from the model
         st, nmap = x
         if rnd:
             jp.obj.refresh(jp.parts_at(st, nmap), st)
@@ -234,8 +194,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         Hmm, Hmn, gm, gn = system(r, Jm, Jn, t, nmap[jp.idx])
         C = NS.material_covariance(Hmm, Hmn, block(Jn, t), Jm)
         w, V = np.linalg.eigh(C)
-        # a p x p "Jacobian" L^T with (L L^T)^-1 = C, so that the fit's summary (reported parameters through
-        # d theta / d z, intervals, correlations, at_bound) applies unchanged
+        # a p x p "Jacobian" L^T with (L L^T)^-1 = C, so that the fit's summary applies unchanged
         L = V / np.sqrt(np.clip(w, 1e-300, None))
         chi2 = float(r @ r)
         n_ind = jp.K * jp.n * jp.obj.dof - 2 * jp.n   # the normals' unknowns take their share of the dof

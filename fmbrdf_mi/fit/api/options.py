@@ -1,13 +1,9 @@
 """The one option schema of a fit: every option declared once in :data:`OPTIONS`, the rest generated.
 
-Each option is an :class:`~fmbrdf_mi.fit.inputs.options.Option` (name, flag, kind, valid range or choices,
-default, help, the fit.json records that keep it; the options of one image, which the manifest and
-:func:`~fmbrdf_mi.fit.inputs.files.build_observation` read, are declared at the inputs layer as
-:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`).  Generated from the table: :class:`FitOptions`, the
-command line (:func:`add_arguments`), the checks (:func:`check_fit_options`, :func:`check_input_options`:
-kind and range, one line naming the option and what is valid, then the relations between options), the keys
-a record keeps (:func:`record_keys`, :func:`arguments`) and a manifest image's keys.  A new option is one
-more row here (or in :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`) and the code that uses it.
+Each row is an :class:`~fmbrdf_mi.fit.inputs.options.Option`; one image's options are
+:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`.  Generated: :class:`FitOptions`, the command line
+(:func:`add_arguments`), the checks (:func:`check_fit_options`, :func:`check_input_options`) and the keys a
+record keeps (:func:`record_keys`, :func:`arguments`).
 """
 from __future__ import annotations
 
@@ -25,9 +21,8 @@ from fmbrdf_mi.fit.uncertainty import INTERVALS
 #: The albedo layouts a fit can be asked for (``FitOptions.albedo``, ``--albedo``).
 ALBEDO_LAYOUTS = ("shared",) + PER_PIXEL_LAYOUTS
 
-#: The smallest smoothness scale tau of the albedo maps' prior (in the maps' units): the prior adds 1 / tau^2
-#: to the maps' normal equations, and far below this the data's information is lost beside it in double
-#: precision (maps tied to one value are ``albedo="shared"``).
+#: The smallest smoothness scale tau of the albedo maps' prior (maps' units): below it the prior's 1 / tau^2
+#: drowns the data in double precision.
 SMOOTH_MIN = 1e-6
 
 _IMAGE, _GEOMETRY = IMAGE_OPTIONS[0].group, IMAGE_OPTIONS[-1].group
@@ -42,7 +37,7 @@ _SJ = ("single", "joint")
 #: The command line's help sections, in order.
 GROUPS = (_IMAGE, _GEOMETRY, _FIT, _JOINT, _NORMALS, _RELIGHT, _OUTPUT)
 
-#: Every option, declared once (module docstring).
+#: Every option, declared once.
 OPTIONS = (
     Option("inputs", None, flag="inputs", group=_IMAGE, records=("single", "colour"),
            cli={"nargs": "*", "metavar": "INPUT", "default": []},
@@ -200,9 +195,8 @@ def record_keys(record):
 
 
 def arguments(record, given, where):
-    """``given`` (keyword arguments) checked to be options of ``record``, completed by the defaults: the
-    arguments of a writing function (:func:`~fmbrdf_mi.fit.outputs.single.fit_files`, ...), as fit.json's
-    ``reproduce.arguments`` keeps them."""
+    """``given`` checked to be options of ``record`` and completed by the defaults (fit.json's
+    ``reproduce.arguments``)."""
     keys = record_keys(record)
     unknown = [k for k in given if k not in keys]
     if unknown:
@@ -228,8 +222,7 @@ FIT_NAMES = tuple(o.name for o in OPTIONS if o.fit)
 
 
 def fit_options(values, **changes):
-    """The :class:`FitOptions` of ``values`` (option name -> value; names that are not fit options are left
-    out), parsed and checked (:func:`check_values`), with ``changes``."""
+    """The :class:`FitOptions` of ``values`` (other names left out), checked, with ``changes``."""
     return FitOptions(**{**check_values({k: x for k, x in values.items() if k in FIT_NAMES}), **changes})
 
 
@@ -254,8 +247,7 @@ def add_arguments(p, groups=GROUPS):
 
 # ---------------------------------------------------------------- the checks
 def check_values(values, flag=str):
-    """Each value of ``values`` (option name -> value; names outside the schema are left alone) checked against
-    its option's kind and range; returns them parsed (their text forms, :attr:`Option.parse`)."""
+    """``values`` checked against their options' kind and range and parsed (names outside the schema kept)."""
     out = dict(values)
     for name, v in values.items():
         o = OPTION.get(name)
@@ -268,9 +260,8 @@ def check_values(values, flag=str):
 
 
 def check_fit_options(*, flag=str, **values):
-    """Raise InputError for the first invalid fit option (its value, then its relations to the others:
-    :func:`check_relations`).  ``values``: option name -> value, the defaults for those not given; names
-    outside the schema are ignored.  ``flag`` maps an option name to how the user wrote it."""
+    """Raise InputError for the first invalid fit option, then :func:`check_relations`.  ``flag`` maps an
+    option name to how the user wrote it."""
     v = {k: OPTION[k].default for k in FIT_NAMES + ("baselines", "materials")}
     v.update({k: x for k, x in values.items() if k in OPTION})
     for k in ("model", "max_iter", "tol", "erode", "seed", "lr", "spp", "rounds", "starts"):
@@ -281,8 +272,7 @@ def check_fit_options(*, flag=str, **values):
 
 
 def check_relations(v, flag=str):
-    """The relations between the fit options ``v`` (all given, parsed): pairs that do not go together and
-    parameter tables that must name the model's parameters within its bounds; one line each."""
+    """The relations between the parsed fit options ``v``: incompatible pairs, parameter tables in bounds."""
     m = get_model(v["model"])
     loss, albedo, materials = v["loss"], v["albedo"], v.get("materials")
     likelihood = loss in ("auto", "likelihood")
@@ -355,8 +345,7 @@ def check_init(init, m, flag):
 
 
 def number(name, value, lo=None, hi=None):
-    """``value`` a finite number within the fit's bounds [``lo``, ``hi``] of a parameter, else InputError
-    naming ``name``."""
+    """``value`` a finite number in [``lo``, ``hi``], else InputError naming ``name``."""
     o = Option(name, kind="number", lo=lo, hi=hi)
     try:
         if value is not None:
@@ -367,8 +356,7 @@ def number(name, value, lo=None, hi=None):
 
 
 def check_input_options(*, flag=str, **values):
-    """Raise InputError for the first invalid option about the image and the light (names outside the schema
-    are ignored)."""
+    """Raise InputError for the first invalid option about the image and the light."""
     v = check_values({k: x for k, x in values.items() if k in OPTION and not OPTION[k].fit}, flag)
     check_image_options(v, name=flag)
     if (v.get("conversion_gain") is None) != (v.get("read_noise") is None):
@@ -379,9 +367,8 @@ def check_input_options(*, flag=str, **values):
 
 
 def check_resolved_loss(values, loss, source, flag=str):
-    """Refuse, before the fit, the options that need the likelihood when the loss resolved to another
-    (``loss="auto"`` on an input without a camera noise model): they would be dropped.  ``source``: why the
-    loss is what it is, for the message."""
+    """Refuse the options that need the likelihood when ``loss`` resolved to another (they would be
+    dropped).  ``source``: why the loss is what it is, for the message."""
     if loss == "likelihood":
         return
     if values.get("albedo", "shared") != "shared":

@@ -1,43 +1,22 @@
-"""The captured-data layout of the paper's authors (kyotovision-public/fmbrdf), read directly.
+"""The captured-data layout of the paper's authors (kyotovision-public/fmbrdf); entry :func:`read_object`.
 
-Per object directory ``OBJ/`` their scripts (``DoLP_fitting``,
-``intensity_fitting``, ``shape_reconstruction``) read:
+Per object directory ``OBJ/``:
 
 =================================  ===========================================================
 ``calibration/L.txt``              one light direction per image, comma-separated x,y,z (towards the light)
 ``calibration/vpL_img.npy``        (h, w, 3) per-super-pixel viewing rays, camera -> surface; v = -vpL
-``calibration/IntrinsicL.npy``     3 x 3 camera matrix (raw-sensor pixels); used here only when
-                                   vpL_img.npy is missing, for the rays through the super-pixel centres
-``calibration/intensities.npy``    optional (K,) light power per image; the scripts divide image k by
-                                   intensities[k] / max: here it is the image's relative light power
+``calibration/IntrinsicL.npy``     3 x 3 camera matrix (raw-sensor pixels), used when vpL_img.npy is missing
+``calibration/intensities.npy``    optional (K,) light power per image (relative: divided by the max)
 ``normal/normal_GT.npy``           (h, w, 3) unit normals
 ``image/img_ud/*.png``             K undistorted 16-bit raw polarisation mosaics (2h, 2w), sorted by name =
                                    image index; 2 x 2 layout 90 45 / 135 0 (IMX250MZR: this package's default)
-``mask_ud.npy``                    (2h, 2w) object mask at the raw resolution (or ``mask.npy`` / ``mask.png``,
-                                   at either resolution)
+``mask_ud.npy``                    (2h, 2w) object mask (or ``mask.npy`` / ``mask.png``, either resolution)
 =================================  ===========================================================
 
-**Frames.**  Their vectors are in OpenCV camera axes: x right, y down, z
-forward (into the scene).  This package's camera frame is x right, y up, z
-towards the camera, so every direction converts as (x, y, z) -> (x, -y, -z)
-(a rotation by 180 degrees about x; handedness is kept).  A normal facing the
-camera has z < 0 in theirs (their shape reconstruction flips normals with
-z > 0 as back-facing) and z > 0 here.
-
-**AoLP.**  Their ``PBayer`` computes s1 = I0 - I90, s2 = I45 - I135 and
-AoLP = atan2(s2, s1) / 2 from the mosaic, and the fitting scripts build the
-observed Stokes vector from **-AoLP**: (S0, S1, -S2).  The sensor's angles run
-counter-clockwise as the image is displayed (x right, y up: this package's
-Stokes frame, :mod:`fmbrdf_mi.sensor.mosaic`), so their negated AoLP is the same
-angle measured in the OpenCV image frame (x right, y down), i.e. clockwise as
-displayed: theirs = -ours, S2 theirs = -S2 ours, S1 and S0 equal
-(``tests/fit/test_inputs_authors.py`` checks it on a mosaic made by the camera
-model).  This module reads the raw mosaics itself, so nothing is negated here.
-
-Their scripts also erode the mask (5 x 5, once), drop super-pixels with a
-sample at 65535 and those with I_DC = S0 / 2 below 1 % of full scale; here
-the fit's own pixel selection applies (``erode``, white level 65535 by
-default, and the likelihood keeps dim pixels, whose noise it models).
+Their vectors are in OpenCV camera axes (x right, y down, z into the scene); directions convert as
+(x, y, z) -> (x, -y, -z).  Their fitting scripts use -AoLP, i.e. the angle in the OpenCV image frame
+(S2 theirs = -S2 ours); the raw mosaics are read here directly, so nothing is negated.  The fit's own
+pixel selection applies, not their scripts'.
 """
 from __future__ import annotations
 
@@ -64,11 +43,8 @@ def cv_to_ours(v):
 
 
 def rays_from_intrinsics(K, shape, path=None):
-    """Unit view directions (h, w, 3), ours, through the super-pixel centres of a (2h, 2w) sensor.
-
-    OpenCV pixel (u, v) has its centre at integer coordinates; super-pixel
-    (i, j) covers raw pixels 2i..2i+1, 2j..2j+1, centre (2j + 0.5, 2i + 0.5).
-    """
+    """Unit view directions (h, w, 3), ours, through the super-pixel centres (2j + 0.5, 2i + 0.5) of a
+    (2h, 2w) sensor (OpenCV pixel centres at integer coordinates)."""
     name = "IntrinsicL.npy" if path is None else path
     try:
         K = np.asarray(K, dtype=np.float64)
@@ -90,9 +66,8 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
                 dark_level=None, black_level=0.0, demosaic="bilinear", footprint="auto"):
     """(specs, info) for the object in ``root``: one :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` per image.
 
-    ``holdout``: image indices kept out of the fit (relighting check).
-    ``info``: what was read (files, K, intensities, intrinsics, pixels whose
-    ground-truth normal was not unit length and were left out of the mask).
+    ``holdout``: image indices kept out of the fit (relighting check).  ``info``: what was read, and the
+    pixels left out of the mask for a non-unit ground-truth normal.
     """
 
     root = os.fspath(root)

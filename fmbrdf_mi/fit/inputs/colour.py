@@ -68,10 +68,8 @@ def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, 
                       conversion_gain=None, read_noise=None, erode=2):
     """A :class:`ColourInput` of the raw colour mosaic ``path`` (its capture sidecar gives the camera).
 
-    Light and irradiance default to the sidecar's built-in scene; the
-    irradiance is multiplied by ``power`` (a joint fit's relative light power).
-    The Observation's ``meta`` holds ``settings``, ``sphere``, ``sidecar`` and
-    ``truth`` (the built-in scene's parameters) as the mono path's do.
+    Light and irradiance default to the sidecar's scene; the irradiance is multiplied by ``power``.
+    ``meta`` holds ``settings``, ``sphere``, ``sidecar`` and ``truth`` as the mono path's do.
     """
 
     path = os.fspath(path)

@@ -20,9 +20,8 @@ from fmbrdf_mi.fit.inputs.parse import check_number, check_render_parameters, pa
 
 
 def check_image_options(values, where=None, name=str):
-    """The image options among ``values`` checked as :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`
-    declare them (kind, range; a sphere parsed) and the dark level below the white level; InputError naming
-    ``where`` and ``name(key)`` (how the user wrote the key)."""
+    """The image options among ``values`` checked (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`),
+    else InputError naming ``where`` and ``name(key)`` (how the user wrote the key)."""
     def label(k):
         return f"{where}: {name(k)}" if where else name(k)
 
@@ -54,11 +53,8 @@ def builtin_sphere_geometry(p, shape=None):
     parameters ``p``) on a grid of ``shape`` (rows, cols) covering the rendered image (default: the image itself; a raw
     mosaic's super-pixel grid is half of it).
 
-    The scene (:func:`fmbrdf_mi.scene.sphere_scene`) puts a unit sphere at the origin, the camera at
-    ``distance`` on +z, the image spanning ``2 * half_width(fov, distance)`` horizontally.  Exact
-    geometry matters to the likelihood of a raw mosaic, whose samples sit a quarter super-pixel off the
-    centre, and bilinear interpolation of the pooled super-pixel normal map errs near the silhouette by
-    enough to bias kappa (docs/benchmarks/coverage.md).
+    The scene: :func:`fmbrdf_mi.scene.sphere_scene`.  A raw mosaic's samples sit off the super-pixel
+    centres, and interpolating the pooled normal map errs near the silhouette enough to bias kappa.
     """
     w, h = int(p["width"]), int(p["height"])
     shape = (h, w) if shape is None else tuple(shape)
@@ -75,15 +71,13 @@ GRIDS = {2: ("polarisation image", "super-pixels"), 4: ("mosaic's 4x4 periods", 
 
 
 def user_mask(mask, shape, within=None, what=None, cell=2):
-    """The mask a user gave (a file or an array) on the image's grid ``shape`` of ``cell`` x ``cell`` raw
-    pixels (:data:`GRIDS`): a mask of the raw mosaic keeps the cells wholly inside it.  InputError naming the
-    file unless it is a 2-D mask of the grid's or its raw mosaic's size that selects some pixel (of ``within``,
-    (H, W) bool, when given: the geometry it is intersected with, ``what`` naming it)."""
+    """The user's mask on the grid ``shape`` of ``cell`` x ``cell`` raw pixels (:data:`GRIDS`); a raw-mosaic
+    mask keeps the cells wholly inside it.  It must select some pixel (of ``within``, named ``what``)."""
     name = f"--mask {os.fspath(mask)}" if isinstance(mask, (str, os.PathLike)) else "mask"
     grid, cells = GRIDS[cell]
     mk = read_mask(mask)
     raw = (cell * shape[0], cell * shape[1])
-    if mk.shape == raw:  # mask of the raw mosaic: cells inside it
+    if mk.shape == raw:
         mk = mk.reshape(shape[0], cell, shape[1], cell).all(axis=(1, 3))
     elif mk.shape != tuple(shape):
         raise InputError(f"{name}: shape {mk.shape} matches neither the {grid} {tuple(shape)} nor its raw mosaic "
@@ -138,10 +132,8 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     """An :class:`Observation` from files (see :func:`fit_files` for the options).
 
     ``geometry``: (normals, mask, view_dirs) reused from another observation of the same object.
-    A raw mosaic with a capture sidecar (:func:`fmbrdf_mi.sensor.camera.read_sidecar`,
-    written by ``fmbrdf-mi render --raw``) supplies the layout, black level,
-    gain, read noise and white level that were not given, and the scene's
-    geometry and light.  ``meta["settings"]`` records what was used.
+    A raw mosaic's capture sidecar (:func:`fmbrdf_mi.sensor.camera.read_sidecar`) supplies the sensor
+    settings not given, and the scene's geometry and light.  ``meta["settings"]`` records what was used.
     """
     check_image_options(locals())     # the keywords, before anything is read
     sidecar = None

@@ -1,17 +1,8 @@
 """Label images of a fit of several materials (``fmbrdf-mi fit --materials LABELS``).
 
-A label image holds one integer per pixel: 0 .. M-1 the material, and a
-pixel that is not fitted is
-
-* ``.npy``: any value < 0 (an integer array, or floats with integer values);
-* ``.png``: one channel (grey ``L``, 16-bit ``I;16`` or a palette image,
-  whose palette indices are the labels): 255 in an 8-bit image, 65535 in a
-  16-bit one (so that 0 stays a material).
-
-Its size is the fit's pixel grid: for a raw mosaic the super-pixel grid
-(half the sensor's in each direction), or the sensor's own (a super-pixel
-then takes its 2 x 2 block's label when the four agree, else it is not
-fitted: :func:`fmbrdf_mi.fit.evaluate.materials.check_labels`).
+One integer per pixel, 0 .. M-1 the material; a pixel not fitted is < 0 in a ``.npy`` (integer values),
+255 / 65535 in an 8- / 16-bit one-channel ``.png`` (grey or palette indices).  The size is the fit's pixel
+grid, or a raw mosaic's sensor grid (:func:`fmbrdf_mi.fit.evaluate.materials.check_labels`).
 """
 from __future__ import annotations
 

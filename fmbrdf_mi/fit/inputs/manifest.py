@@ -12,8 +12,7 @@ from fmbrdf_mi.fit.inputs.observations import check_direction, check_file
 from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS, IRRADIANCE_RANGE, Option
 from fmbrdf_mi.fit.inputs.parse import parse_layout, parse_vector
 
-#: Options an image entry (or [defaults]) may give: :func:`fmbrdf_mi.fit.inputs.files.build_observation`'s
-#: (:data:`fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`).
+#: Options an image entry (or [defaults]) may give (:data:`fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`).
 INPUT_KEYS = IMAGE_KEYS
 
 
@@ -28,9 +27,8 @@ def _is_path(v):
 
 
 def check_options(opts, where):
-    """The input options of one image (or of [defaults]) with their types and ranges checked
-    (:func:`~fmbrdf_mi.fit.inputs.files.check_image_options`, file names as text); InputError naming ``where``
-    and the key.  Returns them with a layout given as a list in its text form (``"90,45,135,0"``)."""
+    """The input options of one image (or of [defaults]) checked, a layout list as text (``"90,45,135,0"``);
+    InputError naming ``where`` and the key."""
     check_image_options(opts, where)
     out = dict(opts)
     for key, v in opts.items():
@@ -194,8 +192,7 @@ def build_observations(specs):
 
 
 def given_power(spec, obs):
-    """The relative light power image ``spec`` was given: the manifest's ``power``, the authors'
-    ``intensities.npy`` / max (both already in the observation's irradiance), 1 if none."""
+    """The relative light power of image ``spec`` (manifest ``power`` or the authors' intensities; 1 if none)."""
     return float((obs.meta.get("authors_layout") or {}).get("power", spec.power))
 
 

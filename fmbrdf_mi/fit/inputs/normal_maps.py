@@ -43,10 +43,8 @@ def angular_error_deg(n, n_ref, mask):
 def photometric_stereo(observations, mask=None):
     """Lambertian photometric stereo (Woodham 1980) from K >= 3 images of one view: (H, W, 3) unit normals.
 
-    Per pixel, the least-squares b of I_k / E_k = l_k . b over the lights
-    (E_k the image's irradiance, I_k its S0); n = b / |b|, flipped towards
-    the camera when it points away.  The authors' shape reconstruction starts
-    from the same; specular highlights bias it, which the refinement corrects.
+    Per pixel, the least-squares b of S0_k / E_k = l_k . b; n = b / |b|, flipped towards the camera.
+    Specular highlights bias it; the refinement corrects that.
     """
     obs = check_observations(observations, "photometric stereo", least=0)
     if len(obs) < 3:

@@ -1,18 +1,9 @@
-"""Inputs of a fit: the polarimetric image, the geometry, the light; loading and validation.
+"""Inputs of a fit (:class:`Observation`): polarimetric image, geometry, light; loading and validation.
 
-Frames and conventions (those of :mod:`fmbrdf_mi.stokes_io` and of the
-``stokes`` integrator):
-
-* world / camera frame: x = image right, y = image up, z = towards the camera;
-* images are indexed ``[row, column]``, rows top to bottom; a pixel's centre
-  has image coordinates ``(x, y) = (column + 0.5, row + 0.5)`` (y down);
-* normal maps are ``(H, W, 3)`` float arrays of unit vectors in the camera
-  frame, view directions likewise (unit vectors from the surface towards the
-  camera); the light direction is the unit vector from the surface towards the
-  (directional) light.
-
-Everything that a user passes in is checked here; errors name the input, the
-expected shape or range and what was found (:class:`InputError`).
+Conventions (those of :mod:`fmbrdf_mi.stokes_io`): camera frame x right, y up, z towards the camera;
+images indexed ``[row, column]``, a pixel's centre at ``(x, y) = (column + 0.5, row + 0.5)`` (y down);
+normals and view directions (surface towards camera) are (H, W, 3) unit vectors in the camera frame; the
+light direction points from the surface towards the directional light.
 """
 from __future__ import annotations
 
@@ -38,12 +29,8 @@ UNIT_TOL = 1e-3
 class Observation:
     """One polarimetric image of an object of known geometry under a directional light.
 
-    ``stokes`` is (3, H, W): S0, S1, S2 of one channel (S3 is not used).
-    ``mask`` selects the object pixels; ``normals`` and ``view_dirs`` are
-    (H, W, 3) unit vectors (camera frame), ``light_dir`` a unit 3-vector and
-    ``irradiance`` the light's irradiance in the units of the image (1 if
-    unknown: the albedos absorb it).  ``meta`` holds whatever the source said
-    (e.g. the true parameters of a synthetic image).
+    ``stokes``: (3, H, W) S0, S1, S2 of one channel; ``mask``: the object pixels; ``irradiance``: in image
+    units (1 if unknown: the albedos absorb it); ``meta``: what the source said (e.g. true parameters).
     """
 
     stokes: np.ndarray
@@ -58,8 +45,7 @@ class Observation:
     #: what a pixel integrates over: (offsets (K, 2) in pixels, dx right / dy down, weights (K,));
     #: None: the pixel centre (see fmbrdf_mi.sensor.noise.demosaic_footprint, box_footprint)
     footprint: tuple = None
-    #: the camera's own samples (:class:`fmbrdf_mi.sensor.samples.Samples`), for the likelihood and
-    #: the saturation test; None: the fit derives angle intensities from ``stokes`` when it needs them
+    #: the camera's samples (:class:`fmbrdf_mi.sensor.samples.Samples`); None: derived from ``stokes``
     samples: object = None
     #: the camera's noise (:class:`fmbrdf_mi.sensor.noise.NoiseModel`), if known
     noise: object = None
@@ -91,13 +77,8 @@ class Observation:
     def sample_geometry(self, idx, footprint="own"):
         """Normals and view directions (n K, 3) over the footprint of the pixels ``idx``, and the weights (K,).
 
-        ``footprint``: (offsets, weights) to use instead of the observation's
-        own (None: the pixel centres).
-
-        Bilinear interpolation of the normal and view maps at the footprint's
-        offsets, renormalised (exact enough for smooth surfaces; pixels next
-        to the mask border should be eroded away).  Without a footprint: the
-        pixel centres, K = 1.
+        ``footprint``: (offsets, weights) instead of the observation's own (None: pixel centres, K = 1).
+        Without ``geometry`` the maps are interpolated bilinearly and renormalised (erode the mask border).
         """
         idx = np.asarray(idx)
         fp = self.footprint if isinstance(footprint, str) else footprint
@@ -201,7 +182,7 @@ def check_direction(v, name):
                          f"the camera), got {shown!r}")
     with np.errstate(over="ignore", under="ignore"):
         n = np.linalg.norm(a)
-    if not 1e-150 < n < 1e150:     # (1e308, 0, 0): scaled first so that the norm does not overflow
+    if not 1e-150 < n < 1e150:     # e.g. (1e308, 0, 0): scale first so the norm does not overflow
         a = a / np.abs(a).max()
         n = np.linalg.norm(a)
     return a / n
@@ -225,8 +206,7 @@ def check_mask(mask, shape, name="mask"):
 
 
 def check_observations(observations, where, least=1):
-    """A list of :class:`Observation` s (an :class:`Observation` alone is a list of one), else InputError
-    naming ``where`` and what was given (a file name: read it with build_observation / fit_files)."""
+    """A list of at least ``least`` :class:`Observation` s (one alone is a list of one), else InputError."""
     items = [observations] if isinstance(observations, Observation) else observations
     if isinstance(items, (str, bytes, os.PathLike)) or not isinstance(items, (list, tuple)):
         items = [observations]
@@ -278,8 +258,7 @@ def read_array(path, what):
 
 
 def check_samples(a, name):
-    """``a`` unless its samples are not integers or real numbers (booleans, complex numbers, strings,
-    dates): InputError naming ``name`` and the valid dtypes."""
+    """``a`` if its samples are integers or real numbers, else InputError naming ``name``."""
     if a.dtype.kind not in "uif":
         raise InputError(f"{name}: samples of dtype {a.dtype}; a polarisation image holds integers or real numbers "
                          "(uint8, uint16, int32, float32, float64, ...)")
@@ -287,11 +266,8 @@ def check_samples(a, name):
 
 
 def select_channel(stokes, channel="mean"):
-    """(3, H, W) from a (4, H, W, C) Stokes array: one colour channel or their mean.
-
-    The mean is exact for the fit: the model is linear in the albedos and the
-    other parameters are shared by all channels.
-    """
+    """(3, H, W) from a (4, H, W, C) Stokes array: one colour channel or their mean (exact for the fit: the
+    model is linear in the albedos, the other parameters are shared by all channels)."""
     s = np.asarray(stokes, dtype=np.float64)
     if s.ndim == 3:
         return s[:3]
@@ -308,19 +284,11 @@ def load_polarisation(paths, *, layout=mosaic.IMX250MZR_LAYOUT, channel="mean", 
                       demosaic="bilinear"):
     """Read a polarimetric image; returns ``(stokes (3, H, W) float64, meta dict)``.
 
-    ``paths`` is one of
-
-    * a Stokes EXR (``.exr``, :func:`fmbrdf_mi.stokes_io.read_stokes_exr`;
-      its ``fmbrdf_mi`` metadata come back as ``meta``);
-    * a raw quad-Bayer mosaic: a 2-D ``.npy``, or a 16-bit ``.png``/``.tif``,
-      split with ``layout`` (default IMX250MZR: rows ``90 45 / 135 0``); the
-      result has half the resolution, one Stokes vector per super-pixel;
-    * four polariser-angle images: a ``.npy`` of shape (4, H, W) in the order
-      0, 45, 90, 135 degrees, or a list of four 2-D image files in that order.
-
-    ``black_level`` is subtracted from raw and angle images.  ``channel``
-    (``R``, ``G``, ``B``) picks a channel of an RGB Stokes EXR: refused for
-    every input that has only one.
+    ``paths``: a Stokes ``.exr`` (:func:`fmbrdf_mi.stokes_io.read_stokes_exr`, its metadata as ``meta``);
+    a raw quad-Bayer mosaic (2-D ``.npy``, 16-bit ``.png``/``.tif``) split with ``layout`` at half
+    resolution; or four polariser-angle images, 0, 45, 90, 135 degrees (a (4, H, W) ``.npy`` or four
+    files).  ``black_level`` is subtracted from raw and angle images; ``channel`` (``R``, ``G``, ``B``)
+    picks a channel of an RGB Stokes EXR only.
     """
     picked = channel not in (None, "mean")
 
@@ -395,8 +363,7 @@ def read_vectors(path_or_array, name, shape=None):
 
 
 def check_camera(camera, fov):
-    """``camera`` and ``fov`` checked as :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS` declare them; a
-    perspective camera needs its field of view."""
+    """``camera`` and ``fov`` checked (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`)."""
     IMAGE_OPTION["camera"].check(camera)
     if camera == "perspective" and fov is None:
         raise InputError("fov: a perspective camera needs its horizontal field of view in (0, 180) degrees")
@@ -406,20 +373,14 @@ def check_camera(camera, fov):
 def find_sphere(mask):
     """Centre (x, y) and radius in pixels of the disc in ``mask`` (least-squares circle through its outline).
 
-    A mask pixel is taken to be in the disc when its centre is (a renderer's
-    coverage mask, or a thresholded image at half coverage).  The outline then
-    crosses the segment between each mask pixel and each of its 4-neighbours
-    outside the mask at a uniformly distributed point, so the segment's
-    midpoint is an unbiased sample of the outline; a circle is fitted to those
-    midpoints (Kasa; ``tools/check_find_sphere.py`` measures the error).
-    Segments to the image border are skipped, so a sphere cut by the frame is
-    fitted to its visible outline.
+    A pixel is in the disc when its centre is, so the midpoint between a mask pixel and an outside
+    4-neighbour is an unbiased sample of the outline; a Kasa circle is fitted to those midpoints
+    (``tools/check_find_sphere.py``).  Segments to the image border are skipped (a sphere cut by the frame).
     """
     m = read_mask(mask)
     if m.sum() < 12:
         raise InputError(f"mask: {int(m.sum())} pixels are too few to find a sphere in (need >= 12)")
     xs, ys = [], []
-    # pairs (inside, outside) of 4-neighbours within the image
     for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
         a = m[max(-dy, 0):m.shape[0] - max(dy, 0), max(-dx, 0):m.shape[1] - max(dx, 0)]
         b = m[max(dy, 0):, max(dx, 0):][:a.shape[0], :a.shape[1]]
@@ -430,7 +391,6 @@ def find_sphere(mask):
     x, y = np.concatenate(xs), np.concatenate(ys)
     if len(x) < 6:
         raise InputError("mask: its outline is too short to fit a circle (is it a sphere inside the frame?)")
-    # x^2 + y^2 = 2 a x + 2 b y + c  (Kasa fit)
     A = np.stack([2 * x, 2 * y, np.ones_like(x)], axis=1)
     sol, *_ = np.linalg.lstsq(A, x * x + y * y, rcond=None)
     a, b, c = sol
@@ -466,8 +426,7 @@ def erode(mask, pixels=1):
 
 
 def downsample_geometry(normals, mask, view_dirs, cell=2):
-    """Geometry of ``cell`` x ``cell`` pixels (2: a quad-Bayer image's super-pixels; 4, 8, ...: 2x2 poolings
-    repeated): mean vectors renormalised, mask = all of them."""
+    """Geometry pooled over ``cell`` x ``cell`` pixels (a power of 2): mean vectors renormalised, mask all."""
     def pool(a):
         h, w = a.shape[:2]
         a = a[: h - h % 2, : w - w % 2]

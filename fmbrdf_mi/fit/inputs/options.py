@@ -1,9 +1,7 @@
 """The option schema's row type :class:`Option` with its value check, and the options of one image.
 
-The options of one image (geometry, light, sensor settings: the keywords of
-:func:`~fmbrdf_mi.fit.inputs.files.build_observation`, the keys of a manifest image) are
-:data:`IMAGE_OPTIONS`, here at the inputs layer that reads them; the rest of the schema and what it
-generates is :mod:`fmbrdf_mi.fit.api.options`.
+:data:`IMAGE_OPTIONS`: the keywords of :func:`~fmbrdf_mi.fit.inputs.files.build_observation` and the keys
+of a manifest image; the rest of the schema is :mod:`fmbrdf_mi.fit.api.options`.
 """
 from __future__ import annotations
 
@@ -13,12 +11,10 @@ import numbers
 
 from fmbrdf_mi.fit.errors import InputError
 
-#: The irradiances (light power x irradiance, image units) a fit can work with: beyond them the albedos
-#: (image / irradiance) leave the range of the fit's arithmetic (NaN parameters or Dr.Jit errors).
+#: The irradiances (image units) a fit can work with: beyond them the albedos leave its arithmetic's range.
 IRRADIANCE_RANGE = (1e-20, 1e20)
 
-#: The records of a fit.json that can keep an option (``Option.records``): a single-image fit's, a colour
-#: mosaic's, a joint fit's.
+#: The records of a fit.json that can keep an option (``Option.records``).
 RECORDS = ("single", "colour", "joint")
 
 
@@ -31,11 +27,9 @@ class Option:
     :func:`fmbrdf_mi.fit.api.options.check_fit_options`: a table, a file name, a vector).  ``fit``: a field of
     :class:`~fmbrdf_mi.fit.api.options.FitOptions`.  ``records``: the fit.json records that keep it
     (:data:`RECORDS`).  ``flag``: its command-line flag
-    (None: not on the command line), with ``group`` its help section and ``cli`` further
-    :meth:`argparse.ArgumentParser.add_argument` keywords (``metavar``, ``action``, ``nargs``, ``type``, and
-    ``default`` where the command line's differs).  ``parse``: the text form the command line gives to the
-    value a fit takes (``"kappa=0"`` -> ``{"kappa": 0.0}``).  ``many``: a value may also be a list of up to this
-    many, each checked.
+    (None: not on the command line), ``group`` its help section, ``cli`` further
+    :meth:`argparse.ArgumentParser.add_argument` keywords.  ``parse``: text form -> value
+    (``"kappa=0"`` -> ``{"kappa": 0.0}``).  ``many``: a value may be a list of up to this many.
     """
 
     name: str

@@ -54,11 +54,8 @@ def parse_smooth(text, name="--albedo-smooth"):
 
 
 def check_number(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True):
-    """``value`` as a float if it is a finite real number in the range, else InputError naming ``name``.
-
-    Refuses what arrives as text or a list from a manifest, a sidecar or a fit.json (``"2.4"``,
-    ``[1]``, ``true``) as well as NaN and infinities; None is passed through.
-    """
+    """``value`` if it is a finite real number in the range (not text, a list or a bool; None passes),
+    else InputError naming ``name``."""
     return Option(name, kind="number", lo=lo, lo_open=not lo_incl, hi=hi, hi_open=not hi_incl).check(value)
 
 
