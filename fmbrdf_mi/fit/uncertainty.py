@@ -468,7 +468,6 @@ def profile_intervals(problem, st, unc, J, r, every=False):
     Varin, Reid and Firth 2011, sec. 4.2), and a profile end only widens (the profile of chi^2 with the
     albedos eliminated lacks their noise).  Sets ``unc``'s ``interval_kind``, ``profile`` and ``ci95``.
     Likelihood fits without extra unknowns only.  ``every``: profile every end.  Returns the mechanisms applied.
-
     """
     if not problem.obj.is_likelihood or not unc.get("ci95") or problem.with_fixed({}) is None:
         return []
@@ -617,7 +616,6 @@ def widen_for_optima(unc, params, optima, lims=None):
     """Widen each 95 % interval to the hull of its own and, around each competing optimum, one of the same
     half-widths, cut at ``lims`` {name: (lo, hi)}; records ``interval_kind`` "optima" and
     ``other_optima["widened"]``.  Returns the names widened."""
-
     comp = [o for o in optima if o["competing"]]
     ci = unc.get("ci95") or {}
     if not comp:

@@ -196,7 +196,6 @@ def albedo_maps(layout, shape, groups, prior=False):
                 "k_b_determined_fraction": determined(groups["k_b"][ch == j], groups["k_b_se"][ch == j])}
             for j, c in enumerate(layout.labels)}
     # median images (cells) per albedo pair; a colour cell holds one group per channel, each counted once
-
     cells = np.unique(np.stack([np.repeat(np.arange(len(layout.groups)), layout.groups.shape[1]),
                                 layout.groups.ravel()]), axis=1)[1] if C > 1 else layout.groups[:, 0]
     per = float(np.median(np.bincount(cells, minlength=layout.n_groups))) if layout.n_groups else 0.0

@@ -120,6 +120,5 @@ def check_footprint(res, progress=None):
 def worst_bias(bias):
     """'name by about +x.xx': the most biased parameter, its bias in SE (4/3 of
     :func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias`)."""
-
     worst = max(bias, key=lambda n: abs(bias[n]))
     return f"{worst} by about {bias[worst] / 0.75:+.2f}"

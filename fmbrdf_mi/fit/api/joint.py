@@ -21,7 +21,6 @@ def fit_joint(observations, options=None, *, names=None, progress=True, powers=N
     ``powers``); ``powers``: the relative powers the irradiances already include (default 1 each), where the
     search starts and what the fitted ones are reported against.
     """
-
     return fit(check_observations(observations, "fit_joint()", least=0), options, names=names, progress=progress,
                powers=powers, **kw)
 
