@@ -20,7 +20,7 @@ class Fitted:
     """What the checks after a fit need (a result's ``fitted``, not serialised).  ``solution``: a
     :class:`~fmbrdf_mi.fit.solve.driver.Solution` (``J``, ``r`` at the estimate once the covariance is
     computed); ``image_shape``: the maps' (H, W); ``applied``: the uncertainty mechanisms
-    (:func:`~fmbrdf_mi.fit.uncertainty.method_text`); ``evaluations``: those of earlier problems."""
+    (:func:`~fmbrdf_mi.fit.uncertainty.method_text`); ``evaluations``: those of a refined quadrature's coarser fits."""
 
     problem: object
     data: object
