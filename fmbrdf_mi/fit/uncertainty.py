@@ -1,17 +1,9 @@
-"""Standard errors, 95 % intervals and correlations of the estimates (fit.json's ``uncertainty``), one
-function per mechanism:
+"""Standard errors, 95 % intervals and correlations of the estimates (fit.json's ``uncertainty``).
 
-* :func:`fisher`: (J^T J)^-1 of the standardised residuals, scaled by :func:`noise_scale`; with the albedo
-  maps' smoothness prior J^T J holds the prior's rows and its inverse is the posterior covariance;
-* :func:`paper_sandwich` with :func:`block_meat`: the paper's loss, which is not a likelihood;
-* :func:`incidental`: per-pixel albedos eliminated (the incidental-parameter sandwich);
-* :func:`profile_intervals`: the profile likelihood's ends where the Fisher interval fails;
-* :func:`other_optima`, :func:`widen_for_optima`: competing optima among a multi-start fit's ends.
-
-Each mechanism applied adds ``(kind, detail)`` to a list that :func:`method_text` composes into
-``uncertainty.method``.  The covariance is that of the reported parameters (delta method through
-d theta / d z, z the optimiser's scale); intervals are theta +- 1.96 SE cut at the bounds, and a parameter at a
-bound (:func:`at_bound`) is listed in ``at_bound``.
+Entry point :func:`covariance` (then :func:`summary`); one function per mechanism: :func:`fisher`,
+:func:`paper_sandwich`, :func:`incidental`, :func:`profile_intervals`, :func:`other_optima`.  Covariances are
+of the reported parameters (delta method through d theta / d z); intervals are theta +- 1.96 SE cut at the
+bounds.  The design: docs/computed.md.
 """
 from __future__ import annotations
 
@@ -25,8 +17,7 @@ from fmbrdf_mi.fit.solve.driver import refit_fixed
 Z95 = 1.959963984540054
 
 
-#: A parameter is weakly identified when its standard error exceeds this fraction of max(|value|,
-#: WEAK_FLOOR[name]), or when it ended at a bound.
+#: Weakly identified: SE > this fraction of max(|value|, WEAK_FLOOR[name]), or at a bound.
 WEAK_REL = 0.05
 WEAK_FLOOR = {"kappa": 10.0}
 
@@ -56,8 +47,8 @@ def dtheta_dz(problem, st, names):
 
 
 def bound_distance(problem, st):
-    """{free shape parameter: (distance from its nearest bound in its own units, the same as a fraction of its
-    range on the optimiser's scale: log for log-scale parameters)}."""
+    """{free shape parameter: (distance to its nearest bound in its units, as a fraction of its range on the
+    optimiser's scale)}."""
     out = {}
     for n in problem.names:
         tlo, thi, lo, hi = problem.bounds.lims[n]
@@ -68,9 +59,8 @@ def bound_distance(problem, st):
 
 
 def at_bound(problem, st, sd=None):
-    """Free shape parameters whose interval is not a confidence interval because of a bound: those within
-    :data:`AT_BOUND_FRAC` of their range of it on the optimiser's scale (:func:`bound_distance`), and, given
-    the standard errors ``sd`` {name: SE}, those closer to it than 1.96 SE."""
+    """Free shape parameters within :data:`AT_BOUND_FRAC` of a bound (:func:`bound_distance`) or, given
+    ``sd`` {name: SE}, closer to it than 1.96 SE: their interval is not a confidence interval."""
     out = []
     for n, (d, frac) in bound_distance(problem, st).items():
         se = (sd or {}).get(n)
@@ -86,13 +76,11 @@ def jacobian_in_reported(problem, st, J):
     return names, J @ np.linalg.inv(G)
 
 
-#: Where H = J^T J - C is not positive definite (a noisy C), each of its generalised eigenvalues relative to
-#: J^T J (1 - lambda, lambda those of C) is floored here: no direction's standard error is inflated by more
-#: than 1 / INCIDENTAL_FLOOR over the Fisher one (:func:`incidental_sandwich`).
+#: Floor of 1 - lambda in :func:`incidental_sandwich`: no SE inflated more than 1 / this over Fisher's.
 INCIDENTAL_FLOOR = 0.1
 
 
-#: The estimators a covariance comes from (one per fit), as fit.json's ``uncertainty.method`` names them.
+#: The estimators (one per fit), as ``uncertainty.method`` names them.
 ESTIMATORS = {
     "fisher": "inverse Fisher information",
     "incidental": "incidental-parameter sandwich H^-1 (J^T J) H^-1, H = J^T J - C (the per-pixel albedos' noise "
@@ -105,7 +93,7 @@ ESTIMATORS = {
     "singular-information": "singular information matrix",
 }
 
-#: What qualifies the estimator: the covariance's scale (likelihood) or the residuals' correlation (paper's loss).
+#: Qualifiers of the estimator: the covariance's scale or the residuals' correlation.
 QUALIFIERS = {
     "known-noise": " (known camera noise)",
     "estimated-noise": ", noise level estimated from the residuals",
@@ -113,7 +101,7 @@ QUALIFIERS = {
     "demosaic": ", with the correlation of neighbouring pixels (demosaicking)",
 }
 
-#: The notes on what else was applied, in the order the method text gives them (``{}``: the entry's detail).
+#: Notes on other mechanisms, in the method text's order (``{}``: the entry's detail).
 NOTES = {
     "incidental-layout": "{}",
     "incidental-capped": "H not positive definite in {} direction(s): their inflation capped at "
@@ -128,9 +116,8 @@ NOTES = {
 
 
 def method_text(applied):
-    """fit.json's ``uncertainty.method``: one line naming the mechanisms ``applied``, a list of ``(kind,
-    detail)`` (one estimator of :data:`ESTIMATORS`, kinds of :data:`QUALIFIERS` and :data:`NOTES`): the
-    estimator with its qualifiers, then the notes, in the tables' order whatever the order of application."""
+    """fit.json's ``uncertainty.method`` from ``applied`` [(kind, detail)]: one :data:`ESTIMATORS` kind, its
+    :data:`QUALIFIERS`, then the :data:`NOTES`, in the tables' order."""
     done = dict(applied)
     unknown = [k for k in done if k not in ESTIMATORS and k not in QUALIFIERS and k not in NOTES]
     estimators = [k for k in ESTIMATORS if k in done]
@@ -141,8 +128,7 @@ def method_text(applied):
 
 
 def incidental_term(problem, st, parts):
-    """C (p, p) in z of an eliminating layout (:meth:`PixelAlbedos.incidental`) at ``st`` (``parts`` with
-    derivatives), or None for layouts that do not eliminate."""
+    """C (p, p) in z of an eliminating layout (:meth:`PixelAlbedos.incidental`) at ``st``, else None."""
     if not problem.eliminates:
         return None
     obj = problem.obj
@@ -152,11 +138,9 @@ def incidental_term(problem, st, parts):
 
 
 def incidental_sandwich(F, C):
-    """(cov, capped): the shape estimate's covariance H^-1 F H^-1, H = F - C (F = J^T J at the estimated
-    albedos, C :func:`incidental_term` times the covariance's scale), and how many directions were capped.
-    In F's metric each direction's Fisher variance is inflated by (1 - lambda)^-2, lambda the eigenvalues of
-    F^-1/2 C F^-1/2; 1 - lambda is floored at :data:`INCIDENTAL_FLOOR` because a C estimated from few samples
-    per albedo is noisy.  Raises LinAlgError when F is singular."""
+    """(cov, capped): H^-1 F H^-1, H = F - C (F = J^T J, C :func:`incidental_term` x scale), and the number of
+    directions capped: 1 - lambda (eigenvalues of F^-1/2 C F^-1/2) is floored at :data:`INCIDENTAL_FLOOR`
+    because C from few samples per albedo is noisy.  Raises LinAlgError when F is singular."""
     w, V = np.linalg.eigh(F)
     if w.min() <= 0:
         raise np.linalg.LinAlgError("singular information matrix")
@@ -170,23 +154,19 @@ def incidental_sandwich(F, C):
 
 
 def fisher(Jt):
-    """The inverse Fisher information (J^T J)^-1 of the reported parameters (``Jt``: the whitened residuals'
-    Jacobian in them); raises LinAlgError when singular."""
+    """(J^T J)^-1, ``Jt`` the whitened residuals' Jacobian in the reported parameters; LinAlgError if singular."""
     return np.linalg.inv(Jt.T @ Jt)
 
 
 def noise_scale(problem, r, n_independent, p):
-    """(scale, info, applied): the covariance's factor, fit.json's ``chi2_per_dof`` and ``misfit``, and the
-    mechanisms applied.  The scale is chi^2 / (N - p) (N the independent samples) when the noise level is
-    estimated, or when, with the camera noise known, chi^2 / (N - p) exceeds 1 by more than 5 of its standard
-    deviations sqrt(2 / (N - p)) and at least 0.1 (``misfit``).  As far below 1 it stays 1
-    (``noise_overstated``, ``noise_warning``): the errors are those of the stated noise."""
+    """(scale, info, applied): the covariance's factor, fit.json's ``chi2_per_dof`` and ``misfit``, the
+    mechanisms.  scale = chi^2 / (N - p) when the noise is estimated, or when it is known and chi^2/dof exceeds
+    1 by more than max(0.1, 5 sqrt(2 / (N - p))) (``misfit``); as far below 1 it stays 1 (``noise_overstated``)."""
     n = int(n_independent if n_independent is not None else len(r))
     chi2 = float(r @ r)
     info = {"chi2_per_dof": chi2 / max(n - p, 1)}
     if not problem.obj.noise.known:
         return info["chi2_per_dof"], info, [("estimated-noise", "")]
-    # chi^2 / dof has standard deviation sqrt(2 / dof)
     far = max(0.1, 5.0 * math.sqrt(2.0 / max(n - p, 1)))
     info["misfit"] = bool(info["chi2_per_dof"] > 1.0 + far)
     if info["chi2_per_dof"] < 1.0 - far:
@@ -198,11 +178,9 @@ def noise_scale(problem, r, n_independent, p):
 
 
 def incidental(problem, st, J, names, Hi, scale, parts=None):
-    """(cov_theta / scale, cov_z / scale, info, applied): the incidental-parameter sandwich of an eliminating
-    layout (:func:`incidental_sandwich`; C scales with ``scale`` because the albedos' noise does), with the
-    Fisher errors it replaces and the directions capped in ``info``; a layout without the term (the
-    smoothness prior) keeps ``Hi`` (cov_z None) and says why.  ``J``: Kaufman's (projected) Jacobian in z;
-    ``parts``: the model at ``st`` with derivatives (evaluated when not given).  Raises LinAlgError."""
+    """(cov_theta / scale, cov_z / scale, info, applied): the incidental-parameter sandwich
+    (:func:`incidental_sandwich`) of an eliminating layout, the Fisher errors it replaces in ``info``; a layout
+    without the term keeps ``Hi`` (cov_z None).  ``J``: Kaufman's projected Jacobian in z.  Raises LinAlgError."""
     if problem.layout.incidental_reason is not None:
         reason = problem.layout.incidental_reason
         return Hi, None, {"incidental_not_computed": reason}, [("incidental-not-computed", reason)]
@@ -221,10 +199,8 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
 
 
 def paper_sandwich(problem, Jt, r, Hi):
-    """(cov, applied): the sandwich covariance H^-1 M H^-1 of the paper's loss, H = J^T J, M the covariance
-    of the estimating equation J^T r summed over pixel neighbourhoods (:func:`block_meat`; the neighbours
-    of a demosaicked mosaic correlated: the objective's ``grid``).  It describes the estimate's spread, not
-    its bias (docs/computed.md)."""
+    """(cov, applied): the paper's loss's sandwich H^-1 M H^-1, H = J^T J, M :func:`block_meat` (spread, not
+    bias: docs/computed.md)."""
     grid = problem.obj.grid
     M = block_meat(Jt, r, problem.obj.row_pixels(len(r)), Hi, grid)
     return Hi @ M @ Hi, [("paper-sandwich", "")] + ([("demosaic", "")] if grid is not None else [])
@@ -232,9 +208,8 @@ def paper_sandwich(problem, Jt, r, Hi):
 
 @dataclasses.dataclass
 class Covariance:
-    """A fit's covariance (:func:`covariance`): of the reported free parameters ``names`` (``cov``, None where
-    not computed), fit.json's entries ``info``, the mechanisms ``applied`` (:func:`method_text`) and, for an
-    eliminating layout, the free shape parameters' in z, ``cov_z`` (the albedo maps': :func:`pixel_albedos`)."""
+    """:func:`covariance`'s result: ``cov`` of ``names`` (None if not computed), fit.json's ``info``, the
+    mechanisms ``applied``, and for an eliminating layout the shape's ``cov_z`` in z."""
 
     names: list
     cov: object
@@ -248,9 +223,8 @@ class Covariance:
 
 
 def covariance(problem, st, J, r, n_independent=None, parts=None):
-    """The :class:`Covariance` of the reported free parameters.  The paper's loss: :func:`paper_sandwich`.  A
-    likelihood: :func:`fisher` times :func:`noise_scale`, with :func:`incidental` for an eliminating layout
-    (``parts``: the model at ``st`` with derivatives, evaluated when not given)."""
+    """The :class:`Covariance` of the reported free parameters: :func:`paper_sandwich` for the paper's loss;
+    for a likelihood :func:`fisher` x :func:`noise_scale`, with :func:`incidental` for an eliminating layout."""
     try:
         names, Jt = jacobian_in_reported(problem, st, J)
     except np.linalg.LinAlgError:
@@ -299,15 +273,12 @@ def _blocks(row_pix, grid):
 
 
 def block_meat(J, r, row_pix, Hi, grid=None):
-    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals: each neighbourhood g's residuals
-    replaced by (I - P_gg)^-1 r_g, P = J H^-1 J^T (the cluster jackknife "CR3"; one pixel per block "HC3"),
-    because the fit pulls the plain residuals towards the data.  ``row_pix``: each residual row's pixel;
-    ``grid``: the pixels' (rows, cols) when neighbours (|dr|, |dc| <= 1) are correlated (a demosaicked
-    mosaic), else None.  Symmetrised, negative eigenvalues removed."""
+    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals (I - P_gg)^-1 r_g, P = J H^-1 J^T
+    (cluster jackknife "CR3"), since the fit pulls plain residuals towards the data.  ``row_pix``: each row's
+    pixel; ``grid``: the pixels' (rows, cols) when 3 x 3 neighbours are correlated, else None.  PSD-projected."""
     rows, nb = _blocks(row_pix, grid)
     npx, R = rows.shape
     p = J.shape[1]
-    # the residual rows of each block: own pixel's rows first
     g = np.where(nb[:, :, None] >= 0, rows[np.clip(nb, 0, None)], -1).reshape(npx, -1)  # (n, K R)
     valid = g >= 0
     Jz = np.concatenate([J, np.zeros((1, p))])
@@ -334,9 +305,7 @@ def summarise(problem, st, J, r, n_independent=None, parts=None):
 
 
 def summary(problem, st, c):
-    """The uncertainty block of fit.json from a :class:`Covariance` ``c``: std_errors, ci95, correlation,
-    at_bound, bound_distance_se, its ``info`` (chi2_per_dof, misfit; per-pixel albedos ``incidental``) and
-    method."""
+    """fit.json's uncertainty block from the :class:`Covariance` ``c``."""
     names, cov = c.names, c.cov
     rep = problem.params.report(st.shape, st.a_s, st.a_b)
     albedos = set(problem.params.albedo_names)
@@ -366,21 +335,17 @@ def summary(problem, st, c):
     return out
 
 
-#: The likelihood's pixel-area quadrature (m x m points per raw sample) is refined to 2m x 2m while its
-#: estimated bias (:func:`quadrature_bias`) exceeds this many standard errors for a shape parameter
-#: (:func:`fmbrdf_mi.fit.api.fitting.fit`), so the bias costs a 95 % interval little coverage.
+#: The pixel-area quadrature is refined while its bias (:func:`quadrature_bias`) exceeds this many SE.
 QUADRATURE_TOL = 0.2
 
-#: ... up to this many points per raw-pixel side.
+#: The finest quadrature: points per raw-pixel side.
 MAX_AREA_POINTS = 8
 
 
 def quadrature_bias(problem, fine, st, J, r):
-    """Each free shape parameter's bias from the pixel-area quadrature, in its standard errors (first order, at
-    ``st``): ``problem`` the fit with m x m points per raw sample (``J``, ``r`` its Jacobian and residuals at
-    ``st``), ``fine`` the same data with 2m x 2m.  The shift -(J^T J)^-1 J^T d, d = r - r_fine, is 3/4 of
-    the coarse quadrature's own bias because the midpoint rule's error falls 4x per halving.  Returns
-    {name: bias / SE} (SE: the unscaled Fisher one)."""
+    """{shape parameter: first-order shift / unscaled Fisher SE} between ``problem`` (m x m points; ``J``,
+    ``r`` at ``st``) and ``fine`` (2m x 2m): -(J^T J)^-1 J^T (r - r_fine), 3/4 of the coarse bias (the
+    midpoint rule's error falls 4x per halving)."""
     parts = fine.parts(st)
     fine.set_weights(parts, st)
     d = r - fine.obj.residuals(parts, st)
@@ -390,47 +355,40 @@ def quadrature_bias(problem, fine, st, J, r):
     return {n: float(b[i] / se[i]) for i, n in enumerate(problem.names)}
 
 
-#: A shape parameter's Fisher interval is kept when, at each of its ends, chi^2 along the covariance's path
-#: (the other unknowns at their regression on it) rises by the 95 % threshold to within this fraction;
-#: otherwise the profile likelihood gives that end (:func:`profile_intervals`).
+#: Relative tolerance on chi^2's rise at a Fisher interval's end (:func:`profile_intervals`).
 PROFILE_TOL = 0.15
 
-#: The kinds of 95 % interval a likelihood fit can give (``FitOptions.intervals``, ``fit --intervals``).
+#: ``FitOptions.intervals``' values.
 INTERVALS = ("auto", "profile", "fisher")
 
-#: A profile end is found when its chi^2 rise is within this fraction of the threshold.
+#: Relative tolerance of a profile end's chi^2 rise (:func:`profile_end`).
 PROFILE_ROOT_TOL = 0.1
 
 
 def interval_scale(problem, unc):
-    """The factor the covariance was scaled by (chi^2/dof when inflated or when the noise level was
-    estimated, else 1): the 95 % threshold of a chi^2 rise is 1.96^2 times it."""
+    """The covariance's scale (:func:`noise_scale`); a 95 % chi^2 rise is 1.96^2 times it."""
     if not unc.get("chi2_per_dof"):
         return 1.0
     return float(unc["chi2_per_dof"]) if unc.get("misfit") or not problem.obj.noise.known else 1.0
 
 
 def sandwich_ratio(unc, name):
-    """(SE / Fisher SE)^2 of ``name`` under the incidental sandwich (``unc["incidental"]``), else 1: chi^2's
-    curvature is J^T J's, so its rise at +-1.96 sandwich SE is 1.96^2 times this."""
+    """(SE / Fisher SE)^2 of ``name`` under the incidental sandwich, else 1 (chi^2's curvature is J^T J's)."""
     fse = unc.get("incidental", {}).get("fisher_std_errors") or {}
     return (unc["std_errors"][name] / fse[name]) ** 2 if fse.get(name) else 1.0
 
 
 def chi2_along_covariance(problem, st, J, scale):
-    """f(name, value): chi^2 (the objective's current weights) with shape parameter ``name`` at ``value`` and
-    every other unknown at its regression on it under the covariance scale (J^T J)^-1 in z: the path a
-    quadratic likelihood's profile would follow.  One model evaluation per call; >= the profile.
-    ``f.state(name, value)`` is the path's State there."""
+    """f(name, value): chi^2 with ``name`` at ``value`` and the other unknowns at their regression on it
+    (scale (J^T J)^-1 in z): a quadratic likelihood's profile path, >= the profile.  ``f.state``: its State."""
     z0 = problem.to_z(st)
-    # a shape parameter at a bound (its Jacobian column ~0, its z-variance huge) stays there: the regression
-    # on it would throw it to its other bound
+    # at a bound the z-variance is huge: regressing on it would throw a parameter to its other bound
     pinned = [i for i, (_, frac) in enumerate(bound_distance(problem, st).values()) if frac <= AT_BOUND_FRAC]
     cz = {}
 
     def path_cov(j):
         keep = [i for i in range(len(z0)) if i == j or i not in pinned]
-        if len(keep) == len(z0):        # nothing pinned: the whole covariance
+        if len(keep) == len(z0):
             if "all" not in cz:
                 cz["all"] = np.linalg.pinv(J.T @ J) * scale
             return cz["all"]
@@ -444,16 +402,14 @@ def chi2_along_covariance(problem, st, J, scale):
         j = problem.names.index(name)
         zt = problem.bounds.to_z(name, value)
         if j in pinned:
-            # the parameter profiled is itself at a bound: the others' regression on it is not defined (its
-            # Jacobian column ~0), so they stay at the estimate and the refit starts from there
-            z = z0.copy()
+            z = z0.copy()           # no regression on a pinned parameter: the others stay
             z[j] = zt
         else:
             c = path_cov(j)
             z = z0 + c[:, j] / c[j, j] * (zt - z0[j])
         s = problem.from_z(z)
         s.shape[name] = float(value)   # exactly: z is clipped to +-Z_MAX
-        if problem.eliminates:   # albedo maps: re-solved at the point
+        if problem.eliminates:
             s = problem.projected(s.shape)[0]
         return s
 
@@ -466,15 +422,10 @@ def chi2_along_covariance(problem, st, J, scale):
 
 
 def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refits=3):
-    """One end of ``name``'s profile-likelihood 95 % interval: where the best chi^2 with ``name`` held fixed
-    (:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed`, started from ``path.state``:
-    :func:`chi2_along_covariance`) rises by ``delta`` above ``chi2_min``, on ``side`` (-1 or +1) of the
-    estimate ``st``, from a first guess ``start``.
-
-    The search is on the parameter's own scale and on sqrt(rise), which is linear in the distance for a
-    quadratic likelihood: a secant step towards sqrt(delta), then false position once bracketed.  Returns
-    (end, kind, points): kind "profile", "profile, open at the bound" (even the bound does not raise chi^2
-    by ``delta``) or "profile, at least" (``max_refits`` spent unbracketed); points: [(value, rise)] tried."""
+    """One end of ``name``'s profile-likelihood 95 % interval on ``side`` (-1, +1) of ``st``: where chi^2
+    refitted with ``name`` fixed (:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed`) rises by ``delta``.
+    Secant then false position on sqrt(rise), linear in the distance for a quadratic likelihood.  Returns
+    (end, kind, [(value, rise)]), kind "profile", "profile, open at the bound" or "profile, at least"."""
     b = problem.bounds
     _, _, lo, hi = b.lims[name]
     value = st.shape[name]
@@ -482,7 +433,7 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
     t0, tb = b.to_scale(name, value), b.to_scale(name, bound)
     room = abs(tb - t0)
     u = min(abs(b.to_scale(name, start) - t0), room)
-    pts, inside, outside = [], (0.0, 0.0), None    # (|u|, sqrt(rise)) below and above the threshold
+    pts, inside, outside = [], (0.0, 0.0), None    # (|u|, sqrt(rise))
     g_target = math.sqrt(delta)
     for _ in range(max_refits):
         u = min(max(u, 1e-9 * max(room, 1.0)), room)
@@ -498,12 +449,11 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
             inside = (u, g)
         else:
             outside = (u, g)
-        if outside is None:      # not bracketed: extrapolate the line through 0 and the point (at most x4)
+        if outside is None:      # secant through the origin, at most x4
             u = min(u * (g_target / g if g > 0 else 4.0), 4.0 * u, room)
-        else:                    # false position between the bracketing points
+        else:
             (ua, ga), (ub, gb) = inside, outside
             u = ua + (g_target - ga) * (ub - ua) / (gb - ga) if gb > ga else 0.5 * (ua + ub)
-    # not within tolerance after max_refits: the bracket's interpolation, or the farthest point tried
     if outside is not None:
         (ua, ga), (ub, gb) = inside, outside
         u = ua + (g_target - ga) * (ub - ua) / (gb - ga) if gb > ga else ub
@@ -512,25 +462,12 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
 
 
 def profile_intervals(problem, st, unc, J, r, every=False):
-    """Check every free shape parameter's Fisher 95 % interval against the likelihood; where it fails,
-    replace that end by the profile likelihood's (:func:`profile_end`).  The Fisher interval assumes
-    chi^2 is quadratic over it, which fails where kappa's effect saturates, parameters sit near bounds or
-    pairs are strongly correlated.
-
-    At each end of the Fisher interval chi^2 along :func:`chi2_along_covariance` must rise by
-    delta = 1.96^2 x the covariance's scale to within :data:`PROFILE_TOL` (at a bound, by at most
-    delta (1 + tol)).  With the incidental-parameter sandwich delta is per parameter, times
-    :func:`sandwich_ratio` (``profile["thresholds"]``: the adjusted likelihood ratio of composite-likelihood
-    inference, Varin, Reid and Firth 2011, sec. 4.2), and a profile end only widens the interval: chi^2 has
-    the albedos eliminated, so its profile does not carry their noise, and each refit is local (an upper
-    bound of the profile).
-
-    Adds ``interval_kind`` {name: "fisher" | "profile" | ...} and ``profile`` (the rises tried) to ``unc``
-    and replaces the profiled ends in ``unc["ci95"]``; the standard errors stay Fisher's.  Likelihood fits
-    only, and not for problems with extra unknowns (free light powers, per-pixel normals); parameters
-    without a finite standard error are left alone.  ``every``: profile both ends of every
-    parameter whatever the criterion says (``intervals="profile"``).  Returns the mechanisms applied
-    (:func:`method_text`).
+    """Replace each Fisher 95 % interval end where chi^2 along :func:`chi2_along_covariance` does not rise by
+    delta = 1.96^2 x scale to within :data:`PROFILE_TOL` by the profile likelihood's (:func:`profile_end`).
+    With the incidental sandwich delta is per parameter, x :func:`sandwich_ratio` (adjusted likelihood ratio,
+    Varin, Reid and Firth 2011, sec. 4.2), and a profile end only widens (the profile of chi^2 with the
+    albedos eliminated lacks their noise).  Sets ``unc``'s ``interval_kind``, ``profile`` and ``ci95``.
+    Likelihood fits without extra unknowns only.  ``every``: profile every end.  Returns the mechanisms applied.
     """
     if not problem.obj.is_likelihood or not unc.get("ci95") or problem.with_fixed({}) is None:
         return []
@@ -564,7 +501,7 @@ def profile_intervals(problem, st, unc, J, r, every=False):
                 continue
             prof, k, pts = profile_end(problem, st, n, side, end, delta, chi2_min, path)
             tried["lower" if side < 0 else "upper"] = pts
-            if fse is not None and side * (prof - end) < 0:     # the sandwich's end is the narrowest
+            if fse is not None and side * (prof - end) < 0:
                 k = "fisher"
             else:
                 ends[i] = prof
@@ -580,14 +517,12 @@ def profile_intervals(problem, st, unc, J, r, every=False):
 
 
 def noise_flagged(unc):
-    """Whether the uncertainty block ``unc`` flags chi^2/dof far from 1 with the stated camera noise (above:
-    ``misfit``; below: ``noise_overstated``), which :func:`misfit_text` then describes."""
+    """Whether ``unc`` flags chi^2/dof far from 1 with the stated noise (:func:`misfit_text`)."""
     return bool(unc.get("misfit") or unc.get("noise_overstated"))
 
 
 def misfit_text(unc):
-    """The one-line warning of chi^2/dof far from 1 with the stated camera noise: far above (``unc["misfit"]``)
-    or far below it (``unc["noise_overstated"]``)."""
+    """The one-line warning of chi^2/dof far above or below 1 with the stated camera noise."""
     c = unc["chi2_per_dof"]
     if unc.get("noise_overstated"):
         return (f"chi^2/dof = {c:.3g} with the stated camera noise: the data scatter less than that noise "
@@ -599,9 +534,8 @@ def misfit_text(unc):
 
 
 def weakly_identified(table, params, std, at_bound_=()):
-    """The names of the reported ``params`` whose standard error (``std``) exceeds :data:`WEAK_REL` of
-    max(|value|, :data:`WEAK_FLOOR` of the row's model name; ``table``: the fit's
-    :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`), or that are in ``at_bound_``."""
+    """Names of ``params`` whose SE exceeds :data:`WEAK_REL` of max(|value|, :data:`WEAK_FLOOR`), or in
+    ``at_bound_`` (``table``: the :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`)."""
 
     def floor(k):
         return WEAK_FLOOR.get(table.row[k].base if k in table.row else k, 0.0)
@@ -611,27 +545,21 @@ def weakly_identified(table, params, std, at_bound_=()):
             or k in at_bound_]
 
 
-#: An albedo is *determined* where its standard error is at most this fraction of its value; a pixel's
-#: surface / body split is *identified* where both its k_s and its k_b are (:func:`pixel_albedos`).
+#: An albedo is *determined* where SE <= this fraction of it; a split is *identified* where k_s and k_b are.
 SPLIT_REL = 0.5
 
 
 def determined(value, se, rel=SPLIT_REL):
-    """Boolean array: where the standard error ``se`` is at most ``rel`` of ``value``."""
+    """Where ``se`` <= ``rel`` x ``value``."""
     value, se = np.asarray(value, float), np.asarray(se, float)
     with np.errstate(invalid="ignore"):
         return np.isfinite(se) & (se <= rel * value)
 
 
 def pixel_albedos(problem, st, parts, J, unc, cov_z=None):
-    """The albedo maps' values and uncertainty per group of an eliminating layout
-    (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.maps`), the shape parameters free, with
-    ``identified`` where both albedos are :func:`determined`.
-
-    Each group's (a_s, a_b) covariance is the layout's
-    (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.covariance`) with ``cov_z`` the shape's covariance
-    in z (:class:`Covariance`; not given: (J^T J)^-1 of the projected Jacobian ``J``) times the scale of the
-    uncertainty block ``unc``.
+    """Per group of an eliminating layout: the albedos with their errors
+    (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.maps`), ``identified`` where both are
+    :func:`determined`; ``cov_z``: the shape's covariance in z (default (J^T J)^-1 x scale).
     """
     obj, lay = problem.obj, problem.layout
     z = problem.to_z(st)
@@ -649,24 +577,19 @@ def pixel_albedos(problem, st, parts, J, unc, cov_z=None):
     return groups
 
 
-#: 95 % quantiles of chi^2 with 1 ... 8 degrees of freedom: the joint 95 % region of that many shape parameters
+#: 95 % quantiles of chi^2 with 1 ... 8 degrees of freedom.
 CHI2_95 = (3.841458820694124, 5.991464547107979, 7.814727903251178, 9.487729036781154, 11.070497693516351,
            12.591587243743977, 14.067140449340169, 15.507313055865453)
 
-#: Another start's end is a separate optimum where some shape parameter differs from the estimate's by more
-#: than this many standard errors (:func:`other_optima`).
+#: A start's end this many SE from the estimate in some shape parameter is another optimum.
 MODE_SEPARATION_SE = 2.0
 
 
 def other_optima(starts, params, unc, names):
-    """The separate optima among a multi-start fit's ends (``starts`` of
-    :func:`fmbrdf_mi.fit.solve.driver.solve`: ``end``, ``score`` (negative log-likelihood), ``converged``):
-    ends where a shape parameter of ``names`` is more than :data:`MODE_SEPARATION_SE` standard errors from
-    the estimate ``params``, with delta_chi2 = 2 (score - best score).  One *competes* when that is below the
-    joint 95 % threshold :data:`CHI2_95` [p] x the covariance's scale x the largest :func:`sandwich_ratio`:
-    the likelihood's 95 % region then has a second part the intervals miss.  Returns (list of {params,
-    delta_chi2, distance_se, converged, competing}, the threshold); ([], None) for a single start or no
-    standard errors."""
+    """(optima, threshold): the ends of ``starts`` (:func:`fmbrdf_mi.fit.solve.driver.solve`) more than
+    :data:`MODE_SEPARATION_SE` from ``params``, with delta_chi2 = 2 (score - best); one *competes* when
+    converged and below :data:`CHI2_95` [p] x scale x the largest :func:`sandwich_ratio`.  ([], None) for
+    one start or no standard errors."""
     se = unc.get("std_errors") or {}
     names = [n for n in names if se.get(n) and math.isfinite(se[n]) and se[n] > 0]
     scored = [s for s in starts if s.get("score") is not None and math.isfinite(s["score"])]
@@ -681,7 +604,7 @@ def other_optima(starts, params, unc, names):
         end = s["end"]
         dist = max(abs(end[n] - params[n]) / se[n] for n in names)
         if dist <= MODE_SEPARATION_SE:
-            continue    # the estimate's own optimum (or the estimate itself)
+            continue
         d = 2.0 * (s["score"] - best)
         out.append({"params": {n: float(end[n]) for n in names}, "delta_chi2": float(d), "distance_se": float(dist),
                     "converged": bool(s.get("converged")),
@@ -690,11 +613,9 @@ def other_optima(starts, params, unc, names):
 
 
 def widen_for_optima(unc, params, optima, lims=None):
-    """Stretch each shape parameter's 95 % interval over the competing optima of :func:`other_optima`: the
-    hull of the estimate's interval and, around each competing optimum, one of the same half-widths, cut at
-    the bounds ``lims`` {name: (lo, hi)}.  The standard errors stay the estimate's; widened parameters get
-    ``interval_kind`` "optima" and ``other_optima["widened"]`` {name: the interval before}.  Returns the
-    names widened."""
+    """Widen each 95 % interval to the hull of its own and, around each competing optimum, one of the same
+    half-widths, cut at ``lims`` {name: (lo, hi)}; records ``interval_kind`` "optima" and
+    ``other_optima["widened"]``.  Returns the names widened."""
     comp = [o for o in optima if o["competing"]]
     ci = unc.get("ci95") or {}
     if not comp:

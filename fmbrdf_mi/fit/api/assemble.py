@@ -1,9 +1,6 @@
-"""A solved problem made into a :class:`~fmbrdf_mi.fit.result.FitResult`: its covariance, albedo maps and
-materials block (:func:`assemble`).
-
-The result keeps what the checks after a fit (:mod:`fmbrdf_mi.fit.api.checks`) need in its ``fitted``
-(a :class:`Fitted`, not serialised); what a check changes in the uncertainty block is carried into the
-blocks derived from it by :func:`settle`.
+"""A solved problem made into a :class:`~fmbrdf_mi.fit.result.FitResult` (:func:`assemble`): its covariance,
+albedo maps and materials block; :func:`settle` refreshes what derives from the uncertainty block after a
+check (:mod:`fmbrdf_mi.fit.api.checks`).
 """
 from __future__ import annotations
 
@@ -20,13 +17,10 @@ from fmbrdf_mi.fit.result import FitResult
 
 @dataclasses.dataclass
 class Fitted:
-    """What the checks after a fit need of it (a result's ``fitted``, not serialised): the problem, its
-    :class:`~fmbrdf_mi.fit.problem.problem.FitData`, the solver's
+    """What the checks after a fit need (a result's ``fitted``, not serialised).  ``solution``: a
     :class:`~fmbrdf_mi.fit.solve.driver.Solution` (``J``, ``r`` at the estimate once the covariance is
-    computed), the :class:`~fmbrdf_mi.fit.api.fitting.FitOptions`, the progress callable, the wall-clock
-    deadline, the maps' (H, W), the label image given, the accepted steps, the uncertainty mechanisms
-    ``applied`` (:func:`~fmbrdf_mi.fit.uncertainty.method_text`), the model evaluations of earlier problems
-    (a refined quadrature's coarser fit) and the start time."""
+    computed); ``image_shape``: the maps' (H, W); ``applied``: the uncertainty mechanisms
+    (:func:`~fmbrdf_mi.fit.uncertainty.method_text`); ``evaluations``: those of a refined quadrature's coarser fits."""
 
     problem: object
     data: object
@@ -43,14 +37,13 @@ class Fitted:
 
 
 def assemble(fx):
-    """The :class:`~fmbrdf_mi.fit.result.FitResult` of the solved problem ``fx`` (a :class:`Fitted`): the
-    covariance (:func:`~fmbrdf_mi.fit.uncertainty.covariance`) of a converged pixel-path fit, the albedo
-    maps of an eliminating layout, the objective's value and terms, the materials block."""
+    """The :class:`~fmbrdf_mi.fit.result.FitResult` of the :class:`Fitted` ``fx``, with the covariance
+    (:func:`~fmbrdf_mi.fit.uncertainty.covariance`) of a converged pixel-path fit."""
     problem, sol, data, report = fx.problem, fx.solution, fx.data, fx.report
     st, loss, objective = sol.state, data.loss, data.objective
     unc, groups, parts = {}, None, None
     if sol.converged and fx.options.path == "pixel":
-        problem.deadline = None  # the fit is done; its uncertainty is part of the answer
+        problem.deadline = None  # the uncertainty is part of the answer: no time limit
         parts = problem.parts(st, jac=True)
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
         fx.solution = dataclasses.replace(sol, J=J, r=r)
@@ -96,26 +89,23 @@ def assemble(fx):
 
 
 def settle(res):
-    """``res`` with what derives from its uncertainty block brought up to date after a mechanism was applied
-    (a check after the fit): the method text (:func:`~fmbrdf_mi.fit.uncertainty.method_text` of the
-    mechanisms applied), the weakly identified parameters, the materials block's standard errors and
-    intervals."""
+    """``res`` with the method text, weakly identified parameters and materials block redone from its
+    uncertainty block."""
     fx, unc = res.fitted, res.uncertainty
     if fx.applied:
         unc["method"] = U.method_text(fx.applied)
     table = fx.problem.params
     res.weakly_identified = U.weakly_identified(table, res.params, res.std_errors, unc.get("at_bound", ()))
     mat = fx.data.materials
-    if mat is not None or fx.labels is not None:    # one material: the ordinary fit of the labelled pixels
+    if mat is not None or fx.labels is not None:    # mat None: one material, the labelled pixels
         res.materials = material_block(table, res.params, res.std_errors, unc.get("ci95"),
                                        [res.n_pixels] if mat is None else mat["pixels"])
     return res
 
 
 def albedo_block(problem, st, parts, groups, shape, value, report):
-    """(fit.json's ``albedo`` block, the maps) of an eliminating layout at ``st``: ``groups``
-    (:func:`~fmbrdf_mi.fit.uncertainty.pixel_albedos`; None for a fit without standard errors: the values
-    alone) on the image grid ``shape``, with the smoothness prior's block (:func:`prior_block`)."""
+    """(fit.json's ``albedo`` block, the maps) of an eliminating layout: :func:`albedo_maps` of ``groups``
+    (:func:`~fmbrdf_mi.fit.uncertainty.pixel_albedos`; None: the values without errors)."""
     lay = problem.layout
     if groups is None:
         f, nan = float(problem.model.albedo_factor), np.full(lay.n_groups, np.nan)
@@ -137,13 +127,12 @@ def albedo_block(problem, st, parts, groups, shape, value, report):
 
 
 def data_residuals(obj, parts, st):
-    """The objective's residuals of the data (without the albedo prior's rows:
-    :mod:`fmbrdf_mi.fit.evaluate.albedo_prior`)."""
+    """The objective's residuals without the albedo prior's rows."""
     r = obj.residuals(parts, st)
     return r if obj.prior is None else r[:obj.y.size]
 
 
-#: How a fit with the albedo maps' smoothness prior counts chi^2's degrees of freedom (fit.json albedo.prior).
+#: chi^2's degrees of freedom under the albedo smoothness prior (fit.json ``albedo.prior``).
 PRIOR_DOF_RULE = ("chi^2 (data + penalty) has N - p - n0 degrees of freedom, N the independent samples, p the "
                   "free shape parameters, n0 the prior's null space (2 per connected set of pixels: each set's "
                   "mean k_s, k_b): its expectation at the optimum when the maps' neighbour differences follow the "
@@ -152,9 +141,8 @@ PRIOR_DOF_RULE = ("chi^2 (data + penalty) has N - p - n0 degrees of freedom, N t
 
 
 def prior_block(problem, st, parts):
-    """fit.json's ``albedo.prior``: the maps' smoothness prior (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`), its
-    penalty at ``st``, the albedos' effective number of parameters (the hat matrix's trace) and the rule of
-    chi^2's degrees of freedom."""
+    """fit.json's ``albedo.prior`` (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) at ``st``; effective
+    parameters: the hat matrix's trace."""
     lay, obj = problem.layout, problem.obj
     pr = lay.prior
     return {"kind": pr.describe(), "tau_s": pr.tau[0], "tau_b": pr.tau[1], "pairs": int(len(pr.pairs)),
@@ -163,14 +151,11 @@ def prior_block(problem, st, parts):
             "parameters": 2 * int(lay.n_groups), "null_dims": int(pr.null_dims()), "dof_rule": PRIOR_DOF_RULE}
 
 
-#: Below this many images of each pixel a per-pixel albedo fit's shared parameters are poorly determined: with
-#: two free albedos per pixel the unknowns grow with the pixels (the incidental-parameter problem), and one
-#: image's four polariser samples per pixel leave them too little; the likelihood can then also have a second
-#: optimum that the noise makes win (docs/howto/fit-textured.md).
+#: Fewer images of each pixel leave a per-pixel albedo fit's shared parameters poorly determined (the
+#: incidental-parameter problem; docs/howto/fit-textured.md).
 MIN_IMAGES_PER_PIXEL = 3
 
-#: The warning of a per-pixel albedo fit from fewer than :data:`MIN_IMAGES_PER_PIXEL` images of each pixel
-#: (``{}``: what the reported errors are, without and with the smoothness prior).
+#: The warning below :data:`MIN_IMAGES_PER_PIXEL` (``{}``: FEW_IMAGES_ERRORS without / with the prior).
 PER_PIXEL_FEW_IMAGES = (f"per-pixel albedos from fewer than {MIN_IMAGES_PER_PIXEL} images of each pixel: eta, "
                         "alpha, beta, kappa are poorly determined{}.  Fit several lights of the same view "
                         "(docs/howto/fit-textured.md)")
@@ -180,10 +165,9 @@ FEW_IMAGES_ERRORS = (" and a second optimum can win; the reported incidental-par
 
 
 def albedo_maps(layout, shape, groups, prior=False):
-    """(summary, maps) of per-pixel albedos: ``groups`` (:func:`fmbrdf_mi.fit.uncertainty.pixel_albedos`, one
-    entry per group of ``layout``) put on the image grid ``shape`` (H, W): arrays (H, W), or (C, H, W) for a
-    colour mosaic's channels, NaN where no pixel was fitted (``identified``: False); the summary is
-    fit.json's ``albedo`` block (``prior``: the maps have a smoothness prior, for its warning)."""
+    """(fit.json's ``albedo`` block, maps): ``groups`` (:func:`fmbrdf_mi.fit.uncertainty.pixel_albedos`) on
+    the grid ``shape``: (H, W), or (C, H, W) per colour channel, NaN where not fitted.  ``prior``: for the
+    warning."""
     H, W = shape
     C = 1 if layout.channel_of is None else len(layout.labels)
     ch = np.zeros(layout.n_groups, int) if layout.channel_of is None else layout.channel_of
@@ -203,7 +187,7 @@ def albedo_maps(layout, shape, groups, prior=False):
                "k_s_determined_fraction": determined(groups["k_s"], groups["k_s_se"]),
                "k_b_determined_fraction": determined(groups["k_b"], groups["k_b_se"]),
                "channels": maps["channels"]}
-    if C > 1:   # a colour mosaic: the same summary per channel (each channel's groups)
+    if C > 1:
         summary["per_channel"] = {
             c: {"identified_fraction": float(ident[ch == j].mean()) if (ch == j).any() else 0.0,
                 "k_s_median": float(np.nanmedian(groups["k_s"][ch == j])),
@@ -211,9 +195,7 @@ def albedo_maps(layout, shape, groups, prior=False):
                 "k_s_determined_fraction": determined(groups["k_s"][ch == j], groups["k_s_se"][ch == j]),
                 "k_b_determined_fraction": determined(groups["k_b"][ch == j], groups["k_b_se"][ch == j])}
             for j, c in enumerate(layout.labels)}
-    # images (cells) per albedo pair: the median over the pairs (a pixel excluded from an image, e.g.
-    # saturated or grazing there, has fewer); a colour mosaic's cell holds three groups, one per channel:
-    # each group counted once per cell
+    # median images (cells) per albedo pair; a colour cell holds one group per channel, each counted once
     cells = np.unique(np.stack([np.repeat(np.arange(len(layout.groups)), layout.groups.shape[1]),
                                 layout.groups.ravel()]), axis=1)[1] if C > 1 else layout.groups[:, 0]
     per = float(np.median(np.bincount(cells, minlength=layout.n_groups))) if layout.n_groups else 0.0

@@ -5,12 +5,8 @@
     res = check_intervals(res)        # each Fisher 95 % interval checked against the profile likelihood
     res = find_other_optima(res)      # competing optima among the starts' ends; intervals widened over them
 
-:func:`~fmbrdf_mi.fit.api.fitting.fit` applies those its options ask for (``area_points=None``,
-``intervals="auto"`` or ``"profile"``; the optima always), as does the command line.  Each takes a
-converged pixel-path result with its ``fitted`` (:class:`~fmbrdf_mi.fit.api.assemble.Fitted`) and
-returns it (or, where the quadrature check refits, a new one) with its uncertainty block extended
-(``quadrature``, ``interval_kind`` and ``profile``, ``other_optima``) and
-its ``method`` naming what was applied; any other result is returned as it is.
+:func:`~fmbrdf_mi.fit.api.fitting.fit` applies those its options ask for.  Each extends a converged
+pixel-path result's uncertainty block and ``method``; any other result is returned as it is.
 """
 from __future__ import annotations
 
@@ -25,17 +21,14 @@ from fmbrdf_mi.fit.solve.driver import solve
 
 
 def checkable(res):
-    """Whether ``res`` is a converged pixel-path fit that carries what a check needs."""
+    """Whether ``res`` is a converged pixel-path fit with its ``fitted``."""
     fx = res.fitted
     return fx is not None and res.converged and fx.solution.J is not None
 
 
 def check_intervals(res, every=False, progress=None):
-    """Each free shape parameter's Fisher 95 % interval checked against the likelihood; where it fails,
-    that end is the profile likelihood's (:func:`~fmbrdf_mi.fit.uncertainty.profile_intervals`: refits
-    with the parameter held fixed).  ``every``: both ends of every parameter from the profile likelihood
-    (``intervals="profile"``).  Likelihood fits only; past the fit's ``max_time`` the intervals stay
-    Fisher's and the method says so.  ``progress``: a callable for the progress line (default: the fit's)."""
+    """:func:`~fmbrdf_mi.fit.uncertainty.profile_intervals` of a likelihood fit (``every``: profile every
+    end); skipped past the fit's ``max_time``.  ``progress``: the progress callable (default: the fit's)."""
     if not checkable(res) or not res.fitted.problem.obj.is_likelihood:
         return res
     fx = res.fitted
@@ -53,10 +46,8 @@ def check_intervals(res, every=False, progress=None):
 
 
 def find_other_optima(res, progress=None):
-    """The separate optima among the ends of the fit's starts (:func:`~fmbrdf_mi.fit.uncertainty.other_optima`)
-    in ``uncertainty.other_optima``, a warning where one competes with the estimate, and the 95 % intervals
-    widened over the competing ones (:func:`~fmbrdf_mi.fit.uncertainty.widen_for_optima`).  ``progress``:
-    a callable for the warning (default: the fit's)."""
+    """``uncertainty.other_optima`` (:func:`~fmbrdf_mi.fit.uncertainty.other_optima`), a warning where one
+    competes, and the intervals widened over it (:func:`~fmbrdf_mi.fit.uncertainty.widen_for_optima`)."""
     if not checkable(res):
         return res
     fx, unc = res.fitted, res.uncertainty
@@ -75,23 +66,18 @@ def find_other_optima(res, progress=None):
 
 
 def check_footprint(res, progress=None):
-    """The pixel-area quadrature of a likelihood fit of raw samples, checked and refined: while a shape
-    parameter's bias from averaging the model over m x m points of each raw pixel
-    (:func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias`: against 2m x 2m) exceeds
-    :data:`~fmbrdf_mi.fit.uncertainty.QUADRATURE_TOL` standard errors, the data are remade with 2m x 2m and
-    the fit resumed from its estimate, up to :data:`~fmbrdf_mi.fit.uncertainty.MAX_AREA_POINTS` (a highlight a
-    few pixels wide: glossy materials on small objects).  Returns the result of the finest converged fit
-    (the same result where the quadrature passes), with ``uncertainty.quadrature`` {area_points,
-    tolerance_se, checks: [{area_points, against, bias_se}], seconds}.  Fits whose data cannot be remade
-    (one area point, no raw samples, the paper's loss) are returned as they are.  ``progress``: a callable
-    for the progress lines (default: the fit's)."""
+    """The pixel-area quadrature of a likelihood fit of raw samples: while its bias
+    (:func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias`) exceeds
+    :data:`~fmbrdf_mi.fit.uncertainty.QUADRATURE_TOL` SE, the data are remade with 2m x 2m points and the fit
+    resumed, up to :data:`~fmbrdf_mi.fit.uncertainty.MAX_AREA_POINTS`.  Returns the finest converged fit's
+    result with ``uncertainty.quadrature``; data that cannot be remade are returned as they are."""
     if not checkable(res) or res.fitted.data.remake is None or res.fitted.data.area_points <= 1:
         return res
     fx = res.fitted
     say, opts = progress or fx.report, fx.options
     problem, data, st, m, t0 = fx.problem, fx.data, fx.solution.state, fx.data.area_points, time.time()
     block = {"area_points": m, "tolerance_se": U.QUADRATURE_TOL, "checks": []}
-    fine_fx, history = None, list(fx.history)     # the result given keeps its own history
+    fine_fx, history = None, list(fx.history)
     while m < U.MAX_AREA_POINTS:
         parts = problem.parts(st, jac=True)
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
@@ -107,9 +93,9 @@ def check_footprint(res, progress=None):
             sol = solve(fine, init=st, starts=1, rounds=max(1, opts.rounds) + 2, optimizer=opts.optimizer,
                         max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit, lr=opts.lr,
                         max_time=opts.max_time, history=history, report=fx.report)
-        except InputError:      # max_time: not even one evaluation with the finer points fits
+        except InputError:      # max_time reached before one evaluation
             sol = None
-        if sol is None or not sol.converged:    # keep the converged coarser fit, and say so
+        if sol is None or not sol.converged:    # keep the converged coarser fit
             block["refinement"] = f"stopped: the fit with {2 * m} x {2 * m} points did not converge" + (
                 "" if sol is None else f" ({sol.reason})")
             say(f"[fit] warning: {block['refinement']}; the estimate is the one with {m} x {m} points")
@@ -132,7 +118,7 @@ def check_footprint(res, progress=None):
 
 
 def worst_bias(bias):
-    """'name by about +x.xx': the parameter most biased by the coarser quadrature, its own bias in its
-    standard errors (:func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias` gives 3/4 of it)."""
+    """'name by about +x.xx': the most biased parameter, its bias in SE (4/3 of
+    :func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias`)."""
     worst = max(bias, key=lambda n: abs(bias[n]))
     return f"{worst} by about {bias[worst] / 0.75:+.2f}"

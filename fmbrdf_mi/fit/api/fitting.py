@@ -47,30 +47,22 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         materials=None, **kw):
     """Estimate the parameters of ``options.model`` from ``obs``; returns a :class:`~fmbrdf_mi.fit.result.FitResult`.
 
-    ``obs``: one :class:`~fmbrdf_mi.fit.inputs.observations.Observation`, or a list of them: several images
-    of one object sharing the material (a joint fit, :func:`fmbrdf_mi.fit.api.joint.fit_joint`: ``names``,
-    ``powers`` and the ``free_power`` option are for lists).  Keyword arguments override fields of
-    :class:`FitOptions` (the CLI's options have the same names).  ``progress``: True prints to stderr, a
-    callable receives each progress line, False is silent.  ``evaluator``: the evaluator of
-    :func:`~fmbrdf_mi.fit.problem.data.prepare` for the same geometry, pixels and objective, reused to skip
-    its setup.  ``data``: a :class:`~fmbrdf_mi.fit.problem.problem.FitData` built by
-    the caller (several images of one object, a colour mosaic); ``obs`` then gives only its noise model
-    and pixel grid.
+    ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation`, or a list of them sharing the material
+    (:func:`fmbrdf_mi.fit.api.joint.fit_joint`; ``names``, ``powers``, ``free_power`` are for lists).
+    Keywords override :class:`FitOptions` fields (the CLI's names).  ``progress``: True prints to stderr, a
+    callable receives each line, False is silent.  ``evaluator``: a
+    :func:`~fmbrdf_mi.fit.problem.data.prepare` evaluator for the same geometry, pixels and objective, reused.
+    ``data``: a caller-built :class:`~fmbrdf_mi.fit.problem.problem.FitData`; ``obs`` then gives only its
+    noise model and pixel grid.  ``materials``: integer labels on ``obs.shape`` (or a raw mosaic's sensor grid;
+    :func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`), 0 .. M-1 the materials, < 0 not fitted; each
+    material gets its own shape parameters (``eta[m]``, ...) and, with ``albedo="shared"``, ``k_s[m]``,
+    ``r_k[m]``: ``params`` flat, ``materials`` per material.
 
-    ``materials``: a label image assigning each pixel to one of M materials
-    (:mod:`fmbrdf_mi.fit.evaluate.materials`): an integer array on the fit's pixel grid (``obs.shape``; a
-    raw mosaic's sensor grid, twice as large, is accepted too:
-    :func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`), 0 .. M-1 the materials, < 0 pixels not
-    fitted.  Each material gets its own shape parameters (``eta[m]``, ...) and, with ``albedo="shared"``,
-    its own ``k_s[m]``, ``r_k[m]``; ``params`` holds them flat, ``materials`` (and fit.json) per material.
-
-    The steps: the data (:func:`~fmbrdf_mi.fit.problem.data.prepare`), their problem, the solve
-    (:func:`~fmbrdf_mi.fit.solve.driver.solve`), the result with its covariance
-    (:func:`~fmbrdf_mi.fit.api.assemble.assemble`), then the checks the options ask for
-    (:mod:`fmbrdf_mi.fit.api.checks`): the pixel-area quadrature (``area_points=None``), the intervals
-    against the profile likelihood (``intervals``), competing optima.  A fit stopped by ``max_time`` (a
-    hard wall-clock limit, checked before every model evaluation) returns the latest accepted estimate with
-    ``converged=False`` and no standard errors.
+    After the solve (:func:`~fmbrdf_mi.fit.solve.driver.solve`) and
+    :func:`~fmbrdf_mi.fit.api.assemble.assemble` come the checks the options ask for
+    (:mod:`fmbrdf_mi.fit.api.checks`: the quadrature for ``area_points=None``, profile intervals for
+    ``intervals``, competing optima always).  ``max_time`` (wall clock, checked before each evaluation) stops
+    with the latest accepted estimate, ``converged=False`` and no standard errors.
     """
     opts = fit_options(options, kw)
     if isinstance(obs, (list, tuple)):
@@ -100,8 +92,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
 
 
 def fit_options(options, kw):
-    """``options`` (a :class:`FitOptions`, None: the defaults) with the keyword overrides ``kw``; one line
-    naming any unknown option."""
+    """``options`` (None: the defaults) with the overrides ``kw``; InputError for an unknown name."""
     fields = [f.name for f in dataclasses.fields(FitOptions)]
     unknown = [k for k in kw if k not in fields]
     if unknown:
@@ -111,9 +102,8 @@ def fit_options(options, kw):
 
 
 def check_request(obs, opts, data):
-    """The objective (:func:`~fmbrdf_mi.fit.problem.data.resolve_loss`) of a fit of ``obs`` with ``opts``
-    (``data``: the caller's data, or None), after the options (their schema) and the combinations with the
-    observation are checked (one line naming what is not valid)."""
+    """The objective (:func:`~fmbrdf_mi.fit.problem.data.resolve_loss`) of fitting ``obs`` with ``opts``, after
+    checking the options and their combinations (InputError)."""
     check_fit_options(**dataclasses.asdict(opts))
     check_observations(obs, "fit()")
     if opts.path == "render" and opts.optimizer != "adam":
@@ -135,7 +125,7 @@ def check_request(obs, opts, data):
 
 
 def report_start(problem, data, opts, report):
-    """The progress lines before the solve: the pixels excluded, the model, pixels and objective."""
+    """The progress lines before the solve."""
     ex, obj = data.excluded, data.objective
     if ex.get("saturated") or ex.get("dark"):
         report(f"[fit] excluded {ex['saturated']} super-pixels with a sample at or above the white level "
@@ -153,8 +143,7 @@ def report_start(problem, data, opts, report):
 
 
 def report_end(res):
-    """``res``, its total time and model evaluations (the checks' included) set, after the closing progress
-    lines (weakly identified parameters, the estimate, each material's)."""
+    """``res`` with its total time and evaluations (the checks' included), after the closing progress lines."""
     fx = res.fitted
     if res.weakly_identified:
         fx.report(f"[fit] weakly identified (standard error > {U.WEAK_REL:.0%} or at a bound): "
@@ -169,8 +158,7 @@ def report_end(res):
 
 
 def _fit_images(observations, opts, *, names=None, progress=True, powers=None, materials=None):
-    """:func:`fit` of a list of observations with the options ``opts``: the arguments and the result are
-    :func:`fmbrdf_mi.fit.api.joint.fit_joint`'s."""
+    """:func:`fit` of a list of observations (:func:`fmbrdf_mi.fit.api.joint.fit_joint`)."""
     observations = list(observations)
     if not observations:
         raise InputError("joint fit: no images")
@@ -200,7 +188,7 @@ def _fit_images(observations, opts, *, names=None, progress=True, powers=None, m
     if opts.free_power:
         table = Parameters(get_model(opts.model), powers=given)
 
-        def powered(d):     # the data with the free powers' evaluator and problem (their remakes too)
+        def powered(d):     # the free powers' evaluator and problem, remakes included
             pev = FP.PowerEvaluator(d.evaluator, table, [b - a for a, b in slices])
             remake = None if d.remake is None else (lambda m, f=d.remake: powered(f(m)))
             return dataclasses.replace(d, evaluator=pev, remake=remake,
@@ -214,7 +202,7 @@ def _fit_images(observations, opts, *, names=None, progress=True, powers=None, m
         for n, o, (a, b) in zip(names, observations, slices)))
     res = fit(observations[0], opts, progress=progress, data=data, materials=materials)
     m = (res.uncertainty or {}).get("quadrature", {}).get("area_points")
-    if m is not None and m != data.area_points:     # the fit refined its pixel-area quadrature: diagnose on it
+    if m is not None and m != data.area_points:     # diagnose on the refined quadrature
         data = data.remake(m)
     images = diagnose(res, data, observations, names, table)
     block = None
@@ -236,7 +224,7 @@ def diagnose(res, data, observations, names, params=None):
     loss, excluded, objective, ev = data.loss, data.excluded, data.objective, data.evaluator
     idxs, slices = data.image_pixels, data.slices
     params = params or Parameters(get_model(res.model))
-    if res.maps is not None or data.materials is not None:    # the fitted state (albedos per group / material)
+    if res.maps is not None or data.materials is not None:    # albedos per group / material
         internal = res.details["internal"]
         shape, a_s, a_b = internal["shape"], np.asarray(internal["a_s"]), np.asarray(internal["a_b"])
     else:
@@ -244,7 +232,7 @@ def diagnose(res, data, observations, names, params=None):
     parts = ev.parts(shape)
     pts = parts.surface.shape[1] // max(sum(len(i) for i in idxs), 1)
     st = State(shape, a_s, a_b)
-    if res.maps is not None or data.materials is not None:    # each cell's own pair (its pixel's, its material's)
+    if res.maps is not None or data.materials is not None:    # each cell's own pair
         cell = objective.layout.groups[:, 0]
         pred = np.repeat(a_s[cell], pts) * parts.surface + np.repeat(a_b[cell], pts) * parts.body
     else:
@@ -253,7 +241,7 @@ def diagnose(res, data, observations, names, params=None):
     for k, (o, idx, (a, b)) in enumerate(zip(observations, idxs, slices)):
         s = pred[:, a * pts:b * pts]
         if pts > 1 and loss == "likelihood":
-            s = s.reshape(3, b - a, pts).mean(axis=2)  # the super-pixel's mean Stokes (for the summaries)
+            s = s.reshape(3, b - a, pts).mean(axis=2)  # the super-pixel's mean Stokes
         obs_s = o.stokes.reshape(3, -1)[:, idx]
         i_obs, i_pred = obs_s[0], s[0]
         d_obs = np.hypot(obs_s[1], obs_s[2]) / np.where(i_obs > 0, i_obs, 1.0)
@@ -264,7 +252,7 @@ def diagnose(res, data, observations, names, params=None):
               "intensity_rel_rmse": float(np.sqrt(np.mean((i_pred - i_obs) ** 2)) / np.mean(i_obs)),
               "dolp_rmse": float(np.sqrt(np.mean((d_pred - d_obs)[bright] ** 2))) if bright.any() else None}
         if loss == "likelihood":
-            r = objective.residuals(parts, st)[:objective.y.size].reshape(-1, 4)[a:b]   # the samples' rows
+            r = objective.residuals(parts, st)[:objective.y.size].reshape(-1, 4)[a:b]
             im["chi2"] = float(np.sum(r ** 2))
             im["chi2_per_dof"] = im["chi2"] / max((b - a) * objective.dof, 1)
         out.append(im)
