@@ -37,7 +37,7 @@ and the albedos in log space, Jacobian by forward differences (one table build
 per shape column); then the noise is re-estimated and the best start refined
 again from its optimum.
 
-Parameters common to every wavelength (``share``, :func:`fit_shared`): one
+Parameters common to every wavelength (``share``, ``fit_shared``): one
 joint least squares over all the wavelengths' rows, the common parameters one
 column each and the others one per wavelength, by the same solver from the
 separate fits; the joint covariance gives a common parameter the information
@@ -574,7 +574,7 @@ def fit_shared(model, tables, share, options=None, vanishing=None):
 
 def fit_table(table, options=None, progress=None):
     """Fit every model of ``options.models`` at every wavelength: {wavelength: {model: MuellerFitResult}}.  The
-    parameters of ``options.share`` that a model has are common to every wavelength (:func:`fit_shared`); a
+    parameters of ``options.share`` that a model has are common to every wavelength (``fit_shared``); a
     model with none of them is fitted per wavelength (:func:`fit_model`)."""
     o = options or MuellerFitOptions()
     o.check()
