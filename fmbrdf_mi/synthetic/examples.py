@@ -36,7 +36,7 @@ import shutil
 
 import numpy as np
 
-#: The material of the mono captures (reported parameters of :mod:`fmbrdf_mi.params`).
+#: The material of the mono captures (the reported parameters, as in ``fmbrdf_mi/params.py``).
 TRUTH = dict(eta=1.5, alpha=0.2, beta=2.0, kappa=10.0, k_s=1.0, r_k=0.6)
 #: The colour captures' shape parameters and per-channel albedos (R, G, B).
 COLOUR_TRUTH = dict(eta=1.5, alpha=0.2, beta=2.0, kappa=10.0, k_s=(0.6, 0.4, 0.5), r_k=0.7)
