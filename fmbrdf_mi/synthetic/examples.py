@@ -12,8 +12,9 @@ has millions of pixels.  ``README.txt`` in DIR lists the files;
 * ``capture.png`` -- a raw 12-bit IMX250MZR mosaic (16-bit PNG) of a sphere,
   camera gain 2.44 e-/DN, read noise 2.5 e-, no sidecar (a user's own capture);
   ``raw.npy`` the same mosaic as ``.npy``; ``mask.png``, ``normal.npy`` its
-  mask and normals on the super-pixel grid; ``labels.png`` two materials (left,
-  right half) on that grid, 255 off the object;
+  mask and normals on the super-pixel grid; ``materials.png`` the sphere made of
+  two materials (left and right half, :data:`OTHER`), ``labels.png`` its labels on
+  that grid, 255 off the object;
 * ``a.png``, ``b.png``, ``c.png`` -- the sphere under three lights, one exposure
   and ``capture.toml``, their manifest (``c.png`` held out);
 * ``i0.tif`` ... ``i135.tif`` -- the four polariser-angle images of ``capture.png``
@@ -38,6 +39,8 @@ import numpy as np
 
 #: The material of the mono captures (the reported parameters, as in ``fmbrdf_mi/params.py``).
 TRUTH = dict(eta=1.5, alpha=0.2, beta=2.0, kappa=10.0, k_s=1.0, r_k=0.6)
+#: The second material of ``materials.png`` (its right half).
+OTHER = dict(eta=1.8, alpha=0.45, beta=1.0, kappa=5.0, k_s=1.0, r_k=0.3)
 #: The colour captures' shape parameters and per-channel albedos (R, G, B).
 COLOUR_TRUTH = dict(eta=1.5, alpha=0.2, beta=2.0, kappa=10.0, k_s=(0.6, 0.4, 0.5), r_k=0.7)
 #: Super-pixels across the mono captures, 4 x 4 periods across the colour ones.
@@ -90,7 +93,7 @@ def _image_entry(name, light, power=None, holdout=False, comment=""):
 
 def _mono(root, seed):
     from fmbrdf_mi.sensor.camera import CameraModel, capture
-    from fmbrdf_mi.synthetic.spheres import half_labels, ideal_sphere
+    from fmbrdf_mi.synthetic.spheres import half_labels, ideal_sphere, material_sphere
 
     cam = CameraModel()                      # 12-bit ADC over a 10 000 e- full well: 2.44 e-/DN
     ideals = [ideal_sphere(TRUTH, res=MONO_RES, light=light) for _, light, _, _ in MONO_LIGHTS]
@@ -108,8 +111,9 @@ def _mono(root, seed):
     mask = ideals[0]["mask"]
     _png8(os.path.join(root, "mask.png"), np.where(mask, 255, 0))
     np.save(os.path.join(root, "normal.npy"), ideals[0]["normals"].astype(np.float32))
-    labels = np.where(mask, half_labels(MONO_RES), 255)
-    _png8(os.path.join(root, "labels.png"), labels)
+    two = material_sphere([TRUTH, OTHER], half_labels(MONO_RES), res=MONO_RES, light=MONO_LIGHTS[0][1])
+    _png16(os.path.join(root, "materials.png"), capture(two["stokes"], cam, exposure=exposure, seed=seed + 11)["raw"])
+    _png8(os.path.join(root, "labels.png"), np.where(mask, half_labels(MONO_RES), 255))
     # the angle images of a division-of-focal-plane camera: each angle's raw pixels
     for r in range(2):
         for c in range(2):
@@ -122,6 +126,7 @@ def _mono(root, seed):
     with open(os.path.join(root, "capture.toml"), "w") as f:
         f.write(MANIFEST.format(images=images))
     return {"lights": {n: list(l) for n, l, _, _ in MONO_LIGHTS}, "capture.png": list(MONO_LIGHTS[0][1]),
+            "materials.png": {"light": list(MONO_LIGHTS[0][1]), "right_half": OTHER},
             "powers": {n: p for n, _, p, _ in MONO_LIGHTS}, "conversion_gain": cam.conversion_gain,
             "read_noise": cam.read_noise, "exposure_e_per_unit": exposure}
 
