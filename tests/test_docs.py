@@ -39,7 +39,7 @@ SLOW = os.environ.get("FMBRDF_DOCS_SLOW") == "1"
 
 
 #: Seconds one shell block may take.
-SHELL_BLOCK_TIMEOUT = 600
+SHELL_BLOCK_TIMEOUT = 900
 
 
 def python_blocks(path, fence=FENCE):
