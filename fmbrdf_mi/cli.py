@@ -7,7 +7,8 @@
 
 The dispatcher: each subcommand lives in its own module (``render``:
 :mod:`fmbrdf_mi.render`; ``fit``: :mod:`fmbrdf_mi.fit.cli.command`; ``dataset``:
-:mod:`fmbrdf_mi.dataset.command`; ``fit-brdf``: :mod:`fmbrdf_mi.brdf_fit.command`).
+:mod:`fmbrdf_mi.dataset.command`; ``fit-brdf``: :mod:`fmbrdf_mi.brdf_fit.command`;
+``example-data``: :mod:`fmbrdf_mi.synthetic.examples`).
 Adding a subcommand ``NAME``: write ``add_NAME_arguments(parser)`` and
 ``run_NAME(args) -> int``, then add one line to :data:`SUBCOMMANDS`.  Raise
 :class:`CLIError` (or any of :data:`USER_ERRORS`) for problems the user can
@@ -30,6 +31,7 @@ from .dataset.command import HELP as DATASET_HELP, add_dataset_arguments, run_da
 from .fit.cli.command import add_fit_arguments, run_fit
 from .params import ParameterError
 from .render import HELP as RENDER_HELP, add_render_arguments, run_render
+from .synthetic.examples import HELP as EXAMPLE_DATA_HELP, add_example_data_arguments, run_example_data
 
 __all__ = ["CLIError", "USER_ERRORS", "SUBCOMMANDS", "build_parser", "main", "console_main"]
 
@@ -52,6 +54,7 @@ SUBCOMMANDS = [
      add_fit_arguments, run_fit),
     ("dataset", DATASET_HELP, add_dataset_arguments, run_dataset),
     ("fit-brdf", FIT_BRDF_HELP, add_fit_brdf_arguments, run_fit_brdf),
+    ("example-data", EXAMPLE_DATA_HELP, add_example_data_arguments, run_example_data),
 ]
 
 
