@@ -175,15 +175,24 @@ def staged_outputs(output):
 
 @contextlib.contextmanager
 def _sigint_held():
-    """Hold SIGINT back (delivered when the block ends) so that a group of renames is not cut in two."""
-    block = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
-    if block:
-        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    """Hold Ctrl-C back until the block ends, so that a group of renames is not cut in two.  The SIGINT
+    handler is swapped for one that only notes the signal (a Python handler runs in the main thread
+    whichever thread the operating system delivers the signal to, which a signal mask does not ensure with
+    Dr.Jit's worker threads running); the old handler then runs once if a Ctrl-C came."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    came = []
+    old = signal.signal(signal.SIGINT, lambda signum, frame: came.append(frame))
     try:
         yield
     finally:
-        if block:
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.signal(signal.SIGINT, old)
+        if came:
+            if callable(old):
+                old(signal.SIGINT, came[0])
+            elif old == signal.SIG_DFL:
+                os.kill(os.getpid(), signal.SIGINT)
 
 
 # ------------------------------------------------------------------ locks
