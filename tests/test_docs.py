@@ -15,7 +15,8 @@
 * Markers, an HTML comment on the line before a block (either kind):
   ``<!-- docs-test: skip (why) -->`` for a block that needs data you do not
   have (your own capture), a GPU, or hours; ``<!-- docs-test: slow -->`` for one that takes
-  minutes (run with ``FMBRDF_DOCS_SLOW=1``).
+  minutes (run with ``FMBRDF_DOCS_SLOW=1``); the shell blocks of the pages outside
+  ``QUICK_SHELL_PAGES`` run only with ``FMBRDF_DOCS_SLOW=1`` too.
 * Every tutorial ``docs/tutorials/*.py`` runs (they assert their results).
 * The plugin's docstring, which the BSDF reference page renders, lists every
   parameter with its default and range (``fmbrdf_mi/params.py``).
@@ -40,6 +41,10 @@ SLOW = os.environ.get("FMBRDF_DOCS_SLOW") == "1"
 
 #: Seconds one shell block may take.
 SHELL_BLOCK_TIMEOUT = 900
+# The pages whose shell blocks run in every test run; the others' commands take minutes (fits of several
+# images, textured and colour captures, the fit how-to's several fits) and run with FMBRDF_DOCS_SLOW=1.
+QUICK_SHELL_PAGES = {"docs/getting-started.md", "docs/howto/render.md", "docs/howto/dataset.md",
+                     "docs/howto/fit-brdf.md"}
 
 
 def python_blocks(path, fence=FENCE):
@@ -211,6 +216,8 @@ def test_the_docs_have_shell_blocks():
 @pytest.mark.parametrize("page", SHELL_PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
 def test_page_shell_blocks_run(page, tmp_path, example_data):
     rel = page.relative_to(ROOT).as_posix()
+    if rel not in QUICK_SHELL_PAGES and not SLOW:
+        pytest.skip(f"the commands of {rel} take minutes: FMBRDF_DOCS_SLOW=1 runs them")
     blocks = [(line, code) for line, code, marker in shell_blocks(page)
               if not (marker == "skip" or (marker == "slow" and not SLOW))]
     if not blocks:
