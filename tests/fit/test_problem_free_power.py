@@ -52,7 +52,7 @@ def test_free_powers_are_recovered_and_fixed_powers_bias_the_fit(variant):
     from fmbrdf_mi.fit.api.joint import fit_joint
 
     obs, _, _ = _captures()
-    res = fit_joint(obs, free_power=True, progress=False, names=["a", "b", "c"])
+    res = fit_joint(obs, free_power=True, progress=False, names=["a", "b", "c"], intervals="fisher")
     f = res
     assert f.converged and f.objective == "likelihood"
     assert set(f.params) == set(TRUE)          # the powers are reported apart from the material
