@@ -163,7 +163,7 @@ def test_manifest_and_repeated_light_give_the_authors_fit(blob, tmp_path, capsys
 
     root, truth = blob
     g, init = _write_manifest(tmp_path, root, truth, str(root))
-    common = ["--max-pixels", "600", "-q", "--init", init, "--intervals", "fisher", "--area-points", "2"]
+    common = ["--max-pixels", "300", "-q", "--init", init, "--intervals", "fisher", "--area-points", "2"]
     assert main(["fit", "--manifest", str(tmp_path / "m.toml"), "-o", str(tmp_path / "a")] + common) == 0
     assert main(["fit", "--authors", str(root), "--holdout", "3", "--conversion-gain", repr(g), "--read-noise",
                  "2.5", "-o", str(tmp_path / "b")] + common) == 0
@@ -206,7 +206,7 @@ def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys):
     root = tmp_path / "obj"             # a copy: the test changes an image
     shutil.copytree(src, root)
     g, init = _write_manifest(tmp_path, root, truth, "obj")
-    common = ["--max-pixels", "400", "-q", "--init", init, "--seed", "3"]
+    common = ["--max-pixels", "200", "-q", "--init", init, "--seed", "3", "--intervals", "fisher"]
     assert main(["fit", "--manifest", str(tmp_path / "m.toml"), "-o", str(tmp_path / "a")] + common) == 0
     assert main(["fit", "--authors", str(root), "--holdout", "3", "--conversion-gain", repr(g), "--read-noise",
                  "2.5", "-o", str(tmp_path / "b")] + common) == 0
