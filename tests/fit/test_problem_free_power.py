@@ -70,7 +70,7 @@ def test_free_powers_are_recovered_and_fixed_powers_bias_the_fit(variant):
         assert abs(im["chi2_per_dof"] - 1.0) < 0.3, im
     assert "power_1" in f.uncertainty["correlation"]["names"]
 
-    fixed = fit_joint(obs, init=TRUE, progress=False)
+    fixed = fit_joint(obs, init=TRUE, progress=False, intervals="fisher")
     assert fixed.powers is None and "power" not in fixed.images[0]
     chi2 = max(im["chi2_per_dof"] for im in fixed.images)
     assert chi2 > 3.0, chi2
