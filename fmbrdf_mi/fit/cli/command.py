@@ -1,19 +1,12 @@
-"""``fmbrdf-mi fit``: files in, estimates, plots and relighting errors out.
-
-:func:`fmbrdf_mi.fit.outputs.single.fit_files` (``fmbrdf_mi.fit.fit_files``) is the
-Python function behind the command for one image; it takes the same options
-(names with underscores).  :func:`add_fit_arguments` and :func:`run_fit` plug
-into :mod:`fmbrdf_mi.cli`: the option checks (:mod:`fmbrdf_mi.fit.cli.checks`),
-the mode (:func:`fit_mode`), its run (:data:`RUN`), the summary.
-"""
+"""``fmbrdf-mi fit``: the option checks (:mod:`fmbrdf_mi.fit.cli.checks`), the mode (:func:`fit_mode`), its run
+(:data:`RUN`) and the summary."""
 from __future__ import annotations
 
 import sys
 
-from fmbrdf_mi.fit.cli.checks import check_args, check_normals, refuse
+from fmbrdf_mi.fit.cli.checks import check_args, check_normals, refuse, request
 from fmbrdf_mi.fit.cli.joint import run_joint
 from fmbrdf_mi.fit.cli.layout_check import mirrored_layout_hint
-from fmbrdf_mi.fit.cli.request import request
 from fmbrdf_mi.fit.api.options import add_arguments
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.colour import colour_sidecar
@@ -23,7 +16,6 @@ from fmbrdf_mi.fit.outputs.single import fit_files
 from fmbrdf_mi.fit.outputs.summary import print_summary
 
 
-#: The options of ``fmbrdf-mi fit`` on a parser (:data:`fmbrdf_mi.fit.api.options.OPTIONS`).
 add_fit_arguments = add_arguments
 
 
@@ -90,14 +82,3 @@ def run_fit(args):
     report = RUN[fit_mode(args)](args, command)
     return print_summary(report)
 
-
-def main(argv=None):
-    """Stand-alone entry: ``python -m fmbrdf_mi.fit ...`` (same as ``fmbrdf-mi fit``)."""
-    import argparse
-
-    p = argparse.ArgumentParser(prog="fmbrdf-mi fit", description=__doc__)
-    add_fit_arguments(p)
-    argv = list(sys.argv[1:] if argv is None else argv)
-    args = p.parse_args(argv)
-    args.argv = argv
-    return run_fit(args)

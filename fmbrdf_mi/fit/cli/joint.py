@@ -3,8 +3,7 @@ from __future__ import annotations
 
 import os
 
-from fmbrdf_mi.fit.cli.checks import refuse
-from fmbrdf_mi.fit.cli.request import request
+from fmbrdf_mi.fit.cli.checks import refuse, request
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS
 from fmbrdf_mi.fit.inputs.authors import read_object
@@ -69,7 +68,7 @@ def run_joint(args, command):
             s.options.update({k: absolute_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
     fit_kw = request("joint", args, fixed=parse_fixed(args.fixed), bounds=parse_bounds(args.bounds),
                      init=parse_init(args.init))
-    for k in ("materials", "area_points", "albedo_smooth"):   # a colour fit does not take them
+    for k in ("materials", "area_points", "albedo_smooth"):   # recorded only when given
         if fit_kw[k] is None:
             del fit_kw[k]
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
