@@ -99,7 +99,8 @@ def print_colour(report):
         if (unc.get("other_optima") or {}).get("warning"):
             print("  warning: " + unc["other_optima"]["warning"])
         if m.get("weakly_identified"):
-            print(f"  weakly identified (standard error > 5% or at a bound): {', '.join(m['weakly_identified'])}")
+            print(f"  weakly identified (standard error > {WEAK_REL:.0%} or at a bound): "
+                  f"{', '.join(m['weakly_identified'])}")
         if m.get("albedo"):
             print("  " + albedo_text(m["albedo"]))
         for img, c2 in (m.get("chi2_per_sample") or {}).items():
