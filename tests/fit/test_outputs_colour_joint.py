@@ -129,8 +129,8 @@ def test_fit_cli_colour_joint_manifest(tmp_path, capsys):
 def test_colour_joint_fit_takes_the_albedo_layouts(tmp_path):
     """The joint command passes every fit key to the colour joint fit (one request, FIT_KEYS): 'shared' and
     'per-pixel' are its layouts (per-pixel: tests/fit/test_api_colour_per_pixel.py); any other is refused in one
-    line naming the option, before anything is read or written (the specs are not looked at), as is
-    free_power."""
+    line naming the option, before anything is read or written (the specs are not looked at), as are
+    free_power, the joint options the colour fit does not take and names outside the schema."""
     import pytest
 
     from fmbrdf_mi.fit.errors import InputError
@@ -140,4 +140,8 @@ def test_colour_joint_fit_takes_the_albedo_layouts(tmp_path):
         fit_colour_images([], str(tmp_path / "out"), albedo="per-channel")
     with pytest.raises(InputError, match=r"free_power \(--free-power\)"):
         fit_colour_images([], str(tmp_path / "out"), albedo="per-pixel", free_power=True)
+    with pytest.raises(InputError, match=r"materials not supported"):   # the joint record's, not the colour fit's
+        fit_colour_images([], str(tmp_path / "out"), materials="labels.png")
+    with pytest.raises(InputError, match=r"fit_colour_images\(\): unknown option\(s\) bogus"):
+        fit_colour_images([], str(tmp_path / "out"), bogus=1)
     assert not (tmp_path / "out").exists()

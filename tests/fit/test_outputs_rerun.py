@@ -37,6 +37,7 @@ def _set(d, key, value):
     (False, "reproduce.arguments.conversion_gain", "2.4", ["conversion_gain"]),
     (True, "reproduce.joint", KeyError, ["no 'joint' block", "arguments.inputs"]),
     (True, "reproduce.arguments.bogus", 1, ["reproduce.arguments: unknown key(s) bogus", "joint fit"]),
+    (True, "reproduce.arguments.materials", 5, ["reproduce.arguments.materials", "file name", "5"]),
     (True, "reproduce.joint.images", 5, ["joint-fit record is incomplete"]),
     (True, "reproduce.joint.images.0.spec.input", 5, ["reproduce.joint.images[0].spec: input", "file name"]),
     (True, "reproduce.joint.images.0.spec.light", [[0, 0, 1]], ["reproduce.joint.images[0].spec: light"]),

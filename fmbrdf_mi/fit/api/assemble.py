@@ -178,23 +178,20 @@ def albedo_maps(layout, shape, groups, prior=False):
         maps[key] = img.reshape(C, H, W) if C > 1 else img.reshape(H, W)
     maps["channels"] = None if C == 1 else list(layout.labels)
     ident = np.asarray(groups["identified"], bool)
-    n_pix = len(np.unique(layout.pixels))
-    summary = {"layout": layout.name, "pixels": int(n_pix), "groups": int(layout.n_groups),
-               "identified_fraction": float(ident.mean()) if ident.size else 0.0,
+
+    def stats(sel):     # of the groups ``sel``
+        g = {k: np.asarray(v)[sel] for k, v in groups.items()}
+        return {"identified_fraction": float(ident[sel].mean()) if ident[sel].size else 0.0,
+                "k_s_median": float(np.nanmedian(g["k_s"])), "k_b_median": float(np.nanmedian(g["k_b"])),
+                **{f"{k}_determined_fraction": determined(g[k], g[k + "_se"]) for k in ("k_s", "k_b")}}
+
+    every = stats(slice(None))
+    summary = {"layout": layout.name, "pixels": int(len(np.unique(layout.pixels))), "groups": int(layout.n_groups),
+               "identified_fraction": every.pop("identified_fraction"),
                "split_rule": f"identified where the standard errors of k_s and of k_b are at most {U.SPLIT_REL:g} "
-                             "of their values",
-               "k_s_median": float(np.nanmedian(groups["k_s"])), "k_b_median": float(np.nanmedian(groups["k_b"])),
-               "k_s_determined_fraction": determined(groups["k_s"], groups["k_s_se"]),
-               "k_b_determined_fraction": determined(groups["k_b"], groups["k_b_se"]),
-               "channels": maps["channels"]}
+                             "of their values", **every, "channels": maps["channels"]}
     if C > 1:
-        summary["per_channel"] = {
-            c: {"identified_fraction": float(ident[ch == j].mean()) if (ch == j).any() else 0.0,
-                "k_s_median": float(np.nanmedian(groups["k_s"][ch == j])),
-                "k_b_median": float(np.nanmedian(groups["k_b"][ch == j])),
-                "k_s_determined_fraction": determined(groups["k_s"][ch == j], groups["k_s_se"][ch == j]),
-                "k_b_determined_fraction": determined(groups["k_b"][ch == j], groups["k_b_se"][ch == j])}
-            for j, c in enumerate(layout.labels)}
+        summary["per_channel"] = {c: stats(ch == j) for j, c in enumerate(layout.labels)}
     # median images (cells) per albedo pair; a colour cell holds one group per channel, each counted once
     cells = np.unique(np.stack([np.repeat(np.arange(len(layout.groups)), layout.groups.shape[1]),
                                 layout.groups.ravel()]), axis=1)[1] if C > 1 else layout.groups[:, 0]

@@ -14,7 +14,7 @@ import dataclasses
 import time
 
 from fmbrdf_mi.fit import uncertainty as U
-from fmbrdf_mi.fit.api.assemble import Fitted, assemble, settle
+from fmbrdf_mi.fit.api.assemble import assemble, settle
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.solve.driver import solve
@@ -100,10 +100,10 @@ def check_footprint(res, progress=None):
                 "" if sol is None else f" ({sol.reason})")
             say(f"[fit] warning: {block['refinement']}; the estimate is the one with {m} x {m} points")
             break
-        fine_fx = Fitted(fine, fine_data, dataclasses.replace(sol, starts=fx.solution.starts,
-                                                              t_search=fx.solution.t_search),
-                         opts, fx.report, fx.deadline, fx.image_shape, fx.labels, history,
-                         evaluations=fx.evaluations + problem.n_evals, t0=fx.t0)
+        fine_fx = dataclasses.replace(
+            fx, problem=fine, data=fine_data, history=history, applied=[],
+            evaluations=fx.evaluations + problem.n_evals,
+            solution=dataclasses.replace(sol, starts=fx.solution.starts, t_search=fx.solution.t_search))
         problem, data, m, st = fine, fine_data, 2 * m, sol.state
         block["area_points"] = m
     block["seconds"] = time.time() - t0

@@ -224,7 +224,8 @@ def diagnose(res, data, observations, names, params=None):
     loss, excluded, objective, ev = data.loss, data.excluded, data.objective, data.evaluator
     idxs, slices = data.image_pixels, data.slices
     params = params or Parameters(get_model(res.model))
-    if res.maps is not None or data.materials is not None:    # albedos per group / material
+    grouped = res.maps is not None or data.materials is not None    # albedos per group / material
+    if grouped:
         internal = res.details["internal"]
         shape, a_s, a_b = internal["shape"], np.asarray(internal["a_s"]), np.asarray(internal["a_b"])
     else:
@@ -232,7 +233,7 @@ def diagnose(res, data, observations, names, params=None):
     parts = ev.parts(shape)
     pts = parts.surface.shape[1] // max(sum(len(i) for i in idxs), 1)
     st = State(shape, a_s, a_b)
-    if res.maps is not None or data.materials is not None:    # each cell's own pair
+    if grouped:    # each cell's own pair
         cell = objective.layout.groups[:, 0]
         pred = np.repeat(a_s[cell], pts) * parts.surface + np.repeat(a_b[cell], pts) * parts.body
     else:

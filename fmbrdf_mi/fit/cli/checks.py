@@ -1,4 +1,5 @@
-"""Checks of the ``fmbrdf-mi fit`` command line made before any file is read: one line per mistake.
+"""Checks of the ``fmbrdf-mi fit`` command line made before any file is read, one line per mistake, and the
+entry points' keyword arguments from it (:func:`request`).
 
 The options' values are checked by :mod:`fmbrdf_mi.fit.api.options`; here are the modes' rules: what a
 mode refuses (:data:`REFUSED`), what needs another option (:data:`NEEDS`), what goes with ``--from``.
@@ -11,7 +12,7 @@ import os
 from fmbrdf_mi.fit.api.options import (OPTION, add_arguments, check_fit_options, check_input_options, flag,
                                         record_keys)
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.parse import parse_smooth
+from fmbrdf_mi.fit.inputs.parse import parse_smooth, parse_vector
 
 #: The options each flag of the command line sets: ``--max-pixels`` -> ``max_pixels``.
 DEST = {flag(o.name): o.name for o in OPTION.values() if o.flag is not None and o.flag.startswith("-")}
@@ -148,7 +149,6 @@ def check_needs(args):
             raise InputError(f"{f} needs {text}")
 
 
-
 def check_normals(args, joint):
     """The normal refinement's mode (``joint``: the arguments give several images)."""
     if not args.refine_normals:
@@ -160,3 +160,17 @@ def check_normals(args, joint):
     start = args.normals_start
     if start not in ("ps", "sphere") and not (start.endswith(".npy") and os.path.isfile(start)):
         raise InputError(f"--normals-start {start!r}: expected ps, sphere or an existing .npy file")
+
+
+def request(record, args, **converted):
+    """The options of ``record`` (``single``, ``colour`` or ``joint``:
+    :func:`~fmbrdf_mi.fit.api.options.record_keys`) as parsed, ``--max-pixels 0`` as None, ``--light`` and
+    ``--relight-light`` parsed, then ``converted`` (values the command converts itself)."""
+    values = vars(args)
+    kw = {k: values[k] for k in record_keys(record)}
+    kw["max_pixels"] = kw["max_pixels"] or None
+    if "light" in kw:
+        kw["light"] = parse_vector((kw["light"] or [None])[0], "--light")
+    if "relight_light" in kw:
+        kw["relight_light"] = parse_vector(kw["relight_light"], "--relight-light")
+    return {**kw, **converted}

@@ -22,18 +22,11 @@ from fmbrdf_mi.fit.outputs import record
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
 from fmbrdf_mi.fit.outputs.single import write_maps
-from fmbrdf_mi.fit.outputs.writer import MAP_OUTPUTS, prepare_outputs
+from fmbrdf_mi.fit.outputs.writer import joint_outputs, prepare_outputs
 from fmbrdf_mi.sensor.mosaic import COLOURS
-
-OUTPUTS = ("fit.json", "colour_fit.png")
 
 #: The keywords of :func:`~fmbrdf_mi.fit.api.colour.fit_colour` the command sets.
 FIT_KEYS = tuple(k for k in RECORD_OPTIONS if k != "model")
-
-
-def output_names(albedo="shared"):
-    """The files a colour fit of one mosaic writes (``albedo="per-pixel"``: the maps too)."""
-    return OUTPUTS + (MAP_OUTPUTS if albedo == "per-pixel" else ())
 
 
 def model_entry(res, truth, fixed):
@@ -80,23 +73,25 @@ def fit_colour_files(inputs, out, *, force=False, progress=True, command=None, *
                      erode=a["erode"], **{k: a[k] for k in FIT_KEYS}).run()
 
 
-def fit_colour_images(specs, out, *, model="fmbrdf", force=False, progress=True, command=None, extra=None,
-                      reproduce=None, baselines=False, loss="auto", init=None, fixed=None, bounds=None, starts=2,
-                      max_iter=40, max_time=None, max_pixels=None, erode=2, seed=0, tol=None, time_limit=None,
-                      free_power=False, power_start=None, intervals="auto", albedo="shared"):
-    """Joint colour fit of the non-held-out images of ``specs``; returns the dict written to fit.json.  Keywords
-    as :func:`~fmbrdf_mi.fit.outputs.joint.fit_images`'s; ``baselines``, ``init``, ``free_power`` and losses
-    other than the likelihood are refused; ``tol``, ``time_limit`` are ignored."""
-    refused = [f for f, on in (("baselines", baselines), ("init", init), ("free_power (--free-power)", free_power),
-                               (f"loss {loss}", loss not in ("auto", "likelihood", None)),
-                               (f"albedo {albedo!r} (--albedo; expected 'shared' or 'per-pixel')",
-                                albedo not in ("shared", "per-pixel"))) if on]
+def fit_colour_images(specs, out, *, force=False, progress=True, command=None, extra=None, reproduce=None,
+                      **options):
+    """Joint colour fit of the non-held-out images of ``specs``; returns the dict written to fit.json.
+    ``options``: the joint record's (:func:`~fmbrdf_mi.fit.outputs.joint.fit_images`'; ``max_pixels`` default
+    None: every period); those the colour fit does not take are refused, ``tol``, ``time_limit`` and
+    ``power_start`` ignored."""
+    a = arguments_of("joint", {"max_pixels": None, **options}, "fit_colour_images()")
+    refused = [f for f, on in (("baselines", a["baselines"]), ("init", a["init"]),
+                               ("free_power (--free-power)", a["free_power"]),
+                               (f"loss {a['loss']}", a["loss"] not in ("auto", "likelihood", None)),
+                               (f"albedo {a['albedo']!r} (--albedo; expected 'shared' or 'per-pixel')",
+                                a["albedo"] not in ("shared", "per-pixel")),
+                               *((k, a[k] is not None) for k in ("albedo_smooth", "materials", "area_points")))
+               if on]
     if refused:
         raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
                          "of the raw samples)")
     return ColourFit(specs, out, force=force, progress=progress, command=command, extra=extra, reproduce=reproduce,
-                     model=model, fixed=fixed, bounds=bounds, starts=starts, max_iter=max_iter, max_time=max_time,
-                     max_pixels=max_pixels, erode=erode, seed=seed, intervals=intervals, albedo=albedo).run()
+                     model=a["model"], erode=a["erode"], **{k: a[k] for k in FIT_KEYS}).run()
 
 
 class ColourFit(FitJob):
@@ -126,9 +121,8 @@ class ColourFit(FitJob):
     def files(self):
         if self.specs is None:
             self.names, self.holdout = [None], [False]
-            return [os.path.join(self.out, n) for n in output_names(self.kw["albedo"])]
-        self.names, self.holdout, files = prepare_outputs(self.specs, self.out, self.force, self.kw["albedo"],
-                                                          colour=True)
+            return joint_outputs(self.out, self.names, self.holdout, self.kw["albedo"], colour=True)
+        self.names, self.holdout, files = prepare_outputs(self.specs, self.out, self.kw["albedo"], colour=True)
         return files
 
     def read(self):

@@ -42,12 +42,8 @@ class FitJob:
     def write(self, report):
         """The outputs besides ``fit.json`` (plots, maps, images); ``report`` may still be added to."""
 
-    def finish(self, report):
-        """What :meth:`run` returns: the report plus the files written and the wall time (not in fit.json)."""
-        report["outputs"], report["wall_s"] = self.paths, time.time() - self.t0
-        return report
-
     def run(self):
+        """Run the steps; returns the report plus the files written and the wall time (not in fit.json)."""
         self.check()
         with locked_directory(self.out):
             paths = list(self.files())
@@ -66,5 +62,5 @@ class FitJob:
                 finally:
                     self.out = out
                     self.files()
-        self.paths = paths
-        return self.finish(report)
+        report["outputs"], report["wall_s"] = paths, time.time() - self.t0
+        return report

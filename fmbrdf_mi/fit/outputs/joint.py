@@ -91,8 +91,7 @@ class Joint(ImageFits):
 
     def files(self):
         self.names, self.holdout, files = prepare_outputs(
-            self.specs, self.out, self.force, self.fit_kw.get("albedo", OPTION["albedo"].default),
-            self.fit_kw.get("materials"))
+            self.specs, self.out, self.fit_kw.get("albedo", OPTION["albedo"].default), self.fit_kw.get("materials"))
         return files
 
     def read(self):
@@ -106,9 +105,6 @@ class Joint(ImageFits):
         fit_obs = [o for o, h in zip(obs, holdout) if not h]
         fit_names = [n for n, h in zip(self.names, holdout) if not h]
         self.opts = opts = fit_options(self.fit_kw, model=model)
-        if opts.free_power and len(fit_obs) < 2:
-            raise InputError(f"--free-power (free_power): needs two or more fitted images, got {len(fit_obs)} "
-                             "(one image's light power is not separable from k_s and k_b)")
         for n, s, o in zip(self.names, specs, obs):
             fp = (s.options or {}).get("footprint")
             loss = resolve_loss(o, opts)
@@ -146,12 +142,12 @@ class Joint(ImageFits):
         return report
 
     def write(self, report):
-        results = self.results
-        for n, o, h, idx in zip(self.names, self.obs, self.holdout, _pixels_of(results[self.model], self.holdout)):
+        results, pixels = self.results, iter(self.results[self.model].pixels)
+        for n, o, h in zip(self.names, self.obs, self.holdout):
             if h:
                 report["relight"][n] = self.write_image(o, name=n, holdout=True)
             else:
-                self.write_image(o, name=n, pixels=idx,
+                self.write_image(o, name=n, pixels=next(pixels),
                                  im={m: next(x for x in r.images if x["name"] == n) for m, r in results.items()})
         self.write_common(report, self.obs[0].shape)
 
@@ -173,8 +169,3 @@ def run_images(kind, specs, out, fit_kw, *, command, force=False, progress=True,
     return fit_fn(specs, out, force=force, progress=progress, command=command, extra={"joint": joint},
                   reproduce=lambda obs: joint_block(kind, specs, names, obs, fit_kw, command, manifest=manifest,
                                                     authors=authors, info=info), **fit_kw)
-
-
-def _pixels_of(res, holdout):
-    it = iter(res.pixels)
-    return [None if h else next(it) for h in holdout]

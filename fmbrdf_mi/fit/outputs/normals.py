@@ -18,7 +18,7 @@ from fmbrdf_mi.fit.api.normal_joint import refine_joint
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, check_views, photometric_stereo
 from fmbrdf_mi.fit.inputs.observations import erode, find_sphere, read_vectors
-from fmbrdf_mi.fit.outputs import normal_plots
+from fmbrdf_mi.fit.outputs import plots
 from fmbrdf_mi.fit.outputs.record import command_block
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.solve.optimise import default_progress
@@ -132,8 +132,8 @@ class NormalRefinement(FitJob):
     def write(self, report):
         files, joint, m = self.files(), self.joint, self.joint.mask
         np.save(files[1], joint.normals.astype(np.float32))
-        normal_plots.plot_normal_map(joint.normals, m, files[2], title=f"refined normals ({self.start} start)")
-        normal_plots.plot_change(self.n0, joint.normals, m, files[3], gt=self.gt)
+        plots.plot_normal_map(joint.normals, m, files[2], title=f"refined normals ({self.start} start)")
+        plots.plot_change(self.n0, joint.normals, m, files[3], gt=self.gt)
 
 
 UNCALIBRATED = ("curvature-based standard errors of the material with the normals free, estimated with a "

@@ -1,4 +1,4 @@
-"""Figures of a fit: DoLP and intensity profiles (as in the paper's figures) and image comparisons."""
+"""Figures of a fit: DoLP and intensity profiles (the paper's figures), image comparisons, albedo and normal maps."""
 from __future__ import annotations
 
 import numpy as np
@@ -31,8 +31,7 @@ def plot_colour_fit(smp, pred, sel, cam, path, title=""):
     sel = np.asarray(sel, bool)
     obs_s = _channel_stokes(np.where(sel, smp.values, np.nan), cam)
     fit_s = _channel_stokes(pred, cam)
-    rows, cols = np.nonzero(sel)
-    crop = slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1)
+    crop = crop_to(sel)
     fig, axes = plt.subplots(6, 3, figsize=(10, 17))
     for c, ch in enumerate(COLOURS):
         shown = shown_pixels(obs_s[c], obs_s[c], sel, np.flatnonzero(sel))
@@ -44,6 +43,14 @@ def plot_colour_fit(smp, pred, sel, cam, path, title=""):
                         (f"{ch} observed {name}", f"{ch} fitted {name}", f"{ch} fitted - observed (hatched: not fitted)"),
                         fontsize=9)
     save(fig, path, 90, title, fontsize=8, wrap=True)
+
+
+def crop_to(mask, pad=0):
+    """The slices (rows, columns) of the bounding box of ``mask`` widened by ``pad`` (all of it if empty)."""
+    ys, xs = np.nonzero(mask)
+    if not ys.size:
+        return slice(None), slice(None)
+    return tuple(slice(max(v.min() - pad, 0), v.max() + pad + 1) for v in (ys, xs))
 
 
 def pyplot():
@@ -231,12 +238,7 @@ def plot_albedo_maps(maps, path, title=""):
         a = np.asarray(maps[key], dtype=dtype)
         return a[c] if colour else a
 
-    fitted_any = np.any(np.isfinite(ks_all), axis=0) if colour else np.isfinite(ks_all)
-    ys, xs = np.nonzero(fitted_any)
-    if ys.size:
-        crop = (slice(max(ys.min() - 1, 0), ys.max() + 2), slice(max(xs.min() - 1, 0), xs.max() + 2))
-    else:
-        crop = (slice(None), slice(None))
+    crop = crop_to(np.any(np.isfinite(ks_all), axis=0) if colour else np.isfinite(ks_all), pad=1)
     rows = []
     for c, label in enumerate(labels):
         ks, kb = layer("k_s", c), layer("k_b", c)
@@ -297,3 +299,60 @@ def plot_materials(labels, pixels, block, path, title=""):
     ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02), fontsize=7, frameon=False)
     ax.set_title(title or f"{M} materials (faint: labelled, not fitted; grey: no material)", fontsize=9)
     save(fig, path, 110)
+
+
+# ---------------------------------------------------------------- normal maps (normal refinement)
+def rgb(n, mask):
+    """(H, W, 3) colours (n + 1) / 2 on the mask, white elsewhere (x right = red, y up = green, z = blue)."""
+    out = np.ones(n.shape)
+    out[mask] = np.clip((n[mask] + 1.0) / 2.0, 0.0, 1.0)
+    return out
+
+
+def angle_deg(a, b):
+    c = np.sum(a * b, -1) / np.maximum(np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1), 1e-300)
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def plot_normal_map(n, mask, path, title=""):
+    plt = pyplot()
+    ys, xs = crop_to(mask, 2)
+    fig, ax = plt.subplots(figsize=(5, 5))
+    ax.imshow(rgb(n, mask)[ys, xs], interpolation="nearest")
+    ax.set_title(title + "\n(x right: red, y up: green, z to the camera: blue)", fontsize=9)
+    ax.axis("off")
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+
+
+def plot_change(n0, n1, mask, path, gt=None):
+    """Start | refined | angle between them; with ``gt``, a second row: angle to gt before | after."""
+    plt = pyplot()
+    ys, xs = crop_to(mask, 2)
+    rows = 2 if gt is not None else 1
+    fig, axes = plt.subplots(rows, 3, figsize=(13, 4.2 * rows), squeeze=False)
+
+    def angle_panel(ax, img, title, vmax):
+        im = ax.imshow(np.where(mask, img, np.nan)[ys, xs], cmap="magma", vmin=0, vmax=vmax, interpolation="nearest")
+        ax.set_title(title, fontsize=9)
+        ax.axis("off")
+        fig.colorbar(im, ax=ax, fraction=0.046, label="degrees")
+
+    for ax, n, t in ((axes[0, 0], n0, "start"), (axes[0, 1], n1, "refined")):
+        ax.imshow(rgb(n, mask)[ys, xs], interpolation="nearest")
+        ax.set_title(t, fontsize=9)
+        ax.axis("off")
+    ch = angle_deg(n0, n1)
+    angle_panel(axes[0, 2], ch, f"angle start -> refined\nmean {ch[mask].mean():.2f} deg",
+                max(float(np.percentile(ch[mask], 99)), 1e-3))
+    if gt is not None:
+        e0, e1 = angle_deg(n0, gt), angle_deg(n1, gt)
+        vmax = max(float(np.percentile(e0[mask], 99)), 1e-3)
+        angle_panel(axes[1, 0], e0, f"start vs ground truth\nmean {e0[mask].mean():.2f}, median "
+                                    f"{np.median(e0[mask]):.2f} deg", vmax)
+        angle_panel(axes[1, 1], e1, f"refined vs ground truth (same scale)\nmean {e1[mask].mean():.2f}, "
+                                    f"median {np.median(e1[mask]):.2f} deg", vmax)
+        v1 = max(float(np.percentile(e1[mask], 99)), 1e-3)
+        angle_panel(axes[1, 2], e1, "refined vs ground truth (own scale)", v1)
+    fig.savefig(path, dpi=90, bbox_inches="tight")
+    plt.close(fig)

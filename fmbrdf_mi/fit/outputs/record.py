@@ -13,6 +13,7 @@ import sys
 
 from fmbrdf_mi import __version__
 from fmbrdf_mi.fit.api.options import record_keys
+from fmbrdf_mi.fit.inputs.manifest import absolute_paths
 from fmbrdf_mi.sensor.camera import sidecar_path
 
 
@@ -58,7 +59,6 @@ def single_files(arguments):
 
 
 def versions():
-
     v = {"fmbrdf_mi": __version__, "python": sys.version.split()[0]}
     for mod in ("mitsuba", "drjit", "numpy"):
         try:
@@ -68,30 +68,25 @@ def versions():
     return v
 
 
-def command_block(command):
-    """The part of every ``reproduce`` block that says how the fit was run: command line, directory, versions."""
-    return {"command": command, "cwd": os.getcwd(), "versions": versions()}
+def command_block(command, arguments=None, files=(), **more):
+    """A ``reproduce`` block: how the fit was run (command line, directory, versions) and, for ``--from``, its
+    ``arguments``, the SHA-256 of the ``files`` it reads and ``more``."""
+    block = {"command": command, "cwd": os.getcwd()}
+    if arguments is not None:
+        block.update(arguments=arguments, files_sha256=_hashes(files), **more)
+    return jsonable(dict(block, versions=versions()))
 
 
 def reproduce_block(arguments, command, meta):
     """The ``reproduce`` block of a single-image or colour fit, with the input's implied ``settings``,
     ``sphere`` and ``sidecar`` from its metadata ``meta``."""
-    return {"command": command, "cwd": os.getcwd(), "arguments": jsonable(arguments),
-            "files_sha256": _hashes(single_files(arguments)), "settings": jsonable(meta.get("settings")),
-            "sphere": jsonable(meta.get("sphere")), "sidecar": meta.get("sidecar"), "versions": versions()}
+    return command_block(command, arguments, single_files(arguments),
+                         **{k: meta.get(k) for k in ("settings", "sphere", "sidecar")})
 
 
 #: read_object keywords recorded for an authors' object.
 AUTHORS_KEYS = ("mask", "holdout", "conversion_gain", "read_noise", "white_level", "dark_level", "black_level",
                 "demosaic", "footprint")
-
-
-def _abs(v):
-    if isinstance(v, (str, os.PathLike)):
-        return os.path.abspath(os.fspath(v))
-    if isinstance(v, (list, tuple)):
-        return [_abs(x) for x in v]
-    return v
 
 
 def _with_sidecar(paths):
@@ -140,7 +135,7 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
         if kind == "authors":
             inp = o.meta["authors_layout"]["file"]
             geo = {"source": "authors' layout", "normals": os.path.join(root, "normal", "normal_GT.npy"),
-                   "view": os.path.join(cal, info["view_rays"]), "mask": _abs(info["mask"])}
+                   "view": os.path.join(cal, info["view_rays"]), "mask": absolute_paths(info["mask"])}
             entry = {}
             power = info["intensities"][k] if info.get("intensities") else 1.0   # intensities.npy / max
         else:
@@ -157,15 +152,14 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
                        "settings": o.meta.get("settings"), "sidecar": o.meta.get("sidecar"), **entry})
     joint = {"kind": kind, "images": images}
     if manifest is not None:
-        joint["manifest"] = _abs(manifest)
+        joint["manifest"] = absolute_paths(manifest)
     if kind == "authors":
         joint["authors"] = {"root": info["root"], **authors}
-    files = read_files(kind, specs, info) + [_abs(p) for p in (manifest, fit_kw.get("materials")) if p is not None]
-    arguments = {k: fit_kw.get(k) for k in record_keys("joint") if k in fit_kw}
-    if arguments.get("materials") is not None:
-        arguments["materials"] = _abs(arguments["materials"])
-    return jsonable({"command": command, "cwd": os.getcwd(), "arguments": arguments,
-                      "joint": joint, "files_sha256": _hashes(files), "versions": versions()})
+    files = read_files(kind, specs, info) + [absolute_paths(p) for p in (manifest, fit_kw.get("materials"))
+                                             if p is not None]
+    arguments = {k: absolute_paths(fit_kw[k]) if k == "materials" else fit_kw[k] for k in record_keys("joint")
+                 if k in fit_kw}
+    return command_block(command, arguments, files, joint=joint)
 
 
 def read_files(kind, specs, info):
@@ -176,7 +170,7 @@ def read_files(kind, specs, info):
         cal = os.path.join(info["root"], "calibration")
         files += [os.path.join(cal, f) for f in ("L.txt", "vpL_img.npy", "IntrinsicL.npy", "intensities.npy")
                   if os.path.isfile(os.path.join(cal, f))]
-        files += [os.path.join(info["root"], "normal", "normal_GT.npy"), _abs(info["mask"])]
+        files += [os.path.join(info["root"], "normal", "normal_GT.npy"), absolute_paths(info["mask"])]
         files += [s.input.meta["authors_layout"]["file"] for s in specs]
         return files
     for s in specs:

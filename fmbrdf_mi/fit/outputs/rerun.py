@@ -72,53 +72,43 @@ def check_recorded(path, rep, files):
                              "record cannot be verified for it")
 
 
-def check_keys(path, args, kind):
-    """Refuse the recorded ``args`` that the ``kind`` of fit (``single``, ``colour``, ``joint``) does not take."""
-    valid = record_keys(kind)
+def recorded_arguments(path, rep, kind):
+    """(the arguments recorded in ``rep``, the ``reproduce`` block of ``path``, for a fit of ``kind``; the files
+    they name): relative file names are made relative to the directory the fit ran in (``auto:M`` names none)."""
+    args, valid = dict(rep["arguments"]), record_keys(kind)
     unknown = [k for k in args if k not in valid]
     if unknown:
         raise InputError(f"--from {path}: reproduce.arguments: unknown key(s) {', '.join(map(str, unknown))} "
                          f"(valid{' for a joint fit' if kind == 'joint' else ''}: {', '.join(valid)})")
+    bad = [k for k, v in args.items() if isinstance(v, dict) and "not_recorded" in v]
+    if bad:
+        raise InputError(f"--from {path}: arguments {', '.join(bad)} were arrays, not files; cannot rerun")
+    cwd = rep.get("cwd")
+    if cwd is not None and not isinstance(cwd, str):
+        raise InputError(f"--from {path}: reproduce.cwd: expected the directory the fit ran in, got {cwd!r}")
+    given = []
+    for key in (k for k in FILE_KEYS if k in valid):
+        v = args.get(key)
+        paths = v if isinstance(v, list) else [v]
+        if (v is None and key != "inputs") or (key == "materials" and parse_auto(v)):
+            continue
+        if not (paths and all(isinstance(p, str) and p for p in paths)):
+            raise InputError(f"--from {path}: reproduce.arguments.{key}: expected a file name or a list of file "
+                             f"names, got {v!r}")
+        paths = [os.path.join(cwd or "", p) for p in paths]
+        args[key] = paths if isinstance(v, list) else paths[0]
+        given += paths
+    return args, given
 
 
 def single_arguments(path, rep, kind):
     """fit_files (``kind`` ``colour``: fit_colour_files) arguments recorded in ``rep``, the ``reproduce`` block of
     ``path``."""
-    args = dict(rep["arguments"])
-    if "inputs" not in args:
+    if "inputs" not in rep["arguments"]:
         raise InputError(f"--from {path}: reproduce has no 'joint' block (a joint fit) and no arguments.inputs "
                          "(a single-image fit): the record is incomplete")
-    check_keys(path, args, kind)
-    bad = [k for k, v in args.items() if isinstance(v, dict) and "not_recorded" in v]
-    if bad:
-        raise InputError(f"--from {path}: arguments {', '.join(bad)} were arrays, not files; cannot rerun")
-    for key in FILE_KEYS:
-        v = args.get(key)
-        paths = v if isinstance(v, list) else [v]
-        if (v is None and key != "inputs") or (paths and all(isinstance(p, str) and p for p in paths)):
-            continue
-        raise InputError(f"--from {path}: reproduce.arguments.{key}: expected a file name or a list of file "
-                         f"names, got {v!r}")
-    cwd = rep.get("cwd")
-    if cwd is not None and not isinstance(cwd, str):
-        raise InputError(f"--from {path}: reproduce.cwd: expected the directory the fit ran in, got {cwd!r}")
-    if parse_auto(args.get("materials")):     # --materials auto:M: found again, not a file
-        auto = args.pop("materials")
-    else:
-        auto = None
-    # relative paths are relative to the directory the fit ran in
-    if cwd:
-        for key in FILE_KEYS:
-            v = args.get(key)
-            if isinstance(v, str) and not os.path.isabs(v):
-                args[key] = os.path.join(cwd, v)
-            elif isinstance(v, list):
-                args[key] = [os.path.join(cwd, x) if isinstance(x, str) and not os.path.isabs(x) else x for x in v]
-    given = [p for key in FILE_KEYS
-             for p in (args.get(key) if isinstance(args.get(key), list) else [args.get(key)]) if isinstance(p, str)]
+    args, given = recorded_arguments(path, rep, kind)
     check_recorded(path, rep, given + single_files(args))
-    if auto is not None:
-        args["materials"] = auto
     return args
 
 
@@ -136,8 +126,7 @@ def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
     joint = rep.get("joint")
     if not isinstance(joint, dict) or joint.get("kind") not in ("manifest", "authors", "lights"):
         raise InputError(f"--from {path}: not the record of a joint fit")
-    fit_kw = dict(rep["arguments"])
-    check_keys(path, fit_kw, "joint")
+    fit_kw, labels = recorded_arguments(path, rep, "joint")
     info = None
     try:
         if joint["kind"] == "authors":
@@ -165,10 +154,7 @@ def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
                 specs.append(spec)
     except (KeyError, TypeError, AttributeError) as exc:
         raise InputError(f"--from {path}: the joint-fit record is incomplete ({exc})") from None
-    labels = fit_kw.get("materials")
-    if labels is not None and not (isinstance(labels, str) and labels):
-        raise InputError(f"--from {path}: reproduce.arguments.materials: expected a file name, got {labels!r}")
-    check_recorded(path, rep, read_files(joint["kind"], specs, info) + ([labels] if labels else []))
+    check_recorded(path, rep, read_files(joint["kind"], specs, info) + labels)
     authors = {k: v for k, v in (joint.get("authors") or {}).items() if k != "root"}
     names = image_names(specs)
     recorded = [im["name"] for im in joint["images"]]

@@ -152,19 +152,14 @@ class SingleImage(ImageFits):
 
     def fit(self):
         a, obs, model = self.a, self.obs, self.model
-        opts = fit_options(a, path="pixel", max_time=a["max_time"] or None)
-        loss = resolve_loss(obs, dataclasses.replace(opts, path=a["path"]))
+        self.opts = opts = fit_options(a, max_time=a["max_time"] or None)
+        loss = resolve_loss(obs, opts)
         check_resolved_loss(a, loss, "--loss likelihood" if a["loss"] == "likelihood" else
                             "the input has no camera noise model" if obs.noise is None or not obs.noise.known else
                             f"--path {a['path']}, --optimizer {a['optimizer']}", flag)
         check_footprint(a["footprint"], loss, "--loss likelihood" if a["loss"] == "likelihood" else
                         f"the camera noise from {obs.meta.get('sidecar') or '--conversion-gain'}")
-        scene = None
-        if a["path"] == "render":
-            scene, opts.path = _render_scene(obs, model), "render"
-        elif a["path"] != "pixel":
-            raise InputError(f"path: expected 'pixel' or 'render', got {a['path']!r}")
-        self.opts = opts
+        scene = _render_scene(obs, model) if opts.path == "render" else None
         if self.auto:
             self.found = find_materials(obs, self.auto, opts, seed=int(a["seed"]), progress=self.progress)
             self.labels = self.found.labels

@@ -29,6 +29,21 @@ def param_line(name, value, std, ci, width=6, tail=""):
     return line
 
 
+def print_params(m, std, ci, width=6):
+    """One :func:`param_line` per parameter of fit.json's ``models`` entry ``m`` (a colour fit's albedos: per
+    channel), with ``(fixed)`` and the relative error to the input's metadata where ``m`` has them."""
+    rel, fixed = m.get("relative_error") or {}, m.get("fixed") or {}
+    for k, v in m["params"].items():
+        if isinstance(v, dict):
+            lines = [(param_line(f"{k}[{c}]", x, std[k][c] if k in std else None, ci.get(k, {}).get(c), width),
+                      rel[k].get(c) if isinstance(rel.get(k), dict) else None) for c, x in v.items()]
+        else:
+            lines = [(param_line(k, v, None if k in fixed else std.get(k), ci.get(k), width, kind_text(m, k))
+                      + ("  (fixed)" if k in fixed else ""), rel.get(k))]
+        for line, r in lines:
+            print(line + ("" if r is None else f"  (vs metadata {r:+.2%})"))
+
+
 def uncertainty_text(unc):
     """The ``uncertainty:`` line of a model (its method, chi^2/dof) and its warnings."""
     return (f"  uncertainty: {unc['method']}"
@@ -74,22 +89,8 @@ def print_colour(report):
               f"samples of {m['n_pixels']} periods  ({'converged' if m['converged'] else 'NOT converged'}: "
               f"{m['stop_reason']})")
         print(f"  camera noise {m['noise'].get('description', m['noise'])}")
-        std, ci = m["std_errors"] or {}, m["ci95"] or {}
-        rel = m.get("relative_error") or {}
-        for k, v in m["params"].items():
-            if isinstance(v, dict):
-                for c, x in v.items():
-                    line = param_line(f"{k}[{c}]", x, std[k][c] if k in std else None, ci.get(k, {}).get(c), 8)
-                    if isinstance(rel.get(k), dict) and c in rel[k]:
-                        line += f"  (vs metadata {rel[k][c]:+.2%})"
-                    print(line)
-            else:
-                fixed = k in (m.get("fixed") or {})
-                line = param_line(k, v, None if fixed else std.get(k), ci.get(k), 8, kind_text(m, k))
-                line += "  (fixed)" if fixed else ""
-                if isinstance(rel.get(k), float):
-                    line += f"  (vs metadata {rel[k]:+.2%})"
-                print(line)
+        std = m["std_errors"] or {}
+        print_params(m, std, m["ci95"] or {}, 8)
         unc = m.get("uncertainty") or {}
         if std:
             print(f"  uncertainty: {unc.get('method', 'inverse Fisher information of the raw samples')}")
@@ -98,7 +99,8 @@ def print_colour(report):
         if (unc.get("other_optima") or {}).get("warning"):
             print("  warning: " + unc["other_optima"]["warning"])
         if m.get("weakly_identified"):
-            print(f"  weakly identified (standard error > 5% or at a bound): {', '.join(m['weakly_identified'])}")
+            print(f"  weakly identified (standard error > {WEAK_REL:.0%} or at a bound): "
+                  f"{', '.join(m['weakly_identified'])}")
         if m.get("albedo"):
             print("  " + albedo_text(m["albedo"]))
         for img, c2 in (m.get("chi2_per_sample") or {}).items():
@@ -158,12 +160,7 @@ def print_summary(report):
         if ex.get("saturated") or ex.get("dark"):
             print(f"  excluded {ex['saturated']} saturated and {ex['dark']} dark super-pixels of "
                   f"{ex['candidates']}; fitted {ex['used']}")
-        std, ci = unc.get("std_errors", {}), unc.get("ci95", {})
-        for k, v in m["params"].items():
-            line = param_line(k, v, std.get(k), ci.get(k), tail=kind_text(m, k))
-            if "relative_error" in m and k in m["relative_error"]:
-                line += f"  (vs metadata {m['relative_error'][k]:+.2%})"
-            print(line)
+        print_params(m, unc.get("std_errors", {}), unc.get("ci95", {}))
         if unc.get("method"):
             print(uncertainty_text(unc))
         if unc.get("correlation"):

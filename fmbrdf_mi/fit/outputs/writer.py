@@ -20,7 +20,6 @@ def prepare(out, files, force):
         for p in files:
             if os.path.exists(p):
                 raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
-    return list(files)
 
 
 #: Every file a fit writes whatever its mode (single image, colour mosaic, joint, normal refinement), by name.
@@ -84,21 +83,22 @@ MATERIAL_OUTPUTS = ("materials.png",)
 
 
 def joint_outputs(out, names, holdout, albedo="shared", materials=None, colour=False):
-    """The files a joint fit of the images ``names`` writes (``colour``: of colour mosaics), ``fit.json`` first."""
+    """The files a joint fit of the images ``names`` writes (``colour``: of colour mosaics; ``[None]``: a colour
+    fit of one mosaic), ``fit.json`` first."""
     files = ["fit.json"] + ([] if colour else ["history.png"])
     for n, h in zip(names, holdout):
-        files += ([f"relight_{n}.png"] if h else [f"colour_fit_{n}.png"] if colour
-                  else [f"images_{n}.png", f"profiles_{n}.png"])
+        tail = "" if n is None else f"_{n}"
+        files += ([f"relight{tail}.png"] if h else [f"colour_fit{tail}.png"] if colour
+                  else [f"images{tail}.png", f"profiles{tail}.png"])
     files += list(MAP_OUTPUTS) if albedo in PER_PIXEL_LAYOUTS else []
     files += list(MATERIAL_OUTPUTS) if materials is not None else []
     return [os.path.join(out, f) for f in files]
 
 
-def prepare_outputs(specs, out, force, albedo="shared", materials=None, colour=False):
-    """(names, held-out flags, output files: :func:`joint_outputs`) of a joint fit; refuses an all-held-out set,
-    an unusable ``out`` and, without ``force``, existing outputs (before anything is read or written)."""
+def prepare_outputs(specs, out, albedo="shared", materials=None, colour=False):
+    """(names, held-out flags, output files: :func:`joint_outputs`) of a joint fit; refuses an all-held-out set."""
     names = image_names(specs)
     holdout = [s.holdout for s in specs]
     if all(holdout):
         raise InputError("joint fit: every image is held out; fit at least one")
-    return names, holdout, prepare(out, joint_outputs(out, names, holdout, albedo, materials, colour), force)
+    return names, holdout, joint_outputs(out, names, holdout, albedo, materials, colour)
