@@ -359,6 +359,7 @@ def grazing_factors(dist, eta, grid, theta):
     stn = dr.sin(thn)
     node = (stn * dr.cos(phn), stn * dr.sin(phn), dr.cos(thn))
     a = transmitted(Float, eta, dr.gather(Float, theta, i), Float(0.0), node, dr.gather(Float, w_j, j), False)
+    dr.eval(a[0], a[1])  # one kernel for both channels (each block_sum would evaluate its own)
     s0, s1 = dr.block_sum(a[0], J * K), dr.block_sum(a[1], J * K)
     return 2.0 * s0 / dist.projected_area(theta), s1 / dr.maximum(s0, 1e-30)
 
