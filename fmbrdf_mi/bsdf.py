@@ -7,6 +7,7 @@ of the outgoing one (``stokes_basis(wi)``), both in the local shading frame.
 That quantity is exactly the paper's s_s / E_o and s_b / E_o.
 """
 import math
+import struct
 
 import drjit as dr
 import mitsuba as mi
@@ -26,6 +27,9 @@ PACKING = (((0, 20), (3, 16), (6, 16), (1, 12)), ((2, 13), (4, 13), (5, 13), (7,
 _PROPERTIES = _SCALARS + ("k_s", "k_b", "r_k", "tables")
 #: Values of the string property ``tables`` (see :meth:`_rebuild`).
 TABLE_MODES = ("compact", "float32")
+#: Builds without gradients kept per BSDF (the most recently used), for parameter values that come back
+#: (a fit's Jacobian builds the tables with gradients, then again at the same values without).
+TABLES_KEPT = 2
 
 
 def _scalar_value(x):
@@ -241,6 +245,7 @@ class _FMBRDFMethods:
         self.body_key = "k_b" if ("k_b" in props) else "r_k"
         self.body = props.get_unbounded_texture(self.body_key, P.DEFAULT_R_K)
         self.grid = BodyGrid()
+        self._tables_cache = {}  # _build: {_cache_key: (dist, table, factors, sampler)}
         self.m_components = [mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide,
                              mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide]
         self.m_flags = self.m_components[0] | self.m_components[1]
@@ -310,7 +315,10 @@ class _FMBRDFMethods:
         new index: Mitsuba's change detection then calls parameters_changed, and
         :meth:`_tables_stale` sees it too.  With gradients enabled, the tables
         are built from watched copies (:class:`_Watch`) that mark them as used
-        up once an AD pass has gone through them.
+        up once an AD pass has gone through them.  Without gradients, the last
+        :data:`TABLES_KEPT` builds are kept by the exact values they came from
+        (:meth:`_cache_key`) and reused when the parameters return to those
+        values: they are what a new build would compute, bit for bit.
         """
         originals = {name: getattr(self, name) for name in _SCALARS}
         jit = dr.is_jit_v(mi.Float)
@@ -318,19 +326,36 @@ class _FMBRDFMethods:
             dr.make_opaque(*originals.values())
         watch = jit and any(dr.grad_enabled(x) for x in originals.values())
         self._ad_used = False
-        if watch:
-            def used():
-                self._ad_used = True
+        key = None if watch else self._cache_key(originals)
+        cache = self._tables_cache
+        if key in cache:
+            cache[key] = cache.pop(key)  # most recently used last
+            self.dist, self.table, self.factors, self.sampler = cache[key]
+        else:
+            if watch:
+                def used():
+                    self._ad_used = True
 
-            for name, x in originals.items():
-                setattr(self, name, dr.custom(_Watch, x, used) if dr.grad_enabled(x) else x)
-        try:
-            self._rebuild()
-        finally:
-            for name, x in originals.items():
-                setattr(self, name, x)
+                for name, x in originals.items():
+                    setattr(self, name, dr.custom(_Watch, x, used) if dr.grad_enabled(x) else x)
+            try:
+                self._rebuild()
+            finally:
+                for name, x in originals.items():
+                    setattr(self, name, x)
+            if key is not None:
+                cache[key] = (self.dist, self.table, self.factors, self.sampler)
+                while len(cache) > TABLES_KEPT:
+                    cache.pop(next(iter(cache)))
         self._built_from = {name: _keep(x) for name, x in originals.items()}
         self._stale_warned = False
+
+    def _cache_key(self, values):
+        """What the tables are a function of when no parameter has gradients: the four values (their
+        exact bits: the tables are a deterministic function of them), the storage and the resolution."""
+        g = self.grid
+        bits = tuple(struct.pack("<d", _scalar_value(values[name])) for name in _SCALARS)
+        return bits, self.table_mode, self.polarized, (g.n_theta, g.n_phi, g.table, g.n_factor)
 
     def _tables_stale(self):
         """Whether the tables no longer belong to the parameters' current variables."""

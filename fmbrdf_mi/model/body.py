@@ -332,7 +332,7 @@ def table_angles(n_theta, n_phi):
     return table_theta_of_x(x(n_theta)), table_phi_of_x(x(n_phi))
 
 
-def grazing_factors(dist, eta, grid, theta):
+def grazing_factors(dist, eta, grid, theta, nodes=None):
     """(F, d) at polar angles ``theta``: the body matrix at kappa = 0, per direction.
 
     At kappa = 0 the coupling is constant and the body matrix factorises:
@@ -344,11 +344,12 @@ def grazing_factors(dist, eta, grid, theta):
     transmission, masking); d = A_1 / A_0 is the DoLP of light leaving at
     that angle (Fresnel transmission's T-/T+, averaged).  :func:`body_tables`
     divides these 1-D factors out of what it tabulates, so that the 3-D tables
-    hold only the smooth coupling between the two directions.
+    hold only the smooth coupling between the two directions.  ``nodes``
+    (:func:`polar_nodes`): if already computed.
     """
     Float = dist.Float
     UInt = dr.uint32_array_t(Float)
-    th_j, w_j = polar_nodes(dist, grid)
+    th_j, w_j = nodes if nodes is not None else polar_nodes(dist, grid)
     J, K = grid.n_theta, grid.n_phi // 2  # the azimuths phi_k and -phi_k give the same channels 0, 1
     theta = Float(theta)
     n = dr.width(theta)
@@ -359,6 +360,7 @@ def grazing_factors(dist, eta, grid, theta):
     stn = dr.sin(thn)
     node = (stn * dr.cos(phn), stn * dr.sin(phn), dr.cos(thn))
     a = transmitted(Float, eta, dr.gather(Float, theta, i), Float(0.0), node, dr.gather(Float, w_j, j), False)
+    dr.eval(a[0], a[1])  # one kernel for both channels (each block_sum would evaluate its own)
     s0, s1 = dr.block_sum(a[0], J * K), dr.block_sum(a[1], J * K)
     return 2.0 * s0 / dist.projected_area(theta), s1 / dr.maximum(s0, 1e-30)
 
@@ -397,7 +399,7 @@ def body_tables(dist, eta, kappa, grid, polarized=True, planar=False):
     th, ph = table_angles(*grid.table)
     th_f = table_theta_of_x(np.linspace(0.0, 1.0, grid.n_factor))
     # the grazing factors at the 1-D nodes and at the table's polar nodes, in one pass
-    f_all, d_all = grazing_factors(dist, eta, grid, np.concatenate([th_f, th]))
+    f_all, d_all = grazing_factors(dist, eta, grid, np.concatenate([th_f, th]), nodes)
     nf, n1 = len(th_f), len(th)
     logf_all = dr.log(dr.maximum(f_all, 1e-30))
     pick = lambda x, start, n: dr.gather(Float, x, dr.arange(UInt, n) + start)
@@ -422,23 +424,31 @@ def body_tables(dist, eta, kappa, grid, polarized=True, planar=False):
         kappa0 = dr.select(c == 1, dl, dr.select(c == 3, dv, dr.select(c == 4, dl * dv, 0.0)))
         return dr.select(c == 0, log_part, y / m00 - kappa0)
 
-    def planar_channel(c):
-        """Channel c = 3 r + s of every texel (t, l, v), read from Y in its own order."""
+    def planar_channels(count):
+        """Channels 0 .. count - 1 (c = 3 r + s) of every texel (t, l, v), each its own array,
+        read from Y in its own order (what the channels share traced once)."""
         texel = dr.arange(UInt, n)
         tl, v = texel // n1, texel % n1
         block = tl * (n3 * n1 * n3) + v * n3  # element (0, 0); the texel's others lie in one (t, l) block
         m00 = dr.maximum(dr.gather(Float, Y, block), 1e-30)
-        y = dr.gather(Float, Y, block + (c % n3) * (n1 * n3) + c // n3) if c else m00
-        return value(c, y, m00, tl % n1, v)
+        l = tl % n1
+        out = [dr.log(m00) - dr.gather(Float, logf1, l) - dr.gather(Float, logf1, v)]
+        if count > 1:
+            dl, dv = dr.gather(Float, d1, l), dr.gather(Float, d1, v)
+            kappa0 = {1: dl, 3: dv, 4: dl * dv}
+            for c in range(1, count):
+                y = dr.gather(Float, Y, block + (c % n3) * (n1 * n3) + c // n3)
+                out.append(y / m00 - kappa0.get(c, 0.0))
+        return out
 
     shape = (nt, n1, n1, nc)
     if nc == 1 or planar:  # one array per channel, in one kernel
-        channels = [planar_channel(c) for c in range(nc)]
+        channels = planar_channels(nc)
         dr.eval(*channels)
         return TetraTable(channels if nc > 1 else channels[0], shape), factors
     # a texel's channels side by side: the elements' transpose inside each (t, l) block, then the
     # channels element by element (gathers only, which forward-mode AD differentiates cheaply)
-    orient = TetraTable(planar_channel(0), shape[:3] + (1,)).orient  # from channel 0's own array
+    orient = TetraTable(planar_channels(1)[0], shape[:3] + (1,)).orient  # from channel 0's own array
     y = _grid_order(Float, Y, n1, n3, n3)
     dr.eval(y)  # read twice below
     k = dr.arange(UInt, n * nc)
