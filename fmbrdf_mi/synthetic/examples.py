@@ -23,7 +23,9 @@ has millions of pixels.  ``README.txt`` in DIR lists the files;
   ``colour_a.png``, ``colour_b.png`` (+ sidecars) -- raw colour polarisation
   mosaics (RGGB) of a sphere; ``colour_mask.png``, ``colour_normal.npy`` on
   their 4 x 4 period grid; ``colour.toml``, a manifest of the two lights;
-* ``data/blob`` -- an object in the paper authors' layout (four lights);
+* ``data/blob`` -- an object in the paper authors' layout (four lights; 16-bit
+  raw mosaics of a 48 x 48 pixel view, camera gain 0.305 e-/DN, read noise
+  2.5 e-; each raw pixel the mean of the model over its area);
 * ``merl/glossy.binary``, ``merl/matte.binary`` -- MERL BRDF files tabulated
   from FMBRDF (the format's full 90 x 90 x 180 bins: 35 MB each);
 * ``plane.csv`` -- camera angle and intensity of an Oren-Nayar plane, light at 30 deg;
@@ -53,6 +55,10 @@ COLOUR_LIGHTS = [("colour_raw.png", (0.3, 0.4, 0.87)), ("colour_a.png", (0.5, 0.
                  ("colour_b.png", (-0.5, 0.2, 1.0))]
 #: The authors'-layout object's lights (ours: x right, y up, z towards the camera).
 BLOB_LIGHTS = [(-0.42, 0.31, 0.85), (0.5, 0.1, 0.86), (0.1, -0.6, 0.8), (0.35, 0.45, 0.82)]
+#: Its super-pixels across, the camera's field of view (deg; the object fills most of it) and the
+#: points per raw pixel side over which the model is averaged: enough pixels for the normal
+#: refinement, and a pixel integral finer than the fit's own area quadrature.
+BLOB_RES, BLOB_FOV, BLOB_AREA = 24, 12.0, 8
 #: The MERL files: name -> FMBRDF parameters (per-channel albedos).
 MERL_MATERIALS = {
     "glossy": dict(eta=1.55, alpha=0.12, beta=1.7, kappa=15.0, k_s=[0.5, 0.6, 0.7], k_b=[0.3, 0.1, 0.05]),
@@ -211,7 +217,7 @@ def write_examples(out, *, seed=0, merl=True):
     try:
         truth = {"mono": dict(TRUTH, **_mono(stage, seed)), "colour": dict(COLOUR_TRUTH, **_colour(stage, seed))}
         truth["data/blob"] = write_authors_object(os.path.join(stage, "data", "blob"), TRUTH, BLOB_LIGHTS,
-                                                  res=MONO_RES, seed=seed + 30)
+                                                  res=BLOB_RES, fov=BLOB_FOV, area=BLOB_AREA, seed=seed + 30)
         if merl:
             _merl(stage)
             truth["merl"] = MERL_MATERIALS

@@ -100,7 +100,7 @@ def ray_cast(scene, distance, view):
 
 
 def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0, seed=0, powers=None,
-                         camera=None, mesh=None, peak_fraction=0.8):
+                         camera=None, mesh=None, peak_fraction=0.8, area=1):
     """Write ``root`` in the authors' layout (module docstring); returns a dict of what was written.
 
     ``lights`` (ours: x right, y up, z towards the camera); ``res`` super-pixels
@@ -108,6 +108,10 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
     powers (written as calibration/intensities.npy); the exposure is fixed
     across images (the brightest raw pixel of the brightest image at
     ``peak_fraction`` of full scale), so the powers are the only difference.
+    ``area`` > 1 makes each raw pixel the mean of the model over ``area`` x
+    ``area`` points of its area (points off the mesh count 0), as a sensor
+    pixel integrates and as the fit's pixel-area quadrature models it; 1
+    evaluates it at the pixel centres.
     """
     from PIL import Image
 
@@ -121,10 +125,13 @@ def write_authors_object(root, params, lights, *, res=48, fov=20.0, distance=8.0
     f1 = G.focal_length(res, fov)
     lights = [np.asarray(l, float) / np.linalg.norm(l) for l in lights]
     powers = np.ones(len(lights)) if powers is None else np.asarray(powers, float)
+    a = int(area)
+    va = v2 if a == 1 else G.pixel_rays((r2 * a, r2 * a), "perspective", fov)
+    na, ma = (n2, m2) if a == 1 else ray_cast(scene, distance, va)
     stokes = []
     for l, p in zip(lights, powers):
-        o = ob.Observation(np.ones((3, r2, r2)), m2, n2, v2, l, float(p))
-        stokes.append(predict_image("fmbrdf", params, o))
+        o = ob.Observation(np.ones((3, r2 * a, r2 * a)), ma, na, va, l, float(p))
+        stokes.append(predict_image("fmbrdf", params, o).reshape(3, r2, a, r2, a).mean(axis=(2, 4)))
     exposure = peak_fraction * cam.full_well / max(float(np.max(s[0] + np.hypot(s[1], s[2])) / 2) for s in stokes)
     for sub in ("calibration", "normal", os.path.join("image", "img_ud")):
         os.makedirs(os.path.join(root, sub), exist_ok=True)
