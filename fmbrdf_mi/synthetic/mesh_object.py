@@ -9,10 +9,10 @@ symmetric about the view axis) seen by a pinhole camera.  Geometry comes
 from Mitsuba ray casts against the mesh (shading normals), once per raw
 sensor pixel for the data and once per super-pixel for ``normal_GT.npy``;
 the Stokes image is the model (:func:`fmbrdf_mi.fit.evaluate.predict.predict_image`)
-at every raw pixel, captured by :func:`fmbrdf_mi.sensor.camera.capture` (shot and
-read noise, 16-bit ADC, IMX250MZR layout 90 45 / 135 0) and written as
-16-bit PNG mosaics; lights, viewing rays and normals are written in OpenCV
-camera axes, as the authors' scripts expect
+at every raw pixel (or its mean over points of the pixel's area), captured
+by :func:`fmbrdf_mi.sensor.camera.capture` (shot and read noise, 16-bit ADC,
+IMX250MZR layout 90 45 / 135 0) and written as 16-bit PNG mosaics; lights,
+viewing rays and normals are written in OpenCV camera axes, as the authors' scripts expect
 (:mod:`fmbrdf_mi.fit.inputs.authors`).
 """
 from __future__ import annotations
