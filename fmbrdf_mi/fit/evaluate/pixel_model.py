@@ -87,6 +87,14 @@ class _Evaluator:
     def _stokes(self, chunk=None):  # -> (S0, S1, S2) Dr.Jit Float arrays of ``chunk`` (None: every output)
         raise NotImplementedError
 
+    def _points(self, chunk=None):
+        """The (S0, S1, S2) that :meth:`_reduce` turns into the outputs (here the outputs themselves)."""
+        return self._stokes(chunk)
+
+    def _reduce(self, s):
+        """The outputs of evaluated :meth:`_points` values (here the values themselves)."""
+        return s
+
     def _chunks(self):
         """The evaluation's chunks: (chunk, slice of the outputs) pairs; one chunk (None) of everything."""
         return [(None, slice(None))]
@@ -95,7 +103,9 @@ class _Evaluator:
         """:class:`Parts` at ``shape_values``; derivatives for the shape parameters in ``wrt``.
 
         The outputs are evaluated chunk by chunk (:meth:`_chunks`), each chunk's Dr.Jit arrays freed before
-        the next: every output is the same elementwise computation whatever the chunking."""
+        the next: every output is the same elementwise computation whatever the chunking.  A chunk's values at
+        its points (:meth:`_points`: the three components, and with ``wrt`` every derivative of them) are
+        evaluated together, then reduced to the outputs (:meth:`_reduce`)."""
         import drjit as dr
         import mitsuba as mi
 
@@ -105,7 +115,9 @@ class _Evaluator:
         for j, a in enumerate(UNIT_ALBEDOS):
             self.set_albedos(*a)
             for chunk, sl in chunks:
-                s = self._stokes(chunk)
+                s = self._points(chunk)
+                dr.eval(s)
+                s = self._reduce(s)
                 dr.eval(s)
                 v = np.stack([np.asarray(c, dtype=np.float64) for c in s])
                 if out[j] is None:
@@ -130,7 +142,7 @@ class _Evaluator:
             s_all = []
             for a in UNIT_ALBEDOS:
                 self.set_albedos(*a)
-                s_all.append(self._stokes(chunk))
+                s_all.append(self._points(chunk))
             outputs = [c for s in s_all for c in s]
             g = {}
             for name in wrt:
@@ -140,6 +152,8 @@ class _Evaluator:
                 for c in outputs:
                     dr.clear_grad(c)
             dr.eval(g)      # one kernel for all derivatives of the chunk
+            g = {name: [self._reduce(tuple(s)) for s in g[name]] for name in wrt}
+            dr.eval(g)
             for name in wrt:
                 for d, s in zip((parts.d_surface[name], parts.d_body[name]), g[name]):
                     for i, c in enumerate(s):
@@ -155,6 +169,11 @@ class _Evaluator:
             self._current[name] = float(shape_values[name])
         self.params.update()
         return parts
+
+
+#: Directions made and converted to float32 at a time (:class:`Directions`): bounds the float64 arrays of
+#: the geometry whatever the frame's size.
+PIECE_DIRECTIONS = 1 << 18
 
 
 class Directions:
@@ -187,7 +206,7 @@ class PixelEvaluator(_Evaluator):
     """
 
     #: Directions per BSDF evaluation (whole pixels: a multiple of the samples per pixel).
-    CHUNK_DIRECTIONS = 1 << 19
+    CHUNK_DIRECTIONS = 1 << 21
 
     def __init__(self, model, normals, view_dirs, light_dir, irradiance=1.0, variant=None, weights=None):
         mi = set_variant(variant)
@@ -201,7 +220,7 @@ class PixelEvaluator(_Evaluator):
             view_dirs = np.asarray(view_dirs, dtype=np.float64).reshape(-1, 3)
             if normals.shape != view_dirs.shape:
                 raise ValueError(f"normals {normals.shape} and view_dirs {view_dirs.shape} differ in shape")
-            directions = Directions.of(normals, view_dirs, self.CHUNK_DIRECTIONS)
+            directions = Directions.of(normals, view_dirs, PIECE_DIRECTIONS)
         n_dirs = directions.count
         light = np.asarray(light_dir, dtype=np.float64)
         light = light.reshape(3) if light.size == 3 else light.reshape(-1, 3)
@@ -229,7 +248,7 @@ class PixelEvaluator(_Evaluator):
     def set_geometry(self, normals, view_dirs, light):
         """Directions (unit, float64 arrays as in the constructor) of the same count; the BSDF is kept."""
         self._store(Directions.of(np.asarray(normals, dtype=np.float64), np.asarray(view_dirs, dtype=np.float64),
-                                  self.CHUNK_DIRECTIONS), np.asarray(light, dtype=np.float64), False)
+                                  PIECE_DIRECTIONS), np.asarray(light, dtype=np.float64), False)
 
     def _store(self, directions, light, normalise):
         """The float32 normals, view directions, lights and camera x axes of ``directions``
@@ -296,16 +315,22 @@ class PixelEvaluator(_Evaluator):
         dr.eval(si, wo, rot, irr, w)
         return si, wo, rot, irr, w
 
-    def _stokes(self, chunk=None):
-        import drjit as dr
-
+    def _points(self, chunk=None):
+        """(S0, S1, S2) at every direction of ``chunk``, in the camera's Stokes frame, times the footprint weight."""
         si, wo, (r11, r12, r21, r22), irr, w = self._geometry(chunk)
         M = self.bsdf.eval(self.ctx, si, wo)
         s0, s1, s2 = (M[i, 0][0] * irr for i in range(3))   # M @ [1, 0, 0, 0], first channel
         s = (s0, r11 * s1 + r12 * s2, r21 * s1 + r22 * s2)  # in the camera's Stokes frame
-        if w is None:
-            return s
-        return tuple(dr.block_sum(c * w, self.k) for c in s)
+        return s if w is None else tuple(c * w for c in s)
+
+    def _reduce(self, s):
+        """Each pixel's weighted sum over its K directions."""
+        import drjit as dr
+
+        return s if self.k == 1 else tuple(dr.block_sum(c, self.k) for c in s)
+
+    def _stokes(self, chunk=None):
+        return self._reduce(self._points(chunk))
 
 
 class RenderEvaluator(_Evaluator):

@@ -21,7 +21,7 @@ from fmbrdf_mi.fit.evaluate.materials import (MIN_MATERIAL_PIXELS, MaterialAlbed
                                               check_labels, material_count)
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
-from fmbrdf_mi.fit.evaluate.pixel_model import Directions, PixelEvaluator
+from fmbrdf_mi.fit.evaluate.pixel_model import PIECE_DIRECTIONS, Directions, PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
 from fmbrdf_mi.fit.inputs.observations import validate
 from fmbrdf_mi.fit.objectives import loss as L
@@ -209,7 +209,7 @@ def image_directions(geo):
 
     def pieces():
         for (o, idx, fp), k in zip(geo, per):
-            step = max(1, PixelEvaluator.CHUNK_DIRECTIONS // k)
+            step = max(1, PIECE_DIRECTIONS // k)
             for a in range(0, len(idx), step):
                 n, v, _ = o.sample_geometry(idx[a:a + step], footprint=fp)
                 yield n, v
