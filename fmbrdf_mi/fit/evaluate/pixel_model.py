@@ -282,10 +282,12 @@ class PixelEvaluator(_Evaluator):
             raise ValueError(f"directions: the pieces hold {a} of the {n_dirs} directions announced")
 
     def _chunks(self):
-        per = max(1, self.CHUNK_DIRECTIONS // self.k)       # pixels per chunk
-        if per >= self.n:
+        most = max(1, self.CHUNK_DIRECTIONS // self.k)      # pixels per chunk at most
+        if most >= self.n:
             return [(None, slice(None))]
-        return [((p, min(p + per, self.n)), slice(p, min(p + per, self.n))) for p in range(0, self.n, per)]
+        count = -(-self.n // most)
+        ends = [self.n * i // count for i in range(count + 1)]  # chunks of (nearly) equal size
+        return [((p0, p1), slice(p0, p1)) for p0, p1 in zip(ends[:-1], ends[1:])]
 
     def _geometry(self, chunk):
         """The Dr.Jit surface interactions, light directions (local) and camera-frame rotations of the
