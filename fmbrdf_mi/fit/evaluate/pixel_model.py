@@ -255,6 +255,7 @@ class PixelEvaluator(_Evaluator):
         (:class:`Directions`), computed in float64 a piece at a time (``normalise``: the normals and views
         scaled to unit length first)."""
         n_dirs = directions.count
+        self._whole = None      # the Dr.Jit geometry of all pixels, kept when they are one chunk
         self._normals = np.empty((n_dirs, 3), np.float32)
         self._views = np.empty((n_dirs, 3), np.float32)
         self._xc = np.empty((n_dirs, 3), np.float32)
@@ -290,11 +291,14 @@ class PixelEvaluator(_Evaluator):
         return [((p0, p1), slice(p0, p1)) for p0, p1 in zip(ends[:-1], ends[1:])]
 
     def _geometry(self, chunk):
-        """The Dr.Jit surface interactions, light directions (local) and camera-frame rotations of the
-        pixels ``chunk`` = (first, end) (None: all), evaluated."""
+        """The Dr.Jit surface interactions, light directions (local), camera-frame rotations, irradiances and
+        footprint weights of the pixels ``chunk`` = (first, end), evaluated; ``chunk`` None: of all pixels,
+        kept for the next evaluation (one chunk's worth at most: :meth:`_chunks`)."""
         import drjit as dr
         import mitsuba as mi
 
+        if chunk is None and self._whole is not None:
+            return self._whole
         p0, p1 = (0, self.n) if chunk is None else chunk
         d = slice(p0 * self.k, p1 * self.k)
         n_dirs = (p1 - p0) * self.k
@@ -315,6 +319,8 @@ class PixelEvaluator(_Evaluator):
         irr = self.irradiance if isinstance(self.irradiance, float) else mi.Float(self.irradiance[d])
         w = None if self._w32 is None else mi.Float(np.tile(self._w32, p1 - p0))
         dr.eval(si, wo, rot, irr, w)
+        if chunk is None and self.n * self.k <= self.CHUNK_DIRECTIONS:
+            self._whole = (si, wo, rot, irr, w)
         return si, wo, rot, irr, w
 
     def _points(self, chunk=None):
