@@ -198,7 +198,8 @@ class PixelEvaluator(_Evaluator):
 
     With ``weights`` (K,) the directions are (n K, 3), K footprint samples per pixel
     (:meth:`Observation.sample_geometry`) summed with those weights.  ``light_dir`` (n K, 3) and
-    ``irradiance`` (n K,) give one light per direction (:mod:`fmbrdf_mi.fit.api.joint`).
+    ``irradiance`` (n K,) give one light per direction (:mod:`fmbrdf_mi.fit.api.joint`).  ``normals`` may be
+    a :class:`Directions` (normals and views made a piece at a time; ``view_dirs`` None).
 
     The directions are held as float32 NumPy arrays (what the BSDF is evaluated at) and the pixels are
     evaluated in chunks of about :data:`CHUNK_DIRECTIONS` directions, so the Dr.Jit arrays of an evaluation
