@@ -84,51 +84,85 @@ class _Evaluator:
         self._assign(self.model.body_key, float(a_b))
         self.params.update()
 
-    def _stokes(self):  # -> (S0, S1, S2) Dr.Jit Float arrays
+    def _stokes(self, chunk=None):  # -> (S0, S1, S2) Dr.Jit Float arrays of ``chunk`` (None: every output)
         raise NotImplementedError
 
+    def _points(self, chunk=None):
+        """The (S0, S1, S2) that :meth:`_reduce` turns into the outputs (here the outputs themselves)."""
+        return self._stokes(chunk)
+
+    def _reduce(self, s):
+        """The outputs of evaluated :meth:`_points` values (here the values themselves)."""
+        return s
+
+    def _chunks(self):
+        """The evaluation's chunks: (chunk, slice of the outputs) pairs; one chunk (None) of everything."""
+        return [(None, slice(None))]
+
     def parts(self, shape_values, wrt=()):
-        """:class:`Parts` at ``shape_values``; derivatives for the shape parameters in ``wrt``."""
+        """:class:`Parts` at ``shape_values``; derivatives for the shape parameters in ``wrt``.
+
+        The outputs are evaluated chunk by chunk (:meth:`_chunks`), each chunk's Dr.Jit arrays freed before
+        the next: every output is the same elementwise computation whatever the chunking.  A chunk's values at
+        its points (:meth:`_points`: the three components, and with ``wrt`` every derivative of them) are
+        evaluated together, then reduced to the outputs (:meth:`_reduce`)."""
         import drjit as dr
         import mitsuba as mi
 
         self.set_shape(shape_values)
-        out = []
-        for a in UNIT_ALBEDOS:
+        chunks = self._chunks()
+        out = [None, None]
+        for j, a in enumerate(UNIT_ALBEDOS):
             self.set_albedos(*a)
-            s = self._stokes()
-            dr.eval(s)
-            out.append(np.stack([np.asarray(c, dtype=np.float64) for c in s]))
+            for chunk, sl in chunks:
+                s = self._points(chunk)
+                dr.eval(s)
+                s = self._reduce(s)
+                dr.eval(s)
+                v = np.stack([np.asarray(c, dtype=np.float64) for c in s])
+                if out[j] is None:
+                    out[j] = v if len(chunks) == 1 else np.empty((3, self.n))
+                if len(chunks) > 1:
+                    out[j][:, sl] = v
+                del s, v
         parts = Parts(out[0], out[1])
         if not wrt:
             return parts
-        # one table build with gradients on all of ``wrt``, then one forward pass per parameter
+        # one table build with gradients on all of ``wrt``, then per chunk one forward pass per parameter
         xs = {}
         for name in wrt:
             xs[name] = mi.Float(float(shape_values[name]))
             dr.enable_grad(xs[name])
             self._assign(self.model.param(name).key, xs[name])
         self.params.update()
-        s_all = []
-        for a in UNIT_ALBEDOS:
-            self.set_albedos(*a)
-            s_all.append(self._stokes())
-        outputs = [c for s in s_all for c in s]
-        g = {}
+        n_out = parts.surface.shape[1]
         for name in wrt:
-            dr.set_grad(xs[name], 1.0)
-            dr.forward_to(*outputs, flags=dr.ADFlag.ClearInterior | dr.ADFlag.ClearInput)
-            g[name] = [[dr.grad(c) for c in s] for s in s_all]
-            for c in outputs:
-                dr.clear_grad(c)
-        dr.eval(g)      # one kernel for all derivatives
+            parts.d_surface[name], parts.d_body[name] = np.empty((3, n_out)), np.empty((3, n_out))
+        for chunk, sl in chunks:
+            s_all = []
+            for a in UNIT_ALBEDOS:
+                self.set_albedos(*a)
+                s_all.append(self._points(chunk))
+            outputs = [c for s in s_all for c in s]
+            g = {}
+            for name in wrt:
+                dr.set_grad(xs[name], 1.0)
+                dr.forward_to(*outputs, flags=dr.ADFlag.ClearInterior | dr.ADFlag.ClearInput)
+                g[name] = [[dr.grad(c) for c in s] for s in s_all]
+                for c in outputs:
+                    dr.clear_grad(c)
+            dr.eval(g)      # one kernel for all derivatives of the chunk
+            g = {name: [self._reduce(tuple(s)) for s in g[name]] for name in wrt}
+            dr.eval(g)
+            for name in wrt:
+                for d, s in zip((parts.d_surface[name], parts.d_body[name]), g[name]):
+                    for i, c in enumerate(s):
+                        d[i, sl] = np.asarray(c, dtype=np.float64)
+            del g, outputs, s_all
         for name in wrt:
-            grads = [np.stack([np.asarray(c, dtype=np.float64) for c in s]) for s in g[name]]
-            parts.d_surface[name], parts.d_body[name] = grads
+            grads = (parts.d_surface[name], parts.d_body[name])
             bad = ~(np.all(np.isfinite(grads[0]), 0) & np.all(np.isfinite(grads[1]), 0))
             parts.nonfinite = parts.nonfinite | bad if parts.nonfinite is not None else bad
-        del g
-        del outputs, s_all
         # detached values: no graph kept alive
         for name in wrt:
             self._assign(self.model.param(name).key, float(shape_values[name]))
@@ -137,36 +171,67 @@ class _Evaluator:
         return parts
 
 
+#: Directions made and converted to float32 at a time (:class:`Directions`): bounds the float64 arrays of
+#: the geometry whatever the frame's size.
+PIECE_DIRECTIONS = 1 << 18
+
+
+class Directions:
+    """Normals and view directions, float64 (``count``, 3) each, made a piece at a time: ``pieces()`` yields
+    (normals, view_dirs) pieces in order.  What :class:`PixelEvaluator` takes instead of two whole arrays, so
+    that a frame's directions are never all held in float64 at once."""
+
+    def __init__(self, count, pieces):
+        self.count = int(count)
+        self.pieces = pieces
+
+    @classmethod
+    def of(cls, normals, view_dirs, rows):
+        """The arrays ``normals``, ``view_dirs`` (n, 3) in pieces of ``rows`` rows."""
+        step = max(1, int(rows))
+        return cls(len(normals), lambda: ((normals[a:a + step], view_dirs[a:a + step])
+                                          for a in range(0, len(normals), step)))
+
+
 class PixelEvaluator(_Evaluator):
     """Per-pixel BSDF evaluation at normals ``(n, 3)``, view directions ``(n, 3)`` and one light direction.
 
     With ``weights`` (K,) the directions are (n K, 3), K footprint samples per pixel
     (:meth:`Observation.sample_geometry`) summed with those weights.  ``light_dir`` (n K, 3) and
-    ``irradiance`` (n K,) give one light per direction (:mod:`fmbrdf_mi.fit.api.joint`).
+    ``irradiance`` (n K,) give one light per direction (:mod:`fmbrdf_mi.fit.api.joint`).  ``normals`` may be
+    a :class:`Directions` (normals and views made a piece at a time; ``view_dirs`` None).
+
+    The directions are held as float32 NumPy arrays (what the BSDF is evaluated at) and the pixels are
+    evaluated in chunks of about :data:`CHUNK_DIRECTIONS` directions, so the Dr.Jit arrays of an evaluation
+    (the shading frames, the AD graph of the derivatives, the outputs) are bounded by the chunk, not the frame.
     """
+
+    #: Directions per BSDF evaluation (whole pixels: a multiple of the samples per pixel).
+    CHUNK_DIRECTIONS = 1 << 21
 
     def __init__(self, model, normals, view_dirs, light_dir, irradiance=1.0, variant=None, weights=None):
         mi = set_variant(variant)
-        import drjit as dr
 
-        normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-        view_dirs = np.asarray(view_dirs, dtype=np.float64).reshape(-1, 3)
+        if isinstance(normals, Directions):
+            if view_dirs is not None:
+                raise ValueError("view_dirs: None when the normals are Directions (they hold both)")
+            directions = normals
+        else:
+            normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+            view_dirs = np.asarray(view_dirs, dtype=np.float64).reshape(-1, 3)
+            if normals.shape != view_dirs.shape:
+                raise ValueError(f"normals {normals.shape} and view_dirs {view_dirs.shape} differ in shape")
+            directions = Directions.of(normals, view_dirs, PIECE_DIRECTIONS)
+        n_dirs = directions.count
         light = np.asarray(light_dir, dtype=np.float64)
         light = light.reshape(3) if light.size == 3 else light.reshape(-1, 3)
-        if normals.shape != view_dirs.shape:
-            raise ValueError(f"normals {normals.shape} and view_dirs {view_dirs.shape} differ in shape")
-        if light.ndim == 2 and light.shape != normals.shape:
-            raise ValueError(f"light_dir {light.shape}: one direction, or one per normal {normals.shape}")
-        # unit length to float64 precision (a cosine above 1 gives NaN derivatives in the BSDF)
-        normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-        view_dirs = view_dirs / np.linalg.norm(view_dirs, axis=1, keepdims=True)
-        light = light / np.linalg.norm(light, axis=-1, keepdims=True)
+        if light.ndim == 2 and light.shape != (n_dirs, 3):
+            raise ValueError(f"light_dir {light.shape}: one direction, or one per normal ({n_dirs}, 3)")
         self.k = 1 if weights is None else len(weights)
-        if len(normals) % self.k:
-            raise ValueError(f"{len(normals)} directions are not a multiple of {self.k} samples per pixel")
-        self.n = len(normals) // self.k
-        n_dirs = len(normals)
-        self._w = None if self.k == 1 else mi.Float(np.tile(np.asarray(weights, np.float32), self.n))
+        if n_dirs % self.k:
+            raise ValueError(f"{n_dirs} directions are not a multiple of {self.k} samples per pixel")
+        self.n = n_dirs // self.k
+        self._w32 = None if self.k == 1 else np.asarray(weights, np.float32)
         bsdf = mi.load_dict(model.bsdf_dict())
         super().__init__(model, mi.traverse(bsdf))
         self.bsdf = bsdf
@@ -174,49 +239,107 @@ class PixelEvaluator(_Evaluator):
         if irr.size == 1:
             self.irradiance = float(irr)
         elif irr.shape == (n_dirs,):
-            self.irradiance = mi.Float(irr.astype(np.float32))
+            self.irradiance = irr.astype(np.float32)
         else:
             raise ValueError(f"irradiance {irr.shape}: one value, or one per direction ({n_dirs},)")
         self.ctx = mi.BSDFContext()
-        self.set_geometry(normals, view_dirs, light)
-        if not isinstance(self.irradiance, float):
-            dr.eval(self.irradiance)
+        # unit length to float64 precision (a cosine above 1 gives NaN derivatives in the BSDF)
+        self._store(directions, light / np.linalg.norm(light, axis=-1, keepdims=True), True)
 
     def set_geometry(self, normals, view_dirs, light):
         """Directions (unit, float64 arrays as in the constructor) of the same count; the BSDF is kept."""
+        self._store(Directions.of(np.asarray(normals, dtype=np.float64), np.asarray(view_dirs, dtype=np.float64),
+                                  PIECE_DIRECTIONS), np.asarray(light, dtype=np.float64), False)
+
+    def _store(self, directions, light, normalise):
+        """The float32 normals, view directions, lights and camera x axes of ``directions``
+        (:class:`Directions`), computed in float64 a piece at a time (``normalise``: the normals and views
+        scaled to unit length first)."""
+        n_dirs = directions.count
+        self._whole = None      # the Dr.Jit geometry of all pixels, kept when they are one chunk
+        self._normals = np.empty((n_dirs, 3), np.float32)
+        self._views = np.empty((n_dirs, 3), np.float32)
+        self._xc = np.empty((n_dirs, 3), np.float32)
+        self._light = light.astype(np.float32)
+        ex = np.array([1.0, 0.0, 0.0])
+        a = 0
+        for n, v in directions.pieces():
+            b = a + len(n)
+            if b > n_dirs or len(v) != len(n):
+                raise ValueError(f"directions: pieces of {len(n)} normals and {len(v)} views overrun the "
+                                 f"{n_dirs} directions announced")
+            if normalise:
+                n = n / np.linalg.norm(n, axis=1, keepdims=True)
+                v = v / np.linalg.norm(v, axis=1, keepdims=True)
+            self._normals[a:b] = n
+            self._views[a:b] = v
+            # the camera's Stokes x axis at each direction: image right, orthogonal to the view direction
+            xc = ex[None, :] - (v @ ex)[:, None] * v
+            bad = np.linalg.norm(xc, axis=1) < 1e-6
+            xc[bad] = (0.0, 1.0, 0.0)
+            xc /= np.linalg.norm(xc, axis=1, keepdims=True)
+            self._xc[a:b] = xc
+            a = b
+        if a != n_dirs:
+            raise ValueError(f"directions: the pieces hold {a} of the {n_dirs} directions announced")
+
+    def _chunks(self):
+        most = max(1, self.CHUNK_DIRECTIONS // self.k)      # pixels per chunk at most
+        if most >= self.n:
+            return [(None, slice(None))]
+        count = -(-self.n // most)
+        ends = [self.n * i // count for i in range(count + 1)]  # chunks of (nearly) equal size
+        return [((p0, p1), slice(p0, p1)) for p0, p1 in zip(ends[:-1], ends[1:])]
+
+    def _geometry(self, chunk):
+        """The Dr.Jit surface interactions, light directions (local), camera-frame rotations, irradiances and
+        footprint weights of the pixels ``chunk`` = (first, end), evaluated; ``chunk`` None: of all pixels,
+        kept for the next evaluation (one chunk's worth at most: :meth:`_chunks`)."""
         import drjit as dr
         import mitsuba as mi
 
-        n_dirs = len(normals)
-        frame = mi.Frame3f(mi.Vector3f(np.ascontiguousarray(normals.T, dtype=np.float32)))
+        if chunk is None and self._whole is not None:
+            return self._whole
+        p0, p1 = (0, self.n) if chunk is None else chunk
+        d = slice(p0 * self.k, p1 * self.k)
+        n_dirs = (p1 - p0) * self.k
+
+        def vec(x):
+            return mi.Vector3f(np.ascontiguousarray(x.T))
+
+        frame = mi.Frame3f(vec(self._normals[d]))
         si = dr.zeros(mi.SurfaceInteraction3f, n_dirs)
         si.sh_frame = frame
         si.n = frame.n
-        si.wi = frame.to_local(mi.Vector3f(np.ascontiguousarray(view_dirs.T, dtype=np.float32)))
-        lights = light if light.ndim == 2 else np.tile(light, (n_dirs, 1))
-        self.wo = frame.to_local(mi.Vector3f(np.ascontiguousarray(lights.T, dtype=np.float32)))
-        self.si = si
-        # the camera's Stokes x axis at each direction: image right, orthogonal to the view direction
-        ex = np.array([1.0, 0.0, 0.0])
-        xc = ex[None, :] - (view_dirs @ ex)[:, None] * view_dirs
-        bad = np.linalg.norm(xc, axis=1) < 1e-6
-        xc[bad] = (0.0, 1.0, 0.0)
-        xc /= np.linalg.norm(xc, axis=1, keepdims=True)
-        xl = frame.to_local(mi.Vector3f(np.ascontiguousarray(xc.T, dtype=np.float32)))
+        si.wi = frame.to_local(vec(self._views[d]))
+        lights = self._light[d] if self._light.ndim == 2 else np.tile(self._light, (n_dirs, 1))
+        wo = frame.to_local(vec(lights))
+        xl = frame.to_local(vec(self._xc[d]))
         rot = mi.mueller.rotate_stokes_basis(si.wi, mi.mueller.stokes_basis(si.wi), xl)
-        self._rot = (rot[1, 1], rot[1, 2], rot[2, 1], rot[2, 2])
-        dr.eval(self.si, self.wo, self._rot)
+        rot = (rot[1, 1], rot[1, 2], rot[2, 1], rot[2, 2])
+        irr = self.irradiance if isinstance(self.irradiance, float) else mi.Float(self.irradiance[d])
+        w = None if self._w32 is None else mi.Float(np.tile(self._w32, p1 - p0))
+        dr.eval(si, wo, rot, irr, w)
+        if chunk is None and self.n * self.k <= self.CHUNK_DIRECTIONS:
+            self._whole = (si, wo, rot, irr, w)
+        return si, wo, rot, irr, w
 
-    def _stokes(self):
+    def _points(self, chunk=None):
+        """(S0, S1, S2) at every direction of ``chunk``, in the camera's Stokes frame, times the footprint weight."""
+        si, wo, (r11, r12, r21, r22), irr, w = self._geometry(chunk)
+        M = self.bsdf.eval(self.ctx, si, wo)
+        s0, s1, s2 = (M[i, 0][0] * irr for i in range(3))   # M @ [1, 0, 0, 0], first channel
+        s = (s0, r11 * s1 + r12 * s2, r21 * s1 + r22 * s2)  # in the camera's Stokes frame
+        return s if w is None else tuple(c * w for c in s)
+
+    def _reduce(self, s):
+        """Each pixel's weighted sum over its K directions."""
         import drjit as dr
 
-        M = self.bsdf.eval(self.ctx, self.si, self.wo)
-        s0, s1, s2 = (M[i, 0][0] * self.irradiance for i in range(3))   # M @ [1, 0, 0, 0], first channel
-        r11, r12, r21, r22 = self._rot
-        s = (s0, r11 * s1 + r12 * s2, r21 * s1 + r22 * s2)  # in the camera's Stokes frame
-        if self._w is None:
-            return s
-        return tuple(dr.block_sum(c * self._w, self.k) for c in s)
+        return s if self.k == 1 else tuple(dr.block_sum(c, self.k) for c in s)
+
+    def _stokes(self, chunk=None):
+        return self._reduce(self._points(chunk))
 
 
 class RenderEvaluator(_Evaluator):
@@ -265,7 +388,7 @@ class RenderEvaluator(_Evaluator):
                 "(optimizer 'adam'), which agrees with finite differences")
         return super().parts(shape_values)
 
-    def _stokes(self):
+    def _stokes(self, chunk=None):
         import drjit as dr
         import mitsuba as mi
 

@@ -21,7 +21,7 @@ from fmbrdf_mi.fit.evaluate.materials import (MIN_MATERIAL_PIXELS, MaterialAlbed
                                               check_labels, material_count)
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
-from fmbrdf_mi.fit.evaluate.pixel_model import PixelEvaluator
+from fmbrdf_mi.fit.evaluate.pixel_model import PIECE_DIRECTIONS, Directions, PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
 from fmbrdf_mi.fit.inputs.observations import validate
 from fmbrdf_mi.fit.objectives import loss as L
@@ -201,6 +201,23 @@ def bilinear_layout(shape, flat, pixels, cell, samples, prior=None):
                         corner_weights=weights, name="per-pixel-bilinear", prior=prior)
 
 
+def image_directions(geo):
+    """:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Directions` of the images' fitted pixels, ``geo`` their
+    (observation, pixels, footprint) in order, made a block of pixels at a time by
+    :meth:`~fmbrdf_mi.fit.inputs.observations.Observation.sample_geometry`; and each image's direction count."""
+    per = [len(o.sample_geometry(idx[:1], footprint=fp)[0]) for o, idx, fp in geo]    # directions per pixel
+
+    def pieces():
+        for (o, idx, fp), k in zip(geo, per):
+            step = max(1, PIECE_DIRECTIONS // k)
+            for a in range(0, len(idx), step):
+                n, v, _ = o.sample_geometry(idx[a:a + step], footprint=fp)
+                yield n, v
+
+    counts = [len(idx) * k for (_, idx, _), k in zip(geo, per)]
+    return Directions(sum(counts), pieces), counts
+
+
 def material_labels(observations, materials, loss, opts, evaluator=None):
     """The checked label image of a fit of several materials (:func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`
     on the images' pixel grid, one view) and M; InputError in one line for what the materials do not work with."""
@@ -283,7 +300,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         "candidates": sum(e["candidates"] for e in excl), "saturated": sum(e["saturated"] for e in excl),
         "dark": sum(e["dark"] for e in excl), "used": int(starts[-1]), "per_image": excl,
         "white_level": excl[0].get("white_level"), "dark_level": excl[0].get("dark_level")}
-    geo = []  # (normals, views, lights, irradiances) per image
+    geo = []  # (observation, pixels, footprint) per image: its directions are made when the evaluator needs them
     if loss == "likelihood":
         smps = [o.samples if o.samples is not None else SM.from_stokes(o.stokes) for o in observations]
         A = smps[0].analyser()
@@ -300,8 +317,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         ys = []
         for o, s, idx in zip(observations, smps, idxs):
             # per point: n m^2 points per super-pixel, each sample the mean over m x m points of its pixel
-            n, v, w = o.sample_geometry(idx, footprint=s.footprint(m) if per_point else None)
-            geo.append((n, v))
+            geo.append((o, idx, s.footprint(m) if per_point else None))
             ys.append(s.at(idx))
         noise = same_noise(observations)
         if noise is None:
@@ -322,6 +338,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
             layout = MaterialAlbedos(cell_material, smps[0].n, count)
         objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof, layout=layout)
         smp = smps[0]
+        w = observations[-1].sample_geometry(idxs[-1][:1], footprint=geo[-1][2])[2]
         weights = None if len(w) == 1 else w
     else:
         fps = [o.footprint for o in observations]
@@ -333,8 +350,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
                                  "images the same kind (raw mosaics with one demosaicking, or all Stokes images)")
         stokes, var = [], []
         for o, idx in zip(observations, idxs):
-            n, v, w = o.sample_geometry(idx)
-            geo.append((n, v))
+            geo.append((o, idx, "own"))
             stokes.append(o.stokes.reshape(3, -1)[:, idx])
             var.append(None if o.lin_variance is None else o.lin_variance.ravel()[idx])
         if any(x is None for x in var) and not all(x is None for x in var):
@@ -355,20 +371,26 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         smp = None
         w = observations[0].sample_geometry(idxs[0][:1])[2]
         weights = None if len(w) == 1 else w
-    normals = np.concatenate([g[0] for g in geo])
-    views = np.concatenate([g[1] for g in geo])
-    lights = np.concatenate([np.tile(o.light_dir, (len(g[0]), 1)) for o, g in zip(observations, geo)])
-    irr = np.concatenate([np.full(len(g[0]), o.irradiance) for o, g in zip(observations, geo)])
+    directions, counts = image_directions(geo)
     mat = None
     if lab is not None:
+        normals, views = (np.concatenate(c) for c in zip(*directions.pieces()))
+        lights = np.concatenate([np.tile(o.light_dir, (c, 1)) for o, c in zip(observations, counts)])
+        irr = np.concatenate([np.full(c, o.irradiance) for o, c in zip(observations, counts)])
         evaluator = material_evaluators(get_model(opts.model), count, cell_material, normals, views, lights, irr,
                                         weights)
+        del normals, views
         mat = {"labels": lab, "count": count, "cell_material": cell_material,
                "pixels": np.bincount(cell_material, minlength=count).tolist()}
     if evaluator is None:
-        if np.allclose(irr, irr[0]):
-            irr = float(irr[0])
-        evaluator = PixelEvaluator(get_model(opts.model), normals, views, lights, irr, weights=weights)
+        # one light and irradiance for all directions when the images share them (no per-direction copies)
+        irr_img = np.array([float(o.irradiance) for o in observations])
+        irr = (float(irr_img[0]) if np.allclose(irr_img, irr_img[0]) else
+               np.concatenate([np.full(c, o.irradiance) for o, c in zip(observations, counts)]))
+        same_light = all(np.array_equal(o.light_dir, observations[0].light_dir) for o in observations)
+        lights = (np.asarray(observations[0].light_dir, dtype=np.float64) if same_light else
+                  np.concatenate([np.tile(o.light_dir, (c, 1)) for o, c in zip(observations, counts)]))
+        evaluator = PixelEvaluator(get_model(opts.model), directions, None, lights, irr, weights=weights)
     flat_idx = np.concatenate(idxs)
 
     def remake(m_new):      # the same images, pixels and options with m_new x m_new points per sample
