@@ -295,7 +295,7 @@ def test_ctrl_c_stops_a_fit_brdf_batch_promptly(tmp_path, merl_files):
     while line and "[fit-brdf] batch of" not in line:   # the batch's first line: the workers start now
         line = proc.stderr.readline()
     assert "[fit-brdf] batch of 4 materials" in line, line
-    time.sleep(8)                            # the workers are fitting (each fit takes far longer)
+    time.sleep(4)                            # the workers are fitting (each fit takes far longer)
     assert proc.poll() is None, "the batch ended before it was interrupted"
     proc.send_signal(signal.SIGINT)
     t0 = time.time()
