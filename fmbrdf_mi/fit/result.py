@@ -70,10 +70,12 @@ class FitResult:
     #: written by :meth:`to_json` only when set
     OPTIONAL = ("images", "powers", "channels", "albedo", "materials")
 
+    #: never written by :meth:`to_json`
+    INTERNAL = ("pixels", "details", "normals", "mask", "maps", "fitted")
+
     def to_json(self):
-        d = dataclasses.asdict(dataclasses.replace(self, pixels=None, details=None, normals=None, mask=None,
-                                                   maps=None, fitted=None))
-        for k in ("pixels", "details", "normals", "mask", "maps", "fitted"):
+        d = dataclasses.asdict(dataclasses.replace(self, **dict.fromkeys(self.INTERNAL)))
+        for k in self.INTERNAL:
             d.pop(k)
         for k in self.OPTIONAL:
             if d[k] is None:
@@ -86,11 +88,6 @@ class FitResult:
         if self.details and key in self.details:
             return self.details[key]
         raise KeyError(key)
-
-    @property
-    def fit(self):
-        """The result itself, so that code reading ``result.fit`` of a joint fit keeps working."""
-        return self
 
     def save_json(self, path, extra=None):
         d = self.to_json()

@@ -54,4 +54,3 @@ def test_dict_style_reads_fields_then_details():
     assert r["params"] is r.params and r["channels"] == ["R", "G", "B"] and r["chi2_per_dof"] == 1.1
     with pytest.raises(KeyError):
         r["nothing"]
-    assert r.fit is r          # joint results were wrappers with .fit

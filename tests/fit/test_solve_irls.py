@@ -1,4 +1,4 @@
-"""The one reweighting loop (fmbrdf_mi/fit/solve/irls.py): the order of its hooks and its three ways to stop.
+"""The one reweighting loop (fmbrdf_mi/fit/solve/lm.py): the order of its hooks and its three ways to stop.
 
 The fits' own IRLS behaviour (estimates, standard errors) is pinned by the
 regression record (tools/record_fits.py) and the coverage tests; here the
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fmbrdf_mi.fit.solve.irls import reweighted
+from fmbrdf_mi.fit.solve.lm import reweighted
 
 
 def test_reweighted_median_converges_to_the_median():

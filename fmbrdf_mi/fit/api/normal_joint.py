@@ -30,7 +30,6 @@ from fmbrdf_mi.fit.problem.normals import NormalProblem
 from fmbrdf_mi.fit.result import FitResult
 from fmbrdf_mi.fit.solve import lm as LM
 from fmbrdf_mi.fit.solve import normal_system as NS
-from fmbrdf_mi.fit.solve.irls import reweighted
 
 #: The smoothness weight of the material's estimate and covariance, after the refinement at ``lam``.
 LAM_MATERIAL = 0.03
@@ -175,7 +174,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
             "max_iter": f"max_iter ({max_iter}) reached"}[res.reason])
         return (st, nmap), res.converged
 
-    (st, nmap), converged, _, _ = reweighted((st, nmap), minimise, rounds=refreshes + 1, before=before)
+    (st, nmap), converged, _, _ = LM.reweighted((st, nmap), minimise, rounds=refreshes + 1, before=before)
     f, ed, ep, reason = last["f"], last["ed"], last["ep"], last["reason"]
     n_out, stage = nmap, None
     if converged and staged:

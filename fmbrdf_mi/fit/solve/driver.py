@@ -15,8 +15,8 @@ import numpy as np
 
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.problem.problem import TimeUp
+from fmbrdf_mi.fit.solve import lm as LM
 from fmbrdf_mi.fit.solve import optimise as O
-from fmbrdf_mi.fit.solve.irls import reweighted
 
 
 @dataclasses.dataclass
@@ -67,7 +67,7 @@ def step_in_se(problem, st_old, st_new, J):
 
 def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02, history=None,
            report=None):
-    """At most ``rounds`` reweighting rounds from ``st`` (:func:`~fmbrdf_mi.fit.solve.irls.reweighted`); the
+    """At most ``rounds`` reweighting rounds from ``st`` (:func:`~fmbrdf_mi.fit.solve.lm.reweighted`); the
     likelihood's are settled when a round moves the estimate by < 0.05 standard errors.
     Returns (State, stop reason, converged, Jacobian or None, residuals or None).
     """
@@ -98,7 +98,7 @@ def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_l
             last["J"] = last["r"] = None
         return st, converged
 
-    st, converged, settled, _ = reweighted(st, minimise, rounds=rounds, before=before)
+    st, converged, settled, _ = LM.reweighted(st, minimise, rounds=rounds, before=before)
     reason, J, r, step_se = last["reason"], last["J"], last["r"], last["step_se"]
     if obj.is_likelihood and converged and not settled:
         if step_se is not None and step_se < 0.05:

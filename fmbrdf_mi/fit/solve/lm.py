@@ -1,7 +1,10 @@
-"""The one Levenberg-Marquardt of every fit, with a pluggable linearisation, linear solve and trial step.
+"""The one Levenberg-Marquardt of every fit, with a pluggable linearisation, linear solve and trial step, and the
+one reweighting loop (IRLS) around it.
 
 Each fit supplies only what differs (:func:`levenberg_marquardt`); the result says why it stopped
-(:data:`REASONS`) and whether that counts as converged, and the caller words it.
+(:data:`REASONS`) and whether that counts as converged, and the caller words it.  :func:`reweighted`
+minimises with the objective's weights frozen, refreshes them, repeats; the fits differ only in its
+``before`` (the likelihood's model variances, the paper's inlier / outlier split) and ``minimise``.
 """
 from __future__ import annotations
 
@@ -139,3 +142,19 @@ def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None,
         lin = linearise(x)
         fresh = True
     return LMResult(x, f, lin, fresh, reason, it)
+
+
+def reweighted(x, minimise, *, rounds, before):
+    """At most ``rounds`` rounds from ``x``; returns (x, converged of the last minimisation, settled, rounds run).
+
+    ``before(x, k)`` refreshes the weights, True when settled (the loop stops); ``minimise(x, k)`` returns
+    (x, converged), and a minimisation that does not converge ends the rounds.
+    """
+    converged, k = False, 0
+    for k in range(rounds):
+        if before(x, k):
+            return x, converged, True, k
+        x, converged = minimise(x, k)
+        if not converged:
+            break
+    return x, converged, False, k + 1
