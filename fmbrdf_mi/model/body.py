@@ -34,7 +34,7 @@ phi = phi_V - phi_L a Fourier series.  Between grid azimuths the series is
 the trigonometric interpolant of the grid values (Nyquist term split
 symmetrically), which is how the tables' finer phi nodes are filled.
 :func:`body_series` computes the coefficients (*) with batched matrix
-products, :func:`synthesise` the series; tools/check_table.py and
+products, :func:`synthesise` the series; tools/check_accuracy.py --table-only and
 tests/test_body_fourier.py measure both against direct sums.
 
 Isotropy leaves three angles (theta_L, theta_V, phi = phi_V - phi_L); the

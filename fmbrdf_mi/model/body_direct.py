@@ -4,7 +4,7 @@ sum_pq a_p(V) K_pq b_q(L)^T with the N x N coupling K built explicitly, for
 any view azimuth: the definition that :mod:`.body`'s azimuthal construction
 reproduces at view azimuths on the node grid, and its trigonometric
 interpolation approximates between them.  It costs O(N^2) per material and
-O(N) per direction; tools/check_table.py uses it as the direct evaluation of
+O(N) per direction; tools/check_accuracy.py --table-only uses it as the direct evaluation of
 the quadrature.
 """
 import math

@@ -32,7 +32,7 @@ def orientation(table, channel=0, costs=False):
     :class:`TetraTable` best: a pattern 0-3 (a width-1 UInt32, opaque), the
     same for every cell so that the interpolant stays continuous.  ``costs``:
     also return each pattern's estimated sum of squared errors over pattern
-    0's (tools/check_table.py --triangulations prints them beside the errors
+    0's (tools/check_accuracy.py --table-only --triangulations prints them beside the errors
     measured).
 
     Kuhn's triangulation splits a cell into the six tetrahedra around one of
@@ -49,7 +49,7 @@ def orientation(table, channel=0, costs=False):
     pattern with the smallest sum of e^2 over the cells is picked, pattern 0
     unless another's is below MARGIN times its (the estimate is rough: where
     two patterns' estimates differ by less than about 15 %, their errors
-    measured by tools/check_table.py --triangulations come in either order).
+    measured by tools/check_accuracy.py --table-only --triangulations come in either order).
     Sum of e^2 = X0 + 2 (s1 X1 + s2 X2 + s1 s2 X3) with
     X0 = sum(tr^2 + H01^2 + H02^2 + H12^2), X1 = sum(tr H01 + H02 H12),
     X2 = sum(tr H02 + H01 H12), X3 = sum(tr H12 + H01 H02).  H from the
