@@ -115,7 +115,7 @@ def test_short_adam_fit_through_the_renderer(render_setup):
     res = fit(obs_t, path="render", optimizer="adam", scene=scene, init=start, erode=1, spp=16,
               max_iter=5, rounds=1, progress=False)
     assert res.loss < 0.7 * f0
-    with pytest.raises(ValueError, match="optimizer 'adam' only"):
+    with pytest.raises(ValueError, match="path render works with optimizer adam only"):
         fit(obs_t, path="render", scene=scene, init=start, progress=False)
 
 

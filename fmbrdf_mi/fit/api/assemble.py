@@ -11,7 +11,6 @@ import numpy as np
 
 from fmbrdf_mi.fit import uncertainty as U
 from fmbrdf_mi.fit.problem.materials import material_block
-from fmbrdf_mi.fit.problem.problem import TimeUp
 from fmbrdf_mi.fit.result import FitResult
 
 
@@ -41,10 +40,10 @@ def assemble(fx):
     (:func:`~fmbrdf_mi.fit.uncertainty.covariance`) of a converged pixel-path fit."""
     problem, sol, data, report = fx.problem, fx.solution, fx.data, fx.report
     st, loss, objective = sol.state, data.loss, data.objective
-    unc, groups, parts = {}, None, None
+    unc, groups = {}, None
+    problem.deadline = None  # the uncertainty is part of the answer: no time limit
+    parts = problem.parts(st, jac=sol.converged and fx.options.path == "pixel")
     if sol.converged and fx.options.path == "pixel":
-        problem.deadline = None  # the uncertainty is part of the answer: no time limit
-        parts = problem.parts(st, jac=True)
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
         fx.solution = dataclasses.replace(sol, J=J, r=r)
         n_ind = None if loss != "likelihood" else len(data.pixels) * objective.dof - problem.n_eliminated(st)
@@ -56,12 +55,6 @@ def assemble(fx):
             groups = U.pixel_albedos(problem, st, parts, J, unc, c.cov_z)
     elif not sol.converged:
         fx.applied, unc = [("not-converged", "")], {"std_errors": {}}
-    if parts is None:
-        try:
-            parts = problem.parts(st)
-        except TimeUp:
-            problem.deadline = None
-            parts = problem.parts(st)
     value = problem.obj.value(parts, st)
     if problem.n_nonfinite:
         report(f"[fit] {problem.n_nonfinite} pixels had non-finite BSDF derivatives; their Jacobian rows were zeroed")
@@ -133,11 +126,9 @@ def data_residuals(obj, parts, st):
 
 
 #: chi^2's degrees of freedom under the albedo smoothness prior (fit.json ``albedo.prior``).
-PRIOR_DOF_RULE = ("chi^2 (data + penalty) has N - p - n0 degrees of freedom, N the independent samples, p the "
-                  "free shape parameters, n0 the prior's null space (2 per connected set of pixels: each set's "
-                  "mean k_s, k_b): its expectation at the optimum when the maps' neighbour differences follow the "
-                  "prior; maps smoother than tau give less (down to N - p - effective_parameters), rougher ones "
-                  "more (the misfit check then flags a tau too small)")
+PRIOR_DOF_RULE = ("chi^2 (data + penalty) has N - p - n0 degrees of freedom (N independent samples, p free shape "
+                  "parameters, n0 = 2 per connected set of pixels, the prior's null space) when the maps' neighbour "
+                  "differences follow the prior; maps smoother than tau give less, rougher ones more")
 
 
 def prior_block(problem, st, parts):
@@ -155,13 +146,12 @@ def prior_block(problem, st, parts):
 #: incidental-parameter problem; docs/howto/fit-textured.md).
 MIN_IMAGES_PER_PIXEL = 3
 
-#: The warning below :data:`MIN_IMAGES_PER_PIXEL` (``{}``: FEW_IMAGES_ERRORS without / with the prior).
+#: The warning below :data:`MIN_IMAGES_PER_PIXEL` (``{}``: :data:`FEW_IMAGES_ERRORS` without / with the prior).
 PER_PIXEL_FEW_IMAGES = (f"per-pixel albedos from fewer than {MIN_IMAGES_PER_PIXEL} images of each pixel: eta, "
-                        "alpha, beta, kappa are poorly determined{}.  Fit several lights of the same view "
+                        "alpha, beta, kappa are poorly determined{}; fit several lights of the same view "
                         "(docs/howto/fit-textured.md)")
-FEW_IMAGES_ERRORS = (" and a second optimum can win; the reported incidental-parameter sandwich covers most of "
-                     "their spread", "; the smoothness prior narrows them at the cost of its bias (the reported "
-                     "errors are posterior ones)")
+FEW_IMAGES_ERRORS = (" (their errors: the incidental-parameter sandwich)",
+                     " (their errors: the smoothness prior's posterior ones)")
 
 
 def albedo_maps(layout, shape, groups, prior=False):

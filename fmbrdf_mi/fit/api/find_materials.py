@@ -16,13 +16,12 @@ import time
 
 import numpy as np
 
-from fmbrdf_mi.fit.api.fitting import fit, fit_options, usable_pixels
+from fmbrdf_mi.fit.api.fitting import fit, fit_options, progress_callable, usable_pixels
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.predict import predict_image
 from fmbrdf_mi.fit.inputs.options import Option
-from fmbrdf_mi.fit.solve.optimise import default_progress
 
 #: A pixel is decided at this squared distance (noise units) to the nearest other material: 4 sd, error Phi(-2).
 DECIDED_D = 16.0
@@ -101,18 +100,11 @@ def weighted_kmeans(x, w, count, seed=0, starts=10, max_iter=100):
 def majority_filter(labels, count, passes=1):
     """Each labelled pixel takes its 3 x 3 neighbourhood's most frequent label (a tie keeps its own)."""
     lab = np.asarray(labels).copy()
-    h, w = lab.shape
     for _ in range(passes):
-        pad = np.pad(lab, 1, constant_values=-1)
-        votes = np.zeros((count, h, w), int)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                nb = pad[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx]
-                for m in range(count):
-                    votes[m] += nb == m
+        win = np.lib.stride_tricks.sliding_window_view(np.pad(lab, 1, constant_values=-1), (3, 3))
+        votes = np.stack([np.sum(win == m, axis=(2, 3)) for m in range(count)])    # (count, h, w)
         own = np.take_along_axis(votes, np.clip(lab, 0, None)[None], 0)[0]
-        top = votes.max(axis=0)
-        new = np.where(own == top, lab, np.argmax(votes, axis=0))
+        new = np.where(own == votes.max(axis=0), lab, np.argmax(votes, axis=0))
         lab = np.where(lab >= 0, new, -1)
     return lab
 
@@ -173,7 +165,7 @@ def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_d
     Option("min_decided", kind="number", lo=0.0, lo_open=True, hi=1.0).check(min_decided,
                                                                             "find_materials: min_decided")
     opts = dataclasses.replace(fit_options(options, kw), albedo="shared", intervals="fisher")
-    report = default_progress if progress is True else (progress or (lambda m: None))
+    report = progress_callable(progress)
 
     def say(msg):
         report(f"find materials: {msg} ({time.perf_counter() - t0:.0f} s)")

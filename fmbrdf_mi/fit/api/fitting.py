@@ -16,7 +16,6 @@ from fmbrdf_mi.fit.evaluate.models import State, get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import RenderEvaluator
 from fmbrdf_mi.fit.inputs.observations import check_observations
-from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.problem import free_power as FP
 from fmbrdf_mi.fit.problem.data import prepare, resolve_loss, select_pixels
 from fmbrdf_mi.fit.problem.free_power import power_text, split_result
@@ -69,7 +68,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         return _fit_images(check_observations(obs, "fit()", least=0), opts, names=names, progress=progress,
                            powers=powers, materials=materials)
     loss = check_request(obs, opts, data)
-    report = O.default_progress if progress is True else (progress or (lambda m: None))
+    report = progress_callable(progress)
     t0 = time.time()
     deadline = None if not opts.max_time else t0 + float(opts.max_time)
     if data is None:
@@ -91,6 +90,11 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     return report_end(find_other_optima(res))
 
 
+def progress_callable(progress):
+    """``fit``'s ``progress``: True prints to stderr, a callable receives each line, False is silent."""
+    return O.default_progress if progress is True else (progress or (lambda m: None))
+
+
 def fit_options(options, kw):
     """``options`` (None: the defaults) with the overrides ``kw``; InputError for an unknown name."""
     fields = [f.name for f in dataclasses.fields(FitOptions)]
@@ -106,9 +110,6 @@ def check_request(obs, opts, data):
     checking the options and their combinations (InputError)."""
     check_fit_options(**dataclasses.asdict(opts))
     check_observations(obs, "fit()")
-    if opts.path == "render" and opts.optimizer != "adam":
-        raise InputError("path 'render' works with optimizer 'adam' only (reverse-mode gradient through "
-                         "mi.render; its forward-mode derivatives, which 'lm' needs, miss the body term)")
     if opts.free_power and (data is None or data.make_problem is None):
         raise InputError("free_power: the relative light powers are estimated in joint fits of two or more "
                          "images (fit_joint; fmbrdf-mi fit --free-power with --manifest, --authors or several "
@@ -116,11 +117,6 @@ def check_request(obs, opts, data):
     loss = resolve_loss(obs, opts)
     check_resolved_loss(dataclasses.asdict(opts), loss, "loss 'paper'" if opts.loss == "paper" else
                         "the observation has no camera noise model")
-    if loss == "likelihood" and (opts.optimizer != "lm" or opts.path != "pixel"):
-        raise InputError("loss 'likelihood' works with the pixel path and optimizer 'lm' (use --loss paper "
-                         "for adam or the render path)")
-    if loss in LV.VARIANTS and opts.optimizer != "lm":
-        raise InputError(f"loss '{loss}' works with optimizer 'lm' (Adam minimises the full paper's loss)")
     return loss
 
 
@@ -159,87 +155,77 @@ def report_end(res):
 
 def _fit_images(observations, opts, *, names=None, progress=True, powers=None, materials=None):
     """:func:`fit` of a list of observations (:func:`fmbrdf_mi.fit.api.joint.fit_joint`)."""
-    observations = list(observations)
-    if not observations:
+    K = len(observations)
+    if not K:
         raise InputError("joint fit: no images")
     if opts.path != "pixel" or opts.optimizer != "lm":
         raise InputError("joint fit: works with the pixel path and optimizer 'lm'")
-    names = list(names) if names is not None else [f"image{k}" for k in range(len(observations))]
-    if len(names) != len(observations):
-        raise InputError(f"joint fit: {len(names)} names for {len(observations)} images")
+    names = list(names) if names is not None else [f"image{k}" for k in range(K)]
+    if len(names) != K:
+        raise InputError(f"joint fit: {len(names)} names for {K} images")
     losses = {resolve_loss(o, opts) for o in observations}
     if len(losses) != 1:
         raise InputError("joint fit: the camera noise is known for some images and not for others "
                          f"(loss 'auto' resolves to {sorted(losses)}); give it for all, or choose --loss")
-    loss = losses.pop()
-    if opts.free_power and len(observations) < 2:
+    if opts.free_power and K < 2:
         raise InputError("free_power: needs two or more fitted images (one image's power is not separable "
                          "from k_s and k_b)")
     try:
-        given = [1.0] * len(observations) if powers is None else [float(p) for p in powers]
+        given = [1.0] * K if powers is None else [float(p) for p in powers]
     except (TypeError, ValueError):
         given = []
-    if len(given) != len(observations) or not all(math.isfinite(p) and p > 0 for p in given):
-        raise InputError(f"powers: expected {len(observations)} positive numbers, got {powers!r}")
+    if len(given) != K or not all(math.isfinite(p) and p > 0 for p in given):
+        raise InputError(f"powers: expected {K} positive numbers, got {powers!r}")
     check_fit_options(**dataclasses.asdict(opts))
-    data = prepare(observations, opts, loss, materials=materials)
-    idxs, slices = data.image_pixels, data.slices
+    data = prepare(observations, opts, losses.pop(), materials=materials)
     table = None
     if opts.free_power:
         table = Parameters(get_model(opts.model), powers=given)
+        sizes = [b - a for a, b in data.slices]
 
         def powered(d):     # the free powers' evaluator and problem, remakes included
-            pev = FP.PowerEvaluator(d.evaluator, table, [b - a for a, b in slices])
+            pev = FP.PowerEvaluator(d.evaluator, table, sizes)
             remake = None if d.remake is None else (lambda m, f=d.remake: powered(f(m)))
             return dataclasses.replace(d, evaluator=pev, remake=remake,
-                                       make_problem=FP.problem_factory(pev, slices, opts.power_start))
+                                       make_problem=FP.problem_factory(pev, d.slices, opts.power_start))
 
         data = powered(data)
-    report = O.default_progress if progress is True else progress
-    say = report or (lambda m: None)
-    say(f"[joint] {len(observations)} images, " + ", ".join(
-        f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
-        for n, o, (a, b) in zip(names, observations, slices)))
+    say = progress_callable(progress)
+    say(f"[joint] {K} images, " + ", ".join(f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
+                                            for n, o, (a, b) in zip(names, observations, data.slices)))
     res = fit(observations[0], opts, progress=progress, data=data, materials=materials)
     m = (res.uncertainty or {}).get("quadrature", {}).get("area_points")
     if m is not None and m != data.area_points:     # diagnose on the refined quadrature
         data = data.remake(m)
-    images = diagnose(res, data, observations, names, table)
-    block = None
+    images = diagnose(res, data, observations, names)
     if table is not None:
-        block = split_result(res, table, names)
+        res.powers = split_result(res, table, names)
         for k, im in enumerate(images):
-            im.update({"power": block["values"][k], "power_given": given[k], "power_se": block["std_errors"][k],
-                       "power_ci95": block["ci95"][k], "power_reference": k == 0})
+            im.update({"power": res.powers["values"][k], "power_given": given[k],
+                       "power_se": res.powers["std_errors"][k], "power_ci95": res.powers["ci95"][k],
+                       "power_reference": k == 0})
     for im in images:
         say(f"[joint] {im['name']}: " + ", ".join(f"{k} {im[k]:.4g}" for k in ("chi2_per_dof", "intensity_rel_rmse",
                                                                              "dolp_rmse") if im.get(k) is not None)
             + ("" if table is None else ", " + power_text(im)))
-    res.images, res.powers, res.pixels = images, block, idxs
+    res.images, res.pixels = images, data.image_pixels
     return res
 
 
-def diagnose(res, data, observations, names, params=None):
+def diagnose(res, data, observations, names):
     """Per image: pixels, light, irradiance, and how well the shared estimate explains it."""
-    loss, excluded, objective, ev = data.loss, data.excluded, data.objective, data.evaluator
-    idxs, slices = data.image_pixels, data.slices
-    params = params or Parameters(get_model(res.model))
-    grouped = res.maps is not None or data.materials is not None    # albedos per group / material
-    if grouped:
-        internal = res.details["internal"]
-        shape, a_s, a_b = internal["shape"], np.asarray(internal["a_s"]), np.asarray(internal["a_b"])
-    else:
-        shape, a_s, a_b = params.split(res.params)
-    parts = ev.parts(shape)
-    pts = parts.surface.shape[1] // max(sum(len(i) for i in idxs), 1)
-    st = State(shape, a_s, a_b)
-    if grouped:    # each cell's own pair
-        cell = objective.layout.groups[:, 0]
-        pred = np.repeat(a_s[cell], pts) * parts.surface + np.repeat(a_b[cell], pts) * parts.body
-    else:
-        pred = a_s * parts.surface + a_b * parts.body  # (3, points)
+    loss, objective = data.loss, data.objective
+    internal = res.details["internal"]
+    st = State(internal["shape"], np.asarray(internal["a_s"]), np.asarray(internal["a_b"]))
+    parts = data.evaluator.parts(st.shape)
+    pts = parts.surface.shape[1] // max(sum(len(i) for i in data.image_pixels), 1)
+    a_s, a_b = st.a_s, st.a_b
+    if res.maps is not None or data.materials is not None:    # albedos per group / material: each cell's own
+        cell = np.repeat(objective.layout.groups[:, 0], pts)
+        a_s, a_b = a_s[cell], a_b[cell]
+    pred = a_s * parts.surface + a_b * parts.body   # (3, points)
     out = []
-    for k, (o, idx, (a, b)) in enumerate(zip(observations, idxs, slices)):
+    for k, (o, idx, (a, b)) in enumerate(zip(observations, data.image_pixels, data.slices)):
         s = pred[:, a * pts:b * pts]
         if pts > 1 and loss == "likelihood":
             s = s.reshape(3, b - a, pts).mean(axis=2)  # the super-pixel's mean Stokes
@@ -249,7 +235,7 @@ def diagnose(res, data, observations, names, params=None):
         d_pred = np.hypot(s[1], s[2]) / np.where(i_pred > 0, i_pred, 1.0)
         bright = i_obs > 0.02 * np.percentile(i_obs, 99)
         im = {"name": names[k], "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance,
-              "n_pixels": int(b - a), "pixels_excluded": excluded["per_image"][k],
+              "n_pixels": int(b - a), "pixels_excluded": data.excluded["per_image"][k],
               "intensity_rel_rmse": float(np.sqrt(np.mean((i_pred - i_obs) ** 2)) / np.mean(i_obs)),
               "dolp_rmse": float(np.sqrt(np.mean((d_pred - d_obs)[bright] ** 2))) if bright.any() else None}
         if loss == "likelihood":
@@ -258,4 +244,3 @@ def diagnose(res, data, observations, names, params=None):
             im["chi2_per_dof"] = im["chi2"] / max((b - a) * objective.dof, 1)
         out.append(im)
     return out
-

@@ -86,9 +86,8 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     jp = NormalProblem(obs, m, Parameters(mdl, bounds=bounds, fixed=fixed), lam, prior)
     shape, a_s, a_b = jp.params.split(params)
     st = jp.state(shape, a_s, a_b)
-    n_map /= np.where(np.linalg.norm(n_map, axis=-1, keepdims=True) > 0,
-                      np.linalg.norm(n_map, axis=-1, keepdims=True), 1.0)
-    nmap = n_map.reshape(-1, 3).copy()     # flat; the refined pixels change, the others are held
+    norm = np.linalg.norm(n_map, axis=-1, keepdims=True)
+    nmap = (n_map / np.where(norm > 0, norm, 1.0)).reshape(-1, 3)   # flat; the refined pixels change
     jp.nmap = nmap
     t0 = time.time()
     history = []
@@ -167,11 +166,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
             on_accept=on_accept, final_linearise=False)
         st, nmap, ed, ep = res.x
         round_times.append(time.time() - t_round)
-        last.update(f=res.f, ed=ed, ep=ep, reason={
-            "no_step": "no step lowers the energy (converged to float32 precision)",
-            "small_decrease": "energy decrease below 0.01 twice in a row",
-            "time_limit": "time limit {:g} s reached".format(time_limit or 0),
-            "max_iter": f"max_iter ({max_iter}) reached"}[res.reason])
+        last.update(f=res.f, ed=ed, ep=ep, reason=res.describe("energy", "0.01", max_iter, time_limit))
         return (st, nmap), res.converged
 
     (st, nmap), converged, _, _ = LM.reweighted((st, nmap), minimise, rounds=refreshes + 1, before=before)
@@ -202,10 +197,8 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
                                                  "(the prior not counted as information)")
         if stage is not None:
             unc["method"] += f"; material with the prior weakened to lam {stage['lam']:g} (the normals: lam {lam:g})"
-        if jp.lam <= LAM_MATERIAL:
-            unc["calibrated"] = True
-        else:
-            unc["calibrated"] = False
+        unc["calibrated"] = jp.lam <= LAM_MATERIAL
+        if not unc["calibrated"]:
             unc["warning"] = (f"the smoothness prior (lam {jp.lam:g}) biases the material by more than these "
                               f"standard errors; leave lam_material at its default to estimate the material at "
                               f"lam <= {LAM_MATERIAL:g} (docs: benchmarks, normal refinement)")

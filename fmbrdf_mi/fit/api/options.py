@@ -16,6 +16,7 @@ from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.inputs.files import check_image_options
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_smooth
+from fmbrdf_mi.fit.objectives.loss_variants import VARIANTS
 from fmbrdf_mi.fit.uncertainty import INTERVALS
 
 #: The albedo layouts a fit can be asked for (``FitOptions.albedo``, ``--albedo``).
@@ -46,11 +47,9 @@ OPTIONS = (
     *IMAGE_OPTIONS,
     Option("loss", "auto", kind="choice", choices=("auto", "likelihood", "paper", "intensity", "dolp"), fit=True,
            records=_SJ, flag="--loss", group=_IMAGE,
-           help="likelihood of the camera's samples (Poisson-Gaussian noise), or the paper's loss (intensity MSE + "
-                "weighted DoLP MSE); auto: likelihood when the camera noise is known (--conversion-gain / a "
-                "capture sidecar), else paper.  The paper's comparison: intensity (its intensity term alone: "
-                "radiometric fits) or dolp (its DoLP term alone, overall albedo from the mean intensity); for the "
-                "baselines too"),
+           help="likelihood of the camera's samples (Poisson-Gaussian noise) or the paper's loss (intensity MSE + "
+                "weighted DoLP MSE); auto: likelihood when the camera noise is known (--conversion-gain / a capture "
+                "sidecar), else paper; intensity, dolp: one term of the paper's loss alone (docs: computed.md)"),
     Option("light", None, flag="--light", group=_GEOMETRY, records=("single", "colour"),
            cli={"metavar": "X,Y,Z", "action": "append"},
            help="direction from the surface towards the light; repeated, one per INPUT: a joint fit of several "
@@ -90,18 +89,15 @@ OPTIONS = (
                 "(default %(default)s)"),
     Option("intervals", "auto", kind="choice", choices=INTERVALS, fit=True, records=_ALL, flag="--intervals",
            group=_FIT,
-           help="likelihood fits: auto checks each shape parameter's Fisher 95 %% interval against the likelihood "
-                "and gives the profile likelihood's ends where it fails (refits: slower on weakly identified "
-                "parameters); profile: the profile likelihood's ends for every shape parameter (two or more refits "
-                "per end); fisher: Fisher intervals only (default %(default)s)"),
+           help="likelihood fits: auto checks each shape parameter's Fisher 95 %% interval against the profile "
+                "likelihood and gives the profile's ends where it fails; profile: the profile's ends for every shape "
+                "parameter (slower); fisher: Fisher intervals only (default %(default)s; docs: computed.md)"),
     Option("albedo", "shared", kind="choice", choices=ALBEDO_LAYOUTS, fit=True, records=_ALL, flag="--albedo",
            group=_FIT,
-           help="likelihood fits: one k_s, r_k for the whole object (default), or per-pixel k_s and k_b maps (a "
-                "textured object: written as k_s.exr, k_b.exr with their standard errors, the shape parameters "
-                "shared; --max-pixels 0 maps every pixel); per-pixel: one pair for the four raw samples of a "
-                "super-pixel; per-pixel-bilinear: the pairs at the super-pixel centres, each raw sample's albedo "
-                "interpolated bilinearly at its own point (textures that change within a super-pixel, as a camera "
-                "sees them)"),
+           help="likelihood fits: one k_s, r_k for the whole object (default), or k_s, k_b maps with their standard "
+                "errors, the shape parameters shared: per-pixel (one pair per super-pixel) or per-pixel-bilinear (the "
+                "pairs at the super-pixel centres, interpolated at each raw sample) (docs: how-to 'Fit a textured "
+                "object')"),
     Option("albedo_smooth", None, kind="number", lo=SMOOTH_MIN, many=2, fit=True, records=_SJ, flag="--albedo-smooth",
            group=_FIT, parse=parse_smooth, cli={"metavar": "TAU[,TAU_B]"},
            help="with --albedo per-pixel or per-pixel-bilinear: a Gaussian smoothness prior on the maps, TAU the "
@@ -109,18 +105,15 @@ OPTIONS = (
                 f"units, at least {SMOOTH_MIN:g}; added to chi^2, the maps and the shape's "
                 "errors are then posterior ones (docs: how-to 'Fit a textured object'); default: no prior"),
     Option("materials", None, records=_SJ, flag="--materials", group=_FIT, cli={"metavar": "LABELS.png|npy|auto:M"},
-           help="likelihood fits: a label image giving each pixel's material, each with its own eta, alpha, beta, "
-                "kappa (and, with --albedo shared, k_s, r_k): one integer per pixel of the fit's grid (a raw "
-                "mosaic's super-pixels, or its sensor pixels), 0 .. M-1; not fitted: 255 in an 8-bit PNG, 65535 in "
-                "a 16-bit one, < 0 in a .npy; or auto:M: find M materials from the image (per-pixel albedos "
-                "clustered, refined on the model; refused when they do not separate; writes labels.png; "
-                "single-image fits) (docs: how-to 'Fit a textured object')"),
+           help="likelihood fits: a label image of each pixel's material (0 .. M-1 on the fit's grid; not fitted: "
+                "255 / 65535 in a PNG, < 0 in a .npy), each with its own eta, alpha, beta, kappa (and, with --albedo "
+                "shared, k_s, r_k); or auto:M: find M materials in one image, writing labels.png (docs: how-to 'Fit "
+                "a textured object')"),
     Option("area_points", None, kind="int", lo=1, hi=16, fit=True, records=_SJ, flag="--area-points", group=_FIT,
            cli={"type": int, "metavar": "M"},
-           help="likelihood: model each raw sample as the mean of the BSDF over M x M points of its pixel, as a "
-                "sensor pixel integrates over its area (default: 2 for raw mosaics, raised to 4 or 8 where 2 would "
-                "bias a shape parameter by more than 0.2 standard errors, e.g. a glossy highlight a few pixels "
-                "wide, fit.json uncertainty.quadrature; 1 = the pixel's centre for angle images and Stokes images)"),
+           help="likelihood: model each raw sample as the BSDF's mean over M x M points of its pixel (default: 2 "
+                "for raw mosaics, raised to 4 or 8 where 2 would bias a shape parameter, fit.json "
+                "uncertainty.quadrature; 1 (the centre) for angle and Stokes images) (docs: computed.md)"),
     Option("max_pixels", 20000, kind="int", lo=0, fit=True, records=_ALL, flag="--max-pixels", group=_FIT,
            cli={"type": int}, help="random subset of usable pixels (0: all)"),
     Option("erode", 2, kind="int", lo=0, fit=True, records=_ALL, flag="--erode", group=_FIT, cli={"type": int},
@@ -274,32 +267,33 @@ def check_fit_options(*, flag=str, **values):
 def check_relations(v, flag=str):
     """The relations between the parsed fit options ``v``: incompatible pairs, parameter tables in bounds."""
     m = get_model(v["model"])
-    loss, albedo, materials = v["loss"], v["albedo"], v.get("materials")
-    likelihood = loss in ("auto", "likelihood")
-    if v["free_power"] and loss == "dolp":
-        raise InputError(f"{flag('free_power')}: not with {flag('loss')} dolp (the DoLP does not depend on the "
-                         "light's power, so the powers would be undetermined)")
-    if albedo in PER_PIXEL_LAYOUTS and (not likelihood or v["optimizer"] != "lm" or v["path"] != "pixel"):
-        raise InputError(f"{flag('albedo')} {albedo}: needs the likelihood of the camera's samples ("
-                         f"{flag('loss')} likelihood or auto with the camera noise known, the pixel path, optimizer "
-                         "lm): the albedo maps are solved per pixel from its raw samples")
-    if albedo in PER_PIXEL_LAYOUTS and v["free_power"]:
-        raise InputError(f"{flag('albedo')} {albedo}: not with {flag('free_power')} (give the relative light "
-                         "powers)")
-    if v["albedo_smooth"] is not None and albedo not in PER_PIXEL_LAYOUTS:
-        raise InputError(f"{flag('albedo_smooth')}: the albedo maps' smoothness prior needs {flag('albedo')} "
-                         f"{' or '.join(PER_PIXEL_LAYOUTS)} (got {albedo!r})")
-    if materials is not None:
-        name = f"{flag('materials')} {materials}"
-        if v["albedo_smooth"] is not None:
-            raise InputError(f"{name}: not with {flag('albedo_smooth')} (the smoothness prior is for one material)")
-        if albedo == "per-pixel-bilinear":
-            raise InputError(f"{name}: not with {flag('albedo')} per-pixel-bilinear (use per-pixel)")
-        if v["free_power"]:
-            raise InputError(f"{name}: not with {flag('free_power')} (give the relative light powers)")
-        if not likelihood or v["path"] != "pixel":
-            raise InputError(f"{name}: needs the likelihood of the camera's samples ({flag('loss')} likelihood or "
-                             "auto with the camera noise known) on the pixel path")
+    albedo, materials, power = v["albedo"], v.get("materials"), v["free_power"]
+    likelihood, per_pixel = v["loss"] in ("auto", "likelihood"), albedo in PER_PIXEL_LAYOUTS
+    needs = (f"needs the likelihood of the camera's samples ({flag('loss')} likelihood or auto with the camera "
+             "noise known")
+    mat, alb, smooth = f"{flag('materials')} {materials}", f"{flag('albedo')} {albedo}", flag("albedo_smooth")
+    refused = (
+        (power and v["loss"] == "dolp", f"{flag('free_power')}: not with {flag('loss')} dolp (the DoLP does not "
+                                        "depend on the light's power, so the powers would be undetermined)"),
+        (v["path"] == "render" and v["optimizer"] != "adam",
+         f"{flag('path')} render works with {flag('optimizer')} adam only (reverse-mode gradient through mi.render; "
+         "its forward-mode derivatives, which 'lm' needs, miss the body term)"),
+        (per_pixel and (not likelihood or v["optimizer"] != "lm" or v["path"] != "pixel"),
+         f"{alb}: {needs}, the pixel path, optimizer lm): the albedo maps are solved per pixel from its raw samples"),
+        (per_pixel and power, f"{alb}: not with {flag('free_power')} (give the relative light powers)"),
+        (v["albedo_smooth"] is not None and not per_pixel,
+         f"{smooth}: the albedo maps' smoothness prior needs {flag('albedo')} {' or '.join(PER_PIXEL_LAYOUTS)} "
+         f"(got {albedo!r})"),
+        (materials is not None and v["albedo_smooth"] is not None,
+         f"{mat}: not with {smooth} (the smoothness prior is for one material)"),
+        (materials is not None and albedo == "per-pixel-bilinear",
+         f"{mat}: not with {flag('albedo')} per-pixel-bilinear (use per-pixel)"),
+        (materials is not None and power, f"{mat}: not with {flag('free_power')} (give the relative light powers)"),
+        (materials is not None and (not likelihood or v["path"] != "pixel"), f"{mat}: {needs}) on the pixel path"),
+    )
+    for bad, text in refused:
+        if bad:
+            raise InputError(text)
     if v["fixed"] is not None:
         if not isinstance(v["fixed"], dict):
             raise InputError(f"{flag('fixed')}: expected {{name: value}}, got {v['fixed']!r}")
@@ -367,8 +361,14 @@ def check_input_options(*, flag=str, **values):
 
 
 def check_resolved_loss(values, loss, source, flag=str):
-    """Refuse the options that need the likelihood when ``loss`` resolved to another (they would be
-    dropped).  ``source``: why the loss is what it is, for the message."""
+    """Refuse the options that do not work with ``loss``, what the loss resolved to (options that need the
+    likelihood would be dropped).  ``source``: why the loss is what it is, for the message."""
+    optimizer = values.get("optimizer", "lm")
+    if loss == "likelihood" and (optimizer != "lm" or values.get("path", "pixel") != "pixel"):
+        raise InputError("loss 'likelihood' works with the pixel path and optimizer 'lm' (use --loss paper "
+                         "for adam or the render path)")
+    if loss in VARIANTS and optimizer != "lm":
+        raise InputError(f"loss '{loss}' works with optimizer 'lm' (Adam minimises the full paper's loss)")
     if loss == "likelihood":
         return
     if values.get("albedo", "shared") != "shared":

@@ -68,17 +68,18 @@ def step_in_se(problem, st_old, st_new, J):
 def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02, history=None,
            report=None):
     """At most ``rounds`` reweighting rounds from ``st`` (:func:`~fmbrdf_mi.fit.solve.lm.reweighted`); the
-    likelihood's are settled when a round moves the estimate by < 0.05 standard errors.
-    Returns (State, stop reason, converged, Jacobian or None, residuals or None).
+    likelihood's are settled when a round moves the estimate by < 0.05 standard errors.  Returns a
+    :class:`Solution` (``J``, ``r`` None for Adam).
     """
     obj = problem.obj
     say = report or (lambda m: None)
-    last = {"reason": "", "J": None, "r": None, "step_se": None}
+    last = Solution(st, "", False)
+    step_se = None
 
     def before(st, k):
         parts = problem.parts(st)
         saved = obj.save()
-        if k > 0 and obj.is_likelihood and obj.settled(saved, parts, st, step_se=last["step_se"]):
+        if k > 0 and obj.is_likelihood and obj.settled(saved, parts, st, step_se=step_se):
             return True
         obj.refresh(parts, st)
         if k > 0 and not obj.is_likelihood and obj.settled(saved, parts, st):
@@ -88,26 +89,22 @@ def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_l
         return False
 
     def minimise(st_old, k):
+        nonlocal step_se
         if optimizer == "lm":
-            st, f, last["reason"], converged, last["J"], last["r"] = O.levenberg_marquardt(
+            st, _, last.reason, converged, last.J, last.r = O.levenberg_marquardt(
                 problem, st_old, max_iter=max_iter, tol=tol, time_limit=time_limit, history=history, round_no=k + 1)
-            last["step_se"] = step_in_se(problem, st_old, st, last["J"]) if last["J"] is not None else None
+            step_se = step_in_se(problem, st_old, st, last.J) if last.J is not None else None
         else:
-            st, f, last["reason"], converged = O.adam(problem, st_old, max_iter=max_iter, lr=lr, tol=tol,
-                                                      time_limit=time_limit, history=history, round_no=k + 1)
-            last["J"] = last["r"] = None
+            st, _, last.reason, converged = O.adam(problem, st_old, max_iter=max_iter, lr=lr, tol=tol,
+                                                   time_limit=time_limit, history=history, round_no=k + 1)
         return st, converged
 
-    st, converged, settled, _ = LM.reweighted(st, minimise, rounds=rounds, before=before)
-    reason, J, r, step_se = last["reason"], last["J"], last["r"], last["step_se"]
-    if obj.is_likelihood and converged and not settled:
-        if step_se is not None and step_se < 0.05:
-            settled = True
-        else:
-            converged = False
-            reason = (f"IRLS weights not settled after {rounds} rounds (last round moved the estimate "
-                      f"by {step_se:.2g} standard errors)")
-    return st, reason, converged, J, r
+    last.state, last.converged, settled, _ = LM.reweighted(st, minimise, rounds=rounds, before=before)
+    if obj.is_likelihood and last.converged and not settled and (step_se is None or step_se >= 0.05):
+        last.converged = False
+        last.reason = (f"IRLS weights not settled after {rounds} rounds (last round moved the estimate "
+                       f"by {step_se:.2g} standard errors)")
+    return last
 
 
 def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02,
@@ -121,40 +118,38 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
     say = report or (lambda m: None)
     params = problem.params
     history = [] if history is None else history
-    out = Solution(None, "", False)
-    t0 = time.time()
+    ends, t_search, t0 = [], 0.0, time.time()
     try:
         if init is not None:
             chosen = [problem.projected(init.shape)[0] if problem.projects else init]
         else:
             cands = O.coarse_search(problem)
-            out.t_search = time.time() - t0
-            history.append({"stage": "search", "iter": 0, "loss": cands[0][0], "time": out.t_search,
+            t_search = time.time() - t0
+            history.append({"stage": "search", "iter": 0, "loss": cands[0][0], "time": t_search,
                             "params": params.report(cands[0][1].shape, cands[0][1].a_s, cands[0][1].a_b)})
             chosen = distinct_starts(problem, cands, max(1, int(starts)))
         best = None
         for k, st0 in enumerate(chosen):
             say(f"[fit] start {k + 1}/{len(chosen)}: {O.format_state(problem, st0)}")
             saved = problem.obj.save()
-            res = refine(problem, st0, rounds=rounds, optimizer=optimizer, max_iter=max_iter, tol=tol,
+            end = refine(problem, st0, rounds=rounds, optimizer=optimizer, max_iter=max_iter, tol=tol,
                          time_limit=time_limit, lr=lr, history=history, report=say)
-            score = problem.obj.score(problem.parts(res[0]), res[0])
-            out.starts.append({"start": params.report(st0.shape, st0.a_s, st0.a_b),
-                               "end": params.report(res[0].shape, res[0].a_s, res[0].a_b),
-                               "score": score, "converged": res[2], "reason": res[1]})
-            say(f"[fit] start {k + 1} ended at score {score:.6e} ({res[1]})")
+            score = problem.obj.score(problem.parts(end.state), end.state)
+            ends.append({"start": params.report(st0.shape, st0.a_s, st0.a_b),
+                         "end": params.report(end.state.shape, end.state.a_s, end.state.a_b),
+                         "score": score, "converged": end.converged, "reason": end.reason})
+            say(f"[fit] start {k + 1} ended at score {score:.6e} ({end.reason})")
             if best is None or score < best[0]:
-                best = (score, res, problem.obj.save())
+                best = (score, end, problem.obj.save())
             if k + 1 < len(chosen):
                 problem.obj.restore(saved)
-        _, (out.state, out.reason, out.converged, out.J, out.r), state = best
+        _, out, state = best
         problem.obj.restore(state)
     except TimeUp:
         if problem.current is None:
             raise InputError(f"max_time {max_time:g} s: no model evaluation fits in that time") from None
-        out.state, out.reason, out.converged, out.J, out.r = (problem.current, f"max_time {max_time:g} s reached",
-                                                              False, None, None)
-    return out
+        out = Solution(problem.current, f"max_time {max_time:g} s reached", False)
+    return dataclasses.replace(out, starts=ends, t_search=t_search)
 
 
 def refit_fixed(problem, st, name, value, start=None, max_iter=10):

@@ -16,9 +16,14 @@ import numpy as np
 #: Converged when a full Gauss-Newton step would lower chi^2 by less than this (about 0.1 standard error).
 DECREMENT_TOL = 0.01
 
-#: Why the iteration stopped: code -> converged.
-REASONS = {"decrement": True, "no_step": True, "small_decrease": True, "small_step": True, "time_limit": False,
-           "max_iter": False, "budget": False}
+#: Why the iteration stopped: code -> (converged, the words of :meth:`LMResult.describe`).
+REASONS = {"decrement": (True, f"Gauss-Newton decrement < {DECREMENT_TOL:g}"),
+           "no_step": (True, "no step lowers the {what} (converged to float32 precision)"),
+           "small_decrease": (True, "{what} decrease below {small} twice in a row"),
+           "small_step": (True, "step in z < 1e-4"),
+           "time_limit": (False, "time limit {time_limit:g} s{per} reached"),
+           "max_iter": (False, "max_iter ({max_iter}) reached"),
+           "budget": (False, "evaluation budget spent")}
 
 
 @dataclasses.dataclass
@@ -32,7 +37,12 @@ class LMResult:
 
     @property
     def converged(self):
-        return REASONS[self.reason]
+        return REASONS[self.reason][0]
+
+    def describe(self, what, small, max_iter, time_limit=None, per=""):
+        """Why it stopped, in words: ``what`` the objective's name, ``small`` the decrease tolerance's."""
+        return REASONS[self.reason][1].format(what=what, small=small, max_iter=max_iter, time_limit=time_limit or 0,
+                                              per=per)
 
 
 def gn_decrement(J, r):

@@ -22,14 +22,6 @@ from fmbrdf_mi.fit.solve import lm as LM
 ALBEDO_BOUND = 1e-3
 
 
-def search_grids(model, clip, fixed, names):
-    """(grids {shape name: values}, stage-1 names, later names (free eta, kappa), the later ones' middles)."""
-    grids = {n: ([fixed[n]] if n in fixed else clip(n, model.param(n).grid)) for n in model.shape_names}
-    later = [n for n in ("eta", "kappa") if n in names]
-    first = [n for n in model.shape_names if n not in later]
-    return grids, first, later, {n: grids[n][len(grids[n]) // 2] for n in later}
-
-
 def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of, keep=2, progress=None):
     """The coarse search's stages over any point evaluation; returns [(score, point)] best first.
 
@@ -86,7 +78,10 @@ def coarse_search(problem, keep=2):
         clip = lambda n, g: problem.bounds.clip_grid(row0[n], g)  # noqa: E731
         fixed = {n: problem.fixed[r] for n, r in row0.items() if r in problem.fixed}
         names = [n for n, r in row0.items() if r in problem.names]
-    grids, first, later, mids = search_grids(model, clip, fixed, names)
+    grids = {n: ([fixed[n]] if n in fixed else clip(n, model.param(n).grid)) for n in model.shape_names}
+    later = [n for n in ("eta", "kappa") if n in names]     # free eta, kappa: after the others
+    first = [n for n in model.shape_names if n not in later]
+    mids = {n: grids[n][len(grids[n]) // 2] for n in later}
     points, best = {}, [math.inf]
 
     def at(shape):   # (scores per material, State)
@@ -185,12 +180,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         step_small=None if obj.is_likelihood else (lambda x, x_new: float(np.max(np.abs(x_new[1] - x[1]))) < 1e-4),
         time_up=None if time_limit is None else (lambda: time.time() - t0 > time_limit),
         on_accept=on_accept, final_linearise=final_jacobian)
-    reason = {"decrement": f"Gauss-Newton decrement < {LM.DECREMENT_TOL:g}",
-              "no_step": "no step lowers the objective (converged to float32 precision)",
-              "small_decrease": "objective decrease below tolerance twice in a row",
-              "small_step": "step in z < 1e-4",
-              "time_limit": "time limit {:g} s per round reached".format(time_limit or 0),
-              "max_iter": f"max_iter ({max_iter}) reached"}[res.reason]
+    reason = res.describe("objective", "tolerance", max_iter, time_limit, " per round")
     r, J = res.lin
     return res.x[0], res.f, reason, res.converged, J, r
 
