@@ -254,3 +254,41 @@ def test_fit_refuses_options_that_are_not_fit_options():
 
     with pytest.raises(InputError, match="unknown option.*irradiance.*Observation"):
         fit(_plain_obs(), irradiance=-1, progress=False)
+
+
+@pytest.mark.parametrize("options,words", [
+    ({"path": "render"}, "path render works with optimizer adam only"),
+    ({"free_power": True, "loss": "dolp"}, "free_power: not with loss dolp"),
+    ({"albedo": "per-pixel", "optimizer": "adam"}, "albedo per-pixel: needs the likelihood"),
+    ({"albedo": "per-pixel", "free_power": True}, "albedo per-pixel: not with free_power"),
+    ({"albedo_smooth": 0.1}, "albedo_smooth: the albedo maps' smoothness prior needs albedo per-pixel"),
+    ({"materials": "m.png", "albedo": "per-pixel", "albedo_smooth": 0.1}, "materials m.png: not with albedo_smooth"),
+    ({"materials": "m.png", "albedo": "per-pixel-bilinear"}, "materials m.png: not with albedo per-pixel-bilinear"),
+    ({"materials": "m.png", "free_power": True}, "materials m.png: not with free_power"),
+    ({"materials": "m.png", "loss": "paper"}, "materials m.png: needs the likelihood"),
+])
+def test_each_relation_between_options_is_refused_alone(options, words):
+    """Every row of the options' relations: the combination refused in one line that names it."""
+    from fmbrdf_mi.fit.api.options import check_fit_options
+    from fmbrdf_mi.fit.errors import InputError
+
+    check_fit_options()
+    with pytest.raises(InputError, match=f"^{words}") as e:
+        check_fit_options(**options)
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("loss,values,words", [
+    ("likelihood", {"optimizer": "adam"}, "loss 'likelihood' works with the pixel path and optimizer 'lm'"),
+    ("likelihood", {"path": "render"}, "loss 'likelihood' works with the pixel path and optimizer 'lm'"),
+    ("dolp", {"optimizer": "adam"}, "loss 'dolp' works with optimizer 'lm'"),
+    ("paper", {"albedo": "per-pixel"}, "albedo per-pixel: needs the likelihood"),
+    ("paper", {"intervals": "profile"}, "intervals profile: needs the likelihood"),
+])
+def test_the_resolved_loss_refuses_options_that_do_not_work_with_it(loss, values, words):
+    from fmbrdf_mi.fit.api.options import check_resolved_loss
+    from fmbrdf_mi.fit.errors import InputError
+
+    check_resolved_loss({}, loss, "the source")
+    with pytest.raises(InputError, match=f"^{words}"):
+        check_resolved_loss(values, loss, "the source")

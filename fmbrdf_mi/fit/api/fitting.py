@@ -178,21 +178,20 @@ def _fit_images(observations, opts, *, names=None, progress=True, powers=None, m
         raise InputError(f"powers: expected {K} positive numbers, got {powers!r}")
     check_fit_options(**dataclasses.asdict(opts))
     data = prepare(observations, opts, losses.pop(), materials=materials)
-    table = None
+    pixels, slices, table = data.image_pixels, data.slices, None
     if opts.free_power:
         table = Parameters(get_model(opts.model), powers=given)
-        sizes = [b - a for a, b in data.slices]
 
         def powered(d):     # the free powers' evaluator and problem, remakes included
-            pev = FP.PowerEvaluator(d.evaluator, table, sizes)
+            pev = FP.PowerEvaluator(d.evaluator, table, [b - a for a, b in slices])
             remake = None if d.remake is None else (lambda m, f=d.remake: powered(f(m)))
             return dataclasses.replace(d, evaluator=pev, remake=remake,
-                                       make_problem=FP.problem_factory(pev, d.slices, opts.power_start))
+                                       make_problem=FP.problem_factory(pev, slices, opts.power_start))
 
         data = powered(data)
     say = progress_callable(progress)
     say(f"[joint] {K} images, " + ", ".join(f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
-                                            for n, o, (a, b) in zip(names, observations, data.slices)))
+                                            for n, o, (a, b) in zip(names, observations, slices)))
     res = fit(observations[0], opts, progress=progress, data=data, materials=materials)
     m = (res.uncertainty or {}).get("quadrature", {}).get("area_points")
     if m is not None and m != data.area_points:     # diagnose on the refined quadrature
@@ -208,7 +207,7 @@ def _fit_images(observations, opts, *, names=None, progress=True, powers=None, m
         say(f"[joint] {im['name']}: " + ", ".join(f"{k} {im[k]:.4g}" for k in ("chi2_per_dof", "intensity_rel_rmse",
                                                                              "dolp_rmse") if im.get(k) is not None)
             + ("" if table is None else ", " + power_text(im)))
-    res.images, res.pixels = images, data.image_pixels
+    res.images, res.pixels = images, pixels
     return res
 
 
