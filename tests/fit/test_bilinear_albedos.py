@@ -284,7 +284,7 @@ def test_option_wiring_and_refusals(tmp_path, capsys):
     from fmbrdf_mi.cli import main
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.errors import InputError
-    from fmbrdf_mi.fit.problem.data import bilinear_layout
+    from fmbrdf_mi.fit.problem.data import pixel_layout
     from fmbrdf_mi.sensor import samples as SM
 
     obs, _ = _exact_continuous(res=16)
@@ -298,7 +298,7 @@ def test_option_wiring_and_refusals(tmp_path, capsys):
         fit(obs, albedo="per-pixel-bilinear", materials=labels, max_pixels=None, progress=False)
     col = dataclasses.replace(obs.samples, channel=np.zeros(4, int))
     with pytest.raises(InputError, match="per-pixel-bilinear: not for colour mosaics"):
-        bilinear_layout(obs.shape, np.array([0]), np.array([0]), np.array([0]), col)
+        pixel_layout([obs], [np.array([0])], col, bilinear=True)
     assert isinstance(obs.samples, SM.Samples)
     raw = tmp_path / "raw.npy"
     from fmbrdf_mi.synthetic.spheres import textured_sphere

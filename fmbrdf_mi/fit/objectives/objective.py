@@ -190,11 +190,11 @@ class LikelihoodObjective:
         r = ((self.y - self.mu(parts, st)) / np.sqrt(self.var)).ravel()
         if self.prior is None:
             return r
-        return np.concatenate([r, self.layout.prior_residuals(st.a_s, st.a_b)])
+        return np.concatenate([r, self.prior.residuals(st.a_s, st.a_b)])
 
     def penalty(self, st):
         """The albedo prior's term of chi^2 at ``st`` (0 without a prior)."""
-        return 0.0 if self.prior is None else self.layout.penalty(st.a_s, st.a_b)
+        return 0.0 if self.prior is None else self.prior.penalty(st.a_s, st.a_b)
 
     def value(self, parts, st):
         r = self.residuals(parts, st)
@@ -273,8 +273,7 @@ class LikelihoodObjective:
         """(us, ub) (N,): each residual's derivative in its sample's unit albedos, the whitened design
         columns of an eliminating layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`)."""
         sd = np.sqrt(self.var)
-        S, B = self.unit_samples(parts)
-        return (-S / sd).ravel(), (-B / sd).ravel()
+        return (-self._mu_of(parts.surface) / sd).ravel(), (-self._mu_of(parts.body) / sd).ravel()
 
     def albedo_column_derivatives(self, parts, z, names, bounds):
         """[(d us / d z_j, d ub / d z_j)] of :meth:`albedo_columns` per free shape parameter, for
@@ -283,7 +282,3 @@ class LikelihoodObjective:
         U = self._mu_of
         return [tuple((-U(d[n]) / sd).ravel() * bounds.derivative(n, z[j]) for d in (parts.d_surface, parts.d_body))
                 for j, n in enumerate(names)]
-
-    def unit_samples(self, parts):
-        """(S, B) (cells, n): each sample's unit-albedo surface and body intensity behind its polariser."""
-        return self._mu_of(parts.surface), self._mu_of(parts.body)
