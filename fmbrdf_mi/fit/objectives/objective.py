@@ -74,7 +74,7 @@ class PaperObjective:
 
     def value(self, parts, st, w=None):
         i, rho = self._predict(parts, st)
-        return L.loss(self.target, self.w if w is None else w, i, rho)
+        return sum(L.loss_terms(self.target, self.w if w is None else w, i, rho))
 
     def score(self, parts, st):
         """Loss with the candidate's own inlier / outlier split (for comparing candidates)."""
@@ -250,15 +250,12 @@ class LikelihoodObjective:
                 return (-self._mu_of(ds) * inv_sd).ravel()
 
             return r, _jacobian(cols, parts, st, z, names, bounds, len(r)), bad
-        lay, U, sd = self.layout, self._mu_of, np.sqrt(self.var)
-        if lay.eliminates:   # albedo maps: Kaufman's projected Jacobian
-            J = self.shape_jacobian(parts, st, z, names, bounds)
-            return r, lay.project(J, *self.albedo_columns(parts))[0], bad
-        J = np.empty((len(r), len(z)))
-        J[:, :len(names)] = self.shape_jacobian(parts, st, z, names, bounds)
-        for j, col in enumerate(lay.columns(U(parts.surface), U(parts.body), st.a_s, st.a_b), len(names)):
-            J[:, j] = (-col / sd).ravel()
-        return r, J, bad
+        J = self.shape_jacobian(parts, st, z, names, bounds)
+        if self.layout.eliminates:   # albedo maps: Kaufman's projected Jacobian
+            return r, self.layout.project(J, *self.albedo_columns(parts))[0], bad
+        sd = np.sqrt(self.var)
+        cols = self.layout.columns(self._mu_of(parts.surface), self._mu_of(parts.body), st.a_s, st.a_b)
+        return r, np.concatenate([J] + [(-c / sd).reshape(-1, 1) for c in cols], 1), bad
 
     def shape_jacobian(self, parts, st, z, names, bounds):
         """d r / d z of the free shape parameters ``names`` (N, len(names)), the albedos held (a layout)."""

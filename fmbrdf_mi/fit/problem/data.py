@@ -12,13 +12,12 @@ import numpy as np
 
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.albedo_prior import SmoothPrior, neighbour_pairs, smooth_pair
-from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos
+from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, GroupAlbedos, PixelAlbedos
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS, bilinear_weights
 from fmbrdf_mi.sensor import samples as SM
 from fmbrdf_mi.sensor.mosaic import COLOURS
 from fmbrdf_mi.sensor.noise import NoiseModel
-from fmbrdf_mi.fit.evaluate.materials import (MIN_MATERIAL_PIXELS, MaterialAlbedos, MaterialEvaluator,
-                                              check_labels, material_count)
+from fmbrdf_mi.fit.evaluate.materials import MIN_MATERIAL_PIXELS, MaterialEvaluator, check_labels, material_count
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import PIECE_DIRECTIONS, Directions, PixelEvaluator
@@ -326,7 +325,8 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
                                   smooth=None if smooth is None else smooth_pair(smooth),
                                   factor=get_model(opts.model).albedo_factor)
         elif lab is not None:
-            layout = MaterialAlbedos(cell_material, smps[0].n, count)
+            layout = GroupAlbedos("per-material", np.repeat(cell_material[:, None], smps[0].n, axis=1), count,
+                                  [str(m) for m in range(count)])
         objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof, layout=layout)
         smp = smps[0]
         w = observations[-1].sample_geometry(idxs[-1][:1], footprint=geo[-1][2])[2]
