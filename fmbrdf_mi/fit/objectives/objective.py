@@ -150,7 +150,6 @@ class LikelihoodObjective:
         self.prior = None if layout is None else layout.prior
         self.n, self.m = self.y.shape
         self.var = np.maximum(noise.variance(self.y), 1e-300)
-        self.rounds = 0
 
     def _mu_of(self, stokes):  # (3, 4n) or (3, n) (all samples at the centre) -> (n, 4)
         s = stokes.reshape(3, self.n, -1)
@@ -169,7 +168,6 @@ class LikelihoodObjective:
             # m samples carry only self.dof independent values
             self.noise.estimate(mu, (self.y - mu) ** 2, self.dof / self.m)
         self.var = np.maximum(self.noise.variance(mu), 1e-300)
-        self.rounds += 1
 
     def save(self):
         return (self.var.copy(), dataclasses.replace(self.noise))
