@@ -571,10 +571,8 @@ def pixel_albedos(problem, st, parts, J, unc, cov_z=None):
             cov_z = np.linalg.pinv(J.T @ J) * scale if J.shape[1] else np.zeros((0, 0))
     except np.linalg.LinAlgError:
         cov_z = np.full((J.shape[1], J.shape[1]), np.nan)
-    groups = lay.maps(*obj.unit_samples(parts), st.a_s, st.a_b, lay.covariance(us, ub, Jt, cov_z, scale),
-                      problem.model.albedo_factor, SPLIT_REL)
-    groups["identified"] &= determined(groups["k_s"], groups["k_s_se"]) & determined(groups["k_b"], groups["k_b_se"])
-    return groups
+    return lay.maps(st.a_s, st.a_b, lay.covariance(us, ub, Jt, cov_z, scale), problem.model.albedo_factor,
+                    SPLIT_REL)
 
 
 #: 95 % quantiles of chi^2 with 1 ... 8 degrees of freedom.

@@ -106,7 +106,7 @@ def test_pairs_solve_and_projection_are_the_dense_augmented_ones(kind):
     ref = np.linalg.lstsq(np.vstack([M, R]), np.concatenate([y, np.zeros(len(R))]), rcond=None)[0]
     np.testing.assert_allclose(np.stack([a_s, a_b], 1).ravel(), ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
     # the prior's residuals, in the layout's row order (all k_s pairs, then all k_b pairs) against R's (interleaved)
-    r_prior = lay.prior_residuals(a_s, a_b)
+    r_prior = lay.prior.residuals(a_s, a_b)
     E = len(lay.prior.pairs)
     np.testing.assert_allclose(np.sort(r_prior[:E]), np.sort((R @ ref)[0::2]), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(np.sort(r_prior[E:]), np.sort((R @ ref)[1::2]), rtol=1e-12, atol=1e-12)

@@ -196,6 +196,40 @@ def test_one_corner_through_the_banded_algebra_is_the_block_diagonal_one():
     assert "not computed" in with_prior.incidental_reason
 
 
+def test_samples_at_their_cells_centres_are_the_one_corner_design():
+    """Bilinear corners of samples at their cells' centres (zero offsets: Stokes or angle images) have
+    weight 1 on the own pixel and 0 elsewhere: the layout drops the unused corners, so it is the per-pixel
+    design and is solved as one (block diagonal G, the exact incidental term), with the same albedos,
+    projection and covariances bit for bit."""
+    from fmbrdf_mi.fit.evaluate.albedos import PixelAlbedos
+    from fmbrdf_mi.fit.evaluate.bilinear_albedos import bilinear_weights
+
+    mask = _disc()
+    H, W = mask.shape
+    pixels = np.flatnonzero(mask)
+    n = len(pixels)
+    rows, cols = np.divmod(pixels, W)
+    corners, wts = bilinear_weights(rows, cols, np.zeros((4, 2)), lambda r, c: np.ones(np.shape(r), bool))
+    assert np.all(wts[..., 0] == 1) and not np.any(wts[..., 1:])
+    own = np.repeat(np.arange(n)[:, None], 4, 1)
+    bil = PixelAlbedos(own, n, pixels, corner_groups=np.searchsorted(pixels, corners[..., 0] * W + corners[..., 1]),
+                       corner_weights=wts, name="per-pixel-bilinear")
+    per = PixelAlbedos(own, n, pixels)
+    assert bil.one_corner and not bil.coupled and bil.corner_groups.shape == (n, 4, 1)
+    rng = np.random.default_rng(3)
+    S, B = rng.uniform(0.1, 1, (n, 4)), rng.uniform(0.1, 1, (n, 4))
+    y, w = rng.uniform(0, 1, (n, 4)), rng.uniform(0.5, 2, (n, 4))
+    for a, b in zip(per.solve(S, B, y, w), bil.solve(S, B, y, w)):
+        assert np.array_equal(a, b)
+    J = rng.normal(size=(4 * n, 2))
+    vs, vb = -(S * np.sqrt(w)).ravel(), -(B * np.sqrt(w)).ravel()
+    for a, b in zip(per.project(J, vs, vb), bil.project(J, vs, vb)):
+        assert np.array_equal(a, b)
+    cov_z = np.eye(2)
+    assert np.array_equal(per.covariance(vs, vb, J, cov_z), bil.covariance(vs, vb, J, cov_z))
+    assert bil.incidental_method is None
+
+
 def test_band_cholesky_selected_inverse_odd_band():
     """The selected inverse's 2 x 2 diagonal blocks (pairs straddling the factor's blocks: an odd half
     bandwidth) and the solve against numpy.linalg.inv of a random banded SPD matrix with a wide range of
@@ -284,7 +318,7 @@ def test_option_wiring_and_refusals(tmp_path, capsys):
     from fmbrdf_mi.cli import main
     from fmbrdf_mi.fit import fit
     from fmbrdf_mi.fit.errors import InputError
-    from fmbrdf_mi.fit.problem.data import bilinear_layout
+    from fmbrdf_mi.fit.problem.data import pixel_layout
     from fmbrdf_mi.sensor import samples as SM
 
     obs, _ = _exact_continuous(res=16)
@@ -298,7 +332,7 @@ def test_option_wiring_and_refusals(tmp_path, capsys):
         fit(obs, albedo="per-pixel-bilinear", materials=labels, max_pixels=None, progress=False)
     col = dataclasses.replace(obs.samples, channel=np.zeros(4, int))
     with pytest.raises(InputError, match="per-pixel-bilinear: not for colour mosaics"):
-        bilinear_layout(obs.shape, np.array([0]), np.array([0]), np.array([0]), col)
+        pixel_layout([obs], [np.array([0])], col, bilinear=True)
     assert isinstance(obs.samples, SM.Samples)
     raw = tmp_path / "raw.npy"
     from fmbrdf_mi.synthetic.spheres import textured_sphere

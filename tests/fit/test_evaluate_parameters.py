@@ -90,7 +90,7 @@ def test_bounds_and_fixed_values_are_the_rows():
         Parameters(get_model("fmbrdf"), materials=2, bounds={"eta": (0.5, 2.0)})
     with pytest.raises(ValueError, match=r"bounds: fmbrdf has no shape parameter 'k_s' \(it has eta, alpha, beta, "):
         Parameters(get_model("fmbrdf"), bounds={"k_s": (0.1, 0.2)})
-    with pytest.raises(ValueError, match=r"fixed: fmbrdf has no shape parameter sigma \(it has eta, alpha"):
+    with pytest.raises(ValueError, match=r"fixed: fmbrdf has no shape parameter 'sigma' \(it has eta, alpha"):
         Parameters(get_model("fmbrdf"), fixed={"sigma": 0.1})
 
 

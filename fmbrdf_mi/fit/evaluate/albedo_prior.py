@@ -28,18 +28,14 @@ def neighbour_pairs(pixels, width, channel_of=None):
     pixels = np.asarray(pixels, dtype=np.int64)
     ch = np.zeros(len(pixels), np.int64) if channel_of is None else np.asarray(channel_of, dtype=np.int64)
     C = int(ch.max()) + 1 if len(ch) else 1
-    key = pixels * C + ch
-    order = np.argsort(key, kind="stable")
-    sk = key[order]
+    group = np.full((int(pixels.max(initial=0)) + width + 1) * C, -1)     # (pixel, channel) -> group
+    group[pixels * C + ch] = np.arange(len(pixels))
     out = []
     for step, ok in ((1, pixels % width != width - 1), (width, np.ones(len(pixels), bool))):
-        target = (pixels + step) * C + ch
-        pos = np.clip(np.searchsorted(sk, target), 0, max(len(sk) - 1, 0))
-        hit = ok & (len(sk) > 0) & (sk[pos] == target)
-        i = np.flatnonzero(hit)
-        out.append(np.stack([i, order[pos[hit]]], 1))
-    pairs = np.concatenate(out) if out else np.zeros((0, 2), np.int64)
-    pairs = np.sort(pairs, axis=1)
+        j = group[(pixels + step) * C + ch]
+        hit = ok & (j >= 0)
+        out.append(np.stack([np.flatnonzero(hit), j[hit]], 1))
+    pairs = np.sort(np.concatenate(out), axis=1)
     return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
 
 

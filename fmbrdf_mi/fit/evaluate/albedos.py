@@ -115,6 +115,10 @@ class AlbedoLayout:
                               else np.asarray(corner_groups, dtype=np.int64).reshape(self.groups.shape + (-1,)))
         self.corner_weights = (np.ones(self.corner_groups.shape) if corner_weights is None
                                else np.asarray(corner_weights, dtype=np.float64).reshape(self.corner_groups.shape))
+        used = np.any(self.corner_weights != 0, axis=tuple(range(self.groups.ndim)))
+        if not used.all():  # bilinear corners of samples at their cells' centres: the one-corner design
+            self.corner_groups, self.corner_weights = (np.ascontiguousarray(a[..., used])
+                                                       for a in (self.corner_groups, self.corner_weights))
         self.labels = None if labels is None else tuple(labels)
         self.prior = prior
         #: one corner of weight 1 per sample
@@ -164,15 +168,6 @@ class AlbedoLayout:
             return np.bincount(cols.ravel(), weights=(vals * v[:, None]).ravel(), minlength=n)
         return np.stack([np.bincount(cols.ravel(), weights=(vals * v[:, k, None]).ravel(), minlength=n)
                          for k in range(v.shape[1])], 1)
-
-    # ---- the prior's rows
-    def prior_residuals(self, a_s, a_b):
-        """The prior's residual rows (2E,) at the albedos (empty without a prior)."""
-        return np.zeros(0) if self.prior is None else self.prior.residuals(a_s, a_b)
-
-    def penalty(self, a_s, a_b):
-        """The prior's term of chi^2 (0 without a prior)."""
-        return 0.0 if self.prior is None else self.prior.penalty(a_s, a_b)
 
     # ---- the factored normal matrix
     def _factorised(self, us, ub):
@@ -339,7 +334,7 @@ class ChannelAlbedos(GroupAlbedos):
 class PixelAlbedos(AlbedoLayout):
     """Albedo maps: one (a_s, a_b) per fitted pixel (and colour channel: ``channel_of``), shared by the
     images of a joint fit.  ``pixels`` (n_groups,): each group's flat pixel index; bilinear corners come from
-    :func:`~fmbrdf_mi.fit.problem.data.bilinear_layout`."""
+    :func:`~fmbrdf_mi.fit.problem.data.pixel_layout`."""
 
     def __init__(self, groups, n_groups, pixels, *, corner_groups=None, corner_weights=None, name="per-pixel",
                  prior=None, channel_of=None, labels=None):
@@ -348,23 +343,15 @@ class PixelAlbedos(AlbedoLayout):
         self.pixels = np.asarray(pixels, dtype=np.int64)
         self.channel_of = None if channel_of is None else np.asarray(channel_of, dtype=np.int64)
 
-    def maps(self, S, B, a_s, a_b, cov, factor, split_rel):
+    def maps(self, a_s, a_b, cov, factor, split_rel):
         """The maps, a dict of arrays (n_groups,): ``k_s``, ``k_b`` (``factor`` times a_s, a_b), ``k_s_se``,
-        ``k_b_se`` (from ``cov``, the :meth:`~AlbedoLayout.covariance`), ``correlation``, and ``identified``: False where the
-        surface's or body's contribution to the brightness has a standard error over ``split_rel`` of the
-        mean predicted brightness, or the group has no signal."""
+        ``k_b_se`` (from ``cov``, the :meth:`~AlbedoLayout.covariance`), ``correlation``, and ``identified``:
+        where both standard errors are at most ``split_rel`` of their albedos."""
         f = float(factor)
         a_s, a_b = np.asarray(a_s, float), np.asarray(a_b, float)
         se_s, se_b = np.sqrt(np.clip(cov[:, 0, 0], 0, None)), np.sqrt(np.clip(cov[:, 1, 1], 0, None))
         with np.errstate(invalid="ignore", divide="ignore"):
             corr = np.where(np.isfinite(se_s * se_b) & (se_s * se_b > 0), cov[:, 0, 1] / (se_s * se_b), np.nan)
-        g = self.groups.ravel()
-        n = np.maximum(np.bincount(g, minlength=self.n_groups), 1)
-
-        def mean(v):
-            return np.bincount(g, weights=np.abs(v).ravel(), minlength=self.n_groups) / n
-
-        mean_s, mean_b, total = mean(S), mean(B), mean(self.mu(S, B, a_s, a_b))
-        ident = (total > 0) & (se_s * mean_s <= split_rel * total) & (se_b * mean_b <= split_rel * total)
+            ident = (se_s <= split_rel * a_s) & (se_b <= split_rel * a_b)
         return {"k_s": f * a_s, "k_b": f * a_b, "k_s_se": f * se_s, "k_b_se": f * se_b,
                 "correlation": np.clip(corr, -1.0, 1.0), "identified": ident}

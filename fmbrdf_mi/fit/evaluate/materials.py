@@ -3,14 +3,14 @@
 Pixel i with label m(i) has its material's own shape parameters and albedos (paper eq:fmbrdf, one BRDF
 per material), and all pixels enter one objective.  :class:`MaterialEvaluator` assembles the
 :class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` of all points from one evaluator per material;
-:class:`MaterialAlbedos` holds one albedo pair per material (per-pixel maps need nothing new).
+:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos` hold one albedo pair per material (per-pixel maps need
+nothing new).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.albedos import GroupAlbedos
 from fmbrdf_mi.fit.evaluate.pixel_model import Parts
 
 #: Fewest fitted (super-)pixels a material must have: as many as a whole fit needs
@@ -53,16 +53,6 @@ def material_count(labels, what="materials"):
     if top < 0:
         raise InputError(f"{what}: no pixel has a label >= 0 (0 .. M-1 are the materials)")
     return top + 1
-
-
-class MaterialAlbedos(GroupAlbedos):
-    """One (a_s, a_b) per material: ``material`` (cells,) the material of each cell, ``n`` samples per cell
-    (each sample's group is its cell's material)."""
-
-    def __init__(self, material, n, count):
-        material = np.asarray(material, dtype=np.int64)
-        super().__init__("per-material", np.repeat(material[:, None], int(n), axis=1), count,
-                         [str(m) for m in range(count)])
 
 
 class MaterialEvaluator:

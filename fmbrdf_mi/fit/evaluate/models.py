@@ -148,37 +148,17 @@ BASELINES = ("pplastic", "lambert_ts", "oren_nayar_ts")
 
 
 def get_model(name):
-    if not isinstance(name, str):
-        raise ValueError(f"model: expected one of {sorted(MODELS)}, got {name!r}")
-    try:
+    if isinstance(name, str) and name in MODELS:
         return MODELS[name]
-    except KeyError:
-        raise ValueError(f"model: expected one of {sorted(MODELS)}, got {name!r}") from None
+    raise ValueError(f"model: expected one of {sorted(MODELS)}, got {name!r}")
 
 
 # ---------------------------------------------------------------- bounded reparameterisation
-def _fwd(scale, x):
-    if scale == "log":
-        return math.log(x)
-    if scale == "log1p":
-        return math.log1p(x)
-    if scale == "log_minus_1":
-        return math.log(x - 1.0)
-    return x
-
-
-def _inv(scale, t):
-    if scale == "log":
-        return np.exp(t)
-    if scale == "log1p":
-        return np.expm1(t)
-    if scale == "log_minus_1":
-        return 1.0 + np.exp(t)
-    return t
-
-
-def _dinv(scale, t):
-    return 1.0 if scale == "linear" else np.exp(t)
+#: A parameter's scales: (to the scale, back, d back / d scale).
+SCALES = {"linear": (lambda x: x, lambda t: t, lambda t: 1.0),
+          "log": (math.log, np.exp, np.exp),
+          "log1p": (math.log1p, np.expm1, np.exp),
+          "log_minus_1": (lambda x: math.log(x - 1.0), lambda t: 1.0 + np.exp(t), np.exp)}
 
 
 #: |z| is kept below this so that sigmoid(z) stays away from 0 and 1 in float32.
@@ -191,8 +171,9 @@ class Bounds:
 
     def __init__(self, model):
         #: {name: (lo, hi on the parameter's scale, lo, hi)}
-        self.lims = {p.name: (_fwd(p.scale, p.lo), _fwd(p.scale, p.hi), p.lo, p.hi) for p in model.shape}
-        self.scales = {p.name: p.scale for p in model.shape}
+        self.scales = {p.name: SCALES[p.scale] for p in model.shape}
+        self.lims = {p.name: (self.scales[p.name][0](p.lo), self.scales[p.name][0](p.hi), p.lo, p.hi)
+                     for p in model.shape}
 
     def _sigmoid(self, name, z):
         """(s, t): the sigmoid of ``z`` (clipped to Z_MAX) and the point t it maps to on the parameter's scale."""
@@ -202,29 +183,29 @@ class Bounds:
 
     def to_value(self, name, z):
         _, _, lo, hi = self.lims[name]
-        v = float(_inv(self.scales[name], self._sigmoid(name, z)[1]))
+        v = float(self.scales[name][1](self._sigmoid(name, z)[1]))
         return min(max(v, lo), hi)
 
     def derivative(self, name, z):
         """d value / d z."""
         tlo, thi, _, _ = self.lims[name]
         s, t = self._sigmoid(name, z)
-        return float(_dinv(self.scales[name], t)) * (thi - tlo) * s * (1 - s)
+        return float(self.scales[name][2](t)) * (thi - tlo) * s * (1 - s)
 
     def to_z(self, name, value):
         tlo, thi, lo, hi = self.lims[name]
         v = min(max(float(value), lo), hi)
-        s = (_fwd(self.scales[name], v) - tlo) / (thi - tlo)
+        s = (self.scales[name][0](v) - tlo) / (thi - tlo)
         s = min(max(s, 1e-5), 1 - 1e-5)
         return math.log(s / (1 - s))
 
     def to_scale(self, name, value):
         """``value`` on the parameter's scale (log, log1p, ...: where the sigmoid of :meth:`to_value` is linear)."""
-        return float(_fwd(self.scales[name], float(value)))
+        return float(self.scales[name][0](float(value)))
 
     def from_scale(self, name, t):
         """Inverse of :meth:`to_scale`."""
-        return float(_inv(self.scales[name], float(t)))
+        return float(self.scales[name][1](float(t)))
 
     def clip_grid(self, name, grid):
         """The coarse-search values ``grid`` clipped to the bounds, sorted, without repeats."""

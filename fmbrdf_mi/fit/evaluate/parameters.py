@@ -72,14 +72,11 @@ class Parameters:
         self._index(rows)
         bounds, fixed = self.expand(bounds) or {}, self.expand(fixed) or {}
         self._index([self._narrowed(r, *bounds[r.name]) if r.name in bounds else r for r in rows])
-        names = self.shape_names
-        unknown = [k for k in bounds if k not in names]
-        if unknown:
-            raise ValueError(f"bounds: {model.name} has no shape parameter {unknown[0]!r} (it has {', '.join(names)})")
-        unknown = [k for k in fixed if k not in names]
-        if unknown:
-            raise ValueError(f"fixed: {model.name} has no shape parameter {', '.join(unknown)} "
-                             f"(it has {', '.join(names)})")
+        for what, given in (("bounds", bounds), ("fixed", fixed)):
+            unknown = [k for k in given if k not in self.shape_names]
+            if unknown:
+                raise ValueError(f"{what}: {model.name} has no shape parameter {unknown[0]!r} (it has "
+                                 f"{', '.join(self.shape_names)})")
         self._index([dataclasses.replace(r, fixed=fixed[r.name]) if r.name in fixed else r for r in self.rows])
 
     def _index(self, rows):

@@ -96,11 +96,6 @@ def loss_terms(target, w, i_pred, rho_pred):
     return li, lr
 
 
-def loss(target, w, i_pred, rho_pred):
-    li, lr = loss_terms(target, w, i_pred, rho_pred)
-    return li + lr
-
-
 def loss_dr(target, w, s0, s1, s2):
     """The same loss as a Dr.Jit expression of predicted Dr.Jit (S0, S1, S2) (for reverse-mode AD)."""
     import drjit as dr

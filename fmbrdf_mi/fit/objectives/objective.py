@@ -74,7 +74,7 @@ class PaperObjective:
 
     def value(self, parts, st, w=None):
         i, rho = self._predict(parts, st)
-        return L.loss(self.target, self.w if w is None else w, i, rho)
+        return sum(L.loss_terms(self.target, self.w if w is None else w, i, rho))
 
     def score(self, parts, st):
         """Loss with the candidate's own inlier / outlier split (for comparing candidates)."""
@@ -150,7 +150,6 @@ class LikelihoodObjective:
         self.prior = None if layout is None else layout.prior
         self.n, self.m = self.y.shape
         self.var = np.maximum(noise.variance(self.y), 1e-300)
-        self.rounds = 0
 
     def _mu_of(self, stokes):  # (3, 4n) or (3, n) (all samples at the centre) -> (n, 4)
         s = stokes.reshape(3, self.n, -1)
@@ -169,7 +168,6 @@ class LikelihoodObjective:
             # m samples carry only self.dof independent values
             self.noise.estimate(mu, (self.y - mu) ** 2, self.dof / self.m)
         self.var = np.maximum(self.noise.variance(mu), 1e-300)
-        self.rounds += 1
 
     def save(self):
         return (self.var.copy(), dataclasses.replace(self.noise))
@@ -190,11 +188,11 @@ class LikelihoodObjective:
         r = ((self.y - self.mu(parts, st)) / np.sqrt(self.var)).ravel()
         if self.prior is None:
             return r
-        return np.concatenate([r, self.layout.prior_residuals(st.a_s, st.a_b)])
+        return np.concatenate([r, self.prior.residuals(st.a_s, st.a_b)])
 
     def penalty(self, st):
         """The albedo prior's term of chi^2 at ``st`` (0 without a prior)."""
-        return 0.0 if self.prior is None else self.layout.penalty(st.a_s, st.a_b)
+        return 0.0 if self.prior is None else self.prior.penalty(st.a_s, st.a_b)
 
     def value(self, parts, st):
         r = self.residuals(parts, st)
@@ -250,15 +248,12 @@ class LikelihoodObjective:
                 return (-self._mu_of(ds) * inv_sd).ravel()
 
             return r, _jacobian(cols, parts, st, z, names, bounds, len(r)), bad
-        lay, U, sd = self.layout, self._mu_of, np.sqrt(self.var)
-        if lay.eliminates:   # albedo maps: Kaufman's projected Jacobian
-            J = self.shape_jacobian(parts, st, z, names, bounds)
-            return r, lay.project(J, *self.albedo_columns(parts))[0], bad
-        J = np.empty((len(r), len(z)))
-        J[:, :len(names)] = self.shape_jacobian(parts, st, z, names, bounds)
-        for j, col in enumerate(lay.columns(U(parts.surface), U(parts.body), st.a_s, st.a_b), len(names)):
-            J[:, j] = (-col / sd).ravel()
-        return r, J, bad
+        J = self.shape_jacobian(parts, st, z, names, bounds)
+        if self.layout.eliminates:   # albedo maps: Kaufman's projected Jacobian
+            return r, self.layout.project(J, *self.albedo_columns(parts))[0], bad
+        sd = np.sqrt(self.var)
+        cols = self.layout.columns(self._mu_of(parts.surface), self._mu_of(parts.body), st.a_s, st.a_b)
+        return r, np.concatenate([J] + [(-c / sd).reshape(-1, 1) for c in cols], 1), bad
 
     def shape_jacobian(self, parts, st, z, names, bounds):
         """d r / d z of the free shape parameters ``names`` (N, len(names)), the albedos held (a layout)."""
@@ -273,8 +268,7 @@ class LikelihoodObjective:
         """(us, ub) (N,): each residual's derivative in its sample's unit albedos, the whitened design
         columns of an eliminating layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`)."""
         sd = np.sqrt(self.var)
-        S, B = self.unit_samples(parts)
-        return (-S / sd).ravel(), (-B / sd).ravel()
+        return (-self._mu_of(parts.surface) / sd).ravel(), (-self._mu_of(parts.body) / sd).ravel()
 
     def albedo_column_derivatives(self, parts, z, names, bounds):
         """[(d us / d z_j, d ub / d z_j)] of :meth:`albedo_columns` per free shape parameter, for
@@ -283,7 +277,3 @@ class LikelihoodObjective:
         U = self._mu_of
         return [tuple((-U(d[n]) / sd).ravel() * bounds.derivative(n, z[j]) for d in (parts.d_surface, parts.d_body))
                 for j, n in enumerate(names)]
-
-    def unit_samples(self, parts):
-        """(S, B) (cells, n): each sample's unit-albedo surface and body intensity behind its polariser."""
-        return self._mu_of(parts.surface), self._mu_of(parts.body)

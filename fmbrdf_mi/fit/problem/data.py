@@ -12,13 +12,12 @@ import numpy as np
 
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.albedo_prior import SmoothPrior, neighbour_pairs, smooth_pair
-from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, PixelAlbedos
+from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, GroupAlbedos, PixelAlbedos
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS, bilinear_weights
 from fmbrdf_mi.sensor import samples as SM
 from fmbrdf_mi.sensor.mosaic import COLOURS
 from fmbrdf_mi.sensor.noise import NoiseModel
-from fmbrdf_mi.fit.evaluate.materials import (MIN_MATERIAL_PIXELS, MaterialAlbedos, MaterialEvaluator,
-                                              check_labels, material_count)
+from fmbrdf_mi.fit.evaluate.materials import MIN_MATERIAL_PIXELS, MaterialEvaluator, check_labels, material_count
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import PIECE_DIRECTIONS, Directions, PixelEvaluator
@@ -159,46 +158,36 @@ def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, facto
     ``idxs`` (one flat index array per image, all images of one view): one group per pixel (and colour
     channel), shared by that pixel in every image.  ``smooth``: (tau_s, tau_b) of the maps' smoothness prior
     (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) in the reported albedos' units, ``factor`` the model's albedo
-    factor; None: no prior.  ``bilinear``: interpolate between pixel centres (:func:`bilinear_layout`)."""
+    factor; None: no prior.  ``bilinear``: each sample interpolates the pixel centres' albedos at its own
+    point (:func:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.bilinear_weights`)."""
     o0 = one_view(observations, "albedo per-pixel", "a pixel's albedo is that of one point of the object")
     flat = np.concatenate(idxs)
     pixels = np.unique(flat)
     cell = np.searchsorted(pixels, flat)                               # (cells,) the pixel's group
-    m = samples.n
-    W = o0.shape[1]
+    H, W = o0.shape
+    colour = samples.channel is not None
+    C = len(COLOURS) if colour else 1
+    gch = np.tile(np.arange(C), len(pixels))                            # each group's channel
+    groups = cell[:, None] * C + (np.asarray(samples.channel, dtype=np.int64) if colour else np.zeros(samples.n, int))
+    corners = weights = None
     if bilinear:
-        prior = None if smooth is None else SmoothPrior(neighbour_pairs(pixels, W), len(pixels), smooth, factor)
-        return bilinear_layout(o0.shape, flat, pixels, cell, samples, prior)
-    if samples.channel is None:
-        groups, n_groups, gpix, ch, labels = np.repeat(cell[:, None], m, axis=1), len(pixels), pixels, None, None
-    else:
-        C = len(COLOURS)
-        chs = np.asarray(samples.channel, dtype=np.int64)
-        groups = cell[:, None] * C + chs[None, :]
-        n_groups, gpix, ch, labels = len(pixels) * C, np.repeat(pixels, C), np.tile(np.arange(C), len(pixels)), COLOURS
-    prior = None if smooth is None else SmoothPrior(neighbour_pairs(gpix, W, ch), n_groups, smooth, factor)
-    return PixelAlbedos(groups, n_groups, gpix, prior=prior, channel_of=ch, labels=labels)
+        if colour:
+            raise InputError("albedo per-pixel-bilinear: not for colour mosaics (mono captures, raw or angle images)")
+        have = np.zeros(H * W, bool)
+        have[pixels] = True
 
+        def present(r, c):
+            inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+            return inside & have[np.where(inside, r * W + c, 0)]
 
-def bilinear_layout(shape, flat, pixels, cell, samples, prior=None):
-    """The bilinear per-pixel albedo layout (corners from
-    :func:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.bilinear_weights`) of cells at flat indices ``flat`` of the
-    grid ``shape``; ``pixels``: the sorted fitted pixels (the groups), ``cell``: each cell's group."""
-    if samples.channel is not None:
-        raise InputError("albedo per-pixel-bilinear: not for colour mosaics (mono captures, raw or angle images)")
-    H, W = shape
-    have = np.zeros(H * W, bool)
-    have[pixels] = True
-
-    def present(r, c):
-        inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
-        return inside & have[np.where(inside, r * W + c, 0)]
-
-    rows, cols = np.divmod(np.asarray(flat, dtype=np.int64), W)
-    corners, weights = bilinear_weights(rows, cols, samples.offsets, present)
-    groups = np.searchsorted(pixels, corners[..., 0] * W + corners[..., 1])
-    return PixelAlbedos(np.repeat(cell[:, None], samples.n, axis=1), len(pixels), pixels, corner_groups=groups,
-                        corner_weights=weights, name="per-pixel-bilinear", prior=prior)
+        rows, cols = np.divmod(flat.astype(np.int64), W)
+        corners, weights = bilinear_weights(rows, cols, samples.offsets, present)
+        corners = np.searchsorted(pixels, corners[..., 0] * W + corners[..., 1])
+    gpix = np.repeat(pixels, C)
+    prior = None if smooth is None else SmoothPrior(neighbour_pairs(gpix, W, gch), len(gpix), smooth, factor)
+    return PixelAlbedos(groups, len(gpix), gpix, corner_groups=corners, corner_weights=weights, prior=prior,
+                        name="per-pixel-bilinear" if bilinear else "per-pixel", channel_of=gch if colour else None,
+                        labels=COLOURS if colour else None)
 
 
 def image_directions(geo):
@@ -243,6 +232,7 @@ def material_evaluators(model, count, cell_material, normals, views, lights, irr
     dirs = len(normals) // cells                         # directions per cell
     outs = dirs // (1 if weights is None else len(weights))   # evaluator outputs per cell
     irr = np.broadcast_to(np.asarray(irr, dtype=np.float64), (len(normals),))
+    lights = np.broadcast_to(lights, normals.shape)
     evs, cols = [], []
     for m in range(count):
         c = np.flatnonzero(cell_material == m)
@@ -335,7 +325,8 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
                                   smooth=None if smooth is None else smooth_pair(smooth),
                                   factor=get_model(opts.model).albedo_factor)
         elif lab is not None:
-            layout = MaterialAlbedos(cell_material, smps[0].n, count)
+            layout = GroupAlbedos("per-material", np.repeat(cell_material[:, None], smps[0].n, axis=1), count,
+                                  [str(m) for m in range(count)])
         objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof, layout=layout)
         smp = smps[0]
         w = observations[-1].sample_geometry(idxs[-1][:1], footprint=geo[-1][2])[2]
@@ -372,24 +363,22 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         w = observations[0].sample_geometry(idxs[0][:1])[2]
         weights = None if len(w) == 1 else w
     directions, counts = image_directions(geo)
+    # one light and irradiance for all directions when the images share them (no per-direction copies)
+    irr_img = np.array([float(o.irradiance) for o in observations])
+    irr = (float(irr_img[0]) if np.allclose(irr_img, irr_img[0]) else
+           np.concatenate([np.full(c, o.irradiance) for o, c in zip(observations, counts)]))
+    same_light = all(np.array_equal(o.light_dir, observations[0].light_dir) for o in observations)
+    lights = (np.asarray(observations[0].light_dir, dtype=np.float64) if same_light else
+              np.concatenate([np.tile(o.light_dir, (c, 1)) for o, c in zip(observations, counts)]))
     mat = None
     if lab is not None:
         normals, views = (np.concatenate(c) for c in zip(*directions.pieces()))
-        lights = np.concatenate([np.tile(o.light_dir, (c, 1)) for o, c in zip(observations, counts)])
-        irr = np.concatenate([np.full(c, o.irradiance) for o, c in zip(observations, counts)])
         evaluator = material_evaluators(get_model(opts.model), count, cell_material, normals, views, lights, irr,
                                         weights)
         del normals, views
         mat = {"labels": lab, "count": count, "cell_material": cell_material,
                "pixels": np.bincount(cell_material, minlength=count).tolist()}
-    if evaluator is None:
-        # one light and irradiance for all directions when the images share them (no per-direction copies)
-        irr_img = np.array([float(o.irradiance) for o in observations])
-        irr = (float(irr_img[0]) if np.allclose(irr_img, irr_img[0]) else
-               np.concatenate([np.full(c, o.irradiance) for o, c in zip(observations, counts)]))
-        same_light = all(np.array_equal(o.light_dir, observations[0].light_dir) for o in observations)
-        lights = (np.asarray(observations[0].light_dir, dtype=np.float64) if same_light else
-                  np.concatenate([np.tile(o.light_dir, (c, 1)) for o, c in zip(observations, counts)]))
+    elif evaluator is None:
         evaluator = PixelEvaluator(get_model(opts.model), directions, None, lights, irr, weights=weights)
     flat_idx = np.concatenate(idxs)
 

@@ -18,9 +18,6 @@ from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import Parts
 from fmbrdf_mi.fit.problem.problem import Problem
 
-#: Starting values: ``ratio`` (closed form at each grid point) or ``given``.
-POWER_STARTS = ("ratio", "given")
-
 
 class PowerEvaluator:
     """An evaluator's parts with image k's points scaled by P_k / G_k, and d/dP_k analytically.
@@ -69,7 +66,8 @@ class PowerEvaluator:
 
 class PowerProblem(Problem):
     """A :class:`~fmbrdf_mi.fit.problem.problem.Problem` whose coarse-search points solve the powers too
-    (``start="ratio"``); ``pixel_slices``: (start, stop) of each image's pixels among the objective's."""
+    (``start="ratio"``: in closed form at each grid point; ``given``: at the given powers); ``pixel_slices``:
+    (start, stop) of each image's pixels among the objective's."""
 
     def __init__(self, *args, pixel_slices, start="ratio", **kw):
         super().__init__(*args, **kw)
