@@ -97,7 +97,8 @@ def _tolerance(args):
 
 
 def _result_dict(r):
-    return {"params": r.params, "se": r.se, "interval": r.interval, "noise": r.noise, "rmse": r.rmse,
+    return {"params": r.params, "se": r.se, "interval": r.interval, "interval_kind": r.interval_kind,
+            "noise": r.noise, "rmse": r.rmse,
             "chi2": r.chi2, "dof": r.dof, "n_rows": r.n_rows, "at_bound": r.at_bound, "converged": r.converged,
             "stop_reason": r.stop_reason, "history": r.history, "seconds": r.seconds, "shared": r.shared}
 

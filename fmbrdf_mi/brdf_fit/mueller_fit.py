@@ -24,7 +24,13 @@ assumes nothing about the model.  Intervals: the Gauss-Newton covariance
 (J^T J)^-1 of the weighted residuals at the optimum, J by forward differences
 in the shape parameters' values and the albedos' logarithms (so that it holds
 at a bound too, where the bounded reparameterisation is flat), value +- z SE
-cut at the bounds (``at_bound`` names a parameter that ends there); they are as honest as the noise
+cut at the bounds (``interval_kind`` "fisher").  A shape parameter that ends at
+a bound (``at_bound``) gets a one-sided interval instead (``interval_kind``
+"profile (at bound)", :func:`profile_limit`): from the bound to where the
+profiled cost, the others refitted with it held, rises by the chi-square
+quantile of one degree of freedom at the level, with the sigmas the fit
+estimates (a Wald interval cut at the bound would cover only values within
+z SE of the bound, whatever the data say).  The intervals are as honest as the noise
 model: a systematic model error inflates the residual-based sigmas, which
 then widen the intervals accordingly.
 
@@ -73,6 +79,11 @@ VANISHING = ((0, 2), (0, 3), (1, 2), (1, 3), (2, 0), (2, 1), (3, 0), (3, 1))
 ELEMENTS = tuple(range(1, 16))
 #: z beyond which a bounded parameter counts as at its bound.
 AT_BOUND_Z = 9.0
+#: Kinds of interval (``MuellerFitResult.interval_kind``, named as the image fits' ``interval_kind``): value +- z SE
+#: from the Gauss-Newton (Fisher) covariance, cut at the bounds; and, for a shape parameter at a bound, from the
+#: bound to the profile likelihood's limit (:func:`profile_limit`).
+INTERVAL_FISHER = "fisher"
+INTERVAL_PROFILE = "profile (at bound)"
 
 
 @dataclasses.dataclass
@@ -122,6 +133,7 @@ class MuellerFitResult:
     params: dict                     # shape parameters and albedos
     se: dict                         # standard errors
     interval: dict                   # name -> [lo, hi] at options.level
+    interval_kind: dict              # name -> INTERVAL_FISHER or INTERVAL_PROFILE
     noise: dict                      # sigma_f, sigma_m, how they were obtained
     rmse: dict                       # log10 f_r11, normalised elements (unweighted)
     chi2: float
@@ -182,6 +194,83 @@ def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
            "small_decrease": "converged: chi^2 decrease below 0.01",
            "no_step": "converged: no step lowers chi^2"}.get(res.reason, f"stopped: {res.reason} ({max_evals} trials)")
     return res.x, r, J, state["trials"], res.converged, why
+
+
+class _Held:
+    """A least-squares problem (``fun``, ``jac(x, columns)``) with coordinate ``k`` held at ``coord``: the
+    problem of the other coordinates, what a profile refits."""
+
+    def __init__(self, problem, k, coord):
+        self.problem, self.k, self.coord = problem, k, coord
+
+    def full(self, y):
+        return np.insert(y, self.k, self.coord)
+
+    def fun(self, y):
+        return self.problem.fun(self.full(y))
+
+    def jac(self, y, columns=None):
+        free = [j for j in range(y.size + 1) if j != self.k]
+        return self.problem.jac(self.full(y), free if columns is None else [free[c] for c in columns])
+
+
+def profile_limit(problem, x, k, coord, value, end, step, level, max_evals, max_points=12):
+    """The open end of the one-sided interval of a parameter that the fit at ``x`` leaves at a bound: the value
+    along the free direction where the profiled cost, the weighted sum of squares minimised over the other
+    coordinates with this one held, rises above its value at the bound by the chi-square quantile of one degree
+    of freedom at ``level`` (the likelihood-ratio interval with the noise scale as estimated, i.e. as the
+    residuals are weighted).
+
+    ``problem``: ``fun(x)`` (weighted residuals) and ``jac(x, columns)``; ``k``: the held coordinate;
+    ``coord(v)``: its coordinate at the parameter's value v; ``value``: the value at ``x`` (the bound);
+    ``end``: the other bound (the search stops there); ``step``: the first trial's distance from ``value``
+    (signed: the free direction).  Each profile point is a refit by :func:`solve_lm` from the nearest point
+    already refitted.  The cost at the bound is refitted too, so that both ends of the rise are minima with the
+    same weights.  Returns (limit, [(value, rise of the cost), ...]): the limit is ``end`` when the rise stays
+    below the quantile up to there; after ``max_points`` refits, the end of the bracket farther from the bound
+    (the wider, conservative interval)."""
+    q = _z_quantile(level) ** 2
+    y0, r, *_ = solve_lm(_Held(problem, k, x[k]), np.delete(x, k), max_evals)
+    c0 = float(r @ r)
+    points = [(value, 0.0, y0)]
+
+    def rise(v):   # g(v) = sqrt(rise) - sqrt(q): near linear in v where the cost is near quadratic
+        y_near = min(points, key=lambda p: abs(p[0] - v))[2]
+        y, r, *_ = solve_lm(_Held(problem, k, coord(v)), y_near, max_evals)
+        d = float(r @ r) - c0
+        points.append((v, d, y))
+        return math.sqrt(max(d, 0.0)) - math.sqrt(q)
+
+    # bracket: doubling the distance from the bound until the rise passes q or the other bound is reached
+    a, ga = value, -math.sqrt(q)
+    v = value + step
+    while True:
+        if (v - end) * step >= 0:
+            v = end
+        g = rise(v)
+        if g >= 0:
+            break
+        if v == end or len(points) > max_points:
+            return end, [(p[0], p[1]) for p in points[1:]]
+        a, ga = v, g
+        v = value + 2.0 * (v - value)
+    b, gb = v, g
+    # Illinois regula falsi on g between a (g < 0) and b (g >= 0)
+    side = 0
+    while len(points) <= max_points:
+        v = b - gb * (b - a) / (gb - ga)
+        g = rise(v)
+        if abs(points[-1][1] - q) < 0.01:
+            return v, [(p[0], p[1]) for p in points[1:]]
+        if g < 0:
+            a, ga = v, g
+            gb = gb / 2 if side == -1 else gb
+            side = -1
+        else:
+            b, gb = v, g
+            ga = ga / 2 if side == 1 else ga
+            side = 1
+    return b, [(p[0], p[1]) for p in points[1:]]
 
 
 def _z_quantile(level):
@@ -280,14 +369,17 @@ class _Problem:
             J[:, self.nsh + j] = (self.weighted(*self.residuals_of(P0, a)) - r0) / 1e-6
         return r0, J
 
-    def jac(self, x):
+    def jac(self, x, columns=None):
+        """Forward-difference Jacobian of :meth:`fun` at x in the fitted coordinates, of ``columns`` (all when
+        None)."""
+        cols = range(x.size) if columns is None else columns
         r0 = self.fun(x)
-        J = np.empty((r0.size, x.size))
-        for k in range(x.size):
+        J = np.empty((r0.size, len(cols)))
+        for c, k in enumerate(cols):
             h = 1e-3 if k < self.nsh else 1e-6
             xp = x.copy()
             xp[k] += h
-            J[:, k] = (self.fun(xp) - r0) / h
+            J[:, c] = (self.fun(xp) - r0) / h
         return J
 
     def cost(self, x):
@@ -397,10 +489,35 @@ def fit_model(model, table, options=None, vanishing=None):
                 history.append({"stage": "noise", "sigma_f": new[0], "sigma_m": new[1], "change": change,
                                 "cost": float(r @ r), "trials": nfev, "status": status})
         # 4. covariance: the Gauss-Newton one of the weighted residuals with the final sigmas, in the reported
-        #    parameters (delta method on the albedos' logarithms)
+        #    parameters (delta method on the albedos' logarithms); a parameter at a bound: the profile's limit
         r, J = prob.value_jacobian(x)
         cov = _inverse(J.T @ J)
-        return _result(prob, table, x, cov, r, r.size - x.size, fixed_m, ok, status, history, time.time() - t0)
+        profiles = _profiles(prob, x, {k: (prob.bounds, p.name) for k, p in enumerate(m.shape)}, cov, o, history)
+        return _result(prob, table, x, cov, r, r.size - x.size, fixed_m, ok, status, history, time.time() - t0,
+                       profiles=profiles)
+
+
+def _profiles(problem, x, shape, cov, o, history):
+    """Profile-likelihood limits of the shape parameters at a bound (:func:`profile_limit`): {coordinate k of
+    ``problem``: [lo, hi]}.  ``shape``: {k: (bounds, name)} of the coordinates that are shape parameters (in the
+    bounded coordinates; ``cov``: the covariance of their values, for the first step's size)."""
+    out = {}
+    for k, (bounds, name) in shape.items():
+        if abs(x[k]) <= AT_BOUND_Z:
+            continue
+        lo, hi = bounds.lims[name][2:]
+        value = bounds.to_value(name, x[k])
+        up = x[k] < 0                       # at the lower bound: the interval opens upwards
+        se = math.sqrt(cov[k, k]) if cov[k, k] > 0 and math.isfinite(cov[k, k]) else math.nan
+        step = _z_quantile(o.level) * se if math.isfinite(se) and se > 0 else 0.05 * (hi - lo)
+        step = max(step, 1e-3 * (hi - lo)) * (1 if up else -1)
+        t0 = time.time()
+        limit, points = profile_limit(problem, x, k, lambda v, n=name: bounds.to_z(n, v), value, hi if up else lo,
+                                      step, o.level, o.max_evals)
+        out[k] = [lo, limit] if up else [limit, hi]
+        history.append({"stage": "profile", "parameter": name, "limit": limit, "points": points,
+                        "seconds": time.time() - t0})
+    return out
 
 
 def _inverse(A):
@@ -410,9 +527,11 @@ def _inverse(A):
         return np.linalg.pinv(A)
 
 
-def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, shared=()):
+def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, shared=(), profiles=None):
     """The :class:`MuellerFitResult` of ``prob`` at its optimum ``x`` with covariance ``cov`` of the reported
-    parameters (shape values, the albedos' logarithms) and weighted residuals ``r``."""
+    parameters (shape values, the albedos' logarithms) and weighted residuals ``r``; ``profiles``: {k: [lo, hi]},
+    the profile-likelihood intervals of the shape parameters at a bound (the others' are Wald intervals)."""
+    profiles = profiles or {}
     o, m = prob.o, prob.model
     how = ["sigma_f given" if o.noise_f is not None else "sigma_f from the fit residuals",
            "sigma_m given" if o.noise_m is not None else
@@ -424,22 +543,27 @@ def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, 
         rf, rm = prob.raw(x)
     se_v = np.sqrt(np.maximum(np.diag(cov), 0.0))
     zq = _z_quantile(o.level)
-    params, se, interval = {}, {}, {}
+    params, se, interval, kind = {}, {}, {}, {}
     for k, p in enumerate(m.shape):
         v = prob.bounds.to_value(p.name, x[k])
         lo, hi = prob.bounds.lims[p.name][2:]
         params[p.name] = v
         se[p.name] = float(se_v[k])
-        interval[p.name] = [max(lo, v - zq * se_v[k]), min(hi, v + zq * se_v[k])]
+        if k in profiles:
+            interval[p.name], kind[p.name] = [float(e) for e in profiles[k]], INTERVAL_PROFILE
+        else:
+            interval[p.name] = [max(lo, v - zq * se_v[k]), min(hi, v + zq * se_v[k])]
+            kind[p.name] = INTERVAL_FISHER
     for j, name in enumerate(m.albedo_names):
         k = prob.nsh + j
         params[name] = float(np.exp(x[k]))
         se[name] = params[name] * float(se_v[k])
         interval[name] = [float(np.exp(x[k] - zq * se_v[k])), float(np.exp(x[k] + zq * se_v[k]))]
+        kind[name] = INTERVAL_FISHER
     log10_f = (rf if o.residual == "log" else np.log1p(np.maximum(rf, -0.999999))) / math.log(10.0)
     return MuellerFitResult(
         model=m.name, wavelength=float(table.wavelength[0]) if len(table) else math.nan, params=params, se=se,
-        interval=interval,
+        interval=interval, interval_kind=kind,
         noise={"sigma_f": prob.sigma_f, "sigma_m": prob.sigma_m, "residual": o.residual,
                "model": f"independent Gaussian: {'ln' if o.residual == 'log' else 'relative'} f_r11 with sigma_f, "
                         f"each normalised element with sigma_m ({'; '.join(how)})"},
@@ -488,8 +612,17 @@ class _Joint:
             row += b.shape[0]
         return J
 
-    def jac(self, xj):
-        return self._stack([p.jac(x) for p, x in zip(self.probs, self.split(xj))])
+    def jac(self, xj, columns=None):
+        if columns is None:
+            return self._stack([p.jac(x) for p, x in zip(self.probs, self.split(xj))])
+        want = set(columns)
+        blocks = []
+        for p, x, idx in zip(self.probs, self.split(xj), self.index):
+            local = [k for k in range(idx.size) if idx[k] in want]
+            block = np.zeros((16 * p.n, idx.size))
+            block[:, local] = p.jac(x, local)
+            blocks.append(block)
+        return self._stack(blocks)[:, list(columns)]
 
     def value_jacobian(self, xj):
         parts = [p.value_jacobian(x) for p, x in zip(self.probs, self.split(xj))]
@@ -561,13 +694,17 @@ def fit_shared(model, tables, share, options=None, vanishing=None):
                                 "trials": nfev, "status": status})
         r, J = joint.value_jacobian(x)
         cov = _inverse(J.T @ J)
+        shape = {int(idx[k]): (p.bounds, sp.name) for p, idx in zip(probs, joint.index)
+                 for k, sp in enumerate(m.shape)}
+        profiles = _profiles(joint, x, shape, cov, o, history)
     seconds = (time.time() - t0) / len(probs)
     used = leverages(J, [16 * p.n for p in probs])
     out, row = [], 0
     for p, t, xw, idx, u in zip(probs, tables, joint.split(x), joint.index, used):
         n = p.n * 16
+        own = {k: profiles[idx[k]] for k in range(p.nsh) if idx[k] in profiles}
         out.append(_result(p, t, xw, cov[np.ix_(idx, idx)], r[row:row + n], n - u, fixed_m, ok, status,
-                           history, seconds, shared=share_names))
+                           history, seconds, shared=share_names, profiles=own))
         row += n
     return out
 
