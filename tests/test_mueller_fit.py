@@ -55,6 +55,16 @@ def test_pplastic_round_trip_within_intervals(tmp_path, name):
     assert r.noise["sigma_m"] == pytest.approx(0.01, rel=0.1)
 
 
+def test_lambert_ts_round_trip_within_intervals(tmp_path):
+    truth = {"eta": 1.6, "alpha": 0.25, "k_s": 0.5, "k_d": 0.3}
+    _, tab = _table(tmp_path, "lambert_ts", truth, 0.02, 0.01, 7, "t.npz")
+    r = F.fit_model("lambert_ts", tab)
+    assert r.converged
+    for k, v in truth.items():
+        assert abs(r.params[k] - v) < 4 * r.se[k], (k, r.params[k], v, r.se[k])
+    assert r.noise["sigma_f"] == pytest.approx(0.02, rel=0.15)
+
+
 def test_refinement_after_the_noise_estimate_reaches_the_optimum_of_its_weights(tmp_path):
     """The refit after the noise is estimated (started from the first optimum) ends where a fit with those sigmas
     given from the start ends: within a small fraction of the SE."""

@@ -56,6 +56,7 @@ close in its error; the comparison table shows it.
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import itertools
 import math
@@ -72,11 +73,15 @@ START_GRIDS = {
     "fmbrdf": {"eta": (1.3, 1.6, 2.0), "alpha": (0.03, 0.1, 0.3, 0.8), "beta": (1.0, 2.5), "kappa": (0.0, 10.0)},
     "pplastic": {"eta": (1.3, 1.6, 2.0), "alpha": (0.02, 0.05, 0.12, 0.3, 0.6)},
     "lambert": {},
+    "lambert_ts": {"eta": (1.3, 1.6, 2.0), "alpha": (0.02, 0.05, 0.12, 0.3, 0.6)},
+    "oren_nayar_ts": {"eta": (1.3, 1.6, 2.0), "alpha": (0.02, 0.05, 0.12, 0.3, 0.6), "sigma": (0.0, 0.5)},
 }
 #: The 0-based (i, j) of the elements that vanish in the plane of incidence (s/p bases, isotropic surface).
 VANISHING = ((0, 2), (0, 3), (1, 2), (1, 3), (2, 0), (2, 1), (3, 0), (3, 1))
 #: Flat indices 1..15 of the normalised elements (all but m11).
 ELEMENTS = tuple(range(1, 16))
+#: Memory for the terms of the shape points a fit has built (:meth:`_Problem.parts`, most recently used kept).
+PARTS_KEPT_BYTES = 64 * 2 ** 20
 #: z beyond which a bounded parameter counts as at its bound.
 AT_BOUND_Z = 9.0
 #: Kinds of interval (``MuellerFitResult.interval_kind``, named as the image fits' ``interval_kind``): value +- z SE
@@ -144,12 +149,14 @@ class MuellerFitResult:
     stop_reason: str
     history: list
     seconds: float                   # of this wavelength's fit (a joint fit: its share of the joint time)
+    builds: int = 0                  # model evaluations at a shape point (MuellerValues.parts) of this fit
     shared: list = dataclasses.field(default_factory=list)   # parameters fitted jointly over the wavelengths
 
 
-def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
+def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0, final=True):
     """Minimise |prob.fun|^2 from ``x0`` with the package's Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.lm`):
-    (x, residuals, Jacobian at x, trials, converged, stop reason).
+    (x, residuals, Jacobian at x, trials, converged, stop reason).  ``final``: end on a fresh Jacobian; else the
+    Jacobian is None unless the last one is fresh (``prob.jac(x)`` gives it, the same, when it is needed).
 
     What this fit plugs in: a forward-difference Jacobian (one table build per shape parameter) refreshed after
     ``refresh`` accepted steps and carried between by Broyden's update from every trial (a trial costs one
@@ -188,8 +195,9 @@ def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
         x0, float(r0 @ r0), linearise, solve, trial, max_iter=max_evals, refresh=refresh, secant=secant,
         moved=lambda lin, x_new, r_new: (r_new, lin[1], False),
         decrement=lambda lin: LM.gn_decrement(lin[1], lin[0]), small=small, small_count=1,
-        budget=lambda: state["trials"] >= max_evals, final_linearise=True)
-    r, J, _ = res.lin
+        budget=lambda: state["trials"] >= max_evals, final_linearise=final)
+    r, J, fresh = res.lin
+    J = J if fresh else None
     why = {"decrement": "converged: Gauss-Newton decrement below 0.01",
            "small_decrease": "converged: chi^2 decrease below 0.01",
            "no_step": "converged: no step lowers chi^2"}.get(res.reason, f"stopped: {res.reason} ({max_evals} trials)")
@@ -230,13 +238,13 @@ def profile_limit(problem, x, k, coord, value, end, step, level, max_evals, max_
     below the quantile up to there; after ``max_points`` refits, the end of the bracket farther from the bound
     (the wider, conservative interval)."""
     q = _z_quantile(level) ** 2
-    y0, r, *_ = solve_lm(_Held(problem, k, x[k]), np.delete(x, k), max_evals)
+    y0, r, *_ = solve_lm(_Held(problem, k, x[k]), np.delete(x, k), max_evals, final=False)
     c0 = float(r @ r)
     points = [(value, 0.0, y0)]
 
     def rise(v):   # g(v) = sqrt(rise) - sqrt(q): near linear in v where the cost is near quadratic
         y_near = min(points, key=lambda p: abs(p[0] - v))[2]
-        y, r, *_ = solve_lm(_Held(problem, k, coord(v)), y_near, max_evals)
+        y, r, *_ = solve_lm(_Held(problem, k, coord(v)), y_near, max_evals, final=False)
         d = float(r @ r) - c0
         points.append((v, d, y))
         return math.sqrt(max(d, 0.0)) - math.sqrt(q)
@@ -311,19 +319,30 @@ class _Problem:
 
         self.bounds = Bounds(self.model)
         self.sigma_f, self.sigma_m = 1.0, 1.0
-        self._cache = {}
+        self._cache = collections.OrderedDict()
 
     def shape_of(self, x):
         return {p.name: self.bounds.to_value(p.name, x[k]) for k, p in enumerate(self.model.shape)}
 
     def parts(self, x, parts=None):
-        """The terms at x (kept for the last few x); ``parts``: those to keep for x (already evaluated)."""
+        """The terms at x; ``parts``: those to keep for x (already evaluated).  The most recently used are kept
+        (:data:`PARTS_KEPT_BYTES`): a fit comes back to points it built (a Jacobian's, after another start or
+        when the noise re-weights the residuals; the optimum's, for the noise and the covariance), and a build
+        is what a fit's time goes to."""
         key = tuple(np.round(x[:self.nsh], 12))
-        if key not in self._cache:
-            if len(self._cache) > 16:
-                self._cache.clear()
-            self._cache[key] = self.values.parts(self.shape_of(x)) if parts is None else parts
+        if key in self._cache:
+            self._cache.move_to_end(key)
+        else:
+            P = self.values.parts(self.shape_of(x)) if parts is None else parts
+            while self._cache and (len(self._cache) + 1) * P.nbytes > PARTS_KEPT_BYTES:
+                self._cache.popitem(last=False)
+            self._cache[key] = P
         return self._cache[key]
+
+    def forget(self):
+        """Drops the kept terms (the start grid's are those of its exact values, not of their coordinates'
+        round trip, which the refinement starts from)."""
+        self._cache.clear()
 
     def raw(self, x):
         """Unweighted residuals: (f_r11 residuals (n,), element residuals (n, 15))."""
@@ -464,11 +483,13 @@ def fit_model(model, table, options=None, vanishing=None):
             x = prob.x_of(shape, prob.albedos_at(shape))
             cands.append((prob.cost(x), x))
         cands.sort(key=lambda t: t[0])
+        prob.forget()
         history = [{"stage": "grid", "points": len(cands), "best_cost": cands[0][0]}]
-        # 2. refinement from the best starts; converged when chi^2 falls by less than lm.DECREMENT_TOL
+        # 2. refinement from the best starts; converged when chi^2 falls by less than lm.DECREMENT_TOL.  The
+        #    Jacobian at an optimum is computed only where the noise estimate needs it (not for a start that loses)
         best = None
         for s, (c0, x0) in enumerate(cands[:max(1, o.starts)]):
-            x, r, J, nfev, ok, status = solve_lm(prob, x0, o.max_evals)
+            x, r, J, nfev, ok, status = solve_lm(prob, x0, o.max_evals, final=False)
             c = float(r @ r)
             history.append({"stage": "refine", "start": s, "start_cost": c0, "cost": c, "trials": nfev,
                             "status": status})
@@ -478,6 +499,7 @@ def fit_model(model, table, options=None, vanishing=None):
         # 3. the noise from the residuals at the optimum, then refined again while the weights change
         if o.noise_f is None or not fixed_m:
             for _ in range(o.noise_rounds):
+                J = prob.jac(x) if J is None else J
                 ef, em = prob.estimate_noise(x, leverages(J, (prob.n, 15 * prob.n)))
                 new = (o.noise_f if o.noise_f is not None else ef, sm if fixed_m else em)
                 change = max(abs(math.log(a / b)) for a, b in zip(new, (prob.sigma_f, prob.sigma_m)))
@@ -485,7 +507,7 @@ def fit_model(model, table, options=None, vanishing=None):
                 if change < 0.05:   # weights within 5 %: the optimum moves by a small fraction of its error
                     history.append({"stage": "noise", "sigma_f": new[0], "sigma_m": new[1], "change": change})
                     break
-                x, r, J, nfev, ok, status = solve_lm(prob, x, o.max_evals)
+                x, r, J, nfev, ok, status = solve_lm(prob, x, o.max_evals, final=False)
                 history.append({"stage": "noise", "sigma_f": new[0], "sigma_m": new[1], "change": change,
                                 "cost": float(r @ r), "trials": nfev, "status": status})
         # 4. covariance: the Gauss-Newton one of the weighted residuals with the final sigmas, in the reported
@@ -527,7 +549,8 @@ def _inverse(A):
         return np.linalg.pinv(A)
 
 
-def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, shared=(), profiles=None):
+def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, shared=(), profiles=None,
+            builds=0):
     """The :class:`MuellerFitResult` of ``prob`` at its optimum ``x`` with covariance ``cov`` of the reported
     parameters (shape values, the albedos' logarithms) and weighted residuals ``r``; ``profiles``: {k: [lo, hi]},
     the profile-likelihood intervals of the shape parameters at a bound (the others' are Wald intervals)."""
@@ -570,7 +593,8 @@ def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, 
         rmse={"log10_f_r11": float(np.sqrt(np.mean(log10_f ** 2))), "elements": float(np.sqrt(np.mean(rm ** 2)))},
         chi2=float(r @ r), dof=int(round(dof)), n_rows=prob.n,
         at_bound=[p.name for k, p in enumerate(m.shape) if abs(x[k]) > AT_BOUND_Z],
-        converged=ok, stop_reason=status, history=history, seconds=seconds, shared=list(shared))
+        converged=ok, stop_reason=status, history=history, seconds=seconds, shared=list(shared),
+        builds=builds + prob.values.builds)
 
 
 class _Joint:
@@ -673,11 +697,12 @@ def fit_shared(model, tables, share, options=None, vanishing=None):
         history = [{"stage": "separate", "seconds": time.time() - t0,
                     "separate": {n: {"estimates": [r.params[n] for r in alone], "se": [r.se[n] for r in alone]}
                                  for n in share}}]
-        x, r, J, nfev, ok, status = solve_lm(joint, x, o.max_evals)
+        x, r, J, nfev, ok, status = solve_lm(joint, x, o.max_evals, final=False)
         history.append({"stage": "joint", "cost": float(r @ r), "trials": nfev, "status": status})
         if o.noise_f is None or not fixed_m:
             for _ in range(o.noise_rounds):
                 old = [(p.sigma_f, p.sigma_m) for p in probs]
+                J = joint.jac(x) if J is None else J
                 used = leverages(J, [k for p in probs for k in (p.n, 15 * p.n)])
                 for w, (p, xw) in enumerate(zip(probs, joint.split(x))):
                     ef, em = p.estimate_noise(xw, used[2 * w:2 * w + 2])
@@ -689,7 +714,7 @@ def fit_shared(model, tables, share, options=None, vanishing=None):
                 if change < 0.05:
                     history.append({"stage": "noise", "sigmas": sig, "change": change})
                     break
-                x, r, J, nfev, ok, status = solve_lm(joint, x, o.max_evals)
+                x, r, J, nfev, ok, status = solve_lm(joint, x, o.max_evals, final=False)
                 history.append({"stage": "noise", "sigmas": sig, "change": change, "cost": float(r @ r),
                                 "trials": nfev, "status": status})
         r, J = joint.value_jacobian(x)
@@ -700,11 +725,11 @@ def fit_shared(model, tables, share, options=None, vanishing=None):
     seconds = (time.time() - t0) / len(probs)
     used = leverages(J, [16 * p.n for p in probs])
     out, row = [], 0
-    for p, t, xw, idx, u in zip(probs, tables, joint.split(x), joint.index, used):
+    for p, t, xw, idx, u, sep in zip(probs, tables, joint.split(x), joint.index, used, alone):
         n = p.n * 16
         own = {k: profiles[idx[k]] for k in range(p.nsh) if idx[k] in profiles}
         out.append(_result(p, t, xw, cov[np.ix_(idx, idx)], r[row:row + n], n - u, fixed_m, ok, status,
-                           history, seconds, shared=share_names, profiles=own))
+                           history, seconds, shared=share_names, profiles=own, builds=sep.builds))
         row += n
     return out
 
