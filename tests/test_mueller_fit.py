@@ -324,6 +324,29 @@ def test_profile_limit_of_a_linear_model_at_its_bound_is_the_closed_form(level):
         assert rise == pytest.approx(((v - theta[0]) ** 2 - theta[0] ** 2) / C[0, 0], abs=0.02)
 
 
+def test_profile_limits_of_a_linear_model_near_its_bound_are_the_closed_form():
+    """The unconstrained optimum theta* inside the bound but within z SE of it: the profiled cost rises by
+    (v - theta*)^2 / C_00, so the upper end is theta* + z sqrt(C_00) and, towards the bound, the rise at the
+    bound (theta*^2 / C_00 < z^2) leaves the bound as the lower end."""
+    rng = np.random.default_rng(5)
+    A = rng.standard_normal((40, 3))
+    A[:, 2] += 0.5 * A[:, 0]
+    b = A @ np.array([0.0, 1.0, -1.0]) + rng.standard_normal(40)
+    C = np.linalg.inv(A.T @ A)
+    se = np.sqrt(C[0, 0])
+    b += A[:, 0] * (0.8 * se - np.linalg.lstsq(A, b, rcond=None)[0][0])    # theta*_0 = 0.8 SE
+    theta = np.linalg.lstsq(A, b, rcond=None)[0]
+    assert theta[0] == pytest.approx(0.8 * se)
+    ref = F.profile_reference(_Linear(A, b), theta, 0, 60)
+    upper, _ = F.profile_limit(_Linear(A, b), theta, 0, lambda v: v, theta[0], 100.0, 1.96 * se, 0.95, 60,
+                               reference=ref)
+    lower, points = F.profile_limit(_Linear(A, b), theta, 0, lambda v: v, theta[0], 0.0, -1.96 * se, 0.95, 60,
+                                    reference=ref)
+    assert upper == pytest.approx(theta[0] + 1.959964 * se, abs=0.01 * se)
+    assert lower == 0.0 and points[0][0] == 0.0
+    assert points[0][1] == pytest.approx(theta[0] ** 2 / C[0, 0], abs=0.02)
+
+
 def test_profile_limit_reaches_the_other_bound_when_the_cost_stays_flat():
     """A parameter the data do not constrain (its column 1e-3 of the others'): the profile's rise stays below the
     quantile up to the other bound, which is then the limit."""

@@ -29,8 +29,11 @@ a bound (``at_bound``) gets a one-sided interval instead (``interval_kind``
 "profile (at bound)", :func:`profile_limit`): from the bound to where the
 profiled cost, the others refitted with it held, rises by the chi-square
 quantile of one degree of freedom at the level, with the sigmas the fit
-estimates (a Wald interval cut at the bound would cover only values within
-z SE of the bound, whatever the data say).  The intervals are as honest as the noise
+estimates (a Fisher interval cut at the bound would cover only values within
+z SE of the bound, whatever the data say); one inside its bounds whose Fisher
+interval a bound cuts gets both ends from the profile ("profile (near
+bound)"), an end at the bound where the profiled cost rises less than the
+quantile up to it.  The intervals are as honest as the noise
 model: a systematic model error inflates the residual-based sigmas, which
 then widen the intervals accordingly.
 
@@ -89,6 +92,8 @@ AT_BOUND_Z = 9.0
 #: bound to the profile likelihood's limit (:func:`profile_limit`).
 INTERVAL_FISHER = "fisher"
 INTERVAL_PROFILE = "profile (at bound)"
+#: Both ends from the profile likelihood: a shape parameter inside its bounds whose Fisher interval one cuts.
+INTERVAL_PROFILE_NEAR = "profile (near bound)"
 
 
 @dataclasses.dataclass
@@ -222,24 +227,30 @@ class _Held:
         return self.problem.jac(self.full(y), free if columns is None else [free[c] for c in columns])
 
 
-def profile_limit(problem, x, k, coord, value, end, step, level, max_evals, max_points=12):
-    """The open end of the one-sided interval of a parameter that the fit at ``x`` leaves at a bound: the value
-    along the free direction where the profiled cost, the weighted sum of squares minimised over the other
-    coordinates with this one held, rises above its value at the bound by the chi-square quantile of one degree
-    of freedom at ``level`` (the likelihood-ratio interval with the noise scale as estimated, i.e. as the
-    residuals are weighted).
+def profile_reference(problem, x, k, max_evals):
+    """The cost at the optimum ``x`` refitted with coordinate ``k`` held (the profile's minimum, with the same
+    weights and tolerance as its other points): (cost, the other coordinates)."""
+    y0, r, *_ = solve_lm(_Held(problem, k, x[k]), np.delete(x, k), max_evals, final=False)
+    return float(r @ r), y0
+
+
+def profile_limit(problem, x, k, coord, value, end, step, level, max_evals, max_points=12, reference=None):
+    """One end of a parameter's profile-likelihood interval: the value on the side of ``step`` from the fit's
+    optimum ``x`` where the profiled cost, the weighted sum of squares minimised over the other coordinates with
+    this one held, rises above its minimum by the chi-square quantile of one degree of freedom at ``level`` (the
+    likelihood-ratio interval with the noise scale as estimated, i.e. as the residuals are weighted).  For a
+    parameter at a bound, the open end of its one-sided interval.
 
     ``problem``: ``fun(x)`` (weighted residuals) and ``jac(x, columns)``; ``k``: the held coordinate;
-    ``coord(v)``: its coordinate at the parameter's value v; ``value``: the value at ``x`` (the bound);
-    ``end``: the other bound (the search stops there); ``step``: the first trial's distance from ``value``
-    (signed: the free direction).  Each profile point is a refit by :func:`solve_lm` from the nearest point
-    already refitted.  The cost at the bound is refitted too, so that both ends of the rise are minima with the
-    same weights.  Returns (limit, [(value, rise of the cost), ...]): the limit is ``end`` when the rise stays
-    below the quantile up to there; after ``max_points`` refits, the end of the bracket farther from the bound
-    (the wider, conservative interval)."""
+    ``coord(v)``: its coordinate at the parameter's value v; ``value``: the value at ``x``; ``end``: the bound on
+    that side (the search stops there); ``step``: the first trial's distance from ``value`` (signed: the side).
+    Each profile point is a refit by :func:`solve_lm` from the nearest point already refitted; the minimum is
+    :func:`profile_reference`'s (``reference``, computed when None), so that both ends of the rise are minima
+    with the same weights.  Returns (limit, [(value, rise of the cost), ...]): the limit is ``end`` when the rise
+    stays below the quantile up to there; after ``max_points`` refits, the end of the bracket farther from
+    ``value`` (the wider, conservative interval)."""
     q = _z_quantile(level) ** 2
-    y0, r, *_ = solve_lm(_Held(problem, k, x[k]), np.delete(x, k), max_evals, final=False)
-    c0 = float(r @ r)
+    c0, y0 = reference or profile_reference(problem, x, k, max_evals)
     points = [(value, 0.0, y0)]
 
     def rise(v):   # g(v) = sqrt(rise) - sqrt(q): near linear in v where the cost is near quadratic
@@ -520,24 +531,34 @@ def fit_model(model, table, options=None, vanishing=None):
 
 
 def _profiles(problem, x, shape, cov, o, history):
-    """Profile-likelihood limits of the shape parameters at a bound (:func:`profile_limit`): {coordinate k of
-    ``problem``: [lo, hi]}.  ``shape``: {k: (bounds, name)} of the coordinates that are shape parameters (in the
-    bounded coordinates; ``cov``: the covariance of their values, for the first step's size)."""
+    """Profile-likelihood intervals (:func:`profile_limit`) of the shape parameters whose Fisher interval a bound
+    cuts: {coordinate k of ``problem``: ([lo, hi], kind)}.  At the bound (``at_bound``): from the bound to the
+    profile's limit (:data:`INTERVAL_PROFILE`); else both ends from the profile, an end at the bound where the
+    profiled cost rises less than the quantile up to it (:data:`INTERVAL_PROFILE_NEAR`).  ``shape``:
+    {k: (bounds, name)} of the coordinates that are shape parameters (bounded coordinates); ``cov``: the
+    covariance of their values (the Fisher intervals, and the first steps' sizes)."""
     out = {}
+    zq = _z_quantile(o.level)
     for k, (bounds, name) in shape.items():
-        if abs(x[k]) <= AT_BOUND_Z:
-            continue
         lo, hi = bounds.lims[name][2:]
         value = bounds.to_value(name, x[k])
-        up = x[k] < 0                       # at the lower bound: the interval opens upwards
         se = math.sqrt(cov[k, k]) if cov[k, k] > 0 and math.isfinite(cov[k, k]) else math.nan
-        step = _z_quantile(o.level) * se if math.isfinite(se) and se > 0 else 0.05 * (hi - lo)
-        step = max(step, 1e-3 * (hi - lo)) * (1 if up else -1)
+        at = abs(x[k]) > AT_BOUND_Z
+        if not at and not (math.isfinite(se) and (value - zq * se < lo or value + zq * se > hi)):
+            continue
+        step = max(zq * se if math.isfinite(se) and se > 0 else 0.05 * (hi - lo), 1e-3 * (hi - lo))
+        sides = [1 if x[k] < 0 else -1] if at else [-1, 1]     # at the lower bound: open upwards
         t0 = time.time()
-        limit, points = profile_limit(problem, x, k, lambda v, n=name: bounds.to_z(n, v), value, hi if up else lo,
-                                      step, o.level, o.max_evals)
-        out[k] = [lo, limit] if up else [limit, hi]
-        history.append({"stage": "profile", "parameter": name, "limit": limit, "points": points,
+        reference = profile_reference(problem, x, k, o.max_evals)
+        ends, record = [lo, hi], {}
+        for side in sides:
+            limit, points = profile_limit(problem, x, k, lambda v, n=name: bounds.to_z(n, v), value,
+                                          hi if side > 0 else lo, side * step, o.level, o.max_evals,
+                                          reference=reference)
+            ends[side > 0] = limit
+            record["upper" if side > 0 else "lower"] = {"limit": limit, "points": points}
+        out[k] = (ends, INTERVAL_PROFILE if at else INTERVAL_PROFILE_NEAR)
+        history.append({"stage": "profile", "parameter": name, "kind": out[k][1], **record,
                         "seconds": time.time() - t0})
     return out
 
@@ -552,8 +573,8 @@ def _inverse(A):
 def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, shared=(), profiles=None,
             builds=0):
     """The :class:`MuellerFitResult` of ``prob`` at its optimum ``x`` with covariance ``cov`` of the reported
-    parameters (shape values, the albedos' logarithms) and weighted residuals ``r``; ``profiles``: {k: [lo, hi]},
-    the profile-likelihood intervals of the shape parameters at a bound (the others' are Wald intervals)."""
+    parameters (shape values, the albedos' logarithms) and weighted residuals ``r``; ``profiles``: {k: ([lo, hi],
+    kind)}, the profile-likelihood intervals of :func:`_profiles` (the others' are Fisher intervals)."""
     profiles = profiles or {}
     o, m = prob.o, prob.model
     how = ["sigma_f given" if o.noise_f is not None else "sigma_f from the fit residuals",
@@ -573,7 +594,7 @@ def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, 
         params[p.name] = v
         se[p.name] = float(se_v[k])
         if k in profiles:
-            interval[p.name], kind[p.name] = [float(e) for e in profiles[k]], INTERVAL_PROFILE
+            interval[p.name], kind[p.name] = [float(e) for e in profiles[k][0]], profiles[k][1]
         else:
             interval[p.name] = [max(lo, v - zq * se_v[k]), min(hi, v + zq * se_v[k])]
             kind[p.name] = INTERVAL_FISHER
