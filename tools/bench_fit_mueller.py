@@ -95,6 +95,7 @@ def run(models, seeds, seed0, noise_f, noise_m, dense=False, n_linear=0):
                 r = F.fit_model(model, tab)
                 runs.append({"seed": s, "format": "scatmech" if s % 2 == 0 else "plain npz",
                              "seconds": time.time() - t0, "params": r.params, "se": r.se, "interval": r.interval,
+                             "interval_kind": r.interval_kind, "builds": r.builds,
                              "sigma_f": r.noise["sigma_f"], "sigma_m": r.noise["sigma_m"], "converged": r.converged})
                 print(f"{model} seed {s}: {time.time() - t0:.1f} s, " + ", ".join(
                     f"{k} {v:.4g}±{r.se[k]:.2g}" for k, v in r.params.items()), file=sys.stderr, flush=True)
