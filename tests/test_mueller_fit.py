@@ -65,6 +65,22 @@ def test_lambert_ts_round_trip_within_intervals(tmp_path):
     assert r.noise["sigma_f"] == pytest.approx(0.02, rel=0.15)
 
 
+def test_kept_builds_change_no_number(tmp_path, monkeypatch):
+    """The terms kept of the shape points a fit has built (what saves builds) are those a build at the same
+    coordinates gives: the fit keeping none (a budget of 0 bytes) ends with the same numbers, bit for bit, after
+    more builds."""
+    truth = {"eta": 1.55, "alpha": 0.12, "specular_reflectance": 0.7, "diffuse_reflectance": 0.35}
+    _, tab = _table(tmp_path, "pplastic", truth, 0.03, 0.01, 8, "t.npz")
+    kept = F.fit_model("pplastic", tab)
+    monkeypatch.setattr(F, "PARTS_KEPT_BYTES", 0)
+    none = F.fit_model("pplastic", tab)
+    assert none.builds > kept.builds
+    for k in truth:
+        assert kept.params[k] == none.params[k] and kept.se[k] == none.se[k]
+        assert kept.interval[k] == none.interval[k]
+    assert kept.noise == none.noise and kept.chi2 == none.chi2
+
+
 def test_refinement_after_the_noise_estimate_reaches_the_optimum_of_its_weights(tmp_path):
     """The refit after the noise is estimated (started from the first optimum) ends where a fit with those sigmas
     given from the start ends: within a small fraction of the SE."""

@@ -339,8 +339,9 @@ class _Problem:
         """The terms at x; ``parts``: those to keep for x (already evaluated).  The most recently used are kept
         (:data:`PARTS_KEPT_BYTES`): a fit comes back to points it built (a Jacobian's, after another start or
         when the noise re-weights the residuals; the optimum's, for the noise and the covariance), and a build
-        is what a fit's time goes to."""
-        key = tuple(np.round(x[:self.nsh], 12))
+        is what a fit's time goes to.  Kept by the coordinates' exact values: a fit's numbers are those it
+        computes without keeping anything."""
+        key = np.asarray(x[:self.nsh], dtype=np.float64).tobytes()
         if key in self._cache:
             self._cache.move_to_end(key)
         else:
