@@ -94,6 +94,9 @@ INTERVAL_FISHER = "fisher"
 INTERVAL_PROFILE = "profile (at bound)"
 #: Both ends from the profile likelihood: a shape parameter inside its bounds whose Fisher interval one cuts.
 INTERVAL_PROFILE_NEAR = "profile (near bound)"
+#: A profile end is found when the profiled cost's rise is within this of the quantile (chi^2 units: the
+#: refits' own convergence tolerance, :data:`fmbrdf_mi.fit.solve.lm.DECREMENT_TOL`).
+PROFILE_RISE_TOL = 0.01
 
 
 @dataclasses.dataclass
@@ -143,7 +146,7 @@ class MuellerFitResult:
     params: dict                     # shape parameters and albedos
     se: dict                         # standard errors
     interval: dict                   # name -> [lo, hi] at options.level
-    interval_kind: dict              # name -> INTERVAL_FISHER or INTERVAL_PROFILE
+    interval_kind: dict              # name -> INTERVAL_FISHER, INTERVAL_PROFILE or INTERVAL_PROFILE_NEAR
     noise: dict                      # sigma_f, sigma_m, how they were obtained
     rmse: dict                       # log10 f_r11, normalised elements (unweighted)
     chi2: float
@@ -260,7 +263,7 @@ def profile_limit(problem, x, k, coord, value, end, step, level, max_evals, max_
         points.append((v, d, y))
         return math.sqrt(max(d, 0.0)) - math.sqrt(q)
 
-    # bracket: doubling the distance from the bound until the rise passes q or the other bound is reached
+    # bracket: doubling the distance from value until the rise passes q or the bound on that side is reached
     a, ga = value, -math.sqrt(q)
     v = value + step
     while True:
@@ -279,7 +282,7 @@ def profile_limit(problem, x, k, coord, value, end, step, level, max_evals, max_
     while len(points) <= max_points:
         v = b - gb * (b - a) / (gb - ga)
         g = rise(v)
-        if abs(points[-1][1] - q) < 0.01:
+        if abs(points[-1][1] - q) < PROFILE_RISE_TOL:
             return v, [(p[0], p[1]) for p in points[1:]]
         if g < 0:
             a, ga = v, g
@@ -523,7 +526,7 @@ def fit_model(model, table, options=None, vanishing=None):
                 history.append({"stage": "noise", "sigma_f": new[0], "sigma_m": new[1], "change": change,
                                 "cost": float(r @ r), "trials": nfev, "status": status})
         # 4. covariance: the Gauss-Newton one of the weighted residuals with the final sigmas, in the reported
-        #    parameters (delta method on the albedos' logarithms); a parameter at a bound: the profile's limit
+        #    parameters (delta method on the albedos' logarithms); at or near a bound: the profile likelihood's
         r, J = prob.value_jacobian(x)
         cov = _inverse(J.T @ J)
         profiles = _profiles(prob, x, {k: (prob.bounds, p.name) for k, p in enumerate(m.shape)}, cov, o, history)
