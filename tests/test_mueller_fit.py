@@ -55,6 +55,32 @@ def test_pplastic_round_trip_within_intervals(tmp_path, name):
     assert r.noise["sigma_m"] == pytest.approx(0.01, rel=0.1)
 
 
+def test_lambert_ts_round_trip_within_intervals(tmp_path):
+    truth = {"eta": 1.6, "alpha": 0.25, "k_s": 0.5, "k_d": 0.3}
+    _, tab = _table(tmp_path, "lambert_ts", truth, 0.02, 0.01, 7, "t.npz")
+    r = F.fit_model("lambert_ts", tab)
+    assert r.converged
+    for k, v in truth.items():
+        assert abs(r.params[k] - v) < 4 * r.se[k], (k, r.params[k], v, r.se[k])
+    assert r.noise["sigma_f"] == pytest.approx(0.02, rel=0.15)
+
+
+def test_kept_builds_change_no_number(tmp_path, monkeypatch):
+    """The terms kept of the shape points a fit has built (what saves builds) are those a build at the same
+    coordinates gives: the fit keeping none (a budget of 0 bytes) ends with the same numbers, bit for bit, after
+    more builds."""
+    truth = {"eta": 1.55, "alpha": 0.12, "specular_reflectance": 0.7, "diffuse_reflectance": 0.35}
+    _, tab = _table(tmp_path, "pplastic", truth, 0.03, 0.01, 8, "t.npz")
+    kept = F.fit_model("pplastic", tab)
+    monkeypatch.setattr(F, "PARTS_KEPT_BYTES", 0)
+    none = F.fit_model("pplastic", tab)
+    assert none.builds > kept.builds
+    for k in truth:
+        assert kept.params[k] == none.params[k] and kept.se[k] == none.se[k]
+        assert kept.interval[k] == none.interval[k]
+    assert kept.noise == none.noise and kept.chi2 == none.chi2
+
+
 def test_refinement_after_the_noise_estimate_reaches_the_optimum_of_its_weights(tmp_path):
     """The refit after the noise is estimated (started from the first optimum) ends where a fit with those sigmas
     given from the start ends: within a small fraction of the SE."""
@@ -104,6 +130,7 @@ def test_command_fits_and_compares(tmp_path, capsys):
     rep = json.load(open(out / "params.json"))
     assert rep["wavelengths"][0]["models"]["pplastic"]["noise"]["sigma_m"] > 0
     assert "Gaussian" in rep["noise_model"]
+    assert rep["wavelengths"][0]["models"]["pplastic"]["interval_kind"] == dict.fromkeys(truth, F.INTERVAL_FISHER)
     for f in ("comparison.tsv", "mueller_panel_0.633.png", "residuals_0.633.png"):
         assert os.path.getsize(out / f) > 0
     assert main(["fit-brdf", str(path), "-o", str(out), "-q", "--models", "lambert"]) == 1   # exists: no --force
@@ -270,3 +297,136 @@ def test_leverages_count_the_parameters_each_group_absorbs():
     J[:20, 0] = rng.standard_normal(20)          # acts on the first group only
     J[20:, 1] = rng.standard_normal(30)          # on the second only
     assert F.leverages(J, (20, 30)) == pytest.approx([1.0, 1.0])
+
+
+class _Linear:
+    """Weighted residuals A x - b: a least-squares problem of profile_limit's interface."""
+
+    def __init__(self, A, b):
+        self.A, self.b = A, b
+
+    def fun(self, x):
+        return self.A @ x - self.b
+
+    def jac(self, x, columns=None):
+        return self.A if columns is None else self.A[:, list(columns)]
+
+
+@pytest.mark.parametrize("level", [0.95, 0.68])
+def test_profile_limit_of_a_linear_model_at_its_bound_is_the_closed_form(level):
+    """A linear model whose first parameter is bounded below by 0 and whose unconstrained optimum theta* lies
+    below it: the fit ends at 0; the profiled cost is P* + (v - theta*)^2 / C_00 (C = (A^T A)^-1), so it rises
+    above its value at the bound by q = z^2 at v = theta* + sqrt(theta*^2 + q C_00).  The Wald interval cut at
+    the bound ends at z sqrt(C_00) instead (checked to be far from the answer, so that the check tells them
+    apart)."""
+    from statistics import NormalDist
+
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((40, 3))
+    A[:, 1] += 0.6 * A[:, 0]                 # correlated with the bounded parameter
+    b = A @ np.array([-1.5, 0.4, 2.0]) + rng.standard_normal(40)
+    theta = np.linalg.lstsq(A, b, rcond=None)[0]
+    assert theta[0] < 0
+    C = np.linalg.inv(A.T @ A)
+    at_bound = np.concatenate([[0.0], np.linalg.lstsq(A[:, 1:], b, rcond=None)[0]])
+    z = NormalDist().inv_cdf(0.5 + level / 2)
+    expected = theta[0] + np.sqrt(theta[0] ** 2 + z * z * C[0, 0])
+    limit, points = F.profile_limit(_Linear(A, b), at_bound, 0, lambda v: v, 0.0, 100.0, z * np.sqrt(C[0, 0]),
+                                    level, 60)
+    tol = 0.01 * np.sqrt(C[0, 0])
+    assert limit == pytest.approx(expected, abs=tol)
+    assert abs(z * np.sqrt(C[0, 0]) - expected) > 10 * tol
+    for v, rise in points:       # every profile point's rise as the closed form, to the refits' tolerance
+        assert rise == pytest.approx(((v - theta[0]) ** 2 - theta[0] ** 2) / C[0, 0], abs=0.02)
+
+
+def test_profile_limits_of_a_linear_model_near_its_bound_are_the_closed_form():
+    """The unconstrained optimum theta* inside the bound but within z SE of it: the profiled cost rises by
+    (v - theta*)^2 / C_00, so the upper end is theta* + z sqrt(C_00) and, towards the bound, the rise at the
+    bound (theta*^2 / C_00 < z^2) leaves the bound as the lower end."""
+    rng = np.random.default_rng(5)
+    A = rng.standard_normal((40, 3))
+    A[:, 2] += 0.5 * A[:, 0]
+    b = A @ np.array([0.0, 1.0, -1.0]) + rng.standard_normal(40)
+    C = np.linalg.inv(A.T @ A)
+    se = np.sqrt(C[0, 0])
+    b += A[:, 0] * (0.8 * se - np.linalg.lstsq(A, b, rcond=None)[0][0])    # theta*_0 = 0.8 SE
+    theta = np.linalg.lstsq(A, b, rcond=None)[0]
+    assert theta[0] == pytest.approx(0.8 * se)
+    ref = F.profile_reference(_Linear(A, b), theta, 0, 60)
+    upper, _ = F.profile_limit(_Linear(A, b), theta, 0, lambda v: v, theta[0], 100.0, 1.96 * se, 0.95, 60,
+                               reference=ref)
+    lower, points = F.profile_limit(_Linear(A, b), theta, 0, lambda v: v, theta[0], 0.0, -1.96 * se, 0.95, 60,
+                                    reference=ref)
+    assert upper == pytest.approx(theta[0] + 1.959964 * se, abs=0.01 * se)
+    assert lower == 0.0 and points[0][0] == 0.0
+    assert points[0][1] == pytest.approx(theta[0] ** 2 / C[0, 0], abs=0.02)
+
+
+def test_profile_limit_reaches_the_other_bound_when_the_cost_stays_flat():
+    """A parameter the data do not constrain (its column 1e-3 of the others'): the profile's rise stays below the
+    quantile up to the other bound, which is then the limit."""
+    rng = np.random.default_rng(4)
+    A = rng.standard_normal((30, 2))
+    A[:, 0] *= 1e-3
+    b = A @ np.array([0.0, 1.0]) + rng.standard_normal(30)
+    x = np.array([0.0, np.linalg.lstsq(A[:, 1:], b, rcond=None)[0][0]])
+    limit, _ = F.profile_limit(_Linear(A, b), x, 0, lambda v: v, 0.0, 5.0, 0.5, 0.95, 60)
+    assert limit == 5.0
+
+
+def _profiled_cost(tab, params, kappa, sigma_f, sigma_m):
+    """min over eta, alpha, beta, ln k_s, ln k_b of the weighted sum of squares with kappa held: an independent
+    Gauss-Newton (central differences, step halving) on the model's terms of ``MuellerValues``."""
+    from fmbrdf_mi.brdf_fit.mueller_values import MuellerValues, combine, polarised_variant
+
+    m_obs = tab.normalised.reshape(-1, 16)[:, 1:]
+    with polarised_variant():
+        values = MuellerValues("fmbrdf", tab.w_in, tab.w_out)
+
+        def residuals(u):
+            M = combine(values.parts({"eta": u[0], "alpha": u[1], "beta": u[2], "kappa": kappa}), np.exp(u[3:]))
+            f = M[:, 0, 0]
+            rm = (M / f[:, None, None]).reshape(-1, 16)[:, 1:] - m_obs
+            return np.concatenate([np.log(f / tab.f_r11) / sigma_f, rm.ravel() / sigma_m])
+
+        u = np.array([params["eta"], params["alpha"], params["beta"], np.log(params["k_s"]), np.log(params["k_b"])])
+        r = residuals(u)
+        for _ in range(20):
+            h = np.array([1e-4, 1e-4, 1e-3, 1e-5, 1e-5])
+            J = np.stack([(residuals(u + e) - residuals(u - e)) / (2 * e.sum()) for e in np.diag(h)], axis=1)
+            step = np.linalg.lstsq(J, -r, rcond=None)[0]
+            for t in (1.0, 0.5, 0.25, 0.125):
+                r_new = residuals(u + t * step)
+                if r_new @ r_new < r @ r:
+                    break
+            if not r_new @ r_new < r @ r:
+                break
+            done = r @ r - r_new @ r_new < 1e-4
+            u, r = u + t * step, r_new
+            if done:
+                break
+    return float(r @ r)
+
+
+def test_kappa_at_its_bound_gets_the_profile_likelihood_limit(tmp_path):
+    """An FMBRDF fit that ends at kappa = 0: its interval is one-sided, from 0 to where the profiled cost (the
+    other parameters refitted, with the fit's sigmas) has risen by z^2 = 3.84: an independent refit at 0.9 and
+    1.1 times the reported limit finds the rise below and above it.  (The Wald interval cut at the bound ends at
+    1.96 SE, outside that bracket on this table.)"""
+    truth = {"eta": 1.5, "alpha": 0.2, "beta": 2.0, "kappa": 5.0, "k_s": 0.8, "k_b": 0.3}
+    _, tab = _table(tmp_path, "fmbrdf", truth, 0.03, 0.01, 10, "t.npz")
+    grid = {"fmbrdf": {"eta": (1.4,), "alpha": (0.1, 0.3), "beta": (1.5,), "kappa": (1.0,)}}   # the test's time
+    r = F.fit_model("fmbrdf", tab, F.MuellerFitOptions(starts=1, start_grids=grid))
+    assert r.converged and r.at_bound == ["kappa"]
+    assert r.interval_kind["kappa"] == F.INTERVAL_PROFILE
+    assert all(r.interval_kind[k] == F.INTERVAL_FISHER for k in r.params if k != "kappa")
+    lo, limit = r.interval["kappa"]
+    assert lo == 0.0
+    sf, sm = r.noise["sigma_f"], r.noise["sigma_m"]
+    c0 = _profiled_cost(tab, r.params, r.params["kappa"], sf, sm)
+    below = _profiled_cost(tab, r.params, 0.9 * limit, sf, sm) - c0
+    above = _profiled_cost(tab, r.params, 1.1 * limit, sf, sm) - c0
+    assert below < 1.959964 ** 2 < above, (limit, below, above)
+    wald = 1.959964 * r.se["kappa"]
+    assert not 0.9 * limit < wald < 1.1 * limit, (limit, wald)

@@ -1,4 +1,5 @@
-"""The polarised evaluator: Mueller BRDFs of fmbrdf, pplastic and a Lambertian in the package's frames.
+"""The polarised evaluator: Mueller BRDFs of fmbrdf, pplastic, a Lambertian and the image fits' blended
+baselines (Lambertian or Oren-Nayar + Torrance-Sparrow) in the package's frames.
 
 References: the facet's Fresnel reflection written as a Jones matrix in NumPy
 between the facet's s/p bases and the planes of incidence and exit (SCATMECH's
@@ -36,7 +37,9 @@ def facet_reflection_sp(w_in, w_out, eta):
 
 
 @pytest.mark.parametrize("model, shape", [("fmbrdf", {"eta": 1.6, "alpha": 0.2, "beta": 1.5, "kappa": 3.0}),
-                                          ("pplastic", {"eta": 1.45, "alpha": 0.15})])
+                                          ("pplastic", {"eta": 1.45, "alpha": 0.15}),
+                                          ("lambert_ts", {"eta": 1.45, "alpha": 0.5}),    # Beckmann: 0 far out
+                                          ("oren_nayar_ts", {"eta": 1.7, "alpha": 0.5, "sigma": 0.3})])
 def test_surface_term_is_facet_fresnel(model, shape):
     rng = np.random.default_rng(5)
     w_in = np.concatenate([T.directions(np.array([40.0, -25.0]), np.array([0.0, 0.0])), random_dirs(rng, 8)])
@@ -63,6 +66,18 @@ def test_fmbrdf_m00_is_the_unpolarised_evaluators():
     # the body term polarises (sec. body reflection): not a depolariser
     assert np.abs(P[1, :, 1:, 0] / P[1, :, :1, 0]).max() > 1e-3
     np.testing.assert_allclose(combine(P, [2.0, 0.5]), 2.0 * P[0] + 0.5 * P[1])
+
+
+def test_blended_baselines_diffuse_terms_are_the_image_fits_albedos():
+    """Lambertian + Torrance-Sparrow is a 50/50 blend reported with k_d = half the diffuse reflectance: its body
+    term at unit k_d is 1/pi, depolarising; Oren-Nayar's (sigma 0) the same."""
+    rng = np.random.default_rng(8)
+    w_in, w_out = random_dirs(rng, 40), random_dirs(rng, 40)
+    for model, shape in (("lambert_ts", {"eta": 1.5, "alpha": 0.2}),
+                         ("oren_nayar_ts", {"eta": 1.5, "alpha": 0.2, "sigma": 0.0})):
+        P = MuellerValues(model, w_in, w_out).parts(shape)
+        np.testing.assert_allclose(P[1, :, 0, 0], 1 / np.pi, rtol=1e-6)
+        assert np.abs(P[1].reshape(-1, 16)[:, 1:]).max() == 0.0
 
 
 def test_lambert_is_one_over_pi_and_depolarising():

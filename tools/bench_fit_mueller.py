@@ -12,6 +12,7 @@ the true ones, and the seconds per fit (one wavelength).
     python tools/bench_fit_mueller.py --seeds 30 --models fmbrdf --linearised 400 -o fm30.json
     python tools/bench_fit_mueller.py --table fm30.json --linearised 400   # the same, added to a result
     python tools/bench_fit_mueller.py --dense --seeds 2 --models pplastic,fmbrdf   # times on a few thousand rows
+    python tools/bench_fit_mueller.py --times --seeds 2      # seconds per wavelength per model, both scans
     python tools/bench_fit_mueller.py --table bench_mueller.json      # the markdown table of a result
     python tools/bench_fit_mueller.py --share-check --models pplastic,fmbrdf --seed0 10   # shared over wavelengths
     python tools/bench_fit_mueller.py --make-comparison cmp && fmbrdf-mi fit-brdf cmp/fmbrdf_scan.csv --holdout cmp/fmbrdf_random.npz
@@ -94,6 +95,7 @@ def run(models, seeds, seed0, noise_f, noise_m, dense=False, n_linear=0):
                 r = F.fit_model(model, tab)
                 runs.append({"seed": s, "format": "scatmech" if s % 2 == 0 else "plain npz",
                              "seconds": time.time() - t0, "params": r.params, "se": r.se, "interval": r.interval,
+                             "interval_kind": r.interval_kind, "builds": r.builds,
                              "sigma_f": r.noise["sigma_f"], "sigma_m": r.noise["sigma_m"], "converged": r.converged})
                 print(f"{model} seed {s}: {time.time() - t0:.1f} s, " + ", ".join(
                     f"{k} {v:.4g}±{r.se[k]:.2g}" for k, v in r.params.items()), file=sys.stderr, flush=True)
@@ -204,6 +206,46 @@ def make_comparison(out_dir):
                   F.synthetic_table("fmbrdf", truth, w_in, w_out, 0.03, 0.01, 2), 0.633)
 
 
+def times(models, seeds, seed0, noise_f, noise_m):
+    """Seconds per wavelength of each model on the goniometric scan and on the dense one (``DENSE``): each
+    model's table at TRUTH (the Lambertian's: FMBRDF's) with noise seeds seed0 ... seed0 + seeds - 1, fitted
+    with the default options, one fit after another in this process, after an untimed evaluation of the model
+    (its kernels' compilation).  Returns the markdown lines."""
+    from fmbrdf_mi.brdf_fit import mueller_fit as F
+
+    lines = ["| scan | rows | model | median s per wavelength | min s | max s | builds per fit (mean) | converged |",
+             "|---|---|---|---|---|---|---|---|"]
+    for scan, geo in (("goniometric", {}), ("dense", DENSE)):
+        w_in, w_out = F.goniometer_geometries(**geo)
+        for model in models:
+            data = "fmbrdf" if model == "lambert" else model
+            tabs = [_plain_table(F.synthetic_table(data, TRUTH[data], w_in, w_out, noise_f, noise_m, s), w_in, w_out)
+                    for s in range(seed0, seed0 + seeds)]
+            F.predict(model, TRUTH.get(model, {"reflectance": 0.5}), w_in, w_out)   # warm-up: kernel compilation
+            secs, builds, ok = [], [], 0
+            for tab in tabs:
+                t0 = time.perf_counter()
+                r = F.fit_model(model, tab)
+                secs.append(time.perf_counter() - t0)
+                builds.append(r.builds)
+                ok += r.converged
+                print(f"{scan} {len(w_in)} rows {model}: {secs[-1]:.2f} s, {r.builds} builds", file=sys.stderr,
+                      flush=True)
+            lines.append(f"| {scan} | {len(w_in)} | {model} | {np.median(secs):.2f} | {min(secs):.2f} | "
+                         f"{max(secs):.2f} | {np.mean(builds):.0f} | {ok}/{len(tabs)} |")
+    return lines
+
+
+def _plain_table(M, w_in, w_out):
+    """A :class:`~fmbrdf_mi.brdf_fit.mueller.MuellerTable` of M read back from a plain NPZ table."""
+    from fmbrdf_mi.brdf_fit import mueller as T
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "t.npz")
+        T.write_plain(path, w_in, w_out, M, 0.633)
+        return T.read_table(path)
+
+
 def table(res):
     lines = [f"{res['rows']} rows (goniometric scan), sigma_f {res['noise_f']:g}, sigma_m {res['noise_m']:g}, "
              f"{res['seeds']} seeds from {res['seed0']}, intervals at {res['level']:.0%}", "",
@@ -241,7 +283,19 @@ def main(argv=None):
     p.add_argument("--share-check", action="store_true",
                    help="fit a three-wavelength table with the shape parameters but eta common (share_check) and exit")
     p.add_argument("--make-comparison", metavar="DIR", help="write the comparison's two tables to DIR and exit")
+    p.add_argument("--times", action="store_true",
+                   help="seconds per wavelength per model (--models, lambert allowed) on the goniometric and the "
+                        "dense scan, --seeds fits each (times) and exit")
     a = p.parse_args(argv)
+    if a.times:
+        models = [m.strip() for m in a.models.split(",") if m.strip()]
+        bad = [m for m in models if m not in (*TRUTH, "lambert")]
+        if bad or a.seeds < 1:
+            p.error(f"--models: choose from {', '.join(TRUTH)}, lambert; --seeds >= 1")
+        print(f"DRJIT_NUM_THREADS={os.environ.get('DRJIT_NUM_THREADS', 'unset')}, {os.cpu_count()} CPUs, "
+              f"load average {', '.join(f'{v:.1f}' for v in os.getloadavg())} at the start\n")
+        print("\n".join(times(models, a.seeds, a.seed0, a.noise_f, a.noise_m)))
+        return 0
     if a.make_comparison:
         make_comparison(a.make_comparison)
         return 0

@@ -25,7 +25,9 @@ def add_mueller_arguments(p):
     g = p.add_argument_group("Mueller-matrix BRDF tables (FILE .csv/.tsv/.txt/.dat: SCATMECH/NIST layout or the "
                              "plain table; .npz: the plain table; see docs/howto/fit-mueller.md)")
     g.add_argument("--models", default="fmbrdf,pplastic,lambert", metavar="LIST",
-                   help="comma-separated models to fit and compare (fmbrdf, pplastic, lambert; default all)")
+                   help="comma-separated models to fit and compare: fmbrdf, pplastic, lambert, lambert_ts, "
+                        "oren_nayar_ts (the image fits' Lambertian or Oren-Nayar + Torrance-Sparrow); default "
+                        "fmbrdf,pplastic,lambert")
     g.add_argument("--share", metavar="LIST",
                    help="comma-separated parameters common to every wavelength (e.g. alpha,beta,kappa), fitted "
                         "jointly over the wavelengths by each model that has them; the others per wavelength "
@@ -70,6 +72,7 @@ def _refuse_merl_options(args):
 
 def _options(args):
     from .mueller_fit import MuellerFitOptions
+    from .mueller_values import MODELS
 
     models = tuple(m.strip() for m in args.models.split(",") if m.strip())
     o = MuellerFitOptions(models=models, residual=args.residual, noise=args.noise, noise_f=args.noise_f,
@@ -81,7 +84,7 @@ def _options(args):
     except ValueError as e:
         raise ValueError(f"--{str(e).split(':')[0].replace('_', '-')}:{str(e).split(':', 1)[1]}") from None
     if not models:
-        raise ValueError("--models: give at least one of fmbrdf, pplastic, lambert")
+        raise ValueError(f"--models: give at least one of {', '.join(MODELS)}")
     return o
 
 
@@ -97,9 +100,11 @@ def _tolerance(args):
 
 
 def _result_dict(r):
-    return {"params": r.params, "se": r.se, "interval": r.interval, "noise": r.noise, "rmse": r.rmse,
+    return {"params": r.params, "se": r.se, "interval": r.interval, "interval_kind": r.interval_kind,
+            "noise": r.noise, "rmse": r.rmse,
             "chi2": r.chi2, "dof": r.dof, "n_rows": r.n_rows, "at_bound": r.at_bound, "converged": r.converged,
-            "stop_reason": r.stop_reason, "history": r.history, "seconds": r.seconds, "shared": r.shared}
+            "stop_reason": r.stop_reason, "history": r.history, "seconds": r.seconds, "builds": r.builds,
+            "shared": r.shared}
 
 
 def _fmt(v, spec=".4g"):

@@ -24,7 +24,16 @@ assumes nothing about the model.  Intervals: the Gauss-Newton covariance
 (J^T J)^-1 of the weighted residuals at the optimum, J by forward differences
 in the shape parameters' values and the albedos' logarithms (so that it holds
 at a bound too, where the bounded reparameterisation is flat), value +- z SE
-cut at the bounds (``at_bound`` names a parameter that ends there); they are as honest as the noise
+cut at the bounds (``interval_kind`` "fisher").  A shape parameter that ends at
+a bound (``at_bound``) gets a one-sided interval instead (``interval_kind``
+"profile (at bound)", :func:`profile_limit`): from the bound to where the
+profiled cost, the others refitted with it held, rises by the chi-square
+quantile of one degree of freedom at the level, with the sigmas the fit
+estimates (a Fisher interval cut at the bound would cover only values within
+z SE of the bound, whatever the data say); one inside its bounds whose Fisher
+interval a bound cuts gets both ends from the profile ("profile (near
+bound)"), an end at the bound where the profiled cost rises less than the
+quantile up to it.  The intervals are as honest as the noise
 model: a systematic model error inflates the residual-based sigmas, which
 then widen the intervals accordingly.
 
@@ -50,6 +59,7 @@ close in its error; the comparison table shows it.
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import itertools
 import math
@@ -66,13 +76,27 @@ START_GRIDS = {
     "fmbrdf": {"eta": (1.3, 1.6, 2.0), "alpha": (0.03, 0.1, 0.3, 0.8), "beta": (1.0, 2.5), "kappa": (0.0, 10.0)},
     "pplastic": {"eta": (1.3, 1.6, 2.0), "alpha": (0.02, 0.05, 0.12, 0.3, 0.6)},
     "lambert": {},
+    "lambert_ts": {"eta": (1.3, 1.6, 2.0), "alpha": (0.02, 0.05, 0.12, 0.3, 0.6)},
+    "oren_nayar_ts": {"eta": (1.3, 1.6, 2.0), "alpha": (0.02, 0.05, 0.12, 0.3, 0.6), "sigma": (0.0, 0.5)},
 }
 #: The 0-based (i, j) of the elements that vanish in the plane of incidence (s/p bases, isotropic surface).
 VANISHING = ((0, 2), (0, 3), (1, 2), (1, 3), (2, 0), (2, 1), (3, 0), (3, 1))
 #: Flat indices 1..15 of the normalised elements (all but m11).
 ELEMENTS = tuple(range(1, 16))
+#: Memory for the terms of the shape points a fit has built (:meth:`_Problem.parts`, most recently used kept).
+PARTS_KEPT_BYTES = 64 * 2 ** 20
 #: z beyond which a bounded parameter counts as at its bound.
 AT_BOUND_Z = 9.0
+#: Kinds of interval (``MuellerFitResult.interval_kind``, named as the image fits' ``interval_kind``): value +- z SE
+#: from the Gauss-Newton (Fisher) covariance, cut at the bounds; and, for a shape parameter at a bound, from the
+#: bound to the profile likelihood's limit (:func:`profile_limit`).
+INTERVAL_FISHER = "fisher"
+INTERVAL_PROFILE = "profile (at bound)"
+#: Both ends from the profile likelihood: a shape parameter inside its bounds whose Fisher interval one cuts.
+INTERVAL_PROFILE_NEAR = "profile (near bound)"
+#: A profile end is found when the profiled cost's rise is within this of the quantile (chi^2 units: the
+#: refits' own convergence tolerance, :data:`fmbrdf_mi.fit.solve.lm.DECREMENT_TOL`).
+PROFILE_RISE_TOL = 0.01
 
 
 @dataclasses.dataclass
@@ -122,6 +146,7 @@ class MuellerFitResult:
     params: dict                     # shape parameters and albedos
     se: dict                         # standard errors
     interval: dict                   # name -> [lo, hi] at options.level
+    interval_kind: dict              # name -> INTERVAL_FISHER, INTERVAL_PROFILE or INTERVAL_PROFILE_NEAR
     noise: dict                      # sigma_f, sigma_m, how they were obtained
     rmse: dict                       # log10 f_r11, normalised elements (unweighted)
     chi2: float
@@ -132,12 +157,14 @@ class MuellerFitResult:
     stop_reason: str
     history: list
     seconds: float                   # of this wavelength's fit (a joint fit: its share of the joint time)
+    builds: int = 0                  # model evaluations at a shape point (MuellerValues.parts) of this fit
     shared: list = dataclasses.field(default_factory=list)   # parameters fitted jointly over the wavelengths
 
 
-def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
+def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0, final=True):
     """Minimise |prob.fun|^2 from ``x0`` with the package's Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.lm`):
-    (x, residuals, Jacobian at x, trials, converged, stop reason).
+    (x, residuals, Jacobian at x, trials, converged, stop reason).  ``final``: end on a fresh Jacobian; else the
+    Jacobian is None unless the last one is fresh (``prob.jac(x)`` gives it, the same, when it is needed).
 
     What this fit plugs in: a forward-difference Jacobian (one table build per shape parameter) refreshed after
     ``refresh`` accepted steps and carried between by Broyden's update from every trial (a trial costs one
@@ -176,12 +203,96 @@ def solve_lm(prob, x0, max_evals, refresh=3, max_step=1.0):
         x0, float(r0 @ r0), linearise, solve, trial, max_iter=max_evals, refresh=refresh, secant=secant,
         moved=lambda lin, x_new, r_new: (r_new, lin[1], False),
         decrement=lambda lin: LM.gn_decrement(lin[1], lin[0]), small=small, small_count=1,
-        budget=lambda: state["trials"] >= max_evals, final_linearise=True)
-    r, J, _ = res.lin
+        budget=lambda: state["trials"] >= max_evals, final_linearise=final)
+    r, J, fresh = res.lin
+    J = J if fresh else None
     why = {"decrement": "converged: Gauss-Newton decrement below 0.01",
            "small_decrease": "converged: chi^2 decrease below 0.01",
            "no_step": "converged: no step lowers chi^2"}.get(res.reason, f"stopped: {res.reason} ({max_evals} trials)")
     return res.x, r, J, state["trials"], res.converged, why
+
+
+class _Held:
+    """A least-squares problem (``fun``, ``jac(x, columns)``) with coordinate ``k`` held at ``coord``: the
+    problem of the other coordinates, what a profile refits."""
+
+    def __init__(self, problem, k, coord):
+        self.problem, self.k, self.coord = problem, k, coord
+
+    def full(self, y):
+        return np.insert(y, self.k, self.coord)
+
+    def fun(self, y):
+        return self.problem.fun(self.full(y))
+
+    def jac(self, y, columns=None):
+        free = [j for j in range(y.size + 1) if j != self.k]
+        return self.problem.jac(self.full(y), free if columns is None else [free[c] for c in columns])
+
+
+def profile_reference(problem, x, k, max_evals):
+    """The cost at the optimum ``x`` refitted with coordinate ``k`` held (the profile's minimum, with the same
+    weights and tolerance as its other points): (cost, the other coordinates)."""
+    y0, r, *_ = solve_lm(_Held(problem, k, x[k]), np.delete(x, k), max_evals, final=False)
+    return float(r @ r), y0
+
+
+def profile_limit(problem, x, k, coord, value, end, step, level, max_evals, max_points=12, reference=None):
+    """One end of a parameter's profile-likelihood interval: the value on the side of ``step`` from the fit's
+    optimum ``x`` where the profiled cost, the weighted sum of squares minimised over the other coordinates with
+    this one held, rises above its minimum by the chi-square quantile of one degree of freedom at ``level`` (the
+    likelihood-ratio interval with the noise scale as estimated, i.e. as the residuals are weighted).  For a
+    parameter at a bound, the open end of its one-sided interval.
+
+    ``problem``: ``fun(x)`` (weighted residuals) and ``jac(x, columns)``; ``k``: the held coordinate;
+    ``coord(v)``: its coordinate at the parameter's value v; ``value``: the value at ``x``; ``end``: the bound on
+    that side (the search stops there); ``step``: the first trial's distance from ``value`` (signed: the side).
+    Each profile point is a refit by :func:`solve_lm` from the nearest point already refitted; the minimum is
+    :func:`profile_reference`'s (``reference``, computed when None), so that both ends of the rise are minima
+    with the same weights.  Returns (limit, [(value, rise of the cost), ...]): the limit is ``end`` when the rise
+    stays below the quantile up to there; after ``max_points`` refits, the end of the bracket farther from
+    ``value`` (the wider, conservative interval)."""
+    q = _z_quantile(level) ** 2
+    c0, y0 = reference or profile_reference(problem, x, k, max_evals)
+    points = [(value, 0.0, y0)]
+
+    def rise(v):   # g(v) = sqrt(rise) - sqrt(q): near linear in v where the cost is near quadratic
+        y_near = min(points, key=lambda p: abs(p[0] - v))[2]
+        y, r, *_ = solve_lm(_Held(problem, k, coord(v)), y_near, max_evals, final=False)
+        d = float(r @ r) - c0
+        points.append((v, d, y))
+        return math.sqrt(max(d, 0.0)) - math.sqrt(q)
+
+    # bracket: doubling the distance from value until the rise passes q or the bound on that side is reached
+    a, ga = value, -math.sqrt(q)
+    v = value + step
+    while True:
+        if (v - end) * step >= 0:
+            v = end
+        g = rise(v)
+        if g >= 0:
+            break
+        if v == end or len(points) > max_points:
+            return end, [(p[0], p[1]) for p in points[1:]]
+        a, ga = v, g
+        v = value + 2.0 * (v - value)
+    b, gb = v, g
+    # Illinois regula falsi on g between a (g < 0) and b (g >= 0)
+    side = 0
+    while len(points) <= max_points:
+        v = b - gb * (b - a) / (gb - ga)
+        g = rise(v)
+        if abs(points[-1][1] - q) < PROFILE_RISE_TOL:
+            return v, [(p[0], p[1]) for p in points[1:]]
+        if g < 0:
+            a, ga = v, g
+            gb = gb / 2 if side == -1 else gb
+            side = -1
+        else:
+            b, gb = v, g
+            ga = ga / 2 if side == 1 else ga
+            side = 1
+    return b, [(p[0], p[1]) for p in points[1:]]
 
 
 def _z_quantile(level):
@@ -222,19 +333,31 @@ class _Problem:
 
         self.bounds = Bounds(self.model)
         self.sigma_f, self.sigma_m = 1.0, 1.0
-        self._cache = {}
+        self._cache = collections.OrderedDict()
 
     def shape_of(self, x):
         return {p.name: self.bounds.to_value(p.name, x[k]) for k, p in enumerate(self.model.shape)}
 
     def parts(self, x, parts=None):
-        """The terms at x (kept for the last few x); ``parts``: those to keep for x (already evaluated)."""
-        key = tuple(np.round(x[:self.nsh], 12))
-        if key not in self._cache:
-            if len(self._cache) > 16:
-                self._cache.clear()
-            self._cache[key] = self.values.parts(self.shape_of(x)) if parts is None else parts
+        """The terms at x; ``parts``: those to keep for x (already evaluated).  The most recently used are kept
+        (:data:`PARTS_KEPT_BYTES`): a fit comes back to points it built (a Jacobian's, after another start or
+        when the noise re-weights the residuals; the optimum's, for the noise and the covariance), and a build
+        is what a fit's time goes to.  Kept by the coordinates' exact values: a fit's numbers are those it
+        computes without keeping anything."""
+        key = np.asarray(x[:self.nsh], dtype=np.float64).tobytes()
+        if key in self._cache:
+            self._cache.move_to_end(key)
+        else:
+            P = self.values.parts(self.shape_of(x)) if parts is None else parts
+            while self._cache and (len(self._cache) + 1) * P.nbytes > PARTS_KEPT_BYTES:
+                self._cache.popitem(last=False)
+            self._cache[key] = P
         return self._cache[key]
+
+    def forget(self):
+        """Drops the kept terms (the start grid's are those of its exact values, not of their coordinates'
+        round trip, which the refinement starts from)."""
+        self._cache.clear()
 
     def raw(self, x):
         """Unweighted residuals: (f_r11 residuals (n,), element residuals (n, 15))."""
@@ -280,14 +403,17 @@ class _Problem:
             J[:, self.nsh + j] = (self.weighted(*self.residuals_of(P0, a)) - r0) / 1e-6
         return r0, J
 
-    def jac(self, x):
+    def jac(self, x, columns=None):
+        """Forward-difference Jacobian of :meth:`fun` at x in the fitted coordinates, of ``columns`` (all when
+        None)."""
+        cols = range(x.size) if columns is None else columns
         r0 = self.fun(x)
-        J = np.empty((r0.size, x.size))
-        for k in range(x.size):
+        J = np.empty((r0.size, len(cols)))
+        for c, k in enumerate(cols):
             h = 1e-3 if k < self.nsh else 1e-6
             xp = x.copy()
             xp[k] += h
-            J[:, k] = (self.fun(xp) - r0) / h
+            J[:, c] = (self.fun(xp) - r0) / h
         return J
 
     def cost(self, x):
@@ -372,11 +498,13 @@ def fit_model(model, table, options=None, vanishing=None):
             x = prob.x_of(shape, prob.albedos_at(shape))
             cands.append((prob.cost(x), x))
         cands.sort(key=lambda t: t[0])
+        prob.forget()
         history = [{"stage": "grid", "points": len(cands), "best_cost": cands[0][0]}]
-        # 2. refinement from the best starts; converged when chi^2 falls by less than lm.DECREMENT_TOL
+        # 2. refinement from the best starts; converged when chi^2 falls by less than lm.DECREMENT_TOL.  The
+        #    Jacobian at an optimum is computed only where the noise estimate needs it (not for a start that loses)
         best = None
         for s, (c0, x0) in enumerate(cands[:max(1, o.starts)]):
-            x, r, J, nfev, ok, status = solve_lm(prob, x0, o.max_evals)
+            x, r, J, nfev, ok, status = solve_lm(prob, x0, o.max_evals, final=False)
             c = float(r @ r)
             history.append({"stage": "refine", "start": s, "start_cost": c0, "cost": c, "trials": nfev,
                             "status": status})
@@ -386,6 +514,7 @@ def fit_model(model, table, options=None, vanishing=None):
         # 3. the noise from the residuals at the optimum, then refined again while the weights change
         if o.noise_f is None or not fixed_m:
             for _ in range(o.noise_rounds):
+                J = prob.jac(x) if J is None else J
                 ef, em = prob.estimate_noise(x, leverages(J, (prob.n, 15 * prob.n)))
                 new = (o.noise_f if o.noise_f is not None else ef, sm if fixed_m else em)
                 change = max(abs(math.log(a / b)) for a, b in zip(new, (prob.sigma_f, prob.sigma_m)))
@@ -393,14 +522,49 @@ def fit_model(model, table, options=None, vanishing=None):
                 if change < 0.05:   # weights within 5 %: the optimum moves by a small fraction of its error
                     history.append({"stage": "noise", "sigma_f": new[0], "sigma_m": new[1], "change": change})
                     break
-                x, r, J, nfev, ok, status = solve_lm(prob, x, o.max_evals)
+                x, r, J, nfev, ok, status = solve_lm(prob, x, o.max_evals, final=False)
                 history.append({"stage": "noise", "sigma_f": new[0], "sigma_m": new[1], "change": change,
                                 "cost": float(r @ r), "trials": nfev, "status": status})
         # 4. covariance: the Gauss-Newton one of the weighted residuals with the final sigmas, in the reported
-        #    parameters (delta method on the albedos' logarithms)
+        #    parameters (delta method on the albedos' logarithms); at or near a bound: the profile likelihood's
         r, J = prob.value_jacobian(x)
         cov = _inverse(J.T @ J)
-        return _result(prob, table, x, cov, r, r.size - x.size, fixed_m, ok, status, history, time.time() - t0)
+        profiles = _profiles(prob, x, {k: (prob.bounds, p.name) for k, p in enumerate(m.shape)}, cov, o, history)
+        return _result(prob, table, x, cov, r, r.size - x.size, fixed_m, ok, status, history, time.time() - t0,
+                       profiles=profiles)
+
+
+def _profiles(problem, x, shape, cov, o, history):
+    """Profile-likelihood intervals (:func:`profile_limit`) of the shape parameters whose Fisher interval a bound
+    cuts: {coordinate k of ``problem``: ([lo, hi], kind)}.  At the bound (``at_bound``): from the bound to the
+    profile's limit (:data:`INTERVAL_PROFILE`); else both ends from the profile, an end at the bound where the
+    profiled cost rises less than the quantile up to it (:data:`INTERVAL_PROFILE_NEAR`).  ``shape``:
+    {k: (bounds, name)} of the coordinates that are shape parameters (bounded coordinates); ``cov``: the
+    covariance of their values (the Fisher intervals, and the first steps' sizes)."""
+    out = {}
+    zq = _z_quantile(o.level)
+    for k, (bounds, name) in shape.items():
+        lo, hi = bounds.lims[name][2:]
+        value = bounds.to_value(name, x[k])
+        se = math.sqrt(cov[k, k]) if cov[k, k] > 0 and math.isfinite(cov[k, k]) else math.nan
+        at = abs(x[k]) > AT_BOUND_Z
+        if not at and not (math.isfinite(se) and (value - zq * se < lo or value + zq * se > hi)):
+            continue
+        step = max(zq * se if math.isfinite(se) and se > 0 else 0.05 * (hi - lo), 1e-3 * (hi - lo))
+        sides = [1 if x[k] < 0 else -1] if at else [-1, 1]     # at the lower bound: open upwards
+        t0 = time.time()
+        reference = profile_reference(problem, x, k, o.max_evals)
+        ends, record = [lo, hi], {}
+        for side in sides:
+            limit, points = profile_limit(problem, x, k, lambda v, n=name: bounds.to_z(n, v), value,
+                                          hi if side > 0 else lo, side * step, o.level, o.max_evals,
+                                          reference=reference)
+            ends[side > 0] = limit
+            record["upper" if side > 0 else "lower"] = {"limit": limit, "points": points}
+        out[k] = (ends, INTERVAL_PROFILE if at else INTERVAL_PROFILE_NEAR)
+        history.append({"stage": "profile", "parameter": name, "kind": out[k][1], **record,
+                        "seconds": time.time() - t0})
+    return out
 
 
 def _inverse(A):
@@ -410,9 +574,12 @@ def _inverse(A):
         return np.linalg.pinv(A)
 
 
-def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, shared=()):
+def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, shared=(), profiles=None,
+            builds=0):
     """The :class:`MuellerFitResult` of ``prob`` at its optimum ``x`` with covariance ``cov`` of the reported
-    parameters (shape values, the albedos' logarithms) and weighted residuals ``r``."""
+    parameters (shape values, the albedos' logarithms) and weighted residuals ``r``; ``profiles``: {k: ([lo, hi],
+    kind)}, the profile-likelihood intervals of :func:`_profiles` (the others' are Fisher intervals)."""
+    profiles = profiles or {}
     o, m = prob.o, prob.model
     how = ["sigma_f given" if o.noise_f is not None else "sigma_f from the fit residuals",
            "sigma_m given" if o.noise_m is not None else
@@ -424,29 +591,35 @@ def _result(prob, table, x, cov, r, dof, fixed_m, ok, status, history, seconds, 
         rf, rm = prob.raw(x)
     se_v = np.sqrt(np.maximum(np.diag(cov), 0.0))
     zq = _z_quantile(o.level)
-    params, se, interval = {}, {}, {}
+    params, se, interval, kind = {}, {}, {}, {}
     for k, p in enumerate(m.shape):
         v = prob.bounds.to_value(p.name, x[k])
         lo, hi = prob.bounds.lims[p.name][2:]
         params[p.name] = v
         se[p.name] = float(se_v[k])
-        interval[p.name] = [max(lo, v - zq * se_v[k]), min(hi, v + zq * se_v[k])]
+        if k in profiles:
+            interval[p.name], kind[p.name] = [float(e) for e in profiles[k][0]], profiles[k][1]
+        else:
+            interval[p.name] = [max(lo, v - zq * se_v[k]), min(hi, v + zq * se_v[k])]
+            kind[p.name] = INTERVAL_FISHER
     for j, name in enumerate(m.albedo_names):
         k = prob.nsh + j
         params[name] = float(np.exp(x[k]))
         se[name] = params[name] * float(se_v[k])
         interval[name] = [float(np.exp(x[k] - zq * se_v[k])), float(np.exp(x[k] + zq * se_v[k]))]
+        kind[name] = INTERVAL_FISHER
     log10_f = (rf if o.residual == "log" else np.log1p(np.maximum(rf, -0.999999))) / math.log(10.0)
     return MuellerFitResult(
         model=m.name, wavelength=float(table.wavelength[0]) if len(table) else math.nan, params=params, se=se,
-        interval=interval,
+        interval=interval, interval_kind=kind,
         noise={"sigma_f": prob.sigma_f, "sigma_m": prob.sigma_m, "residual": o.residual,
                "model": f"independent Gaussian: {'ln' if o.residual == 'log' else 'relative'} f_r11 with sigma_f, "
                         f"each normalised element with sigma_m ({'; '.join(how)})"},
         rmse={"log10_f_r11": float(np.sqrt(np.mean(log10_f ** 2))), "elements": float(np.sqrt(np.mean(rm ** 2)))},
         chi2=float(r @ r), dof=int(round(dof)), n_rows=prob.n,
         at_bound=[p.name for k, p in enumerate(m.shape) if abs(x[k]) > AT_BOUND_Z],
-        converged=ok, stop_reason=status, history=history, seconds=seconds, shared=list(shared))
+        converged=ok, stop_reason=status, history=history, seconds=seconds, shared=list(shared),
+        builds=builds + prob.values.builds)
 
 
 class _Joint:
@@ -488,8 +661,17 @@ class _Joint:
             row += b.shape[0]
         return J
 
-    def jac(self, xj):
-        return self._stack([p.jac(x) for p, x in zip(self.probs, self.split(xj))])
+    def jac(self, xj, columns=None):
+        if columns is None:
+            return self._stack([p.jac(x) for p, x in zip(self.probs, self.split(xj))])
+        want = set(columns)
+        blocks = []
+        for p, x, idx in zip(self.probs, self.split(xj), self.index):
+            local = [k for k in range(idx.size) if idx[k] in want]
+            block = np.zeros((16 * p.n, idx.size))
+            block[:, local] = p.jac(x, local)
+            blocks.append(block)
+        return self._stack(blocks)[:, list(columns)]
 
     def value_jacobian(self, xj):
         parts = [p.value_jacobian(x) for p, x in zip(self.probs, self.split(xj))]
@@ -540,11 +722,12 @@ def fit_shared(model, tables, share, options=None, vanishing=None):
         history = [{"stage": "separate", "seconds": time.time() - t0,
                     "separate": {n: {"estimates": [r.params[n] for r in alone], "se": [r.se[n] for r in alone]}
                                  for n in share}}]
-        x, r, J, nfev, ok, status = solve_lm(joint, x, o.max_evals)
+        x, r, J, nfev, ok, status = solve_lm(joint, x, o.max_evals, final=False)
         history.append({"stage": "joint", "cost": float(r @ r), "trials": nfev, "status": status})
         if o.noise_f is None or not fixed_m:
             for _ in range(o.noise_rounds):
                 old = [(p.sigma_f, p.sigma_m) for p in probs]
+                J = joint.jac(x) if J is None else J
                 used = leverages(J, [k for p in probs for k in (p.n, 15 * p.n)])
                 for w, (p, xw) in enumerate(zip(probs, joint.split(x))):
                     ef, em = p.estimate_noise(xw, used[2 * w:2 * w + 2])
@@ -556,18 +739,22 @@ def fit_shared(model, tables, share, options=None, vanishing=None):
                 if change < 0.05:
                     history.append({"stage": "noise", "sigmas": sig, "change": change})
                     break
-                x, r, J, nfev, ok, status = solve_lm(joint, x, o.max_evals)
+                x, r, J, nfev, ok, status = solve_lm(joint, x, o.max_evals, final=False)
                 history.append({"stage": "noise", "sigmas": sig, "change": change, "cost": float(r @ r),
                                 "trials": nfev, "status": status})
         r, J = joint.value_jacobian(x)
         cov = _inverse(J.T @ J)
+        shape = {int(idx[k]): (p.bounds, sp.name) for p, idx in zip(probs, joint.index)
+                 for k, sp in enumerate(m.shape)}
+        profiles = _profiles(joint, x, shape, cov, o, history)
     seconds = (time.time() - t0) / len(probs)
     used = leverages(J, [16 * p.n for p in probs])
     out, row = [], 0
-    for p, t, xw, idx, u in zip(probs, tables, joint.split(x), joint.index, used):
+    for p, t, xw, idx, u, sep in zip(probs, tables, joint.split(x), joint.index, used, alone):
         n = p.n * 16
+        own = {k: profiles[idx[k]] for k in range(p.nsh) if idx[k] in profiles}
         out.append(_result(p, t, xw, cov[np.ix_(idx, idx)], r[row:row + n], n - u, fixed_m, ok, status,
-                           history, seconds, shared=share_names))
+                           history, seconds, shared=share_names, profiles=own, builds=sep.builds))
         row += n
     return out
 

@@ -44,7 +44,8 @@ class MuellerModel:
     description: str
     shape: tuple
     terms: tuple            # ((albedo name, BSDFFlags name), ...)
-    base: dict              # BSDF dict at unit albedos, without the shape parameters
+    base: dict              # BSDF dict at unit albedos, "$name" where a shape parameter's value goes
+    albedo_factor: float = 1.0   # a reported albedo = this x the BSDF's (a blend's weight)
 
     @property
     def shape_names(self):
@@ -62,27 +63,26 @@ class MuellerModel:
         return tuple(t[0] for t in self.terms)
 
     def bsdf_dict(self, shape):
-        d = dict(self.base)
-        for p in self.shape:
-            d[p.key.split(".")[0]] = float(shape[p.name])
-        return d
+        def fill(v):
+            if isinstance(v, dict):
+                return {k: fill(x) for k, x in v.items()}
+            return float(shape[v[1:]]) if isinstance(v, str) and v.startswith("$") else v
+
+        return fill(self.base)
 
 
 def _models():
-    from fmbrdf_mi.fit.evaluate.models import FMBRDF, PPLASTIC
+    from fmbrdf_mi.fit.evaluate.models import FMBRDF, LAMBERT_TS, OREN_NAYAR_TS, PPLASTIC
 
-    return {
-        "fmbrdf": MuellerModel("fmbrdf", FMBRDF.description, FMBRDF.shape,
-                               (("k_s", "GlossyReflection"), ("k_b", "DiffuseReflection")),
-                               {"type": "fmbrdf", "k_s": 1.0, "k_b": 1.0, "tables": "float32"}),
-        "pplastic": MuellerModel("pplastic", PPLASTIC.description, PPLASTIC.shape,
-                                 (("specular_reflectance", "GlossyReflection"),
-                                  ("diffuse_reflectance", "DiffuseReflection")),
-                                 {"type": "pplastic", "distribution": "ggx", "specular_reflectance": 1.0,
-                                  "diffuse_reflectance": 1.0}),
-        "lambert": MuellerModel("lambert", "Mitsuba diffuse (Lambertian, depolarising)", (),
-                                (("reflectance", "DiffuseReflection"),), {"type": "diffuse", "reflectance": 1.0}),
-    }
+    def of(m, surface, body):   # a model of the image fits: its BSDF template, parameters and albedo names
+        return MuellerModel(m.name, m.description, m.shape,
+                            ((surface, "GlossyReflection"), (body, "DiffuseReflection")), m.base_dict, m.albedo_factor)
+
+    models = [of(FMBRDF, "k_s", "k_b"), of(PPLASTIC, "specular_reflectance", "diffuse_reflectance"),
+              MuellerModel("lambert", "Mitsuba diffuse (Lambertian, depolarising)", (),
+                           (("reflectance", "DiffuseReflection"),), {"type": "diffuse", "reflectance": 1.0}),
+              of(LAMBERT_TS, "k_s", "k_d"), of(OREN_NAYAR_TS, "k_s", "k_d")]
+    return {m.name: m for m in models}
 
 
 #: The models, by name.
@@ -113,6 +113,8 @@ class MuellerValues:
         self.n = len(w_in)
         self.cos_in = w_in[:, 2]
         self._shape = None
+        #: Calls of :meth:`parts` (each builds the model at its shape: what a fit's time goes to).
+        self.builds = 0
         with polarised_variant() as mi:
             import drjit as dr
 
@@ -141,6 +143,7 @@ class MuellerValues:
 
     def parts(self, shape=None):
         """The terms' Mueller BRDFs (1/sr) at unit albedos, package frames: (terms, n, 4, 4) float64."""
+        self.builds += 1
         with polarised_variant() as mi:
             if self.model.shape:
                 self._set_shape(shape)
@@ -148,7 +151,7 @@ class MuellerValues:
             for k, ctx in enumerate(self.ctx):
                 v = self.ptr.eval(ctx, self.si, self.wo, mi.Bool(True))
                 out[k] = np.moveaxis(np.asarray(v, dtype=np.float64).reshape(4, 4, self.n), -1, 0)
-        return out / self.cos_in[None, :, None, None]
+        return out / (self.cos_in[None, :, None, None] * self.model.albedo_factor)
 
 
 def combine(parts, albedos):
