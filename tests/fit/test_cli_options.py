@@ -139,6 +139,7 @@ def test_fit_footprint_with_the_paper_loss_still_runs(capsys, tmp_path, captures
     (["--albedo", "per-pixel"], ["--albedo per-pixel", "no camera noise model", "--conversion-gain"]),
     (["--albedo", "per-pixel-bilinear"], ["--albedo per-pixel-bilinear", "no camera noise model"]),
     (["--intervals", "profile"], ["--intervals profile", "no camera noise model"]),
+    (["--area-points", "4"], ["--area-points 4", "no camera noise model"]),
 ])
 def test_fit_likelihood_options_on_an_input_without_noise_model_refused(capsys, tmp_path, captures, argv, words):
     """A Stokes EXR has no camera noise model: the loss resolves to the paper's.  Before: the option was dropped,

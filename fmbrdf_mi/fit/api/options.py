@@ -379,6 +379,8 @@ def check_resolved_loss(values, loss, source, flag=str):
         bad = f"{flag('intervals')} profile"
     elif values.get("materials") is not None:
         bad = f"{flag('materials')} {values['materials']}"
+    elif values.get("area_points") is not None:
+        bad = f"{flag('area_points')} {values['area_points']}"
     else:
         return
     raise InputError(f"{bad}: needs the likelihood of the camera's samples, and the loss here is {loss} ({source}): "
