@@ -244,7 +244,7 @@ def test_noise_free_one_image_per_pixel_intervals_cover_the_standard_errors_and_
     ks, kb = 0.6 + 0.4 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.1 * np.cos(5 * x + 3 * y)
     obs = capture_observation(textured_sphere(shape, ks, kb, res=n, area=2), noiseless=True)[0]
     res = fit(obs, albedo="per-pixel", max_pixels=None, progress=False, area_points=2, starts=1,
-              init=dict(shape, k_s=0.6, r_k=0.6))
+              init=shape)
     u = res.uncertainty
     assert res.converged and "incidental" in u
     for k, truth in shape.items():

@@ -71,7 +71,8 @@ OPTIONS = (
            help="narrow a parameter's bounds (repeatable): {name: (lo, hi)}"),
     Option("init", None, fit=True, records=_SJ, flag="--init", group=_FIT, parse=parse_init,
            cli={"metavar": "NAME=V,..."},
-           help="start from these parameters instead of the coarse search (all the reported ones)"),
+           help="start from these parameters instead of the coarse search (all the reported ones; with "
+                "per-pixel albedos the shape parameters)"),
     Option("max_iter", 40, kind="int", lo=1, fit=True, records=_ALL, flag="--max-iter", group=_FIT,
            cli={"type": int}, help="iterations per refinement round"),
     Option("tol", 1e-4, kind="number", lo=0.0, fit=True, records=_SJ, flag="--tol", group=_FIT, cli={"type": float},
@@ -323,11 +324,12 @@ def check_relations(v, flag=str):
         except ValueError as e:
             raise InputError(f"{flag('bounds')}: {e}") from None
     if v["init"] is not None:
-        check_init(v["init"], m, flag)
+        check_init(v["init"], m, flag, albedo)
 
 
-def check_init(init, m, flag):
-    """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds (albedos >= 0)."""
+def check_init(init, m, flag, albedo="shared"):
+    """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds (albedos >= 0);
+    with per-pixel albedos (solved per pixel at the start) the shape parameters only."""
     if not isinstance(init, dict):
         raise InputError(f"{flag('init')}: expected {{name: value}}, got {init!r}")
     table = Parameters(m)
@@ -336,6 +338,12 @@ def check_init(init, m, flag):
     if unknown:
         raise InputError(f"{flag('init')}: unknown parameter '{unknown[0]}' of {m.name}; give all of "
                          f"{', '.join(names)}")
+    if albedo in PER_PIXEL_LAYOUTS:
+        names = [k for k in names if table.row[k].kind != "albedo"]
+        given = [k for k in init if k not in names]
+        if given:
+            raise InputError(f"{flag('init')} {', '.join(given)}: {flag('albedo')} {albedo} solves the albedos per "
+                             f"pixel, so they take no start; give {', '.join(names)}")
     missing = [k for k in names if k not in init]
     if missing:
         raise InputError(f"{flag('init')}: missing {', '.join(missing)} (give all of {', '.join(names)})")
