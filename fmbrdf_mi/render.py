@@ -119,7 +119,13 @@ def parse_value(name, text):
             except ValueError as e:
                 raise CLIError(f"{name}={text}: {str(e).removeprefix(f'texture {path}: ')}") from None
             return S.texture_file_dict(path)
-        vals = _numbers(name, text, (1, 3))
+        try:
+            vals = _numbers(name, text, (1, 3))
+        except CLIError:
+            kind = "is a directory" if os.path.isdir(path) else "is a file of another kind" if os.path.exists(path) \
+                else "is neither numbers nor an image file"
+            raise CLIError(f"{name}={text}: {kind} (an albedo is a number, r,g,b, or an image file: "
+                           f"{', '.join(S.TEXTURE_EXTENSIONS)})") from None
         check_albedo(name, vals)
         return vals[0] if len(vals) == 1 else tuple(vals)
     if name == "light_dir":

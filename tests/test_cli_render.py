@@ -376,6 +376,21 @@ def test_unusable_texture_files_are_one_line(capsys, tmp_path, case):
     assert _listing(tmp_path / "out") == []
 
 
+@pytest.mark.parametrize("kind,words", [("dir", ["is a directory"]), ("txt", ["is a file of another kind"]),
+                                        ("missing", ["is neither numbers nor an image file"])])
+def test_an_albedo_that_is_no_texture_file_says_what_it_is(capsys, tmp_path, kind, words):
+    """``-D k_s=PATH`` naming a directory or a file of another type.  Before: "expected numbers"."""
+    path = tmp_path / {"dir": "tex", "txt": "tex.txt", "missing": "tex.txt"}[kind]
+    if kind == "dir":
+        path.mkdir()
+    elif kind == "txt":
+        path.write_text("0.5\n")
+    out = tmp_path / "out" / "t.exr"
+    rc, _, err = run(capsys, "render", str(out), "-D", f"k_s={path}", "--res", "16", "--spp", "2", "-q")
+    one_line_error(rc, err, "render", f"k_s={path}", *words, ".exr, .png")
+    assert _listing(tmp_path / "out") == []
+
+
 def test_rgb_texture_in_a_spectral_variant_is_one_line(capsys, tmp_path):
     """A spectral variant takes an albedo texture's values raw, so an RGB texture is no albedo there (Mitsuba
     failed mid-render); the monochrome variant renders it (its luminance)."""

@@ -138,7 +138,7 @@ def summarise(runs):
             # the Fisher intervals alone (before the profile-likelihood check replaced some ends)
             cov_f = [r.get("ci95_fisher", r["ci95"])[k][0] <= tv <= r.get("ci95_fisher", r["ci95"])[k][1]
                      for r in ok if k in r.get("ci95", {})]
-            profiled = sum(1 for r in ok if r.get("interval_kind", {}).get(k, "fisher") != "fisher")
+            profiled = sum(1 for r in ok if "profile" in r.get("interval_kind", {}).get(k, ""))
             n = len(e)
             lo, hi = wilson(int(np.sum(cov)), len(cov))
             rows.append({"material": mat, "size": size, "loss": loss, "param": k, "n": n,

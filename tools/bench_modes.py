@@ -192,7 +192,7 @@ def summarise(data):
                    for c, r in zip(ci, use)]
             fis = [r["ci95_fisher"][k] for r in use if k in (r.get("ci95_fisher") or {})]
             cov_f = [_covers(c, tv) for c in fis]
-            profiled = sum(1 for r in use if (r.get("interval_kind") or {}).get(k, "fisher") != "fisher")
+            profiled = sum(1 for r in use if "profile" in (r.get("interval_kind") or {}).get(k, ""))
             n = len(e)
             spread = float(e.std(ddof=1)) if n > 1 else np.nan
             rep = float(se.mean()) if n else np.nan

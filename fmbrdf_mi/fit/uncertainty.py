@@ -299,6 +299,21 @@ def block_meat(J, r, row_pix, Hi, grid=None):
     return (V * np.clip(w, 0.0, None)) @ V.T
 
 
+#: ``interval_kind`` of an interval end: value -+ 1.96 SE beyond the parameter's bound, cut there; the data do
+#: not rule out the bound, so the interval is open there rather than narrow.
+FISHER_AT_BOUND = "fisher, open at the bound"
+
+
+def kind_of(ends):
+    """One ``interval_kind`` from its two ends' kinds: the kind, or ``lower ..., upper ...``."""
+    return ends[0] if ends[0] == ends[1] else f"lower {ends[0]}, upper {ends[1]}"
+
+
+def profiled(kinds):
+    """The names of ``kinds`` (``interval_kind``) with an end from the profile likelihood."""
+    return [n for n, k in kinds.items() if "profile" in k]
+
+
 def summarise(problem, st, J, r, n_independent=None, parts=None):
     """The uncertainty block of fit.json: :func:`summary` of :func:`covariance`."""
     return summary(problem, st, covariance(problem, st, J, r, n_independent, parts))
@@ -318,15 +333,17 @@ def summary(problem, st, c):
     out["at_bound"] = at_bound(problem, st, se)
     out["bound_distance_se"] = {n: (float(d / se[n]) if se.get(n, 0.0) > 0 else math.inf)
                                 for n, (d, _) in bound_distance(problem, st).items()}
+    kinds = {}
     for i, n in enumerate(names):
         lo, hi = rep[n] - Z95 * sd[i], rep[n] + Z95 * sd[i]
-        if n in problem.names:
-            _, _, blo, bhi = problem.bounds.lims[n]
-            lo, hi = max(lo, blo), min(hi, bhi)
-        elif n in albedos:
-            lo = max(lo, 0.0)
+        blo, bhi = problem.bounds.lims[n][2:] if n in problem.names else (0.0 if n in albedos else -math.inf, math.inf)
+        cut = [lo <= blo, hi >= bhi]
+        if any(cut):
+            kinds[n] = kind_of([FISHER_AT_BOUND if c else "fisher" for c in cut])
         out["std_errors"][n] = float(sd[i])
-        out["ci95"][n] = [float(lo), float(hi)]
+        out["ci95"][n] = [float(max(lo, blo)), float(min(hi, bhi))]
+    if kinds:
+        out["interval_kind"] = kinds
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         corr = cov / np.outer(sd, sd)
     # a degenerate covariance (a noise-free fit) gives inf/nan; a correlation is in [-1, 1]
@@ -496,24 +513,25 @@ def profile_intervals(problem, st, unc, J, r, every=False):
             rise = path(n, end) - chi2_min
             ok = rise <= delta * (1 + PROFILE_TOL) if at_bound else abs(rise / delta - 1) <= PROFILE_TOL
             tried["fisher_end_rise" if i else "fisher_start_rise"] = float(rise)
+            fisher_kind = FISHER_AT_BOUND if at_bound else "fisher"
             if ok and not every:
-                kind.append("fisher")
+                kind.append(fisher_kind)
                 continue
             prof, k, pts = profile_end(problem, st, n, side, end, delta, chi2_min, path)
             tried["lower" if side < 0 else "upper"] = pts
             if fse is not None and side * (prof - end) < 0:
-                k = "fisher"
+                k = fisher_kind
             else:
                 ends[i] = prof
             kind.append(k)
-        kinds[n] = kind[0] if kind[0] == kind[1] else f"lower {kind[0]}, upper {kind[1]}"
+        kinds[n] = kind_of(kind)
         details[n] = tried
         unc["ci95"][n] = [float(min(ends[0], v)), float(max(ends[1], v))]
-    unc["interval_kind"] = kinds
+    unc["interval_kind"] = {**{n: k for n, k in unc.get("interval_kind", {}).items() if n not in kinds}, **kinds}
     unc["profile"] = {"threshold": Z95 ** 2 * scale, "rises": details, "fisher_ci95": fisher}
     if thresholds:
         unc["profile"]["thresholds"] = thresholds
-    return [("profile", "")] if any(k != "fisher" for k in kinds.values()) else []
+    return [("profile", "")] if profiled(kinds) else []
 
 
 def noise_flagged(unc):

@@ -123,6 +123,17 @@ def test_a_polarisation_image_of_non_numeric_samples_is_refused(tmp_path, capsys
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("shape", [(16, 16), (4, 16, 16)])
+def test_a_polarisation_image_without_a_finite_sample_is_named(tmp_path, capsys, shape):
+    """An all-NaN raw mosaic (or angle images): the file named.  Before: "stokes: non-finite values inside the
+    mask", naming neither the file nor what is wrong with it."""
+    np.save(tmp_path / "raw.npy", np.full(shape, np.nan))
+    rc, err = _fit_cli(capsys, str(tmp_path / "raw.npy"), "--sphere", "8,8,6", "--light", "0,0,1", "-o",
+                       str(tmp_path / "out"), "--max-iter", "1")
+    one_line_error(rc, err, "fit", "raw.npy", "no finite sample")
+    assert not (tmp_path / "out").exists()
+
+
 def test_four_angle_files_of_booleans_are_refused(tmp_path):
     paths = []
     for k in range(4):

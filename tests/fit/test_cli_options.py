@@ -27,6 +27,9 @@ from fmbrdf_mi import cli
     (["--init", "eta=1.5,alpha=0.3"], ["--init", "missing", "beta", "kappa", "k_s", "r_k"]),
     (["--init", "eta=1.5,alpha=0.3,beta=2,kappa=10,k_s=1,r_k=1,foo=2"], ["--init", "'foo'"]),
     (["--init", "eta=9,alpha=0.3,beta=2,kappa=10,k_s=1,r_k=1"], ["--init eta", "bounds"]),
+    (["--albedo", "per-pixel", "--init", "eta=1.5,alpha=0.3,beta=2,kappa=10,k_s=1,r_k=1"],
+     ["--init k_s, r_k", "--albedo per-pixel", "solves the albedos per pixel", "give eta, alpha, beta, kappa"]),
+    (["--albedo", "per-pixel-bilinear", "--init", "eta=1.5,alpha=0.3"], ["--init", "missing beta, kappa"]),
     (["--bounds", "alpha=0.5:0.1"], ["--bounds", "alpha"]),
     (["--bounds", "gamma=0.1:0.5"], ["--bounds", "gamma"]),
 ])
@@ -139,6 +142,7 @@ def test_fit_footprint_with_the_paper_loss_still_runs(capsys, tmp_path, captures
     (["--albedo", "per-pixel"], ["--albedo per-pixel", "no camera noise model", "--conversion-gain"]),
     (["--albedo", "per-pixel-bilinear"], ["--albedo per-pixel-bilinear", "no camera noise model"]),
     (["--intervals", "profile"], ["--intervals profile", "no camera noise model"]),
+    (["--area-points", "4"], ["--area-points 4", "no camera noise model"]),
 ])
 def test_fit_likelihood_options_on_an_input_without_noise_model_refused(capsys, tmp_path, captures, argv, words):
     """A Stokes EXR has no camera noise model: the loss resolves to the paper's.  Before: the option was dropped,
@@ -166,3 +170,17 @@ def test_fit_channel_of_a_one_channel_input_refused(capsys, tmp_path, captures):
                      "-q", "--max-iter", "1")
     one_line_error(rc, err, "fit", "--channel R", "m_raw.png", "one channel")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_per_pixel_fit_starts_from_the_shape_parameters_alone(capsys, tmp_path, captures):
+    """Per-pixel albedos are solved per pixel at the start's shape: ``--init`` takes eta, alpha, beta, kappa.
+    Before: it demanded k_s and r_k too (refused without them), which the fit then did not use."""
+    import json
+
+    rc, _, err = run(capsys, "fit", str(captures / "m_raw.png"), "--albedo", "per-pixel", "--init",
+                     "eta=1.5,alpha=0.3,beta=2,kappa=10", "--starts", "1", "--max-iter", "1", "--intervals", "fisher",
+                     "--max-pixels", "40", "-o", str(tmp_path / "out"), "-q")
+    assert rc in (0, 3) and "error:" not in err, err
+    rec = json.load(open(tmp_path / "out" / "fit.json"))
+    start = rec["models"]["fmbrdf"]["starts"][0]["start"]
+    assert start == {"eta": 1.5, "alpha": 0.3, "beta": 2.0, "kappa": 10.0}, start

@@ -38,7 +38,8 @@ def check_intervals(res, every=False, progress=None):
         return settle(res)
     sol = fx.solution
     fx.applied += U.profile_intervals(fx.problem, sol.state, res.uncertainty, sol.J, sol.r, every=every)
-    prof = {n: k for n, k in res.uncertainty.get("interval_kind", {}).items() if k != "fisher"}
+    kinds = res.uncertainty.get("interval_kind", {})
+    prof = {n: kinds[n] for n in U.profiled(kinds)}
     if prof:
         say("[fit] profile-likelihood 95 % intervals (the Fisher ones fail there): "
             + ", ".join(f"{n} ({k})" for n, k in prof.items()))

@@ -12,6 +12,7 @@ from fmbrdf_mi.fit.api.assemble import Fitted, assemble
 from fmbrdf_mi.fit.api.checks import check_footprint, check_intervals, find_other_optima
 from fmbrdf_mi.fit.api.options import FitOptions, check_fit_options, check_resolved_loss
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.models import State, get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import RenderEvaluator
@@ -78,7 +79,10 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     problem = data.problem(get_model(opts.model), opts.bounds, report, opts.fixed, deadline)
     report_start(problem, data, opts, report)
     history = []
-    init = None if not opts.init else problem.state(*problem.params.split(opts.init))
+    init = None
+    if opts.init:   # per-pixel albedos take no start: solved at the start's shape (solve projects)
+        start = dict.fromkeys(problem.params.albedo_pair, 1.0) if opts.albedo in PER_PIXEL_LAYOUTS else {}
+        init = problem.state(*problem.params.split({**start, **opts.init}))
     sol = solve(problem, init=init, starts=opts.starts, rounds=max(1, opts.rounds) + 2 * (data.loss == "likelihood"),
                 optimizer=opts.optimizer, max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit,
                 lr=opts.lr, max_time=opts.max_time, history=history, report=report)

@@ -70,7 +70,8 @@ OPTIONS = (
            help="narrow a parameter's bounds (repeatable): {name: (lo, hi)}"),
     Option("init", None, fit=True, records=_SJ, flag="--init", group=_FIT, parse=parse_init,
            cli={"metavar": "NAME=V,..."},
-           help="start from these parameters instead of the coarse search (all the reported ones)"),
+           help="start from these parameters instead of the coarse search (all the reported ones; with "
+                "per-pixel albedos the shape parameters)"),
     Option("max_iter", 40, kind="int", lo=1, fit=True, records=_ALL, flag="--max-iter", group=_FIT,
            cli={"type": int}, help="iterations per refinement round"),
     Option("tol", 1e-4, kind="number", lo=0.0, fit=True, records=_SJ, flag="--tol", group=_FIT, cli={"type": float},
@@ -317,11 +318,12 @@ def check_relations(v, flag=str):
         except ValueError as e:
             raise InputError(f"{flag('bounds')}: {e}") from None
     if v["init"] is not None:
-        check_init(v["init"], m, flag)
+        check_init(v["init"], m, flag, albedo)
 
 
-def check_init(init, m, flag):
-    """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds (albedos >= 0)."""
+def check_init(init, m, flag, albedo="shared"):
+    """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds (albedos >= 0);
+    with per-pixel albedos (solved per pixel at the start) the shape parameters only."""
     if not isinstance(init, dict):
         raise InputError(f"{flag('init')}: expected {{name: value}}, got {init!r}")
     table = Parameters(m)
@@ -330,6 +332,12 @@ def check_init(init, m, flag):
     if unknown:
         raise InputError(f"{flag('init')}: unknown parameter '{unknown[0]}' of {m.name}; give all of "
                          f"{', '.join(names)}")
+    if albedo in PER_PIXEL_LAYOUTS:
+        names = [k for k in names if table.row[k].kind != "albedo"]
+        given = [k for k in init if k not in names]
+        if given:
+            raise InputError(f"{flag('init')} {', '.join(given)}: {flag('albedo')} {albedo} solves the albedos per "
+                             f"pixel, so they take no start; give {', '.join(names)}")
     missing = [k for k in names if k not in init]
     if missing:
         raise InputError(f"{flag('init')}: missing {', '.join(missing)} (give all of {', '.join(names)})")
@@ -379,6 +387,8 @@ def check_resolved_loss(values, loss, source, flag=str):
         bad = f"{flag('intervals')} profile"
     elif values.get("materials") is not None:
         bad = f"{flag('materials')} {values['materials']}"
+    elif values.get("area_points") is not None:
+        bad = f"{flag('area_points')} {values['area_points']}"
     else:
         return
     raise InputError(f"{bad}: needs the likelihood of the camera's samples, and the loss here is {loss} ({source}): "

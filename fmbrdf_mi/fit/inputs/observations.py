@@ -262,6 +262,8 @@ def check_samples(a, name):
     if a.dtype.kind not in "uif":
         raise InputError(f"{name}: samples of dtype {a.dtype}; a polarisation image holds integers or real numbers "
                          "(uint8, uint16, int32, float32, float64, ...)")
+    if a.size and not np.isfinite(a).any():
+        raise InputError(f"{name}: no finite sample (every value is NaN or infinite)")
     return a
 
 
