@@ -102,21 +102,22 @@ OPTIONS = (
                 "super-pixel; per-pixel-bilinear: the pairs at the super-pixel centres, each raw sample's albedo "
                 "interpolated bilinearly at its own point (textures that change within a super-pixel, as a camera "
                 "sees them)"),
-    Option("albedo_smooth", None, kind="number", lo=SMOOTH_MIN, many=2, fit=True, records=_SJ, flag="--albedo-smooth",
-           group=_FIT, parse=parse_smooth, cli={"metavar": "TAU[,TAU_B]"},
+    Option("albedo_smooth", None, kind="number", lo=SMOOTH_MIN, many=2, fit=True, records=_SJ, if_given=("joint",),
+           flag="--albedo-smooth", group=_FIT, parse=parse_smooth, cli={"metavar": "TAU[,TAU_B]"},
            help="with --albedo per-pixel or per-pixel-bilinear: a Gaussian smoothness prior on the maps, TAU the "
                 "expected difference of 4-neighbouring pixels' k_s (and k_b; TAU_B for k_b apart) in the maps' "
                 f"units, at least {SMOOTH_MIN:g}; added to chi^2, the maps and the shape's "
                 "errors are then posterior ones (docs: how-to 'Fit a textured object'); default: no prior"),
-    Option("materials", None, records=_SJ, flag="--materials", group=_FIT, cli={"metavar": "LABELS.png|npy|auto:M"},
+    Option("materials", None, records=_SJ, if_given=("joint",), flag="--materials", group=_FIT,
+           cli={"metavar": "LABELS.png|npy|auto:M"},
            help="likelihood fits: a label image giving each pixel's material, each with its own eta, alpha, beta, "
                 "kappa (and, with --albedo shared, k_s, r_k): one integer per pixel of the fit's grid (a raw "
                 "mosaic's super-pixels, or its sensor pixels), 0 .. M-1; not fitted: 255 in an 8-bit PNG, 65535 in "
                 "a 16-bit one, < 0 in a .npy; or auto:M: find M materials from the image (per-pixel albedos "
                 "clustered, refined on the model; refused when they do not separate; writes labels.png; "
                 "single-image fits) (docs: how-to 'Fit a textured object')"),
-    Option("area_points", None, kind="int", lo=1, hi=16, fit=True, records=_SJ, flag="--area-points", group=_FIT,
-           cli={"type": int, "metavar": "M"},
+    Option("area_points", None, kind="int", lo=1, hi=16, fit=True, records=_SJ, if_given=("joint",),
+           flag="--area-points", group=_FIT, cli={"type": int, "metavar": "M"},
            help="likelihood: model each raw sample as the mean of the BSDF over M x M points of its pixel, as a "
                 "sensor pixel integrates over its area (default: 2 for raw mosaics, raised to 4 or 8 where 2 would "
                 "bias a shape parameter by more than 0.2 standard errors, e.g. a glossy highlight a few pixels "

@@ -116,9 +116,6 @@ def run_joint(args, command):
             s.options.update({k: absolute_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
     fit_kw = request("joint", args, fixed=parse_fixed(args.fixed), bounds=parse_bounds(args.bounds),
                      init=parse_init(args.init))
-    for k in ("materials", "area_points", "albedo_smooth"):   # recorded only when given
-        if fit_kw[k] is None:
-            del fit_kw[k]
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
     if args.refine_normals:
         obs = build_observations(specs)
