@@ -13,7 +13,7 @@ from fmbrdf_mi.sensor import mosaic
 from fmbrdf_mi.sensor import samples as SM
 from fmbrdf_mi.sensor.noise import NoiseModel, box_footprint, demosaic_footprint, linear_stokes_variance
 from fmbrdf_mi.fit.inputs.observations import (Observation, check_camera, check_direction, downsample_geometry,
-                                               find_sphere, geometry_from_sphere, load_polarisation, read_mask,
+                                               find_sphere, load_polarisation, read_mask,
                                                read_vectors)
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTION
 from fmbrdf_mi.fit.inputs.parse import check_number, check_render_parameters, parse_layout, parse_sphere
@@ -118,7 +118,11 @@ def user_geometry(shape, cell=2, *, normals=None, mask=None, view=None, sphere=N
         raise InputError("--sphere auto: needs --mask to find the sphere in")
     mk = None if mask is None else user_mask(mask, shape, cell=cell)
     centre, radius = find_sphere(mk) if sphere == "auto" else (sphere[:2], sphere[2])
-    n, m, v = geometry_from_sphere(shape, centre, radius, mk, camera, fov)
+    n, m, v = G.sphere_normals(shape, centre, radius, *check_camera(camera, fov))
+    if not m.any():
+        raise InputError(f"sphere: centre {tuple(centre)} and radius {radius} cover no pixel of a "
+                         f"{shape[1]}x{shape[0]} image")
+    m = m if mk is None else m & mk
     record = {"centre": [float(c) for c in centre], "radius": float(radius), "found_from_mask": sphere == "auto"}
     if view is not None:
         return n, m, read_vectors(view, "view", shape), None, record

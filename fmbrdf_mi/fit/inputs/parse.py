@@ -9,19 +9,15 @@ from fmbrdf_mi.sensor.mosaic import check_layout
 
 
 def parse_vector(text, name, n=3):
+    """``"x,y,z"`` or ``n`` numbers -> a list of ``n`` floats (None passes), else InputError naming ``name``."""
     if text is None:
         return None
-    if isinstance(text, str):
-        try:
-            vals = [float(x) for x in text.replace(" ", "").split(",") if x]
-        except ValueError:
-            raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}") from None
-    else:
-        try:
-            vals = [float(x) for x in text]
-        except (TypeError, ValueError):  # nested lists, None, words: not n numbers
-            raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}") from None
-    if len(vals) != n:
+    try:
+        vals = [float(x) for x in ([x for x in text.replace(" ", "").split(",") if x] if isinstance(text, str)
+                                   else text)]
+    except (TypeError, ValueError):   # words, nested lists, a number alone: not n numbers
+        vals = None
+    if vals is None or len(vals) != n:
         raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}")
     return vals
 

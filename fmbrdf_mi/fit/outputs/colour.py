@@ -22,7 +22,7 @@ from fmbrdf_mi.fit.outputs import record
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
 from fmbrdf_mi.fit.outputs.single import write_maps
-from fmbrdf_mi.fit.outputs.writer import joint_outputs, prepare_outputs
+from fmbrdf_mi.fit.outputs.writer import image_entries, joint_outputs, prepare_outputs
 from fmbrdf_mi.sensor.mosaic import COLOURS
 
 #: The keywords of :func:`~fmbrdf_mi.fit.api.colour.fit_colour` the command sets.
@@ -162,10 +162,8 @@ class ColourFit(FitJob):
                     "models": {self.model: entry}}
         fitted = [n for n, h in zip(self.names, self.holdout) if not h]
         entry["chi2_per_sample"] = dict(zip(fitted, res["chi2_per_sample"]))
-        report = {"sensor": "colour", "truth": truth,
-                  "images": [{"name": n, "input": s.input if isinstance(s.input, (str, list)) else None,
-                              "light_dir": c.obs.light_dir.tolist(), "irradiance": c.obs.irradiance,
-                              "power": s.power, "holdout": s.holdout} for n, s, c in zip(self.names, self.specs, inputs)],
+        report = {"sensor": "colour", "truth": truth, "images": image_entries(self.names, self.specs,
+                                                                              [c.obs for c in inputs]),
                   "models": {self.model: entry}, "relight": {}}
         if self.reproduce is not None:
             report["reproduce"] = self.reproduce([c.obs for c in inputs])
