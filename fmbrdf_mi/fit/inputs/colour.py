@@ -90,12 +90,7 @@ def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, 
     n, m, v, exact, sph = colour_geometry(shape, side, normals=normals, mask=mask, view=view, sphere=sphere,
                                           camera=camera, fov=fov)
     params = side.get("parameters") if side.get("scene") == "builtin:sphere" else {}
-    if light is None:
-        light = params.get("light_dir") if params else None
-    if light is None:
-        raise InputError("light: give the light direction (--light x,y,z, from the surface towards the light; "
-                         "x image right, y image up, z towards the camera)")
-    light = ob.check_direction(light, "light")
+    light = ob.check_direction(params.get("light_dir") if light is None and params else light, "light")
     if irradiance is None and params:
         # the raw DN are the render's units times the capture's DN per unit
         irradiance = params["irradiance"] * float(side.get("capture", {}).get("dn_per_input_unit", 1.0))

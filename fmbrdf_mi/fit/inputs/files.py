@@ -216,9 +216,6 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                                             camera=camera, fov=fov)
         if sph is not None:
             meta["sphere"] = sph
-    if light is None:
-        raise InputError("light: give the light direction (--light x,y,z, from the surface towards the light; "
-                         "x image right, y image up, z towards the camera)")
     light = check_direction(light, "light")
     var = None
     if conversion_gain is not None:

@@ -153,6 +153,9 @@ def validate(obs):
 
 def check_direction(v, name):
     """A finite, non-zero 3-vector, normalised (directions typed by hand need not be unit)."""
+    if v is None:
+        raise InputError(f"{name}: give the light direction (--light x,y,z, from the surface towards the light; "
+                         "x image right, y image up, z towards the camera)")
     shown = v.tolist() if isinstance(v, np.ndarray) else v
     if isinstance(v, (str, bytes)):
         raise InputError(f"{name}: expected three numbers x, y, z (x right, y up, z towards the camera), "

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from fmbrdf_mi import stokes_io
+from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg
 from fmbrdf_mi.fit.objectives.loss import Target
 from fmbrdf_mi.sensor import mosaic
 from fmbrdf_mi.sensor import rice
@@ -314,11 +315,6 @@ def rgb(n, mask):
     return out
 
 
-def angle_deg(a, b):
-    c = np.sum(a * b, -1) / np.maximum(np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1), 1e-300)
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
-
-
 def plot_normal_map(n, mask, path, title=""):
     fig, ax = pyplot().subplots(figsize=(5, 5))
     panel(fig, ax, rgb(n, mask)[crop_to(mask, 2)], title + "\n(x right: red, y up: green, z to the camera: blue)", 9,
@@ -340,10 +336,10 @@ def plot_change(n0, n1, mask, path, gt=None):
 
     for ax, n, t in ((axes[0, 0], n0, "start"), (axes[0, 1], n1, "refined")):
         panel(fig, ax, rgb(n, mask)[crop], t, 9, colorbar=False, interpolation="nearest")
-    ch = angle_deg(n0, n1)
+    ch = angular_error_deg(n0, n1)
     angles(axes[0, 2], ch, f"angle start -> refined\nmean {ch[mask].mean():.2f} deg")
     if gt is not None:
-        e0, e1 = angle_deg(n0, gt), angle_deg(n1, gt)
+        e0, e1 = angular_error_deg(n0, gt), angular_error_deg(n1, gt)
         vmax = angles(axes[1, 0], e0, f"start vs ground truth\nmean {e0[mask].mean():.2f}, median "
                                       f"{np.median(e0[mask]):.2f} deg")
         angles(axes[1, 1], e1, f"refined vs ground truth (same scale)\nmean {e1[mask].mean():.2f}, "
