@@ -33,6 +33,7 @@ _RELIGHT = "relighting check"
 _OUTPUT = "output"
 _ALL = RECORDS
 _SJ = ("single", "joint")
+_REFINE = ("refine",)
 
 #: The command line's help sections, in order.
 GROUPS = (_IMAGE, _GEOMETRY, _FIT, _JOINT, _NORMALS, _RELIGHT, _OUTPUT)
@@ -45,7 +46,7 @@ OPTIONS = (
                 "four angle images in the order 0 45 90 135 deg"),
     *IMAGE_OPTIONS,
     Option("loss", "auto", kind="choice", choices=("auto", "likelihood", "paper", "intensity", "dolp"), fit=True,
-           records=_SJ, flag="--loss", group=_IMAGE,
+           records=_SJ, refused_by=_REFINE, flag="--loss", group=_IMAGE,
            help="likelihood of the camera's samples (Poisson-Gaussian noise), or the paper's loss (intensity MSE + "
                 "weighted DoLP MSE); auto: likelihood when the camera noise is known (--conversion-gain / a "
                 "capture sidecar), else paper.  The paper's comparison: intensity (its intensity term alone: "
@@ -57,7 +58,8 @@ OPTIONS = (
                 "images of the object (one raw mosaic or Stokes EXR each)"),
     Option("model", "fmbrdf", kind="choice", choices=tuple(MODELS), fit=True, records=_ALL, flag="--model",
            group=_FIT, help="the model fitted"),
-    Option("baselines", False, kind="bool", records=_SJ, flag="--baselines", group=_FIT, cli={"action": "store_true"},
+    Option("baselines", False, kind="bool", records=_SJ, refused_by=_REFINE, flag="--baselines", group=_FIT,
+           cli={"action": "store_true"},
            help="also fit pplastic, Lambertian + Torrance-Sparrow and Oren-Nayar + Torrance-Sparrow the same way"),
     Option("optimizer", "lm", kind="choice", choices=("lm", "adam"), fit=True, records=("single",),
            flag="--optimizer", group=_FIT,
@@ -94,8 +96,8 @@ OPTIONS = (
                 "and gives the profile likelihood's ends where it fails (refits: slower on weakly identified "
                 "parameters); profile: the profile likelihood's ends for every shape parameter (two or more refits "
                 "per end); fisher: Fisher intervals only (default %(default)s)"),
-    Option("albedo", "shared", kind="choice", choices=ALBEDO_LAYOUTS, fit=True, records=_ALL, flag="--albedo",
-           group=_FIT,
+    Option("albedo", "shared", kind="choice", choices=ALBEDO_LAYOUTS, fit=True, records=_ALL, refused_by=_REFINE,
+           flag="--albedo", group=_FIT,
            help="likelihood fits: one k_s, r_k for the whole object (default), or per-pixel k_s and k_b maps (a "
                 "textured object: written as k_s.exr, k_b.exr with their standard errors, the shape parameters "
                 "shared; --max-pixels 0 maps every pixel); per-pixel: one pair for the four raw samples of a "
@@ -103,12 +105,12 @@ OPTIONS = (
                 "interpolated bilinearly at its own point (textures that change within a super-pixel, as a camera "
                 "sees them)"),
     Option("albedo_smooth", None, kind="number", lo=SMOOTH_MIN, many=2, fit=True, records=_SJ, if_given=("joint",),
-           flag="--albedo-smooth", group=_FIT, parse=parse_smooth, cli={"metavar": "TAU[,TAU_B]"},
+           refused_by=_REFINE, flag="--albedo-smooth", group=_FIT, parse=parse_smooth, cli={"metavar": "TAU[,TAU_B]"},
            help="with --albedo per-pixel or per-pixel-bilinear: a Gaussian smoothness prior on the maps, TAU the "
                 "expected difference of 4-neighbouring pixels' k_s (and k_b; TAU_B for k_b apart) in the maps' "
                 f"units, at least {SMOOTH_MIN:g}; added to chi^2, the maps and the shape's "
                 "errors are then posterior ones (docs: how-to 'Fit a textured object'); default: no prior"),
-    Option("materials", None, records=_SJ, if_given=("joint",), flag="--materials", group=_FIT,
+    Option("materials", None, records=_SJ, if_given=("joint",), refused_by=_REFINE, flag="--materials", group=_FIT,
            cli={"metavar": "LABELS.png|npy|auto:M"},
            help="likelihood fits: a label image giving each pixel's material, each with its own eta, alpha, beta, "
                 "kappa (and, with --albedo shared, k_s, r_k): one integer per pixel of the fit's grid (a raw "
@@ -145,7 +147,8 @@ OPTIONS = (
                 "normal/normal_GT.npy, ...: fmbrdf_mi.fit.inputs.authors)"),
     Option("holdout", None, flag="--holdout", group=_JOINT, cli={"metavar": "I,J,..."},
            help="with --authors: image indices not fitted but predicted (relighting check)"),
-    Option("free_power", False, kind="bool", fit=True, records=("joint",), flag="--free-power", group=_JOINT,
+    Option("free_power", False, kind="bool", fit=True, records=("joint",), refused_by=_REFINE, flag="--free-power",
+           group=_JOINT,
            cli={"action": "store_true"},
            help="estimate the relative light power of every fitted image but the first (the reference, held at its "
                 "given power; the given powers are then starting values): fmbrdf_mi.fit.problem.free_power"),

@@ -110,7 +110,8 @@ def named(args, option):
 
 
 #: The one table of which options a mode refuses: mode -> (options, the message's head, why).  A colour mosaic
-#: refuses every option of a single-image fit that its own record does not keep.
+#: refuses every option of a single-image fit that its own record does not keep, the normal refinement those the
+#: schema says it refuses (``refused_by``).
 REFUSED = {
     "colour": (tuple(flag(n) for n in record_keys("single") if n not in record_keys("colour")),
                "colour polarisation mosaic",
@@ -118,8 +119,7 @@ REFUSED = {
                "several materials and the albedo smoothness prior are for mono captures so far"),
     "manifest": (("--light",), "--manifest", "the manifest gives each image's light"),
     "authors": (("--light",), "--authors", "the lights are the object's calibration/L.txt"),
-    "refine": (("--baselines", "--free-power", "--loss", "--albedo", "--materials", "--albedo-smooth"),
-               "--refine-normals",
+    "refine": (tuple(flag(n) for n, o in OPTION.items() if "refine" in o.refused_by), "--refine-normals",
                "the refinement is the likelihood of the camera samples, one model, the given light powers, "
                "one pair of albedos, one material"),
 }

@@ -86,10 +86,10 @@ def fit_colour_images(specs, out, *, force=False, progress=True, command=None, e
     None: every period); those of them the colour record does not keep are refused unless at their default,
     :data:`IGNORED` ignored, and :data:`TAKES` limits the values of some."""
     a = arguments_of("joint", {"max_pixels": None, **options}, "fit_colour_images()")
-    refused = [f"{k} {a[k]!r} ({flag(k)}; expected {' or '.join(map(repr, TAKES[k]))})" if k in TAKES
-               else f"{k} ({flag(k)})" for k in record_keys("joint")
-               if (a[k] not in TAKES[k] if k in TAKES else
-                   k not in record_keys("colour") + IGNORED and a[k] != OPTION[k].default)]
+    limited = [k for k in TAKES if a[k] not in TAKES[k]]
+    refused = [f"{k} {a[k]!r} ({flag(k)}; expected {' or '.join(map(repr, TAKES[k]))})" for k in limited] + [
+        f"{k} ({flag(k)})" for k in record_keys("joint")
+        if k not in record_keys("colour") + IGNORED + tuple(TAKES) and a[k] != OPTION[k].default]
     if refused:
         raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
                          "of the raw samples)")
