@@ -15,7 +15,7 @@ from fmbrdf_mi.fit.evaluate.models import MODELS, get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.inputs.files import check_image_options
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option
-from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_smooth
+from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
 from fmbrdf_mi.fit.uncertainty import INTERVALS
 
 #: The albedo layouts a fit can be asked for (``FitOptions.albedo``, ``--albedo``).
@@ -105,7 +105,7 @@ OPTIONS = (
                 "interpolated bilinearly at its own point (textures that change within a super-pixel, as a camera "
                 "sees them)"),
     Option("albedo_smooth", None, kind="number", lo=SMOOTH_MIN, many=2, fit=True, records=_SJ, if_given=("joint",),
-           refused_by=_REFINE, flag="--albedo-smooth", group=_FIT, parse=parse_smooth, cli={"metavar": "TAU[,TAU_B]"},
+           refused_by=_REFINE, flag="--albedo-smooth", group=_FIT, cli={"metavar": "TAU[,TAU_B]"},
            help="with --albedo per-pixel or per-pixel-bilinear: a Gaussian smoothness prior on the maps, TAU the "
                 "expected difference of 4-neighbouring pixels' k_s (and k_b; TAU_B for k_b apart) in the maps' "
                 f"units, at least {SMOOTH_MIN:g}; added to chi^2, the maps and the shape's "
@@ -257,8 +257,8 @@ def check_values(values, flag=str):
         o = OPTION.get(name)
         if o is None:
             continue
-        if o.parse is not None and v is not None:
-            out[name] = v = o.parse(v, flag(name))
+        if v is not None:
+            out[name] = v = o.split(v, flag(name)) if o.parse is None else o.parse(v, flag(name))
         o.check(v, flag(name))
     return out
 

@@ -25,8 +25,8 @@ def check_args(args):
     """Validate the command line's options."""
     values = vars(args)
     for o in OPTION.values():    # a list written as comma-separated text, recorded as the list
-        if o.many > 1 and isinstance(values.get(o.name), str):
-            values[o.name] = o.parse(values[o.name], flag(o.name))
+        if o.name in values:
+            values[o.name] = o.split(values[o.name], flag(o.name))
     check_input_options(**values, flag=flag)
     check_fit_options(**values, flag=flag)
     if args.from_json:

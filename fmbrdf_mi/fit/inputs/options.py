@@ -61,6 +61,20 @@ class Option:
         right = ")" if self.hi_open or self.hi is None else "]"
         return f"{left}{lo}, {hi}{right}"
 
+    def split(self, text, name=None):
+        """A many-valued option's comma-separated ``text`` -> one number or a tuple of up to ``many`` (its range
+        checked by :meth:`check`); a value that is not text is returned as it is."""
+        if not isinstance(text, str) or self.many < 2:
+            return text
+        try:
+            vals = tuple(float(x) for x in text.replace(" ", "").split(","))
+        except ValueError:
+            vals = ()
+        if not 1 <= len(vals) <= self.many:
+            raise InputError(f"{name or self.name}: expected {self.cli.get('metavar', self.name)} (one to {self.many} "
+                             f"comma-separated numbers), got {text!r}")
+        return vals[0] if len(vals) == 1 else vals
+
     def check(self, value, name=None):
         """``value`` checked against the option's kind and range (None passes), else InputError naming
         ``name`` (default: the option's name) and what is valid; returns the value (a number as int/float)."""

@@ -35,20 +35,6 @@ def parse_sphere(value, name="sphere"):
     return cx, cy, r
 
 
-def parse_smooth(text, name="--albedo-smooth"):
-    """``TAU`` or ``TAU_S,TAU_B`` (the albedo maps' smoothness prior) -> tau or (tau_s, tau_b); the values are
-    range-checked with the other fit options.  A value that is not text is returned as it is."""
-    if not isinstance(text, str):
-        return text
-    try:
-        vals = [float(x) for x in str(text).replace(" ", "").split(",")]
-    except ValueError:
-        raise InputError(f"{name}: expected TAU or TAU_S,TAU_B (numbers > 0), got {text!r}") from None
-    if len(vals) not in (1, 2):
-        raise InputError(f"{name}: expected TAU or TAU_S,TAU_B (numbers > 0), got {text!r}")
-    return vals[0] if len(vals) == 1 else tuple(vals)
-
-
 def check_number(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True):
     """``value`` if it is a finite real number in the range (not text, a list or a bool; None passes),
     else InputError naming ``name``."""
