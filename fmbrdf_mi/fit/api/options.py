@@ -148,8 +148,7 @@ OPTIONS = (
     Option("holdout", None, flag="--holdout", group=_JOINT, cli={"metavar": "I,J,..."},
            help="with --authors: image indices not fitted but predicted (relighting check)"),
     Option("free_power", False, kind="bool", fit=True, records=("joint",), refused_by=_REFINE, flag="--free-power",
-           group=_JOINT,
-           cli={"action": "store_true"},
+           group=_JOINT, cli={"action": "store_true"},
            help="estimate the relative light power of every fitted image but the first (the reference, held at its "
                 "given power; the given powers are then starting values): fmbrdf_mi.fit.problem.free_power"),
     Option("power_start", "ratio", kind="choice", choices=("ratio", "given"), fit=True, records=("joint",),

@@ -10,29 +10,22 @@ from fmbrdf_mi import scene as S
 from fmbrdf_mi.geometry import sphere_normals
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs import observations as ob
-from fmbrdf_mi.fit.inputs.files import builtin_sphere_geometry, user_geometry
+from fmbrdf_mi.fit.inputs.files import builtin_sphere_geometry, capture_sidecar, user_geometry
 from fmbrdf_mi.fit.inputs.observations import downsample_geometry
 from fmbrdf_mi.fit.inputs.manifest import file_stem
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS
 from fmbrdf_mi.fit.inputs.parse import check_render_parameters, parse_vector
-from fmbrdf_mi.sensor import camera as C
 from fmbrdf_mi.sensor.noise import NoiseModel
 from fmbrdf_mi.sensor.samples import colour_samples
 
 
 def colour_sidecar(inputs):
     """The capture sidecar of a single raw input when it describes a colour sensor, else None."""
-
     if isinstance(inputs, (list, tuple)):
         if len(inputs) != 1:
             return None
         inputs = inputs[0]
-    if not isinstance(inputs, (str, os.PathLike)) or os.fspath(inputs).lower().endswith(".exr"):
-        return None
-    try:
-        side = C.read_sidecar(inputs)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+    side = capture_sidecar(inputs)
     return side if side is not None and side["sensor"].cfa is not None else None
 
 

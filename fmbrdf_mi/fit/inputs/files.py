@@ -35,6 +35,17 @@ def check_image_options(values, where=None, name=str):
         raise InputError(f"{label('dark_level')} {dark:g} must be below {name('white_level')} {white:g}")
 
 
+def capture_sidecar(path):
+    """The capture sidecar of the raw image ``path`` (:func:`fmbrdf_mi.sensor.camera.read_sidecar`), or None
+    (none beside it; not one file; a Stokes EXR, whose metadata are its own)."""
+    if not isinstance(path, (str, os.PathLike)) or os.fspath(path).lower().endswith(".exr"):
+        return None
+    try:
+        return C.read_sidecar(path)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+
+
 def _builtin_sphere(meta):
     """Geometry, light, irradiance and true material of an EXR from ``fmbrdf-mi render`` (built-in scene)."""
     if meta.get("scene") != "builtin:sphere" or "parameters" not in meta:
@@ -140,12 +151,7 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     settings not given, and the scene's geometry and light.  ``meta["settings"]`` records what was used.
     """
     check_image_options(locals())     # the keywords, before anything is read
-    sidecar = None
-    if isinstance(inputs, (str, os.PathLike)) and not os.fspath(inputs).lower().endswith(".exr"):
-        try:
-            sidecar = C.read_sidecar(inputs)
-        except ValueError as exc:
-            raise InputError(str(exc)) from None
+    sidecar = capture_sidecar(inputs)
     if sidecar is not None:
         cam = sidecar["sensor"]
         if cam.cfa is not None:
@@ -243,12 +249,12 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     if conversion_gain is not None:
         noise = NoiseModel(float(conversion_gain), float(read_noise),
                            samples.step if samples is not None else 0.0)
+    irradiance = 1.0 if irradiance is None else float(irradiance)
     meta["settings"] = {"layout": [list(r) for r in layout], "black_level": black_level,
                         "demosaic": demosaic if src == "raw mosaic" else None, "footprint": footprint,
                         "white_level": None if samples is None else samples.white_level,
                         "dark_level": None if samples is None else samples.dark_level,
                         "conversion_gain": conversion_gain, "read_noise": read_noise,
-                        "light": [float(x) for x in light],
-                        "irradiance": 1.0 if irradiance is None else float(irradiance)}
-    return Observation(stokes, m, n, v, light, 1.0 if irradiance is None else float(irradiance), meta,
-                       lin_variance=var, footprint=fp(), samples=samples, noise=noise, geometry=exact)
+                        "light": [float(x) for x in light], "irradiance": irradiance}
+    return Observation(stokes, m, n, v, light, irradiance, meta, lin_variance=var, footprint=fp(), samples=samples,
+                       noise=noise, geometry=exact)
