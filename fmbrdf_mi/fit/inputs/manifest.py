@@ -41,29 +41,19 @@ def check_options(opts, where):
     return out
 
 
-def check_input(v, where):
-    """An image's ``input``: a file name or a list of one or four (angle images 0, 45, 90, 135)."""
-    if _is_path(v) or (isinstance(v, list) and len(v) in (1, 4) and all(_is_path(x) for x in v)):
-        return v
-    raise InputError(f"{where}: input: expected a file name or a list of four angle-image file names, got {v!r}")
-
-
-def check_light(v, where):
-    """An image's ``light``: three numbers (a list or \"x,y,z\"), or None (from the input's metadata)."""
-    if v is None:
-        return None
-    if isinstance(v, bool) or not isinstance(v, (str, list, tuple)):
-        raise InputError(f"{where}: light: expected [x, y, z] (towards the light, camera frame), got {v!r}")
-    return check_direction(parse_vector(v, f"{where}: light"), f"{where}: light")
-
-
 def image_spec(input, light=None, power=1.0, holdout=False, name=None, options=None, *, where, at=""):
-    """An :class:`ImageSpec` checked: ``input`` (:func:`check_input`), ``light`` (:func:`check_light`), ``power``
-    (a positive number), ``holdout`` (true or false), ``name`` (text or None) and ``options`` (a table of
+    """An :class:`ImageSpec` checked: ``input`` (a file name or a list of one or four: angle images 0, 45, 90,
+    135), ``light`` (three numbers, a list or ``"x,y,z"``; None: the input's metadata's), ``power`` (a positive
+    number), ``holdout`` (true or false), ``name`` (text or None) and ``options`` (a table of
     :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`: :func:`check_options`); InputError naming ``where``
     (``at``: what follows it for the options)."""
-    check_input(input, where)
-    check_light(light, where)
+    if not (_is_path(input) or (isinstance(input, list) and len(input) in (1, 4) and all(map(_is_path, input)))):
+        raise InputError(f"{where}: input: expected a file name or a list of four angle-image file names, got "
+                         f"{input!r}")
+    if light is not None and (isinstance(light, bool) or not isinstance(light, (str, list, tuple))):
+        raise InputError(f"{where}: light: expected [x, y, z] (towards the light, camera frame), got {light!r}")
+    if light is not None:
+        check_direction(parse_vector(light, f"{where}: light"), f"{where}: light")
     Option("power", kind="number", lo=IRRADIANCE_RANGE[0], hi=IRRADIANCE_RANGE[1]).check(power, f"{where}: power")
     if not isinstance(holdout, bool):
         raise InputError(f"{where}: holdout must be true or false")
