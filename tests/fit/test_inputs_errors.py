@@ -2,6 +2,7 @@
 layout, paths that are not regular files, manifests, masks, the render metadata's fov, and API misuse.  Each is
 one line naming the parameter or file and what is valid (exit status 1 from ``fmbrdf-mi fit``).
 """
+import dataclasses
 import os
 
 import numpy as np
@@ -233,7 +234,7 @@ def _photometric_stereo(obs, mask):
 
 @pytest.mark.parametrize("call,words", [
     (lambda f, o, a: f.Observation(a[0], np.full((16, 16), np.nan), *a[2:], [0, 0, 1]), ["mask", "NaN"]),
-    (lambda f, o, a: o.with_light(a[0], "up"), ["light_dir", "three numbers", "'up'"]),
+    (lambda f, o, a: dataclasses.replace(o, light_dir="up"), ["light_dir", "three numbers", "'up'"]),
     (lambda f, o, a: f.fit("image.png", progress=False), ["fit()", "Observation", "'image.png'", "fit_files"]),
     (lambda f, o, a: f.fit_joint([o, "x"], progress=False), ["fit_joint()", "item 1", "Observation", "'x'"]),
     (lambda f, o, a: f.fit_joint("x", progress=False), ["fit_joint()", "Observation", "'x'"]),

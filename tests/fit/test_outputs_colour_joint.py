@@ -140,7 +140,7 @@ def test_colour_joint_fit_takes_the_albedo_layouts(tmp_path):
         fit_colour_images([], str(tmp_path / "out"), albedo="per-channel")
     with pytest.raises(InputError, match=r"free_power \(--free-power\)"):
         fit_colour_images([], str(tmp_path / "out"), albedo="per-pixel", free_power=True)
-    with pytest.raises(InputError, match=r"materials not supported"):   # the joint record's, not the colour fit's
+    with pytest.raises(InputError, match=r"materials \(--materials\) not supported"):   # the joint record's, not the colour fit's
         fit_colour_images([], str(tmp_path / "out"), materials="labels.png")
     with pytest.raises(InputError, match=r"fit_colour_images\(\): unknown option\(s\) bogus"):
         fit_colour_images([], str(tmp_path / "out"), bogus=1)

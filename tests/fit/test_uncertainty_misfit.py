@@ -255,5 +255,5 @@ def test_the_summary_prints_the_overstated_noise_warning(capsys):
     model = {"chi2_per_dof": info["chi2_per_dof"], "n_samples": 4000, "n_pixels": 1000, "converged": True,
              "stop_reason": "tol", "noise": {"description": "known"}, "std_errors": {}, "ci95": {},
              "params": {"alpha": 0.1}, "uncertainty": info}
-    summary.print_colour({"models": {"fmbrdf": model}, "outputs": ["fit.json"], "wall_s": 1.0})
+    summary.print_summary({"sensor": "colour", "models": {"fmbrdf": model}, "outputs": ["fit.json"], "wall_s": 1.0})
     assert "warning: " + U.misfit_text(info) in capsys.readouterr().out

@@ -15,7 +15,7 @@ from fmbrdf_mi.fit.evaluate.models import MODELS, get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.inputs.files import check_image_options
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option
-from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, parse_smooth
+from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
 from fmbrdf_mi.fit.objectives.loss_variants import VARIANTS
 from fmbrdf_mi.fit.uncertainty import INTERVALS
 
@@ -34,6 +34,7 @@ _RELIGHT = "relighting check"
 _OUTPUT = "output"
 _ALL = RECORDS
 _SJ = ("single", "joint")
+_REFINE = ("refine",)
 
 #: The command line's help sections, in order.
 GROUPS = (_IMAGE, _GEOMETRY, _FIT, _JOINT, _NORMALS, _RELIGHT, _OUTPUT)
@@ -46,7 +47,7 @@ OPTIONS = (
                 "four angle images in the order 0 45 90 135 deg"),
     *IMAGE_OPTIONS,
     Option("loss", "auto", kind="choice", choices=("auto", "likelihood", "paper", "intensity", "dolp"), fit=True,
-           records=_SJ, flag="--loss", group=_IMAGE,
+           records=_SJ, refused_by=_REFINE, flag="--loss", group=_IMAGE,
            help="likelihood of the camera's samples (Poisson-Gaussian noise) or the paper's loss (intensity MSE + "
                 "weighted DoLP MSE); auto: likelihood when the camera noise is known (--conversion-gain / a capture "
                 "sidecar), else paper; intensity, dolp: one term of the paper's loss alone (docs: computed.md)"),
@@ -56,7 +57,8 @@ OPTIONS = (
                 "images of the object (one raw mosaic or Stokes EXR each)"),
     Option("model", "fmbrdf", kind="choice", choices=tuple(MODELS), fit=True, records=_ALL, flag="--model",
            group=_FIT, help="the model fitted"),
-    Option("baselines", False, kind="bool", records=_SJ, flag="--baselines", group=_FIT, cli={"action": "store_true"},
+    Option("baselines", False, kind="bool", records=_SJ, refused_by=_REFINE, flag="--baselines", group=_FIT,
+           cli={"action": "store_true"},
            help="also fit pplastic, Lambertian + Torrance-Sparrow and Oren-Nayar + Torrance-Sparrow the same way"),
     Option("optimizer", "lm", kind="choice", choices=("lm", "adam"), fit=True, records=("single",),
            flag="--optimizer", group=_FIT,
@@ -93,25 +95,26 @@ OPTIONS = (
            help="likelihood fits: auto checks each shape parameter's Fisher 95 %% interval against the profile "
                 "likelihood and gives the profile's ends where it fails; profile: the profile's ends for every shape "
                 "parameter (slower); fisher: Fisher intervals only (default %(default)s; docs: computed.md)"),
-    Option("albedo", "shared", kind="choice", choices=ALBEDO_LAYOUTS, fit=True, records=_ALL, flag="--albedo",
-           group=_FIT,
+    Option("albedo", "shared", kind="choice", choices=ALBEDO_LAYOUTS, fit=True, records=_ALL, refused_by=_REFINE,
+           flag="--albedo", group=_FIT,
            help="likelihood fits: one k_s, r_k for the whole object (default), or k_s, k_b maps with their standard "
                 "errors, the shape parameters shared: per-pixel (one pair per super-pixel) or per-pixel-bilinear (the "
                 "pairs at the super-pixel centres, interpolated at each raw sample) (docs: how-to 'Fit a textured "
                 "object')"),
-    Option("albedo_smooth", None, kind="number", lo=SMOOTH_MIN, many=2, fit=True, records=_SJ, flag="--albedo-smooth",
-           group=_FIT, parse=parse_smooth, cli={"metavar": "TAU[,TAU_B]"},
+    Option("albedo_smooth", None, kind="number", lo=SMOOTH_MIN, many=2, fit=True, records=_SJ, if_given=("joint",),
+           refused_by=_REFINE, flag="--albedo-smooth", group=_FIT, cli={"metavar": "TAU[,TAU_B]"},
            help="with --albedo per-pixel or per-pixel-bilinear: a Gaussian smoothness prior on the maps, TAU the "
                 "expected difference of 4-neighbouring pixels' k_s (and k_b; TAU_B for k_b apart) in the maps' "
                 f"units, at least {SMOOTH_MIN:g}; added to chi^2, the maps and the shape's "
                 "errors are then posterior ones (docs: how-to 'Fit a textured object'); default: no prior"),
-    Option("materials", None, records=_SJ, flag="--materials", group=_FIT, cli={"metavar": "LABELS.png|npy|auto:M"},
+    Option("materials", None, records=_SJ, if_given=("joint",), refused_by=_REFINE, flag="--materials", group=_FIT,
+           cli={"metavar": "LABELS.png|npy|auto:M"},
            help="likelihood fits: a label image of each pixel's material (0 .. M-1 on the fit's grid; not fitted: "
                 "255 / 65535 in a PNG, < 0 in a .npy), each with its own eta, alpha, beta, kappa (and, with --albedo "
                 "shared, k_s, r_k); or auto:M: find M materials in one image, writing labels.png (docs: how-to 'Fit "
                 "a textured object')"),
-    Option("area_points", None, kind="int", lo=1, hi=16, fit=True, records=_SJ, flag="--area-points", group=_FIT,
-           cli={"type": int, "metavar": "M"},
+    Option("area_points", None, kind="int", lo=1, hi=16, fit=True, records=_SJ, if_given=("joint",),
+           flag="--area-points", group=_FIT, cli={"type": int, "metavar": "M"},
            help="likelihood: model each raw sample as the BSDF's mean over M x M points of its pixel (default: 2 "
                 "for raw mosaics, raised to 4 or 8 where 2 would bias a shape parameter, fit.json "
                 "uncertainty.quadrature; 1 (the centre) for angle and Stokes images) (docs: computed.md)"),
@@ -138,8 +141,8 @@ OPTIONS = (
                 "normal/normal_GT.npy, ...: fmbrdf_mi.fit.inputs.authors)"),
     Option("holdout", None, flag="--holdout", group=_JOINT, cli={"metavar": "I,J,..."},
            help="with --authors: image indices not fitted but predicted (relighting check)"),
-    Option("free_power", False, kind="bool", fit=True, records=("joint",), flag="--free-power", group=_JOINT,
-           cli={"action": "store_true"},
+    Option("free_power", False, kind="bool", fit=True, records=("joint",), refused_by=_REFINE, flag="--free-power",
+           group=_JOINT, cli={"action": "store_true"},
            help="estimate the relative light power of every fitted image but the first (the reference, held at its "
                 "given power; the given powers are then starting values): fmbrdf_mi.fit.problem.free_power"),
     Option("power_start", "ratio", kind="choice", choices=("ratio", "given"), fit=True, records=("joint",),
@@ -247,8 +250,8 @@ def check_values(values, flag=str):
         o = OPTION.get(name)
         if o is None:
             continue
-        if o.parse is not None and v is not None:
-            out[name] = v = o.parse(v, flag(name))
+        if v is not None:
+            out[name] = v = o.split(v, flag(name)) if o.parse is None else o.parse(v, flag(name))
         o.check(v, flag(name))
     return out
 

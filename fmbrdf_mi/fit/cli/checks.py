@@ -12,7 +12,7 @@ import os
 from fmbrdf_mi.fit.api.options import (OPTION, add_arguments, check_fit_options, check_input_options, flag,
                                         record_keys)
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.parse import parse_smooth, parse_vector
+from fmbrdf_mi.fit.inputs.parse import parse_vector
 
 #: The options each flag of the command line sets: ``--max-pixels`` -> ``max_pixels``.
 DEST = {flag(o.name): o.name for o in OPTION.values() if o.flag is not None and o.flag.startswith("-")}
@@ -23,9 +23,10 @@ DEFAULTS = {o.name: o.cli.get("default", o.default) for o in OPTION.values() if 
 
 def check_args(args):
     """Validate the command line's options."""
-    if isinstance(args.albedo_smooth, str):    # TAU[,TAU_B] -> tau or (tau_s, tau_b)
-        args.albedo_smooth = parse_smooth(args.albedo_smooth, "--albedo-smooth")
     values = vars(args)
+    for o in OPTION.values():    # a list written as comma-separated text, recorded as the list
+        if o.name in values:
+            values[o.name] = o.split(values[o.name], flag(o.name))
     check_input_options(**values, flag=flag)
     check_fit_options(**values, flag=flag)
     if args.from_json:
@@ -109,7 +110,8 @@ def named(args, option):
 
 
 #: The one table of which options a mode refuses: mode -> (options, the message's head, why).  A colour mosaic
-#: refuses every option of a single-image fit that its own record does not keep.
+#: refuses every option of a single-image fit that its own record does not keep, the normal refinement those the
+#: schema says it refuses (``refused_by``).
 REFUSED = {
     "colour": (tuple(flag(n) for n in record_keys("single") if n not in record_keys("colour")),
                "colour polarisation mosaic",
@@ -117,8 +119,7 @@ REFUSED = {
                "several materials and the albedo smoothness prior are for mono captures so far"),
     "manifest": (("--light",), "--manifest", "the manifest gives each image's light"),
     "authors": (("--light",), "--authors", "the lights are the object's calibration/L.txt"),
-    "refine": (("--baselines", "--free-power", "--loss", "--albedo", "--materials", "--albedo-smooth"),
-               "--refine-normals",
+    "refine": (tuple(flag(n) for n, o in OPTION.items() if "refine" in o.refused_by), "--refine-normals",
                "the refinement is the likelihood of the camera samples, one model, the given light powers, "
                "one pair of albedos, one material"),
 }
@@ -164,10 +165,11 @@ def check_normals(args, joint):
 
 def request(record, args, **converted):
     """The options of ``record`` (``single``, ``colour`` or ``joint``:
-    :func:`~fmbrdf_mi.fit.api.options.record_keys`) as parsed, ``--max-pixels 0`` as None, ``--light`` and
-    ``--relight-light`` parsed, then ``converted`` (values the command converts itself)."""
+    :func:`~fmbrdf_mi.fit.api.options.record_keys`, less those it keeps only when given) as parsed,
+    ``--max-pixels 0`` as None, ``--light`` and ``--relight-light`` parsed, then ``converted`` (values the
+    command converts itself)."""
     values = vars(args)
-    kw = {k: values[k] for k in record_keys(record)}
+    kw = {k: values[k] for k in record_keys(record) if values[k] is not None or record not in OPTION[k].if_given}
     kw["max_pixels"] = kw["max_pixels"] or None
     if "light" in kw:
         kw["light"] = parse_vector((kw["light"] or [None])[0], "--light")

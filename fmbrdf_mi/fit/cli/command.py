@@ -3,7 +3,6 @@
 repeated ``--light``) and the summary."""
 from __future__ import annotations
 
-import os
 import sys
 
 from fmbrdf_mi.fit.api.options import add_arguments
@@ -19,6 +18,7 @@ from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init, pa
 from fmbrdf_mi.fit.outputs.colour import fit_colour_files
 from fmbrdf_mi.fit.outputs.joint import check_distinct, run_images
 from fmbrdf_mi.fit.outputs.normals import NormalRefinement
+from fmbrdf_mi.fit.outputs.record import AUTHORS_KEYS
 from fmbrdf_mi.fit.outputs.rerun import rerun
 from fmbrdf_mi.fit.outputs.single import fit_files
 from fmbrdf_mi.fit.outputs.summary import print_summary
@@ -94,11 +94,9 @@ def run_joint(args, command):
             hold = [int(x) for x in str(args.holdout).split(",") if x.strip()] if args.holdout else []
         except ValueError:
             raise InputError(f"--holdout {args.holdout!r}: expected image indices such as 3,7") from None
-        authors = dict(mask=None if args.mask is None else os.path.abspath(args.mask), holdout=hold,
-                       conversion_gain=args.conversion_gain, read_noise=args.read_noise,
+        authors = dict({k: vars(args)[k] for k in AUTHORS_KEYS}, mask=absolute_paths(args.mask), holdout=hold,
                        white_level=65535.0 if args.white_level is None else args.white_level,
-                       dark_level=args.dark_level, black_level=0.0 if args.black_level is None else args.black_level,
-                       demosaic=args.demosaic, footprint=args.footprint)
+                       black_level=0.0 if args.black_level is None else args.black_level)
         specs, info = read_object(args.authors, **authors)
     else:
         if len(args.light or []) != len(args.inputs):
@@ -116,9 +114,6 @@ def run_joint(args, command):
             s.options.update({k: absolute_paths(s.options[k]) for k in PATH_KEYS[1:] if k in s.options})
     fit_kw = request("joint", args, fixed=parse_fixed(args.fixed), bounds=parse_bounds(args.bounds),
                      init=parse_init(args.init))
-    for k in ("materials", "area_points", "albedo_smooth"):   # recorded only when given
-        if fit_kw[k] is None:
-            del fit_kw[k]
     kind = "manifest" if args.manifest else "authors" if args.authors else "lights"
     if args.refine_normals:
         obs = build_observations(specs)

@@ -10,29 +10,22 @@ from fmbrdf_mi import scene as S
 from fmbrdf_mi.geometry import sphere_normals
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs import observations as ob
-from fmbrdf_mi.fit.inputs.files import builtin_sphere_geometry, user_geometry
+from fmbrdf_mi.fit.inputs.files import builtin_sphere_geometry, capture_sidecar, user_geometry
 from fmbrdf_mi.fit.inputs.observations import downsample_geometry
 from fmbrdf_mi.fit.inputs.manifest import file_stem
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS
 from fmbrdf_mi.fit.inputs.parse import check_render_parameters, parse_vector
-from fmbrdf_mi.sensor import camera as C
 from fmbrdf_mi.sensor.noise import NoiseModel
 from fmbrdf_mi.sensor.samples import colour_samples
 
 
 def colour_sidecar(inputs):
     """The capture sidecar of a single raw input when it describes a colour sensor, else None."""
-
     if isinstance(inputs, (list, tuple)):
         if len(inputs) != 1:
             return None
         inputs = inputs[0]
-    if not isinstance(inputs, (str, os.PathLike)) or os.fspath(inputs).lower().endswith(".exr"):
-        return None
-    try:
-        side = C.read_sidecar(inputs)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+    side = capture_sidecar(inputs)
     return side if side is not None and side["sensor"].cfa is not None else None
 
 
@@ -90,12 +83,7 @@ def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, 
     n, m, v, exact, sph = colour_geometry(shape, side, normals=normals, mask=mask, view=view, sphere=sphere,
                                           camera=camera, fov=fov)
     params = side.get("parameters") if side.get("scene") == "builtin:sphere" else {}
-    if light is None:
-        light = params.get("light_dir") if params else None
-    if light is None:
-        raise InputError("light: give the light direction (--light x,y,z, from the surface towards the light; "
-                         "x image right, y image up, z towards the camera)")
-    light = ob.check_direction(light, "light")
+    light = ob.check_direction(params.get("light_dir") if light is None and params else light, "light")
     if irradiance is None and params:
         # the raw DN are the render's units times the capture's DN per unit
         irradiance = params["irradiance"] * float(side.get("capture", {}).get("dn_per_input_unit", 1.0))

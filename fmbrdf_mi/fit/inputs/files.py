@@ -13,7 +13,7 @@ from fmbrdf_mi.sensor import mosaic
 from fmbrdf_mi.sensor import samples as SM
 from fmbrdf_mi.sensor.noise import NoiseModel, box_footprint, demosaic_footprint, linear_stokes_variance
 from fmbrdf_mi.fit.inputs.observations import (Observation, check_camera, check_direction, downsample_geometry,
-                                               find_sphere, geometry_from_sphere, load_polarisation, read_mask,
+                                               find_sphere, load_polarisation, read_mask,
                                                read_vectors)
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTION
 from fmbrdf_mi.fit.inputs.parse import check_number, check_render_parameters, parse_layout, parse_sphere
@@ -33,6 +33,17 @@ def check_image_options(values, where=None, name=str):
     white, dark = values.get("white_level"), values.get("dark_level")
     if white is not None and dark is not None and not dark < white:
         raise InputError(f"{label('dark_level')} {dark:g} must be below {name('white_level')} {white:g}")
+
+
+def capture_sidecar(path):
+    """The capture sidecar of the raw image ``path`` (:func:`fmbrdf_mi.sensor.camera.read_sidecar`), or None
+    (none beside it; not one file; a Stokes EXR, whose metadata are its own)."""
+    if not isinstance(path, (str, os.PathLike)) or os.fspath(path).lower().endswith(".exr"):
+        return None
+    try:
+        return C.read_sidecar(path)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
 
 
 def _builtin_sphere(meta):
@@ -118,7 +129,11 @@ def user_geometry(shape, cell=2, *, normals=None, mask=None, view=None, sphere=N
         raise InputError("--sphere auto: needs --mask to find the sphere in")
     mk = None if mask is None else user_mask(mask, shape, cell=cell)
     centre, radius = find_sphere(mk) if sphere == "auto" else (sphere[:2], sphere[2])
-    n, m, v = geometry_from_sphere(shape, centre, radius, mk, camera, fov)
+    n, m, v = G.sphere_normals(shape, centre, radius, *check_camera(camera, fov))
+    if not m.any():
+        raise InputError(f"sphere: centre {tuple(centre)} and radius {radius} cover no pixel of a "
+                         f"{shape[1]}x{shape[0]} image")
+    m = m if mk is None else m & mk
     record = {"centre": [float(c) for c in centre], "radius": float(radius), "found_from_mask": sphere == "auto"}
     if view is not None:
         return n, m, read_vectors(view, "view", shape), None, record
@@ -136,12 +151,7 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     settings not given, and the scene's geometry and light.  ``meta["settings"]`` records what was used.
     """
     check_image_options(locals())     # the keywords, before anything is read
-    sidecar = None
-    if isinstance(inputs, (str, os.PathLike)) and not os.fspath(inputs).lower().endswith(".exr"):
-        try:
-            sidecar = C.read_sidecar(inputs)
-        except ValueError as exc:
-            raise InputError(str(exc)) from None
+    sidecar = capture_sidecar(inputs)
     if sidecar is not None:
         cam = sidecar["sensor"]
         if cam.cfa is not None:
@@ -212,9 +222,6 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                                             camera=camera, fov=fov)
         if sph is not None:
             meta["sphere"] = sph
-    if light is None:
-        raise InputError("light: give the light direction (--light x,y,z, from the surface towards the light; "
-                         "x image right, y image up, z towards the camera)")
     light = check_direction(light, "light")
     var = None
     if conversion_gain is not None:
@@ -242,12 +249,12 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
     if conversion_gain is not None:
         noise = NoiseModel(float(conversion_gain), float(read_noise),
                            samples.step if samples is not None else 0.0)
+    irradiance = 1.0 if irradiance is None else float(irradiance)
     meta["settings"] = {"layout": [list(r) for r in layout], "black_level": black_level,
                         "demosaic": demosaic if src == "raw mosaic" else None, "footprint": footprint,
                         "white_level": None if samples is None else samples.white_level,
                         "dark_level": None if samples is None else samples.dark_level,
                         "conversion_gain": conversion_gain, "read_noise": read_noise,
-                        "light": [float(x) for x in light],
-                        "irradiance": 1.0 if irradiance is None else float(irradiance)}
-    return Observation(stokes, m, n, v, light, 1.0 if irradiance is None else float(irradiance), meta,
-                       lin_variance=var, footprint=fp(), samples=samples, noise=noise, geometry=exact)
+                        "light": [float(x) for x in light], "irradiance": irradiance}
+    return Observation(stokes, m, n, v, light, irradiance, meta, lin_variance=var, footprint=fp(), samples=samples,
+                       noise=noise, geometry=exact)

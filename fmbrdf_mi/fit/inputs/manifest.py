@@ -12,14 +12,12 @@ from fmbrdf_mi.fit.inputs.observations import check_direction, check_file
 from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS, IRRADIANCE_RANGE, Option
 from fmbrdf_mi.fit.inputs.parse import parse_layout, parse_vector
 
-#: Options an image entry (or [defaults]) may give (:data:`fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`).
-INPUT_KEYS = IMAGE_KEYS
-
-
+#: An image's keys that name files.
 PATH_KEYS = ("input", "normals", "mask", "view")
 
-
-ENTRY_KEYS = ("input", "light", "power", "holdout", "name") + INPUT_KEYS
+#: The keys of a manifest's image entry: its own and the image options
+#: (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`, which [defaults] may give).
+ENTRY_KEYS = ("input", "light", "power", "holdout", "name") + IMAGE_KEYS
 
 
 def _is_path(v):
@@ -43,29 +41,30 @@ def check_options(opts, where):
     return out
 
 
-def check_input(v, where):
-    """An image's ``input``: a file name or a list of one or four (angle images 0, 45, 90, 135)."""
-    if _is_path(v) or (isinstance(v, list) and len(v) in (1, 4) and all(_is_path(x) for x in v)):
-        return v
-    raise InputError(f"{where}: input: expected a file name or a list of four angle-image file names, got {v!r}")
-
-
-def check_light(v, where):
-    """An image's ``light``: three numbers (a list or \"x,y,z\"), or None (from the input's metadata)."""
-    if v is None:
-        return None
-    if isinstance(v, bool) or not isinstance(v, (str, list, tuple)):
-        raise InputError(f"{where}: light: expected [x, y, z] (towards the light, camera frame), got {v!r}")
-    return check_direction(parse_vector(v, f"{where}: light"), f"{where}: light")
-
-
-def check_entry(power, holdout, name, where):
-    """An image's ``power`` (a positive number), ``holdout`` (true or false) and ``name`` (text or None)."""
+def image_spec(input, light=None, power=1.0, holdout=False, name=None, options=None, *, where, at=""):
+    """An :class:`ImageSpec` checked: ``input`` (a file name or a list of one or four: angle images 0, 45, 90,
+    135), ``light`` (three numbers, a list or ``"x,y,z"``; None: the input's metadata's), ``power`` (a positive
+    number), ``holdout`` (true or false), ``name`` (text or None) and ``options`` (a table of
+    :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`: :func:`check_options`); InputError naming ``where``
+    (``at``: what follows it for the options)."""
+    if not (_is_path(input) or (isinstance(input, list) and len(input) in (1, 4) and all(map(_is_path, input)))):
+        raise InputError(f"{where}: input: expected a file name or a list of four angle-image file names, got "
+                         f"{input!r}")
+    if light is not None and (isinstance(light, bool) or not isinstance(light, (str, list, tuple))):
+        raise InputError(f"{where}: light: expected [x, y, z] (towards the light, camera frame), got {light!r}")
+    if light is not None:
+        check_direction(parse_vector(light, f"{where}: light"), f"{where}: light")
     Option("power", kind="number", lo=IRRADIANCE_RANGE[0], hi=IRRADIANCE_RANGE[1]).check(power, f"{where}: power")
     if not isinstance(holdout, bool):
         raise InputError(f"{where}: holdout must be true or false")
     if name is not None and (isinstance(name, bool) or not isinstance(name, (str, int))):
         raise InputError(f"{where}: name: expected text, got {name!r}")
+    if not isinstance(options, dict):
+        raise InputError(f"{where}{at}: expected a table, got {options!r}")
+    bad = [x for x in options if x not in IMAGE_KEYS]
+    if bad:
+        raise InputError(f"{where}{at}: unknown key(s) {', '.join(map(str, bad))} (valid: {', '.join(IMAGE_KEYS)})")
+    return ImageSpec(input, light, float(power), holdout, name, check_options(options, where + at))
 
 
 @dataclasses.dataclass
@@ -117,9 +116,9 @@ def parse_manifest(d, base=".", where="manifest"):
     defaults = d.get("defaults", {}) or {}
     if not isinstance(defaults, dict):
         raise InputError(f"{where}: defaults must be a table")
-    bad = [k for k in defaults if k not in INPUT_KEYS]
+    bad = [k for k in defaults if k not in IMAGE_KEYS]
     if bad:
-        raise InputError(f"{where}: defaults: unknown key(s) {', '.join(bad)} (valid: {', '.join(INPUT_KEYS)})")
+        raise InputError(f"{where}: defaults: unknown key(s) {', '.join(bad)} (valid: {', '.join(IMAGE_KEYS)})")
     defaults = check_options(defaults, f"{where}: defaults")
     entries = d.get("image", d.get("images"))
     if not isinstance(entries, list) or not entries:
@@ -139,16 +138,13 @@ def parse_manifest(d, base=".", where="manifest"):
         bad = [x for x in e if x not in ENTRY_KEYS]
         if bad:
             raise InputError(f"{where}: image {k}: unknown key(s) {', '.join(bad)} (valid: {', '.join(ENTRY_KEYS)})")
-        check_input(e["input"], f"{where}: image {k}")
-        check_light(e.get("light"), f"{where}: image {k}")
-        check_entry(e.get("power", 1.0), e.get("holdout", False), e.get("name"), f"{where}: image {k}")
-        opts = {**defaults, **check_options({x: e[x] for x in INPUT_KEYS if x in e}, f"{where}: image {k}")}
+        s = image_spec(e["input"], e.get("light"), e.get("power", 1.0), e.get("holdout", False), e.get("name"),
+                       {x: e[x] for x in IMAGE_KEYS if x in e}, where=f"{where}: image {k}")
+        s.input, s.options = rel(s.input), {**defaults, **s.options}
         for x in PATH_KEYS[1:]:
-            if x in opts and isinstance(opts[x], (str, list)):
-                opts[x] = rel(opts[x])
-        power = e.get("power", 1.0)
-        specs.append(ImageSpec(rel(e["input"]), e.get("light"), float(power), bool(e.get("holdout", False)),
-                               e.get("name"), opts))
+            if x in s.options and isinstance(s.options[x], (str, list)):
+                s.options[x] = rel(s.options[x])
+        specs.append(s)
     return specs
 
 

@@ -33,10 +33,10 @@ def check_views(obs, normals):
     return n_map
 
 
-def angular_error_deg(n, n_ref, mask):
-    """Angles (degrees) between two normal maps on the mask."""
-    a, b = n[mask], n_ref[mask]
-    c = np.sum(a * b, 1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+def angular_error_deg(n, n_ref, mask=None):
+    """Angles (degrees) between two normal maps, on the ``mask`` if given (a zero vector's: 90)."""
+    a, b = (n, n_ref) if mask is None else (n[mask], n_ref[mask])
+    c = np.sum(a * b, -1) / np.maximum(np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1), 1e-300)
     return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 

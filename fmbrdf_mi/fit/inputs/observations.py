@@ -15,7 +15,6 @@ import numpy as np
 from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTION, IRRADIANCE_RANGE
-from fmbrdf_mi.geometry import sphere_normals
 from fmbrdf_mi.sensor import mosaic
 from fmbrdf_mi.sensor.mosaic import stokes_from_angles, stokes_from_raw
 
@@ -58,21 +57,6 @@ class Observation:
     @property
     def shape(self):
         return self.mask.shape
-
-    @property
-    def intensity(self):
-        return self.stokes[0]
-
-    @property
-    def dolp(self):
-        return stokes_io.dolp(self.stokes)
-
-    def with_light(self, stokes, light_dir, irradiance=None, meta=None, lin_variance=None):
-        """The same object and camera under another light (for relighting)."""
-        return Observation(np.asarray(stokes, dtype=np.float64), self.mask, self.normals,
-                           self.view_dirs, light_dir,
-                           self.irradiance if irradiance is None else float(irradiance),
-                           dict(meta or {}), lin_variance, self.footprint)
 
     def sample_geometry(self, idx, footprint="own"):
         """Normals and view directions (n K, 3) over the footprint of the pixels ``idx``, and the weights (K,).
@@ -169,6 +153,9 @@ def validate(obs):
 
 def check_direction(v, name):
     """A finite, non-zero 3-vector, normalised (directions typed by hand need not be unit)."""
+    if v is None:
+        raise InputError(f"{name}: give the light direction (--light x,y,z, from the surface towards the light; "
+                         "x image right, y image up, z towards the camera)")
     shown = v.tolist() if isinstance(v, np.ndarray) else v
     if isinstance(v, (str, bytes)):
         raise InputError(f"{name}: expected three numbers x, y, z (x right, y up, z towards the camera), "
@@ -398,24 +385,6 @@ def find_sphere(mask):
     a, b, c = sol
     r = np.sqrt(max(c + a * a + b * b, 0.0))
     return (float(a), float(b)), float(r)
-
-
-def geometry_from_sphere(shape, centre=None, radius=None, mask=None, camera="orthographic", fov=None):
-    """(normals, mask, view_dirs) of a sphere given by a user (:func:`fmbrdf_mi.geometry.sphere_normals`),
-    intersected with ``mask``; its centre and radius found from ``mask`` when not given."""
-    if centre is None or radius is None:
-        if mask is None:
-            raise InputError("sphere: give its centre and radius, or a mask to find them from")
-        (cx, cy), r = find_sphere(mask)
-        centre = (cx, cy) if centre is None else centre
-        radius = r if radius is None else radius
-    n, m, v = sphere_normals(shape, centre, radius, *check_camera(camera, fov))
-    if not m.any():
-        raise InputError(f"sphere: centre {tuple(centre)} and radius {radius} cover no pixel of a "
-                         f"{shape[1]}x{shape[0]} image")
-    if mask is not None:
-        m = m & read_mask(mask, shape)
-    return n, m, v
 
 
 def erode(mask, pixels=1):

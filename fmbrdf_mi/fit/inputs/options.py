@@ -26,10 +26,12 @@ class Option:
     end), ``"choice"`` (one of ``choices``), ``"bool"``, or None (a value checked by the relations of
     :func:`fmbrdf_mi.fit.api.options.check_fit_options`: a table, a file name, a vector).  ``fit``: a field of
     :class:`~fmbrdf_mi.fit.api.options.FitOptions`.  ``records``: the fit.json records that keep it
-    (:data:`RECORDS`).  ``flag``: its command-line flag
-    (None: not on the command line), ``group`` its help section, ``cli`` further
+    (:data:`RECORDS`), ``if_given`` those of them that keep it only when it is given.  ``refused_by``: the
+    modes of ``fmbrdf-mi fit`` that refuse it (:data:`fmbrdf_mi.fit.cli.checks.REFUSED`).  ``flag``: its
+    command-line flag (None: not on the command line), ``group`` its help section, ``cli`` further
     :meth:`argparse.ArgumentParser.add_argument` keywords.  ``parse``: text form -> value
-    (``"kappa=0"`` -> ``{"kappa": 0.0}``).  ``many``: a value may be a list of up to this many.
+    (``"kappa=0"`` -> ``{"kappa": 0.0}``).  ``many``: a value may be a list of up to this many
+    (on the command line: comma-separated text, parsed before the checks and the record).
     """
 
     name: str
@@ -45,6 +47,8 @@ class Option:
     choices: tuple = ()
     fit: bool = False
     records: tuple = ()
+    if_given: tuple = ()
+    refused_by: tuple = ()
     cli: dict = dataclasses.field(default_factory=dict)
     parse: object = None
     many: int = 1
@@ -56,6 +60,20 @@ class Option:
         left = "(" if self.lo_open or self.lo is None else "["
         right = ")" if self.hi_open or self.hi is None else "]"
         return f"{left}{lo}, {hi}{right}"
+
+    def split(self, text, name=None):
+        """A many-valued option's comma-separated ``text`` -> one number or a tuple of up to ``many`` (its range
+        checked by :meth:`check`); a value that is not text is returned as it is."""
+        if not isinstance(text, str) or self.many < 2:
+            return text
+        try:
+            vals = tuple(float(x) for x in text.replace(" ", "").split(","))
+        except ValueError:
+            vals = ()
+        if not 1 <= len(vals) <= self.many:
+            raise InputError(f"{name or self.name}: expected {self.cli.get('metavar', self.name)} (one to {self.many} "
+                             f"comma-separated numbers), got {text!r}")
+        return vals[0] if len(vals) == 1 else vals
 
     def check(self, value, name=None):
         """``value`` checked against the option's kind and range (None passes), else InputError naming

@@ -9,19 +9,15 @@ from fmbrdf_mi.sensor.mosaic import check_layout
 
 
 def parse_vector(text, name, n=3):
+    """``"x,y,z"`` or ``n`` numbers -> a list of ``n`` floats (None passes), else InputError naming ``name``."""
     if text is None:
         return None
-    if isinstance(text, str):
-        try:
-            vals = [float(x) for x in text.replace(" ", "").split(",") if x]
-        except ValueError:
-            raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}") from None
-    else:
-        try:
-            vals = [float(x) for x in text]
-        except (TypeError, ValueError):  # nested lists, None, words: not n numbers
-            raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}") from None
-    if len(vals) != n:
+    try:
+        vals = [float(x) for x in ([x for x in text.replace(" ", "").split(",") if x] if isinstance(text, str)
+                                   else text)]
+    except (TypeError, ValueError):   # words, nested lists, a number alone: not n numbers
+        vals = None
+    if vals is None or len(vals) != n:
         raise InputError(f"{name}: expected {n} comma-separated numbers, got {text!r}")
     return vals
 
@@ -37,20 +33,6 @@ def parse_sphere(value, name="sphere"):
     if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(r) and r > 0):
         raise InputError(f"{name}: expected a finite centre and a radius > 0 (pixels), got {value!r}")
     return cx, cy, r
-
-
-def parse_smooth(text, name="--albedo-smooth"):
-    """``TAU`` or ``TAU_S,TAU_B`` (the albedo maps' smoothness prior) -> tau or (tau_s, tau_b); the values are
-    range-checked with the other fit options.  A value that is not text is returned as it is."""
-    if not isinstance(text, str):
-        return text
-    try:
-        vals = [float(x) for x in str(text).replace(" ", "").split(",")]
-    except ValueError:
-        raise InputError(f"{name}: expected TAU or TAU_S,TAU_B (numbers > 0), got {text!r}") from None
-    if len(vals) not in (1, 2):
-        raise InputError(f"{name}: expected TAU or TAU_S,TAU_B (numbers > 0), got {text!r}")
-    return vals[0] if len(vals) == 1 else tuple(vals)
 
 
 def check_number(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True):

@@ -13,7 +13,7 @@ import numpy as np
 
 from fmbrdf_mi.fit.api.colour import RECORD_OPTIONS, fit_colour, format_result, predict_samples
 from fmbrdf_mi.fit.api.options import arguments as arguments_of
-from fmbrdf_mi.fit.api.options import check_fit_options, check_input_options
+from fmbrdf_mi.fit.api.options import OPTION, check_fit_options, check_input_options, flag, record_keys
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.inputs.colour import COLOUR_KEYS, colour_sidecar, read_colour_input, read_colour_inputs
@@ -22,11 +22,17 @@ from fmbrdf_mi.fit.outputs import record
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
 from fmbrdf_mi.fit.outputs.single import write_maps
-from fmbrdf_mi.fit.outputs.writer import joint_outputs, prepare_outputs
+from fmbrdf_mi.fit.outputs.writer import image_entries, joint_outputs, prepare_outputs
 from fmbrdf_mi.sensor.mosaic import COLOURS
 
 #: The keywords of :func:`~fmbrdf_mi.fit.api.colour.fit_colour` the command sets.
 FIT_KEYS = tuple(k for k in RECORD_OPTIONS if k != "model")
+
+#: Options of a joint fit that a colour joint fit ignores.
+IGNORED = ("tol", "time_limit", "power_start")
+
+#: The values a colour fit takes of the options it limits (the likelihood; albedos shared or per pixel).
+TAKES = {"loss": ("auto", "likelihood"), "albedo": ("shared", "per-pixel")}
 
 
 def model_entry(res, truth, fixed):
@@ -77,16 +83,13 @@ def fit_colour_images(specs, out, *, force=False, progress=True, command=None, e
                       **options):
     """Joint colour fit of the non-held-out images of ``specs``; returns the dict written to fit.json.
     ``options``: the joint record's (:func:`~fmbrdf_mi.fit.outputs.joint.fit_images`'; ``max_pixels`` default
-    None: every period); those the colour fit does not take are refused, ``tol``, ``time_limit`` and
-    ``power_start`` ignored."""
+    None: every period); those of them the colour record does not keep are refused unless at their default,
+    :data:`IGNORED` ignored, and :data:`TAKES` limits the values of some."""
     a = arguments_of("joint", {"max_pixels": None, **options}, "fit_colour_images()")
-    refused = [f for f, on in (("baselines", a["baselines"]), ("init", a["init"]),
-                               ("free_power (--free-power)", a["free_power"]),
-                               (f"loss {a['loss']}", a["loss"] not in ("auto", "likelihood", None)),
-                               (f"albedo {a['albedo']!r} (--albedo; expected 'shared' or 'per-pixel')",
-                                a["albedo"] not in ("shared", "per-pixel")),
-                               *((k, a[k] is not None) for k in ("albedo_smooth", "materials", "area_points")))
-               if on]
+    limited = [k for k in TAKES if a[k] not in TAKES[k]]
+    refused = [f"{k} {a[k]!r} ({flag(k)}; expected {' or '.join(map(repr, TAKES[k]))})" for k in limited] + [
+        f"{k} ({flag(k)})" for k in record_keys("joint")
+        if k not in record_keys("colour") + IGNORED + tuple(TAKES) and a[k] != OPTION[k].default]
     if refused:
         raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
                          "of the raw samples)")
@@ -159,10 +162,8 @@ class ColourFit(FitJob):
                     "models": {self.model: entry}}
         fitted = [n for n, h in zip(self.names, self.holdout) if not h]
         entry["chi2_per_sample"] = dict(zip(fitted, res["chi2_per_sample"]))
-        report = {"sensor": "colour", "truth": truth,
-                  "images": [{"name": n, "input": s.input if isinstance(s.input, (str, list)) else None,
-                              "light_dir": c.obs.light_dir.tolist(), "irradiance": c.obs.irradiance,
-                              "power": s.power, "holdout": s.holdout} for n, s, c in zip(self.names, self.specs, inputs)],
+        report = {"sensor": "colour", "truth": truth, "images": image_entries(self.names, self.specs,
+                                                                              [c.obs for c in inputs]),
                   "models": {self.model: entry}, "relight": {}}
         if self.reproduce is not None:
             report["reproduce"] = self.reproduce([c.obs for c in inputs])

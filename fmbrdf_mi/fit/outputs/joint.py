@@ -21,7 +21,7 @@ from fmbrdf_mi.fit.outputs.record import command_block, joint_block, sha256
 from fmbrdf_mi.fit.inputs.labels import read_labels
 from fmbrdf_mi.fit.api.find_materials import parse_auto
 from fmbrdf_mi.fit.outputs.single import ImageFits, model_entries
-from fmbrdf_mi.fit.outputs.writer import joint_outputs, prepare_outputs
+from fmbrdf_mi.fit.outputs.writer import image_entries, joint_outputs, prepare_outputs
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 
 
@@ -122,11 +122,7 @@ class Joint(ImageFits):
         specs, obs, model = self.specs, self.obs, self.model
         main = self.results[model]
         truth = next((o.meta.get("truth") for o in obs if o.meta.get("truth")), None)
-        report = {"images": [{"name": n, "input": (s.input if isinstance(s.input, (str, list)) else None),
-                              "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance,
-                              "power": given_power(s, o), "holdout": s.holdout}
-                             for n, s, o in zip(self.names, specs, obs)],
-                  "truth": truth, "models": {}, "relight": {}}
+        report = {"images": image_entries(self.names, specs, obs), "truth": truth, "models": {}, "relight": {}}
         if main.powers is not None:
             for im in report["images"]:
                 fitted = next((x for x in main.images if x["name"] == im["name"]), None)

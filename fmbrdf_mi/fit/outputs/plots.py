@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from fmbrdf_mi import stokes_io
+from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg
 from fmbrdf_mi.fit.objectives.loss import Target
 from fmbrdf_mi.sensor import mosaic
 from fmbrdf_mi.sensor import rice
@@ -62,13 +63,24 @@ def pyplot():
     return plt
 
 
-def save(fig, path, dpi, title="", **kw):
-    """The figure titled ``title`` (``kw``: its keywords), laid out, written to ``path`` and closed."""
+def save(fig, path, dpi, title="", tight=False, **kw):
+    """The figure titled ``title`` (``kw``: its keywords), laid out (``tight``: cropped to its content), written
+    to ``path`` and closed."""
     if title:
         fig.suptitle(title, **kw)
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
+    if not tight:
+        fig.tight_layout()
+    fig.savefig(path, dpi=dpi, **({"bbox_inches": "tight"} if tight else {}))
     pyplot().close(fig)
+
+
+def panel(fig, ax, img, title, fontsize=None, colorbar=True, label="", **kw):
+    """``img`` shown on ``ax`` (``kw``: imshow's keywords) with its ``title``, no axes, a colour bar (``label``)."""
+    im = ax.imshow(img, **kw)
+    ax.set_title(title, fontsize=fontsize)
+    ax.axis("off")
+    if colorbar:
+        fig.colorbar(im, ax=ax, fraction=0.046, label=label)
 
 
 def compare_row(fig, axes, o, p, err, shown, hidden, titles, fontsize):
@@ -77,13 +89,10 @@ def compare_row(fig, axes, o, p, err, shown, hidden, titles, fontsize):
     vmax, emax = scale_from(o, shown), scale_from(err, shown)
     for c, (img, kw) in enumerate(((o, dict(vmin=0, vmax=vmax, cmap="gray")), (p, dict(vmin=0, vmax=vmax, cmap="gray")),
                                    (err, dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
-        im = axes[c].imshow(img, **kw)
+        panel(fig, axes[c], img, titles[c], fontsize, **kw)
         if c == 2 and hidden.any():
             axes[c].contourf(hidden.astype(float), levels=[0.5, 1.5], colors=["0.8"], hatches=["////"],
                              origin="upper", extent=(-0.5, hidden.shape[1] - 0.5, hidden.shape[0] - 0.5, -0.5))
-        axes[c].set_title(titles[c], fontsize=fontsize)
-        axes[c].axis("off")
-        fig.colorbar(im, ax=axes[c], fraction=0.046)
 
 
 def model_dolp(stokes, lin_variance=None):
@@ -261,10 +270,7 @@ def plot_albedo_maps(maps, path, title=""):
     fig, axes = plt.subplots(len(rows), ncol, figsize=(3.2 * ncol, 3.6 * len(rows)), squeeze=False)
     for r, panels in enumerate(rows):
         for ax, (name, img, kw) in zip(axes[r], panels):
-            im = ax.imshow(img[crop], **kw)
-            ax.set_title(name)
-            ax.axis("off")
-            fig.colorbar(im, ax=ax, fraction=0.046)
+            panel(fig, ax, img[crop], name, **kw)
     save(fig, path, 110, title)
 
 
@@ -309,50 +315,34 @@ def rgb(n, mask):
     return out
 
 
-def angle_deg(a, b):
-    c = np.sum(a * b, -1) / np.maximum(np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1), 1e-300)
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
-
-
 def plot_normal_map(n, mask, path, title=""):
-    plt = pyplot()
-    ys, xs = crop_to(mask, 2)
-    fig, ax = plt.subplots(figsize=(5, 5))
-    ax.imshow(rgb(n, mask)[ys, xs], interpolation="nearest")
-    ax.set_title(title + "\n(x right: red, y up: green, z to the camera: blue)", fontsize=9)
-    ax.axis("off")
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    plt.close(fig)
+    fig, ax = pyplot().subplots(figsize=(5, 5))
+    panel(fig, ax, rgb(n, mask)[crop_to(mask, 2)], title + "\n(x right: red, y up: green, z to the camera: blue)", 9,
+          colorbar=False, interpolation="nearest")
+    save(fig, path, 100, tight=True)
 
 
 def plot_change(n0, n1, mask, path, gt=None):
     """Start | refined | angle between them; with ``gt``, a second row: angle to gt before | after."""
-    plt = pyplot()
-    ys, xs = crop_to(mask, 2)
-    rows = 2 if gt is not None else 1
-    fig, axes = plt.subplots(rows, 3, figsize=(13, 4.2 * rows), squeeze=False)
+    crop = crop_to(mask, 2)
+    fig, axes = pyplot().subplots(1 + (gt is not None), 3, figsize=(13, 4.2 * (1 + (gt is not None))), squeeze=False)
 
-    def angle_panel(ax, img, title, vmax):
-        im = ax.imshow(np.where(mask, img, np.nan)[ys, xs], cmap="magma", vmin=0, vmax=vmax, interpolation="nearest")
-        ax.set_title(title, fontsize=9)
-        ax.axis("off")
-        fig.colorbar(im, ax=ax, fraction=0.046, label="degrees")
+    def angles(ax, img, title, vmax=None):
+        """The angles ``img`` (degrees) on the mask; the colour scale to ``vmax`` (default: the 99th percentile)."""
+        vmax = vmax or max(float(np.percentile(img[mask], 99)), 1e-3)
+        panel(fig, ax, np.where(mask, img, np.nan)[crop], title, 9, label="degrees", cmap="magma", vmin=0, vmax=vmax,
+              interpolation="nearest")
+        return vmax
 
     for ax, n, t in ((axes[0, 0], n0, "start"), (axes[0, 1], n1, "refined")):
-        ax.imshow(rgb(n, mask)[ys, xs], interpolation="nearest")
-        ax.set_title(t, fontsize=9)
-        ax.axis("off")
-    ch = angle_deg(n0, n1)
-    angle_panel(axes[0, 2], ch, f"angle start -> refined\nmean {ch[mask].mean():.2f} deg",
-                max(float(np.percentile(ch[mask], 99)), 1e-3))
+        panel(fig, ax, rgb(n, mask)[crop], t, 9, colorbar=False, interpolation="nearest")
+    ch = angular_error_deg(n0, n1)
+    angles(axes[0, 2], ch, f"angle start -> refined\nmean {ch[mask].mean():.2f} deg")
     if gt is not None:
-        e0, e1 = angle_deg(n0, gt), angle_deg(n1, gt)
-        vmax = max(float(np.percentile(e0[mask], 99)), 1e-3)
-        angle_panel(axes[1, 0], e0, f"start vs ground truth\nmean {e0[mask].mean():.2f}, median "
-                                    f"{np.median(e0[mask]):.2f} deg", vmax)
-        angle_panel(axes[1, 1], e1, f"refined vs ground truth (same scale)\nmean {e1[mask].mean():.2f}, "
-                                    f"median {np.median(e1[mask]):.2f} deg", vmax)
-        v1 = max(float(np.percentile(e1[mask], 99)), 1e-3)
-        angle_panel(axes[1, 2], e1, "refined vs ground truth (own scale)", v1)
-    fig.savefig(path, dpi=90, bbox_inches="tight")
-    plt.close(fig)
+        e0, e1 = angular_error_deg(n0, gt), angular_error_deg(n1, gt)
+        vmax = angles(axes[1, 0], e0, f"start vs ground truth\nmean {e0[mask].mean():.2f}, median "
+                                      f"{np.median(e0[mask]):.2f} deg")
+        angles(axes[1, 1], e1, f"refined vs ground truth (same scale)\nmean {e1[mask].mean():.2f}, "
+                               f"median {np.median(e1[mask]):.2f} deg", vmax)
+        angles(axes[1, 2], e1, "refined vs ground truth (own scale)")
+    save(fig, path, 90, tight=True)

@@ -43,19 +43,23 @@ def jsonable(v):
 FILE_KEYS = ("inputs", "normals", "mask", "view", "relight", "materials")
 
 
-def single_files(arguments):
-    """The files a single-image or colour fit with ``arguments`` reads (:data:`FILE_KEYS`) and the capture sidecars
-    beside its images."""
+def existing_files(paths, sidecars=True):
+    """The files among ``paths`` (a path or a list) and, with ``sidecars``, the capture sidecar beside each
+    (an EXR has none)."""
     out = []
-    for key in FILE_KEYS:
-        v = arguments.get(key)
-        for p in (v if isinstance(v, (list, tuple)) else [v]):
-            if isinstance(p, (str, os.PathLike)) and os.path.isfile(p):
-                out.append(os.fspath(p))
-                side = os.path.splitext(os.fspath(p))[0] + ".json"
-                if key in ("inputs", "relight") and os.path.isfile(side) and not p.lower().endswith(".json"):
-                    out.append(side)
+    for p in (paths if isinstance(paths, (list, tuple)) else [paths]):
+        if isinstance(p, (str, os.PathLike)) and os.path.isfile(p):
+            out.append(os.fspath(p))
+            side = sidecar_path(p)
+            if sidecars and side != out[-1] and os.path.isfile(side) and not out[-1].lower().endswith(".exr"):
+                out.append(side)
     return out
+
+
+def single_files(arguments):
+    """The files a single-image or colour fit with ``arguments`` reads (:data:`FILE_KEYS`), its images' capture
+    sidecars included."""
+    return [f for k in FILE_KEYS for f in existing_files(arguments.get(k), k in ("inputs", "relight"))]
 
 
 def versions():
@@ -87,19 +91,6 @@ def reproduce_block(arguments, command, meta):
 #: read_object keywords recorded for an authors' object.
 AUTHORS_KEYS = ("mask", "holdout", "conversion_gain", "read_noise", "white_level", "dark_level", "black_level",
                 "demosaic", "footprint")
-
-
-def _with_sidecar(paths):
-    """The files of an input (a path or a list) and the capture sidecar beside each, if there is one."""
-
-    out = []
-    for p in (paths if isinstance(paths, (list, tuple)) else [paths]):
-        if isinstance(p, str) and os.path.isfile(p):
-            out.append(p)
-            side = sidecar_path(p)
-            if side != p and os.path.isfile(side) and not p.lower().endswith(".exr"):
-                out.append(side)
-    return out
 
 
 def _hashes(paths):
@@ -144,7 +135,7 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
             entry = {"spec": {"input": inp, "light": s.light, "power": s.power, "holdout": s.holdout,
                               "name": s.name, "options": s.options}}
             power = s.power
-        mine = _with_sidecar(inp)
+        mine = existing_files(inp)
         geo_files = [geo.get(x) for x in ("normals", "mask", "view") if isinstance(geo.get(x), str)]
         images.append({"name": n, "input": inp, "files_sha256": _hashes(mine + geo_files),
                        "light": [float(x) for x in o.light_dir], "power": float(power),
@@ -175,6 +166,6 @@ def read_files(kind, specs, info):
         return files
     for s in specs:
         files += [p for p in (s.input if isinstance(s.input, list) else [s.input]) if isinstance(p, str)]
-        files += _with_sidecar(s.input)
+        files += existing_files(s.input)
         files += [s.options[k] for k in ("normals", "mask", "view") if isinstance(s.options.get(k), str)]
     return files

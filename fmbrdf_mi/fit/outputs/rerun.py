@@ -10,8 +10,7 @@ import os
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.api.find_materials import parse_auto
 from fmbrdf_mi.fit.inputs.authors import read_object
-from fmbrdf_mi.fit.inputs.manifest import (INPUT_KEYS, ImageSpec, check_entry, check_input, check_light,
-                                           check_options, image_names)
+from fmbrdf_mi.fit.inputs.manifest import image_names, image_spec
 from fmbrdf_mi.fit.outputs.colour import fit_colour_files
 from fmbrdf_mi.fit.outputs.joint import run_images
 from fmbrdf_mi.fit.api.options import record_keys
@@ -137,21 +136,8 @@ def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
                                  f"(valid: root, {', '.join(AUTHORS_KEYS)})")
             specs, info = read_object(a.pop("root"), **a)
         else:
-            specs = []
-            for k, im in enumerate(joint["images"]):
-                where = f"--from {path}: reproduce.joint.images[{k}].spec"
-                spec = ImageSpec(**im["spec"])
-                check_input(spec.input, where)
-                check_light(spec.light, where)
-                check_entry(spec.power, spec.holdout, spec.name, where)
-                if not isinstance(spec.options, dict):
-                    raise InputError(f"{where}: options: expected a table, got {spec.options!r}")
-                bad = [x for x in spec.options if x not in INPUT_KEYS]
-                if bad:
-                    raise InputError(f"{where}: options: unknown key(s) {', '.join(map(str, bad))} "
-                                     f"(valid: {', '.join(INPUT_KEYS)})")
-                spec.options = check_options(spec.options, f"{where}: options")
-                specs.append(spec)
+            specs = [image_spec(**im["spec"], where=f"--from {path}: reproduce.joint.images[{k}].spec",
+                                at=": options") for k, im in enumerate(joint["images"])]
     except (KeyError, TypeError, AttributeError) as exc:
         raise InputError(f"--from {path}: the joint-fit record is incomplete ({exc})") from None
     check_recorded(path, rep, read_files(joint["kind"], specs, info) + labels)

@@ -44,13 +44,15 @@ def print_params(m, std, ci, width=6):
             print(line + ("" if r is None else f"  (vs metadata {r:+.2%})"))
 
 
-def uncertainty_text(unc):
-    """The ``uncertainty:`` line of a model (its method, chi^2/dof) and its warnings."""
-    return (f"  uncertainty: {unc['method']}"
-            + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc else "")
-            + ("\n  warning: " + misfit_text(unc) if noise_flagged(unc) else "")
-            + ("\n  warning: " + unc["other_optima"]["warning"] if (unc.get("other_optima") or {}).get("warning")
-               else ""))
+def uncertainty_lines(unc):
+    """Print the ``uncertainty:`` line of a model (its method, chi^2/dof), if it has one, and its warnings."""
+    if unc.get("method"):
+        print(f"  uncertainty: {unc['method']}" + (f"; chi2/dof {unc['chi2_per_dof']:.3f}" if "chi2_per_dof" in unc
+                                                     else ""))
+    if noise_flagged(unc):
+        print("  warning: " + misfit_text(unc))
+    if (unc.get("other_optima") or {}).get("warning"):
+        print("  warning: " + unc["other_optima"]["warning"])
 
 
 def albedo_text(a):
@@ -80,40 +82,6 @@ def wrote(report):
     print(f"wrote {', '.join(report['outputs'])} ({report['wall_s']:.1f} s)")
 
 
-def print_colour(report):
-    """The stdout summary of a colour fit; returns the exit status (3: stopped before convergence)."""
-    status = 0
-    for name, m in report["models"].items():
-        kind = "albedo maps per pixel and channel" if m.get("albedo") else "per-channel albedos"
-        print(f"{name} (colour, {kind}): chi2/dof {m['chi2_per_dof']:.4f} over {m['n_samples']} raw "
-              f"samples of {m['n_pixels']} periods  ({'converged' if m['converged'] else 'NOT converged'}: "
-              f"{m['stop_reason']})")
-        print(f"  camera noise {m['noise'].get('description', m['noise'])}")
-        std = m["std_errors"] or {}
-        print_params(m, std, m["ci95"] or {}, 8)
-        unc = m.get("uncertainty") or {}
-        if std:
-            print(f"  uncertainty: {unc.get('method', 'inverse Fisher information of the raw samples')}")
-        if noise_flagged(unc):
-            print("  warning: " + misfit_text(unc))
-        if (unc.get("other_optima") or {}).get("warning"):
-            print("  warning: " + unc["other_optima"]["warning"])
-        if m.get("weakly_identified"):
-            print(f"  weakly identified (standard error > {WEAK_REL:.0%} or at a bound): "
-                  f"{', '.join(m['weakly_identified'])}")
-        if m.get("albedo"):
-            print("  " + albedo_text(m["albedo"]))
-        for img, c2 in (m.get("chi2_per_sample") or {}).items():
-            print(f"  {img}: chi2 per raw sample {c2:.3f}")
-        status = max(status, convergence_status(name, m))
-    for img, errs in report.get("relight", {}).items():
-        for name, e in errs.items():
-            print(f"relighting {img} ({name}): raw-sample RMSE / mean = {e['rel_rmse']:.4f} (R "
-                  f"{e['rel_rmse_R']:.4f}, G {e['rel_rmse_G']:.4f}, B {e['rel_rmse_B']:.4f})")
-    wrote(report)
-    return status
-
-
 def print_normals(report):
     """The stdout summary of a normal refinement; returns the exit status."""
     rn = report["refine_normals"]
@@ -129,8 +97,7 @@ def print_normals(report):
             print("  no standard errors: " + mdl["uncertainty_uncalibrated"].get("warning", "not calibrated")
                   + " (fit.json: uncertainty_uncalibrated; docs: how-to 'Fit several images of one object', "
                   "Normal refinement)")
-        if unc.get("method"):
-            print(uncertainty_text(unc))
+        uncertainty_lines(unc)
     ch = rn["angle_change"]
     print(f"  normals moved from the start by {ch['mean']:.2f} deg mean, {ch['median']:.2f} deg median")
     ae = rn.get("angular_error")
@@ -145,25 +112,28 @@ def print_normals(report):
 def print_summary(report):
     """The stdout summary of any fit's report (what :meth:`~fmbrdf_mi.fit.outputs.job.FitJob.run` returns);
     returns the exit status: 0, or :data:`EXIT_NOT_CONVERGED` when a fit stopped before it converged."""
-    if report.get("sensor") == "colour":
-        return print_colour(report)
     if report.get("refine_normals"):
         return print_normals(report)
-    status = 0
+    colour, status = report.get("sensor") == "colour", 0
     for name, m in report["models"].items():
         unc = m.get("uncertainty") or {}
-        print(f"{name}: {m['objective']} {m['loss']:.6e}  ({'converged' if m['converged'] else 'NOT converged'}: "
-              f"{m['stop_reason']})")
+        state = f"({'converged' if m['converged'] else 'NOT converged'}: {m['stop_reason']})"
+        if colour:   # the standard errors beside the uncertainty block
+            unc = dict(unc, std_errors=m["std_errors"] or {}, ci95=m["ci95"] or {})
+            print(f"{name} (colour, {'albedo maps per pixel and channel' if m.get('albedo') else 'per-channel albedos'}"
+                  f"): chi2/dof {m['chi2_per_dof']:.4f} over {m['n_samples']} raw samples of {m['n_pixels']} periods  "
+                  + state)
+        else:
+            print(f"{name}: {m['objective']} {m['loss']:.6e}  {state}")
         if m.get("noise"):
-            print(f"  camera noise {m['noise']['description']}")
+            print(f"  camera noise {m['noise'].get('description', m['noise'])}")
         ex = m.get("pixels_excluded") or {}
         if ex.get("saturated") or ex.get("dark"):
             print(f"  excluded {ex['saturated']} saturated and {ex['dark']} dark super-pixels of "
                   f"{ex['candidates']}; fitted {ex['used']}")
-        print_params(m, unc.get("std_errors", {}), unc.get("ci95", {}))
-        if unc.get("method"):
-            print(uncertainty_text(unc))
-        if unc.get("correlation"):
+        print_params(m, unc.get("std_errors", {}), unc.get("ci95", {}), 8 if colour else 6)
+        uncertainty_lines(unc)
+        if unc.get("correlation") and not colour:   # (a colour fit's albedos are correlated)
             c = unc["correlation"]
             big = [(c["names"][i], c["names"][j], c["matrix"][i][j]) for i in range(len(c["names"]))
                    for j in range(i + 1, len(c["names"])) if abs(c["matrix"][i][j]) > 0.9]
@@ -174,6 +144,8 @@ def print_summary(report):
                   f"{', '.join(m['weakly_identified'])}")
         if m.get("albedo"):
             print("  " + albedo_text(m["albedo"]))
+        for img, c2 in (m.get("chi2_per_sample") or {}).items():
+            print(f"  {img}: chi2 per raw sample {c2:.3f}")
         if m.get("materials"):
             b = m["materials"]
             print(f"  {b['count']} material(s), fitted pixels " + ", ".join(f"{k}: {n}" for k, n in enumerate(b["pixels"]))
@@ -189,7 +161,11 @@ def print_summary(report):
                 line += ", " + power_text(im)
             print(f"{name}{line}" if len(report["models"]) > 1 else line)
     for img, errs in (report.get("relight") or {}).items():
-        if report.get("joint"):
+        if colour:
+            for name, e in errs.items():
+                print(f"relighting {img} ({name}): raw-sample RMSE / mean = {e['rel_rmse']:.4f} (R "
+                      f"{e['rel_rmse_R']:.4f}, G {e['rel_rmse_G']:.4f}, B {e['rel_rmse_B']:.4f})")
+        elif report.get("joint"):
             for name, e in errs.items():
                 print(f"relighting {img} ({name}): RMSE / mean intensity = {e['rel_rmse']:.4f}")
         elif isinstance(errs, dict):

@@ -9,7 +9,7 @@ import os
 from fmbrdf_mi._paths import check_output_dir
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
-from fmbrdf_mi.fit.inputs.manifest import image_names
+from fmbrdf_mi.fit.inputs.manifest import given_power, image_names
 from fmbrdf_mi.fit.result import json_default
 
 
@@ -93,6 +93,14 @@ def joint_outputs(out, names, holdout, albedo="shared", materials=None, colour=F
     files += list(MAP_OUTPUTS) if albedo in PER_PIXEL_LAYOUTS else []
     files += list(MATERIAL_OUTPUTS) if materials is not None else []
     return [os.path.join(out, f) for f in files]
+
+
+def image_entries(names, specs, observations):
+    """fit.json's ``images`` of a joint fit: each image's name, input file(s), light, irradiance, given power and
+    held-out flag."""
+    return [{"name": n, "input": s.input if isinstance(s.input, (str, list)) else None,
+             "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance, "power": given_power(s, o),
+             "holdout": s.holdout} for n, s, o in zip(names, specs, observations)]
 
 
 def prepare_outputs(specs, out, albedo="shared", materials=None, colour=False):
