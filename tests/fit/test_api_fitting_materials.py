@@ -194,7 +194,8 @@ def test_noise_free_two_materials_with_pixel_albedos():
         assert f.sum() > 30
         assert np.all(np.abs(res.maps["k_b"][f] / (truth["k_s"] * truth["r_k"]) - 1) < 1e-3)
     held = fit(obs, materials=lab, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False,
-               init=A, fixed={"kappa": 15.0}, bounds={"eta": (1.2, 2.5)})
+               init={k: A[k] for k in ("eta", "alpha", "beta", "kappa")}, fixed={"kappa": 15.0},
+               bounds={"eta": (1.2, 2.5)})
     assert held.converged
     assert [p["kappa"] for p in held.materials["parameters"]] == [15.0, 15.0]
     assert all("kappa" not in se for se in held.materials["std_errors"])
