@@ -81,7 +81,7 @@ def test_manifest_with_materials(tmp_path, capsys, albedo, relit, no_figures):
     mean below ``relit``.  Measured (this data): 0.022 shared; 0.11 per pixel, where each pixel's k_s from
     two lights is poorly determined away from the highlight (relative SE > 0.5 in 39 % of the pixels; 0.056
     with three lights fitted), so the per-pixel bound is loose: it catches a broken prediction, not a
-    small bias."""
+    small bias.  (One start, as in :func:`test_command_fits_two_materials_and_reruns`.)"""
     from fmbrdf_mi.cli import main
 
     lights = [(-0.5, 0.5, 1.0), (0.29, 0.5, 0.82), (0.29, -0.5, 0.82)]
@@ -95,7 +95,8 @@ def test_manifest_with_materials(tmp_path, capsys, albedo, relit, no_figures):
     np.save(tmp_path / "labels.npy", lab)
     out = tmp_path / "fit"
     assert main(["fit", "--manifest", str(tmp_path / "m.toml"), "--materials", str(tmp_path / "labels.npy"),
-                 "--albedo", albedo, "--max-pixels", "0", "--intervals", "fisher", "-o", str(out), "-q"]) == 0
+                 "--albedo", albedo, "--max-pixels", "0", "--intervals", "fisher", "--starts", "1", "-o", str(out),
+                 "-q"]) == 0
     text = capsys.readouterr().out
     assert "relighting l2" in text and "2 material(s)" in text and ("albedo maps:" in text) == (albedo != "shared")
     rep = json.loads((out / "fit.json").read_text())
