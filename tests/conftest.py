@@ -1,3 +1,4 @@
+import contextlib
 import os
 import sys
 
@@ -65,6 +66,35 @@ def fresnel_T(theta, eta):
     rs = (c - eta * ct) / (c + eta * ct)
     rp = (eta * c - ct) / (eta * c + ct)
     return 1 - rs ** 2, 1 - rp ** 2
+
+
+@contextlib.contextmanager
+def figures_not_drawn(keep=()):
+    """Within it, figures are built but neither laid out nor drawn: matplotlib's ``Figure.savefig`` leaves an
+    empty file under the name it is given, except for the file names in ``keep`` (drawn, not laid out).  For
+    the tests of commands that read none of the figures they write, only which files there are (laying out
+    and rasterising is much of a small fit command's time); the figures' content is tested elsewhere."""
+    from unittest import mock
+
+    from matplotlib.figure import Figure
+
+    draw = Figure.savefig
+
+    def savefig(self, fname, *args, **kwargs):
+        if not isinstance(fname, (str, os.PathLike)) or os.path.basename(fname) in keep:
+            return draw(self, fname, *args, **kwargs)
+        open(fname, "wb").close()
+
+    with mock.patch.object(Figure, "savefig", savefig), \
+            mock.patch.object(Figure, "tight_layout", lambda self, *args, **kwargs: None):
+        yield
+
+
+@pytest.fixture
+def no_figures():
+    """:func:`figures_not_drawn` for the whole test."""
+    with figures_not_drawn():
+        yield
 
 
 # ---------------------------------------------------------------- the commands' one-line errors
@@ -147,7 +177,7 @@ def finish_command(proc, timeout):
 #: The slow tier (``python -m pytest -q tests -m slow``; ``.ci/run`` runs both tiers): coverage loops over
 #: noise seeds, end-to-end refinements, the documentation's code and tutorials.  Node-id prefixes, marked
 #: here in one place so that the fast tier's budget is tuned in one file; tests may also carry
-#: ``@pytest.mark.slow`` themselves.  An entry matching no collected test of a collected file is an error
+#: ``@pytest.mark.slow`` themselves.  An entry naming a test that a collected file does not define is an error
 #: (a renamed test would otherwise move silently into the fast tier).
 SLOW = (
     "tests/test_docs.py",
@@ -181,14 +211,15 @@ SLOW = (
 
 def pytest_collection_modifyitems(config, items):
     root = os.path.dirname(HERE)
-    files, used = set(), set()
+    defined = {}        # file -> the names its module defines (a selection by node id collects only some tests)
     for item in items:
         node = os.path.relpath(str(item.path), root).replace(os.sep, "/") + item.nodeid[item.nodeid.find("::"):]
-        files.add(node.split("::")[0])
+        if getattr(item, "module", None) is not None:
+            defined.setdefault(node.split("::")[0], set(vars(item.module)))
         for prefix in SLOW:
             if node == prefix or node.startswith(prefix + "::") or node.startswith(prefix + "["):
                 item.add_marker(pytest.mark.slow)
-                used.add(prefix)
-    stale = [p for p in SLOW if p.split("::")[0] in files and p not in used]
+    stale = [p for p in SLOW if "::" in p and p.split("::")[0] in defined
+             and p.split("::")[1].split("[")[0] not in defined[p.split("::")[0]]]
     if stale:
-        raise pytest.UsageError("tests/conftest.py SLOW names no collected test: " + ", ".join(stale))
+        raise pytest.UsageError("tests/conftest.py SLOW names a test its file does not define: " + ", ".join(stale))

@@ -311,7 +311,7 @@ def test_refusals(tmp_path, capsys):
         assert not (tmp_path / "o").exists()
 
 
-def test_cli_writes_the_prior_and_reruns_it(tmp_path):
+def test_cli_writes_the_prior_and_reruns_it(tmp_path, no_figures):
     """``fmbrdf-mi fit --albedo per-pixel --albedo-smooth TAU_S,TAU_B`` fits with the prior (fit.json's albedo.prior
     and the posterior method), and ``--from`` reruns it with the same prior (the same maps)."""
     import json

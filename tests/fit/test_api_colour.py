@@ -5,6 +5,8 @@ import statistics
 import numpy as np
 import pytest
 
+from conftest import figures_not_drawn
+
 from fmbrdf_mi.sensor import mosaic
 from fmbrdf_mi.sensor.camera import CameraModel, capture, read_sidecar, write_sidecar
 
@@ -222,7 +224,7 @@ def test_fit_cli_colour_recovers_per_channel_albedos(tmp_path, capsys):
     ~1 % here; a swapped channel (ratios 1.5 and 1.25) fails both."""
     src = str(tmp_path / "s.exr")
     assert _cli("render", src, "--raw", "--sensor", "colour", "--res", "64", "--spp", "256", "-q",
-                "-D", "k_s=0.6,0.4,0.5", "-D", "r_k=0.7") == 0
+                "-D", "k_s=0.6,0.4,0.5", "-D", "r_k=0.7", "--no-previews") == 0
     raw = src[:-4] + "_raw.png"
     out = tmp_path / "fit"
     capsys.readouterr()
@@ -255,7 +257,8 @@ def test_fit_cli_colour_recovers_per_channel_albedos(tmp_path, capsys):
     assert (out / "colour_fit.png").stat().st_size > 10000
     # --from reruns it: the same estimates; a changed input is refused in one line
     again = tmp_path / "again"
-    assert _cli("fit", "--from", str(out / "fit.json"), "-o", str(again), "-q") == 0
+    with figures_not_drawn():
+        assert _cli("fit", "--from", str(out / "fit.json"), "-o", str(again), "-q") == 0
     m2 = json.load(open(again / "fit.json"))["models"]["fmbrdf"]
     assert m2["params"] == m["params"] and m2["std_errors"] == m["std_errors"]
     # outputs are not overwritten without --force: one line, files untouched

@@ -8,6 +8,8 @@ import types
 import numpy as np
 import pytest
 
+from conftest import figures_not_drawn
+
 SHAPE = dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0)
 LIGHTS = [(-0.5, 0.5, 1.0), (0.45, 0.35, 1.0), (0.1, -0.6, 1.0)]
 
@@ -201,7 +203,8 @@ def test_command_writes_three_channel_maps_and_reruns(tmp_path, capsys):
     capsys.readouterr()
     args = ["fit", raw, "-o", str(out), "--albedo", "per-pixel", "--fix", "eta=1.5", "--fix", "beta=2", "--fix",
             "kappa=10", "--erode", "1", "--intervals", "fisher"]
-    assert _cli(*args) == 0
+    with figures_not_drawn(keep=("albedo_maps.png",)):
+        assert _cli(*args) == 0
     text = capsys.readouterr().out
     assert "albedo maps per pixel and channel" in text and "\n    G: median k_s" in text
     rep = json.load(open(out / "fit.json"))
@@ -221,14 +224,15 @@ def test_command_writes_three_channel_maps_and_reruns(tmp_path, capsys):
         assert abs(a["per_channel"]["RGB"[j]]["k_b_median"] / med - 1) < 1e-6
     assert (out / "albedo_maps.png").stat().st_size > 10000 and (out / "colour_fit.png").exists()
     again = tmp_path / "again"
-    assert _cli("fit", "--from", str(out / "fit.json"), "-o", str(again), "-q") == 0
+    with figures_not_drawn():
+        assert _cli("fit", "--from", str(out / "fit.json"), "-o", str(again), "-q") == 0
     m2 = json.load(open(again / "fit.json"))["models"]["fmbrdf"]
     assert m2["params"] == m["params"] and m2["albedo"] == m["albedo"]
     for k, v in maps.items():
         np.testing.assert_array_equal(_read_rgb(again / f"{k}.exr"), v)
 
 
-def test_joint_command_relights_a_held_out_mosaic_with_the_maps(tmp_path, capsys):
+def test_joint_command_relights_a_held_out_mosaic_with_the_maps(tmp_path, capsys, no_figures):
     """Three lights of one view fitted with per-pixel maps, a fourth held out (a manifest): the maps are written
     with three channels and the held-out mosaic is predicted from them (relight error per channel in fit.json,
     below 5 % of the mean raw sample: the render's Monte Carlo noise and the camera's at 64 spp are ~2 %)."""

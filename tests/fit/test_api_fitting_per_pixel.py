@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import one_line_error
+from conftest import figures_not_drawn, one_line_error
 
 SHAPE = dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0)
 
@@ -105,7 +105,8 @@ def test_command_writes_the_maps_and_reruns(tmp_path, capsys):
     args = ["fit", str(tmp_path / "raw.npy"), "--sphere", "8,8,7", "--light=-0.5,0.5,1", "--conversion-gain",
             str(cam.conversion_gain), "--read-noise", "2.5", "--albedo", "per-pixel", "--max-pixels", "0",
             "--intervals", "fisher", "-q"]
-    assert main(args + ["-o", str(tmp_path / "a")]) == 0
+    with figures_not_drawn(keep=("albedo_maps.png",)):
+        assert main(args + ["-o", str(tmp_path / "a")]) == 0
     out = capsys.readouterr().out
     assert "albedo maps:" in out and "k_s.exr" in out
     import OpenEXR
@@ -121,7 +122,8 @@ def test_command_writes_the_maps_and_reruns(tmp_path, capsys):
     assert np.all(np.isnan(k_b[~ideal["mask"]]))
     assert (tmp_path / "a" / "albedo_maps.png").stat().st_size > 10000
     assert rep["reproduce"]["arguments"]["albedo"] == "per-pixel"
-    assert main(["fit", "--from", str(tmp_path / "a" / "fit.json"), "-o", str(tmp_path / "b"), "-q"]) == 0
+    with figures_not_drawn():
+        assert main(["fit", "--from", str(tmp_path / "a" / "fit.json"), "-o", str(tmp_path / "b"), "-q"]) == 0
     np.testing.assert_array_equal(read("k_b.exr", "b"), k_b)
     capsys.readouterr()
     rc = main(["fit", str(tmp_path / "raw.npy"), "--sphere", "8,8,7", "--light=0,0,1", "--albedo", "per-pixel",
@@ -130,7 +132,7 @@ def test_command_writes_the_maps_and_reruns(tmp_path, capsys):
     assert not (tmp_path / "c").exists()
 
 
-def test_joint_manifest_with_maps_relights_the_held_out_image(tmp_path, capsys):
+def test_joint_manifest_with_maps_relights_the_held_out_image(tmp_path, capsys, no_figures):
     """Three lights of a textured sphere (one view) and a fourth held out, through a manifest with
     `--albedo per-pixel`: the maps are written, the shape recovered within 4 standard errors, and the
     held-out image relit with the maps to RMSE / mean < 0.04 (noise alone: about 0.01; a uniform fit of

@@ -312,7 +312,7 @@ def test_noise_free_continuous_texture_is_recovered_bilinear_not_per_super_pixel
     assert new.albedo["layout"] == "per-pixel-bilinear"
 
 
-def test_option_wiring_and_refusals(tmp_path, capsys):
+def test_option_wiring_and_refusals(tmp_path, capsys, no_figures):
     """`--albedo per-pixel-bilinear` is an option value of the one pipeline (fit and CLI); with the paper's
     loss, free powers or several materials it is refused in one line; colour mosaics too (layout level)."""
     from fmbrdf_mi.cli import main

@@ -131,7 +131,8 @@ def test_bad_auto_is_one_line(tmp_path, capsys, value, message):
 def test_command_auto_writes_labels_and_records_how(tmp_path, capsys):
     """``fmbrdf-mi fit --materials auto:2`` on a raw capture: labels.png (the labels found: >= 95 % the truth
     up to order), fit.json's materials_found (method, seed, separation) and materials block; a manifest
-    (several images) is refused in one line."""
+    (several images) is refused in one line.  (One start: the search's part is
+    :func:`test_found_labels_are_the_truth_and_their_fit_is_the_true_labels_fit`'s.)"""
     from fmbrdf_mi.cli import main
     from fmbrdf_mi.synthetic.spheres import half_labels, material_sphere
     from fmbrdf_mi.fit.inputs.labels import read_labels
@@ -141,7 +142,7 @@ def test_command_auto_writes_labels_and_records_how(tmp_path, capsys):
     ideal = material_sphere([A, B], half_labels(RES), res=RES, light=LIGHT)
     np.save(tmp_path / "raw.npy", capture(ideal["stokes"], cam, peak_fraction=0.8, seed=2)["raw"])
     args = ["fit", str(tmp_path / "raw.npy"), "--sphere", "8,8,7", "--light=-0.5,0.5,1", "--conversion-gain",
-            str(cam.conversion_gain), "--read-noise", "2.5", "--materials", "auto:2", "--intervals", "fisher", "-q"]
+            str(cam.conversion_gain), "--read-noise", "2.5", "--materials", "auto:2", "--intervals", "fisher", "--starts", "1", "-q"]
     assert main(args + ["-o", str(tmp_path / "a")]) == 0
     out = capsys.readouterr().out
     assert "labels.png" in out and "2 material(s)" in out

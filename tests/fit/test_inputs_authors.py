@@ -121,7 +121,7 @@ def test_read_object_errors(blob, tmp_path):
         read_object(bad)
 
 
-def test_authors_object_end_to_end_through_the_command(blob, tmp_path, capsys):
+def test_authors_object_end_to_end_through_the_command(blob, tmp_path, capsys, no_figures):
     """`fmbrdf-mi fit --authors DIR --holdout 3` with the camera's gain and read noise: a joint likelihood fit
     of three 16-bit raw mosaics of a non-spherical mesh object (pinhole camera, per-pixel viewing rays,
     unequal light powers) recovers the six parameters within 4.5 of its reported standard errors (two-sided
@@ -155,7 +155,7 @@ def test_authors_object_end_to_end_through_the_command(blob, tmp_path, capsys):
     assert "exists; pass --force" in capsys.readouterr().err
 
 
-def test_manifest_and_repeated_light_give_the_authors_fit(blob, tmp_path, capsys):
+def test_manifest_and_repeated_light_give_the_authors_fit(blob, tmp_path, capsys, no_figures):
     """The same three images through a TOML manifest (normals and view rays in this package's frame,
     powers, a held-out image) and through repeated --light give the estimates of --authors to 1e-6
     (same pixels, same data, same options); manifest mistakes are one line naming the key."""
@@ -192,7 +192,7 @@ def test_manifest_and_repeated_light_give_the_authors_fit(blob, tmp_path, capsys
     assert "image 0: unknown key(s) colour" in capsys.readouterr().err
 
 
-def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys):
+def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys, no_figures):
     """`fmbrdf-mi fit --from fit.json` reruns a joint fit made through a manifest and through --authors: the
     record names every image with its SHA-256, light, power, geometry and held-out flag, and the rerun gives
     the same estimates (same files, same options, same seed: bit for bit); a changed image, sidecar-free raw
@@ -206,7 +206,7 @@ def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys):
     root = tmp_path / "obj"             # a copy: the test changes an image
     shutil.copytree(src, root)
     g, init = _write_manifest(tmp_path, root, truth, "obj")
-    common = ["--max-pixels", "200", "-q", "--init", init, "--seed", "3", "--intervals", "fisher"]
+    common = ["--max-pixels", "100", "-q", "--init", init, "--seed", "3", "--intervals", "fisher"]
     assert main(["fit", "--manifest", str(tmp_path / "m.toml"), "-o", str(tmp_path / "a")] + common) == 0
     assert main(["fit", "--authors", str(root), "--holdout", "3", "--conversion-gain", repr(g), "--read-noise",
                  "2.5", "-o", str(tmp_path / "b")] + common) == 0

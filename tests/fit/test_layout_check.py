@@ -43,7 +43,7 @@ def test_a_fit_of_the_right_layout_is_not_refitted():
     assert LC.mirrored_layout_hint(_report(chi2=380.0), {"model": "fmbrdf"}, no_fit, progress=False) is None
 
 
-def test_a_swapped_capture_is_named(capsys, tmp_path):
+def test_a_swapped_capture_is_named(capsys, tmp_path, no_figures):
     """A raw render of the built-in sphere decoded with 45 and 135 swapped (--layout 90,135,45,0): chi^2 per
     sample 2.5, against 1.2 for the right layout, which the line names."""
     rc, _, err = run(capsys, "render", str(tmp_path / "c.exr"), "--no-previews", "-q", "--variant",

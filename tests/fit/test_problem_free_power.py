@@ -167,7 +167,7 @@ def test_free_power_input_errors(variant):
         fit_joint(obs, free_power=True, powers=[1.0, -1.0, 1.0], progress=False)
 
 
-def test_cli_free_power_through_a_manifest_and_rerun(tmp_path, capsys, variant):
+def test_cli_free_power_through_a_manifest_and_rerun(tmp_path, capsys, variant, no_figures):
     """Three raw mosaics (with capture sidecars: known noise) listed in a manifest with powers 1, 1, 1;
     --free-power reports the powers with standard errors in fit.json and the summary, within 4 SE of
     the truth; --from reproduces them; a single image with --free-power is refused in one line."""
