@@ -95,7 +95,7 @@ def test_misfit_with_free_powers_and_per_pixel_albedos():
     assert 0.8 < ratio < 1.25, ratio
     assert any("warning: chi^2/dof" in s for s in lines), lines
 
-    opts = FitOptions(loss="likelihood", fixed=fixed, starts=1, albedo="per-pixel", init=TRUE, intervals="fisher")
+    opts = FitOptions(loss="likelihood", fixed=fixed, starts=1, albedo="per-pixel", init=SHAPE, intervals="fisher")
     honest = fit(obs[0], opts, progress=False)
     lines = []
     wrong = fit(_misstated(obs[0]), opts, progress=lines.append)
