@@ -42,3 +42,14 @@ def test_quiet_fit_prints_nothing(capsys):
     fit(obs, loss="likelihood", starts=1, max_iter=3, rounds=1, intervals="profile", progress=False)
     captured = capsys.readouterr()
     assert captured.err == "" and captured.out == ""
+
+
+def test_mirrored_layout_check_announces_its_time_from_the_first_fit(capsys):
+    """The mirrored-layout check refits silently; its announcement carries the first fit's measured time."""
+    from fmbrdf_mi.fit.cli import layout_check as LC
+
+    report = {"models": {"fmbrdf": {"objective": "likelihood", "loss_terms": {"chi2": 800.0, "samples": 320},
+                                    "converged": True, "uncertainty": {"misfit": True}, "timings": {"total": 42.4}}},
+              "reproduce": {"settings": {"demosaic": "bilinear", "layout": [[90, 135], [45, 0]]}}}
+    assert LC.mirrored_layout_hint(report, {"model": "fmbrdf"}, lambda **kw: report, progress=True) is None
+    assert "~42 s" in capsys.readouterr().err
