@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 
 import numpy as np
 
 from fmbrdf_mi.fit.solve.driver import refit_fixed
+from fmbrdf_mi.fit.solve.optimise import time_left
 
 Z95 = 1.959963984540054
 
@@ -478,13 +480,15 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
     return float(pts[-1][0]), "profile, at least", pts
 
 
-def profile_intervals(problem, st, unc, J, r, every=False):
+def profile_intervals(problem, st, unc, J, r, every=False, progress=None):
     """Replace each Fisher 95 % interval end where chi^2 along :func:`chi2_along_covariance` does not rise by
     delta = 1.96^2 x scale to within :data:`PROFILE_TOL` by the profile likelihood's (:func:`profile_end`).
     With the incidental sandwich delta is per parameter, x :func:`sandwich_ratio` (adjusted likelihood ratio,
     Varin, Reid and Firth 2011, sec. 4.2), and a profile end only widens (the profile of chi^2 with the
     albedos eliminated lacks their noise).  Sets ``unc``'s ``interval_kind``, ``profile`` and ``ci95``.
-    Likelihood fits without extra unknowns only.  ``every``: profile every end.  Returns the mechanisms applied.
+    Likelihood fits without extra unknowns only.  ``every``: profile every end.  ``progress``: a callable
+    told after each parameter how many are checked, with the time left at the measured time per parameter.
+    Returns the mechanisms applied.
     """
     if not problem.obj.is_likelihood or not unc.get("ci95") or problem.with_fixed({}) is None:
         return []
@@ -497,11 +501,12 @@ def profile_intervals(problem, st, unc, J, r, every=False):
         return []
     kinds, details, fisher = {}, {}, {n: list(v) for n, v in unc["ci95"].items()}
     fse = unc.get("incidental", {}).get("fisher_std_errors")
-    thresholds = {}
-    for n in problem.names:
-        se = unc["std_errors"].get(n)
-        if se is None or not math.isfinite(se) or se <= 0:
-            continue
+    thresholds, t0 = {}, time.time()
+    names = [n for n in problem.names if unc["std_errors"].get(n) is not None
+             and math.isfinite(unc["std_errors"][n]) and unc["std_errors"][n] > 0]
+    if progress is not None:
+        progress(f"[fit] interval check: {len(names)} parameters against the profile likelihood")
+    for j, n in enumerate(names):
         if fse is not None:
             delta = thresholds[n] = Z95 ** 2 * scale * sandwich_ratio(unc, n)
         _, _, lo, hi = problem.bounds.lims[n]
@@ -527,6 +532,10 @@ def profile_intervals(problem, st, unc, J, r, every=False):
         kinds[n] = kind_of(kind)
         details[n] = tried
         unc["ci95"][n] = [float(min(ends[0], v)), float(max(ends[1], v))]
+        if progress is not None:
+            progress(f"[fit] interval check: {n} done, {j + 1}/{len(names)} parameters ({time.time() - t0:.1f} s"
+                     + (f", {time_left(time.time() - t0, j + 1, len(names), 'in the check')})" if j + 1 < len(names)
+                        else ")"))
     unc["interval_kind"] = {**{n: k for n, k in unc.get("interval_kind", {}).items() if n not in kinds}, **kinds}
     unc["profile"] = {"threshold": Z95 ** 2 * scale, "rises": details, "fisher_ci95": fisher}
     if thresholds:

@@ -37,7 +37,8 @@ def check_intervals(res, every=False, progress=None):
         fx.applied.append(("profile-skipped", ""))
         return settle(res)
     sol = fx.solution
-    fx.applied += U.profile_intervals(fx.problem, sol.state, res.uncertainty, sol.J, sol.r, every=every)
+    fx.applied += U.profile_intervals(fx.problem, sol.state, res.uncertainty, sol.J, sol.r, every=every,
+                                      progress=say)
     kinds = res.uncertainty.get("interval_kind", {})
     prof = {n: kinds[n] for n in U.profiled(kinds)}
     if prof:

@@ -60,9 +60,11 @@ def mirrored_layout_hint(report, kw, fit_files, progress=True):
     if other == tuple(tuple(int(a) for a in row) for row in used):
         return None              # no 45 / 135 in the layout
     c0 = chi2_per_sample(report["models"][model])
+    took = report["models"][model].get("timings", {}).get("total", 0.0)
     if progress:
         print(f"fmbrdf-mi fit: chi^2 per sample {c0:.3g}: checking the mirrored polariser layout "
-              f"{layout_text(other)} (45 and 135 deg swapped) ...", file=sys.stderr, flush=True)
+              f"{layout_text(other)} (45 and 135 deg swapped), a second fit (~{took:.0f} s, as the first) ...",
+              file=sys.stderr, flush=True)
     with tempfile.TemporaryDirectory(prefix="fmbrdf-mi-layout-") as tmp:
         run = dict(kw, layout=layout_text(other), out=os.path.join(tmp, "fit"), force=False, progress=False,
                    baselines=False, relight=None, relight_light=None, relight_irradiance=None)

@@ -128,9 +128,10 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
             history.append({"stage": "search", "iter": 0, "loss": cands[0][0], "time": t_search,
                             "params": params.report(cands[0][1].shape, cands[0][1].a_s, cands[0][1].a_b)})
             chosen = distinct_starts(problem, cands, max(1, int(starts)))
-        best = None
+        best, t_starts = None, time.time()
         for k, st0 in enumerate(chosen):
-            say(f"[fit] start {k + 1}/{len(chosen)}: {O.format_state(problem, st0)}")
+            left = O.time_left(time.time() - t_starts, k, len(chosen), "for the starts")
+            say(f"[fit] start {k + 1}/{len(chosen)}: {O.format_state(problem, st0)}" + (f" ({left})" if left else ""))
             saved = problem.obj.save()
             end = refine(problem, st0, rounds=rounds, optimizer=optimizer, max_iter=max_iter, tol=tol,
                          time_limit=time_limit, lr=lr, history=history, report=say)

@@ -43,18 +43,24 @@ def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of,
     say = progress or (lambda m: None)
     t = time.time()
     combos = list(itertools.product(*[grids[n] for n in first]))
+    most = len(combos) + keep * sum(len(grids[n]) for n in later)    # points the search evaluates at most
+
+    def left():
+        return time_left(time.time() - t, len(results), most, "in the search", bound=True)
+
     for j, combo in enumerate(combos):
         try_point({**mids, **dict(zip(first, combo))})
         if (j + 1) % 6 == 0 or j + 1 == len(combos):
             say(f"[search] stage 1 ({', '.join(first)}): {j + 1}/{len(combos)} grid points, "
-                f"best {best()[0]:.6e} ({time.time() - t:.1f} s)")
+                f"best {best()[0]:.6e} ({time.time() - t:.1f} s, {left()})")
     for stage, name in enumerate(later, start=2):
         top = sorted(results.values(), key=lambda x: x[0])[:keep]
         for _, point in top:
             for value in grids[name]:
                 try_point({**shape_of(point), name: value})
         say(f"[search] stage {stage} ({name}): best {best()[0]:.6e} "
-            f"({time.time() - t:.1f} s, {len(results)} grid points)")
+            f"({time.time() - t:.1f} s, {len(results)} grid points"
+            + (f", {left()})" if stage <= len(later) else ")"))
     return sorted(results.values(), key=lambda x: x[0])
 
 
@@ -119,14 +125,25 @@ def format_state(problem, st):
     return " ".join(f"{k}={v:.4g}" for k, v in rep.items())
 
 
-def log_step(problem, history, name, round_no, it, f, st, say=True):
-    """Log an iterate of optimiser ``name`` to ``history`` (a list, or None) and, if ``say``, to progress."""
+def time_left(elapsed, done, total, where, bound=False):
+    """'~N s left ``where``': ``total - done`` more units at the mean time per unit measured so far,
+    ``elapsed / done``; 'at most' first when ``total`` is an upper bound (``bound``); empty before the first."""
+    if done <= 0:
+        return ""
+    left = elapsed / done * max(total - done, 0)
+    return f"{'at most ' if bound else ''}~{left:.{0 if left >= 10 else 1}f} s left {where}"
+
+
+def log_step(problem, history, name, round_no, it, f, st, say=True, t0=None, max_iter=None):
+    """Log an iterate of optimiser ``name`` to ``history`` (a list, or None) and, if ``say``, to progress; with
+    ``t0`` (the optimiser's start) and ``max_iter``, the progress line carries :func:`time_left`."""
     if history is not None:
         history.append({"stage": f"{name}{round_no}", "iter": it, "loss": f, "time": time.time() - problem.t0,
                         "params": problem.params.report(st.shape, st.a_s, st.a_b)})
     if say:
+        left = "" if t0 is None else ", " + time_left(time.time() - t0, it, max_iter, "in this round", bound=True)
         problem.progress(f"[{name} {round_no}] iter {it:3d}  {problem.obj.name} {f:.6e}  {format_state(problem, st)}  "
-                         f"({time.time() - problem.t0:.1f} s)")
+                         f"({time.time() - problem.t0:.1f} s{left})")
 
 
 def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, history=None,
@@ -163,7 +180,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
 
     def on_accept(it, x, f):
         problem.current = x[0]
-        log_step(problem, history, "lm", round_no, it, f, x[0])
+        log_step(problem, history, "lm", round_no, it, f, x[0], t0=t0, max_iter=max_iter)
 
     if project:
         st = problem.projected(st.shape)[0]
@@ -236,7 +253,7 @@ def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limi
         if f < best[0]:
             best = (f, st.copy())
             problem.current = best[1]
-        log_step(problem, history, "adam", round_no, it, f, st, say=it % 5 == 0 or it == 1)
+        log_step(problem, history, "adam", round_no, it, f, st, say=it % 5 == 0 or it == 1, t0=t0, max_iter=max_iter)
         if since >= patience:
             reason = f"best loss not improved by {tol:g} (relative) in {patience} iterations"
             converged = True
