@@ -260,6 +260,33 @@ def test_progress_reports_on_non_tty():
     assert quiet.getvalue() == ""
 
 
+def test_progress_estimates_the_time_left(monkeypatch):
+    """The estimate is the remaining passes at the rate of the passes after the first (which also compiles);
+    after one pass, the first pass's time per pass."""
+    import io
+
+    now = [0.0]
+    monkeypatch.setattr(S.time, "perf_counter", lambda: now[0])
+    buf = io.StringIO()
+    bar = S._Progress("x", 4, delay=0.0, stream=buf)    # starts at 0 s; passes end at 10, 12, 14 and 20 s
+    now[0] = 10.0
+    bar.step()
+    assert bar.left() == 30.0                           # 3 passes left at 10 s a pass (the first)
+    now[0] = 12.0
+    bar.step()
+    now[0] = 14.0
+    bar.step()
+    assert bar.left() == 2.0                            # (14 - 10) s / 2 passes, 1 pass left
+    now[0] = 20.0
+    bar.step()
+    lines = buf.getvalue().splitlines()
+    assert lines == ["x: [#####...............] 1/4 passes, 10.0 s (about 30.0 s left)",
+                     "x: [##########..........] 2/4 passes, 12.0 s (about 4.0 s left)",
+                     "x: [###############.....] 3/4 passes, 14.0 s (about 2.0 s left)",
+                     "x: [####################] 4/4 passes, 20.0 s (done)"]
+    assert [S._duration(t) for t in (59.94, 65, 3725)] == ["59.9 s", "1 min 05 s", "1 h 02 min"]
+
+
 def test_exr_round_trip_of_a_render(tmp_path):
     mi = _mono()
     stokes = S.render_stokes(mi.load_dict(S.sphere_scene(resolution=12, spp=4)), progress=False)
