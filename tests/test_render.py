@@ -287,6 +287,29 @@ def test_progress_estimates_the_time_left(monkeypatch):
     assert [S._duration(t) for t in (59.94, 65, 3725)] == ["59.9 s", "1 min 05 s", "1 h 02 min"]
 
 
+def test_writing_progress_estimates_the_time_left():
+    """After the render, each file written is a step: silent while the steps are quick, then a line a step
+    with the remaining steps at the mean time per step so far."""
+    import io
+
+    from fmbrdf_mi.render import StageProgress
+
+    now = [0.0]
+    buf = io.StringIO()
+    bar = StageProgress("writing", 4, delay=2.0, stream=buf, clock=lambda: now[0])
+    for t, name in [(1.0, "a"), (6.0, "b"), (9.0, "c"), (12.0, "d")]:
+        now[0] = t
+        bar.step(name)
+    assert buf.getvalue().splitlines() == ["writing: 2/4 b, 6.0 s (about 6 s left)",
+                                           "writing: 3/4 c, 9.0 s (about 3 s left)",
+                                           "writing: 4/4 d, 12.0 s (done)"]
+    quiet = io.StringIO()
+    bar = StageProgress("writing", 2, enabled=False, delay=0.0, stream=quiet, clock=lambda: now[0])
+    now[0] = 100.0
+    bar.step("a")
+    assert quiet.getvalue() == ""
+
+
 def test_exr_round_trip_of_a_render(tmp_path):
     mi = _mono()
     stokes = S.render_stokes(mi.load_dict(S.sphere_scene(resolution=12, spp=4)), progress=False)
