@@ -28,7 +28,8 @@ Each size runs in a fresh Python process (so one size's memory does not count fo
 ``fmbrdf-mi render OUT.exr --raw --res WxH [-D k_s=TEXTURE.png] [--spp N]`` (the Stokes EXR, its previews, the
 raw mosaic and its sidecar; a textured sphere also its true albedo maps), each size and scene (``plain``: the
 built-in sphere; ``textured``: its albedo ``k_s`` a smooth one-channel texture the tool writes as a PNG) in a child
-process: its wall time and peak resident set (``os.wait4``'s ``ru_maxrss`` of that child).  Sizes are raw
+process: its wall time, CPU time (user + system: less sensitive to other work on the machine than the
+wall time) and peak resident set (``os.wait4``'s ``ru_utime``, ``ru_stime`` and ``ru_maxrss`` of that child).  Sizes are raw
 pixels, N or WxH; a polarisation camera's full frame is 2448x2048 (1224 x 1024 super-pixels).  The render's
 progress lines pass through on stderr.
 
@@ -223,15 +224,15 @@ def run_render(size, scene, spp, work, texture):
             written += os.path.getsize(os.path.join(work, f))
             os.remove(os.path.join(work, f))
     return {"mode": "render", "scene": scene, "width": w, "height": h, "spp": spp_used, "time": dt,
-            "peak": usage.ru_maxrss * 1024, "written": written}
+            "cpu": usage.ru_utime + usage.ru_stime, "peak": usage.ru_maxrss * 1024, "written": written}
 
 
 def render_table(runs, head):
-    lines = [head, "", "| scene | raw pixels | super-pixels | spp | time | peak RSS | files written |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [head, "", "| scene | raw pixels | super-pixels | spp | time | CPU time | peak RSS | files written |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in runs:
         lines.append(f"| {r['scene']} | {r['width']} × {r['height']} | {r['width'] // 2} × {r['height'] // 2} | "
-                     f"{r['spp']} | {r['time']:.1f} s | {r['peak'] / 2 ** 30:.2f} GiB | "
+                     f"{r['spp']} | {r['time']:.1f} s | {r['cpu']:.1f} s | {r['peak'] / 2 ** 30:.2f} GiB | "
                      f"{r['written'] / 2 ** 20:.1f} MiB |")
     return "\n".join(lines)
 
