@@ -730,7 +730,8 @@ def run_render(args):
     }
     if xml_text is not None:
         meta["scene_xml"] = xml_text
-    exposure = args.exposure if args.exposure is not None or not kinds else auto_exposure(stokes)
+    exposure = args.exposure if args.exposure is not None or not kinds else auto_exposure(stokes)  # all previews'
+
     def write_exr(out):
         write_stokes_exr(out, stokes, meta, force=True)
         return {}
