@@ -699,7 +699,7 @@ def run_render(args):
                 resolved[k] = v
         resolved.update(given)
     from .stokes_io import write_stokes_exr
-    from .previews import write_previews
+    from .previews import auto_exposure, write_previews
 
     if args.raw and spp is None and int(scene.sensors()[0].sampler().sample_count()) < RAW_MIN_SPP:
         spp = RAW_MIN_SPP    # the capture's noise is the camera's, not the renderer's (RAW_MIN_SPP)
@@ -730,16 +730,29 @@ def run_render(args):
     }
     if xml_text is not None:
         meta["scene_xml"] = xml_text
-    with staged_outputs(args.output) as out:   # every file or none (Ctrl-C, a refused capture)
+    exposure = args.exposure if args.exposure is not None or not kinds else auto_exposure(stokes)  # all previews'
+
+    def write_exr(out):
         write_stokes_exr(out, stokes, meta, force=True)
-        written = write_previews(out[:-4], stokes, kinds, exposure=args.exposure, dolp_max=args.dolp_max,
-                                 modulate_aolp=args.aolp_dolp, force=True) if kinds else {}
-        if args.raw:
-            written["raw"], written["raw_sidecar"] = _write_raw(args, stokes, meta, out)
-        if textured:
-            written.update(_write_true_maps(args, scene, material, meta, out))
-        if getattr(args, "materials", None) is not None:
-            written.update(_write_labels(args, scene, out))
+        return {}
+
+    steps = [("Stokes EXR", write_exr)]
+    steps += [(f"{kind} preview", lambda out, kind=kind: write_previews(
+        out[:-4], stokes, [kind], exposure=exposure, dolp_max=args.dolp_max, modulate_aolp=args.aolp_dolp,
+        force=True)) for kind in kinds]
+    if args.raw:
+        steps.append(("raw mosaic and sidecar",
+                      lambda out: dict(zip(("raw", "raw_sidecar"), _write_raw(args, stokes, meta, out)))))
+    if textured:
+        steps.append(("true albedo maps", lambda out: _write_true_maps(args, scene, material, meta, out)))
+    if getattr(args, "materials", None) is not None:
+        steps.append(("label images", lambda out: _write_labels(args, scene, out)))
+    written = {}
+    with staged_outputs(args.output) as out:   # every file or none (Ctrl-C, a refused capture)
+        bar = StageProgress("writing", len(steps), enabled=not args.quiet)
+        for name, write in steps:
+            written.update(write(out))
+            bar.step(name)
     written = {k: os.path.join(os.path.dirname(args.output), os.path.basename(p)) for k, p in written.items()}
     cols = "Y" if c == 1 else "R,G,B"
     print(f"wrote {args.output}: Stokes S0-S3 x {cols}, {w}x{h}, {spp_used} spp, {args.variant}, "
@@ -747,6 +760,25 @@ def run_render(args):
     for p in written.values():
         print(f"wrote {p}")
     return 0
+
+
+class StageProgress:
+    """Progress of the steps after the render (the files written), on stderr: a line per step once the
+    steps have taken longer than ``delay`` seconds, with the time left at the mean time per step so far."""
+
+    def __init__(self, label, n_steps, enabled=True, delay=2.0, stream=None, clock=time.perf_counter):
+        self.label, self.n, self.done = label, n_steps, 0
+        self.enabled, self.delay, self.clock = enabled, delay, clock
+        self.stream = stream or sys.stderr
+        self.t0 = clock()
+
+    def step(self, name):
+        self.done += 1
+        t = self.clock() - self.t0
+        if not self.enabled or t <= self.delay:
+            return
+        left = "done" if self.done == self.n else f"about {t / self.done * (self.n - self.done):.0f} s left"
+        print(f"{self.label}: {self.done}/{self.n} {name}, {t:.1f} s ({left})", file=self.stream, flush=True)
 
 
 def _raw_camera(args):

@@ -386,6 +386,16 @@ def pass_seed(seed, k):
     return int(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, k]).generate_state(1)[0])
 
 
+def _duration(seconds):
+    """``12.3 s``, ``4 min 05 s`` or ``2 h 03 min``: a progress line's time."""
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    m = int(round(seconds))
+    if m < 3600:
+        return f"{m // 60} min {m % 60:02d} s"
+    return f"{m // 3600} h {m % 3600 // 60:02d} min"
+
+
 class _Progress:
     """Prints render progress on stderr once a render has taken longer than ``delay`` seconds."""
 
@@ -394,7 +404,7 @@ class _Progress:
         self.stream = stream or sys.stderr
         self.enabled, self.delay = enabled, delay
         self.tty = getattr(self.stream, "isatty", lambda: False)()
-        self.t0 = self._last = time.perf_counter()
+        self.t0 = self._last = self._first = self._last_step = time.perf_counter()
         self.shown = False
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -407,8 +417,24 @@ class _Progress:
         t = time.perf_counter() - self.t0
         frac = self.done / self.n
         bar = "#" * int(20 * frac) + "." * (20 - int(20 * frac))
-        state = "compiling and rendering" if self.done == 0 else "rendering"
-        return f"{self.label}: [{bar}] {self.done}/{self.n} passes, {t:.1f} s ({state})"
+        if self.done == 0:
+            state = "compiling and rendering"
+        elif self.done == self.n:
+            state = "done"
+        else:
+            state = f"about {_duration(self.left())} left"
+        return f"{self.label}: [{bar}] {self.done}/{self.n} passes, {_duration(t)} ({state})"
+
+    def left(self):
+        """Seconds the remaining passes take at the measured rate: the passes after the first (which also
+        compiles the kernel) once there are any, else the first pass's time."""
+        if self.done == 0:
+            return math.nan
+        if self.done == 1:
+            per = self._first - self.t0
+        else:
+            per = (self._last_step - self._first) / (self.done - 1)
+        return per * (self.n - self.done)
 
     def _show(self, end=""):
         with self._lock:
@@ -425,8 +451,10 @@ class _Progress:
                 self._show()
 
     def step(self):
+        now = self._last_step = time.perf_counter()
+        if self.done == 0:
+            self._first = now
         self.done += 1
-        now = time.perf_counter()
         if (self.enabled and not self.tty and now - self.t0 > self.delay
                 and (self.done == self.n or now - self._last >= 1.0)):  # a line a second at most
             self._last = now

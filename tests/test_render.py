@@ -260,6 +260,56 @@ def test_progress_reports_on_non_tty():
     assert quiet.getvalue() == ""
 
 
+def test_progress_estimates_the_time_left(monkeypatch):
+    """The estimate is the remaining passes at the rate of the passes after the first (which also compiles);
+    after one pass, the first pass's time per pass."""
+    import io
+
+    now = [0.0]
+    monkeypatch.setattr(S.time, "perf_counter", lambda: now[0])
+    buf = io.StringIO()
+    bar = S._Progress("x", 4, delay=0.0, stream=buf)    # starts at 0 s; passes end at 10, 12, 14 and 20 s
+    now[0] = 10.0
+    bar.step()
+    assert bar.left() == 30.0                           # 3 passes left at 10 s a pass (the first)
+    now[0] = 12.0
+    bar.step()
+    now[0] = 14.0
+    bar.step()
+    assert bar.left() == 2.0                            # (14 - 10) s / 2 passes, 1 pass left
+    now[0] = 20.0
+    bar.step()
+    lines = buf.getvalue().splitlines()
+    assert lines == ["x: [#####...............] 1/4 passes, 10.0 s (about 30.0 s left)",
+                     "x: [##########..........] 2/4 passes, 12.0 s (about 4.0 s left)",
+                     "x: [###############.....] 3/4 passes, 14.0 s (about 2.0 s left)",
+                     "x: [####################] 4/4 passes, 20.0 s (done)"]
+    assert [S._duration(t) for t in (59.94, 65, 3725)] == ["59.9 s", "1 min 05 s", "1 h 02 min"]
+
+
+def test_writing_progress_estimates_the_time_left():
+    """After the render, each file written is a step: silent while the steps are quick, then a line a step
+    with the remaining steps at the mean time per step so far."""
+    import io
+
+    from fmbrdf_mi.render import StageProgress
+
+    now = [0.0]
+    buf = io.StringIO()
+    bar = StageProgress("writing", 4, delay=2.0, stream=buf, clock=lambda: now[0])
+    for t, name in [(1.0, "a"), (6.0, "b"), (9.0, "c"), (12.0, "d")]:
+        now[0] = t
+        bar.step(name)
+    assert buf.getvalue().splitlines() == ["writing: 2/4 b, 6.0 s (about 6 s left)",
+                                           "writing: 3/4 c, 9.0 s (about 3 s left)",
+                                           "writing: 4/4 d, 12.0 s (done)"]
+    quiet = io.StringIO()
+    bar = StageProgress("writing", 2, enabled=False, delay=0.0, stream=quiet, clock=lambda: now[0])
+    now[0] = 100.0
+    bar.step("a")
+    assert quiet.getvalue() == ""
+
+
 def test_exr_round_trip_of_a_render(tmp_path):
     mi = _mono()
     stokes = S.render_stokes(mi.load_dict(S.sphere_scene(resolution=12, spp=4)), progress=False)

@@ -3,6 +3,8 @@
     python tools/bench_fullframe.py [--sizes 64,128,256] [--lights 1] [--texture smooth] [--intervals fisher]
                                     [--cli] [--json out.json] [--markdown out.md]
     python tools/bench_fullframe.py --table out.json [more.json ...]
+    python tools/bench_fullframe.py --render [--render-sizes 512,1024,2448x2048] [--scenes plain,textured]
+                                    [--spp N] [--json out.json] [--markdown out.md]
 
 Data, as a camera makes them: the textured orthographic sphere of tools/bench_textured.py
 (:func:`fmbrdf_mi.synthetic.spheres.textured_sphere`, the `medium` material, its ``smooth`` or ``high``
@@ -22,6 +24,15 @@ Each size runs in a fresh Python process (so one size's memory does not count fo
   normal map, mask, light and irradiance of the capture, everything else the command's defaults (its
   intervals and checks included); the child process's peak resident set (``RUSAGE_CHILDREN``).
 
+``--render``: the data's own making instead, the command a user types to make a full frame,
+``fmbrdf-mi render OUT.exr --raw --res WxH [-D k_s=TEXTURE.png] [--spp N]`` (the Stokes EXR, its previews, the
+raw mosaic and its sidecar; a textured sphere also its true albedo maps), each size and scene (``plain``: the
+built-in sphere; ``textured``: its albedo ``k_s`` a smooth one-channel texture the tool writes as a PNG) in a child
+process: its wall time, CPU time (user + system: less sensitive to other work on the machine than the
+wall time) and peak resident set (``os.wait4``'s ``ru_utime``, ``ru_stime`` and ``ru_maxrss`` of that child).  Sizes are raw
+pixels, N or WxH; a polarisation camera's full frame is 2448x2048 (1224 x 1024 super-pixels).  The render's
+progress lines pass through on stderr.
+
 Reported per size and mode: the fitted super-pixels, wall time, peak resident set (the fit's process:
 VmHWM), the peak's growth over the resident set before the fit, and both per fitted super-pixel.  The
 machine's CPU, its number of cores, ``DRJIT_NUM_THREADS`` and the date head the table.  Timings are wall
@@ -32,6 +43,7 @@ import datetime
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -166,6 +178,96 @@ def run_size(a, size, mode):
     return json.loads(lines[-1][7:])
 
 
+def texture_png(path, size=512):
+    """A smooth one-channel albedo texture (values in [28, 228] of 255; the spectral variant takes no RGB
+    albedo) written to ``path``."""
+    import numpy as np
+    from PIL import Image
+
+    y, x = np.mgrid[0:size, 0:size] / size
+    grey = 128 + 100 * np.sin(2 * np.pi * 3 * x) * np.cos(2 * np.pi * 2 * y)
+    Image.fromarray(np.round(grey).astype(np.uint8)).save(path)
+    return path
+
+
+def parse_res(text):
+    """``512`` or ``2448x2048`` -> (width, height)."""
+    w, _, h = text.strip().lower().partition("x")
+    try:
+        w, h = int(w), int(h or w)
+    except ValueError:
+        raise SystemExit(f"--render-sizes: expected N or WxH, e.g. 512 or 2448x2048, got {text!r}") from None
+    if w < 2 or h < 2 or w % 2 or h % 2:
+        raise SystemExit(f"--render-sizes: {text!r}: width and height must be even (the 2 x 2 mosaic)")
+    return w, h
+
+
+def run_render(size, scene, spp, work, texture):
+    """One ``fmbrdf-mi render --raw`` in a child process: its wall time and peak resident set."""
+    w, h = size
+    out = os.path.join(work, f"{scene}_{w}x{h}.exr")
+    cmd = [sys.executable, "-m", "fmbrdf_mi", "render", out, "--raw", "--res", f"{w}x{h}", "--force"]
+    cmd += ["-D", f"k_s={texture}"] if scene == "textured" else []
+    cmd += ["--spp", str(spp)] if spp else []
+    t = time.time()
+    child = subprocess.Popen(cmd, env=dict(os.environ, PYTHONPATH=ROOT), stdout=subprocess.PIPE, text=True)
+    stdout = child.stdout.read()
+    _, status, usage = os.wait4(child.pid, 0)
+    dt = time.time() - t
+    child.returncode = os.waitstatus_to_exitcode(status)
+    if child.returncode:
+        raise SystemExit(f"render {w}x{h} ({scene}) failed with exit status {child.returncode}")
+    spp_used = next((int(m) for m in re.findall(r", (\d+) spp,", stdout)), None)
+    written = 0
+    for f in os.listdir(work):
+        if f.startswith(f"{scene}_{w}x{h}"):
+            written += os.path.getsize(os.path.join(work, f))
+            os.remove(os.path.join(work, f))
+    return {"mode": "render", "scene": scene, "width": w, "height": h, "spp": spp_used, "time": dt,
+            "cpu": usage.ru_utime + usage.ru_stime, "peak": usage.ru_maxrss * 1024, "written": written}
+
+
+def render_table(runs, head):
+    lines = [head, "", "| scene | raw pixels | super-pixels | spp | time | CPU time | peak RSS | files written |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in runs:
+        lines.append(f"| {r['scene']} | {r['width']} × {r['height']} | {r['width'] // 2} × {r['height'] // 2} | "
+                     f"{r['spp']} | {r['time']:.1f} s | {r['cpu']:.1f} s | {r['peak'] / 2 ** 30:.2f} GiB | "
+                     f"{r['written'] / 2 ** 20:.1f} MiB |")
+    return "\n".join(lines)
+
+
+def main_render(a):
+    sizes = [parse_res(s) for s in a.render_sizes.split(",") if s.strip()]
+    scenes = [s.strip() for s in a.scenes.split(",") if s.strip()]
+    bad = [s for s in scenes if s not in ("plain", "textured")]
+    if bad or not scenes or not sizes:
+        raise SystemExit(f"--scenes: expected plain and/or textured, got {a.scenes!r}" if bad or not scenes
+                         else f"--render-sizes: expected sizes, got {a.render_sizes!r}")
+    head = header() + ", load average {:.1f} at the start".format(os.getloadavg()[0])
+    runs, t0 = [], time.time()
+    with tempfile.TemporaryDirectory() as work:
+        texture = texture_png(os.path.join(work, "texture.png"))
+        for size in sizes:
+            for scene in scenes:
+                print(f"[{time.time() - t0:.0f} s] render {size[0]}x{size[1]} ({scene}) ...", file=sys.stderr,
+                      flush=True)
+                r = run_render(size, scene, a.spp, work, texture)
+                runs.append(r)
+                print(f"[{time.time() - t0:.0f} s] render {size[0]}x{size[1]} ({scene}): {r['time']:.1f} s, "
+                      f"peak {r['peak'] / 2 ** 30:.2f} GiB", file=sys.stderr, flush=True)
+                if a.json:
+                    with open(a.json + ".tmp", "w") as f:
+                        json.dump({"header": head, "runs": runs}, f, indent=1)
+                    os.replace(a.json + ".tmp", a.json)
+    text = render_table(runs, head)
+    print(text)
+    if a.markdown:
+        with open(a.markdown, "w") as f:
+            f.write(text + "\n")
+    return 0
+
+
 def header():
     from _common import cpu_name
 
@@ -201,6 +303,11 @@ def main(argv=None):
     p.add_argument("--json", metavar="OUT.json", help="the runs and the table's header")
     p.add_argument("--markdown", metavar="OUT.md", help="the table")
     p.add_argument("--table", metavar="IN.json", nargs="+", help="the table of saved runs")
+    p.add_argument("--render", action="store_true", help="time `fmbrdf-mi render --raw` instead of the fits")
+    p.add_argument("--render-sizes", default="512,1024,2448x2048",
+                   help="--render: raw-pixel sizes, N or WxH, comma-separated (default %(default)s)")
+    p.add_argument("--scenes", default="plain,textured", help="--render: plain and/or textured")
+    p.add_argument("--spp", type=int, help="--render: samples per pixel (default: the command's)")
     p.add_argument("--worker", choices=("api", "cli"), help=argparse.SUPPRESS)
     p.add_argument("--size", type=int, help=argparse.SUPPRESS)
     p.add_argument("--save-maps", help=argparse.SUPPRESS)
@@ -211,8 +318,11 @@ def main(argv=None):
     if a.table:
         saved = [json.load(open(f)) for f in a.table]
         for s in saved:
-            print(table(s["runs"], s["header"]) + "\n")
+            render = s["runs"] and s["runs"][0].get("mode") == "render"
+            print((render_table if render else table)(s["runs"], s["header"]) + "\n")
         return 0
+    if a.render:
+        return main_render(a)
     try:
         sizes = [int(s) for s in a.sizes.split(",") if s.strip()]
     except ValueError:
