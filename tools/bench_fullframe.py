@@ -237,6 +237,23 @@ def render_table(runs, head):
     return "\n".join(lines)
 
 
+def save_runs(a, head, runs):
+    """The runs so far to ``--json`` (written whole after every run, so a stopped bench keeps them)."""
+    if a.json:
+        with open(a.json + ".tmp", "w") as f:
+            json.dump({"header": head, "runs": runs}, f, indent=1)
+        os.replace(a.json + ".tmp", a.json)
+
+
+def print_table(a, text):
+    """Print the markdown table and write it to ``--markdown``; the exit status."""
+    print(text)
+    if a.markdown:
+        with open(a.markdown, "w") as f:
+            f.write(text + "\n")
+    return 0
+
+
 def main_render(a):
     sizes = [parse_res(s) for s in a.render_sizes.split(",") if s.strip()]
     scenes = [s.strip() for s in a.scenes.split(",") if s.strip()]
@@ -256,16 +273,8 @@ def main_render(a):
                 runs.append(r)
                 print(f"[{time.time() - t0:.0f} s] render {size[0]}x{size[1]} ({scene}): {r['time']:.1f} s, "
                       f"peak {r['peak'] / 2 ** 30:.2f} GiB", file=sys.stderr, flush=True)
-                if a.json:
-                    with open(a.json + ".tmp", "w") as f:
-                        json.dump({"header": head, "runs": runs}, f, indent=1)
-                    os.replace(a.json + ".tmp", a.json)
-    text = render_table(runs, head)
-    print(text)
-    if a.markdown:
-        with open(a.markdown, "w") as f:
-            f.write(text + "\n")
-    return 0
+                save_runs(a, head, runs)
+    return print_table(a, render_table(runs, head))
 
 
 def header():
@@ -340,16 +349,8 @@ def main(argv=None):
             runs.append(r)
             print(f"[{time.time() - t0:.0f} s] {size}² ({mode}): {r['pixels']} super-pixels, {r['time']:.1f} s, "
                   f"peak {r['peak'] / 2 ** 30:.2f} GiB", file=sys.stderr, flush=True)
-            if a.json:
-                with open(a.json + ".tmp", "w") as f:
-                    json.dump({"header": head, "runs": runs}, f, indent=1)
-                os.replace(a.json + ".tmp", a.json)
-    text = table(runs, head)
-    print(text)
-    if a.markdown:
-        with open(a.markdown, "w") as f:
-            f.write(text + "\n")
-    return 0
+            save_runs(a, head, runs)
+    return print_table(a, table(runs, head))
 
 
 if __name__ == "__main__":

@@ -60,6 +60,16 @@ def sigint_default():
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+def interrupt(proc):
+    """Ctrl-C to the process group of ``proc``; its stderr, or None (and killed) when it runs on for 60 s."""
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        return proc.communicate(timeout=60)[1]
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        return None
+
+
 def err_lines(err):
     return [l for l in (err or "").strip().splitlines() if l.strip()]
 
@@ -249,11 +259,8 @@ def _ctrl_c_brdf(c):
                             start_new_session=True, preexec_fn=sigint_default)
     time.sleep(15)
     t0 = time.time()
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        so, se = proc.communicate(timeout=60)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
+    se = interrupt(proc)
+    if se is None:
         return False, "still running 60 s after Ctrl-C"
     dt = time.time() - t0
     done = [f for f in os.listdir(out)] if os.path.isdir(out) else []
@@ -268,11 +275,8 @@ def _interrupt(c, argv, delay, out):
     if proc.poll() is not None:
         return False, f"ended (rc={proc.returncode}) before the interrupt"
     t0 = time.time()
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        so, se = proc.communicate(timeout=60)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
+    se = interrupt(proc)
+    if se is None:
         return False, "still running 60 s after Ctrl-C"
     return proc.returncode == 130 and time.time() - t0 < 20 and "Traceback" not in se, \
         f"rc={proc.returncode}, stopped {time.time() - t0:.1f} s after Ctrl-C"
@@ -379,11 +383,8 @@ def _render_ctrl_c(c):
                             preexec_fn=sigint_default)
     time.sleep(12)
     t0 = time.time()
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        so, se = proc.communicate(timeout=60)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
+    se = interrupt(proc)
+    if se is None:
         return False, "still running 60 s after Ctrl-C"
     left = os.listdir(d)
     return proc.returncode == 130 and not left and "Traceback" not in se, \
