@@ -340,9 +340,11 @@ def _stale(c):
 def _two(c):
     out = c.p("o7_two")
     shutil.rmtree(out, ignore_errors=True)
-    argv = [PY, "-m", "fmbrdf_mi", "fit", RAW, *QUICK, "-o", out]
+    argv = [PY, "-m", "fmbrdf_mi", "fit", RAW, "-q", "-o", out]     # the default fit: long enough to overlap
     p1 = subprocess.Popen(argv, env=c.env, cwd=c.work, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(6)
+    time.sleep(4)
+    if p1.poll() is not None:
+        return False, f"the first fit ended (rc={p1.returncode}) before the second started"
     p2 = subprocess.run(argv + ["--force"], env=c.env, cwd=c.work, capture_output=True, text=True, timeout=600)
     so, se = p1.communicate(timeout=600)
     rcs = (p1.returncode, p2.returncode)
