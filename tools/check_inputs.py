@@ -371,10 +371,12 @@ def _render_ctrl_c(c):
     shutil.rmtree(d, ignore_errors=True)
     os.makedirs(d)
     proc = subprocess.Popen([PY, "-m", "fmbrdf_mi", "render", os.path.join(d, "t.exr"), "--res", "256", "--spp",
-                             "4096", "-q", "--variant", "llvm_ad_mono_polarized"], env=c.env, cwd=c.work,
+                             "65536", "-q", "--variant", "llvm_ad_mono_polarized"], env=c.env, cwd=c.work,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
                             preexec_fn=sigint_default)
-    time.sleep(12)
+    time.sleep(8)
+    if proc.poll() is not None:
+        return False, f"the render ended (rc={proc.returncode}) before the interrupt"
     t0 = time.time()
     se = interrupt(proc)
     if se is None:
