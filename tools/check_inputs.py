@@ -370,20 +370,10 @@ def _render_ctrl_c(c):
     d = c.p("o7_int")
     shutil.rmtree(d, ignore_errors=True)
     os.makedirs(d)
-    proc = subprocess.Popen([PY, "-m", "fmbrdf_mi", "render", os.path.join(d, "t.exr"), "--res", "256", "--spp",
-                             "65536", "-q", "--variant", "llvm_ad_mono_polarized"], env=c.env, cwd=c.work,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                            preexec_fn=sigint_default)
-    time.sleep(8)
-    if proc.poll() is not None:
-        return False, f"the render ended (rc={proc.returncode}) before the interrupt"
-    t0 = time.time()
-    se = interrupt(proc)
-    if se is None:
-        return False, "still running 60 s after Ctrl-C"
+    ok, why = _interrupt(c, ["render", os.path.join(d, "t.exr"), "--res", "256", "--spp", "65536", "-q", "--variant",
+                             "llvm_ad_mono_polarized"], 8, d)
     left = os.listdir(d)
-    return proc.returncode == 130 and not left and "Traceback" not in se, \
-        f"rc={proc.returncode}, {time.time() - t0:.1f} s, left {left}"
+    return ok and not left, f"{why}, left {left}"
 
 
 # ---------------------------------------------------------------------------------------------------- class 8
