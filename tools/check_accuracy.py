@@ -20,6 +20,15 @@ polarised light sees).  Its defaults: 12 materials, seed 0.
     python tools/check_accuracy.py --table-only --materials 12 --points 4000 [--full-range]
     python tools/check_accuracy.py --table-only --triangulations   # each of the four triangulations, the one picked
     python tools/check_accuracy.py --table-only --materials 0 --forward-grazing   # the box's corners
+
+``--find-sphere`` measures the error of ``find_sphere`` (``--sphere auto``) over radii and sub-pixel centres
+instead.  Masks are discs rasterised as a renderer's coverage mask is: a pixel is in the mask when its centre
+lies inside the circle (``sphere_normals``).  For each radius, ``--centres`` random sub-pixel centres (uniform
+in a pixel) in a frame with a margin of 3 pixels, and a sphere cut by the frame (centre 0.3 r inside the left
+edge); reported: mean radius error ± its standard error, the largest |radius error| and the largest centre
+error, in pixels.  Its default seed: 0.
+
+    python tools/check_accuracy.py --find-sphere [--radii 3,5,7,10,20,40,80] [--centres 200]
 """
 import argparse
 import math
@@ -154,12 +163,50 @@ def table_check(args):
               f"kappa={where[3]:.1f} theta_L={where[4]:.1f} theta_V={where[5]:.1f} phi={where[6]:.1f}")
 
 
+def disc(shape, centre, r):
+    """The mask of the pixels whose centre lies inside the circle (centre, r)."""
+    h, w = shape
+    X, Y = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    return (X - centre[0]) ** 2 + (Y - centre[1]) ** 2 < r * r
+
+
+def find_sphere_errors(radii, n_centres, seed=0, cut=False):
+    """Per radius: (r, mean radius error, its SE, max |radius error|, max centre error) of ``find_sphere``."""
+    from fmbrdf_mi.fit.inputs.observations import find_sphere
+
+    rng = np.random.default_rng(seed)
+    rows = []
+    for r in radii:
+        size = int(np.ceil(2 * r)) + 8
+        er, ec = [], []
+        for _ in range(n_centres):
+            c = np.array([size / 2, size / 2]) + rng.uniform(-0.5, 0.5, 2)
+            if cut:
+                c[0] = 0.7 * r + rng.uniform(-0.5, 0.5)
+            (cx, cy), rr = find_sphere(disc((size, size), c, r))
+            er.append(rr - r)
+            ec.append(np.hypot(cx - c[0], cy - c[1]))
+        er, ec = np.array(er), np.array(ec)
+        rows.append((r, er.mean(), er.std(ddof=1) / np.sqrt(len(er)), np.abs(er).max(), ec.max()))
+    return rows
+
+
+def find_sphere_check(args):
+    radii = [float(x) for x in args.radii.split(",")]
+    for cut in (False, True):
+        print(f"\n{'cut by the frame' if cut else 'inside the frame'}: {args.centres} sub-pixel centres per radius")
+        print("| radius | mean radius error ± SE | max abs radius error | max centre error |")
+        print("|---|---|---|---|")
+        for r, m, s, mx, cx in find_sphere_errors(radii, args.centres, args.seed, cut):
+            print(f"| {r:g} | {m:+.4f} ± {s:.4f} | {mx:.4f} | {cx:.4f} |")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--materials", type=int, default=None, help="random materials besides the box's corners "
                     "(default 16; --table-only 12)")
     ap.add_argument("--pairs", type=int, default=16)
-    ap.add_argument("--seed", type=int, default=None, help="default 1; --table-only 0")
+    ap.add_argument("--seed", type=int, default=None, help="default 1; --table-only and --find-sphere 0")
     ap.add_argument("--ref-res", type=int, nargs=2, default=(128, 256), metavar=("N_S", "N_PHI"))
     ap.add_argument("--variant", default="llvm_ad_mono_polarized")
     ap.add_argument("--full-range", action="store_true",
@@ -180,11 +227,17 @@ def main():
     ap.add_argument("--triangulations", action="store_true",
                     help="--table-only: also the intensity error with each of the four triangulations of the "
                          "cells (interp.orientation), the one the table picked marked *")
+    ap.add_argument("--find-sphere", action="store_true",
+                    help="the error of find_sphere (--sphere auto) on rasterised discs instead")
+    ap.add_argument("--radii", default="3,5,7,10,20,40,80", help="--find-sphere: disc radii in pixels")
+    ap.add_argument("--centres", type=int, default=200, help="--find-sphere: random sub-pixel centres per radius")
     args = ap.parse_args()
     if args.materials is None:
         args.materials = 12 if args.table_only else 16
     if args.seed is None:
-        args.seed = 0 if args.table_only else 1
+        args.seed = 0 if args.table_only or args.find_sphere else 1
+    if args.find_sphere:
+        return find_sphere_check(args)
     if args.table_only:
         return table_check(args)
 

@@ -263,19 +263,19 @@ def test_find_sphere_radius_is_unbiased_over_subpixel_centres():
     """Discs rasterised at pixel centres, 100 random sub-pixel centres per radius.
 
     The boundary-pixel centres moved out by half a pixel (the earlier estimate)
-    overestimated r by 0.046-0.062 px (tools/check_find_sphere.py, 200
+    overestimated r by 0.046-0.062 px (tools/check_accuracy.py --find-sphere, 200
     centres); the per-configuration error scatters with SD <= 0.06 px, so the
     mean over 100 centres has SE <= 0.006: |mean| < 0.02 is > 3 SE for an
     unbiased estimate and fails for the old bias at r = 5, 7.  Single fits:
     within 0.25 px in radius (lattice quantisation, measured max 0.20 at r = 3)
     and 0.35 px in centre.
     """
-    from check_find_sphere import measure
+    from check_accuracy import find_sphere_errors
 
-    for r, mean, se, worst_r, worst_c in measure([5, 7, 20, 40], 100, seed=11):
+    for r, mean, se, worst_r, worst_c in find_sphere_errors([5, 7, 20, 40], 100, seed=11):
         assert abs(mean) < 0.02, (r, mean, se)
         assert worst_r < 0.25 and worst_c < 0.35, (r, worst_r, worst_c)
-    for r, mean, se, worst_r, worst_c in measure([7, 20], 100, seed=12, cut=True):
+    for r, mean, se, worst_r, worst_c in find_sphere_errors([7, 20], 100, seed=12, cut=True):
         assert abs(mean) < 0.02 and worst_r < 0.25 and worst_c < 0.35, (r, mean, worst_r, worst_c)
 
 

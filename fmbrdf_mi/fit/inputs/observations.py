@@ -364,7 +364,7 @@ def find_sphere(mask):
 
     A pixel is in the disc when its centre is, so the midpoint between a mask pixel and an outside
     4-neighbour is an unbiased sample of the outline; a Kasa circle is fitted to those midpoints
-    (``tools/check_find_sphere.py``).  Segments to the image border are skipped (a sphere cut by the frame).
+    (``tools/check_accuracy.py --find-sphere``).  Segments to the image border are skipped (a sphere cut by the frame).
     """
     m = read_mask(mask)
     if m.sum() < 12:
