@@ -60,9 +60,6 @@ class IntensityObjective(_Rows):
     def loss_terms(self, parts, st):
         return {"intensity": self.value(parts, st)}
 
-    def row_pixels(self, n_rows):
-        return np.arange(n_rows)
-
 
 class DolpObjective(_Rows):
     """DoLP term of eq:optimization alone, plus one residual that sets the overall albedo."""
