@@ -62,7 +62,7 @@ class FitResult:
     #: ``identified``, (H, W) or (C, H, W); NaN where no pixel was fitted; not in :meth:`to_json`
     maps: dict = dataclasses.field(repr=False, default=None)
 
-    #: several materials: the block of :func:`fmbrdf_mi.fit.problem.materials.material_block`; in :meth:`to_json`
+    #: several materials: the block of :func:`fmbrdf_mi.fit.api.assemble.material_block`; in :meth:`to_json`
     materials: dict = None
     #: the problem behind the result (:class:`fmbrdf_mi.fit.api.assemble.Fitted`); not in :meth:`to_json`
     fitted: object = dataclasses.field(repr=False, default=None, compare=False)

@@ -10,7 +10,6 @@ import time
 import numpy as np
 
 from fmbrdf_mi.fit import uncertainty as U
-from fmbrdf_mi.fit.problem.materials import material_block
 from fmbrdf_mi.fit.result import FitResult
 
 
@@ -94,6 +93,16 @@ def settle(res):
         res.materials = material_block(table, res.params, res.std_errors, unc.get("ci95"),
                                        [res.n_pixels] if mat is None else mat["pixels"])
     return res
+
+
+def material_block(params, reported, std_errors, ci95, pixels):
+    """fit.json's ``materials`` block: ``{"count": M, "pixels": [fitted pixels of each], "parameters": [{eta:
+    ..} per material], "std_errors": [...], "ci95": [...]}`` by the rows of the parameter table ``params``
+    (:mod:`fmbrdf_mi.fit.evaluate.materials`; one material: the rows' own names).  With known noise and
+    per-material albedos the materials' unknowns do not interact (cross-material covariances are 0)."""
+    return {"count": params.count or 1, "pixels": [int(p) for p in pixels],
+            "parameters": params.per_material(reported), "std_errors": params.per_material(std_errors),
+            "ci95": params.per_material(ci95)}
 
 
 def albedo_block(problem, st, parts, groups, shape, value, report):
