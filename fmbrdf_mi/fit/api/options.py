@@ -382,18 +382,11 @@ def check_resolved_loss(values, loss, source, flag=str):
         raise InputError(f"loss '{loss}' works with optimizer 'lm' (Adam minimises the full paper's loss)")
     if loss == "likelihood":
         return
-    if values.get("albedo", "shared") != "shared":
-        bad = f"{flag('albedo')} {values['albedo']}"
-    elif values.get("albedo_smooth") is not None:
-        bad = flag("albedo_smooth")
-    elif values.get("intervals") == "profile":
-        bad = f"{flag('intervals')} profile"
-    elif values.get("materials") is not None:
-        bad = f"{flag('materials')} {values['materials']}"
-    elif values.get("area_points") is not None:
-        bad = f"{flag('area_points')} {values['area_points']}"
-    else:
-        return
-    raise InputError(f"{bad}: needs the likelihood of the camera's samples, and the loss here is {loss} ({source}): "
-                     f"give the camera noise ({flag('conversion_gain')} and {flag('read_noise')}, or a capture "
-                     "sidecar)")
+    refused = {"albedo": values.get("albedo", "shared") != "shared", "albedo_smooth": values.get("albedo_smooth")
+               is not None, "intervals": values.get("intervals") == "profile",
+               "materials": values.get("materials") is not None, "area_points": values.get("area_points") is not None}
+    for k in (k for k, bad in refused.items() if bad):
+        given = flag(k) if k == "albedo_smooth" else f"{flag(k)} {values[k]}"
+        raise InputError(f"{given}: needs the likelihood of the camera's samples, and the loss here is {loss} "
+                         f"({source}): give the camera noise ({flag('conversion_gain')} and {flag('read_noise')}, or "
+                         "a capture sidecar)")
