@@ -88,14 +88,6 @@ def residuals(target, w, i_pred, rho_pred):
     return np.concatenate([r_i, r_rho])
 
 
-def loss_terms(target, w, i_pred, rho_pred):
-    """(intensity term, DoLP term) of the loss."""
-    m = len(target.intensity)
-    li = float(np.sum(((i_pred - target.intensity) / target.scale) ** 2) / m)
-    lr = float(np.sum(w * (rho_pred - target.dolp) ** 2) / w.sum())
-    return li, lr
-
-
 def loss_dr(target, w, s0, s1, s2):
     """The same loss as a Dr.Jit expression of predicted Dr.Jit (S0, S1, S2) (for reverse-mode AD)."""
     import drjit as dr

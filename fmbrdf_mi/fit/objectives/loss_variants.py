@@ -28,10 +28,6 @@ class _Rows(PaperObjective):
     def residuals(self, parts, st, w=None):
         return self.rows(super().residuals(parts, st, self.w if w is None else w))
 
-    def value(self, parts, st, w=None):
-        r = self.residuals(parts, st, w)
-        return float(r @ r)
-
     def residuals_and_jacobian(self, parts, st, z, names, bounds):
         r, J, bad = super().residuals_and_jacobian(parts, st, z, names, bounds)
         if bad is None:

@@ -73,8 +73,8 @@ class PaperObjective:
         return L.residuals(self.target, self.w if w is None else w, i, rho)
 
     def value(self, parts, st, w=None):
-        i, rho = self._predict(parts, st)
-        return sum(L.loss_terms(self.target, self.w if w is None else w, i, rho))
+        r = self.residuals(parts, st, w)
+        return float(r @ r)
 
     def score(self, parts, st):
         """Loss with the candidate's own inlier / outlier split (for comparing candidates)."""
@@ -88,9 +88,8 @@ class PaperObjective:
         return (f_old - f_new) / max(f_old, 1e-300) < tol
 
     def loss_terms(self, parts, st):
-        i, rho = self._predict(parts, st)
-        li, lr = L.loss_terms(self.target, self.w, i, rho)
-        return {"intensity": li, "dolp": lr}
+        r, m = self.residuals(parts, st), len(self.target.intensity)
+        return {"intensity": float(r[:m] @ r[:m]), "dolp": float(r[m:] @ r[m:])}
 
     def row_pixels(self, n_rows):
         n = len(self.target.intensity)
