@@ -110,9 +110,8 @@ def albedo_block(problem, st, parts, groups, shape, value, report):
     (:func:`~fmbrdf_mi.fit.uncertainty.pixel_albedos`; None: the values without errors)."""
     lay = problem.layout
     if groups is None:
-        f, nan = float(problem.model.albedo_factor), np.full(lay.n_groups, np.nan)
-        groups = {"k_s": f * np.asarray(st.a_s), "k_b": f * np.asarray(st.a_b), "k_s_se": nan, "k_b_se": nan,
-                  "correlation": nan, "identified": np.zeros(lay.n_groups, bool)}
+        groups = lay.maps(st.a_s, st.a_b, np.full((lay.n_groups, 2, 2), np.nan), problem.model.albedo_factor,
+                          U.SPLIT_REL)
     prior = lay.prior is not None
     albedo, maps = albedo_maps(lay, shape, groups, prior=prior)
     if prior:
