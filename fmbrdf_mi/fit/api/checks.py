@@ -83,6 +83,7 @@ def check_footprint(res, progress=None):
     while m < U.MAX_AREA_POINTS:
         parts = problem.parts(st, jac=True)
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
+        del parts       # its derivatives: a whole frame's, several times over, not wanted beside the finer data
         fine_data = data.remake(2 * m)
         fine = fine_data.problem(get_model(opts.model), opts.bounds, fx.report, opts.fixed, fx.deadline)
         bias = U.quadrature_bias(problem, fine, st, J, r)
