@@ -1,7 +1,8 @@
 """Checks made before rendering or fitting, so that foreseeable operating-system
 problems and impossible sizes are reported at once, in one line naming the path;
 outputs written all or none (:func:`staged_directory`) and output directories
-locked while a run writes them (:func:`take_lock`)."""
+locked while a run writes them (:func:`take_lock`), and the progress of their writing
+(:class:`StageProgress`)."""
 from __future__ import annotations
 
 import contextlib
@@ -10,6 +11,7 @@ import os
 import shutil
 import signal
 import socket
+import sys
 import tempfile
 import threading
 import time
@@ -300,3 +302,22 @@ def release_lock(path):
         os.remove(path)
     except FileNotFoundError:
         pass
+
+
+class StageProgress:
+    """Progress of the writing of a run's outputs (a render's files, a fit's), on stderr: a line per step once
+    the steps have taken longer than ``delay`` seconds, with the time left at the mean time per step so far."""
+
+    def __init__(self, label, n_steps, enabled=True, delay=2.0, stream=None, clock=time.perf_counter):
+        self.label, self.n, self.done = label, n_steps, 0
+        self.enabled, self.delay, self.clock = enabled, delay, clock
+        self.stream = stream or sys.stderr
+        self.t0 = clock()
+
+    def step(self, name):
+        self.done += 1
+        t = self.clock() - self.t0
+        if not self.enabled or t <= self.delay:
+            return
+        left = "done" if self.done == self.n else f"about {t / self.done * (self.n - self.done):.0f} s left"
+        print(f"{self.label}: {self.done}/{self.n} {name}, {t:.1f} s ({left})", file=self.stream, flush=True)

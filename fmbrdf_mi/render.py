@@ -22,7 +22,7 @@ import numpy as np
 
 from . import __version__
 from . import scene as S
-from ._paths import PROG, CLIError, resolve_builtin, staged_outputs
+from ._paths import PROG, CLIError, StageProgress, resolve_builtin, staged_outputs
 from .params import ParameterError
 
 HELP = "render spheres of FMBRDF material to a Stokes EXR and PNG previews"
@@ -760,25 +760,6 @@ def run_render(args):
     for p in written.values():
         print(f"wrote {p}")
     return 0
-
-
-class StageProgress:
-    """Progress of the steps after the render (the files written), on stderr: a line per step once the
-    steps have taken longer than ``delay`` seconds, with the time left at the mean time per step so far."""
-
-    def __init__(self, label, n_steps, enabled=True, delay=2.0, stream=None, clock=time.perf_counter):
-        self.label, self.n, self.done = label, n_steps, 0
-        self.enabled, self.delay, self.clock = enabled, delay, clock
-        self.stream = stream or sys.stderr
-        self.t0 = clock()
-
-    def step(self, name):
-        self.done += 1
-        t = self.clock() - self.t0
-        if not self.enabled or t <= self.delay:
-            return
-        left = "done" if self.done == self.n else f"about {t / self.done * (self.n - self.done):.0f} s left"
-        print(f"{self.label}: {self.done}/{self.n} {name}, {t:.1f} s ({left})", file=self.stream, flush=True)
 
 
 def _raw_camera(args):

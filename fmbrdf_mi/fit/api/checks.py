@@ -75,6 +75,8 @@ def check_footprint(res, progress=None):
     result with ``uncertainty.quadrature``; data that cannot be remade are returned as they are."""
     if not checkable(res) or res.fitted.data.remake is None or res.fitted.data.area_points <= 1:
         return res
+    import drjit as dr
+
     fx = res.fitted
     say, opts = progress or fx.report, fx.options
     problem, data, st, m, t0 = fx.problem, fx.data, fx.solution.state, fx.data.area_points, time.time()
@@ -83,6 +85,8 @@ def check_footprint(res, progress=None):
     while m < U.MAX_AREA_POINTS:
         parts = problem.parts(st, jac=True)
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
+        del parts       # its derivatives: a whole frame's, several times over, not wanted beside the finer data
+        dr.flush_malloc_cache()     # the solve's freed Dr.Jit buffers, returned before the finer data are made
         fine_data = data.remake(2 * m)
         fine = fine_data.problem(get_model(opts.model), opts.bounds, fx.report, opts.fixed, fx.deadline)
         bias = U.quadrature_bias(problem, fine, st, J, r)

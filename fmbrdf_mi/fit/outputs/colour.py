@@ -178,11 +178,12 @@ class ColourFit(FitJob):
             sel = c.obs.mask & c.samples.usable
             if h:
                 err = report["relight"][n] = {model: sample_rmse(c.samples, pred, sel)}
-                plot_colour_fit(c.samples, pred, sel, c.camera, os.path.join(out, f"relight_{n}.png"),
+                path = os.path.join(out, f"relight_{n}.png")
+                plot_colour_fit(c.samples, pred, sel, c.camera, path,
                                 title=f"{n}: relit with the joint estimates, raw-sample RMSE/mean "
                                       f"{err[model]['rel_rmse']:.4f}")
             else:
-                plot_colour_fit(c.samples, pred, sel, c.camera,
-                                os.path.join(out, "colour_fit.png" if n is None else f"colour_fit_{n}.png"),
-                                title=title if n is None else f"{n}: {title}")
-        write_maps(res, model, out, report)
+                path = os.path.join(out, "colour_fit.png" if n is None else f"colour_fit_{n}.png")
+                plot_colour_fit(c.samples, pred, sel, c.camera, path, title=title if n is None else f"{n}: {title}")
+            self.wrote(path)
+        write_maps(res, model, out, report, wrote=self.wrote)

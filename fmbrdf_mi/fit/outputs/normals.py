@@ -132,8 +132,11 @@ class NormalRefinement(FitJob):
     def write(self, report):
         files, joint, m = self.files(), self.joint, self.joint.mask
         np.save(files[1], joint.normals.astype(np.float32))
+        self.wrote(files[1])
         plots.plot_normal_map(joint.normals, m, files[2], title=f"refined normals ({self.start} start)")
+        self.wrote(files[2])
         plots.plot_change(self.n0, joint.normals, m, files[3], gt=self.gt)
+        self.wrote(files[3])
 
 
 UNCALIBRATED = ("curvature-based standard errors of the material with the normals free, estimated with a "

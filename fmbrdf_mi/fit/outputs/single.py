@@ -82,10 +82,10 @@ class ImageFits(FitJob):
                 relit = e["predicted"] if n == model else relit
             title = (f"relighting with the {model} estimates: RMSE/mean = " if name is None
                      else f"{name}: relit with the {model} estimates, RMSE/mean = ")
-            plots.plot_images(o.stokes, relit, o.mask, os.path.join(out, "relight.png" if name is None else
-                                                                    f"relight_{name}.png"),
-                              title=f"{title}{errs[model]['rel_rmse']:.4f}", label="relit",
-                              lin_variance=o.lin_variance)
+            path = os.path.join(out, "relight.png" if name is None else f"relight_{name}.png")
+            plots.plot_images(o.stokes, relit, o.mask, path, title=f"{title}{errs[model]['rel_rmse']:.4f}",
+                              label="relit", lin_variance=o.lin_variance)
+            self.wrote(path)
             return errs
         preds = {n: predict_image(n, r.params, o if im is None else fitted_observation(o, im[n]), maps=r.maps,
                                   labels=labels_of(r, labels, o.shape)) for n, r in results.items()}
@@ -97,22 +97,26 @@ class ImageFits(FitJob):
                             title=f"{model if name is None else name}: "
                                   + ", ".join(f"{k}={v:.3g}" for k, v in main.params.items()) + power,
                             others={f"{n} (baseline)": p for n, p in preds.items()})
+        self.wrote(f"profiles{tail}.png")
         plots.plot_images(o.stokes, pred, o.mask, os.path.join(out, f"images{tail}.png"),
                           title=(f"{model} fit" if name is None else f"{name}: joint {model} fit")
                                 + f" (per-pixel re-render){power}", lin_variance=o.lin_variance, pixels=shown)
+        self.wrote(f"images{tail}.png")
         return pred
 
     def write_common(self, report, shape):
         """history.png, and ``model``'s albedo maps (:func:`write_maps`) and materials.png when it has them."""
         results, model, out = self.results, self.model, self.out
         plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
+        self.wrote("history.png")
         main = results[model]
-        write_maps(main, model, out, report)
+        write_maps(main, model, out, report, wrote=self.wrote)
         if main.materials is not None:
             pixels = main.pixels if not isinstance(main.pixels, list) else main.pixels[0]
             plots.plot_materials(check_labels(self.labels, shape), pixels, main.materials,
                                  os.path.join(out, "materials.png"),
                                  title=f"{model}: {main.materials['count']} material(s) (faint: labelled, not fitted)")
+            self.wrote("materials.png")
 
 
 class SingleImage(ImageFits):
@@ -191,9 +195,11 @@ class SingleImage(ImageFits):
         s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
         stokes_io.write_stokes_exr(self.outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
                                    force=True)
+        self.wrote("fitted_stokes.exr")
         self.write_common(report, obs.shape)
         if self.found is not None:
             write_labels(self.outs["labels.png"], self.labels)
+            self.wrote("labels.png")
 
 
 def model_entries(results, model, truth):
@@ -233,20 +239,23 @@ def shown_pixels(o, pixels, opts, labels=None):
     return every if np.isin(pixels, every).all() else pixels
 
 
-def write_maps(res, model, out, report):
+def write_maps(res, model, out, report, wrote=None):
     """:data:`~fmbrdf_mi.fit.outputs.writer.MAP_OUTPUTS` of a per-pixel albedo fit ``res`` (NaN where not
-    fitted; the shape parameters in each EXR's metadata), named in ``report["albedo_maps"]``."""
+    fitted; the shape parameters in each EXR's metadata), named in ``report["albedo_maps"]``; ``wrote``: called
+    with each file's path once it is written."""
     if res.maps is None:
         return
     outs = {f: os.path.join(out, f) for f in MAP_OUTPUTS}
     meta = {"fit": res.params, "model": model, "albedo": res.albedo}
     for key in ("k_s", "k_b", "k_s_se", "k_b_se"):
         stokes_io.write_map_exr(outs[f"{key}.exr"], res.maps[key], dict(meta, map=key), force=True)
+        wrote(outs[f"{key}.exr"]) if wrote else None
     a = res.albedo
     plots.plot_albedo_maps(res.maps, outs["albedo_maps.png"],
                            title=f"{model} per-pixel albedos: {a['pixels']} pixels, split identified in "
                                  f"{a['identified_fraction']:.0%}; " + ", ".join(f"{k}={v:.3g}"
                                                                                  for k, v in res.params.items()))
+    wrote(outs["albedo_maps.png"]) if wrote else None
     report["albedo_maps"] = outs
 
 
