@@ -36,6 +36,10 @@ def problem_of(obs, max_pixels=None, report=None):
     return data.problem(get_model(opts.model), opts.bounds, report, opts.fixed, None), len(data.pixels)
 
 
+def obs_pixels(obs):
+    return prepare([obs], dataclasses.replace(FitOptions(), max_pixels=None), "likelihood", single=True).pixels
+
+
 def run(problem, **kw):
     return D.solve(problem, starts=2, rounds=3, max_iter=40, tol=1e-4, **kw)
 
@@ -126,3 +130,20 @@ def test_distinct_optima_on_the_subsample_are_each_continued():
 
     assert D.same_end(P(), S([0.0, 0.0]), S([0.5, -0.5]))
     assert not D.same_end(P(), S([0.0, 0.0]), S([0.0, 1.5]))
+
+
+@pytest.mark.parametrize("lights", [1, 3])
+def test_fit_explores_above_the_threshold(obs, lights, monkeypatch):
+    """``fit()`` of one image or a joint fit of several: above :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_ABOVE`
+    pixels the search runs on a subsample of :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_PIXELS` of them (the
+    data's own ``subsample``), and the fit ends converged on all of its pixels."""
+    from fmbrdf_mi.fit import fit
+
+    observations = obs if lights == 1 else [obs] * lights
+    monkeypatch.setattr(D, "EXPLORE_ABOVE", 100)
+    monkeypatch.setattr(D, "EXPLORE_PIXELS", 200)
+    lines = []
+    res = fit(observations, albedo="per-pixel", max_pixels=None, intervals="fisher", starts=1, progress=lines.append)
+    assert res.converged and res.n_pixels == lights * len(obs_pixels(obs)) > 400, (res.stop_reason, res.n_pixels)
+    assert any(ln.startswith("[fit] search and starts on a fixed subsample of 200 of the") for ln in lines), lines
+    assert any(ln.startswith("[lm 1] iter") for ln in lines), lines

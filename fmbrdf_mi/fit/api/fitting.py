@@ -72,12 +72,6 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     report = progress_callable(progress)
     t0 = time.time()
     deadline = None if not opts.max_time else t0 + float(opts.max_time)
-    explore = None      # a seeded subsample of the usable pixels, where the search and starts need no more
-    if data is None and evaluator is None and opts.path == "pixel" and materials is None and (
-            opts.albedo != "per-pixel-bilinear" and opts.albedo_smooth is None):
-        def explore(n):
-            sub = prepare([obs], dataclasses.replace(opts, max_pixels=n), loss, single=True)
-            return sub.problem(get_model(opts.model), opts.bounds, report, opts.fixed, deadline)
     if data is None:
         if opts.path == "render":
             evaluator = render_evaluator(get_model(opts.model), obs, select_pixels(obs, opts)[0], opts, scene)
@@ -92,7 +86,9 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     sol = solve(problem, init=init, starts=opts.starts, rounds=max(1, opts.rounds) + 2 * (data.loss == "likelihood"),
                 optimizer=opts.optimizer, max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit,
                 lr=opts.lr, max_time=opts.max_time, history=history, report=report,
-                explore=None if explore is None else (len(data.pixels), explore))
+                explore=None if data.subsample is None or data.make_problem is not None else (
+                    len(data.pixels), lambda n: data.subsample(n).problem(get_model(opts.model), opts.bounds, report,
+                                                                          opts.fixed, deadline)))
     res = assemble(Fitted(problem, data, sol, opts, report, deadline, obs.shape, materials, history, t0=t0))
     if opts.area_points is None:
         res = check_footprint(res)

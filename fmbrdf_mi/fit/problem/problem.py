@@ -186,6 +186,8 @@ class FitData:
     area_points: int = None
     #: m -> the same data with m x m points per sample (refining the quadrature); None: cannot be remade
     remake: object = None
+    #: n -> the same data on a fixed, seeded subsample of n of the pixels; None: no subsample is made
+    subsample: object = None
 
     def problem(self, model, bounds, progress, fixed, deadline):
         """The :class:`Problem` of these data (``make_problem``'s when it is set)."""

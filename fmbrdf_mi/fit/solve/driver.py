@@ -151,6 +151,7 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
                     and optimizer == "lm"):
                 sub = explore[1](int(explore_pixels))
                 if sub is not None:
+                    sub.t0 = problem.t0     # one clock for the progress lines and the history
                     say(f"[fit] search and starts on a fixed subsample of {int(explore_pixels)} of the {explore[0]} "
                         "pixels; the best ends continue on all of them")
             where = problem if sub is None else sub
