@@ -200,11 +200,12 @@ def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
     """The starts ``chosen`` refined on ``sub`` (a subsample of ``problem``'s ``pixels``), then each distinct end
     continued on all pixels; returns (the best Solution of all pixels, the starts' entries).
 
-    The albedos are eliminated per pixel (or shared), so the subsample's objective is the same likelihood
-    of fewer pixels: an unbiased estimate of the whole's, its minimum within a few of the subsample's
-    standard errors of the whole's, and its coarse search and start scores order the candidates as the
-    whole's do wherever they differ by more than that sampling noise.  The subsample therefore decides only
-    where the fit starts: ends on it within :data:`SAME_END_SE` of its standard errors of a better one are
+    Each pixel's albedos are its own (eliminated per pixel) or shared, so the subsample's objective is the
+    same likelihood of fewer pixels: at every shape point its score times (all pixels / subsample) is an
+    unbiased estimate of all pixels' score, its minimum lies within a few of the subsample's standard errors
+    of all pixels' minimum, and its coarse search and start scores order the candidates as all pixels' do
+    wherever those differ by more than that sampling noise.  The subsample therefore decides only where
+    the fit starts on all pixels: ends on it within :data:`SAME_END_SE` of its standard errors of a better one are
     that optimum (LM from either reaches the same end on all pixels) and are not continued again; every other
     end is refined on all pixels (:func:`refine`, the albedos re-solved there first), and the best of those
     converged ends of all pixels is the estimate, each start's entry recording its optimum's end on all
