@@ -457,7 +457,8 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
     for _ in range(max_refits):
         u = min(max(u, 1e-9 * max(room, 1.0)), room)
         v = b.from_scale(name, t0 + side * u) if u < room else bound
-        rise = refit_fixed(problem, st, name, v, path.state(name, v)) - chi2_min
+        rise = refit_fixed(problem, st, name, v, path.state(name, v),
+                           label=f"profile {name} {'lower' if side < 0 else 'upper'}") - chi2_min
         pts.append((float(v), float(rise)))
         g = math.sqrt(max(rise, 0.0))
         if abs(rise / delta - 1.0) < PROFILE_ROOT_TOL:

@@ -85,7 +85,10 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         init = problem.state(*problem.params.split({**start, **opts.init}))
     sol = solve(problem, init=init, starts=opts.starts, rounds=max(1, opts.rounds) + 2 * (data.loss == "likelihood"),
                 optimizer=opts.optimizer, max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit,
-                lr=opts.lr, max_time=opts.max_time, history=history, report=report)
+                lr=opts.lr, max_time=opts.max_time, history=history, report=report,
+                explore=None if data.subsample is None or data.make_problem is not None else (
+                    len(data.pixels), lambda n: data.subsample(n).problem(get_model(opts.model), opts.bounds, report,
+                                                                          opts.fixed, deadline)))
     res = assemble(Fitted(problem, data, sol, opts, report, deadline, obs.shape, materials, history, t0=t0))
     if opts.area_points is None:
         res = check_footprint(res)

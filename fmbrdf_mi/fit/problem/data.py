@@ -370,7 +370,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     same_light = all(np.array_equal(o.light_dir, observations[0].light_dir) for o in observations)
     lights = (np.asarray(observations[0].light_dir, dtype=np.float64) if same_light else
               np.concatenate([np.tile(o.light_dir, (c, 1)) for o, c in zip(observations, counts)]))
-    mat = None
+    own, mat = evaluator is None, None      # own: the evaluator is made here (a subsample makes its own)
     if lab is not None:
         normals, views = (np.concatenate(c) for c in zip(*directions.pieces()))
         evaluator = material_evaluators(get_model(opts.model), count, cell_material, normals, views, lights, irr,
@@ -386,6 +386,12 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         return prepare(observations, dataclasses.replace(opts, area_points=int(m_new)), loss, single=single,
                        materials=materials)
 
+    def subsample(n):       # n seeded pixels of the same images and options
+        return prepare(observations, dataclasses.replace(opts, max_pixels=int(n)), loss, single=single)
+
+    # a subsample is the same problem of fewer pixels where no pixel's unknowns couple to its neighbours'
+    independent = opts.albedo != "per-pixel-bilinear" and opts.albedo_smooth is None
     return FitData(loss, flat_idx, excluded, objective, smp, evaluator, image_pixels=idxs, slices=slices,
                    materials=mat, area_points=m if loss == "likelihood" else None,
-                   remake=remake if loss == "likelihood" else None)
+                   remake=remake if loss == "likelihood" else None,
+                   subsample=subsample if own and lab is None and independent else None)

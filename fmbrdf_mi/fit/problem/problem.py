@@ -51,11 +51,14 @@ class Problem:
 
     def with_fixed(self, values):
         """The same problem with the shape parameters ``values`` ({name: value}) held fixed too and no
-        deadline; None for subclasses (problems with extra unknowns)."""
+        deadline; None for subclasses (problems with extra unknowns).  It starts with this problem's
+        evaluations (:meth:`parts`: the same evaluator at the same shape values)."""
         if type(self) is not Problem:
             return None
-        return Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress,
-                       cell_material=self.cell_material)
+        sub = Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress,
+                      cell_material=self.cell_material)
+        sub._cache = list(self._cache)
+        return sub
 
     def material_scores(self, parts, st):
         """(M,) the negative log-likelihood of each material's own cells; they sum to the whole's."""
@@ -186,6 +189,8 @@ class FitData:
     area_points: int = None
     #: m -> the same data with m x m points per sample (refining the quadrature); None: cannot be remade
     remake: object = None
+    #: n -> the same data on a fixed, seeded subsample of n of the pixels; None: no subsample is made
+    subsample: object = None
 
     def problem(self, model, bounds, progress, fixed, deadline):
         """The :class:`Problem` of these data (``make_problem``'s when it is set)."""

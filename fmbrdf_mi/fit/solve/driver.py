@@ -4,6 +4,10 @@
 ``starts`` :func:`distinct_starts` of :func:`~fmbrdf_mi.fit.solve.optimise.coarse_search`, refines each
 (:func:`refine`), and keeps the best end; a deadline
 (:class:`~fmbrdf_mi.fit.problem.problem.TimeUp`) ends it at the latest accepted estimate, not converged.
+
+A fit of many more pixels than the search needs explores on a subsample (:func:`explore_then_polish`): the
+subsample decides only where the fit starts on all pixels; every estimate it returns is a converged fit of
+all pixels.
 """
 from __future__ import annotations
 
@@ -53,6 +57,18 @@ def distinct_starts(problem, cands, n):
     return chosen
 
 
+#: Fits of more pixels than this search and run their starts on a subsample of :data:`EXPLORE_PIXELS` first.
+EXPLORE_ABOVE = 100_000
+
+#: The pixels of that subsample: many more than the few shape parameters' search and starts need to tell
+#: their candidates apart.
+EXPLORE_PIXELS = 30_000
+
+#: Two starts' ends on the subsample at most this many of its standard errors apart (:func:`step_in_se`) are
+#: one optimum, continued on all pixels once.  Two ends of LM at one optimum differ by a fraction of that.
+SAME_END_SE = 1.0
+
+
 def step_in_se(problem, st_old, st_new, J):
     """Largest |change| of z between two states in standard errors (from J^T J); 0 with no iterated unknown."""
     if J.shape[1] == 0:
@@ -66,10 +82,10 @@ def step_in_se(problem, st_old, st_new, J):
 
 
 def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02, history=None,
-           report=None):
+           report=None, label="lm"):
     """At most ``rounds`` reweighting rounds from ``st`` (:func:`~fmbrdf_mi.fit.solve.lm.reweighted`); the
     likelihood's are settled when a round moves the estimate by < 0.05 standard errors.  Returns a
-    :class:`Solution` (``J``, ``r`` None for Adam).
+    :class:`Solution` (``J``, ``r`` None for Adam).  ``label``: LM's progress tag, the round number added.
     """
     obj = problem.obj
     say = report or (lambda m: None)
@@ -92,7 +108,8 @@ def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_l
         nonlocal step_se
         if optimizer == "lm":
             st, _, last.reason, converged, last.J, last.r = O.levenberg_marquardt(
-                problem, st_old, max_iter=max_iter, tol=tol, time_limit=time_limit, history=history, round_no=k + 1)
+                problem, st_old, max_iter=max_iter, tol=tol, time_limit=time_limit, history=history, round_no=k + 1,
+                label=f"{label} {k + 1}")
             step_se = step_in_se(problem, st_old, st, last.J) if last.J is not None else None
         else:
             st, _, last.reason, converged = O.adam(problem, st_old, max_iter=max_iter, lr=lr, tol=tol,
@@ -108,44 +125,62 @@ def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_l
 
 
 def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02,
-          max_time=None, history=None, report=None):
+          max_time=None, history=None, report=None, explore=None, explore_above=None, explore_pixels=None):
     """Minimise ``problem`` (module docstring); returns a :class:`Solution`.
 
     ``init``: a State (no coarse search); ``rounds``: reweighting rounds per start; ``max_time``: the
     deadline in seconds, for the message only (the problem owns the deadline); ``history`` (a list) gets
-    the search's best point and every accepted step.
+    the search's best point and every accepted step.  ``explore``: (the fit's pixel count, ``make``), where
+    ``make(n)`` returns the problem of a fixed, seeded subsample of n of its pixels (or None); with more than
+    ``explore_above`` (default :data:`EXPLORE_ABOVE`) pixels, no ``init`` and no deadline, the search and the
+    starts run on the subsample of ``explore_pixels`` (default :data:`EXPLORE_PIXELS`) first
+    (:func:`explore_then_polish`).
     """
+    explore_above = EXPLORE_ABOVE if explore_above is None else explore_above
+    explore_pixels = EXPLORE_PIXELS if explore_pixels is None else explore_pixels
     say = report or (lambda m: None)
     params = problem.params
     history = [] if history is None else history
     ends, t_search, t0 = [], 0.0, time.time()
     try:
+        sub = None
         if init is not None:
             chosen = [problem.projected(init.shape)[0] if problem.projects else init]
         else:
-            cands = O.coarse_search(problem)
+            if (explore is not None and explore[0] > explore_above and problem.deadline is None
+                    and optimizer == "lm"):
+                sub = explore[1](int(explore_pixels))
+                if sub is not None:
+                    sub.t0 = problem.t0     # one clock for the progress lines and the history
+                    say(f"[fit] search and starts on a fixed subsample of {int(explore_pixels)} of the {explore[0]} "
+                        "pixels; the best ends continue on all of them")
+            where = problem if sub is None else sub
+            cands = O.coarse_search(where)
             t_search = time.time() - t0
             history.append({"stage": "search", "iter": 0, "loss": cands[0][0], "time": t_search,
-                            "params": params.report(cands[0][1].shape, cands[0][1].a_s, cands[0][1].a_b)})
-            chosen = distinct_starts(problem, cands, max(1, int(starts)))
-        best, t_starts = None, time.time()
-        for k, st0 in enumerate(chosen):
-            left = O.time_left(time.time() - t_starts, k, len(chosen), "for the starts")
-            say(f"[fit] start {k + 1}/{len(chosen)}: {O.format_state(problem, st0)}" + (f" ({left})" if left else ""))
-            saved = problem.obj.save()
-            end = refine(problem, st0, rounds=rounds, optimizer=optimizer, max_iter=max_iter, tol=tol,
-                         time_limit=time_limit, lr=lr, history=history, report=say)
-            score = problem.obj.score(problem.parts(end.state), end.state)
-            ends.append({"start": params.report(st0.shape, st0.a_s, st0.a_b),
-                         "end": params.report(end.state.shape, end.state.a_s, end.state.a_b),
-                         "score": score, "converged": end.converged, "reason": end.reason})
-            say(f"[fit] start {k + 1} ended at score {score:.6e} ({end.reason})")
-            if best is None or score < best[0]:
-                best = (score, end, problem.obj.save())
-            if k + 1 < len(chosen):
-                problem.obj.restore(saved)
-        _, out, state = best
-        problem.obj.restore(state)
+                            "params": where.params.report(cands[0][1].shape, cands[0][1].a_s, cands[0][1].a_b)})
+            chosen = distinct_starts(where, cands, max(1, int(starts)))
+        kw = dict(rounds=rounds, optimizer=optimizer, max_iter=max_iter, tol=tol, time_limit=time_limit, lr=lr,
+                  history=history, report=say)
+        if sub is not None:
+            out, ends = explore_then_polish(problem, sub, chosen, explore[0], say, **kw)
+        else:
+            best, t_starts = None, time.time()
+            for k, st0 in enumerate(chosen):
+                left = O.time_left(time.time() - t_starts, k, len(chosen), "for the starts")
+                say(f"[fit] start {k + 1}/{len(chosen)}: {O.format_state(problem, st0)}"
+                    + (f" ({left})" if left else ""))
+                saved = problem.obj.save()
+                end = refine(problem, st0, **kw)
+                score = problem.obj.score(problem.parts(end.state), end.state)
+                ends.append(end_record(params, st0, end, score))
+                say(f"[fit] start {k + 1} ended at score {score:.6e} ({end.reason})")
+                if best is None or score < best[0]:
+                    best = (score, end, problem.obj.save())
+                if k + 1 < len(chosen):
+                    problem.obj.restore(saved)
+            _, out, state = best
+            problem.obj.restore(state)
     except TimeUp:
         if problem.current is None:
             raise InputError(f"max_time {max_time:g} s: no model evaluation fits in that time") from None
@@ -153,11 +188,81 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
     return dataclasses.replace(out, starts=ends, t_search=t_search)
 
 
-def refit_fixed(problem, st, name, value, start=None, max_iter=10):
+def end_record(params, st0, end, score, end_params=None):
+    """A start's entry of :attr:`Solution.starts`: where it started and ended (the :class:`Solution` ``end``,
+    reported by ``end_params``, default ``params``), the end's score."""
+    return {"start": params.report(st0.shape, st0.a_s, st0.a_b),
+            "end": (end_params or params).report(end.state.shape, end.state.a_s, end.state.a_b),
+            "score": score, "converged": end.converged, "reason": end.reason}
+
+
+def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
+    """The starts ``chosen`` refined on ``sub`` (a subsample of ``problem``'s ``pixels``), then each distinct end
+    continued on all pixels; returns (the best Solution of all pixels, the starts' entries).
+
+    Each pixel's albedos are its own (eliminated per pixel) or shared, so the subsample's objective is the
+    same likelihood of fewer pixels: at every shape point its score times (all pixels / subsample) is an
+    unbiased estimate of all pixels' score, its minimum lies within a few of the subsample's standard errors
+    of all pixels' minimum, and its coarse search and start scores order the candidates as all pixels' do
+    wherever those differ by more than that sampling noise.  The subsample therefore decides only where
+    the fit starts on all pixels: ends on it within :data:`SAME_END_SE` of its standard errors of a better one are
+    that optimum (LM from either reaches the same end on all pixels) and are not continued again; every other
+    end is refined on all pixels (:func:`refine`, the albedos re-solved there first), and the best of those
+    converged ends of all pixels is the estimate, each start's entry recording its optimum's end on all
+    pixels.  No estimate of the subsample is returned.
+    """
+    sub_ends, t_starts = [], time.time()
+    for k, st0 in enumerate(chosen):
+        left = O.time_left(time.time() - t_starts, k, len(chosen), "for the starts on the subsample")
+        say(f"[fit] start {k + 1}/{len(chosen)} on the subsample: {O.format_state(sub, st0)}"
+            + (f" ({left})" if left else ""))
+        saved = sub.obj.save()
+        end = refine(sub, st0, **dict(kw, label="subsample lm"))
+        score = sub.obj.score(sub.parts(end.state), end.state)
+        say(f"[fit] start {k + 1} ended on the subsample at score {score:.6e} ({end.reason})")
+        sub_ends.append((score, end))
+        sub.obj.restore(saved)
+    order = sorted(range(len(sub_ends)), key=lambda i: sub_ends[i][0])
+    optimum = {}        # start -> the start whose end on the subsample is its optimum's (the best such)
+    for i in order:
+        end = sub_ends[i][1]
+        optimum[i] = next((j for j in dict.fromkeys(optimum.values())
+                           if same_end(sub, sub_ends[j][1], end)), i)
+    polished, best = {}, None
+    for j in dict.fromkeys(optimum[i] for i in order):
+        end_sub = sub_ends[j][1].state
+        st = (problem.projected(end_sub.shape)[0] if problem.projects
+              else problem.state(end_sub.shape, end_sub.a_s, end_sub.a_b))
+        say(f"[fit] start {j + 1} continued on all {pixels} pixels: {O.format_state(problem, st)}")
+        saved = problem.obj.save()
+        end = refine(problem, st, **kw)
+        score = problem.obj.score(problem.parts(end.state), end.state)
+        say(f"[fit] start {j + 1} ended on all pixels at score {score:.6e} ({end.reason})")
+        polished[j] = (score, end)
+        if best is None or score < best[0]:
+            best = (score, end, problem.obj.save())
+        problem.obj.restore(saved)
+    _, out, state = best
+    problem.obj.restore(state)
+    ends = [end_record(sub.params, st0, polished[optimum[k]][1], polished[optimum[k]][0], problem.params)
+            for k, st0 in enumerate(chosen)]
+    return out, ends
+
+
+def same_end(sub, a, b):
+    """Whether the ends ``a``, ``b`` (:class:`Solution` of ``sub``) are one optimum: at most
+    :data:`SAME_END_SE` of the better's standard errors apart in every free shape parameter."""
+    if a.J is None:
+        return False
+    return step_in_se(sub, a.state, b.state, a.J) <= SAME_END_SE
+
+
+def refit_fixed(problem, st, name, value, start=None, max_iter=10, label=None):
     """chi^2 with shape parameter ``name`` held at ``value``, the rest free, under the current weights: one
     point of the profile likelihood (:func:`fmbrdf_mi.fit.uncertainty.profile_intervals`).  From ``start``
     (a State) or ``st`` with ``name`` moved; few LM iterations, as the profile needs chi^2 only roughly.
-    None where :meth:`~fmbrdf_mi.fit.problem.problem.Problem.with_fixed` cannot hold it."""
+    None where :meth:`~fmbrdf_mi.fit.problem.problem.Problem.with_fixed` cannot hold it.  ``label``: the
+    progress lines' tag (default 'profile ``name``')."""
     sub = problem.with_fixed({name: float(value)})
     if sub is None:
         return None
@@ -172,5 +277,6 @@ def refit_fixed(problem, st, name, value, start=None, max_iter=10):
         start = sub.closed_form(start.shape)[0]
         r = sub.obj.residuals(sub.parts(start), start)
         return float(r @ r)
-    end, f, *_ = O.levenberg_marquardt(sub, start, max_iter=max_iter, final_jacobian=False)
+    end, f, *_ = O.levenberg_marquardt(sub, start, max_iter=max_iter, final_jacobian=False,
+                                       label=label or f"profile {name}")
     return float(f)

@@ -134,27 +134,30 @@ def time_left(elapsed, done, total, where, bound=False):
     return f"{'at most ' if bound else ''}~{left:.{0 if left >= 10 else 1}f} s left {where}"
 
 
-def log_step(problem, history, name, round_no, it, f, st, say=True, t0=None, max_iter=None):
-    """Log an iterate of optimiser ``name`` to ``history`` (a list, or None) and, if ``say``, to progress; with
-    ``t0`` (the optimiser's start) and ``max_iter``, the progress line carries :func:`time_left`."""
+def log_step(problem, history, name, round_no, it, f, st, say=True, t0=None, max_iter=None, label=None):
+    """Log an iterate of optimiser ``name`` to ``history`` (a list, or None) and, if ``say``, to progress, tagged
+    ``label`` (default: ``name`` and ``round_no``); with ``t0`` (the optimiser's start) and ``max_iter``, the
+    progress line carries :func:`time_left`."""
     if history is not None:
         history.append({"stage": f"{name}{round_no}", "iter": it, "loss": f, "time": time.time() - problem.t0,
                         "params": problem.params.report(st.shape, st.a_s, st.a_b)})
     if say:
         left = "" if t0 is None else ", " + time_left(time.time() - t0, it, max_iter, "in this round", bound=True)
-        problem.progress(f"[{name} {round_no}] iter {it:3d}  {problem.obj.name} {f:.6e}  {format_state(problem, st)}  "
+        tag = label or f"{name} {round_no}"
+        problem.progress(f"[{tag}] iter {it:3d}  {problem.obj.name} {f:.6e}  {format_state(problem, st)}  "
                          f"({time.time() - problem.t0:.1f} s{left})")
 
 
 def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, history=None,
-                        round_no=0, refresh=3, final_jacobian=True):
+                        round_no=0, refresh=3, final_jacobian=True, label=None):
     """Minimise the objective from ``st`` with its current weights (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`).
 
     The AD Jacobian (one table rebuild per shape parameter) is refreshed every ``refresh`` accepted steps,
     with Broyden updates between; a problem that
     :attr:`~fmbrdf_mi.fit.problem.problem.Problem.projects` its albedos re-solves them at every trial and
     takes an AD Jacobian every step (its albedo coordinates jump).  Returns (State, value, stop reason,
-    converged, J, r); J, r at the result unless ``final_jacobian`` is False.
+    converged, J, r); J, r at the result unless ``final_jacobian`` is False.  ``label``: the progress lines'
+    tag (:func:`log_step`).
     """
     obj = problem.obj
     project = problem.projects
@@ -180,7 +183,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
 
     def on_accept(it, x, f):
         problem.current = x[0]
-        log_step(problem, history, "lm", round_no, it, f, x[0], t0=t0, max_iter=max_iter)
+        log_step(problem, history, "lm", round_no, it, f, x[0], t0=t0, max_iter=max_iter, label=label)
 
     if project:
         st = problem.projected(st.shape)[0]

@@ -1,0 +1,149 @@
+"""Fits of many pixels search and run their starts on a seeded subsample, then continue on all pixels
+(:func:`fmbrdf_mi.fit.solve.driver.explore_then_polish`): the estimate is the all-pixel optimum, never the
+subsample's; below the threshold the fit is the one without a subsample, number for number.  Small captures
+with the threshold lowered through :func:`~fmbrdf_mi.fit.solve.driver.solve`'s parameters."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from fmbrdf_mi.fit.api.options import FitOptions
+from fmbrdf_mi.fit.evaluate.models import get_model
+from fmbrdf_mi.fit.problem.data import prepare
+from fmbrdf_mi.fit.solve import driver as D
+from fmbrdf_mi.fit.solve import lm as LM
+
+SHAPE = dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0)
+RES = 32
+
+
+@pytest.fixture(scope="module")
+def obs():
+    """A textured sphere under camera noise: each subsample's optimum differs from all pixels' by its noise."""
+    from fmbrdf_mi.sensor.camera import CameraModel
+    from fmbrdf_mi.synthetic.spheres import capture_observation, textured_sphere
+
+    y, x = np.mgrid[0:RES, 0:RES] / RES
+    ks, kb = 0.6 + 0.3 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.1 * np.cos(5 * x + 3 * y)
+    return capture_observation(textured_sphere(SHAPE, ks, kb, res=RES, light=(-0.5, 0.5, 1.0)), CameraModel(),
+                               seed=3)[0]
+
+
+def problem_of(obs, max_pixels=None, report=None):
+    """A fresh problem (its own objective and weights) of ``max_pixels`` seeded pixels of ``obs`` (None: all)."""
+    opts = dataclasses.replace(FitOptions(), albedo="per-pixel", max_pixels=max_pixels)
+    data = prepare([obs], opts, "likelihood", single=True)
+    return data.problem(get_model(opts.model), opts.bounds, report, opts.fixed, None), len(data.pixels)
+
+
+def obs_pixels(obs):
+    return prepare([obs], dataclasses.replace(FitOptions(), max_pixels=None), "likelihood", single=True).pixels
+
+
+def run(problem, **kw):
+    return D.solve(problem, starts=2, rounds=3, max_iter=40, tol=1e-4, **kw)
+
+
+def fisher_se(problem, sol):
+    """Standard errors of the free shape parameters in z from the solution's J (J^T J)^-1."""
+    return np.sqrt(np.diag(np.linalg.pinv(sol.J.T @ sol.J)))
+
+
+@pytest.fixture(scope="module")
+def fits(obs):
+    full, n = problem_of(obs)
+    ref = run(full)
+    lines = []
+    big, _ = problem_of(obs, report=lines.append)
+    made = []
+
+    def make(m):
+        made.append(problem_of(obs, m, report=lines.append)[0])
+        return made[-1]
+
+    explored = run(big, explore=(n, make), explore_above=n // 2, explore_pixels=n // 2, report=lines.append)
+    sub_alone = run(problem_of(obs, n // 2)[0])
+    return dict(full=full, ref=ref, big=big, explored=explored, sub=made, sub_alone=sub_alone, n=n, lines=lines)
+
+
+def test_explored_fit_ends_at_the_all_pixel_optimum(fits):
+    """Same optimum as an independent fit of all pixels: each shape parameter within 0.2 of its standard
+    error in z (two ends of LM with a Gauss-Newton decrement < 0.01 are each within ~0.1 of it), and the
+    decrement of all pixels' system at the explored estimate, computed here, below LM's tolerance."""
+    full, ref, big, sol = fits["full"], fits["ref"], fits["big"], fits["explored"]
+    assert len(fits["sub"]) == 1 and ref.converged and sol.converged
+    se = fisher_se(full, ref)
+    dz = full.to_z(sol.state) - full.to_z(ref.state)
+    assert np.all(np.abs(dz) <= 0.2 * se), (dz / se, sol.state.shape, ref.state.shape)
+    # all pixels' residuals and Jacobian at the estimate, under the weights the fit ended with
+    st = big.projected(sol.state.shape)[0]
+    r, J = big.residuals_and_jacobian(big.parts(st, jac=True), st, big.to_z(st))
+    assert len(r) == len(ref.r) == len(sol.r) and LM.gn_decrement(J, r) < LM.DECREMENT_TOL
+    best = full.obj.score(full.parts(ref.state), ref.state)
+    for s in sol.starts:        # each start's end is a converged end of all pixels, scored there
+        assert s["converged"] and s["score"] >= best - 0.02, (s, best)
+    assert min(s["score"] for s in sol.starts) == pytest.approx(best, abs=0.02)
+    assert sol.state.shape in [s["end"] for s in sol.starts]
+
+
+def test_the_subsample_estimate_is_never_returned(fits):
+    """The subsample's own optimum (an independent fit of it alone) is many LM tolerances away from the
+    explored estimate, which is all pixels' (test above): the subsample only chose the start."""
+    full, ref, sol, alone = fits["full"], fits["ref"], fits["explored"], fits["sub_alone"]
+    se = fisher_se(full, ref)
+    far = np.abs(full.to_z(alone.state) - full.to_z(ref.state)) / se
+    near = np.abs(full.to_z(sol.state) - full.to_z(ref.state)) / se
+    assert far.max() > 3 * max(near.max(), 0.1), (far, near)
+    # the albedos too are all pixels': one pair per fitted pixel
+    assert np.size(sol.state.a_s) == fits["n"] == np.size(ref.state.a_s)
+
+
+def test_progress_says_where_each_phase_runs(fits):
+    lines = fits["lines"]
+    assert any(ln.startswith("[fit] search and starts on a fixed subsample") for ln in lines), lines
+    assert any(ln.startswith("[subsample lm 1] iter") for ln in lines), lines
+    assert any(ln.startswith("[lm 1] iter") for ln in lines), lines
+    assert 1 <= sum("continued on all" in ln for ln in lines) <= 2, lines
+
+
+def test_below_the_threshold_the_fit_is_the_plain_one(obs, fits):
+    """With no more pixels than ``explore_above`` the subsample is never made: every number as without it."""
+    p, n = problem_of(obs)
+    sol = run(p, explore=(n, lambda m: pytest.fail("subsample made below the threshold")), explore_above=n)
+    ref = fits["ref"]
+    assert sol.state.shape == ref.state.shape and np.array_equal(sol.state.a_s, ref.state.a_s)
+    assert sol.starts == ref.starts
+
+
+def test_distinct_optima_on_the_subsample_are_each_continued():
+    """Ends more than SAME_END_SE of the subsample's standard errors apart are continued separately; closer
+    ones once, the better one's (the grouping of :func:`explore_then_polish`)."""
+    J = np.eye(2)                     # unit standard errors in z
+
+    class P:
+        def to_z(self, st):
+            return np.asarray(st, float)
+
+    class S:
+        def __init__(self, z):
+            self.state, self.J = z, J
+
+    assert D.same_end(P(), S([0.0, 0.0]), S([0.5, -0.5]))
+    assert not D.same_end(P(), S([0.0, 0.0]), S([0.0, 1.5]))
+
+
+@pytest.mark.parametrize("lights", [1, 3])
+def test_fit_explores_above_the_threshold(obs, lights, monkeypatch):
+    """``fit()`` of one image or a joint fit of several: above :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_ABOVE`
+    pixels the search runs on a subsample of :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_PIXELS` of them (the
+    data's own ``subsample``), and the fit ends converged on all of its pixels."""
+    from fmbrdf_mi.fit import fit
+
+    observations = obs if lights == 1 else [obs] * lights
+    monkeypatch.setattr(D, "EXPLORE_ABOVE", 100)
+    monkeypatch.setattr(D, "EXPLORE_PIXELS", 200)
+    lines = []
+    res = fit(observations, albedo="per-pixel", max_pixels=None, intervals="fisher", starts=1, progress=lines.append)
+    assert res.converged and res.n_pixels == lights * len(obs_pixels(obs)) > 400, (res.stop_reason, res.n_pixels)
+    assert any(ln.startswith("[fit] search and starts on a fixed subsample of 200 of the") for ln in lines), lines
+    assert any(ln.startswith("[lm 1] iter") for ln in lines), lines
