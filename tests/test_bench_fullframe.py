@@ -93,7 +93,8 @@ def test_rel_diff():
 def run(mode="cli", eta=1.5, pixels=100, time=1.0, cpu=1.0, peak=1e6, width=64, **extra):
     r = {"mode": mode, "scene": "sphere", "texture": "smooth", "K": 1, "width": width, "height": width, "area": 4,
          "seed": 0, "pixels": pixels, "time": time, "cpu": cpu, "peak": peak,
-         "estimates": {"params": {"eta": eta, "kappa": 0.0}, "maps": {"k_s": {"count": 3, "values": [0.5, 0.6]}}},
+         "estimates": {"params": {"eta": eta, "kappa": 0.0},
+                       "maps": {"k_s": {"count": pixels, "values": [0.5, 0.6]}}},
          "uncertainty": {"std_errors": {"eta": 0.01}}}
     r.update(extra)
     return r
@@ -125,6 +126,15 @@ def test_main_compare_exit_status(tmp_path):
     assert B.main(["--compare", str(tmp_path / "a.json"), str(tmp_path / "c.json")]) == 2
     with pytest.raises(SystemExit, match="--compare"):
         B.main(["--compare", str(tmp_path / "a.json"), str(tmp_path / "missing.json")])
+
+
+def test_cells_are_the_maps_pixels():
+    """With K images ``pixels`` counts a super-pixel once per image; the fitted super-pixels are the map's."""
+    r = run(pixels=300)
+    r["estimates"]["maps"]["k_s"]["count"] = 110
+    assert B.cells(r) == 110
+    del r["estimates"]["maps"]["k_s"]
+    assert B.cells(r) == 300
 
 
 def test_marginals_of_a_linear_cost():

@@ -69,8 +69,9 @@ built-in sphere; ``textured``: its albedo ``k_s`` a smooth one-channel texture t
 process: its wall time, CPU time and peak resident set (``os.wait4``).  Sizes are raw pixels, N or WxH.  The
 render's progress lines pass through on stderr.
 
-Reported per case: the frame, the fitted super-pixels, wall and CPU time, peak resident set, the time and peak
-per fitted super-pixel, and, between consecutive sizes of the same case, the marginal time and memory per
+Reported per case: the frame, the fitted super-pixels (the albedo maps' pixels), wall and CPU time, peak
+resident set, the time and peak per fitted super-pixel, the captures' making (its child's wall time and peak, in
+the JSON), and, between consecutive sizes of the same case, the marginal time and memory per
 added super-pixel (constant when the cost is linear).  The machine's CPU, its cores, ``DRJIT_NUM_THREADS``,
 the load average and the date head the table.
 """
@@ -364,7 +365,8 @@ def run_cli(a, case):
     with tempfile.TemporaryDirectory() as work:
         data, out, log = (os.path.join(work, k) for k in ("data", "out", "log.txt"))
         make = [sys.executable, os.path.abspath(__file__), "--worker", "make", "--out", data, *case_args(case)]
-        if run_child(make, child_env(ROOT))[0]:
+        rc, make_time, _, make_peak = run_child(make, child_env(ROOT))
+        if rc:
             raise SystemExit(f"{label(case)}: making the captures failed")
         with open(os.path.join(data, "info.json")) as f:
             info = json.load(f)
@@ -382,7 +384,7 @@ def run_cli(a, case):
     unc = model.get("uncertainty") or {}
     return dict(case, intervals="the command's", object=info["object"], pixels=int(model.get("n_pixels", 0)),
                 time=wall, cpu=cpu, peak=peak, rss_before=None, converged=bool(model.get("converged", False)),
-                stages=model.get("timings") or {}, make_time=info["make_time"],
+                stages=model.get("timings") or {}, make_time=make_time, make_peak=make_peak,
                 estimates=estimates_of(model.get("params", {}), model.get("loss", math.nan),
                                        {k: v for k, v in maps.items() if v is not None}),
                 uncertainty={"std_errors": model.get("std_errors") or {}, "ci95": unc.get("ci95") or {}})
@@ -476,28 +478,35 @@ def main_compare(a):
 
 
 def marginals(runs):
-    """Between consecutive sizes of the same case (by fitted super-pixels): (label of the larger, fitted
-    super-pixels of both, wall ms, CPU ms and peak kB per added fitted super-pixel)."""
+    """Between consecutive sizes of the same case (by fitted super-pixels, :func:`cells`): (label of the larger,
+    fitted super-pixels of both, wall ms, CPU ms and peak kB per added fitted super-pixel)."""
     group = (lambda r: tuple(r.get(k) for k in CASE_KEYS if k not in ("width", "height")))
     out = []
-    for _, rs in itertools.groupby(sorted(runs, key=lambda r: (group(r), r["pixels"])), key=group):
+    for _, rs in itertools.groupby(sorted(runs, key=lambda r: (group(r), cells(r))), key=group):
         rs = list(rs)
         for r0, r1 in zip(rs, rs[1:]):
-            dn = r1["pixels"] - r0["pixels"]
+            dn = cells(r1) - cells(r0)
             if dn > 0:
-                out.append((label(r1), r0["pixels"], r1["pixels"], 1e3 * (r1["time"] - r0["time"]) / dn,
+                out.append((label(r1), cells(r0), cells(r1), 1e3 * (r1["time"] - r0["time"]) / dn,
                             1e3 * (r1["cpu"] - r0["cpu"]) / dn, (r1["peak"] - r0["peak"]) / dn / 1e3))
     return out
 
 
+def cells(run):
+    """The super-pixels a run fitted: its albedo pairs (the map's fitted pixels; with K images ``pixels`` counts
+    each pixel once per image it is usable in)."""
+    return run.get("estimates", {}).get("maps", {}).get("k_s", {}).get("count") or run["pixels"]
+
+
 def table(runs, head):
     lines = [head, "",
-             "| mode | object | texture | K | frame (super-pixels) | data points / raw pixel | fitted | time | CPU time | "
-             "time / fitted | peak RSS | peak / fitted |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| mode | object | texture | K | frame (super-pixels) | data points / raw pixel | super-pixels fitted | "
+             "time | CPU time | time / fitted | peak RSS | peak / fitted |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in runs:
-        n = max(r["pixels"], 1)
+        n = max(cells(r), 1)
         lines.append(f"| {r['mode']} | {r['scene']} | {r['texture']} | {r['K']} | {r['width']} × {r['height']} | "
-                     f"{r['area']}² | {r['pixels']} | {r['time']:.1f} s | {r['cpu']:.1f} s | "
+                     f"{r['area']}² | {n} | {r['time']:.1f} s | {r['cpu']:.1f} s | "
                      f"{1e3 * r['time'] / n:.2f} ms | {r['peak'] / 2 ** 30:.2f} GiB | {r['peak'] / n / 1e3:.1f} kB |")
     extra = marginals(runs)
     if extra:
@@ -674,7 +683,7 @@ def main(argv=None):
         print(f"[{time.time() - t0:.0f} s] {label(case)} ...", file=sys.stderr, flush=True)
         r = (run_cli if case["mode"] == "cli" else run_api)(a, case)
         runs.append(r)
-        print(f"[{time.time() - t0:.0f} s] {label(case)}: {r['pixels']} super-pixels, {r['time']:.1f} s, "
+        print(f"[{time.time() - t0:.0f} s] {label(case)}: {cells(r)} super-pixels, {r['time']:.1f} s, "
               f"CPU {r['cpu']:.1f} s, peak {r['peak'] / 2 ** 30:.2f} GiB", file=sys.stderr, flush=True)
         save_runs(a, head, runs)
     return print_table(a, table(runs, head))
