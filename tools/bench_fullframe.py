@@ -36,10 +36,9 @@ noise, the brightest raw pixel at 80 % of full scale; with K = 3 lights one expo
 
 The data come from the camera model, not from ``fmbrdf-mi render --raw``: the renderer's scenes are spheres
 (a mesh needs an XML scene with uv coordinates for its texture, and ``render`` writes no normal map or mask
-for it, which the command needs); a full frame at the renderer's ``--raw`` default of 1024 samples per pixel
-takes about 14 CPU minutes per light where the camera model integrates each pixel's area exactly (points,
-not random samples); and ``--compare`` needs the same data from run to run, which seeded NumPy noise gives.
-``--render`` times the renderer's making of a frame on its own.
+for it, which the command needs); and a full frame at the renderer's ``--raw`` default of 1024 samples per pixel
+takes about 14 CPU minutes per light where the camera model integrates each pixel's area with points, not
+random samples.  ``--render`` times the renderer's making of a frame on its own.
 
 Modes:
 
@@ -320,18 +319,30 @@ def find_key(d, key):
     return None
 
 
-def run_child(cmd, env, stdout=None, stderr=None):
+def run_child(cmd, env, stdout=None, stderr=None, cwd=None):
     """Run ``cmd`` (``stdout``, ``stderr``: open files, or None to pass through); its exit status, wall time,
     CPU time (user + system) and peak resident set, measured for that child alone (``os.wait4``)."""
     t = time.time()
-    child = subprocess.Popen(cmd, env=env, stdout=stdout, stderr=stderr)
+    child = subprocess.Popen(cmd, env=env, stdout=stdout, stderr=stderr, cwd=cwd)
     _, status, usage = os.wait4(child.pid, 0)
     child.returncode = os.waitstatus_to_exitcode(status)
     return child.returncode, time.time() - t, usage.ru_utime + usage.ru_stime, usage.ru_maxrss * 1024
 
 
 def child_env(code):
+    """The environment of a child that imports the package of the checkout ``code`` (run it outside any
+    checkout: ``python -m`` puts the working directory first on the path)."""
     return dict(os.environ, PYTHONPATH=code)
+
+
+def check_code(code):
+    """SystemExit unless ``python -m fmbrdf_mi`` in :func:`child_env` imports the package of ``code``."""
+    with tempfile.TemporaryDirectory() as work:
+        p = subprocess.run([sys.executable, "-c", "import fmbrdf_mi; print(fmbrdf_mi.__file__)"], cwd=work,
+                           env=child_env(code), capture_output=True, text=True)
+    where = p.stdout.strip()
+    if p.returncode or os.path.dirname(os.path.dirname(os.path.realpath(where))) != os.path.realpath(code):
+        raise SystemExit(f"--code: {code}: its package is not the one imported ({where or p.stderr.strip()[-300:]})")
 
 
 def case_args(case):
@@ -372,7 +383,8 @@ def run_cli(a, case):
             info = json.load(f)
         with open(log, "w") as f:
             rc, wall, cpu, peak = run_child(fit_command(info, out, not a.progress), child_env(a.code),
-                                            stdout=None if a.progress else f, stderr=None if a.progress else f)
+                                            stdout=None if a.progress else f, stderr=None if a.progress else f,
+                                            cwd=work)
         if rc:
             with open(log) as f:
                 tail = f.read()[-2000:]
@@ -382,7 +394,7 @@ def run_cli(a, case):
         model = find_key(res, "n_pixels") or {}
         maps = {k: read_map(os.path.join(out, f"{k}.exr")) for k in ("k_s", "k_b")}
     unc = model.get("uncertainty") or {}
-    return dict(case, intervals="the command's", object=info["object"], pixels=int(model.get("n_pixels", 0)),
+    return dict(case, code=a.code, intervals="the command's", object=info["object"], pixels=int(model.get("n_pixels", 0)),
                 time=wall, cpu=cpu, peak=peak, rss_before=None, converged=bool(model.get("converged", False)),
                 stages=model.get("timings") or {}, make_time=make_time, make_peak=make_peak,
                 estimates=estimates_of(model.get("params", {}), model.get("loss", math.nan),
@@ -398,7 +410,7 @@ def run_api(a, case):
     lines = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
     if p.returncode or not lines:
         raise SystemExit(f"{label(case)}: the API worker failed with exit status {p.returncode}")
-    return json.loads(lines[-1][7:])
+    return dict(json.loads(lines[-1][7:]), code=a.code)
 
 
 def label(run):
@@ -547,7 +559,7 @@ def run_render(size, scene, spp, work, texture):
     cmd += ["-D", f"k_s={texture}"] if scene == "textured" else []
     cmd += ["--spp", str(spp)] if spp else []
     with tempfile.TemporaryFile("w+") as f:
-        rc, wall, cpu, peak = run_child(cmd, child_env(ROOT), stdout=f)
+        rc, wall, cpu, peak = run_child(cmd, child_env(ROOT), stdout=f, cwd=work)
         f.seek(0)
         stdout = f.read()
     if rc:
@@ -672,6 +684,7 @@ def main(argv=None):
     a.code = os.path.abspath(a.code)
     if not os.path.isfile(os.path.join(a.code, "fmbrdf_mi", "__init__.py")):
         raise SystemExit(f"--code: {a.code} is not a checkout of the package (no fmbrdf_mi/__init__.py)")
+    check_code(a.code)
     cases = [{"mode": m, "scene": s, "texture": t, "K": k, "width": w, "height": h, "area": a.area, "seed": a.seed}
              for (w, h), s, t, k, m in itertools.product(
                  frames, parse_list("scene", a.scene, SCENES), parse_list("texture", a.texture, TEXTURES),
