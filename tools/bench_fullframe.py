@@ -5,7 +5,7 @@ super-pixel against frame size, with its estimates for a comparison with another
                                     [--lights 1,3] [--modes cli,api] [--area 4] [--code DIR] [--seed 0]
                                     [--progress] [--json out.json] [--markdown out.md]
     python tools/bench_fullframe.py --compare A.json B.json [--rtol 1e-6]
-    python tools/bench_fullframe.py --table out.json [more.json ...]
+    python tools/bench_fullframe.py --table out.json [more.json ...]     (the fits of all in one table)
     python tools/bench_fullframe.py --render [--render-sizes 512,1024,2448x2048] [--scenes plain,textured]
                                     [--spp N] [--json out.json] [--markdown out.md]
 
@@ -670,9 +670,11 @@ def main(argv=None):
         return main_compare(a)
     if a.table:
         saved = [json.load(open(f)) for f in a.table]
-        for s in saved:
-            render = s["runs"] and s["runs"][0].get("mode") == "render"
-            print((render_table if render else table)(s["runs"], s["header"]) + "\n")
+        for s in [s for s in saved if s["runs"] and s["runs"][0].get("mode") == "render"]:
+            print(render_table(s["runs"], s["header"]) + "\n")
+        fits = [s for s in saved if s["runs"] and s["runs"][0].get("mode") != "render"]
+        if fits:       # one table of every file's fits, so that the marginals span the files
+            print(table([r for s in fits for r in s["runs"]], "\n".join(s["header"] for s in fits)))
         return 0
     if a.render:
         return main_render(a)
