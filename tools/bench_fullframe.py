@@ -16,7 +16,9 @@ not count for the next).
 
 Data (always made by this checkout's package, whatever ``--code``), as a camera makes them: the object's
 noise-free Stokes image at every raw pixel, each raw pixel the mean of the model over ``--area`` x ``--area``
-points of its area (default 4: the pixel's area integrated, which the fit models with 2 x 2), then captured by
+points of its area (default 4: the pixel's area integrated, which the fit models with 2 x 2; the making holds
+the points of the whole object at once, in float64: ``--area 2`` makes a full frame with a quarter of them),
+then captured by
 :func:`fmbrdf_mi.synthetic.spheres.capture_observation` (IMX250MZR camera model, its default gain and read
 noise, the brightest raw pixel at 80 % of full scale; with K = 3 lights one exposure for all):
 
@@ -25,7 +27,7 @@ noise, the brightest raw pixel at 80 % of full scale; with K = 3 lights one expo
   the square: about 64 % of a full frame);
 * ``mesh``: the non-spherical blob mesh of :func:`fmbrdf_mi.synthetic.mesh_object.ideal_object` (a pinhole
   camera of 20 degrees across the square, exact ray-cast geometry at every point), textured by
-  :func:`fmbrdf_mi.synthetic.spheres.textured` (about 30 % of the square);
+  :func:`fmbrdf_mi.synthetic.spheres.textured` (its share of the frame: the fitted super-pixels reported);
 * textures per super-pixel of the frame (x = column / W, y = row / H): ``smooth`` k_s = 0.6 + 0.4 sin(6x)
   cos(4y), k_b = 0.4 + 0.1 cos(5x + 3y); ``checker`` 3 x 3 super-pixel squares, (k_s, k_b) = (1.0, 0.55) and
   (0.4, 0.25) alternating (tools/bench_textured.py's ``smooth`` and ``high``);
@@ -37,8 +39,8 @@ noise, the brightest raw pixel at 80 % of full scale; with K = 3 lights one expo
 The data come from the camera model, not from ``fmbrdf-mi render --raw``: the renderer's scenes are spheres
 (a mesh needs an XML scene with uv coordinates for its texture, and ``render`` writes no normal map or mask
 for it, which the command needs); and a full frame at the renderer's ``--raw`` default of 1024 samples per pixel
-takes about 14 CPU minutes per light where the camera model integrates each pixel's area with points, not
-random samples.  ``--render`` times the renderer's making of a frame on its own.
+takes many CPU minutes per light (docs/benchmarks/speed.md) where the camera model integrates each pixel's area
+with points, not random samples.  ``--render`` times the renderer's making of a frame on its own.
 
 Modes:
 
