@@ -262,7 +262,6 @@ def worker_make(a):
 
     from fmbrdf_mi.sensor.camera import write_sidecar
 
-    t = time.time()
     obs, caps, cam, ideal = captures(a)
     os.makedirs(a.out, exist_ok=True)
     images = []
@@ -274,7 +273,7 @@ def worker_make(a):
     np.save(os.path.join(a.out, "mask.npy"), np.asarray(obs[0].mask, dtype=bool))
     info = {"images": images, "lights": [[float(v) for v in o.light_dir] for o in obs],
             "irradiance": float(obs[0].irradiance), "camera": ideal["camera"], "fov": ideal["fov"],
-            "object": int(np.count_nonzero(obs[0].mask)), "make_time": time.time() - t}
+            "object": int(np.count_nonzero(obs[0].mask))}
     with open(os.path.join(a.out, "info.json"), "w") as f:
         json.dump(info, f)
 
