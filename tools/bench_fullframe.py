@@ -395,7 +395,8 @@ def run_cli(a, case):
         model = find_key(res, "n_pixels") or {}
         maps = {k: read_map(os.path.join(out, f"{k}.exr")) for k in ("k_s", "k_b")}
     unc = model.get("uncertainty") or {}
-    return dict(case, code=a.code, intervals="the command's", object=info["object"], pixels=int(model.get("n_pixels", 0)),
+    return dict(case, code=a.code, intervals="the command's", object=info["object"],
+                pixels=int(model.get("n_pixels", 0)),
                 time=wall, cpu=cpu, peak=peak, rss_before=None, converged=bool(model.get("converged", False)),
                 stages=model.get("timings") or {}, make_time=make_time, make_peak=make_peak,
                 estimates=estimates_of(model.get("params", {}), model.get("loss", math.nan),
@@ -417,7 +418,8 @@ def run_api(a, case):
 def label(run):
     """A case's name, e.g. ``cli sphere smooth K=1 256x256``."""
     return (f"{run['mode']} {run['scene']} {run['texture']} K={run['K']} {run['width']}x{run['height']}"
-            + (f" area={run['area']}" if run.get("area", 4) != 4 else "") + (f" seed={run['seed']}" if run.get("seed") else ""))
+            + (f" area={run['area']}" if run.get("area", 4) != 4 else "")
+            + (f" seed={run['seed']}" if run.get("seed") else ""))
 
 
 def flatten(d, prefix=""):
@@ -523,7 +525,8 @@ def table(runs, head):
                      f"{1e3 * r['time'] / n:.2f} ms | {r['peak'] / 2 ** 30:.2f} GiB | {r['peak'] / n / 1e3:.1f} kB |")
     extra = marginals(runs)
     if extra:
-        lines += ["", "| case | from → to fitted | time / added | CPU / added | peak / added |", "|---|---|---|---|---|"]
+        lines += ["", "| case | from → to fitted | time / added | CPU / added | peak / added |",
+                  "|---|---|---|---|---|"]
         lines += [f"| {name} | {n0} → {n1} | {t:.2f} ms | {c:.2f} ms | {m:.1f} kB |" for name, n0, n1, t, c, m in extra]
     return "\n".join(lines)
 
