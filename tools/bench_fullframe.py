@@ -24,7 +24,7 @@ noise, the brightest raw pixel at 80 % of full scale; with K = 3 lights one expo
 
 * ``sphere``: the textured orthographic sphere of :func:`fmbrdf_mi.synthetic.spheres.textured_sphere` (the
   `medium` material of tools/bench_textured.py), filling a square of side min(W, H) super-pixels (pi / 4 of
-  the square: about 64 % of a full frame);
+  the square: about 65 % of a full frame);
 * ``mesh``: the non-spherical blob mesh of :func:`fmbrdf_mi.synthetic.mesh_object.ideal_object` (a pinhole
   camera of 20 degrees across the square, exact ray-cast geometry at every point), textured by
   :func:`fmbrdf_mi.synthetic.spheres.textured` (its share of the frame: the fitted super-pixels reported);
