@@ -1,45 +1,84 @@
-"""Per-pixel fits of whole polarisation-camera frames: wall time and peak memory per super-pixel against size.
+"""Per-pixel fits of whole polarisation-camera frames: the default fit command's time and peak memory per
+super-pixel against frame size, with its estimates for a comparison with another version of the code.
 
-    python tools/bench_fullframe.py [--sizes 64,128,256] [--lights 1] [--texture smooth] [--intervals fisher]
-                                    [--cli] [--json out.json] [--markdown out.md]
-    python tools/bench_fullframe.py --table out.json [more.json ...]
+    python tools/bench_fullframe.py [--sizes 256,512,full] [--scene sphere,mesh] [--texture smooth,checker]
+                                    [--lights 1,3] [--modes cli,api] [--area 4] [--code DIR] [--seed 0]
+                                    [--progress] [--json out.json] [--markdown out.md]
+    python tools/bench_fullframe.py --compare A.json B.json [--rtol 1e-6]
+    python tools/bench_fullframe.py --table out.json [more.json ...]     (the fits of all in one table)
     python tools/bench_fullframe.py --render [--render-sizes 512,1024,2448x2048] [--scenes plain,textured]
                                     [--spp N] [--json out.json] [--markdown out.md]
 
-Data, as a camera makes them: the textured orthographic sphere of tools/bench_textured.py
-(:func:`fmbrdf_mi.synthetic.spheres.textured_sphere`, the `medium` material, its ``smooth`` or ``high``
-texture per super-pixel, filling a SIZE x SIZE super-pixel image: pi / 4 of it is object), captured by
+Cases: every combination of the comma-separated ``--sizes`` (frames in super-pixels: ``N`` for N x N, ``WxH``,
+or ``full``, a polarisation camera's whole frame, 1224 x 1024 super-pixels = 2448 x 2048 raw pixels),
+``--scene``, ``--texture``, ``--lights`` and ``--modes``, each in fresh processes (so one case's memory does
+not count for the next).
+
+Data (always made by this checkout's package, whatever ``--code``), as a camera makes them: the object's
+noise-free Stokes image at every raw pixel, each raw pixel the mean of the model over ``--area`` x ``--area``
+points of its area (default 4: the pixel's area integrated, which the fit models with 2 x 2; the making holds
+the points of the whole object at once, in float64: ``--area 2`` makes a full frame with a quarter of them),
+then captured by
 :func:`fmbrdf_mi.synthetic.spheres.capture_observation` (IMX250MZR camera model, its default gain and read
-noise, brightest raw pixel at 80 % of full scale; with K = 3 lights one exposure for all), camera noise known.
+noise, the brightest raw pixel at 80 % of full scale; with K = 3 lights one exposure for all):
 
-Each size runs in a fresh Python process (so one size's memory does not count for the next), which
+* ``sphere``: the textured orthographic sphere of :func:`fmbrdf_mi.synthetic.spheres.textured_sphere` (the
+  `medium` material of tools/bench_textured.py), filling a square of side min(W, H) super-pixels (pi / 4 of
+  the square: about 65 % of a full frame);
+* ``mesh``: the non-spherical blob mesh of :func:`fmbrdf_mi.synthetic.mesh_object.ideal_object` (a pinhole
+  camera of 20 degrees across the square, exact ray-cast geometry at every point), textured by
+  :func:`fmbrdf_mi.synthetic.spheres.textured` (its share of the frame: the fitted super-pixels reported);
+* textures per super-pixel of the frame (x = column / W, y = row / H): ``smooth`` k_s = 0.6 + 0.4 sin(6x)
+  cos(4y), k_b = 0.4 + 0.1 cos(5x + 3y); ``checker`` 3 x 3 super-pixel squares, (k_s, k_b) = (1.0, 0.55) and
+  (0.4, 0.25) alternating (tools/bench_textured.py's ``smooth`` and ``high``);
+* lights: tools/bench_textured.py's (K = 1: (-0.5, 0.5, 1); K = 3: two more at 35 degrees from the view);
+* the square's Stokes image, normal map and mask sit in the middle of the W x H frame, dark around it, and the
+  whole frame is captured (a perspective frame's field of view is the one whose focal length is the
+  square's, so that its rays are the square's).
 
-* makes the captures, then resets its peak resident set (``/proc/self/clear_refs``), so the peak that
-  follows is the fit's (the process's resident set before the fit, Python, NumPy, Mitsuba and the captures,
-  is reported beside it);
-* ``api``: ``fmbrdf_mi.fit.fit(obs, albedo="per-pixel", max_pixels=None, intervals=...)`` (``--intervals``:
-  the per-pixel fit's intervals, default ``fisher``);
-* ``cli`` (``--cli``, after the API fit, in its own process): the default command a user types,
-  ``fmbrdf-mi fit raw.png --albedo per-pixel --max-pixels 0`` with the capture's sidecar (the camera), the
-  normal map, mask, light and irradiance of the capture, everything else the command's defaults (its
-  intervals and checks included); the child process's peak resident set (``RUSAGE_CHILDREN``).
+The data come from the camera model, not from ``fmbrdf-mi render --raw``: the renderer's scenes are spheres
+(a mesh needs an XML scene with uv coordinates for its texture, and ``render`` writes no normal map or mask
+for it, which the command needs); and a full frame at the renderer's ``--raw`` default of 1024 samples per pixel
+takes many CPU minutes per light (docs/benchmarks/speed.md) where the camera model integrates each pixel's area
+with points, not random samples.  ``--render`` times the renderer's making of a frame on its own.
+
+Modes:
+
+* ``cli`` (default): the command a user types, ``fmbrdf-mi fit IMG [IMG IMG] --albedo per-pixel
+  --max-pixels 0`` with each raw PNG's sidecar (the camera), ``--normals``, ``--mask``, ``--camera`` (and
+  ``--fov``), one ``--light`` per image (three: the joint fit) and ``--irradiance`` of the captures, everything
+  else the command's defaults (its intervals and checks included).  The data are written by one child
+  process and fitted by another, measured alone (``os.wait4``: its wall time, CPU time = user + system, peak
+  resident set); the stage times are fit.json's ``timings``.
+* ``api``: ``fmbrdf_mi.fit.fit(obs, albedo="per-pixel", max_pixels=None, intervals=--intervals)`` in a
+  child process that makes the captures, then resets its peak resident set (``/proc/self/clear_refs``), so the
+  peak is the fit's; the resident set before the fit (Python, NumPy, Mitsuba, the captures) beside it.
+
+``--code DIR``: the checkout whose package fits (the command's ``PYTHONPATH``; the ``api`` child's package,
+which then also makes its data), e.g. ``git worktree add --detach ../old COMMIT``, to record the old code's
+estimates on the same data.  Each run records its estimates (the shape parameters, the loss and a summary of
+the albedo maps: count, mean, RMS and 16 pixels spread over the object) and its uncertainty (standard errors,
+95 % intervals); ``--compare A.json B.json`` matches the runs of the same case (mode, scene, texture, lights,
+frame, area, seed) and prints, per case and overall, the largest relative difference of the estimates (of the
+uncertainty for information); exit status 1 when one exceeds ``--rtol`` (default 1e-6) or a case's estimates
+differ in kind, 2 when no case matches.
 
 ``--render``: the data's own making instead, the command a user types to make a full frame,
 ``fmbrdf-mi render OUT.exr --raw --res WxH [-D k_s=TEXTURE.png] [--spp N]`` (the Stokes EXR, its previews, the
 raw mosaic and its sidecar; a textured sphere also its true albedo maps), each size and scene (``plain``: the
 built-in sphere; ``textured``: its albedo ``k_s`` a smooth one-channel texture the tool writes as a PNG) in a child
-process: its wall time, CPU time (user + system: less sensitive to other work on the machine than the
-wall time) and peak resident set (``os.wait4``'s ``ru_utime``, ``ru_stime`` and ``ru_maxrss`` of that child).  Sizes are raw
-pixels, N or WxH; a polarisation camera's full frame is 2448x2048 (1224 x 1024 super-pixels).  The render's
-progress lines pass through on stderr.
+process: its wall time, CPU time and peak resident set (``os.wait4``).  Sizes are raw pixels, N or WxH.  The
+render's progress lines pass through on stderr.
 
-Reported per size and mode: the fitted super-pixels, wall time, peak resident set (the fit's process:
-VmHWM), the peak's growth over the resident set before the fit, and both per fitted super-pixel.  The
-machine's CPU, its number of cores, ``DRJIT_NUM_THREADS`` and the date head the table.  Timings are wall
-clock on this machine, whatever else runs on it.
+Reported per case: the frame, the fitted super-pixels (the albedo maps' pixels), wall and CPU time, peak
+resident set, the time and peak per fitted super-pixel, the captures' making (its child's wall time and peak, in
+the JSON), and, between consecutive sizes of the same case, the marginal time and memory per
+added super-pixel (constant when the cost is linear).  The machine's CPU, its cores, ``DRJIT_NUM_THREADS``,
+the load average and the date head the table.
 """
 import argparse
 import datetime
+import itertools
 import json
 import math
 import os
@@ -52,6 +91,12 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+FULL = (1224, 1024)          # a polarisation camera's whole frame in super-pixels (IMX250MZR: 2448 x 2048 raw)
+MESH_FOV = 20.0              # degrees across the mesh's square (ideal_object's default)
+MESH_DISTANCE = 8.0
+SCENES, TEXTURES, LIGHTS, MODES = ("sphere", "mesh"), ("smooth", "checker"), (1, 3), ("cli", "api")
+CASE_KEYS = ("mode", "scene", "texture", "K", "width", "height", "area", "seed")
 
 
 def vm(key):
@@ -73,83 +118,191 @@ def reset_peak():
         return False
 
 
-def captures(size, K, tex, seed):
-    """K textured-sphere captures of a SIZE x SIZE super-pixel frame (module docstring)."""
-    from bench_textured import TRUTH, lights, texture
-    from fmbrdf_mi.sensor.camera import CameraModel
-    from fmbrdf_mi.synthetic.spheres import capture_observation, textured_sphere
+def parse_frame(text):
+    """``--sizes`` item in super-pixels: ``N`` (N x N), ``WxH`` or ``full`` -> (width, height)."""
+    t = text.strip().lower()
+    if t == "full":
+        return FULL
+    w, x, h = t.partition("x")
+    try:
+        w, h = int(w), int(h if x else w)
+    except ValueError:
+        raise SystemExit(f"--sizes: expected N, WxH (super-pixels) or full, got {text!r}") from None
+    if min(w, h) < 8:
+        raise SystemExit(f"--sizes: {text!r}: at least 8 super-pixels each way")
+    if (w - h) % 2:
+        raise SystemExit(f"--sizes: {text!r}: width - height must be even (the object's square sits in the middle)")
+    return w, h
 
-    ks, kb = texture(tex, size)
+
+def parse_list(name, text, valid, kind=str):
+    """A comma-separated option's values, each one of ``valid``."""
+    try:
+        vals = [kind(v.strip()) for v in text.split(",") if v.strip()]
+    except ValueError:
+        vals = None
+    if not vals or any(v not in valid for v in vals):
+        raise SystemExit(f"--{name}: expected a comma-separated list of {', '.join(map(str, valid))}, got {text!r}")
+    return list(dict.fromkeys(vals))
+
+
+def frame_texture(name, width, height):
+    """(k_s, k_b) maps (height, width) of the texture ``name`` per super-pixel of the frame (module docstring)."""
+    import numpy as np
+
+    i, j = np.mgrid[0:height, 0:width]
+    if name == "smooth":
+        x, y = j / width, i / height
+        return 0.6 + 0.4 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.1 * np.cos(5 * x + 3 * y)
+    if name == "checker":
+        odd = (i // 3 + j // 3) % 2 == 1
+        return np.where(odd, 1.0, 0.4), np.where(odd, 0.55, 0.25)
+    raise ValueError(f"texture: expected one of {', '.join(TEXTURES)}, got {name!r}")
+
+
+def placement(width, height):
+    """(side, column offset, row offset): the object's square in the middle of the frame."""
+    side = min(width, height)
+    return side, (width - side) // 2, (height - side) // 2
+
+
+def frame_fov(side, width, fov=MESH_FOV):
+    """Horizontal field of view (degrees) of a frame ``width`` wide whose focal length is that of a square
+    ``side`` wide seeing ``fov`` degrees across: the frame's rays through the square are the square's."""
+    return math.degrees(2 * math.atan(width / side * math.tan(math.radians(fov) / 2)))
+
+
+def ideal_frame(scene, texture, width, height, light, area):
+    """The noise-free textured object of ``scene`` in a width x height frame (module docstring): the dict of
+    :func:`fmbrdf_mi.synthetic.spheres.ideal_sphere` (stokes per raw pixel, normals, mask, view directions,
+    geometry of the frame) plus ``camera``, ``fov`` and the true maps."""
+    import numpy as np
+
+    from bench_textured import TRUTH
+    from fmbrdf_mi import geometry as G
+    from fmbrdf_mi.synthetic.mesh_object import MeshGeometry, ideal_object
+    from fmbrdf_mi.synthetic.spheres import ideal_sphere, textured
+
+    side, ox, oy = placement(width, height)
+    ks, kb = frame_texture(texture, width, height)
+    crop = (slice(oy, oy + side), slice(ox, ox + side))
+    if scene == "sphere":
+        of = lambda p: ideal_sphere(p, res=side, light=light, area=area)   # noqa: E731
+        camera, fov = "orthographic", None
+        geometry = G.SphereGeometry((height, width), (ox + side / 2, oy + side / 2), side / 2 - 1)
+    else:
+        of = lambda p: ideal_object(p, res=side, light=light, area=area, fov=MESH_FOV,   # noqa: E731
+                                    distance=MESH_DISTANCE)
+        camera, fov = "perspective", frame_fov(side, width)
+        geometry = None
+    sq = textured(of, TRUTH, ks[crop], kb[crop], side)
+    if geometry is None:
+        geometry = MeshGeometry(sq["geometry"].scene, (height, width), fov, MESH_DISTANCE)
+    stokes = np.zeros((3, 2 * height, 2 * width))
+    stokes[:, 2 * oy:2 * (oy + side), 2 * ox:2 * (ox + side)] = sq["stokes"]
+    mask = np.zeros((height, width), dtype=bool)
+    mask[crop] = sq["mask"]
+    normals = np.zeros((height, width, 3))
+    normals[..., 2] = 1.0
+    normals[crop] = sq["normals"]
+    view = G.pixel_rays((height, width), camera, fov)
+    return {"stokes": stokes, "normals": normals, "mask": mask, "view_dirs": view,
+            "light": np.asarray(light, float), "geometry": geometry, "params": sq["params"], "model": sq["model"],
+            "k_s_map": ks, "k_b_map": kb, "camera": camera, "fov": fov}
+
+
+def captures(a):
+    """The case's K captures (module docstring): (observations, raw captures, camera, the last ideal frame)."""
+    from bench_textured import lights
+    from fmbrdf_mi.sensor.camera import CameraModel
+    from fmbrdf_mi.synthetic.spheres import capture_observation
+
     cam = CameraModel()
-    obs, caps = [], []
-    for j, light in enumerate(lights(K)[0]):
-        o, cap = capture_observation(textured_sphere(TRUTH, ks, kb, res=size, light=light), cam, seed=1000 * seed + j,
+    obs, caps, ideal = [], [], None
+    for j, light in enumerate(lights(a.lights)[0]):
+        ideal = ideal_frame(a.scene, a.texture, a.width, a.height, light, a.area)
+        o, cap = capture_observation(ideal, cam, seed=1000 * a.seed + j,
                                      exposure=None if j == 0 else obs[0].meta["capture"]["exposure"])
         obs.append(o)
         caps.append(cap)
-    return obs, caps, cam
+        del ideal["stokes"]
+    return obs, caps, cam, ideal
 
 
-def worker_api(a):
-    """One size through the API, in this process; prints one JSON line."""
+def case_of(a, mode):
+    return {"mode": mode, "scene": a.scene, "texture": a.texture, "K": a.lights, "width": a.width,
+            "height": a.height, "area": a.area, "seed": a.seed}
+
+
+def map_summary(values):
+    """Count, mean, RMS and 16 values spread over the fitted (finite: NaN elsewhere) pixels, row-major, of an
+    albedo map."""
     import numpy as np
 
-    from fmbrdf_mi.fit import fit
-
-    obs, _, _ = captures(a.size, a.lights, a.texture, a.seed)
-    del _
-    rss0 = vm("VmRSS")
-    exact = reset_peak()
-    t = time.time()
-    r = fit(obs if len(obs) > 1 else obs[0], albedo="per-pixel", max_pixels=None, intervals=a.intervals,
-            progress=a.progress)
-    dt = time.time() - t
-    out = {"mode": "api", "size": a.size, "K": a.lights, "texture": a.texture, "intervals": a.intervals,
-           "pixels": int(r.n_pixels), "time": dt, "peak": vm("VmHWM"), "rss_before": rss0, "peak_reset": exact,
-           "converged": bool(r.converged), "params": {k: float(r.params[k]) for k in ("eta", "alpha", "beta", "kappa")}}
-    if a.save_maps:
-        np.savez(a.save_maps, **{k: np.asarray(v) for k, v in (r.maps or {}).items()
-                                 if isinstance(v, np.ndarray)}, **{"param_" + k: v for k, v in r.params.items()})
-    print("RESULT " + json.dumps(out), flush=True)
+    v = np.asarray(values, dtype=np.float64).ravel()
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return {"count": 0}
+    pick = np.linspace(0, v.size - 1, 16).round().astype(int)
+    return {"count": int(v.size), "mean": float(v.mean()), "rms": float(np.sqrt(np.mean(v * v))),
+            "values": [float(x) for x in v[pick]]}
 
 
-def worker_cli(a):
-    """One size through the default command (a child process); prints one JSON line."""
-    import resource
+def estimates_of(params, loss, maps):
+    """A run's estimates: the scalar parameters, the loss and the albedo maps' summaries."""
+    out = {"params": {k: float(v) for k, v in params.items() if isinstance(v, (int, float))}, "loss": float(loss)}
+    out["maps"] = {k: map_summary(maps[k]) for k in ("k_s", "k_b") if maps and k in maps}
+    return out
 
+
+def worker_make(a):
+    """Write the case's captures for the command (raw PNGs with sidecars, normal map, mask, info.json)."""
     import numpy as np
     from PIL import Image
 
     from fmbrdf_mi.sensor.camera import write_sidecar
 
-    if a.lights != 1:
-        raise SystemExit("--cli: one light only (the command's manifest of several images is not made here)")
-    obs, caps, cam = captures(a.size, 1, a.texture, a.seed)
-    o = obs[0]
-    with tempfile.TemporaryDirectory() as work:
-        raw = os.path.join(work, "capture.png")
-        Image.fromarray(np.ascontiguousarray(caps[0]["raw"], dtype=np.uint16)).save(raw)
-        write_sidecar(raw, cam)
-        np.save(os.path.join(work, "normals.npy"), np.asarray(o.normals, dtype=np.float32))
-        np.save(os.path.join(work, "mask.npy"), np.asarray(o.mask, dtype=bool))
-        cmd = [sys.executable, "-m", "fmbrdf_mi", "fit", raw, "--albedo", "per-pixel", "--max-pixels", "0",
-               "--normals", os.path.join(work, "normals.npy"), "--mask", os.path.join(work, "mask.npy"),
-               "--camera", "orthographic", "--light=" + ",".join(repr(float(v)) for v in o.light_dir),
-               "--irradiance", repr(float(o.irradiance)), "--conversion-gain", repr(cam.conversion_gain),
-               "--read-noise", repr(cam.read_noise), "-o", os.path.join(work, "out")]
-        cmd += [] if a.progress else ["-q"]
-        t = time.time()
-        p = subprocess.run(cmd, env=dict(os.environ, PYTHONPATH=ROOT), capture_output=not a.progress, text=True)
-        dt = time.time() - t
-        if p.returncode:
-            raise SystemExit(f"the fit command failed ({p.returncode}): {p.stderr[-2000:] if p.stderr else ''}")
-        with open(os.path.join(work, "out", "fit.json")) as f:
-            res = json.load(f)
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
-    fitted = find_key(res, "n_pixels") or {}
-    out = {"mode": "cli", "size": a.size, "K": 1, "texture": a.texture, "intervals": "default",
-           "pixels": int(fitted.get("n_pixels", 0)), "time": dt, "peak": peak, "rss_before": math.nan,
-           "peak_reset": False, "converged": bool(fitted.get("converged", False))}
+    obs, caps, cam, ideal = captures(a)
+    os.makedirs(a.out, exist_ok=True)
+    images = []
+    for j, cap in enumerate(caps):
+        images.append(os.path.join(a.out, f"capture{j}.png"))
+        Image.fromarray(np.ascontiguousarray(cap["raw"], dtype=np.uint16)).save(images[-1])
+        write_sidecar(images[-1], cam)
+    np.save(os.path.join(a.out, "normals.npy"), np.asarray(obs[0].normals, dtype=np.float32))
+    np.save(os.path.join(a.out, "mask.npy"), np.asarray(obs[0].mask, dtype=bool))
+    info = {"images": images, "lights": [[float(v) for v in o.light_dir] for o in obs],
+            "irradiance": float(obs[0].irradiance), "camera": ideal["camera"], "fov": ideal["fov"],
+            "object": int(np.count_nonzero(obs[0].mask))}
+    with open(os.path.join(a.out, "info.json"), "w") as f:
+        json.dump(info, f)
+
+
+def worker_api(a):
+    """One case through the API, in this process; prints one JSON line."""
+    import resource
+
+    if a.code:
+        sys.path.insert(0, a.code)
+    from fmbrdf_mi.fit import fit
+
+    obs, _, _, _ = captures(a)
+    object_pixels = int(obs[0].mask.sum())
+    rss0 = vm("VmRSS")
+    exact = reset_peak()
+    u0 = resource.getrusage(resource.RUSAGE_SELF)
+    t = time.time()
+    r = fit(obs if len(obs) > 1 else obs[0], albedo="per-pixel", max_pixels=None, intervals=a.intervals,
+            progress=a.progress)
+    dt = time.time() - t
+    u1 = resource.getrusage(resource.RUSAGE_SELF)
+    unc = r.uncertainty or {}
+    maps = r.maps or {}
+    out = dict(case_of(a, "api"), intervals=a.intervals, object=object_pixels, pixels=int(r.n_pixels), time=dt,
+               cpu=(u1.ru_utime + u1.ru_stime) - (u0.ru_utime + u0.ru_stime), peak=vm("VmHWM"), rss_before=rss0,
+               peak_reset=exact, converged=bool(r.converged), stages={},
+               estimates=estimates_of(r.params, r.loss, maps),
+               uncertainty={"std_errors": dict(r.std_errors or {}), "ci95": unc.get("ci95", {})})
     print("RESULT " + json.dumps(out), flush=True)
 
 
@@ -167,15 +320,215 @@ def find_key(d, key):
     return None
 
 
-def run_size(a, size, mode):
-    cmd = [sys.executable, os.path.abspath(__file__), "--worker", mode, "--size", str(size), "--lights", str(a.lights),
-           "--texture", a.texture, "--intervals", a.intervals, "--seed", str(a.seed)]
-    cmd += ["--progress"] if a.progress else []
-    p = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONPATH=ROOT))
+def run_child(cmd, env, stdout=None, stderr=None, cwd=None):
+    """Run ``cmd`` (``stdout``, ``stderr``: open files, or None to pass through); its exit status, wall time,
+    CPU time (user + system) and peak resident set, measured for that child alone (``os.wait4``)."""
+    t = time.time()
+    child = subprocess.Popen(cmd, env=env, stdout=stdout, stderr=stderr, cwd=cwd)
+    _, status, usage = os.wait4(child.pid, 0)
+    child.returncode = os.waitstatus_to_exitcode(status)
+    return child.returncode, time.time() - t, usage.ru_utime + usage.ru_stime, usage.ru_maxrss * 1024
+
+
+def child_env(code):
+    """The environment of a child that imports the package of the checkout ``code`` (run it outside any
+    checkout: ``python -m`` puts the working directory first on the path)."""
+    return dict(os.environ, PYTHONPATH=code)
+
+
+def check_code(code):
+    """SystemExit unless ``python -m fmbrdf_mi`` in :func:`child_env` imports the package of ``code``."""
+    with tempfile.TemporaryDirectory() as work:
+        p = subprocess.run([sys.executable, "-c", "import fmbrdf_mi; print(fmbrdf_mi.__file__)"], cwd=work,
+                           env=child_env(code), capture_output=True, text=True)
+    where = p.stdout.strip()
+    if p.returncode or os.path.dirname(os.path.dirname(os.path.realpath(where))) != os.path.realpath(code):
+        raise SystemExit(f"--code: {code}: its package is not the one imported ({where or p.stderr.strip()[-300:]})")
+
+
+def case_args(case):
+    return ["--scene", case["scene"], "--texture", case["texture"], "--lights", str(case["K"]),
+            "--size", f"{case['width']}x{case['height']}", "--area", str(case["area"]), "--seed", str(case["seed"])]
+
+
+def fit_command(info, out, quiet):
+    """The default per-pixel fit command of the captures ``info`` (worker_make's info.json)."""
+    data = os.path.dirname(info["images"][0])
+    cmd = [sys.executable, "-m", "fmbrdf_mi", "fit", *info["images"], "--albedo", "per-pixel", "--max-pixels", "0",
+           "--normals", os.path.join(data, "normals.npy"), "--mask", os.path.join(data, "mask.npy"),
+           "--camera", info["camera"]]
+    cmd += ["--fov", repr(info["fov"])] if info["fov"] else []
+    cmd += ["--light=" + ",".join(repr(v) for v in light) for light in info["lights"]]
+    cmd += ["--irradiance", repr(info["irradiance"]), "-o", out]
+    return cmd + (["-q"] if quiet else [])
+
+
+def read_map(path):
+    """The first channel of a map EXR the command wrote (None when it wrote none)."""
+    from fmbrdf_mi.stokes_io import read_exr
+
+    if not os.path.exists(path):
+        return None
+    return next(iter(read_exr(path)[1].values()))
+
+
+def run_cli(a, case):
+    """One case through the default command: the data made by one child, fitted by another (measured)."""
+    with tempfile.TemporaryDirectory() as work:
+        data, out, log = (os.path.join(work, k) for k in ("data", "out", "log.txt"))
+        make = [sys.executable, os.path.abspath(__file__), "--worker", "make", "--out", data, *case_args(case)]
+        rc, make_time, _, make_peak = run_child(make, child_env(ROOT))
+        if rc:
+            raise SystemExit(f"{label(case)}: making the captures failed")
+        with open(os.path.join(data, "info.json")) as f:
+            info = json.load(f)
+        with open(log, "w") as f:
+            rc, wall, cpu, peak = run_child(fit_command(info, out, not a.progress), child_env(a.code),
+                                            stdout=None if a.progress else f, stderr=None if a.progress else f,
+                                            cwd=work)
+        if rc:
+            with open(log) as f:
+                tail = f.read()[-2000:]
+            raise SystemExit(f"{label(case)}: the fit command failed with exit status {rc}: {tail}")
+        with open(os.path.join(out, "fit.json")) as f:
+            res = json.load(f)
+        model = find_key(res, "n_pixels") or {}
+        maps = {k: read_map(os.path.join(out, f"{k}.exr")) for k in ("k_s", "k_b")}
+    unc = model.get("uncertainty") or {}
+    return dict(case, code=a.code, intervals="the command's", object=info["object"],
+                pixels=int(model.get("n_pixels", 0)),
+                time=wall, cpu=cpu, peak=peak, rss_before=None, converged=bool(model.get("converged", False)),
+                stages=model.get("timings") or {}, make_time=make_time, make_peak=make_peak,
+                estimates=estimates_of(model.get("params", {}), model.get("loss", math.nan),
+                                       {k: v for k, v in maps.items() if v is not None}),
+                uncertainty={"std_errors": model.get("std_errors") or {}, "ci95": unc.get("ci95") or {}})
+
+
+def run_api(a, case):
+    """One case through the API in a child process."""
+    cmd = [sys.executable, os.path.abspath(__file__), "--worker", "api", *case_args(case), "--intervals", a.intervals]
+    cmd += (["--progress"] if a.progress else []) + (["--code", a.code] if a.code != ROOT else [])
+    p = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, env=child_env(ROOT))
     lines = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
     if p.returncode or not lines:
-        raise SystemExit(f"size {size} ({mode}): the worker failed with exit status {p.returncode}")
-    return json.loads(lines[-1][7:])
+        raise SystemExit(f"{label(case)}: the API worker failed with exit status {p.returncode}")
+    return dict(json.loads(lines[-1][7:]), code=a.code)
+
+
+def label(run):
+    """A case's name, e.g. ``cli sphere smooth K=1 256x256``."""
+    return (f"{run['mode']} {run['scene']} {run['texture']} K={run['K']} {run['width']}x{run['height']}"
+            + (f" area={run['area']}" if run.get("area", 4) != 4 else "")
+            + (f" seed={run['seed']}" if run.get("seed") else ""))
+
+
+def flatten(d, prefix=""):
+    """{dotted key: number} of the numbers in a JSON tree (list items as key[i])."""
+    out = {}
+    if isinstance(d, dict):
+        for k, v in d.items():
+            out.update(flatten(v, f"{prefix}.{k}" if prefix else str(k)))
+    elif isinstance(d, list):
+        for i, v in enumerate(d):
+            out.update(flatten(v, f"{prefix}[{i}]"))
+    elif isinstance(d, (int, float)) and not isinstance(d, bool):
+        out[prefix] = float(d)
+    return out
+
+
+def rel_diff(x, y):
+    """|x - y| / max(|x|, |y|): 0 when equal (both 0, both NaN or the same infinity), inf when one is NaN."""
+    if x == y or (math.isnan(x) and math.isnan(y)):
+        return 0.0
+    if math.isnan(x) or math.isnan(y) or math.isinf(x) or math.isinf(y):
+        return math.inf
+    return abs(x - y) / max(abs(x), abs(y))
+
+
+def worst(a, b):
+    """(key, relative difference) of the largest difference between two JSON trees' numbers; a key in one only
+    counts as infinite."""
+    fa, fb = flatten(a), flatten(b)
+    diffs = [(k, rel_diff(fa[k], fb[k]) if k in fa and k in fb else math.inf) for k in sorted(set(fa) | set(fb))]
+    return max(diffs, key=lambda kv: kv[1], default=(None, 0.0))
+
+
+def compare_runs(runs_a, runs_b, rtol):
+    """Match the runs of the same case; per case (label, worst estimate key, its relative difference, worst
+    uncertainty key, its relative difference, within ``rtol``), and the labels of the cases in one file only."""
+    key = (lambda r: tuple(r.get(k) for k in CASE_KEYS))
+    A, B = {key(r): r for r in runs_a}, {key(r): r for r in runs_b}
+    rows = []
+    for k in [k for k in A if k in B]:
+        ek, ed = worst(A[k].get("estimates"), B[k].get("estimates"))
+        uk, ud = worst(A[k].get("uncertainty"), B[k].get("uncertainty"))
+        rows.append((label(A[k]), ek, ed, uk, ud, ed <= rtol))
+    unmatched = [label(r) for k, r in list(A.items()) + list(B.items()) if not (k in A and k in B)]
+    return rows, unmatched
+
+
+def main_compare(a):
+    runs = []
+    for path in a.compare:
+        try:
+            with open(path) as f:
+                runs.append([r for r in json.load(f)["runs"] if "estimates" in r])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise SystemExit(f"--compare: {path}: not a bench_fullframe JSON with runs ({exc})") from None
+    rows, unmatched = compare_runs(runs[0], runs[1], a.rtol)
+    for name in unmatched:
+        print(f"in one file only: {name}")
+    if not rows:
+        print(f"--compare: no case is in both {a.compare[0]} and {a.compare[1]}", file=sys.stderr)
+        return 2
+    for name, ek, ed, uk, ud, ok in rows:
+        print(f"{'ok  ' if ok else 'FAIL'} {name}: estimates worst {ed:.3g}{f' ({ek})' if ed else ''}; "
+              f"uncertainty worst {ud:.3g}{f' ({uk})' if ud else ''}")
+    bad = [r for r in rows if not r[5]]
+    top = max(rows, key=lambda r: r[2])
+    print(f"{len(rows)} cases, worst relative difference of the estimates {top[2]:.3g}"
+          f"{f' ({top[0]}: {top[1]})' if top[2] else ''}, "
+          f"tolerance {a.rtol:g}: {'FAIL' if bad else 'PASS'}")
+    return 1 if bad else 0
+
+
+def marginals(runs):
+    """Between consecutive sizes of the same case (by fitted super-pixels, :func:`cells`): (label of the larger,
+    fitted super-pixels of both, wall ms, CPU ms and peak kB per added fitted super-pixel)."""
+    group = (lambda r: tuple(r.get(k) for k in CASE_KEYS if k not in ("width", "height")))
+    out = []
+    for _, rs in itertools.groupby(sorted(runs, key=lambda r: (group(r), cells(r))), key=group):
+        rs = list(rs)
+        for r0, r1 in zip(rs, rs[1:]):
+            dn = cells(r1) - cells(r0)
+            if dn > 0:
+                out.append((label(r1), cells(r0), cells(r1), 1e3 * (r1["time"] - r0["time"]) / dn,
+                            1e3 * (r1["cpu"] - r0["cpu"]) / dn, (r1["peak"] - r0["peak"]) / dn / 1e3))
+    return out
+
+
+def cells(run):
+    """The super-pixels a run fitted: its albedo pairs (the map's fitted pixels; with K images ``pixels`` counts
+    each pixel once per image it is usable in)."""
+    return run.get("estimates", {}).get("maps", {}).get("k_s", {}).get("count") or run["pixels"]
+
+
+def table(runs, head):
+    lines = [head, "",
+             "| mode | object | texture | K | frame (super-pixels) | data points / raw pixel | super-pixels fitted | "
+             "time | CPU time | time / fitted | peak RSS | peak / fitted |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in runs:
+        n = max(cells(r), 1)
+        lines.append(f"| {r['mode']} | {r['scene']} | {r['texture']} | {r['K']} | {r['width']} × {r['height']} | "
+                     f"{r['area']}² | {n} | {r['time']:.1f} s | {r['cpu']:.1f} s | "
+                     f"{1e3 * r['time'] / n:.2f} ms | {r['peak'] / 2 ** 30:.2f} GiB | {r['peak'] / n / 1e3:.1f} kB |")
+    extra = marginals(runs)
+    if extra:
+        lines += ["", "| case | from → to fitted | time / added | CPU / added | peak / added |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {name} | {n0} → {n1} | {t:.2f} ms | {c:.2f} ms | {m:.1f} kB |" for name, n0, n1, t, c, m in extra]
+    return "\n".join(lines)
 
 
 def texture_png(path, size=512):
@@ -203,28 +556,26 @@ def parse_res(text):
 
 
 def run_render(size, scene, spp, work, texture):
-    """One ``fmbrdf-mi render --raw`` in a child process: its wall time and peak resident set."""
+    """One ``fmbrdf-mi render --raw`` in a child process: its wall time, CPU time and peak resident set."""
     w, h = size
     out = os.path.join(work, f"{scene}_{w}x{h}.exr")
     cmd = [sys.executable, "-m", "fmbrdf_mi", "render", out, "--raw", "--res", f"{w}x{h}", "--force"]
     cmd += ["-D", f"k_s={texture}"] if scene == "textured" else []
     cmd += ["--spp", str(spp)] if spp else []
-    t = time.time()
-    child = subprocess.Popen(cmd, env=dict(os.environ, PYTHONPATH=ROOT), stdout=subprocess.PIPE, text=True)
-    stdout = child.stdout.read()
-    _, status, usage = os.wait4(child.pid, 0)
-    dt = time.time() - t
-    child.returncode = os.waitstatus_to_exitcode(status)
-    if child.returncode:
-        raise SystemExit(f"render {w}x{h} ({scene}) failed with exit status {child.returncode}")
+    with tempfile.TemporaryFile("w+") as f:
+        rc, wall, cpu, peak = run_child(cmd, child_env(ROOT), stdout=f, cwd=work)
+        f.seek(0)
+        stdout = f.read()
+    if rc:
+        raise SystemExit(f"render {w}x{h} ({scene}) failed with exit status {rc}")
     spp_used = next((int(m) for m in re.findall(r", (\d+) spp,", stdout)), None)
     written = 0
     for f in os.listdir(work):
         if f.startswith(f"{scene}_{w}x{h}"):
             written += os.path.getsize(os.path.join(work, f))
             os.remove(os.path.join(work, f))
-    return {"mode": "render", "scene": scene, "width": w, "height": h, "spp": spp_used, "time": dt,
-            "cpu": usage.ru_utime + usage.ru_stime, "peak": usage.ru_maxrss * 1024, "written": written}
+    return {"mode": "render", "scene": scene, "width": w, "height": h, "spp": spp_used, "time": wall,
+            "cpu": cpu, "peak": peak, "written": written}
 
 
 def render_table(runs, head):
@@ -284,72 +635,76 @@ def header():
             f"DRJIT_NUM_THREADS={os.environ.get('DRJIT_NUM_THREADS', 'unset')}")
 
 
-def table(runs, head):
-    lines = [head, "",
-             "| mode | size | K | texture | intervals | super-pixels fitted | time | time / super-pixel | peak RSS | "
-             "peak − RSS before fit | per super-pixel |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in runs:
-        grow = r["peak"] - r["rss_before"] if not math.isnan(r["rss_before"]) else r["peak"]
-        n = max(r["pixels"], 1)
-        lines.append(f"| {r['mode']} | {r['size']}² | {r['K']} | {r['texture']} | {r['intervals']} | {r['pixels']} | "
-                     f"{r['time']:.1f} s | {1e3 * r['time'] / n:.2f} ms | {r['peak'] / 2 ** 30:.2f} GiB | "
-                     f"{'–' if math.isnan(r['rss_before']) else f'{grow / 2 ** 30:.2f} GiB'} | "
-                     f"{grow / n / 1e3:.1f} kB |")
-    return "\n".join(lines)
-
-
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--sizes", default="64,128,256", help="super-pixel frame sizes, comma-separated")
-    p.add_argument("--lights", type=int, default=1, choices=(1, 3), help="fitted lights (one fit of all)")
-    p.add_argument("--texture", default="smooth", choices=("smooth", "high"))
+    p.add_argument("--sizes", default="256", help="frames in super-pixels, N, WxH or full (1224x1024), "
+                   "comma-separated (default %(default)s)")
+    p.add_argument("--scene", default="sphere", help="sphere and/or mesh, comma-separated (default %(default)s)")
+    p.add_argument("--texture", default="smooth", help="smooth and/or checker, comma-separated (default %(default)s)")
+    p.add_argument("--lights", default="1", help="1 and/or 3 fitted lights, comma-separated (default %(default)s)")
+    p.add_argument("--modes", default="cli", help="cli (the fit command) and/or api, comma-separated "
+                   "(default %(default)s)")
+    p.add_argument("--area", type=int, default=4, help="the data's points per raw pixel side (default %(default)s)")
     p.add_argument("--intervals", default="fisher", choices=("fisher", "auto", "profile"),
-                   help="the API fit's intervals")
-    p.add_argument("--cli", action="store_true", help="also time the default fit command (one light)")
-    p.add_argument("--no-api", action="store_true", help="skip the API fit (with --cli)")
+                   help="the API fit's intervals (default %(default)s)")
+    p.add_argument("--code", metavar="DIR", default=ROOT, help="the checkout whose package fits (default: this one)")
     p.add_argument("--seed", type=int, default=0, help="camera-noise seed")
     p.add_argument("--progress", action="store_true", help="the fits' own progress lines on stderr")
     p.add_argument("--json", metavar="OUT.json", help="the runs and the table's header")
     p.add_argument("--markdown", metavar="OUT.md", help="the table")
     p.add_argument("--table", metavar="IN.json", nargs="+", help="the table of saved runs")
+    p.add_argument("--compare", metavar=("A.json", "B.json"), nargs=2, help="the estimates of the cases in both")
+    p.add_argument("--rtol", type=float, default=1e-6, help="--compare: relative tolerance (default %(default)g)")
     p.add_argument("--render", action="store_true", help="time `fmbrdf-mi render --raw` instead of the fits")
     p.add_argument("--render-sizes", default="512,1024,2448x2048",
                    help="--render: raw-pixel sizes, N or WxH, comma-separated (default %(default)s)")
     p.add_argument("--scenes", default="plain,textured", help="--render: plain and/or textured")
     p.add_argument("--spp", type=int, help="--render: samples per pixel (default: the command's)")
-    p.add_argument("--worker", choices=("api", "cli"), help=argparse.SUPPRESS)
-    p.add_argument("--size", type=int, help=argparse.SUPPRESS)
-    p.add_argument("--save-maps", help=argparse.SUPPRESS)
+    p.add_argument("--worker", choices=("make", "api"), help=argparse.SUPPRESS)
+    p.add_argument("--size", help=argparse.SUPPRESS)
+    p.add_argument("--out", help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.worker:
-        (worker_api if a.worker == "api" else worker_cli)(a)
+        a.width, a.height = parse_frame(a.size)
+        a.lights = int(a.lights)
+        a.code = None if a.code == ROOT else a.code
+        (worker_make if a.worker == "make" else worker_api)(a)
         return 0
+    if a.compare:
+        return main_compare(a)
     if a.table:
         saved = [json.load(open(f)) for f in a.table]
-        for s in saved:
-            render = s["runs"] and s["runs"][0].get("mode") == "render"
-            print((render_table if render else table)(s["runs"], s["header"]) + "\n")
+        for s in [s for s in saved if s["runs"] and s["runs"][0].get("mode") == "render"]:
+            print(render_table(s["runs"], s["header"]) + "\n")
+        fits = [s for s in saved if s["runs"] and s["runs"][0].get("mode") != "render"]
+        if fits:       # one table of every file's fits, so that the marginals span the files
+            print(table([r for s in fits for r in s["runs"]], "\n".join(s["header"] for s in fits)))
         return 0
     if a.render:
         return main_render(a)
-    try:
-        sizes = [int(s) for s in a.sizes.split(",") if s.strip()]
-    except ValueError:
-        raise SystemExit(f"--sizes: expected comma-separated integers, got {a.sizes!r}") from None
-    if not sizes or min(sizes) < 8:
-        raise SystemExit(f"--sizes: expected sizes of at least 8 super-pixels, got {a.sizes!r}")
-    modes = ([] if a.no_api else ["api"]) + (["cli"] if a.cli else [])
-    if not modes:
-        raise SystemExit("--no-api: give --cli too (nothing to run)")
-    head, runs, t0 = header(), [], time.time()
-    for size in sizes:
-        for mode in modes:
-            print(f"[{time.time() - t0:.0f} s] {size}² ({mode}) ...", file=sys.stderr, flush=True)
-            r = run_size(a, size, mode)
-            runs.append(r)
-            print(f"[{time.time() - t0:.0f} s] {size}² ({mode}): {r['pixels']} super-pixels, {r['time']:.1f} s, "
-                  f"peak {r['peak'] / 2 ** 30:.2f} GiB", file=sys.stderr, flush=True)
-            save_runs(a, head, runs)
+    frames = [parse_frame(s) for s in a.sizes.split(",") if s.strip()]
+    if not frames:
+        raise SystemExit(f"--sizes: expected N, WxH or full, comma-separated, got {a.sizes!r}")
+    if a.area < 1:
+        raise SystemExit(f"--area: expected at least 1 point per raw pixel side, got {a.area}")
+    a.code = os.path.abspath(a.code)
+    if not os.path.isfile(os.path.join(a.code, "fmbrdf_mi", "__init__.py")):
+        raise SystemExit(f"--code: {a.code} is not a checkout of the package (no fmbrdf_mi/__init__.py)")
+    check_code(a.code)
+    cases = [{"mode": m, "scene": s, "texture": t, "K": k, "width": w, "height": h, "area": a.area, "seed": a.seed}
+             for (w, h), s, t, k, m in itertools.product(
+                 frames, parse_list("scene", a.scene, SCENES), parse_list("texture", a.texture, TEXTURES),
+                 parse_list("lights", a.lights, LIGHTS, int), parse_list("modes", a.modes, MODES))]
+    head = header() + ", load average {:.1f} at the start".format(os.getloadavg()[0])
+    head += "" if a.code == ROOT else f", fitted by the package of {a.code}"
+    runs, t0 = [], time.time()
+    for case in cases:
+        print(f"[{time.time() - t0:.0f} s] {label(case)} ...", file=sys.stderr, flush=True)
+        r = (run_cli if case["mode"] == "cli" else run_api)(a, case)
+        runs.append(r)
+        print(f"[{time.time() - t0:.0f} s] {label(case)}: {cells(r)} super-pixels, {r['time']:.1f} s, "
+              f"CPU {r['cpu']:.1f} s, peak {r['peak'] / 2 ** 30:.2f} GiB", file=sys.stderr, flush=True)
+        save_runs(a, head, runs)
     return print_table(a, table(runs, head))
 
 
