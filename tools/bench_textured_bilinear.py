@@ -8,6 +8,14 @@ against ``per-pixel-bilinear`` (the pairs at the super-pixel centres, each raw s
                                             --layouts per-pixel-bilinear --exact-seeds 6 --seed0 6 --json b.json
     python tools/bench_textured_bilinear.py --sizes 128 --lights 3 --exact-res '' --layouts per-pixel-bilinear \
                                             --render-seeds [--spp 4096] [--seed0 0] --seeds 6 --json own.json
+    python tools/bench_textured_bilinear.py --sizes '' --lights 1 --exact-res 32 --exact-kinds uniform \
+                                            --layouts per-pixel --exact-seeds 20 --intervals auto --json u.json
+    python tools/bench_textured_bilinear.py --table u.json --coverage
+
+``--intervals``: the fits' ``intervals`` option (default fisher; ``auto`` is the command's: profile-likelihood
+ends where the Fisher ones fail the check; the record keeps the Fisher ends too).  ``--coverage``: the table of
+:func:`coverage_rows` (bias, spread, spread / SE and the coverage of the reported 95 % intervals) instead of
+the z table.
 
 ``--render-seeds``: each raw seed's images rendered with their own sampler seed (raw seed + 1), so that the
 renderer's Monte Carlo noise differs between seeds as the camera's does (by default every raw seed of one
@@ -48,6 +56,7 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
+sys.path.insert(0, os.path.join(ROOT, "tools"))
 
 TRUTH = dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0)
 SHAPE = tuple(TRUTH)
@@ -124,11 +133,11 @@ def exact_data(kind, res, K, seed):
     return obs, ideal["k_s_map"], ideal["k_b_map"]
 
 
-def one_fit(obs, layout, ks, kb):
+def one_fit(obs, layout, ks, kb, intervals="fisher"):
     from fmbrdf_mi.fit import fit
 
     t = time.time()
-    r = fit(obs if len(obs) > 1 else obs[0], albedo=layout, max_pixels=None, intervals="fisher", progress=False)
+    r = fit(obs if len(obs) > 1 else obs[0], albedo=layout, max_pixels=None, intervals=intervals, progress=False)
     dt = time.time() - t
     m = r.maps
     f = np.isfinite(m["k_s"]) & np.isfinite(m["k_s_se"]) & np.isfinite(m["k_b_se"]) & (m["k_b_se"] > 0)
@@ -137,7 +146,11 @@ def one_fit(obs, layout, ks, kb):
     return {"time": dt, "converged": bool(r.converged), "params": r.params, "se": r.std_errors,
             "chi2_per_dof": (r.uncertainty or {}).get("chi2_per_dof"), "pixels": int(f.sum()),
             "z_rms_k_s": float(np.sqrt(np.mean(zs ** 2))), "z_rms_k_b": float(np.sqrt(np.mean(zb ** 2))),
-            "at_bound": list((r.uncertainty or {}).get("at_bound", []))}
+            "at_bound": list((r.uncertainty or {}).get("at_bound", [])),
+            "ci95": {n: (r.uncertainty or {}).get("ci95", {}).get(n) for n in SHAPE},
+            "ci95_fisher": {n: ((r.uncertainty or {}).get("profile", {}).get("fisher_ci95")
+                                or (r.uncertainty or {}).get("ci95", {})).get(n) for n in SHAPE},
+            "interval_kind": (r.uncertainty or {}).get("interval_kind"), "intervals": intervals}
 
 
 def summarise(runs):
@@ -166,6 +179,48 @@ def table(rows):
     return "\n".join(lines)
 
 
+def coverage_rows(runs):
+    """Per data x size x K x layout x intervals and shape parameter: the mean relative error +- its standard
+    error, the spread (SD of the relative error), the mean reported relative SE, spread / SE, the mean z (error /
+    the fit's own SE), the coverage of the reported 95 % intervals with its Wilson interval, and that of the
+    Fisher intervals alone (the same where no end was profiled) with the number of fits profiled."""
+    from bench_fit_noise import wilson
+
+    rows = []
+    key_of = (lambda r: (r["data"], r["size"], r["K"], r["layout"], r.get("intervals", "fisher")))
+    for key in sorted({key_of(r) for r in runs}):
+        rs = [r for r in runs if key_of(r) == key and r["converged"] and r.get("ci95")]
+        for n in SHAPE:
+            use = [r for r in rs if r["se"].get(n) and r["ci95"].get(n)]
+            e = np.array([(r["params"][n] - TRUTH[n]) / TRUTH[n] for r in use])
+            se = np.array([r["se"][n] / TRUTH[n] for r in use])
+            k = sum(r["ci95"][n][0] <= TRUTH[n] <= r["ci95"][n][1] for r in use)
+            kf = sum(c[0] <= TRUTH[n] <= c[1] for c in ((r.get("ci95_fisher") or r["ci95"])[n] for r in use))
+            m = len(use)
+            sd = float(e.std(ddof=1)) if m > 1 else math.nan
+            rows.append(dict(zip(("data", "size", "K", "layout", "intervals"), key), param=n, n=m,
+                             not_converged=sum(not r["converged"] for r in runs if key_of(r) == key),
+                             bias=float(e.mean()) if m else math.nan, bias_se=sd / math.sqrt(m) if m else math.nan,
+                             spread=sd, se=float(se.mean()) if m else math.nan,
+                             ratio=sd / float(se.mean()) if m else math.nan,
+                             z=float(np.mean(e / se)) if m else math.nan, covered=int(k),
+                             wilson=wilson(int(k), m), covered_fisher=int(kf),
+                             profiled=sum("profile" in (r.get("interval_kind") or {}).get(n, "") for r in use)))
+    return rows
+
+
+def coverage_table(rows):
+    lines = ["| data | size | K | layout | intervals | param | fits (NC) | bias ± SE | spread | mean SE | spread / SE | "
+             "mean z | 95 % coverage (Wilson) | Fisher only (fits profiled) |", "|" + "---|" * 14]
+    for r in rows:
+        lo, hi = r["wilson"]
+        lines.append(f"| {r['data']} | {r['size']}² | {r['K']} | {r['layout']} | {r['intervals']} | {r['param']} | "
+                     f"{r['n']} ({r['not_converged']}) | {100 * r['bias']:+.2f} ± {100 * r['bias_se']:.2f} % | "
+                     f"{100 * r['spread']:.2f} % | {100 * r['se']:.2f} % | {r['ratio']:.2f} | {r['z']:+.2f} | "
+                     f"{r['covered']}/{r['n']} ({100 * lo:.0f}–{100 * hi:.0f} %) | {r['covered_fisher']}/{r['n']} ({r['profiled']}) |")
+    return "\n".join(lines)
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--work", default="/tmp/bench_textured_bilinear", help="renders go here (reused)")
@@ -181,9 +236,15 @@ def main(argv=None):
                         "every raw seed of one size and light shares one render)")
     p.add_argument("--spp", type=int, help="samples per pixel of the renders (default: render --raw's 1024)")
     p.add_argument("--layouts", default=",".join(LAYOUTS), help="the layouts fitted")
+    p.add_argument("--intervals", default="fisher", choices=("fisher", "auto", "profile"),
+                   help="the fits' intervals option (default %(default)s; auto: the command's, the profile "
+                        "likelihood where the Fisher ones fail)")
     p.add_argument("--json", metavar="OUT.json")
     p.add_argument("--table", metavar="IN.json[,IN2.json...]", help="print the table of these runs (merged)")
+    p.add_argument("--coverage", action="store_true",
+                   help="the table: bias, spread and coverage of the reported 95 %% intervals (coverage_rows)")
     a = p.parse_args(argv)
+    show = (lambda runs: coverage_table(coverage_rows(runs))) if a.coverage else (lambda runs: table(summarise(runs)))
     layouts = [L for L in a.layouts.split(",") if L]
     if any(L not in LAYOUTS for L in layouts):
         p.error(f"--layouts: expected some of {', '.join(LAYOUTS)}")
@@ -191,11 +252,12 @@ def main(argv=None):
         p.error("--exact-kinds: expected some of continuous, constant, uniform")
     data_name = "render" + (" (own MC seed)" if a.render_seeds else "") + (f" {a.spp} spp" if a.spp else "")
     if a.table:
-        print(table(summarise([r for f in a.table.split(",") for r in json.load(open(f))["runs"]])))
+        print(show([r for f in a.table.split(",") for r in json.load(open(f))["runs"]]))
         return 0
     os.makedirs(a.work, exist_ok=True)
     runs = json.load(open(a.json))["runs"] if a.json and os.path.exists(a.json) else []
-    done = {(r["data"], r["size"], r["K"], r["seed"], r["layout"]) for r in runs}
+    done = {(r["data"], r["size"], r["K"], r["seed"], r["layout"]) for r in runs
+            if r.get("intervals", "fisher") == a.intervals}
     t0 = time.time()
 
     def record(rec):
@@ -216,7 +278,7 @@ def main(argv=None):
                     if todo:
                         obs, ks, kb = exact_data(kind, res, K, seed)
                         for L in todo:
-                            record(dict(one_fit(obs, L, ks, kb), data=f"exact-{kind}", size=res, K=K, seed=seed,
+                            record(dict(one_fit(obs, L, ks, kb, a.intervals), data=f"exact-{kind}", size=res, K=K, seed=seed,
                                         layout=L))
         for size in [int(s) for s in a.sizes.split(",") if s]:
             for seed in range(a.seed0, a.seed0 + a.seeds):
@@ -229,8 +291,8 @@ def main(argv=None):
                 obs = [build_observation(f[0]) for f in files]
                 ks, kb = read_map(files[0][1]), read_map(files[0][2])
                 for L in todo:
-                    record(dict(one_fit(obs, L, ks, kb), data=data_name, size=size, K=K, seed=seed, layout=L))
-    print(table(summarise(runs)))
+                    record(dict(one_fit(obs, L, ks, kb, a.intervals), data=data_name, size=size, K=K, seed=seed, layout=L))
+    print(show(runs))
     return 0
 
 

@@ -81,6 +81,11 @@ def jacobian_in_reported(problem, st, J):
 #: Floor of 1 - lambda in :func:`incidental_sandwich`: no SE inflated more than 1 / this over Fisher's.
 INCIDENTAL_FLOOR = 0.1
 
+#: Above this :func:`noise_share` the sandwich's H = F - C is the small difference of two noisy matrices in
+#: some direction (more of Kaufman's information there is the albedos' noise than the data's): its errors
+#: understate the spread over captures, and the fit says so (docs/benchmarks/coverage.md).
+NOISE_SHARE_MAX = 0.5
+
 
 #: The estimators (one per fit), as ``uncertainty.method`` names them.
 ESTIMATORS = {
@@ -108,6 +113,10 @@ NOTES = {
     "incidental-layout": "{}",
     "incidental-capped": "H not positive definite in {} direction(s): their inflation capped at "
                          f"{1 / INCIDENTAL_FLOOR:g}x the Fisher standard error",
+    "incidental-unreliable": "in one direction {} of the information J^T J is the per-pixel albedos' noise "
+                             f"(above {NOISE_SHARE_MAX:g}): these standard errors and intervals understate the "
+                             "spread over captures and are not confidence intervals; fit several lights of "
+                             "the same view",
     "incidental-not-computed": "{}",
     "profile-skipped": "intervals not checked against the profile likelihood (max_time reached)",
     "profile": "profile-likelihood 95 % intervals where the Fisher ones fail (interval_kind)",
@@ -139,15 +148,29 @@ def incidental_term(problem, st, parts):
     return problem.layout.incidental(*obj.albedo_columns(parts), dcols)
 
 
-def incidental_sandwich(F, C):
-    """(cov, capped): H^-1 F H^-1, H = F - C (F = J^T J, C :func:`incidental_term` x scale), and the number of
-    directions capped: 1 - lambda (eigenvalues of F^-1/2 C F^-1/2) is floored at :data:`INCIDENTAL_FLOOR`
-    because C from few samples per albedo is noisy.  Raises LinAlgError when F is singular."""
+def _shares(F, C):
+    """(R, lambda, Q): F^-1/2 = R V^T and the eigen-decomposition of F^-1/2 C F^-1/2 in that basis.  Raises
+    LinAlgError when F is singular."""
     w, V = np.linalg.eigh(F)
     if w.min() <= 0:
         raise np.linalg.LinAlgError("singular information matrix")
     R = V / np.sqrt(w)                        # F^-1/2 = R V^T, R = V w^-1/2
     lam, Q = np.linalg.eigh(R.T @ C @ R)      # in F's metric (symmetric: V^T F^-1/2 C F^-1/2 V)
+    return R, lam, Q
+
+
+def noise_share(F, C):
+    """The largest eigenvalue of F^-1/2 C F^-1/2 (F = J^T J, C :func:`incidental_term` x scale): the largest
+    fraction, along one direction of the shape, of Kaufman's information that is the eliminated albedos' noise
+    (C) rather than the data's (H = F - C).  Raises LinAlgError when F is singular."""
+    return float(_shares(F, C)[1].max()) if len(F) else 0.0
+
+
+def incidental_sandwich(F, C):
+    """(cov, capped): H^-1 F H^-1, H = F - C (F = J^T J, C :func:`incidental_term` x scale), and the number of
+    directions capped: 1 - lambda (eigenvalues of F^-1/2 C F^-1/2) is floored at :data:`INCIDENTAL_FLOOR`
+    because C from few samples per albedo is noisy.  Raises LinAlgError when F is singular."""
+    R, lam, Q = _shares(F, C)
     d = 1.0 - lam
     capped = int(np.sum(d < INCIDENTAL_FLOOR))
     d = np.maximum(d, INCIDENTAL_FLOOR)
@@ -181,22 +204,29 @@ def noise_scale(problem, r, n_independent, p):
 
 def incidental(problem, st, J, names, Hi, scale, parts=None):
     """(cov_theta / scale, cov_z / scale, info, applied): the incidental-parameter sandwich
-    (:func:`incidental_sandwich`) of an eliminating layout, the Fisher errors it replaces in ``info``; a layout
-    without the term keeps ``Hi`` (cov_z None).  ``J``: Kaufman's projected Jacobian in z.  Raises LinAlgError."""
+    (:func:`incidental_sandwich`) of an eliminating layout, the Fisher errors it replaces and the
+    :func:`noise_share` in ``info`` (``reliable``: the share at most :data:`NOISE_SHARE_MAX`, else the method
+    says the errors are not confidence intervals); a layout without the term keeps ``Hi`` (cov_z None).
+    ``J``: Kaufman's projected Jacobian in z.  Raises LinAlgError."""
     if problem.layout.incidental_reason is not None:
         reason = problem.layout.incidental_reason
         return Hi, None, {"incidental_not_computed": reason}, [("incidental-not-computed", reason)]
     if parts is None:
         parts = problem.parts(st, jac=True)
     Gd = dtheta_dz(problem, st, names)                   # theta = theta(z): cov_theta = G cov_z G^T
-    cz, capped = incidental_sandwich(J.T @ J, scale * incidental_term(problem, st, parts))
+    F, C = J.T @ J, scale * incidental_term(problem, st, parts)
+    cz, capped = incidental_sandwich(F, C)
+    share = noise_share(F, C)
     fisher_sd = np.sqrt(np.clip(np.diag(Hi), 0.0, None) * scale)
-    info = {"incidental": {"fisher_std_errors": dict(zip(names, fisher_sd.tolist())), "capped_directions": capped}}
+    info = {"incidental": {"fisher_std_errors": dict(zip(names, fisher_sd.tolist())), "capped_directions": capped,
+                           "noise_share": share, "reliable": share <= NOISE_SHARE_MAX}}
     applied = []
     if problem.layout.incidental_method:
         applied.append(("incidental-layout", problem.layout.incidental_method))
     if capped:
         applied.append(("incidental-capped", capped))
+    if share > NOISE_SHARE_MAX:
+        applied.append(("incidental-unreliable", f"{share:.2f}"))
     return Gd @ cz @ Gd.T, cz, info, applied
 
 

@@ -171,9 +171,30 @@ def test_sandwich_caps_a_direction_where_h_is_not_positive_definite():
     assert np.allclose(np.sqrt(np.diag(cov)), [0.5 * 2.0, 1.0 / INCIDENTAL_FLOOR])
 
 
+def test_noise_share_is_the_largest_eigenvalue_of_c_relative_to_f():
+    """C = F^1/2 Q diag(0.7, 0.2, 0.05) Q^T F^1/2 (F a rotated, unequally scaled SPD matrix, Q a rotation):
+    the share of the information that is C is 0.7 in the worst direction (the largest eigenvalue of
+    F^-1 C, here built in), whatever the parameters' scales; at 0.7 the sandwich labels its errors
+    unreliable, at 0.2 not."""
+    from fmbrdf_mi.fit.uncertainty import NOISE_SHARE_MAX, noise_share
+
+    rng = np.random.default_rng(5)
+    B = rng.normal(size=(3, 3)) * np.array([1.0, 30.0, 0.01])
+    F = B @ B.T + np.diag([0.1, 50.0, 1e-4])
+    w, V = np.linalg.eigh(F)
+    Fh = (V * np.sqrt(w)) @ V.T                                   # F^1/2, symmetric
+    Q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    for top, unreliable in ((0.7, True), (0.2, False)):
+        C = Fh @ Q @ np.diag([top, 0.2 * top, 0.05]) @ Q.T @ Fh
+        assert math.isclose(noise_share(F, C), top, rel_tol=1e-9), (noise_share(F, C), top)
+        assert (noise_share(F, C) > NOISE_SHARE_MAX) == unreliable
+    assert NOISE_SHARE_MAX == 0.5
+
+
 def test_fit_reports_the_sandwich_for_per_pixel_albedos_only():
     """One noisy image, beta and kappa fixed: the per-pixel fit's shape errors are the sandwich's (at least
-    the Fisher ones it keeps in ``incidental``; the method says so; the profile thresholds follow them);
+    the Fisher ones it keeps in ``incidental``; the method says so; the profile thresholds follow them), labelled
+    not confidence intervals (``noise_share`` above ``NOISE_SHARE_MAX``);
     the shared-albedo fit of the same data has no ``incidental`` block and the plain Fisher method
     (its numbers: tools/record_fits.py, bit for bit)."""
     from fmbrdf_mi.fit import fit
@@ -195,6 +216,11 @@ def test_fit_reports_the_sandwich_for_per_pixel_albedos_only():
         assert math.isclose(u["profile"]["thresholds"][k],
                             u["profile"]["threshold"] * (pp.std_errors[k] / fse[k]) ** 2, rel_tol=1e-9)
     assert np.isfinite(pp.maps["k_b_se"]).any()
+    # one image of a small sphere: in its weakest direction most of J^T J is the albedos' noise, and the
+    # method says that these errors are not confidence intervals (docs/benchmarks/coverage.md)
+    share = u["incidental"]["noise_share"]
+    assert 0.5 < share < 1.0 + 1e-9 and u["incidental"]["reliable"] is False, u["incidental"]
+    assert "not confidence intervals" in u["method"], u["method"]
     sh = fit(obs, FitOptions(loss="likelihood", fixed=fixed, starts=1, intervals="fisher"), progress=False)
     assert "incidental" not in sh.uncertainty
     assert sh.uncertainty["method"] == "inverse Fisher information (known camera noise)"

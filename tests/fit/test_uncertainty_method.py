@@ -33,6 +33,16 @@ def test_notes_follow_in_one_order_whatever_the_order_applied():
     assert U.method_text(applied[::-1]) == want
 
 
+def test_unreliable_sandwich_note_follows_the_capped_one():
+    applied = [("incidental-unreliable", "0.93"), ("known-noise", ""), ("incidental", ""), ("incidental-capped", 1)]
+    want = ("incidental-parameter sandwich H^-1 (J^T J) H^-1, H = J^T J - C (the per-pixel albedos' noise removed "
+            "from the information) (known camera noise); H not positive definite in 1 direction(s): their "
+            "inflation capped at 10x the Fisher standard error; in one direction 0.93 of the information J^T J "
+            "is the per-pixel albedos' noise (above 0.5): these standard errors and intervals understate the "
+            "spread over captures and are not confidence intervals; fit several lights of the same view")
+    assert U.method_text(applied) == want
+
+
 def test_one_estimator_and_known_mechanisms_only():
     with pytest.raises(ValueError, match="one estimator"):
         U.method_text([("fisher", ""), ("posterior", "")])
