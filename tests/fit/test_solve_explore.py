@@ -61,7 +61,7 @@ def fits(obs):
         made.append(problem_of(obs, m, report=lines.append)[0])
         return made[-1]
 
-    explored = run(big, explore=(n, make), explore_above=n // 2, explore_pixels=n // 2, report=lines.append)
+    explored = run(big, explore=(n, make, n), explore_above=n // 2, explore_pixels=n // 2, report=lines.append)
     sub_alone = run(problem_of(obs, n // 2)[0])
     return dict(full=full, ref=ref, big=big, explored=explored, sub=made, sub_alone=sub_alone, n=n, lines=lines)
 
@@ -109,7 +109,8 @@ def test_progress_says_where_each_phase_runs(fits):
 def test_below_the_threshold_the_fit_is_the_plain_one(obs, fits):
     """With no more pixels than ``explore_above`` the subsample is never made: every number as without it."""
     p, n = problem_of(obs)
-    sol = run(p, explore=(n, lambda m: pytest.fail("subsample made below the threshold")), explore_above=n)
+    sol = run(p, explore=(n, lambda m: pytest.fail("subsample made below the threshold"), n),
+              explore_above=n)
     ref = fits["ref"]
     assert sol.state.shape == ref.state.shape and np.array_equal(sol.state.a_s, ref.state.a_s)
     assert sol.starts == ref.starts
@@ -147,3 +148,16 @@ def test_fit_explores_above_the_threshold(obs, lights, monkeypatch):
     assert res.converged and res.n_pixels == lights * len(obs_pixels(obs)) > 400, (res.stop_reason, res.n_pixels)
     assert any(ln.startswith("[fit] search and starts on a fixed subsample of 200 of the") for ln in lines), lines
     assert any(ln.startswith("[lm 1] iter") for ln in lines), lines
+
+
+def test_a_joint_fit_counts_each_pixel_once(obs, monkeypatch):
+    """The threshold is on the super-pixels of an image, as the albedo maps count them: three images of n
+    super-pixels each (3n pixels in all) with the threshold at n run the plain fit, no subsample."""
+    from fmbrdf_mi.fit import fit
+
+    monkeypatch.setattr(D, "EXPLORE_ABOVE", len(obs_pixels(obs)))
+    monkeypatch.setattr(D, "EXPLORE_PIXELS", 200)
+    lines = []
+    res = fit([obs] * 3, albedo="per-pixel", max_pixels=None, intervals="fisher", starts=1, progress=lines.append)
+    assert res.converged and res.n_pixels == 3 * len(obs_pixels(obs)), (res.stop_reason, res.n_pixels)
+    assert not any("subsample" in ln for ln in lines), lines

@@ -88,7 +88,8 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
                 lr=opts.lr, max_time=opts.max_time, history=history, report=report,
                 explore=None if data.subsample is None or data.make_problem is not None else (
                     len(data.pixels), lambda n: data.subsample(n).problem(get_model(opts.model), opts.bounds, report,
-                                                                          opts.fixed, deadline)))
+                                                                          opts.fixed, deadline),
+                    max(len(p) for p in data.image_pixels)))
     res = assemble(Fitted(problem, data, sol, opts, report, deadline, obs.shape, materials, history, t0=t0))
     if opts.area_points is None:
         res = check_footprint(res)

@@ -57,7 +57,8 @@ def distinct_starts(problem, cands, n):
     return chosen
 
 
-#: Fits of more pixels than this search and run their starts on a subsample of :data:`EXPLORE_PIXELS` first.
+#: Fits of images of more super-pixels than this (the largest image; a joint fit's images count once, as the
+#: albedo maps do) search and run their starts on a subsample of :data:`EXPLORE_PIXELS` pixels first.
 EXPLORE_ABOVE = 100_000
 
 #: The pixels of that subsample: many more than the few shape parameters' search and starts need to tell
@@ -147,7 +148,7 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
         if init is not None:
             chosen = [problem.projected(init.shape)[0] if problem.projects else init]
         else:
-            if (explore is not None and explore[0] > explore_above and problem.deadline is None
+            if (explore is not None and explore[2] > explore_above and problem.deadline is None
                     and optimizer == "lm"):
                 sub = explore[1](int(explore_pixels))
                 if sub is not None:
