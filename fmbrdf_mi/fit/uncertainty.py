@@ -390,10 +390,9 @@ def predicted_quadrature_terms(problem, coarser, st, J, r, m, h):
     falls as 1/m^2, so d = (r_h - r_m) (1/m^2 - 1/4m^2) / (1/h^2 - 1/m^2) to leading order (for h = m/2 a
     quarter), the residuals whitened by ``problem``'s variances.  Cheap (fewer points than ``problem``), and
     the control variate of :func:`sampled_quadrature_bias`."""
-    parts = coarser.parts(st)
-    coarser.obj.var = problem.obj.var
+    r_h = ((coarser.obj.y - coarser.obj.mu(coarser.parts(st), st)) / np.sqrt(problem.obj.var)).ravel()
     factor = 0.75 / m ** 2 / (1.0 / h ** 2 - 1.0 / m ** 2)
-    return cell_terms(J, factor * (coarser.obj.residuals(parts, st) - r), problem.obj.m)
+    return cell_terms(J, factor * (r_h - r), problem.obj.m)
 
 
 def quadrature_sample(problem, J, g_hat, n, rng):
@@ -435,11 +434,10 @@ def sampled_quadrature_bias(problem, fine, st, J, r, cells, pi, g_hat):
     noise parameters (not re-estimated from the sample)."""
     ms = problem.obj.m
     st = sample_state(problem, fine, st)
-    parts = fine.parts(st)
-    fine.obj.noise = dataclasses.replace(problem.obj.noise)
-    fine.obj.var = np.maximum(fine.obj.noise.variance(fine.obj.mu(parts, st)), 1e-300)
+    mu = fine.obj.mu(fine.parts(st), st)
+    r_fine = ((fine.obj.y - mu) / np.sqrt(np.maximum(problem.obj.noise.variance(mu), 1e-300))).ravel()
     rows = (np.asarray(cells)[:, None] * ms + np.arange(ms)).ravel()
-    e = cell_terms(J[rows], r[rows] - fine.obj.residuals(parts, st), ms) - g_hat[cells]
+    e = cell_terms(J[rows], r[rows] - r_fine, ms) - g_hat[cells]
     G = g_hat.sum(0) + (e / pi[:, None]).sum(0)
     V = (e * ((1.0 - pi) / pi ** 2)[:, None]).T @ e
     Hi = np.linalg.pinv(J.T @ J)

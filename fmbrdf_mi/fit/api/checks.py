@@ -103,7 +103,7 @@ def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, s
     sample_pixels = EXPLORE_PIXELS if sample_pixels is None else sample_pixels
     problem, data, st, m, t0 = fx.problem, fx.data, fx.solution.state, fx.data.area_points, time.time()
     block = {"area_points": m, "tolerance_se": U.QUADRATURE_TOL, "checks": []}
-    fine_fx, history = None, list(fx.history)
+    fine_fx, history, coarser_data = None, list(fx.history), None
     rng = np.random.default_rng(opts.seed if seed is None else seed)
     while m < U.MAX_AREA_POINTS:
         parts = problem.parts(st, jac=True)
@@ -113,8 +113,9 @@ def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, s
         n_cells = len(data.pixels)
         cells = None
         if n_cells > sample_above and samplable(data, problem):
-            coarser = data.remake(m // 2).problem(get_model(opts.model), opts.bounds, fx.report, opts.fixed,
-                                                  fx.deadline)
+            if coarser_data is None or coarser_data.area_points != m // 2:
+                coarser_data = data.remake(m // 2)
+            coarser = coarser_data.problem(get_model(opts.model), opts.bounds, fx.report, opts.fixed, fx.deadline)
             g_hat = U.predicted_quadrature_terms(problem, coarser, st, J, r, m, m // 2)
             del coarser
             cells, pi = U.quadrature_sample(problem, J, g_hat, sample_pixels, rng)
@@ -159,6 +160,7 @@ def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, s
             fx, problem=fine, data=fine_data, history=history, applied=[],
             evaluations=fx.evaluations + problem.n_evals,
             solution=dataclasses.replace(sol, starts=fx.solution.starts, t_search=fx.solution.t_search))
+        coarser_data = data        # the next check's prediction: m x m points of all pixels, at hand
         problem, data, m, st = fine, fine_data, 2 * m, sol.state
         block["area_points"] = m
     block["seconds"] = time.time() - t0
