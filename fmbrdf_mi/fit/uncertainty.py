@@ -400,8 +400,8 @@ def quadrature_sample(problem, J, g_hat, n, rng):
     every cell (pi = 1) when ``n`` is at least their number.
 
     ``g_hat``: (cells, p) each cell's predicted J_c^T d_c (:func:`predicted_quadrature_terms`); ``n``: the
-    expected sample size.  Half of n is spread uniformly, half in proportion to each cell's predicted shift
-    of the shape estimate in SE units, |S^-1 (J^T J)^-1 g_hat_c| (S: the Fisher SEs; the highlight's
+    expected sample size.  A quarter of n is spread uniformly, three quarters in proportion to each cell's
+    predicted shift of the shape estimate in SE units, |S^-1 (J^T J)^-1 g_hat_c| (S: the Fisher SEs; the highlight's
     cells), capped at 1: every cell can be taken, so the Horvitz-Thompson sum is unbiased."""
     N, k = len(g_hat), len(problem.names)
     if n >= N:
