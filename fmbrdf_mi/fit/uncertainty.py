@@ -404,6 +404,95 @@ def quadrature_bias(problem, fine, st, J, r):
     return {n: float(b[i] / se[i]) for i, n in enumerate(problem.names)}
 
 
+#: A sampled check (:func:`sampled_quadrature_bias`) refines while |bias| plus this many of its sampling
+#: standard errors exceeds :data:`QUADRATURE_TOL`: a bias the sample cannot rule out is refined.
+QUADRATURE_SAMPLING_SE = 2.0
+
+
+def cell_terms(J, d, ms):
+    """(cells, p) each cell's J_c^T d_c: ``J`` (cells ms, p), ``d`` (cells ms,), ``ms`` rows per cell."""
+    return np.einsum("rp,r->rp", J, d).reshape(len(d) // ms, ms, -1).sum(1)
+
+
+def predicted_quadrature_terms(problem, coarser, st, J, r, m, h):
+    """(cells, p) each cell's J_c^T d_c (d: ``problem``'s residuals with m x m points less those with
+    2m x 2m) predicted from ``coarser``, the same cells with h x h points (h < m): the midpoint rule's error
+    falls as 1/m^2, so d = (r_h - r_m) (1/m^2 - 1/4m^2) / (1/h^2 - 1/m^2) to leading order (for h = m/2 a
+    quarter), the residuals whitened by ``problem``'s variances.  Cheap (fewer points than ``problem``), and
+    the control variate of :func:`sampled_quadrature_bias`."""
+    r_h = ((coarser.obj.y - coarser.obj.mu(coarser.parts(st), st)) / np.sqrt(problem.obj.var)).ravel()
+    factor = 0.75 / m ** 2 / (1.0 / h ** 2 - 1.0 / m ** 2)
+    return cell_terms(J, factor * (r_h - r), problem.obj.m)
+
+
+def quadrature_sample(problem, J, g_hat, n, rng):
+    """Sorted positions of a Poisson sample of the fitted cells and their inclusion probabilities pi (> 0);
+    every cell (pi = 1) when ``n`` is at least their number.
+
+    ``g_hat``: (cells, p) each cell's predicted J_c^T d_c (:func:`predicted_quadrature_terms`); ``n``: the
+    expected sample size.  A quarter of n is spread uniformly, three quarters in proportion to each cell's
+    predicted shift of the shape estimate in SE units, |S^-1 (J^T J)^-1 g_hat_c| (S: the Fisher SEs; the highlight's
+    cells), capped at 1: every cell can be taken, so the Horvitz-Thompson sum is unbiased."""
+    N, k = len(g_hat), len(problem.names)
+    if n >= N:
+        return np.arange(N), np.ones(N)
+    Hi = np.linalg.pinv(J.T @ J)
+    se = np.sqrt(np.clip(np.diag(Hi), 1e-300, None))
+    size = np.sqrt(np.sum((g_hat @ (Hi[:k] / se[:k, None]).T) ** 2, axis=1))
+    w = 0.25 / N + (0.75 * size / size.sum() if size.sum() > 0 else 0.75 / N)
+    c = float(n)
+    for _ in range(50):                     # scale so that the capped probabilities sum to n
+        pi = np.minimum(1.0, c * w)
+        free = pi < 1.0
+        if abs(pi.sum() - n) <= 1e-9 * n or not free.any():
+            break
+        c *= (n - (~free).sum()) / pi[free].sum()
+    cells = np.flatnonzero(rng.random(N) < pi)
+    return cells, pi[cells]
+
+
+def sampled_quadrature_bias(problem, fine, st, J, r, cells, pi, g_hat):
+    """({shape parameter: bias / SE}, {shape parameter: the bias's sampling SE / SE}) of
+    :func:`quadrature_bias` with J^T (r - r_fine) estimated from the cells ``cells`` only (``fine``: the
+    2m x 2m problem of those cells in that order; ``pi`` their inclusion probabilities,
+    :func:`quadrature_sample`): the predicted sum over all cells, sum g_hat_c
+    (:func:`predicted_quadrature_terms`), plus the Horvitz-Thompson sum of the sampled cells'
+    (J_c^T d_c - g_hat_c) / pi_c (a difference estimator: unbiased whatever the prediction), with the
+    variance sum (1 - pi_c) / pi_c^2 e_c e_c^T of Poisson sampling (e_c = J_c^T d_c - g_hat_c).  J^T J and
+    the SE are the whole fit's.  The fine variances are the noise model's at the fine prediction, as
+    :meth:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective.refresh` makes them, with the coarse fit's
+    noise parameters (not re-estimated from the sample)."""
+    ms = problem.obj.m
+    st = sample_state(problem, fine, st)
+    mu = fine.obj.mu(fine.parts(st), st)
+    r_fine = ((fine.obj.y - mu) / np.sqrt(np.maximum(problem.obj.noise.variance(mu), 1e-300))).ravel()
+    rows = (np.asarray(cells)[:, None] * ms + np.arange(ms)).ravel()
+    e = cell_terms(J[rows], r[rows] - r_fine, ms) - g_hat[cells]
+    G = g_hat.sum(0) + (e / pi[:, None]).sum(0)
+    V = (e * ((1.0 - pi) / pi ** 2)[:, None]).T @ e
+    Hi = np.linalg.pinv(J.T @ J)
+    b = -Hi @ G
+    sb = np.sqrt(np.clip(np.diag(Hi @ V @ Hi), 0.0, None))
+    se = np.sqrt(np.clip(np.diag(Hi), 1e-300, None))
+    return ({n: float(b[i] / se[i]) for i, n in enumerate(problem.names)},
+            {n: float(sb[i] / se[i]) for i, n in enumerate(problem.names)})
+
+
+def sample_state(problem, fine, st):
+    """``st`` for ``fine``, a problem of a subset of ``problem``'s cells: with albedo maps (one pair per
+    pixel and channel) the subset's own groups' albedos, else ``st`` itself."""
+    if not problem.eliminates:
+        return st
+    full, sub = problem.layout, fine.layout
+    C = 1 if full.channel_of is None else int(full.channel_of.max()) + 1
+
+    def keys(lay):
+        return lay.pixels * C + (0 if lay.channel_of is None else lay.channel_of)
+
+    g = np.searchsorted(keys(full), keys(sub))
+    return dataclasses.replace(st, a_s=np.asarray(st.a_s)[g], a_b=np.asarray(st.a_b)[g])
+
+
 #: Relative tolerance on chi^2's rise at a Fisher interval's end (:func:`profile_intervals`).
 PROFILE_TOL = 0.15
 

@@ -244,7 +244,7 @@ def material_evaluators(model, count, cell_material, normals, views, lights, irr
     return MaterialEvaluator(Parameters(model, materials=count), evs, cols, cells * outs)
 
 
-def prepare(observations, opts, loss, *, single=False, evaluator=None, materials=None):
+def prepare(observations, opts, loss, *, single=False, evaluator=None, materials=None, only=None):
     """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images: one objective over all their
     pixels, one evaluator, each image's pixels and slice.
 
@@ -252,6 +252,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     model's evaluator at these pixels, else a :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`.
     ``materials``: a label image (:func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`); label < 0 is not
     fitted, each material has its own shape parameters (:mod:`fmbrdf_mi.fit.evaluate.materials`).
+    ``only``: per image, the flat indices of the selected pixels to keep (a subset of the same data).
     """
     K = len(observations)
     check_max_pixels(opts.max_pixels, K)
@@ -273,6 +274,8 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
             if single:
                 raise
             raise InputError(f"image {k}: {exc}") from None
+        if only is not None:
+            idx = idx[np.isin(idx, only[k])]
         idxs.append(idx)
         excl.append(ex)
     cell_material = None
@@ -382,9 +385,13 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         evaluator = PixelEvaluator(get_model(opts.model), directions, None, lights, irr, weights=weights)
     flat_idx = np.concatenate(idxs)
 
-    def remake(m_new):      # the same images, pixels and options with m_new x m_new points per sample
+    def remake(m_new, cells=None):
+        # the same images, pixels and options with m_new x m_new points per sample; ``cells``: sorted positions
+        # among the fitted pixels, the data of those cells alone (in that order)
+        c = None if cells is None else np.asarray(cells)
+        keep = None if c is None else [idx[c[(c >= a) & (c < b)] - a] for idx, (a, b) in zip(idxs, slices)]
         return prepare(observations, dataclasses.replace(opts, area_points=int(m_new)), loss, single=single,
-                       materials=materials)
+                       materials=materials, only=keep)
 
     def subsample(n):       # n seeded pixels of the same images and options
         return prepare(observations, dataclasses.replace(opts, max_pixels=int(n)), loss, single=single)
