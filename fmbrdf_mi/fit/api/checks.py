@@ -84,8 +84,8 @@ def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, s
     resumed, up to :data:`~fmbrdf_mi.fit.uncertainty.MAX_AREA_POINTS`.  Returns the finest converged fit's
     result with ``uncertainty.quadrature``; data that cannot be remade are returned as they are.
 
-    A fit of more than ``sample_above`` pixels (default: :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_ABOVE`)
-    remakes all with m/2 x m/2 points (cheap) to predict each pixel's share of the bias
+    A fit of images of more than ``sample_above`` super-pixels (the largest image; default:
+    :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_ABOVE`) remakes all with m/2 x m/2 points (cheap) to predict each pixel's share of the bias
     (:func:`~fmbrdf_mi.fit.uncertainty.predicted_quadrature_terms`), and only a seeded sample of about
     ``sample_pixels`` of them (default :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_PIXELS`; drawn by
     :func:`~fmbrdf_mi.fit.uncertainty.quadrature_sample`) with 2m x 2m, and corrects the prediction from it
@@ -112,7 +112,7 @@ def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, s
         dr.flush_malloc_cache()     # the solve's freed Dr.Jit buffers, returned before the finer data are made
         n_cells = len(data.pixels)
         cells = None
-        if n_cells > sample_above and samplable(data, problem):
+        if max(len(p) for p in data.image_pixels) > sample_above and samplable(data, problem):
             if coarser_data is None or coarser_data.area_points != m // 2:
                 coarser_data = data.remake(m // 2)
             coarser = coarser_data.problem(get_model(opts.model), opts.bounds, fx.report, opts.fixed, fx.deadline)
