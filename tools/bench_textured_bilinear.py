@@ -64,8 +64,6 @@ T = math.radians(35.0)
 LIGHTS = [(-0.5, 0.5, 1.0)] + [(math.sin(T) * math.cos(math.radians(a)), math.sin(T) * math.sin(math.radians(a)),
                                 math.cos(T)) for a in (60.0, 300.0)]
 LAYOUTS = ("per-pixel", "per-pixel-bilinear")
-#: What the fits' errors are: records made before the parametric bootstrap (no ``estimator``) are "sandwich".
-ESTIMATOR = "sandwich, bootstrap where unreliable"
 
 
 def smooth(x, y):
@@ -152,16 +150,7 @@ def one_fit(obs, layout, ks, kb, intervals="fisher"):
             "ci95": {n: (r.uncertainty or {}).get("ci95", {}).get(n) for n in SHAPE},
             "ci95_fisher": {n: ((r.uncertainty or {}).get("profile", {}).get("fisher_ci95")
                                 or (r.uncertainty or {}).get("ci95", {})).get(n) for n in SHAPE},
-            "ci95_sandwich": {n: sandwich_ci95(r.uncertainty or {}, r.params, n) for n in SHAPE},
-            "interval_kind": (r.uncertainty or {}).get("interval_kind"), "intervals": intervals,
-            "noise_share": (r.uncertainty or {}).get("incidental", {}).get("noise_share"),
-            "bootstrap": (r.uncertainty or {}).get("bootstrap"), "estimator": ESTIMATOR}
-
-
-def sandwich_ci95(unc, params, n):
-    """The sandwich's own +- 1.96 SE interval of ``n`` before the bootstrap widened it (None without one)."""
-    se = (unc.get("bootstrap") or {}).get("sandwich_std_errors", {}).get(n)
-    return None if se is None else [params[n] - 1.959964 * se, params[n] + 1.959964 * se]
+            "interval_kind": (r.uncertainty or {}).get("interval_kind"), "intervals": intervals}
 
 
 def summarise(runs):
@@ -198,8 +187,7 @@ def coverage_rows(runs):
     from bench_fit_noise import wilson
 
     rows = []
-    key_of = (lambda r: (r["data"], r["size"], r["K"], r["layout"], r.get("intervals", "fisher"),
-                         r.get("estimator", "sandwich")))
+    key_of = (lambda r: (r["data"], r["size"], r["K"], r["layout"], r.get("intervals", "fisher")))
     for key in sorted({key_of(r) for r in runs}):
         rs = [r for r in runs if key_of(r) == key and r["converged"] and r.get("ci95")]
         for n in SHAPE:
@@ -210,10 +198,7 @@ def coverage_rows(runs):
             kf = sum(c[0] <= TRUTH[n] <= c[1] for c in ((r.get("ci95_fisher") or r["ci95"])[n] for r in use))
             m = len(use)
             sd = float(e.std(ddof=1)) if m > 1 else math.nan
-            kb = sum(c[0] <= TRUTH[n] <= c[1] for c in (r["ci95_sandwich"][n] for r in use
-                                                       if (r.get("ci95_sandwich") or {}).get(n)))
-            rows.append(dict(zip(("data", "size", "K", "layout", "intervals", "estimator"), key), param=n, n=m,
-                             bootstrapped=sum(bool(r.get("bootstrap")) for r in use), covered_sandwich=int(kb),
+            rows.append(dict(zip(("data", "size", "K", "layout", "intervals"), key), param=n, n=m,
                              not_converged=sum(not r["converged"] for r in runs if key_of(r) == key),
                              bias=float(e.mean()) if m else math.nan, bias_se=sd / math.sqrt(m) if m else math.nan,
                              spread=sd, se=float(se.mean()) if m else math.nan,
@@ -225,17 +210,14 @@ def coverage_rows(runs):
 
 
 def coverage_table(rows):
-    lines = ["| data | size | K | layout | intervals | errors | param | fits (NC) | bias ± SE | spread | mean SE | "
-             "spread / SE | mean z | 95 % coverage (Wilson) | Fisher only (fits profiled) | sandwich only "
-             "(fits bootstrapped) |", "|" + "---|" * 16]
+    lines = ["| data | size | K | layout | intervals | param | fits (NC) | bias ± SE | spread | mean SE | spread / SE | "
+             "mean z | 95 % coverage (Wilson) | Fisher only (fits profiled) |", "|" + "---|" * 14]
     for r in rows:
         lo, hi = r["wilson"]
-        lines.append(f"| {r['data']} | {r['size']}² | {r['K']} | {r['layout']} | {r['intervals']} | {r['estimator']} | "
-                     f"{r['param']} | "
+        lines.append(f"| {r['data']} | {r['size']}² | {r['K']} | {r['layout']} | {r['intervals']} | {r['param']} | "
                      f"{r['n']} ({r['not_converged']}) | {100 * r['bias']:+.2f} ± {100 * r['bias_se']:.2f} % | "
                      f"{100 * r['spread']:.2f} % | {100 * r['se']:.2f} % | {r['ratio']:.2f} | {r['z']:+.2f} | "
-                     f"{r['covered']}/{r['n']} ({100 * lo:.0f}–{100 * hi:.0f} %) | {r['covered_fisher']}/{r['n']} ({r['profiled']}) | "
-                     + (f"{r['covered_sandwich']}/{r['n']} ({r['bootstrapped']}) |" if r["bootstrapped"] else "– |"))
+                     f"{r['covered']}/{r['n']} ({100 * lo:.0f}–{100 * hi:.0f} %) | {r['covered_fisher']}/{r['n']} ({r['profiled']}) |")
     return "\n".join(lines)
 
 

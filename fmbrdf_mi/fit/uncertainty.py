@@ -7,16 +7,14 @@ bounds.  The design: docs/computed.md.
 """
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import time
 
 import numpy as np
 
-from fmbrdf_mi.fit.problem.problem import Problem
 from fmbrdf_mi.fit.solve.driver import refit_fixed
-from fmbrdf_mi.fit.solve.optimise import levenberg_marquardt, time_left
+from fmbrdf_mi.fit.solve.optimise import time_left
 
 Z95 = 1.959963984540054
 
@@ -120,9 +118,6 @@ NOTES = {
                              "spread over captures and are not confidence intervals; fit several lights of "
                              "the same view",
     "incidental-not-computed": "{}",
-    "incidental-bootstrap": "where the sandwich is unreliable, standard errors max(sandwich, parametric-bootstrap SD) and "
-                 "percentile 95 % intervals of a parametric bootstrap at the estimate ({}; interval_kind "
-                 "'bootstrap')",
     "profile-skipped": "intervals not checked against the profile likelihood (max_time reached)",
     "profile": "profile-likelihood 95 % intervals where the Fisher ones fail (interval_kind)",
     "optima": "95 % intervals widened over a competing optimum of the likelihood (interval_kind 'optima', "
@@ -235,94 +230,6 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
     return Gd @ cz @ Gd.T, cz, info, applied
 
 
-#: Draws of :func:`parametric_bootstrap`: its SD's relative standard error is about 1 / sqrt(2 B) (16 % at 20),
-#: enough to widen a sandwich interval that is too narrow by a factor of order 2, at B refits' cost (each a few
-#: LM iterations of the whole fit); its 2.5 % and 97.5 % quantiles lie among the outermost draws, which is why
-#: the interval is the hull of the percentile one and +- 1.96 SE (:func:`summary`).
-BOOTSTRAP_DRAWS = 20
-
-#: LM iterations of each bootstrap refit (from the estimate, as the profile's refits).
-BOOTSTRAP_ITER = 10
-
-#: The bootstrap's random stream: the same fit gives the same intervals.
-BOOTSTRAP_SEED = 0
-
-#: A fit of more pixels than this bootstraps on a fixed, seeded subsample of this many (its own pixels'
-#: albedos eliminated, as in the fit), the draws' deviations from the estimate scaled by sqrt(n_sub / n): the
-#: pixels are independent given the shape, so the estimate's spread falls as 1 / sqrt(n) once n is large.
-#: It bounds the bootstrap's cost at that of a fit of this many pixels.
-BOOTSTRAP_PIXELS = 4096
-
-
-def bootstrap_draws(mu, sd, refit, draws, seed=BOOTSTRAP_SEED, progress=None):
-    """(draws, k): ``refit(y*)`` (k,) of ``draws`` data sets y* = mu + sd e, e ~ N(0, 1) independent, from a
-    seeded stream (``seed``).  ``progress``: told after each draw, with the time left."""
-    rng = np.random.default_rng(seed)
-    out, t0 = [], time.time()
-    for b in range(draws):
-        out.append(np.asarray(refit(mu + sd * rng.standard_normal(np.shape(mu))), dtype=np.float64))
-        if progress is not None:
-            left = time_left(time.time() - t0, b + 1, draws, "in the bootstrap")
-            progress(f"[fit] bootstrap: draw {b + 1}/{draws} refitted ({time.time() - t0:.1f} s"
-                     + (f", {left})" if left else ")"))
-    return np.array(out)
-
-
-def parametric_bootstrap(problem, st, draws=None, max_iter=BOOTSTRAP_ITER, seed=BOOTSTRAP_SEED, progress=None):
-    """(draws, k) the free shape parameters refitted to ``draws`` captures drawn from the fitted model at ``st``
-    with the likelihood's own noise (:func:`bootstrap_draws`; mu the model's samples, sd the square root of the
-    variances the objective weighs the residuals with, eq:lik-var), each from ``st`` by LM (``max_iter``
-    iterations) with the albedos eliminated at every trial shape: the sampling distribution of the estimate
-    where the sandwich's H = J^T J - C is too noisy to give it (:func:`noise_share`).  None for a problem with
-    extra unknowns (not a plain Problem) or the paper's loss.  ``draws``: default :data:`BOOTSTRAP_DRAWS`."""
-    if type(problem) is not Problem or not problem.obj.is_likelihood:
-        return None
-    obj = problem.obj
-    start = problem.projected(st.shape)[0] if problem.projects else st
-
-    def refit(y):
-        o = copy.copy(obj)
-        o.y = y
-        sub = Problem(problem.params, problem.ev, o, cell_material=problem.cell_material)
-        end = levenberg_marquardt(sub, sub.state(start.shape, start.a_s, start.a_b), max_iter=max_iter,
-                                  final_jacobian=False, label="bootstrap")[0]
-        return [end.shape[n] for n in problem.names]
-
-    return bootstrap_draws(obj.mu(problem.parts(start), start), np.sqrt(obj.var), refit,
-                           BOOTSTRAP_DRAWS if draws is None else draws, seed, progress)
-
-
-def bootstrap(problem, st, subsample=None):
-    """fit.json's ``uncertainty.bootstrap`` (:func:`bootstrap_summary`, with ``pixels`` and ``of_pixels``) of
-    :func:`parametric_bootstrap` at ``st``, on a subsample of :data:`BOOTSTRAP_PIXELS` (``subsample(n)``: its
-    problem) when the fit has more pixels, or None where it cannot be made."""
-    n = problem.obj.n
-    sub = subsample(BOOTSTRAP_PIXELS) if subsample is not None and n > BOOTSTRAP_PIXELS else None
-    if sub is not None and type(sub) is Problem:
-        sub.progress = problem.progress
-        at = sub.projected(st.shape)[0]
-        sub.set_weights(sub.parts(at), at)      # the variances at the estimate, as the fit's last round
-    else:
-        sub = problem
-    values = parametric_bootstrap(sub, st, progress=problem.progress)
-    if values is None:
-        return None
-    m = sub.obj.n
-    theta = np.array([st.shape[k] for k in problem.names])
-    values = theta + (values - theta) * math.sqrt(m / n)
-    return dict(bootstrap_summary(list(problem.names), st.shape, values), pixels=int(m), of_pixels=int(n))
-
-
-def bootstrap_summary(names, estimate, values):
-    """fit.json's ``uncertainty.bootstrap`` of bootstrap ``values`` (draws, k) of ``names`` around ``estimate``
-    {name: value}: per parameter the draws' SD and their 2.5 % and 97.5 % quantiles (the percentile interval)."""
-    sd = values.std(axis=0, ddof=1)
-    lo, hi = np.percentile(values, [2.5, 97.5], axis=0)
-    return {"draws": int(len(values)), "std_errors": {n: float(sd[i]) for i, n in enumerate(names)},
-            "ci95": {n: [float(lo[i]), float(hi[i])] for i, n in enumerate(names)},
-            "estimate": {n: float(estimate[n]) for n in names}}
-
-
 def paper_sandwich(problem, Jt, r, Hi):
     """(cov, applied): the paper's loss's sandwich H^-1 M H^-1, H = J^T J, M :func:`block_meat` (spread, not
     bias: docs/computed.md)."""
@@ -347,11 +254,9 @@ class Covariance:
         return method_text(self.applied)
 
 
-def covariance(problem, st, J, r, n_independent=None, parts=None, subsample=None):
+def covariance(problem, st, J, r, n_independent=None, parts=None):
     """The :class:`Covariance` of the reported free parameters: :func:`paper_sandwich` for the paper's loss;
-    for a likelihood :func:`fisher` x :func:`noise_scale`, with :func:`incidental` for an eliminating layout,
-    and where its :func:`noise_share` exceeds :data:`NOISE_SHARE_MAX` :func:`bootstrap` (``subsample``: n ->
-    the problem of a fixed, seeded subsample of n of the pixels, or None)."""
+    for a likelihood :func:`fisher` x :func:`noise_scale`, with :func:`incidental` for an eliminating layout."""
     try:
         names, Jt = jacobian_in_reported(problem, st, J)
     except np.linalg.LinAlgError:
@@ -374,14 +279,6 @@ def covariance(problem, st, J, r, n_independent=None, parts=None, subsample=None
         info.update(more)
         applied += used
         estimator = "incidental" if cz is not None else estimator
-        if ("incidental-unreliable", f"{more['incidental']['noise_share']:.2f}") in used:
-            boot = bootstrap(problem, st, subsample)
-            if boot is not None:
-                info["bootstrap"] = boot
-                applied = [a for a in applied if a[0] != "incidental-unreliable"]
-                applied.append(("incidental-bootstrap", f"{boot['draws']} draws"
-                                + (f" on {boot['pixels']} of the {boot['of_pixels']} pixels, their deviations "
-                                   "scaled by sqrt(subsample / all)" if boot["pixels"] < boot["of_pixels"] else "")))
     return Covariance(names, scale * Hi, info, [(estimator, "")] + applied, None if cz is None else cz * scale)
 
 
@@ -464,10 +361,6 @@ def summary(problem, st, c):
     if cov is None:
         return out
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    boot = c.info.get("bootstrap") or {}
-    if boot:    # SE = max(sandwich, bootstrap SD): the covariance scaled, its correlations kept
-        f = np.array([max(1.0, boot["std_errors"].get(n, 0.0) / s) if s > 0 else 1.0 for n, s in zip(names, sd)])
-        cov, sd = cov * np.outer(f, f), sd * f
     se = dict(zip(names, sd.tolist()))
     out["at_bound"] = at_bound(problem, st, se)
     out["bound_distance_se"] = {n: (float(d / se[n]) if se.get(n, 0.0) > 0 else math.inf)
@@ -481,12 +374,6 @@ def summary(problem, st, c):
             kinds[n] = kind_of([FISHER_AT_BOUND if c else "fisher" for c in cut])
         out["std_errors"][n] = float(sd[i])
         out["ci95"][n] = [float(max(lo, blo)), float(min(hi, bhi))]
-    if boot:
-        out["bootstrap"] = dict(boot, sandwich_std_errors={n: float(v) for n, v in zip(names, sd / f)})
-    for n in boot.get("std_errors", {}):
-        lo, hi = out["ci95"][n]
-        out["ci95"][n] = [float(min(lo, boot["ci95"][n][0])), float(max(hi, boot["ci95"][n][1]))]
-        kinds[n] = "bootstrap"
     if kinds:
         out["interval_kind"] = kinds
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):

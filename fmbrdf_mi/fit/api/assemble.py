@@ -46,10 +46,7 @@ def assemble(fx):
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
         fx.solution = dataclasses.replace(sol, J=J, r=r)
         n_ind = None if loss != "likelihood" else len(data.pixels) * objective.dof - problem.n_eliminated(st)
-        opts = fx.options
-        sub = None if data.subsample is None or data.make_problem is not None else (
-            lambda n: data.subsample(n).problem(problem.model, opts.bounds, None, opts.fixed, None))
-        c = U.covariance(problem, st, J, r, n_ind, parts, sub)
+        c = U.covariance(problem, st, J, r, n_ind, parts)
         fx.applied, unc = c.applied, U.summary(problem, st, c)
         if U.noise_flagged(unc):
             report("[fit] warning: " + U.misfit_text(unc))
