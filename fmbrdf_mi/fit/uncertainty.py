@@ -398,10 +398,20 @@ def quadrature_bias(problem, fine, st, J, r):
     parts = fine.parts(st)
     fine.set_weights(parts, st)
     d = r - fine.obj.residuals(parts, st)
+    return shift_in_se(problem, J, J.T @ d)
+
+
+def shift_in_se(problem, J, g, V=None):
+    """{shape parameter: -(J^T J)^-1 g / its unscaled Fisher SE}; with ``V`` (the covariance of ``g``) also
+    {shape parameter: the shift's SE / that SE}."""
     Hi = np.linalg.pinv(J.T @ J)
-    b = -Hi @ (J.T @ d)
+    b = -Hi @ g
     se = np.sqrt(np.clip(np.diag(Hi), 1e-300, None))
-    return {n: float(b[i] / se[i]) for i, n in enumerate(problem.names)}
+    shift = {n: float(b[i] / se[i]) for i, n in enumerate(problem.names)}
+    if V is None:
+        return shift
+    sb = np.sqrt(np.clip(np.diag(Hi @ V @ Hi), 0.0, None))
+    return shift, {n: float(sb[i] / se[i]) for i, n in enumerate(problem.names)}
 
 
 #: A sampled check (:func:`sampled_quadrature_bias`) refines while |bias| plus this many of its sampling
@@ -470,12 +480,7 @@ def sampled_quadrature_bias(problem, fine, st, J, r, cells, pi, g_hat):
     e = cell_terms(J[rows], r[rows] - r_fine, ms) - g_hat[cells]
     G = g_hat.sum(0) + (e / pi[:, None]).sum(0)
     V = (e * ((1.0 - pi) / pi ** 2)[:, None]).T @ e
-    Hi = np.linalg.pinv(J.T @ J)
-    b = -Hi @ G
-    sb = np.sqrt(np.clip(np.diag(Hi @ V @ Hi), 0.0, None))
-    se = np.sqrt(np.clip(np.diag(Hi), 1e-300, None))
-    return ({n: float(b[i] / se[i]) for i, n in enumerate(problem.names)},
-            {n: float(sb[i] / se[i]) for i, n in enumerate(problem.names)})
+    return shift_in_se(problem, J, G, V)
 
 
 def sample_state(problem, fine, st):
