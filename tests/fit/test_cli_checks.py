@@ -1,4 +1,4 @@
-"""The command line's one table of which options each mode refuses or needs (fmbrdf_mi/fit/cli/checks.py).
+"""The command line's one table of which options each mode refuses or needs (fmbrdf_mi/fit/cli/command.py).
 
 Every row of the table is exercised: each refused option, given alone, is
 named in a one-line error for its mode, and the options that are not given
@@ -13,7 +13,7 @@ import os
 
 import pytest
 
-from fmbrdf_mi.fit.cli.checks import NEEDS, REFUSED, check_needs, given, named, refuse
+from fmbrdf_mi.fit.cli.command import NEEDS, REFUSED, check_needs, given, named, refuse
 from fmbrdf_mi.fit.cli.command import add_fit_arguments
 from fmbrdf_mi.fit.errors import InputError
 
@@ -80,7 +80,7 @@ def test_refused_before_any_file_is_read(tmp_path, capsys):
 def test_defaults_table_matches_the_parser():
     """checks.DEFAULTS (what --from tells given options by) is the parser's: no option is 'given' by
     default, and each option given is named."""
-    from fmbrdf_mi.fit.cli.checks import DEFAULTS, given_options
+    from fmbrdf_mi.fit.cli.command import DEFAULTS, given_options
 
     p = argparse.ArgumentParser()
     add_fit_arguments(p)
@@ -117,7 +117,7 @@ def test_every_option_is_on_the_command_line_with_its_help():
 def test_typed_options_counts_values_at_their_default():
     """--from tells what was typed from the command line itself: an option typed at its default value counts
     (a value compared with the default would miss it), a repeated option too."""
-    from fmbrdf_mi.fit.cli.checks import typed_options
+    from fmbrdf_mi.fit.cli.command import typed_options
 
     typed = typed_options(["a.png", "--albedo", "shared", "--fix", "kappa=0", "--fix", "eta=1.5", "--baselines",
                            "-o", "x"])

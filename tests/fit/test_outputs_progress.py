@@ -53,7 +53,7 @@ def test_the_albedo_maps_count_as_a_step_each(tmp_path):
     import numpy as np
 
     from fmbrdf_mi.fit.outputs.single import write_maps
-    from fmbrdf_mi.fit.outputs.writer import MAP_OUTPUTS
+    from fmbrdf_mi.fit.outputs.job import MAP_OUTPUTS
 
     k = np.full((4, 5), 0.5)
     k[0, 0] = np.nan

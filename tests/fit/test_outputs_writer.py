@@ -76,7 +76,7 @@ def test_a_forced_shared_fit_removes_an_earlier_per_pixel_fits_maps(tmp_path, st
 
 def test_known_output_names_cover_every_mode():
     from fmbrdf_mi.fit.outputs import normals, single
-    from fmbrdf_mi.fit.outputs.writer import FIXED_OUTPUTS, joint_outputs
+    from fmbrdf_mi.fit.outputs.job import FIXED_OUTPUTS, joint_outputs
 
     colour = joint_outputs("o", [None], [False], "per-pixel", colour=True)   # a colour fit of one mosaic
     names = set(single.output_files("o", True, "per-pixel", "auto:2")) | {os.path.basename(p) for p in colour} \

@@ -27,7 +27,7 @@ class Option:
     :func:`fmbrdf_mi.fit.api.options.check_fit_options`: a table, a file name, a vector).  ``fit``: a field of
     :class:`~fmbrdf_mi.fit.api.options.FitOptions`.  ``records``: the fit.json records that keep it
     (:data:`RECORDS`), ``if_given`` those of them that keep it only when it is given.  ``refused_by``: the
-    modes of ``fmbrdf-mi fit`` that refuse it (:data:`fmbrdf_mi.fit.cli.checks.REFUSED`).  ``flag``: its
+    modes of ``fmbrdf-mi fit`` that refuse it (:data:`fmbrdf_mi.fit.cli.command.REFUSED`).  ``flag``: its
     command-line flag (None: not on the command line), ``group`` its help section, ``cli`` further
     :meth:`argparse.ArgumentParser.add_argument` keywords.  ``parse``: text form -> value
     (``"kappa=0"`` -> ``{"kappa": 0.0}``).  ``many``: a value may be a list of up to this many

@@ -22,7 +22,7 @@ from fmbrdf_mi.fit.outputs import record
 from fmbrdf_mi.fit.outputs.job import FitJob
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
 from fmbrdf_mi.fit.outputs.single import write_maps
-from fmbrdf_mi.fit.outputs.writer import image_entries, joint_outputs, prepare_outputs
+from fmbrdf_mi.fit.outputs.job import image_entries, joint_outputs, prepare_outputs
 from fmbrdf_mi.sensor.mosaic import COLOURS
 
 #: The keywords of :func:`~fmbrdf_mi.fit.api.colour.fit_colour` the command sets.

@@ -21,7 +21,7 @@ from fmbrdf_mi.fit.outputs.record import command_block, joint_block, sha256
 from fmbrdf_mi.fit.inputs.labels import read_labels
 from fmbrdf_mi.fit.api.find_materials import parse_auto
 from fmbrdf_mi.fit.outputs.single import ImageFits, model_entries
-from fmbrdf_mi.fit.outputs.writer import image_entries, joint_outputs, prepare_outputs
+from fmbrdf_mi.fit.outputs.job import image_entries, joint_outputs, prepare_outputs
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 
 

@@ -106,14 +106,12 @@ def model_dolp(stokes, lin_variance=None):
 
 
 def _binned(x, y, bins):
-    idx = np.digitize(x, bins) - 1
-    centres, means = [], []
-    for b in range(len(bins) - 1):
-        sel = idx == b
-        if sel.sum() >= 3:
-            centres.append(0.5 * (bins[b] + bins[b + 1]))
-            means.append(np.mean(y[sel]))
-    return np.array(centres), np.array(means)
+    """(bin centres, means of ``y``) of the ``bins`` of ``x`` holding at least 3 points."""
+    idx, nb = np.digitize(x, bins) - 1, len(bins) - 1
+    ok = (idx >= 0) & (idx < nb)
+    n = np.bincount(idx[ok], minlength=nb)
+    full = n >= 3
+    return (0.5 * (bins[:-1] + bins[1:]))[full], (np.bincount(idx[ok], y[ok], nb)[full] / n[full])
 
 
 def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_points=4000, seed=0):
@@ -238,39 +236,27 @@ def plot_albedo_maps(maps, path, title=""):
     """Per-pixel albedo maps (k_s, k_b, their relative standard errors, where the split is identified), cropped
     to the fitted pixels, a colour fit's one row per channel; grey scales from the albedos with relative
     standard error at most 0.5, so poorly determined ones show clipped."""
-    plt = pyplot()
-    ks_all = np.asarray(maps["k_s"], dtype=np.float64)
-    colour = ks_all.ndim == 3
+    a = {k: np.asarray(maps[k], dtype=np.float64) for k in ("k_s", "k_b", "k_s_se", "k_b_se", "identified")}
+    colour = a["k_s"].ndim == 3
     labels = (maps.get("channels") or ["R", "G", "B"]) if colour else [None]
-
-    def layer(key, c, dtype=np.float64):
-        a = np.asarray(maps[key], dtype=dtype)
-        return a[c] if colour else a
-
-    crop = crop_to(np.any(np.isfinite(ks_all), axis=0) if colour else np.isfinite(ks_all), pad=1)
-    rows = []
+    crop = crop_to(np.any(np.isfinite(a["k_s"]), axis=0) if colour else np.isfinite(a["k_s"]), pad=1)
+    fig, axes = pyplot().subplots(len(labels), 5, figsize=(16.0, 3.6 * len(labels)), squeeze=False)
     for c, label in enumerate(labels):
-        ks, kb = layer("k_s", c), layer("k_b", c)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rs, rb = layer("k_s_se", c) / ks, layer("k_b_se", c) / kb
-        fitted = np.isfinite(ks)
-        ident = np.where(fitted, layer("identified", c, float), np.nan)
-        tag = "" if label is None else f"{label}: "
-        with np.errstate(invalid="ignore"):
-            sel_s, sel_b = (fitted & (layer(k + "_se", c) <= 0.5 * v) for k, v in (("k_s", ks), ("k_b", kb)))
-        sel_s, sel_b = (sel if sel.any() else fitted for sel in (sel_s, sel_b))
-        rows.append(((tag + "k_s", ks, dict(vmin=0, vmax=scale_from(ks, sel_s), cmap="gray")),
-                     (tag + "k_b", kb, dict(vmin=0, vmax=scale_from(kb, sel_b), cmap="gray")),
-                     (tag + "SE(k_s) / k_s", rs, dict(vmin=0, vmax=min(scale_from(rs, fitted, 95.0), 1.0),
-                                                      cmap="magma")),
-                     (tag + "SE(k_b) / k_b", rb, dict(vmin=0, vmax=min(scale_from(rb, fitted, 95.0), 1.0),
-                                                      cmap="magma")),
-                     (tag + "split identified (both SE <= 0.5)", ident, dict(vmin=0, vmax=1, cmap="RdYlGn"))))
-    ncol = len(rows[0])
-    fig, axes = plt.subplots(len(rows), ncol, figsize=(3.2 * ncol, 3.6 * len(rows)), squeeze=False)
-    for r, panels in enumerate(rows):
-        for ax, (name, img, kw) in zip(axes[r], panels):
-            panel(fig, ax, img[crop], name, **kw)
+        m = {k: v[c] if colour else v for k, v in a.items()}
+        fitted, tag = np.isfinite(m["k_s"]), "" if label is None else f"{label}: "
+        panels = []
+        for k in ("k_s", "k_b"):
+            with np.errstate(invalid="ignore"):
+                sel = fitted & (m[k + "_se"] <= 0.5 * m[k])
+            panels.append((k, m[k], dict(vmin=0, vmax=scale_from(m[k], sel if sel.any() else fitted), cmap="gray")))
+        for k in ("k_s", "k_b"):
+            with np.errstate(invalid="ignore", divide="ignore"):
+                r = m[k + "_se"] / m[k]
+            panels.append((f"SE({k}) / {k}", r, dict(vmin=0, vmax=min(scale_from(r, fitted, 95.0), 1.0), cmap="magma")))
+        panels.append(("split identified (both SE <= 0.5)", np.where(fitted, m["identified"], np.nan),
+                       dict(vmin=0, vmax=1, cmap="RdYlGn")))
+        for ax, (name, img, kw) in zip(axes[c], panels):
+            panel(fig, ax, img[crop], tag + name, **kw)
     save(fig, path, 110, title)
 
 
@@ -280,6 +266,7 @@ def plot_materials(labels, pixels, block, path, title=""):
     fit.json's ``materials`` block)."""
     plt = pyplot()
     from matplotlib import colors
+    from matplotlib.patches import Patch
 
     lab = np.asarray(labels)
     M = int(block["count"])
@@ -295,13 +282,8 @@ def plot_materials(labels, pixels, block, path, title=""):
     fig, ax = plt.subplots(figsize=(5.5, 4.8))
     ax.imshow(rgb, interpolation="nearest")
     ax.axis("off")
-    from matplotlib.patches import Patch
-
-    handles = []
-    for m in range(M):
-        p = block["parameters"][m]
-        text = ", ".join(f"{k}={v:.3g}" for k, v in p.items())
-        handles.append(Patch(color=cmap(m % cmap.N), label=f"{m}: {block['pixels'][m]} px; {text}"))
+    handles = [Patch(color=cmap(m % cmap.N), label=f"{m}: {block['pixels'][m]} px; "
+                     + ", ".join(f"{k}={v:.3g}" for k, v in block["parameters"][m].items())) for m in range(M)]
     ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02), fontsize=7, frameon=False)
     ax.set_title(title or f"{M} materials (faint: labelled, not fitted; grey: no material)", fontsize=9)
     save(fig, path, 110)

@@ -24,7 +24,7 @@ from fmbrdf_mi.fit.inputs.labels import read_labels, write_labels
 from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS
 from fmbrdf_mi.fit.outputs import plots, record
 from fmbrdf_mi.fit.outputs.job import FitJob
-from fmbrdf_mi.fit.outputs.writer import MAP_OUTPUTS, MATERIAL_OUTPUTS
+from fmbrdf_mi.fit.outputs.job import MAP_OUTPUTS, MATERIAL_OUTPUTS
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 from fmbrdf_mi.fit.problem.free_power import fitted_observation, power_text
 
@@ -40,18 +40,13 @@ def output_files(out, relight, albedo="shared", materials=None):
 
 
 def fit_files(inputs, out, *, force=False, progress=True, command=None, **options):
-    """Fit ``model`` (with ``baselines``, the baselines too) to one polarimetric image and write the outputs.
+    """Fit ``model`` (and, with ``baselines``, the baselines) to one polarimetric image; write :func:`output_files`.
 
-    ``inputs``: a Stokes EXR, a raw mosaic (.npy / 16-bit .png / .tif), a (4, H, W) .npy of angle images or four
-    angle-image files (0, 45, 90, 135 degrees); an EXR written by ``fmbrdf-mi render`` (built-in sphere) brings
-    its own geometry, light and true parameters.  ``options``: the single-image options of
-    :data:`fmbrdf_mi.fit.api.options.OPTIONS` (the command line's, underscored; unknown ones are refused).
-
-    Writes ``out``/fit.json, profiles.png, images.png, history.png, fitted_stokes.exr and those its options add
-    (relight, per-pixel albedo maps, materials), refusing to overwrite them without ``force``.
-    Returns the dict written to fit.json, plus ``outputs`` (the files written) and ``wall_s``.
+    ``inputs``: a Stokes EXR (one from ``fmbrdf-mi render`` brings its geometry, light and true parameters), a raw
+    mosaic (.npy / 16-bit .png / .tif), a (4, H, W) .npy or four files of angle images (0, 45, 90, 135 degrees).
+    ``options``: the single-image options of :data:`fmbrdf_mi.fit.api.options.OPTIONS`.  Returns the dict
+    written to fit.json, plus ``outputs`` (the files written) and ``wall_s``.
     """
-
     arguments = arguments_of("single", dict(options, inputs=inputs), "fit_files()")
     return SingleImage(arguments, out, force=force, progress=progress, command=command).run()
 
@@ -143,14 +138,14 @@ class SingleImage(ImageFits):
         self.found = None
         self.labels = None if a["materials"] is None or self.auto else read_labels(a["materials"])
         self.obs = obs = build_observation(a["inputs"], light=a["light"], **{k: a[k] for k in IMAGE_KEYS})
-        files = {k: a[k] for k in ("layout", "black_level", "channel", "demosaic", "conversion_gain", "read_noise",
-                                   "footprint")}
         self.obs2 = None
         if a["relight"] is not None:
             geom = None if (a["normals"] is None and a["sphere"] is None and "truth" in obs.meta) \
                 else (obs.normals, obs.mask, obs.view_dirs)
             self.obs2 = build_observation(a["relight"], light=a["relight_light"], irradiance=a["relight_irradiance"],
-                                          geometry=geom, **files)
+                                          geometry=geom, **{k: a[k] for k in ("layout", "black_level", "channel",
+                                                                              "demosaic", "conversion_gain",
+                                                                              "read_noise", "footprint")})
             if self.obs2.shape != obs.shape:
                 raise InputError(f"relight image: shape {self.obs2.shape} differs from the fitted image {obs.shape}")
 
@@ -205,13 +200,10 @@ class SingleImage(ImageFits):
 def model_entries(results, model, truth):
     """fit.json's ``models``: each fit's record, ``model``'s with its ``relative_error`` to the input's ``truth``
     (the parameters the input was rendered with) when there is one."""
-    entries = {}
-    for name, res in results.items():
-        entry = res.to_json()
-        if name == model and truth:
-            entry["relative_error"] = {k: (v - truth[k]) / truth[k] for k, v in res.params.items()
-                                       if isinstance(truth.get(k), (int, float)) and truth[k] != 0}
-        entries[name] = entry
+    entries = {name: res.to_json() for name, res in results.items()}
+    if truth:
+        entries[model]["relative_error"] = {k: (v - truth[k]) / truth[k] for k, v in results[model].params.items()
+                                            if isinstance(truth.get(k), (int, float)) and truth[k] != 0}
     return entries
 
 
@@ -239,7 +231,7 @@ def shown_pixels(o, pixels, opts, labels=None):
     return every if np.isin(pixels, every).all() else pixels
 
 
-def write_maps(res, model, out, report, wrote=None):
+def write_maps(res, model, out, report, wrote=lambda path: None):
     """:data:`~fmbrdf_mi.fit.outputs.writer.MAP_OUTPUTS` of a per-pixel albedo fit ``res`` (NaN where not
     fitted; the shape parameters in each EXR's metadata), named in ``report["albedo_maps"]``; ``wrote``: called
     with each file's path once it is written."""
@@ -249,25 +241,22 @@ def write_maps(res, model, out, report, wrote=None):
     meta = {"fit": res.params, "model": model, "albedo": res.albedo}
     for key in ("k_s", "k_b", "k_s_se", "k_b_se"):
         stokes_io.write_map_exr(outs[f"{key}.exr"], res.maps[key], dict(meta, map=key), force=True)
-        wrote(outs[f"{key}.exr"]) if wrote else None
+        wrote(outs[f"{key}.exr"])
     a = res.albedo
     plots.plot_albedo_maps(res.maps, outs["albedo_maps.png"],
                            title=f"{model} per-pixel albedos: {a['pixels']} pixels, split identified in "
                                  f"{a['identified_fraction']:.0%}; " + ", ".join(f"{k}={v:.3g}"
                                                                                  for k, v in res.params.items()))
-    wrote(outs["albedo_maps.png"]) if wrote else None
+    wrote(outs["albedo_maps.png"])
     report["albedo_maps"] = outs
 
 
 def _render_scene(obs, model):
     """The built-in sphere scene of a synthetic EXR, with the model's BSDF, for the render path."""
-    meta = obs.meta
-    if model != "fmbrdf" or meta.get("scene") != "builtin:sphere":
+    if model != "fmbrdf" or obs.meta.get("scene") != "builtin:sphere":
         raise InputError("path 'render' needs a Stokes EXR written by `fmbrdf-mi render` for the built-in "
                          "sphere (the scene is rebuilt from its metadata) and the fmbrdf model")
-
-    mi = set_variant()
-    p = meta["parameters"]
+    mi, p = set_variant(), obs.meta["parameters"]
     d = S.sphere_scene({"k_s": 1.0, "k_b": 1.0}, light_dir=p["light_dir"], irradiance=p["irradiance"],
                        resolution=(int(p["width"]), int(p["height"])), spp=int(p.get("spp", 16)),
                        camera=p["camera"], fov=p["fov"], distance=p["distance"])

@@ -87,20 +87,18 @@ def print_normals(report):
     rn = report["refine_normals"]
     for name, mdl in report["models"].items():
         unc = mdl.get("uncertainty") or {}
-        std, ci = unc.get("std_errors", {}), unc.get("ci95", {})
         print(f"{name}: normal refinement ({'converged' if rn['converged'] else 'NOT converged'}: {rn['stop_reason']})"
               f", {rn['pixels']} pixels, start {rn['start']}, smoothness {rn['smooth']:g}"
               + (f" (material at {rn['material_stage']['lam']:g})" if rn.get("material_stage") else ""))
         for k, v in mdl["params"].items():
-            print(param_line(k, v, std.get(k), ci.get(k)))
+            print(param_line(k, v, unc.get("std_errors", {}).get(k), unc.get("ci95", {}).get(k)))
         if mdl.get("uncertainty_uncalibrated"):
             print("  no standard errors: " + mdl["uncertainty_uncalibrated"].get("warning", "not calibrated")
                   + " (fit.json: uncertainty_uncalibrated; docs: how-to 'Fit several images of one object', "
                   "Normal refinement)")
         uncertainty_lines(unc)
-    ch = rn["angle_change"]
+    ch, ae = rn["angle_change"], rn.get("angular_error")
     print(f"  normals moved from the start by {ch['mean']:.2f} deg mean, {ch['median']:.2f} deg median")
-    ae = rn.get("angular_error")
     if ae:
         b, a = ae["before"], ae["after"]
         print(f"  angle to the ground truth: before {b['mean']:.2f} / {b['median']:.2f} deg, after "
