@@ -30,16 +30,14 @@ from fmbrdf_mi.fit.inputs.files import build_observation
 from fmbrdf_mi.fit.inputs.manifest import ImageSpec
 from fmbrdf_mi.fit.inputs.observations import UNIT_TOL, read_array, read_mask
 
-#: OpenCV camera axes (x right, y down, z forward) -> this package's (x right, y up, z towards the camera)
-CV_TO_OURS = np.array([1.0, -1.0, -1.0])
-
-
+#: The polariser layout of the authors' mosaics (2x2, row-major).
 AUTHORS_LAYOUT = ((90, 45), (135, 0))
 
 
 def cv_to_ours(v):
-    """Directions (..., 3) in OpenCV camera axes -> this package's camera frame."""
-    return np.asarray(v, dtype=np.float64) * CV_TO_OURS
+    """Directions (..., 3) in OpenCV camera axes (x right, y down, z forward) -> this package's camera frame
+    (x right, y up, z towards the camera)."""
+    return np.asarray(v, dtype=np.float64) * np.array([1.0, -1.0, -1.0])
 
 
 def rays_from_intrinsics(K, shape, path=None):
@@ -74,26 +72,28 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
     if not os.path.isdir(root):
         raise InputError(f"authors' object directory {root}: " + ("not a directory" if os.path.exists(root)
                                                                     else "no such directory"))
+
+    def need(path, what):
+        if not os.path.isfile(path):
+            raise InputError(f"{path}: no such file ({what})")
+        return path
+
     cal = os.path.join(root, "calibration")
-    lfile = os.path.join(cal, "L.txt")
-    if not os.path.isfile(lfile):
-        raise InputError(f"{lfile}: no such file (one comma-separated light direction per image)")
+    lfile = need(os.path.join(cal, "L.txt"), "one comma-separated light direction per image")
     try:
         L = np.loadtxt(lfile, delimiter=",", ndmin=2)
     except ValueError as exc:
         raise InputError(f"{lfile}: expected rows of three comma-separated numbers ({exc})") from None
     if L.ndim != 2 or L.shape[1] != 3:
         raise InputError(f"{lfile}: expected rows x,y,z, got shape {L.shape}")
-    bad = [k for k in range(len(L)) if not (np.all(np.isfinite(L[k])) and np.any(L[k]))]
-    if bad:
+    bad = np.flatnonzero(~(np.isfinite(L).all(axis=1) & L.any(axis=1)))
+    if bad.size:
         raise InputError(f"{lfile}: row {bad[0] + 1} (image {bad[0]}) is {L[bad[0]].tolist()}: each light "
                          "must be three finite numbers, not all zero")
     files = sorted(glob.glob(os.path.join(root, "image", "img_ud", "*.png")))
     if len(files) != len(L):
         raise InputError(f"{root}/image/img_ud: {len(files)} .png images but {len(L)} lights in L.txt")
-    nfile = os.path.join(root, "normal", "normal_GT.npy")
-    if not os.path.isfile(nfile):
-        raise InputError(f"{nfile}: no such file (ground-truth normals, h x w x 3)")
+    nfile = need(os.path.join(root, "normal", "normal_GT.npy"), "ground-truth normals, h x w x 3")
     n = read_array(nfile, "normals")
     if n.ndim != 3 or n.shape[2] != 3:
         raise InputError(f"{nfile}: expected shape (h, w, 3), got {n.shape}")
@@ -125,11 +125,9 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
     else:
         raise InputError(f"{cal}: neither vpL_img.npy nor IntrinsicL.npy (the viewing rays)")
     if mask is None:
-        for cand in ("mask_ud.npy", "mask.npy", "mask.png"):
-            if os.path.isfile(os.path.join(root, cand)):
-                mask = os.path.join(root, cand)
-                break
-        else:
+        mask = next((os.path.join(root, c) for c in ("mask_ud.npy", "mask.npy", "mask.png")
+                     if os.path.isfile(os.path.join(root, c))), None)
+        if mask is None:
             raise InputError(f"{root}: no mask (mask_ud.npy, mask.npy or mask.png; or give one)")
     m = read_mask(mask)
     if m.shape == (2 * h, 2 * w):
@@ -151,21 +149,19 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
     power = np.ones(len(L))
     if os.path.isfile(ifile):
         p = read_array(ifile, "light intensities")
-        if not np.issubdtype(p.dtype, np.number):
-            raise InputError(f"{ifile}: expected {len(L)} positive light intensities, got an array of {p.dtype}")
-        p = p.astype(np.float64).ravel()
-        if p.shape != (len(L),):
+        if not np.issubdtype(p.dtype, np.number) or p.size != len(L):
             raise InputError(f"{ifile}: expected {len(L)} positive light intensities (one per image), got "
-                             f"shape {p.shape}")
-        bad = [k for k in range(len(p)) if not (np.isfinite(p[k]) and p[k] > 0)]
-        if bad:
+                             + (f"shape {p.ravel().shape}" if np.issubdtype(p.dtype, np.number) else
+                                f"an array of {p.dtype}"))
+        p = p.astype(np.float64).ravel()
+        bad = np.flatnonzero(~(np.isfinite(p) & (p > 0)))
+        if bad.size:
             raise InputError(f"{ifile}: entry {bad[0]} is {p[bad[0]]:g}: expected {len(L)} finite light "
                              "intensities > 0 (one per image)")
         power = p / p.max()
     holdout = {int(k) for k in holdout}
-    bad = [k for k in holdout if not 0 <= k < len(L)]
-    if bad:
-        raise InputError(f"holdout: image index {bad[0]} outside 0..{len(L) - 1}")
+    for k in holdout - set(range(len(L))):
+        raise InputError(f"holdout: image index {k} outside 0..{len(L) - 1}")
     specs = []
     for k, f in enumerate(files):
         try:

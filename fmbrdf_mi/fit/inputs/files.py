@@ -22,9 +22,7 @@ from fmbrdf_mi.fit.inputs.parse import check_number, check_render_parameters, pa
 def check_image_options(values, where=None, name=str):
     """The image options among ``values`` checked (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`),
     else InputError naming ``where`` and ``name(key)`` (how the user wrote the key)."""
-    def label(k):
-        return f"{where}: {name(k)}" if where else name(k)
-
+    label = (lambda k: f"{where}: {name(k)}") if where else name
     for k, v in values.items():
         if k == "sphere":
             parse_sphere(v, label(k))
@@ -50,7 +48,6 @@ def _builtin_sphere(meta):
     """Geometry, light, irradiance and true material of an EXR from ``fmbrdf-mi render`` (built-in scene)."""
     if meta.get("scene") != "builtin:sphere" or "parameters" not in meta:
         return None
-
     p = check_render_parameters(meta["parameters"], "")
     n, v, m = S.sphere_geometry((int(p["width"]), int(p["height"])), camera=p["camera"],
                                 fov=p["fov"], distance=p["distance"])
@@ -67,13 +64,12 @@ def builtin_sphere_geometry(p, shape=None):
     The scene: :func:`fmbrdf_mi.scene.sphere_scene`.  A raw mosaic's samples sit off the super-pixel
     centres, and interpolating the pooled normal map errs near the silhouette enough to bias kappa.
     """
-    w, h = int(p["width"]), int(p["height"])
-    shape = (h, w) if shape is None else tuple(shape)
+    shape = (int(p["height"]), int(p["width"])) if shape is None else tuple(shape)
     camera, fov, distance = p["camera"], float(p["fov"]), float(p["distance"])
     if camera == "orthographic":
-        radius = 0.5 * shape[1] / S.half_width(fov, distance)
-        return G.SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, None)
-    radius = G.focal_length(shape[1], fov) * np.tan(np.arcsin(1.0 / distance))  # silhouette: rad = R / D
+        radius, fov = 0.5 * shape[1] / S.half_width(fov, distance), None
+    else:
+        radius = G.focal_length(shape[1], fov) * np.tan(np.arcsin(1.0 / distance))  # silhouette: rad = R / D
     return G.SphereGeometry(shape, (0.5 * shape[1], 0.5 * shape[0]), radius, camera, fov)
 
 
@@ -222,33 +218,24 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                                             camera=camera, fov=fov)
         if sph is not None:
             meta["sphere"] = sph
-    light = check_direction(light, "light")
-    var = None
+    light, src = check_direction(light, "light"), meta.get("source")
+    var = noise = samples = None
+    if src == "raw mosaic":
+        samples = SM.from_raw(array, layout, black_level, white_level, dark_level)
+    elif src == "angle images":
+        samples = SM.from_angle_images(array, black_level, white_level, dark_level,
+                                       integer=np.issubdtype(np.asarray(array).dtype, np.integer))
     if conversion_gain is not None:
         if not (conversion_gain > 0) or read_noise is None or not (read_noise >= 0):
             raise InputError(f"noise: --conversion-gain must be > 0 and --read-noise >= 0 given with it, got "
                              f"{conversion_gain}, {read_noise}")
-        src = meta.get("source")
         var = linear_stokes_variance(stokes[0], float(conversion_gain), float(read_noise),
                                      demosaic if src == "raw mosaic" else "superpixel",
-                                     adc_step_e=float(conversion_gain) if src in ("raw mosaic", "angle images")
-                                     else None)
-
+                                     adc_step_e=float(conversion_gain) if samples is not None else None)
+        noise = NoiseModel(float(conversion_gain), float(read_noise), samples.step if samples is not None else 0.0)
     if footprint == "auto":
-        footprint = "demosaic" if meta.get("source") == "raw mosaic" else "point"
-    fp = {"point": lambda: None, "box": lambda: box_footprint(3),
-          "demosaic": lambda: demosaic_footprint(demosaic)}[footprint]
-    src = meta.get("source")
-    samples = None
-    if src == "raw mosaic":
-        samples = SM.from_raw(array, layout, black_level, white_level, dark_level)
-    elif src == "angle images":
-        integer = np.issubdtype(np.asarray(array).dtype, np.integer)
-        samples = SM.from_angle_images(array, black_level, white_level, dark_level, integer=integer)
-    noise = None
-    if conversion_gain is not None:
-        noise = NoiseModel(float(conversion_gain), float(read_noise),
-                           samples.step if samples is not None else 0.0)
+        footprint = "demosaic" if src == "raw mosaic" else "point"
+    fp = None if footprint == "point" else box_footprint(3) if footprint == "box" else demosaic_footprint(demosaic)
     irradiance = 1.0 if irradiance is None else float(irradiance)
     meta["settings"] = {"layout": [list(r) for r in layout], "black_level": black_level,
                         "demosaic": demosaic if src == "raw mosaic" else None, "footprint": footprint,
@@ -256,5 +243,5 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                         "dark_level": None if samples is None else samples.dark_level,
                         "conversion_gain": conversion_gain, "read_noise": read_noise,
                         "light": [float(x) for x in light], "irradiance": irradiance}
-    return Observation(stokes, m, n, v, light, irradiance, meta, lin_variance=var, footprint=fp(), samples=samples,
+    return Observation(stokes, m, n, v, light, irradiance, meta, lin_variance=var, footprint=fp, samples=samples,
                        noise=noise, geometry=exact)

@@ -10,7 +10,7 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.files import build_observation, check_image_options
 from fmbrdf_mi.fit.inputs.observations import check_direction, check_file
 from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS, IRRADIANCE_RANGE, Option
-from fmbrdf_mi.fit.inputs.parse import parse_layout, parse_vector
+from fmbrdf_mi.fit.inputs.parse import check_keys, parse_layout, parse_vector
 
 #: An image's keys that name files.
 PATH_KEYS = ("input", "normals", "mask", "view")
@@ -61,9 +61,7 @@ def image_spec(input, light=None, power=1.0, holdout=False, name=None, options=N
         raise InputError(f"{where}: name: expected text, got {name!r}")
     if not isinstance(options, dict):
         raise InputError(f"{where}{at}: expected a table, got {options!r}")
-    bad = [x for x in options if x not in IMAGE_KEYS]
-    if bad:
-        raise InputError(f"{where}{at}: unknown key(s) {', '.join(map(str, bad))} (valid: {', '.join(IMAGE_KEYS)})")
+    check_keys(options, IMAGE_KEYS, where + at)
     return ImageSpec(input, light, float(power), holdout, name, check_options(options, where + at))
 
 
@@ -110,15 +108,11 @@ def read_manifest(path):
 def parse_manifest(d, base=".", where="manifest"):
     if not isinstance(d, dict):
         raise InputError(f"{where}: expected a table with [defaults] and [[image]] entries")
-    unknown = [k for k in d if k not in ("defaults", "image", "images")]
-    if unknown:
-        raise InputError(f"{where}: unknown key(s) {', '.join(unknown)} (expected defaults, image)")
+    check_keys(d, ("defaults", "image", "images"), where, shown="expected defaults, image")
     defaults = d.get("defaults", {}) or {}
     if not isinstance(defaults, dict):
         raise InputError(f"{where}: defaults must be a table")
-    bad = [k for k in defaults if k not in IMAGE_KEYS]
-    if bad:
-        raise InputError(f"{where}: defaults: unknown key(s) {', '.join(bad)} (valid: {', '.join(IMAGE_KEYS)})")
+    check_keys(defaults, IMAGE_KEYS, f"{where}: defaults")
     defaults = check_options(defaults, f"{where}: defaults")
     entries = d.get("image", d.get("images"))
     if not isinstance(entries, list) or not entries:
@@ -135,9 +129,7 @@ def parse_manifest(d, base=".", where="manifest"):
     for k, e in enumerate(entries):
         if not isinstance(e, dict) or "input" not in e:
             raise InputError(f"{where}: image {k}: expected a table with at least 'input'")
-        bad = [x for x in e if x not in ENTRY_KEYS]
-        if bad:
-            raise InputError(f"{where}: image {k}: unknown key(s) {', '.join(bad)} (valid: {', '.join(ENTRY_KEYS)})")
+        check_keys(e, ENTRY_KEYS, f"{where}: image {k}")
         s = image_spec(e["input"], e.get("light"), e.get("power", 1.0), e.get("holdout", False), e.get("name"),
                        {x: e[x] for x in IMAGE_KEYS if x in e}, where=f"{where}: image {k}")
         s.input, s.options = rel(s.input), {**defaults, **s.options}

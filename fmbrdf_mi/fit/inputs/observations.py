@@ -14,7 +14,7 @@ import numpy as np
 
 from fmbrdf_mi import stokes_io
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.inputs.options import IMAGE_OPTION, IRRADIANCE_RANGE
+from fmbrdf_mi.fit.inputs.options import IMAGE_OPTION
 from fmbrdf_mi.sensor import mosaic
 from fmbrdf_mi.sensor.mosaic import stokes_from_angles, stokes_from_raw
 
@@ -22,8 +22,6 @@ from fmbrdf_mi.sensor.mosaic import stokes_from_angles, stokes_from_raw
 UNIT_TOL = 1e-3
 
 
-
-# ---------------------------------------------------------------- the container
 @dataclasses.dataclass
 class Observation:
     """One polarimetric image of an object of known geometry under a directional light.
@@ -133,14 +131,7 @@ def validate(obs):
         raise InputError(f"samples: expected shape ({obs.samples.n}, {h}, {w}) ({obs.samples.n} samples per cell, "
                          f"{obs.samples.source}) to match the image, got {obs.samples.values.shape}")
     obs.light_dir = check_direction(obs.light_dir, "light_dir")
-    lo, hi = IRRADIANCE_RANGE
-    try:
-        obs.irradiance = float(obs.irradiance)
-    except (TypeError, ValueError):
-        raise InputError(f"irradiance: expected a number in [{lo:g}, {hi:g}], got {obs.irradiance!r}") from None
-    if not (np.isfinite(obs.irradiance) and lo <= obs.irradiance <= hi):
-        raise InputError(f"irradiance: must be a positive number in [{lo:g}, {hi:g}] (light power x irradiance, image "
-                         f"units), got {obs.irradiance:g}")
+    obs.irradiance = float(IMAGE_OPTION["irradiance"].check(obs.irradiance))   # light power x irradiance
     n = obs.normals[mask]
     if not np.any(n @ obs.light_dir > 0.0):
         raise InputError(f"light_dir {obs.light_dir.round(4).tolist()}: the light is below the horizon "
@@ -156,17 +147,13 @@ def check_direction(v, name):
     if v is None:
         raise InputError(f"{name}: give the light direction (--light x,y,z, from the surface towards the light; "
                          "x image right, y image up, z towards the camera)")
-    shown = v.tolist() if isinstance(v, np.ndarray) else v
-    if isinstance(v, (str, bytes)):
-        raise InputError(f"{name}: expected three numbers x, y, z (x right, y up, z towards the camera), "
-                         f"got {shown!r}")
     try:
-        a = np.asarray(v, dtype=np.float64).reshape(-1)
+        a = None if isinstance(v, (str, bytes)) else np.asarray(v, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
-        raise InputError(f"{name}: expected three numbers x, y, z, got {shown!r}") from None
-    if a.shape != (3,) or not np.all(np.isfinite(a)) or not np.any(a):
-        raise InputError(f"{name}: expected a finite non-zero 3-vector (x right, y up, z towards "
-                         f"the camera), got {shown!r}")
+        a = None
+    if a is None or a.shape != (3,) or not np.all(np.isfinite(a)) or not np.any(a):
+        raise InputError(f"{name}: expected a finite non-zero 3-vector, three numbers x, y, z (x right, y up, z "
+                         f"towards the camera), got {v.tolist() if isinstance(v, np.ndarray) else v!r}")
     with np.errstate(over="ignore", under="ignore"):
         n = np.linalg.norm(a)
     if not 1e-150 < n < 1e150:     # e.g. (1e308, 0, 0): scale first so the norm does not overflow
@@ -208,7 +195,6 @@ def check_observations(observations, where, least=1):
     return list(items)
 
 
-# ---------------------------------------------------------------- polarimetric images
 def check_file(path, what):
     """InputError unless ``path`` is a regular file: a directory or a device is said to be one."""
     path = os.fspath(path)
@@ -254,21 +240,6 @@ def check_samples(a, name):
     return a
 
 
-def select_channel(stokes, channel="mean"):
-    """(3, H, W) from a (4, H, W, C) Stokes array: one colour channel or their mean (exact for the fit: the
-    model is linear in the albedos, the other parameters are shared by all channels)."""
-    s = np.asarray(stokes, dtype=np.float64)
-    if s.ndim == 3:
-        return s[:3]
-    c = s.shape[-1]
-    names = stokes_io.COLOUR_CHANNELS.get(c, ())
-    if channel in (None, "mean"):
-        return s[:3].mean(axis=-1)
-    if channel in names:
-        return s[:3, ..., names.index(channel)]
-    raise InputError(f"channel: expected 'mean' or one of {names}, got {channel!r}")
-
-
 def load_polarisation(paths, *, layout=mosaic.IMX250MZR_LAYOUT, channel="mean", black_level=0.0,
                       demosaic="bilinear"):
     """Read a polarimetric image; returns ``(stokes (3, H, W) float64, meta dict)``.
@@ -308,9 +279,16 @@ def load_polarisation(paths, *, layout=mosaic.IMX250MZR_LAYOUT, channel="mean", 
             stokes, meta = stokes_io.read_stokes_exr(path)
         except stokes_io.StokesFileError as exc:
             raise InputError(str(exc)) from None
-        if np.ndim(stokes) == 3:
+        s = np.asarray(stokes, dtype=np.float64)
+        if s.ndim == 3:
             one_channel(f"the Stokes EXR {path}")
-        return select_channel(stokes, channel), meta
+            return s[:3], meta
+        names = stokes_io.COLOUR_CHANNELS.get(s.shape[-1], ())   # a colour channel or their mean (exact for the
+        if channel in (None, "mean"):                           # fit: the model is linear in the albedos)
+            return s[:3].mean(axis=-1), meta
+        if channel in names:
+            return s[:3, ..., names.index(channel)], meta
+        raise InputError(f"channel: expected 'mean' or one of {names}, got {channel!r}")
     a = check_samples(read_array(path, "polarisation image"), f"polarisation image {path}")
     if a.ndim in (2, 3):
         one_channel(f"{path} ({'a raw mosaic' if a.ndim == 2 else 'angle images'})")
@@ -326,12 +304,11 @@ def load_polarisation(paths, *, layout=mosaic.IMX250MZR_LAYOUT, channel="mean", 
                      f"got shape {a.shape}")
 
 
-# ---------------------------------------------------------------- geometry
 def read_mask(path_or_array, shape=None):
     """A boolean mask from an array or a .npy / .png file (non-zero = object)."""
-    name = f"mask {os.fspath(path_or_array)}" if isinstance(path_or_array, (str, os.PathLike)) else "mask"
-    m = read_array(path_or_array, "mask") if isinstance(path_or_array, (str, os.PathLike)) \
-        else np.asarray(path_or_array)
+    file = isinstance(path_or_array, (str, os.PathLike))
+    name = f"mask {os.fspath(path_or_array)}" if file else "mask"
+    m = read_array(path_or_array, "mask") if file else np.asarray(path_or_array)
     if m.ndim == 3:
         m = m[..., 0]
     if m.ndim != 2:
@@ -341,9 +318,8 @@ def read_mask(path_or_array, shape=None):
 
 def read_vectors(path_or_array, name, shape=None):
     """(H, W, 3) float64 vectors from an array or a .npy file."""
-    a = read_array(path_or_array, name) if isinstance(path_or_array, (str, os.PathLike)) \
-        else np.asarray(path_or_array)
-    a = np.asarray(a, dtype=np.float64)
+    a = np.asarray(read_array(path_or_array, name) if isinstance(path_or_array, (str, os.PathLike))
+                   else path_or_array, dtype=np.float64)
     if a.ndim != 3 or a.shape[2] != 3:
         raise InputError(f"{name}: expected shape (H, W, 3), got {a.shape}")
     if shape is not None and a.shape[:2] != tuple(shape):
@@ -399,14 +375,12 @@ def erode(mask, pixels=1):
 def downsample_geometry(normals, mask, view_dirs, cell=2):
     """Geometry pooled over ``cell`` x ``cell`` pixels (a power of 2): mean vectors renormalised, mask all."""
     def pool(a):
-        h, w = a.shape[:2]
-        a = a[: h - h % 2, : w - w % 2]
+        a = np.asarray(a, float)[: a.shape[0] - a.shape[0] % 2, : a.shape[1] - a.shape[1] % 2]
         return 0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2])
 
     n, m, v = normals, mask, view_dirs
     for _ in range(int(cell).bit_length() - 1):
-        n, v = pool(np.asarray(n, float)), pool(np.asarray(v, float))
-        m = pool(np.asarray(m, float)) > 0.999
-        n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-        v /= np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+        n, m, v = (pool(a) for a in (n, m, v))
+        n, m, v = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12), m > 0.999, \
+            v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
     return n, m, v

@@ -8,6 +8,13 @@ from fmbrdf_mi.fit.inputs.options import Option
 from fmbrdf_mi.sensor.mosaic import check_layout
 
 
+def check_keys(given, valid, where, what="key(s)", shown=None):
+    """InputError naming ``where`` and the keys of ``given`` not in ``valid`` (listed, or ``shown`` instead)."""
+    bad = [str(k) for k in given if k not in valid]
+    if bad:
+        raise InputError(f"{where}: unknown {what} {', '.join(bad)} ({shown or 'valid: ' + ', '.join(valid)})")
+
+
 def parse_vector(text, name, n=3):
     """``"x,y,z"`` or ``n`` numbers -> a list of ``n`` floats (None passes), else InputError naming ``name``."""
     if text is None:

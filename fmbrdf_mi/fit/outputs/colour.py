@@ -38,17 +38,15 @@ TAKES = {"loss": ("auto", "likelihood"), "albedo": ("shared", "per-pixel")}
 def model_entry(res, truth, fixed):
     """fit.json's ``models[model]`` of a :func:`~fmbrdf_mi.fit.api.colour.fit_colour` result, with its
     ``relative_error`` to the input's ``truth`` when there is one."""
+    unc = res.uncertainty or {}
     entry = {k: res[k] for k in ("model", "params", "std_errors", "chi2", "chi2_per_dof", "n_pixels", "n_samples",
                                  "noise", "evaluations", "time_s", "channels", "converged", "stop_reason")}
-    unc = res.uncertainty or {}
-    entry["ci95"] = None if res.std_errors is None else unc.get("ci95")
-    entry["uncertainty"] = {k: v for k, v in unc.items() if k not in ("std_errors", "ci95")}
-    entry["weakly_identified"] = res.weakly_identified
-    entry["fixed"] = fixed or {}
-    if res.albedo is not None:
-        entry["albedo"] = res.albedo
+    entry.update(ci95=None if res.std_errors is None else unc.get("ci95"),
+                 uncertainty={k: v for k, v in unc.items() if k not in ("std_errors", "ci95")},
+                 weakly_identified=res.weakly_identified, fixed=fixed or {})
+    entry.update({} if res.albedo is None else {"albedo": res.albedo})
     if truth:
-        rel = {}
+        rel = entry["relative_error"] = {}
         for k, t in truth.items():
             val = res.params.get(k)
             if isinstance(val, dict):
@@ -56,7 +54,6 @@ def model_entry(res, truth, fixed):
                 rel[k] = {c: (val[c] - tt[i]) / tt[i] for i, c in enumerate(res.channels) if tt[i]}
             elif val is not None and not isinstance(t, (list, tuple)) and t:
                 rel[k] = (val - t) / t
-        entry["relative_error"] = rel
     return entry
 
 
@@ -64,11 +61,9 @@ def sample_rmse(smp, pred, sel):
     """RMSE / mean of the raw samples in ``sel`` with a prediction (all, and per colour channel)."""
     sel = sel & np.all(np.isfinite(pred), axis=0)
     o, p = smp.values[:, sel], pred[:, sel]
-    out = {"rel_rmse": float(np.sqrt(np.mean((p - o) ** 2)) / np.mean(o)), "n_periods": int(sel.sum())}
-    for c, name in enumerate(COLOURS):
-        m = np.asarray(smp.channel) == c
-        out[f"rel_rmse_{name}"] = float(np.sqrt(np.mean((p[m] - o[m]) ** 2)) / np.mean(o[m]))
-    return out
+    rel = lambda m: float(np.sqrt(np.mean((p[m] - o[m]) ** 2)) / np.mean(o[m]))   # noqa: E731
+    return {"rel_rmse": rel(slice(None)), "n_periods": int(sel.sum()),
+            **{f"rel_rmse_{name}": rel(np.asarray(smp.channel) == c) for c, name in enumerate(COLOURS)}}
 
 
 def fit_colour_files(inputs, out, *, force=False, progress=True, command=None, **options):

@@ -15,7 +15,7 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.colour import is_colour
 from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power, image_names
 from fmbrdf_mi.fit.inputs.observations import check_direction
-from fmbrdf_mi.fit.inputs.parse import parse_vector
+from fmbrdf_mi.fit.inputs.parse import check_keys, parse_vector
 from fmbrdf_mi.fit.outputs.colour import fit_colour_images
 from fmbrdf_mi.fit.outputs.record import command_block, joint_block, sha256
 from fmbrdf_mi.fit.inputs.labels import read_labels
@@ -83,10 +83,7 @@ class Joint(ImageFits):
             raise InputError(f"--materials {self.fit_kw['materials']}: finding the materials is for single-image "
                              "fits so far; for several images give a label image (e.g. the labels.png of a "
                              "single-image fit with auto:M)")
-        unknown = [k for k in self.fit_kw if k not in TAKES]
-        if unknown:
-            raise InputError(f"fit_images(): unknown option(s) {', '.join(map(str, unknown))} (valid: "
-                             f"{', '.join(TAKES)})")
+        check_keys(self.fit_kw, TAKES, "fit_images()", "option(s)")
         check_fit_options(model=self.model, **self.fit_kw)
 
     def files(self):

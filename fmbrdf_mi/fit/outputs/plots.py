@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from fmbrdf_mi import stokes_io
+from fmbrdf_mi.previews import pyplot
 from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg
 from fmbrdf_mi.fit.objectives.loss import Target
 from fmbrdf_mi.sensor import mosaic
@@ -52,15 +53,6 @@ def crop_to(mask, pad=0):
     if not ys.size:
         return slice(None), slice(None)
     return tuple(slice(max(v.min() - pad, 0), v.max() + pad + 1) for v in (ys, xs))
-
-
-def pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def save(fig, path, dpi, title="", tight=False, **kw):

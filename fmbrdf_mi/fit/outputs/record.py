@@ -18,6 +18,7 @@ from fmbrdf_mi.sensor.camera import sidecar_path
 
 
 def sha256(path):
+    """The SHA-256 (hex) of the file ``path``, read in chunks."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -101,10 +102,9 @@ def _geometry(spec, obs):
     """Where image ``spec``'s normals, mask and view directions came from."""
     o = spec.options
     if o.get("normals") is not None:
-        g = {"source": "normal map", "normals": o.get("normals"), "mask": o.get("mask")}
-        g.update({"view": o["view"]} if o.get("view") is not None else
-                 {"camera": o.get("camera", "orthographic"), "fov": o.get("fov")})
-        return g
+        return {"source": "normal map", "normals": o.get("normals"), "mask": o.get("mask"),
+                **({"view": o["view"]} if o.get("view") is not None else
+                   {"camera": o.get("camera", "orthographic"), "fov": o.get("fov")})}
     if o.get("sphere") is not None:
         return {"source": "sphere", "sphere": o["sphere"], "mask": o.get("mask"), "view": o.get("view"),
                 "camera": o.get("camera", "orthographic"), "fov": o.get("fov"), "found": obs.meta.get("sphere")}
@@ -119,33 +119,24 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
     :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` s as fitted (paths resolved); ``observations``: built
     from them; ``authors``: read_object's keywords for ``kind == "authors"``, ``info`` what it read."""
     images = []
-    if kind == "authors":
-        root = info["root"]
-        cal = os.path.join(root, "calibration")
     for k, (s, n, o) in enumerate(zip(specs, names, observations)):
         if kind == "authors":
-            inp = o.meta["authors_layout"]["file"]
-            geo = {"source": "authors' layout", "normals": os.path.join(root, "normal", "normal_GT.npy"),
-                   "view": os.path.join(cal, info["view_rays"]), "mask": absolute_paths(info["mask"])}
-            entry = {}
+            inp, entry = o.meta["authors_layout"]["file"], {}
+            geo = {"source": "authors' layout", "normals": os.path.join(info["root"], "normal", "normal_GT.npy"),
+                   "view": os.path.join(info["root"], "calibration", info["view_rays"]),
+                   "mask": absolute_paths(info["mask"])}
             power = info["intensities"][k] if info.get("intensities") else 1.0   # intensities.npy / max
         else:
-            inp = s.input
-            geo = _geometry(s, o)
+            inp, geo, power = s.input, _geometry(s, o), s.power
             entry = {"spec": {"input": inp, "light": s.light, "power": s.power, "holdout": s.holdout,
                               "name": s.name, "options": s.options}}
-            power = s.power
-        mine = existing_files(inp)
         geo_files = [geo.get(x) for x in ("normals", "mask", "view") if isinstance(geo.get(x), str)]
-        images.append({"name": n, "input": inp, "files_sha256": _hashes(mine + geo_files),
+        images.append({"name": n, "input": inp, "files_sha256": _hashes(existing_files(inp) + geo_files),
                        "light": [float(x) for x in o.light_dir], "power": float(power),
                        "irradiance": float(o.irradiance), "holdout": bool(s.holdout), "geometry": geo,
                        "settings": o.meta.get("settings"), "sidecar": o.meta.get("sidecar"), **entry})
-    joint = {"kind": kind, "images": images}
-    if manifest is not None:
-        joint["manifest"] = absolute_paths(manifest)
-    if kind == "authors":
-        joint["authors"] = {"root": info["root"], **authors}
+    joint = {"kind": kind, "images": images, **({} if manifest is None else {"manifest": absolute_paths(manifest)}),
+             **({"authors": {"root": info["root"], **authors}} if kind == "authors" else {})}
     files = read_files(kind, specs, info) + [absolute_paths(p) for p in (manifest, fit_kw.get("materials"))
                                              if p is not None]
     arguments = {k: absolute_paths(fit_kw[k]) if k == "materials" else fit_kw[k] for k in record_keys("joint")
@@ -156,14 +147,13 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
 def read_files(kind, specs, info):
     """The files a rerun of these images reads: images with their sidecars, geometry files, and for an
     authors' object its calibration, normal map, mask and images."""
-    files = []
     if kind == "authors":
         cal = os.path.join(info["root"], "calibration")
-        files += [os.path.join(cal, f) for f in ("L.txt", "vpL_img.npy", "IntrinsicL.npy", "intensities.npy")
-                  if os.path.isfile(os.path.join(cal, f))]
-        files += [os.path.join(info["root"], "normal", "normal_GT.npy"), absolute_paths(info["mask"])]
-        files += [s.input.meta["authors_layout"]["file"] for s in specs]
-        return files
+        return [os.path.join(cal, f) for f in ("L.txt", "vpL_img.npy", "IntrinsicL.npy", "intensities.npy")
+                if os.path.isfile(os.path.join(cal, f))] + [os.path.join(info["root"], "normal", "normal_GT.npy"),
+                                                           absolute_paths(info["mask"])] \
+            + [s.input.meta["authors_layout"]["file"] for s in specs]
+    files = []
     for s in specs:
         files += [p for p in (s.input if isinstance(s.input, list) else [s.input]) if isinstance(p, str)]
         files += existing_files(s.input)

@@ -11,6 +11,7 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.api.find_materials import parse_auto
 from fmbrdf_mi.fit.inputs.authors import read_object
 from fmbrdf_mi.fit.inputs.manifest import image_names, image_spec
+from fmbrdf_mi.fit.inputs.parse import check_keys
 from fmbrdf_mi.fit.outputs.colour import fit_colour_files
 from fmbrdf_mi.fit.outputs.joint import run_images
 from fmbrdf_mi.fit.api.options import record_keys
@@ -21,17 +22,21 @@ from fmbrdf_mi.fit.outputs.single import fit_files
 def rerun(path, out, *, force=False, progress=True, command=None):
     """Rerun the fit recorded in ``path`` (a fit.json) into ``out``; returns the dict written to fit.json."""
     record, rep = load(path)
-    check_files(path, rep)
     if "joint" in rep:
         return joint_rerun(path, rep, out, force=force, progress=progress, command=command)
-    colour = record.get("sensor") == "colour"
-    run = fit_colour_files if colour else fit_files
-    return run(out=out, force=force, progress=progress, command=command,
-               **single_arguments(path, rep, "colour" if colour else "single"))
+    if "inputs" not in rep["arguments"]:
+        raise InputError(f"--from {path}: reproduce has no 'joint' block (a joint fit) and no arguments.inputs "
+                         "(a single-image fit): the record is incomplete")
+    kind = "colour" if record.get("sensor") == "colour" else "single"
+    args, given = recorded_arguments(path, rep, kind)
+    check_recorded(path, rep, given + single_files(args))
+    return (fit_colour_files if kind == "colour" else fit_files)(out=out, force=force, progress=progress,
+                                                                 command=command, **args)
 
 
 def load(path):
-    """(the fit.json's dict, its ``reproduce`` block)."""
+    """(the fit.json's dict, its ``reproduce`` block), refusing in one line a record that cannot be rerun or whose
+    inputs changed or disappeared."""
     try:
         with open(path) as f:
             d = json.load(f)
@@ -59,6 +64,11 @@ def load(path):
     if not isinstance(rep["files_sha256"], dict) or not all(isinstance(k, str) and isinstance(v, str)
                                                             for k, v in rep["files_sha256"].items()):
         raise InputError(f"--from {path}: reproduce.files_sha256: expected a table of file: SHA-256")
+    for p, digest in rep["files_sha256"].items():
+        if not os.path.isfile(p):
+            raise InputError(f"--from {path}: input {p} no longer exists")
+        if sha256(p) != digest:
+            raise InputError(f"--from {path}: input {p} has changed since the fit (SHA-256 differs)")
     return d, rep
 
 
@@ -75,10 +85,8 @@ def recorded_arguments(path, rep, kind):
     """(the arguments recorded in ``rep``, the ``reproduce`` block of ``path``, for a fit of ``kind``; the files
     they name): relative file names are made relative to the directory the fit ran in (``auto:M`` names none)."""
     args, valid = dict(rep["arguments"]), record_keys(kind)
-    unknown = [k for k in args if k not in valid]
-    if unknown:
-        raise InputError(f"--from {path}: reproduce.arguments: unknown key(s) {', '.join(map(str, unknown))} "
-                         f"(valid{' for a joint fit' if kind == 'joint' else ''}: {', '.join(valid)})")
+    check_keys(args, valid, f"--from {path}: reproduce.arguments",
+               shown=f"valid{' for a joint fit' if kind == 'joint' else ''}: {', '.join(valid)}")
     bad = [k for k, v in args.items() if isinstance(v, dict) and "not_recorded" in v]
     if bad:
         raise InputError(f"--from {path}: arguments {', '.join(bad)} were arrays, not files; cannot rerun")
@@ -100,26 +108,6 @@ def recorded_arguments(path, rep, kind):
     return args, given
 
 
-def single_arguments(path, rep, kind):
-    """fit_files (``kind`` ``colour``: fit_colour_files) arguments recorded in ``rep``, the ``reproduce`` block of
-    ``path``."""
-    if "inputs" not in rep["arguments"]:
-        raise InputError(f"--from {path}: reproduce has no 'joint' block (a joint fit) and no arguments.inputs "
-                         "(a single-image fit): the record is incomplete")
-    args, given = recorded_arguments(path, rep, kind)
-    check_recorded(path, rep, given + single_files(args))
-    return args
-
-
-def check_files(path, rep):
-    """Refuse (one line naming the file) when a recorded input changed or disappeared."""
-    for p, digest in rep.get("files_sha256", {}).items():
-        if not os.path.isfile(p):
-            raise InputError(f"--from {path}: input {p} no longer exists")
-        if sha256(p) != digest:
-            raise InputError(f"--from {path}: input {p} has changed since the fit (SHA-256 differs)")
-
-
 def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
     """Rerun the joint fit recorded in ``rep``, the ``reproduce`` block of ``path``, into ``out``."""
     joint = rep.get("joint")
@@ -130,10 +118,7 @@ def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
     try:
         if joint["kind"] == "authors":
             a = dict(joint["authors"])
-            bad = [k for k in a if k not in AUTHORS_KEYS + ("root",)]
-            if bad:
-                raise InputError(f"--from {path}: reproduce.joint.authors: unknown key(s) {', '.join(bad)} "
-                                 f"(valid: root, {', '.join(AUTHORS_KEYS)})")
+            check_keys(a, ("root",) + AUTHORS_KEYS, f"--from {path}: reproduce.joint.authors")
             specs, info = read_object(a.pop("root"), **a)
         else:
             specs = [image_spec(**im["spec"], where=f"--from {path}: reproduce.joint.images[{k}].spec",
