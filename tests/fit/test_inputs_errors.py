@@ -78,7 +78,7 @@ def test_observation_irradiance_out_of_range():
     n, m, v = G.sphere_normals((16, 16), (8, 8), 6)
     s = np.stack([np.ones((16, 16)), np.zeros((16, 16)), np.zeros((16, 16))])
     for e in (1e40, 1e-200):
-        with pytest.raises(InputError, match=r"irradiance: must be a positive number in \[1e-20, 1e\+20\]"):
+        with pytest.raises(InputError, match=r"irradiance: expected a finite number in \[1e-20, 1e\+20\]"):
             Observation(s, m, n, v, [0, 0, 1], irradiance=e)
 
 

@@ -28,10 +28,12 @@ def mirrored(layout):
 
 
 def layout_text(layout):
+    """``"90,45,135,0"``: the 2x2 layout as the command line writes it."""
     return ",".join(str(int(a)) for row in layout for a in row)
 
 
 def chi2_per_sample(m):
+    """chi^2 per raw sample of a likelihood fit's fit.json ``models`` entry ``m``, else None."""
     t = m.get("loss_terms") or {}
     if m.get("objective") != "likelihood" or not t.get("samples") or "chi2" not in t:
         return None
@@ -45,8 +47,8 @@ def needs_check(report, model):
     if m is None or settings.get("demosaic") is None or not settings.get("layout"):
         return False             # not a raw mosaic
     c = chi2_per_sample(m)
-    poor = not m.get("converged") or (m.get("uncertainty") or {}).get("misfit")
-    return c is not None and bool(poor) and c >= POOR_CHI2
+    return c is not None and bool(not m.get("converged") or (m.get("uncertainty") or {}).get("misfit")) \
+        and c >= POOR_CHI2
 
 
 def mirrored_layout_hint(report, kw, fit_files, progress=True):
@@ -74,8 +76,7 @@ def mirrored_layout_hint(report, kw, fit_files, progress=True):
             if interrupted(e):
                 raise
             return None
-    m1 = (other_report.get("models") or {}).get(model)
-    c1 = chi2_per_sample(m1) if m1 else None
+    c1 = chi2_per_sample((other_report.get("models") or {}).get(model) or {})
     if c1 is None or not c1 * MUCH_BETTER <= c0:
         return None
     return (f"the mirrored polariser layout {layout_text(other)} (45 and 135 deg swapped) explains the data much "

@@ -20,10 +20,8 @@ PNG_NOT_FITTED = {8: 255, 16: 65535}
 def read_labels(path, what="--materials"):
     """The label image in ``path`` as int64 (H, W), pixels not fitted -1 (module docstring); InputError in
     one line naming ``what`` and the file otherwise."""
-    path = os.fspath(path)
-    check_file(path, what)
-    ext = os.path.splitext(path)[1].lower()
-    name = f"{what} {path}"
+    path = check_file(os.fspath(path), what)
+    ext, name = os.path.splitext(path)[1].lower(), f"{what} {path}"
     if ext == ".npy":
         a = read_array(path, what)
         if a.ndim != 2 or a.dtype.kind not in "iuf":
@@ -31,8 +29,7 @@ def read_labels(path, what="--materials"):
                              f"{a.dtype} of shape {a.shape}")
         if a.dtype.kind == "f" and (not np.all(np.isfinite(a)) or np.any(a != np.round(a))):
             raise InputError(f"{name}: labels must be integers (0 .. M-1, < 0 not fitted)")
-        a = a.astype(np.int64)
-        return np.where(a < 0, -1, a)
+        return np.maximum(a.astype(np.int64), -1)
     if ext == ".png":
         from PIL import Image
 
@@ -45,9 +42,8 @@ def read_labels(path, what="--materials"):
         if mode not in ("L", "P", "I;16", "I;16B", "I;16L", "I"):
             raise InputError(f"{name}: expected a one-channel PNG (grey, 16-bit grey or palette) of labels "
                              f"0 .. M-1, got mode {mode}")
-        bits = 16 if mode.startswith("I") else 8
         a = a.astype(np.int64)
-        return np.where((a == PNG_NOT_FITTED[bits]) | (a < 0), -1, a)
+        return np.where((a == PNG_NOT_FITTED[16 if mode.startswith("I") else 8]) | (a < 0), -1, a)
     raise InputError(f"{name}: unsupported file type '{ext}' (labels: .npy or a one-channel .png)")
 
 

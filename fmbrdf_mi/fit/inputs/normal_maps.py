@@ -55,9 +55,6 @@ def photometric_stereo(observations, mask=None):
     b = np.linalg.lstsq(Lm, I, rcond=None)[0].T                                 # (n, 3)
     nrm = np.linalg.norm(b, axis=1, keepdims=True)
     n = np.where(nrm > 0, b / np.where(nrm > 0, nrm, 1.0), np.array([0.0, 0.0, 1.0]))
-    v = obs[0].view_dirs[m]
-    n = np.where((np.sum(n * v, 1) < 0)[:, None], -n, n)
-    out = np.zeros(obs[0].shape + (3,))
-    out[..., 2] = 1.0
-    out[m] = n
+    out = np.zeros(obs[0].shape + (3,)) + np.array([0.0, 0.0, 1.0])
+    out[m] = np.where((np.sum(n * obs[0].view_dirs[m], 1) < 0)[:, None], -n, n)
     return out
