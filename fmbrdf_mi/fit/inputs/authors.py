@@ -67,7 +67,6 @@ def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise
     ``holdout``: image indices kept out of the fit (relighting check).  ``info``: what was read, and the
     pixels left out of the mask for a non-unit ground-truth normal.
     """
-
     root = os.fspath(root)
     if not os.path.isdir(root):
         raise InputError(f"authors' object directory {root}: " + ("not a directory" if os.path.exists(root)

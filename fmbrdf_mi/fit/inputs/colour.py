@@ -22,9 +22,7 @@ from fmbrdf_mi.sensor.samples import colour_samples
 def colour_sidecar(inputs):
     """The capture sidecar of a single raw input when it describes a colour sensor, else None."""
     if isinstance(inputs, (list, tuple)):
-        if len(inputs) != 1:
-            return None
-        inputs = inputs[0]
+        return colour_sidecar(inputs[0]) if len(inputs) == 1 else None
     side = capture_sidecar(inputs)
     return side if side is not None and side["sensor"].cfa is not None else None
 
@@ -64,7 +62,6 @@ def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, 
     Light and irradiance default to the sidecar's scene; the irradiance is multiplied by ``power``.
     ``meta`` holds ``settings``, ``sphere``, ``sidecar`` and ``truth`` as the mono path's do.
     """
-
     path = os.fspath(path)
     side = colour_sidecar(path)
     if side is None:

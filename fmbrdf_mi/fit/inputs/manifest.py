@@ -117,14 +117,6 @@ def parse_manifest(d, base=".", where="manifest"):
     entries = d.get("image", d.get("images"))
     if not isinstance(entries, list) or not entries:
         raise InputError(f"{where}: no images (give [[image]] entries with input and light)")
-
-    def rel(v):
-        if isinstance(v, str):
-            return v if os.path.isabs(v) else os.path.join(base, v)
-        if isinstance(v, list):
-            return [rel(x) for x in v]
-        return v
-
     specs = []
     for k, e in enumerate(entries):
         if not isinstance(e, dict) or "input" not in e:
@@ -132,10 +124,8 @@ def parse_manifest(d, base=".", where="manifest"):
         check_keys(e, ENTRY_KEYS, f"{where}: image {k}")
         s = image_spec(e["input"], e.get("light"), e.get("power", 1.0), e.get("holdout", False), e.get("name"),
                        {x: e[x] for x in IMAGE_KEYS if x in e}, where=f"{where}: image {k}")
-        s.input, s.options = rel(s.input), {**defaults, **s.options}
-        for x in PATH_KEYS[1:]:
-            if x in s.options and isinstance(s.options[x], (str, list)):
-                s.options[x] = rel(s.options[x])
+        s.input, s.options = absolute_paths(s.input, base), {**defaults, **s.options}
+        s.options.update({x: absolute_paths(s.options[x], base) for x in PATH_KEYS[1:] if x in s.options})
         specs.append(s)
     return specs
 
@@ -154,7 +144,6 @@ def image_names(specs):
 
 def build_observations(specs):
     """Observations of the specs (each with irradiance x power)."""
-
     out = []
     for k, s in enumerate(specs):
         if hasattr(s.input, "stokes"):
@@ -184,9 +173,8 @@ def given_power(spec, obs):
     return float((obs.meta.get("authors_layout") or {}).get("power", spec.power))
 
 
-def absolute_paths(v):
+def absolute_paths(v, base=None):
+    """``v`` (a path, a list of paths; anything else as it is) with every path absolute, or joined to ``base``."""
     if isinstance(v, str):
-        return os.path.abspath(v)
-    if isinstance(v, list):
-        return [absolute_paths(x) for x in v]
-    return v
+        return os.path.abspath(v) if base is None else os.path.join(base, v)
+    return [absolute_paths(x, base) for x in v] if isinstance(v, list) else v

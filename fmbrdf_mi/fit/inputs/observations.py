@@ -181,9 +181,7 @@ def check_mask(mask, shape, name="mask"):
 
 def check_observations(observations, where, least=1):
     """A list of at least ``least`` :class:`Observation` s (one alone is a list of one), else InputError."""
-    items = [observations] if isinstance(observations, Observation) else observations
-    if isinstance(items, (str, bytes, os.PathLike)) or not isinstance(items, (list, tuple)):
-        items = [observations]
+    items = observations if isinstance(observations, (list, tuple)) else [observations]
     for k, o in enumerate(items):
         if not isinstance(o, Observation):
             hint = (" (a file name: read it with fmbrdf_mi.fit.fit_files, or build the Observation with "

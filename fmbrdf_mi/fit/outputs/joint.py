@@ -63,7 +63,6 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     :func:`fmbrdf_mi.fit.outputs.record.joint_block`).  Returns the dict written to fit.json, plus ``outputs``
     (the files written) and ``wall_s``.
     """
-
     return Joint(specs, out, model=model, baselines=baselines, force=force, progress=progress, command=command,
                  observations=observations, extra=extra, reproduce=reproduce, **fit_kw).run()
 
@@ -120,12 +119,9 @@ class Joint(ImageFits):
         main = self.results[model]
         truth = next((o.meta.get("truth") for o in obs if o.meta.get("truth")), None)
         report = {"images": image_entries(self.names, specs, obs), "truth": truth, "models": {}, "relight": {}}
-        if main.powers is not None:
-            for im in report["images"]:
-                fitted = next((x for x in main.images if x["name"] == im["name"]), None)
-                if fitted is not None:
-                    im.update({"power_fitted": fitted["power"], "power_se": fitted["power_se"],
-                               "power_reference": fitted["power_reference"]})
+        fitted = {} if main.powers is None else {x["name"]: x for x in main.images}
+        for im, f in ((im, fitted[im["name"]]) for im in report["images"] if im["name"] in fitted):
+            im.update(power_fitted=f["power"], power_se=f["power_se"], power_reference=f["power_reference"])
         if self.reproduce is not None:
             report["reproduce"] = self.reproduce(obs)
         elif self.command is not None:
@@ -151,14 +147,11 @@ def run_images(kind, specs, out, fit_kw, *, command, force=False, progress=True,
     :func:`~fmbrdf_mi.fit.outputs.colour.fit_colour_images` for colour mosaics, with the ``reproduce`` block
     of :func:`~fmbrdf_mi.fit.outputs.record.joint_block` (``kind``, ``manifest``, ``authors``, ``info``: how
     the images were given) and a ``joint`` block (``rerun_of``: the fit.json rerun).  Returns fit.json's dict."""
-    names, holdout = image_names(specs), [s.holdout for s in specs]
-    albedo, materials = fit_kw.get("albedo", "shared"), fit_kw.get("materials")
-    colour = is_colour(specs)
-    fit_fn = fit_colour_images if colour else fit_images
-    files = joint_outputs(out, names, holdout, albedo, materials, colour)
-    joint = {"outputs": files, "authors_layout": info}
-    if rerun_of is not None:
-        joint["rerun_of"] = rerun_of
-    return fit_fn(specs, out, force=force, progress=progress, command=command, extra={"joint": joint},
-                  reproduce=lambda obs: joint_block(kind, specs, names, obs, fit_kw, command, manifest=manifest,
-                                                    authors=authors, info=info), **fit_kw)
+    names, colour = image_names(specs), is_colour(specs)
+    files = joint_outputs(out, names, [s.holdout for s in specs], fit_kw.get("albedo", "shared"),
+                          fit_kw.get("materials"), colour)
+    joint = {"outputs": files, "authors_layout": info, **({} if rerun_of is None else {"rerun_of": rerun_of})}
+    return (fit_colour_images if colour else fit_images)(
+        specs, out, force=force, progress=progress, command=command, extra={"joint": joint},
+        reproduce=lambda obs: joint_block(kind, specs, names, obs, fit_kw, command, manifest=manifest, authors=authors,
+                                          info=info), **fit_kw)

@@ -14,7 +14,6 @@ from fmbrdf_mi.sensor.mosaic import COLOURS
 
 def _channel_stokes(values, cam):
     """Per-channel Stokes (3, 3, H, W) of (16, H, W) samples, demosaicked as mosaic.stokes_from_colour_mosaic."""
-
     h, w = values.shape[1:]
     raw = np.empty((4 * h, 4 * w))
     k = 0
@@ -115,13 +114,10 @@ def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_poi
     n = obs.normals.reshape(-1, 3)[idx]
     ang_v = np.degrees(np.arccos(np.clip(np.sum(n * obs.view_dirs.reshape(-1, 3)[idx], 1), -1, 1)))
     ang_l = np.degrees(np.arccos(np.clip(n @ obs.light_dir, -1, 1)))
-    series = {"observed": obs.stokes, "fitted": fitted}
-    series.update(others or {})
-    var = obs.lin_variance
+    series, var = {"observed": obs.stokes, "fitted": fitted, **(others or {})}, obs.lin_variance
     vals = {k: ((stokes_io.dolp(s) if k == "observed" else model_dolp(s, var)).ravel()[idx], s[0].ravel()[idx])
             for k, s in series.items()}
-    rng = np.random.default_rng(seed)
-    sub = rng.choice(len(idx), min(max_points, len(idx)), replace=False)
+    sub = np.random.default_rng(seed).choice(len(idx), min(max_points, len(idx)), replace=False)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, x, j, xl, yl in ((axes[0], ang_v, 0, "angle between normal and view (deg)", "DoLP"),
                              (axes[1], ang_l, 1, "angle between normal and light (deg)", "intensity")):
