@@ -12,9 +12,9 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs import observations as ob
 from fmbrdf_mi.fit.inputs.files import builtin_sphere_geometry, capture_sidecar, user_geometry
 from fmbrdf_mi.fit.inputs.observations import downsample_geometry
-from fmbrdf_mi.fit.inputs.manifest import file_stem
+from fmbrdf_mi.fit.inputs.manifest import file_stem, read_image
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS
-from fmbrdf_mi.fit.inputs.parse import check_render_parameters, parse_vector
+from fmbrdf_mi.fit.inputs.parse import check_render_parameters
 from fmbrdf_mi.sensor.noise import NoiseModel
 from fmbrdf_mi.sensor.samples import colour_samples
 
@@ -127,11 +127,7 @@ def read_colour_inputs(specs, erode):
         if bad:
             raise InputError(f"image {k} ({file_stem(s.input)}): {', '.join(bad)} not supported for a colour mosaic "
                              f"(valid: {', '.join(COLOUR_KEYS)}; layout and cfa come from the sidecar)")
-        try:
-            light = parse_vector(s.light, f"image {k}: light") if s.light is not None else None
-            out.append(read_colour_input(s.input, light=light, power=s.power, erode=erode, **opts))
-        except InputError as exc:
-            raise InputError(f"image {k} ({file_stem(s.input)}): {exc}") from None
+        out.append(read_image(k, s, read_colour_input, power=s.power, erode=erode, **opts))
     cams = [(c.camera.layout, c.camera.cfa, c.noise.gain, c.noise.read_noise) for c in out]
     for k, c in enumerate(cams[1:], 1):
         if c != cams[0]:

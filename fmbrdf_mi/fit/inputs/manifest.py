@@ -142,21 +142,21 @@ def image_names(specs):
     return names
 
 
+def read_image(k, spec, read, **kw):
+    """``read(input, light=..., **kw)`` of image ``k``, ``spec``, its errors prefixed with the image."""
+    try:
+        return read(spec.input, light=None if spec.light is None else parse_vector(spec.light, f"image {k}: light"),
+                    **kw)
+    except InputError as exc:
+        raise InputError(f"image {k} ({file_stem(spec.input)}): {exc}") from None
+
+
 def build_observations(specs):
     """Observations of the specs (each with irradiance x power)."""
     out = []
-    for k, s in enumerate(specs):
-        if hasattr(s.input, "stokes"):
-            o = s.input
-        else:
-            opts = dict(s.options)
-            opts.setdefault("layout", None)        # None: the capture sidecar's, else IMX250MZR
-            opts.setdefault("black_level", None)
-            try:
-                light = parse_vector(s.light, f"image {k}: light") if s.light is not None else None
-                o = build_observation(s.input, light=light, **opts)
-            except InputError as exc:
-                raise InputError(f"image {k} ({file_stem(s.input)}): {exc}") from None
+    for k, s in enumerate(specs):   # layout, black level None: the capture sidecar's, else IMX250MZR's, 0
+        o = s.input if hasattr(s.input, "stokes") else read_image(
+            k, s, build_observation, **{"layout": None, "black_level": None, **s.options})
         if s.power != 1.0:
             lo, hi = IRRADIANCE_RANGE
             if not lo <= o.irradiance * s.power <= hi:

@@ -248,10 +248,8 @@ def load_polarisation(paths, *, layout=mosaic.IMX250MZR_LAYOUT, channel="mean", 
     files).  ``black_level`` is subtracted from raw and angle images; ``channel`` (``R``, ``G``, ``B``)
     picks a channel of an RGB Stokes EXR only.
     """
-    picked = channel not in (None, "mean")
-
     def one_channel(what):
-        if picked:
+        if channel not in (None, "mean"):
             raise InputError(f"--channel {channel}: picks a colour channel of an RGB Stokes EXR; {what} has one "
                              "channel (a colour polarisation mosaic takes its channels from its sidecar)")
     if isinstance(paths, (list, tuple)):
@@ -266,8 +264,8 @@ def load_polarisation(paths, *, layout=mosaic.IMX250MZR_LAYOUT, channel="mean", 
             if len({im.shape for im in imgs}) != 1:
                 raise InputError(f"angle images: shapes differ: {[im.shape for im in imgs]}")
             one_channel("four angle images")
-            return stokes_from_angles(np.stack(imgs), black_level), {"source": "angle images",
-                                                                      "_array": np.stack(imgs)}
+            a = np.stack(imgs)
+            return stokes_from_angles(a, black_level), {"source": "angle images", "_array": a}
         else:
             raise InputError(f"polarisation input: give one file (Stokes .exr, raw mosaic, or a (4, H, W) "
                              f".npy of angle images) or four angle images, got {len(paths)} paths")
