@@ -232,7 +232,7 @@ def shown_pixels(o, pixels, opts, labels=None):
 
 
 def write_maps(res, model, out, report, wrote=lambda path: None):
-    """:data:`~fmbrdf_mi.fit.outputs.writer.MAP_OUTPUTS` of a per-pixel albedo fit ``res`` (NaN where not
+    """:data:`~fmbrdf_mi.fit.outputs.job.MAP_OUTPUTS` of a per-pixel albedo fit ``res`` (NaN where not
     fitted; the shape parameters in each EXR's metadata), named in ``report["albedo_maps"]``; ``wrote``: called
     with each file's path once it is written."""
     if res.maps is None:
