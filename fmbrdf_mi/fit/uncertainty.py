@@ -18,13 +18,37 @@ from fmbrdf_mi.fit.solve.driver import refit_fixed
 from fmbrdf_mi.fit.solve.optimise import time_left
 
 Z95 = 1.959963984540054
+#: 95 % quantiles of chi^2 with 1 ... 8 degrees of freedom.
+CHI2_95 = (3.841458820694124, 5.991464547107979, 7.814727903251178, 9.487729036781154, 11.070497693516351,
+           12.591587243743977, 14.067140449340169, 15.507313055865453)
 
 #: Weakly identified: SE > this fraction of max(|value|, WEAK_FLOOR[name]), or at a bound.
 WEAK_REL = 0.05
 WEAK_FLOOR = {"kappa": 10.0}
-
 #: A shape parameter within this fraction of its range (optimiser's scale) of a bound is at it.
 AT_BOUND_FRAC = 1e-3
+#: ``interval_kind`` of an end at value -+ 1.96 SE beyond the parameter's bound, cut there: the data do not rule
+#: out the bound, so the interval is open there rather than narrow.
+FISHER_AT_BOUND = "fisher, open at the bound"
+#: An albedo is *determined* where SE <= this fraction of it; a split is *identified* where k_s and k_b are.
+SPLIT_REL = 0.5
+
+#: ``FitOptions.intervals``' values.
+INTERVALS = ("auto", "profile", "fisher")
+#: Relative tolerance on chi^2's rise at a Fisher interval's end (:func:`profile_intervals`).
+PROFILE_TOL = 0.15
+#: Relative tolerance of a profile end's chi^2 rise (:func:`profile_end`).
+PROFILE_ROOT_TOL = 0.1
+#: A start's end this many SE from the estimate in some shape parameter is another optimum.
+MODE_SEPARATION_SE = 2.0
+
+#: The pixel-area quadrature is refined while its bias (:func:`quadrature_bias`) exceeds this many SE.
+QUADRATURE_TOL = 0.2
+#: The finest quadrature: points per raw-pixel side.
+MAX_AREA_POINTS = 8
+#: A sampled check (:func:`sampled_quadrature_bias`) refines while |bias| plus this many of its sampling SEs
+#: exceeds :data:`QUADRATURE_TOL`: a bias the sample cannot rule out is refined.
+QUADRATURE_SAMPLING_SE = 2.0
 
 
 def dtheta_dz(problem, st, names, h=1e-6):
@@ -292,11 +316,6 @@ def paper_sandwich(problem, Jt, r, Hi):
     return Hi @ M @ Hi, [("paper-sandwich", "")] + ([("demosaic", "")] if grid is not None else [])
 
 
-#: ``interval_kind`` of an end at value -+ 1.96 SE beyond the parameter's bound, cut there: the data do not rule
-#: out the bound, so the interval is open there rather than narrow.
-FISHER_AT_BOUND = "fisher, open at the bound"
-
-
 def kind_of(ends):
     """One ``interval_kind`` from its two ends' kinds: the kind, or ``lower ..., upper ...``."""
     return ends[0] if ends[0] == ends[1] else f"lower {ends[0]}, upper {ends[1]}"
@@ -341,17 +360,6 @@ def summary(problem, st, c):
     return out
 
 
-#: The pixel-area quadrature is refined while its bias (:func:`quadrature_bias`) exceeds this many SE.
-QUADRATURE_TOL = 0.2
-
-#: The finest quadrature: points per raw-pixel side.
-MAX_AREA_POINTS = 8
-
-#: A sampled check (:func:`sampled_quadrature_bias`) refines while |bias| plus this many of its sampling SEs
-#: exceeds :data:`QUADRATURE_TOL`: a bias the sample cannot rule out is refined.
-QUADRATURE_SAMPLING_SE = 2.0
-
-
 def quadrature_bias(problem, fine, st, J, r):
     """{shape parameter: first-order shift / unscaled Fisher SE} between ``problem`` (m x m points; ``J``,
     ``r`` at ``st``) and ``fine`` (2m x 2m): -(J^T J)^-1 J^T (r - r_fine), 3/4 of the coarse bias (the
@@ -384,11 +392,10 @@ def predicted_quadrature_terms(problem, coarser, st, J, r, m, h):
 
 
 def quadrature_sample(problem, J, g_hat, n, rng):
-    """(cells, pi): sorted positions of a Poisson sample of about ``n`` of the fitted cells and their inclusion
-    probabilities (every cell, pi = 1, when ``n`` is at least their number).  A quarter of n is spread
-    uniformly, three quarters in proportion to each cell's predicted shift of the shape in SE units,
-    |S^-1 (J^T J)^-1 g_hat_c| (``g_hat``: :func:`predicted_quadrature_terms`; S: the Fisher SEs), capped at 1:
-    every cell can be taken, so the Horvitz-Thompson sum is unbiased."""
+    """(cells, pi): a Poisson sample of about ``n`` of the fitted cells (sorted; all when ``n`` >= their number)
+    and their inclusion probabilities: a quarter of n uniform, three quarters in proportion to each cell's
+    predicted shift |S^-1 (J^T J)^-1 g_hat_c| (S: the Fisher SEs; ``g_hat``: :func:`predicted_quadrature_terms`),
+    capped at 1 so that every cell can be taken and the Horvitz-Thompson sum is unbiased."""
     N, k = len(g_hat), len(problem.names)
     if n >= N:
         return np.arange(N), np.ones(N)
@@ -408,13 +415,11 @@ def quadrature_sample(problem, J, g_hat, n, rng):
 
 
 def sampled_quadrature_bias(problem, fine, st, J, r, cells, pi, g_hat):
-    """(bias, sampling SE), {shape parameter: / its Fisher SE}, of :func:`quadrature_bias` from the cells
-    ``cells`` only (``fine``: their 2m x 2m problem in that order; ``pi``: :func:`quadrature_sample`): the
-    predicted sum of ``g_hat`` (:func:`predicted_quadrature_terms`) plus the Horvitz-Thompson sum of the sampled
-    cells' e_c / pi_c, e_c = J_c^T d_c - g_hat_c (a difference estimator: unbiased whatever the prediction), with
-    Poisson sampling's variance sum (1 - pi_c) / pi_c^2 e_c e_c^T.  J^T J and the SE are the whole fit's; the
-    fine variances the noise model's at the fine prediction with the coarse fit's noise parameters (as
-    :meth:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective.refresh` makes them)."""
+    """(bias, sampling SE) of :func:`quadrature_bias` from ``cells`` only ({shape parameter: / its Fisher SE};
+    ``fine``: their 2m x 2m problem, ``pi``: :func:`quadrature_sample`): sum_c g_hat_c
+    (:func:`predicted_quadrature_terms`) plus the Horvitz-Thompson sum of e_c / pi_c, e_c = J_c^T d_c - g_hat_c
+    (a difference estimator, unbiased whatever the prediction), of variance sum (1 - pi_c) / pi_c^2 e_c e_c^T.
+    The fine variances are the noise model's at the fine prediction with the fit's noise parameters."""
     ms = problem.obj.m
     if problem.eliminates:      # albedo maps (a pair per pixel and channel): the sampled cells' own albedos
         C = 1 if problem.layout.channel_of is None else int(problem.layout.channel_of.max()) + 1
@@ -428,16 +433,6 @@ def sampled_quadrature_bias(problem, fine, st, J, r, cells, pi, g_hat):
     G = g_hat.sum(0) + (e / pi[:, None]).sum(0)
     V = (e * ((1.0 - pi) / pi ** 2)[:, None]).T @ e
     return shift_in_se(problem, J, G, V)
-
-
-#: Relative tolerance on chi^2's rise at a Fisher interval's end (:func:`profile_intervals`).
-PROFILE_TOL = 0.15
-
-#: ``FitOptions.intervals``' values.
-INTERVALS = ("auto", "profile", "fisher")
-
-#: Relative tolerance of a profile end's chi^2 rise (:func:`profile_end`).
-PROFILE_ROOT_TOL = 0.1
 
 
 def interval_scale(problem, unc):
@@ -524,11 +519,11 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
 def profile_intervals(problem, st, unc, J, r, every=False, progress=None):
     """Replace each Fisher 95 % interval end where chi^2 along :func:`chi2_along_covariance` does not rise by
     delta = 1.96^2 x scale to within :data:`PROFILE_TOL` by the profile likelihood's (:func:`profile_end`).
-    With the incidental sandwich delta is per parameter, x :func:`sandwich_ratio` (adjusted likelihood ratio,
-    Varin, Reid and Firth 2011, sec. 4.2), and a profile end only widens (the profile of chi^2 with the
-    albedos eliminated lacks their noise).  Sets ``unc``'s ``interval_kind``, ``profile`` and ``ci95``.
-    Likelihood fits without extra unknowns only.  ``every``: profile every end.  ``progress``: told after each
-    parameter how many are checked and the time left.  Returns the mechanisms applied."""
+    With the incidental sandwich delta is x :func:`sandwich_ratio` (adjusted likelihood ratio, Varin, Reid and
+    Firth 2011, sec. 4.2) and a profile end only widens (chi^2's profile with the albedos eliminated lacks their
+    noise).  Sets ``unc``'s ``interval_kind``, ``profile`` and ``ci95``; returns the mechanisms applied.
+    Likelihood fits without extra unknowns only.  ``every``: profile every end; ``progress``: told of each
+    parameter checked and the time left."""
     if not problem.obj.is_likelihood or not unc.get("ci95") or problem.with_fixed({}) is None:
         return []
     chi2_min, scale = float(r @ r), interval_scale(problem, unc)
@@ -549,16 +544,12 @@ def profile_intervals(problem, st, unc, J, r, every=False, progress=None):
         for i, side in enumerate((-1, 1)):
             cut = ends[i] <= lo or ends[i] >= hi
             rise = tried["fisher_end_rise" if i else "fisher_start_rise"] = float(path(n, ends[i]) - chi2_min)
-            if (rise <= delta * (1 + PROFILE_TOL) if cut else abs(rise / delta - 1) <= PROFILE_TOL) and not every:
-                kind.append(FISHER_AT_BOUND if cut else "fisher")
-                continue
-            end, k, tried["upper" if i else "lower"] = profile_end(problem, st, n, side, ends[i], delta, chi2_min,
-                                                                    path)
-            if sandwich and side * (end - ends[i]) < 0:      # with the sandwich a profile end only widens
-                k = FISHER_AT_BOUND if cut else "fisher"
-            else:
-                ends[i] = end
-            kind.append(k)
+            kind.append(FISHER_AT_BOUND if cut else "fisher")
+            if every or not (rise <= delta * (1 + PROFILE_TOL) if cut else abs(rise / delta - 1) <= PROFILE_TOL):
+                end, k, tried["upper" if i else "lower"] = profile_end(problem, st, n, side, ends[i], delta,
+                                                                        chi2_min, path)
+                if not (sandwich and side * (end - ends[i]) < 0):    # with the sandwich a profile end only widens
+                    ends[i], kind[i] = end, k
         kinds[n], details[n] = kind_of(kind), tried
         unc["ci95"][n] = [float(min(ends[0], st.shape[n])), float(max(ends[1], st.shape[n]))]
         if progress is not None:
@@ -597,10 +588,6 @@ def weakly_identified(table, params, std, at_bound_=()):
             or k in at_bound_]
 
 
-#: An albedo is *determined* where SE <= this fraction of it; a split is *identified* where k_s and k_b are.
-SPLIT_REL = 0.5
-
-
 def determined(value, se, rel=SPLIT_REL):
     """Where ``se`` <= ``rel`` x ``value``."""
     value, se = np.asarray(value, float), np.asarray(se, float)
@@ -624,14 +611,6 @@ def pixel_albedos(problem, st, parts, J, unc, cov_z=None):
                     SPLIT_REL)
 
 
-#: 95 % quantiles of chi^2 with 1 ... 8 degrees of freedom.
-CHI2_95 = (3.841458820694124, 5.991464547107979, 7.814727903251178, 9.487729036781154, 11.070497693516351,
-           12.591587243743977, 14.067140449340169, 15.507313055865453)
-
-#: A start's end this many SE from the estimate in some shape parameter is another optimum.
-MODE_SEPARATION_SE = 2.0
-
-
 def other_optima(starts, params, unc, names):
     """(optima, threshold): the ends of ``starts`` (:func:`fmbrdf_mi.fit.solve.driver.solve`) more than
     :data:`MODE_SEPARATION_SE` from ``params``, with delta_chi2 = 2 (score - best); one *competes* when
@@ -644,8 +623,8 @@ def other_optima(starts, params, unc, names):
         return [], None
     best = min(s["score"] for s in scored)
     scale = float(unc["chi2_per_dof"]) if unc.get("misfit") and unc.get("chi2_per_dof") else 1.0
-    threshold = CHI2_95[min(len(names), len(CHI2_95)) - 1] * scale * max([1.0] + [sandwich_ratio(unc, n)
-                                                                                  for n in names])
+    inflation = max([1.0] + [sandwich_ratio(unc, n) for n in names])
+    threshold = CHI2_95[min(len(names), len(CHI2_95)) - 1] * scale * inflation
     out = []
     for s in scored:
         dist, d = max(abs(s["end"][n] - params[n]) / se[n] for n in names), 2.0 * (s["score"] - best)
