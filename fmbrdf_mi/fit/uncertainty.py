@@ -352,10 +352,8 @@ def summary(problem, st, c):
     if kinds:
         out["interval_kind"] = kinds
     sd = np.array(list(se.values()))
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        corr = c.cov / np.outer(sd, sd)
-    # a degenerate covariance (a noise-free fit) gives inf/nan; a correlation is in [-1, 1]
-    corr = np.clip(np.nan_to_num(corr, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):     # a noise-free fit's: inf, nan
+        corr = np.clip(np.nan_to_num(c.cov / np.outer(sd, sd), nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
     out["correlation"] = {"names": c.names, "matrix": np.round(corr, 4).tolist()}
     return out
 
