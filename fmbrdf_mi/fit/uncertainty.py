@@ -243,6 +243,39 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
     return Gd @ cz @ Gd.T, cz, info, applied
 
 
+def paper_sandwich(problem, Jt, r, Hi):
+    """(cov, applied): the paper's loss's sandwich H^-1 M H^-1, H = J^T J (spread, not bias: docs/computed.md);
+    M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals (I - P_gg)^-1 r_g, P = J H^-1 J^T
+    (cluster jackknife "CR3", since the fit pulls plain residuals towards the data), PSD-projected.  N(a): pixel
+    a, or with demosaicking (``problem.obj.grid``) its 3 x 3 neighbours, whose residuals are correlated."""
+    row_pix, grid = np.asarray(problem.obj.row_pixels(len(r))), problem.obj.grid
+    npx = int(row_pix.max()) + 1
+    order = np.argsort(row_pix, kind="stable")
+    counts = np.bincount(row_pix, minlength=npx)
+    rows = -np.ones((npx, int(counts.max())), int)         # each pixel's residual rows, padded with -1
+    rows[row_pix[order], np.arange(len(row_pix)) - np.repeat(np.cumsum(counts) - counts, counts)] = order
+    nb = np.arange(npx)[:, None]                            # each block's pixels, its own first, padded with -1
+    if grid is not None:
+        pr, pc = (np.asarray(x) - np.min(x) + 1 for x in grid)
+        lut = -np.ones((pr.max() + 2, pc.max() + 2), int)
+        lut[pr, pc] = np.arange(npx)
+        nb = np.stack([lut[pr + dr, pc + dc] for dr in (0, -1, 1) for dc in (0, -1, 1)], 1)
+        nb = np.take_along_axis(nb, np.argsort(nb < 0, axis=1, kind="stable"), 1)
+    R = rows.shape[1]
+    g = np.where(nb[:, :, None] >= 0, rows[np.clip(nb, 0, None)], -1).reshape(npx, -1)  # (n, K R)
+    Jg = np.concatenate([Jt, np.zeros((1, Jt.shape[1]))])[g]   # (n, B, p), padding (-1): the zero row
+    rg = np.concatenate([r, [0.0]])[g]                   # (n, B)
+    A = np.eye(Jg.shape[1])[None] - np.einsum("nbi,ij,ncj->nbc", Jg, Hi, Jg)
+    try:
+        rt = np.linalg.solve(A, rg[..., None])[..., 0]
+    except np.linalg.LinAlgError:  # a block that determines a parameter on its own (leverage 1)
+        rt = np.einsum("nbc,nc->nb", np.linalg.pinv(A, rcond=1e-10), rg)
+    M = np.einsum("nbi,nb->ni", Jg[:, :R], rt[:, :R]).T @ np.einsum("nbi,nb->ni", Jg, rt)   # own rows x block
+    w, V = np.linalg.eigh(0.5 * (M + M.T))
+    M = (V * np.clip(w, 0.0, None)) @ V.T
+    return Hi @ M @ Hi, [("paper-sandwich", "")] + ([("demosaic", "")] if grid is not None else [])
+
+
 @dataclasses.dataclass
 class Covariance:
     """:func:`covariance`'s result: ``cov`` of ``names`` (None if not computed), fit.json's ``info``, the
@@ -281,39 +314,6 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
     except np.linalg.LinAlgError:
         return Covariance(names, None, {}, [("singular-information", "")])
     return Covariance(names, scale * Hi, info, [(estimator, "")] + applied, None if cz is None else cz * scale)
-
-
-def paper_sandwich(problem, Jt, r, Hi):
-    """(cov, applied): the paper's loss's sandwich H^-1 M H^-1, H = J^T J (spread, not bias: docs/computed.md);
-    M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals (I - P_gg)^-1 r_g, P = J H^-1 J^T
-    (cluster jackknife "CR3", since the fit pulls plain residuals towards the data), PSD-projected.  N(a): pixel
-    a, or with demosaicking (``problem.obj.grid``) its 3 x 3 neighbours, whose residuals are correlated."""
-    row_pix, grid = np.asarray(problem.obj.row_pixels(len(r))), problem.obj.grid
-    npx = int(row_pix.max()) + 1
-    order = np.argsort(row_pix, kind="stable")
-    counts = np.bincount(row_pix, minlength=npx)
-    rows = -np.ones((npx, int(counts.max())), int)         # each pixel's residual rows, padded with -1
-    rows[row_pix[order], np.arange(len(row_pix)) - np.repeat(np.cumsum(counts) - counts, counts)] = order
-    nb = np.arange(npx)[:, None]                            # each block's pixels, its own first, padded with -1
-    if grid is not None:
-        pr, pc = (np.asarray(x) - np.min(x) + 1 for x in grid)
-        lut = -np.ones((pr.max() + 2, pc.max() + 2), int)
-        lut[pr, pc] = np.arange(npx)
-        nb = np.stack([lut[pr + dr, pc + dc] for dr in (0, -1, 1) for dc in (0, -1, 1)], 1)
-        nb = np.take_along_axis(nb, np.argsort(nb < 0, axis=1, kind="stable"), 1)
-    R = rows.shape[1]
-    g = np.where(nb[:, :, None] >= 0, rows[np.clip(nb, 0, None)], -1).reshape(npx, -1)  # (n, K R)
-    Jg = np.concatenate([Jt, np.zeros((1, Jt.shape[1]))])[g]   # (n, B, p), padding (-1): the zero row
-    rg = np.concatenate([r, [0.0]])[g]                   # (n, B)
-    A = np.eye(Jg.shape[1])[None] - np.einsum("nbi,ij,ncj->nbc", Jg, Hi, Jg)
-    try:
-        rt = np.linalg.solve(A, rg[..., None])[..., 0]
-    except np.linalg.LinAlgError:  # a block that determines a parameter on its own (leverage 1)
-        rt = np.einsum("nbc,nc->nb", np.linalg.pinv(A, rcond=1e-10), rg)
-    M = np.einsum("nbi,nb->ni", Jg[:, :R], rt[:, :R]).T @ np.einsum("nbi,nb->ni", Jg, rt)   # own rows x block
-    w, V = np.linalg.eigh(0.5 * (M + M.T))
-    M = (V * np.clip(w, 0.0, None)) @ V.T
-    return Hi @ M @ Hi, [("paper-sandwich", "")] + ([("demosaic", "")] if grid is not None else [])
 
 
 def kind_of(ends):
