@@ -2,18 +2,14 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 
 import numpy as np
 
 
 def json_default(x):
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    if isinstance(x, np.ndarray):
+    """``json.dump``'s ``default``: NumPy scalars and arrays as JSON numbers and lists."""
+    if isinstance(x, (np.generic, np.ndarray)):
         return x.tolist()
-    if isinstance(x, tuple):
-        return list(x)
     raise TypeError(f"not JSON serialisable: {type(x)}")
 
 
@@ -22,7 +18,8 @@ class FitResult:
     """The result of every fit: one image or several, one albedo pair or per-channel albedos, free powers.
 
     ``params``: the model's reported parameters (per-channel albedos as ``{"R": .., "G": .., "B": ..}``).
-    ``result["key"]`` reads a field or a ``details`` entry.
+    ``result["key"]`` reads a field or a ``details`` entry.  :meth:`to_json` writes the fields but
+    :data:`INTERNAL`, and those of :data:`OPTIONAL` only when set.
     """
 
     model: str
@@ -51,46 +48,31 @@ class FitResult:
     powers: dict = None
     #: colour mosaics: the channels of the per-channel albedos
     channels: list = None
-    #: the mode's own numbers, not written by :meth:`to_json` (read them as ``result["key"]``)
+    #: the mode's own numbers (read them as ``result["key"]``)
     details: dict = dataclasses.field(repr=False, default=None)
-    #: normal refinement: the refined normal map (H, W, 3) and the pixels refined (H, W); not in :meth:`to_json`
+    #: normal refinement: the refined normal map (H, W, 3) and the pixels refined (H, W)
     normals: np.ndarray = dataclasses.field(repr=False, default=None)
     mask: np.ndarray = dataclasses.field(repr=False, default=None)
-    #: per-pixel albedos (``FitOptions.albedo="per-pixel"``): the maps' summary numbers; in :meth:`to_json`
+    #: per-pixel albedos (``FitOptions.albedo="per-pixel"``): the maps' summary numbers
     albedo: dict = None
     #: the maps (:func:`fmbrdf_mi.fit.api.assemble.albedo_maps`): ``k_s``, ``k_b``, ``k_s_se``, ``k_b_se``,
-    #: ``identified``, (H, W) or (C, H, W); NaN where no pixel was fitted; not in :meth:`to_json`
+    #: ``identified``, (H, W) or (C, H, W); NaN where no pixel was fitted
     maps: dict = dataclasses.field(repr=False, default=None)
-
-    #: several materials: the block of :func:`fmbrdf_mi.fit.api.assemble.material_block`; in :meth:`to_json`
+    #: several materials: the block of :func:`fmbrdf_mi.fit.api.assemble.material_block`
     materials: dict = None
-    #: the problem behind the result (:class:`fmbrdf_mi.fit.api.assemble.Fitted`); not in :meth:`to_json`
+    #: the problem behind the result (:class:`fmbrdf_mi.fit.api.assemble.Fitted`)
     fitted: object = dataclasses.field(repr=False, default=None, compare=False)
 
-    #: written by :meth:`to_json` only when set
     OPTIONAL = ("images", "powers", "channels", "albedo", "materials")
-
-    #: never written by :meth:`to_json`
     INTERNAL = ("pixels", "details", "normals", "mask", "maps", "fitted")
 
     def to_json(self):
         d = dataclasses.asdict(dataclasses.replace(self, **dict.fromkeys(self.INTERNAL)))
-        for k in self.INTERNAL:
-            d.pop(k)
-        for k in self.OPTIONAL:
-            if d[k] is None:
-                d.pop(k)
-        return d
+        return {k: v for k, v in d.items() if k not in self.INTERNAL and not (k in self.OPTIONAL and v is None)}
 
     def __getitem__(self, key):
         if key in self.__dataclass_fields__:
             return getattr(self, key)
-        if self.details and key in self.details:
+        if key in (self.details or {}):
             return self.details[key]
         raise KeyError(key)
-
-    def save_json(self, path, extra=None):
-        d = self.to_json()
-        d.update(extra or {})
-        with open(path, "w") as f:
-            json.dump(d, f, indent=2, default=json_default)

@@ -1,9 +1,10 @@
 """Standard errors, 95 % intervals and correlations of the estimates (fit.json's ``uncertainty``).
 
-Entry point :func:`covariance` (then :func:`summary`); one function per mechanism: :func:`fisher`,
-:func:`paper_sandwich`, :func:`incidental`, :func:`profile_intervals`, :func:`other_optima`.  Covariances are
-of the reported parameters (delta method through d theta / d z); intervals are theta +- 1.96 SE cut at the
-bounds.  The design: docs/computed.md.
+One function per mechanism: :func:`fisher`, :func:`noise_scale` (misfit), :func:`paper_sandwich`,
+:func:`incidental`, :func:`profile_intervals`, :func:`other_optima`, :func:`quadrature_bias`.  :func:`covariance`
+composes the estimators, :func:`summary` makes fit.json's block, :func:`method_text` its ``method`` from the
+mechanisms applied.  Covariances are of the reported parameters (delta method through d theta / d z); intervals
+are theta +- 1.96 SE cut at the bounds.  The design: docs/computed.md.
 """
 from __future__ import annotations
 
@@ -17,65 +18,77 @@ from fmbrdf_mi.fit.solve.driver import refit_fixed
 from fmbrdf_mi.fit.solve.optimise import time_left
 
 Z95 = 1.959963984540054
-
+#: 95 % quantiles of chi^2 with 1 ... 8 degrees of freedom.
+CHI2_95 = (3.841458820694124, 5.991464547107979, 7.814727903251178, 9.487729036781154, 11.070497693516351,
+           12.591587243743977, 14.067140449340169, 15.507313055865453)
 
 #: Weakly identified: SE > this fraction of max(|value|, WEAK_FLOOR[name]), or at a bound.
 WEAK_REL = 0.05
 WEAK_FLOOR = {"kappa": 10.0}
-
 #: A shape parameter within this fraction of its range (optimiser's scale) of a bound is at it.
 AT_BOUND_FRAC = 1e-3
+#: ``interval_kind`` of an end at value -+ 1.96 SE beyond the parameter's bound, cut there: the data do not rule
+#: out the bound, so the interval is open there rather than narrow.
+FISHER_AT_BOUND = "fisher, open at the bound"
+#: An albedo is *determined* where SE <= this fraction of it; a split is *identified* where k_s and k_b are.
+SPLIT_REL = 0.5
+
+#: ``FitOptions.intervals``' values.
+INTERVALS = ("auto", "profile", "fisher")
+#: Relative tolerance on chi^2's rise at a Fisher interval's end (:func:`profile_intervals`).
+PROFILE_TOL = 0.15
+#: Relative tolerance of a profile end's chi^2 rise (:func:`profile_end`).
+PROFILE_ROOT_TOL = 0.1
+#: A start's end this many SE from the estimate in some shape parameter is another optimum.
+MODE_SEPARATION_SE = 2.0
+
+#: The pixel-area quadrature is refined while its bias (:func:`quadrature_bias`) exceeds this many SE.
+QUADRATURE_TOL = 0.2
+#: The finest quadrature: points per raw-pixel side.
+MAX_AREA_POINTS = 8
+#: A sampled check (:func:`sampled_quadrature_bias`) refines while |bias| plus this many of its sampling SEs
+#: exceeds :data:`QUADRATURE_TOL`: a bias the sample cannot rule out is refined.
+QUADRATURE_SAMPLING_SE = 2.0
 
 
-def _free_names(problem):
-    return list(problem.names) + list(problem.params.albedo_names)
-
-
-def dtheta_dz(problem, st, names):
+def dtheta_dz(problem, st, names, h=1e-6):
     """(p, p): derivatives of the reported free parameters with respect to z (central differences)."""
+
+    def at(z):
+        s = problem.from_z(z)
+        rp = problem.params.report(s.shape, s.a_s, s.a_b)
+        return np.array([rp[n] for n in names])
+
     z = problem.to_z(st)
     G = np.zeros((len(names), len(z)))
-    for j in range(len(z)):
-        h = 1e-6
-        vals = []
-        for d in (h, -h):
-            zp = z.copy()
-            zp[j] += d
-            sp = problem.from_z(zp)
-            rp = problem.params.report(sp.shape, sp.a_s, sp.a_b)
-            vals.append(np.array([rp[n] for n in names]))
-        G[:, j] = (vals[0] - vals[1]) / (2 * h)
+    for j, e in enumerate(np.eye(len(z)) * h):
+        G[:, j] = (at(z + e) - at(z - e)) / (2 * h)
     return G
 
 
 def bound_distance(problem, st):
-    """{free shape parameter: (distance to its nearest bound in its units, as a fraction of its range on the
+    """{free shape parameter: (distance to its nearest bound in its units, that as a fraction of its range on the
     optimiser's scale)}."""
     out = {}
     for n in problem.names:
         tlo, thi, lo, hi = problem.bounds.lims[n]
-        v = st.shape[n]
-        t = problem.bounds.to_scale(n, v)
+        v, t = st.shape[n], problem.bounds.to_scale(n, st.shape[n])
         out[n] = (min(v - lo, hi - v), min(t - tlo, thi - t) / (thi - tlo))
     return out
 
 
 def at_bound(problem, st, sd=None):
-    """Free shape parameters within :data:`AT_BOUND_FRAC` of a bound (:func:`bound_distance`) or, given
-    ``sd`` {name: SE}, closer to it than 1.96 SE: their interval is not a confidence interval."""
-    out = []
-    for n, (d, frac) in bound_distance(problem, st).items():
-        se = (sd or {}).get(n)
-        if frac <= AT_BOUND_FRAC or (se is not None and math.isfinite(se) and d < Z95 * se):
-            out.append(n)
-    return out
+    """Free shape parameters within :data:`AT_BOUND_FRAC` of a bound (:func:`bound_distance`) or, given ``sd``
+    {name: SE}, closer to it than 1.96 SE: their interval is not a confidence interval."""
+    sd = sd or {}
+    return [n for n, (d, frac) in bound_distance(problem, st).items()
+            if frac <= AT_BOUND_FRAC or (math.isfinite(sd.get(n, math.nan)) and d < Z95 * sd[n])]
 
 
 def jacobian_in_reported(problem, st, J):
     """(names, J_theta): the residuals' Jacobian with respect to the reported free parameters."""
-    names = _free_names(problem)
-    G = dtheta_dz(problem, st, names)
-    return names, J @ np.linalg.inv(G)
+    names = list(problem.names) + list(problem.params.albedo_names)
+    return names, J @ np.linalg.inv(dtheta_dz(problem, st, names))
 
 
 #: Floor of 1 - lambda in :func:`incidental_sandwich`: no SE inflated more than 1 / this over Fisher's.
@@ -231,17 +244,42 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
 
 
 def paper_sandwich(problem, Jt, r, Hi):
-    """(cov, applied): the paper's loss's sandwich H^-1 M H^-1, H = J^T J, M :func:`block_meat` (spread, not
-    bias: docs/computed.md)."""
-    grid = problem.obj.grid
-    M = block_meat(Jt, r, problem.obj.row_pixels(len(r)), Hi, grid)
+    """(cov, applied): the paper's loss's sandwich H^-1 M H^-1, H = J^T J (spread, not bias: docs/computed.md);
+    M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals (I - P_gg)^-1 r_g, P = J H^-1 J^T
+    (cluster jackknife "CR3", since the fit pulls plain residuals towards the data), PSD-projected.  N(a): pixel
+    a, or with demosaicking (``problem.obj.grid``) its 3 x 3 neighbours, whose residuals are correlated."""
+    row_pix, grid = np.asarray(problem.obj.row_pixels(len(r))), problem.obj.grid
+    npx = int(row_pix.max()) + 1
+    order = np.argsort(row_pix, kind="stable")
+    counts = np.bincount(row_pix, minlength=npx)
+    rows = -np.ones((npx, int(counts.max())), int)         # each pixel's residual rows, padded with -1
+    rows[row_pix[order], np.arange(len(row_pix)) - np.repeat(np.cumsum(counts) - counts, counts)] = order
+    nb = np.arange(npx)[:, None]                            # each block's pixels, its own first, padded with -1
+    if grid is not None:
+        pr, pc = (np.asarray(x) - np.min(x) + 1 for x in grid)
+        lut = -np.ones((pr.max() + 2, pc.max() + 2), int)
+        lut[pr, pc] = np.arange(npx)
+        nb = np.stack([lut[pr + dr, pc + dc] for dr in (0, -1, 1) for dc in (0, -1, 1)], 1)
+        nb = np.take_along_axis(nb, np.argsort(nb < 0, axis=1, kind="stable"), 1)
+    R = rows.shape[1]
+    g = np.where(nb[:, :, None] >= 0, rows[np.clip(nb, 0, None)], -1).reshape(npx, -1)  # (n, K R)
+    Jg = np.concatenate([Jt, np.zeros((1, Jt.shape[1]))])[g]   # (n, B, p), padding (-1): the zero row
+    rg = np.concatenate([r, [0.0]])[g]                   # (n, B)
+    A = np.eye(Jg.shape[1])[None] - np.einsum("nbi,ij,ncj->nbc", Jg, Hi, Jg)
+    try:
+        rt = np.linalg.solve(A, rg[..., None])[..., 0]
+    except np.linalg.LinAlgError:  # a block that determines a parameter on its own (leverage 1)
+        rt = np.einsum("nbc,nc->nb", np.linalg.pinv(A, rcond=1e-10), rg)
+    M = np.einsum("nbi,nb->ni", Jg[:, :R], rt[:, :R]).T @ np.einsum("nbi,nb->ni", Jg, rt)   # own rows x block
+    w, V = np.linalg.eigh(0.5 * (M + M.T))
+    M = (V * np.clip(w, 0.0, None)) @ V.T
     return Hi @ M @ Hi, [("paper-sandwich", "")] + ([("demosaic", "")] if grid is not None else [])
 
 
 @dataclasses.dataclass
 class Covariance:
     """:func:`covariance`'s result: ``cov`` of ``names`` (None if not computed), fit.json's ``info``, the
-    mechanisms ``applied``, and for an eliminating layout the shape's ``cov_z`` in z."""
+    mechanisms ``applied`` (:func:`method_text`), and for an eliminating layout the shape's ``cov_z`` in z."""
 
     names: list
     cov: object
@@ -260,80 +298,22 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
     try:
         names, Jt = jacobian_in_reported(problem, st, J)
     except np.linalg.LinAlgError:
-        return Covariance(_free_names(problem), None, {}, [("singular-reparameterisation", "")])
-    p = Jt.shape[1]
+        names = list(problem.names) + list(problem.params.albedo_names)
+        return Covariance(names, None, {}, [("singular-reparameterisation", "")])
     try:
         Hi = fisher(Jt)
+        if not problem.obj.is_likelihood:
+            cov, applied = paper_sandwich(problem, Jt, r, Hi)
+            return Covariance(names, cov, {}, applied)
+        scale, info, applied = noise_scale(problem, r, n_independent, Jt.shape[1])
+        cz, estimator = None, "posterior" if problem.obj.prior is not None else "fisher"
+        if problem.eliminates and Jt.shape[1]:
+            Hi, cz, more, used = incidental(problem, st, J, names, Hi, scale, parts)
+            info, applied = {**info, **more}, applied + used
+            estimator = "incidental" if cz is not None else estimator
     except np.linalg.LinAlgError:
         return Covariance(names, None, {}, [("singular-information", "")])
-    if not problem.obj.is_likelihood:
-        cov, applied = paper_sandwich(problem, Jt, r, Hi)
-        return Covariance(names, cov, {}, applied)
-    scale, info, applied = noise_scale(problem, r, n_independent, p)
-    estimator, cz = "posterior" if problem.obj.prior is not None else "fisher", None
-    if problem.eliminates and p:
-        try:
-            Hi, cz, more, used = incidental(problem, st, J, names, Hi, scale, parts)
-        except np.linalg.LinAlgError:
-            return Covariance(names, None, {}, [("singular-information", "")])
-        info.update(more)
-        applied += used
-        estimator = "incidental" if cz is not None else estimator
     return Covariance(names, scale * Hi, info, [(estimator, "")] + applied, None if cz is None else cz * scale)
-
-
-def _blocks(row_pix, grid):
-    """(rows (n, R) padded with -1: each pixel's residual rows, nb (n, K) padded with -1: its block's pixels)."""
-    row_pix = np.asarray(row_pix)
-    npx = int(row_pix.max()) + 1
-    order = np.argsort(row_pix, kind="stable")
-    counts = np.bincount(row_pix, minlength=npx)
-    R = int(counts.max())
-    rows = -np.ones((npx, R), int)
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    k = np.arange(len(row_pix)) - np.repeat(start, counts)
-    rows[row_pix[order], k] = order
-    if grid is None:
-        return rows, np.arange(npx)[:, None]
-    pr, pc = (np.asarray(g) for g in grid)
-    r0, c0 = pr.min(), pc.min()
-    lut = -np.ones((pr.max() - r0 + 3, pc.max() - c0 + 3), int)
-    lut[pr - r0 + 1, pc - c0 + 1] = np.arange(npx)
-    nb = np.stack([lut[pr - r0 + 1 + dr, pc - c0 + 1 + dc] for dr in (0, -1, 1) for dc in (0, -1, 1)], 1)
-    nb = np.stack([np.concatenate([row[row >= 0], row[row < 0]]) for row in nb])  # own pixel first
-    return rows, nb
-
-
-def block_meat(J, r, row_pix, Hi, grid=None):
-    """M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals (I - P_gg)^-1 r_g, P = J H^-1 J^T
-    (cluster jackknife "CR3"), since the fit pulls plain residuals towards the data.  ``row_pix``: each row's
-    pixel; ``grid``: the pixels' (rows, cols) when 3 x 3 neighbours are correlated, else None.  PSD-projected."""
-    rows, nb = _blocks(row_pix, grid)
-    npx, R = rows.shape
-    p = J.shape[1]
-    g = np.where(nb[:, :, None] >= 0, rows[np.clip(nb, 0, None)], -1).reshape(npx, -1)  # (n, K R)
-    valid = g >= 0
-    Jz = np.concatenate([J, np.zeros((1, p))])
-    rz = np.concatenate([r, [0.0]])
-    Jg = Jz[np.where(valid, g, -1)]                      # (n, B, p), zero rows where padded
-    rg = rz[np.where(valid, g, -1)]                      # (n, B)
-    P = np.einsum("nbi,ij,ncj->nbc", Jg, Hi, Jg)
-    A = np.eye(Jg.shape[1])[None] - P
-    try:
-        rt = np.linalg.solve(A, rg[..., None])[..., 0]
-    except np.linalg.LinAlgError:  # a block that determines a parameter on its own (leverage 1)
-        rt = np.einsum("nbc,nc->nb", np.linalg.pinv(A, rcond=1e-10), rg)
-    ua = np.einsum("nbi,nb->ni", Jg[:, :R], rt[:, :R])   # the pixel's own rows
-    ug = np.einsum("nbi,nb->ni", Jg, rt)                 # the whole block
-    M = ua.T @ ug
-    M = 0.5 * (M + M.T)
-    w, V = np.linalg.eigh(M)
-    return (V * np.clip(w, 0.0, None)) @ V.T
-
-
-#: ``interval_kind`` of an interval end: value -+ 1.96 SE beyond the parameter's bound, cut there; the data do
-#: not rule out the bound, so the interval is open there rather than narrow.
-FISHER_AT_BOUND = "fisher, open at the bound"
 
 
 def kind_of(ends):
@@ -352,43 +332,30 @@ def summarise(problem, st, J, r, n_independent=None, parts=None):
 
 
 def summary(problem, st, c):
-    """fit.json's uncertainty block from the :class:`Covariance` ``c``."""
-    names, cov = c.names, c.cov
-    rep = problem.params.report(st.shape, st.a_s, st.a_b)
-    albedos = set(problem.params.albedo_names)
-    out = {"std_errors": {}, "ci95": {}, "correlation": None, "at_bound": at_bound(problem, st), **c.info,
+    """fit.json's uncertainty block from the :class:`Covariance` ``c``: standard errors, 95 % intervals cut at
+    the bounds (``interval_kind`` where cut), the bound flags, correlations and ``method``."""
+    se = {} if c.cov is None else dict(zip(c.names, np.sqrt(np.clip(np.diag(c.cov), 0.0, None)).tolist()))
+    out = {"std_errors": se, "ci95": {}, "correlation": None, "at_bound": at_bound(problem, st, se), **c.info,
            "method": c.method}
-    if cov is None:
+    if c.cov is None:
         return out
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    se = dict(zip(names, sd.tolist()))
-    out["at_bound"] = at_bound(problem, st, se)
     out["bound_distance_se"] = {n: (float(d / se[n]) if se.get(n, 0.0) > 0 else math.inf)
                                 for n, (d, _) in bound_distance(problem, st).items()}
-    kinds = {}
-    for i, n in enumerate(names):
-        lo, hi = rep[n] - Z95 * sd[i], rep[n] + Z95 * sd[i]
-        blo, bhi = problem.bounds.lims[n][2:] if n in problem.names else (0.0 if n in albedos else -math.inf, math.inf)
-        cut = [lo <= blo, hi >= bhi]
-        if any(cut):
-            kinds[n] = kind_of([FISHER_AT_BOUND if c else "fisher" for c in cut])
-        out["std_errors"][n] = float(sd[i])
+    rep, kinds = problem.params.report(st.shape, st.a_s, st.a_b), {}
+    for n, s in se.items():
+        blo, bhi = problem.bounds.lims[n][2:] if n in problem.names else (
+            0.0 if n in problem.params.albedo_names else -math.inf, math.inf)
+        lo, hi = rep[n] - Z95 * s, rep[n] + Z95 * s
         out["ci95"][n] = [float(max(lo, blo)), float(min(hi, bhi))]
+        if lo <= blo or hi >= bhi:
+            kinds[n] = kind_of([FISHER_AT_BOUND if cut else "fisher" for cut in (lo <= blo, hi >= bhi)])
     if kinds:
         out["interval_kind"] = kinds
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        corr = cov / np.outer(sd, sd)
-    # a degenerate covariance (a noise-free fit) gives inf/nan; a correlation is in [-1, 1]
-    corr = np.clip(np.nan_to_num(corr, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
-    out["correlation"] = {"names": names, "matrix": np.round(corr, 4).tolist()}
+    sd = np.array(list(se.values()))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):     # a noise-free fit's: inf, nan
+        corr = np.clip(np.nan_to_num(c.cov / np.outer(sd, sd), nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
+    out["correlation"] = {"names": c.names, "matrix": np.round(corr, 4).tolist()}
     return out
-
-
-#: The pixel-area quadrature is refined while its bias (:func:`quadrature_bias`) exceeds this many SE.
-QUADRATURE_TOL = 0.2
-
-#: The finest quadrature: points per raw-pixel side.
-MAX_AREA_POINTS = 8
 
 
 def quadrature_bias(problem, fine, st, J, r):
@@ -397,16 +364,14 @@ def quadrature_bias(problem, fine, st, J, r):
     midpoint rule's error falls 4x per halving)."""
     parts = fine.parts(st)
     fine.set_weights(parts, st)
-    d = r - fine.obj.residuals(parts, st)
-    return shift_in_se(problem, J, J.T @ d)
+    return shift_in_se(problem, J, J.T @ (r - fine.obj.residuals(parts, st)))
 
 
 def shift_in_se(problem, J, g, V=None):
     """{shape parameter: -(J^T J)^-1 g / its unscaled Fisher SE}; with ``V`` (the covariance of ``g``) also
     {shape parameter: the shift's SE / that SE}."""
     Hi = np.linalg.pinv(J.T @ J)
-    b = -Hi @ g
-    se = np.sqrt(np.clip(np.diag(Hi), 1e-300, None))
+    b, se = -Hi @ g, np.sqrt(np.clip(np.diag(Hi), 1e-300, None))
     shift = {n: float(b[i] / se[i]) for i, n in enumerate(problem.names)}
     if V is None:
         return shift
@@ -414,35 +379,21 @@ def shift_in_se(problem, J, g, V=None):
     return shift, {n: float(sb[i] / se[i]) for i, n in enumerate(problem.names)}
 
 
-#: A sampled check (:func:`sampled_quadrature_bias`) refines while |bias| plus this many of its sampling
-#: standard errors exceeds :data:`QUADRATURE_TOL`: a bias the sample cannot rule out is refined.
-QUADRATURE_SAMPLING_SE = 2.0
-
-
-def cell_terms(J, d, ms):
-    """(cells, p) each cell's J_c^T d_c: ``J`` (cells ms, p), ``d`` (cells ms,), ``ms`` rows per cell."""
+def predicted_quadrature_terms(problem, coarser, st, J, r, m, h):
+    """(cells, p) each cell's J_c^T d_c, d: ``problem``'s residuals with m x m points less those with 2m x 2m,
+    predicted from ``coarser``, the same cells with h x h points (h < m): the midpoint rule's error falls as
+    1/m^2, so d = (r_h - r_m) (1/m^2 - 1/4m^2) / (1/h^2 - 1/m^2) to leading order, the residuals whitened by
+    ``problem``'s variances.  The control variate of :func:`sampled_quadrature_bias`."""
+    r_h = ((coarser.obj.y - coarser.obj.mu(coarser.parts(st), st)) / np.sqrt(problem.obj.var)).ravel()
+    d, ms = 0.75 / m ** 2 / (1.0 / h ** 2 - 1.0 / m ** 2) * (r_h - r), problem.obj.m
     return np.einsum("rp,r->rp", J, d).reshape(len(d) // ms, ms, -1).sum(1)
 
 
-def predicted_quadrature_terms(problem, coarser, st, J, r, m, h):
-    """(cells, p) each cell's J_c^T d_c (d: ``problem``'s residuals with m x m points less those with
-    2m x 2m) predicted from ``coarser``, the same cells with h x h points (h < m): the midpoint rule's error
-    falls as 1/m^2, so d = (r_h - r_m) (1/m^2 - 1/4m^2) / (1/h^2 - 1/m^2) to leading order (for h = m/2 a
-    quarter), the residuals whitened by ``problem``'s variances.  Cheap (fewer points than ``problem``), and
-    the control variate of :func:`sampled_quadrature_bias`."""
-    r_h = ((coarser.obj.y - coarser.obj.mu(coarser.parts(st), st)) / np.sqrt(problem.obj.var)).ravel()
-    factor = 0.75 / m ** 2 / (1.0 / h ** 2 - 1.0 / m ** 2)
-    return cell_terms(J, factor * (r_h - r), problem.obj.m)
-
-
 def quadrature_sample(problem, J, g_hat, n, rng):
-    """Sorted positions of a Poisson sample of the fitted cells and their inclusion probabilities pi (> 0);
-    every cell (pi = 1) when ``n`` is at least their number.
-
-    ``g_hat``: (cells, p) each cell's predicted J_c^T d_c (:func:`predicted_quadrature_terms`); ``n``: the
-    expected sample size.  A quarter of n is spread uniformly, three quarters in proportion to each cell's
-    predicted shift of the shape estimate in SE units, |S^-1 (J^T J)^-1 g_hat_c| (S: the Fisher SEs; the highlight's
-    cells), capped at 1: every cell can be taken, so the Horvitz-Thompson sum is unbiased."""
+    """(cells, pi): a Poisson sample of about ``n`` of the fitted cells (sorted; all when ``n`` >= their number)
+    and their inclusion probabilities: a quarter of n uniform, three quarters in proportion to each cell's
+    predicted shift |S^-1 (J^T J)^-1 g_hat_c| (S: the Fisher SEs; ``g_hat``: :func:`predicted_quadrature_terms`),
+    capped at 1 so that every cell can be taken and the Horvitz-Thompson sum is unbiased."""
     N, k = len(g_hat), len(problem.names)
     if n >= N:
         return np.arange(N), np.ones(N)
@@ -462,57 +413,30 @@ def quadrature_sample(problem, J, g_hat, n, rng):
 
 
 def sampled_quadrature_bias(problem, fine, st, J, r, cells, pi, g_hat):
-    """({shape parameter: bias / SE}, {shape parameter: the bias's sampling SE / SE}) of
-    :func:`quadrature_bias` with J^T (r - r_fine) estimated from the cells ``cells`` only (``fine``: the
-    2m x 2m problem of those cells in that order; ``pi`` their inclusion probabilities,
-    :func:`quadrature_sample`): the predicted sum over all cells, sum g_hat_c
-    (:func:`predicted_quadrature_terms`), plus the Horvitz-Thompson sum of the sampled cells'
-    (J_c^T d_c - g_hat_c) / pi_c (a difference estimator: unbiased whatever the prediction), with the
-    variance sum (1 - pi_c) / pi_c^2 e_c e_c^T of Poisson sampling (e_c = J_c^T d_c - g_hat_c).  J^T J and
-    the SE are the whole fit's.  The fine variances are the noise model's at the fine prediction, as
-    :meth:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective.refresh` makes them, with the coarse fit's
-    noise parameters (not re-estimated from the sample)."""
+    """(bias, sampling SE) of :func:`quadrature_bias` from ``cells`` only ({shape parameter: / its Fisher SE};
+    ``fine``: their 2m x 2m problem, ``pi``: :func:`quadrature_sample`): sum_c g_hat_c
+    (:func:`predicted_quadrature_terms`) plus the Horvitz-Thompson sum of e_c / pi_c, e_c = J_c^T d_c - g_hat_c
+    (a difference estimator, unbiased whatever the prediction), of variance sum (1 - pi_c) / pi_c^2 e_c e_c^T.
+    The fine variances are the noise model's at the fine prediction with the fit's noise parameters."""
     ms = problem.obj.m
-    st = sample_state(problem, fine, st)
+    if problem.eliminates:      # albedo maps (a pair per pixel and channel): the sampled cells' own albedos
+        C = 1 if problem.layout.channel_of is None else int(problem.layout.channel_of.max()) + 1
+        g = np.searchsorted(*[lay.pixels * C + (0 if lay.channel_of is None else lay.channel_of)
+                              for lay in (problem.layout, fine.layout)])
+        st = dataclasses.replace(st, a_s=np.asarray(st.a_s)[g], a_b=np.asarray(st.a_b)[g])
     mu = fine.obj.mu(fine.parts(st), st)
     r_fine = ((fine.obj.y - mu) / np.sqrt(np.maximum(problem.obj.noise.variance(mu), 1e-300))).ravel()
     rows = (np.asarray(cells)[:, None] * ms + np.arange(ms)).ravel()
-    e = cell_terms(J[rows], r[rows] - r_fine, ms) - g_hat[cells]
+    e = np.einsum("rp,r->rp", J[rows], r[rows] - r_fine).reshape(len(cells), ms, -1).sum(1) - g_hat[cells]
     G = g_hat.sum(0) + (e / pi[:, None]).sum(0)
     V = (e * ((1.0 - pi) / pi ** 2)[:, None]).T @ e
     return shift_in_se(problem, J, G, V)
 
 
-def sample_state(problem, fine, st):
-    """``st`` for ``fine``, a problem of a subset of ``problem``'s cells: with albedo maps (one pair per
-    pixel and channel) the subset's own groups' albedos, else ``st`` itself."""
-    if not problem.eliminates:
-        return st
-    full, sub = problem.layout, fine.layout
-    C = 1 if full.channel_of is None else int(full.channel_of.max()) + 1
-
-    def keys(lay):
-        return lay.pixels * C + (0 if lay.channel_of is None else lay.channel_of)
-
-    g = np.searchsorted(keys(full), keys(sub))
-    return dataclasses.replace(st, a_s=np.asarray(st.a_s)[g], a_b=np.asarray(st.a_b)[g])
-
-
-#: Relative tolerance on chi^2's rise at a Fisher interval's end (:func:`profile_intervals`).
-PROFILE_TOL = 0.15
-
-#: ``FitOptions.intervals``' values.
-INTERVALS = ("auto", "profile", "fisher")
-
-#: Relative tolerance of a profile end's chi^2 rise (:func:`profile_end`).
-PROFILE_ROOT_TOL = 0.1
-
-
 def interval_scale(problem, unc):
-    """The covariance's scale (:func:`noise_scale`); a 95 % chi^2 rise is 1.96^2 times it."""
-    if not unc.get("chi2_per_dof"):
-        return 1.0
-    return float(unc["chi2_per_dof"]) if unc.get("misfit") or not problem.obj.noise.known else 1.0
+    """The covariance's scale (:func:`noise_scale`) from ``unc``; a 95 % chi^2 rise is 1.96^2 times it."""
+    c = unc.get("chi2_per_dof")
+    return float(c) if c and (unc.get("misfit") or not problem.obj.noise.known) else 1.0
 
 
 def sandwich_ratio(unc, name):
@@ -527,34 +451,23 @@ def chi2_along_covariance(problem, st, J, scale):
     z0 = problem.to_z(st)
     # at a bound the z-variance is huge: regressing on it would throw a parameter to its other bound
     pinned = [i for i, (_, frac) in enumerate(bound_distance(problem, st).values()) if frac <= AT_BOUND_FRAC]
-    cz = {}
-
-    def path_cov(j):
-        keep = [i for i in range(len(z0)) if i == j or i not in pinned]
-        if len(keep) == len(z0):
-            if "all" not in cz:
-                cz["all"] = np.linalg.pinv(J.T @ J) * scale
-            return cz["all"]
-        if j not in cz:
-            c = np.zeros((len(z0), len(z0)))
-            c[np.ix_(keep, keep)] = np.linalg.pinv(J[:, keep].T @ J[:, keep]) * scale
-            cz[j] = c
-        return cz[j]
+    covs = {}
 
     def state(name, value):
-        j = problem.names.index(name)
-        zt = problem.bounds.to_z(name, value)
-        if j in pinned:
-            z = z0.copy()           # no regression on a pinned parameter: the others stay
-            z[j] = zt
+        j, z = problem.names.index(name), z0.copy()
+        if j in pinned:         # no regression on a pinned parameter: the others stay
+            z[j] = problem.bounds.to_z(name, value)
         else:
-            c = path_cov(j)
-            z = z0 + c[:, j] / c[j, j] * (zt - z0[j])
+            keep = tuple(i for i in range(len(z0)) if i == j or i not in pinned)
+            if keep not in covs:
+                Jk = J if len(keep) == len(z0) else J[:, keep]
+                covs[keep] = np.zeros((len(z0), len(z0)))
+                covs[keep][np.ix_(keep, keep)] = np.linalg.pinv(Jk.T @ Jk) * scale
+            c = covs[keep]
+            z = z0 + c[:, j] / c[j, j] * (problem.bounds.to_z(name, value) - z0[j])
         s = problem.from_z(z)
         s.shape[name] = float(value)   # exactly: z is clipped to +-Z_MAX
-        if problem.eliminates:
-            s = problem.projected(s.shape)[0]
-        return s
+        return problem.projected(s.shape)[0] if problem.eliminates else s
 
     def f(name, value):
         s = state(name, value)
@@ -566,19 +479,16 @@ def chi2_along_covariance(problem, st, J, scale):
 
 def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refits=3):
     """One end of ``name``'s profile-likelihood 95 % interval on ``side`` (-1, +1) of ``st``: where chi^2
-    refitted with ``name`` fixed (:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed`) rises by ``delta``.
-    Secant then false position on sqrt(rise), linear in the distance for a quadratic likelihood.  Returns
-    (end, kind, [(value, rise)]), kind "profile", "profile, open at the bound" or "profile, at least"."""
+    refitted with ``name`` fixed (:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed` from ``path.state``) rises by
+    ``delta``.  Secant then false position on sqrt(rise), linear in the distance for a quadratic likelihood.
+    Returns (end, kind, [(value, rise)]), kind "profile", "profile, open at the bound" or "profile, at least"."""
     b = problem.bounds
-    _, _, lo, hi = b.lims[name]
-    value = st.shape[name]
-    bound = lo if side < 0 else hi
-    t0, tb = b.to_scale(name, value), b.to_scale(name, bound)
-    room = abs(tb - t0)
+    bound = b.lims[name][2 if side < 0 else 3]
+    t0 = b.to_scale(name, st.shape[name])
+    room = abs(b.to_scale(name, bound) - t0)
     u = min(abs(b.to_scale(name, start) - t0), room)
-    pts, inside, outside = [], (0.0, 0.0), None    # (|u|, sqrt(rise))
-    g_target = math.sqrt(delta)
-    for _ in range(max_refits):
+    pts, inside, outside, g_target = [], (0.0, 0.0), None, math.sqrt(delta)    # inside, outside: (|u|, sqrt(rise))
+    for k in range(max_refits):
         u = min(max(u, 1e-9 * max(room, 1.0)), room)
         v = b.from_scale(name, t0 + side * u) if u < room else bound
         rise = refit_fixed(problem, st, name, v, path.state(name, v),
@@ -587,84 +497,66 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
         g = math.sqrt(max(rise, 0.0))
         if abs(rise / delta - 1.0) < PROFILE_ROOT_TOL:
             return float(v), "profile", pts
-        if g < g_target:
-            if u >= room:
-                return float(bound), "profile, open at the bound", pts
-            inside = (u, g)
-        else:
+        if g >= g_target:
             outside = (u, g)
+        elif u >= room:
+            return float(bound), "profile, open at the bound", pts
+        else:
+            inside = (u, g)
         if outside is None:      # secant through the origin, at most x4
             u = min(u * (g_target / g if g > 0 else 4.0), 4.0 * u, room)
         else:
-            (ua, ga), (ub, gb) = inside, outside
-            u = ua + (g_target - ga) * (ub - ua) / (gb - ga) if gb > ga else 0.5 * (ua + ub)
-    if outside is not None:
-        (ua, ga), (ub, gb) = inside, outside
-        u = ua + (g_target - ga) * (ub - ua) / (gb - ga) if gb > ga else ub
-        return float(b.from_scale(name, t0 + side * u)), "profile", pts
-    return float(pts[-1][0]), "profile, at least", pts
+            (ua, ga), (ub, gb) = inside, outside     # false position (the last: ub where it fails)
+            fallback = 0.5 * (ua + ub) if k + 1 < max_refits else ub
+            u = ua + (g_target - ga) * (ub - ua) / (gb - ga) if gb > ga else fallback
+    if outside is None:
+        return float(pts[-1][0]), "profile, at least", pts
+    return float(b.from_scale(name, t0 + side * u)), "profile", pts
 
 
 def profile_intervals(problem, st, unc, J, r, every=False, progress=None):
     """Replace each Fisher 95 % interval end where chi^2 along :func:`chi2_along_covariance` does not rise by
     delta = 1.96^2 x scale to within :data:`PROFILE_TOL` by the profile likelihood's (:func:`profile_end`).
-    With the incidental sandwich delta is per parameter, x :func:`sandwich_ratio` (adjusted likelihood ratio,
-    Varin, Reid and Firth 2011, sec. 4.2), and a profile end only widens (the profile of chi^2 with the
-    albedos eliminated lacks their noise).  Sets ``unc``'s ``interval_kind``, ``profile`` and ``ci95``.
-    Likelihood fits without extra unknowns only.  ``every``: profile every end.  ``progress``: a callable
-    told after each parameter how many are checked, with the time left at the measured time per parameter.
-    Returns the mechanisms applied.
-    """
+    With the incidental sandwich delta is x :func:`sandwich_ratio` (adjusted likelihood ratio, Varin, Reid and
+    Firth 2011, sec. 4.2) and a profile end only widens (chi^2's profile with the albedos eliminated lacks their
+    noise).  Sets ``unc``'s ``interval_kind``, ``profile`` and ``ci95``; returns the mechanisms applied.
+    Likelihood fits without extra unknowns only.  ``every``: profile every end; ``progress``: told of each
+    parameter checked and the time left."""
     if not problem.obj.is_likelihood or not unc.get("ci95") or problem.with_fixed({}) is None:
         return []
-    chi2_min = float(r @ r)
-    scale = interval_scale(problem, unc)
-    delta = Z95 ** 2 * scale
+    chi2_min, scale = float(r @ r), interval_scale(problem, unc)
     try:
         path = chi2_along_covariance(problem, st, J, scale)
     except np.linalg.LinAlgError:
         return []
-    kinds, details, fisher = {}, {}, {n: list(v) for n, v in unc["ci95"].items()}
-    fse = unc.get("incidental", {}).get("fisher_std_errors")
-    thresholds, t0 = {}, time.time()
-    names = [n for n in problem.names if unc["std_errors"].get(n) is not None
-             and math.isfinite(unc["std_errors"][n]) and unc["std_errors"][n] > 0]
+    sandwich = unc.get("incidental", {}).get("fisher_std_errors") is not None
+    kinds, details, thresholds, fisher_ci = {}, {}, {}, {n: list(v) for n, v in unc["ci95"].items()}
+    names, t0 = [n for n in problem.names if 0 < (unc["std_errors"].get(n) or 0) < math.inf], time.time()
     if progress is not None:
         progress(f"[fit] interval check: {len(names)} parameters against the profile likelihood")
     for j, n in enumerate(names):
-        if fse is not None:
-            delta = thresholds[n] = Z95 ** 2 * scale * sandwich_ratio(unc, n)
-        _, _, lo, hi = problem.bounds.lims[n]
-        v = st.shape[n]
-        ends, kind, tried = list(unc["ci95"][n]), [], {}
+        delta = Z95 ** 2 * scale * sandwich_ratio(unc, n)
+        if sandwich:
+            thresholds[n] = delta
+        (lo, hi), ends, kind, tried = problem.bounds.lims[n][2:], list(unc["ci95"][n]), [], {}
         for i, side in enumerate((-1, 1)):
-            end = ends[i]
-            at_bound = end <= lo or end >= hi
-            rise = path(n, end) - chi2_min
-            ok = rise <= delta * (1 + PROFILE_TOL) if at_bound else abs(rise / delta - 1) <= PROFILE_TOL
-            tried["fisher_end_rise" if i else "fisher_start_rise"] = float(rise)
-            fisher_kind = FISHER_AT_BOUND if at_bound else "fisher"
-            if ok and not every:
-                kind.append(fisher_kind)
-                continue
-            prof, k, pts = profile_end(problem, st, n, side, end, delta, chi2_min, path)
-            tried["lower" if side < 0 else "upper"] = pts
-            if fse is not None and side * (prof - end) < 0:
-                k = fisher_kind
-            else:
-                ends[i] = prof
-            kind.append(k)
-        kinds[n] = kind_of(kind)
-        details[n] = tried
-        unc["ci95"][n] = [float(min(ends[0], v)), float(max(ends[1], v))]
+            cut = ends[i] <= lo or ends[i] >= hi
+            rise = tried["fisher_end_rise" if i else "fisher_start_rise"] = float(path(n, ends[i]) - chi2_min)
+            kind.append(FISHER_AT_BOUND if cut else "fisher")
+            if every or not (rise <= delta * (1 + PROFILE_TOL) if cut else abs(rise / delta - 1) <= PROFILE_TOL):
+                end, k, tried["upper" if i else "lower"] = profile_end(problem, st, n, side, ends[i], delta,
+                                                                        chi2_min, path)
+                if not (sandwich and side * (end - ends[i]) < 0):    # with the sandwich a profile end only widens
+                    ends[i], kind[i] = end, k
+        kinds[n], details[n] = kind_of(kind), tried
+        unc["ci95"][n] = [float(min(ends[0], st.shape[n])), float(max(ends[1], st.shape[n]))]
         if progress is not None:
-            progress(f"[fit] interval check: {n} done, {j + 1}/{len(names)} parameters ({time.time() - t0:.1f} s"
-                     + (f", {time_left(time.time() - t0, j + 1, len(names), 'in the check')})" if j + 1 < len(names)
-                        else ")"))
+            dt = time.time() - t0
+            progress(f"[fit] interval check: {n} done, {j + 1}/{len(names)} parameters ({dt:.1f} s"
+                     + (f", {time_left(dt, j + 1, len(names), 'in the check')})" if j + 1 < len(names) else ")"))
     unc["interval_kind"] = {**{n: k for n, k in unc.get("interval_kind", {}).items() if n not in kinds}, **kinds}
-    unc["profile"] = {"threshold": Z95 ** 2 * scale, "rises": details, "fisher_ci95": fisher}
-    if thresholds:
-        unc["profile"]["thresholds"] = thresholds
+    unc["profile"] = {"threshold": Z95 ** 2 * scale, "rises": details, "fisher_ci95": fisher_ci,
+                      **({"thresholds": thresholds} if thresholds else {})}
     return [("profile", "")] if profiled(kinds) else []
 
 
@@ -688,17 +580,10 @@ def misfit_text(unc):
 def weakly_identified(table, params, std, at_bound_=()):
     """Names of ``params`` whose SE exceeds :data:`WEAK_REL` of max(|value|, :data:`WEAK_FLOOR`), or in
     ``at_bound_`` (``table``: the :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`)."""
-
-    def floor(k):
-        return WEAK_FLOOR.get(table.row[k].base if k in table.row else k, 0.0)
-
+    floor = {k: WEAK_FLOOR.get(table.row[k].base if k in table.row else k, 0.0) for k in params}
     return [k for k, v in params.items()
-            if (k in std and (not math.isfinite(std[k]) or std[k] > WEAK_REL * max(abs(v), floor(k))))
+            if (k in std and (not math.isfinite(std[k]) or std[k] > WEAK_REL * max(abs(v), floor[k])))
             or k in at_bound_]
-
-
-#: An albedo is *determined* where SE <= this fraction of it; a split is *identified* where k_s and k_b are.
-SPLIT_REL = 0.5
 
 
 def determined(value, se, rel=SPLIT_REL):
@@ -711,13 +596,10 @@ def determined(value, se, rel=SPLIT_REL):
 def pixel_albedos(problem, st, parts, J, unc, cov_z=None):
     """Per group of an eliminating layout: the albedos with their errors
     (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.maps`), ``identified`` where both are
-    :func:`determined`; ``cov_z``: the shape's covariance in z (default (J^T J)^-1 x scale).
-    """
-    obj, lay = problem.obj, problem.layout
-    z = problem.to_z(st)
+    :func:`determined`; ``cov_z``: the shape's covariance in z (default (J^T J)^+ x scale)."""
+    obj, lay, scale = problem.obj, problem.layout, interval_scale(problem, unc)
     us, ub = obj.albedo_columns(parts)
-    Jt = obj.shape_jacobian(parts, st, z, problem.names, problem.bounds)
-    scale = interval_scale(problem, unc)
+    Jt = obj.shape_jacobian(parts, st, problem.to_z(st), problem.names, problem.bounds)
     try:
         if cov_z is None:
             cov_z = np.linalg.pinv(J.T @ J) * scale if J.shape[1] else np.zeros((0, 0))
@@ -727,38 +609,27 @@ def pixel_albedos(problem, st, parts, J, unc, cov_z=None):
                     SPLIT_REL)
 
 
-#: 95 % quantiles of chi^2 with 1 ... 8 degrees of freedom.
-CHI2_95 = (3.841458820694124, 5.991464547107979, 7.814727903251178, 9.487729036781154, 11.070497693516351,
-           12.591587243743977, 14.067140449340169, 15.507313055865453)
-
-#: A start's end this many SE from the estimate in some shape parameter is another optimum.
-MODE_SEPARATION_SE = 2.0
-
-
 def other_optima(starts, params, unc, names):
     """(optima, threshold): the ends of ``starts`` (:func:`fmbrdf_mi.fit.solve.driver.solve`) more than
     :data:`MODE_SEPARATION_SE` from ``params``, with delta_chi2 = 2 (score - best); one *competes* when
     converged and below :data:`CHI2_95` [p] x scale x the largest :func:`sandwich_ratio`.  ([], None) for
     one start or no standard errors."""
     se = unc.get("std_errors") or {}
-    names = [n for n in names if se.get(n) and math.isfinite(se[n]) and se[n] > 0]
+    names = [n for n in names if 0 < (se.get(n) or 0) < math.inf]
     scored = [s for s in starts if s.get("score") is not None and math.isfinite(s["score"])]
     if len(scored) < 2 or not names:
         return [], None
     best = min(s["score"] for s in scored)
-    inflation = max([1.0] + [sandwich_ratio(unc, n) for n in names])
     scale = float(unc["chi2_per_dof"]) if unc.get("misfit") and unc.get("chi2_per_dof") else 1.0
+    inflation = max([1.0] + [sandwich_ratio(unc, n) for n in names])
     threshold = CHI2_95[min(len(names), len(CHI2_95)) - 1] * scale * inflation
     out = []
     for s in scored:
-        end = s["end"]
-        dist = max(abs(end[n] - params[n]) / se[n] for n in names)
-        if dist <= MODE_SEPARATION_SE:
-            continue
-        d = 2.0 * (s["score"] - best)
-        out.append({"params": {n: float(end[n]) for n in names}, "delta_chi2": float(d), "distance_se": float(dist),
-                    "converged": bool(s.get("converged")),
-                    "competing": bool(s.get("converged")) and d < threshold})
+        dist, d = max(abs(s["end"][n] - params[n]) / se[n] for n in names), 2.0 * (s["score"] - best)
+        if dist > MODE_SEPARATION_SE:
+            out.append({"params": {n: float(s["end"][n]) for n in names}, "delta_chi2": float(d),
+                        "distance_se": float(dist), "converged": bool(s.get("converged")),
+                        "competing": bool(s.get("converged")) and d < threshold})
     return out, float(threshold)
 
 
@@ -766,24 +637,16 @@ def widen_for_optima(unc, params, optima, lims=None):
     """Widen each 95 % interval to the hull of its own and, around each competing optimum, one of the same
     half-widths, cut at ``lims`` {name: (lo, hi)}; records ``interval_kind`` "optima" and
     ``other_optima["widened"]``.  Returns the names widened."""
-    comp = [o for o in optima if o["competing"]]
-    ci = unc.get("ci95") or {}
-    if not comp:
-        return []
-    before = {}
-    for n in [n for n in ci if all(n in o["params"] for o in comp)]:
-        lo, hi = ci[n]
-        v = params[n]
+    comp, ci, before = [o for o in optima if o["competing"]], unc.get("ci95") or {}, {}
+    for n in [n for n in ci if comp and all(n in o["params"] for o in comp)]:
+        (lo, hi), v = ci[n], params[n]
         blo, bhi = (lims or {}).get(n, (-math.inf, math.inf))
-        new_lo = max(blo, min([lo] + [o["params"][n] - (v - lo) for o in comp]))
-        new_hi = min(bhi, max([hi] + [o["params"][n] + (hi - v) for o in comp]))
-        if new_lo < lo or new_hi > hi:
-            before[n] = [float(lo), float(hi)]
-            ci[n] = [float(new_lo), float(new_hi)]
+        new = [max(blo, min([lo] + [o["params"][n] - (v - lo) for o in comp])),
+               min(bhi, max([hi] + [o["params"][n] + (hi - v) for o in comp]))]
+        if new[0] < lo or new[1] > hi:
+            before[n], ci[n] = [float(lo), float(hi)], [float(x) for x in new]
     if before:
-        kinds = unc.setdefault("interval_kind", {n: "fisher" for n in ci})
-        for n in before:
-            kinds[n] = "optima"
+        unc.setdefault("interval_kind", {n: "fisher" for n in ci}).update(dict.fromkeys(before, "optima"))
         unc.setdefault("other_optima", {})["widened"] = before
     return list(before)
 
