@@ -57,7 +57,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         return _fit_images(check_observations(obs, "fit()", least=0), opts, names=names, progress=progress,
                            powers=powers, materials=materials)
     loss = check_request(obs, opts, data)
-    fx = Fitted(None, data, None, opts, progress_callable(progress), None, obs.shape, materials)
+    fx = Fitted(None, data, None, opts, progress_callable(progress), image_shape=obs.shape, labels=materials)
     if opts.max_time:
         fx.deadline = fx.t0 + float(opts.max_time)
     if data is None:
