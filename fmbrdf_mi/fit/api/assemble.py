@@ -10,7 +10,9 @@ import time
 import numpy as np
 
 from fmbrdf_mi.fit import uncertainty as U
+from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.result import FitResult
+from fmbrdf_mi.fit.solve.driver import solve
 
 
 @dataclasses.dataclass
@@ -32,6 +34,19 @@ class Fitted:
     applied: list = dataclasses.field(default_factory=list)
     evaluations: int = 0
     t0: float = dataclasses.field(default_factory=time.time)
+
+    def problem_of(self, data):
+        """The problem of ``data`` (the fit's, remade or subsampled) under the fit's options and deadline."""
+        o = self.options
+        return data.problem(get_model(o.model), o.bounds, self.report, o.fixed, self.deadline)
+
+    def solve(self, problem, **kw):
+        """:func:`~fmbrdf_mi.fit.solve.driver.solve` of ``problem`` under the fit's options and progress (the
+        likelihood's reweighting rounds: two more than the paper's loss's inlier refreshes)."""
+        o = self.options
+        return solve(problem, rounds=max(1, o.rounds) + 2 * (self.data.loss == "likelihood"), optimizer=o.optimizer,
+                     max_iter=o.max_iter, tol=o.tol, time_limit=o.time_limit, lr=o.lr, max_time=o.max_time,
+                     report=self.report, **kw)
 
 
 def assemble(fx):
@@ -107,18 +122,22 @@ def material_block(params, reported, std_errors, ci95, pixels):
 
 def albedo_block(problem, st, parts, groups, shape, value, report):
     """(fit.json's ``albedo`` block, the maps) of an eliminating layout: :func:`albedo_maps` of ``groups``
-    (:func:`~fmbrdf_mi.fit.uncertainty.pixel_albedos`; None: the values without errors)."""
-    lay = problem.layout
+    (:func:`~fmbrdf_mi.fit.uncertainty.pixel_albedos`; None: the values without errors), with the prior's
+    ``albedo.prior`` block (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`; effective parameters: the hat
+    matrix's trace)."""
+    lay, obj, pr = problem.layout, problem.obj, problem.layout.prior
     if groups is None:
         groups = lay.maps(st.a_s, st.a_b, np.full((lay.n_groups, 2, 2), np.nan), problem.model.albedo_factor,
                           U.SPLIT_REL)
-    prior = lay.prior is not None
-    albedo, maps = albedo_maps(lay, shape, groups, prior=prior)
-    if prior:
-        albedo["prior"] = prior_block(problem, st, parts)
-        report(f"[fit] albedo smoothness prior: penalty {albedo['prior']['penalty']:.4g} of chi^2 "
-               f"{value:.6g}, effective albedo parameters {albedo['prior']['effective_parameters']:.1f} of "
-               f"{albedo['prior']['parameters']}")
+    albedo, maps = albedo_maps(lay, shape, groups, prior=pr is not None)
+    if pr is not None:
+        albedo["prior"] = p = {
+            "kind": pr.describe(), "tau_s": pr.tau[0], "tau_b": pr.tau[1], "pairs": int(len(pr.pairs)),
+            "penalty": obj.penalty(st), "data_chi2": float(np.sum(data_residuals(obj, parts, st) ** 2)),
+            "effective_parameters": lay.effective_parameters(*obj.albedo_columns(parts)),
+            "parameters": 2 * int(lay.n_groups), "null_dims": int(pr.null_dims()), "dof_rule": PRIOR_DOF_RULE}
+        report(f"[fit] albedo smoothness prior: penalty {p['penalty']:.4g} of chi^2 {value:.6g}, effective albedo "
+               f"parameters {p['effective_parameters']:.1f} of {p['parameters']}")
     report(f"[fit] albedo maps: {albedo['pixels']} pixels, surface / body split identified in "
            f"{albedo['identified_fraction']:.0%} (median k_s {albedo['k_s_median']:.4g}, k_b "
            f"{albedo['k_b_median']:.4g})")
@@ -137,18 +156,6 @@ def data_residuals(obj, parts, st):
 PRIOR_DOF_RULE = ("chi^2 (data + penalty) has N - p - n0 degrees of freedom (N independent samples, p free shape "
                   "parameters, n0 = 2 per connected set of pixels, the prior's null space) when the maps' neighbour "
                   "differences follow the prior; maps smoother than tau give less, rougher ones more")
-
-
-def prior_block(problem, st, parts):
-    """fit.json's ``albedo.prior`` (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) at ``st``; effective
-    parameters: the hat matrix's trace."""
-    lay, obj = problem.layout, problem.obj
-    pr = lay.prior
-    return {"kind": pr.describe(), "tau_s": pr.tau[0], "tau_b": pr.tau[1], "pairs": int(len(pr.pairs)),
-            "penalty": obj.penalty(st), "data_chi2": float(np.sum(data_residuals(obj, parts, st) ** 2)),
-            "effective_parameters": lay.effective_parameters(*obj.albedo_columns(parts)),
-            "parameters": 2 * int(lay.n_groups), "null_dims": int(pr.null_dims()), "dof_rule": PRIOR_DOF_RULE}
-
 
 #: Fewer images of each pixel leave a per-pixel albedo fit's shared parameters poorly determined (the
 #: incidental-parameter problem; docs/howto/fit-textured.md).
@@ -175,13 +182,14 @@ def albedo_maps(layout, shape, groups, prior=False):
         img[ch, layout.pixels] = v
         maps[key] = img.reshape(C, H, W) if C > 1 else img.reshape(H, W)
     maps["channels"] = None if C == 1 else list(layout.labels)
-    ident = np.asarray(groups["identified"], bool)
 
     def stats(sel):     # of the groups ``sel``
         g = {k: np.asarray(v)[sel] for k, v in groups.items()}
-        return {"identified_fraction": float(ident[sel].mean()) if ident[sel].size else 0.0,
+        ok = {k: U.determined(g[k], g[k + "_se"]) for k in ("k_s", "k_b")}
+        ident = np.asarray(g["identified"], bool)
+        return {"identified_fraction": float(ident.mean()) if ident.size else 0.0,
                 "k_s_median": float(np.nanmedian(g["k_s"])), "k_b_median": float(np.nanmedian(g["k_b"])),
-                **{f"{k}_determined_fraction": determined(g[k], g[k + "_se"]) for k in ("k_s", "k_b")}}
+                **{f"{k}_determined_fraction": float(v.mean()) if v.size else 0.0 for k, v in ok.items()}}
 
     every = stats(slice(None))
     summary = {"layout": layout.name, "pixels": int(len(np.unique(layout.pixels))), "groups": int(layout.n_groups),
@@ -193,14 +201,8 @@ def albedo_maps(layout, shape, groups, prior=False):
     # median images (cells) per albedo pair; a colour cell holds one group per channel, each counted once
     cells = np.unique(np.stack([np.repeat(np.arange(len(layout.groups)), layout.groups.shape[1]),
                                 layout.groups.ravel()]), axis=1)[1] if C > 1 else layout.groups[:, 0]
-    per = float(np.median(np.bincount(cells, minlength=layout.n_groups))) if layout.n_groups else 0.0
-    summary["images_per_pixel"] = per
+    per = summary["images_per_pixel"] = (float(np.median(np.bincount(cells, minlength=layout.n_groups)))
+                                         if layout.n_groups else 0.0)
     if per < MIN_IMAGES_PER_PIXEL:
         summary["warning"] = PER_PIXEL_FEW_IMAGES.format(FEW_IMAGES_ERRORS[bool(prior)])
     return summary, maps
-
-
-def determined(value, se):
-    """Fraction of the groups whose albedo is :func:`~fmbrdf_mi.fit.uncertainty.determined`."""
-    ok = U.determined(value, se)
-    return float(ok.mean()) if ok.size else 0.0

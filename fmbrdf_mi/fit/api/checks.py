@@ -18,8 +18,7 @@ import numpy as np
 from fmbrdf_mi.fit import uncertainty as U
 from fmbrdf_mi.fit.api.assemble import assemble, settle
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.models import get_model
-from fmbrdf_mi.fit.solve.driver import EXPLORE_ABOVE, EXPLORE_PIXELS, solve
+from fmbrdf_mi.fit.solve.driver import EXPLORE_ABOVE, EXPLORE_PIXELS
 
 
 def checkable(res):
@@ -80,75 +79,64 @@ def samplable(data, problem):
 def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, seed=None):
     """The pixel-area quadrature of a likelihood fit of raw samples: while its bias
     (:func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias`) exceeds
-    :data:`~fmbrdf_mi.fit.uncertainty.QUADRATURE_TOL` SE, the data are remade with 2m x 2m points and the fit
-    resumed, up to :data:`~fmbrdf_mi.fit.uncertainty.MAX_AREA_POINTS`.  Returns the finest converged fit's
-    result with ``uncertainty.quadrature``; data that cannot be remade are returned as they are.
+    :data:`~fmbrdf_mi.fit.uncertainty.QUADRATURE_TOL` SE, the fit goes on with the data remade at 2m x 2m
+    points, up to :data:`~fmbrdf_mi.fit.uncertainty.MAX_AREA_POINTS`; returns the finest converged fit's result
+    with ``uncertainty.quadrature``.
 
-    A fit of images of more than ``sample_above`` super-pixels (the largest image; default:
-    :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_ABOVE`) remakes all with m/2 x m/2 points (cheap) to predict each pixel's share of the bias
-    (:func:`~fmbrdf_mi.fit.uncertainty.predicted_quadrature_terms`), and only a seeded sample of about
-    ``sample_pixels`` of them (default :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_PIXELS`; drawn by
-    :func:`~fmbrdf_mi.fit.uncertainty.quadrature_sample`) with 2m x 2m, and corrects the prediction from it
-    (:func:`~fmbrdf_mi.fit.uncertainty.sampled_quadrature_bias`); the fit is
-    refined (on all pixels) while |bias| plus :data:`~fmbrdf_mi.fit.uncertainty.QUADRATURE_SAMPLING_SE` of
-    its sampling SE exceeds the tolerance.  Each such check records ``sampled``: the cells remade, of how
-    many, and the sampling SE.  ``seed``: the sample's (default: the fit's ``seed``)."""
+    Images of more than ``sample_above`` super-pixels (default :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_ABOVE`)
+    estimate the bias from a ``seed``-ed sample of about ``sample_pixels`` of them (default
+    :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_PIXELS`) remade at 2m x 2m, correcting a prediction from all at
+    m/2 x m/2 (:func:`~fmbrdf_mi.fit.uncertainty.sampled_quadrature_bias`); they refine while |bias| plus
+    :data:`~fmbrdf_mi.fit.uncertainty.QUADRATURE_SAMPLING_SE` sampling SE exceeds the tolerance."""
     if not checkable(res) or res.fitted.data.remake is None or res.fitted.data.area_points <= 1:
         return res
     import drjit as dr
 
     fx = res.fitted
-    say, opts = progress or fx.report, fx.options
+    say = progress or fx.report
     sample_above = EXPLORE_ABOVE if sample_above is None else sample_above
     sample_pixels = EXPLORE_PIXELS if sample_pixels is None else sample_pixels
     problem, data, st, m, t0 = fx.problem, fx.data, fx.solution.state, fx.data.area_points, time.time()
     block = {"area_points": m, "tolerance_se": U.QUADRATURE_TOL, "checks": []}
     fine_fx, history, coarser_data = None, list(fx.history), None
-    rng = np.random.default_rng(opts.seed if seed is None else seed)
+    rng = np.random.default_rng(fx.options.seed if seed is None else seed)
     while m < U.MAX_AREA_POINTS:
         parts = problem.parts(st, jac=True)
         r, J = problem.residuals_and_jacobian(parts, st, problem.to_z(st))
         del parts       # its derivatives: a whole frame's, several times over, not wanted beside the finer data
         dr.flush_malloc_cache()     # the solve's freed Dr.Jit buffers, returned before the finer data are made
-        n_cells = len(data.pixels)
-        cells = None
-        if max(len(p) for p in data.image_pixels) > sample_above and samplable(data, problem):
+        cells = fine = None
+        check = {"area_points": m, "against": 2 * m}
+        if max(map(len, data.image_pixels)) > sample_above and samplable(data, problem):
             if coarser_data is None or coarser_data.area_points != m // 2:
                 coarser_data = data.remake(m // 2)
-            coarser = coarser_data.problem(get_model(opts.model), opts.bounds, fx.report, opts.fixed, fx.deadline)
-            g_hat = U.predicted_quadrature_terms(problem, coarser, st, J, r, m, m // 2)
-            del coarser
+            g_hat = U.predicted_quadrature_terms(problem, fx.problem_of(coarser_data), st, J, r, m, m // 2)
             cells, pi = U.quadrature_sample(problem, J, g_hat, sample_pixels, rng)
             if any(not np.any((cells >= a) & (cells < b)) for a, b in data.slices):
                 cells = None        # an image without a sampled cell: the whole check
         if cells is None:
             fine_data = data.remake(2 * m)
-            fine = fine_data.problem(get_model(opts.model), opts.bounds, fx.report, opts.fixed, fx.deadline)
-            bias = U.quadrature_bias(problem, fine, st, J, r)
-            check, worst = {"area_points": m, "against": 2 * m, "bias_se": bias}, max(map(abs, bias.values()),
-                                                                                       default=0.0)
+            fine = fx.problem_of(fine_data)
+            check["bias_se"] = bias = U.quadrature_bias(problem, fine, st, J, r)
+            worst = max(map(abs, bias.values()), default=0.0)
         else:
-            sub = data.remake(2 * m, cells=cells).problem(get_model(opts.model), opts.bounds, fx.report,
-                                                          opts.fixed, fx.deadline)
-            bias, spread = U.sampled_quadrature_bias(problem, sub, st, J, r, cells, pi, g_hat)
-            del sub
-            check = {"area_points": m, "against": 2 * m, "bias_se": bias,
-                     "sampled": {"pixels": int(len(cells)), "of": int(n_cells), "sampling_se": spread}}
+            bias, spread = U.sampled_quadrature_bias(problem, fx.problem_of(data.remake(2 * m, cells=cells)), st,
+                                                     J, r, cells, pi, g_hat)
+            check.update(bias_se=bias, sampled={"pixels": int(len(cells)), "of": int(len(data.pixels)),
+                                                "sampling_se": spread})
             worst = max((abs(bias[n]) + U.QUADRATURE_SAMPLING_SE * spread[n] for n in bias), default=0.0)
-            say(f"[fit] pixel-area quadrature checked on {len(cells)} of {n_cells} pixels: "
+            say(f"[fit] pixel-area quadrature checked on {len(cells)} of {len(data.pixels)} pixels: "
                 f"{worst_bias(bias)} SE (sampling SE up to {max(spread.values(), default=0.0) / 0.75:.2f})")
         block["checks"].append(check)
         if not bias or worst <= U.QUADRATURE_TOL:
             break
-        if cells is not None:
+        if fine is None:
             fine_data = data.remake(2 * m)
-            fine = fine_data.problem(get_model(opts.model), opts.bounds, fx.report, opts.fixed, fx.deadline)
+            fine = fx.problem_of(fine_data)
         say(f"[fit] pixel-area quadrature: {m} x {m} points per raw pixel bias {worst_bias(bias)} standard errors "
             f"here (the highlight spans few pixels); the fit goes on with {2 * m} x {2 * m}")
         try:
-            sol = solve(fine, init=st, starts=1, rounds=max(1, opts.rounds) + 2, optimizer=opts.optimizer,
-                        max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit, lr=opts.lr,
-                        max_time=opts.max_time, history=history, report=fx.report)
+            sol = fx.solve(fine, init=st, starts=1, history=history)
         except InputError:      # max_time reached before one evaluation
             sol = None
         if sol is None or not sol.converged:    # keep the converged coarser fit

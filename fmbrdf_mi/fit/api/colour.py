@@ -67,8 +67,7 @@ def fit_colour(obs, samples, noise=None, *, progress=None, **options):
     nest = Parameters(m, channels=data.objective.layout.labels).nest
     res.params, res.std_errors = nest(res.params), None
     if res.converged:
-        res.std_errors = {n: None for n in m.shape_names}
-        res.std_errors.update(nest(res.uncertainty["std_errors"]))
+        res.std_errors = {**dict.fromkeys(m.shape_names), **nest(res.uncertainty["std_errors"])}
         res.uncertainty["ci95"] = nest(res.uncertainty["ci95"])
     r = res.details.pop("residuals").reshape(len(data.pixels), -1)
     per_chi2 = [float(np.sum(r[a:b] ** 2) / max(r[a:b].size, 1)) for a, b in data.slices]
@@ -85,9 +84,8 @@ def fit_colour(obs, samples, noise=None, *, progress=None, **options):
 def predict_samples(obs, samples, res):
     """The fitted model's 16 samples (16, H, W) per period of a mosaic of the fitted object (image units, each
     at the fit's pixel-area quadrature; NaN outside mask & usable and, for albedo maps, off the fitted periods)."""
-    m = get_model(res["model"])
+    m, out = get_model(res["model"]), np.full(samples.values.shape, np.nan)
     idx = np.flatnonzero((obs.mask & samples.usable).ravel())
-    out = np.full(samples.values.shape, np.nan)
     if len(idx) == 0:
         return out
     n, v, w = obs.sample_geometry(idx, footprint=samples.footprint(res.fitted.data.area_points))
@@ -105,20 +103,15 @@ def predict_samples(obs, samples, res):
     else:
         a_s, a_b = (np.asarray(res["internal"][k], float)[:, None] for k in ("a_s", "a_b"))
     ch = np.asarray(samples.channel)
-    mu = a_s[ch].T * unit[0] + a_b[ch].T * unit[1]
-    flat = out.reshape(16, -1)
-    flat[:, idx] = mu.T
+    out.reshape(16, -1)[:, idx] = (a_s[ch].T * unit[0] + a_b[ch].T * unit[1]).T
     return out
 
 
 def format_result(res):
     """One line per parameter: value +- SE (per channel for the albedos)."""
-    lines = []
-    for k, v in res["params"].items():
-        s = (res["std_errors"] or {}).get(k)
-        if isinstance(v, dict):
-            lines.append(f"{k}: " + ", ".join(f"{c} {v[c]:.5g}" + ("" if s is None else f" +- {s[c]:.2g}")
-                                              for c in v))
-        else:
-            lines.append(f"{k}: {v:.5g}" + ("" if s is None else f" +- {s:.2g}"))
-    return "\n".join(lines)
+    def one(v, s, head=""):
+        return f"{head}{v:.5g}" + ("" if s is None else f" +- {s:.2g}")
+
+    ses = res["std_errors"] or {}
+    return "\n".join(f"{k}: " + (", ".join(one(v[c], None if ses.get(k) is None else ses[k][c], f"{c} ") for c in v)
+                                  if isinstance(v, dict) else one(v, ses.get(k))) for k, v in res["params"].items())

@@ -67,9 +67,7 @@ def weighted_kmeans(x, w, count, seed=0, starts=10, max_iter=100):
     """k-means of ``x`` (n, F) with weights ``w`` (n, F) (1 / variance): distance sum_f w_f (x_f - c_f)^2;
     the best of ``starts`` k-means++ starts.  Returns (labels (n,), centres (count, F), total)."""
     x, w = np.asarray(x, dtype=np.float64), np.asarray(w, dtype=np.float64)
-    n = len(x)
-    rng = np.random.default_rng(seed)
-    best = None
+    n, rng, best = len(x), np.random.default_rng(seed), None
 
     def dist(c):
         return np.sum(w[:, None, :] * (x[:, None, :] - c[None, :, :]) ** 2, axis=-1)  # (n, count)
@@ -80,8 +78,7 @@ def weighted_kmeans(x, w, count, seed=0, starts=10, max_iter=100):
             d = dist(np.array(c)).min(axis=1)
             p = d / d.sum() if d.sum() > 0 else np.full(n, 1.0 / n)
             c.append(x[rng.choice(n, p=p)])
-        c = np.array(c)
-        lab = None
+        c, lab = np.array(c), None
         for _ in range(max_iter):
             new = np.argmin(dist(c), axis=1)
             if lab is not None and np.array_equal(new, lab):
@@ -123,9 +120,8 @@ def material_chi2(obs, model, params, count, idx):
         s0 = np.abs(obs_s[0])
         var = np.repeat((s0 + 0.01 * np.median(s0))[None], 3, axis=0)
     var = np.maximum(var, 1e-12 * np.max(var))
-    pred = np.empty((count, 3, len(idx)))
-    for m, pm in enumerate(Parameters(get_model(model), materials=count).per_material(params)):
-        pred[m] = predict_image(model, pm, obs, idx).reshape(3, -1)[:, idx]
+    pred = np.stack([predict_image(model, pm, obs, idx).reshape(3, -1)[:, idx]
+                     for pm in Parameters(get_model(model), materials=count).per_material(params)])
     r2 = (obs_s[None] - pred) ** 2 / var[None]
     best = np.argmin(r2.sum(axis=1), axis=0)
     own = r2[best, :, np.arange(len(idx))].T                 # (3, n)
@@ -142,13 +138,9 @@ def separation(pred, labels_flat, count):
     own = pred[labels_flat, :, np.arange(n)]                 # (n, 3)
     d = np.sum((pred - own.T[None]) ** 2, axis=1)            # (count, n)
     d[labels_flat, np.arange(n)] = np.inf
-    dist = d.min(axis=0)
-    frac, med = [], []
-    for m in range(count):
-        x = dist[labels_flat == m]
-        frac.append(float(np.mean(x >= DECIDED_D)) if len(x) else 0.0)
-        med.append(float(np.median(x)) if len(x) else 0.0)
-    return frac, med
+    dist = [d.min(axis=0)[labels_flat == m] for m in range(count)]
+    return ([float(np.mean(x >= DECIDED_D)) if len(x) else 0.0 for x in dist],
+            [float(np.median(x)) if len(x) else 0.0 for x in dist])
 
 
 # ------------------------------------------------------------------ the method
@@ -165,23 +157,19 @@ def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_d
     Option("min_decided", kind="number", lo=0.0, lo_open=True, hi=1.0).check(min_decided,
                                                                             "find_materials: min_decided")
     opts = dataclasses.replace(fit_options(options, kw), albedo="shared", intervals="fisher")
-    report = progress_callable(progress)
+    report, t0, (h, w) = progress_callable(progress), time.perf_counter(), obs.shape
 
     def say(msg):
         report(f"find materials: {msg} ({time.perf_counter() - t0:.0f} s)")
 
-    t0 = time.perf_counter()
-    h, w = obs.shape
     idx = np.asarray(usable_pixels(obs, dataclasses.replace(opts, max_pixels=None)))
     if len(idx) < 9 * count:
         raise InputError(f"--materials auto:{count}: {len(idx)} usable pixels, too few to find {count} materials "
                          f"(at least {9 * count})")
     say(f"per-pixel albedo fit of {len(idx)} pixels")
-    pp = fit(obs, dataclasses.replace(opts, albedo="per-pixel", max_pixels=None, intervals="fisher"),
-             progress=False)
-    maps = pp.maps
-    feats = np.stack([maps[k].ravel() for k in ("k_s", "k_b")], axis=1)
-    ses = np.stack([maps[k].ravel() for k in ("k_s_se", "k_b_se")], axis=1)
+    pp = fit(obs, dataclasses.replace(opts, albedo="per-pixel", max_pixels=None), progress=False)
+    feats, ses = (np.stack([pp.maps[k].ravel() for k in keys], axis=1) for keys in (("k_s", "k_b"),
+                                                                                    ("k_s_se", "k_b_se")))
     ok = np.all(np.isfinite(feats) & np.isfinite(ses) & (ses > 0), axis=1)
     have = np.intersect1d(idx, np.flatnonzero(ok))
     if len(have) < 9 * count:
@@ -189,9 +177,8 @@ def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_d
                          f"errors, too few to find {count} materials")
     floor = np.median(ses[have], axis=0) * 1e-3          # a pixel with an SE near 0 must not dominate
     wts = 1.0 / np.maximum(ses[have], floor) ** 2
-    lab_have, centres, _ = weighted_kmeans(feats[have], wts, count, seed=seed)
     lab = np.full(h * w, -1)
-    lab[have] = lab_have
+    lab[have], centres, _ = weighted_kmeans(feats[have], wts, count, seed=seed)
     lab = majority_filter(lab.reshape(h, w), count, clean).ravel()
     kmeans = {"centres": {"k_s": centres[:, 0].tolist(), "k_b": centres[:, 1].tolist()},
               "pixels": [int(np.sum(lab == m)) for m in range(count)]}
@@ -199,7 +186,7 @@ def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_d
     record = {"method": METHOD, "count": count, "seed": int(seed), "features": ["k_s", "k_b"],
               "clean_passes": int(clean), "kmeans": kmeans, "rounds": [],
               "decided_distance": DECIDED_D, "min_decided": float(min_decided),
-              "per_pixel_fit_shape": {k: v for k, v in pp.params.items()}}
+              "per_pixel_fit_shape": dict(pp.params)}
     for r in range(rounds):
         missing = [m for m in range(count) if not np.any(lab == m)]
         if missing:

@@ -21,26 +21,14 @@ from fmbrdf_mi.fit.problem import free_power as FP
 from fmbrdf_mi.fit.problem.data import prepare, resolve_loss, select_pixels
 from fmbrdf_mi.fit.problem.free_power import power_text, split_result
 from fmbrdf_mi.fit.solve import optimise as O
-from fmbrdf_mi.fit.solve.driver import solve
 
 __all__ = ["FitOptions", "fit", "check_footprint", "check_intervals", "find_other_optima", "usable_pixels",
-           "select_pixels", "render_evaluator", "diagnose"]
+           "select_pixels", "diagnose"]
 
 
 def usable_pixels(obs, opts):
     """Flat indices of the pixels a fit uses (:func:`select_pixels`)."""
     return select_pixels(obs, opts)[0]
-
-
-def render_evaluator(model, obs, idx, opts, scene):
-    """The render path's evaluator: the scene rendered, the pixels ``idx`` read off."""
-    if scene is None:
-        raise InputError("path 'render' needs a Mitsuba scene (scene=...) containing the model's BSDF")
-    ev = RenderEvaluator(model, scene, opts.bsdf_prefix, idx, spp=opts.spp, seed=opts.seed)
-    if ev.shape != obs.shape:
-        raise InputError(f"scene renders {ev.shape[1]}x{ev.shape[0]} pixels but the observation "
-                         f"is {obs.shape[1]}x{obs.shape[0]}")
-    return ev
 
 
 def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=None, names=None, powers=None,
@@ -58,39 +46,40 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     material gets its own shape parameters (``eta[m]``, ...) and, with ``albedo="shared"``, ``k_s[m]``,
     ``r_k[m]``: ``params`` flat, ``materials`` per material.
 
-    After the solve (:func:`~fmbrdf_mi.fit.solve.driver.solve`) and
-    :func:`~fmbrdf_mi.fit.api.assemble.assemble` come the checks the options ask for
-    (:mod:`fmbrdf_mi.fit.api.checks`: the quadrature for ``area_points=None``, profile intervals for
-    ``intervals``, competing optima always).  ``max_time`` (wall clock, checked before each evaluation) stops
+    prepare -> problem -> :func:`~fmbrdf_mi.fit.solve.driver.solve` ->
+    :func:`~fmbrdf_mi.fit.api.assemble.assemble`, then the checks the options ask for
+    (:mod:`fmbrdf_mi.fit.api.checks`).  ``max_time`` (wall clock, checked before each evaluation) stops
     with the latest accepted estimate, ``converged=False`` and no standard errors.
     """
     opts = fit_options(options, kw)
+    check_fit_options(**dataclasses.asdict(opts))
     if isinstance(obs, (list, tuple)):
         return _fit_images(check_observations(obs, "fit()", least=0), opts, names=names, progress=progress,
                            powers=powers, materials=materials)
     loss = check_request(obs, opts, data)
-    report = progress_callable(progress)
-    t0 = time.time()
-    deadline = None if not opts.max_time else t0 + float(opts.max_time)
+    fx = Fitted(None, data, None, opts, progress_callable(progress), image_shape=obs.shape, labels=materials)
+    if opts.max_time:
+        fx.deadline = fx.t0 + float(opts.max_time)
     if data is None:
-        if opts.path == "render":
-            evaluator = render_evaluator(get_model(opts.model), obs, select_pixels(obs, opts)[0], opts, scene)
-        data = prepare([obs], opts, loss, single=True, evaluator=evaluator, materials=materials)
-    problem = data.problem(get_model(opts.model), opts.bounds, report, opts.fixed, deadline)
-    report_start(problem, data, opts, report)
-    history = []
+        if opts.path == "render":   # the scene rendered, the fit's pixels read off
+            if scene is None:
+                raise InputError("path 'render' needs a Mitsuba scene (scene=...) containing the model's BSDF")
+            evaluator = RenderEvaluator(get_model(opts.model), scene, opts.bsdf_prefix, select_pixels(obs, opts)[0],
+                                        spp=opts.spp, seed=opts.seed)
+            if evaluator.shape != obs.shape:
+                raise InputError(f"scene renders {evaluator.shape[1]}x{evaluator.shape[0]} pixels but the "
+                                 f"observation is {obs.shape[1]}x{obs.shape[0]}")
+        fx.data = data = prepare([obs], opts, loss, single=True, evaluator=evaluator, materials=materials)
+    fx.problem = problem = fx.problem_of(data)
+    report_start(problem, data, opts, fx.report)
     init = None
     if opts.init:   # per-pixel albedos take no start: solved at the start's shape (solve projects)
         start = dict.fromkeys(problem.params.albedo_pair, 1.0) if opts.albedo in PER_PIXEL_LAYOUTS else {}
         init = problem.state(*problem.params.split({**start, **opts.init}))
-    sol = solve(problem, init=init, starts=opts.starts, rounds=max(1, opts.rounds) + 2 * (data.loss == "likelihood"),
-                optimizer=opts.optimizer, max_iter=opts.max_iter, tol=opts.tol, time_limit=opts.time_limit,
-                lr=opts.lr, max_time=opts.max_time, history=history, report=report,
-                explore=None if data.subsample is None or data.make_problem is not None else (
-                    len(data.pixels), lambda n: data.subsample(n).problem(get_model(opts.model), opts.bounds, report,
-                                                                          opts.fixed, deadline),
-                    max(len(p) for p in data.image_pixels)))
-    res = assemble(Fitted(problem, data, sol, opts, report, deadline, obs.shape, materials, history, t0=t0))
+    explore = None if data.subsample is None or data.make_problem is not None else (
+        len(data.pixels), lambda n: fx.problem_of(data.subsample(n)), max(map(len, data.image_pixels)))
+    fx.solution = fx.solve(problem, init=init, starts=opts.starts, history=fx.history, explore=explore)
+    res = assemble(fx)
     if opts.area_points is None:
         res = check_footprint(res)
     if opts.intervals in ("auto", "profile"):
@@ -114,9 +103,8 @@ def fit_options(options, kw):
 
 
 def check_request(obs, opts, data):
-    """The objective (:func:`~fmbrdf_mi.fit.problem.data.resolve_loss`) of fitting ``obs`` with ``opts``, after
-    checking the options and their combinations (InputError)."""
-    check_fit_options(**dataclasses.asdict(opts))
+    """The objective (:func:`~fmbrdf_mi.fit.problem.data.resolve_loss`) of fitting ``obs`` with the checked
+    ``opts``, after checking what the observation and ``data`` allow (InputError)."""
     check_observations(obs, "fit()")
     if opts.free_power and (data is None or data.make_problem is None):
         raise InputError("free_power: the relative light powers are estimated in joint fits of two or more "
@@ -164,13 +152,12 @@ def report_end(res):
 def _fit_images(observations, opts, *, names=None, progress=True, powers=None, materials=None):
     """:func:`fit` of a list of observations (:func:`fmbrdf_mi.fit.api.joint.fit_joint`)."""
     K = len(observations)
-    if not K:
-        raise InputError("joint fit: no images")
-    if opts.path != "pixel" or opts.optimizer != "lm":
-        raise InputError("joint fit: works with the pixel path and optimizer 'lm'")
     names = list(names) if names is not None else [f"image{k}" for k in range(K)]
-    if len(names) != K:
-        raise InputError(f"joint fit: {len(names)} names for {K} images")
+    for bad, text in ((not K, "no images"), (opts.path != "pixel" or opts.optimizer != "lm",
+                                              "works with the pixel path and optimizer 'lm'"),
+                      (len(names) != K, f"{len(names)} names for {K} images")):
+        if bad:
+            raise InputError(f"joint fit: {text}")
     losses = {resolve_loss(o, opts) for o in observations}
     if len(losses) != 1:
         raise InputError("joint fit: the camera noise is known for some images and not for others "
@@ -184,7 +171,6 @@ def _fit_images(observations, opts, *, names=None, progress=True, powers=None, m
         given = []
     if len(given) != K or not all(math.isfinite(p) and p > 0 for p in given):
         raise InputError(f"powers: expected {K} positive numbers, got {powers!r}")
-    check_fit_options(**dataclasses.asdict(opts))
     data = prepare(observations, opts, losses.pop(), materials=materials)
     pixels, slices, table = data.image_pixels, data.slices, None
     if opts.free_power:
@@ -231,23 +217,21 @@ def diagnose(res, data, observations, names):
         cell = np.repeat(objective.layout.groups[:, 0], pts)
         a_s, a_b = a_s[cell], a_b[cell]
     pred = a_s * parts.surface + a_b * parts.body   # (3, points)
+    r = objective.residuals(parts, st)[:objective.y.size].reshape(-1, 4) if loss == "likelihood" else None
     out = []
     for k, (o, idx, (a, b)) in enumerate(zip(observations, data.image_pixels, data.slices)):
         s = pred[:, a * pts:b * pts]
         if pts > 1 and loss == "likelihood":
             s = s.reshape(3, b - a, pts).mean(axis=2)  # the super-pixel's mean Stokes
         obs_s = o.stokes.reshape(3, -1)[:, idx]
-        i_obs, i_pred = obs_s[0], s[0]
-        d_obs = np.hypot(obs_s[1], obs_s[2]) / np.where(i_obs > 0, i_obs, 1.0)
-        d_pred = np.hypot(s[1], s[2]) / np.where(i_pred > 0, i_pred, 1.0)
-        bright = i_obs > 0.02 * np.percentile(i_obs, 99)
+        d_obs, d_pred = (np.hypot(x[1], x[2]) / np.where(x[0] > 0, x[0], 1.0) for x in (obs_s, s))
+        bright = obs_s[0] > 0.02 * np.percentile(obs_s[0], 99)
         im = {"name": names[k], "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance,
               "n_pixels": int(b - a), "pixels_excluded": data.excluded["per_image"][k],
-              "intensity_rel_rmse": float(np.sqrt(np.mean((i_pred - i_obs) ** 2)) / np.mean(i_obs)),
+              "intensity_rel_rmse": float(np.sqrt(np.mean((s[0] - obs_s[0]) ** 2)) / np.mean(obs_s[0])),
               "dolp_rmse": float(np.sqrt(np.mean((d_pred - d_obs)[bright] ** 2))) if bright.any() else None}
-        if loss == "likelihood":
-            r = objective.residuals(parts, st)[:objective.y.size].reshape(-1, 4)[a:b]
-            im["chi2"] = float(np.sum(r ** 2))
+        if r is not None:
+            im["chi2"] = float(np.sum(r[a:b] ** 2))
             im["chi2_per_dof"] = im["chi2"] / max((b - a) * objective.dof, 1)
         out.append(im)
     return out

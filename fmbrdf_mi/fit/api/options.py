@@ -75,19 +75,18 @@ OPTIONS = (
            help="start from these parameters instead of the coarse search (all the reported ones; with "
                 "per-pixel albedos the shape parameters)"),
     Option("max_iter", 40, kind="int", lo=1, fit=True, records=_ALL, flag="--max-iter", group=_FIT,
-           cli={"type": int}, help="iterations per refinement round"),
-    Option("tol", 1e-4, kind="number", lo=0.0, fit=True, records=_SJ, flag="--tol", group=_FIT, cli={"type": float},
+           help="iterations per refinement round"),
+    Option("tol", 1e-4, kind="number", lo=0.0, fit=True, records=_SJ, flag="--tol", group=_FIT,
            help="stop when the loss falls by less than this (relative) twice (the paper's loss)"),
     Option("time_limit", None, kind="number", lo=0.0, lo_open=True, fit=True, records=_SJ, flag="--time-limit",
-           group=_FIT, cli={"type": float}, help="seconds per refinement round"),
+           group=_FIT, help="seconds per refinement round"),
     Option("max_time", None, kind="number", lo=0.0, fit=True, records=_ALL, flag="--max-time", group=_FIT,
-           cli={"type": float},
            help="hard wall-clock limit in seconds for each model's fit (default: none, the fit runs until it "
                 "converges); a fit it stops exits with status 3"),
     Option("fixed", None, fit=True, records=_ALL, flag="--fix", group=_FIT, parse=parse_fixed,
            cli={"action": "append", "metavar": "NAME=VALUE"},
            help="hold a shape parameter fixed, e.g. --fix kappa=0 (repeatable)"),
-    Option("starts", 2, kind="int", lo=1, fit=True, records=_ALL, flag="--starts", group=_FIT, cli={"type": int},
+    Option("starts", 2, kind="int", lo=1, fit=True, records=_ALL, flag="--starts", group=_FIT,
            help="refine from this many of the best distinct coarse-search points and keep the best "
                 "(default %(default)s)"),
     Option("intervals", "auto", kind="choice", choices=INTERVALS, fit=True, records=_ALL, flag="--intervals",
@@ -114,15 +113,15 @@ OPTIONS = (
                 "shared, k_s, r_k); or auto:M: find M materials in one image, writing labels.png (docs: how-to 'Fit "
                 "a textured object')"),
     Option("area_points", None, kind="int", lo=1, hi=16, fit=True, records=_SJ, if_given=("joint",),
-           flag="--area-points", group=_FIT, cli={"type": int, "metavar": "M"},
+           flag="--area-points", group=_FIT, cli={"metavar": "M"},
            help="likelihood: model each raw sample as the BSDF's mean over M x M points of its pixel (default: 2 "
                 "for raw mosaics, raised to 4 or 8 where 2 would bias a shape parameter, fit.json "
                 "uncertainty.quadrature; 1 (the centre) for angle and Stokes images) (docs: computed.md)"),
     Option("max_pixels", 20000, kind="int", lo=0, fit=True, records=_ALL, flag="--max-pixels", group=_FIT,
-           cli={"type": int}, help="random subset of usable pixels (0: all)"),
-    Option("erode", 2, kind="int", lo=0, fit=True, records=_ALL, flag="--erode", group=_FIT, cli={"type": int},
+           help="random subset of usable pixels (0: all)"),
+    Option("erode", 2, kind="int", lo=0, fit=True, records=_ALL, flag="--erode", group=_FIT,
            help="pixels removed from the mask border"),
-    Option("seed", 0, kind="int", lo=0, fit=True, records=_ALL, flag="--seed", group=_FIT, cli={"type": int},
+    Option("seed", 0, kind="int", lo=0, fit=True, records=_ALL, flag="--seed", group=_FIT,
            help="seed of the random pixel subset"),
     Option("rounds", 3, kind="int", lo=1, fit=True, help="paper's loss: inlier/outlier refresh rounds; likelihood: "
                                                         "reweighting rounds + 2"),
@@ -153,15 +152,14 @@ OPTIONS = (
            help="refine per-pixel normals and the material together (outputs normals.npy and plots)"),
     Option("normals_start", "ps", flag="--normals-start", group=_NORMALS, cli={"metavar": "ps|sphere|FILE.npy"},
            help="start map: photometric stereo (default), the mask's sphere, or a normal map file"),
-    Option("smooth", 0.3, kind="number", lo=0.0, flag="--smooth", group=_NORMALS,
-           cli={"type": float, "metavar": "LAMBDA"},
+    Option("smooth", 0.3, kind="number", lo=0.0, flag="--smooth", group=_NORMALS, cli={"metavar": "LAMBDA"},
            help="smoothness weight (units of Stokes residuals / image mean; default %(default)s)"),
     Option("relight", None, records=("single",), flag="--relight", group=_RELIGHT,
            cli={"nargs": "+", "metavar": "INPUT"}, help="a second image of the object under another light"),
     Option("relight_light", None, records=("single",), flag="--relight-light", group=_RELIGHT,
            cli={"metavar": "X,Y,Z"}, help="its light direction"),
     Option("relight_irradiance", None, kind="number", lo=IMAGE_OPTIONS[-1].lo, hi=IMAGE_OPTIONS[-1].hi,
-           records=("single",), flag="--relight-irradiance", group=_RELIGHT, cli={"type": float},
+           records=("single",), flag="--relight-irradiance", group=_RELIGHT,
            help="its light's irradiance in image units"),
     Option("out", None, flag="-o", group=_OUTPUT, cli={"required": True, "metavar": "DIR"}, help="output directory"),
     Option("from_json", None, flag="--from", group=_OUTPUT, cli={"metavar": "FIT.json"},
@@ -231,10 +229,9 @@ def add_arguments(p, groups=GROUPS):
         for o in OPTIONS:
             if o.group != title or o.flag is None:
                 continue
-            kw = dict(o.cli)
-            kw.setdefault("default", o.default)
-            if o.kind == "choice":
-                kw["choices"] = o.choices
+            kw = {"default": o.default, **({"choices": o.choices} if o.kind == "choice" else {}), **o.cli}
+            if o.kind in ("int", "number") and o.many == 1:      # a number's text converted by argparse
+                kw.setdefault("type", int if o.kind == "int" else float)
             if o.flag.startswith("-"):
                 flags = [o.flag] + ([LONG[o.flag]] if o.flag in LONG else [])
                 g.add_argument(*flags, dest=o.name, help=o.help, **kw)
@@ -298,45 +295,45 @@ def check_relations(v, flag=str):
     for bad, text in refused:
         if bad:
             raise InputError(text)
-    if v["fixed"] is not None:
-        if not isinstance(v["fixed"], dict):
-            raise InputError(f"{flag('fixed')}: expected {{name: value}}, got {v['fixed']!r}")
-        for name, x in v["fixed"].items():
-            if name not in m.shape_names:
-                raise InputError(f"{flag('fixed')}: '{name}' is not a shape parameter of {m.name} "
-                                 f"({', '.join(m.shape_names)})")
-            number(f"{flag('fixed')} {name}", x, m.param(name).lo, m.param(name).hi)
-    if v["bounds"] is not None:
-        if not isinstance(v["bounds"], dict):
-            raise InputError(f"{flag('bounds')}: expected {{name: (lo, hi)}}, got {v['bounds']!r}")
-        for name, pair in v["bounds"].items():
-            try:
-                lo, hi = pair
-            except (TypeError, ValueError):
-                raise InputError(f"{flag('bounds')} {name}: expected (lo, hi), got {pair!r}") from None
-            Option(name, kind="number").check(lo, f"{flag('bounds')} {name} low")
-            Option(name, kind="number").check(hi, f"{flag('bounds')} {name} high")
+    for name, x in table(v["fixed"], flag("fixed"), "value").items():
+        if name not in m.shape_names:
+            raise InputError(f"{flag('fixed')}: '{name}' is not a shape parameter of {m.name} "
+                             f"({', '.join(m.shape_names)})")
+        number(f"{flag('fixed')} {name}", x, m.param(name).lo, m.param(name).hi)
+    for name, pair in table(v["bounds"], flag("bounds"), "(lo, hi)").items():
         try:
-            Parameters(m, bounds=v["bounds"])
-        except ValueError as e:
-            raise InputError(f"{flag('bounds')}: {e}") from None
+            lo, hi = pair
+        except (TypeError, ValueError):
+            raise InputError(f"{flag('bounds')} {name}: expected (lo, hi), got {pair!r}") from None
+        for end, x in (("low", lo), ("high", hi)):
+            Option(name, kind="number").check(x, f"{flag('bounds')} {name} {end}")
+    try:
+        Parameters(m, bounds=v["bounds"])
+    except ValueError as e:
+        raise InputError(f"{flag('bounds')}: {e}") from None
     if v["init"] is not None:
         check_init(v["init"], m, flag, albedo)
+
+
+def table(value, name, what):
+    """``value``, a dict {parameter: ``what``} or None (an empty one), else InputError naming ``name``."""
+    if value is not None and not isinstance(value, dict):
+        raise InputError(f"{name}: expected {{name: {what}}}, got {value!r}")
+    return value or {}
 
 
 def check_init(init, m, flag, albedo="shared"):
     """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds (albedos >= 0);
     with per-pixel albedos (solved per pixel at the start) the shape parameters only."""
-    if not isinstance(init, dict):
-        raise InputError(f"{flag('init')}: expected {{name: value}}, got {init!r}")
-    table = Parameters(m)
-    names = table.reported_names
+    table(init, flag("init"), "value")
+    params = Parameters(m)
+    names = params.reported_names
     unknown = [k for k in init if k not in names]
     if unknown:
         raise InputError(f"{flag('init')}: unknown parameter '{unknown[0]}' of {m.name}; give all of "
                          f"{', '.join(names)}")
     if albedo in PER_PIXEL_LAYOUTS:
-        names = [k for k in names if table.row[k].kind != "albedo"]
+        names = [k for k in names if params.row[k].kind != "albedo"]
         given = [k for k in init if k not in names]
         if given:
             raise InputError(f"{flag('init')} {', '.join(given)}: {flag('albedo')} {albedo} solves the albedos per "
@@ -345,7 +342,7 @@ def check_init(init, m, flag, albedo="shared"):
     if missing:
         raise InputError(f"{flag('init')}: missing {', '.join(missing)} (give all of {', '.join(names)})")
     for k in names:
-        row = table.row[k]
+        row = params.row[k]
         number(f"{flag('init')} {k}", init[k], *((row.lo, row.hi) if row.kind == "shape" else (0.0, None)))
 
 

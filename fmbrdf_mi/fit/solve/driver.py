@@ -1,14 +1,5 @@
-"""The solver of every fit: coarse search, multistart, reweighting rounds, deadline.
-
-:func:`solve` minimises a :class:`~fmbrdf_mi.fit.problem.problem.Problem` from ``init`` or from up to
-``starts`` :func:`distinct_starts` of :func:`~fmbrdf_mi.fit.solve.optimise.coarse_search`, refines each
-(:func:`refine`), and keeps the best end; a deadline
-(:class:`~fmbrdf_mi.fit.problem.problem.TimeUp`) ends it at the latest accepted estimate, not converged.
-
-A fit of many more pixels than the search needs explores on a subsample (:func:`explore_then_polish`): the
-subsample decides only where the fit starts on all pixels; every estimate it returns is a converged fit of
-all pixels.
-"""
+"""The solver of every fit (:func:`solve`): coarse search, multistart, reweighting rounds, deadline; a fit of
+many more pixels than the search needs explores on a subsample first (:func:`explore_then_polish`)."""
 from __future__ import annotations
 
 import dataclasses
@@ -42,13 +33,9 @@ def distinct_starts(problem, cands, n):
     first = [k for k in problem.names if problem.params.row[k].kind == "shape"
              and k not in ("eta", "kappa")] or list(problem.names)
     chosen = [cands[0][1]]
-    pool = [c for _, c in cands[1:]]
-
-    def off(c):  # from the coarse search's own evaluation: no table rebuild
-        key = tuple(round(c.shape[n], 9) for n in problem.params.shape_names)
-        return not problem.both_lobes.get(key, True)
-
-    pool.sort(key=off)  # stable: keeps the score order within each kind
+    # both lobes on first (the coarse search's own record: no table rebuild); sorted is stable: score order kept
+    pool = sorted((c for _, c in cands[1:]), key=lambda c: not problem.both_lobes.get(
+        tuple(round(c.shape[k], 9) for k in problem.params.shape_names), True))
     for c in pool:
         if len(chosen) >= n:
             break
@@ -75,10 +62,9 @@ def step_in_se(problem, st_old, st_new, J):
     if J.shape[1] == 0:
         return 0.0
     try:
-        cov = np.linalg.pinv(J.T @ J)
+        sd = np.sqrt(np.clip(np.diag(np.linalg.pinv(J.T @ J)), 1e-300, None))
     except np.linalg.LinAlgError:
         return math.inf
-    sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
     return float(np.max(np.abs(problem.to_z(st_new) - problem.to_z(st_old)) / sd))
 
 
@@ -127,22 +113,21 @@ def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_l
 
 def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02,
           max_time=None, history=None, report=None, explore=None, explore_above=None, explore_pixels=None):
-    """Minimise ``problem`` (module docstring); returns a :class:`Solution`.
-
-    ``init``: a State (no coarse search); ``rounds``: reweighting rounds per start; ``max_time``: the
-    deadline in seconds, for the message only (the problem owns the deadline); ``history`` (a list) gets
-    the search's best point and every accepted step.  ``explore``: (the fit's pixel count, ``make``), where
-    ``make(n)`` returns the problem of a fixed, seeded subsample of n of its pixels (or None); with more than
-    ``explore_above`` (default :data:`EXPLORE_ABOVE`) pixels, no ``init`` and no deadline, the search and the
-    starts run on the subsample of ``explore_pixels`` (default :data:`EXPLORE_PIXELS`) first
-    (:func:`explore_then_polish`).
+    """Minimise ``problem`` from ``init`` (a State) or up to ``starts`` :func:`distinct_starts` of the coarse
+    search, each refined by ``rounds`` reweighting rounds (:func:`refine`), and keep the best end; returns a
+    :class:`Solution`.  A deadline (:class:`~fmbrdf_mi.fit.problem.problem.TimeUp`; ``max_time`` names it)
+    ends at the latest accepted estimate, not converged.  ``history`` (a list) gets the search's best point
+    and every accepted step.  ``explore``: (pixels, ``make(n)``: the problem of a seeded subsample of n of
+    them, the largest image's pixels); above ``explore_above`` (default :data:`EXPLORE_ABOVE`), with no
+    ``init`` nor deadline, the search and starts run on ``explore_pixels`` (default :data:`EXPLORE_PIXELS`)
+    first (:func:`explore_then_polish`).
     """
     explore_above = EXPLORE_ABOVE if explore_above is None else explore_above
     explore_pixels = EXPLORE_PIXELS if explore_pixels is None else explore_pixels
     say = report or (lambda m: None)
     params = problem.params
     history = [] if history is None else history
-    ends, t_search, t0 = [], 0.0, time.time()
+    ends, done, chosen, t_search, t0 = [], {}, [], 0.0, time.time()
     try:
         sub = None
         if init is not None:
@@ -166,27 +151,33 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
         if sub is not None:
             out, ends = explore_then_polish(problem, sub, chosen, explore[0], say, **kw)
         else:
-            best, t_starts = None, time.time()
-            for k, st0 in enumerate(chosen):
-                left = O.time_left(time.time() - t_starts, k, len(chosen), "for the starts")
-                say(f"[fit] start {k + 1}/{len(chosen)}: {O.format_state(problem, st0)}"
-                    + (f" ({left})" if left else ""))
-                saved = problem.obj.save()
-                end = refine(problem, st0, **kw)
-                score = problem.obj.score(problem.parts(end.state), end.state)
-                ends.append(end_record(params, st0, end, score))
-                say(f"[fit] start {k + 1} ended at score {score:.6e} ({end.reason})")
-                if best is None or score < best[0]:
-                    best = (score, end, problem.obj.save())
-                if k + 1 < len(chosen):
-                    problem.obj.restore(saved)
-            _, out, state = best
-            problem.obj.restore(state)
+            out = done[run_starts(problem, enumerate(chosen), done, say, f"/{len(chosen)}", **kw)][1]
     except TimeUp:
         if problem.current is None:
             raise InputError(f"max_time {max_time:g} s: no model evaluation fits in that time") from None
         out = Solution(problem.current, f"max_time {max_time:g} s reached", False)
+    ends = ends or [end_record(params, chosen[k], end, score) for k, (score, end) in done.items()]
     return dataclasses.replace(out, starts=ends, t_search=t_search)
+
+
+def run_starts(problem, starts, done, say, head, where="", **kw):
+    """Each (number, State) of ``starts`` refined on ``problem`` from the same weights (:func:`refine`), announced
+    as ``start <number><head>`` and ending ``where``; ``done`` gets {number: (score, Solution)} as each ends.
+    Returns the best number, the objective left with its end's weights."""
+    starts, best, t0 = list(starts), None, time.time()
+    for i, (k, st0) in enumerate(starts):
+        left = O.time_left(time.time() - t0, i, len(starts), "for the starts" + where)
+        say(f"[fit] start {k + 1}{head}: {O.format_state(problem, st0)}" + (f" ({left})" if left else ""))
+        saved = problem.obj.save()
+        end = refine(problem, st0, **kw)
+        score = problem.obj.score(problem.parts(end.state), end.state)
+        done[k] = (score, end)
+        say(f"[fit] start {k + 1} ended{where} at score {score:.6e} ({end.reason})")
+        if best is None or score < done[best][0]:
+            best, weights = k, problem.obj.save()
+        problem.obj.restore(saved)
+    problem.obj.restore(weights)
+    return best
 
 
 def end_record(params, st0, end, score, end_params=None):
@@ -212,39 +203,22 @@ def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
     converged ends of all pixels is the estimate, each start's entry recording its optimum's end on all
     pixels.  No estimate of the subsample is returned.
     """
-    sub_ends, t_starts = [], time.time()
-    for k, st0 in enumerate(chosen):
-        left = O.time_left(time.time() - t_starts, k, len(chosen), "for the starts on the subsample")
-        say(f"[fit] start {k + 1}/{len(chosen)} on the subsample: {O.format_state(sub, st0)}"
-            + (f" ({left})" if left else ""))
-        saved = sub.obj.save()
-        end = refine(sub, st0, **dict(kw, label="subsample lm"))
-        score = sub.obj.score(sub.parts(end.state), end.state)
-        say(f"[fit] start {k + 1} ended on the subsample at score {score:.6e} ({end.reason})")
-        sub_ends.append((score, end))
-        sub.obj.restore(saved)
+    sub_ends = {}
+    run_starts(sub, enumerate(chosen), sub_ends, say, f"/{len(chosen)} on the subsample", " on the subsample",
+               **dict(kw, label="subsample lm"))
     order = sorted(range(len(sub_ends)), key=lambda i: sub_ends[i][0])
     optimum = {}        # start -> the start whose end on the subsample is its optimum's (the best such)
     for i in order:
         end = sub_ends[i][1]
         optimum[i] = next((j for j in dict.fromkeys(optimum.values())
                            if same_end(sub, sub_ends[j][1], end)), i)
-    polished, best = {}, None
-    for j in dict.fromkeys(optimum[i] for i in order):
-        end_sub = sub_ends[j][1].state
-        st = (problem.projected(end_sub.shape)[0] if problem.projects
-              else problem.state(end_sub.shape, end_sub.a_s, end_sub.a_b))
-        say(f"[fit] start {j + 1} continued on all {pixels} pixels: {O.format_state(problem, st)}")
-        saved = problem.obj.save()
-        end = refine(problem, st, **kw)
-        score = problem.obj.score(problem.parts(end.state), end.state)
-        say(f"[fit] start {j + 1} ended on all pixels at score {score:.6e} ({end.reason})")
-        polished[j] = (score, end)
-        if best is None or score < best[0]:
-            best = (score, end, problem.obj.save())
-        problem.obj.restore(saved)
-    _, out, state = best
-    problem.obj.restore(state)
+    continued, polished = [], {}
+    for j in dict.fromkeys(optimum[i] for i in order):     # each optimum once, its albedos re-solved on all pixels
+        e = sub_ends[j][1].state
+        continued.append((j, problem.projected(e.shape)[0] if problem.projects else problem.state(e.shape, e.a_s,
+                                                                                                  e.a_b)))
+    out = polished[run_starts(problem, continued, polished, say, f" continued on all {pixels} pixels",
+                              " on all pixels", **kw)][1]
     ends = [end_record(sub.params, st0, polished[optimum[k]][1], polished[optimum[k]][0], problem.params)
             for k, st0 in enumerate(chosen)]
     return out, ends

@@ -1,11 +1,6 @@
-"""The one Levenberg-Marquardt of every fit, with a pluggable linearisation, linear solve and trial step, and the
-one reweighting loop (IRLS) around it.
-
-Each fit supplies only what differs (:func:`levenberg_marquardt`); the result says why it stopped
-(:data:`REASONS`) and whether that counts as converged, and the caller words it.  :func:`reweighted`
-minimises with the objective's weights frozen, refreshes them, repeats; the fits differ only in its
-``before`` (the likelihood's model variances, the paper's inlier / outlier split) and ``minimise``.
-"""
+"""The one Levenberg-Marquardt of every fit (:func:`levenberg_marquardt`: each fit plugs in its linearisation,
+linear solve and trial step; the result says why it stopped, :data:`REASONS`) and the one reweighting loop
+(IRLS, :func:`reweighted`) around it."""
 from __future__ import annotations
 
 import dataclasses

@@ -30,7 +30,7 @@ def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of,
     last: it changes the body term least).  ``evaluate(shape)`` returns (score, point), ``shape_of(point)``
     its shape values; each grid point is evaluated once.
     """
-    results = {}
+    results, say, t = {}, progress or (lambda m: None), time.time()
 
     def try_point(shape):
         key = tuple(round(shape[n], 9) for n in shape_names)
@@ -40,8 +40,6 @@ def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of,
     def best():
         return min(results.values(), key=lambda x: x[0])
 
-    say = progress or (lambda m: None)
-    t = time.time()
     combos = list(itertools.product(*[grids[n] for n in first]))
     most = len(combos) + keep * sum(len(grids[n]) for n in later)    # points the search evaluates at most
 
@@ -54,8 +52,7 @@ def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of,
             say(f"[search] stage 1 ({', '.join(first)}): {j + 1}/{len(combos)} grid points, "
                 f"best {best()[0]:.6e} ({time.time() - t:.1f} s, {left()})")
     for stage, name in enumerate(later, start=2):
-        top = sorted(results.values(), key=lambda x: x[0])[:keep]
-        for _, point in top:
+        for _, point in sorted(results.values(), key=lambda x: x[0])[:keep]:
             for value in grids[name]:
                 try_point({**shape_of(point), name: value})
         say(f"[search] stage {stage} ({name}): best {best()[0]:.6e} "
@@ -111,7 +108,7 @@ def coarse_search(problem, keep=2):
                             shape_of=lambda s: s, keep=keep, progress=problem.progress if m == 0 else None)
               for m in range(M)]
     out = []
-    for j in range(min(MATERIAL_CANDIDATES, min(len(r) for r in ranked))):
+    for j in range(min(MATERIAL_CANDIDATES, *map(len, ranked))):
         st, parts = problem.closed_form({r.name: ranked[r.material][j][1][r.base] for r in rows})
         out.append((problem.obj.score(parts, st), st))
     out.sort(key=lambda x: x[0])
@@ -121,8 +118,7 @@ def coarse_search(problem, keep=2):
 
 # ---------------------------------------------------------------- refinement
 def format_state(problem, st):
-    rep = problem.params.report(st.shape, st.a_s, st.a_b)
-    return " ".join(f"{k}={v:.4g}" for k, v in rep.items())
+    return " ".join(f"{k}={v:.4g}" for k, v in problem.params.report(st.shape, st.a_s, st.a_b).items())
 
 
 def time_left(elapsed, done, total, where, bound=False):
@@ -159,8 +155,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
     converged, J, r); J, r at the result unless ``final_jacobian`` is False.  ``label``: the progress lines'
     tag (:func:`log_step`).
     """
-    obj = problem.obj
-    project = problem.projects
+    obj, project = problem.obj, problem.projects
 
     def linearise(x):
         st, z = x
@@ -178,8 +173,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         return (st_new, z_new), float(r_new @ r_new), r_new
 
     def secant(lin, x, x_new, r_new):
-        r, J = lin
-        return r, LM.broyden(J, x_new[1] - x[1], r_new - r)
+        return lin[0], LM.broyden(lin[1], x_new[1] - x[1], r_new - lin[0])
 
     def on_accept(it, x, f):
         problem.current = x[0]
@@ -188,9 +182,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
     if project:
         st = problem.projected(st.shape)[0]
     z = problem.to_z(st)
-    lin = linearise((st, z))
-    problem.current = st
-    t0 = time.time()
+    lin, problem.current, t0 = linearise((st, z)), st, time.time()
     res = LM.levenberg_marquardt(
         (st, z), float(lin[0] @ lin[0]), linearise, lambda lin, lam: LM.dense_step(lin[1], lin[0], lam), trial,
         max_iter=max_iter, lin=lin, refresh=1 if project else refresh, secant=None if project else secant,
@@ -201,8 +193,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         time_up=None if time_limit is None else (lambda: time.time() - t0 > time_limit),
         on_accept=on_accept, final_linearise=final_jacobian)
     reason = res.describe("objective", "tolerance", max_iter, time_limit, " per round")
-    r, J = res.lin
-    return res.x[0], res.f, reason, res.converged, J, r
+    return res.x[0], res.f, reason, res.converged, *res.lin[::-1]
 
 
 def loss_and_grad_reverse(problem, st):
@@ -222,10 +213,8 @@ def loss_and_grad_reverse(problem, st):
     s0, s1, s2 = ev._stokes()
     val = L.loss_dr(problem.obj.target, problem.obj.w, s0, s1, s2)
     dr.backward(val)
-    grad = {k: float(dr.grad(x)[0]) for k, x in xs.items()}
-    f = float(val[0])
-    # detached values: no graph kept alive
-    for p in problem.model.shape:
+    grad, f = {k: float(dr.grad(x)[0]) for k, x in xs.items()}, float(val[0])
+    for p in problem.model.shape:       # detached values: no graph kept alive
         ev._assign(p.key, float(st.shape[p.name]))
         ev._current[p.name] = float(st.shape[p.name])
     ev.set_albedos(st.a_s, st.a_b)
@@ -240,9 +229,7 @@ def adam(problem, st, *, max_iter=300, lr=0.02, tol=1e-4, patience=40, time_limi
 
     opt = dr.opt.Adam(lr=lr)
     opt["z"] = mi.Float64(problem.to_z(st))
-    best = (math.inf, st)
-    since, reason, t0 = 0, "max_iter", time.time()
-    converged = False
+    best, since, reason, t0, converged = (math.inf, st), 0, "max_iter", time.time(), False
     for it in range(1, max_iter + 1):
         z = np.clip(np.array(opt["z"], dtype=np.float64), -40, 40)
         st = problem.from_z(z)
