@@ -206,6 +206,12 @@ SLOW = (
     "tests/fit/test_outputs_colour_joint.py::test_joint_colour_fit_of_one_image_twice_halves_the_variance",
     "tests/test_fit_brdf.py::test_jobs_run_in_worker_processes_with_the_same_results",
     "tests/fit/test_outputs_writer.py::test_ctrl_c_in_the_write_phase_keeps_the_earlier_output",
+    "tests/fit/test_solve_explore.py::test_explored_fit_ends_at_the_all_pixel_optimum",
+    "tests/fit/test_solve_explore.py::test_the_subsample_estimate_is_never_returned",
+    "tests/fit/test_solve_explore.py::test_progress_says_where_each_phase_runs",
+    "tests/fit/test_solve_explore.py::test_below_the_threshold_the_fit_is_the_plain_one",
+    "tests/test_mueller_fit.py::test_kappa_at_its_bound_gets_the_profile_likelihood_limit",
+    "tests/test_synthetic_mesh_object.py::test_a_noise_free_capture_is_fitted_to_the_truth",
 )
 
 
