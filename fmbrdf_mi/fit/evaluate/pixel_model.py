@@ -78,13 +78,16 @@ class _Evaluator:
         self._assign(self.model.body_key, float(a_b))
         self.params.update()
 
-    def _points(self, chunk=None):
-        """The (S0, S1, S2) Dr.Jit arrays at the points of ``chunk`` (None: all) that :meth:`_reduce` turns
-        into the outputs (here the outputs themselves)."""
-        return self._stokes(chunk)
+    def _points(self, chunk=None):  # -> the (S0, S1, S2) Dr.Jit arrays at the points of ``chunk`` (None: all)
+        raise NotImplementedError
 
     def _reduce(self, s):
+        """The outputs of the values :meth:`_points` gives (here those values themselves)."""
         return s
+
+    def _stokes(self, chunk=None):
+        """The outputs (S0, S1, S2) of ``chunk`` as Dr.Jit arrays (the reverse-mode gradient differentiates them)."""
+        return self._reduce(self._points(chunk))
 
     def _chunks(self):
         """The evaluation's chunks: (chunk, slice of the outputs) pairs; one chunk (None) of everything."""
@@ -336,9 +339,6 @@ class PixelEvaluator(_Evaluator):
 
         return s if self.k == 1 else tuple(dr.block_sum(c, self.k) for c in s)
 
-    def _stokes(self, chunk=None):
-        return self._reduce(self._points(chunk))
-
 
 class RenderEvaluator(_Evaluator):
     """The model's BSDF inside a Mitsuba scene, rendered with the ``stokes`` integrator.
@@ -386,7 +386,7 @@ class RenderEvaluator(_Evaluator):
                 "(optimizer 'adam'), which agrees with finite differences")
         return super().parts(shape_values)
 
-    def _stokes(self, chunk=None):
+    def _points(self, chunk=None):
         import drjit as dr
         import mitsuba as mi
 

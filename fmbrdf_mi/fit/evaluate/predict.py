@@ -45,13 +45,6 @@ def predict_image(model_name, params, obs, pixels=None, maps=None, labels=None):
     return out.reshape(3, *obs.shape)
 
 
-def relight_pixels(obs, erode=2, min_cos_view=0.1):
-    m = erode_mask(obs.mask, erode)
-    m &= np.sum(obs.normals * obs.view_dirs, axis=-1) > min_cos_view
-    m &= np.all(np.isfinite(obs.stokes), axis=0)
-    return np.flatnonzero(m.ravel())
-
-
 def relight_error(model_name, params, obs, erode=2, min_cos_view=0.1, maps=None, labels=None):
     """Predict ``obs`` (the object under a second light) and compare intensities.
 
@@ -59,7 +52,8 @@ def relight_error(model_name, params, obs, erode=2, min_cos_view=0.1, maps=None,
     ``n_pixels`` and ``predicted`` (3, H, W) Stokes.  ``maps``, ``labels``: as :func:`predict_image`; the
     error is over the pixels they cover.
     """
-    idx = relight_pixels(obs, erode, min_cos_view)
+    m = erode_mask(obs.mask, erode) & (np.sum(obs.normals * obs.view_dirs, axis=-1) > min_cos_view)
+    idx = np.flatnonzero((m & np.all(np.isfinite(obs.stokes), axis=0)).ravel())
     if maps is not None:
         idx = idx[np.isfinite(np.asarray(maps["k_s"]).ravel()[idx])]
     if labels is not None:

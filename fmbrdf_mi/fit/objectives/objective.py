@@ -147,7 +147,7 @@ class LikelihoodObjective:
         self.var = np.maximum(noise.variance(self.y), 1e-300)
 
     def samples_of(self, stokes):
-        """The analysed samples (n, m) of Stokes values (3, m n) at the samples' points, or (3, n) at the centres."""
+        """The analysed samples (n, m) of Stokes values (3, m n) at the samples' points or (3, n) at the centres."""
         s = stokes.reshape(3, self.n, -1)
         if s.shape[2] == 1:
             return np.einsum("kc,ci->ik", self.A, s[:, :, 0])
@@ -209,11 +209,10 @@ class LikelihoodObjective:
         return self.nll(parts, st)
 
     def albedos(self, parts):
+        S, B = self.samples_of(parts.surface), self.samples_of(parts.body)
         if self.layout is not None:
-            return self.layout.solve(self.samples_of(parts.surface), self.samples_of(parts.body), self.y, 1.0 / self.var)
-        S = self.samples_of(parts.surface).ravel()
-        B = self.samples_of(parts.body).ravel()
-        return nnls2(S, B, self.y.ravel(), 1.0 / self.var.ravel())
+            return self.layout.solve(S, B, self.y, 1.0 / self.var)
+        return nnls2(S.ravel(), B.ravel(), self.y.ravel(), 1.0 / self.var.ravel())
 
     def small_decrease(self, f_old, f_new, tol):
         # chi^2 units: a decrease of 0.01 moves the estimate by ~0.1 standard error

@@ -137,10 +137,9 @@ RAW_AREA_POINTS = 2
 def area_points(samples, opts):
     """m of the likelihood's m x m points per sample: ``opts.area_points``, else :data:`RAW_AREA_POINTS`
     for a raw mosaic (a sensor pixel integrates over its area) and 1 (the pixel's centre) otherwise."""
-    m = opts.area_points
-    if m is None:
-        m = RAW_AREA_POINTS if samples.source in ("raw mosaic", "colour raw mosaic") else 1
-    return int(m)
+    if opts.area_points is not None:
+        return int(opts.area_points)
+    return RAW_AREA_POINTS if samples.source in ("raw mosaic", "colour raw mosaic") else 1
 
 
 def one_view(observations, what, why):
@@ -273,9 +272,8 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     starts = np.cumsum([0] + [len(i) for i in idxs])
     slices = [(int(starts[k]), int(starts[k + 1])) for k in range(K)]
     excluded = excl[0] if single else {
-        "candidates": sum(e["candidates"] for e in excl), "saturated": sum(e["saturated"] for e in excl),
-        "dark": sum(e["dark"] for e in excl), "used": int(starts[-1]), "per_image": excl,
-        "white_level": excl[0].get("white_level"), "dark_level": excl[0].get("dark_level")}
+        **{k: sum(e[k] for e in excl) for k in ("candidates", "saturated", "dark")}, "used": int(starts[-1]),
+        "per_image": excl, "white_level": excl[0].get("white_level"), "dark_level": excl[0].get("dark_level")}
     geo = []  # (observation, pixels, footprint) per image: its directions are made when the evaluator needs them
     if loss == "likelihood":
         smps = [o.samples if o.samples is not None else SM.from_stokes(o.stokes) for o in observations]

@@ -35,11 +35,9 @@ class PowerEvaluator:
         key = tuple(round(float(shape_values[n]), 12) for n in names)
         wrt = tuple(n for n in wrt if n in names)
         c = self._cache
-        if c is not None and c[0] == key and set(wrt) <= set(c[1]):
-            return c[2]
-        p = self.base.parts({n: shape_values[n] for n in names}, wrt)
-        self._cache = (key, wrt, p)
-        return p
+        if c is None or c[0] != key or not set(wrt) <= set(c[1]):
+            c = self._cache = (key, wrt, self.base.parts({n: shape_values[n] for n in names}, wrt))
+        return c[2]
 
     def parts(self, shape_values, wrt=()):
         p = self.base_parts(shape_values, wrt)
