@@ -71,8 +71,6 @@ def stack_rows(A, R):
 
     def pad(cols, vals):
         k = c - cols.shape[1]
-        if not k:
-            return cols, vals
         return (np.concatenate([cols, np.repeat(cols[:, :1], k, 1)], 1),
                 np.concatenate([vals, np.zeros((len(vals), k))], 1))
 

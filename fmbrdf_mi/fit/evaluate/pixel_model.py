@@ -124,9 +124,8 @@ class _Evaluator:
             xs[name] = mi.Float(float(shape_values[name]))
             dr.enable_grad(xs[name])
             self._assign(self.model.param(name).key, xs[name])
-        self.params.update()
-        for name in wrt:
             parts.d_surface[name], parts.d_body[name] = np.empty((3, self.n)), np.empty((3, self.n))
+        self.params.update()
         for chunk, sl in chunks:
             s_all = []
             for a in UNIT_ALBEDOS:
