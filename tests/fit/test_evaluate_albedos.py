@@ -1,7 +1,8 @@
 """The per-channel albedo layout against NumPy's least squares and finite differences."""
 import numpy as np
 
-from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos
+from fmbrdf_mi.fit.evaluate.albedos import GroupAlbedos
+from fmbrdf_mi.sensor.mosaic import COLOURS
 
 
 def _data(seed=0):
@@ -11,7 +12,7 @@ def _data(seed=0):
     a_s, a_b = np.array([0.6, 0.4, 0.5]), np.array([0.3, 0.2, 0.45])
     y = a_s[chan] * S + a_b[chan] * B + rng.normal(0, 0.01, S.shape)
     w = rng.uniform(0.5, 2.0, S.shape)
-    return ChannelAlbedos(chan), S, B, y, w, a_s, a_b
+    return GroupAlbedos("per-channel", chan, COLOURS), S, B, y, w, a_s, a_b
 
 
 def test_solve_is_each_channels_weighted_least_squares():

@@ -5,7 +5,7 @@ pixel's prediction is its own elementwise computation)."""
 import numpy as np
 import pytest
 
-from fmbrdf_mi.fit.evaluate import predict
+from fmbrdf_mi.fit.evaluate import pixel_model, predict
 from fmbrdf_mi.fit.inputs.observations import Observation
 from fmbrdf_mi.synthetic.spheres import capture_observation, textured_sphere
 
@@ -31,7 +31,7 @@ def test_the_re_render_makes_the_directions_a_block_at_a_time(capture, monkeypat
     whole = predict.predict_image("fmbrdf", SHAPE, obs, maps=maps)
     pixels = int(obs.mask.sum())
     block = 7        # pixels a block: not a divisor of the pixel count, so the last block is a short one
-    monkeypatch.setattr(predict, "PIECE_DIRECTIONS", block * k, raising=False)
+    monkeypatch.setattr(pixel_model, "PIECE_DIRECTIONS", block * k)
     asked = []
     real = Observation.sample_geometry
 

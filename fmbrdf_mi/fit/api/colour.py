@@ -9,7 +9,7 @@ sample k (colour c_k, polariser phi_k) is
 
     mu_ik = 1/2 (1, cos 2 phi_k, sin 2 phi_k) . (a_s[c_k] S_ik + a_b[c_k] B_ik)
 
-with S, B the unit-albedo Stokes vectors (:class:`~fmbrdf_mi.fit.evaluate.albedos.ChannelAlbedos`).  The
+with S, B the unit-albedo Stokes vectors (:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos`).  The
 fit is :func:`~fmbrdf_mi.fit.api.fitting.fit`'s; this module adds the per-channel report and predictions.
 """
 from __future__ import annotations

@@ -14,14 +14,6 @@ from __future__ import annotations
 import numpy as np
 
 
-def smooth_pair(value):
-    """(tau_s, tau_b) from ``albedo_smooth``: one number for both, or a pair (checked by
-    :func:`fmbrdf_mi.fit.api.options.check_fit_options`)."""
-    if isinstance(value, (tuple, list, np.ndarray)):
-        return float(value[0]), float(value[1])
-    return float(value), float(value)
-
-
 def neighbour_pairs(pixels, width, channel_of=None):
     """(E, 2) group indices (i, j), i < j, of right or down neighbours (flat ``pixels`` (n_groups,) on an
     image ``width`` wide) of the same channel (``channel_of``)."""
@@ -58,12 +50,13 @@ def components(n, pairs):
 
 class SmoothPrior:
     """The prior on ``n_groups`` interleaved albedo pairs: ``pairs`` (E, 2) neighbours, ``tau`` (tau_s,
-    tau_b) in the maps' units, ``factor`` the albedo factor (k = factor a); a row is factor (a_i - a_j) / tau."""
+    tau_b) in the maps' units or one number for both (``albedo_smooth``), ``factor`` the albedo factor
+    (k = factor a); a row is factor (a_i - a_j) / tau."""
 
     def __init__(self, pairs, n_groups, tau, factor=1.0):
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.n_groups = int(n_groups)
-        self.tau = (float(tau[0]), float(tau[1]))
+        self.tau = tuple(float(t) for t in np.broadcast_to(np.asarray(tau, dtype=np.float64), (2,)))
         self.factor = float(factor)
         self.weights = (self.factor / self.tau[0], self.factor / self.tau[1])
         self.n_rows = 2 * len(self.pairs)

@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import RIDGE, BandCholesky, normal_band, stack_rows
-from fmbrdf_mi.sensor.mosaic import COLOURS
 
 
 def nnls2(S, B, I, w=None):
@@ -79,11 +78,6 @@ def pair_sums(X, Y, n_groups):
         for b in range(2):
             out[:, a, b] = np.bincount(g, weights=X[1][:, a] * Y[1][:, b], minlength=n_groups)
     return out
-
-
-#: Why there is no incidental-parameter sandwich with the smoothness prior (fit.json's uncertainty method).
-PRIOR_INCIDENTAL = ("the incidental-parameter sandwich is not computed with the albedo smoothness prior (the "
-                    "posterior covariance of the penalised likelihood is reported)")
 
 
 class AlbedoLayout:
@@ -249,7 +243,10 @@ class AlbedoLayout:
     @property
     def incidental_reason(self):
         """Why :meth:`incidental` gives None (with the prior), else None."""
-        return None if self.prior is None else PRIOR_INCIDENTAL
+        if self.prior is not None:
+            return ("the incidental-parameter sandwich is not computed with the albedo smoothness prior (the "
+                    "posterior covariance of the penalised likelihood is reported)")
+        return None
 
     @property
     def incidental_method(self):
@@ -304,12 +301,14 @@ class AlbedoLayout:
 
 
 class GroupAlbedos(AlbedoLayout):
-    """A few albedo pairs kept as unknowns of the optimiser (logs in z), solved by ``nnls2``."""
+    """A few albedo pairs kept as unknowns of the optimiser (logs in z), solved by ``nnls2``: one per label,
+    ``groups`` (broadcastable to (cells, n)) each sample's (``per-channel``: a colour period's channels,
+    ``per-material``: each cell's material)."""
 
     eliminates = False
 
-    def __init__(self, name, groups, n_groups, labels):
-        super().__init__(groups, n_groups, name=name, labels=labels)
+    def __init__(self, name, groups, labels):
+        super().__init__(groups, len(labels), name=name, labels=labels)
         self.masks = [self.groups == g for g in range(self.n_groups)]
 
     def solve(self, S, B, y, w):
@@ -322,13 +321,6 @@ class GroupAlbedos(AlbedoLayout):
         """d mu / d log a_s[g] for every g, then d mu / d log a_b[g]: 2 n_groups arrays (cells, n)."""
         return ([a_s[g] * S * m for g, m in enumerate(self.masks)]
                 + [a_b[g] * B * m for g, m in enumerate(self.masks)])
-
-
-class ChannelAlbedos(GroupAlbedos):
-    """One (a_s, a_b) per colour channel: ``channel`` (n,) is the group of each of a cell's n samples."""
-
-    def __init__(self, channel, labels=COLOURS):
-        super().__init__("per-channel", channel, len(labels), labels)
 
 
 class PixelAlbedos(AlbedoLayout):

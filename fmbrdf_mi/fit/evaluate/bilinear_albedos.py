@@ -71,8 +71,6 @@ def stack_rows(A, R):
 
     def pad(cols, vals):
         k = c - cols.shape[1]
-        if not k:
-            return cols, vals
         return (np.concatenate([cols, np.repeat(cols[:, :1], k, 1)], 1),
                 np.concatenate([vals, np.zeros((len(vals), k))], 1))
 
@@ -81,8 +79,8 @@ def stack_rows(A, R):
 
 
 def normal_band(A, n):
-    """The lower band of A^T A (A: :meth:`~fmbrdf_mi.fit.evaluate.albedos.AlbedoLayout.design`, n unknowns): (band (n, b + 1) with
-    band[i, d] = (A^T A)[i, i - d], b) , b the half bandwidth."""
+    """The lower band of A^T A (A: :meth:`~fmbrdf_mi.fit.evaluate.albedos.AlbedoLayout.design`, n unknowns):
+    (band (n, b + 1) with band[i, d] = (A^T A)[i, i - d], b), b the half bandwidth."""
     cols, vals = A
     i = np.repeat(cols[:, :, None], cols.shape[1], 2)
     j = np.repeat(cols[:, None, :], cols.shape[1], 1)
@@ -140,11 +138,8 @@ class BandCholesky:
 
     def solve(self, r):
         """G^-1 r for r (n,) or (n, p) (with the ridge: D^-1/2 (Gs + ridge I)^-1 D^-1/2 r)."""
-        r = np.asarray(r, dtype=np.float64)
-        sc = self.scale if r.ndim == 1 else self.scale[:, None]
-        return sc * self._solve(sc * r)
-
-    def _solve(self, r):
+        sc = self.scale if np.ndim(r) == 1 else self.scale[:, None]
+        r = sc * np.asarray(r, dtype=np.float64)
         e = self.edges
         K = len(e) - 1
         y = [None] * K
@@ -159,7 +154,7 @@ class BandCholesky:
             if k + 1 < K:
                 v = v - self.M[k].T @ x[k + 1]
             x[k] = self.Linv[k].T @ v
-        return np.concatenate(x)
+        return sc * np.concatenate(x)
 
     def diagonal_blocks(self):
         """The 2 x 2 diagonal blocks (n / 2, 2, 2) of G^-1 (n even)."""
@@ -171,50 +166,36 @@ class BandCholesky:
 
     def inverse_band(self, bw):
         """The lower band (n, bw + 1) of G^-1 (Z[i, i - d] at [i, d]), bw at most the factor's half
-        bandwidth, by Takahashi's selected inversion: O(n b^2)."""
+        bandwidth, by Takahashi's selected inversion from the last block up (Z = Gs^-1): O(n b^2),
+
+            Z_{k+1,k} = -Z_{k+1,k+1} M_k L_k^-1,   Z_kk = L_k^-T (L_k^-1 - M_k^T Z_{k+1,k})."""
         e = self.edges
         K = len(e) - 1
         s = max(e[1] - e[0], 1) if K else 1
         if bw > s:
             raise ValueError(f"inverse_band: bandwidth {bw} above the factor's {s}")
         out = np.zeros((self.n, bw + 1))
+
+        def fill(k, strip, c0):     # rows of block k of the band from the strip of Z starting at column c0
+            rows = np.arange(e[k], e[k + 1])
+            for d in range(bw + 1):
+                j = rows - d
+                ok = j >= c0
+                out[rows[ok], d] = strip[rows[ok] - e[k], j[ok] - c0]
+
         Z = None
-        for k, Z, Zlow, Znext in self._selected_inverse():
-            if Zlow is not None:        # Z_{k+1,k}: row block k + 1's left part
-                self._fill(out, k + 1, Zlow, Znext, bw)
+        for k in range(K - 1, -1, -1):
+            Li = self.Linv[k]
+            if Z is None:
+                Z = Li.T @ Li
+            else:                   # Z is Z_{k+1,k+1}: fill row block k + 1 from [Z_{k+1,k} | Z_{k+1,k+1}]
+                Zlow = -(Z @ self.M[k]) @ Li
+                fill(k + 1, np.concatenate([Zlow, Z], 1), e[k])
+                Z = Li.T @ (Li - self.M[k].T @ Zlow)
         if K:
-            self._fill(out, 0, None, Z, bw)
+            fill(0, Z, 0)
         sc = self.scale
         for d in range(bw + 1):
             i = np.arange(d, self.n)
             out[i, d] *= sc[i] * sc[i - d]
         return out
-
-    def _selected_inverse(self):
-        """Takahashi's recursion, from the last block up, Z = Gs^-1:
-
-            Z_{k+1,k} = -Z_{k+1,k+1} M_k L_k^-1,   Z_kk = L_k^-T (L_k^-1 - M_k^T Z_{k+1,k});
-
-        yields (k, Z_kk, Z_{k+1,k}, Z_{k+1,k+1}), the last two None for the last block."""
-        Znext = None
-        for k in range(len(self.edges) - 2, -1, -1):
-            Li = self.Linv[k]
-            if Znext is None:
-                Z, Zlow = Li.T @ Li, None
-            else:
-                Zlow = -(Znext @ self.M[k]) @ Li
-                Z = Li.T @ (Li - self.M[k].T @ Zlow)
-            yield k, Z, Zlow, Znext
-            Znext = Z
-
-    def _fill(self, out, k, Zleft, Zkk, bw):
-        """Rows of block k of the band from [Z_{k,k-1} | Z_kk] (Zleft None: block 0)."""
-        e = self.edges
-        r0, r1 = e[k], e[k + 1]
-        c0 = r0 if Zleft is None else e[k - 1]
-        strip = Zkk if Zleft is None else np.concatenate([Zleft, Zkk], 1)
-        rows = np.arange(r0, r1)
-        for d in range(bw + 1):
-            j = rows - d
-            ok = j >= c0
-            out[rows[ok], d] = strip[rows[ok] - r0, j[ok] - c0]

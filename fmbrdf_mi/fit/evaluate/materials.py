@@ -33,11 +33,10 @@ def check_labels(labels, shape, what="materials"):
     if lab.ndim != 2 or lab.shape not in ((H, W), (2 * H, 2 * W)):
         raise InputError(f"{what}: shape {lab.shape} is neither the fit's pixel grid ({H}, {W}) nor the raw "
                          f"sensor's ({2 * H}, {2 * W}); give one integer label per pixel")
-    if lab.dtype.kind == "b" or lab.dtype.kind not in "iuf":
+    if lab.dtype.kind not in "iuf":     # booleans too
         raise InputError(f"{what}: expected integer labels, got dtype {lab.dtype}")
-    if lab.dtype.kind == "f":
-        if not np.all(np.isfinite(lab)) or np.any(lab != np.round(lab)):
-            raise InputError(f"{what}: labels must be integers (0 .. M-1, < 0 for pixels not fitted)")
+    if lab.dtype.kind == "f" and (not np.all(np.isfinite(lab)) or np.any(lab != np.round(lab))):
+        raise InputError(f"{what}: labels must be integers (0 .. M-1, < 0 for pixels not fitted)")
     lab = lab.astype(np.int64)
     if lab.shape == (2 * H, 2 * W):
         b = lab.reshape(H, 2, W, 2).transpose(0, 2, 1, 3).reshape(H, W, 4)
@@ -73,11 +72,9 @@ class MaterialEvaluator:
     def _material_parts(self, m, values, wrt):
         key = tuple(round(float(values[n]), 12) for n in self.params.model.shape_names)
         c = self._cache[m]
-        if c is not None and c[0] == key and set(wrt) <= set(c[1]):
-            return c[2]
-        p = self.evaluators[m].parts(values, tuple(wrt))
-        self._cache[m] = (key, tuple(wrt), p)
-        return p
+        if c is None or c[0] != key or not set(wrt) <= set(c[1]):
+            c = self._cache[m] = (key, tuple(wrt), self.evaluators[m].parts(values, tuple(wrt)))
+        return c[2]
 
     def parts(self, shape_values, wrt=()):
         N = self.n_points

@@ -44,10 +44,7 @@ class Model:
         return tuple(p.name for p in self.shape)
 
     def param(self, name):
-        for p in self.shape:
-            if p.name == name:
-                return p
-        raise KeyError(name)
+        return {p.name: p for p in self.shape}[name]
 
     def bsdf_dict(self, shape_values=None):
         """The BSDF dict at ``shape_values`` (defaults: middle of the grid), unit albedos."""
@@ -176,21 +173,20 @@ class Bounds:
                      for p in model.shape}
 
     def _sigmoid(self, name, z):
-        """(s, t): the sigmoid of ``z`` (clipped to Z_MAX) and the point t it maps to on the parameter's scale."""
+        """(s, t, thi - tlo): the sigmoid of ``z`` (clipped to Z_MAX), the point t it maps to on the parameter's
+        scale and the scale's range."""
         tlo, thi, _, _ = self.lims[name]
         s = 1.0 / (1.0 + math.exp(-float(np.clip(z, -Z_MAX, Z_MAX))))
-        return s, tlo + (thi - tlo) * s
+        return s, tlo + (thi - tlo) * s, thi - tlo
 
     def to_value(self, name, z):
         _, _, lo, hi = self.lims[name]
-        v = float(self.scales[name][1](self._sigmoid(name, z)[1]))
-        return min(max(v, lo), hi)
+        return min(max(float(self.scales[name][1](self._sigmoid(name, z)[1])), lo), hi)
 
     def derivative(self, name, z):
         """d value / d z."""
-        tlo, thi, _, _ = self.lims[name]
-        s, t = self._sigmoid(name, z)
-        return float(self.scales[name][2](t)) * (thi - tlo) * s * (1 - s)
+        s, t, span = self._sigmoid(name, z)
+        return float(self.scales[name][2](t)) * span * s * (1 - s)
 
     def to_z(self, name, value):
         tlo, thi, lo, hi = self.lims[name]
@@ -204,7 +200,6 @@ class Bounds:
         return float(self.scales[name][0](float(value)))
 
     def from_scale(self, name, t):
-        """Inverse of :meth:`to_scale`."""
         return float(self.scales[name][1](float(t)))
 
     def clip_grid(self, name, grid):

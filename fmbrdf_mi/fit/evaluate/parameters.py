@@ -153,13 +153,10 @@ class Parameters:
                              f"{', '.join(names)}), got {reported!r:.80}")
 
         def number(v):
-            if isinstance(v, (bool, str, bytes)):
-                return False
             try:
-                float(v)
+                return not isinstance(v, (bool, str, bytes)) and float(v) is not None
             except (TypeError, ValueError):
                 return False
-            return True
 
         bad = [n for n in names if not number(reported[n])]
         if bad:

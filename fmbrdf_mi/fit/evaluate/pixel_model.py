@@ -2,14 +2,10 @@
 
 Both evaluators return :class:`Parts`: the (S0, S1, S2) that the surface and the body term send to the
 camera at unit albedos under unpolarised light, and their forward-mode derivatives in the shape parameters;
-a prediction is ``a_s * surface + a_b * body`` (paper eq:fmbrdf).
-
-* :class:`PixelEvaluator`: ``bsdf.eval`` per pixel from a normal map, no ray tracing (captured data).
-* :class:`RenderEvaluator`: ``mi.render`` with the ``stokes`` integrator (synthetic scenes; reverse-mode
-  gradients only, :func:`optimise.loss_and_grad_reverse`).
-
-Stokes vectors are in the camera's frame (x = image right perpendicular to the view, y = image up), that
-of the ``stokes`` integrator and :mod:`fmbrdf_mi.sensor.mosaic`.
+a prediction is ``a_s * surface + a_b * body`` (paper eq:fmbrdf).  :class:`PixelEvaluator` calls ``bsdf.eval``
+per pixel of a normal map (captured data); :class:`RenderEvaluator` renders with the ``stokes`` integrator
+(synthetic scenes; reverse-mode gradients only).  Stokes vectors are in the camera's frame (x = image right
+perpendicular to the view, y = image up), that of the ``stokes`` integrator and :mod:`fmbrdf_mi.sensor.mosaic`.
 """
 from __future__ import annotations
 
@@ -48,8 +44,6 @@ class Parts:
 #: Albedo that switches a term "off".  Not 0: with k_s exactly 0 the forward-mode derivatives of a render
 #: come out 0 (body included); 1e-20 is 0 to float32 precision.
 OFF = 1e-20
-
-
 UNIT_ALBEDOS = ((1.0, OFF), (OFF, 1.0))
 
 
@@ -84,16 +78,16 @@ class _Evaluator:
         self._assign(self.model.body_key, float(a_b))
         self.params.update()
 
-    def _stokes(self, chunk=None):  # -> (S0, S1, S2) Dr.Jit Float arrays of ``chunk`` (None: every output)
+    def _points(self, chunk=None):  # -> the (S0, S1, S2) Dr.Jit arrays at the points of ``chunk`` (None: all)
         raise NotImplementedError
 
-    def _points(self, chunk=None):
-        """The (S0, S1, S2) that :meth:`_reduce` turns into the outputs (here the outputs themselves)."""
-        return self._stokes(chunk)
-
     def _reduce(self, s):
-        """The outputs of evaluated :meth:`_points` values (here the values themselves)."""
+        """The outputs of the values :meth:`_points` gives (here those values themselves)."""
         return s
+
+    def _stokes(self, chunk=None):
+        """The outputs (S0, S1, S2) of ``chunk`` as Dr.Jit arrays (the reverse-mode gradient differentiates them)."""
+        return self._reduce(self._points(chunk))
 
     def _chunks(self):
         """The evaluation's chunks: (chunk, slice of the outputs) pairs; one chunk (None) of everything."""
@@ -111,21 +105,17 @@ class _Evaluator:
 
         self.set_shape(shape_values)
         chunks = self._chunks()
-        out = [None, None]
-        for j, a in enumerate(UNIT_ALBEDOS):
+        parts = Parts(np.empty((3, self.n)), np.empty((3, self.n)))
+        for out, a in zip((parts.surface, parts.body), UNIT_ALBEDOS):
             self.set_albedos(*a)
             for chunk, sl in chunks:
                 s = self._points(chunk)
                 dr.eval(s)
                 s = self._reduce(s)
                 dr.eval(s)
-                v = np.stack([np.asarray(c, dtype=np.float64) for c in s])
-                if out[j] is None:
-                    out[j] = v if len(chunks) == 1 else np.empty((3, self.n))
-                if len(chunks) > 1:
-                    out[j][:, sl] = v
-                del s, v
-        parts = Parts(out[0], out[1])
+                for i, c in enumerate(s):
+                    out[i, sl] = np.asarray(c, dtype=np.float64)
+                del s
         if not wrt:
             return parts
         # one table build with gradients on all of ``wrt``, then per chunk one forward pass per parameter
@@ -134,10 +124,8 @@ class _Evaluator:
             xs[name] = mi.Float(float(shape_values[name]))
             dr.enable_grad(xs[name])
             self._assign(self.model.param(name).key, xs[name])
+            parts.d_surface[name], parts.d_body[name] = np.empty((3, self.n)), np.empty((3, self.n))
         self.params.update()
-        n_out = parts.surface.shape[1]
-        for name in wrt:
-            parts.d_surface[name], parts.d_body[name] = np.empty((3, n_out)), np.empty((3, n_out))
         for chunk, sl in chunks:
             s_all = []
             for a in UNIT_ALBEDOS:
@@ -159,10 +147,8 @@ class _Evaluator:
                     for i, c in enumerate(s):
                         d[i, sl] = np.asarray(c, dtype=np.float64)
             del g, outputs, s_all
-        for name in wrt:
-            grads = (parts.d_surface[name], parts.d_body[name])
-            bad = ~(np.all(np.isfinite(grads[0]), 0) & np.all(np.isfinite(grads[1]), 0))
-            parts.nonfinite = parts.nonfinite | bad if parts.nonfinite is not None else bad
+        parts.nonfinite = ~np.all([np.isfinite(d).all(0) for n in wrt for d in (parts.d_surface[n], parts.d_body[n])],
+                                  0)
         # detached values: no graph kept alive
         for name in wrt:
             self._assign(self.model.param(name).key, float(shape_values[name]))
@@ -186,24 +172,41 @@ class Directions:
         self.pieces = pieces
 
     @classmethod
-    def of(cls, normals, view_dirs, rows):
-        """The arrays ``normals``, ``view_dirs`` (n, 3) in pieces of ``rows`` rows."""
-        step = max(1, int(rows))
+    def of(cls, normals, view_dirs):
+        """The arrays ``normals``, ``view_dirs`` (n, 3) in pieces of :data:`PIECE_DIRECTIONS` rows."""
+        step = PIECE_DIRECTIONS
         return cls(len(normals), lambda: ((normals[a:a + step], view_dirs[a:a + step])
                                           for a in range(0, len(normals), step)))
 
+    @classmethod
+    def of_images(cls, geo):
+        """The directions of images' pixels, ``geo`` their (observation, flat pixels, footprint) in order
+        (:meth:`~fmbrdf_mi.fit.inputs.observations.Observation.sample_geometry`), made a block of pixels at a
+        time; each image's direction count; the last image's footprint weights (K,), None for one point."""
+        first = [o.sample_geometry(idx[:1] if len(idx) else [0], footprint=fp) for o, idx, fp in geo]
+        per = [len(f[0]) for f in first]
+
+        def pieces():
+            for (o, idx, fp), k in zip(geo, per):
+                step = max(1, PIECE_DIRECTIONS // k)
+                for a in range(0, len(idx), step):
+                    n, v, _ = o.sample_geometry(idx[a:a + step], footprint=fp)
+                    yield n, v
+
+        counts = [len(idx) * k for (_, idx, _), k in zip(geo, per)]
+        w = first[-1][2]
+        return cls(sum(counts), pieces), counts, None if len(w) == 1 else w
+
 
 class PixelEvaluator(_Evaluator):
-    """Per-pixel BSDF evaluation at normals ``(n, 3)``, view directions ``(n, 3)`` and one light direction.
-
-    With ``weights`` (K,) the directions are (n K, 3), K footprint samples per pixel
-    (:meth:`Observation.sample_geometry`) summed with those weights.  ``light_dir`` (n K, 3) and
-    ``irradiance`` (n K,) give one light per direction (:mod:`fmbrdf_mi.fit.api.joint`).  ``normals`` may be
-    a :class:`Directions` (normals and views made a piece at a time; ``view_dirs`` None).
+    """Per-pixel BSDF evaluation at normals ``(n, 3)``, view directions ``(n, 3)`` (or a :class:`Directions`
+    as ``normals``, ``view_dirs`` None) and one light direction, or one per direction (``light_dir`` (n, 3),
+    ``irradiance`` (n,)).  With ``weights`` (K,) the directions are (n K, 3), K footprint samples per pixel
+    (:meth:`Observation.sample_geometry`) summed with those weights.
 
     The directions are held as float32 NumPy arrays (what the BSDF is evaluated at) and the pixels are
     evaluated in chunks of about :data:`CHUNK_DIRECTIONS` directions, so the Dr.Jit arrays of an evaluation
-    (the shading frames, the AD graph of the derivatives, the outputs) are bounded by the chunk, not the frame.
+    are bounded by the chunk, not the frame.
     """
 
     #: Directions per BSDF evaluation (whole pixels: a multiple of the samples per pixel).
@@ -221,7 +224,7 @@ class PixelEvaluator(_Evaluator):
             view_dirs = np.asarray(view_dirs, dtype=np.float64).reshape(-1, 3)
             if normals.shape != view_dirs.shape:
                 raise ValueError(f"normals {normals.shape} and view_dirs {view_dirs.shape} differ in shape")
-            directions = Directions.of(normals, view_dirs, PIECE_DIRECTIONS)
+            directions = Directions.of(normals, view_dirs)
         n_dirs = directions.count
         light = np.asarray(light_dir, dtype=np.float64)
         light = light.reshape(3) if light.size == 3 else light.reshape(-1, 3)
@@ -248,8 +251,8 @@ class PixelEvaluator(_Evaluator):
 
     def set_geometry(self, normals, view_dirs, light):
         """Directions (unit, float64 arrays as in the constructor) of the same count; the BSDF is kept."""
-        self._store(Directions.of(np.asarray(normals, dtype=np.float64), np.asarray(view_dirs, dtype=np.float64),
-                                  PIECE_DIRECTIONS), np.asarray(light, dtype=np.float64), False)
+        self._store(Directions.of(np.asarray(normals, dtype=np.float64), np.asarray(view_dirs, dtype=np.float64)),
+                    np.asarray(light, dtype=np.float64), False)
 
     def _store(self, directions, light, normalise):
         """The float32 normals, view directions, lights and camera x axes of ``directions``
@@ -263,11 +266,8 @@ class PixelEvaluator(_Evaluator):
         self._light = light.astype(np.float32)
         ex = np.array([1.0, 0.0, 0.0])
         a = 0
-        for n, v in directions.pieces():
+        for n, v in directions.pieces():     # a piece that overruns the count fails to broadcast
             b = a + len(n)
-            if b > n_dirs or len(v) != len(n):
-                raise ValueError(f"directions: pieces of {len(n)} normals and {len(v)} views overrun the "
-                                 f"{n_dirs} directions announced")
             if normalise:
                 n = n / np.linalg.norm(n, axis=1, keepdims=True)
                 v = v / np.linalg.norm(v, axis=1, keepdims=True)
@@ -338,9 +338,6 @@ class PixelEvaluator(_Evaluator):
 
         return s if self.k == 1 else tuple(dr.block_sum(c, self.k) for c in s)
 
-    def _stokes(self, chunk=None):
-        return self._reduce(self._points(chunk))
-
 
 class RenderEvaluator(_Evaluator):
     """The model's BSDF inside a Mitsuba scene, rendered with the ``stokes`` integrator.
@@ -388,7 +385,7 @@ class RenderEvaluator(_Evaluator):
                 "(optimizer 'adam'), which agrees with finite differences")
         return super().parts(shape_values)
 
-    def _stokes(self, chunk=None):
+    def _points(self, chunk=None):
         import drjit as dr
         import mitsuba as mi
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
-from fmbrdf_mi.fit.evaluate.pixel_model import PIECE_DIRECTIONS, Directions, PixelEvaluator
+from fmbrdf_mi.fit.evaluate.pixel_model import Directions, PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
 
 
@@ -37,35 +37,12 @@ def predict_image(model_name, params, obs, pixels=None, maps=None, labels=None):
         shape = {n: float(params[n]) for n in model.shape_names}
         a_s, a_b = (np.asarray(maps[k], dtype=np.float64).ravel()[idx] / model.albedo_factor
                     for k in ("k_s", "k_b"))
-    directions, w = pixel_directions(obs, idx)
-    ev = PixelEvaluator(model, directions, None, obs.light_dir, obs.irradiance, weights=None if len(w) == 1 else w)
+    directions, _, weights = Directions.of_images([(obs, idx, "own")])
+    ev = PixelEvaluator(model, directions, None, obs.light_dir, obs.irradiance, weights=weights)
     parts = ev.parts(shape)
     out = np.zeros((3, obs.shape[0] * obs.shape[1]))
     out[:, idx] = a_s * parts.surface + a_b * parts.body
     return out.reshape(3, *obs.shape)
-
-
-def pixel_directions(obs, idx):
-    """(:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Directions` over the footprints of the pixels ``idx`` of
-    ``obs``, the footprint's weights (K,)): the directions made a block of pixels at a time
-    (:meth:`Observation.sample_geometry`), so that a frame's directions are never all held in float64 at once."""
-    first, _, w = obs.sample_geometry(np.asarray(idx)[:1] if len(idx) else np.zeros(1, np.int64))
-    k = len(first)
-    step = max(1, PIECE_DIRECTIONS // k)
-
-    def pieces():
-        for a in range(0, len(idx), step):
-            n, v, _ = obs.sample_geometry(idx[a:a + step])
-            yield n, v
-
-    return Directions(len(idx) * k, pieces), w
-
-
-def relight_pixels(obs, erode=2, min_cos_view=0.1):
-    m = erode_mask(obs.mask, erode)
-    m &= np.sum(obs.normals * obs.view_dirs, axis=-1) > min_cos_view
-    m &= np.all(np.isfinite(obs.stokes), axis=0)
-    return np.flatnonzero(m.ravel())
 
 
 def relight_error(model_name, params, obs, erode=2, min_cos_view=0.1, maps=None, labels=None):
@@ -75,7 +52,8 @@ def relight_error(model_name, params, obs, erode=2, min_cos_view=0.1, maps=None,
     ``n_pixels`` and ``predicted`` (3, H, W) Stokes.  ``maps``, ``labels``: as :func:`predict_image`; the
     error is over the pixels they cover.
     """
-    idx = relight_pixels(obs, erode, min_cos_view)
+    m = erode_mask(obs.mask, erode) & (np.sum(obs.normals * obs.view_dirs, axis=-1) > min_cos_view)
+    idx = np.flatnonzero((m & np.all(np.isfinite(obs.stokes), axis=0)).ravel())
     if maps is not None:
         idx = idx[np.isfinite(np.asarray(maps["k_s"]).ravel()[idx])]
     if labels is not None:

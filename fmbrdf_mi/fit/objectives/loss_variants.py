@@ -82,13 +82,7 @@ class DolpObjective(_Rows):
 
     def albedos(self, parts):
         """Ratio a_b / a_s minimising the DoLP term (a log grid), overall scale from the mean intensity."""
-        best = None
-        for t in self.RATIOS:
-            st = State({}, 1.0, float(t))
-            v = self.score(parts, st)
-            if best is None or v < best[0]:
-                best = (v, float(t))
-        t = best[1]
+        t = min((float(t) for t in self.RATIOS), key=lambda t: self.score(parts, State({}, 1.0, t)))
         i = parts.surface[0] + t * parts.body[0]
         c = float(np.mean(self.target.intensity)) / max(float(np.mean(i)), 1e-300)
         return c, c * t

@@ -1,20 +1,16 @@
-"""What a fit minimises: the likelihood of the camera's samples, or the paper's loss.
+"""What a fit minimises: the likelihood of the camera's samples (:class:`LikelihoodObjective`), or the
+paper's loss (:class:`PaperObjective`, eq:optimization).  Both are sums of squared residuals whose rows map
+to pixels, so one Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.optimise`) minimises either.
 
-Both are sums of squared residuals, so one Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.optimise`)
-minimises either; both map residual rows to pixels (:mod:`fmbrdf_mi.fit.uncertainty`).
-
-**Likelihood** (:class:`LikelihoodObjective`, replacing eq:optimization by the likelihood of what was
-measured).  Sample k of super-pixel i is
+The likelihood replaces eq:optimization by that of what was measured: sample k of super-pixel i is
 
     y_ik ~ N(mu_ik, v(mu_ik)),   mu_ik = 1/2 (S0 + S1 cos 2 phi_k + S2 sin 2 phi_k),
 
 (S0, S1, S2) the model at the sample's own point, v(mu) = mu / g + sigma_read^2 + Delta^2 / 12
 (:class:`~fmbrdf_mi.sensor.noise.NoiseModel`), in image units; without the gain, v = a mu + b fitted to
 the last round's squared residuals.  It is minimised by iteratively reweighted least squares (variances
-frozen at the current prediction between rounds): its estimating equation stays unbiased when gain or
-read noise are slightly off, and J^T J is the Fisher information.  The full NLL compares candidates.
-
-**Paper** (:class:`PaperObjective`): :mod:`fmbrdf_mi.fit.objectives.loss`.
+frozen between rounds): its estimating equation stays unbiased when gain or read noise are slightly off, and
+J^T J is the Fisher information.  The full NLL compares candidates.
 """
 from __future__ import annotations
 
@@ -150,7 +146,8 @@ class LikelihoodObjective:
         self.n, self.m = self.y.shape
         self.var = np.maximum(noise.variance(self.y), 1e-300)
 
-    def _mu_of(self, stokes):  # (3, 4n) or (3, n) (all samples at the centre) -> (n, 4)
+    def samples_of(self, stokes):
+        """The analysed samples (n, m) of Stokes values (3, m n) at the samples' points or (3, n) at the centres."""
         s = stokes.reshape(3, self.n, -1)
         if s.shape[2] == 1:
             return np.einsum("kc,ci->ik", self.A, s[:, :, 0])
@@ -158,8 +155,8 @@ class LikelihoodObjective:
 
     def mu(self, parts, st):
         if self.layout is None:
-            return self._mu_of(st.a_s * parts.surface + st.a_b * parts.body)
-        return self.layout.mu(self._mu_of(parts.surface), self._mu_of(parts.body), st.a_s, st.a_b)
+            return self.samples_of(st.a_s * parts.surface + st.a_b * parts.body)
+        return self.layout.mu(self.samples_of(parts.surface), self.samples_of(parts.body), st.a_s, st.a_b)
 
     def refresh(self, parts, st):
         mu = self.mu(parts, st)
@@ -212,11 +209,10 @@ class LikelihoodObjective:
         return self.nll(parts, st)
 
     def albedos(self, parts):
+        S, B = self.samples_of(parts.surface), self.samples_of(parts.body)
         if self.layout is not None:
-            return self.layout.solve(self._mu_of(parts.surface), self._mu_of(parts.body), self.y, 1.0 / self.var)
-        S = self._mu_of(parts.surface).ravel()
-        B = self._mu_of(parts.body).ravel()
-        return nnls2(S, B, self.y.ravel(), 1.0 / self.var.ravel())
+            return self.layout.solve(S, B, self.y, 1.0 / self.var)
+        return nnls2(S.ravel(), B.ravel(), self.y.ravel(), 1.0 / self.var.ravel())
 
     def small_decrease(self, f_old, f_new, tol):
         # chi^2 units: a decrease of 0.01 moves the estimate by ~0.1 standard error
@@ -244,35 +240,35 @@ class LikelihoodObjective:
             inv_sd = 1.0 / np.sqrt(self.var)
 
             def cols(ds):
-                return (-self._mu_of(ds) * inv_sd).ravel()
+                return (-self.samples_of(ds) * inv_sd).ravel()
 
             return r, _jacobian(cols, parts, st, z, names, bounds, len(r)), bad
         J = self.shape_jacobian(parts, st, z, names, bounds)
         if self.layout.eliminates:   # albedo maps: Kaufman's projected Jacobian
             return r, self.layout.project(J, *self.albedo_columns(parts))[0], bad
-        sd = np.sqrt(self.var)
-        cols = self.layout.columns(self._mu_of(parts.surface), self._mu_of(parts.body), st.a_s, st.a_b)
-        return r, np.concatenate([J] + [(-c / sd).reshape(-1, 1) for c in cols], 1), bad
+        cols = self.layout.columns(self.samples_of(parts.surface), self.samples_of(parts.body), st.a_s, st.a_b)
+        return r, np.concatenate([J] + [self._white(c)[:, None] for c in cols], 1), bad
+
+    def _white(self, mu):
+        """d r / d mu of the samples' predictions ``mu`` (n, m): -mu / sd, raveled (N,)."""
+        return (-mu / np.sqrt(self.var)).ravel()
 
     def shape_jacobian(self, parts, st, z, names, bounds):
         """d r / d z of the free shape parameters ``names`` (N, len(names)), the albedos held (a layout)."""
-        lay, U, sd = self.layout, self._mu_of, np.sqrt(self.var)
+        U = self.samples_of
         J = np.empty((self.y.size, len(names)))
         for j, n in enumerate(names):
-            dmu = lay.mu(U(parts.d_surface[n]), U(parts.d_body[n]), st.a_s, st.a_b)
-            J[:, j] = (-dmu / sd).ravel() * bounds.derivative(n, z[j])
+            dmu = self.layout.mu(U(parts.d_surface[n]), U(parts.d_body[n]), st.a_s, st.a_b)
+            J[:, j] = self._white(dmu) * bounds.derivative(n, z[j])
         return J
 
     def albedo_columns(self, parts):
         """(us, ub) (N,): each residual's derivative in its sample's unit albedos, the whitened design
         columns of an eliminating layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`)."""
-        sd = np.sqrt(self.var)
-        return (-self._mu_of(parts.surface) / sd).ravel(), (-self._mu_of(parts.body) / sd).ravel()
+        return self._white(self.samples_of(parts.surface)), self._white(self.samples_of(parts.body))
 
     def albedo_column_derivatives(self, parts, z, names, bounds):
         """[(d us / d z_j, d ub / d z_j)] of :meth:`albedo_columns` per free shape parameter, for
         :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`."""
-        sd = np.sqrt(self.var)
-        U = self._mu_of
-        return [tuple((-U(d[n]) / sd).ravel() * bounds.derivative(n, z[j]) for d in (parts.d_surface, parts.d_body))
-                for j, n in enumerate(names)]
+        return [tuple(self._white(self.samples_of(d[n])) * bounds.derivative(n, z[j])
+                      for d in (parts.d_surface, parts.d_body)) for j, n in enumerate(names)]

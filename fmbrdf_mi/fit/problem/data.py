@@ -11,8 +11,8 @@ import math
 import numpy as np
 
 from fmbrdf_mi.fit.errors import InputError
-from fmbrdf_mi.fit.evaluate.albedo_prior import SmoothPrior, neighbour_pairs, smooth_pair
-from fmbrdf_mi.fit.evaluate.albedos import ChannelAlbedos, GroupAlbedos, PixelAlbedos
+from fmbrdf_mi.fit.evaluate.albedo_prior import SmoothPrior, neighbour_pairs
+from fmbrdf_mi.fit.evaluate.albedos import GroupAlbedos, PixelAlbedos
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS, bilinear_weights
 from fmbrdf_mi.sensor import samples as SM
 from fmbrdf_mi.sensor.mosaic import COLOURS
@@ -20,7 +20,7 @@ from fmbrdf_mi.sensor.noise import NoiseModel
 from fmbrdf_mi.fit.evaluate.materials import MIN_MATERIAL_PIXELS, MaterialEvaluator, check_labels, material_count
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
-from fmbrdf_mi.fit.evaluate.pixel_model import PIECE_DIRECTIONS, Directions, PixelEvaluator
+from fmbrdf_mi.fit.evaluate.pixel_model import Directions, PixelEvaluator
 from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
 from fmbrdf_mi.fit.inputs.observations import validate
 from fmbrdf_mi.fit.objectives import loss as L
@@ -137,10 +137,9 @@ RAW_AREA_POINTS = 2
 def area_points(samples, opts):
     """m of the likelihood's m x m points per sample: ``opts.area_points``, else :data:`RAW_AREA_POINTS`
     for a raw mosaic (a sensor pixel integrates over its area) and 1 (the pixel's centre) otherwise."""
-    m = opts.area_points
-    if m is None:
-        m = RAW_AREA_POINTS if samples.source in ("raw mosaic", "colour raw mosaic") else 1
-    return int(m)
+    if opts.area_points is not None:
+        return int(opts.area_points)
+    return RAW_AREA_POINTS if samples.source in ("raw mosaic", "colour raw mosaic") else 1
 
 
 def one_view(observations, what, why):
@@ -156,7 +155,7 @@ def one_view(observations, what, why):
 def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, factor=1.0):
     """The per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) of the fitted cells
     ``idxs`` (one flat index array per image, all images of one view): one group per pixel (and colour
-    channel), shared by that pixel in every image.  ``smooth``: (tau_s, tau_b) of the maps' smoothness prior
+    channel), shared by that pixel in every image.  ``smooth``: tau (or (tau_s, tau_b)) of the maps' smoothness prior
     (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) in the reported albedos' units, ``factor`` the model's albedo
     factor; None: no prior.  ``bilinear``: each sample interpolates the pixel centres' albedos at its own
     point (:func:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.bilinear_weights`)."""
@@ -188,23 +187,6 @@ def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, facto
     return PixelAlbedos(groups, len(gpix), gpix, corner_groups=corners, corner_weights=weights, prior=prior,
                         name="per-pixel-bilinear" if bilinear else "per-pixel", channel_of=gch if colour else None,
                         labels=COLOURS if colour else None)
-
-
-def image_directions(geo):
-    """:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Directions` of the images' fitted pixels, ``geo`` their
-    (observation, pixels, footprint) in order, made a block of pixels at a time by
-    :meth:`~fmbrdf_mi.fit.inputs.observations.Observation.sample_geometry`; and each image's direction count."""
-    per = [len(o.sample_geometry(idx[:1], footprint=fp)[0]) for o, idx, fp in geo]    # directions per pixel
-
-    def pieces():
-        for (o, idx, fp), k in zip(geo, per):
-            step = max(1, PIECE_DIRECTIONS // k)
-            for a in range(0, len(idx), step):
-                n, v, _ = o.sample_geometry(idx[a:a + step], footprint=fp)
-                yield n, v
-
-    counts = [len(idx) * k for (_, idx, _), k in zip(geo, per)]
-    return Directions(sum(counts), pieces), counts
 
 
 def material_labels(observations, materials, loss, opts, evaluator=None):
@@ -290,9 +272,8 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     starts = np.cumsum([0] + [len(i) for i in idxs])
     slices = [(int(starts[k]), int(starts[k + 1])) for k in range(K)]
     excluded = excl[0] if single else {
-        "candidates": sum(e["candidates"] for e in excl), "saturated": sum(e["saturated"] for e in excl),
-        "dark": sum(e["dark"] for e in excl), "used": int(starts[-1]), "per_image": excl,
-        "white_level": excl[0].get("white_level"), "dark_level": excl[0].get("dark_level")}
+        **{k: sum(e[k] for e in excl) for k in ("candidates", "saturated", "dark")}, "used": int(starts[-1]),
+        "per_image": excl, "white_level": excl[0].get("white_level"), "dark_level": excl[0].get("dark_level")}
     geo = []  # (observation, pixels, footprint) per image: its directions are made when the evaluator needs them
     if loss == "likelihood":
         smps = [o.samples if o.samples is not None else SM.from_stokes(o.stokes) for o in observations]
@@ -317,23 +298,19 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
             o0 = observations[0]
             noise = dataclasses.replace(o0.noise) if single and o0.noise is not None else NoiseModel(step=smps[0].step)
         # a colour mosaic: one pair of albedos per channel
-        layout = None if smps[0].channel is None else ChannelAlbedos(smps[0].channel)
+        layout = None if smps[0].channel is None else GroupAlbedos("per-channel", smps[0].channel, COLOURS)
         if lab is not None and layout is not None:
             raise InputError("materials: not yet for colour mosaics (mono captures, raw or angle images)")
         if opts.albedo in PER_PIXEL_LAYOUTS:
             if lab is not None and opts.albedo == "per-pixel-bilinear":
                 raise InputError("materials: not with albedo per-pixel-bilinear yet (use albedo per-pixel)")
-            smooth = opts.albedo_smooth
             layout = pixel_layout(observations, idxs, smps[0], bilinear=opts.albedo == "per-pixel-bilinear",
-                                  smooth=None if smooth is None else smooth_pair(smooth),
-                                  factor=get_model(opts.model).albedo_factor)
+                                  smooth=opts.albedo_smooth, factor=get_model(opts.model).albedo_factor)
         elif lab is not None:
-            layout = GroupAlbedos("per-material", np.repeat(cell_material[:, None], smps[0].n, axis=1), count,
+            layout = GroupAlbedos("per-material", np.repeat(cell_material[:, None], smps[0].n, axis=1),
                                   [str(m) for m in range(count)])
         objective = LikelihoodObjective(np.concatenate(ys), A, noise, smps[0].dof, layout=layout)
         smp = smps[0]
-        w = observations[-1].sample_geometry(idxs[-1][:1], footprint=geo[-1][2])[2]
-        weights = None if len(w) == 1 else w
     else:
         fps = [o.footprint for o in observations]
         for k, f in enumerate(fps[1:], 1):
@@ -363,9 +340,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
                 off += o.shape[0] + 2
             objective.grid = (np.concatenate(rows), np.concatenate(cols))
         smp = None
-        w = observations[0].sample_geometry(idxs[0][:1])[2]
-        weights = None if len(w) == 1 else w
-    directions, counts = image_directions(geo)
+    directions, counts, weights = Directions.of_images(geo)   # the images' footprints agree
     # one light and irradiance for all directions when the images share them (no per-direction copies)
     irr_img = np.array([float(o.irradiance) for o in observations])
     irr = (float(irr_img[0]) if np.allclose(irr_img, irr_img[0]) else

@@ -30,25 +30,19 @@ class PowerEvaluator:
         self.counts = np.asarray(pixels_per_image, int)
         self._cache = None   # (shape key, wrt, Parts) of the last BSDF evaluation
 
-    def image_of(self, m):
-        """Image index of each of the ``m`` points (pixel-major)."""
-        pts = m // int(self.counts.sum())
-        return np.repeat(np.arange(len(self.counts)), self.counts * pts)
-
     def base_parts(self, shape_values, wrt=()):
         names = self.params.model.shape_names
         key = tuple(round(float(shape_values[n]), 12) for n in names)
         wrt = tuple(n for n in wrt if n in names)
         c = self._cache
-        if c is not None and c[0] == key and set(wrt) <= set(c[1]):
-            return c[2]
-        p = self.base.parts({n: shape_values[n] for n in names}, wrt)
-        self._cache = (key, wrt, p)
-        return p
+        if c is None or c[0] != key or not set(wrt) <= set(c[1]):
+            c = self._cache = (key, wrt, self.base.parts({n: shape_values[n] for n in names}, wrt))
+        return c[2]
 
     def parts(self, shape_values, wrt=()):
         p = self.base_parts(shape_values, wrt)
-        img = self.image_of(p.surface.shape[1])
+        # each point's image (points pixel-major, the same number per pixel)
+        img = np.repeat(np.arange(len(self.counts)), self.counts * (p.surface.shape[1] // int(self.counts.sum())))
         f = self.factors(shape_values)[img]
         out = Parts(p.surface * f, p.body * f, {n: d * f for n, d in p.d_surface.items()},
                     {n: d * f for n, d in p.d_body.items()}, p.nonfinite)
@@ -78,7 +72,7 @@ class PowerProblem(Problem):
         """(observed, predicted, weight), one row per fitted pixel, of what the powers scale."""
         obj = self.obj
         if obj.is_likelihood:
-            return obj.y, obj._mu_of(pred), 1.0 / obj.var
+            return obj.y, obj.samples_of(pred), 1.0 / obj.var
         i = obj.target.intensity[:, None]
         return i, pred[0][:, None], np.ones_like(i)
 
@@ -100,7 +94,6 @@ class PowerProblem(Problem):
             return super().closed_form(shape)
         base = self.ev.base_parts(shape)
         shape = dict(shape)
-        a_s = a_b = None
         for _ in range(30):   # block coordinate descent of one weighted least-squares criterion
             parts = self.ev.parts(shape)
             a_s, a_b = self.obj.albedos(parts)
