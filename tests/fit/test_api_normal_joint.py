@@ -439,3 +439,75 @@ def test_refinement_time_left_adds_the_rounds_still_to_run():
     assert refinement_time_left(None, [20.0], 3.0, 2) == 40.0              # this round's left not known yet
     assert refinement_time_left(None, [], 3.0, 2) is None
     assert refinement_time_left(7.0, [20.0], 3.0, 0) == 7.0                 # the last round: its own time
+
+
+def _random_rows(rng, N, m, Q=8, p=6):
+    pix = rng.integers(0, N, size=(m, Q))
+    val = rng.normal(size=(m, Q, 2))
+    val[:, Q // 2:][rng.random((m, Q - Q // 2)) < 0.5] = 0.0        # unused slots, as inside samples have
+    return pix, val, rng.normal(size=(m, p)), rng.normal(size=m)
+
+
+def test_data_products_equal_all_columns_summed_at_once_holding_one_column_of_terms():
+    """data_products' H_mn equals its definition as one bincount of all 2 p columns' terms at once (each sum's
+    terms in the rows' order), bit for bit, while it holds one column's terms at a time: its peak allocation
+    (tracemalloc) stays below 16 doubles per nonzero (row, slot) with p = 6, where all columns at once hold
+    2 p products and 2 p indices each (about 30)."""
+    import tracemalloc
+
+    from fmbrdf_mi.fit.solve.normal_system import data_products
+
+    rng = np.random.default_rng(3)
+    N, m, p = 2000, 24000, 6
+    pix, val, Jm, r = _random_rows(rng, N, m, p=p)
+    row, slot = np.nonzero(np.any(val != 0, axis=2))
+    q, v = pix[row, slot], val[row, slot]
+    terms = (v[:, :, None] * Jm[row][:, None, :]).reshape(len(q), 2 * p)
+    flat = (q[:, None] * 2 * p + np.arange(2 * p)).ravel()
+    ref = np.bincount(flat, weights=terms.ravel(), minlength=N * 2 * p).reshape(N, 2, p).transpose(2, 0, 1)
+    del terms, flat
+    tracemalloc.start()
+    try:
+        Hmm, Hmn, gm, gn = data_products(pix, val, Jm, r, N)
+        cur, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert np.array_equal(Hmn, ref)
+    assert (peak - cur) / 8 / len(q) < 16, (peak - cur) / 8 / len(q)
+
+
+def test_normal_block_keeps_its_sparsity_pattern_only_in_the_callers_cache():
+    """A NormalBlock built without a cache leaves nothing behind once it is gone (tracemalloc: under 5 % of its
+    peak), so a refinement's memory is released when it returns; with a cache dict the next block of the same
+    pixels reuses the pattern kept there and equals a block built afresh, bit for bit."""
+    import gc
+    import tracemalloc
+
+    from fmbrdf_mi.fit.problem.normals import stencils, tangent_bases
+    from fmbrdf_mi.fit.solve.normal_system import NormalBlock
+
+    rng = np.random.default_rng(5)
+    mask = np.ones((40, 50), bool)
+    st, coef = stencils(mask, "curvature")
+    N = int(mask.sum())
+    n = rng.normal(size=(N, 3))
+    n[:, 2] = np.abs(n[:, 2]) + 1
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    t1, t2 = tangent_bases(n)
+    pix, val, _, _ = _random_rows(rng, N, 12 * N, Q=4)
+    tracemalloc.start()
+    try:
+        blk = NormalBlock(pix, val, st, coef, t1, t2, 0.7, 0.1)
+        B = blk.B.copy()
+        del blk
+        gc.collect()
+        cur, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert cur < 0.05 * peak + B.nbytes, (cur, peak)
+    cache = {}
+    first = NormalBlock(pix, val, st, coef, t1, t2, 0.7, 0.1, cache=cache)
+    kept = cache["value"]
+    second = NormalBlock(pix, 2 * val, st, coef, t1, t2, 0.7, 0.1, cache=cache)
+    assert cache["value"] is kept and np.array_equal(first.B, B)
+    assert np.array_equal(second.B, NormalBlock(pix, 2 * val, st, coef, t1, t2, 0.7, 0.1).B)
