@@ -18,6 +18,10 @@ import copy
 import numpy as np
 
 
+#: Pixel lists whose 2Q x 2Q products :meth:`NormalBlock._assemble` forms at a time.
+CHUNK = 1 << 13
+
+
 def _sums(idx, w, n):
     """(n, C) sums of the rows of ``w`` (k, C) by ``idx`` (k,), each in the rows' order."""
     k, C = w.shape
@@ -114,6 +118,7 @@ class NormalBlock:
         row, slot = np.nonzero(ok & nonzero)
         vs = self.v[row, slot]
         diag = _sums(self.q[row, slot], (vs[:, :, None] * vs[:, None, :]).reshape(-1, 4), N).reshape(N, 2, 2)
+        del row, slot, vs
         diag[:, 0, 0] += self.w * self.csum      # the tangent bases are orthonormal
         diag[:, 1, 1] += self.w * self.csum
         self._diag = diag
@@ -153,21 +158,33 @@ class NormalBlock:
         sp = _pairs(np.where(ok, self.q, -1), self.st if prior else self.st[:0], N, cache)
         V = self.v.reshape(m, 2 * Q)
         G = sp["G"]
-        W = np.empty((G, 2 * Q, 2 * Q))                         # sum over a list's rows of V_r V_r^T
         used = np.empty((G, Q), bool)
         for gs, rs in sp["groups"]:
-            Vg = V[rs]                                          # (groups, rows each, 2Q)
-            W[gs] = np.matmul(Vg.transpose(0, 2, 1), Vg)
             used[gs] = np.any(nonzero[rs], axis=1)
         # the valid term pairs (g, a, b) in order, less those with an unused slot
         valid = np.ones(G * Q * Q, bool) if sp["dsel"] is None else sp["dsel"]
-        at = np.cumsum(valid) - 1                               # each valid pair's place among them (inv)
-        g, a, b = np.unravel_index(np.flatnonzero(valid & (used[:, :, None] & used[:, None, :]).ravel()),
-                                   (G, Q, Q))
+        keep = valid & (used[:, :, None] & used[:, None, :]).ravel()
         P, inv = len(sp["rows"]), sp["inv"]
         nd = int(valid.sum())
-        Wk = W.reshape(G, Q, 2, Q, 2)[g, a, :, b, :].reshape(-1, 4)                     # (pairs kept, 4)
-        data = _sums(inv[at[(g * Q + a) * Q + b]], Wk, P)       # each pair's data sum
+        # W_g = sum over list g's rows of V_r V_r^T, a chunk of lists at a time (each product as the whole's), and
+        # of it the kept pairs' 2 x 2 blocks and pair indices, in order
+        nk = int(np.count_nonzero(keep))
+        Wk, pair, done, at0 = np.empty((nk, 4)), np.empty(nk, np.int64), 0, 0
+        for g0 in range(0, G, CHUNK):
+            g1 = min(g0 + CHUNK, G)
+            W = np.empty((g1 - g0, 2 * Q, 2 * Q))
+            for gs, rs in sp["groups"]:
+                i0, i1 = np.searchsorted(gs, (g0, g1))
+                Vg = V[rs[i0:i1]]                               # (lists, rows each, 2Q)
+                W[gs[i0:i1] - g0] = np.matmul(Vg.transpose(0, 2, 1), Vg)
+            v, k = valid[g0 * Q * Q:g1 * Q * Q], keep[g0 * Q * Q:g1 * Q * Q]
+            at = done + np.cumsum(v)[k] - 1                      # each kept pair's place among the valid (inv)
+            done += int(np.count_nonzero(v))
+            g, a, b = np.unravel_index(np.flatnonzero(k), (g1 - g0, Q, Q))
+            Wk[at0:at0 + len(g)] = W.reshape(g1 - g0, Q, 2, Q, 2)[g, a, :, b, :].reshape(-1, 4)
+            pair[at0:at0 + len(g)] = inv[at]
+            at0 += len(g)
+        data = _sums(pair, Wk, P)                               # each pair's data sum
         vals, idx = [data], [np.arange(P)]
         pinv = inv[nd + N:]
         if prior:
