@@ -388,17 +388,17 @@ def run_cli(a, case):
             rc, wall, cpu, peak = run_child(fit_command(info, out, not a.progress, a.fit_args), child_env(a.code),
                                             stdout=None if a.progress else f, stderr=None if a.progress else f,
                                             cwd=work)
-        if rc:
+        if rc not in (0, 3):    # 3: the outputs written, the fit not converged (recorded as such)
             with open(log) as f:
                 tail = f.read()[-2000:]
             raise SystemExit(f"{label(case)}: the fit command failed with exit status {rc}: {tail}")
         with open(os.path.join(out, "fit.json")) as f:
             res = json.load(f)
-        model = find_key(res, "n_pixels") or {}
+        model = find_key(res, "n_pixels") or res.get("refine_normals") or {}
         maps = {k: read_map(os.path.join(out, f"{k}.exr")) for k in ("k_s", "k_b")}
     unc = model.get("uncertainty") or {}
     return dict(case, code=a.code, intervals="the command's", fit_args=a.fit_args, object=info["object"],
-                pixels=int(model.get("n_pixels", 0)),
+                pixels=int(model.get("n_pixels", model.get("pixels", 0))),
                 time=wall, cpu=cpu, peak=peak, rss_before=None, converged=bool(model.get("converged", False)),
                 stages=model.get("timings") or {}, make_time=make_time, make_peak=make_peak,
                 estimates=estimates_of(model.get("params", {}), model.get("loss", math.nan),
