@@ -215,10 +215,13 @@ class NormalBlock:
         """J_n x (data rows only), x (N, 2, R) -> (m, R)."""
         return np.einsum("mqa,mqar->mr", self.v, x[self.q])
 
-    def apply(self, x):
-        """H_nn x for x (N, 2, R): y_i = sum_j B_ij x_j over the stored pairs (a gather and a batched product)."""
+    def apply(self, x, gather=None):
+        """H_nn x for x (N, 2, R): y_i = sum_j B_ij x_j over the stored pairs (a gather and a batched product).
+        ``gather``: an (N, qmax, 2, R) array for the gathered x_j, reused by :meth:`solve`'s iterations (a new
+        one each time costs page faults at every iteration of a large frame)."""
         N, R = x.shape[0], x.shape[2]
-        return np.matmul(self.B, np.take(x, self.nbr, axis=0).reshape(N, -1, R))
+        xg = np.take(x, self.nbr, axis=0) if gather is None else np.take(x, self.nbr, axis=0, out=gather, mode="clip")
+        return np.matmul(self.B, xg.reshape(N, -1, R))
 
     def precondition(self, r):
         """The block-Jacobi preconditioner applied to r (N, 2, R) (an einsum written out, for speed)."""
@@ -239,18 +242,20 @@ class NormalBlock:
         rz = np.einsum("nar,nar->r", r, z)
         bn = np.sqrt(np.einsum("nar,nar->r", b, b))
         bn[bn == 0] = 1.0
+        gather, step = np.empty(self.nbr.shape + b.shape[1:]), np.empty_like(b)
         for _ in range(max_iter):
-            Ap = self.apply(p)
+            Ap = self.apply(p, gather)
             pAp = np.einsum("nar,nar->r", p, Ap)
             alpha = np.where(pAp > 0, rz / np.where(pAp > 0, pAp, 1.0), 0.0)
-            x += alpha * p
-            r -= alpha * Ap
+            x += np.multiply(alpha, p, out=step)
+            r -= np.multiply(alpha, Ap, out=step)
             if np.all(np.sqrt(np.einsum("nar,nar->r", r, r)) <= rtol * bn):
                 break
             z = self.precondition(r)
             rz_new = np.einsum("nar,nar->r", r, z)
             beta = np.where(rz > 0, rz_new / np.where(rz > 0, rz, 1.0), 0.0)
-            p = z + beta * p
+            p *= beta           # p = z + beta p, in place
+            p += z
             rz = rz_new
         return x
 
