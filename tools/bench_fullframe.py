@@ -83,6 +83,7 @@ import json
 import math
 import os
 import re
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -96,6 +97,7 @@ FULL = (1224, 1024)          # a polarisation camera's whole frame in super-pixe
 MESH_FOV = 20.0              # degrees across the mesh's square (ideal_object's default)
 MESH_DISTANCE = 8.0
 SCENES, TEXTURES, LIGHTS, MODES = ("sphere", "mesh"), ("smooth", "checker"), (1, 3), ("cli", "api")
+DEFAULT_FIT_ARGS = "--albedo per-pixel --max-pixels 0"
 CASE_KEYS = ("mode", "scene", "texture", "K", "width", "height", "area", "seed")
 
 
@@ -351,10 +353,10 @@ def case_args(case):
             "--size", f"{case['width']}x{case['height']}", "--area", str(case["area"]), "--seed", str(case["seed"])]
 
 
-def fit_command(info, out, quiet):
-    """The default per-pixel fit command of the captures ``info`` (worker_make's info.json)."""
+def fit_command(info, out, quiet, fit_args=DEFAULT_FIT_ARGS):
+    """The fit command of the captures ``info`` (worker_make's info.json): ``fit_args`` (default: per-pixel)."""
     data = os.path.dirname(info["images"][0])
-    cmd = [sys.executable, "-m", "fmbrdf_mi", "fit", *info["images"], "--albedo", "per-pixel", "--max-pixels", "0",
+    cmd = [sys.executable, "-m", "fmbrdf_mi", "fit", *info["images"], *shlex.split(fit_args),
            "--normals", os.path.join(data, "normals.npy"), "--mask", os.path.join(data, "mask.npy"),
            "--camera", info["camera"]]
     cmd += ["--fov", repr(info["fov"])] if info["fov"] else []
@@ -383,20 +385,20 @@ def run_cli(a, case):
         with open(os.path.join(data, "info.json")) as f:
             info = json.load(f)
         with open(log, "w") as f:
-            rc, wall, cpu, peak = run_child(fit_command(info, out, not a.progress), child_env(a.code),
+            rc, wall, cpu, peak = run_child(fit_command(info, out, not a.progress, a.fit_args), child_env(a.code),
                                             stdout=None if a.progress else f, stderr=None if a.progress else f,
                                             cwd=work)
-        if rc:
+        if rc not in (0, 3):    # 3: the outputs written, the fit not converged (recorded as such)
             with open(log) as f:
                 tail = f.read()[-2000:]
             raise SystemExit(f"{label(case)}: the fit command failed with exit status {rc}: {tail}")
         with open(os.path.join(out, "fit.json")) as f:
             res = json.load(f)
-        model = find_key(res, "n_pixels") or {}
+        model = find_key(res, "n_pixels") or res.get("refine_normals") or {}
         maps = {k: read_map(os.path.join(out, f"{k}.exr")) for k in ("k_s", "k_b")}
     unc = model.get("uncertainty") or {}
-    return dict(case, code=a.code, intervals="the command's", object=info["object"],
-                pixels=int(model.get("n_pixels", 0)),
+    return dict(case, code=a.code, intervals="the command's", fit_args=a.fit_args, object=info["object"],
+                pixels=int(model.get("n_pixels", model.get("pixels", 0))),
                 time=wall, cpu=cpu, peak=peak, rss_before=None, converged=bool(model.get("converged", False)),
                 stages=model.get("timings") or {}, make_time=make_time, make_peak=make_peak,
                 estimates=estimates_of(model.get("params", {}), model.get("loss", math.nan),
@@ -647,6 +649,8 @@ def main(argv=None):
     p.add_argument("--area", type=int, default=4, help="the data's points per raw pixel side (default %(default)s)")
     p.add_argument("--intervals", default="fisher", choices=("fisher", "auto", "profile"),
                    help="the API fit's intervals (default %(default)s)")
+    p.add_argument("--fit-args", default=DEFAULT_FIT_ARGS, help="cli mode: the fit's options after the images "
+                   "(default %(default)r; e.g. --fit-args=--refine-normals with --lights 3)")
     p.add_argument("--code", metavar="DIR", default=ROOT, help="the checkout whose package fits (default: this one)")
     p.add_argument("--seed", type=int, default=0, help="camera-noise seed")
     p.add_argument("--progress", action="store_true", help="the fits' own progress lines on stderr")

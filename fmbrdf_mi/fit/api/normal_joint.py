@@ -95,13 +95,14 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     staged = lam_material is not None and lam_material < lam
     n_rounds = refreshes + 1 + int(staged)     # IRLS rounds, then the material's
     round_times = []
+    pattern = {}    # H_nn's sparsity pattern, the same at every linearisation (NormalBlock)
 
     def system(r, Jm, Jn, t, n):    # the normal equations' blocks: data, then the prior's gradient
         Hmm, Hmn, gm, gn = NS.data_products(Jn[0], Jn[1], Jm, r, jp.n)
         return Hmm, Hmn, gm, jp.prior_gradient(gn, t, n)
 
     def block(Jn, t, mu=0.0):
-        return NS.NormalBlock(Jn[0], Jn[1], jp.stencils, jp.coef, t[0], t[1], jp.w_prior, mu)
+        return NS.NormalBlock(Jn[0], Jn[1], jp.stencils, jp.coef, t[0], t[1], jp.w_prior, mu, cache=pattern)
 
     def before(x, rnd):     # from the second round: variances and the prior's scale from the model
         st, nmap = x
@@ -116,7 +117,11 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
 
     def linearise(x):
         st, nmap = x[0], x[1]
+        t_lin = time.time()
         r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
+        if not history:     # the first step's wait: a linearisation, then solves and trial energies
+            say(f"[joint-normals] linearised {jp.n} pixels x {jp.K} images in {time.time() - t_lin:.1f} s; "
+                f"solving for the first step ({time.time() - t0:.1f} s)")
         n = nmap[jp.idx]
         return (system(r, Jm, Jn, t, n), Jn, t, z, n, {})
 
@@ -149,13 +154,17 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
                               else last["ed"] + last["ep"]) - f)
             history.append({"round": rnd, "iter": it, "energy": f, "data": x[2], "prior": x[3],
                             "time": time.time() - t0, "params": rep})
-            left = round_time_left(decreases, (time.time() - t_round) / it, max_iter - it)
+            per_iter = (time.time() - t_round) / it
+            left = round_time_left(decreases, per_iter, max_iter - it)
+            # until the decreases give a rate: the bound of max_iter iterations
+            about = "about" if left is not None else "at most"
+            left = (max_iter - it) * per_iter if left is None else left
             total = refinement_time_left(left, round_times, time.time() - t_round, n_rounds - rnd - 1)
             say(f"[joint-normals] {label} iter {it:2d}: energy {f:.6e} (data {x[2]:.6e}, prior {x[3]:.6e})  "
                 + " ".join(f"{k}={v:.4g}" for k, v in rep.items()) + f"  ({time.time() - t0:.1f} s"
-                + ("" if left is None else f"; this round about {left:.0f} s more")
+                + f"; this round {about} {left:.0f} s more"
                 + ("" if total is None or total == left else
-                   f"; {n_rounds - rnd - 1} more round{'s' if n_rounds - rnd > 2 else ''}, about {total:.0f} s "
+                   f"; {n_rounds - rnd - 1} more round{'s' if n_rounds - rnd > 2 else ''}, {about} {total:.0f} s "
                    "in all") + ")")
 
         res = LM.levenberg_marquardt(
@@ -182,9 +191,10 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         (st, nmap), converged = minimise((st, nmap), refreshes + 1)
         stage = {"lam": float(lam_material), "energy": last["f"], "data_chi2": last["ed"], "prior": last["ep"],
                  "stop_reason": last["reason"]}
-    r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
     unc = {"std_errors": {}, "method": "not computed: the refinement did not converge"}
     if converged:
+        say(f"[joint-normals] the material's covariance: one linearisation and two solves ({time.time() - t0:.1f} s)")
+        r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
         Hmm, Hmn, gm, gn = system(r, Jm, Jn, t, nmap[jp.idx])
         C = NS.material_covariance(Hmm, Hmn, block(Jn, t), Jm)
         w, V = np.linalg.eigh(C)

@@ -93,7 +93,7 @@ class NormalRefinement(FitJob):
         for o in fit_obs:
             o.normals = n0
             o.geometry = None
-        params = fit_joint(fit_obs, opts, progress=False).params
+        params = fit_joint(fit_obs, opts, progress=say).params
         self.joint = refine_joint(fit_obs, n0, params, mask=erode(fit_obs[0].mask, max(int(opts.erode), 1)),
                                   lam=self.lam, model=self.model, bounds=opts.bounds, fixed=opts.fixed,
                                   max_iter=opts.max_iter, progress=say)

@@ -18,6 +18,10 @@ import copy
 import numpy as np
 
 
+#: Pixel lists whose 2Q x 2Q products :meth:`NormalBlock._assemble` forms at a time.
+CHUNK = 1 << 13
+
+
 def _sums(idx, w, n):
     """(n, C) sums of the rows of ``w`` (k, C) by ``idx`` (k,), each in the rows' order."""
     k, C = w.shape
@@ -33,39 +37,42 @@ def data_products(pix, val, Jm, r, N):
     (m, Q, 2) the row's derivatives in their tangent unknowns, ``Jm`` (m, p) the material columns, ``r`` (m,).
     """
     p = Jm.shape[1]
-    m, Q = pix.shape
     # dropping fixed pixels and zero derivatives keeps each sum's order
     row, slot = np.nonzero((pix >= 0) & np.any(val != 0, axis=2))
     q, v = pix[row, slot], val[row, slot]
-    Hmn = _sums(q, (v[:, :, None] * Jm[row][:, None, :]).reshape(len(q), 2 * p), N).reshape(N, 2, p)
+    # one column at a time: each sum adds the same terms in the same order as a sum of all columns at once,
+    # and the terms in flight are one column's (not 2 p of them per term)
+    Hmn = np.empty((p, N, 2))
+    for b in range(p):
+        jb = Jm[row, b]
+        for a in range(2):
+            Hmn[b, :, a] = np.bincount(q, weights=v[:, a] * jb, minlength=N)
     gn = _sums(q, v * r[row][:, None], N)
-    return Jm.T @ Jm, np.ascontiguousarray(Hmn.transpose(2, 0, 1)), Jm.T @ r, gn
+    return Jm.T @ Jm, Hmn, Jm.T @ r, gn
 
 
-_PAIRS = {}
-
-
-def _pairs(pix, stencils, N):
-    """The pixel pairs coupled by H_nn (its sparsity pattern); the last one is cached.
+def _pairs(pix, stencils, N, cache=None):
+    """The pixel pairs coupled by H_nn (its sparsity pattern); the last one is kept in the dict ``cache`` (the
+    caller's, so that it lives as long as the caller's refinement; None: not kept).
 
     A dict: ``G`` distinct pixel lists; ``groups``: (lists (n,), their rows (n, c)) per row count c;
     ``dsel``: the valid entries of the (G, Q, Q) term pairs (None: all); ``inv``: the pair index of each
     valid term pair, then of each pixel's diagonal, then of each stencil pair; ``rows``, ``pos`` (P,): each
     pair's pixel i and place in the (N, ``qmax``) neighbour list ``nbr`` (padding: pixel 0, zero block).
     """
-    c = _PAIRS.get("key")
+    c = (cache or {}).get("key")
     if c is not None and c[0] == N and np.array_equal(c[1], pix) and np.array_equal(c[2], stencils):
-        return _PAIRS["value"]
+        return cache["value"]
     m, Q = pix.shape
     u, g = np.unique(pix, axis=0, return_inverse=True)
     g = g.ravel()
     order = np.argsort(g, kind="stable")
     cnt = np.bincount(g, minlength=len(u))
-    rows_of = np.split(order, np.cumsum(cnt)[:-1])
+    first = np.cumsum(cnt) - cnt                        # list i's rows: order[first[i]:first[i] + cnt[i]]
     groups = []
     for c in np.unique(cnt):
         gs = np.nonzero(cnt == c)[0]
-        groups.append((gs, np.stack([rows_of[i] for i in gs])))
+        groups.append((gs, order[first[gs][:, None] + np.arange(c)]))
     dsel = ((u[:, :, None] >= 0) & (u[:, None, :] >= 0)).ravel()
     ar = np.arange(N)
     keys = [(u[:, :, None] * N + u[:, None, :]).ravel()[dsel], ar * N + ar]
@@ -81,7 +88,8 @@ def _pairs(pix, stencils, N):
         dsel = None
     value = {"G": len(u), "groups": groups, "dsel": dsel, "inv": inv.ravel(), "rows": rows, "pos": pos,
              "qmax": qmax, "nbr": nbr}
-    _PAIRS.update(key=(N, pix.copy(), stencils.copy()), value=value)
+    if cache is not None:
+        cache.update(key=(N, pix.copy(), stencils.copy()), value=value)
     return value
 
 
@@ -91,14 +99,16 @@ class NormalBlock:
     ``pix``, ``val``: as :func:`data_products`; ``stencils`` (E, S) and ``coef`` (S,): the prior's residuals
     sqrt(w) sum_s coef_s n_{stencil_s} (e.g. (1, -1), (1, -2, 1)); ``t1``, ``t2`` (N, 3): each pixel's
     tangent basis; ``w``: the prior's weight.  Stored as 2 x 2 blocks of coupled pixel pairs in a padded
-    neighbour list, so a product is a gather and a batched matmul.
+    neighbour list, so a product is a gather and a batched matmul.  ``cache``: a dict that keeps the sparsity
+    pattern for the next block of the same pixels (one refinement's linearisations).
     """
 
-    def __init__(self, pix, val, stencils, coef, t1, t2, w, mu=0.0):
+    def __init__(self, pix, val, stencils, coef, t1, t2, w, mu=0.0, cache=None):
         self.N = N = len(t1)
         ok = pix >= 0
-        self.q = np.where(ok, pix, 0)
-        self.v = np.where(ok[..., None], val, 0.0)
+        # the caller's arrays, not copies, where no pixel is fixed (the refinement's extrapolated stencils)
+        self.q = pix if ok.all() else np.where(ok, pix, 0)
+        self.v = val if ok.all() else np.where(ok[..., None], val, 0.0)
         self.st, self.coef = stencils, np.asarray(coef, float)
         self.t1, self.t2, self.w = t1, t2, float(w)
         self.csum = np.zeros(N)
@@ -108,10 +118,11 @@ class NormalBlock:
         row, slot = np.nonzero(ok & nonzero)
         vs = self.v[row, slot]
         diag = _sums(self.q[row, slot], (vs[:, :, None] * vs[:, None, :]).reshape(-1, 4), N).reshape(N, 2, 2)
+        del row, slot, vs
         diag[:, 0, 0] += self.w * self.csum      # the tangent bases are orthonormal
         diag[:, 1, 1] += self.w * self.csum
         self._diag = diag
-        self._assemble(ok, nonzero)
+        self._assemble(ok, nonzero, cache)
         self._damp(mu)
 
     def damped(self, mu):
@@ -138,30 +149,42 @@ class NormalBlock:
         B[np.arange(N), :, 2 * dg["pos"] + 1] = blocks.reshape(N, 2, 2)[:, :, 1]
         self.B = B
 
-    def _assemble(self, ok, nonzero):
+    def _assemble(self, ok, nonzero, cache):
         """The undamped 2 x 2 blocks B_ij of H_nn (:func:`_pairs`): data rows add v_a v_b^T, prior stencils
         w c_s c_s' T_s^T T_s' (T = [t1 t2]); :meth:`_damp` adds the ridge.  Each block sums its terms in the
         order data, ridge, prior."""
         N, (m, Q) = self.N, self.q.shape
         prior = bool(len(self.st) and self.w)
-        sp = _pairs(np.where(ok, self.q, -1), self.st if prior else self.st[:0], N)
+        sp = _pairs(np.where(ok, self.q, -1), self.st if prior else self.st[:0], N, cache)
         V = self.v.reshape(m, 2 * Q)
         G = sp["G"]
-        W = np.empty((G, 2 * Q, 2 * Q))                         # sum over a list's rows of V_r V_r^T
         used = np.empty((G, Q), bool)
         for gs, rs in sp["groups"]:
-            Vg = V[rs]                                          # (groups, rows each, 2Q)
-            W[gs] = np.matmul(Vg.transpose(0, 2, 1), Vg)
             used[gs] = np.any(nonzero[rs], axis=1)
         # the valid term pairs (g, a, b) in order, less those with an unused slot
         valid = np.ones(G * Q * Q, bool) if sp["dsel"] is None else sp["dsel"]
-        at = np.cumsum(valid) - 1                               # each valid pair's place among them (inv)
-        g, a, b = np.unravel_index(np.flatnonzero(valid & (used[:, :, None] & used[:, None, :]).ravel()),
-                                   (G, Q, Q))
+        keep = valid & (used[:, :, None] & used[:, None, :]).ravel()
         P, inv = len(sp["rows"]), sp["inv"]
         nd = int(valid.sum())
-        Wk = W.reshape(G, Q, 2, Q, 2)[g, a, :, b, :].reshape(-1, 4)                     # (pairs kept, 4)
-        data = _sums(inv[at[(g * Q + a) * Q + b]], Wk, P)       # each pair's data sum
+        # W_g = sum over list g's rows of V_r V_r^T, a chunk of lists at a time (each product as the whole's), and
+        # of it the kept pairs' 2 x 2 blocks and pair indices, in order
+        nk = int(np.count_nonzero(keep))
+        Wk, pair, done, at0 = np.empty((nk, 4)), np.empty(nk, np.int64), 0, 0
+        for g0 in range(0, G, CHUNK):
+            g1 = min(g0 + CHUNK, G)
+            W = np.empty((g1 - g0, 2 * Q, 2 * Q))
+            for gs, rs in sp["groups"]:
+                i0, i1 = np.searchsorted(gs, (g0, g1))
+                Vg = V[rs[i0:i1]]                               # (lists, rows each, 2Q)
+                W[gs[i0:i1] - g0] = np.matmul(Vg.transpose(0, 2, 1), Vg)
+            v, k = valid[g0 * Q * Q:g1 * Q * Q], keep[g0 * Q * Q:g1 * Q * Q]
+            at = done + np.cumsum(v)[k] - 1                      # each kept pair's place among the valid (inv)
+            done += int(np.count_nonzero(v))
+            g, a, b = np.unravel_index(np.flatnonzero(k), (g1 - g0, Q, Q))
+            Wk[at0:at0 + len(g)] = W.reshape(g1 - g0, Q, 2, Q, 2)[g, a, :, b, :].reshape(-1, 4)
+            pair[at0:at0 + len(g)] = inv[at]
+            at0 += len(g)
+        data = _sums(pair, Wk, P)                               # each pair's data sum
         vals, idx = [data], [np.arange(P)]
         pinv = inv[nd + N:]
         if prior:
@@ -192,10 +215,13 @@ class NormalBlock:
         """J_n x (data rows only), x (N, 2, R) -> (m, R)."""
         return np.einsum("mqa,mqar->mr", self.v, x[self.q])
 
-    def apply(self, x):
-        """H_nn x for x (N, 2, R): y_i = sum_j B_ij x_j over the stored pairs (a gather and a batched product)."""
+    def apply(self, x, gather=None):
+        """H_nn x for x (N, 2, R): y_i = sum_j B_ij x_j over the stored pairs (a gather and a batched product).
+        ``gather``: an (N, qmax, 2, R) array for the gathered x_j, reused by :meth:`solve`'s iterations (a new
+        one each time costs page faults at every iteration of a large frame)."""
         N, R = x.shape[0], x.shape[2]
-        return np.matmul(self.B, np.take(x, self.nbr, axis=0).reshape(N, -1, R))
+        xg = np.take(x, self.nbr, axis=0) if gather is None else np.take(x, self.nbr, axis=0, out=gather, mode="clip")
+        return np.matmul(self.B, xg.reshape(N, -1, R))
 
     def precondition(self, r):
         """The block-Jacobi preconditioner applied to r (N, 2, R) (an einsum written out, for speed)."""
@@ -216,18 +242,20 @@ class NormalBlock:
         rz = np.einsum("nar,nar->r", r, z)
         bn = np.sqrt(np.einsum("nar,nar->r", b, b))
         bn[bn == 0] = 1.0
+        gather, step = np.empty(self.nbr.shape + b.shape[1:]), np.empty_like(b)
         for _ in range(max_iter):
-            Ap = self.apply(p)
+            Ap = self.apply(p, gather)
             pAp = np.einsum("nar,nar->r", p, Ap)
             alpha = np.where(pAp > 0, rz / np.where(pAp > 0, pAp, 1.0), 0.0)
-            x += alpha * p
-            r -= alpha * Ap
+            x += np.multiply(alpha, p, out=step)
+            r -= np.multiply(alpha, Ap, out=step)
             if np.all(np.sqrt(np.einsum("nar,nar->r", r, r)) <= rtol * bn):
                 break
             z = self.precondition(r)
             rz_new = np.einsum("nar,nar->r", r, z)
             beta = np.where(rz > 0, rz_new / np.where(rz > 0, rz, 1.0), 0.0)
-            p = z + beta * p
+            p *= beta           # p = z + beta p, in place
+            p += z
             rz = rz_new
         return x
 
