@@ -228,7 +228,7 @@ def _plain_obs(res=24):
 
 
 @pytest.mark.parametrize("change,match", [
-    (lambda o: setattr(o, "irradiance", -1.0), "irradiance: must be a positive number"),
+    (lambda o: setattr(o, "irradiance", -1.0), r"irradiance: expected a finite number in \[1e-20, 1e\+20\]"),
     (lambda o: setattr(o, "irradiance", float("nan")), "irradiance"),
     (lambda o: setattr(o, "normals", (o.normals + 1) / 2), r"unit length.*\[0, 1\]"),
     (lambda o: setattr(o, "light_dir", np.array([0.0, 0.0, -1.0])), "below the horizon"),
