@@ -218,9 +218,10 @@ def noise_scale(problem, r, n_independent, p):
 def incidental(problem, st, J, names, Hi, scale, parts=None):
     """(cov_theta / scale, cov_z / scale, info, applied): the incidental-parameter sandwich
     (:func:`incidental_sandwich`) of an eliminating layout, the Fisher errors it replaces and the
-    :func:`noise_share` in ``info`` (``reliable``: the share at most :data:`NOISE_SHARE_MAX`, else the method
-    says the errors are not confidence intervals); a layout without the term keeps ``Hi`` (cov_z None).
-    ``J``: Kaufman's projected Jacobian in z.  Raises LinAlgError."""
+    :func:`noise_share` in ``info``.  Above :data:`NOISE_SHARE_MAX` H comes from pooled albedos
+    (:func:`pooled_sandwich`; ``difference_std_errors`` keeps those of H = J^T J - C), or where they cannot be
+    pooled ``reliable`` is False and the method says the errors are not confidence intervals; a layout without
+    the term keeps ``Hi`` (cov_z None).  ``J``: Kaufman's projected Jacobian in z.  Raises LinAlgError."""
     if problem.layout.incidental_reason is not None:
         reason = problem.layout.incidental_reason
         return Hi, None, {"incidental_not_computed": reason}, [("incidental-not-computed", reason)]
