@@ -285,7 +285,7 @@ def main(argv=None):
         runs.append(rec)
         print(f"[{time.time() - t0:.0f} s] {rec['data']} {rec['size']} K={rec['K']} seed {rec['seed']} "
               f"{rec['layout']}: " + " ".join(f"{n}={rec['params'][n]:.4g}" for n in SHAPE)
-              + f" chi2/dof={rec['chi2_per_dof']:.3f} ({rec['time']:.0f} s)", file=sys.stderr, flush=True)
+              + f" chi2/dof={rec['chi2_per_dof'] or math.nan:.3f} ({rec['time']:.0f} s)", file=sys.stderr, flush=True)
         if a.json:
             with open(a.json + ".tmp", "w") as f:
                 json.dump({"runs": runs}, f)
