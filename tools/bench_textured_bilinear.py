@@ -10,13 +10,12 @@ against ``per-pixel-bilinear`` (the pairs at the super-pixel centres, each raw s
                                             --render-seeds [--spp 4096] [--seed0 0] --seeds 6 --json own.json
     python tools/bench_textured_bilinear.py --sizes '' --lights 1 --exact-res 32 --exact-kinds uniform \
                                             --layouts per-pixel --exact-seeds 20 --intervals auto --json u.json
-    python tools/bench_textured_bilinear.py --table u.json --coverage [--difference]
+    python tools/bench_textured_bilinear.py --table u.json --coverage
 
 ``--intervals``: the fits' ``intervals`` option (default fisher; ``auto`` is the command's: profile-likelihood
 ends where the Fisher ones fail the check; the record keeps the Fisher ends too).  ``--coverage``: the table of
 :func:`coverage_rows` (bias, spread, spread / SE and the coverage of the reported 95 % intervals) instead of
-the z table; ``--difference`` adds the same fits' rows with the incidental sandwich's H = J^T J - C (where
-the fits took H from pooled albedos: fit.json's ``incidental.difference_std_errors``).
+the z table.
 
 ``--render-seeds``: each raw seed's images rendered with their own sampler seed (raw seed + 1), so that the
 renderer's Monte Carlo noise differs between seeds as the camera's does (by default every raw seed of one
@@ -60,7 +59,6 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, os.path.join(ROOT, "tools"))
 
 TRUTH = dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0)
-Z95 = 1.959963984540054
 SHAPE = tuple(TRUTH)
 T = math.radians(35.0)
 LIGHTS = [(-0.5, 0.5, 1.0)] + [(math.sin(T) * math.cos(math.radians(a)), math.sin(T) * math.sin(math.radians(a)),
@@ -152,9 +150,7 @@ def one_fit(obs, layout, ks, kb, intervals="fisher"):
             "ci95": {n: (r.uncertainty or {}).get("ci95", {}).get(n) for n in SHAPE},
             "ci95_fisher": {n: ((r.uncertainty or {}).get("profile", {}).get("fisher_ci95")
                                 or (r.uncertainty or {}).get("ci95", {})).get(n) for n in SHAPE},
-            "interval_kind": (r.uncertainty or {}).get("interval_kind"), "intervals": intervals,
-            "noise_share": (r.uncertainty or {}).get("incidental", {}).get("noise_share"),
-            "se_difference": (r.uncertainty or {}).get("incidental", {}).get("difference_std_errors")}
+            "interval_kind": (r.uncertainty or {}).get("interval_kind"), "intervals": intervals}
 
 
 def summarise(runs):
@@ -181,19 +177,6 @@ def table(rows):
                      + " | ".join(f"{r[n][0]:+.1f}, {r[n][1]:.1f}" for n in SHAPE)
                      + f" | {r['chi2_per_dof']:.3f} | {r['z_rms_k_s']:.2f}, {r['z_rms_k_b']:.2f} | {r['time']:.0f} s |")
     return "\n".join(lines)
-
-
-def with_difference(runs):
-    """``runs`` and, for each, the same fit with the incidental sandwich's H = J^T J - C (fit.json's
-    ``incidental.difference_std_errors``, recorded where H came from pooled albedos; elsewhere the fit's own
-    SEs, the same estimator): ``intervals`` + " J^T J - C", intervals +- 1.96 SE (no optima widening)."""
-    out = list(runs)
-    for r in runs:
-        se = dict(r["se"], **(r.get("se_difference") or {}))
-        ci = ({n: [r["params"][n] - Z95 * se[n], r["params"][n] + Z95 * se[n]] for n in SHAPE if se.get(n)}
-              if r.get("se_difference") else r.get("ci95"))
-        out.append(dict(r, se=se, ci95=ci, ci95_fisher=ci, intervals=r.get("intervals", "fisher") + " J^T J - C"))
-    return out
 
 
 def coverage_rows(runs):
@@ -260,12 +243,8 @@ def main(argv=None):
     p.add_argument("--table", metavar="IN.json[,IN2.json...]", help="print the table of these runs (merged)")
     p.add_argument("--coverage", action="store_true",
                    help="the table: bias, spread and coverage of the reported 95 %% intervals (coverage_rows)")
-    p.add_argument("--difference", action="store_true",
-                   help="with --coverage: also the rows of the same fits with H = J^T J - C (with_difference)")
     a = p.parse_args(argv)
-    extra = with_difference if a.difference else list
-    show = ((lambda runs: coverage_table(coverage_rows(extra(runs)))) if a.coverage
-            else (lambda runs: table(summarise(runs))))
+    show = (lambda runs: coverage_table(coverage_rows(runs))) if a.coverage else (lambda runs: table(summarise(runs)))
     layouts = [L for L in a.layouts.split(",") if L]
     if any(L not in LAYOUTS for L in layouts):
         p.error(f"--layouts: expected some of {', '.join(LAYOUTS)}")
@@ -285,7 +264,7 @@ def main(argv=None):
         runs.append(rec)
         print(f"[{time.time() - t0:.0f} s] {rec['data']} {rec['size']} K={rec['K']} seed {rec['seed']} "
               f"{rec['layout']}: " + " ".join(f"{n}={rec['params'][n]:.4g}" for n in SHAPE)
-              + f" chi2/dof={rec['chi2_per_dof'] or math.nan:.3f} ({rec['time']:.0f} s)", file=sys.stderr, flush=True)
+              + f" chi2/dof={rec['chi2_per_dof']:.3f} ({rec['time']:.0f} s)", file=sys.stderr, flush=True)
         if a.json:
             with open(a.json + ".tmp", "w") as f:
                 json.dump({"runs": runs}, f)

@@ -96,12 +96,8 @@ INCIDENTAL_FLOOR = 0.1
 
 #: Above this :func:`noise_share` the sandwich's H = F - C is the small difference of two noisy matrices in
 #: some direction (more of Kaufman's information there is the albedos' noise than the data's): its errors
-#: understate the spread over captures (docs/benchmarks/coverage.md), and :func:`incidental` estimates H from
-#: the albedos pooled over windows of the pixel grid instead (:func:`pooled_sandwich`).
+#: understate the spread over captures, and the fit says so (docs/benchmarks/coverage.md).
 NOISE_SHARE_MAX = 0.5
-
-#: Half-width in pixels of :func:`pooling_windows`' square windows.
-POOL_RADIUS = 2
 
 
 #: The estimators (one per fit), as ``uncertainty.method`` names them.
@@ -130,10 +126,6 @@ NOTES = {
     "incidental-layout": "{}",
     "incidental-capped": "H not positive definite in {} direction(s): their inflation capped at "
                          f"{1 / INCIDENTAL_FLOOR:g}x the Fisher standard error",
-    "incidental-pooled": "in one direction {} of the information J^T J is the per-pixel albedos' noise (above "
-                         f"{NOISE_SHARE_MAX:g}): H is the information at the albedos pooled over "
-                         f"{2 * POOL_RADIUS + 1} x {2 * POOL_RADIUS + 1}-pixel windows less their noise, the "
-                         "covariance H^-1 (H + C) H^-1 (exact where the albedos are constant over each window)",
     "incidental-unreliable": "in one direction {} of the information J^T J is the per-pixel albedos' noise "
                              f"(above {NOISE_SHARE_MAX:g}): these standard errors and intervals understate the "
                              "spread over captures and are not confidence intervals; fit several lights of "
@@ -159,19 +151,14 @@ def method_text(applied):
     return "; ".join([head] + [NOTES[k].format(done[k]) for k in NOTES if k in done])
 
 
-def incidental_columns(problem, st, parts):
-    """(us, ub, dcols) of an eliminating layout at ``st``: the whitened unit-albedo columns and their
-    derivatives in z (:meth:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective.albedo_column_derivatives`)."""
-    obj = problem.obj
-    dcols = obj.albedo_column_derivatives(parts, problem.to_z(st), problem.names, problem.bounds)
-    return (*obj.albedo_columns(parts), dcols)
-
-
 def incidental_term(problem, st, parts):
     """C (p, p) in z of an eliminating layout (:meth:`PixelAlbedos.incidental`) at ``st``, else None."""
     if not problem.eliminates:
         return None
-    return problem.layout.incidental(*incidental_columns(problem, st, parts))
+    obj = problem.obj
+    z = problem.to_z(st)
+    dcols = obj.albedo_column_derivatives(parts, z, problem.names, problem.bounds)
+    return problem.layout.incidental(*obj.albedo_columns(parts), dcols)
 
 
 def _shares(F, C):
@@ -231,10 +218,9 @@ def noise_scale(problem, r, n_independent, p):
 def incidental(problem, st, J, names, Hi, scale, parts=None):
     """(cov_theta / scale, cov_z / scale, info, applied): the incidental-parameter sandwich
     (:func:`incidental_sandwich`) of an eliminating layout, the Fisher errors it replaces and the
-    :func:`noise_share` in ``info``.  Above :data:`NOISE_SHARE_MAX` H comes from pooled albedos
-    (:func:`pooled_sandwich`; ``difference_std_errors`` keeps those of H = J^T J - C), or where they cannot be
-    pooled ``reliable`` is False and the method says the errors are not confidence intervals; a layout without
-    the term keeps ``Hi`` (cov_z None).  ``J``: Kaufman's projected Jacobian in z.  Raises LinAlgError."""
+    :func:`noise_share` in ``info`` (``reliable``: the share at most :data:`NOISE_SHARE_MAX`, else the method
+    says the errors are not confidence intervals); a layout without the term keeps ``Hi`` (cov_z None).
+    ``J``: Kaufman's projected Jacobian in z.  Raises LinAlgError."""
     if problem.layout.incidental_reason is not None:
         reason = problem.layout.incidental_reason
         return Hi, None, {"incidental_not_computed": reason}, [("incidental-not-computed", reason)]
@@ -244,75 +230,17 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
     F, C = J.T @ J, scale * incidental_term(problem, st, parts)
     cz, capped = incidental_sandwich(F, C)
     share = noise_share(F, C)
-    pooled = pooled_information(problem, st, parts, scale) if share > NOISE_SHARE_MAX else None
     fisher_sd = np.sqrt(np.clip(np.diag(Hi), 0.0, None) * scale)
     info = {"incidental": {"fisher_std_errors": dict(zip(names, fisher_sd.tolist())), "capped_directions": capped,
-                           "noise_share": share, "reliable": share <= NOISE_SHARE_MAX or pooled is not None}}
-    if pooled is not None:
-        diff_sd = np.sqrt(np.clip(np.diag(Gd @ cz @ Gd.T), 0.0, None) * scale)
-        info["incidental"]["difference_std_errors"] = dict(zip(names, diff_sd.tolist()))
-        cz, capped = pooled_sandwich(*pooled, C)
-        info["incidental"]["capped_directions"] = capped
+                           "noise_share": share, "reliable": share <= NOISE_SHARE_MAX}}
     applied = []
     if problem.layout.incidental_method:
         applied.append(("incidental-layout", problem.layout.incidental_method))
     if capped:
         applied.append(("incidental-capped", capped))
     if share > NOISE_SHARE_MAX:
-        applied.append(("incidental-unreliable" if pooled is None else "incidental-pooled", f"{share:.2f}"))
+        applied.append(("incidental-unreliable", f"{share:.2f}"))
     return Gd @ cz @ Gd.T, cz, info, applied
-
-
-def pooling_windows(layout, radius=POOL_RADIUS):
-    """The groups of each group's window: the same channel's pixels within ``radius`` pixels in x and in y of
-    a per-pixel layout's (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) pixel, as (2 radius + 1)^2
-    arrays (n_groups,), -1 where that pixel is not fitted, the first the group itself; None when the layout
-    has no pixel grid (``width`` None)."""
-    width = layout.width
-    if width is None:
-        return None
-    pix = np.asarray(layout.pixels, dtype=np.int64)
-    ch = np.zeros_like(pix) if layout.channel_of is None else np.asarray(layout.channel_of, dtype=np.int64)
-    nch = int(ch.max()) + 1 if len(ch) else 1
-    lookup = np.full(int((pix * nch + ch).max()) + 1 if len(pix) else 1, -1)
-    lookup[pix * nch + ch] = np.arange(len(pix))
-    col = pix % width
-    steps = [(0, 0)] + [(i, j) for i in range(-radius, radius + 1) for j in range(-radius, radius + 1) if i or j]
-    out = []
-    for i, j in steps:
-        key = (pix + i * width + j) * nch + ch
-        ok = (col + j >= 0) & (col + j < width) & (key >= 0) & (key < len(lookup))
-        out.append(np.where(ok, lookup[np.where(ok, key, 0)], -1))
-    return out
-
-
-def pooled_information(problem, st, parts, scale):
-    """(H_w, C_w) in z, C_w x ``scale``: :meth:`~fmbrdf_mi.fit.evaluate.albedos.AlbedoLayout.pooled_information`
-    at the fitted albedos over :func:`pooling_windows`, or None (no pixel grid, coupled albedos)."""
-    windows = pooling_windows(problem.layout)
-    if windows is None:
-        return None
-    out = problem.layout.pooled_information(*incidental_columns(problem, st, parts), st.a_s, st.a_b, windows)
-    return None if out is None else (out[0], scale * out[1])
-
-
-def pooled_sandwich(Hw, Cw, C):
-    """(cov, capped): H^-1 (H + C) H^-1, H = H_w - C_w (:func:`pooled_information`), C :func:`incidental_term`
-    x scale, and the directions where 1 - (the share of C_w in H_w) is floored at :data:`INCIDENTAL_FLOOR`.
-
-    With the albedos eliminated (mu = A(theta) a, linear in a: :mod:`~fmbrdf_mi.fit.evaluate.albedos`) the
-    profile score of the shape has expected derivative H = sum_g a_g^T A_gj^T (I - P_g) A_gk a_g
-    and variance H + C (Neyman and Scott; C depends on the shape only).  H depends on the true albedos, which
-    one image's per-pixel estimates know so poorly that J^T J - C is the small difference of two noisy
-    matrices (:func:`noise_share`); solved over a window of m pixels the albedos carry about 1 / m of that
-    noise, and C_w removes its mean, so H_w - C_w estimates H without bias wherever the albedos are constant
-    over each window (an albedo map smooth on that scale).  Raises LinAlgError when H_w is singular."""
-    R, lam, Q = _shares(Hw, Cw)
-    d = 1.0 - lam
-    capped = int(np.sum(d < INCIDENTAL_FLOOR))
-    T = R @ Q                                 # H^-1 = T (I - L)^-1 T^T in these coordinates
-    Hinv = (T / np.maximum(d, INCIDENTAL_FLOOR)) @ T.T
-    return Hinv + Hinv @ C @ Hinv, capped
 
 
 def paper_sandwich(problem, Jt, r, Hi):

@@ -299,38 +299,6 @@ class AlbedoLayout:
         self._incidental_last = ((draws, seed, len(args)), [a.copy() for a in args], C)
         return C.copy()
 
-    def pooled_information(self, us, ub, dcols, a_s, a_b, windows):
-        """(H_w, C_w) (p, p): the information of the shape with the albedos eliminated (paper eq:fmbrdf's
-        mu = A(theta) a), sum_g a~_g^T A_gj^T (I - P_g) A_gk a~_g, at the pooled albedos a~_g: one pair solved
-        by least squares from the samples of all groups in g's window (``windows``: arrays (n_groups,) of the
-        window's groups, -1 for none, the first the group itself), and C_w, the mean that their noise adds,
-        sum_g tr(W_g^-1 A_gj^T (I - P_g) A_gk), W_g = sum over the window of G_h (so that H_w - C_w estimates
-        the information at the albedos' window means).  Only for one-corner layouts without the prior (None
-        otherwise); ``us``, ``ub``, ``dcols`` as for :meth:`incidental`, ``a_s``, ``a_b`` the fitted albedos."""
-        if self.coupled or not len(dcols):
-            return None
-        n, p = self.n_groups, len(dcols)
-        A = self.design(us, ub)
-        Aj = [self.design(dus, dub) for dus, dub in dcols]
-        G = pair_sums(A, A, n)
-        Gi = np.linalg.pinv(G, rcond=1e-10, hermitian=True)
-        Y = [pair_sums(A, a, n) for a in Aj]                                  # A_g^T A_gj
-        b = np.einsum("gij,gj->gi", G, np.stack([a_s, a_b], 1))              # A_g^T y_g
-        W, Wb = np.zeros_like(G), np.zeros_like(b)
-        for h in windows:
-            inside = h >= 0
-            W[inside] += G[h[inside]]
-            Wb[inside] += b[h[inside]]
-        Wi = np.linalg.pinv(W, rcond=1e-10, hermitian=True)
-        a = np.einsum("gij,gj->gi", Wi, Wb)
-        Hw, Cw = np.empty((p, p)), np.empty((p, p))
-        for j in range(p):
-            for k in range(j, p):
-                Q = pair_sums(Aj[j], Aj[k], n) - np.einsum("gba,gbc,gcd->gad", Y[j], Gi, Y[k])
-                Hw[j, k] = Hw[k, j] = np.einsum("ga,gab,gb->", a, Q, a)
-                Cw[j, k] = Cw[k, j] = np.einsum("gab,gba->", Wi, Q)
-        return Hw, Cw
-
 
 class GroupAlbedos(AlbedoLayout):
     """A few albedo pairs kept as unknowns of the optimiser (logs in z), solved by ``nnls2``: one per label,
@@ -361,11 +329,10 @@ class PixelAlbedos(AlbedoLayout):
     :func:`~fmbrdf_mi.fit.problem.data.pixel_layout`."""
 
     def __init__(self, groups, n_groups, pixels, *, corner_groups=None, corner_weights=None, name="per-pixel",
-                 prior=None, channel_of=None, labels=None, width=None):
+                 prior=None, channel_of=None, labels=None):
         super().__init__(groups, n_groups, corner_groups=corner_groups, corner_weights=corner_weights, name=name,
                          labels=labels, prior=prior)
         self.pixels = np.asarray(pixels, dtype=np.int64)
-        self.width = width              # the image's width in pixels (``pixels``' row length), None: unknown
         self.channel_of = None if channel_of is None else np.asarray(channel_of, dtype=np.int64)
 
     def maps(self, a_s, a_b, cov, factor, split_rel):

@@ -186,7 +186,7 @@ def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, facto
     prior = None if smooth is None else SmoothPrior(neighbour_pairs(gpix, W, gch), len(gpix), smooth, factor)
     return PixelAlbedos(groups, len(gpix), gpix, corner_groups=corners, corner_weights=weights, prior=prior,
                         name="per-pixel-bilinear" if bilinear else "per-pixel", channel_of=gch if colour else None,
-                        labels=COLOURS if colour else None, width=W)
+                        labels=COLOURS if colour else None)
 
 
 def material_labels(observations, materials, loss, opts, evaluator=None):
