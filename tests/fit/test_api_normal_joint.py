@@ -526,25 +526,32 @@ def _bilinear_rows(H, W, K=3):
     return np.tile(np.stack(lists, 1).reshape(-1, 8), (K, 1))
 
 
+def _random_block(H, W, seed, scale):
+    """A full H x W mask's curvature stencils, random unit normals' tangent bases, the bilinear row pattern
+    and random Jacobian values (``scale``) on its four used slots: NormalBlock's inputs."""
+    from fmbrdf_mi.fit.problem.normals import stencils, tangent_bases
+
+    st, coef = stencils(np.ones((H, W), bool), "curvature")
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=(H * W, 3))
+    n[:, 2] = np.abs(n[:, 2]) + 1
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    t1, t2 = tangent_bases(n)
+    pix = _bilinear_rows(H, W)
+    val = scale * rng.normal(size=pix.shape + (2,))
+    val[:, 4:] = 0.0
+    return (pix, val, st, coef, t1, t2), rng
+
+
 def test_normal_block_assembles_a_chunk_of_lists_at_a_time():
     """The data blocks of H_nn formed a few pixel lists at a time equal those formed all at once, bit for bit,
     and re-assembling with the sparsity pattern cached then peaks (tracemalloc) at under three quarters of
     the memory of all lists' 16 x 16 products at once."""
     import tracemalloc
 
-    from fmbrdf_mi.fit.problem.normals import stencils, tangent_bases
     from fmbrdf_mi.fit.solve import normal_system as NS
 
-    H = W = 40
-    st, coef = stencils(np.ones((H, W), bool), "curvature")
-    rng = np.random.default_rng(9)
-    n = rng.normal(size=(H * W, 3))
-    n[:, 2] = np.abs(n[:, 2]) + 1
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    t1, t2 = tangent_bases(n)
-    pix = _bilinear_rows(H, W)
-    val = rng.normal(size=pix.shape + (2,))
-    val[:, 4:] = 0.0
+    (pix, val, st, coef, t1, t2), _ = _random_block(40, 40, 9, 1.0)
     cache = {}
     NS.NormalBlock(pix, val, st, coef, t1, t2, 0.7, 0.1, cache=cache)
     out, peak = {}, {}
@@ -569,19 +576,10 @@ def test_normal_block_assembles_a_chunk_of_lists_at_a_time():
 def test_block_solve_is_the_textbook_preconditioned_cg_bit_for_bit():
     """NormalBlock.solve (one gather array and in-place updates reused over its iterations) gives the textbook
     preconditioned conjugate gradients' iterate, written here with a new array at every step, bit for bit."""
-    from fmbrdf_mi.fit.problem.normals import stencils, tangent_bases
     from fmbrdf_mi.fit.solve.normal_system import NormalBlock
 
     H, W = 9, 11
-    st, coef = stencils(np.ones((H, W), bool), "curvature")
-    rng = np.random.default_rng(2)
-    n = rng.normal(size=(H * W, 3))
-    n[:, 2] = np.abs(n[:, 2]) + 1
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    t1, t2 = tangent_bases(n)
-    pix = _bilinear_rows(H, W)
-    val = 0.1 * rng.normal(size=pix.shape + (2,))
-    val[:, 4:] = 0.0
+    (pix, val, st, coef, t1, t2), rng = _random_block(H, W, 2, 0.1)
     blk = NormalBlock(pix, val, st, coef, t1, t2, 0.3, 1e-3)
     b = rng.normal(size=(H * W, 2, 3))
     x, r = np.zeros_like(b), b.copy()
