@@ -1,4 +1,5 @@
-"""Values given as text (command line, manifests): vectors, bounds, start values, fixed parameters, polariser layouts."""
+"""Values given as text (command line, manifests): vectors, bounds, start values, fixed parameters,
+polariser layouts."""
 from __future__ import annotations
 
 import math

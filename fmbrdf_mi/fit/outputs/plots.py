@@ -41,7 +41,8 @@ def plot_colour_fit(smp, pred, sel, cam, path, title=""):
             p = np.where(sel, f(fit_s[c]), np.nan)[crop]
             s = shown[name][crop]
             compare_row(fig, axes[2 * c + q], o, p, np.where(s, p - o, np.nan), s, sel[crop] & ~s,
-                        (f"{ch} observed {name}", f"{ch} fitted {name}", f"{ch} fitted - observed (hatched: not fitted)"),
+                        (f"{ch} observed {name}", f"{ch} fitted {name}",
+                         f"{ch} fitted - observed (hatched: not fitted)"),
                         fontsize=9)
     save(fig, path, 90, title, fontsize=8, wrap=True)
 

@@ -40,7 +40,8 @@ def output_files(out, relight, albedo="shared", materials=None):
 
 
 def fit_files(inputs, out, *, force=False, progress=True, command=None, **options):
-    """Fit ``model`` (and, with ``baselines``, the baselines) to one polarimetric image; write the files ``output_files`` names.
+    """Fit ``model`` (and, with ``baselines``, the baselines) to one polarimetric image; write the files
+    ``output_files`` names.
 
     ``inputs``: a Stokes EXR (one from ``fmbrdf-mi render`` brings its geometry, light and true parameters), a raw
     mosaic (.npy / 16-bit .png / .tif), a (4, H, W) .npy or four files of angle images (0, 45, 90, 135 degrees).

@@ -146,7 +146,8 @@ def print_summary(report):
             print(f"  {img}: chi2 per raw sample {c2:.3f}")
         if m.get("materials"):
             b = m["materials"]
-            print(f"  {b['count']} material(s), fitted pixels " + ", ".join(f"{k}: {n}" for k, n in enumerate(b["pixels"]))
+            print(f"  {b['count']} material(s), fitted pixels "
+                  + ", ".join(f"{k}: {n}" for k, n in enumerate(b["pixels"]))
                   + ("; parameter[m] is material m's" if b["count"] > 1 else ""))
         status = max(status, convergence_status(name, m))
     for name, m in report["models"].items() if report.get("joint") else ():
