@@ -95,9 +95,9 @@ class PowerProblem(Problem):
             out[n] = min(max(self.params.given[k] * f, lo), hi) if math.isfinite(f) else shape[n]
         return out
 
-    def closed_form(self, shape):
+    def closed_form(self, shape, jac=False):
         if self.start != "ratio":
-            return super().closed_form(shape)
+            return super().closed_form(shape, jac)
         base = self.ev.base_parts(shape)
         shape = dict(shape)
         a_s = a_b = None
