@@ -98,3 +98,16 @@ def test_a_chunk_holds_more_directions_than_twice_the_tables_texels():
     ev = PixelEvaluator(get_model("fmbrdf"), [[0, 0, 1.0]], [[0.2, 0, 1.0]], (-0.4, 0.3, 1.0))
     ev.parts(SHAPE, ("eta",))
     assert PixelEvaluator.CHUNK_DIRECTIONS >= 2 * dr.width(ev.bsdf.table.values)
+
+
+def test_a_joint_subsample_takes_the_same_pixels_in_every_image(obs):
+    """The subsample a joint fit of per-pixel albedos searches on (:func:`~fmbrdf_mi.fit.solve.driver.solve`'s
+    ``explore``) holds n cells: n / K pixels of the view, each in every image, so that its albedos are
+    determined by all K lights as in the fit of all pixels."""
+    opts = dataclasses.replace(FitOptions(), albedo="per-pixel", max_pixels=None)
+    data = prepare([obs] * 3, opts, "likelihood")
+    sub = data.subsample(60)
+    assert [len(p) for p in sub.image_pixels] == [20] * 3
+    assert all(np.array_equal(p, sub.image_pixels[0]) for p in sub.image_pixels)
+    assert np.all(np.isin(sub.image_pixels[0], data.image_pixels[0]))
+    assert sub.objective.layout.n_groups == 20
