@@ -209,8 +209,11 @@ class PixelEvaluator(_Evaluator):
     are bounded by the chunk, not the frame.
     """
 
-    #: Directions per BSDF evaluation (whole pixels: a multiple of the samples per pixel).
-    CHUNK_DIRECTIONS = 1 << 21
+    #: Directions per BSDF evaluation (whole pixels: a multiple of the samples per pixel).  Each chunk of an
+    #: evaluation with derivatives rebuilds the tables and carries every parameter's tangent through them
+    #: (about as much work as a chunk of as many directions as the tables have texels), so a chunk holds
+    #: more than twice that many.
+    CHUNK_DIRECTIONS = 1 << 22
 
     def __init__(self, model, normals, view_dirs, light_dir, irradiance=1.0, variant=None, weights=None):
         mi = set_variant(variant)

@@ -369,6 +369,10 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
                        materials=materials, only=keep)
 
     def subsample(n):       # n seeded pixels of the same images and options
+        if K > 1 and opts.albedo in PER_PIXEL_LAYOUTS:    # the same pixels in every image: albedos as in the fit
+            view = np.unique(flat_idx)
+            keep = np.random.default_rng(opts.seed).choice(view, min(len(view), -(-int(n) // K)), replace=False)
+            return prepare(observations, opts, loss, single=single, only=[np.sort(keep)] * K)
         return prepare(observations, dataclasses.replace(opts, max_pixels=int(n)), loss, single=single)
 
     # a subsample is the same problem of fewer pixels where no pixel's unknowns couple to its neighbours'

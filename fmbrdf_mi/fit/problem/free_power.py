@@ -89,9 +89,9 @@ class PowerProblem(Problem):
             out[n] = min(max(self.params.given[k] * f, lo), hi) if math.isfinite(f) else shape[n]
         return out
 
-    def closed_form(self, shape):
+    def closed_form(self, shape, jac=False):
         if self.start != "ratio":
-            return super().closed_form(shape)
+            return super().closed_form(shape, jac)
         base = self.ev.base_parts(shape)
         shape = dict(shape)
         for _ in range(30):   # block coordinate descent of one weighted least-squares criterion

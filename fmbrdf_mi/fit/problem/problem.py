@@ -123,14 +123,17 @@ class Problem:
         for k, j, p in self._cache:
             if k == key and (j or not jac):
                 return p
+        if jac:     # one point's derivatives held at a time (a frame's are large)
+            self._cache = [e for e in self._cache if not e[1]]
         p = self.timed(jac, self.ev.parts, st.shape, self.names if jac else ())
         self.n_evals += 1
         self._cache = [(key, jac, p)] + self._cache[:1]
         return p
 
-    def closed_form(self, shape):
-        """(State, parts) of a coarse-search point: the shape values with the albedos in closed form."""
-        parts = self.parts(State(shape, 1.0, 1.0))
+    def closed_form(self, shape, jac=False):
+        """(State, parts) of a coarse-search point: the shape values with the albedos in closed form; the parts
+        with their shape derivatives when ``jac``."""
+        parts = self.parts(State(shape, 1.0, 1.0), jac)
         a_s, a_b = self.obj.albedos(parts)
         return State(dict(shape), a_s, a_b), parts
 
@@ -141,10 +144,10 @@ class Problem:
         towards 0 would stay there."""
         return self.layout is not None
 
-    def projected(self, shape):
-        """(State, parts) at ``shape`` with the albedos at their closed-form optimum (:meth:`closed_form`),
-        those at 0 raised to 1e-9 of the largest so that z stays finite."""
-        st, parts = self.closed_form(shape)
+    def projected(self, shape, jac=False):
+        """(State, parts) at ``shape`` with the albedos at their closed-form optimum (:meth:`closed_form`,
+        ``jac`` as there), those at 0 raised to 1e-9 of the largest so that z stays finite."""
+        st, parts = self.closed_form(shape, jac)
         if self.eliminates:      # albedos at 0 stay there: they are not in z
             return st, parts
         return State(st.shape, *floored(st.a_s, st.a_b)), parts

@@ -164,8 +164,8 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
     def trial(x, delta, lin):
         z_new = np.clip(x[1] + delta, -40, 40)
         st_new = problem.from_z(z_new)
-        if project:
-            st_new, parts = problem.projected(st_new.shape)
+        if project:     # with the derivatives: an accepted trial is linearised next, from the same evaluation
+            st_new, parts = problem.projected(st_new.shape, jac=True)
             z_new = problem.to_z(st_new)
         else:
             parts = problem.parts(st_new)
