@@ -212,6 +212,10 @@ SLOW = (
     "tests/fit/test_solve_explore.py::test_below_the_threshold_the_fit_is_the_plain_one",
     "tests/test_mueller_fit.py::test_kappa_at_its_bound_gets_the_profile_likelihood_limit",
     "tests/test_synthetic_mesh_object.py::test_a_noise_free_capture_is_fitted_to_the_truth",
+    "tests/test_reference.py::test_eval_matches_reference[mat1]",
+    "tests/test_reference.py::test_eval_matches_reference[mat2]",
+    "tests/test_reference.py::test_eval_matches_reference[mat3]",
+    "tests/fit/test_uncertainty_profile.py::test_fit_reports_the_kind_of_every_interval",
 )
 
 
