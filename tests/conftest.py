@@ -115,6 +115,16 @@ def a_file(tmp_path):
     return f
 
 
+def textured_capture(shape, res, seed, amplitude=0.3, light=(-0.5, 0.5, 1.0)):
+    """One image of a ``res`` x ``res`` sphere with the smooth texture under the default camera's noise
+    (``seed``): the per-pixel fits' test capture."""
+    from fmbrdf_mi.sensor.camera import CameraModel
+    from fmbrdf_mi.synthetic.spheres import capture_observation, smooth_texture, textured_sphere
+
+    ks, kb = smooth_texture(res, amplitude=amplitude)
+    return capture_observation(textured_sphere(shape, ks, kb, res=res, light=light), CameraModel(), seed=seed)[0]
+
+
 def one_line_error(rc, err, command, *words):
     """A user error as the project promises it: exit status 1, one line ``fmbrdf-mi COMMAND: error: ...``
     naming each of ``words``, no traceback."""

@@ -152,10 +152,11 @@ def frame_texture(name, width, height):
     """(k_s, k_b) maps (height, width) of the texture ``name`` per super-pixel of the frame (module docstring)."""
     import numpy as np
 
-    i, j = np.mgrid[0:height, 0:width]
     if name == "smooth":
-        x, y = j / width, i / height
-        return 0.6 + 0.4 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.1 * np.cos(5 * x + 3 * y)
+        from fmbrdf_mi.synthetic.spheres import smooth_texture
+
+        return smooth_texture(height, width)
+    i, j = np.mgrid[0:height, 0:width]
     if name == "checker":
         odd = (i // 3 + j // 3) % 2 == 1
         return np.where(odd, 1.0, 0.4), np.where(odd, 0.55, 0.25)

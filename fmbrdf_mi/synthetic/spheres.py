@@ -77,6 +77,15 @@ def capture_observation(ideal, camera=None, *, seed=0, exposure=None, peak_fract
                           footprint=demosaic_footprint(demosaic)), cap
 
 
+def smooth_texture(height, width=None, amplitude=0.4):
+    """(k_s, k_b) maps (height, width) of the benches' and tests' smooth texture, x = column / width and
+    y = row / height: k_s = 0.6 + ``amplitude`` sin 6x cos 4y, k_b = 0.4 + 0.1 cos(5x + 3y)."""
+    width = height if width is None else width
+    i, j = np.mgrid[0:height, 0:width]
+    x, y = j / width, i / height
+    return 0.6 + amplitude * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.1 * np.cos(5 * x + 3 * y)
+
+
 def textured_sphere(shape_params, k_s_map, k_b_map, res=40, light=(0.45, 0.35, 1.0), model="fmbrdf", area=4):
     """``ideal_sphere`` of a textured object: the shape parameters ``shape_params`` (eta, alpha, beta,
     kappa) everywhere and albedos ``k_s_map``, ``k_b_map``, either

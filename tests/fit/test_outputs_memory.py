@@ -7,7 +7,7 @@ import pytest
 
 from fmbrdf_mi.fit.evaluate import pixel_model, predict
 from fmbrdf_mi.fit.inputs.observations import Observation
-from fmbrdf_mi.synthetic.spheres import capture_observation, textured_sphere
+from fmbrdf_mi.synthetic.spheres import capture_observation, smooth_texture, textured_sphere
 
 SHAPE = {"eta": 1.45, "alpha": 0.25, "beta": 1.0, "kappa": 10.0}
 
@@ -17,8 +17,7 @@ def capture():
     """A raw capture of a textured sphere, 24 x 24 super-pixels, with the demosaicking footprint (K points a
     pixel), and per-pixel albedo maps (NaN off the object)."""
     res = 24
-    y, x = np.mgrid[0:res, 0:res] / res
-    ks, kb = 0.6 + 0.4 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.1 * np.cos(5 * x + 3 * y)
+    ks, kb = smooth_texture(res)
     obs, _ = capture_observation(textured_sphere(SHAPE, ks, kb, res=res), seed=3)
     maps = {"k_s": np.where(obs.mask, ks, np.nan), "k_b": np.where(obs.mask, kb, np.nan)}
     return obs, maps

@@ -7,6 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from conftest import textured_capture
+
 from fmbrdf_mi.fit.api.options import FitOptions
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.problem.data import prepare
@@ -20,13 +22,7 @@ RES = 32
 @pytest.fixture(scope="module")
 def obs():
     """A textured sphere under camera noise: each subsample's optimum differs from all pixels' by its noise."""
-    from fmbrdf_mi.sensor.camera import CameraModel
-    from fmbrdf_mi.synthetic.spheres import capture_observation, textured_sphere
-
-    y, x = np.mgrid[0:RES, 0:RES] / RES
-    ks, kb = 0.6 + 0.3 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.1 * np.cos(5 * x + 3 * y)
-    return capture_observation(textured_sphere(SHAPE, ks, kb, res=RES, light=(-0.5, 0.5, 1.0)), CameraModel(),
-                               seed=3)[0]
+    return textured_capture(SHAPE, RES, seed=3)
 
 
 def problem_of(obs, max_pixels=None, report=None):

@@ -245,11 +245,10 @@ def test_noise_free_one_image_per_pixel_intervals_cover_the_standard_errors_and_
     large.  Every 95 % interval holds +-1.96 SE (cut at the bounds) and the truth; the profile's local
     refits had cut eta's below the sandwich's end.  The maps call a pixel's split identified only where
     both its albedos' standard errors are at most half their values (it said so where k_s's was 10x)."""
-    from fmbrdf_mi.synthetic.spheres import textured_sphere
+    from fmbrdf_mi.synthetic.spheres import smooth_texture, textured_sphere
 
     shape, n = dict(eta=1.5, alpha=0.12, beta=1.0, kappa=10.0), 20
-    y, x = np.mgrid[0:n, 0:n] / n
-    ks, kb = 0.6 + 0.4 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.1 * np.cos(5 * x + 3 * y)
+    ks, kb = smooth_texture(n)
     obs = capture_observation(textured_sphere(shape, ks, kb, res=n, area=2), noiseless=True)[0]
     res = fit(obs, albedo="per-pixel", max_pixels=None, progress=False, area_points=2, starts=1,
               init=shape)
