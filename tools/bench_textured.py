@@ -65,6 +65,8 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
+from fmbrdf_mi.synthetic.spheres import smooth_texture  # noqa: E402
+
 TRUTH = dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0)
 SHAPE = ("eta", "alpha", "beta", "kappa")
 LIGHT0 = (-0.5, 0.5, 1.0)
@@ -80,9 +82,8 @@ def lights(k):
 
 
 def texture(name, res):
-    y, x = np.mgrid[0:res, 0:res] / res
     if name == "smooth":
-        return 0.6 + 0.4 * np.sin(6 * x) * np.cos(4 * y), 0.4 + 0.1 * np.cos(5 * x + 3 * y)
+        return smooth_texture(res)
     if name == "high":
         iy, ix = np.mgrid[0:res, 0:res] // 3
         return np.where((iy + ix) % 2, 1.0, 0.4), np.where((iy + ix + 1) % 2 == 0, 0.55, 0.25)
