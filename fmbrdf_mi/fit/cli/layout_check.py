@@ -1,9 +1,8 @@
 """After a raw-mosaic likelihood fit that does not explain its data: would the mirrored polariser layout?
 
-A raw capture decoded with 45 and 135 degrees swapped (mirrored optics, another sensor's convention)
-negates S2.  When chi^2 per sample is at least :data:`POOR_CHI2` and the fit misfits or did not converge,
-the fit reruns swapped in a temporary directory; if that is :data:`MUCH_BETTER` times lower, one line
-names ``--layout``.  The first fit's outputs do not change.
+A raw capture decoded with 45 and 135 degrees swapped (mirrored optics, another sensor's convention) negates S2.
+When chi^2 per sample is at least :data:`POOR_CHI2` and the fit misfits or did not converge, the fit reruns
+swapped in a temporary directory; if that is :data:`MUCH_BETTER` times lower, one line names ``--layout``.
 """
 from __future__ import annotations
 
@@ -13,8 +12,7 @@ import tempfile
 
 from fmbrdf_mi.interrupt import interrupted
 
-#: chi^2 per raw sample from which a misfit is checked against the mirrored layout (the right layout
-#: gives about 1, a mirrored one several times more).
+#: chi^2 per raw sample from which a misfit is checked (the right layout gives about 1, a mirrored one more).
 POOR_CHI2 = 1.5
 
 #: How many times lower the mirrored layout's chi^2 must be to be named.
@@ -23,8 +21,7 @@ MUCH_BETTER = 2.0
 
 def mirrored(layout):
     """The 2x2 layout with 45 and 135 degrees swapped (the polarisers as a mirror image sees them)."""
-    swap = {45: 135, 135: 45}
-    return tuple(tuple(swap.get(int(a), int(a)) for a in row) for row in layout)
+    return tuple(tuple({45: 135, 135: 45}.get(int(a), int(a)) for a in row) for row in layout)
 
 
 def layout_text(layout):
@@ -68,10 +65,10 @@ def mirrored_layout_hint(report, kw, fit_files, progress=True):
               f"{layout_text(other)} (45 and 135 deg swapped), a second fit (~{took:.0f} s, as the first) ...",
               file=sys.stderr, flush=True)
     with tempfile.TemporaryDirectory(prefix="fmbrdf-mi-layout-") as tmp:
-        run = dict(kw, layout=layout_text(other), out=os.path.join(tmp, "fit"), force=False, progress=False,
-                   baselines=False, relight=None, relight_light=None, relight_irradiance=None)
         try:
-            other_report = fit_files(**run)
+            other_report = fit_files(**dict(kw, layout=layout_text(other), out=os.path.join(tmp, "fit"), force=False,
+                                            progress=False, baselines=False, relight=None, relight_light=None,
+                                            relight_irradiance=None))
         except Exception as e:   # an optional check: its failure leaves the fit as it is (Ctrl-C stops)
             if interrupted(e):
                 raise

@@ -1,12 +1,5 @@
-"""Normal maps of K >= 3 images of one view: the check that the images share the view, a start map, errors.
-
-    from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, check_views, photometric_stereo
-    n0 = photometric_stereo(observations)          # (H, W, 3) unit normals, the refinement's default start
-    angular_error_deg(n0, n_true, mask)            # degrees, one per pixel of the mask
-
-The normal refinement (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`) takes images of one camera
-under different lights; :func:`check_views` refuses anything else before any model is evaluated.
-"""
+"""Normal maps of K >= 3 images of one view (the normal refinement's, :mod:`fmbrdf_mi.fit.api.normal_joint`):
+the check that the images share the view, the photometric-stereo start map, angular errors."""
 from __future__ import annotations
 
 import numpy as np

@@ -19,10 +19,10 @@ from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.inputs.colour import COLOUR_KEYS, colour_sidecar, read_colour_input, read_colour_inputs
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed
 from fmbrdf_mi.fit.outputs import record
-from fmbrdf_mi.fit.outputs.job import FitJob
+from fmbrdf_mi.fit.inputs.manifest import image_names
+from fmbrdf_mi.fit.outputs.job import FitJob, image_entries, joint_outputs
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
 from fmbrdf_mi.fit.outputs.single import write_maps
-from fmbrdf_mi.fit.outputs.job import image_entries, joint_outputs, prepare_outputs
 from fmbrdf_mi.sensor.mosaic import COLOURS
 
 #: The keywords of :func:`~fmbrdf_mi.fit.api.colour.fit_colour` the command sets.
@@ -36,8 +36,7 @@ TAKES = {"loss": ("auto", "likelihood"), "albedo": ("shared", "per-pixel")}
 
 
 def model_entry(res, truth, fixed):
-    """fit.json's ``models[model]`` of a :func:`~fmbrdf_mi.fit.api.colour.fit_colour` result, with its
-    ``relative_error`` to the input's ``truth`` when there is one."""
+    """fit.json's ``models[model]`` of a colour fit result, with its ``relative_error`` to ``truth`` if any."""
     unc = res.uncertainty or {}
     entry = {k: res[k] for k in ("model", "params", "std_errors", "chi2", "chi2_per_dof", "n_pixels", "n_samples",
                                  "noise", "evaluations", "time_s", "channels", "converged", "stop_reason")}
@@ -70,69 +69,62 @@ def fit_colour_files(inputs, out, *, force=False, progress=True, command=None, *
     """Fit one colour mosaic (module docstring); returns the dict written to fit.json.  ``options``: the colour
     record's options of :data:`fmbrdf_mi.fit.api.options.OPTIONS` (those not given take their defaults)."""
     a = arguments_of("colour", dict(options, inputs=inputs), "fit_colour_files()")
-    return ColourFit(None, out, force=force, progress=progress, command=command, arguments=a, model=a["model"],
-                     erode=a["erode"], **{k: a[k] for k in FIT_KEYS}).run()
+    return ColourFit(None, out, a, force=force, progress=progress, command=command).run()
 
 
 def fit_colour_images(specs, out, *, force=False, progress=True, command=None, extra=None, reproduce=None,
                       **options):
     """Joint colour fit of the non-held-out images of ``specs``; returns the dict written to fit.json.
-    ``options``: the joint record's (:func:`~fmbrdf_mi.fit.outputs.joint.fit_images`'; ``max_pixels`` default
-    None: every period); those of them the colour record does not keep are refused unless at their default,
-    :data:`IGNORED` ignored, and :data:`TAKES` limits the values of some."""
+    ``options``: the joint record's (``max_pixels`` default None: every period); those the colour record does not
+    keep are refused unless at their default, :data:`IGNORED` ignored, :data:`TAKES` limits some values."""
     a = arguments_of("joint", {"max_pixels": None, **options}, "fit_colour_images()")
-    limited = [k for k in TAKES if a[k] not in TAKES[k]]
-    refused = [f"{k} {a[k]!r} ({flag(k)}; expected {' or '.join(map(repr, TAKES[k]))})" for k in limited] + [
-        f"{k} ({flag(k)})" for k in record_keys("joint")
-        if k not in record_keys("colour") + IGNORED + tuple(TAKES) and a[k] != OPTION[k].default]
+    refused = [f"{k} {a[k]!r} ({flag(k)}; expected {' or '.join(map(repr, TAKES[k]))})" for k in TAKES
+               if a[k] not in TAKES[k]] + [f"{k} ({flag(k)})" for k in record_keys("joint")
+                                           if k not in record_keys("colour") + IGNORED + tuple(TAKES)
+                                           and a[k] != OPTION[k].default]
     if refused:
         raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
                          "of the raw samples)")
-    return ColourFit(specs, out, force=force, progress=progress, command=command, extra=extra, reproduce=reproduce,
-                     model=a["model"], erode=a["erode"], **{k: a[k] for k in FIT_KEYS}).run()
+    return ColourFit(specs, out, a, force=force, progress=progress, command=command, extra=extra,
+                     reproduce=reproduce).run()
 
 
 class ColourFit(FitJob):
-    """A colour fit as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob`: of one mosaic (``specs`` None, ``arguments``
-    :func:`fit_colour_files`') or of the images ``specs``; ``kw``: :func:`~fmbrdf_mi.fit.api.colour.fit_colour`'s
-    keywords."""
+    """A colour fit: of one mosaic (``specs`` None; ``a``: :func:`fit_colour_files`' arguments) or of the images
+    ``specs`` (``a``: :func:`fit_colour_images`')."""
 
-    def __init__(self, specs, out, *, force, progress, command, model, erode, arguments=None, extra=None,
-                 reproduce=None, **kw):
-        super().__init__(out, force=force, progress=progress, command=command)
-        self.specs, self.a, self.extra, self.reproduce, self.model, self.erode, self.kw = (
-            specs, arguments, extra, reproduce, model, erode, kw)
+    def __init__(self, specs, out, a, *, extra=None, reproduce=None, **kw):
+        super().__init__(out, **kw)
+        self.specs, self.a, self.extra, self.reproduce, self.model = specs, a, extra, reproduce, a["model"]
+        self.kw = {k: a[k] for k in FIT_KEYS}
 
     def check(self):
         if self.specs is not None:
-            get_model(self.model)
-        else:
-            inputs = self.a["inputs"]
-            self.path = os.fspath(inputs[0] if isinstance(inputs, (list, tuple)) else inputs)
-            if colour_sidecar(self.path) is None:
-                raise InputError(f"{self.path}: no colour capture sidecar ({os.path.splitext(self.path)[0]}.json "
-                                 "with \"cfa\")")
-            check_input_options(**self.a)
-            check_fit_options(**self.a)
-            self.kw.update(bounds=parse_bounds(self.a["bounds"]), fixed=parse_fixed(self.a["fixed"]))
+            return get_model(self.model)
+        inputs = self.a["inputs"]
+        self.path = os.fspath(inputs[0] if isinstance(inputs, (list, tuple)) else inputs)
+        if colour_sidecar(self.path) is None:
+            raise InputError(f"{self.path}: no colour capture sidecar ({os.path.splitext(self.path)[0]}.json "
+                             "with \"cfa\")")
+        check_input_options(**self.a)
+        check_fit_options(**self.a)
+        self.kw.update(bounds=parse_bounds(self.a["bounds"]), fixed=parse_fixed(self.a["fixed"]))
 
     def files(self):
-        if self.specs is None:
-            self.names, self.holdout = [None], [False]
-            return joint_outputs(self.out, self.names, self.holdout, self.kw["albedo"], colour=True)
-        self.names, self.holdout, files = prepare_outputs(self.specs, self.out, self.kw["albedo"], colour=True)
-        return files
+        one, specs = self.specs is None, self.specs or ()
+        self.names, self.holdout = [None] if one else image_names(specs), [False] if one else [s.holdout for s in specs]
+        return joint_outputs(self.out, self.names, self.holdout, self.kw["albedo"], colour=True)
 
     def read(self):
-        if self.specs is not None:
-            self.inputs = read_colour_inputs(self.specs, self.erode)
-            return
         a = self.a
-        c = read_colour_input(self.path, light=a["light"], erode=self.erode, **{k: a[k] for k in COLOUR_KEYS})
+        if self.specs is not None:
+            self.inputs = read_colour_inputs(self.specs, a["erode"])
+            return
+        c = read_colour_input(self.path, light=a["light"], erode=a["erode"], **{k: a[k] for k in COLOUR_KEYS})
         self.inputs = [c]
         if self.progress:
             print(f"colour fit of {self.path}: {c.obs.shape[1]}x{c.obs.shape[0]} periods, "
-                  f"{int((c.obs.mask & c.samples.usable).sum())} usable in the mask (eroded by {self.erode}), "
+                  f"{int((c.obs.mask & c.samples.usable).sum())} usable in the mask (eroded by {a['erode']}), "
                   f"cfa {''.join(x for r in c.camera.cfa for x in r)}", flush=True)
 
     def fit(self):
@@ -141,11 +133,11 @@ class ColourFit(FitJob):
             print(f"colour joint fit: {len(fit_in)} image(s) fitted, {sum(self.holdout)} held out; "
                   + ", ".join(f"{n}: {int((c.obs.mask & c.samples.usable).sum())} periods"
                               for n, c, h in zip(self.names, self.inputs, self.holdout) if not h), flush=True)
+        one = self.specs is None
         obs, smp = [c.obs for c in fit_in], [c.samples for c in fit_in]
         kw = dict(self.kw, max_pixels=self.kw["max_pixels"] or None, starts=int(self.kw["starts"]))
-        self.res = fit_colour(obs[0] if self.specs is None else obs, smp[0] if self.specs is None else smp,
-                              fit_in[0].noise, model=self.model, progress=(lambda s: print(s, flush=True))
-                              if self.progress else None, **kw)
+        self.res = fit_colour(obs[0] if one else obs, smp[0] if one else smp, fit_in[0].noise, model=self.model,
+                              progress=(lambda s: print(s, flush=True)) if self.progress else None, **kw)
 
     def report(self):
         inputs, res = self.inputs, self.res
@@ -155,10 +147,10 @@ class ColourFit(FitJob):
             return {"inputs": self.path, "sensor": "colour", "truth": truth,
                     "reproduce": record.reproduce_block(self.a, self.command, inputs[0].obs.meta),
                     "models": {self.model: entry}}
-        fitted = [n for n, h in zip(self.names, self.holdout) if not h]
-        entry["chi2_per_sample"] = dict(zip(fitted, res["chi2_per_sample"]))
-        report = {"sensor": "colour", "truth": truth, "images": image_entries(self.names, self.specs,
-                                                                              [c.obs for c in inputs]),
+        entry["chi2_per_sample"] = dict(zip([n for n, h in zip(self.names, self.holdout) if not h],
+                                            res["chi2_per_sample"]))
+        report = {"sensor": "colour", "truth": truth,
+                  "images": image_entries(self.names, self.specs, [c.obs for c in inputs]),
                   "models": {self.model: entry}, "relight": {}}
         if self.reproduce is not None:
             report["reproduce"] = self.reproduce([c.obs for c in inputs])
@@ -173,12 +165,11 @@ class ColourFit(FitJob):
             sel = c.obs.mask & c.samples.usable
             if h:
                 err = report["relight"][n] = {model: sample_rmse(c.samples, pred, sel)}
-                path = os.path.join(out, f"relight_{n}.png")
-                plot_colour_fit(c.samples, pred, sel, c.camera, path,
-                                title=f"{n}: relit with the joint estimates, raw-sample RMSE/mean "
-                                      f"{err[model]['rel_rmse']:.4f}")
+                path, head = os.path.join(out, f"relight_{n}.png"), (
+                    f"{n}: relit with the joint estimates, raw-sample RMSE/mean {err[model]['rel_rmse']:.4f}")
             else:
                 path = os.path.join(out, "colour_fit.png" if n is None else f"colour_fit_{n}.png")
-                plot_colour_fit(c.samples, pred, sel, c.camera, path, title=title if n is None else f"{n}: {title}")
+                head = title if n is None else f"{n}: {title}"
+            plot_colour_fit(c.samples, pred, sel, c.camera, path, title=head)
             self.wrote(path)
         write_maps(res, model, out, report, wrote=self.wrote)

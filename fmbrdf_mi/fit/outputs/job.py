@@ -15,7 +15,7 @@ import time
 from fmbrdf_mi._paths import StageProgress, check_output_dir, locked_directory, staged_directory
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
-from fmbrdf_mi.fit.inputs.manifest import given_power, image_names
+from fmbrdf_mi.fit.inputs.manifest import given_power
 from fmbrdf_mi.fit.result import json_default
 
 #: Every file a fit writes whatever its mode (single image, colour mosaic, joint, normal refinement), by name.
@@ -31,33 +31,23 @@ MATERIAL_OUTPUTS = ("materials.png",)
 
 
 class FitJob:
-    """One run of a fit that writes its outputs into ``out`` (module docstring).  Subclasses fill in the steps."""
+    """One run of a fit that writes its outputs into ``out`` (module docstring).  Subclasses fill in the steps:
+    :meth:`check` the options (before any file is read), :meth:`files` (the output paths, ``fit.json``
+    first), :meth:`read` the inputs, :meth:`fit`, :meth:`report` (the dict written to ``fit.json``) and
+    :meth:`write` the other outputs, each passed to :meth:`wrote` (``report`` may grow)."""
 
     def __init__(self, out, *, force=False, progress=True, command=None):
         self.out, self.force, self.progress, self.command = out, force, progress, command
-        self.t0 = time.time()
-        self.bar = None
+        self.t0, self.bar = time.time(), None
 
     def check(self):
-        """Check the options before any file is read (raise :class:`~fmbrdf_mi.fit.errors.InputError`)."""
-
-    def files(self):
-        """The output paths, ``fit.json`` first."""
-        raise NotImplementedError
+        pass
 
     def read(self):
-        """Read the inputs (observations, samples) into the job."""
-
-    def fit(self):
-        """Run the fit (the library API) on what :meth:`read` read."""
-        raise NotImplementedError
-
-    def report(self):
-        """The dict written to ``fit.json``."""
-        raise NotImplementedError
+        pass
 
     def write(self, report):
-        """The outputs besides ``fit.json``, each passed to :meth:`wrote` once written; ``report`` may grow."""
+        pass
 
     def wrote(self, path):
         """The output ``path`` is written: a step of the writing's progress."""
@@ -68,34 +58,26 @@ class FitJob:
         """Run the steps; returns the report plus the files written and the wall time (not in fit.json)."""
         self.check()
         with locked_directory(self.out):
-            paths = list(self.files())
-            prepare(self.out, paths, self.force)
+            out, paths = self.out, list(self.files())
+            check_output_dir(out)
+            for p in () if self.force else paths:
+                if os.path.exists(p):
+                    raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
             self.read()
             self.fit()
             report = self.report()
-            out, record = self.out, os.path.basename(paths[0])
-            with staged_directory(out, last=(record,), remove=stale_outputs(out, paths)) as stage:
+            with staged_directory(out, last=("fit.json",), remove=stale_outputs(out, paths)) as stage:
                 self.out = stage
                 self.bar = StageProgress("writing", len(paths), enabled=bool(self.progress))
                 try:
-                    self.files()       # the paths of the write phase, in the staging directory
                     self.write(report)
                     report = relocate(report, stage, out)
-                    write_json(os.path.join(stage, record), report)
-                    self.wrote(record)
+                    write_json(os.path.join(stage, "fit.json"), report)
+                    self.wrote("fit.json")
                 finally:
                     self.out, self.bar = out, None
-                    self.files()
         report["outputs"], report["wall_s"] = paths, time.time() - self.t0
         return report
-
-
-def prepare(out, files, force):
-    """Check ``out`` is a usable directory and, without ``force``, that none of ``files`` exists."""
-    check_output_dir(out)
-    for p in () if force else files:
-        if os.path.exists(p):
-            raise FileExistsError(f"{p} exists; pass --force (force=True) to overwrite it")
 
 
 def stale_outputs(out, paths):
@@ -146,7 +128,9 @@ def write_json(path, report):
 
 def joint_outputs(out, names, holdout, albedo="shared", materials=None, colour=False):
     """The files a joint fit of the images ``names`` writes (``colour``: of colour mosaics; ``[None]``: a colour
-    fit of one mosaic), ``fit.json`` first."""
+    fit of one mosaic), ``fit.json`` first; refuses an all-held-out set."""
+    if all(holdout):
+        raise InputError("joint fit: every image is held out; fit at least one")
     files = ["fit.json"] + ([] if colour else ["history.png"])
     for n, h in zip(names, holdout):
         tail = "" if n is None else f"_{n}"
@@ -163,11 +147,3 @@ def image_entries(names, specs, observations):
     return [{"name": n, "input": s.input if isinstance(s.input, (str, list)) else None,
              "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance, "power": given_power(s, o),
              "holdout": s.holdout} for n, s, o in zip(names, specs, observations)]
-
-
-def prepare_outputs(specs, out, albedo="shared", materials=None, colour=False):
-    """(names, held-out flags, output files: :func:`joint_outputs`) of a joint fit; refuses an all-held-out set."""
-    names, holdout = image_names(specs), [s.holdout for s in specs]
-    if all(holdout):
-        raise InputError("joint fit: every image is held out; fit at least one")
-    return names, holdout, joint_outputs(out, names, holdout, albedo, materials, colour)

@@ -21,7 +21,7 @@ from fmbrdf_mi.fit.outputs.record import command_block, joint_block, sha256
 from fmbrdf_mi.fit.inputs.labels import read_labels
 from fmbrdf_mi.fit.api.find_materials import parse_auto
 from fmbrdf_mi.fit.outputs.single import ImageFits, model_entries
-from fmbrdf_mi.fit.outputs.job import image_entries, joint_outputs, prepare_outputs
+from fmbrdf_mi.fit.outputs.job import image_entries, joint_outputs
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 
 
@@ -86,9 +86,9 @@ class Joint(ImageFits):
         check_fit_options(model=self.model, **self.fit_kw)
 
     def files(self):
-        self.names, self.holdout, files = prepare_outputs(
-            self.specs, self.out, self.fit_kw.get("albedo", OPTION["albedo"].default), self.fit_kw.get("materials"))
-        return files
+        self.names, self.holdout = image_names(self.specs), [s.holdout for s in self.specs]
+        return joint_outputs(self.out, self.names, self.holdout, self.fit_kw.get("albedo", OPTION["albedo"].default),
+                             self.fit_kw.get("materials"))
 
     def read(self):
         path = self.fit_kw.get("materials")

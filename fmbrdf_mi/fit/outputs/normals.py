@@ -29,7 +29,6 @@ OUTPUTS = ("fit.json", "normals.npy", "normals.png", "normals_change.png")
 def start_normals(obs, start):
     """(H, W, 3) start map and the mask of pixels it covers; ``start``: ``ps`` (photometric stereo), ``sphere``
     (the mask's sphere) or a ``.npy`` in this package's camera frame."""
-
     m = obs[0].mask.copy()
     if start == "ps":
         return photometric_stereo(obs), m
@@ -52,7 +51,7 @@ def start_normals(obs, start):
 
 
 def _errors(n, gt, mask):
-
+    """Mean, median and 90th percentile of the angles (degrees) between ``n`` and ``gt`` on ``mask``."""
     e = angular_error_deg(n, gt, mask)
     return {"mean": float(e.mean()), "median": float(np.median(e)), "p90": float(np.percentile(e, 90)),
             "pixels": int(mask.sum())}

@@ -130,8 +130,7 @@ class SingleImage(ImageFits):
         parse_auto(a["materials"])   # auto:M well formed (a label file is read in read())
 
     def files(self):
-        self.outs = output_files(self.out, self.a["relight"], self.a["albedo"], self.a["materials"])
-        return list(self.outs.values())
+        return list(output_files(self.out, self.a["relight"], self.a["albedo"], self.a["materials"]).values())
 
     def read(self):
         a = self.a
@@ -179,7 +178,7 @@ class SingleImage(ImageFits):
                   "reproduce": record.reproduce_block(self.a, self.command, obs.meta),
                   "models": model_entries(self.results, self.model, obs.meta.get("truth"))}
         if self.found is not None:
-            report["materials_found"] = dict(self.found.record, labels=self.outs["labels.png"])
+            report["materials_found"] = dict(self.found.record, labels=os.path.join(self.out, "labels.png"))
         return report
 
     def write(self, report):
@@ -189,12 +188,12 @@ class SingleImage(ImageFits):
         main = self.results[model]
         fitted = self.write_image(obs, pixels=main.pixels)
         s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
-        stokes_io.write_stokes_exr(self.outs["fitted_stokes.exr"], s4, {"fit": main.params, "model": model},
-                                   force=True)
+        stokes_io.write_stokes_exr(os.path.join(self.out, "fitted_stokes.exr"), s4,
+                                   {"fit": main.params, "model": model}, force=True)
         self.wrote("fitted_stokes.exr")
         self.write_common(report, obs.shape)
         if self.found is not None:
-            write_labels(self.outs["labels.png"], self.labels)
+            write_labels(os.path.join(self.out, "labels.png"), self.labels)
             self.wrote("labels.png")
 
 
