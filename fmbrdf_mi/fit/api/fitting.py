@@ -122,7 +122,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         res = check_intervals(res, every=opts.intervals == "profile")
     res = report_end(find_other_optima(res))
     if joint:
-        diagnose_images(res, images, names, table, given, say)
+        diagnose(res, images, names, table, given, say)
     return res
 
 
@@ -135,7 +135,7 @@ def fit_joint(observations, options=None, **kw):
     of images 1 .. K-1 relative to image 0's (:mod:`fmbrdf_mi.fit.problem.free_power`; the result's
     ``powers``); ``powers``: the relative powers the irradiances already include (default 1 each), where the
     search starts and what the fitted ones are reported against.  The result adds ``images`` (per-image
-    diagnostics, :func:`diagnose`) and ``pixels`` (one array per image).
+    diagnostics: :func:`diagnose`) and ``pixels`` (one array per image).
     """
     return fit(check_observations(observations, "fit_joint()", least=0), options, **kw)
 
@@ -178,25 +178,11 @@ def report_end(res):
     return res
 
 
-def diagnose_images(res, images, names, table, given, say):
-    """A joint fit's ``res.images`` (:func:`diagnose`, with the free powers of ``table``, ``given`` the given
-    ones) and ``res.pixels``, on the data of the fit's final quadrature."""
+def diagnose(res, observations, names, table, given, say):
+    """A joint fit's ``res.pixels`` and ``res.images``: per image its pixels, light, irradiance, how well the
+    shared estimate explains it (on the data of the fit's final quadrature) and, with the free powers of
+    ``table``, its power (``given``: the given ones)."""
     data = res.fitted.data
-    res.images, res.pixels = diagnose(res, data, images, names), data.image_pixels
-    if table is not None:
-        res.powers = split_result(res, table, names)
-        for k, im in enumerate(res.images):
-            im.update({"power": res.powers["values"][k], "power_given": given[k],
-                       "power_se": res.powers["std_errors"][k], "power_ci95": res.powers["ci95"][k],
-                       "power_reference": k == 0})
-    for im in res.images:
-        say(f"[joint] {im['name']}: " + ", ".join(f"{k} {im[k]:.4g}" for k in ("chi2_per_dof", "intensity_rel_rmse",
-                                                                             "dolp_rmse") if im.get(k) is not None)
-            + ("" if table is None else ", " + power_text(im)))
-
-
-def diagnose(res, data, observations, names):
-    """Per image: pixels, light, irradiance, and how well the shared estimate explains it."""
     loss, objective = data.loss, data.objective
     internal = res.details["internal"]
     st = State(internal["shape"], np.asarray(internal["a_s"]), np.asarray(internal["a_b"]))
@@ -224,4 +210,14 @@ def diagnose(res, data, observations, names):
             im["chi2"] = float(np.sum(r[a:b] ** 2))
             im["chi2_per_dof"] = im["chi2"] / max((b - a) * objective.dof, 1)
         out.append(im)
-    return out
+    if table is not None:
+        res.powers = split_result(res, table, names)
+        for k, im in enumerate(out):
+            im.update({"power": res.powers["values"][k], "power_given": given[k],
+                       "power_se": res.powers["std_errors"][k], "power_ci95": res.powers["ci95"][k],
+                       "power_reference": k == 0})
+    for im in out:
+        say(f"[joint] {im['name']}: " + ", ".join(f"{k} {im[k]:.4g}" for k in ("chi2_per_dof", "intensity_rel_rmse",
+                                                                             "dolp_rmse") if im.get(k) is not None)
+            + ("" if table is None else ", " + power_text(im)))
+    res.images, res.pixels = out, data.image_pixels
