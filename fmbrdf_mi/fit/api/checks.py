@@ -111,8 +111,7 @@ def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, s
             if any(not np.any((cells >= a) & (cells < b)) for a, b in data.slices):
                 cells = None        # an image without a sampled cell: the whole check
         if cells is None:
-            fine_data = data.remake(2 * m)
-            fine = fx.problem_of(fine_data)
+            fine = fx.problem_of(fine_data := data.remake(2 * m))
             check["bias_se"] = bias = U.quadrature_bias(problem, fine, st, J, r)
             worst = max(map(abs, bias.values()), default=0.0)
         else:
@@ -127,8 +126,7 @@ def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, s
         if not bias or worst <= U.QUADRATURE_TOL:
             break
         if fine is None:
-            fine_data = data.remake(2 * m)
-            fine = fx.problem_of(fine_data)
+            fine = fx.problem_of(fine_data := data.remake(2 * m))
         say(f"[fit] pixel-area quadrature: {m} x {m} points per raw pixel bias {worst_bias(bias)} standard errors "
             f"here (the highlight spans few pixels); the fit goes on with {2 * m} x {2 * m}")
         try:

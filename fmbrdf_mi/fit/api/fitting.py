@@ -135,7 +135,7 @@ def fit_joint(observations, options=None, **kw):
     of images 1 .. K-1 relative to image 0's (:mod:`fmbrdf_mi.fit.problem.free_power`; the result's
     ``powers``); ``powers``: the relative powers the irradiances already include (default 1 each), where the
     search starts and what the fitted ones are reported against.  The result adds ``images`` (per-image
-    diagnostics: :func:`diagnose`) and ``pixels`` (one array per image).
+    diagnostics: :func:`~fmbrdf_mi.fit.api.fitting.diagnose`) and ``pixels`` (one array per image).
     """
     return fit(check_observations(observations, "fit_joint()", least=0), options, **kw)
 
