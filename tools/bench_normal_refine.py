@@ -57,7 +57,7 @@ def normal_fits(seed, res=40, lights=4, lams=(0.3,), threads=0):
     :func:`refine_joint` at each smoothness weight in ``lams`` from the same start; returns one record per
     weight (k_s and its SE relative to the truth's scale)."""
     from fmbrdf_mi.fit.inputs.authors import read_object
-    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.fitting import fit_joint
     from fmbrdf_mi.fit.api.normal_joint import refine_joint
     from fmbrdf_mi.synthetic.mesh_object import write_authors_object
     from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, photometric_stereo
@@ -117,7 +117,7 @@ def main(argv=None):
         return seeds_main(args)
     args.lam = float(args.lam.split(",")[0])
     from fmbrdf_mi.fit.inputs.authors import read_object
-    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.fitting import fit_joint
     from fmbrdf_mi.fit.api.normal_joint import refine_joint
     from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, photometric_stereo
     from fmbrdf_mi.fit.solve.optimise import default_progress

@@ -23,8 +23,7 @@ Layers, each importing only from those above it (``tests/test_layers.py``):
 """
 from fmbrdf_mi.fit.api.colour import fit_colour
 from fmbrdf_mi.fit.api.find_materials import FoundMaterials, MaterialsNotSeparated, find_materials
-from fmbrdf_mi.fit.api.fitting import FitOptions, fit, usable_pixels
-from fmbrdf_mi.fit.api.joint import fit_joint
+from fmbrdf_mi.fit.api.fitting import FitOptions, fit, fit_joint, usable_pixels
 from fmbrdf_mi.fit.api.normal_joint import refine_joint
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.predict import predict_image

@@ -58,7 +58,8 @@ class FitResult:
     #: the maps (:func:`fmbrdf_mi.fit.api.assemble.albedo_maps`): ``k_s``, ``k_b``, ``k_s_se``, ``k_b_se``,
     #: ``identified``, (H, W) or (C, H, W); NaN where no pixel was fitted
     maps: dict = dataclasses.field(repr=False, default=None)
-    #: several materials: the block of :func:`fmbrdf_mi.fit.api.assemble.material_block`
+    #: several materials: ``count``, fitted ``pixels`` of each, and ``parameters``, ``std_errors``, ``ci95`` per
+    #: material (:meth:`~fmbrdf_mi.fit.evaluate.parameters.Parameters.per_material`)
     materials: dict = None
     #: the problem behind the result (:class:`fmbrdf_mi.fit.api.assemble.Fitted`)
     fitted: object = dataclasses.field(repr=False, default=None, compare=False)

@@ -1,4 +1,4 @@
-"""Joint fits of several images of one object (fmbrdf_mi.fit.api.joint) and the loss variants (loss_variants.py).
+"""Joint fits of several images of one object (fmbrdf_mi.fit.api.fitting.fit_joint) and the loss variants (loss_variants.py).
 
 References are independent of the code under test: per-image problems built
 by the single-image fit (whose Jacobian is checked against finite
@@ -49,7 +49,7 @@ def test_joint_fit_of_noise_free_images_recovers_the_truth(variant):
     """Three lights, different relative powers, from a start 10-40 % off: the optimum of noise-free
     data is the truth, to the float32 precision of the BSDF (1e-4 relative).  (The likelihood on
     noisy captures: test_joint_fit_per_image_diagnostics_and_errors.)"""
-    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.fitting import fit_joint
 
     obs = _clean(res=16, irradiances=[1.0, 0.5, 2.0])
     for loss in ("paper",):
@@ -103,7 +103,7 @@ def test_joint_fisher_information_is_the_sum_of_the_images(variant):
 
 def test_joint_fit_per_image_diagnostics_and_errors(variant):
     from fmbrdf_mi.fit import InputError
-    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.fitting import fit_joint
     from fmbrdf_mi.sensor.noise import NoiseModel
 
     obs = _captures(res=12)
@@ -204,7 +204,7 @@ def test_loss_variant_options_are_checked():
 def test_joint_fit_of_different_views(variant):
     """Each image its own view (pixel grid, sphere position and size, orthographic or perspective view
     directions): noise-free images give back the truth (float32 precision of the BSDF, 1e-4)."""
-    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.fitting import fit_joint
     from fmbrdf_mi.fit.evaluate.predict import predict_image
     from fmbrdf_mi.fit.inputs import observations as ob
     from fmbrdf_mi import geometry as G

@@ -49,7 +49,7 @@ def test_free_powers_are_recovered_and_fixed_powers_bias_the_fit(variant):
     calibration over seeds is measured by tools/bench_fit_lights.py --free-power), the reference's
     power exactly its given value.  Without: from the truth itself the fit moves many standard errors
     away and chi^2 / dof is far above 1 (the data are not explained)."""
-    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.fitting import fit_joint
 
     obs, _, _ = _captures()
     res = fit_joint(obs, free_power=True, progress=False, names=["a", "b", "c"], intervals="fisher")
@@ -81,7 +81,7 @@ def test_free_powers_are_recovered_and_fixed_powers_bias_the_fit(variant):
 def test_power_start_given_converges_to_the_same_estimate(variant):
     """Starting the powers at the given (wrong) values instead of the closed form reaches the same optimum
     (to 0.05 standard errors: the likelihood's stopping rule is ~0.1 SE)."""
-    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.fitting import fit_joint
 
     obs, _, _ = _captures(res=12, seed=10)
     a = fit_joint(obs, free_power=True, init=NEAR, progress=False)
@@ -152,7 +152,7 @@ def test_power_columns_of_the_jacobian_are_the_derivative(variant):
 def test_free_power_input_errors(variant):
     from fmbrdf_mi.fit import InputError
     from fmbrdf_mi.fit.api.fitting import fit
-    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.fitting import fit_joint
 
     obs, _, _ = _captures(res=12)
     with pytest.raises(InputError, match="free_power: needs two or more"):

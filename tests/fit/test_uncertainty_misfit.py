@@ -78,7 +78,7 @@ def test_misfit_with_free_powers_and_per_pixel_albedos():
     """The same rule where the unknowns differ: a joint fit with its light powers free (the powers' errors come
     through the same inflation), and a per-pixel albedo fit (chi^2/dof counts every pixel's two albedos, which
     the projection eliminates: without that count the honest fit would read as a misfit, chi^2/dof ~ 1.5 here)."""
-    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.fitting import fit_joint
 
     cam = CameraModel(full_well=3000.0, read_noise=2.0, bits=12)
     obs = [capture_observation(ideal_sphere(TRUE, res=16, light=l), cam, seed=7 + k)[0] for k, l in enumerate(LIGHTS)]

@@ -104,20 +104,12 @@ def settle(res):
     table = fx.problem.params
     res.weakly_identified = U.weakly_identified(table, res.params, res.std_errors, unc.get("at_bound", ()))
     mat = fx.data.materials
-    if mat is not None or fx.labels is not None:    # mat None: one material, the labelled pixels
-        res.materials = material_block(table, res.params, res.std_errors, unc.get("ci95"),
-                                       [res.n_pixels] if mat is None else mat["pixels"])
+    if mat is not None or fx.labels is not None:    # fit.json's materials block (mat None: the labelled pixels)
+        pixels = [res.n_pixels] if mat is None else mat["pixels"]
+        res.materials = {"count": table.count or 1, "pixels": [int(p) for p in pixels],
+                         "parameters": table.per_material(res.params),
+                         "std_errors": table.per_material(res.std_errors), "ci95": table.per_material(unc.get("ci95"))}
     return res
-
-
-def material_block(params, reported, std_errors, ci95, pixels):
-    """fit.json's ``materials`` block: ``{"count": M, "pixels": [fitted pixels of each], "parameters": [{eta:
-    ..} per material], "std_errors": [...], "ci95": [...]}`` by the rows of the parameter table ``params``
-    (:mod:`fmbrdf_mi.fit.evaluate.materials`; one material: the rows' own names).  With known noise and
-    per-material albedos the materials' unknowns do not interact (cross-material covariances are 0)."""
-    return {"count": params.count or 1, "pixels": [int(p) for p in pixels],
-            "parameters": params.per_material(reported), "std_errors": params.per_material(std_errors),
-            "ci95": params.per_material(ci95)}
 
 
 def albedo_block(problem, st, parts, groups, shape, value, report):
@@ -161,13 +153,6 @@ PRIOR_DOF_RULE = ("chi^2 (data + penalty) has N - p - n0 degrees of freedom (N i
 #: incidental-parameter problem; docs/howto/fit-textured.md).
 MIN_IMAGES_PER_PIXEL = 3
 
-#: The warning below :data:`MIN_IMAGES_PER_PIXEL` (``{}``: :data:`FEW_IMAGES_ERRORS` without / with the prior).
-PER_PIXEL_FEW_IMAGES = (f"per-pixel albedos from fewer than {MIN_IMAGES_PER_PIXEL} images of each pixel: eta, "
-                        "alpha, beta, kappa are poorly determined{}; fit several lights of the same view "
-                        "(docs/howto/fit-textured.md)")
-FEW_IMAGES_ERRORS = (" (their errors: the incidental-parameter sandwich)",
-                     " (their errors: the smoothness prior's posterior ones)")
-
 
 def albedo_maps(layout, shape, groups, prior=False):
     """(fit.json's ``albedo`` block, maps): ``groups`` (:func:`fmbrdf_mi.fit.uncertainty.pixel_albedos`) on
@@ -204,5 +189,9 @@ def albedo_maps(layout, shape, groups, prior=False):
     per = summary["images_per_pixel"] = (float(np.median(np.bincount(cells, minlength=layout.n_groups)))
                                          if layout.n_groups else 0.0)
     if per < MIN_IMAGES_PER_PIXEL:
-        summary["warning"] = PER_PIXEL_FEW_IMAGES.format(FEW_IMAGES_ERRORS[bool(prior)])
+        summary["warning"] = (f"per-pixel albedos from fewer than {MIN_IMAGES_PER_PIXEL} images of each pixel: "
+                              "eta, alpha, beta, kappa are poorly determined (their errors: "
+                              + ("the smoothness prior's posterior ones" if prior else
+                                 "the incidental-parameter sandwich")
+                              + "); fit several lights of the same view (docs/howto/fit-textured.md)")
     return summary, maps

@@ -78,16 +78,12 @@ def samplable(data, problem):
 
 def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, seed=None):
     """The pixel-area quadrature of a likelihood fit of raw samples: while its bias
-    (:func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias`) exceeds
-    :data:`~fmbrdf_mi.fit.uncertainty.QUADRATURE_TOL` SE, the fit goes on with the data remade at 2m x 2m
-    points, up to :data:`~fmbrdf_mi.fit.uncertainty.MAX_AREA_POINTS`; returns the finest converged fit's result
-    with ``uncertainty.quadrature``.
-
-    Images of more than ``sample_above`` super-pixels (default :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_ABOVE`)
-    estimate the bias from a ``seed``-ed sample of about ``sample_pixels`` of them (default
-    :data:`~fmbrdf_mi.fit.solve.driver.EXPLORE_PIXELS`) remade at 2m x 2m, correcting a prediction from all at
-    m/2 x m/2 (:func:`~fmbrdf_mi.fit.uncertainty.sampled_quadrature_bias`); they refine while |bias| plus
-    :data:`~fmbrdf_mi.fit.uncertainty.QUADRATURE_SAMPLING_SE` sampling SE exceeds the tolerance."""
+    (:func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias`) exceeds ``QUADRATURE_TOL`` SE, the fit goes on with
+    2m x 2m points, up to ``MAX_AREA_POINTS``; returns the finest converged fit's result with
+    ``uncertainty.quadrature``.  Images of more than ``sample_above`` super-pixels (default ``EXPLORE_ABOVE``)
+    estimate the bias from a ``seed``-ed sample of about ``sample_pixels`` (default ``EXPLORE_PIXELS``) at
+    2m x 2m correcting a prediction from all at m/2 x m/2 (:func:`~fmbrdf_mi.fit.uncertainty.sampled_quadrature_bias`),
+    and refine while |bias| plus ``QUADRATURE_SAMPLING_SE`` sampling SE exceeds the tolerance."""
     if not checkable(res) or res.fitted.data.remake is None or res.fitted.data.area_points <= 1:
         return res
     import drjit as dr
@@ -115,8 +111,7 @@ def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, s
             if any(not np.any((cells >= a) & (cells < b)) for a, b in data.slices):
                 cells = None        # an image without a sampled cell: the whole check
         if cells is None:
-            fine_data = data.remake(2 * m)
-            fine = fx.problem_of(fine_data)
+            fine = fx.problem_of(fine_data := data.remake(2 * m))
             check["bias_se"] = bias = U.quadrature_bias(problem, fine, st, J, r)
             worst = max(map(abs, bias.values()), default=0.0)
         else:
@@ -131,8 +126,7 @@ def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, s
         if not bias or worst <= U.QUADRATURE_TOL:
             break
         if fine is None:
-            fine_data = data.remake(2 * m)
-            fine = fx.problem_of(fine_data)
+            fine = fx.problem_of(fine_data := data.remake(2 * m))
         say(f"[fit] pixel-area quadrature: {m} x {m} points per raw pixel bias {worst_bias(bias)} standard errors "
             f"here (the highlight spans few pixels); the fit goes on with {2 * m} x {2 * m}")
         try:

@@ -16,7 +16,8 @@ import time
 
 import numpy as np
 
-from fmbrdf_mi.fit.api.fitting import fit, fit_options, progress_callable, usable_pixels
+from fmbrdf_mi.fit.api.fitting import fit, progress_callable, usable_pixels
+from fmbrdf_mi.fit.api.options import fit_options
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
@@ -156,7 +157,7 @@ def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_d
     count = Option("count", kind="int", lo=2, hi=254).check(count, "find_materials: count")
     Option("min_decided", kind="number", lo=0.0, lo_open=True, hi=1.0).check(min_decided,
                                                                             "find_materials: min_decided")
-    opts = dataclasses.replace(fit_options(options, kw), albedo="shared", intervals="fisher")
+    opts = dataclasses.replace(fit_options(options, **kw), albedo="shared", intervals="fisher")
     report, t0, (h, w) = progress_callable(progress), time.perf_counter(), obs.shape
 
     def say(msg):

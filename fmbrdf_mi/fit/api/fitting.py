@@ -1,4 +1,5 @@
-"""``fit()``: estimate a model's parameters from one :class:`Observation` (paper section 5)."""
+"""``fit()``: estimate a model's parameters from one :class:`Observation` or several of one object (paper
+section 5)."""
 from __future__ import annotations
 
 import dataclasses
@@ -10,7 +11,7 @@ import numpy as np
 from fmbrdf_mi.fit import uncertainty as U
 from fmbrdf_mi.fit.api.assemble import Fitted, assemble
 from fmbrdf_mi.fit.api.checks import check_footprint, check_intervals, find_other_optima
-from fmbrdf_mi.fit.api.options import FitOptions, check_fit_options, check_resolved_loss
+from fmbrdf_mi.fit.api.options import FitOptions, check_fit_options, check_resolved_loss, fit_options
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.models import State, get_model
@@ -22,8 +23,8 @@ from fmbrdf_mi.fit.problem.data import prepare, resolve_loss, select_pixels
 from fmbrdf_mi.fit.problem.free_power import power_text, split_result
 from fmbrdf_mi.fit.solve import optimise as O
 
-__all__ = ["FitOptions", "fit", "check_footprint", "check_intervals", "find_other_optima", "usable_pixels",
-           "select_pixels", "diagnose"]
+__all__ = ["FitOptions", "fit", "fit_joint", "check_footprint", "check_intervals", "find_other_optima",
+           "usable_pixels", "select_pixels", "diagnose"]
 
 
 def usable_pixels(obs, opts):
@@ -36,9 +37,8 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     """Estimate the parameters of ``options.model`` from ``obs``; returns a :class:`~fmbrdf_mi.fit.result.FitResult`.
 
     ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation`, or a list of them sharing the material
-    (:func:`fmbrdf_mi.fit.api.joint.fit_joint`; ``names``, ``powers``, ``free_power`` are for lists).
-    Keywords override :class:`FitOptions` fields (the CLI's names).  ``progress``: True prints to stderr, a
-    callable receives each line, False is silent.  ``evaluator``: a
+    (a joint fit: :func:`fit_joint`).  Keywords override :class:`FitOptions` fields (the CLI's names).
+    ``progress``: True prints to stderr, a callable receives each line, False is silent.  ``evaluator``: a
     :func:`~fmbrdf_mi.fit.problem.data.prepare` evaluator for the same geometry, pixels and objective, reused.
     ``data``: a caller-built :class:`~fmbrdf_mi.fit.problem.problem.FitData`; ``obs`` then gives only its
     noise model and pixel grid.  ``materials``: integer labels on ``obs.shape`` (or a raw mosaic's sensor grid;
@@ -51,27 +51,63 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     (:mod:`fmbrdf_mi.fit.api.checks`).  ``max_time`` (wall clock, checked before each evaluation) stops
     with the latest accepted estimate, ``converged=False`` and no standard errors.
     """
-    opts = fit_options(options, kw)
+    t0, opts = time.time(), fit_options(options, **kw)
     check_fit_options(**dataclasses.asdict(opts))
-    if isinstance(obs, (list, tuple)):
-        return _fit_images(check_observations(obs, "fit()", least=0), opts, names=names, progress=progress,
-                           powers=powers, materials=materials)
-    loss = check_request(obs, opts, data)
-    fx = Fitted(None, data, None, opts, progress_callable(progress), image_shape=obs.shape, labels=materials)
-    if opts.max_time:
-        fx.deadline = fx.t0 + float(opts.max_time)
+    joint = isinstance(obs, (list, tuple))
+    images = check_observations(obs, "fit()", least=0)
+    K, say = len(images), progress_callable(progress)
+    names = list(names) if names is not None else [f"image{k}" for k in range(K)]
+    try:
+        given = [1.0] * K if powers is None else [float(p) for p in powers]
+    except (TypeError, ValueError):
+        given = []
+    losses = {resolve_loss(o, opts) for o in images}
+    for bad, text in ((not K, "joint fit: no images"),
+                      (joint and (opts.path != "pixel" or opts.optimizer != "lm"),
+                       "joint fit: works with the pixel path and optimizer 'lm'"),
+                      (len(names) != K, f"joint fit: {len(names)} names for {K} images"),
+                      (len(losses) > 1, "joint fit: the camera noise is known for some images and not for others "
+                                        f"(loss 'auto' resolves to {sorted(losses)}); give it for all, or choose "
+                                        "--loss"),
+                      (opts.free_power and not joint, "free_power: the relative light powers are estimated in joint "
+                                                      "fits of two or more images (fit_joint; fmbrdf-mi fit "
+                                                      "--free-power with --manifest, --authors or several --light)"),
+                      (opts.free_power and K < 2, "free_power: needs two or more fitted images (one image's power "
+                                                  "is not separable from k_s and k_b)"),
+                      (len(given) != K or not all(math.isfinite(p) and p > 0 for p in given),
+                       f"powers: expected {K} positive numbers, got {powers!r}")):
+        if bad:
+            raise InputError(text)
+    loss = losses.pop()
+    check_resolved_loss(dataclasses.asdict(opts), loss, "loss 'paper'" if opts.loss == "paper" else
+                        "the observation has no camera noise model")
     if data is None:
         if opts.path == "render":   # the scene rendered, the fit's pixels read off
             if scene is None:
                 raise InputError("path 'render' needs a Mitsuba scene (scene=...) containing the model's BSDF")
-            evaluator = RenderEvaluator(get_model(opts.model), scene, opts.bsdf_prefix, select_pixels(obs, opts)[0],
-                                        spp=opts.spp, seed=opts.seed)
-            if evaluator.shape != obs.shape:
+            evaluator = RenderEvaluator(get_model(opts.model), scene, opts.bsdf_prefix,
+                                        select_pixels(images[0], opts)[0], spp=opts.spp, seed=opts.seed)
+            if evaluator.shape != images[0].shape:
                 raise InputError(f"scene renders {evaluator.shape[1]}x{evaluator.shape[0]} pixels but the "
-                                 f"observation is {obs.shape[1]}x{obs.shape[0]}")
-        fx.data = data = prepare([obs], opts, loss, single=True, evaluator=evaluator, materials=materials)
+                                 f"observation is {images[0].shape[1]}x{images[0].shape[0]}")
+        data = prepare(images, opts, loss, single=not joint, evaluator=evaluator, materials=materials)
+    table = Parameters(get_model(opts.model), powers=given) if opts.free_power else None
+    if table is not None:
+        def powered(d):     # the free powers' evaluator and problem, remakes included
+            pev = FP.PowerEvaluator(d.evaluator, table, [b - a for a, b in d.slices])
+            remake = None if d.remake is None else (lambda m, f=d.remake: powered(f(m)))
+            return dataclasses.replace(d, evaluator=pev, remake=remake,
+                                       make_problem=FP.problem_factory(pev, d.slices, opts.power_start))
+
+        data = powered(data)
+    if joint:
+        say(f"[joint] {K} images, " + ", ".join(f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
+                                                for n, o, (a, b) in zip(names, images, data.slices)))
+    fx = Fitted(None, data, None, opts, say, image_shape=images[0].shape, labels=materials, t0=t0)
+    if opts.max_time:
+        fx.deadline = t0 + float(opts.max_time)
     fx.problem = problem = fx.problem_of(data)
-    report_start(problem, data, opts, fx.report)
+    report_start(problem, data, opts, say)
     init = None
     if opts.init:   # per-pixel albedos take no start: solved at the start's shape (solve projects)
         start = dict.fromkeys(problem.params.albedo_pair, 1.0) if opts.albedo in PER_PIXEL_LAYOUTS else {}
@@ -84,36 +120,29 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         res = check_footprint(res)
     if opts.intervals in ("auto", "profile"):
         res = check_intervals(res, every=opts.intervals == "profile")
-    return report_end(find_other_optima(res))
+    res = report_end(find_other_optima(res))
+    if joint:
+        diagnose(res, images, names, table, given, say)
+    return res
+
+
+def fit_joint(observations, options=None, **kw):
+    """:func:`fit` of a list of observations: K images of one object, each its own light, geometry and mask,
+    sharing one material (pixel path, ``lm`` only).  The likelihood is the product of the images' (one camera);
+    the paper's loss runs over the union of their pixels; ``max_pixels`` is split evenly.
+
+    ``names``: the images' labels (default ``image0``, ...).  ``free_power=True`` estimates the light powers
+    of images 1 .. K-1 relative to image 0's (:mod:`fmbrdf_mi.fit.problem.free_power`; the result's
+    ``powers``); ``powers``: the relative powers the irradiances already include (default 1 each), where the
+    search starts and what the fitted ones are reported against.  The result adds ``images`` (per-image
+    diagnostics: :func:`~fmbrdf_mi.fit.api.fitting.diagnose`) and ``pixels`` (one array per image).
+    """
+    return fit(check_observations(observations, "fit_joint()", least=0), options, **kw)
 
 
 def progress_callable(progress):
     """``fit``'s ``progress``: True prints to stderr, a callable receives each line, False is silent."""
     return O.default_progress if progress is True else (progress or (lambda m: None))
-
-
-def fit_options(options, kw):
-    """``options`` (None: the defaults) with the overrides ``kw``; InputError for an unknown name."""
-    fields = [f.name for f in dataclasses.fields(FitOptions)]
-    unknown = [k for k in kw if k not in fields]
-    if unknown:
-        raise InputError(f"fit(): unknown option(s) {', '.join(unknown)} (FitOptions: {', '.join(fields)}; the "
-                         "light, irradiance, geometry and noise are the Observation's)")
-    return dataclasses.replace(options or FitOptions(), **kw)
-
-
-def check_request(obs, opts, data):
-    """The objective (:func:`~fmbrdf_mi.fit.problem.data.resolve_loss`) of fitting ``obs`` with the checked
-    ``opts``, after checking what the observation and ``data`` allow (InputError)."""
-    check_observations(obs, "fit()")
-    if opts.free_power and (data is None or data.make_problem is None):
-        raise InputError("free_power: the relative light powers are estimated in joint fits of two or more "
-                         "images (fit_joint; fmbrdf-mi fit --free-power with --manifest, --authors or several "
-                         "--light)")
-    loss = resolve_loss(obs, opts)
-    check_resolved_loss(dataclasses.asdict(opts), loss, "loss 'paper'" if opts.loss == "paper" else
-                        "the observation has no camera noise model")
-    return loss
 
 
 def report_start(problem, data, opts, report):
@@ -149,64 +178,11 @@ def report_end(res):
     return res
 
 
-def _fit_images(observations, opts, *, names=None, progress=True, powers=None, materials=None):
-    """:func:`fit` of a list of observations (:func:`fmbrdf_mi.fit.api.joint.fit_joint`)."""
-    K = len(observations)
-    names = list(names) if names is not None else [f"image{k}" for k in range(K)]
-    for bad, text in ((not K, "no images"), (opts.path != "pixel" or opts.optimizer != "lm",
-                                              "works with the pixel path and optimizer 'lm'"),
-                      (len(names) != K, f"{len(names)} names for {K} images")):
-        if bad:
-            raise InputError(f"joint fit: {text}")
-    losses = {resolve_loss(o, opts) for o in observations}
-    if len(losses) != 1:
-        raise InputError("joint fit: the camera noise is known for some images and not for others "
-                         f"(loss 'auto' resolves to {sorted(losses)}); give it for all, or choose --loss")
-    if opts.free_power and K < 2:
-        raise InputError("free_power: needs two or more fitted images (one image's power is not separable "
-                         "from k_s and k_b)")
-    try:
-        given = [1.0] * K if powers is None else [float(p) for p in powers]
-    except (TypeError, ValueError):
-        given = []
-    if len(given) != K or not all(math.isfinite(p) and p > 0 for p in given):
-        raise InputError(f"powers: expected {K} positive numbers, got {powers!r}")
-    data = prepare(observations, opts, losses.pop(), materials=materials)
-    pixels, slices, table = data.image_pixels, data.slices, None
-    if opts.free_power:
-        table = Parameters(get_model(opts.model), powers=given)
-
-        def powered(d):     # the free powers' evaluator and problem, remakes included
-            pev = FP.PowerEvaluator(d.evaluator, table, [b - a for a, b in slices])
-            remake = None if d.remake is None else (lambda m, f=d.remake: powered(f(m)))
-            return dataclasses.replace(d, evaluator=pev, remake=remake,
-                                       make_problem=FP.problem_factory(pev, slices, opts.power_start))
-
-        data = powered(data)
-    say = progress_callable(progress)
-    say(f"[joint] {K} images, " + ", ".join(f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
-                                            for n, o, (a, b) in zip(names, observations, slices)))
-    res = fit(observations[0], opts, progress=progress, data=data, materials=materials)
-    m = (res.uncertainty or {}).get("quadrature", {}).get("area_points")
-    if m is not None and m != data.area_points:     # diagnose on the refined quadrature
-        data = data.remake(m)
-    images = diagnose(res, data, observations, names)
-    if table is not None:
-        res.powers = split_result(res, table, names)
-        for k, im in enumerate(images):
-            im.update({"power": res.powers["values"][k], "power_given": given[k],
-                       "power_se": res.powers["std_errors"][k], "power_ci95": res.powers["ci95"][k],
-                       "power_reference": k == 0})
-    for im in images:
-        say(f"[joint] {im['name']}: " + ", ".join(f"{k} {im[k]:.4g}" for k in ("chi2_per_dof", "intensity_rel_rmse",
-                                                                             "dolp_rmse") if im.get(k) is not None)
-            + ("" if table is None else ", " + power_text(im)))
-    res.images, res.pixels = images, pixels
-    return res
-
-
-def diagnose(res, data, observations, names):
-    """Per image: pixels, light, irradiance, and how well the shared estimate explains it."""
+def diagnose(res, observations, names, table, given, say):
+    """A joint fit's ``res.pixels`` and ``res.images``: per image its pixels, light, irradiance, how well the
+    shared estimate explains it (on the data of the fit's final quadrature) and, with the free powers of
+    ``table``, its power (``given``: the given ones)."""
+    data = res.fitted.data
     loss, objective = data.loss, data.objective
     internal = res.details["internal"]
     st = State(internal["shape"], np.asarray(internal["a_s"]), np.asarray(internal["a_b"]))
@@ -234,4 +210,14 @@ def diagnose(res, data, observations, names):
             im["chi2"] = float(np.sum(r[a:b] ** 2))
             im["chi2_per_dof"] = im["chi2"] / max((b - a) * objective.dof, 1)
         out.append(im)
-    return out
+    if table is not None:
+        res.powers = split_result(res, table, names)
+        for k, im in enumerate(out):
+            im.update({"power": res.powers["values"][k], "power_given": given[k],
+                       "power_se": res.powers["std_errors"][k], "power_ci95": res.powers["ci95"][k],
+                       "power_reference": k == 0})
+    for im in out:
+        say(f"[joint] {im['name']}: " + ", ".join(f"{k} {im[k]:.4g}" for k in ("chi2_per_dof", "intensity_rel_rmse",
+                                                                             "dolp_rmse") if im.get(k) is not None)
+            + ("" if table is None else ", " + power_text(im)))
+    res.images, res.pixels = out, data.image_pixels

@@ -216,9 +216,16 @@ FitOptions = dataclasses.make_dataclass(
 FIT_NAMES = tuple(o.name for o in OPTIONS if o.fit)
 
 
-def fit_options(values, **changes):
-    """The :class:`FitOptions` of ``values`` (other names left out), checked, with ``changes``."""
-    return FitOptions(**{**check_values({k: x for k, x in values.items() if k in FIT_NAMES}), **changes})
+def fit_options(values=None, **changes):
+    """``values`` (a :class:`FitOptions`; a dict: its fit options checked, other names left out; None: the
+    defaults) with ``changes``, fit options (InputError for another name)."""
+    unknown = [k for k in changes if k not in FIT_NAMES]
+    if unknown:
+        raise InputError(f"fit(): unknown option(s) {', '.join(unknown)} (FitOptions: {', '.join(FIT_NAMES)}; the "
+                         "light, irradiance, geometry and noise are the Observation's)")
+    if not isinstance(values, FitOptions):
+        values = FitOptions(**check_values({k: x for k, x in (values or {}).items() if k in FIT_NAMES}))
+    return dataclasses.replace(values, **changes)
 
 
 # ---------------------------------------------------------------- the command line

@@ -71,13 +71,13 @@ class Parameters:
                        "log", (g,), image=k) for k, g in enumerate(self.given or ()) if k]
         self._index(rows)
         bounds, fixed = self.expand(bounds) or {}, self.expand(fixed) or {}
-        self._index([self._narrowed(r, *bounds[r.name]) if r.name in bounds else r for r in rows])
+        rows = [self._narrowed(r, *bounds[r.name]) if r.name in bounds else r for r in rows]
         for what, given in (("bounds", bounds), ("fixed", fixed)):
             unknown = [k for k in given if k not in self.shape_names]
             if unknown:
                 raise ValueError(f"{what}: {model.name} has no shape parameter {unknown[0]!r} (it has "
                                  f"{', '.join(self.shape_names)})")
-        self._index([dataclasses.replace(r, fixed=fixed[r.name]) if r.name in fixed else r for r in self.rows])
+        self._index([dataclasses.replace(r, fixed=fixed[r.name]) if r.name in fixed else r for r in rows])
 
     def _index(self, rows):
         self.rows = tuple(rows)

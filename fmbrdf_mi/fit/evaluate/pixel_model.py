@@ -81,25 +81,22 @@ class _Evaluator:
     def _points(self, chunk=None):  # -> the (S0, S1, S2) Dr.Jit arrays at the points of ``chunk`` (None: all)
         raise NotImplementedError
 
-    def _reduce(self, s):
-        """The outputs of the values :meth:`_points` gives (here those values themselves)."""
+    def _reduce(self, s):     # the outputs of the values _points gives
         return s
 
     def _stokes(self, chunk=None):
         """The outputs (S0, S1, S2) of ``chunk`` as Dr.Jit arrays (the reverse-mode gradient differentiates them)."""
         return self._reduce(self._points(chunk))
 
-    def _chunks(self):
-        """The evaluation's chunks: (chunk, slice of the outputs) pairs; one chunk (None) of everything."""
+    def _chunks(self):      # (chunk, slice of the outputs) pairs; one chunk (None) of everything
         return [(None, slice(None))]
 
     def parts(self, shape_values, wrt=()):
         """:class:`Parts` at ``shape_values``; derivatives for the shape parameters in ``wrt``.
 
-        The outputs are evaluated chunk by chunk (:meth:`_chunks`), each chunk's Dr.Jit arrays freed before
-        the next: every output is the same elementwise computation whatever the chunking.  A chunk's values at
-        its points (:meth:`_points`: the three components, and with ``wrt`` every derivative of them) are
-        evaluated together, then reduced to the outputs (:meth:`_reduce`)."""
+        Chunk by chunk (:meth:`_chunks`; each chunk's Dr.Jit arrays freed before the next, the outputs the same
+        whatever the chunking): the values at the chunk's points (:meth:`_points`, with ``wrt`` their
+        derivatives) evaluated together, then reduced to the outputs (:meth:`_reduce`)."""
         import drjit as dr
         import mitsuba as mi
 
@@ -163,9 +160,8 @@ PIECE_DIRECTIONS = 1 << 18
 
 
 class Directions:
-    """Normals and view directions, float64 (``count``, 3) each, made a piece at a time: ``pieces()`` yields
-    (normals, view_dirs) pieces in order.  What :class:`PixelEvaluator` takes instead of two whole arrays, so
-    that a frame's directions are never all held in float64 at once."""
+    """Normals and view directions, float64 (``count``, 3) each, made a piece at a time (``pieces()`` yields
+    (normals, view_dirs) in order): a frame's directions are never all held in float64 at once."""
 
     def __init__(self, count, pieces):
         self.count = int(count)
@@ -204,15 +200,12 @@ class PixelEvaluator(_Evaluator):
     ``irradiance`` (n,)).  With ``weights`` (K,) the directions are (n K, 3), K footprint samples per pixel
     (:meth:`Observation.sample_geometry`) summed with those weights.
 
-    The directions are held as float32 NumPy arrays (what the BSDF is evaluated at) and the pixels are
-    evaluated in chunks of about :data:`CHUNK_DIRECTIONS` directions, so the Dr.Jit arrays of an evaluation
-    are bounded by the chunk, not the frame.
+    The directions are held as float32 NumPy arrays and evaluated in chunks of about :data:`CHUNK_DIRECTIONS`
+    (the Dr.Jit arrays are bounded by the chunk, not the frame).
     """
 
-    #: Directions per BSDF evaluation (whole pixels: a multiple of the samples per pixel).  Each chunk of an
-    #: evaluation with derivatives rebuilds the tables and carries every parameter's tangent through them
-    #: (about as much work as a chunk of as many directions as the tables have texels), so a chunk holds
-    #: more than twice that many.
+    #: Directions per BSDF evaluation (whole pixels).  A chunk with derivatives rebuilds the tables with every
+    #: parameter's tangent (as much work as as many directions as the tables have texels): more than twice that.
     CHUNK_DIRECTIONS = 1 << 22
 
     def __init__(self, model, normals, view_dirs, light_dir, irradiance=1.0, variant=None, weights=None):

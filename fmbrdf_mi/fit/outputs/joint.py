@@ -1,5 +1,5 @@
 """Several images of one object from files: :func:`fit_images` fits a manifest's images jointly
-(:mod:`fmbrdf_mi.fit.api.joint`) and writes fit.json and the figures per image; :func:`run_images` is the
+(:func:`fmbrdf_mi.fit.api.fitting.fit_joint`) and writes fit.json and the figures per image; :func:`run_images` is the
 command's entry.  The manifest's format: docs/howto/fit-joint.md.
 """
 from __future__ import annotations
@@ -8,7 +8,7 @@ import os
 
 import numpy as np
 
-from fmbrdf_mi.fit.api.joint import fit_joint
+from fmbrdf_mi.fit.api.fitting import fit_joint
 from fmbrdf_mi.fit.api.options import (FIT_NAMES, OPTION, check_fit_options, check_resolved_loss, fit_options, flag,
                                         record_keys)
 from fmbrdf_mi.fit.errors import InputError

@@ -13,7 +13,7 @@ import numpy as np
 
 from fmbrdf_mi.geometry import sphere_normals
 from fmbrdf_mi.fit.api.options import fit_options
-from fmbrdf_mi.fit.api.joint import fit_joint
+from fmbrdf_mi.fit.api.fitting import fit_joint
 from fmbrdf_mi.fit.api.normal_joint import refine_joint
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.normal_maps import angular_error_deg, check_views, photometric_stereo
