@@ -57,39 +57,10 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     images = check_observations(obs, "fit()", least=0)
     K, say = len(images), progress_callable(progress)
     names = list(names) if names is not None else [f"image{k}" for k in range(K)]
-    try:
-        given = [1.0] * K if powers is None else [float(p) for p in powers]
-    except (TypeError, ValueError):
-        given = []
-    losses = {resolve_loss(o, opts) for o in images}
-    for bad, text in ((not K, "joint fit: no images"),
-                      (joint and (opts.path != "pixel" or opts.optimizer != "lm"),
-                       "joint fit: works with the pixel path and optimizer 'lm'"),
-                      (len(names) != K, f"joint fit: {len(names)} names for {K} images"),
-                      (len(losses) > 1, "joint fit: the camera noise is known for some images and not for others "
-                                        f"(loss 'auto' resolves to {sorted(losses)}); give it for all, or choose "
-                                        "--loss"),
-                      (opts.free_power and not joint, "free_power: the relative light powers are estimated in joint "
-                                                      "fits of two or more images (fit_joint; fmbrdf-mi fit "
-                                                      "--free-power with --manifest, --authors or several --light)"),
-                      (opts.free_power and K < 2, "free_power: needs two or more fitted images (one image's power "
-                                                  "is not separable from k_s and k_b)"),
-                      (len(given) != K or not all(math.isfinite(p) and p > 0 for p in given),
-                       f"powers: expected {K} positive numbers, got {powers!r}")):
-        if bad:
-            raise InputError(text)
-    loss = losses.pop()
-    check_resolved_loss(dataclasses.asdict(opts), loss, "loss 'paper'" if opts.loss == "paper" else
-                        "the observation has no camera noise model")
+    given, loss = check_call(images, joint, names, powers, opts)
     if data is None:
-        if opts.path == "render":   # the scene rendered, the fit's pixels read off
-            if scene is None:
-                raise InputError("path 'render' needs a Mitsuba scene (scene=...) containing the model's BSDF")
-            evaluator = RenderEvaluator(get_model(opts.model), scene, opts.bsdf_prefix,
-                                        select_pixels(images[0], opts)[0], spp=opts.spp, seed=opts.seed)
-            if evaluator.shape != images[0].shape:
-                raise InputError(f"scene renders {evaluator.shape[1]}x{evaluator.shape[0]} pixels but the "
-                                 f"observation is {images[0].shape[1]}x{images[0].shape[0]}")
+        if opts.path == "render":
+            evaluator = render_evaluator(images[0], scene, opts)
         data = prepare(images, opts, loss, single=not joint, evaluator=evaluator, materials=materials)
     table = Parameters(get_model(opts.model), powers=given) if opts.free_power else None
     if table is not None:
@@ -124,6 +95,49 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     if joint:
         diagnose(res, images, names, table, given, say)
     return res
+
+
+def render_evaluator(obs, scene, opts):
+    """The render path's evaluator: ``scene`` rendered, the fit's pixels of ``obs`` read off."""
+    if scene is None:
+        raise InputError("path 'render' needs a Mitsuba scene (scene=...) containing the model's BSDF")
+    evaluator = RenderEvaluator(get_model(opts.model), scene, opts.bsdf_prefix, select_pixels(obs, opts)[0],
+                                spp=opts.spp, seed=opts.seed)
+    if evaluator.shape != obs.shape:
+        raise InputError(f"scene renders {evaluator.shape[1]}x{evaluator.shape[0]} pixels but the "
+                         f"observation is {obs.shape[1]}x{obs.shape[0]}")
+    return evaluator
+
+
+def check_call(images, joint, names, powers, opts):
+    """Refuses a call whose images, names, powers and options do not go together (one :class:`InputError`
+    line); returns the light powers (1 each unless given) and the one loss the images resolve to."""
+    K = len(images)
+    try:
+        given = [1.0] * K if powers is None else [float(p) for p in powers]
+    except (TypeError, ValueError):
+        given = []
+    losses = {resolve_loss(o, opts) for o in images}
+    for bad, text in ((not K, "joint fit: no images"),
+                      (joint and (opts.path != "pixel" or opts.optimizer != "lm"),
+                       "joint fit: works with the pixel path and optimizer 'lm'"),
+                      (len(names) != K, f"joint fit: {len(names)} names for {K} images"),
+                      (len(losses) > 1, "joint fit: the camera noise is known for some images and not for others "
+                                        f"(loss 'auto' resolves to {sorted(losses)}); give it for all, or choose "
+                                        "--loss"),
+                      (opts.free_power and not joint, "free_power: the relative light powers are estimated in joint "
+                                                      "fits of two or more images (fit_joint; fmbrdf-mi fit "
+                                                      "--free-power with --manifest, --authors or several --light)"),
+                      (opts.free_power and K < 2, "free_power: needs two or more fitted images (one image's power "
+                                                  "is not separable from k_s and k_b)"),
+                      (len(given) != K or not all(math.isfinite(p) and p > 0 for p in given),
+                       f"powers: expected {K} positive numbers, got {powers!r}")):
+        if bad:
+            raise InputError(text)
+    loss = losses.pop()
+    check_resolved_loss(dataclasses.asdict(opts), loss, "loss 'paper'" if opts.loss == "paper" else
+                        "the observation has no camera noise model")
+    return given, loss
 
 
 def fit_joint(observations, options=None, **kw):
