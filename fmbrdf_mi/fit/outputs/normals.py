@@ -1,9 +1,6 @@
-"""``fmbrdf-mi fit ... --refine-normals``: per-pixel normals and the material from K >= 3 images of one view.
-
-:class:`NormalRefinement` fits the material on a start map (:func:`start_normals`), then material and normals
-jointly (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`), and writes ``normals.npy`` (H, W, 3: x image
-right, y image up, z towards the camera), ``normals.png``, ``normals_change.png`` and ``fit.json``.
-"""
+"""``fmbrdf-mi fit ... --refine-normals``: :class:`NormalRefinement` fits the material on a start map
+(:func:`start_normals`), then material and normals (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`); writes
+``normals.npy`` (H, W, 3: x image right, y image up, z towards the camera)."""
 from __future__ import annotations
 
 import os
