@@ -1,7 +1,6 @@
-"""The captured-data layout of the paper's authors (kyotovision-public/fmbrdf): :func:`read_object` reads an object
-directory (its files: docs/howto/fit-joint.md).  Their vectors are in OpenCV camera axes and convert as (x, y, z)
--> (x, -y, -z); their scripts' -AoLP is S2 in the OpenCV image frame, and the raw mosaics are read here directly,
-so nothing is negated."""
+"""The captured-data layout of the paper's authors (kyotovision-public/fmbrdf), read by :func:`read_object`
+(docs/howto/fit-joint.md).  Their vectors are in OpenCV camera axes, (x, y, z) -> (x, -y, -z) here; their scripts'
+-AoLP is S2 in the OpenCV image frame, and the raw mosaics are read here directly, so nothing is negated."""
 from __future__ import annotations
 
 import glob

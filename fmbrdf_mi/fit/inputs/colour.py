@@ -29,9 +29,8 @@ def colour_sidecar(inputs):
 
 def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
                     fov=None):
-    """(normals, mask, view_dirs, exact geometry or None, sphere record or None) on the period grid ``shape``:
-    the user's (:func:`~fmbrdf_mi.fit.inputs.files.user_geometry`), else the sidecar's built-in sphere (exact
-    when orthographic, the render's maps pooled per period when perspective)."""
+    """(normals, mask, view_dirs, exact geometry or None, sphere record or None) on the period grid ``shape``: the
+    user's, else the sidecar's built-in sphere (exact when orthographic, else the render's maps pooled per period)."""
     params = side.get("parameters") if side.get("scene") == "builtin:sphere" else None
     if normals is not None or sphere is not None or params is None:
         n, m, v, exact, sph = user_geometry(shape, 4, normals=normals, mask=mask, view=view, sphere=sphere,

@@ -1,5 +1,4 @@
 """Inputs of a fit (:class:`Observation`): polarimetric image, geometry, light; loading and validation.
-
 Conventions (:mod:`fmbrdf_mi.stokes_io`'s): camera frame x right, y up, z towards the camera; images indexed
 ``[row, column]``, a pixel's centre at ``(x, y) = (column + 0.5, row + 0.5)``; normals and view directions (surface
 to camera) are (H, W, 3) unit vectors; the light direction points from the surface towards the light."""

@@ -1,6 +1,5 @@
-"""``fmbrdf-mi fit`` on colour polarisation mosaics (sidecars with ``"cfa"``): :func:`fit_colour_files` (one) and
-:func:`fit_colour_images` (several of one object), both by :func:`fmbrdf_mi.fit.api.colour.fit_colour`; the
-geometry lives on the grid of 4x4 periods (``--sphere`` in period units)."""
+"""``fmbrdf-mi fit`` on colour polarisation mosaics: :func:`fit_colour_files` (one), :func:`fit_colour_images` (several
+of one object), by :func:`fmbrdf_mi.fit.api.colour.fit_colour`; geometry on the grid of 4x4 periods."""
 from __future__ import annotations
 
 import os

@@ -1,5 +1,4 @@
 """The skeleton of every mode of ``fmbrdf-mi fit`` (:class:`FitJob`) and the names of the files fits write.
-
 :meth:`FitJob.run` writes into a staging directory whose files replace the old ones (``fit.json`` last, stale
 outputs removed) only once all are written: a failed or interrupted run leaves ``out`` as it was."""
 from __future__ import annotations

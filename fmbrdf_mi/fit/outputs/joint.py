@@ -57,8 +57,7 @@ def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, prog
     """Joint fit of the non-held-out images of ``specs``, the held-out ones relit; writes the outputs to ``out``.
 
     ``fit_kw``: :class:`~fmbrdf_mi.fit.api.options.FitOptions` fields; ``reproduce``: observations -> fit.json's
-    ``reproduce`` block.  Returns fit.json's dict plus ``outputs`` (the files written) and ``wall_s``.
-    """
+    ``reproduce`` block.  Returns fit.json's dict plus ``outputs`` (the files written) and ``wall_s``."""
     return Joint(specs, out, model=model, baselines=baselines, force=force, progress=progress, command=command,
                  observations=observations, extra=extra, reproduce=reproduce, **fit_kw).run()
 

@@ -1,6 +1,5 @@
-"""``fmbrdf-mi fit ... --refine-normals``: :class:`NormalRefinement` fits the material on a start map
-(:func:`start_normals`), then material and normals (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`); writes
-``normals.npy`` (H, W, 3: x image right, y image up, z towards the camera)."""
+"""``--refine-normals``: :class:`NormalRefinement` fits the material on a start map, then material and normals
+(:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`); ``normals.npy``: (H, W, 3), x image right, y up, z to camera."""
 from __future__ import annotations
 
 import os

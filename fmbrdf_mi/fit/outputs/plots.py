@@ -83,8 +83,7 @@ def compare_row(fig, axes, o, p, err, shown, hidden, titles, fontsize):
 
 
 def model_dolp(stokes, lin_variance=None):
-    """DoLP of a model's Stokes image; given the camera's var(S1) = var(S2) (``lin_variance``), the DoLP it
-    measures on average, which is what the fit compares with a noisy observation."""
+    """DoLP of a model's Stokes image; with ``lin_variance`` = var(S1) = var(S2), the mean a noisy camera measures."""
     if lin_variance is None:
         return stokes_io.dolp(stokes)
     s = np.asarray(stokes, dtype=np.float64)
@@ -102,9 +101,8 @@ def _binned(x, y, bins):
 
 
 def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_points=4000, seed=0):
-    """DoLP against the normal-view angle, intensity against the normal-light angle. ``fitted``: predicted
-    Stokes (3, H, W); ``others``: {label: Stokes} of baselines, drawn as binned means; ``pixels``: flat
-    indices (default: the mask)."""
+    """DoLP against the normal-view angle, intensity against the normal-light angle; ``fitted``: predicted Stokes
+    (3, H, W), ``others``: {label: Stokes} of baselines (binned means), ``pixels``: flat indices (default: mask)."""
     plt = pyplot()
     idx = np.flatnonzero(obs.mask.ravel()) if pixels is None else np.asarray(pixels)
     n = obs.normals.reshape(-1, 3)[idx]
@@ -137,17 +135,16 @@ def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_poi
 
 
 def scale_from(values, sel, q=99.0, floor=1e-6):
-    """Colour-scale maximum: the ``q``-th percentile of |values| over the selected (fitted) pixels, so that
-    unfitted unlit and rim pixels do not set the scale."""
+    """Colour-scale maximum: the ``q``-th percentile of |values| on ``sel``, so unfitted pixels do not set the scale."""
     v = np.abs(np.asarray(values, dtype=np.float64)[sel])
     v = v[np.isfinite(v)]
     return max(float(np.percentile(v, q)), floor) if v.size else 1.0
 
 
 def shown_pixels(observed, predicted, mask, pixels=None, dolp_min_intensity=0.02):
-    """The pixels :func:`plot_images`' residual panels show, {"intensity", "DoLP"}: (H, W) bool: the fitted ones
-    (``pixels``, flat indices; default the mask pixels with a finite, non-zero prediction), and for the DoLP
-    those the loss's DoLP term uses (:class:`fmbrdf_mi.fit.objectives.loss.Target`)."""
+    """The pixels the residual panels show, {"intensity", "DoLP"}: (H, W) bool, the fitted ones (``pixels``; default:
+    finite, non-zero predictions in the mask), for the DoLP those the loss's DoLP term keeps
+    (:class:`fmbrdf_mi.fit.objectives.loss.Target`)."""
     m = np.asarray(mask, bool)
     o = np.asarray(observed, dtype=np.float64)
     p = np.asarray(predicted, dtype=np.float64)
@@ -184,8 +181,7 @@ def residuals(observed, predicted, mask, pixels=None, lin_variance=None, dolp_mi
 
 
 def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_variance=None, pixels=None):
-    """Intensity and DoLP: observed | predicted | residual (:func:`residuals`; ``lin_variance``: see
-    :func:`model_dolp`; ``pixels``: see :func:`shown_pixels`), the object's unshown pixels grey and hatched."""
+    """Intensity and DoLP: observed | predicted | residual (:func:`residuals`), the object's unshown pixels hatched."""
     plt = pyplot()
     m = np.asarray(mask, bool)
     res = residuals(observed, predicted, m, pixels, lin_variance)

@@ -67,8 +67,7 @@ def versions():
 
 
 def command_block(command, arguments=None, files=(), **more):
-    """A ``reproduce`` block: how the fit was run (command line, directory, versions) and, for ``--from``, its
-    ``arguments``, the SHA-256 of the ``files`` it reads and ``more``."""
+    """A ``reproduce`` block: command line, directory, versions; for ``--from``, ``arguments``, ``files``' SHA-256."""
     block = {"command": command, "cwd": os.getcwd()}
     if arguments is not None:
         block.update(arguments=arguments, files_sha256=_hashes(files), **more)
@@ -106,9 +105,8 @@ def _geometry(spec, obs):
 
 
 def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=None, authors=None, info=None):
-    """The ``reproduce`` block of a joint fit, with ``joint``: how the images were given and each one's files and
-    settings.  ``specs``: as fitted (paths resolved); ``authors``: read_object's keywords for ``kind ==
-    "authors"``, ``info`` what it read."""
+    """The ``reproduce`` block of a joint fit, with ``joint``: how the images were given, each one's files and
+    settings; ``specs`` as fitted (paths resolved), ``authors``: read_object's keywords, ``info`` what it read."""
     images = []
     for k, (s, n, o) in enumerate(zip(specs, names, observations)):
         if kind == "authors":

@@ -106,7 +106,6 @@ def recorded_arguments(path, rep, kind):
 
 
 def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
-    """Rerun the joint fit recorded in ``rep``, the ``reproduce`` block of ``path``, into ``out``."""
     joint = rep.get("joint")
     if not isinstance(joint, dict) or joint.get("kind") not in ("manifest", "authors", "lights"):
         raise InputError(f"--from {path}: not the record of a joint fit")

@@ -45,8 +45,7 @@ def fit_files(inputs, out, *, force=False, progress=True, command=None, **option
     ``inputs``: a Stokes EXR (one from ``fmbrdf-mi render`` brings geometry, light and true parameters), a raw mosaic
     (.npy, 16-bit .png, .tif), a (4, H, W) .npy or four angle images (0, 45, 90, 135 degrees).  ``options``: the
     single-image options of :data:`fmbrdf_mi.fit.api.options.OPTIONS`.  Returns fit.json's dict plus ``outputs``
-    (the files written) and ``wall_s``.
-    """
+    (the files written) and ``wall_s``."""
     arguments = arguments_of("single", dict(options, inputs=inputs), "fit_files()")
     return SingleImage(arguments, out, force=force, progress=progress, command=command).run()
 
@@ -61,9 +60,9 @@ class ImageFits(FitJob):
         self.results = {n: solve(n, self.opts if n == self.model else baseline_options(self.opts, n)) for n in names}
 
     def write_image(self, o, name=None, pixels=None, holdout=False, im=None):
-        """The figures of image ``o`` (``name``: a joint fit's image, naming the files): for a ``holdout``,
-        relight.png, returning each fit's errors; else profiles.png and images.png of its fit on ``pixels``
-        (``im``: each fit's ``images`` entry, with its fitted power), returning ``model``'s prediction."""
+        """The figures of image ``o`` (``name``: a joint fit's): a ``holdout``'s relight.png, returning each fit's
+        errors, else profiles.png and images.png on ``pixels`` (``im``: each fit's ``images`` entry), returning
+        ``model``'s prediction."""
         results, model, labels, out = self.results, self.model, self.labels, self.out
         main = results[model]
         if holdout:

@@ -76,7 +76,6 @@ def convergence_status(name, m):
 
 
 def wrote(report):
-    """The last line: the files written (the job's ``outputs``) and the run's wall time."""
     print(f"wrote {', '.join(report['outputs'])} ({report['wall_s']:.1f} s)")
 
 
@@ -106,8 +105,7 @@ def print_normals(report):
 
 
 def print_summary(report):
-    """The stdout summary of any fit's report (what :meth:`~fmbrdf_mi.fit.outputs.job.FitJob.run` returns);
-    returns the exit status: 0, or :data:`EXIT_NOT_CONVERGED` when a fit stopped before it converged."""
+    """The stdout summary of any fit's report; returns the exit status (0 or :data:`EXIT_NOT_CONVERGED`)."""
     if report.get("refine_normals"):
         return print_normals(report)
     colour, status = report.get("sensor") == "colour", 0
