@@ -46,8 +46,7 @@ def needs_check(report, model):
 
 
 def mirrored_layout_hint(report, kw, fit_files, progress=True):
-    """One line naming ``--layout`` when the mirrored layout explains the data much better, else None;
-    ``kw``: the keyword arguments the fit ran with (:func:`~fmbrdf_mi.fit.outputs.single.fit_files`)."""
+    """A line naming ``--layout`` if the mirrored layout explains the data far better, else None (``kw``: the fit's)."""
     model = kw.get("model", "fmbrdf")
     if not needs_check(report, model):
         return None
