@@ -1,10 +1,6 @@
-"""``fmbrdf-mi fit``: the checks of the command line made before any file is read (one line per mistake), the
-mode (:func:`fit_mode`), its run (:data:`RUN`: one image, a colour mosaic, ``--from``, or several images through
-``--manifest``, ``--authors`` or repeated ``--light``) and the summary.
-
-The options' values are checked by :mod:`fmbrdf_mi.fit.api.options`; here are the modes' rules: what a
-mode refuses (:data:`REFUSED`), what needs another option (:data:`NEEDS`), what goes with ``--from``.
-"""
+"""``fmbrdf-mi fit``: the command line's checks before any file is read (one line per mistake), the mode
+(:func:`fit_mode`), its run (:data:`RUN`) and the summary.  The modes' rules are here (:data:`REFUSED`,
+:data:`NEEDS`, :data:`RERUN_TAKES`); the values' checks are :mod:`fmbrdf_mi.fit.api.options`'."""
 from __future__ import annotations
 
 import argparse
@@ -47,9 +43,7 @@ WITH_VALUE = tuple(n for n, o in OPTION.items() if o.kind == "choice") + ("chann
 #: Values of an option that a mode taking only the likelihood accepts besides the default.
 ALSO_TAKEN = {"loss": ("likelihood",)}
 
-#: The one table of which options a mode refuses: mode -> (options, the message's head, why).  A colour mosaic
-#: refuses every option of a single-image fit that its own record does not keep, the normal refinement those the
-#: schema says it refuses (``refused_by``).
+#: The options each mode refuses: mode -> (flags, the message's head, why).
 REFUSED = {
     "colour": (tuple(flag(n) for n in record_keys("single") if n not in record_keys("colour")),
                "colour polarisation mosaic",
@@ -73,7 +67,6 @@ NEEDS = {
 
 
 def check_args(args):
-    """Validate the command line's options."""
     values = vars(args)
     for o in OPTION.values():    # a list written as comma-separated text, recorded as the list
         if o.name in values:
@@ -110,8 +103,7 @@ class Unset(list):
 
 
 def typed_options(argv):
-    """The options typed on the command line ``argv``, whatever their value (argparse replaces the
-    :class:`Unset` marker only for the options given)."""
+    """The options typed on the command line ``argv``, whatever their value (argparse replaces :class:`Unset` s)."""
     p = argparse.ArgumentParser(add_help=False)
     add_arguments(p)
     ns, _ = p.parse_known_args(argv, namespace=argparse.Namespace(**{name: Unset() for name in DEFAULTS}))
@@ -148,10 +140,8 @@ def refuse(args, mode):
 
 
 def request(record, args, **converted):
-    """The options of ``record`` (``single``, ``colour`` or ``joint``:
-    :func:`~fmbrdf_mi.fit.api.options.record_keys`, less those it keeps only when given) as parsed,
-    ``--max-pixels 0`` as None, ``--light`` and ``--relight-light`` parsed, then ``converted`` (values the
-    command converts itself)."""
+    """The options of ``record`` (:func:`~fmbrdf_mi.fit.api.options.record_keys`, less those it keeps only when
+    given) as parsed, ``--max-pixels 0`` as None, the lights as vectors, then ``converted``."""
     values = vars(args)
     kw = {k: values[k] for k in record_keys(record) if values[k] is not None or record not in OPTION[k].if_given}
     kw["max_pixels"] = kw["max_pixels"] or None
@@ -163,8 +153,8 @@ def request(record, args, **converted):
 
 
 def is_joint(args):
-    """Whether the arguments give several images of one object (a manifest, an authors' object, several lights
-    or inputs that are not one image or four angle images)."""
+    """Whether the arguments give several images (a manifest, an authors' object, several lights, or INPUTs that are
+    not one image or four angle images)."""
     return bool(args.manifest or args.authors or len(args.light or []) > 1 or len(args.inputs or []) not in (0, 1, 4))
 
 

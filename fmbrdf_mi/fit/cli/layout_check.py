@@ -1,9 +1,6 @@
-"""After a raw-mosaic likelihood fit that does not explain its data: would the mirrored polariser layout?
-
-A raw capture decoded with 45 and 135 degrees swapped (mirrored optics, another sensor's convention) negates S2.
-When chi^2 per sample is at least :data:`POOR_CHI2` and the fit misfits or did not converge, the fit reruns
-swapped in a temporary directory; if that is :data:`MUCH_BETTER` times lower, one line names ``--layout``.
-"""
+"""After a raw-mosaic likelihood fit that does not explain its data: would the mirrored polariser layout (45 and
+135 degrees swapped: S2 negated)?  From :data:`POOR_CHI2` per sample, the fit reruns swapped in a temporary
+directory; :data:`MUCH_BETTER` times lower, one line names ``--layout``."""
 from __future__ import annotations
 
 import os
@@ -49,8 +46,7 @@ def needs_check(report, model):
 
 
 def mirrored_layout_hint(report, kw, fit_files, progress=True):
-    """One line naming ``--layout`` when the mirrored layout explains the data much better, else None;
-    ``kw``: the keyword arguments the fit ran with (:func:`~fmbrdf_mi.fit.outputs.single.fit_files`)."""
+    """A line naming ``--layout`` if the mirrored layout explains the data far better, else None (``kw``: the fit's)."""
     model = kw.get("model", "fmbrdf")
     if not needs_check(report, model):
         return None

@@ -1,2 +1,1 @@
-"""What a fit is given: :class:`~fmbrdf_mi.fit.inputs.observations.Observation` and the loaders of every input
-kind (no argument parsing)."""
+"""What a fit is given: :class:`~fmbrdf_mi.fit.inputs.observations.Observation` and the loaders of its inputs."""

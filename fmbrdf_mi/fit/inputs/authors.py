@@ -1,23 +1,6 @@
-"""The captured-data layout of the paper's authors (kyotovision-public/fmbrdf); entry :func:`read_object`.
-
-Per object directory ``OBJ/``:
-
-=================================  ===========================================================
-``calibration/L.txt``              one light direction per image, comma-separated x,y,z (towards the light)
-``calibration/vpL_img.npy``        (h, w, 3) per-super-pixel viewing rays, camera -> surface; v = -vpL
-``calibration/IntrinsicL.npy``     3 x 3 camera matrix (raw-sensor pixels), used when vpL_img.npy is missing
-``calibration/intensities.npy``    optional (K,) light power per image (relative: divided by the max)
-``normal/normal_GT.npy``           (h, w, 3) unit normals
-``image/img_ud/*.png``             K undistorted 16-bit raw polarisation mosaics (2h, 2w), sorted by name =
-                                   image index; 2 x 2 layout 90 45 / 135 0 (IMX250MZR: this package's default)
-``mask_ud.npy``                    (2h, 2w) object mask (or ``mask.npy`` / ``mask.png``, either resolution)
-=================================  ===========================================================
-
-Their vectors are in OpenCV camera axes (x right, y down, z into the scene); directions convert as
-(x, y, z) -> (x, -y, -z).  Their fitting scripts use -AoLP, i.e. the angle in the OpenCV image frame
-(S2 theirs = -S2 ours); the raw mosaics are read here directly, so nothing is negated.  The fit's own
-pixel selection applies, not their scripts'.
-"""
+"""The captured-data layout of the paper's authors (kyotovision-public/fmbrdf), read by :func:`read_object`
+(docs/howto/fit-joint.md).  Their vectors are in OpenCV camera axes, (x, y, z) -> (x, -y, -z) here; their scripts'
+-AoLP is S2 in the OpenCV image frame, and the raw mosaics are read here directly, so nothing is negated."""
 from __future__ import annotations
 
 import glob
@@ -35,8 +18,7 @@ AUTHORS_LAYOUT = ((90, 45), (135, 0))
 
 
 def cv_to_ours(v):
-    """Directions (..., 3) in OpenCV camera axes (x right, y down, z forward) -> this package's camera frame
-    (x right, y up, z towards the camera)."""
+    """Directions (..., 3) in OpenCV camera axes (x right, y down, z forward) -> ours (x right, y up, z to camera)."""
     return np.asarray(v, dtype=np.float64) * np.array([1.0, -1.0, -1.0])
 
 
@@ -62,11 +44,8 @@ def rays_from_intrinsics(K, shape, path=None):
 
 def read_object(root, *, mask=None, holdout=(), conversion_gain=None, read_noise=None, white_level=65535.0,
                 dark_level=None, black_level=0.0, demosaic="bilinear", footprint="auto"):
-    """(specs, info) for the object in ``root``: one :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` per image.
-
-    ``holdout``: image indices kept out of the fit (relighting check).  ``info``: what was read, and the
-    pixels left out of the mask for a non-unit ground-truth normal.
-    """
+    """(specs, info) for the object in ``root``: an :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` per image
+    (``holdout``: indices kept out of the fit) and what was read, with the mask's pixels of non-unit normals."""
     root = os.fspath(root)
     if not os.path.isdir(root):
         raise InputError(f"authors' object directory {root}: " + ("not a directory" if os.path.exists(root)

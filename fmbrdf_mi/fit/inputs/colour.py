@@ -29,9 +29,8 @@ def colour_sidecar(inputs):
 
 def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic",
                     fov=None):
-    """(normals, mask, view_dirs, exact geometry or None, sphere record or None) on the period grid ``shape``:
-    the user's (:func:`~fmbrdf_mi.fit.inputs.files.user_geometry`), else the sidecar's built-in sphere (exact
-    when orthographic, the render's maps pooled per period when perspective)."""
+    """(normals, mask, view_dirs, exact geometry or None, sphere record or None) on the period grid ``shape``: the
+    user's, else the sidecar's built-in sphere (exact when orthographic, else the render's maps pooled per period)."""
     params = side.get("parameters") if side.get("scene") == "builtin:sphere" else None
     if normals is not None or sphere is not None or params is None:
         n, m, v, exact, sph = user_geometry(shape, 4, normals=normals, mask=mask, view=view, sphere=sphere,
@@ -41,7 +40,7 @@ def colour_geometry(shape, side, *, normals=None, mask=None, view=None, sphere=N
     w, h = int(params["width"]), int(params["height"])
     if (h, w) != (4 * shape[0], 4 * shape[1]):
         raise InputError(f"{side['path']}: describes a {w}x{h} render, the mosaic is {4 * shape[1]}x{4 * shape[0]}")
-    if params["camera"] == "orthographic":   # the built-in scene's unit sphere, exact
+    if params["camera"] == "orthographic":
         exact = builtin_sphere_geometry(params, shape)
         n, m, v = sphere_normals(shape, exact.centre, exact.radius)
         return n, m, v, exact, {"centre": list(exact.centre), "radius": exact.radius,
@@ -57,11 +56,8 @@ ColourInput = collections.namedtuple("ColourInput", "obs samples camera noise tr
 def read_colour_input(path, *, normals=None, mask=None, view=None, sphere=None, camera="orthographic", fov=None,
                       light=None, irradiance=None, power=1.0, black_level=None, white_level=None,
                       conversion_gain=None, read_noise=None, erode=2):
-    """A :class:`ColourInput` of the raw colour mosaic ``path`` (its capture sidecar gives the camera).
-
-    Light and irradiance default to the sidecar's scene; the irradiance is multiplied by ``power``.
-    ``meta`` holds ``settings``, ``sphere``, ``sidecar`` and ``truth`` as the mono path's do.
-    """
+    """A :class:`ColourInput` of the raw colour mosaic ``path``: its sidecar gives the camera, and the light and
+    irradiance not given; the irradiance is multiplied by ``power``."""
     path = os.fspath(path)
     side = colour_sidecar(path)
     if side is None:
@@ -118,8 +114,7 @@ def is_colour(specs):
 
 
 def read_colour_inputs(specs, erode):
-    """:class:`ColourInput` s of a joint fit's colour images (options a colour mosaic does not take refused,
-    one camera for all)."""
+    """:class:`ColourInput` s of a joint fit's colour images, of one camera and only the options a mosaic takes."""
     out = []
     for k, s in enumerate(specs):
         opts = {x: v for x, v in s.options.items() if not (x in _UNSET and v == _UNSET[x])}

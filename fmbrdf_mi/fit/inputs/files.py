@@ -20,8 +20,7 @@ from fmbrdf_mi.fit.inputs.parse import check_number, check_render_parameters, pa
 
 
 def check_image_options(values, where=None, name=str):
-    """The image options among ``values`` checked (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`),
-    else InputError naming ``where`` and ``name(key)`` (how the user wrote the key)."""
+    """The image options among ``values`` checked, else InputError naming ``where`` and ``name(key)`` as written."""
     label = (lambda k: f"{where}: {name(k)}") if where else name
     for k, v in values.items():
         if k == "sphere":
@@ -34,8 +33,7 @@ def check_image_options(values, where=None, name=str):
 
 
 def capture_sidecar(path):
-    """The capture sidecar of the raw image ``path`` (:func:`fmbrdf_mi.sensor.camera.read_sidecar`), or None
-    (none beside it; not one file; a Stokes EXR, whose metadata are its own)."""
+    """The capture sidecar of the raw image ``path``, or None (none; not one file; an EXR: its metadata are its own)."""
     if not isinstance(path, (str, os.PathLike)) or os.fspath(path).lower().endswith(".exr"):
         return None
     try:
@@ -57,13 +55,9 @@ def _builtin_sphere(meta):
 
 
 def builtin_sphere_geometry(p, shape=None):
-    """The exact :class:`~fmbrdf_mi.geometry.SphereGeometry` of the built-in scene's unit sphere (render
-    parameters ``p``) on a grid of ``shape`` (rows, cols) covering the rendered image (default: the image itself; a raw
-    mosaic's super-pixel grid is half of it).
-
-    The scene: :func:`fmbrdf_mi.scene.sphere_scene`.  A raw mosaic's samples sit off the super-pixel
-    centres, and interpolating the pooled normal map errs near the silhouette enough to bias kappa.
-    """
+    """The exact :class:`~fmbrdf_mi.geometry.SphereGeometry` of :func:`fmbrdf_mi.scene.sphere_scene`'s sphere (render
+    parameters ``p``) on a grid ``shape`` (rows, cols; default the image's) covering the image: a raw mosaic's
+    samples sit off its super-pixel centres, where the pooled normal map, interpolated, would bias kappa."""
     shape = (int(p["height"]), int(p["width"])) if shape is None else tuple(shape)
     camera, fov, distance = p["camera"], float(p["fov"]), float(p["distance"])
     if camera == "orthographic":
@@ -109,7 +103,7 @@ def user_geometry(shape, cell=2, *, normals=None, mask=None, view=None, sphere=N
             raise InputError("normals: give the object mask too (--mask, .npy or .png, non-zero = object)")
         n, m = read_vectors(normals, "normals"), read_mask(mask)
         v = read_vectors(view, "view") if view is not None else G.pixel_rays(n.shape[:2], *check_camera(camera, fov))
-        if n.shape[:2] == raw:  # geometry at raw-sensor resolution
+        if n.shape[:2] == raw:
             n, m, v = downsample_geometry(n, m, v, cell)
         for name, a in (("normals", n), ("mask", m), ("view", v)):
             if a.shape[:2] != tuple(shape):
@@ -140,12 +134,9 @@ def build_observation(inputs, *, normals=None, mask=None, view=None, sphere=None
                       fov=None, light=None, irradiance=None, layout=mosaic.IMX250MZR_LAYOUT, black_level=0.0,
                       channel="mean", geometry=None, demosaic="bilinear", conversion_gain=None,
                       read_noise=None, footprint="auto", white_level=None, dark_level=None):
-    """An :class:`Observation` from files (see :func:`fit_files` for the options).
-
-    ``geometry``: (normals, mask, view_dirs) reused from another observation of the same object.
-    A raw mosaic's capture sidecar (:func:`fmbrdf_mi.sensor.camera.read_sidecar`) supplies the sensor
-    settings not given, and the scene's geometry and light.  ``meta["settings"]`` records what was used.
-    """
+    """An :class:`Observation` from files (options: :func:`~fmbrdf_mi.fit.outputs.single.fit_files`'s);
+    ``geometry``: (normals, mask, view_dirs) of another observation of the object.  A raw mosaic's capture sidecar
+    supplies the sensor settings not given and the scene; ``meta["settings"]`` records what was used."""
     check_image_options(locals())     # the keywords, before anything is read
     sidecar = capture_sidecar(inputs)
     if sidecar is not None:

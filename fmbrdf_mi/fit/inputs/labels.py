@@ -1,9 +1,6 @@
-"""Label images of a fit of several materials (``fmbrdf-mi fit --materials LABELS``).
-
-One integer per pixel, 0 .. M-1 the material; a pixel not fitted is < 0 in a ``.npy`` (integer values),
-255 / 65535 in an 8- / 16-bit one-channel ``.png`` (grey or palette indices).  The size is the fit's pixel
-grid, or a raw mosaic's sensor grid (:func:`fmbrdf_mi.fit.evaluate.materials.check_labels`).
-"""
+"""Label images of a fit of several materials (``--materials LABELS``): one integer per pixel, 0 .. M-1 the
+material, not fitted < 0 in a ``.npy`` and 255 / 65535 in an 8- / 16-bit one-channel ``.png``; on the fit's pixel
+grid or a raw mosaic's sensor grid (:func:`fmbrdf_mi.fit.evaluate.materials.check_labels`)."""
 from __future__ import annotations
 
 import os
@@ -18,8 +15,7 @@ PNG_NOT_FITTED = {8: 255, 16: 65535}
 
 
 def read_labels(path, what="--materials"):
-    """The label image in ``path`` as int64 (H, W), pixels not fitted -1 (module docstring); InputError in
-    one line naming ``what`` and the file otherwise."""
+    """The label image in ``path`` as int64 (H, W), -1 not fitted; else InputError naming ``what`` and the file."""
     path = check_file(os.fspath(path), what)
     ext, name = os.path.splitext(path)[1].lower(), f"{what} {path}"
     if ext == ".npy":
@@ -48,9 +44,8 @@ def read_labels(path, what="--materials"):
 
 
 def read_uv_labels(path, what="--materials"):
-    """A uv label image of several materials on one shape (``render --materials``, the dataset's
-    ``shape.labels``): :func:`read_labels` with every texel a material 0 .. M-1, M <= 255 (the label
-    PNGs written are 8-bit); InputError in one line naming ``what`` otherwise."""
+    """A shape's uv label image (``render --materials``, the dataset's ``shape.labels``): :func:`read_labels`
+    with every texel a material, M <= 255 (the label PNGs written are 8-bit)."""
     labels = read_labels(path, what)
     if labels.min() < 0:
         raise InputError(f"{what} {os.fspath(path)}: every texel of the shape's uv needs a material (0 .. M-1); "

@@ -15,8 +15,7 @@ from fmbrdf_mi.fit.inputs.parse import check_keys, parse_layout, parse_vector
 #: An image's keys that name files.
 PATH_KEYS = ("input", "normals", "mask", "view")
 
-#: The keys of a manifest's image entry: its own and the image options
-#: (:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`, which [defaults] may give).
+#: The keys of a manifest's image entry: its own and :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`.
 ENTRY_KEYS = ("input", "light", "power", "holdout", "name") + IMAGE_KEYS
 
 
@@ -25,8 +24,7 @@ def _is_path(v):
 
 
 def check_options(opts, where):
-    """The input options of one image (or of [defaults]) checked, a layout list as text (``"90,45,135,0"``);
-    InputError naming ``where`` and the key."""
+    """One image's (or [defaults]') options checked, a layout as text ``"90,45,135,0"``; InputError names ``where``."""
     check_image_options(opts, where)
     out = dict(opts)
     for key, v in opts.items():
@@ -42,11 +40,9 @@ def check_options(opts, where):
 
 
 def image_spec(input, light=None, power=1.0, holdout=False, name=None, options=None, *, where, at=""):
-    """An :class:`ImageSpec` checked: ``input`` (a file name or a list of one or four: angle images 0, 45, 90,
-    135), ``light`` (three numbers, a list or ``"x,y,z"``; None: the input's metadata's), ``power`` (a positive
-    number), ``holdout`` (true or false), ``name`` (text or None) and ``options`` (a table of
-    :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`: :func:`check_options`); InputError naming ``where``
-    (``at``: what follows it for the options)."""
+    """An :class:`ImageSpec` checked: ``input`` a file or a list of one or four (angle images 0, 45, 90, 135),
+    ``light`` ``"x,y,z"`` or three numbers (None: the input's metadata's), ``power`` > 0, ``options`` a table of
+    :data:`~fmbrdf_mi.fit.inputs.options.IMAGE_KEYS`; InputError naming ``where`` (``at``: after it, the options)."""
     if not (_is_path(input) or (isinstance(input, list) and len(input) in (1, 4) and all(map(_is_path, input)))):
         raise InputError(f"{where}: input: expected a file name or a list of four angle-image file names, got "
                          f"{input!r}")

@@ -1,5 +1,4 @@
-"""Normal maps of K >= 3 images of one view (the normal refinement's, :mod:`fmbrdf_mi.fit.api.normal_joint`):
-the check that the images share the view, the photometric-stereo start map, angular errors."""
+"""Normal maps of K >= 3 images of one view: the shared-view check, the photometric-stereo start, angular errors."""
 from __future__ import annotations
 
 import numpy as np
@@ -34,11 +33,8 @@ def angular_error_deg(n, n_ref, mask=None):
 
 
 def photometric_stereo(observations, mask=None):
-    """Lambertian photometric stereo (Woodham 1980) from K >= 3 images of one view: (H, W, 3) unit normals.
-
-    Per pixel, the least-squares b of S0_k / E_k = l_k . b; n = b / |b|, flipped towards the camera.
-    Specular highlights bias it; the refinement corrects that.
-    """
+    """Lambertian photometric stereo (Woodham 1980) from K >= 3 images of one view: (H, W, 3) unit normals b / |b|,
+    b per pixel the least-squares solution of S0_k / E_k = l_k . b, flipped to face the camera; highlights bias it."""
     obs = check_observations(observations, "photometric stereo", least=0)
     if len(obs) < 3:
         raise InputError(f"photometric stereo: needs K >= 3 images, got {len(obs)}")

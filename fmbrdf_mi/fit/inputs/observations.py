@@ -1,10 +1,7 @@
 """Inputs of a fit (:class:`Observation`): polarimetric image, geometry, light; loading and validation.
-
-Conventions (those of :mod:`fmbrdf_mi.stokes_io`): camera frame x right, y up, z towards the camera;
-images indexed ``[row, column]``, a pixel's centre at ``(x, y) = (column + 0.5, row + 0.5)`` (y down);
-normals and view directions (surface towards camera) are (H, W, 3) unit vectors in the camera frame; the
-light direction points from the surface towards the directional light.
-"""
+Conventions (:mod:`fmbrdf_mi.stokes_io`'s): camera frame x right, y up, z towards the camera; images indexed
+``[row, column]``, a pixel's centre at ``(x, y) = (column + 0.5, row + 0.5)``; normals and view directions (surface
+to camera) are (H, W, 3) unit vectors; the light direction points from the surface towards the light."""
 from __future__ import annotations
 
 import dataclasses
@@ -24,11 +21,9 @@ UNIT_TOL = 1e-3
 
 @dataclasses.dataclass
 class Observation:
-    """One polarimetric image of an object of known geometry under a directional light.
-
-    ``stokes``: (3, H, W) S0, S1, S2 of one channel; ``mask``: the object pixels; ``irradiance``: in image
-    units (1 if unknown: the albedos absorb it); ``meta``: what the source said (e.g. true parameters).
-    """
+    """One polarimetric image of an object of known geometry under a directional light: ``stokes`` (3, H, W) S0, S1,
+    S2 of one channel, ``mask`` the object pixels, ``irradiance`` in image units (1 if unknown: the albedos absorb
+    it), ``meta`` what the source said (e.g. true parameters)."""
 
     stokes: np.ndarray
     mask: np.ndarray
@@ -39,8 +34,7 @@ class Observation:
     meta: dict = dataclasses.field(default_factory=dict)
     #: per-pixel variance of S1 (= that of S2), (H, W), if known: the fit models the DoLP's noise bias
     lin_variance: np.ndarray = None
-    #: what a pixel integrates over: (offsets (K, 2) in pixels, dx right / dy down, weights (K,));
-    #: None: the pixel centre (see fmbrdf_mi.sensor.noise.demosaic_footprint, box_footprint)
+    #: what a pixel integrates over: (offsets (K, 2) in pixels, dx right / dy down, weights (K,)); None: its centre
     footprint: tuple = None
     #: the camera's samples (:class:`fmbrdf_mi.sensor.samples.Samples`); None: derived from ``stokes``
     samples: object = None
@@ -57,11 +51,9 @@ class Observation:
         return self.mask.shape
 
     def sample_geometry(self, idx, footprint="own"):
-        """Normals and view directions (n K, 3) over the footprint of the pixels ``idx``, and the weights (K,).
-
-        ``footprint``: (offsets, weights) instead of the observation's own (None: pixel centres, K = 1).
-        Without ``geometry`` the maps are interpolated bilinearly and renormalised (erode the mask border).
-        """
+        """Normals and view directions (n K, 3) over the footprint of the pixels ``idx``, and the weights (K,);
+        ``footprint``: (offsets, weights) instead of the own (None: pixel centres, K = 1).  Without ``geometry`` the
+        maps are interpolated bilinearly and renormalised (erode the mask border)."""
         idx = np.asarray(idx)
         fp = self.footprint if isinstance(footprint, str) else footprint
         if fp is None:
@@ -240,14 +232,9 @@ def check_samples(a, name):
 
 def load_polarisation(paths, *, layout=mosaic.IMX250MZR_LAYOUT, channel="mean", black_level=0.0,
                       demosaic="bilinear"):
-    """Read a polarimetric image; returns ``(stokes (3, H, W) float64, meta dict)``.
-
-    ``paths``: a Stokes ``.exr`` (:func:`fmbrdf_mi.stokes_io.read_stokes_exr`, its metadata as ``meta``);
-    a raw quad-Bayer mosaic (2-D ``.npy``, 16-bit ``.png``/``.tif``) split with ``layout`` at half
-    resolution; or four polariser-angle images, 0, 45, 90, 135 degrees (a (4, H, W) ``.npy`` or four
-    files).  ``black_level`` is subtracted from raw and angle images; ``channel`` (``R``, ``G``, ``B``)
-    picks a channel of an RGB Stokes EXR only.
-    """
+    """(stokes (3, H, W) float64, meta) of ``paths``: a Stokes ``.exr`` (its metadata as ``meta``), a raw mosaic
+    (2-D ``.npy``, 16-bit ``.png`` / ``.tif``) split with ``layout`` at half resolution, or polariser-angle images 0,
+    45, 90, 135 (a (4, H, W) ``.npy`` or four files); ``channel`` picks a channel of an RGB Stokes EXR."""
     def one_channel(what):
         if channel not in (None, "mean"):
             raise InputError(f"--channel {channel}: picks a colour channel of an RGB Stokes EXR; {what} has one "
@@ -332,12 +319,9 @@ def check_camera(camera, fov):
 
 
 def find_sphere(mask):
-    """Centre (x, y) and radius in pixels of the disc in ``mask`` (least-squares circle through its outline).
-
-    A pixel is in the disc when its centre is, so the midpoint between a mask pixel and an outside
-    4-neighbour is an unbiased sample of the outline; a Kasa circle is fitted to those midpoints
-    (``tools/check_accuracy.py --find-sphere``).  Segments to the image border are skipped (a sphere cut by the frame).
-    """
+    """Centre (x, y) and radius in pixels of the disc in ``mask``: a Kasa circle through the midpoints between mask
+    pixels and their outside 4-neighbours (unbiased samples of the outline, as a pixel is in the disc when its
+    centre is); the image border is no outline (a sphere cut by the frame)."""
     m = read_mask(mask)
     if m.sum() < 12:
         raise InputError(f"mask: {int(m.sum())} pixels are too few to find a sphere in (need >= 12)")

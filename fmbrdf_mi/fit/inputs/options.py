@@ -1,8 +1,5 @@
-"""The option schema's row type :class:`Option` with its value check, and the options of one image.
-
-:data:`IMAGE_OPTIONS`: the keywords of :func:`~fmbrdf_mi.fit.inputs.files.build_observation` and the keys
-of a manifest image; the rest of the schema is :mod:`fmbrdf_mi.fit.api.options`.
-"""
+"""The option schema's row type :class:`Option` with its value check, and :data:`IMAGE_OPTIONS`, the options of one
+image; the rest of the schema is :mod:`fmbrdf_mi.fit.api.options`."""
 from __future__ import annotations
 
 import dataclasses
@@ -20,19 +17,13 @@ RECORDS = ("single", "colour", "joint")
 
 @dataclasses.dataclass(frozen=True)
 class Option:
-    """One option, declared once.
-
-    ``kind``: ``"int"`` / ``"number"`` (a real in [``lo``, ``hi``], ``lo_open`` / ``hi_open`` excluding the
-    end), ``"choice"`` (one of ``choices``), ``"bool"``, or None (a value checked by the relations of
-    :func:`fmbrdf_mi.fit.api.options.check_fit_options`: a table, a file name, a vector).  ``fit``: a field of
-    :class:`~fmbrdf_mi.fit.api.options.FitOptions`.  ``records``: the fit.json records that keep it
-    (:data:`RECORDS`), ``if_given`` those of them that keep it only when it is given.  ``refused_by``: the
-    modes of ``fmbrdf-mi fit`` that refuse it (:data:`fmbrdf_mi.fit.cli.command.REFUSED`).  ``flag``: its
-    command-line flag (None: not on the command line), ``group`` its help section, ``cli`` further
-    :meth:`argparse.ArgumentParser.add_argument` keywords.  ``parse``: text form -> value
-    (``"kappa=0"`` -> ``{"kappa": 0.0}``).  ``many``: a value may be a list of up to this many
-    (on the command line: comma-separated text, parsed before the checks and the record).
-    """
+    """One option, declared once.  ``kind``: ``"int"`` / ``"number"`` (in [``lo``, ``hi``], ``lo_open`` /
+    ``hi_open`` excluding the end), ``"choice"`` (of ``choices``), ``"bool"``, or None (checked by
+    :func:`fmbrdf_mi.fit.api.options.check_fit_options`).  ``fit``: a :class:`~fmbrdf_mi.fit.api.options.FitOptions`
+    field.  ``records``: the fit.json records keeping it (:data:`RECORDS`; ``if_given``: only when given).
+    ``refused_by``: the modes refusing it (:data:`fmbrdf_mi.fit.cli.command.REFUSED`).  ``flag`` (None: none),
+    ``group``, ``cli``: its flag, help section and further ``add_argument`` keywords.  ``parse``: text -> value
+    (``"kappa=0"`` -> ``{"kappa": 0.0}``).  ``many``: a value may be a list of up to this many (comma-separated)."""
 
     name: str
     default: object = None
@@ -62,8 +53,7 @@ class Option:
         return f"{left}{lo}, {hi}{right}"
 
     def split(self, text, name=None):
-        """A many-valued option's comma-separated ``text`` -> one number or a tuple of up to ``many`` (its range
-        checked by :meth:`check`); a value that is not text is returned as it is."""
+        """A many-valued option's comma-separated ``text`` -> one number or a tuple of up to ``many``; else as is."""
         if not isinstance(text, str) or self.many < 2:
             return text
         try:
@@ -76,8 +66,8 @@ class Option:
         return vals[0] if len(vals) == 1 else vals
 
     def check(self, value, name=None):
-        """``value`` checked against the option's kind and range (None passes), else InputError naming
-        ``name`` (default: the option's name) and what is valid; returns the value (a number as int/float)."""
+        """``value`` checked against the kind and range (None passes), a number as int / float; else InputError naming
+        ``name`` (default: the option's) and what is valid."""
         name = name or self.name
         if value is None or self.kind is None:
             return value

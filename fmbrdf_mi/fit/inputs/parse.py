@@ -1,5 +1,4 @@
-"""Values given as text (command line, manifests): vectors, bounds, start values, fixed parameters,
-polariser layouts."""
+"""Values given as text (command line, manifests): vectors, spheres, bounds, start and fixed values, layouts."""
 from __future__ import annotations
 
 import math
@@ -44,8 +43,7 @@ def parse_sphere(value, name="sphere"):
 
 
 def check_number(name, value, *, lo=None, lo_incl=True, hi=None, hi_incl=True):
-    """``value`` if it is a finite real number in the range (not text, a list or a bool; None passes),
-    else InputError naming ``name``."""
+    """``value`` if a finite real number in the range (not text, a list or a bool; None passes), else InputError."""
     return Option(name, kind="number", lo=lo, lo_open=not lo_incl, hi=hi, hi_open=not hi_incl).check(value)
 
 
@@ -84,14 +82,12 @@ def parse_init(text, name="--init"):
 
 
 def parse_fixed(items, name="--fix"):
-    """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (shape parameters
-    held fixed)."""
+    """``["kappa=0", "eta=1.5"]`` or ``"kappa=0,eta=1.5"`` -> {"kappa": 0.0, "eta": 1.5} (parameters held fixed)."""
     return parse_pairs(items, name, "NAME=VALUE", "kappa=0")
 
 
 def parse_layout(value, name="layout"):
-    """``"90,45,135,0"`` or four whole angles in degrees, flat or 2x2 (row-major, top row first) ->
-    ((90, 45), (135, 0))."""
+    """``"90,45,135,0"`` or four whole angles in degrees, flat or 2x2 (row-major) -> ((90, 45), (135, 0))."""
     flat = value
     if isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(r, (list, tuple)) for r in value):
         flat = [a for r in value for a in r]

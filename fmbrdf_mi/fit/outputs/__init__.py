@@ -1,2 +1,1 @@
-"""What fits write: the one writer, ``reproduce`` records and reruns, plots, stdout summaries, the
-fit-and-write functions."""
+"""What fits write: the fit-and-write functions, ``reproduce`` records and reruns, figures, stdout summaries."""

@@ -1,10 +1,5 @@
-"""``fmbrdf-mi fit`` on colour polarisation mosaics (capture sidecars with ``"cfa"``): one, or several of one object.
-
-:func:`fit_colour_files` fits one mosaic, :func:`fit_colour_images` several (held-out ones relit with the
-estimates), both by :func:`fmbrdf_mi.fit.api.colour.fit_colour` as one :class:`ColourFit` job, writing fit.json,
-``colour_fit[_NAME].png`` / ``relight_NAME.png`` and, with ``albedo="per-pixel"``, the albedo maps (R, G, B).
-Geometry lives on the grid of 4x4 periods (``--sphere`` in period units); docs/howto/fit-colour.md has the rest.
-"""
+"""``fmbrdf-mi fit`` on colour polarisation mosaics: :func:`fit_colour_files` (one), :func:`fit_colour_images` (several
+of one object), by :func:`fmbrdf_mi.fit.api.colour.fit_colour`; geometry on the grid of 4x4 periods."""
 from __future__ import annotations
 
 import os
@@ -66,17 +61,15 @@ def sample_rmse(smp, pred, sel):
 
 
 def fit_colour_files(inputs, out, *, force=False, progress=True, command=None, **options):
-    """Fit one colour mosaic (module docstring); returns the dict written to fit.json.  ``options``: the colour
-    record's options of :data:`fmbrdf_mi.fit.api.options.OPTIONS` (those not given take their defaults)."""
+    """Fit one colour mosaic; returns fit.json's dict.  ``options``: the colour record's (defaults if not given)."""
     a = arguments_of("colour", dict(options, inputs=inputs), "fit_colour_files()")
     return ColourFit(None, out, a, force=force, progress=progress, command=command).run()
 
 
 def fit_colour_images(specs, out, *, force=False, progress=True, command=None, extra=None, reproduce=None,
                       **options):
-    """Joint colour fit of the non-held-out images of ``specs``; returns the dict written to fit.json.
-    ``options``: the joint record's (``max_pixels`` default None: every period); those the colour record does not
-    keep are refused unless at their default, :data:`IGNORED` ignored, :data:`TAKES` limits some values."""
+    """Joint colour fit of the non-held-out images of ``specs``; returns fit.json's dict.  ``options``: the joint
+    record's (``max_pixels`` default None: every period) less those the colour fit refuses or ignores."""
     a = arguments_of("joint", {"max_pixels": None, **options}, "fit_colour_images()")
     refused = [f"{k} {a[k]!r} ({flag(k)}; expected {' or '.join(map(repr, TAKES[k]))})" for k in TAKES
                if a[k] not in TAKES[k]] + [f"{k} ({flag(k)})" for k in record_keys("joint")
@@ -90,8 +83,7 @@ def fit_colour_images(specs, out, *, force=False, progress=True, command=None, e
 
 
 class ColourFit(FitJob):
-    """A colour fit: of one mosaic (``specs`` None; ``a``: :func:`fit_colour_files`' arguments) or of the images
-    ``specs`` (``a``: :func:`fit_colour_images`')."""
+    """A colour fit of one mosaic (``specs`` None) or of the images ``specs``; ``a``: the entry function's arguments."""
 
     def __init__(self, specs, out, a, *, extra=None, reproduce=None, **kw):
         super().__init__(out, **kw)

@@ -1,11 +1,6 @@
-"""The one skeleton of every fit the command writes: :class:`FitJob`, whose subclasses are the modes of
-``fmbrdf-mi fit``, and its file handling (output names, overwrite refusal, atomic ``fit.json``).
-
-:meth:`FitJob.run` checks the options, locks ``out``, refuses existing outputs without ``force``, reads, fits
-and writes into a staging directory whose files replace the old ones (``fit.json`` last, stale outputs
-removed) only when all are written: a failed or interrupted run leaves ``out`` as it was.  Past a few seconds
-of writing, a line per file written gives the time left (:class:`~fmbrdf_mi._paths.StageProgress`).
-"""
+"""The skeleton of every mode of ``fmbrdf-mi fit`` (:class:`FitJob`) and the names of the files fits write.
+:meth:`FitJob.run` writes into a staging directory whose files replace the old ones (``fit.json`` last, stale
+outputs removed) only once all are written: a failed or interrupted run leaves ``out`` as it was."""
 from __future__ import annotations
 
 import json
@@ -31,10 +26,9 @@ MATERIAL_OUTPUTS = ("materials.png",)
 
 
 class FitJob:
-    """One run of a fit that writes its outputs into ``out`` (module docstring).  Subclasses fill in the steps:
-    :meth:`check` the options (before any file is read), :meth:`files` (the output paths, ``fit.json``
-    first), :meth:`read` the inputs, :meth:`fit`, :meth:`report` (the dict written to ``fit.json``) and
-    :meth:`write` the other outputs, each passed to :meth:`wrote` (``report`` may grow)."""
+    """One run of a fit into ``out``.  Subclasses fill in :meth:`check` (the options, before any file is read),
+    :meth:`files` (``fit.json`` first), :meth:`read`, :meth:`fit`, :meth:`report` (fit.json's dict) and
+    :meth:`write` (the other outputs, each passed to :meth:`wrote`; ``report`` may grow)."""
 
     def __init__(self, out, *, force=False, progress=True, command=None):
         self.out, self.force, self.progress, self.command = out, force, progress, command
@@ -50,7 +44,6 @@ class FitJob:
         pass
 
     def wrote(self, path):
-        """The output ``path`` is written: a step of the writing's progress."""
         if self.bar is not None:
             self.bar.step(os.path.basename(path))
 
@@ -81,8 +74,7 @@ class FitJob:
 
 
 def stale_outputs(out, paths):
-    """The files of the earlier fit in ``out`` (:data:`FIXED_OUTPUTS`, and :data:`PER_IMAGE_OUTPUTS` of the
-    images its fit.json lists) that a new fit writing ``paths`` does not write; none without a fit.json."""
+    """The outputs of the earlier fit in ``out`` (by its fit.json) that a fit writing ``paths`` does not replace."""
     record = os.path.join(out, "fit.json")
     if not os.path.isfile(record):
         return []
@@ -142,8 +134,7 @@ def joint_outputs(out, names, holdout, albedo="shared", materials=None, colour=F
 
 
 def image_entries(names, specs, observations):
-    """fit.json's ``images`` of a joint fit: each image's name, input file(s), light, irradiance, given power and
-    held-out flag."""
+    """fit.json's ``images`` of a joint fit."""
     return [{"name": n, "input": s.input if isinstance(s.input, (str, list)) else None,
              "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance, "power": given_power(s, o),
              "holdout": s.holdout} for n, s, o in zip(names, specs, observations)]

@@ -1,7 +1,5 @@
-"""Several images of one object from files: :func:`fit_images` fits a manifest's images jointly
-(:func:`fmbrdf_mi.fit.api.fitting.fit_joint`) and writes fit.json and the figures per image; :func:`run_images` is the
-command's entry.  The manifest's format: docs/howto/fit-joint.md.
-"""
+"""Several images of one object from files: :func:`fit_images` fits them jointly and writes fit.json and the
+figures per image; :func:`run_images` is the command's entry (the manifest's format: docs/howto/fit-joint.md)."""
 from __future__ import annotations
 
 import os
@@ -31,7 +29,7 @@ TAKES = tuple(dict.fromkeys(k for k in record_keys("joint") + FIT_NAMES if k not
 
 def check_distinct(specs):
     """InputError unless the fitted images of ``specs`` are distinct: the same file (path or SHA-256 content)
-    under the same light would count its pixels twice.  A light not given is the input's own."""
+    under the same light (not given: the input's own) would count its pixels twice."""
     names, seen = image_names(specs), {}
     for k, s in enumerate(specs):
         paths = [os.fspath(p) for p in (s.input if isinstance(s.input, (list, tuple)) else [s.input])
@@ -56,13 +54,10 @@ def check_distinct(specs):
 
 def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, progress=True, command=None,
                observations=None, extra=None, reproduce=None, **fit_kw):
-    """Joint fit of the non-held-out images of ``specs``, relighting check on the held-out ones; write outputs.
+    """Joint fit of the non-held-out images of ``specs``, the held-out ones relit; writes the outputs to ``out``.
 
-    ``fit_kw``: :class:`~fmbrdf_mi.fit.api.options.FitOptions` fields (loss, fixed, bounds, init, max_pixels,
-    ...).  ``reproduce``: called with the observations, returns fit.json's ``reproduce`` block (the command's:
-    :func:`fmbrdf_mi.fit.outputs.record.joint_block`).  Returns the dict written to fit.json, plus ``outputs``
-    (the files written) and ``wall_s``.
-    """
+    ``fit_kw``: :class:`~fmbrdf_mi.fit.api.options.FitOptions` fields; ``reproduce``: observations -> fit.json's
+    ``reproduce`` block.  Returns fit.json's dict plus ``outputs`` (the files written) and ``wall_s``."""
     return Joint(specs, out, model=model, baselines=baselines, force=force, progress=progress, command=command,
                  observations=observations, extra=extra, reproduce=reproduce, **fit_kw).run()
 
@@ -143,10 +138,9 @@ class Joint(ImageFits):
 
 def run_images(kind, specs, out, fit_kw, *, command, force=False, progress=True, manifest=None, authors=None,
                info=None, rerun_of=None):
-    """The joint fit of ``specs`` as the command (and ``--from``) runs it: :func:`fit_images`, or
-    :func:`~fmbrdf_mi.fit.outputs.colour.fit_colour_images` for colour mosaics, with the ``reproduce`` block
-    of :func:`~fmbrdf_mi.fit.outputs.record.joint_block` (``kind``, ``manifest``, ``authors``, ``info``: how
-    the images were given) and a ``joint`` block (``rerun_of``: the fit.json rerun).  Returns fit.json's dict."""
+    """The joint fit of ``specs`` as the command and ``--from`` run it (colour mosaics:
+    :func:`~fmbrdf_mi.fit.outputs.colour.fit_colour_images`), recording how the images were given (``kind``,
+    ``manifest``, ``authors``, ``info``; :func:`~fmbrdf_mi.fit.outputs.record.joint_block`); returns fit.json's dict."""
     names, colour = image_names(specs), is_colour(specs)
     files = joint_outputs(out, names, [s.holdout for s in specs], fit_kw.get("albedo", "shared"),
                           fit_kw.get("materials"), colour)

@@ -1,9 +1,5 @@
-"""``fmbrdf-mi fit ... --refine-normals``: per-pixel normals and the material from K >= 3 images of one view.
-
-:class:`NormalRefinement` fits the material on a start map (:func:`start_normals`), then material and normals
-jointly (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`), and writes ``normals.npy`` (H, W, 3: x image
-right, y image up, z towards the camera), ``normals.png``, ``normals_change.png`` and ``fit.json``.
-"""
+"""``--refine-normals``: :class:`NormalRefinement` fits the material on a start map, then material and normals
+(:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`); ``normals.npy``: (H, W, 3), x image right, y up, z to camera."""
 from __future__ import annotations
 
 import os

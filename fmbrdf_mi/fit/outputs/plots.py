@@ -26,8 +26,7 @@ def _channel_stokes(values, cam):
 
 
 def plot_colour_fit(smp, pred, sel, cam, path, title=""):
-    """Observed vs fitted intensity and DoLP per channel, cropped to the fitted periods ``sel``; residuals beside,
-    on the cells :func:`shown_pixels` selects in each channel (the object's other cells grey and hatched)."""
+    """Observed | fitted | residual intensity and DoLP per colour channel, cropped to the fitted periods ``sel``."""
     plt = pyplot()
     sel = np.asarray(sel, bool)
     obs_s = _channel_stokes(np.where(sel, smp.values, np.nan), cam)
@@ -56,8 +55,6 @@ def crop_to(mask, pad=0):
 
 
 def save(fig, path, dpi, title="", tight=False, **kw):
-    """The figure titled ``title`` (``kw``: its keywords), laid out (``tight``: cropped to its content), written
-    to ``path`` and closed."""
     if title:
         fig.suptitle(title, **kw)
     if not tight:
@@ -67,7 +64,6 @@ def save(fig, path, dpi, title="", tight=False, **kw):
 
 
 def panel(fig, ax, img, title, fontsize=None, colorbar=True, label="", **kw):
-    """``img`` shown on ``ax`` (``kw``: imshow's keywords) with its ``title``, no axes, a colour bar (``label``)."""
     im = ax.imshow(img, **kw)
     ax.set_title(title, fontsize=fontsize)
     ax.axis("off")
@@ -76,8 +72,7 @@ def panel(fig, ax, img, title, fontsize=None, colorbar=True, label="", **kw):
 
 
 def compare_row(fig, axes, o, p, err, shown, hidden, titles, fontsize):
-    """Observed ``o`` | predicted ``p`` | residual ``err`` on one row of ``axes``: the scales from the ``shown``
-    pixels' 99th percentile, the residual's ``hidden`` pixels grey and hatched."""
+    """Observed | predicted | residual on one row, scaled by the ``shown`` pixels, ``hidden`` ones hatched."""
     vmax, emax = scale_from(o, shown), scale_from(err, shown)
     for c, (img, kw) in enumerate(((o, dict(vmin=0, vmax=vmax, cmap="gray")), (p, dict(vmin=0, vmax=vmax, cmap="gray")),
                                    (err, dict(vmin=-emax, vmax=emax, cmap="RdBu_r")))):
@@ -88,8 +83,7 @@ def compare_row(fig, axes, o, p, err, shown, hidden, titles, fontsize):
 
 
 def model_dolp(stokes, lin_variance=None):
-    """DoLP of a model's Stokes image; given the camera's var(S1) = var(S2) (``lin_variance``), the DoLP it
-    measures on average, which is what the fit compares with a noisy observation."""
+    """DoLP of a model's Stokes image; with ``lin_variance`` = var(S1) = var(S2), the mean a noisy camera measures."""
     if lin_variance is None:
         return stokes_io.dolp(stokes)
     s = np.asarray(stokes, dtype=np.float64)
@@ -107,9 +101,8 @@ def _binned(x, y, bins):
 
 
 def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_points=4000, seed=0):
-    """DoLP against the normal-view angle, intensity against the normal-light angle. ``fitted``: predicted
-    Stokes (3, H, W); ``others``: {label: Stokes} of baselines, drawn as binned means; ``pixels``: flat
-    indices (default: the mask)."""
+    """DoLP against the normal-view angle, intensity against the normal-light angle; ``fitted``: predicted Stokes
+    (3, H, W), ``others``: {label: Stokes} of baselines (binned means), ``pixels``: flat indices (default: mask)."""
     plt = pyplot()
     idx = np.flatnonzero(obs.mask.ravel()) if pixels is None else np.asarray(pixels)
     n = obs.normals.reshape(-1, 3)[idx]
@@ -142,17 +135,16 @@ def plot_profiles(obs, fitted, path, pixels=None, title="", others=None, max_poi
 
 
 def scale_from(values, sel, q=99.0, floor=1e-6):
-    """Colour-scale maximum: the ``q``-th percentile of |values| over the selected (fitted) pixels, so that
-    unfitted unlit and rim pixels do not set the scale."""
+    """Colour-scale maximum: the ``q``-th percentile of |values| on ``sel``, so unfitted pixels do not set the scale."""
     v = np.abs(np.asarray(values, dtype=np.float64)[sel])
     v = v[np.isfinite(v)]
     return max(float(np.percentile(v, q)), floor) if v.size else 1.0
 
 
 def shown_pixels(observed, predicted, mask, pixels=None, dolp_min_intensity=0.02):
-    """The pixels :func:`plot_images`' residual panels show, {"intensity", "DoLP"}: (H, W) bool: the fitted ones
-    (``pixels``, flat indices; default the mask pixels with a finite, non-zero prediction), and for the DoLP
-    those the loss's DoLP term uses (:class:`fmbrdf_mi.fit.objectives.loss.Target`)."""
+    """The pixels the residual panels show, {"intensity", "DoLP"}: (H, W) bool, the fitted ones (``pixels``; default:
+    finite, non-zero predictions in the mask), for the DoLP those the loss's DoLP term keeps
+    (:class:`fmbrdf_mi.fit.objectives.loss.Target`)."""
     m = np.asarray(mask, bool)
     o = np.asarray(observed, dtype=np.float64)
     p = np.asarray(predicted, dtype=np.float64)
@@ -189,8 +181,7 @@ def residuals(observed, predicted, mask, pixels=None, lin_variance=None, dolp_mi
 
 
 def plot_images(observed, predicted, mask, path, title="", label="fitted", lin_variance=None, pixels=None):
-    """Intensity and DoLP: observed | predicted | residual (:func:`residuals`; ``lin_variance``: see
-    :func:`model_dolp`; ``pixels``: see :func:`shown_pixels`), the object's unshown pixels grey and hatched."""
+    """Intensity and DoLP: observed | predicted | residual (:func:`residuals`), the object's unshown pixels hatched."""
     plt = pyplot()
     m = np.asarray(mask, bool)
     res = residuals(observed, predicted, m, pixels, lin_variance)
@@ -222,9 +213,8 @@ def plot_loss_history(histories, path):
 
 
 def plot_albedo_maps(maps, path, title=""):
-    """Per-pixel albedo maps (k_s, k_b, their relative standard errors, where the split is identified), cropped
-    to the fitted pixels, a colour fit's one row per channel; grey scales from the albedos with relative
-    standard error at most 0.5, so poorly determined ones show clipped."""
+    """Per-pixel albedo maps, their relative standard errors and where the split is identified (a row per colour
+    channel); grey scales from the albedos with relative standard error <= 0.5, so poorly determined ones clip."""
     a = {k: np.asarray(maps[k], dtype=np.float64) for k in ("k_s", "k_b", "k_s_se", "k_b_se", "identified")}
     colour = a["k_s"].ndim == 3
     labels = (maps.get("channels") or ["R", "G", "B"]) if colour else [None]
@@ -250,9 +240,8 @@ def plot_albedo_maps(maps, path, title=""):
 
 
 def plot_materials(labels, pixels, block, path, title=""):
-    """The label map of a fit of several materials (``materials.png``): fitted pixels opaque, labelled but
-    unfitted ones faint, unlabelled grey; the legend gives each material's pixels and parameters (``block``:
-    fit.json's ``materials`` block)."""
+    """``materials.png``: fitted pixels opaque, labelled unfitted ones faint, unlabelled grey; the legend from
+    fit.json's ``materials`` block ``block``."""
     plt = pyplot()
     from matplotlib import colors
     from matplotlib.patches import Patch
@@ -278,7 +267,6 @@ def plot_materials(labels, pixels, block, path, title=""):
     save(fig, path, 110)
 
 
-# ---------------------------------------------------------------- normal maps (normal refinement)
 def rgb(n, mask):
     """(H, W, 3) colours (n + 1) / 2 on the mask, white elsewhere (x right = red, y up = green, z = blue)."""
     out = np.ones(n.shape)
@@ -299,7 +287,6 @@ def plot_change(n0, n1, mask, path, gt=None):
     fig, axes = pyplot().subplots(1 + (gt is not None), 3, figsize=(13, 4.2 * (1 + (gt is not None))), squeeze=False)
 
     def angles(ax, img, title, vmax=None):
-        """The angles ``img`` (degrees) on the mask; the colour scale to ``vmax`` (default: the 99th percentile)."""
         vmax = vmax or max(float(np.percentile(img[mask], 99)), 1e-3)
         panel(fig, ax, np.where(mask, img, np.nan)[crop], title, 9, label="degrees", cmap="magma", vmin=0, vmax=vmax,
               interpolation="nearest")

@@ -1,10 +1,6 @@
-"""fit.json's ``reproduce`` block, from which ``fmbrdf-mi fit --from`` reruns a fit
-(:mod:`fmbrdf_mi.fit.outputs.rerun`).
-
-Every block holds ``command``, ``cwd``, ``versions``, the resolved options in ``arguments`` (so a changed
-default does not change the rerun) and the SHA-256 of every file read in ``files_sha256``; see
-:func:`reproduce_block` (single image, colour) and :func:`joint_block` for the rest.
-"""
+"""fit.json's ``reproduce`` block, from which ``fmbrdf-mi fit --from`` reruns a fit: ``command``, ``cwd``,
+``versions``, the resolved options in ``arguments`` (so a changed default does not change the rerun) and the
+SHA-256 of every file read in ``files_sha256``."""
 from __future__ import annotations
 
 import hashlib
@@ -18,7 +14,6 @@ from fmbrdf_mi.sensor.camera import sidecar_path
 
 
 def sha256(path):
-    """The SHA-256 (hex) of the file ``path``, read in chunks."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -45,8 +40,7 @@ FILE_KEYS = ("inputs", "normals", "mask", "view", "relight", "materials")
 
 
 def existing_files(paths, sidecars=True):
-    """The files among ``paths`` (a path or a list) and, with ``sidecars``, the capture sidecar beside each
-    (an EXR has none)."""
+    """The files among ``paths`` (one or a list) and, with ``sidecars``, the capture sidecar beside each but an EXR."""
     out = []
     for p in (paths if isinstance(paths, (list, tuple)) else [paths]):
         if isinstance(p, (str, os.PathLike)) and os.path.isfile(p):
@@ -58,8 +52,7 @@ def existing_files(paths, sidecars=True):
 
 
 def single_files(arguments):
-    """The files a single-image or colour fit with ``arguments`` reads (:data:`FILE_KEYS`), its images' capture
-    sidecars included."""
+    """The files a single-image or colour fit with ``arguments`` reads, its images' capture sidecars included."""
     return [f for k in FILE_KEYS for f in existing_files(arguments.get(k), k in ("inputs", "relight"))]
 
 
@@ -74,8 +67,7 @@ def versions():
 
 
 def command_block(command, arguments=None, files=(), **more):
-    """A ``reproduce`` block: how the fit was run (command line, directory, versions) and, for ``--from``, its
-    ``arguments``, the SHA-256 of the ``files`` it reads and ``more``."""
+    """A ``reproduce`` block: command line, directory, versions; for ``--from``, ``arguments``, ``files``' SHA-256."""
     block = {"command": command, "cwd": os.getcwd()}
     if arguments is not None:
         block.update(arguments=arguments, files_sha256=_hashes(files), **more)
@@ -83,8 +75,7 @@ def command_block(command, arguments=None, files=(), **more):
 
 
 def reproduce_block(arguments, command, meta):
-    """The ``reproduce`` block of a single-image or colour fit, with the input's implied ``settings``,
-    ``sphere`` and ``sidecar`` from its metadata ``meta``."""
+    """The ``reproduce`` block of a single-image or colour fit, with ``settings`` etc. of the input's ``meta``."""
     return command_block(command, arguments, single_files(arguments),
                          **{k: meta.get(k) for k in ("settings", "sphere", "sidecar")})
 
@@ -114,10 +105,8 @@ def _geometry(spec, obs):
 
 
 def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=None, authors=None, info=None):
-    """The ``reproduce`` block of a joint fit, with ``joint``: how the images were given and each image's
-    files, light, power, irradiance, held-out flag, geometry and settings.  ``specs``: the
-    :class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec` s as fitted (paths resolved); ``observations``: built
-    from them; ``authors``: read_object's keywords for ``kind == "authors"``, ``info`` what it read."""
+    """The ``reproduce`` block of a joint fit, with ``joint``: how the images were given, each one's files and
+    settings; ``specs`` as fitted (paths resolved), ``authors``: read_object's keywords, ``info`` what it read."""
     images = []
     for k, (s, n, o) in enumerate(zip(specs, names, observations)):
         if kind == "authors":
@@ -145,8 +134,7 @@ def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=N
 
 
 def read_files(kind, specs, info):
-    """The files a rerun of these images reads: images with their sidecars, geometry files, and for an
-    authors' object its calibration, normal map, mask and images."""
+    """The files a rerun of these images reads (an authors' object: its calibration, normal map, mask, images)."""
     if kind == "authors":
         cal = os.path.join(info["root"], "calibration")
         return [os.path.join(cal, f) for f in ("L.txt", "vpL_img.npy", "IntrinsicL.npy", "intensities.npy")

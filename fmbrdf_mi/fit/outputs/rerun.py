@@ -1,7 +1,5 @@
-"""``fmbrdf-mi fit --from fit.json -o DIR``: :func:`rerun` reruns a recorded fit (single image, colour or joint)
-from its ``reproduce`` block (:mod:`fmbrdf_mi.fit.outputs.record`), refusing in one line a changed or missing
-input and a record the fit does not take.
-"""
+"""``fmbrdf-mi fit --from fit.json -o DIR``: :func:`rerun` reruns a recorded fit from its ``reproduce`` block
+(:mod:`fmbrdf_mi.fit.outputs.record`), refusing a changed or missing input in one line."""
 from __future__ import annotations
 
 import json
@@ -35,8 +33,7 @@ def rerun(path, out, *, force=False, progress=True, command=None):
 
 
 def load(path):
-    """(the fit.json's dict, its ``reproduce`` block), refusing in one line a record that cannot be rerun or whose
-    inputs changed or disappeared."""
+    """(fit.json's dict, its ``reproduce`` block); refuses a record that cannot be rerun or whose inputs changed."""
     try:
         with open(path) as f:
             d = json.load(f)
@@ -109,7 +106,6 @@ def recorded_arguments(path, rep, kind):
 
 
 def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
-    """Rerun the joint fit recorded in ``rep``, the ``reproduce`` block of ``path``, into ``out``."""
     joint = rep.get("joint")
     if not isinstance(joint, dict) or joint.get("kind") not in ("manifest", "authors", "lights"):
         raise InputError(f"--from {path}: not the record of a joint fit")

@@ -40,33 +40,29 @@ def output_files(out, relight, albedo="shared", materials=None):
 
 
 def fit_files(inputs, out, *, force=False, progress=True, command=None, **options):
-    """Fit ``model`` (and, with ``baselines``, the baselines) to one polarimetric image; write the files
-    ``output_files`` names.
+    """Fit ``model`` (with ``baselines``, the baselines too) to one polarimetric image; writes the outputs to ``out``.
 
-    ``inputs``: a Stokes EXR (one from ``fmbrdf-mi render`` brings its geometry, light and true parameters), a raw
-    mosaic (.npy / 16-bit .png / .tif), a (4, H, W) .npy or four files of angle images (0, 45, 90, 135 degrees).
-    ``options``: the single-image options of :data:`fmbrdf_mi.fit.api.options.OPTIONS`.  Returns the dict
-    written to fit.json, plus ``outputs`` (the files written) and ``wall_s``.
-    """
+    ``inputs``: a Stokes EXR (one from ``fmbrdf-mi render`` brings geometry, light and true parameters), a raw mosaic
+    (.npy, 16-bit .png, .tif), a (4, H, W) .npy or four angle images (0, 45, 90, 135 degrees).  ``options``: the
+    single-image options of :data:`fmbrdf_mi.fit.api.options.OPTIONS`.  Returns fit.json's dict plus ``outputs``
+    (the files written) and ``wall_s``."""
     arguments = arguments_of("single", dict(options, inputs=inputs), "fit_files()")
     return SingleImage(arguments, out, force=force, progress=progress, command=command).run()
 
 
 class ImageFits(FitJob):
-    """What a fit of one image and a joint fit of several share: the models fitted (``model`` and its baselines,
-    :meth:`fit_models`), each image's figures (:meth:`write_image`) and the figures of the whole fit
-    (:meth:`write_common`).  Subclasses set ``model``, ``opts``, ``labels`` and ``results``."""
+    """What single-image and joint fits share: the models fitted, each image's figures and the whole fit's.
+    Subclasses set ``model``, ``opts``, ``labels`` and ``results``."""
 
     def fit_models(self, baselines, solve):
-        """``results``: ``solve(name, options)`` for ``model`` and each baseline of ``baselines`` (the same loss
-        and data: :func:`baseline_options`)."""
+        """``results``: ``solve(name, options)`` for ``model`` and each baseline (:func:`baseline_options`)."""
         names = [self.model] + [m for m in baselines if m != self.model]
         self.results = {n: solve(n, self.opts if n == self.model else baseline_options(self.opts, n)) for n in names}
 
     def write_image(self, o, name=None, pixels=None, holdout=False, im=None):
-        """The figures of image ``o`` (``name``: a joint fit's image, naming the files): for a ``holdout``,
-        relight.png, returning each fit's errors; else profiles.png and images.png of its fit on ``pixels``
-        (``im``: each fit's ``images`` entry, with its fitted power), returning ``model``'s prediction."""
+        """The figures of image ``o`` (``name``: a joint fit's): a ``holdout``'s relight.png, returning each fit's
+        errors, else profiles.png and images.png on ``pixels`` (``im``: each fit's ``images`` entry), returning
+        ``model``'s prediction."""
         results, model, labels, out = self.results, self.model, self.labels, self.out
         main = results[model]
         if holdout:
@@ -134,7 +130,7 @@ class SingleImage(ImageFits):
 
     def read(self):
         a = self.a
-        self.auto = parse_auto(a["materials"])    # --materials auto:M: found in fit()
+        self.auto = parse_auto(a["materials"])
         self.found = None
         self.labels = None if a["materials"] is None or self.auto else read_labels(a["materials"])
         self.obs = obs = build_observation(a["inputs"], light=a["light"], **{k: a[k] for k in IMAGE_KEYS})
@@ -198,8 +194,7 @@ class SingleImage(ImageFits):
 
 
 def model_entries(results, model, truth):
-    """fit.json's ``models``: each fit's record, ``model``'s with its ``relative_error`` to the input's ``truth``
-    (the parameters the input was rendered with) when there is one."""
+    """fit.json's ``models``, ``model``'s with its ``relative_error`` to the input's ``truth`` (if rendered)."""
     entries = {name: res.to_json() for name, res in results.items()}
     if truth:
         entries[model]["relative_error"] = {k: (v - truth[k]) / truth[k] for k, v in results[model].params.items()
@@ -213,8 +208,7 @@ def baseline_options(opts, name):
 
 
 def labels_of(res, labels, shape):
-    """The label image (on the fit's grid ``shape``) to predict a result ``res`` with: per material when the fit
-    had several, else None (one material's parameters are the model's own)."""
+    """The labels (on the grid ``shape``) to predict ``res`` with: None unless it fitted several materials."""
     if labels is None or res.materials is None or res.materials["count"] < 2:
         return None
     return check_labels(labels, shape)
@@ -232,9 +226,8 @@ def shown_pixels(o, pixels, opts, labels=None):
 
 
 def write_maps(res, model, out, report, wrote=lambda path: None):
-    """:data:`~fmbrdf_mi.fit.outputs.job.MAP_OUTPUTS` of a per-pixel albedo fit ``res`` (NaN where not
-    fitted; the shape parameters in each EXR's metadata), named in ``report["albedo_maps"]``; ``wrote``: called
-    with each file's path once it is written."""
+    """:data:`~fmbrdf_mi.fit.outputs.job.MAP_OUTPUTS` of a per-pixel albedo fit ``res`` (NaN where not fitted),
+    named in ``report["albedo_maps"]``; ``wrote``: called with each path written."""
     if res.maps is None:
         return
     outs = {f: os.path.join(out, f) for f in MAP_OUTPUTS}

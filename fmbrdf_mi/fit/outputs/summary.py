@@ -30,8 +30,7 @@ def param_line(name, value, std, ci, width=6, tail=""):
 
 
 def print_params(m, std, ci, width=6):
-    """One :func:`param_line` per parameter of fit.json's ``models`` entry ``m`` (a colour fit's albedos: per
-    channel), with ``(fixed)`` and the relative error to the input's metadata where ``m`` has them."""
+    """:func:`param_line` s of a ``models`` entry ``m`` (per channel), fixed ones marked, with the error vs metadata."""
     rel, fixed = m.get("relative_error") or {}, m.get("fixed") or {}
     for k, v in m["params"].items():
         if isinstance(v, dict):
@@ -68,8 +67,7 @@ def albedo_text(a):
 
 
 def convergence_status(name, m):
-    """0, or :data:`EXIT_NOT_CONVERGED` and one line on stderr when the fit ``name`` (fit.json's ``models[name]``,
-    ``m``) stopped before it converged."""
+    """0, or :data:`EXIT_NOT_CONVERGED` and a line on stderr when the fit ``name`` (entry ``m``) did not converge."""
     if m["converged"]:
         return 0
     print(f"fmbrdf-mi fit: {name}: stopped before convergence ({m['stop_reason']}); the estimates are the last "
@@ -78,7 +76,6 @@ def convergence_status(name, m):
 
 
 def wrote(report):
-    """The last line: the files written (the job's ``outputs``) and the run's wall time."""
     print(f"wrote {', '.join(report['outputs'])} ({report['wall_s']:.1f} s)")
 
 
@@ -108,8 +105,7 @@ def print_normals(report):
 
 
 def print_summary(report):
-    """The stdout summary of any fit's report (what :meth:`~fmbrdf_mi.fit.outputs.job.FitJob.run` returns);
-    returns the exit status: 0, or :data:`EXIT_NOT_CONVERGED` when a fit stopped before it converged."""
+    """The stdout summary of any fit's report; returns the exit status (0 or :data:`EXIT_NOT_CONVERGED`)."""
     if report.get("refine_normals"):
         return print_normals(report)
     colour, status = report.get("sensor") == "colour", 0
