@@ -1,25 +1,10 @@
 """Inverse rendering: estimate FMBRDF parameters from polarimetric images (paper section 5).
 
-    from fmbrdf_mi.fit import Observation, fit
-    result = fit(obs)                     # obs: Observation (inputs/observations.py)
-    result.params                         # eta, alpha, beta, kappa, k_s, r_k
-    joint = fit([obs_1, obs_2, obs_3])    # several images of one object: one material (= fit_joint)
+    result = fit(obs)                     # obs: an Observation; result.params: eta, alpha, beta, kappa, k_s, r_k
+    joint = fit([obs_1, obs_2, obs_3])    # several images of one object, one material (= fit_joint)
 
-Layers, each importing only from those above it (``tests/test_layers.py``):
-
-=================  ===========================================================================
-``errors``         :class:`InputError`, the one-line error of every input check
-``inputs``         :class:`Observation` and the loaders of every input kind
-``evaluate``       the models, their evaluators, the albedo layouts, predictions
-``objectives``     the likelihood of the camera's samples, the paper's loss and its variants
-``problem``        what a fit runs on (pixels, objective, evaluator) and its unknowns
-``solve``          the one solver (``driver.solve``) over Levenberg-Marquardt or Adam
-``uncertainty``    covariances (Fisher, sandwich), intervals, flags
-``result``         :class:`FitResult` and the JSON encoder of every output
-``api``            :func:`fit`, :func:`fit_joint`, :func:`fit_colour`, normal refinement
-``outputs``        the skeleton of every run that writes a fit (:class:`~fmbrdf_mi.fit.outputs.job.FitJob`)
-``cli``            ``fmbrdf-mi fit``: arguments, their checks, dispatch
-=================  ===========================================================================
+Layers, each importing only from those before it (``tests/test_layers.py``): ``errors``, ``inputs``,
+``evaluate``, ``objectives``, ``problem``, ``solve``, ``uncertainty``, ``result``, ``api``, ``outputs``, ``cli``.
 """
 from fmbrdf_mi.fit.api.colour import fit_colour
 from fmbrdf_mi.fit.api.find_materials import FoundMaterials, MaterialsNotSeparated, find_materials

@@ -15,12 +15,9 @@ def json_default(x):
 
 @dataclasses.dataclass
 class FitResult:
-    """The result of every fit: one image or several, one albedo pair or per-channel albedos, free powers.
-
-    ``params``: the model's reported parameters (per-channel albedos as ``{"R": .., "G": .., "B": ..}``).
-    ``result["key"]`` reads a field or a ``details`` entry.  :meth:`to_json` writes the fields but
-    :data:`INTERNAL`, and those of :data:`OPTIONAL` only when set.
-    """
+    """The result of every fit.  ``params``: the model's reported parameters (per-channel albedos as
+    ``{"R": .., "G": .., "B": ..}``); ``result["key"]`` reads a field or a ``details`` entry; :meth:`to_json`
+    writes the fields but :data:`INTERNAL`, and those of :data:`OPTIONAL` only when set."""
 
     model: str
     params: dict
@@ -44,7 +41,7 @@ class FitResult:
     pixels: object = dataclasses.field(repr=False, default=None)
     #: several images: per-image diagnostics (pixels, light, chi^2 per dof, intensity error, power)
     images: list = None
-    #: free light powers: the ``powers`` block of :func:`fmbrdf_mi.fit.problem.free_power.split_result`
+    #: free light powers (:func:`fmbrdf_mi.fit.problem.free_power.split_result`)
     powers: dict = None
     #: colour mosaics: the channels of the per-channel albedos
     channels: list = None
@@ -55,11 +52,9 @@ class FitResult:
     mask: np.ndarray = dataclasses.field(repr=False, default=None)
     #: per-pixel albedos (``FitOptions.albedo="per-pixel"``): the maps' summary numbers
     albedo: dict = None
-    #: the maps (:func:`fmbrdf_mi.fit.api.assemble.albedo_maps`): ``k_s``, ``k_b``, ``k_s_se``, ``k_b_se``,
-    #: ``identified``, (H, W) or (C, H, W); NaN where no pixel was fitted
+    #: the albedo maps of :func:`fmbrdf_mi.fit.api.assemble.albedo_maps`
     maps: dict = dataclasses.field(repr=False, default=None)
-    #: several materials: ``count``, fitted ``pixels`` of each, and ``parameters``, ``std_errors``, ``ci95`` per
-    #: material (:meth:`~fmbrdf_mi.fit.evaluate.parameters.Parameters.per_material`)
+    #: several materials: fit.json's ``materials`` block (:func:`fmbrdf_mi.fit.api.assemble.settle`)
     materials: dict = None
     #: the problem behind the result (:class:`fmbrdf_mi.fit.api.assemble.Fitted`)
     fitted: object = dataclasses.field(repr=False, default=None, compare=False)
