@@ -1,7 +1,5 @@
-"""A solved problem made into a :class:`~fmbrdf_mi.fit.result.FitResult` (:func:`assemble`): its covariance,
-albedo maps and materials block; :func:`settle` refreshes what derives from the uncertainty block after a
-check (:mod:`fmbrdf_mi.fit.api.checks`).
-"""
+"""A solved problem made into a :class:`~fmbrdf_mi.fit.result.FitResult` (:func:`assemble`); :func:`settle`
+redoes what derives from the uncertainty block after a check (:mod:`fmbrdf_mi.fit.api.checks`)."""
 from __future__ import annotations
 
 import dataclasses
@@ -17,10 +15,8 @@ from fmbrdf_mi.fit.solve.driver import solve
 
 @dataclasses.dataclass
 class Fitted:
-    """What the checks after a fit need (a result's ``fitted``, not serialised).  ``solution``: a
-    :class:`~fmbrdf_mi.fit.solve.driver.Solution` (``J``, ``r`` at the estimate once the covariance is
-    computed); ``image_shape``: the maps' (H, W); ``applied``: the uncertainty mechanisms
-    (:func:`~fmbrdf_mi.fit.uncertainty.method_text`); ``evaluations``: those of a refined quadrature's coarser fits."""
+    """What the checks after a fit need (a result's ``fitted``, not serialised); ``solution``'s ``J``, ``r``
+    are at the estimate once the covariance is computed."""
 
     problem: object
     data: object
@@ -41,8 +37,7 @@ class Fitted:
         return data.problem(get_model(o.model), o.bounds, self.report, o.fixed, self.deadline)
 
     def solve(self, problem, **kw):
-        """:func:`~fmbrdf_mi.fit.solve.driver.solve` of ``problem`` under the fit's options and progress (the
-        likelihood's reweighting rounds: two more than the paper's loss's inlier refreshes)."""
+        """:func:`~fmbrdf_mi.fit.solve.driver.solve` of ``problem`` under the fit's options and progress."""
         o = self.options
         return solve(problem, rounds=max(1, o.rounds) + 2 * (self.data.loss == "likelihood"), optimizer=o.optimizer,
                      max_iter=o.max_iter, tol=o.tol, time_limit=o.time_limit, lr=o.lr, max_time=o.max_time,
@@ -96,8 +91,7 @@ def assemble(fx):
 
 
 def settle(res):
-    """``res`` with the method text, weakly identified parameters and materials block redone from its
-    uncertainty block."""
+    """``res`` with its method text, weakly identified parameters and materials block redone."""
     fx, unc = res.fitted, res.uncertainty
     if fx.applied:
         unc["method"] = U.method_text(fx.applied)
@@ -113,10 +107,8 @@ def settle(res):
 
 
 def albedo_block(problem, st, parts, groups, shape, value, report):
-    """(fit.json's ``albedo`` block, the maps) of an eliminating layout: :func:`albedo_maps` of ``groups``
-    (:func:`~fmbrdf_mi.fit.uncertainty.pixel_albedos`; None: the values without errors), with the prior's
-    ``albedo.prior`` block (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`; effective parameters: the hat
-    matrix's trace)."""
+    """:func:`albedo_maps` of ``groups`` (None: the values without errors) plus the smoothness prior's
+    ``albedo.prior`` block (effective parameters: the hat matrix's trace)."""
     lay, obj, pr = problem.layout, problem.obj, problem.layout.prior
     if groups is None:
         groups = lay.maps(st.a_s, st.a_b, np.full((lay.n_groups, 2, 2), np.nan), problem.model.albedo_factor,
@@ -149,15 +141,14 @@ PRIOR_DOF_RULE = ("chi^2 (data + penalty) has N - p - n0 degrees of freedom (N i
                   "parameters, n0 = 2 per connected set of pixels, the prior's null space) when the maps' neighbour "
                   "differences follow the prior; maps smoother than tau give less, rougher ones more")
 
-#: Fewer images of each pixel leave a per-pixel albedo fit's shared parameters poorly determined (the
-#: incidental-parameter problem; docs/howto/fit-textured.md).
+#: Fewer images per pixel leave a per-pixel albedo fit's shape poorly determined (incidental parameters).
 MIN_IMAGES_PER_PIXEL = 3
 
 
 def albedo_maps(layout, shape, groups, prior=False):
-    """(fit.json's ``albedo`` block, maps): ``groups`` (:func:`fmbrdf_mi.fit.uncertainty.pixel_albedos`) on
-    the grid ``shape``: (H, W), or (C, H, W) per colour channel, NaN where not fitted.  ``prior``: for the
-    warning."""
+    """(fit.json's ``albedo`` block, maps ``k_s``, ``k_b``, ``k_s_se``, ``k_b_se``, ``identified``): ``groups``
+    (:func:`fmbrdf_mi.fit.uncertainty.pixel_albedos`) on the grid ``shape``, (H, W) or (C, H, W), NaN where not
+    fitted."""
     H, W = shape
     C = 1 if layout.channel_of is None else len(layout.labels)
     ch = np.zeros(layout.n_groups, int) if layout.channel_of is None else layout.channel_of
@@ -168,7 +159,7 @@ def albedo_maps(layout, shape, groups, prior=False):
         maps[key] = img.reshape(C, H, W) if C > 1 else img.reshape(H, W)
     maps["channels"] = None if C == 1 else list(layout.labels)
 
-    def stats(sel):     # of the groups ``sel``
+    def stats(sel):
         g = {k: np.asarray(v)[sel] for k, v in groups.items()}
         ok = {k: U.determined(g[k], g[k + "_se"]) for k in ("k_s", "k_b")}
         ident = np.asarray(g["identified"], bool)
