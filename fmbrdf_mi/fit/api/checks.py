@@ -1,12 +1,6 @@
-"""Checks after a fit, each a function of its result (as lmfit's ``conf_interval(minimizer, result)``).
-
-    res = fit(obs, intervals="fisher", area_points=2)     # the fit alone
-    res = check_footprint(res)        # the pixel-area quadrature checked, refined where it biases the estimate
-    res = check_intervals(res)        # each Fisher 95 % interval checked against the profile likelihood
-    res = find_other_optima(res)      # competing optima among the starts' ends; intervals widened over them
-
-:func:`~fmbrdf_mi.fit.api.fitting.fit` applies those its options ask for.  Each extends a converged
-pixel-path result's uncertainty block and ``method``; any other result is returned as it is.
+"""Checks after a fit, each a function of its result (:func:`~fmbrdf_mi.fit.api.fitting.fit` applies those
+its options ask for): :func:`check_footprint`, :func:`check_intervals`, :func:`find_other_optima`.  Each
+extends a converged pixel-path result's uncertainty block; any other result is returned as it is.
 """
 from __future__ import annotations
 
@@ -28,8 +22,8 @@ def checkable(res):
 
 
 def check_intervals(res, every=False, progress=None):
-    """:func:`~fmbrdf_mi.fit.uncertainty.profile_intervals` of a likelihood fit (``every``: profile every
-    end); skipped past the fit's ``max_time``.  ``progress``: the progress callable (default: the fit's)."""
+    """Fisher 95 % intervals of a likelihood fit checked by :func:`~fmbrdf_mi.fit.uncertainty.profile_intervals`
+    (``every``: profile every end); skipped past the fit's ``max_time``."""
     if not checkable(res) or not res.fitted.problem.obj.is_likelihood:
         return res
     fx = res.fitted
@@ -49,8 +43,8 @@ def check_intervals(res, every=False, progress=None):
 
 
 def find_other_optima(res, progress=None):
-    """``uncertainty.other_optima`` (:func:`~fmbrdf_mi.fit.uncertainty.other_optima`), a warning where one
-    competes, and the intervals widened over it (:func:`~fmbrdf_mi.fit.uncertainty.widen_for_optima`)."""
+    """Competing optima among the starts' ends (:func:`~fmbrdf_mi.fit.uncertainty.other_optima`), intervals
+    widened over them."""
     if not checkable(res):
         return res
     fx, unc = res.fitted, res.uncertainty
@@ -69,21 +63,17 @@ def find_other_optima(res, progress=None):
 
 
 def samplable(data, problem):
-    """Whether the quadrature's bias can be estimated from a subset of ``data``'s cells: each cell's
-    residuals are its own at the fit's albedos (no albedo prior or bilinear maps, one material, no free
-    powers)."""
+    """Whether the quadrature's bias can be estimated from a subset of ``data``'s cells (each cell's residuals
+    depend on its own albedos only)."""
     return (data.subsample is not None and data.make_problem is None and data.materials is None
             and problem.obj.prior is None)
 
 
 def check_footprint(res, progress=None, sample_above=None, sample_pixels=None, seed=None):
-    """The pixel-area quadrature of a likelihood fit of raw samples: while its bias
-    (:func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias`) exceeds ``QUADRATURE_TOL`` SE, the fit goes on with
-    2m x 2m points, up to ``MAX_AREA_POINTS``; returns the finest converged fit's result with
-    ``uncertainty.quadrature``.  Images of more than ``sample_above`` super-pixels (default ``EXPLORE_ABOVE``)
-    estimate the bias from a ``seed``-ed sample of about ``sample_pixels`` (default ``EXPLORE_PIXELS``) at
-    2m x 2m correcting a prediction from all at m/2 x m/2 (:func:`~fmbrdf_mi.fit.uncertainty.sampled_quadrature_bias`),
-    and refine while |bias| plus ``QUADRATURE_SAMPLING_SE`` sampling SE exceeds the tolerance."""
+    """A likelihood fit of raw samples refitted with 2m x 2m pixel-area points while the bias of m x m
+    (:func:`~fmbrdf_mi.fit.uncertainty.quadrature_bias`) exceeds ``QUADRATURE_TOL`` SE, up to
+    ``MAX_AREA_POINTS``; records ``uncertainty.quadrature``.  Above ``sample_above`` super-pixels the bias is
+    estimated from about ``sample_pixels`` of them (:func:`~fmbrdf_mi.fit.uncertainty.sampled_quadrature_bias`)."""
     if not checkable(res) or res.fitted.data.remake is None or res.fitted.data.area_points <= 1:
         return res
     import drjit as dr
