@@ -1,16 +1,9 @@
-"""Fits to colour polarisation mosaics (IMX250MYR type): shared eta, alpha, beta, kappa, per-channel albedos.
-
-    smp = colour_samples(raw, camera)                     # 16 raw samples per 4x4 period
-    res = fit_colour(obs, smp, noise)                     # obs: geometry on the period grid
-    res.params["k_s"]      # {"R": ..., "G": ..., "B": ...}; res.std_errors likewise
-
-The shape parameters (paper eq:fmbrdf) are one material's; the albedos are per colour channel.  Raw
-sample k (colour c_k, polariser phi_k) is
+"""Fits to colour polarisation mosaics (IMX250MYR type), :func:`fit_colour`: one material's shape (paper
+eq:fmbrdf), albedos per colour channel.  Raw sample k (colour c_k, polariser phi_k) of pixel i is
 
     mu_ik = 1/2 (1, cos 2 phi_k, sin 2 phi_k) . (a_s[c_k] S_ik + a_b[c_k] B_ik)
 
-with S, B the unit-albedo Stokes vectors (:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos`).  The
-fit is :func:`~fmbrdf_mi.fit.api.fitting.fit`'s; this module adds the per-channel report and predictions.
+with S, B the unit-albedo Stokes vectors (:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos`).
 """
 from __future__ import annotations
 
@@ -29,8 +22,7 @@ from fmbrdf_mi.sensor.mosaic import COLOURS
 from fmbrdf_mi.sensor.noise import NoiseModel
 
 
-#: The colour record's fit options (:func:`~fmbrdf_mi.fit.api.options.record_keys`) that :func:`fit_colour`
-#: takes (all but ``erode``: the caller erodes the mask).
+#: The colour record's fit options that :func:`fit_colour` takes (the caller erodes the mask).
 RECORD_OPTIONS = tuple(k for k in record_keys("colour") if k in FIT_NAMES and k != "erode")
 
 #: The options of :func:`fit_colour`.
@@ -41,16 +33,11 @@ DEFAULTS = {"max_pixels": None, "rounds": 2}
 
 
 def fit_colour(obs, samples, noise=None, *, progress=None, **options):
-    """:func:`~fmbrdf_mi.fit.api.fitting.fit` of a colour mosaic's samples (module docstring).
-
-    ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation` on the 4x4-period grid, ``samples``:
-    :func:`~fmbrdf_mi.sensor.samples.colour_samples`; lists of both: a joint fit of one object and camera.
-    ``noise``: a :class:`~fmbrdf_mi.sensor.noise.NoiseModel` (None: estimated from the residuals).
-    ``options``: the ``COLOUR_OPTIONS`` (defaults the schema's but ``DEFAULTS``).
-    ``albedo="per-pixel"``: one k_s, k_b per period and channel (several mosaics then of one view).
-    The caller erodes the mask.  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with ``params``,
-    ``std_errors`` (None unless converged) and ``uncertainty["ci95"]`` nested per channel, and ``details``.
-    """
+    """:func:`~fmbrdf_mi.fit.api.fitting.fit` of a colour mosaic's ``samples``
+    (:func:`~fmbrdf_mi.sensor.samples.colour_samples`), ``obs`` on the 4x4-period grid; lists of both: a joint
+    fit of one object and camera.  ``noise``: a :class:`~fmbrdf_mi.sensor.noise.NoiseModel` (None: estimated
+    from the residuals); ``options``: ``COLOUR_OPTIONS``.  Returns a :class:`~fmbrdf_mi.fit.result.FitResult`
+    whose ``params``, ``std_errors`` (None unless converged) and ``uncertainty["ci95"]`` are nested per channel."""
     unknown = [k for k in options if k not in COLOUR_OPTIONS]
     if unknown:
         raise InputError(f"fit_colour(): unknown option(s) {', '.join(unknown)} (valid: {', '.join(COLOUR_OPTIONS)})")
