@@ -1,13 +1,8 @@
-"""The label image of several materials when the user has none (``fmbrdf-mi fit --materials auto:M``).
+"""The label image of several materials when the user has none (``--materials auto:M``): :func:`find_materials`.
 
-    found = find_materials(obs, 2)           # FoundMaterials: labels (H, W), record (for fit.json)
-    res = fit(obs, materials=found.labels)
-
-Features: the per-pixel albedo fit's (k_s, k_b) in units of their standard errors (the model divides the
-geometry out); :func:`weighted_kmeans`, then :func:`majority_filter`; then hard EM on the model: fit M
-materials, move each pixel to the material of least chi^2 (:func:`material_chi2`), refit while labels
-change.  :func:`separation` must show the materials told apart at each pixel, else
-:class:`MaterialsNotSeparated`.  Labels cover the fit's pixels; the rest are -1.
+The per-pixel albedo fit's (k_s, k_b) in units of their standard errors (the model divides the geometry out)
+are clustered (:func:`weighted_kmeans`, :func:`majority_filter`), then refined by hard EM on the model: each
+pixel to the material of least :func:`material_chi2`, refit while labels change.
 """
 from __future__ import annotations
 
@@ -43,9 +38,8 @@ class MaterialsNotSeparated(InputError):
 
 @dataclasses.dataclass
 class FoundMaterials:
-    """Labels found by :func:`find_materials`: ``labels`` (H, W) 0 .. M-1, -1 not labelled; ``record`` what
-    was done and how well the materials separate (fit.json's ``materials_found``); ``fit``: the last fit of
-    M materials with these labels (a :class:`~fmbrdf_mi.fit.result.FitResult`)."""
+    """``labels`` (H, W) 0 .. M-1, -1 not labelled; ``record``: fit.json's ``materials_found``; ``fit``: the
+    last fit of M materials with these labels."""
 
     labels: np.ndarray
     record: dict
@@ -63,7 +57,6 @@ def parse_auto(value):
     return int(count)
 
 
-# ------------------------------------------------------------------ clustering (NumPy)
 def weighted_kmeans(x, w, count, seed=0, starts=10, max_iter=100):
     """k-means of ``x`` (n, F) with weights ``w`` (n, F) (1 / variance): distance sum_f w_f (x_f - c_f)^2;
     the best of ``starts`` k-means++ starts.  Returns (labels (n,), centres (count, F), total)."""
@@ -107,12 +100,10 @@ def majority_filter(labels, count, passes=1):
     return lab
 
 
-# ------------------------------------------------------------------ the model's per-pixel chi^2
 def material_chi2(obs, model, params, count, idx):
-    """Each material's model at pixels ``idx`` in noise units: (chi2 (count, n) of the S0, S1, S2 residuals,
-    pred (count, 3, n) over the noise sd, the 3 noise scales).  Variances: ``lin_variance`` or shot noise,
-    each component scaled so the best material's median chi^2 is that of 3 dof (the noise model is trusted
-    for its shape only)."""
+    """(chi2 (count, n) of the S0, S1, S2 residuals, pred (count, 3, n) over the noise sd, the 3 noise scales)
+    of each material at pixels ``idx``; each component's variance is scaled so the best material's median
+    chi^2 is that of 3 dof (the noise model is trusted for its shape only)."""
     obs_s = np.asarray(obs.stokes, dtype=np.float64).reshape(3, -1)[:, idx]
     if obs.lin_variance is not None:
         lin = np.asarray(obs.lin_variance, dtype=np.float64).ravel()[idx]
@@ -144,14 +135,12 @@ def separation(pred, labels_flat, count):
             [float(np.median(x)) if len(x) else 0.0 for x in dist])
 
 
-# ------------------------------------------------------------------ the method
 def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_decided=0.5, progress=False,
                    **kw):
-    """A :class:`FoundMaterials` of ``count`` materials for one mono :class:`Observation`.
-
-    ``options`` / ``kw``: :class:`~fmbrdf_mi.fit.api.options.FitOptions` of its fits (``albedo``,
-    ``materials`` are its own); ``rounds``: most fits of M materials; ``clean``: majority-filter passes;
-    ``min_decided``: each material's fraction of decided pixels.  Raises :class:`MaterialsNotSeparated`."""
+    """A :class:`FoundMaterials` of ``count`` materials for one mono :class:`Observation`.  ``options`` /
+    ``kw``: its fits' :class:`~fmbrdf_mi.fit.api.options.FitOptions`; ``rounds``: most fits of M materials;
+    ``clean``: majority-filter passes; ``min_decided``: the fraction of each material's pixels that must be
+    decided (:func:`separation`), else :class:`MaterialsNotSeparated`."""
     if isinstance(obs, (list, tuple)):
         raise InputError("find_materials: one image (an Observation); several images are not supported yet")
     count = Option("count", kind="int", lo=2, hi=254).check(count, "find_materials: count")
