@@ -36,20 +36,14 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
         materials=None, **kw):
     """Estimate the parameters of ``options.model`` from ``obs``; returns a :class:`~fmbrdf_mi.fit.result.FitResult`.
 
-    ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation`, or a list of them sharing the material
-    (a joint fit: :func:`fit_joint`).  Keywords override :class:`FitOptions` fields (the CLI's names).
-    ``progress``: True prints to stderr, a callable receives each line, False is silent.  ``evaluator``: a
-    :func:`~fmbrdf_mi.fit.problem.data.prepare` evaluator for the same geometry, pixels and objective, reused.
-    ``data``: a caller-built :class:`~fmbrdf_mi.fit.problem.problem.FitData`; ``obs`` then gives only its
-    noise model and pixel grid.  ``materials``: integer labels on ``obs.shape`` (or a raw mosaic's sensor grid;
-    :func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`), 0 .. M-1 the materials, < 0 not fitted; each
-    material gets its own shape parameters (``eta[m]``, ...) and, with ``albedo="shared"``, ``k_s[m]``,
-    ``r_k[m]``: ``params`` flat, ``materials`` per material.
-
-    prepare -> problem -> :func:`~fmbrdf_mi.fit.solve.driver.solve` ->
-    :func:`~fmbrdf_mi.fit.api.assemble.assemble`, then the checks the options ask for
-    (:mod:`fmbrdf_mi.fit.api.checks`).  ``max_time`` (wall clock, checked before each evaluation) stops
-    with the latest accepted estimate, ``converged=False`` and no standard errors.
+    ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation`, or a list of them of one material
+    (:func:`fit_joint`).  Keywords override :class:`FitOptions` fields.  ``progress``: as
+    :func:`progress_callable`.  ``evaluator``: a reusable :func:`~fmbrdf_mi.fit.problem.data.prepare` evaluator
+    of the same pixels; ``data``: a caller-built :class:`~fmbrdf_mi.fit.problem.problem.FitData` (``obs`` then
+    gives only its noise model and pixel grid).  ``materials``: integer labels on ``obs.shape`` or a raw
+    mosaic's sensor grid, 0 .. M-1 the materials, < 0 not fitted; each material gets its own ``eta[m]``, ...
+    and, with ``albedo="shared"``, ``k_s[m]``, ``r_k[m]``.  ``max_time`` stops with the latest accepted
+    estimate, ``converged=False`` and no standard errors.
     """
     t0, opts = time.time(), fit_options(options, **kw)
     check_fit_options(**dataclasses.asdict(opts))
@@ -141,16 +135,11 @@ def check_call(images, joint, names, powers, opts):
 
 
 def fit_joint(observations, options=None, **kw):
-    """:func:`fit` of a list of observations: K images of one object, each its own light, geometry and mask,
-    sharing one material (pixel path, ``lm`` only).  The likelihood is the product of the images' (one camera);
-    the paper's loss runs over the union of their pixels; ``max_pixels`` is split evenly.
-
-    ``names``: the images' labels (default ``image0``, ...).  ``free_power=True`` estimates the light powers
-    of images 1 .. K-1 relative to image 0's (:mod:`fmbrdf_mi.fit.problem.free_power`; the result's
-    ``powers``); ``powers``: the relative powers the irradiances already include (default 1 each), where the
-    search starts and what the fitted ones are reported against.  The result adds ``images`` (per-image
-    diagnostics: :func:`~fmbrdf_mi.fit.api.fitting.diagnose`) and ``pixels`` (one array per image).
-    """
+    """:func:`fit` of K images of one object, each its own light, geometry and mask, sharing one material
+    (pixel path, ``lm`` only); ``max_pixels`` is split evenly.  ``names``: the images' labels (default
+    ``image0``, ...); ``free_power=True`` estimates the light powers of images 1 .. K-1 relative to image 0's
+    (:mod:`fmbrdf_mi.fit.problem.free_power`); ``powers``: the relative powers the irradiances already include
+    (default 1 each).  The result adds ``images`` (:func:`diagnose`) and ``pixels`` per image."""
     return fit(check_observations(observations, "fit_joint()", least=0), options, **kw)
 
 
@@ -193,9 +182,8 @@ def report_end(res):
 
 
 def diagnose(res, observations, names, table, given, say):
-    """A joint fit's ``res.pixels`` and ``res.images``: per image its pixels, light, irradiance, how well the
-    shared estimate explains it (on the data of the fit's final quadrature) and, with the free powers of
-    ``table``, its power (``given``: the given ones)."""
+    """A joint fit's ``res.pixels`` and ``res.images``: per image its pixels, light, how well the shared
+    estimate explains it and, with the free powers of ``table``, its power (``given``: the given ones)."""
     data = res.fitted.data
     loss, objective = data.loss, data.objective
     internal = res.details["internal"]
