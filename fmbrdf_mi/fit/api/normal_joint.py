@@ -1,17 +1,9 @@
-"""Normal refinement, final step: one Levenberg-Marquardt on the material and every pixel's normal together.
-
-    res = refine_joint(observations, normals, params, lam=0.3)   # a FitResult with normals and mask
-
-Joint steps, because an alternation converges slowly where material and normals trade off.  Unknowns: the
-material's z (:class:`fmbrdf_mi.fit.problem.normals.NormalProblem`) and two tangent-plane unknowns per pixel.
-Energy: the samples' likelihood (:class:`fmbrdf_mi.fit.objectives.objective.LikelihoodObjective`) plus
-``lam c`` times the smoothness prior (:func:`fmbrdf_mi.fit.problem.normals.stencils`, ``curvature`` or
-``membrane``); ``lam`` is in Stokes residuals over the mean intensity, c converts it to chi^2 units.  Steps
-(:mod:`fmbrdf_mi.fit.solve.normal_system`) are accepted only when they lower the energy.
-
-The material's covariance is the sandwich of the penalised likelihood with the normals free
-(:func:`fmbrdf_mi.fit.solve.normal_system.material_covariance`); it omits the prior's bias, so the material
-is re-estimated at the weaker ``lam_material`` and is calibrated for ``lam_material <= LAM_MATERIAL``.
+"""Normal refinement, final step (:func:`refine_joint`): one Levenberg-Marquardt on the material and every
+pixel's normal together, since an alternation converges slowly where they trade off.  Energy: the samples'
+likelihood plus ``lam c`` times the smoothness prior (:func:`fmbrdf_mi.fit.problem.normals.stencils`), c
+converting ``lam`` (Stokes residuals over the mean intensity) to chi^2 units.  The material's covariance
+(:func:`fmbrdf_mi.fit.solve.normal_system.material_covariance`) omits the prior's bias, so the material is
+re-estimated at the weaker ``lam_material``, calibrated for ``lam_material <= LAM_MATERIAL``.
 """
 from __future__ import annotations
 
@@ -63,14 +55,11 @@ def refinement_time_left(left, round_times, elapsed, rounds_after):
 def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="curvature", model="fmbrdf",
                  bounds=None, fixed=None, max_iter=50, refreshes=2, h=1e-3, progress=None, time_limit=None,
                  lam_material=LAM_MATERIAL):
-    """Jointly refine the material ``params`` (reported) and ``normals`` (H, W, 3).
-
-    ``observations``: K >= 3 :class:`Observation` s of one view under different lights.  ``mask``: the
-    pixels refined (default: the first mask eroded by 1, less clipped super-pixels).  ``refreshes``: IRLS
-    rounds.  ``lam_material``: the material's smoothness weight (None: ``lam``); ``options["material_stage"]``
-    records that run.  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with ``normals`` and ``mask``;
-    ``loss_terms``: data (chi^2) and prior at ``lam``.  Raises :class:`~fmbrdf_mi.fit.InputError` with fewer
-    than 2 usable pixels.
+    """Jointly refine the material ``params`` (reported) and ``normals`` (H, W, 3) from ``observations``, K >= 3
+    :class:`Observation` s of one view under different lights.  ``mask``: the pixels refined (default: the
+    first mask eroded by 1, less clipped super-pixels); ``refreshes``: IRLS rounds; ``lam_material``: the
+    material's smoothness weight (None: ``lam``).  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with
+    ``normals`` and ``mask``; ``loss_terms``: data (chi^2) and prior at ``lam``.
     """
 
     say = progress or (lambda msg: None)
