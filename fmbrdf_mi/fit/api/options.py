@@ -1,9 +1,6 @@
-"""The one option schema of a fit: every option declared once in :data:`OPTIONS`, the rest generated.
-
-Each row is an :class:`~fmbrdf_mi.fit.inputs.options.Option`; one image's options are
-:data:`~fmbrdf_mi.fit.inputs.options.IMAGE_OPTIONS`.  Generated: :class:`FitOptions`, the command line
-(:func:`add_arguments`), the checks (:func:`check_fit_options`, :func:`check_input_options`) and the keys a
-record keeps (:func:`record_keys`, :func:`arguments`).
+"""The one option schema of a fit: every option declared once in :data:`OPTIONS`; :class:`FitOptions`, the
+command line (:func:`add_arguments`), the checks (:func:`check_fit_options`) and the keys a record keeps
+(:func:`record_keys`) generated from it.
 """
 from __future__ import annotations
 
@@ -22,8 +19,7 @@ from fmbrdf_mi.fit.uncertainty import INTERVALS
 #: The albedo layouts a fit can be asked for (``FitOptions.albedo``, ``--albedo``).
 ALBEDO_LAYOUTS = ("shared",) + PER_PIXEL_LAYOUTS
 
-#: The smallest smoothness scale tau of the albedo maps' prior (maps' units): below it the prior's 1 / tau^2
-#: drowns the data in double precision.
+#: The albedo prior's smallest smoothness scale tau: below it 1 / tau^2 drowns the data in double precision.
 SMOOTH_MIN = 1e-6
 
 _IMAGE, _GEOMETRY = IMAGE_OPTIONS[0].group, IMAGE_OPTIONS[-1].group
@@ -217,8 +213,8 @@ FIT_NAMES = tuple(o.name for o in OPTIONS if o.fit)
 
 
 def fit_options(values=None, **changes):
-    """``values`` (a :class:`FitOptions`; a dict: its fit options checked, other names left out; None: the
-    defaults) with ``changes``, fit options (InputError for another name)."""
+    """``values`` (a :class:`FitOptions`, a dict whose fit options are checked, or None: the defaults) with
+    the fit options ``changes``."""
     unknown = [k for k in changes if k not in FIT_NAMES]
     if unknown:
         raise InputError(f"fit(): unknown option(s) {', '.join(unknown)} (FitOptions: {', '.join(FIT_NAMES)}; the "
@@ -228,7 +224,6 @@ def fit_options(values=None, **changes):
     return dataclasses.replace(values, **changes)
 
 
-# ---------------------------------------------------------------- the command line
 def add_arguments(p, groups=GROUPS):
     """The command line of ``fmbrdf-mi fit`` on the parser ``p``: every option with a flag, in its section."""
     for title in groups:
@@ -246,7 +241,6 @@ def add_arguments(p, groups=GROUPS):
                 g.add_argument(o.name, help=o.help, **kw)
 
 
-# ---------------------------------------------------------------- the checks
 def check_values(values, flag=str):
     """``values`` checked against their options' kind and range and parsed (names outside the schema kept)."""
     out = dict(values)
@@ -261,8 +255,7 @@ def check_values(values, flag=str):
 
 
 def check_fit_options(*, flag=str, **values):
-    """Raise InputError for the first invalid fit option, then :func:`check_relations`.  ``flag`` maps an
-    option name to how the user wrote it."""
+    """Raise InputError for the first invalid fit option (``flag``: the name as the user wrote it)."""
     v = {k: OPTION[k].default for k in FIT_NAMES + ("baselines", "materials")}
     v.update({k: x for k, x in values.items() if k in OPTION})
     for k in ("model", "max_iter", "tol", "erode", "seed", "lr", "spp", "rounds", "starts"):
@@ -330,8 +323,7 @@ def table(value, name, what):
 
 
 def check_init(init, m, flag, albedo="shared"):
-    """``init``: every parameter ``m`` reports, each a finite number within the fit's bounds (albedos >= 0);
-    with per-pixel albedos (solved per pixel at the start) the shape parameters only."""
+    """``init``: each parameter ``m`` reports (per-pixel albedos: each shape one) a finite number in bounds."""
     table(init, flag("init"), "value")
     params = Parameters(m)
     names = params.reported_names
@@ -376,8 +368,7 @@ def check_input_options(*, flag=str, **values):
 
 
 def check_resolved_loss(values, loss, source, flag=str):
-    """Refuse the options that do not work with ``loss``, what the loss resolved to (options that need the
-    likelihood would be dropped).  ``source``: why the loss is what it is, for the message."""
+    """Refuse the options that do not work with the resolved ``loss`` (``source``: why it is that loss)."""
     optimizer = values.get("optimizer", "lm")
     if loss == "likelihood" and (optimizer != "lm" or values.get("path", "pixel") != "pixel"):
         raise InputError("loss 'likelihood' works with the pixel path and optimizer 'lm' (use --loss paper "
