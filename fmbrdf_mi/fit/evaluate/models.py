@@ -1,12 +1,10 @@
-"""The reflectance models a fit can use, described as Mitsuba BSDFs with named parameters.
-
-Every model is linear in a *surface* and a *body* albedo (closed-form albedos) and non-linear in a few
-*shape* parameters; it is evaluated only through Mitsuba, as in rendering.
+"""The reflectance models a fit can use (:data:`MODELS`): Mitsuba BSDFs linear in a *surface* and a *body*
+albedo and non-linear in a few named *shape* parameters, evaluated only through Mitsuba.
 
 * ``fmbrdf``: this package's FMBRDF, reported as (eta, alpha, beta, kappa, k_s, r_k = k_b / k_s).
-* ``pplastic``: Mitsuba's polarised plastic (Baek et al. 2018 pBRDF, GGX).
-* ``lambert_ts``: Lambertian + Torrance-Sparrow (Beckmann, Smith, dielectric Fresnel via
-  ``roughconductor`` with k = 0) as a ``blendbsdf`` of weight 1/2; albedos reported as the effective ones.
+* ``pplastic``: Mitsuba's polarised plastic (Baek et al. pBRDF, GGX).
+* ``lambert_ts``: Lambertian + Torrance-Sparrow (Beckmann, Smith, dielectric Fresnel) as a ``blendbsdf`` of
+  weight 1/2; albedos reported as the effective ones.
 * ``oren_nayar_ts``: ``lambert_ts`` with the qualitative ``orennayar`` (the full form is quadratic in the
   albedo); shape eta, alpha, sigma (radians).
 """
@@ -150,7 +148,6 @@ def get_model(name):
     raise ValueError(f"model: expected one of {sorted(MODELS)}, got {name!r}")
 
 
-# ---------------------------------------------------------------- bounded reparameterisation
 #: A parameter's scales: (to the scale, back, d back / d scale).
 SCALES = {"linear": (lambda x: x, lambda t: t, lambda t: 1.0),
           "log": (math.log, np.exp, np.exp),
@@ -163,8 +160,8 @@ Z_MAX = 12.0
 
 
 class Bounds:
-    """Maps unconstrained z to parameters inside [lo, hi] (sigmoid on the parameter's scale); ``model``: a
-    :class:`Model` or a fit's :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`."""
+    """Maps unconstrained z to parameters inside [lo, hi] by a sigmoid on the parameter's scale; ``model``: a
+    :class:`Model` or :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`."""
 
     def __init__(self, model):
         #: {name: (lo, hi on the parameter's scale, lo, hi)}
@@ -173,8 +170,7 @@ class Bounds:
                      for p in model.shape}
 
     def _sigmoid(self, name, z):
-        """(s, t, thi - tlo): the sigmoid of ``z`` (clipped to Z_MAX), the point t it maps to on the parameter's
-        scale and the scale's range."""
+        """(sigmoid of ``z`` clipped to Z_MAX, the point t it maps to on the parameter's scale, the scale's range)."""
         tlo, thi, _, _ = self.lims[name]
         s = 1.0 / (1.0 + math.exp(-float(np.clip(z, -Z_MAX, Z_MAX))))
         return s, tlo + (thi - tlo) * s, thi - tlo
