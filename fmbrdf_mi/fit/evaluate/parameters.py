@@ -1,8 +1,6 @@
-"""The parameters of a fit as one table (as lmfit's ``Parameters``): one :class:`Param` row per name.
-
-Rows are the model's shape parameters (per material), the free light powers of a joint fit
-(:mod:`fmbrdf_mi.fit.problem.free_power`) and the albedos per group (maps are reported as maps, not rows).
-:class:`Parameters` builds them in one place, and no name is parsed back.
+"""The parameters of a fit as one table, :class:`Parameters`: one :class:`Param` row per name (shape
+parameters per material, free light powers, albedos per group), built in one place so that no name is
+parsed back.
 """
 from __future__ import annotations
 
@@ -21,10 +19,9 @@ POWER_RANGE = 1000.0
 
 @dataclasses.dataclass(frozen=True)
 class Param:
-    """One named parameter: ``name`` (as reported), ``base`` (the model's name), ``kind`` (``shape``: BSDF
-    traverse ``key``; ``power``: image ``image``'s light power; ``albedo``), bounds ``lo``, ``hi``, ``scale``
-    (:class:`~fmbrdf_mi.fit.evaluate.models.Bounds`), coarse-search ``grid``, ``material`` / ``channel``
-    index (None: not per group), ``fixed`` value (None: free)."""
+    """One named parameter: ``name`` as reported, ``base`` the model's name, ``kind`` ``shape`` (BSDF traverse
+    ``key``), ``power`` (image ``image``'s light power) or ``albedo``; ``scale`` as
+    :class:`~fmbrdf_mi.fit.evaluate.models.Bounds`; ``fixed`` None when free."""
 
     name: str
     base: str
@@ -41,15 +38,10 @@ class Param:
 
 
 class Parameters:
-    """The parameter table of a fit of ``model``.
-
-    ``materials``: M (None: one); ``channels``: labels of per-channel albedos; ``maps``: no albedo rows;
-    ``powers``: the given relative powers G_0 .. G_{K-1} of a joint fit whose P_1 .. P_{K-1} are free;
-    ``bounds``: {name: (lo, hi)} narrowing the model's, ``fixed``: {name: value} (a model name stands for
-    every material's; ValueError for a bound outside the model's or an unknown name).
-
-    ``rows`` are in :meth:`report`'s order; ``shape`` the rows the optimiser sees (shape parameters and
-    powers), in the order of z.
+    """The parameter table of a fit of ``model``.  ``materials``: M (None: one); ``channels``: labels of
+    per-channel albedos; ``maps``: no albedo rows; ``powers``: the given relative powers G_0 .. G_{K-1} of a
+    joint fit whose P_1 .. P_{K-1} are free; ``bounds`` {name: (lo, hi)} and ``fixed`` {name: value} (a model
+    name stands for every material's).  ``rows`` are in :meth:`report`'s order; ``shape``: the rows of z.
     """
 
     def __init__(self, model, *, materials=None, channels=None, maps=False, powers=None, bounds=None, fixed=None):
@@ -112,15 +104,13 @@ class Parameters:
 
     @property
     def reported_names(self):
-        """The names of :meth:`report`'s parameters."""
         return tuple(r.name for r in self.rows)
 
     def param(self, name):
         return self.row[name]
 
     def report(self, shape_values, a_s, a_b):
-        """{name: value} in the order of ``rows``; albedos through the model's ``albedo_factor`` (the fmbrdf's
-        k_s and r_k = k_b / k_s)."""
+        """{name: value} in the order of ``rows``; albedos times the model's ``albedo_factor``."""
         groups = self.count if self.channels is None else len(self.channels)
         if groups is not None and self.albedo_names:
             a_s, a_b = (np.broadcast_to(np.asarray(a, dtype=np.float64), (groups,)) for a in (a_s, a_b))
@@ -140,9 +130,8 @@ class Parameters:
         return out
 
     def split(self, reported):
-        """Inverse of :meth:`report` for a start: (shape values, a_s, a_b) from the model's names (every
-        material starts there); the powers from their names, else the given ones.  InputError naming what is
-        missing or not a number."""
+        """Inverse of :meth:`report` for a start, from the model's names (every material starts there): (shape
+        values, a_s, a_b); the powers from their names, else the given ones."""
         model = self.model
         names = model.shape_names + self.albedo_pair
         if not isinstance(reported, Mapping):
