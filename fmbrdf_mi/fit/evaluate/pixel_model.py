@@ -1,11 +1,7 @@
-"""Differentiable evaluation of a model's Stokes output at given pixels: two paths, one BSDF.
-
-Both evaluators return :class:`Parts`: the (S0, S1, S2) that the surface and the body term send to the
-camera at unit albedos under unpolarised light, and their forward-mode derivatives in the shape parameters;
-a prediction is ``a_s * surface + a_b * body`` (paper eq:fmbrdf).  :class:`PixelEvaluator` calls ``bsdf.eval``
-per pixel of a normal map (captured data); :class:`RenderEvaluator` renders with the ``stokes`` integrator
-(synthetic scenes; reverse-mode gradients only).  Stokes vectors are in the camera's frame (x = image right
-perpendicular to the view, y = image up), that of the ``stokes`` integrator and :mod:`fmbrdf_mi.sensor.mosaic`.
+"""Differentiable evaluation of a model's Stokes output at given pixels as :class:`Parts`, a prediction
+being ``a_s * surface + a_b * body`` (paper eq:fmbrdf): :class:`PixelEvaluator` calls ``bsdf.eval`` per pixel
+of a normal map, :class:`RenderEvaluator` renders with the ``stokes`` integrator.  Stokes vectors are in the
+camera's frame (x = image right perpendicular to the view, y = image up), as in :mod:`fmbrdf_mi.sensor.mosaic`.
 """
 from __future__ import annotations
 
@@ -31,7 +27,8 @@ def set_variant(variant=None):
 
 @dataclasses.dataclass
 class Parts:
-    """Stokes (S0, S1, S2) at unit albedos, each (3, n) float64; derivatives per shape parameter."""
+    """The (S0, S1, S2) that the surface and the body term send to the camera at unit albedos under
+    unpolarised light, each (3, n) float64, and their derivatives per shape parameter."""
 
     surface: np.ndarray
     body: np.ndarray
@@ -92,11 +89,8 @@ class _Evaluator:
         return [(None, slice(None))]
 
     def parts(self, shape_values, wrt=()):
-        """:class:`Parts` at ``shape_values``; derivatives for the shape parameters in ``wrt``.
-
-        Chunk by chunk (:meth:`_chunks`; each chunk's Dr.Jit arrays freed before the next, the outputs the same
-        whatever the chunking): the values at the chunk's points (:meth:`_points`, with ``wrt`` their
-        derivatives) evaluated together, then reduced to the outputs (:meth:`_reduce`)."""
+        """:class:`Parts` at ``shape_values`` with forward-mode derivatives in the shape parameters ``wrt``,
+        evaluated chunk by chunk (:meth:`_chunks`) to bound the Dr.Jit arrays."""
         import drjit as dr
         import mitsuba as mi
 
@@ -154,14 +148,13 @@ class _Evaluator:
         return parts
 
 
-#: Directions made and converted to float32 at a time (:class:`Directions`): bounds the float64 arrays of
-#: the geometry whatever the frame's size.
+#: Directions made and converted to float32 at a time (:class:`Directions`), bounding the float64 arrays.
 PIECE_DIRECTIONS = 1 << 18
 
 
 class Directions:
-    """Normals and view directions, float64 (``count``, 3) each, made a piece at a time (``pieces()`` yields
-    (normals, view_dirs) in order): a frame's directions are never all held in float64 at once."""
+    """``count`` normals and view directions, whose ``pieces()`` yields float64 (normals, view_dirs) blocks in
+    order, so that a frame's directions are never all held in float64 at once."""
 
     def __init__(self, count, pieces):
         self.count = int(count)
@@ -176,9 +169,9 @@ class Directions:
 
     @classmethod
     def of_images(cls, geo):
-        """The directions of images' pixels, ``geo`` their (observation, flat pixels, footprint) in order
-        (:meth:`~fmbrdf_mi.fit.inputs.observations.Observation.sample_geometry`), made a block of pixels at a
-        time; each image's direction count; the last image's footprint weights (K,), None for one point."""
+        """(directions, each image's direction count, the footprint weights (K,) or None for one point) of
+        ``geo``: (observation, flat pixels, footprint) per image
+        (:meth:`~fmbrdf_mi.fit.inputs.observations.Observation.sample_geometry`)."""
         first = [o.sample_geometry(idx[:1] if len(idx) else [0], footprint=fp) for o, idx, fp in geo]
         per = [len(f[0]) for f in first]
 
@@ -195,13 +188,10 @@ class Directions:
 
 
 class PixelEvaluator(_Evaluator):
-    """Per-pixel BSDF evaluation at normals ``(n, 3)``, view directions ``(n, 3)`` (or a :class:`Directions`
-    as ``normals``, ``view_dirs`` None) and one light direction, or one per direction (``light_dir`` (n, 3),
+    """Per-pixel BSDF evaluation at normals ``(n, 3)`` and view directions ``(n, 3)`` (or a :class:`Directions`
+    as ``normals``, ``view_dirs`` None) under one light direction, or one per direction (``light_dir`` (n, 3),
     ``irradiance`` (n,)).  With ``weights`` (K,) the directions are (n K, 3), K footprint samples per pixel
-    (:meth:`Observation.sample_geometry`) summed with those weights.
-
-    The directions are held as float32 NumPy arrays and evaluated in chunks of about :data:`CHUNK_DIRECTIONS`
-    (the Dr.Jit arrays are bounded by the chunk, not the frame).
+    summed with those weights.
     """
 
     #: Directions per BSDF evaluation (whole pixels).  A chunk with derivatives rebuilds the tables with every
@@ -251,9 +241,8 @@ class PixelEvaluator(_Evaluator):
                     np.asarray(light, dtype=np.float64), False)
 
     def _store(self, directions, light, normalise):
-        """The float32 normals, view directions, lights and camera x axes of ``directions``
-        (:class:`Directions`), computed in float64 a piece at a time (``normalise``: the normals and views
-        scaled to unit length first)."""
+        """Store ``directions``' normals, views, lights and camera x axes as float32, computed in float64 a
+        piece at a time (``normalise``: scaled to unit length first)."""
         n_dirs = directions.count
         self._whole = None      # the Dr.Jit geometry of all pixels, kept when they are one chunk
         self._normals = np.empty((n_dirs, 3), np.float32)
@@ -288,9 +277,8 @@ class PixelEvaluator(_Evaluator):
         return [((p0, p1), slice(p0, p1)) for p0, p1 in zip(ends[:-1], ends[1:])]
 
     def _geometry(self, chunk):
-        """The Dr.Jit surface interactions, light directions (local), camera-frame rotations, irradiances and
-        footprint weights of the pixels ``chunk`` = (first, end), evaluated; ``chunk`` None: of all pixels,
-        kept for the next evaluation (one chunk's worth at most: :meth:`_chunks`)."""
+        """The Dr.Jit surface interactions, local light directions, camera-frame rotations, irradiances and
+        footprint weights of the pixels ``chunk`` = (first, end); None: all pixels, kept for the next call."""
         import drjit as dr
         import mitsuba as mi
 
@@ -336,11 +324,9 @@ class PixelEvaluator(_Evaluator):
 
 
 class RenderEvaluator(_Evaluator):
-    """The model's BSDF inside a Mitsuba scene, rendered with the ``stokes`` integrator.
-
-    ``scene``: a loaded scene (``stokes`` integrator) whose object has the model's BSDF at traverse prefix
-    ``bsdf_prefix`` (e.g. ``"sphere.bsdf."``); ``pixels``: flat row-major indices to return.  Every render
-    uses the same ``seed`` and ``spp``, so the two parts add up to the full image exactly.
+    """The model's BSDF at traverse prefix ``bsdf_prefix`` (e.g. ``"sphere.bsdf."``) of ``scene``, rendered
+    with the ``stokes`` integrator at ``pixels`` (flat row-major indices); every render uses the same ``seed``
+    and ``spp``, so the two parts add up to the full image exactly (reverse-mode gradients only).
     """
 
     def __init__(self, model, scene, bsdf_prefix, pixels=None, spp=16, seed=0, variant=None):
