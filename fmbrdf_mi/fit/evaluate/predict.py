@@ -1,8 +1,5 @@
-"""Relighting check (paper section 6.3): predict an image under another light from the estimates.
-
-The error is the paper's: RMSE of the predicted intensity over the mean observed one, on the mask eroded
-by ``erode`` pixels, facing the camera (n . v > ``min_cos_view``), attached shadows included.
-"""
+"""Relighting check (paper section 6.3): :func:`predict_image` under another light from the estimates and
+its :func:`relight_error`."""
 from __future__ import annotations
 
 import numpy as np
@@ -14,12 +11,10 @@ from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
 
 
 def predict_image(model_name, params, obs, pixels=None, maps=None, labels=None):
-    """Predicted Stokes (3, H, W) of ``obs``'s geometry and light with reported ``params`` (pixel path).
-
-    Pixels outside ``pixels`` (flat indices; default: the mask) are 0.  ``maps``: ``k_s``, ``k_b`` (H, W)
-    of a per-pixel fit (``params`` then shape only; unfitted pixels NaN).  ``labels``: the label image of a
-    fit of several materials (``params`` per material; label < 0 gives 0).
-    """
+    """Predicted Stokes (3, H, W) of ``obs``'s geometry and light with reported ``params``; 0 outside
+    ``pixels`` (flat indices; default: the mask).  ``maps``: ``k_s``, ``k_b`` (H, W) of a per-pixel fit
+    (``params`` then shape only).  ``labels``: the label image of a fit of several materials (``params`` per
+    material; label < 0 gives 0)."""
     idx = np.flatnonzero(obs.mask.ravel()) if pixels is None else np.asarray(pixels)
     if labels is not None:
         lab = np.asarray(labels).ravel()
@@ -46,12 +41,10 @@ def predict_image(model_name, params, obs, pixels=None, maps=None, labels=None):
 
 
 def relight_error(model_name, params, obs, erode=2, min_cos_view=0.1, maps=None, labels=None):
-    """Predict ``obs`` (the object under a second light) and compare intensities.
-
-    Returns a dict: ``rel_rmse`` (RMSE / mean observed intensity), ``rmse``, ``mean_observed``,
-    ``n_pixels`` and ``predicted`` (3, H, W) Stokes.  ``maps``, ``labels``: as :func:`predict_image`; the
-    error is over the pixels they cover.
-    """
+    """The paper's relighting error of ``obs`` (the object under a second light): ``rel_rmse`` (RMSE of the
+    predicted intensity / mean observed one, on the mask eroded by ``erode``, n . v > ``min_cos_view``),
+    ``rmse``, ``mean_observed``, ``n_pixels`` and ``predicted`` (3, H, W).  ``maps``, ``labels``: as
+    :func:`predict_image`."""
     m = erode_mask(obs.mask, erode) & (np.sum(obs.normals * obs.view_dirs, axis=-1) > min_cos_view)
     idx = np.flatnonzero((m & np.all(np.isfinite(obs.stokes), axis=0)).ravel())
     if maps is not None:
