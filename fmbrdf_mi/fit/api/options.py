@@ -323,7 +323,8 @@ def table(value, name, what):
 
 
 def check_init(init, m, flag, albedo="shared"):
-    """``init``: each parameter ``m`` reports (per-pixel albedos: each shape one) a finite number in bounds."""
+    """``init``: each parameter ``m`` reports (per-pixel albedos: each shape one) a finite number in bounds,
+    albedos >= 0."""
     table(init, flag("init"), "value")
     params = Parameters(m)
     names = params.reported_names
