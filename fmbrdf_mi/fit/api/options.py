@@ -1,7 +1,5 @@
-"""The one option schema of a fit: every option declared once in :data:`OPTIONS`; :class:`FitOptions`, the
-command line (:func:`add_arguments`), the checks (:func:`check_fit_options`) and the keys a record keeps
-(:func:`record_keys`) generated from it.
-"""
+"""The one option schema of a fit, :data:`OPTIONS`, from which :class:`FitOptions`, the command line
+(:func:`add_arguments`), the checks and the keys a record keeps (:func:`record_keys`) are generated."""
 from __future__ import annotations
 
 import dataclasses
@@ -186,8 +184,7 @@ def record_keys(record):
 
 
 def arguments(record, given, where):
-    """``given`` checked to be options of ``record`` and completed by the defaults (fit.json's
-    ``reproduce.arguments``)."""
+    """``given`` checked against ``record``'s options, completed by the defaults (``reproduce.arguments``)."""
     keys = record_keys(record)
     unknown = [k for k in given if k not in keys]
     if unknown:
@@ -213,8 +210,7 @@ FIT_NAMES = tuple(o.name for o in OPTIONS if o.fit)
 
 
 def fit_options(values=None, **changes):
-    """``values`` (a :class:`FitOptions`, a dict whose fit options are checked, or None: the defaults) with
-    the fit options ``changes``."""
+    """``values`` (:class:`FitOptions`, a dict to check, None: the defaults) with the fit options ``changes``."""
     unknown = [k for k in changes if k not in FIT_NAMES]
     if unknown:
         raise InputError(f"fit(): unknown option(s) {', '.join(unknown)} (FitOptions: {', '.join(FIT_NAMES)}; the "
@@ -323,8 +319,7 @@ def table(value, name, what):
 
 
 def check_init(init, m, flag, albedo="shared"):
-    """``init``: each parameter ``m`` reports (per-pixel albedos: each shape one) a finite number in bounds,
-    albedos >= 0."""
+    """``init``: a finite number in bounds (albedos >= 0) per parameter ``m`` reports; shape only per pixel."""
     table(init, flag("init"), "value")
     params = Parameters(m)
     names = params.reported_names

@@ -6,8 +6,7 @@ albedo and non-linear in a few named *shape* parameters, evaluated only through 
 * ``lambert_ts``: Lambertian + Torrance-Sparrow (Beckmann, Smith, dielectric Fresnel) as a ``blendbsdf`` of
   weight 1/2; albedos reported as the effective ones.
 * ``oren_nayar_ts``: ``lambert_ts`` with the qualitative ``orennayar`` (the full form is quadratic in the
-  albedo); shape eta, alpha, sigma (radians).
-"""
+  albedo); shape eta, alpha, sigma (radians)."""
 from __future__ import annotations
 
 import dataclasses
@@ -19,8 +18,7 @@ from fmbrdf_mi.fit.evaluate.parameters import Param
 
 
 def shape_param(name, key, lo, hi, scale, grid):
-    """A :class:`~fmbrdf_mi.fit.evaluate.parameters.Param` row of kind shape: traverse key, bounds, scale
-    (``log``, ``log1p``, ``log_minus_1``, ``linear``) and coarse-search values."""
+    """A shape :class:`~fmbrdf_mi.fit.evaluate.parameters.Param`: traverse key, bounds, scale, search grid."""
     return Param(name, name, "shape", key, lo, hi, scale, tuple(grid))
 
 
@@ -199,7 +197,6 @@ class Bounds:
         return float(self.scales[name][1](float(t)))
 
     def clip_grid(self, name, grid):
-        """The coarse-search values ``grid`` clipped to the bounds, sorted, without repeats."""
         _, _, lo, hi = self.lims[name]
         return sorted({min(max(float(x), lo), hi) for x in grid})
 

@@ -1,8 +1,7 @@
 """Differentiable evaluation of a model's Stokes output at given pixels as :class:`Parts`, a prediction
 being ``a_s * surface + a_b * body`` (paper eq:fmbrdf): :class:`PixelEvaluator` calls ``bsdf.eval`` per pixel
 of a normal map, :class:`RenderEvaluator` renders with the ``stokes`` integrator.  Stokes vectors are in the
-camera's frame (x = image right perpendicular to the view, y = image up), as in :mod:`fmbrdf_mi.sensor.mosaic`.
-"""
+camera's frame (x = image right perpendicular to the view, y = image up), as in :mod:`fmbrdf_mi.sensor.mosaic`."""
 from __future__ import annotations
 
 import dataclasses
@@ -38,8 +37,7 @@ class Parts:
     nonfinite: np.ndarray = None
 
 
-#: Albedo that switches a term "off".  Not 0: with k_s exactly 0 the forward-mode derivatives of a render
-#: come out 0 (body included); 1e-20 is 0 to float32 precision.
+#: Albedo that switches a term "off" (at exactly 0 a render's forward-mode derivatives all come out 0).
 OFF = 1e-20
 UNIT_ALBEDOS = ((1.0, OFF), (OFF, 1.0))
 
@@ -153,8 +151,7 @@ PIECE_DIRECTIONS = 1 << 18
 
 
 class Directions:
-    """``count`` normals and view directions, whose ``pieces()`` yields float64 (normals, view_dirs) blocks in
-    order, so that a frame's directions are never all held in float64 at once."""
+    """``count`` normals and view directions made in float64 blocks by ``pieces()``, never all at once."""
 
     def __init__(self, count, pieces):
         self.count = int(count)
@@ -162,16 +159,14 @@ class Directions:
 
     @classmethod
     def of(cls, normals, view_dirs):
-        """The arrays ``normals``, ``view_dirs`` (n, 3) in pieces of :data:`PIECE_DIRECTIONS` rows."""
         step = PIECE_DIRECTIONS
         return cls(len(normals), lambda: ((normals[a:a + step], view_dirs[a:a + step])
                                           for a in range(0, len(normals), step)))
 
     @classmethod
     def of_images(cls, geo):
-        """(directions, each image's direction count, the footprint weights (K,) or None for one point) of
-        ``geo``: (observation, flat pixels, footprint) per image
-        (:meth:`~fmbrdf_mi.fit.inputs.observations.Observation.sample_geometry`)."""
+        """(directions, each image's direction count, footprint weights (K,) or None) of ``geo``, (observation,
+        flat pixels, footprint) per image (:meth:`~fmbrdf_mi.fit.inputs.observations.Observation.sample_geometry`)."""
         first = [o.sample_geometry(idx[:1] if len(idx) else [0], footprint=fp) for o, idx, fp in geo]
         per = [len(f[0]) for f in first]
 
@@ -191,8 +186,7 @@ class PixelEvaluator(_Evaluator):
     """Per-pixel BSDF evaluation at normals ``(n, 3)`` and view directions ``(n, 3)`` (or a :class:`Directions`
     as ``normals``, ``view_dirs`` None) under one light direction, or one per direction (``light_dir`` (n, 3),
     ``irradiance`` (n,)).  With ``weights`` (K,) the directions are (n K, 3), K footprint samples per pixel
-    summed with those weights.
-    """
+    summed with those weights."""
 
     #: Directions per BSDF evaluation (whole pixels).  A chunk with derivatives rebuilds the tables with every
     #: parameter's tangent (as much work as as many directions as the tables have texels): more than twice that.
@@ -241,8 +235,7 @@ class PixelEvaluator(_Evaluator):
                     np.asarray(light, dtype=np.float64), False)
 
     def _store(self, directions, light, normalise):
-        """Store ``directions``' normals, views, lights and camera x axes as float32, computed in float64 a
-        piece at a time (``normalise``: scaled to unit length first)."""
+        """Store ``directions``' normals, views (``normalise``: to unit length), lights and camera x axes."""
         n_dirs = directions.count
         self._whole = None      # the Dr.Jit geometry of all pixels, kept when they are one chunk
         self._normals = np.empty((n_dirs, 3), np.float32)
@@ -269,7 +262,7 @@ class PixelEvaluator(_Evaluator):
             raise ValueError(f"directions: the pieces hold {a} of the {n_dirs} directions announced")
 
     def _chunks(self):
-        most = max(1, self.CHUNK_DIRECTIONS // self.k)      # pixels per chunk at most
+        most = max(1, self.CHUNK_DIRECTIONS // self.k)
         if most >= self.n:
             return [(None, slice(None))]
         count = -(-self.n // most)
@@ -326,8 +319,7 @@ class PixelEvaluator(_Evaluator):
 class RenderEvaluator(_Evaluator):
     """The model's BSDF at traverse prefix ``bsdf_prefix`` (e.g. ``"sphere.bsdf."``) of ``scene``, rendered
     with the ``stokes`` integrator at ``pixels`` (flat row-major indices); every render uses the same ``seed``
-    and ``spp``, so the two parts add up to the full image exactly (reverse-mode gradients only).
-    """
+    and ``spp``, so the two parts add up to the full image exactly (reverse-mode gradients only)."""
 
     def __init__(self, model, scene, bsdf_prefix, pixels=None, spp=16, seed=0, variant=None):
         mi = set_variant(variant)
