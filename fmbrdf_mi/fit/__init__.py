@@ -4,8 +4,7 @@
     joint = fit([obs_1, obs_2, obs_3])    # several images of one object, one material (= fit_joint)
 
 Layers, each importing only from those before it (``tests/test_layers.py``): ``errors``, ``inputs``,
-``evaluate``, ``objectives``, ``problem``, ``solve``, ``uncertainty``, ``result``, ``api``, ``outputs``, ``cli``.
-"""
+``evaluate``, ``objectives``, ``problem``, ``solve``, ``uncertainty``, ``result``, ``api``, ``outputs``, ``cli``."""
 from fmbrdf_mi.fit.api.colour import fit_colour
 from fmbrdf_mi.fit.api.find_materials import FoundMaterials, MaterialsNotSeparated, find_materials
 from fmbrdf_mi.fit.api.fitting import FitOptions, fit, fit_joint, usable_pixels

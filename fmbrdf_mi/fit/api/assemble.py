@@ -45,8 +45,7 @@ class Fitted:
 
 
 def assemble(fx):
-    """The :class:`~fmbrdf_mi.fit.result.FitResult` of the :class:`Fitted` ``fx``, with the covariance
-    (:func:`~fmbrdf_mi.fit.uncertainty.covariance`) of a converged pixel-path fit."""
+    """The :class:`~fmbrdf_mi.fit.result.FitResult` of ``fx``, with a converged pixel-path fit's covariance."""
     problem, sol, data, report = fx.problem, fx.solution, fx.data, fx.report
     st, loss, objective = sol.state, data.loss, data.objective
     unc, groups = {}, None
@@ -147,8 +146,7 @@ MIN_IMAGES_PER_PIXEL = 3
 
 def albedo_maps(layout, shape, groups, prior=False):
     """(fit.json's ``albedo`` block, maps ``k_s``, ``k_b``, ``k_s_se``, ``k_b_se``, ``identified``): ``groups``
-    (:func:`fmbrdf_mi.fit.uncertainty.pixel_albedos`) on the grid ``shape``, (H, W) or (C, H, W), NaN where not
-    fitted."""
+    on the grid ``shape``, (H, W) or (C, H, W), NaN where not fitted."""
     H, W = shape
     C = 1 if layout.channel_of is None else len(layout.labels)
     ch = np.zeros(layout.n_groups, int) if layout.channel_of is None else layout.channel_of

@@ -1,7 +1,6 @@
 """Checks after a fit, each a function of its result (:func:`~fmbrdf_mi.fit.api.fitting.fit` applies those
 its options ask for): :func:`check_footprint`, :func:`check_intervals`, :func:`find_other_optima`.  Each
-extends a converged pixel-path result's uncertainty block; any other result is returned as it is.
-"""
+extends a converged pixel-path result's uncertainty block; any other result is returned as it is."""
 from __future__ import annotations
 
 import dataclasses
@@ -43,8 +42,7 @@ def check_intervals(res, every=False, progress=None):
 
 
 def find_other_optima(res, progress=None):
-    """Competing optima among the starts' ends (:func:`~fmbrdf_mi.fit.uncertainty.other_optima`), intervals
-    widened over them."""
+    """The starts' competing optima (:func:`~fmbrdf_mi.fit.uncertainty.other_optima`), intervals widened over them."""
     if not checkable(res):
         return res
     fx, unc = res.fitted, res.uncertainty

@@ -3,8 +3,7 @@ eq:fmbrdf), albedos per colour channel.  Raw sample k (colour c_k, polariser phi
 
     mu_ik = 1/2 (1, cos 2 phi_k, sin 2 phi_k) . (a_s[c_k] S_ik + a_b[c_k] B_ik)
 
-with S, B the unit-albedo Stokes vectors (:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos`).
-"""
+with S, B the unit-albedo Stokes vectors (:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos`)."""
 from __future__ import annotations
 
 import dataclasses

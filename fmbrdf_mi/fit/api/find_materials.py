@@ -1,9 +1,7 @@
-"""The label image of several materials when the user has none (``--materials auto:M``): :func:`find_materials`.
-
-The per-pixel albedo fit's (k_s, k_b) in units of their standard errors (the model divides the geometry out)
-are clustered (:func:`weighted_kmeans`, :func:`majority_filter`), then refined by hard EM on the model: each
-pixel to the material of least :func:`material_chi2`, refit while labels change.
-"""
+"""The label image of several materials when the user has none (``--materials auto:M``): :func:`find_materials`
+clusters the per-pixel albedo fit's (k_s, k_b), free of the geometry, in units of their standard errors
+(:func:`weighted_kmeans`, :func:`majority_filter`), then refines by hard EM on the model: each pixel to the
+material of least :func:`material_chi2`, refit while labels change."""
 from __future__ import annotations
 
 import dataclasses
@@ -137,10 +135,9 @@ def separation(pred, labels_flat, count):
 
 def find_materials(obs, count, options=None, *, seed=0, rounds=2, clean=1, min_decided=0.5, progress=False,
                    **kw):
-    """A :class:`FoundMaterials` of ``count`` materials for one mono :class:`Observation`.  ``options`` /
-    ``kw``: its fits' :class:`~fmbrdf_mi.fit.api.options.FitOptions`; ``rounds``: most fits of M materials;
-    ``clean``: majority-filter passes; ``min_decided``: the fraction of each material's pixels that must be
-    decided (:func:`separation`), else :class:`MaterialsNotSeparated`."""
+    """A :class:`FoundMaterials` of ``count`` materials for one mono :class:`Observation` (``options`` / ``kw``:
+    its fits' options; ``rounds``: most fits of M materials; ``clean``: majority-filter passes); raises
+    :class:`MaterialsNotSeparated` unless a ``min_decided`` fraction of each material's pixels is decided."""
     if isinstance(obs, (list, tuple)):
         raise InputError("find_materials: one image (an Observation); several images are not supported yet")
     count = Option("count", kind="int", lo=2, hi=254).check(count, "find_materials: count")

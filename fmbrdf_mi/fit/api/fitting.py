@@ -1,5 +1,4 @@
-"""``fit()``: estimate a model's parameters from one :class:`Observation` or several of one object (paper
-section 5)."""
+"""``fit()``: estimate a model's parameters from one :class:`Observation` or several of one object (paper sec. 5)."""
 from __future__ import annotations
 
 import dataclasses
@@ -43,8 +42,7 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     gives only its noise model and pixel grid).  ``materials``: integer labels on ``obs.shape`` or a raw
     mosaic's sensor grid, 0 .. M-1 the materials, < 0 not fitted; each material gets its own ``eta[m]``, ...
     and, with ``albedo="shared"``, ``k_s[m]``, ``r_k[m]``.  ``max_time`` stops with the latest accepted
-    estimate, ``converged=False`` and no standard errors.
-    """
+    estimate, ``converged=False`` and no standard errors."""
     t0, opts = time.time(), fit_options(options, **kw)
     check_fit_options(**dataclasses.asdict(opts))
     joint = isinstance(obs, (list, tuple))

@@ -3,8 +3,7 @@ pixel's normal together, since an alternation converges slowly where they trade 
 likelihood plus ``lam c`` times the smoothness prior (:func:`fmbrdf_mi.fit.problem.normals.stencils`), c
 converting ``lam`` (Stokes residuals over the mean intensity) to chi^2 units.  The material's covariance
 (:func:`fmbrdf_mi.fit.solve.normal_system.material_covariance`) omits the prior's bias, so the material is
-re-estimated at the weaker ``lam_material``, calibrated for ``lam_material <= LAM_MATERIAL``.
-"""
+re-estimated at the weaker ``lam_material``, calibrated for ``lam_material <= LAM_MATERIAL``."""
 from __future__ import annotations
 
 import math
@@ -59,8 +58,7 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     :class:`Observation` s of one view under different lights.  ``mask``: the pixels refined (default: the
     first mask eroded by 1, less clipped super-pixels); ``refreshes``: IRLS rounds; ``lam_material``: the
     material's smoothness weight (None: ``lam``).  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with
-    ``normals`` and ``mask``; ``loss_terms``: data (chi^2) and prior at ``lam``.
-    """
+    ``normals`` and ``mask``; ``loss_terms``: data (chi^2) and prior at ``lam``."""
 
     say = progress or (lambda msg: None)
     obs = list(observations)

@@ -319,7 +319,7 @@ def table(value, name, what):
 
 
 def check_init(init, m, flag, albedo="shared"):
-    """``init``: a finite number in bounds (albedos >= 0) per parameter ``m`` reports; shape only per pixel."""
+    """``init``: a finite number in bounds (albedos >= 0) per parameter of ``m``; per-pixel albedos: shape only."""
     table(init, flag("init"), "value")
     params = Parameters(m)
     names = params.reported_names

@@ -1,7 +1,5 @@
-"""The parameters of a fit as one table, :class:`Parameters`: one :class:`Param` row per name (shape
-parameters per material, free light powers, albedos per group), built in one place so that no name is
-parsed back.
-"""
+"""The parameters of a fit as one table, :class:`Parameters`, of :class:`Param` rows (shape parameters per
+material, free light powers, albedos per group), built in one place so that no name is parsed back."""
 from __future__ import annotations
 
 import copy
@@ -41,8 +39,7 @@ class Parameters:
     """The parameter table of a fit of ``model``.  ``materials``: M (None: one); ``channels``: labels of
     per-channel albedos; ``maps``: no albedo rows; ``powers``: the given relative powers G_0 .. G_{K-1} of a
     joint fit whose P_1 .. P_{K-1} are free; ``bounds`` {name: (lo, hi)} and ``fixed`` {name: value} (a model
-    name stands for every material's).  ``rows`` are in :meth:`report`'s order; ``shape``: the rows of z.
-    """
+    name stands for every material's).  ``rows`` are in :meth:`report`'s order; ``shape``: the rows of z."""
 
     def __init__(self, model, *, materials=None, channels=None, maps=False, powers=None, bounds=None, fixed=None):
         self.model = model
