@@ -36,10 +36,10 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     """Estimate the parameters of ``options.model`` from ``obs``; returns a :class:`~fmbrdf_mi.fit.result.FitResult`.
 
     ``obs``: an :class:`~fmbrdf_mi.fit.inputs.observations.Observation`, or a list of them of one material
-    (:func:`fit_joint`).  Keywords override :class:`FitOptions` fields.  ``progress``: as
-    :func:`progress_callable`.  ``evaluator``: a reusable :func:`~fmbrdf_mi.fit.problem.data.prepare` evaluator
-    of the same pixels; ``data``: a caller-built :class:`~fmbrdf_mi.fit.problem.problem.FitData` (``obs`` then
-    gives only its noise model and pixel grid).  ``materials``: integer labels on ``obs.shape`` or a raw
+    (:func:`fit_joint`).  Keywords override :class:`FitOptions` fields.  ``progress``: True prints to stderr, a
+    callable receives each line, False is silent.  ``evaluator``: a reusable
+    :func:`~fmbrdf_mi.fit.problem.data.prepare` evaluator of the same pixels; ``data``: a caller-built
+    :class:`~fmbrdf_mi.fit.problem.problem.FitData` (``obs`` then gives only its noise model and pixel grid).  ``materials``: integer labels on ``obs.shape`` or a raw
     mosaic's sensor grid, 0 .. M-1 the materials, < 0 not fitted; each material gets its own ``eta[m]``, ...
     and, with ``albedo="shared"``, ``k_s[m]``, ``r_k[m]``.  ``max_time`` stops with the latest accepted
     estimate, ``converged=False`` and no standard errors."""
@@ -137,7 +137,8 @@ def fit_joint(observations, options=None, **kw):
     (pixel path, ``lm`` only); ``max_pixels`` is split evenly.  ``names``: the images' labels (default
     ``image0``, ...); ``free_power=True`` estimates the light powers of images 1 .. K-1 relative to image 0's
     (:mod:`fmbrdf_mi.fit.problem.free_power`); ``powers``: the relative powers the irradiances already include
-    (default 1 each).  The result adds ``images`` (:func:`diagnose`) and ``pixels`` per image."""
+    (default 1 each).  The result adds ``images`` (:func:`~fmbrdf_mi.fit.api.fitting.diagnose`) and ``pixels``
+    per image."""
     return fit(check_observations(observations, "fit_joint()", least=0), options, **kw)
 
 
