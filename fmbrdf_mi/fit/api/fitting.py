@@ -39,10 +39,11 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     (:func:`fit_joint`).  Keywords override :class:`FitOptions` fields.  ``progress``: True prints to stderr, a
     callable receives each line, False is silent.  ``evaluator``: a reusable
     :func:`~fmbrdf_mi.fit.problem.data.prepare` evaluator of the same pixels; ``data``: a caller-built
-    :class:`~fmbrdf_mi.fit.problem.problem.FitData` (``obs`` then gives only its noise model and pixel grid).  ``materials``: integer labels on ``obs.shape`` or a raw
-    mosaic's sensor grid, 0 .. M-1 the materials, < 0 not fitted; each material gets its own ``eta[m]``, ...
-    and, with ``albedo="shared"``, ``k_s[m]``, ``r_k[m]``.  ``max_time`` stops with the latest accepted
-    estimate, ``converged=False`` and no standard errors."""
+    :class:`~fmbrdf_mi.fit.problem.problem.FitData` (``obs`` then gives only its noise model and pixel grid).
+    ``materials``: integer labels on ``obs.shape`` or a raw mosaic's sensor grid, 0 .. M-1 the materials, < 0
+    not fitted; each material gets its own ``eta[m]``, ... and, with ``albedo="shared"``, ``k_s[m]``,
+    ``r_k[m]``.  ``max_time`` stops with the latest accepted estimate, ``converged=False`` and no standard
+    errors."""
     t0, opts = time.time(), fit_options(options, **kw)
     check_fit_options(**dataclasses.asdict(opts))
     joint = isinstance(obs, (list, tuple))
