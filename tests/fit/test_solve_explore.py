@@ -173,9 +173,11 @@ def test_a_start_near_the_optimum_converges_in_few_profiled_steps(obs):
     st, f, _, converged, J, _ = O.levenberg_marquardt(p, st0, max_iter=60)
     assert converged
     F = J.T @ J
-    R, share, Q = U._shares(F, U.incidental_term(p, st, p.parts(st, jac=True)))
-    assert share[-1] > 0.5          # the slow direction exists
-    v = (R @ Q)[:, -1]
+    w, V = np.linalg.eigh(F)
+    R = V / np.sqrt(w)                                  # F^-1/2 = R V^T
+    share, Q = np.linalg.eigh(R.T @ U.incidental_term(p, st, p.parts(st, jac=True)) @ R)
+    assert share[-1] > 0.5          # the slow direction exists: C is most of F's curvature along it
+    v = R @ Q[:, -1]
     se = np.sqrt(np.diag(np.linalg.inv(F)))
     iterations = {}
     for profiled in (False, True):

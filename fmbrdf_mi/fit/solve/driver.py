@@ -215,10 +215,11 @@ def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
         optimum[i] = next((j for j in dict.fromkeys(optimum.values())
                            if same_end(sub, sub_ends[j][1], end)), i)
     continued, polished = [], {}
-    for j in dict.fromkeys(optimum[i] for i in order):     # each optimum once, its albedos re-solved on all pixels
-        e = sub_ends[j][1].state
-        continued.append((j, problem.projected(e.shape)[0] if problem.projects else problem.state(e.shape, e.a_s,
-                                                                                                  e.a_b)))
+    optima = list(dict.fromkeys(optimum[i] for i in order))
+    for j in optima:        # each optimum once, its albedos re-solved on all pixels (one: with the derivatives
+        e = sub_ends[j][1].state        # LM's first linearisation takes there, so one evaluation)
+        continued.append((j, problem.projected(e.shape, jac=len(optima) == 1)[0] if problem.projects
+                          else problem.state(e.shape, e.a_s, e.a_b)))
     out = polished[run_starts(problem, continued, polished, say, f" continued on all {pixels} pixels",
                               " on all pixels", **dict(kw, profiled=True))][1]
     ends = [end_record(sub.params, st0, polished[optimum[k]][1], polished[optimum[k]][0], problem.params)
