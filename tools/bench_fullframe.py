@@ -57,8 +57,8 @@ Modes:
 ``--code DIR``: the checkout whose package fits (the command's ``PYTHONPATH``; the ``api`` child's package,
 which then also makes its data), e.g. ``git worktree add --detach ../old COMMIT``, to record the old code's
 estimates on the same data.  Each run records its estimates (the shape parameters, the loss and a summary of
-the albedo maps: count, mean, RMS and 16 pixels spread over the object) and its uncertainty (standard errors,
-95 % intervals); ``--compare A.json B.json`` matches the runs of the same case (mode, scene, texture, lights,
+the albedo maps: count, mean, RMS and 16 pixels spread over the object), its uncertainty (standard errors,
+95 % intervals) and, in ``cli`` mode, the interval check's model evaluations per profiled end; ``--compare A.json B.json`` matches the runs of the same case (mode, scene, texture, lights,
 frame, area, seed) and prints, per case and overall, the largest relative difference of the estimates (of the
 uncertainty for information); exit status 1 when one exceeds ``--rtol`` (default 1e-6) or a case's estimates
 differ in kind, 2 when no case matches.
@@ -404,7 +404,9 @@ def run_cli(a, case):
                 stages=model.get("timings") or {}, make_time=make_time, make_peak=make_peak,
                 estimates=estimates_of(model.get("params", {}), model.get("loss", math.nan),
                                        {k: v for k, v in maps.items() if v is not None}),
-                uncertainty={"std_errors": model.get("std_errors") or {}, "ci95": unc.get("ci95") or {}})
+                uncertainty={"std_errors": model.get("std_errors") or {}, "ci95": unc.get("ci95") or {}},
+                profile_evaluations={n: r["evaluations"] for n, r in
+                                     (unc.get("profile") or {}).get("rises", {}).items() if "evaluations" in r})
 
 
 def run_api(a, case):

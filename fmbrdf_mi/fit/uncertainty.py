@@ -39,6 +39,9 @@ INTERVALS = ("auto", "profile", "fisher")
 PROFILE_TOL = 0.15
 #: Relative tolerance of a profile end's chi^2 rise (:func:`profile_end`).
 PROFILE_ROOT_TOL = 0.1
+#: A profile refit stops when its predicted further decrease of chi^2 is below this fraction of that tolerance
+#: (PROFILE_ROOT_TOL x the rise sought): its error moves the end by a fraction of the tolerance.
+PROFILE_REFIT_TOL = 0.25
 #: A start's end this many SE from the estimate in some shape parameter is another optimum.
 MODE_SEPARATION_SE = 2.0
 
@@ -479,28 +482,31 @@ def chi2_along_covariance(problem, st, J, scale):
 
 def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refits=3):
     """One end of ``name``'s profile-likelihood 95 % interval on ``side`` (-1, +1) of ``st``: where chi^2
-    refitted with ``name`` fixed (:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed` from ``path.state``) rises by
-    ``delta``.  Secant then false position on sqrt(rise), linear in the distance for a quadratic likelihood.
-    Returns (end, kind, [(value, rise)]), kind "profile", "profile, open at the bound" or "profile, at least"."""
+    refitted with ``name`` fixed (:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed` from ``path.state``, to
+    within :data:`PROFILE_REFIT_TOL` of the end's tolerance) rises by ``delta``.  Secant then false position on
+    sqrt(rise), linear in the distance for a quadratic likelihood.  Returns (end, kind, [(value, rise)],
+    model evaluations), kind "profile", "profile, open at the bound" or "profile, at least"."""
     b = problem.bounds
     bound = b.lims[name][2 if side < 0 else 3]
     t0 = b.to_scale(name, st.shape[name])
     room = abs(b.to_scale(name, bound) - t0)
     u = min(abs(b.to_scale(name, start) - t0), room)
     pts, inside, outside, g_target = [], (0.0, 0.0), None, math.sqrt(delta)    # inside, outside: (|u|, sqrt(rise))
+    evals = 0
     for k in range(max_refits):
         u = min(max(u, 1e-9 * max(room, 1.0)), room)
         v = b.from_scale(name, t0 + side * u) if u < room else bound
-        rise = refit_fixed(problem, st, name, v, path.state(name, v),
-                           label=f"profile {name} {'lower' if side < 0 else 'upper'}") - chi2_min
+        chi2, n = refit_fixed(problem, st, name, v, path.state(name, v), tol=PROFILE_REFIT_TOL * PROFILE_ROOT_TOL
+                              * delta, label=f"profile {name} {'lower' if side < 0 else 'upper'}")
+        rise, evals = chi2 - chi2_min, evals + n
         pts.append((float(v), float(rise)))
         g = math.sqrt(max(rise, 0.0))
         if abs(rise / delta - 1.0) < PROFILE_ROOT_TOL:
-            return float(v), "profile", pts
+            return float(v), "profile", pts, evals
         if g >= g_target:
             outside = (u, g)
         elif u >= room:
-            return float(bound), "profile, open at the bound", pts
+            return float(bound), "profile, open at the bound", pts, evals
         else:
             inside = (u, g)
         if outside is None:      # secant through the origin, at most x4
@@ -510,8 +516,8 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
             fallback = 0.5 * (ua + ub) if k + 1 < max_refits else ub
             u = ua + (g_target - ga) * (ub - ua) / (gb - ga) if gb > ga else fallback
     if outside is None:
-        return float(pts[-1][0]), "profile, at least", pts
-    return float(b.from_scale(name, t0 + side * u)), "profile", pts
+        return float(pts[-1][0]), "profile, at least", pts, evals
+    return float(b.from_scale(name, t0 + side * u)), "profile", pts, evals
 
 
 def profile_intervals(problem, st, unc, J, r, every=False, progress=None):
@@ -544,8 +550,9 @@ def profile_intervals(problem, st, unc, J, r, every=False, progress=None):
             rise = tried["fisher_end_rise" if i else "fisher_start_rise"] = float(path(n, ends[i]) - chi2_min)
             kind.append(FISHER_AT_BOUND if cut else "fisher")
             if every or not (rise <= delta * (1 + PROFILE_TOL) if cut else abs(rise / delta - 1) <= PROFILE_TOL):
-                end, k, tried["upper" if i else "lower"] = profile_end(problem, st, n, side, ends[i], delta,
-                                                                        chi2_min, path)
+                end, k, tried["upper" if i else "lower"], evals = profile_end(problem, st, n, side, ends[i], delta,
+                                                                               chi2_min, path)
+                tried.setdefault("evaluations", {})["upper" if i else "lower"] = evals
                 if not (sandwich and side * (end - ends[i]) < 0):    # with the sandwich a profile end only widens
                     ends[i], kind[i] = end, k
         kinds[n], details[n] = kind_of(kind), tried

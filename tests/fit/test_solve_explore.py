@@ -157,3 +157,37 @@ def test_a_joint_fit_counts_each_pixel_once(obs, monkeypatch):
     res = fit([obs] * 3, albedo="per-pixel", max_pixels=None, intervals="fisher", starts=1, progress=lines.append)
     assert res.converged and res.n_pixels == 3 * len(obs_pixels(obs)), (res.stop_reason, res.n_pixels)
     assert not any("subsample" in ln for ln in lines), lines
+
+
+def test_a_start_near_the_optimum_converges_in_few_profiled_steps(obs):
+    """The continuation's start lies a few standard errors from all pixels' optimum, mostly along the
+    direction where the eliminated albedos' noise is most of J^T J (the subsample's error is largest there):
+    Gauss-Newton on J^T J converges linearly there, the profiled step (J^T J - C) in fewer steps, to the same
+    optimum (within LM's tolerance: a fraction of a standard error)."""
+    from fmbrdf_mi.fit import uncertainty as U
+    from fmbrdf_mi.fit.solve import optimise as O
+
+    p, _ = problem_of(obs)
+    st0 = p.projected(dict(SHAPE))[0]
+    p.obj.refresh(p.parts(st0), st0)
+    st, f, _, converged, J, _ = O.levenberg_marquardt(p, st0, max_iter=60)
+    assert converged
+    F = J.T @ J
+    w, V = np.linalg.eigh(F)
+    R = V / np.sqrt(w)                                  # F^-1/2 = R V^T
+    share, Q = np.linalg.eigh(R.T @ U.incidental_term(p, st, p.parts(st, jac=True)) @ R)
+    assert share[-1] > 0.5          # the slow direction exists: C is most of F's curvature along it
+    v = R @ Q[:, -1]
+    se = np.sqrt(np.diag(np.linalg.inv(F)))
+    iterations = {}
+    for profiled in (False, True):
+        for sign in (-1, 1):
+            z0 = p.to_z(st) + sign * 3 * v / np.sqrt(v @ F @ v)        # 3 standard errors along it
+            hist = []
+            end, f_end, _, ok, *_ = O.levenberg_marquardt(p, p.projected(p.from_z(z0).shape)[0], max_iter=60,
+                                                          history=hist, profiled=profiled)
+            assert ok and f_end < f + 0.1
+            assert np.all(np.abs(p.to_z(end) - p.to_z(st)) < 0.5 * se)
+            iterations[profiled, sign] = len(hist)
+    assert all(iterations[True, s] <= 6 and iterations[True, s] + 3 <= iterations[False, s] for s in (-1, 1)), \
+        iterations

@@ -184,3 +184,27 @@ def test_a_singular_solve_raises_the_damping_instead_of_failing():
     r0 = model(p0) - y
     res = LM.levenberg_marquardt(p0, float(r0 @ r0), linearise, picky, trial, max_iter=3)
     assert lams[:3] == pytest.approx([1e-3, 4e-3, 1.6e-2]) and res.f < float(r0 @ r0)
+
+
+def test_profiled_curvature_is_f_minus_c_floored():
+    """F - C where every eigenvalue of F^-1/2 C F^-1/2 is below 1 - floor; along a direction where C takes more
+    than that share of F, F's curvature times the floor (checked in F's whitened coordinates)."""
+    rng = np.random.default_rng(4)
+    A = rng.standard_normal((3, 3))
+    F = A @ A.T + 3 * np.eye(3)
+    w, V = np.linalg.eigh(F)
+    half = (V * np.sqrt(w)) @ V.T
+    Q = np.linalg.qr(rng.standard_normal((3, 3)))[0]
+    for shares, want in (((0.2, 0.5, 0.7), (0.8, 0.5, 0.3)), ((0.2, 0.5, 0.97), (0.8, 0.5, LM.CURVATURE_FLOOR))):
+        C = half @ (Q * np.array(shares)) @ Q.T @ half
+        H = LM.profiled_curvature(F, C)
+        assert np.allclose(H, half @ (Q * np.array(want)) @ Q.T @ half, rtol=1e-10, atol=1e-10)
+        if max(shares) < 1 - LM.CURVATURE_FLOOR:
+            assert np.allclose(H, F - C, rtol=1e-10, atol=1e-10)
+    # the step and the decrement on it: Newton's on the quadratic of curvature H
+    J, r = rng.standard_normal((20, 3)), rng.standard_normal(20)
+    g = J.T @ r
+    C = 0.3 * J.T @ J
+    H = LM.profiled_curvature(J.T @ J, C)
+    assert np.allclose(LM.dense_step(J, r, 0.0, C), -np.linalg.solve(H, g))
+    assert LM.gn_decrement(J, r, C) == pytest.approx(g @ np.linalg.solve(H, g), rel=1e-10)

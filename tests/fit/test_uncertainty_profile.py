@@ -74,8 +74,14 @@ def test_profile_ends_match_a_brute_force_profile(fitted):
     k0, se = st.shape["kappa"], unc["std_errors"]["kappa"]
     path = U.chi2_along_covariance(problem, st, J, U.interval_scale(problem, unc))
     for side in (-1, 1):
-        end, kind, pts = U.profile_end(problem, st, "kappa", side, k0 + side * U.Z95 * se, delta, chi2_min, path)
+        end, kind, pts, evals = U.profile_end(problem, st, "kappa", side, k0 + side * U.Z95 * se, delta, chi2_min,
+                                              path)
         assert kind == "profile", (kind, pts)
+        # each refit of the end: its chi^2 within the refit's tolerance of a refit converged far tighter
+        tight = refit_fixed(problem, st, "kappa", pts[-1][0], path.state("kappa", pts[-1][0]), max_iter=40,
+                            tol=1e-8)[0] - chi2_min
+        assert tight - 1e-6 <= pts[-1][1] <= tight + U.PROFILE_REFIT_TOL * U.PROFILE_ROOT_TOL * delta, (pts, tight)
+        assert len(pts) <= evals, (evals, pts)      # each refit evaluates at least its start
         # the brute-force profile crosses the threshold within 8 % of the Fisher half-width of the package's end
         hw = U.Z95 * se
         inner = brute_profile(problem, st, end - side * 0.08 * hw) - chi2_min
@@ -126,6 +132,7 @@ def test_intervals_profile_gives_every_end_from_the_profile_a_brute_force_profil
     assert set(u["interval_kind"]) == {"alpha", "kappa"}
     assert all("profile" in k and "fisher" not in k for k in u["interval_kind"].values()), u["interval_kind"]
     assert all("lower" in u["profile"]["rises"][n] and "upper" in u["profile"]["rises"][n] for n in ("alpha", "kappa"))
+    assert all(u["profile"]["rises"][n]["evaluations"][e] >= 1 for n in ("alpha", "kappa") for e in ("lower", "upper"))
     chi2_min = res.loss_terms["chi2"]
     delta = u["profile"]["threshold"]
     hw = U.Z95 * res.std_errors["kappa"]
@@ -144,7 +151,7 @@ def test_the_path_screen_bounds_the_profile_from_above(fitted):
         v, se = st.shape[name], unc["std_errors"][name]
         for f in (-1.5, 1.6):
             x = v + f * U.Z95 * se
-            assert refit_fixed(problem, st, name, x) <= path(name, x) + 0.01, (name, f)
+            assert refit_fixed(problem, st, name, x)[0] <= path(name, x) + 0.01, (name, f)
 
 
 def test_fit_reports_the_kind_of_every_interval():

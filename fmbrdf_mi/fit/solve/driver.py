@@ -69,10 +69,11 @@ def step_in_se(problem, st_old, st_new, J):
 
 
 def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02, history=None,
-           report=None, label="lm"):
+           report=None, label="lm", profiled=False):
     """At most ``rounds`` reweighting rounds from ``st`` (:func:`~fmbrdf_mi.fit.solve.lm.reweighted`); the
     likelihood's are settled when a round moves the estimate by < 0.05 standard errors.  Returns a
-    :class:`Solution` (``J``, ``r`` None for Adam).  ``label``: LM's progress tag, the round number added.
+    :class:`Solution` (``J``, ``r`` None for Adam).  ``label``: LM's progress tag, the round number added;
+    ``profiled``: LM's (:func:`~fmbrdf_mi.fit.solve.optimise.levenberg_marquardt`).
     """
     obj = problem.obj
     say = report or (lambda m: None)
@@ -96,7 +97,7 @@ def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_l
         if optimizer == "lm":
             st, _, last.reason, converged, last.J, last.r = O.levenberg_marquardt(
                 problem, st_old, max_iter=max_iter, tol=tol, time_limit=time_limit, history=history, round_no=k + 1,
-                label=f"{label} {k + 1}")
+                label=f"{label} {k + 1}", profiled=profiled)
             step_se = step_in_se(problem, st_old, st, last.J) if last.J is not None else None
         else:
             st, _, last.reason, converged = O.adam(problem, st_old, max_iter=max_iter, lr=lr, tol=tol,
@@ -199,7 +200,8 @@ def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
     wherever those differ by more than that sampling noise.  The subsample therefore decides only where
     the fit starts on all pixels: ends on it within :data:`SAME_END_SE` of its standard errors of a better one are
     that optimum (LM from either reaches the same end on all pixels) and are not continued again; every other
-    end is refined on all pixels (:func:`refine`, the albedos re-solved there first), and the best of those
+    end is refined on all pixels (:func:`refine`, the albedos re-solved there first, steps on the profiled
+    curvature: the end is near the optimum, where Gauss-Newton converges linearly), and the best of those
     converged ends of all pixels is the estimate, each start's entry recording its optimum's end on all
     pixels.  No estimate of the subsample is returned.
     """
@@ -213,12 +215,13 @@ def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
         optimum[i] = next((j for j in dict.fromkeys(optimum.values())
                            if same_end(sub, sub_ends[j][1], end)), i)
     continued, polished = [], {}
-    for j in dict.fromkeys(optimum[i] for i in order):     # each optimum once, its albedos re-solved on all pixels
-        e = sub_ends[j][1].state
-        continued.append((j, problem.projected(e.shape)[0] if problem.projects else problem.state(e.shape, e.a_s,
-                                                                                                  e.a_b)))
+    optima = list(dict.fromkeys(optimum[i] for i in order))
+    for j in optima:        # each optimum once, its albedos re-solved on all pixels (one: with the derivatives
+        e = sub_ends[j][1].state        # LM's first linearisation takes there, so one evaluation)
+        continued.append((j, problem.projected(e.shape, jac=len(optima) == 1)[0] if problem.projects
+                          else problem.state(e.shape, e.a_s, e.a_b)))
     out = polished[run_starts(problem, continued, polished, say, f" continued on all {pixels} pixels",
-                              " on all pixels", **kw)][1]
+                              " on all pixels", **dict(kw, profiled=True))][1]
     ends = [end_record(sub.params, st0, polished[optimum[k]][1], polished[optimum[k]][0], problem.params)
             for k, st0 in enumerate(chosen)]
     return out, ends
@@ -232,12 +235,13 @@ def same_end(sub, a, b):
     return step_in_se(sub, a.state, b.state, a.J) <= SAME_END_SE
 
 
-def refit_fixed(problem, st, name, value, start=None, max_iter=10, label=None):
-    """chi^2 with shape parameter ``name`` held at ``value``, the rest free, under the current weights: one
-    point of the profile likelihood (:func:`fmbrdf_mi.fit.uncertainty.profile_intervals`).  From ``start``
-    (a State) or ``st`` with ``name`` moved; few LM iterations, as the profile needs chi^2 only roughly.
-    None where :meth:`~fmbrdf_mi.fit.problem.problem.Problem.with_fixed` cannot hold it.  ``label``: the
-    progress lines' tag (default 'profile ``name``')."""
+def refit_fixed(problem, st, name, value, start=None, max_iter=10, label=None, tol=LM.DECREMENT_TOL):
+    """(chi^2, evaluations): chi^2 with shape parameter ``name`` held at ``value``, the rest free, under the
+    current weights: one point of the profile likelihood (:func:`fmbrdf_mi.fit.uncertainty.profile_intervals`),
+    to within ``tol`` in chi^2 (LM's stop on its predicted decrease, on the profiled curvature), and the model
+    evaluations it took.  From ``start`` (a State) or ``st`` with ``name`` moved.  None where
+    :meth:`~fmbrdf_mi.fit.problem.problem.Problem.with_fixed` cannot hold it.  ``label``: the progress lines'
+    tag (default 'profile ``name``')."""
     sub = problem.with_fixed({name: float(value)})
     if sub is None:
         return None
@@ -251,7 +255,8 @@ def refit_fixed(problem, st, name, value, start=None, max_iter=10, label=None):
     if not sub.names and not sub.projects:   # only the albedos free: closed form
         start = sub.closed_form(start.shape)[0]
         r = sub.obj.residuals(sub.parts(start), start)
-        return float(r @ r)
+        return float(r @ r), sub.n_evals
     end, f, *_ = O.levenberg_marquardt(sub, start, max_iter=max_iter, final_jacobian=False,
-                                       label=label or f"profile {name}")
-    return float(f)
+                                       label=label or f"profile {name}", profiled=True, decrement_tol=tol,
+                                       exact_decrease=True)
+    return float(f), sub.n_evals

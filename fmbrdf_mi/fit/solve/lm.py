@@ -40,20 +40,45 @@ class LMResult:
                                               per=per)
 
 
-def gn_decrement(J, r):
-    """Decrease of r.r a full Gauss-Newton step predicts: g^T (J^T J)^-1 g, g = J^T r."""
-    g = J.T @ r
+def gn_decrement(J, r, C=None):
+    """Decrease of r.r a full Gauss-Newton step predicts: g^T A^-1 g, g = J^T r, A = J^T J or with ``C`` the
+    profiled curvature (:func:`profiled_curvature`)."""
+    g, A = J.T @ r, J.T @ J
+    if C is not None:
+        A = profiled_curvature(A, C)
     try:
-        return float(g @ np.linalg.lstsq(J.T @ J, g, rcond=None)[0])
+        return float(g @ np.linalg.lstsq(A, g, rcond=None)[0])
     except np.linalg.LinAlgError:
         return math.inf
 
 
-def dense_step(J, r, lam):
-    """The Levenberg-Marquardt step -(J^T J + lam diag(J^T J))^-1 J^T r (Marquardt's scaling)."""
+#: Floor of 1 - lambda in :func:`profiled_curvature`: the step along a direction at most 1 / this of Gauss-Newton's.
+CURVATURE_FLOOR = 0.1
+
+
+def profiled_curvature(F, C, floor=CURVATURE_FLOOR):
+    """F - C with 1 - lambda floored at ``floor`` (lambda the eigenvalues of F^-1/2 C F^-1/2): the expected
+    curvature of chi^2 with incidental albedos eliminated, F = J^T J (Kaufman's) being on average that plus
+    their noise term C (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`).  A Gauss-Newton step
+    on F alone shrinks the error by only lambda per iteration along a direction where C is that share of F."""
+    w, V = np.linalg.eigh(F)
+    if len(w) == 0 or w.min() <= 0:
+        return F
+    half, inv_half = (V * np.sqrt(w)) @ V.T, (V / np.sqrt(w)) @ V.T
+    lam, Q = np.linalg.eigh(inv_half @ C @ inv_half)
+    T = half @ Q
+    H = (T * np.maximum(1.0 - lam, floor)) @ T.T
+    return 0.5 * (H + H.T)
+
+
+def dense_step(J, r, lam, C=None):
+    """The Levenberg-Marquardt step -(A + lam diag(J^T J))^-1 J^T r (Marquardt's scaling), A = J^T J, or with
+    ``C`` the incidental albedos' noise term the profiled curvature (:func:`profiled_curvature`)."""
     A, g = J.T @ J, J.T @ r
     D = np.diag(A).copy()
     D[D <= 0] = 1e-12
+    if C is not None:
+        A = profiled_curvature(A, C)
     return np.linalg.solve(A + lam * np.diag(D), -g)
 
 

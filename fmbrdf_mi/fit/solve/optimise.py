@@ -145,7 +145,8 @@ def log_step(problem, history, name, round_no, it, f, st, say=True, t0=None, max
 
 
 def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, history=None,
-                        round_no=0, refresh=3, final_jacobian=True, label=None):
+                        round_no=0, refresh=3, final_jacobian=True, label=None, profiled=False,
+                        decrement_tol=LM.DECREMENT_TOL, exact_decrease=False):
     """Minimise the objective from ``st`` with its current weights (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`).
 
     The AD Jacobian (one table rebuild per shape parameter) is refreshed every ``refresh`` accepted steps,
@@ -153,13 +154,23 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
     :attr:`~fmbrdf_mi.fit.problem.problem.Problem.projects` its albedos re-solves them at every trial and
     takes an AD Jacobian every step (its albedo coordinates jump).  Returns (State, value, stop reason,
     converged, J, r); J, r at the result unless ``final_jacobian`` is False.  ``label``: the progress lines'
-    tag (:func:`log_step`).
+    tag (:func:`log_step`).  ``profiled``: a problem that eliminates its albedos without a prior steps on the
+    profiled curvature H = J^T J - C (:func:`~fmbrdf_mi.fit.solve.lm.profiled_curvature`): Newton's rate near
+    the optimum, where Gauss-Newton's is linear.  A likelihood stops when the Gauss-Newton decrement g^T (J^T
+    J)^-1 g (the squared distance to the optimum in standard errors, the incidental sandwich's for H) is below
+    ``decrement_tol``, or with ``exact_decrease`` when H's, g^T H^-1 g (the decrease of chi^2 left), is.
     """
     obj, project = problem.obj, problem.projects
+    profiled = profiled and problem.eliminates and problem.layout.incidental_reason is None
 
     def linearise(x):
         st, z = x
-        return problem.residuals_and_jacobian(problem.parts(st, jac=True), st, z)
+        parts = problem.parts(st, jac=True)
+        r, J = problem.residuals_and_jacobian(parts, st, z)
+        if not profiled:
+            return r, J, None
+        dcols = obj.albedo_column_derivatives(parts, z, problem.names, problem.bounds)
+        return r, J, problem.layout.incidental(*obj.albedo_columns(parts), dcols)
 
     def trial(x, delta, lin):
         z_new = np.clip(x[1] + delta, -40, 40)
@@ -173,7 +184,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         return (st_new, z_new), float(r_new @ r_new), r_new
 
     def secant(lin, x, x_new, r_new):
-        return lin[0], LM.broyden(lin[1], x_new[1] - x[1], r_new - lin[0])
+        return lin[0], LM.broyden(lin[1], x_new[1] - x[1], r_new - lin[0]), None
 
     def on_accept(it, x, f):
         problem.current = x[0]
@@ -184,16 +195,18 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
     z = problem.to_z(st)
     lin, problem.current, t0 = linearise((st, z)), st, time.time()
     res = LM.levenberg_marquardt(
-        (st, z), float(lin[0] @ lin[0]), linearise, lambda lin, lam: LM.dense_step(lin[1], lin[0], lam), trial,
-        max_iter=max_iter, lin=lin, refresh=1 if project else refresh, secant=None if project else secant,
-        moved=None if project else (lambda lin, x_new, r_new: (r_new, lin[1])),
-        decrement=(lambda lin: LM.gn_decrement(lin[1], lin[0])) if obj.is_likelihood else None,
+        (st, z), float(lin[0] @ lin[0]), linearise, lambda lin, lam: LM.dense_step(lin[1], lin[0], lam, lin[2]),
+        trial, max_iter=max_iter, lin=lin, refresh=1 if project else refresh, secant=None if project else secant,
+        moved=None if project else (lambda lin, x_new, r_new: (r_new, lin[1], None)),
+        decrement=(lambda lin: LM.gn_decrement(lin[1], lin[0], lin[2] if exact_decrease else None))
+        if obj.is_likelihood else None,
+        decrement_tol=decrement_tol,
         small=lambda f, f_new: obj.small_decrease(f, f_new, tol),
         step_small=None if obj.is_likelihood else (lambda x, x_new: float(np.max(np.abs(x_new[1] - x[1]))) < 1e-4),
         time_up=None if time_limit is None else (lambda: time.time() - t0 > time_limit),
         on_accept=on_accept, final_linearise=final_jacobian)
     reason = res.describe("objective", "tolerance", max_iter, time_limit, " per round")
-    return res.x[0], res.f, reason, res.converged, *res.lin[::-1]
+    return res.x[0], res.f, reason, res.converged, res.lin[1], res.lin[0]
 
 
 def loss_and_grad_reverse(problem, st):
