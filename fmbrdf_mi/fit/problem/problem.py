@@ -166,7 +166,7 @@ class Problem:
         self.obj.refresh(parts, st)
 
     def residuals_and_jacobian(self, parts, st, z):
-        """r (m,) and dr/dz (m, k + 2) of the objective's residuals."""
+        """r (m,) and dr/dz (m, len(z)) of the objective's residuals (Kaufman's projection with a layout)."""
         r, J, bad = self.obj.residuals_and_jacobian(parts, st, z, self.names, self.bounds)
         if bad is not None and bad.any():
             # NaN forward-mode derivatives: the rows leave J, their residuals still count
