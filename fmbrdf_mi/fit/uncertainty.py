@@ -90,7 +90,7 @@ def at_bound(problem, st, sd=None):
 
 def jacobian_in_reported(problem, st, J):
     """(names, J_theta): the residuals' Jacobian with respect to the reported free parameters."""
-    names = list(problem.names) + list(problem.params.albedo_names)
+    names = list(problem.names) + ([] if problem.projects else list(problem.params.albedo_names))
     return names, J @ np.linalg.inv(dtheta_dz(problem, st, names))
 
 
@@ -316,7 +316,11 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
             estimator = "incidental" if cz is not None else estimator
     except np.linalg.LinAlgError:
         return Covariance(names, None, {}, [("singular-information", "")])
-    return Covariance(names, scale * Hi, info, [(estimator, "")] + applied, None if cz is None else cz * scale)
+    cov = scale * Hi
+    if problem.projects and not problem.eliminates:     # a few eliminated albedo pairs: rows of the table
+        names, cov = problem.with_albedo_rows(st, parts or problem.parts(st, jac=True), names, cov, scale,
+                                              np.linalg.lstsq(J, Jt, rcond=None)[0])
+    return Covariance(names, cov, info, [(estimator, "")] + applied, None if cz is None else cz * scale)
 
 
 def kind_of(ends):
@@ -470,7 +474,7 @@ def chi2_along_covariance(problem, st, J, scale):
             z = z0 + c[:, j] / c[j, j] * (problem.bounds.to_z(name, value) - z0[j])
         s = problem.from_z(z)
         s.shape[name] = float(value)   # exactly: z is clipped to +-Z_MAX
-        return problem.projected(s.shape)[0] if problem.eliminates else s
+        return problem.projected(s.shape)[0] if problem.projects else s
 
     def f(name, value):
         s = state(name, value)

@@ -1,4 +1,4 @@
-"""The per-channel albedo layout against NumPy's least squares and finite differences."""
+"""The albedo layouts against NumPy's least squares and the dense information matrix."""
 import numpy as np
 
 from fmbrdf_mi.fit.evaluate.albedos import GroupAlbedos
@@ -26,17 +26,21 @@ def test_solve_is_each_channels_weighted_least_squares():
         assert abs(got_s[g] - a_s[g]) < 0.02 and abs(got_b[g] - a_b[g]) < 0.02   # and near the truth
 
 
-def test_columns_are_derivatives_in_log_albedo():
-    lay, S, B, _, _, a_s, a_b = _data(1)
-    cols = lay.columns(S, B, a_s, a_b)
-    h = 1e-6
-    for j in range(6):
-        z = np.log(np.concatenate([a_s, a_b]))
-        zp, zm = z.copy(), z.copy()
-        zp[j] += h
-        zm[j] -= h
-        fd = (lay.mu(S, B, np.exp(zp[:3]), np.exp(zp[3:])) - lay.mu(S, B, np.exp(zm[:3]), np.exp(zm[3:]))) / (2 * h)
-        assert np.allclose(cols[j], fd, rtol=1e-6, atol=1e-12), j
+def test_joint_covariance_is_the_dense_inverse_information():
+    """The eliminated channels' joint covariance of (shape, a_s[0], a_b[0], ...) against the inverse of the
+    dense information of all unknowns (2 shape columns, then each channel's albedo columns)."""
+    lay, S, B, y, w, _, _ = _data(1)
+    sd = 1.0 / np.sqrt(w)
+    us, ub = (-S / sd).ravel(), (-B / sd).ravel()
+    J = np.random.default_rng(2).normal(size=(S.size, 2))
+    U = np.zeros((S.size, 6))
+    g = np.broadcast_to(lay.groups, S.shape).ravel()
+    U[np.arange(S.size), 2 * g], U[np.arange(S.size), 2 * g + 1] = us, ub
+    Cfull = np.linalg.inv(np.concatenate([J, U], 1).T @ np.concatenate([J, U], 1))
+    Jp = lay.project(J, us, ub)[0]
+    for scale in (1.0, 2.5):
+        got = lay.joint_covariance(us, ub, J, scale * np.linalg.inv(Jp.T @ Jp), scale)
+        assert np.allclose(got, scale * Cfull, rtol=1e-8, atol=1e-14), scale
 
 
 # ---------------------------------------------------------------- per-pixel albedos (textured objects)

@@ -1,4 +1,4 @@
-"""The albedo layouts of a fit: each a sparse design A(theta) of the albedos.
+"""The albedo layouts of a likelihood fit: each a sparse design A(theta) of the albedos.
 
 Every model is linear in its albedos (paper eq:fmbrdf), so with S_k, B_k the unit-albedo intensities of
 sample k (:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` through the analyser),
@@ -7,8 +7,8 @@ sample k (:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` through the analyse
 
 a = (a_s[0], a_b[0], a_s[1], ...), over the sample's corners c (groups g_kc, weights w_kc).  A layout is its
 corners; :class:`AlbedoLayout` owns the algebra and eliminates the albedos by variable projection
-(:meth:`AlbedoLayout.project`).  :class:`GroupAlbedos` (channels, materials) keeps its few albedos as
-unknowns of the optimiser instead.  A single shared pair needs no layout (``layout=None``).
+(:meth:`AlbedoLayout.project`): one pair per channel or material (:class:`GroupAlbedos`) or per pixel
+(:class:`PixelAlbedos`).  A single shared pair needs no layout (``layout=None``: it is optimised in z).
 """
 from __future__ import annotations
 
@@ -38,12 +38,6 @@ def nnls2(S, B, I, w=None):
     best = min(cands, key=lambda x: float(x @ A @ x - 2 * x @ b))
     floor = 1e-6 * max(best.max(), 1e-12)
     return float(max(best[0], floor)), float(max(best[1], floor))
-
-
-def floored(a_s, a_b):
-    """The albedos with those at 0 raised to 1e-9 of the largest (so that their logs stay finite)."""
-    floor = 1e-9 * max(float(np.max(a_s)), float(np.max(a_b)), 1e-300)
-    return np.maximum(a_s, floor), np.maximum(a_b, floor)
 
 
 class PairBlocks:
@@ -92,9 +86,6 @@ class AlbedoLayout:
     True: :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`).  The albedos are not held
     non-negative: clipping poorly determined ones at 0 biases the shape.
     """
-
-    #: Whether the albedos are eliminated by variable projection (False: :class:`GroupAlbedos`).
-    eliminates = True
 
     #: Monte Carlo draws of the coupled :meth:`incidental`: [1] / pairs, clipped to [[0], [2]] (one draw's
     #: relative spread on C's diagonal is about sqrt(6 / pairs), so larger maps need fewer).
@@ -301,26 +292,23 @@ class AlbedoLayout:
 
 
 class GroupAlbedos(AlbedoLayout):
-    """A few albedo pairs kept as unknowns of the optimiser (logs in z), solved by ``nnls2``: one per label,
-    ``groups`` (broadcastable to (cells, n)) each sample's (``per-channel``: a colour period's channels,
-    ``per-material``: each cell's material)."""
-
-    eliminates = False
+    """A few albedo pairs: one per label, ``groups`` (broadcastable to (cells, n)) each sample's
+    (``per-channel``: a colour period's channels, ``per-material``: each cell's material)."""
 
     def __init__(self, name, groups, labels):
         super().__init__(groups, len(labels), name=name, labels=labels)
-        self.masks = [self.groups == g for g in range(self.n_groups)]
 
-    def solve(self, S, B, y, w):
-        """Each group's (a_s, a_b) by ``nnls2`` of its samples: two arrays (n_groups,)."""
-        S, B, y, w = (np.asarray(a) for a in (S, B, y, w))
-        out = [nnls2(*(a[np.broadcast_to(m, a.shape)] for a in (S, B, y, w))) for m in self.masks]
-        return np.array([o[0] for o in out]), np.array([o[1] for o in out])
-
-    def columns(self, S, B, a_s, a_b):
-        """d mu / d log a_s[g] for every g, then d mu / d log a_b[g]: 2 n_groups arrays (cells, n)."""
-        return ([a_s[g] * S * m for g, m in enumerate(self.masks)]
-                + [a_b[g] * B * m for g, m in enumerate(self.masks)])
+    def joint_covariance(self, us, ub, J, cov_z, scale=1.0):
+        """The covariance of (z, a_s[0], a_b[0], a_s[1], ...) ((p + 2 n_groups) square) with the albedos
+        eliminated: cov_z, -cov_z K^T and scale G^-1 + K cov_z K^T, K = G^-1 A^T J (``J`` (N, p)
+        unprojected, ``cov_z`` already scaled); the albedos' response to z is -K."""
+        A, fac = self._factorised(us, ub)
+        p, n = J.shape[1], 2 * self.n_groups
+        K = fac.solve(self.t_at(A, J))
+        out = np.empty((p + n, p + n))
+        out[:p, :p], out[:p, p:] = cov_z, -cov_z @ K.T
+        out[p:, :p], out[p:, p:] = out[:p, p:].T, scale * fac.solve(np.eye(n)) + K @ cov_z @ K.T
+        return out
 
 
 class PixelAlbedos(AlbedoLayout):

@@ -29,7 +29,7 @@ class PaperObjective:
 
     name = "paper"
     is_likelihood = False
-    #: the albedos are one shared pair (no layout: :mod:`fmbrdf_mi.fit.evaluate.albedos`), without a prior
+    #: no albedo layout: one shared pair in z (the DoLP term is not linear in it), no prior
     layout = prior = None
 
     def __init__(self, target):
@@ -114,12 +114,11 @@ class PaperObjective:
 
 
 def _jacobian(cols, parts, st, z, names, bounds, m):
+    """(m, len(z)) d r / d z of the shared pair's problem from ``cols`` (d r of a change of the Stokes parts)."""
     J = np.empty((m, len(z)))
     for j, n in enumerate(names):
         J[:, j] = cols(st.a_s * parts.d_surface[n] + st.a_b * parts.d_body[n]) * bounds.derivative(n, z[j])
-    k = len(names)
-    J[:, k] = cols(st.a_s * parts.surface)      # d / d log a_s
-    J[:, k + 1] = cols(st.a_b * parts.body)     # d / d log a_b
+    J[:, -2], J[:, -1] = cols(st.a_s * parts.surface), cols(st.a_b * parts.body)   # d / d log a_s, log a_b
     return J
 
 
@@ -128,8 +127,9 @@ class LikelihoodObjective:
 
     ``y``: (n, m) observed samples of the fitted cells (m = 4 mono, 16 colour); ``analyser`` (m, 3); parts
     are (3, m n) pixel-major at the samples' points or (3, n) at the cells' centres.  ``dof``: independent
-    values among a cell's m samples.  ``layout``: the albedo layout (:mod:`fmbrdf_mi.fit.evaluate.albedos`;
-    None: one shared pair).  Residuals are (y - mu) / sqrt(v), v frozen between :meth:`refresh` calls.
+    values among a cell's m samples.  ``layout``: the albedo layout whose albedos are eliminated
+    (:mod:`fmbrdf_mi.fit.evaluate.albedos`); None: one shared pair in z.  Residuals are (y - mu) / sqrt(v),
+    v frozen between :meth:`refresh` calls.
     """
 
     name = "likelihood"
@@ -243,18 +243,15 @@ class LikelihoodObjective:
                 return (-self.samples_of(ds) * inv_sd).ravel()
 
             return r, _jacobian(cols, parts, st, z, names, bounds, len(r)), bad
-        J = self.shape_jacobian(parts, st, z, names, bounds)
-        if self.layout.eliminates:   # albedo maps: Kaufman's projected Jacobian
-            return r, self.layout.project(J, *self.albedo_columns(parts))[0], bad
-        cols = self.layout.columns(self.samples_of(parts.surface), self.samples_of(parts.body), st.a_s, st.a_b)
-        return r, np.concatenate([J] + [self._white(c)[:, None] for c in cols], 1), bad
+        J = self.shape_jacobian(parts, st, z, names, bounds)     # Kaufman's projected Jacobian
+        return r, self.layout.project(J, *self.albedo_columns(parts))[0], bad
 
     def _white(self, mu):
         """d r / d mu of the samples' predictions ``mu`` (n, m): -mu / sd, raveled (N,)."""
         return (-mu / np.sqrt(self.var)).ravel()
 
     def shape_jacobian(self, parts, st, z, names, bounds):
-        """d r / d z of the free shape parameters ``names`` (N, len(names)), the albedos held (a layout)."""
+        """d r / d z of the free shape parameters ``names`` (N, len(names)), the albedos held."""
         U = self.samples_of
         J = np.empty((self.y.size, len(names)))
         for j, n in enumerate(names):
@@ -264,11 +261,11 @@ class LikelihoodObjective:
 
     def albedo_columns(self, parts):
         """(us, ub) (N,): each residual's derivative in its sample's unit albedos, the whitened design
-        columns of an eliminating layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`)."""
+        columns of the layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.AlbedoLayout`)."""
         return self._white(self.samples_of(parts.surface)), self._white(self.samples_of(parts.body))
 
     def albedo_column_derivatives(self, parts, z, names, bounds):
         """[(d us / d z_j, d ub / d z_j)] of :meth:`albedo_columns` per free shape parameter, for
-        :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`."""
+        :meth:`~fmbrdf_mi.fit.evaluate.albedos.AlbedoLayout.incidental`."""
         return [tuple(self._white(self.samples_of(d[n])) * bounds.derivative(n, z[j])
                       for d in (parts.d_surface, parts.d_body)) for j, n in enumerate(names)]

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from fmbrdf_mi.fit.evaluate.albedos import floored
+from fmbrdf_mi.fit.evaluate.albedos import PixelAlbedos
 from fmbrdf_mi.fit.evaluate.models import Bounds, State
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.objectives import loss as L
@@ -46,7 +46,7 @@ class Problem:
         self._cache = []
         self.current = None     # latest accepted state (what a fit stopped by the clock reports)
         self.both_lobes = {}    # coarse-search point -> both albedos switched on
-        self.albedos_now = (1.0, 1.0)   # an eliminating layout's last albedos (from_z)
+        self.albedos_now = (1.0, 1.0)   # the layout's last albedos (from_z)
         self.cell_material = None if cell_material is None else np.asarray(cell_material, dtype=np.int64)
 
     def with_fixed(self, values):
@@ -65,29 +65,33 @@ class Problem:
         per_cell = 0.5 * np.sum(self.obj.nll_terms(parts, st), axis=1)
         return np.bincount(self.cell_material, weights=per_cell, minlength=self.params.count)
 
-    # z = (free shape parameters through the bounds, log a_s, log a_b); a layout: log a_s[..], log a_b[..]
+    # z = (free shape parameters through the bounds), with no layout then (log a_s, log a_b)
     @property
     def layout(self):
         return self.obj.layout
 
     @property
+    def projects(self):
+        """Whether the albedos are eliminated by variable projection (an albedo layout): z is then the free
+        shape parameters only, :meth:`from_z` carries the last solved albedos (re-solved by :meth:`projected`
+        at every trial point)."""
+        return self.layout is not None
+
+    @property
     def eliminates(self):
-        """Whether the albedos are solved at every shape point rather than optimised (per-pixel maps:
-        :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`); z is then the free shape parameters only,
-        and :meth:`from_z` carries the last solved albedos (re-solve with :meth:`projected`)."""
-        return self.layout is not None and self.layout.eliminates
+        """Whether the eliminated albedos are maps (no rows of the parameter table:
+        :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`)."""
+        return self.projects and not self.params.albedo_names
 
     def n_eliminated(self, st):
-        """How many albedos the data spent unknowns on outside z (free albedos of an eliminating layout)."""
-        return self.layout.free() if self.eliminates else 0
+        """How many albedos the data spent unknowns on outside z (the layout's free albedos)."""
+        return self.layout.free() if self.projects else 0
 
     def to_z(self, st):
         z = [self.bounds.to_z(n, st.shape[n]) for n in self.names]
-        if self.eliminates:
+        if self.projects:
             self.albedos_now = (st.a_s, st.a_b)
             return np.array(z)
-        if self.layout is not None:
-            return np.array(z + list(np.log(st.a_s)) + list(np.log(st.a_b)))
         return np.array(z + [math.log(max(st.a_s, 1e-30)), math.log(max(st.a_b, 1e-30))])
 
     def from_z(self, z):
@@ -95,11 +99,8 @@ class Problem:
         shape.update({n: self.bounds.to_value(n, z[i]) for i, n in enumerate(self.names)})
         shape = {n: shape[n] for n in self.params.shape_names}
         k = len(self.names)
-        if self.eliminates:
+        if self.projects:
             return State(shape, *self.albedos_now)
-        if self.layout is not None:
-            g = self.layout.n_groups
-            return State(shape, np.exp(np.clip(z[k:k + g], -60, 60)), np.exp(np.clip(z[k + g:k + 2 * g], -60, 60)))
         return State(shape, math.exp(np.clip(z[k], -60, 60)), math.exp(np.clip(z[k + 1], -60, 60)))
 
     def state(self, shape, a_s, a_b):
@@ -137,26 +138,35 @@ class Problem:
         a_s, a_b = self.obj.albedos(parts)
         return State(dict(shape), a_s, a_b), parts
 
-    @property
-    def projects(self):
-        """Whether LM re-solves the albedos in closed form at every trial point (variable projection):
-        with an albedo layout, since a log-albedo column vanishes with its albedo and a channel driven
-        towards 0 would stay there."""
-        return self.layout is not None
-
     def projected(self, shape, jac=False):
-        """(State, parts) at ``shape`` with the albedos at their closed-form optimum (:meth:`closed_form`,
-        ``jac`` as there), those at 0 raised to 1e-9 of the largest so that z stays finite."""
-        st, parts = self.closed_form(shape, jac)
-        if self.eliminates:      # albedos at 0 stay there: they are not in z
-            return st, parts
-        return State(st.shape, *floored(st.a_s, st.a_b)), parts
+        """(State, parts) at ``shape`` with the layout's albedos solved (:meth:`closed_form`)."""
+        return self.closed_form(shape, jac)
+
+    def with_albedo_rows(self, st, parts, names, cov, scale, to_reported):
+        """(names, covariance) of the reported parameters ``names`` (``cov``; ``to_reported``: d z / d theta) with
+        the layout's eliminated albedos appended as the table's rows: the joint covariance of the shape and the
+        albedos (:meth:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos.joint_covariance`, from the unprojected
+        Jacobian at ``parts``; ``scale`` the noise scale in ``cov``) through the rows' derivatives in the
+        albedos (central differences)."""
+        J = self.obj.shape_jacobian(parts, st, self.to_z(st), self.names, self.bounds) @ to_reported
+        J[~np.isfinite(J)] = 0.0
+        C = self.layout.joint_covariance(*self.obj.albedo_columns(parts), J, cov, scale)
+        a, rows, p = np.column_stack([st.a_s, st.a_b]).ravel(), self.params.albedo_names, len(names)
+
+        def at(x):
+            rp = self.params.report(st.shape, x[0::2], x[1::2])
+            return np.array([rp[n] for n in rows])
+
+        D = np.eye(p + len(rows), p + len(a))
+        for j, e in enumerate(np.diag(1e-6 * np.abs(a))):
+            D[p:, p + j] = (at(a + e) - at(a - e)) / (2 * e[j])
+        return list(names) + list(rows), D @ C @ D.T
 
     def set_weights(self, parts, st):
         self.obj.refresh(parts, st)
 
     def residuals_and_jacobian(self, parts, st, z):
-        """r (m,) and dr/dz (m, k + 2) of the objective's residuals."""
+        """r (m,) and dr/dz (m, len(z)) of the objective's residuals (Kaufman's projection with a layout)."""
         r, J, bad = self.obj.residuals_and_jacobian(parts, st, z, self.names, self.bounds)
         if bad is not None and bad.any():
             # NaN forward-mode derivatives: the rows leave J, their residuals still count
@@ -200,7 +210,7 @@ class FitData:
         if self.make_problem is not None:
             return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
         layout, mat = self.objective.layout, self.materials or {}
-        maps = layout is not None and layout.eliminates   # per-pixel albedo maps: a table that reports them
+        maps = isinstance(layout, PixelAlbedos)   # albedo maps, not rows of the table
         params = Parameters(model, materials=mat.get("count"), maps=maps, bounds=bounds, fixed=fixed,
                             channels=None if layout is None or maps or mat else layout.labels)
         return Problem(params, self.evaluator, self.objective, progress, deadline, mat.get("cell_material"))
