@@ -474,7 +474,7 @@ def chi2_along_covariance(problem, st, J, scale):
             z = z0 + c[:, j] / c[j, j] * (problem.bounds.to_z(name, value) - z0[j])
         s = problem.from_z(z)
         s.shape[name] = float(value)   # exactly: z is clipped to +-Z_MAX
-        return problem.projected(s.shape)[0] if problem.projects else s
+        return problem.closed_form(s.shape)[0] if problem.projects else s
 
     def f(name, value):
         s = state(name, value)

@@ -143,7 +143,7 @@ def textured(ideal_of, shape_params, k_s_map, k_b_map, res):
     """The textured capture of any ideal object: ``ideal_of(params)`` its noise-free dict
     (:func:`ideal_sphere`, :func:`fmbrdf_mi.synthetic.mesh_object.ideal_object`), evaluated with unit
     surface and body albedos and combined per cell with ``k_s_map``, ``k_b_map`` (the model is linear in them:
-    paper eq:fmbrdf): (res, res) per super-pixel (each 2 x 2 raw pixels), or (3, res, res) per colour channel
+    paper: s_s + s_b): (res, res) per super-pixel (each 2 x 2 raw pixels), or (3, res, res) per colour channel
     and 4x4 period (``stokes`` then (3 channels, 3, 4 res, 4 res): ``ideal_of`` must give 4 res raw pixels)."""
     k_s_map, k_b_map = (np.asarray(m, dtype=np.float64) for m in (k_s_map, k_b_map))
     colour = k_s_map.ndim == 3

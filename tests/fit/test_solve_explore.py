@@ -72,7 +72,7 @@ def test_explored_fit_ends_at_the_all_pixel_optimum(fits):
     dz = full.to_z(sol.state) - full.to_z(ref.state)
     assert np.all(np.abs(dz) <= 0.2 * se), (dz / se, sol.state.shape, ref.state.shape)
     # all pixels' residuals and Jacobian at the estimate, under the weights the fit ended with
-    st = big.projected(sol.state.shape)[0]
+    st = big.closed_form(sol.state.shape)[0]
     r, J = big.residuals_and_jacobian(big.parts(st, jac=True), st, big.to_z(st))
     assert len(r) == len(ref.r) == len(sol.r) and LM.gn_decrement(J, r) < LM.DECREMENT_TOL
     best = full.obj.score(full.parts(ref.state), ref.state)
@@ -168,7 +168,7 @@ def test_a_start_near_the_optimum_converges_in_few_profiled_steps(obs):
     from fmbrdf_mi.fit.solve import optimise as O
 
     p, _ = problem_of(obs)
-    st0 = p.projected(dict(SHAPE))[0]
+    st0 = p.closed_form(dict(SHAPE))[0]
     p.obj.refresh(p.parts(st0), st0)
     st, f, _, converged, J, _ = O.levenberg_marquardt(p, st0, max_iter=60)
     assert converged
@@ -184,7 +184,7 @@ def test_a_start_near_the_optimum_converges_in_few_profiled_steps(obs):
         for sign in (-1, 1):
             z0 = p.to_z(st) + sign * 3 * v / np.sqrt(v @ F @ v)        # 3 standard errors along it
             hist = []
-            end, f_end, _, ok, *_ = O.levenberg_marquardt(p, p.projected(p.from_z(z0).shape)[0], max_iter=60,
+            end, f_end, _, ok, *_ = O.levenberg_marquardt(p, p.closed_form(p.from_z(z0).shape)[0], max_iter=60,
                                                           history=hist, profiled=profiled)
             assert ok and f_end < f + 0.1
             assert np.all(np.abs(p.to_z(end) - p.to_z(st)) < 0.5 * se)

@@ -1,5 +1,5 @@
-"""Fits to colour polarisation mosaics (IMX250MYR type), :func:`fit_colour`: one material's shape (paper
-eq:fmbrdf), albedos per colour channel.  Raw sample k (colour c_k, polariser phi_k) of pixel i is
+"""Fits to colour polarisation mosaics (IMX250MYR type), :func:`fit_colour`: one material's shape (paper:
+s_s + s_b), albedos per colour channel.  Raw sample k (colour c_k, polariser phi_k) of pixel i is
 
     mu_ik = 1/2 (1, cos 2 phi_k, sin 2 phi_k) . (a_s[c_k] S_ik + a_b[c_k] B_ik)
 

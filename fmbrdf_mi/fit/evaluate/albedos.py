@@ -1,6 +1,6 @@
 """The albedo layouts of a likelihood fit: each a sparse design A(theta) of the albedos.
 
-Every model is linear in its albedos (paper eq:fmbrdf), so with S_k, B_k the unit-albedo intensities of
+Every model is linear in its albedos (paper: s_s + s_b), so with S_k, B_k the unit-albedo intensities of
 sample k (:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` through the analyser),
 
     mu_k = sum_c w_kc (a_s[g_kc] S_k + a_b[g_kc] B_k) = (A(theta) a)_k,

@@ -1,6 +1,6 @@
 """Several materials in one fit: a label image assigns each fitted pixel to one of M materials.
 
-Pixel i with label m(i) has its material's own shape parameters and albedos (paper eq:fmbrdf, one BRDF
+Pixel i with label m(i) has its material's own shape parameters and albedos (paper: s_s + s_b, one BRDF
 per material), and all pixels enter one objective.  :class:`MaterialEvaluator` assembles the
 :class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` of all points from one evaluator per material;
 :class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos` hold one albedo pair per material (per-pixel maps need

@@ -46,7 +46,7 @@ class Parameters:
         self.count = None if materials is None else int(materials)
         self.channels = None if channels is None else tuple(channels)
         self.given = None if powers is None else [float(g) for g in powers]
-        #: the albedo names of one group: (surface, body); r_k = k_b / k_s for the fmbrdf (paper eq:fmbrdf)
+        #: the albedo names of one group: (surface, body); r_k = k_b / k_s for the fmbrdf (paper: s_s + s_b)
         self.albedo_pair = (model.surface_name, model.body_name)
         rows = []
         for m in ([None] if self.count is None else range(self.count)):

@@ -1,5 +1,5 @@
 """Differentiable evaluation of a model's Stokes output at given pixels as :class:`Parts`, a prediction
-being ``a_s * surface + a_b * body`` (paper eq:fmbrdf): :class:`PixelEvaluator` calls ``bsdf.eval`` per pixel
+being ``a_s * surface + a_b * body`` (paper: s_s + s_b): :class:`PixelEvaluator` calls ``bsdf.eval`` per pixel
 of a normal map, :class:`RenderEvaluator` renders with the ``stokes`` integrator.  Stokes vectors are in the
 camera's frame (x = image right perpendicular to the view, y = image up), as in :mod:`fmbrdf_mi.sensor.mosaic`."""
 from __future__ import annotations

@@ -73,7 +73,7 @@ class Problem:
     @property
     def projects(self):
         """Whether the albedos are eliminated by variable projection (an albedo layout): z is then the free
-        shape parameters only, :meth:`from_z` carries the last solved albedos (re-solved by :meth:`projected`
+        shape parameters only, :meth:`from_z` carries the last solved albedos (re-solved by :meth:`closed_form`
         at every trial point)."""
         return self.layout is not None
 
@@ -137,10 +137,6 @@ class Problem:
         parts = self.parts(State(shape, 1.0, 1.0), jac)
         a_s, a_b = self.obj.albedos(parts)
         return State(dict(shape), a_s, a_b), parts
-
-    def projected(self, shape, jac=False):
-        """(State, parts) at ``shape`` with the layout's albedos solved (:meth:`closed_form`)."""
-        return self.closed_form(shape, jac)
 
     def with_albedo_rows(self, st, parts, names, cov, scale, to_reported):
         """(names, covariance) of the reported parameters ``names`` (``cov``; ``to_reported``: d z / d theta) with

@@ -132,7 +132,7 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
     try:
         sub = None
         if init is not None:
-            chosen = [problem.projected(init.shape)[0] if problem.projects else init]
+            chosen = [problem.closed_form(init.shape)[0] if problem.projects else init]
         else:
             if (explore is not None and explore[2] > explore_above and problem.deadline is None
                     and optimizer == "lm"):
@@ -218,7 +218,7 @@ def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
     optima = list(dict.fromkeys(optimum[i] for i in order))
     for j in optima:        # each optimum once, its albedos re-solved on all pixels (one: with the derivatives
         e = sub_ends[j][1].state        # LM's first linearisation takes there, so one evaluation)
-        continued.append((j, problem.projected(e.shape, jac=len(optima) == 1)[0] if problem.projects
+        continued.append((j, problem.closed_form(e.shape, jac=len(optima) == 1)[0] if problem.projects
                           else problem.state(e.shape, e.a_s, e.a_b)))
     out = polished[run_starts(problem, continued, polished, say, f" continued on all {pixels} pixels",
                               " on all pixels", **dict(kw, profiled=True))][1]
@@ -248,10 +248,10 @@ def refit_fixed(problem, st, name, value, start=None, max_iter=10, label=None, t
     if start is not None:
         start = sub.state(start.shape, start.a_s, start.a_b)
         if sub.projects:
-            start = sub.projected(start.shape)[0]
+            start = sub.closed_form(start.shape)[0]
     else:
         shape = dict(st.shape, **{name: float(value)})
-        start = (sub.projected(shape) if sub.projects else sub.closed_form(shape))[0]
+        start = sub.closed_form(shape)[0]
     if not sub.names and not sub.projects:   # only the albedos free: closed form
         start = sub.closed_form(start.shape)[0]
         r = sub.obj.residuals(sub.parts(start), start)

@@ -176,7 +176,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         z_new = np.clip(x[1] + delta, -40, 40)
         st_new = problem.from_z(z_new)
         if project:     # with the derivatives: an accepted trial is linearised next, from the same evaluation
-            st_new, parts = problem.projected(st_new.shape, jac=True)
+            st_new, parts = problem.closed_form(st_new.shape, jac=True)
             z_new = problem.to_z(st_new)
         else:
             parts = problem.parts(st_new)
@@ -191,7 +191,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         log_step(problem, history, "lm", round_no, it, f, x[0], t0=t0, max_iter=max_iter, label=label)
 
     if project:
-        st = problem.projected(st.shape)[0]
+        st = problem.closed_form(st.shape)[0]
     z = problem.to_z(st)
     lin, problem.current, t0 = linearise((st, z)), st, time.time()
     res = LM.levenberg_marquardt(
