@@ -229,7 +229,7 @@ def test_fit_cli_colour_recovers_per_channel_albedos(tmp_path, capsys):
     out = tmp_path / "fit"
     capsys.readouterr()
     assert _cli("fit", raw, "-o", str(out), "--fix", "eta=1.5", "--fix", "beta=2", "--fix", "kappa=10",
-                "--erode", "1") == 0
+                "--erode", "1", "--starts", "1") == 0
     text = capsys.readouterr().out
     assert "[search] stage 1" in text and "k_s[G]" in text   # progress and summary
     rep = json.load(open(out / "fit.json"))
