@@ -37,7 +37,7 @@ def stokes_exr(tmp_path_factory):
 
 def test_two_fits_into_one_directory_do_not_both_succeed(tmp_path, stokes_exr, capsys):
     out = str(tmp_path / "fit")
-    first = start_command("fit", stokes_exr, "-o", out, "-q")
+    first = start_command("fit", stokes_exr, "--starts", "1", "-o", out, "-q")
     try:
         deadline = time.time() + 120
         while not os.path.exists(os.path.join(out, LOCK_NAME)) and first.poll() is None and time.time() < deadline:
@@ -66,7 +66,7 @@ def test_a_forced_shared_fit_removes_an_earlier_per_pixel_fits_maps(tmp_path, st
     kept = ["notes.txt", "images_right.png", "k_s.exr.bak"]   # not the package's (or not the earlier fit's)
     for n in kept:
         (out / n).write_text("the user's")
-    assert main(["fit", stokes_exr, "-o", str(out), "--force", "-q"]) == 0
+    assert main(["fit", stokes_exr, "--starts", "1", "-o", str(out), "--force", "-q"]) == 0
     assert sorted(os.listdir(out)) == sorted(kept + ["fit.json", "fitted_stokes.exr", "history.png", "images.png",
                                                      "profiles.png"])
     for n in kept:
