@@ -201,7 +201,7 @@ def test_colour_fit_recovers_per_channel_albedos(R):
     # (its checks are of the estimates and standard errors: the profile-likelihood intervals, which cost refits
     # on a sphere this small, are tested in tests/fit/test_uncertainty_profile.py)
     res = fit_colour(obs, smp, NoiseModel(cam.conversion_gain, cam.read_noise, 1.0), area_points=4,
-                     intervals="fisher")
+                     intervals="fisher", starts=1)
     p, se = res["params"], res["std_errors"]
     for k, truth in shape.items():
         assert abs(p[k] - truth) < 0.3 * se[k], (k, p[k], se[k])
