@@ -86,10 +86,10 @@ def test_known_output_names_cover_every_mode():
 
 def test_ctrl_c_in_the_write_phase_keeps_the_earlier_output(tmp_path, stokes_exr):
     out = str(tmp_path / "fit")
-    assert main(["fit", stokes_exr, "-o", out, "-q"]) == 0
+    assert main(["fit", stokes_exr, "--starts", "1", "-o", out, "-q"]) == 0
     before = _snapshot(out)
     mtimes = {n: os.stat(os.path.join(out, n)).st_mtime_ns for n in before}
-    proc = start_command("fit", stokes_exr, "-o", out, "--force", "-q", "--baselines")
+    proc = start_command("fit", stokes_exr, "--starts", "1", "-o", out, "--force", "-q", "--baselines")
 
     def writing():   # a new entry besides the lock and its temporary file (a staging directory, a new file) or
         try:         # a file rewritten
@@ -114,7 +114,7 @@ def test_ctrl_c_in_the_write_phase_keeps_the_earlier_output(tmp_path, stokes_exr
     # Ctrl-C came while the new files were being moved into place: it is held back until they all are, so the
     # directory holds exactly what an uninterrupted run writes (all, not none; never a mix of the two fits)
     ref = str(tmp_path / "reference")
-    assert main(["fit", stokes_exr, "-o", ref, "-q", "--baselines"]) == 0
+    assert main(["fit", stokes_exr, "--starts", "1", "-o", ref, "-q", "--baselines"]) == 0
     assert sorted(after) == sorted(os.listdir(ref)), (sorted(after), sorted(os.listdir(ref)))
     assert json.loads(after["fit.json"])["reproduce"]["arguments"]["baselines"] is True
     assert all(after[n] != before[n] for n in before if n.endswith(".json")), "an earlier record was kept"
