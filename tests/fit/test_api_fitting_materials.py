@@ -92,10 +92,10 @@ def test_two_materials_are_the_fits_of_each_material_alone():
 
     for seed in (1,):
         obs, lab = _noisy_observation(seed)
-        both = fit(obs, materials=lab, max_pixels=None, intervals="fisher", progress=False)
+        both = fit(obs, materials=lab, max_pixels=None, intervals="fisher", starts=1, progress=False)
         assert both.converged
         for m, truth in enumerate((A, B)):
-            alone = fit(obs, materials=np.where(lab == m, 0, -1), max_pixels=None, intervals="fisher",
+            alone = fit(obs, materials=np.where(lab == m, 0, -1), max_pixels=None, intervals="fisher", starts=1,
                         progress=False)
             assert alone.converged and alone.n_pixels == both.materials["pixels"][m]
             got, se = both.materials["parameters"][m], both.materials["std_errors"][m]
@@ -183,8 +183,8 @@ def test_noise_free_two_materials_with_pixel_albedos():
     from fmbrdf_mi.fit import fit
 
     obs, lab = _exact_observation()
-    res = fit(obs, materials=lab, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False, area_points=2,
-              starts=1)
+    res = fit(obs, materials=lab, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False,
+              area_points=2, starts=1)
     assert res.converged and res.materials["count"] == 2
     for m, truth in enumerate((A, B)):
         got = res.materials["parameters"][m]
