@@ -58,7 +58,7 @@ def test_noise_free_two_material_sphere_is_recovered():
     from fmbrdf_mi.fit import fit
 
     obs, lab = _exact_observation()
-    res = fit(obs, materials=lab, max_pixels=None, intervals="fisher", progress=False, area_points=2)
+    res = fit(obs, materials=lab, max_pixels=None, intervals="fisher", progress=False, area_points=2, starts=1)
     assert res.converged
     blk = res.materials
     assert blk["count"] == 2 and sum(blk["pixels"]) == res.n_pixels and min(blk["pixels"]) >= 40
@@ -90,10 +90,10 @@ def test_two_materials_are_the_fits_of_each_material_alone():
 
     for seed in (1,):
         obs, lab = _noisy_observation(seed)
-        both = fit(obs, materials=lab, max_pixels=None, intervals="fisher", progress=False)
+        both = fit(obs, materials=lab, max_pixels=None, intervals="fisher", starts=1, progress=False)
         assert both.converged
         for m, truth in enumerate((A, B)):
-            alone = fit(obs, materials=np.where(lab == m, 0, -1), max_pixels=None, intervals="fisher",
+            alone = fit(obs, materials=np.where(lab == m, 0, -1), max_pixels=None, intervals="fisher", starts=1,
                         progress=False)
             assert alone.converged and alone.n_pixels == both.materials["pixels"][m]
             got, se = both.materials["parameters"][m], both.materials["std_errors"][m]
@@ -110,12 +110,12 @@ def test_one_material_is_the_ordinary_fit():
 
     obs, lab = _noisy_observation(5)
     one = np.where(lab == 0, 0, -1)         # material A's half; B's not fitted
-    got = fit(obs, materials=one, max_pixels=None, intervals="fisher", progress=False)
+    got = fit(obs, materials=one, max_pixels=None, intervals="fisher", starts=1, progress=False)
     from fmbrdf_mi.fit.inputs.observations import erode
 
     # the labels select after the mask's erosion: the same pixels as the eroded mask cut by the labels
     ref = fit(dataclasses.replace(obs, mask=erode(obs.mask, 2) & (one >= 0)), erode=0, max_pixels=None,
-              intervals="fisher", progress=False)
+              intervals="fisher", starts=1, progress=False)
     assert got.converged and got.n_pixels == ref.n_pixels
     assert got.params == ref.params and got.std_errors == ref.std_errors
     assert got.uncertainty["ci95"] == ref.uncertainty["ci95"]
@@ -181,7 +181,8 @@ def test_noise_free_two_materials_with_pixel_albedos():
     from fmbrdf_mi.fit import fit
 
     obs, lab = _exact_observation()
-    res = fit(obs, materials=lab, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False, area_points=2)
+    res = fit(obs, materials=lab, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False,
+              area_points=2, starts=1)
     assert res.converged and res.materials["count"] == 2
     for m, truth in enumerate((A, B)):
         got = res.materials["parameters"][m]
@@ -192,7 +193,7 @@ def test_noise_free_two_materials_with_pixel_albedos():
         assert f.sum() > 30
         assert np.all(np.abs(res.maps["k_b"][f] / (truth["k_s"] * truth["r_k"]) - 1) < 1e-3)
     held = fit(obs, materials=lab, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False,
-               init={k: A[k] for k in ("eta", "alpha", "beta", "kappa")}, fixed={"kappa": 15.0},
+               init={k: A[k] for k in ("eta", "alpha", "beta", "kappa")}, fixed={"kappa": 15.0}, starts=1,
                bounds={"eta": (1.2, 2.5)})
     assert held.converged
     assert [p["kappa"] for p in held.materials["parameters"]] == [15.0, 15.0]

@@ -42,7 +42,8 @@ def test_noise_free_textured_sphere_is_recovered():
     from fmbrdf_mi.fit.evaluate.predict import predict_image
 
     obs, ks, kb = _exact_observation()
-    res = fit(obs, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False, area_points=2)
+    res = fit(obs, albedo="per-pixel", max_pixels=None, intervals="fisher", progress=False, area_points=2,
+              starts=1)
     assert res.converged
     for k in ("eta", "alpha", "beta"):
         assert abs(res.params[k] / SHAPE[k] - 1) < 1e-4, (k, res.params)
@@ -104,7 +105,7 @@ def test_command_writes_the_maps_and_reruns(tmp_path, capsys):
     np.save(tmp_path / "raw.npy", capture(ideal["stokes"], cam, peak_fraction=0.8, seed=2)["raw"])
     args = ["fit", str(tmp_path / "raw.npy"), "--sphere", "8,8,7", "--light=-0.5,0.5,1", "--conversion-gain",
             str(cam.conversion_gain), "--read-noise", "2.5", "--albedo", "per-pixel", "--max-pixels", "0",
-            "--intervals", "fisher", "-q"]
+            "--starts", "1", "--intervals", "fisher", "-q"]
     with figures_not_drawn(keep=("albedo_maps.png",)):
         assert main(args + ["-o", str(tmp_path / "a")]) == 0
     out = capsys.readouterr().out
@@ -156,7 +157,7 @@ def test_joint_manifest_with_maps_relights_the_held_out_image(tmp_path, capsys, 
     (tmp_path / "m.toml").write_text("\n".join(lines) + "\n")
     out = tmp_path / "fit"
     assert main(["fit", "--manifest", str(tmp_path / "m.toml"), "--albedo", "per-pixel", "--max-pixels", "0",
-                 "--intervals", "fisher", "-o", str(out), "-q"]) == 0
+                 "--starts", "1", "--intervals", "fisher", "-o", str(out), "-q"]) == 0
     text = capsys.readouterr().out
     assert "albedo maps:" in text and "relighting l3" in text
     assert "fewer than 3 images" not in text     # three images of each pixel: no bias warning

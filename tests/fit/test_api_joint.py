@@ -107,7 +107,7 @@ def test_joint_fit_per_image_diagnostics_and_errors(variant):
     from fmbrdf_mi.sensor.noise import NoiseModel
 
     obs = _captures(res=12)
-    res = fit_joint(obs, init=NEAR, progress=False, names=["a", "b", "c"])
+    res = fit_joint(obs, init=NEAR, intervals="fisher", progress=False, names=["a", "b", "c"])
     assert res.objective == "likelihood" and res.converged
     # the camera noise is right: every image's chi^2 / dof is ~1 (4 n samples: sd sqrt(2 / 4n) < 0.06)
     for im in res.images:

@@ -344,7 +344,7 @@ def test_option_wiring_and_refusals(tmp_path, capsys, no_figures):
     np.save(raw, capture(ideal["stokes"], cam, peak_fraction=0.8, seed=2)["raw"])
     args = ["fit", str(raw), "--sphere", "6,6,5", "--light=-0.5,0.5,1", "--conversion-gain",
             str(cam.conversion_gain), "--read-noise", "2.5", "--albedo", "per-pixel-bilinear", "--max-pixels", "0",
-            "--intervals", "fisher", "-q"]
+            "--starts", "1", "--intervals", "fisher", "-q"]
     assert main(args + ["-o", str(tmp_path / "a")]) == 0
     assert (tmp_path / "a" / "k_s.exr").exists() and (tmp_path / "a" / "k_b_se.exr").exists()
     capsys.readouterr()

@@ -131,7 +131,7 @@ def test_fit_options_the_capture_overrides_are_refused(capsys, tmp_path, capture
     assert not (tmp_path / "out").exists()
 
 
-def test_fit_footprint_with_the_paper_loss_still_runs(capsys, tmp_path, captures):
+def test_fit_footprint_with_the_paper_loss_still_runs(capsys, tmp_path, captures, no_figures):
     rc, _, err = run(capsys, "fit", str(captures / "m_raw.png"), "-o", str(tmp_path / "out"), "--max-iter", "1",
                      "--starts", "1", "--max-pixels", "100", "-q", "--footprint", "box", "--loss", "paper")
     assert rc in (0, 3), err      # 3: stopped by --max-iter 1
@@ -172,7 +172,7 @@ def test_fit_channel_of_a_one_channel_input_refused(capsys, tmp_path, captures):
     assert not (tmp_path / "out").exists()
 
 
-def test_a_per_pixel_fit_starts_from_the_shape_parameters_alone(capsys, tmp_path, captures):
+def test_a_per_pixel_fit_starts_from_the_shape_parameters_alone(capsys, tmp_path, captures, no_figures):
     """Per-pixel albedos are solved per pixel at the start's shape: ``--init`` takes eta, alpha, beta, kappa.
     Before: it demanded k_s and r_k too (refused without them), which the fit then did not use."""
     import json

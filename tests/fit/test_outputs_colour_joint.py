@@ -49,8 +49,8 @@ def test_joint_colour_fit_of_one_image_twice_halves_the_variance():
 
     obs, smp, cam = _sphere_capture(12, (0.45, 0.35, 1.0), seed=3)
     noise = NoiseModel(cam.conversion_gain, cam.read_noise, 1.0)
-    one = fit_colour(obs, smp, noise, intervals="fisher")      # standard errors are compared, not intervals
-    two = fit_colour([obs, obs], [smp, smp], noise, intervals="fisher")
+    one = fit_colour(obs, smp, noise, intervals="fisher", starts=1)    # standard errors are compared, not intervals
+    two = fit_colour([obs, obs], [smp, smp], noise, intervals="fisher", starts=1)
     assert one["converged"] and two["converged"] and two["n_samples"] == 2 * one["n_samples"]
     for k, v in one["params"].items():
         s1, s2 = one["std_errors"][k], two["std_errors"][k]
@@ -87,7 +87,7 @@ def test_fit_cli_colour_joint_manifest(tmp_path, capsys):
     out = tmp_path / "fit"
     capsys.readouterr()
     assert _cli("fit", "--manifest", str(tmp_path / "m.toml"), "-o", str(out), "--fix", "eta=1.5,beta=2,kappa=10",
-                "--erode", "1") == 0
+                "--erode", "1", "--starts", "1") == 0
     text = capsys.readouterr().out
     assert "colour joint fit" in text and "relighting l2_raw" in text
     rep = json.load(open(out / "fit.json"))

@@ -29,9 +29,9 @@ def fake_progress(monkeypatch):
     return stream
 
 
-def test_the_output_stage_gives_a_line_per_file_with_the_time_left(tmp_path, stokes_exr, monkeypatch):
+def test_the_output_stage_gives_a_line_per_file_with_the_time_left(tmp_path, stokes_exr, monkeypatch, no_figures):
     stream = fake_progress(monkeypatch)
-    assert main(["fit", stokes_exr, "-o", str(tmp_path / "fit")]) == 0
+    assert main(["fit", stokes_exr, "--starts", "1", "-o", str(tmp_path / "fit")]) == 0
     n = len(WRITTEN)
     # step k is read at k seconds: silent up to the 2 s delay, then the mean second per step times those left
     expected = [f"writing: {k}/{n} {name}, {k:.1f} s ({'done' if k == n else f'about {n - k} s left'})"
@@ -40,9 +40,9 @@ def test_the_output_stage_gives_a_line_per_file_with_the_time_left(tmp_path, sto
     assert sorted(p.name for p in (tmp_path / "fit").iterdir()) == sorted(WRITTEN)
 
 
-def test_the_output_stage_is_silent_under_quiet(tmp_path, stokes_exr, monkeypatch):
+def test_the_output_stage_is_silent_under_quiet(tmp_path, stokes_exr, monkeypatch, no_figures):
     stream = fake_progress(monkeypatch)
-    assert main(["fit", stokes_exr, "-q", "-o", str(tmp_path / "fit")]) == 0
+    assert main(["fit", stokes_exr, "--starts", "1", "-q", "-o", str(tmp_path / "fit")]) == 0
     assert stream.getvalue() == ""
 
 

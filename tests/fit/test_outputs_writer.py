@@ -37,7 +37,7 @@ def stokes_exr(tmp_path_factory):
 
 def test_two_fits_into_one_directory_do_not_both_succeed(tmp_path, stokes_exr, capsys):
     out = str(tmp_path / "fit")
-    first = start_command("fit", stokes_exr, "-o", out, "-q")
+    first = start_command("fit", stokes_exr, "--starts", "1", "-o", out, "-q")
     try:
         deadline = time.time() + 120
         while not os.path.exists(os.path.join(out, LOCK_NAME)) and first.poll() is None and time.time() < deadline:
@@ -66,7 +66,7 @@ def test_a_forced_shared_fit_removes_an_earlier_per_pixel_fits_maps(tmp_path, st
     kept = ["notes.txt", "images_right.png", "k_s.exr.bak"]   # not the package's (or not the earlier fit's)
     for n in kept:
         (out / n).write_text("the user's")
-    assert main(["fit", stokes_exr, "-o", str(out), "--force", "-q"]) == 0
+    assert main(["fit", stokes_exr, "--starts", "1", "-o", str(out), "--force", "-q"]) == 0
     assert sorted(os.listdir(out)) == sorted(kept + ["fit.json", "fitted_stokes.exr", "history.png", "images.png",
                                                      "profiles.png"])
     for n in kept:
@@ -86,10 +86,10 @@ def test_known_output_names_cover_every_mode():
 
 def test_ctrl_c_in_the_write_phase_keeps_the_earlier_output(tmp_path, stokes_exr):
     out = str(tmp_path / "fit")
-    assert main(["fit", stokes_exr, "-o", out, "-q"]) == 0
+    assert main(["fit", stokes_exr, "--starts", "1", "-o", out, "-q"]) == 0
     before = _snapshot(out)
     mtimes = {n: os.stat(os.path.join(out, n)).st_mtime_ns for n in before}
-    proc = start_command("fit", stokes_exr, "-o", out, "--force", "-q", "--baselines")
+    proc = start_command("fit", stokes_exr, "--starts", "1", "-o", out, "--force", "-q", "--baselines")
 
     def writing():   # a new entry besides the lock and its temporary file (a staging directory, a new file) or
         try:         # a file rewritten
@@ -114,7 +114,7 @@ def test_ctrl_c_in_the_write_phase_keeps_the_earlier_output(tmp_path, stokes_exr
     # Ctrl-C came while the new files were being moved into place: it is held back until they all are, so the
     # directory holds exactly what an uninterrupted run writes (all, not none; never a mix of the two fits)
     ref = str(tmp_path / "reference")
-    assert main(["fit", stokes_exr, "-o", ref, "-q", "--baselines"]) == 0
+    assert main(["fit", stokes_exr, "--starts", "1", "-o", ref, "-q", "--baselines"]) == 0
     assert sorted(after) == sorted(os.listdir(ref)), (sorted(after), sorted(os.listdir(ref)))
     assert json.loads(after["fit.json"])["reproduce"]["arguments"]["baselines"] is True
     assert all(after[n] != before[n] for n in before if n.endswith(".json")), "an earlier record was kept"

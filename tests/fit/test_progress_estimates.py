@@ -23,7 +23,7 @@ def lines():
     cam = CameraModel(full_well=10000.0, read_noise=2.5, bits=12)
     obs = capture_observation(ideal_sphere(TRUE, res=12, light=(0.45, 0.35, 1.0)), cam, seed=2)[0]
     out = []
-    fit(obs, loss="likelihood", fixed={"beta": 0.8}, starts=2, max_iter=6, rounds=1, intervals="profile",
+    fit(obs, loss="likelihood", fixed={"beta": 0.8, "kappa": 10.0}, starts=2, max_iter=6, rounds=1, intervals="profile",
         progress=out.append)
     return out
 
