@@ -1,4 +1,4 @@
-"""What more lights buy: joint likelihood fits of K = 1, 3, 6 images of one object (fmbrdf_mi.fit.api.joint).
+"""What more lights buy: joint likelihood fits of K = 1, 3, 6 images of one object (fmbrdf_mi.fit.api.fitting).
 
     python tools/bench_fit_lights.py [--materials glossy,rough] [--lights 1,3,6] [--seeds 10] [--size 40]
                                      [--json out.json]
@@ -16,7 +16,7 @@ within 0.3 degrees of the noise bench's (-0.5, 0.5, 1) direction); K = 1 fits li
 lights 0, 2, 4, K = 6 all.  Image j of seed s has camera-noise seed
 1000 s + j, so the K = 1 data are part of the K = 3 data, which are part of
 the K = 6 data (nested: the comparison is between designs, not noise draws).
-Every fit: :func:`fmbrdf_mi.fit.api.joint.fit_joint` with the defaults (coarse
+Every fit: :func:`fmbrdf_mi.fit.api.fitting.fit_joint` with the defaults (coarse
 search from no prior, 2 starts, LM, likelihood, all six parameters free,
 20 000 super-pixels at most).
 
@@ -89,7 +89,7 @@ def capture_seed(ideals, cam, seed):
 def lights_fits(obs, k, sets, *, material, seed, truth, powers=(1.0,) * 6, free_power=False,
                 power_start=("ratio", "given", "fixed"), max_time=None, intervals="auto"):
     """Yield (record, FitResult) of the fits of one seed's K images (with ``free_power``: one per start mode)."""
-    from fmbrdf_mi.fit.api.joint import fit_joint
+    from fmbrdf_mi.fit.api.fitting import fit_joint
 
     sub = [obs[j] for j in sets[k]]
     modes = list(power_start) if free_power else [None]
