@@ -35,8 +35,8 @@ def counted_problem(obs, plain_trials=False):
         base = type(problem)
 
         class Plain(base):
-            def projected(self, shape, jac=False):
-                return base.projected(self, shape)
+            def closed_form(self, shape, jac=False):
+                return base.closed_form(self, shape)
 
         problem.__class__ = Plain
     calls, ev = [], problem.ev
@@ -47,7 +47,7 @@ def counted_problem(obs, plain_trials=False):
         return evaluate(values, wrt)
 
     ev.parts = parts
-    st = problem.projected(START)[0]
+    st = problem.closed_form(START)[0]
     problem.set_weights(problem.parts(st), st)
     return problem, st, calls
 
