@@ -134,18 +134,13 @@ def log_step(problem, history, name, round_no, it, f, st, say=True, t0=None, max
 def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, history=None,
                         round_no=0, refresh=3, final_jacobian=True, label=None, profiled=False,
                         decrement_tol=LM.DECREMENT_TOL, exact_decrease=False):
-    """Minimise the objective from ``st`` with its current weights (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`).
+    """(State, value, stop reason, converged, J, r) of :func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`
+    from ``st`` with the objective's current weights.
 
-    The AD Jacobian (one table rebuild per shape parameter) is refreshed every ``refresh`` accepted steps,
-    with Broyden updates between; a problem that
-    :attr:`~fmbrdf_mi.fit.problem.problem.Problem.projects` its albedos re-solves them at every trial and
-    takes an AD Jacobian every step (its albedo coordinates jump).  Returns (State, value, stop reason,
-    converged, J, r); J, r at the result unless ``final_jacobian`` is False.  ``label``: the progress lines'
-    tag (:func:`log_step`).  ``profiled``: a problem that eliminates its albedos without a prior steps on the
-    profiled curvature H = J^T J - C (:func:`~fmbrdf_mi.fit.solve.lm.profiled_curvature`): Newton's rate near
-    the optimum, where Gauss-Newton's is linear.  A likelihood stops when the Gauss-Newton decrement g^T (J^T
-    J)^-1 g (the squared distance to the optimum in standard errors, the incidental sandwich's for H) is below
-    ``decrement_tol``, or with ``exact_decrease`` when H's, g^T H^-1 g (the decrease of chi^2 left), is.
+    The AD Jacobian is refreshed every ``refresh`` accepted steps with Broyden updates between (every step
+    when the albedos are projected: their coordinates jump).  ``profiled``: step on H = J^T J - C
+    (:func:`~fmbrdf_mi.fit.solve.lm.profiled_curvature`), Newton's rate where Gauss-Newton's is linear.  A
+    likelihood stops when g^T (J^T J)^-1 g, or with ``exact_decrease`` g^T H^-1 g, is below ``decrement_tol``.
     """
     obj, project = problem.obj, problem.projects
     profiled = profiled and problem.eliminates and problem.layout.incidental_reason is None
