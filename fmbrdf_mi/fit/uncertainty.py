@@ -35,8 +35,7 @@ INTERVALS = ("auto", "profile", "fisher")
 PROFILE_TOL = 0.15
 #: Relative tolerance of a profile end's chi^2 rise (:func:`profile_end`).
 PROFILE_ROOT_TOL = 0.1
-#: A profile refit stops when its predicted further decrease of chi^2 is below this fraction of PROFILE_ROOT_TOL
-#: x the rise sought.
+#: A profile refit stops when its predicted decrease of chi^2 is below this x PROFILE_ROOT_TOL x the rise.
 PROFILE_REFIT_TOL = 0.25
 #: A start's end this many SE from the estimate in some shape parameter is another optimum.
 MODE_SEPARATION_SE = 2.0
@@ -45,8 +44,7 @@ MODE_SEPARATION_SE = 2.0
 QUADRATURE_TOL = 0.2
 #: The finest quadrature: points per raw-pixel side.
 MAX_AREA_POINTS = 8
-#: A sampled check (:func:`sampled_quadrature_bias`) refines while |bias| plus this many sampling SEs exceeds
-#: :data:`QUADRATURE_TOL`.
+#: A sampled check refines while |bias| plus this many sampling SEs exceeds :data:`QUADRATURE_TOL`.
 QUADRATURE_SAMPLING_SE = 2.0
 
 
@@ -92,8 +90,7 @@ def jacobian_in_reported(problem, st, J):
 #: Floor of 1 - lambda in :func:`incidental_sandwich`: no SE inflated more than 1 / this over Fisher's.
 INCIDENTAL_FLOOR = 0.1
 
-#: Above this :func:`noise_share`, H = F - C is a small difference of noisy matrices in some direction and the
-#: sandwich understates the spread over captures (docs/benchmarks/coverage.md).
+#: Above this :func:`noise_share` the sandwich understates the spread over captures (docs/benchmarks/coverage.md).
 NOISE_SHARE_MAX = 0.5
 
 
@@ -209,9 +206,8 @@ def noise_scale(problem, r, n_independent, p):
 
 
 def incidental(problem, st, J, names, Hi, scale, parts=None):
-    """(cov_theta / scale, cov_z / scale, info, applied): :func:`incidental_sandwich` of an eliminating layout,
-    with the Fisher errors and :func:`noise_share` in ``info``; a layout without the term keeps ``Hi``.
-    ``J``: Kaufman's projected Jacobian in z."""
+    """(cov_theta / scale, cov_z / scale, info, applied): :func:`incidental_sandwich` from Kaufman's ``J``, or
+    ``Hi`` for a layout without the term."""
     if problem.layout.incidental_reason is not None:
         reason = problem.layout.incidental_reason
         return Hi, None, {"incidental_not_computed": reason}, [("incidental-not-computed", reason)]
@@ -235,9 +231,9 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
 
 
 def paper_sandwich(problem, Jt, r, Hi):
-    """(cov, applied): the paper's loss's sandwich H^-1 M H^-1, H = J^T J, M from leave-N(a)-out residuals
-    (cluster jackknife "CR3": the fit pulls plain residuals towards the data), PSD-projected.  N(a): pixel a, or
-    with demosaicking its 3 x 3 neighbours, whose residuals are correlated."""
+    """(cov, applied): the paper's loss's sandwich H^-1 M H^-1 from leave-N(a)-out residuals (cluster
+    jackknife "CR3"), N(a) pixel a or, demosaicked, its 3 x 3 neighbours."""
+
     row_pix, grid = np.asarray(problem.obj.row_pixels(len(r))), problem.obj.grid
     npx = int(row_pix.max()) + 1
     order = np.argsort(row_pix, kind="stable")

@@ -68,13 +68,11 @@ def pair_sums(X, Y, n_groups):
 
 
 class AlbedoLayout:
-    """The sparse design A(theta) of the albedos and their elimination.
-
-    ``groups``: each sample's own group (broadcastable to (cells, n)); ``corner_groups``, ``corner_weights``
-    (groups' shape + (c,)): the corners (default: the own group, weight 1); ``prior``: a
-    :class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior` whose rows join the design with data 0.
-    The albedos are not held non-negative: clipping poorly determined ones at 0 biases the shape.
+    """The sparse design A(theta) of the albedos and their elimination; ``corner_groups``, ``corner_weights``
+    (groups' shape + (c,)) default to each sample's own group, weight 1.  The albedos are not held
+    non-negative: clipping poorly determined ones at 0 biases the shape.
     """
+
 
     #: Monte Carlo draws of the coupled :meth:`incidental`: [1] / pairs, clipped to [[0], [2]] (a draw's
     #: relative spread on C's diagonal falls as 1 / sqrt(pairs)).

@@ -13,11 +13,8 @@ MIN_MATERIAL_PIXELS = 20
 
 
 def check_labels(labels, shape, what="materials"):
-    """The label image ``labels`` on the fit's pixel grid ``shape`` (H, W): an int array (H, W).
-
-    Accepted: (H, W), or (2H, 2W) sensor pixels (a super-pixel takes its 2 x 2 block's label when the four
-    agree, else it is not fitted).  0 .. M-1 are materials, < 0 not fitted.  InputError naming ``what``.
-    """
+    """``labels`` (H, W), or (2H, 2W) sensor pixels (a super-pixel takes its 2 x 2 block's label when the four
+    agree, else -1), as an int array on the pixel grid ``shape``; 0 .. M-1 are materials, < 0 not fitted."""
     H, W = shape
     try:
         lab = np.asarray(labels)
@@ -48,12 +45,9 @@ def material_count(labels, what="materials"):
 
 
 class MaterialEvaluator:
-    """:class:`Parts` of all points from one evaluator per material (d/d ``eta[m]`` is 0 off material m).
+    """:class:`Parts` of all points from one evaluator per material (``columns``: each one's points); an
+    unchanged material is not evaluated again."""
 
-    ``columns``: each material's point indices among all ``n_points``.  An unchanged material is not
-    evaluated again.
-
-    """
 
     def __init__(self, params, evaluators, columns, n_points):
         self.params = params

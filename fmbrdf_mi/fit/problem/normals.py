@@ -27,11 +27,9 @@ PRIORS = {"curvature": (1.0, -2.0, 1.0), "membrane": (1.0, -1.0)}
 
 
 def stencils(mask, prior="curvature"):
-    """(E, S) pixel indices (into the mask's pixels) of the prior's stencils, and their coefficients (S,).
+    """(E, S) pixel indices of the prior's stencils and their coefficients (S,): ``membrane`` first
+    differences, ``curvature`` second differences (constant curvature is not pulled flat)."""
 
-    ``membrane``: first differences of 4-neighbours; ``curvature``: second differences n_a - 2 n_b + n_c
-    along rows and columns, zero where the normal changes linearly, so constant curvature is not pulled flat.
-    """
     try:
         coef = PRIORS[prior]
     except KeyError:

@@ -172,11 +172,9 @@ def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None,
 
 
 def reweighted(x, minimise, *, rounds, before):
-    """At most ``rounds`` rounds from ``x``; returns (x, converged of the last minimisation, settled, rounds run).
+    """(x, converged, settled, rounds run) after at most ``rounds`` rounds: ``before(x, k)`` refreshes the
+    weights (True: settled), ``minimise(x, k)`` -> (x, converged); a non-converged minimisation ends the rounds."""
 
-    ``before(x, k)`` refreshes the weights, True when settled (the loop stops); ``minimise(x, k)`` returns
-    (x, converged), and a minimisation that does not converge ends the rounds.
-    """
     converged, k = False, 0
     for k in range(rounds):
         if before(x, k):

@@ -18,11 +18,8 @@ ALBEDO_BOUND = 1e-3
 
 
 def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of, keep=2, progress=None):
-    """The coarse search's stages; returns [(score, point)] best first.
-
-    The ``first`` parameters on their grids with the ``later`` at ``mids``, then each ``later`` parameter on
-    its grid for the ``keep`` best points (bounding the BSDF table rebuilds); each grid point is evaluated once.
-    """
+    """The coarse search's stages, [(score, point)] best first: the ``first`` parameters on their grids, then
+    each ``later`` one on its grid for the ``keep`` best points (bounding the BSDF table rebuilds)."""
     results, say, t = {}, progress or (lambda m: None), time.time()
 
     def try_point(shape):
@@ -59,9 +56,8 @@ MATERIAL_CANDIDATES = 6
 
 
 def coarse_search(problem, keep=2):
-    """:func:`staged_search` with closed-form albedos; returns [(score, State)] best first.  With several
-    materials candidate j combines every material's j-th best point.
-    """
+    """:func:`staged_search` with closed-form albedos; candidate j combines each material's j-th best point."""
+
     params, M = problem.params, problem.params.count or 1
     if M == 1:
         model, rows, clip, fixed, names = params, None, problem.bounds.clip_grid, problem.fixed, problem.names
