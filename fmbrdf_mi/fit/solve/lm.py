@@ -92,10 +92,9 @@ def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None,
                         step_small=None, time_up=None, budget=None, on_accept=None, final_linearise=True, lam=1e-3):
     """Minimise from ``x`` (objective ``f``); returns :class:`LMResult`.
 
-    * ``linearise(x)``: the system at ``x`` (residuals and Jacobian, or the normal refinement's Schur blocks);
-      its ``.f``, if any, replaces the trial's objective;
-    * ``solve(lin, lam)``: the damped step (:func:`dense_step`,
-      :func:`fmbrdf_mi.fit.solve.normal_system.solve_step`); ``LinAlgError`` raises the damping;
+    * ``linearise(x)``: the system at ``x``; its ``.f``, if any, replaces the trial's objective;
+    * ``solve(lin, lam)``: the damped step (:func:`dense_step`); ``LinAlgError`` raises the damping;
+
     * ``trial(x, step, lin)``: ``(x_new, f_new, r_new)`` (it may re-solve linear unknowns);
     * ``secant(lin, x, x_new, r_new)``: a Broyden update from every trial; ``moved(lin, x_new, r_new)``: the
       linearisation carried to an accepted point, so ``refresh`` accepted steps share one Jacobian;
@@ -103,7 +102,6 @@ def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None,
       ``small_count`` times in a row, ``step_small(x_old, x_new)``, ``time_up()``, ``max_iter``,
       ``budget()`` spent, or no step lowers f at any damping;
     * ``final_linearise``: end on a fresh linearisation (the uncertainty needs it).
-
     """
     if lin is None:
         lin = linearise(x)

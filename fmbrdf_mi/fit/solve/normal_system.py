@@ -24,11 +24,8 @@ def _sums(idx, w, n):
 
 
 def data_products(pix, val, Jm, r, N):
-    """H_mm, H_mn (p, N, 2), g_m, g_n (N, 2) of the data rows.
-
-    ``pix`` (m, Q): the unknown pixels each row depends on (-1: fixed), ``val`` (m, Q, 2) the row's tangent
-    derivatives, ``Jm`` (m, p) the material columns.
-    """
+    """H_mm, H_mn (p, N, 2), g_m, g_n (N, 2) of the data rows: ``pix`` (m, Q) the pixels each row depends on
+    (-1: fixed), ``val`` (m, Q, 2) its tangent derivatives, ``Jm`` (m, p) the material columns."""
     p = Jm.shape[1]
     row, slot = np.nonzero((pix >= 0) & np.any(val != 0, axis=2))
     q, v = pix[row, slot], val[row, slot]
@@ -83,12 +80,10 @@ def _pairs(pix, stencils, N, cache=None):
 
 
 class NormalBlock:
-    """H_nn = J_n^T J_n + w P (+ damping mu diag) as an operator on (N, 2, R) arrays.
+    """H_nn = J_n^T J_n + w P (+ damping mu diag) as an operator on (N, 2, R) arrays, stored as 2 x 2 blocks
+    in a padded neighbour list; the prior's residuals are sqrt(w) sum_s coef_s n_{stencil_s}, ``t1``, ``t2``
+    each pixel's tangent basis, ``cache`` the sparsity pattern kept for the next linearisation."""
 
-    ``stencils`` (E, S), ``coef`` (S,): the prior's residuals sqrt(w) sum_s coef_s n_{stencil_s}; ``t1``,
-    ``t2`` (N, 3): each pixel's tangent basis; ``cache``: keeps the sparsity pattern for the next linearisation.
-    Stored as 2 x 2 blocks in a padded neighbour list: a product is a gather and a batched matmul.
-    """
 
     def __init__(self, pix, val, stencils, coef, t1, t2, w, mu=0.0, cache=None):
         self.N = N = len(t1)
