@@ -216,12 +216,9 @@ def material_evaluators(model, count, cell_material, normals, views, lights, irr
 
 
 def prepare(observations, opts, loss, *, single=False, evaluator=None, materials=None, only=None):
-    """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images.
+    """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images; ``single``: messages name no
+    image; ``materials``: a label image (< 0: not fitted); ``only``: per image, the selected pixels to keep."""
 
-    ``single``: messages name no image; ``evaluator``: default a
-    :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`; ``materials``: a label image (< 0: not
-    fitted), each material with its own shape; ``only``: per image, the selected pixels to keep.
-    """
     K = len(observations)
     check_max_pixels(opts.max_pixels, K)
     lab = count = keep = None

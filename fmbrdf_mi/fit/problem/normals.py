@@ -52,12 +52,10 @@ def stencils(mask, prior="curvature"):
 
 class NormalProblem(Problem):
     """The fit's :class:`~fmbrdf_mi.fit.problem.problem.Problem` with every refined pixel's normal as two more
-    unknowns and the smoothness prior (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`).
+    unknowns and the smoothness prior; rows ordered (image, pixel, sample).  A sample's normal interpolates the
+    map bilinearly, corners outside the refined pixels extrapolated linearly (constant extrapolation near the
+    silhouette biases the material)."""
 
-    Residual rows are ordered (image k, pixel i, sample s).  Each sample's normal interpolates the map
-    bilinearly; a corner outside the refined pixels is extrapolated linearly, 2 n_i - n_o, since near the
-    silhouette constant extrapolation biases the material.
-    """
 
     def __init__(self, obs, m, params, lam, prior="curvature"):
 

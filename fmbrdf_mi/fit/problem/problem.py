@@ -20,11 +20,9 @@ class TimeUp(Exception):
 
 
 class Problem:
-    """A parameter table, an evaluator at the fitted pixels, the objective, the bounds, the clock.
+    """A parameter table, an evaluator at the fitted pixels, the objective, the bounds, the clock; ``names``:
+    the free shape parameters, ``deadline``: ``time.time()`` after which no model evaluation may end."""
 
-    ``params``: :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (or a model: all free); ``names``: the
-    free shape parameters; ``deadline``: ``time.time()`` after which no model evaluation may end.
-    """
 
     def __init__(self, params, evaluator, objective, progress=None, deadline=None, cell_material=None):
         self.params = params if isinstance(params, Parameters) else Parameters(params)
@@ -161,11 +159,8 @@ class Problem:
 
 @dataclasses.dataclass
 class FitData:
-    """What one fit runs on (built by :func:`fmbrdf_mi.fit.problem.data.prepare`).
-
-    ``pixels``: flat indices of the fitted super-pixels, image by image; ``slices``: each image's (start,
-    stop) among them; ``make_problem``: builds a problem other than :class:`Problem`.
-    """
+    """What one fit runs on (:func:`fmbrdf_mi.fit.problem.data.prepare`): ``pixels`` the fitted super-pixels'
+    flat indices, image by image, ``slices`` each image's (start, stop) among them."""
 
     loss: str
     pixels: np.ndarray
