@@ -1,10 +1,7 @@
 """Standard errors, 95 % intervals and correlations of the estimates (fit.json's ``uncertainty``).
 
-One function per mechanism: :func:`fisher`, :func:`noise_scale` (misfit), :func:`paper_sandwich`,
-:func:`incidental`, :func:`profile_intervals`, :func:`other_optima`, :func:`quadrature_bias`.  :func:`covariance`
-composes the estimators, :func:`summary` makes fit.json's block, :func:`method_text` its ``method`` from the
-mechanisms applied.  Covariances are of the reported parameters (delta method through d theta / d z); intervals
-are theta +- 1.96 SE cut at the bounds.  The design: docs/computed.md.
+:func:`covariance` composes the estimators (:func:`fisher`, :func:`paper_sandwich`, :func:`incidental`),
+:func:`summary` makes fit.json's block; covariances are of the reported parameters.  Design: docs/computed.md.
 """
 from __future__ import annotations
 
@@ -27,8 +24,7 @@ WEAK_REL = 0.05
 WEAK_FLOOR = {"kappa": 10.0}
 #: A shape parameter within this fraction of its range (optimiser's scale) of a bound is at it.
 AT_BOUND_FRAC = 1e-3
-#: ``interval_kind`` of an end at value -+ 1.96 SE beyond the parameter's bound, cut there: the data do not rule
-#: out the bound, so the interval is open there rather than narrow.
+#: ``interval_kind`` of an end cut at the parameter's bound: the data do not rule the bound out.
 FISHER_AT_BOUND = "fisher, open at the bound"
 #: An albedo is *determined* where SE <= this fraction of it; a split is *identified* where k_s and k_b are.
 SPLIT_REL = 0.5
@@ -39,8 +35,7 @@ INTERVALS = ("auto", "profile", "fisher")
 PROFILE_TOL = 0.15
 #: Relative tolerance of a profile end's chi^2 rise (:func:`profile_end`).
 PROFILE_ROOT_TOL = 0.1
-#: A profile refit stops when its predicted further decrease of chi^2 is below this fraction of that tolerance
-#: (PROFILE_ROOT_TOL x the rise sought): its error moves the end by a fraction of the tolerance.
+#: A profile refit stops when its predicted decrease of chi^2 is below this x PROFILE_ROOT_TOL x the rise.
 PROFILE_REFIT_TOL = 0.25
 #: A start's end this many SE from the estimate in some shape parameter is another optimum.
 MODE_SEPARATION_SE = 2.0
@@ -49,8 +44,7 @@ MODE_SEPARATION_SE = 2.0
 QUADRATURE_TOL = 0.2
 #: The finest quadrature: points per raw-pixel side.
 MAX_AREA_POINTS = 8
-#: A sampled check (:func:`sampled_quadrature_bias`) refines while |bias| plus this many of its sampling SEs
-#: exceeds :data:`QUADRATURE_TOL`: a bias the sample cannot rule out is refined.
+#: A sampled check refines while |bias| plus this many sampling SEs exceeds :data:`QUADRATURE_TOL`.
 QUADRATURE_SAMPLING_SE = 2.0
 
 
@@ -70,8 +64,7 @@ def dtheta_dz(problem, st, names, h=1e-6):
 
 
 def bound_distance(problem, st):
-    """{free shape parameter: (distance to its nearest bound in its units, that as a fraction of its range on the
-    optimiser's scale)}."""
+    """{free shape parameter: (distance to its nearest bound, that as a fraction of its optimiser-scale range)}."""
     out = {}
     for n in problem.names:
         tlo, thi, lo, hi = problem.bounds.lims[n]
@@ -97,9 +90,7 @@ def jacobian_in_reported(problem, st, J):
 #: Floor of 1 - lambda in :func:`incidental_sandwich`: no SE inflated more than 1 / this over Fisher's.
 INCIDENTAL_FLOOR = 0.1
 
-#: Above this :func:`noise_share` the sandwich's H = F - C is the small difference of two noisy matrices in
-#: some direction (more of Kaufman's information there is the albedos' noise than the data's): its errors
-#: understate the spread over captures, and the fit says so (docs/benchmarks/coverage.md).
+#: Above this :func:`noise_share` the sandwich understates the spread over captures (docs/benchmarks/coverage.md).
 NOISE_SHARE_MAX = 0.5
 
 
@@ -143,8 +134,7 @@ NOTES = {
 
 
 def method_text(applied):
-    """fit.json's ``uncertainty.method`` from ``applied`` [(kind, detail)]: one :data:`ESTIMATORS` kind, its
-    :data:`QUALIFIERS`, then the :data:`NOTES`, in the tables' order."""
+    """fit.json's ``uncertainty.method`` from ``applied`` [(kind, detail)], in the tables' order."""
     done = dict(applied)
     unknown = [k for k in done if k not in ESTIMATORS and k not in QUALIFIERS and k not in NOTES]
     estimators = [k for k in ESTIMATORS if k in done]
@@ -165,32 +155,30 @@ def incidental_term(problem, st, parts):
 
 
 def _shares(F, C):
-    """(R, lambda, Q): F^-1/2 = R V^T and the eigen-decomposition of F^-1/2 C F^-1/2 in that basis.  Raises
-    LinAlgError when F is singular."""
+    """(R, lambda, Q): F^-1/2 = R V^T and the eigen-decomposition of F^-1/2 C F^-1/2; LinAlgError if F is
+    singular."""
     w, V = np.linalg.eigh(F)
     if w.min() <= 0:
         raise np.linalg.LinAlgError("singular information matrix")
-    R = V / np.sqrt(w)                        # F^-1/2 = R V^T, R = V w^-1/2
-    lam, Q = np.linalg.eigh(R.T @ C @ R)      # in F's metric (symmetric: V^T F^-1/2 C F^-1/2 V)
+    R = V / np.sqrt(w)
+    lam, Q = np.linalg.eigh(R.T @ C @ R)
     return R, lam, Q
 
 
 def noise_share(F, C):
     """The largest eigenvalue of F^-1/2 C F^-1/2 (F = J^T J, C :func:`incidental_term` x scale): the largest
-    fraction, along one direction of the shape, of Kaufman's information that is the eliminated albedos' noise
-    (C) rather than the data's (H = F - C).  Raises LinAlgError when F is singular."""
+    share, in one direction, of the information that is the eliminated albedos' noise."""
     return float(_shares(F, C)[1].max()) if len(F) else 0.0
 
 
 def incidental_sandwich(F, C):
-    """(cov, capped): H^-1 F H^-1, H = F - C (F = J^T J, C :func:`incidental_term` x scale), and the number of
-    directions capped: 1 - lambda (eigenvalues of F^-1/2 C F^-1/2) is floored at :data:`INCIDENTAL_FLOOR`
-    because C from few samples per albedo is noisy.  Raises LinAlgError when F is singular."""
+    """(cov, capped): H^-1 F H^-1, H = F - C, and the number of directions where 1 - lambda is floored at
+    :data:`INCIDENTAL_FLOOR` (C from few samples per albedo is noisy)."""
     R, lam, Q = _shares(F, C)
     d = 1.0 - lam
     capped = int(np.sum(d < INCIDENTAL_FLOOR))
     d = np.maximum(d, INCIDENTAL_FLOOR)
-    T = R @ Q                                 # cov = F^-1/2 (I - L)^-2 F^-1/2 in these coordinates
+    T = R @ Q
     return (T / d ** 2) @ T.T, capped
 
 
@@ -200,9 +188,8 @@ def fisher(Jt):
 
 
 def noise_scale(problem, r, n_independent, p):
-    """(scale, info, applied): the covariance's factor, fit.json's ``chi2_per_dof`` and ``misfit``, the
-    mechanisms.  scale = chi^2 / (N - p) when the noise is estimated, or when it is known and chi^2/dof exceeds
-    1 by more than max(0.1, 5 sqrt(2 / (N - p))) (``misfit``); as far below 1 it stays 1 (``noise_overstated``)."""
+    """(scale, info, applied): scale = chi^2 / (N - p) when the noise is estimated or misfits (chi^2/dof more
+    than max(0.1, 5 sqrt(2 / (N - p))) above 1), else 1; ``info``: fit.json's ``chi2_per_dof`` and flags."""
     n = int(n_independent if n_independent is not None else len(r))
     chi2 = float(r @ r)
     info = {"chi2_per_dof": chi2 / max(n - p, 1)}
@@ -219,17 +206,14 @@ def noise_scale(problem, r, n_independent, p):
 
 
 def incidental(problem, st, J, names, Hi, scale, parts=None):
-    """(cov_theta / scale, cov_z / scale, info, applied): the incidental-parameter sandwich
-    (:func:`incidental_sandwich`) of an eliminating layout, the Fisher errors it replaces and the
-    :func:`noise_share` in ``info`` (``reliable``: the share at most :data:`NOISE_SHARE_MAX`, else the method
-    says the errors are not confidence intervals); a layout without the term keeps ``Hi`` (cov_z None).
-    ``J``: Kaufman's projected Jacobian in z.  Raises LinAlgError."""
+    """(cov_theta / scale, cov_z / scale, info, applied): :func:`incidental_sandwich` from Kaufman's ``J``, or
+    ``Hi`` for a layout without the term."""
     if problem.layout.incidental_reason is not None:
         reason = problem.layout.incidental_reason
         return Hi, None, {"incidental_not_computed": reason}, [("incidental-not-computed", reason)]
     if parts is None:
         parts = problem.parts(st, jac=True)
-    Gd = dtheta_dz(problem, st, names)                   # theta = theta(z): cov_theta = G cov_z G^T
+    Gd = dtheta_dz(problem, st, names)
     F, C = J.T @ J, scale * incidental_term(problem, st, parts)
     cz, capped = incidental_sandwich(F, C)
     share = noise_share(F, C)
@@ -247,17 +231,16 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
 
 
 def paper_sandwich(problem, Jt, r, Hi):
-    """(cov, applied): the paper's loss's sandwich H^-1 M H^-1, H = J^T J (spread, not bias: docs/computed.md);
-    M = sum_a u_a (sum_{b in N(a)} u_b)^T with leave-N(a)-out residuals (I - P_gg)^-1 r_g, P = J H^-1 J^T
-    (cluster jackknife "CR3", since the fit pulls plain residuals towards the data), PSD-projected.  N(a): pixel
-    a, or with demosaicking (``problem.obj.grid``) its 3 x 3 neighbours, whose residuals are correlated."""
+    """(cov, applied): the paper's loss's sandwich H^-1 M H^-1 from leave-N(a)-out residuals (cluster
+    jackknife "CR3"), N(a) pixel a or, demosaicked, its 3 x 3 neighbours."""
+
     row_pix, grid = np.asarray(problem.obj.row_pixels(len(r))), problem.obj.grid
     npx = int(row_pix.max()) + 1
     order = np.argsort(row_pix, kind="stable")
     counts = np.bincount(row_pix, minlength=npx)
-    rows = -np.ones((npx, int(counts.max())), int)         # each pixel's residual rows, padded with -1
+    rows = -np.ones((npx, int(counts.max())), int)         # padded with -1
     rows[row_pix[order], np.arange(len(row_pix)) - np.repeat(np.cumsum(counts) - counts, counts)] = order
-    nb = np.arange(npx)[:, None]                            # each block's pixels, its own first, padded with -1
+    nb = np.arange(npx)[:, None]                            # each block's pixels, its own first
     if grid is not None:
         pr, pc = (np.asarray(x) - np.min(x) + 1 for x in grid)
         lut = -np.ones((pr.max() + 2, pc.max() + 2), int)
@@ -265,15 +248,15 @@ def paper_sandwich(problem, Jt, r, Hi):
         nb = np.stack([lut[pr + dr, pc + dc] for dr in (0, -1, 1) for dc in (0, -1, 1)], 1)
         nb = np.take_along_axis(nb, np.argsort(nb < 0, axis=1, kind="stable"), 1)
     R = rows.shape[1]
-    g = np.where(nb[:, :, None] >= 0, rows[np.clip(nb, 0, None)], -1).reshape(npx, -1)  # (n, K R)
-    Jg = np.concatenate([Jt, np.zeros((1, Jt.shape[1]))])[g]   # (n, B, p), padding (-1): the zero row
-    rg = np.concatenate([r, [0.0]])[g]                   # (n, B)
+    g = np.where(nb[:, :, None] >= 0, rows[np.clip(nb, 0, None)], -1).reshape(npx, -1)
+    Jg = np.concatenate([Jt, np.zeros((1, Jt.shape[1]))])[g]   # padding (-1): the zero row
+    rg = np.concatenate([r, [0.0]])[g]
     A = np.eye(Jg.shape[1])[None] - np.einsum("nbi,ij,ncj->nbc", Jg, Hi, Jg)
     try:
         rt = np.linalg.solve(A, rg[..., None])[..., 0]
     except np.linalg.LinAlgError:  # a block that determines a parameter on its own (leverage 1)
         rt = np.einsum("nbc,nc->nb", np.linalg.pinv(A, rcond=1e-10), rg)
-    M = np.einsum("nbi,nb->ni", Jg[:, :R], rt[:, :R]).T @ np.einsum("nbi,nb->ni", Jg, rt)   # own rows x block
+    M = np.einsum("nbi,nb->ni", Jg[:, :R], rt[:, :R]).T @ np.einsum("nbi,nb->ni", Jg, rt)
     w, V = np.linalg.eigh(0.5 * (M + M.T))
     M = (V * np.clip(w, 0.0, None)) @ V.T
     return Hi @ M @ Hi, [("paper-sandwich", "")] + ([("demosaic", "")] if grid is not None else [])
@@ -281,8 +264,7 @@ def paper_sandwich(problem, Jt, r, Hi):
 
 @dataclasses.dataclass
 class Covariance:
-    """:func:`covariance`'s result: ``cov`` of ``names`` (None if not computed), fit.json's ``info``, the
-    mechanisms ``applied`` (:func:`method_text`), and for an eliminating layout the shape's ``cov_z`` in z."""
+    """:func:`covariance`'s result; ``cov`` None if not computed, ``cov_z`` the shape's for an eliminating layout."""
 
     names: list
     cov: object
@@ -296,8 +278,7 @@ class Covariance:
 
 
 def covariance(problem, st, J, r, n_independent=None, parts=None):
-    """The :class:`Covariance` of the reported free parameters: :func:`paper_sandwich` for the paper's loss;
-    for a likelihood :func:`fisher` x :func:`noise_scale`, with :func:`incidental` for an eliminating layout."""
+    """The :class:`Covariance` of the reported free parameters."""
     try:
         names, Jt = jacobian_in_reported(problem, st, J)
     except np.linalg.LinAlgError:
@@ -317,7 +298,7 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
     except np.linalg.LinAlgError:
         return Covariance(names, None, {}, [("singular-information", "")])
     cov = scale * Hi
-    if problem.projects and not problem.eliminates:     # a few eliminated albedo pairs: rows of the table
+    if problem.projects and not problem.eliminates:
         names, cov = problem.with_albedo_rows(st, parts or problem.parts(st, jac=True), names, cov, scale,
                                               np.linalg.lstsq(J, Jt, rcond=None)[0])
     return Covariance(names, cov, info, [(estimator, "")] + applied, None if cz is None else cz * scale)
@@ -339,8 +320,7 @@ def summarise(problem, st, J, r, n_independent=None, parts=None):
 
 
 def summary(problem, st, c):
-    """fit.json's uncertainty block from the :class:`Covariance` ``c``: standard errors, 95 % intervals cut at
-    the bounds (``interval_kind`` where cut), the bound flags, correlations and ``method``."""
+    """fit.json's uncertainty block from the :class:`Covariance` ``c``."""
     se = {} if c.cov is None else dict(zip(c.names, np.sqrt(np.clip(np.diag(c.cov), 0.0, None)).tolist()))
     out = {"std_errors": se, "ci95": {}, "correlation": None, "at_bound": at_bound(problem, st, se), **c.info,
            "method": c.method}
@@ -366,9 +346,8 @@ def summary(problem, st, c):
 
 
 def quadrature_bias(problem, fine, st, J, r):
-    """{shape parameter: first-order shift / unscaled Fisher SE} between ``problem`` (m x m points; ``J``,
-    ``r`` at ``st``) and ``fine`` (2m x 2m): -(J^T J)^-1 J^T (r - r_fine), 3/4 of the coarse bias (the
-    midpoint rule's error falls 4x per halving)."""
+    """{shape parameter: shift / Fisher SE} between ``problem`` (m x m points) and ``fine`` (2m x 2m):
+    -(J^T J)^-1 J^T (r - r_fine), 3/4 of the coarse bias (the midpoint rule's error falls 4x per halving)."""
     parts = fine.parts(st)
     fine.set_weights(parts, st)
     return shift_in_se(problem, J, J.T @ (r - fine.obj.residuals(parts, st)))
@@ -387,20 +366,16 @@ def shift_in_se(problem, J, g, V=None):
 
 
 def predicted_quadrature_terms(problem, coarser, st, J, r, m, h):
-    """(cells, p) each cell's J_c^T d_c, d: ``problem``'s residuals with m x m points less those with 2m x 2m,
-    predicted from ``coarser``, the same cells with h x h points (h < m): the midpoint rule's error falls as
-    1/m^2, so d = (r_h - r_m) (1/m^2 - 1/4m^2) / (1/h^2 - 1/m^2) to leading order, the residuals whitened by
-    ``problem``'s variances.  The control variate of :func:`sampled_quadrature_bias`."""
+    """(cells, p) each cell's J_c^T d_c, d (m x m less 2m x 2m residuals) extrapolated from ``coarser``
+    (h x h points) by the midpoint rule's 1/m^2 error: the control variate of :func:`sampled_quadrature_bias`."""
     r_h = ((coarser.obj.y - coarser.obj.mu(coarser.parts(st), st)) / np.sqrt(problem.obj.var)).ravel()
     d, ms = 0.75 / m ** 2 / (1.0 / h ** 2 - 1.0 / m ** 2) * (r_h - r), problem.obj.m
     return np.einsum("rp,r->rp", J, d).reshape(len(d) // ms, ms, -1).sum(1)
 
 
 def quadrature_sample(problem, J, g_hat, n, rng):
-    """(cells, pi): a Poisson sample of about ``n`` of the fitted cells (sorted; all when ``n`` >= their number)
-    and their inclusion probabilities: a quarter of n uniform, three quarters in proportion to each cell's
-    predicted shift |S^-1 (J^T J)^-1 g_hat_c| (S: the Fisher SEs; ``g_hat``: :func:`predicted_quadrature_terms`),
-    capped at 1 so that every cell can be taken and the Horvitz-Thompson sum is unbiased."""
+    """(cells, pi): a Poisson sample of about ``n`` cells and their inclusion probabilities, a quarter uniform
+    and three quarters in proportion to each cell's predicted shift, capped at 1."""
     N, k = len(g_hat), len(problem.names)
     if n >= N:
         return np.arange(N), np.ones(N)
@@ -409,7 +384,7 @@ def quadrature_sample(problem, J, g_hat, n, rng):
     size = np.sqrt(np.sum((g_hat @ (Hi[:k] / se[:k, None]).T) ** 2, axis=1))
     w = 0.25 / N + (0.75 * size / size.sum() if size.sum() > 0 else 0.75 / N)
     c = float(n)
-    for _ in range(50):                     # scale so that the capped probabilities sum to n
+    for _ in range(50):                     # capped probabilities sum to n
         pi = np.minimum(1.0, c * w)
         free = pi < 1.0
         if abs(pi.sum() - n) <= 1e-9 * n or not free.any():
@@ -420,13 +395,10 @@ def quadrature_sample(problem, J, g_hat, n, rng):
 
 
 def sampled_quadrature_bias(problem, fine, st, J, r, cells, pi, g_hat):
-    """(bias, sampling SE) of :func:`quadrature_bias` from ``cells`` only ({shape parameter: / its Fisher SE};
-    ``fine``: their 2m x 2m problem, ``pi``: :func:`quadrature_sample`): sum_c g_hat_c
-    (:func:`predicted_quadrature_terms`) plus the Horvitz-Thompson sum of e_c / pi_c, e_c = J_c^T d_c - g_hat_c
-    (a difference estimator, unbiased whatever the prediction), of variance sum (1 - pi_c) / pi_c^2 e_c e_c^T.
-    The fine variances are the noise model's at the fine prediction with the fit's noise parameters."""
+    """(bias, sampling SE) of :func:`quadrature_bias` from ``cells`` only (``fine``: their 2m x 2m problem):
+    the predicted terms plus the Horvitz-Thompson sum of their errors, unbiased whatever the prediction."""
     ms = problem.obj.m
-    if problem.eliminates:      # albedo maps (a pair per pixel and channel): the sampled cells' own albedos
+    if problem.eliminates:      # the sampled cells' own albedos
         C = 1 if problem.layout.channel_of is None else int(problem.layout.channel_of.max()) + 1
         g = np.searchsorted(*[lay.pixels * C + (0 if lay.channel_of is None else lay.channel_of)
                               for lay in (problem.layout, fine.layout)])
@@ -453,8 +425,8 @@ def sandwich_ratio(unc, name):
 
 
 def chi2_along_covariance(problem, st, J, scale):
-    """f(name, value): chi^2 with ``name`` at ``value`` and the other unknowns at their regression on it
-    (scale (J^T J)^-1 in z): a quadratic likelihood's profile path, >= the profile.  ``f.state``: its State."""
+    """f(name, value): chi^2 with the other unknowns at their regression on ``name`` (>= the profile);
+    ``f.state``: its State."""
     z0 = problem.to_z(st)
     # at a bound the z-variance is huge: regressing on it would throw a parameter to its other bound
     pinned = [i for i, (_, frac) in enumerate(bound_distance(problem, st).values()) if frac <= AT_BOUND_FRAC]
@@ -462,7 +434,7 @@ def chi2_along_covariance(problem, st, J, scale):
 
     def state(name, value):
         j, z = problem.names.index(name), z0.copy()
-        if j in pinned:         # no regression on a pinned parameter: the others stay
+        if j in pinned:
             z[j] = problem.bounds.to_z(name, value)
         else:
             keep = tuple(i for i in range(len(z0)) if i == j or i not in pinned)
@@ -485,11 +457,8 @@ def chi2_along_covariance(problem, st, J, scale):
 
 
 def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refits=3):
-    """One end of ``name``'s profile-likelihood 95 % interval on ``side`` (-1, +1) of ``st``: where chi^2
-    refitted with ``name`` fixed (:func:`~fmbrdf_mi.fit.solve.driver.refit_fixed` from ``path.state``, to
-    within :data:`PROFILE_REFIT_TOL` of the end's tolerance) rises by ``delta``.  Secant then false position on
-    sqrt(rise), linear in the distance for a quadratic likelihood.  Returns (end, kind, [(value, rise)],
-    model evaluations), kind "profile", "profile, open at the bound" or "profile, at least"."""
+    """(end, kind, [(value, rise)], evaluations): where chi^2 refitted with ``name`` fixed rises by ``delta`` on
+    ``side`` (-1, +1); secant then false position on sqrt(rise), linear for a quadratic likelihood."""
     b = problem.bounds
     bound = b.lims[name][2 if side < 0 else 3]
     t0 = b.to_scale(name, st.shape[name])
@@ -513,10 +482,10 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
             return float(bound), "profile, open at the bound", pts, evals
         else:
             inside = (u, g)
-        if outside is None:      # secant through the origin, at most x4
+        if outside is None:      # secant, at most x4
             u = min(u * (g_target / g if g > 0 else 4.0), 4.0 * u, room)
         else:
-            (ua, ga), (ub, gb) = inside, outside     # false position (the last: ub where it fails)
+            (ua, ga), (ub, gb) = inside, outside
             fallback = 0.5 * (ua + ub) if k + 1 < max_refits else ub
             u = ua + (g_target - ga) * (ub - ua) / (gb - ga) if gb > ga else fallback
     if outside is None:
@@ -525,13 +494,9 @@ def profile_end(problem, st, name, side, start, delta, chi2_min, path, max_refit
 
 
 def profile_intervals(problem, st, unc, J, r, every=False, progress=None):
-    """Replace each Fisher 95 % interval end where chi^2 along :func:`chi2_along_covariance` does not rise by
-    delta = 1.96^2 x scale to within :data:`PROFILE_TOL` by the profile likelihood's (:func:`profile_end`).
-    With the incidental sandwich delta is x :func:`sandwich_ratio` (adjusted likelihood ratio, Varin, Reid and
-    Firth 2011, sec. 4.2) and a profile end only widens (chi^2's profile with the albedos eliminated lacks their
-    noise).  Sets ``unc``'s ``interval_kind``, ``profile`` and ``ci95``; returns the mechanisms applied.
-    Likelihood fits without extra unknowns only.  ``every``: profile every end; ``progress``: told of each
-    parameter checked and the time left."""
+    """Replace each Fisher interval end where chi^2 does not rise by 1.96^2 x scale (within :data:`PROFILE_TOL`)
+    by the profile likelihood's; with the incidental sandwich the rise is x :func:`sandwich_ratio` (adjusted
+    likelihood ratio, Varin, Reid and Firth 2011, sec. 4.2) and ends only widen.  Returns the mechanisms."""
     if not problem.obj.is_likelihood or not unc.get("ci95") or problem.with_fixed({}) is None:
         return []
     chi2_min, scale = float(r @ r), interval_scale(problem, unc)
@@ -557,7 +522,7 @@ def profile_intervals(problem, st, unc, J, r, every=False, progress=None):
                 end, k, tried["upper" if i else "lower"], evals = profile_end(problem, st, n, side, ends[i], delta,
                                                                                chi2_min, path)
                 tried.setdefault("evaluations", {})["upper" if i else "lower"] = evals
-                if not (sandwich and side * (end - ends[i]) < 0):    # with the sandwich a profile end only widens
+                if not (sandwich and side * (end - ends[i]) < 0):
                     ends[i], kind[i] = end, k
         kinds[n], details[n] = kind_of(kind), tried
         unc["ci95"][n] = [float(min(ends[0], st.shape[n])), float(max(ends[1], st.shape[n]))]
@@ -589,8 +554,7 @@ def misfit_text(unc):
 
 
 def weakly_identified(table, params, std, at_bound_=()):
-    """Names of ``params`` whose SE exceeds :data:`WEAK_REL` of max(|value|, :data:`WEAK_FLOOR`), or in
-    ``at_bound_`` (``table``: the :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`)."""
+    """Names of ``params`` with SE > :data:`WEAK_REL` x max(|value|, :data:`WEAK_FLOOR`), or in ``at_bound_``."""
     floor = {k: WEAK_FLOOR.get(table.row[k].base if k in table.row else k, 0.0) for k in params}
     return [k for k, v in params.items()
             if (k in std and (not math.isfinite(std[k]) or std[k] > WEAK_REL * max(abs(v), floor[k])))
@@ -605,9 +569,8 @@ def determined(value, se, rel=SPLIT_REL):
 
 
 def pixel_albedos(problem, st, parts, J, unc, cov_z=None):
-    """Per group of an eliminating layout: the albedos with their errors
-    (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.maps`), ``identified`` where both are
-    :func:`determined`; ``cov_z``: the shape's covariance in z (default (J^T J)^+ x scale)."""
+    """:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.maps` of an eliminating layout; ``cov_z``: the
+    shape's covariance in z (default (J^T J)^+ x scale)."""
     obj, lay, scale = problem.obj, problem.layout, interval_scale(problem, unc)
     us, ub = obj.albedo_columns(parts)
     Jt = obj.shape_jacobian(parts, st, problem.to_z(st), problem.names, problem.bounds)
@@ -621,10 +584,8 @@ def pixel_albedos(problem, st, parts, J, unc, cov_z=None):
 
 
 def other_optima(starts, params, unc, names):
-    """(optima, threshold): the ends of ``starts`` (:func:`fmbrdf_mi.fit.solve.driver.solve`) more than
-    :data:`MODE_SEPARATION_SE` from ``params``, with delta_chi2 = 2 (score - best); one *competes* when
-    converged and below :data:`CHI2_95` [p] x scale x the largest :func:`sandwich_ratio`.  ([], None) for
-    one start or no standard errors."""
+    """(optima, threshold): the ends of ``starts`` more than :data:`MODE_SEPARATION_SE` from ``params``; one
+    *competes* when converged with delta_chi2 below :data:`CHI2_95` [p] x scale x :func:`sandwich_ratio`."""
     se = unc.get("std_errors") or {}
     names = [n for n in names if 0 < (se.get(n) or 0) < math.inf]
     scored = [s for s in starts if s.get("score") is not None and math.isfinite(s["score"])]
@@ -645,9 +606,9 @@ def other_optima(starts, params, unc, names):
 
 
 def widen_for_optima(unc, params, optima, lims=None):
-    """Widen each 95 % interval to the hull of its own and, around each competing optimum, one of the same
-    half-widths, cut at ``lims`` {name: (lo, hi)}; records ``interval_kind`` "optima" and
-    ``other_optima["widened"]``.  Returns the names widened."""
+    """Widen each 95 % interval to cover the same half-widths around each competing optimum, cut at ``lims``;
+    returns the names widened."""
+
     comp, ci, before = [o for o in optima if o["competing"]], unc.get("ci95") or {}, {}
     for n in [n for n in ci if comp and all(n in o["params"] for o in comp)]:
         (lo, hi), v = ci[n], params[n]

@@ -1,13 +1,8 @@
 """A Gaussian smoothness prior on per-pixel albedo maps (``FitOptions.albedo_smooth``, ``--albedo-smooth``).
 
-Neighbouring fitted pixels' albedos differ by a Gaussian amount of standard deviation tau (in the reported
-k_s, k_b units; same colour channel only):
-
-    penalty = sum over 4-neighbour pairs (i, j) of ((k_s,i - k_s,j) / tau_s)^2 + ((k_b,i - k_b,j) / tau_b)^2,
-
-added to the whitened chi^2 as 2 E design rows with data 0 (:meth:`SmoothPrior.rows`), so the albedos stay
-eliminated.  The prior is improper: each connected component keeps its mean free
-(:meth:`SmoothPrior.null_dims`).
+penalty = sum over 4-neighbour pairs (same channel) of ((k_s,i - k_s,j) / tau_s)^2 + ((k_b,i - k_b,j) / tau_b)^2,
+added to chi^2 as design rows with data 0 so the albedos stay eliminated; improper (each connected
+component keeps its mean free).
 """
 from __future__ import annotations
 
@@ -15,8 +10,7 @@ import numpy as np
 
 
 def neighbour_pairs(pixels, width, channel_of=None):
-    """(E, 2) group indices (i, j), i < j, of right or down neighbours (flat ``pixels`` (n_groups,) on an
-    image ``width`` wide) of the same channel (``channel_of``)."""
+    """(E, 2) group indices (i, j), i < j, of right or down neighbours of the same channel."""
     pixels = np.asarray(pixels, dtype=np.int64)
     ch = np.zeros(len(pixels), np.int64) if channel_of is None else np.asarray(channel_of, dtype=np.int64)
     C = int(ch.max()) + 1 if len(ch) else 1
@@ -49,9 +43,8 @@ def components(n, pairs):
 
 
 class SmoothPrior:
-    """The prior on ``n_groups`` interleaved albedo pairs: ``pairs`` (E, 2) neighbours, ``tau`` (tau_s,
-    tau_b) in the maps' units or one number for both (``albedo_smooth``), ``factor`` the albedo factor
-    (k = factor a); a row is factor (a_i - a_j) / tau."""
+    """The prior on ``n_groups`` interleaved albedo pairs; ``tau``: (tau_s, tau_b) in the maps' units or one
+    number; a row is factor (a_i - a_j) / tau."""
 
     def __init__(self, pairs, n_groups, tau, factor=1.0):
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
@@ -77,7 +70,8 @@ class SmoothPrior:
         return np.concatenate([self.weights[0] * (a_s[i] - a_s[j]), self.weights[1] * (a_b[i] - a_b[j])])
 
     def apply(self, x):
-        """D x / tau for interleaved unknowns x (2 n_groups,) or (2 n_groups, p): (2E,) or (2E, p)."""
+        """D x / tau for interleaved unknowns x (2 n_groups,) or (2 n_groups, p)."""
+
         x = np.asarray(x, dtype=np.float64)
         return self.residuals(x[0::2], x[1::2])
 

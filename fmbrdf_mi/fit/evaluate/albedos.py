@@ -1,14 +1,8 @@
 """The albedo layouts of a likelihood fit: each a sparse design A(theta) of the albedos.
 
-Every model is linear in its albedos (paper: s_s + s_b), so with S_k, B_k the unit-albedo intensities of
-sample k (:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` through the analyser),
-
-    mu_k = sum_c w_kc (a_s[g_kc] S_k + a_b[g_kc] B_k) = (A(theta) a)_k,
-
-a = (a_s[0], a_b[0], a_s[1], ...), over the sample's corners c (groups g_kc, weights w_kc).  A layout is its
-corners; :class:`AlbedoLayout` owns the algebra and eliminates the albedos by variable projection
-(:meth:`AlbedoLayout.project`): one pair per channel or material (:class:`GroupAlbedos`) or per pixel
-(:class:`PixelAlbedos`).  A single shared pair needs no layout (``layout=None``: it is optimised in z).
+Every model is linear in its albedos (paper: s_s + s_b): mu_k = sum_c w_kc (a_s[g_kc] S_k + a_b[g_kc] B_k)
+= (A(theta) a)_k over sample k's corners c.  :class:`AlbedoLayout` eliminates the albedos by variable
+projection, one pair per channel or material (:class:`GroupAlbedos`) or per pixel (:class:`PixelAlbedos`).
 """
 from __future__ import annotations
 
@@ -41,16 +35,15 @@ def nnls2(S, B, I, w=None):
 
 
 class PairBlocks:
-    """G = A^T A of a one-corner design: one 2 x 2 block per group (``blocks`` (n_groups, 2, 2)),
-    pseudo-inverted (parallel columns give the minimum-norm pair).  Interface of
+    """G = A^T A of a one-corner design, one pseudo-inverted 2 x 2 block per group; the interface of
     :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`."""
 
     def __init__(self, blocks):
         self.inverse = np.linalg.pinv(blocks, rcond=1e-10, hermitian=True)
-        #: each block's rank: the albedos the data spent unknowns on
+        #: each block's rank
         self.rank = np.linalg.matrix_rank(blocks, rtol=1e-10, hermitian=True)
         det = blocks[:, 0, 0] * blocks[:, 1, 1] - blocks[:, 0, 1] ** 2
-        #: pairs whose columns are parallel (det at most 1e-10 of G_ss G_bb) or empty
+        #: pairs whose columns are parallel or empty
         self.undetermined = ~(det > 1e-10 * np.maximum(blocks[:, 0, 0] * blocks[:, 1, 1], 1e-300))
 
     def solve(self, r):
@@ -75,20 +68,14 @@ def pair_sums(X, Y, n_groups):
 
 
 class AlbedoLayout:
-    """The sparse design A(theta) of the albedos (module docstring) and their elimination.
-
-    ``groups``: each sample's own group (int, broadcastable to (cells, n)); ``n_groups``: albedo pairs;
-    ``corner_groups``, ``corner_weights`` (groups' shape + (c,)): the corners (default: the own group, weight
-    1); ``name``: the ``albedo`` option; ``labels``: group labels or None; ``prior``: a
-    :class:`~fmbrdf_mi.fit.evaluate.albedo_prior.SmoothPrior` whose rows R join the design with data 0.
-
-    G = A^T A (+ R^T R) is block diagonal (``coupled`` False: ``PairBlocks``) or banded (``coupled``
-    True: :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`).  The albedos are not held
+    """The sparse design A(theta) of the albedos and their elimination; ``corner_groups``, ``corner_weights``
+    (groups' shape + (c,)) default to each sample's own group, weight 1.  The albedos are not held
     non-negative: clipping poorly determined ones at 0 biases the shape.
     """
 
-    #: Monte Carlo draws of the coupled :meth:`incidental`: [1] / pairs, clipped to [[0], [2]] (one draw's
-    #: relative spread on C's diagonal is about sqrt(6 / pairs), so larger maps need fewer).
+
+    #: Monte Carlo draws of the coupled :meth:`incidental`: [1] / pairs, clipped to [[0], [2]] (a draw's
+    #: relative spread on C's diagonal falls as 1 / sqrt(pairs)).
     INCIDENTAL_DRAWS = (8, 60000, 512)
 
     def __init__(self, groups, n_groups, *, corner_groups=None, corner_weights=None, name="per-pixel",
@@ -101,24 +88,22 @@ class AlbedoLayout:
         self.corner_weights = (np.ones(self.corner_groups.shape) if corner_weights is None
                                else np.asarray(corner_weights, dtype=np.float64).reshape(self.corner_groups.shape))
         used = np.any(self.corner_weights != 0, axis=tuple(range(self.groups.ndim)))
-        if not used.all():  # bilinear corners of samples at their cells' centres: the one-corner design
+        if not used.all():
             self.corner_groups, self.corner_weights = (np.ascontiguousarray(a[..., used])
                                                        for a in (self.corner_groups, self.corner_weights))
         self.labels = None if labels is None else tuple(labels)
         self.prior = prior
-        #: one corner of weight 1 per sample
         self.one_corner = self.corner_groups.shape[-1] == 1 and bool(np.all(self.corner_weights == 1.0))
         self._single = np.ascontiguousarray(self.corner_groups[..., 0]) if self.one_corner else None
-        #: whether the pairs are coupled (G banded) or not (G block diagonal)
+        #: G banded (True) or block diagonal
         self.coupled = not self.one_corner or prior is not None
         lo, k, hi = self.INCIDENTAL_DRAWS
         self.incidental_draws = int(np.clip(np.ceil(k / max(self.n_groups, 1)), lo, hi))
         self._factor = None             # (key columns, factor of G) at the last columns
-        self._incidental_last = None    # (draws, seed, count), the columns, C of the last incidental
+        self._incidental_last = None
 
-    # ---- the design
     def interpolate(self, a):
-        """Each sample's combination sum_c w_c a[g_c] of the per-group ``a`` (n_groups,): groups' shape."""
+        """Each sample's sum_c w_c a[g_c] of the per-group ``a``."""
         a = np.asarray(a, dtype=np.float64)
         if self.one_corner:
             return a[self._single]
@@ -129,13 +114,12 @@ class AlbedoLayout:
         return self.interpolate(a_s) * S + self.interpolate(a_b) * B
 
     def design(self, us, ub):
-        """A as (columns (N, 2c), values (N, 2c)): each sample's non-zeros, unknowns interleaved (a_s[g] at 2g,
-        a_b[g] at 2g + 1), from its (whitened) unit-albedo columns ``us``, ``ub`` (N,), samples in the order
-        of (cells, n) raveled."""
+        """A as (columns (N, 2c), values (N, 2c)) from the unit-albedo columns ``us``, ``ub`` (N,); a_s[g] is
+        unknown 2g, a_b[g] 2g + 1."""
         us, ub = (np.asarray(u, dtype=np.float64).ravel() for u in (us, ub))
         c = self.corner_groups.shape[-1]
         g, w = self.corner_groups.reshape(-1, c), self.corner_weights.reshape(-1, c)
-        if len(g) != len(us):       # groups given per sample of a cell (n,): the same for every cell
+        if len(g) != len(us):       # groups given per sample of a cell: the same for every cell
             g, w = np.tile(g, (len(us) // len(g), 1)), np.tile(w, (len(us) // len(w), 1))
         return (np.concatenate([2 * g, 2 * g + 1], 1), np.concatenate([w * us[:, None], w * ub[:, None]], 1))
 
@@ -154,10 +138,9 @@ class AlbedoLayout:
         return np.stack([np.bincount(cols.ravel(), weights=(vals * v[:, k, None]).ravel(), minlength=n)
                          for k in range(v.shape[1])], 1)
 
-    # ---- the factored normal matrix
     def _factorised(self, us, ub):
-        """(A, factor of G) at the columns ``us``, ``ub``; the last factor is reused when |columns| match to a
-        relative 1e-12 (the solve's and the Jacobian's columns differ in rounding and sign)."""
+        """(A, factor of G) at the columns ``us``, ``ub``; reuses the last factor when |columns| match (the
+        solve's and the Jacobian's columns differ in rounding and sign)."""
         key = (np.abs(np.asarray(us, float).ravel()), np.abs(np.asarray(ub, float).ravel()))
         A = self.design(us, ub)
         f = self._factor
@@ -168,7 +151,7 @@ class AlbedoLayout:
             fac = PairBlocks(pair_sums(A, A, self.n_groups))
         else:
             band = normal_band(A if self.prior is None else stack_rows(A, self.prior.rows()), 2 * self.n_groups)
-            for ridge in (0.0,) + RIDGE:       # G singular to rounding (parallel columns): the ridge
+            for ridge in (0.0,) + RIDGE:       # G singular to rounding (parallel columns)
                 try:
                     fac = BandCholesky(*band, ridge=ridge)
                     break
@@ -178,7 +161,6 @@ class AlbedoLayout:
         self._factor = (key, fac)
         return A, fac
 
-    # ---- solve, project, covariance, incidental term
     def solve(self, S, B, y, w):
         """Every group's (a_s, a_b) by (penalised) weighted least squares: two arrays (n_groups,)."""
         sw = np.sqrt(np.asarray(w, dtype=np.float64)).ravel()
@@ -187,8 +169,7 @@ class AlbedoLayout:
         return x[0::2].copy(), x[1::2].copy()
 
     def free(self):
-        """Albedos the data spent unknowns on: the blocks' ranks at the last factored point; with the prior its
-        null space's dimension (the expected penalised chi^2 is N - p - that)."""
+        """Albedos the data spent unknowns on; with the prior its null space's dimension."""
         if self.prior is not None:
             return self.prior.null_dims()
         if self._factor is not None and not self.coupled:
@@ -196,9 +177,8 @@ class AlbedoLayout:
         return 2 * self.n_groups
 
     def project(self, J, us, ub):
-        """Kaufman's Jacobian (I - P) J, P = A G^-1 A^T: ``J`` (N, p) the residuals' shape derivatives, ``us``,
-        ``ub`` (N,) the unit-albedo columns.  Returns (J_projected, K), K = G^-1 A^T J (n_groups, 2, p); with
-        the prior the rows -R K are appended: (N + 2E, p)."""
+        """(Kaufman's Jacobian (I - P) J, K = G^-1 A^T J (n_groups, 2, p)), P = A G^-1 A^T; with the prior the
+        rows -R K are appended."""
         p = J.shape[1]
         A, fac = self._factorised(us, ub)
         extra = 0 if self.prior is None else self.prior.n_rows
@@ -211,9 +191,8 @@ class AlbedoLayout:
         return Jp, K.reshape(self.n_groups, 2, p)
 
     def covariance(self, us, ub, J, cov_z, scale=1.0):
-        """(n_groups, 2, 2) covariance of each (a_s, a_b) with the shape free: the diagonal blocks of
-        scale G^-1 + K cov_z K^T, K = G^-1 A^T J (``J`` unprojected, ``cov_z`` already scaled).  Undetermined
-        pairs get infinite variances."""
+        """(n_groups, 2, 2) covariance of each (a_s, a_b) with the shape free: diagonal blocks of scale G^-1 +
+        K cov_z K^T (``J`` unprojected, ``cov_z`` scaled); undetermined pairs get inf."""
         A, fac = self._factorised(us, ub)
         C = scale * fac.diagonal_blocks()
         if J.shape[1]:
@@ -241,21 +220,16 @@ class AlbedoLayout:
 
     @property
     def incidental_method(self):
-        """How C is computed, where the uncertainty method names it (the coupled pairs' estimate), else None."""
+        """How C is computed, for the uncertainty method (coupled pairs), else None."""
         if self.coupled and self.prior is None:
             return (f"C estimated by Monte Carlo over {self.incidental_draws} noise draws (the albedo pairs are "
                     "coupled)")
         return None
 
     def incidental(self, us, ub, dcols, draws=None, seed=0):
-        """The incidental-parameter term C (p, p) of the eliminated albedos in Kaufman's information (J^T J is
-        on average H + C, Neyman and Scott), or None with the prior.  ``us``, ``ub``: whitened unit-albedo
-        columns (N,); ``dcols``: p pairs (dus, dub), their derivatives d A / d z_j:
-
-            C_jk = tr(G^-1 A_j^T (I - P) A_k).
-
-        Exact for block diagonal G; for banded G the mean of v_j^T v_k over ``draws`` draws,
-        v_j = (I - P) A_j G^-1 A^T e, e ~ N(0, I_N) seeded ``seed``.  The last result is cached."""
+        """The incidental-parameter term C_jk = tr(G^-1 A_j^T (I - P) A_k) (p, p) in Kaufman's information (J^T J
+        is on average H + C, Neyman and Scott), or None with the prior; ``dcols``: p pairs d(us, ub) / d z_j.
+        Exact for block diagonal G, Monte Carlo over ``draws`` noise draws for banded G."""
         if self.prior is not None:
             return None
         p = len(dcols)
@@ -270,7 +244,7 @@ class AlbedoLayout:
         Aj = [self.design(dus, dub) for dus, dub in dcols]
         if not self.coupled:
             Gi, n = fac.inverse, self.n_groups
-            Y = [pair_sums(A, a, n) for a in Aj]                        # A^T A_j per group
+            Y = [pair_sums(A, a, n) for a in Aj]
             GY = [Gi @ y for y in Y]
             C = np.empty((p, p))
             for j in range(p):
@@ -280,28 +254,26 @@ class AlbedoLayout:
         else:
             m = int(draws or self.incidental_draws)
             e = np.random.default_rng(seed).standard_normal((A[0].shape[0], m))
-            b = fac.solve(self.t_at(A, e))                           # (2 n_groups, m), covariance G^-1
+            b = fac.solve(self.t_at(A, e))                           # covariance G^-1
             V = []
             for a in Aj:
-                v = self.at(a, b)                                    # A_j b (N, m)
+                v = self.at(a, b)
                 V.append(v - self.at(A, fac.solve(self.t_at(A, v))))
-            V = np.stack(V, 1)                                       # (N, p, m)
+            V = np.stack(V, 1)
             C = np.einsum("njd,nkd->jk", V, V) / m
         self._incidental_last = ((draws, seed, len(args)), [a.copy() for a in args], C)
         return C.copy()
 
 
 class GroupAlbedos(AlbedoLayout):
-    """A few albedo pairs: one per label, ``groups`` (broadcastable to (cells, n)) each sample's
-    (``per-channel``: a colour period's channels, ``per-material``: each cell's material)."""
+    """A few albedo pairs, one per label (``per-channel`` or ``per-material``)."""
 
     def __init__(self, name, groups, labels):
         super().__init__(groups, len(labels), name=name, labels=labels)
 
     def joint_covariance(self, us, ub, J, cov_z, scale=1.0):
-        """The covariance of (z, a_s[0], a_b[0], a_s[1], ...) ((p + 2 n_groups) square) with the albedos
-        eliminated: cov_z, -cov_z K^T and scale G^-1 + K cov_z K^T, K = G^-1 A^T J (``J`` (N, p)
-        unprojected, ``cov_z`` already scaled); the albedos' response to z is -K."""
+        """The covariance of (z, a_s[0], a_b[0], a_s[1], ...) with the albedos eliminated (``J`` unprojected,
+        ``cov_z`` scaled); the albedos' response to z is -K."""
         A, fac = self._factorised(us, ub)
         p, n = J.shape[1], 2 * self.n_groups
         K = fac.solve(self.t_at(A, J))
@@ -312,9 +284,8 @@ class GroupAlbedos(AlbedoLayout):
 
 
 class PixelAlbedos(AlbedoLayout):
-    """Albedo maps: one (a_s, a_b) per fitted pixel (and colour channel: ``channel_of``), shared by the
-    images of a joint fit.  ``pixels`` (n_groups,): each group's flat pixel index; bilinear corners come from
-    :func:`~fmbrdf_mi.fit.problem.data.pixel_layout`."""
+    """Albedo maps: one (a_s, a_b) per fitted pixel (and ``channel_of``), shared by a joint fit's images;
+    ``pixels``: each group's flat pixel index."""
 
     def __init__(self, groups, n_groups, pixels, *, corner_groups=None, corner_weights=None, name="per-pixel",
                  prior=None, channel_of=None, labels=None):
@@ -324,9 +295,9 @@ class PixelAlbedos(AlbedoLayout):
         self.channel_of = None if channel_of is None else np.asarray(channel_of, dtype=np.int64)
 
     def maps(self, a_s, a_b, cov, factor, split_rel):
-        """The maps, a dict of arrays (n_groups,): ``k_s``, ``k_b`` (``factor`` times a_s, a_b), ``k_s_se``,
-        ``k_b_se`` (from ``cov``, the :meth:`~AlbedoLayout.covariance`), ``correlation``, and ``identified``:
-        where both standard errors are at most ``split_rel`` of their albedos."""
+        """The maps (n_groups,): ``k_s``, ``k_b`` (``factor`` x albedo), their ``_se`` from ``cov``
+        (:meth:`~AlbedoLayout.covariance`), ``correlation``, ``identified`` (both SE <= ``split_rel`` x albedo)."""
+
         f = float(factor)
         a_s, a_b = np.asarray(a_s, float), np.asarray(a_b, float)
         se_s, se_b = np.sqrt(np.clip(cov[:, 0, 0], 0, None)), np.sqrt(np.clip(cov[:, 1, 1], 0, None))

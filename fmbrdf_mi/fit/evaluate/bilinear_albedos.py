@@ -1,42 +1,33 @@
 """The bilinear design of per-pixel albedos (``albedo="per-pixel-bilinear"``) and the banded algebra of
 coupled albedo pairs.
 
-A super-pixel's four polariser samples sit at different points (:mod:`fmbrdf_mi.sensor.samples`) and see
-different albedos, which one pair per super-pixel would read as polarisation.  The unknowns are therefore
-the albedos at pixel centres, each sample interpolating them bilinearly (:func:`bilinear_weights`):
-
-    mu_ik = (sum_g w_ikg a_s[g]) S_ik + (sum_g w_ikg a_b[g]) B_ik.
-
-Coupled pairs (these corners, or the smoothness prior) make G = A^T A banded in row-major pixel order:
-:func:`normal_band` assembles it, :class:`BandCholesky` factors it and gives its inverse's band by
-Takahashi's selected inverse.
+A super-pixel's polariser samples sit at different points and see different albedos, which one pair per
+super-pixel would read as polarisation; so each sample interpolates the pixel centres' albedos
+(:func:`bilinear_weights`).  Coupled pairs make G = A^T A banded (:func:`normal_band`, :class:`BandCholesky`).
 """
 from __future__ import annotations
 
 import numpy as np
 
-#: The ``albedo`` option's values whose albedos are maps (one pair per pixel,
-#: :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`).
+#: The ``albedo`` option's values whose albedos are maps (one pair per pixel).
 PER_PIXEL_LAYOUTS = ("per-pixel", "per-pixel-bilinear")
 
 #: The ridges tried, in turn, on the Jacobi-scaled normal matrix when it is singular to rounding (e.g. a
-#: sphere's centre, where surface and body are both unpolarised): near-null directions get about the
-#: minimum norm and large standard errors.
+#: sphere's centre, where surface and body are both unpolarised).
 RIDGE = (1e-12, 1e-10, 1e-8)
 
 
 def bilinear_weights(rows, cols, offsets, present):
     """Each sample's albedo as a combination of pixel centres: (corners (cells, n, 4, 2) (row, col),
-    weights (cells, n, 4) summing to 1; an unused corner has weight 0 and points at the own pixel).
+    weights (cells, n, 4) summing to 1; an unused corner has weight 0).
 
-    ``rows``, ``cols`` (cells,): each cell's pixel; ``offsets`` (n, 2): each sample's (dx right, dy down)
-    from its cell's centre, in cells; ``present(r, c)`` -> bool array: whether pixel (r, c) is fitted.
-    Per axis: interpolation towards the neighbour, else linear extrapolation from the opposite one, else
-    constant; a missing diagonal corner is the plane through the other three, so a linear albedo is exact."""
+    ``offsets`` (n, 2): each sample's (dx right, dy down) from its cell's centre, in cells; ``present(r, c)``:
+    whether pixel (r, c) is fitted.  Per axis: interpolation, else linear extrapolation, else constant; a
+    missing diagonal corner is the plane through the other three, so a linear albedo is exact."""
     rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
     off = np.asarray(offsets, dtype=np.float64)
     cells, n = len(rows), len(off)
-    dx, dy = off[:, 0][None, :], off[:, 1][None, :]                 # (1, n)
+    dx, dy = off[:, 0][None, :], off[:, 1][None, :]
     sx, sy = np.sign(dx).astype(np.int64), np.sign(dy).astype(np.int64)
     ax, ay = np.abs(dx), np.abs(dy)
     r0, c0 = np.broadcast_to(rows[:, None], (cells, n)), np.broadcast_to(cols[:, None], (cells, n))
@@ -56,7 +47,7 @@ def bilinear_weights(rows, cols, offsets, present):
     w_h, w_v, w_o = w_h + plane * w_d, w_v + plane * w_d, w_o - plane * w_d
     w_d = np.where(plane, 0.0, w_d)
     idx = np.stack([np.stack([r0, c0], -1), np.stack([r0, c0 + kx], -1), np.stack([r0 + ky, c0], -1),
-                    np.stack([r0 + ky, c0 + kx], -1)], 2)            # (cells, n, 4, 2) (row, col)
+                    np.stack([r0 + ky, c0 + kx], -1)], 2)
     wt = np.stack([w_o, w_h, w_v, w_d], 2)
     # unused corners point at the own pixel (always present)
     idx = np.where((wt != 0)[..., None], idx, np.stack([r0, c0], -1)[:, :, None, :])
@@ -64,8 +55,7 @@ def bilinear_weights(rows, cols, offsets, present):
 
 
 def stack_rows(A, R):
-    """The design A (columns (N, c), values (N, c)) with the rows R (columns (M, d), values (M, d)) appended,
-    the narrower padded with zero values (at a valid column)."""
+    """The design A with the rows R appended, the narrower padded with zero values."""
     (ca, va), (cr, vr) = A, R
     c = max(ca.shape[1], cr.shape[1])
 
@@ -79,8 +69,7 @@ def stack_rows(A, R):
 
 
 def normal_band(A, n):
-    """The lower band of A^T A (A: :meth:`~fmbrdf_mi.fit.evaluate.albedos.AlbedoLayout.design`, n unknowns):
-    (band (n, b + 1) with band[i, d] = (A^T A)[i, i - d], b), b the half bandwidth."""
+    """(band (n, b + 1) with band[i, d] = (A^T A)[i, i - d], b the half bandwidth)."""
     cols, vals = A
     i = np.repeat(cols[:, :, None], cols.shape[1], 2)
     j = np.repeat(cols[:, None, :], cols.shape[1], 1)
@@ -95,9 +84,9 @@ def normal_band(A, n):
 
 
 class BandCholesky:
-    """Cholesky factor of a symmetric positive semi-definite banded G (lower band ``band`` (n, b + 1)),
-    Jacobi-scaled, G = D^1/2 Gs D^1/2 (a zero diagonal: unknown set to 0), and Gs + ``ridge`` I = L L^T
-    with L block lower bidiagonal (blocks max(b, 1)): O(n b^2).  LinAlgError where not positive definite."""
+    """Cholesky factor of a banded G (lower band ``band``), Jacobi-scaled: G = D^1/2 Gs D^1/2 (a zero
+    diagonal: unknown set to 0), Gs + ``ridge`` I = L L^T, L block lower bidiagonal.  LinAlgError where not
+    positive definite."""
 
     def __init__(self, band, b, ridge=0.0):
         band = np.array(band, dtype=np.float64)
@@ -131,13 +120,13 @@ class BandCholesky:
         r0, r1 = self.edges[kr], self.edges[kr + 1]
         c0, c1 = self.edges[kc], self.edges[kc + 1]
         I, Jc = np.arange(r0, r1)[:, None], np.arange(c0, c1)[None, :]
-        lo, hi = np.maximum(I, Jc), np.minimum(I, Jc)      # symmetric: the entry (max, min) of the lower band
+        lo, hi = np.maximum(I, Jc), np.minimum(I, Jc)      # symmetric
         dd = lo - hi
         ok = dd <= b
         return np.where(ok, band[lo, np.where(ok, dd, 0)], 0.0)
 
     def solve(self, r):
-        """G^-1 r for r (n,) or (n, p) (with the ridge: D^-1/2 (Gs + ridge I)^-1 D^-1/2 r)."""
+        """G^-1 r for r (n,) or (n, p) (with the ridge)."""
         sc = self.scale if np.ndim(r) == 1 else self.scale[:, None]
         r = sc * np.asarray(r, dtype=np.float64)
         e = self.edges
@@ -165,10 +154,8 @@ class BandCholesky:
         return out
 
     def inverse_band(self, bw):
-        """The lower band (n, bw + 1) of G^-1 (Z[i, i - d] at [i, d]), bw at most the factor's half
-        bandwidth, by Takahashi's selected inversion from the last block up (Z = Gs^-1): O(n b^2),
-
-            Z_{k+1,k} = -Z_{k+1,k+1} M_k L_k^-1,   Z_kk = L_k^-T (L_k^-1 - M_k^T Z_{k+1,k})."""
+        """The lower band (n, bw + 1) of G^-1 by Takahashi's selected inversion from the last block up:
+        Z_{k+1,k} = -Z_{k+1,k+1} M_k L_k^-1, Z_kk = L_k^-T (L_k^-1 - M_k^T Z_{k+1,k})."""
         e = self.edges
         K = len(e) - 1
         s = max(e[1] - e[0], 1) if K else 1
@@ -176,7 +163,8 @@ class BandCholesky:
             raise ValueError(f"inverse_band: bandwidth {bw} above the factor's {s}")
         out = np.zeros((self.n, bw + 1))
 
-        def fill(k, strip, c0):     # rows of block k of the band from the strip of Z starting at column c0
+        def fill(k, strip, c0):     # block k's rows of the band from Z's strip at column c0
+
             rows = np.arange(e[k], e[k + 1])
             for d in range(bw + 1):
                 j = rows - d

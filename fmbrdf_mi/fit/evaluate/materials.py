@@ -1,10 +1,5 @@
-"""Several materials in one fit: a label image assigns each fitted pixel to one of M materials.
-
-Pixel i with label m(i) has its material's own shape parameters and albedos (paper: s_s + s_b, one BRDF
-per material), and all pixels enter one objective.  :class:`MaterialEvaluator` assembles the
-:class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` of all points from one evaluator per material;
-:class:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos` hold one albedo pair per material (per-pixel maps need
-nothing new).
+"""Several materials in one fit: a label image assigns each fitted pixel one of M materials, each with its
+own shape parameters and albedos (paper: s_s + s_b), all in one objective (:class:`MaterialEvaluator`).
 """
 from __future__ import annotations
 
@@ -13,17 +8,13 @@ import numpy as np
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.pixel_model import Parts
 
-#: Fewest fitted (super-)pixels a material must have: as many as a whole fit needs
-#: (:data:`fmbrdf_mi.fit.problem.data.MIN_PIXELS`), each material's shape coming from its own pixels.
+#: Fewest fitted (super-)pixels a material must have: as many as a whole fit needs.
 MIN_MATERIAL_PIXELS = 20
 
 
 def check_labels(labels, shape, what="materials"):
-    """The label image ``labels`` on the fit's pixel grid ``shape`` (H, W): an int array (H, W).
-
-    Accepted: (H, W), or (2H, 2W) sensor pixels (a super-pixel takes its 2 x 2 block's label when the four
-    agree, else it is not fitted).  0 .. M-1 are materials, < 0 not fitted.  InputError naming ``what``.
-    """
+    """``labels`` (H, W), or (2H, 2W) sensor pixels (a super-pixel takes its 2 x 2 block's label when the four
+    agree, else -1), as an int array on the pixel grid ``shape``; 0 .. M-1 are materials, < 0 not fitted."""
     H, W = shape
     try:
         lab = np.asarray(labels)
@@ -46,8 +37,7 @@ def check_labels(labels, shape, what="materials"):
 
 
 def material_count(labels, what="materials"):
-    """M: the number of materials of a checked label image (its largest label + 1); InputError when no
-    pixel has a label >= 0."""
+    """M: the largest label + 1 of a checked label image; InputError when no pixel has a label >= 0."""
     top = int(labels.max()) if labels.size else -1
     if top < 0:
         raise InputError(f"{what}: no pixel has a label >= 0 (0 .. M-1 are the materials)")
@@ -55,12 +45,9 @@ def material_count(labels, what="materials"):
 
 
 class MaterialEvaluator:
-    """:class:`Parts` of all points from one evaluator per material (d/d ``eta[m]`` is 0 off material m).
+    """:class:`Parts` of all points from one evaluator per material (``columns``: each one's points); an
+    unchanged material is not evaluated again."""
 
-    ``params``: the fit's :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (with ``materials``);
-    ``evaluators``: each material's evaluator over its own points; ``columns``: each material's point
-    indices among all ``n_points``.  An unchanged material is not evaluated again.
-    """
 
     def __init__(self, params, evaluators, columns, n_points):
         self.params = params

@@ -2,17 +2,16 @@
 
     loss = 1/M sum_i (Ibar_i - I_i)^2  +  sum_i w_i (rhobar_i - rho_i)^2 / sum_i w_i
 
-over the M fitted pixels, I the intensity and rho the DoLP (observed: bar).  Where the paper is silent:
+I the intensity, rho the DoLP (observed: bar).  Where the paper is silent:
 
-* intensities are divided by the mean observed intensity (``scale``), so the loss is dimensionless;
-* a pixel is an *outlier* when the current model says surface reflection dominates its intensity
-  (a_s S0_surface > a_b S0_body); outliers and inliers carry equal total weight in the DoLP term, the
-  classification refreshed between optimiser rounds (:mod:`fmbrdf_mi.fit.solve.optimise`);
-* only pixels brighter than ``dolp_min_intensity`` times the 99th percentile enter the DoLP term;
-* with var(S1) = var(S2) = sigma^2 known, the model side of the DoLP term is the Rice mean
-  E[|(S1, S2) + noise|] / S0 (:mod:`fmbrdf_mi.sensor.rice`) and the observed DoLP is left as measured,
-  since the noise biases a camera's DoLP upwards and correcting the observed side leaves a bias.
+* intensities are divided by the mean observed intensity (``scale``);
+* a pixel is an *outlier* where surface reflection dominates its predicted intensity; outliers and inliers
+  carry equal total weight in the DoLP term, refreshed between rounds;
+* only pixels brighter than ``dolp_min_intensity`` x the 99th percentile enter the DoLP term;
+* with the noise of S1, S2 known the model side is the Rice mean (:mod:`fmbrdf_mi.sensor.rice`), since the
+  noise biases the observed DoLP upwards.
 """
+
 from __future__ import annotations
 
 import dataclasses

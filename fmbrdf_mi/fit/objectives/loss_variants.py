@@ -1,13 +1,7 @@
-"""The loss variants of the paper's relighting comparison: intensity only, DoLP only.
+"""The loss variants of the paper's relighting comparison: :class:`IntensityObjective` (the intensity term
+of eq:optimization alone) and :class:`DolpObjective` (the DoLP term alone, "ours without radiance").
 
-* ``intensity`` (:class:`IntensityObjective`): the intensity term of eq:optimization alone, what a
-  radiometric method fits;
-* ``dolp`` (:class:`DolpObjective`): the DoLP term alone ("ours without radiance").  The DoLP leaves the
-  overall albedo undetermined, so one extra residual, (mean predicted - mean observed intensity) / scale,
-  fixes it; it is 0 at the optimum and changes nothing else.
-
-Both are sums of squares of linear maps of :class:`PaperObjective`'s residuals, so the same optimiser,
-coarse search and sandwich covariance apply.
+Both are linear maps of :class:`PaperObjective`'s residuals, so the same optimiser and covariance apply.
 """
 from __future__ import annotations
 
@@ -32,7 +26,7 @@ class _Rows(PaperObjective):
         r, J, bad = super().residuals_and_jacobian(parts, st, z, names, bounds)
         if bad is None:
             return self.rows(r), self.rows(J), None
-        # a row whose derivative is not finite stays out of every combined row's Jacobian
+        # a row with a non-finite derivative stays out of every combined row
         return self.rows(r), self.rows(J, ~bad), self.rows(bad, ~bad).astype(bool)
 
 
@@ -41,7 +35,8 @@ class IntensityObjective(_Rows):
 
     name = "intensity"
 
-    def refresh(self, parts, st):  # nothing to reweight
+    def refresh(self, parts, st):
+
         pass
 
     def settled(self, old, parts, st, **_):
@@ -58,7 +53,8 @@ class IntensityObjective(_Rows):
 
 
 class DolpObjective(_Rows):
-    """DoLP term of eq:optimization alone, plus one residual that sets the overall albedo."""
+    """DoLP term of eq:optimization alone, plus one residual, (mean predicted - mean observed intensity) /
+    scale, that fixes the overall albedo the DoLP leaves undetermined (0 at the optimum)."""
 
     name = "dolp"
     #: albedo ratios a_b / a_s tried by the coarse search

@@ -1,16 +1,8 @@
-"""What a fit minimises: the likelihood of the camera's samples (:class:`LikelihoodObjective`), or the
-paper's loss (:class:`PaperObjective`, eq:optimization).  Both are sums of squared residuals whose rows map
-to pixels, so one Levenberg-Marquardt (:mod:`fmbrdf_mi.fit.solve.optimise`) minimises either.
-
-The likelihood replaces eq:optimization by that of what was measured: sample k of super-pixel i is
-
-    y_ik ~ N(mu_ik, v(mu_ik)),   mu_ik = 1/2 (S0 + S1 cos 2 phi_k + S2 sin 2 phi_k),
-
-(S0, S1, S2) the model at the sample's own point, v(mu) = mu / g + sigma_read^2 + Delta^2 / 12
-(:class:`~fmbrdf_mi.sensor.noise.NoiseModel`), in image units; without the gain, v = a mu + b fitted to
-the last round's squared residuals.  It is minimised by iteratively reweighted least squares (variances
-frozen between rounds): its estimating equation stays unbiased when gain or read noise are slightly off, and
-J^T J is the Fisher information.  The full NLL compares candidates.
+"""What a fit minimises, as squared residuals for one Levenberg-Marquardt: the paper's loss
+(:class:`PaperObjective`, eq:optimization) or the likelihood of the camera's samples
+(:class:`LikelihoodObjective`), y_ik ~ N(mu_ik, v(mu_ik)) with mu_ik = 1/2 (S0 + S1 cos 2 phi_k + S2 sin 2 phi_k)
+and v(mu) = mu / g + sigma_read^2 + Delta^2 / 12 (:class:`~fmbrdf_mi.sensor.noise.NoiseModel`), minimised
+by iteratively reweighted least squares (variances frozen between rounds, so J^T J is the Fisher information).
 """
 from __future__ import annotations
 
@@ -125,11 +117,9 @@ def _jacobian(cols, parts, st, z, names, bounds, m):
 class LikelihoodObjective:
     """Gaussian likelihood of the polariser samples with Poisson-Gaussian variance (module docstring).
 
-    ``y``: (n, m) observed samples of the fitted cells (m = 4 mono, 16 colour); ``analyser`` (m, 3); parts
-    are (3, m n) pixel-major at the samples' points or (3, n) at the cells' centres.  ``dof``: independent
-    values among a cell's m samples.  ``layout``: the albedo layout whose albedos are eliminated
-    (:mod:`fmbrdf_mi.fit.evaluate.albedos`); None: one shared pair in z.  Residuals are (y - mu) / sqrt(v),
-    v frozen between :meth:`refresh` calls.
+    ``y``: (n, m) observed samples of the fitted cells; ``analyser`` (m, 3); ``dof``: independent values among
+    a cell's m samples; ``layout``: the albedo layout eliminated (None: one shared pair in z).  Residuals are
+    (y - mu) / sqrt(v), v frozen between :meth:`refresh` calls.
     """
 
     name = "likelihood"
@@ -179,8 +169,7 @@ class LikelihoodObjective:
         return f"variances from the model ({self.noise.describe()})"
 
     def residuals(self, parts, st):
-        """The whitened residuals of the samples (N,), then the albedo prior's rows if any
-        (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`): r @ r = data chi^2 + penalty."""
+        """The whitened residuals (N,), then the albedo prior's rows if any: r @ r = data chi^2 + penalty."""
         r = ((self.y - self.mu(parts, st)) / np.sqrt(self.var)).ravel()
         if self.prior is None:
             return r
@@ -222,7 +211,7 @@ class LikelihoodObjective:
         r = self.residuals(parts, st)
         chi2 = float(r @ r)
         out = {"chi2": chi2, "samples": int(self.y.size), "nll": self.nll(parts, st)}
-        if self.prior is not None:    # chi2 is data + penalty: say both
+        if self.prior is not None:
             out["albedo_prior"] = self.penalty(st)
             out["data_chi2"] = chi2 - out["albedo_prior"]
         return out
@@ -243,7 +232,7 @@ class LikelihoodObjective:
                 return (-self.samples_of(ds) * inv_sd).ravel()
 
             return r, _jacobian(cols, parts, st, z, names, bounds, len(r)), bad
-        J = self.shape_jacobian(parts, st, z, names, bounds)     # Kaufman's projected Jacobian
+        J = self.shape_jacobian(parts, st, z, names, bounds)
         return r, self.layout.project(J, *self.albedo_columns(parts))[0], bad
 
     def _white(self, mu):
@@ -260,12 +249,11 @@ class LikelihoodObjective:
         return J
 
     def albedo_columns(self, parts):
-        """(us, ub) (N,): each residual's derivative in its sample's unit albedos, the whitened design
-        columns of the layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.AlbedoLayout`)."""
+        """(us, ub) (N,): each residual's derivative in its sample's unit albedos (the layout's design columns)."""
         return self._white(self.samples_of(parts.surface)), self._white(self.samples_of(parts.body))
 
     def albedo_column_derivatives(self, parts, z, names, bounds):
-        """[(d us / d z_j, d ub / d z_j)] of :meth:`albedo_columns` per free shape parameter, for
-        :meth:`~fmbrdf_mi.fit.evaluate.albedos.AlbedoLayout.incidental`."""
+        """[(d us / d z_j, d ub / d z_j)] of :meth:`albedo_columns` per free shape parameter."""
+
         return [tuple(self._white(self.samples_of(d[n])) * bounds.derivative(n, z[j])
                       for d in (parts.d_surface, parts.d_body)) for j, n in enumerate(names)]

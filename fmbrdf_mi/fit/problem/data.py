@@ -1,8 +1,5 @@
-"""What a fit runs on: its pixels, one objective over them and one evaluator at them.
-
-:func:`prepare` builds it for K >= 1 images (a single-image fit is a list of one): the samples of all
-images' fitted super-pixels are stacked into one objective and evaluated in one BSDF evaluation.
-"""
+"""What a fit runs on (:func:`prepare`): the pixels of K >= 1 images, one objective over them and one
+evaluator at them."""
 from __future__ import annotations
 
 import dataclasses
@@ -51,10 +48,8 @@ def check_max_pixels(max_pixels, images=1):
 
 
 def select_pixels(obs, opts, use_samples=True, keep=None):
-    """Flat indices of the pixels a fit uses (:class:`~fmbrdf_mi.fit.api.options.FitOptions`) and the counts
-    of what was excluded, saturated and dark super-pixels included (:mod:`fmbrdf_mi.sensor.samples`).
-    ``keep``: (H, W) bool, the pixels a label image keeps, applied after the mask's erosion so material
-    borders are not eroded.  ``obs`` is validated again, since it may have changed after it was built."""
+    """Flat indices of the pixels a fit uses and the counts of what was excluded; ``keep``: (H, W) bool, a
+    label image's pixels, applied after the mask's erosion so material borders are not eroded."""
     validate(obs)
     check_max_pixels(opts.max_pixels)
     m = erode_mask(obs.mask, opts.erode)
@@ -90,8 +85,8 @@ def select_pixels(obs, opts, use_samples=True, keep=None):
 
 
 def resolve_loss(obs, opts):
-    """``auto`` -> ``likelihood`` when the camera noise is known (gain given or in a sidecar) and the fit
-    runs LM on the pixel path (what the likelihood needs), else ``paper``."""
+    """``auto`` -> ``likelihood`` when the camera noise is known and the fit runs LM on the pixel path, else
+    ``paper``."""
     if opts.loss == "auto":
         ok = opts.path == "pixel" and opts.optimizer == "lm"
         return "likelihood" if (ok and obs.noise is not None and obs.noise.known) else "paper"
@@ -101,8 +96,7 @@ def resolve_loss(obs, opts):
 
 
 def check_footprint(footprint, loss, why="the camera noise is known", name="--footprint"):
-    """Refuse a footprint when the resolved ``loss`` is the likelihood: it shapes only the paper's loss
-    (the likelihood uses ``area_points``).  ``name``: how the user gave it."""
+    """Refuse a footprint with the likelihood, which uses ``area_points`` instead."""
     if footprint not in (None, "auto") and loss == "likelihood":
         raise InputError(f"{name} {footprint}: only the paper's loss uses it; the likelihood ({why}) models "
                          "each sample over its own pixel with --area-points (or give --loss paper)")
@@ -128,15 +122,14 @@ def same_noise(observations):
     return None
 
 
-#: Likelihood of a raw mosaic with ``FitOptions.area_points`` None: points per axis over which each raw
-#: sample's model value is averaged (:meth:`~fmbrdf_mi.sensor.samples.Samples.footprint`); the
-#: quadrature's bias is checked per fit (:func:`~fmbrdf_mi.fit.api.checks.check_footprint`).
+#: A raw mosaic's default points per axis over which each sample's model value is averaged
+#: (:meth:`~fmbrdf_mi.sensor.samples.Samples.footprint`).
 RAW_AREA_POINTS = 2
 
 
 def area_points(samples, opts):
     """m of the likelihood's m x m points per sample: ``opts.area_points``, else :data:`RAW_AREA_POINTS`
-    for a raw mosaic (a sensor pixel integrates over its area) and 1 (the pixel's centre) otherwise."""
+    for a raw mosaic (a sensor pixel integrates over its area) and 1 otherwise."""
     if opts.area_points is not None:
         return int(opts.area_points)
     return RAW_AREA_POINTS if samples.source in ("raw mosaic", "colour raw mosaic") else 1
@@ -153,20 +146,18 @@ def one_view(observations, what, why):
 
 
 def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, factor=1.0):
-    """The per-pixel albedo layout (:class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`) of the fitted cells
-    ``idxs`` (one flat index array per image, all images of one view): one group per pixel (and colour
-    channel), shared by that pixel in every image.  ``smooth``: tau (or (tau_s, tau_b)) of the maps' smoothness prior
-    (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) in the reported albedos' units, ``factor`` the model's albedo
-    factor; None: no prior.  ``bilinear``: each sample interpolates the pixel centres' albedos at its own
-    point (:func:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.bilinear_weights`)."""
+    """The :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos` of the cells ``idxs`` (per image, one view):
+    one group per pixel and channel, shared by every image.  ``smooth``: tau of the smoothness prior
+    (:mod:`fmbrdf_mi.fit.evaluate.albedo_prior`) in reported units, or None; ``bilinear``: each sample
+    interpolates the pixel centres' albedos at its own point."""
     o0 = one_view(observations, "albedo per-pixel", "a pixel's albedo is that of one point of the object")
     flat = np.concatenate(idxs)
     pixels = np.unique(flat)
-    cell = np.searchsorted(pixels, flat)                               # (cells,) the pixel's group
+    cell = np.searchsorted(pixels, flat)
     H, W = o0.shape
     colour = samples.channel is not None
     C = len(COLOURS) if colour else 1
-    gch = np.tile(np.arange(C), len(pixels))                            # each group's channel
+    gch = np.tile(np.arange(C), len(pixels))
     groups = cell[:, None] * C + (np.asarray(samples.channel, dtype=np.int64) if colour else np.zeros(samples.n, int))
     corners = weights = None
     if bilinear:
@@ -190,8 +181,7 @@ def pixel_layout(observations, idxs, samples, bilinear=False, smooth=None, facto
 
 
 def material_labels(observations, materials, loss, opts, evaluator=None):
-    """The checked label image of a fit of several materials (:func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`
-    on the images' pixel grid, one view) and M; InputError in one line for what the materials do not work with."""
+    """(checked label image, M) of a fit of several materials; InputError for what materials do not work with."""
     o0 = one_view(observations, "materials", "one label image labels the pixels of one view")
     if loss != "likelihood":
         raise InputError("materials: needs the likelihood of the camera's samples (loss likelihood, or auto with "
@@ -208,11 +198,10 @@ def material_labels(observations, materials, loss, opts, evaluator=None):
 
 
 def material_evaluators(model, count, cell_material, normals, views, lights, irr, weights):
-    """:class:`~fmbrdf_mi.fit.evaluate.materials.MaterialEvaluator`: one
-    :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator` per material over its cells' points."""
+    """A :class:`~fmbrdf_mi.fit.evaluate.materials.MaterialEvaluator` of one evaluator per material."""
     cells = len(cell_material)
-    dirs = len(normals) // cells                         # directions per cell
-    outs = dirs // (1 if weights is None else len(weights))   # evaluator outputs per cell
+    dirs = len(normals) // cells
+    outs = dirs // (1 if weights is None else len(weights))
     irr = np.broadcast_to(np.asarray(irr, dtype=np.float64), (len(normals),))
     lights = np.broadcast_to(lights, normals.shape)
     evs, cols = [], []
@@ -227,15 +216,9 @@ def material_evaluators(model, count, cell_material, normals, views, lights, irr
 
 
 def prepare(observations, opts, loss, *, single=False, evaluator=None, materials=None, only=None):
-    """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images: one objective over all their
-    pixels, one evaluator, each image's pixels and slice.
+    """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images; ``single``: messages name no
+    image; ``materials``: a label image (< 0: not fitted); ``only``: per image, the selected pixels to keep."""
 
-    ``single``: messages name no image and ``excluded`` is the image's own block.  ``evaluator``: the
-    model's evaluator at these pixels, else a :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`.
-    ``materials``: a label image (:func:`~fmbrdf_mi.fit.evaluate.materials.check_labels`); label < 0 is not
-    fitted, each material has its own shape parameters (:mod:`fmbrdf_mi.fit.evaluate.materials`).
-    ``only``: per image, the flat indices of the selected pixels to keep (a subset of the same data).
-    """
     K = len(observations)
     check_max_pixels(opts.max_pixels, K)
     lab = count = keep = None
@@ -274,7 +257,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     excluded = excl[0] if single else {
         **{k: sum(e[k] for e in excl) for k in ("candidates", "saturated", "dark")}, "used": int(starts[-1]),
         "per_image": excl, "white_level": excl[0].get("white_level"), "dark_level": excl[0].get("dark_level")}
-    geo = []  # (observation, pixels, footprint) per image: its directions are made when the evaluator needs them
+    geo = []  # (observation, pixels, footprint) per image
     if loss == "likelihood":
         smps = [o.samples if o.samples is not None else SM.from_stokes(o.stokes) for o in observations]
         A = smps[0].analyser()
@@ -290,14 +273,12 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
         per_point = m > 1 or any(np.any(s.offsets) for s in smps)
         ys = []
         for o, s, idx in zip(observations, smps, idxs):
-            # per point: n m^2 points per super-pixel, each sample the mean over m x m points of its pixel
             geo.append((o, idx, s.footprint(m) if per_point else None))
             ys.append(s.at(idx))
         noise = same_noise(observations)
         if noise is None:
             o0 = observations[0]
             noise = dataclasses.replace(o0.noise) if single and o0.noise is not None else NoiseModel(step=smps[0].step)
-        # a colour mosaic: one pair of albedos per channel
         layout = None if smps[0].channel is None else GroupAlbedos("per-channel", smps[0].channel, COLOURS)
         if lab is not None and layout is not None:
             raise InputError("materials: not yet for colour mosaics (mono captures, raw or angle images)")
@@ -340,8 +321,8 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
                 off += o.shape[0] + 2
             objective.grid = (np.concatenate(rows), np.concatenate(cols))
         smp = None
-    directions, counts, weights = Directions.of_images(geo)   # the images' footprints agree
-    # one light and irradiance for all directions when the images share them (no per-direction copies)
+    directions, counts, weights = Directions.of_images(geo)
+    # one light and irradiance when the images share them (no per-direction copies)
     irr_img = np.array([float(o.irradiance) for o in observations])
     irr = (float(irr_img[0]) if np.allclose(irr_img, irr_img[0]) else
            np.concatenate([np.full(c, o.irradiance) for o, c in zip(observations, counts)]))
@@ -361,15 +342,15 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
     flat_idx = np.concatenate(idxs)
 
     def remake(m_new, cells=None):
-        # the same images, pixels and options with m_new x m_new points per sample; ``cells``: sorted positions
-        # among the fitted pixels, the data of those cells alone (in that order)
+        # m_new x m_new points per sample; ``cells``: sorted positions among the fitted pixels to keep
         c = None if cells is None else np.asarray(cells)
         keep = None if c is None else [idx[c[(c >= a) & (c < b)] - a] for idx, (a, b) in zip(idxs, slices)]
         return prepare(observations, dataclasses.replace(opts, area_points=int(m_new)), loss, single=single,
                        materials=materials, only=keep)
 
-    def subsample(n):       # n seeded pixels of the same images and options
-        if K > 1 and opts.albedo in PER_PIXEL_LAYOUTS:    # the same pixels in every image: albedos as in the fit
+    def subsample(n):
+        if K > 1 and opts.albedo in PER_PIXEL_LAYOUTS:    # the same pixels in every image
+
             view = np.unique(flat_idx)
             keep = np.random.default_rng(opts.seed).choice(view, min(len(view), -(-int(n) // K)), replace=False)
             return prepare(observations, opts, loss, single=single, only=[np.sort(keep)] * K)

@@ -1,10 +1,7 @@
 """Relative light powers as free parameters of a joint fit (``fit_joint(..., free_power=True)``, ``--free-power``).
 
-Image k is predicted as S_k(x) = (P_k / G_k) E_k (k_s f_s(x; eta, alpha, beta) + k_b f_b(x; eta, kappa)),
-E_k its given irradiance, G_k its given relative power and P_k its light power.  P_1 .. P_{K-1} are
-``power`` rows of the :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters`, log-bounded to
-[G_k / 1000, 1000 G_k]; P_0 stays at G_0 since k_s and k_b already scale every image.  The prediction is
-linear in P_k, so d/dP_k needs no BSDF evaluation (:class:`PowerEvaluator`).
+Image k is predicted as (P_k / G_k) E_k (k_s f_s + k_b f_b), G_k its given relative power; P_1 .. P_{K-1} are
+``power`` rows of the parameter table, and P_0 stays at G_0 since k_s and k_b already scale every image.
 """
 from __future__ import annotations
 
@@ -20,10 +17,7 @@ from fmbrdf_mi.fit.problem.problem import Problem
 
 
 class PowerEvaluator:
-    """An evaluator's parts with image k's points scaled by P_k / G_k, and d/dP_k analytically.
-
-    ``base``: the joint fit's :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator` at the given
-    irradiances; ``pixels_per_image``: fitted pixels of each image, in the evaluator's point order."""
+    """An evaluator's parts with image k's points scaled by P_k / G_k, and d/dP_k analytically (linear)."""
 
     def __init__(self, base, params, pixels_per_image):
         self.base, self.params = base, params
@@ -41,14 +35,14 @@ class PowerEvaluator:
 
     def parts(self, shape_values, wrt=()):
         p = self.base_parts(shape_values, wrt)
-        # each point's image (points pixel-major, the same number per pixel)
+        # points pixel-major, the same number per pixel
         img = np.repeat(np.arange(len(self.counts)), self.counts * (p.surface.shape[1] // int(self.counts.sum())))
         f = self.factors(shape_values)[img]
         out = Parts(p.surface * f, p.body * f, {n: d * f for n, d in p.d_surface.items()},
                     {n: d * f for n, d in p.d_body.items()}, p.nonfinite)
         for r in self.params.powers:
             if r.name in wrt:
-                on = (img == r.image) / self.params.given[r.image]    # d (P_k / G_k) / d P_k on image k's points
+                on = (img == r.image) / self.params.given[r.image]    # d (P_k / G_k) / d P_k
                 out.d_surface[r.name] = p.surface * on
                 out.d_body[r.name] = p.body * on
         return out
@@ -60,8 +54,7 @@ class PowerEvaluator:
 
 class PowerProblem(Problem):
     """A :class:`~fmbrdf_mi.fit.problem.problem.Problem` whose coarse-search points solve the powers too
-    (``start="ratio"``: in closed form at each grid point; ``given``: at the given powers); ``pixel_slices``:
-    (start, stop) of each image's pixels among the objective's."""
+    (``start="ratio"``: in closed form; ``given``: the given powers)."""
 
     def __init__(self, *args, pixel_slices, start="ratio", **kw):
         super().__init__(*args, **kw)
@@ -77,8 +70,8 @@ class PowerProblem(Problem):
         return i, pred[0][:, None], np.ones_like(i)
 
     def closed_form_powers(self, shape, a_s, a_b, base):
-        """P_1 .. P_{K-1} (dict): per image the least-squares ratio of the observations to the prediction at
-        unit power (weighted by 1 / variance for the likelihood), clipped to the bounds."""
+        """P_1 .. P_{K-1} (dict): per image the weighted least-squares ratio of observed to predicted at unit
+        power, clipped to the bounds."""
         y, mu, w = self._pairs(a_s * base.surface + a_b * base.body)
         out = {}
         for r in self.params.powers:
@@ -127,11 +120,8 @@ def problem_factory(evaluator, pixel_slices, start="ratio"):
 
 
 def split_result(res, params, names):
-    """Move the powers out of a fit's params / std_errors; returns the ``powers`` block of fit.json.
+    """Move the powers out of a fit's params / std_errors; returns the ``powers`` block of fit.json."""
 
-    ``{"reference": name of image 0, "names": [...], "given": [...], "values": [...],
-    "std_errors": [...] (0 for the reference), "ci95": [[lo, hi], ...], "parameters": {image: power_k}}``
-    """
     unc = res.uncertainty or {}
     ci = unc.get("ci95", {})
     given = params.given

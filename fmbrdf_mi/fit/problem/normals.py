@@ -27,11 +27,9 @@ PRIORS = {"curvature": (1.0, -2.0, 1.0), "membrane": (1.0, -1.0)}
 
 
 def stencils(mask, prior="curvature"):
-    """(E, S) pixel indices (into the mask's pixels) of the prior's stencils, and their coefficients (S,).
+    """(E, S) pixel indices of the prior's stencils and their coefficients (S,): ``membrane`` first
+    differences, ``curvature`` second differences (constant curvature is not pulled flat)."""
 
-    ``membrane``: first differences of 4-neighbours; ``curvature``: second differences n_a - 2 n_b + n_c
-    along rows and columns, zero where the normal changes linearly, so constant curvature is not pulled flat.
-    """
     try:
         coef = PRIORS[prior]
     except KeyError:
@@ -54,15 +52,10 @@ def stencils(mask, prior="curvature"):
 
 class NormalProblem(Problem):
     """The fit's :class:`~fmbrdf_mi.fit.problem.problem.Problem` with every refined pixel's normal as two more
-    unknowns and the smoothness prior (:func:`fmbrdf_mi.fit.api.normal_joint.refine_joint`).
+    unknowns and the smoothness prior; rows ordered (image, pixel, sample).  A sample's normal interpolates the
+    map bilinearly, corners outside the refined pixels extrapolated linearly (constant extrapolation near the
+    silhouette biases the material)."""
 
-    :meth:`parts_at` evaluates at a given normal map, :meth:`parts` at :attr:`nmap`, the last accepted.
-    Residual rows are ordered (image k, pixel i, sample s).  Each sample's normal is the bilinear
-    interpolation of the map at its own point (``self.corner``, ``self.cw``); a corner outside the refined
-    pixels is extrapolated linearly, 2 n_i - n_o (n_i where o is not refined), since near the silhouette
-    the normal turns fast and constant extrapolation biases the material.  So each sample's normal is the
-    ``self.nw``-weighted sum of refined pixels ``self.cpix`` (N, 4, 8).
-    """
 
     def __init__(self, obs, m, params, lam, prior="curvature"):
 
@@ -104,7 +97,7 @@ class NormalProblem(Problem):
         self.cw = np.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], 2)   # (N, 4, 4)
         pos = -np.ones(h * w, int)
         pos[self.idx] = np.arange(len(self.idx))
-        # a corner outside the refined pixels holds the start map's value, maybe far off: extrapolate
+        # a corner outside the refined pixels: extrapolate
         own = self.idx[:, None, None]
         out = pos[self.corner] < 0
         cy, cx = np.divmod(self.corner, w)
@@ -191,8 +184,8 @@ class NormalProblem(Problem):
         return r, Jm, (pix, val.reshape(-1, Q, 2)), (t1, t2), z
 
     def prior_gradient(self, gn, t, n):
-        """Add the prior's gradient (w coef_s (sum_s' coef_s' n_s') on pixel s's tangents) to ``gn``, in
-        place; one bincount, in the order of a scatter-add per place s so the sums are bit-identical."""
+        """Add the prior's gradient (w coef_s (sum_s' coef_s' n_s') on pixel s's tangents) to ``gn`` in place."""
+
         if len(self.stencils):
             t1, t2 = t
             d = self.w_prior * sum(c * n[self.stencils[:, s]] for s, c in enumerate(self.coef))    # (E, 3)

@@ -20,15 +20,9 @@ class TimeUp(Exception):
 
 
 class Problem:
-    """A parameter table, an evaluator at the fitted pixels, the objective, the bounds, the clock.
+    """A parameter table, an evaluator at the fitted pixels, the objective, the bounds, the clock; ``names``:
+    the free shape parameters, ``deadline``: ``time.time()`` after which no model evaluation may end."""
 
-    ``params``: :class:`~fmbrdf_mi.fit.evaluate.parameters.Parameters` (a model alone: one material, shared
-    albedos, all free); ``fixed``: {name: value} of the rows held fixed, ``names``: the free ones.
-    ``objective``: a :class:`~fmbrdf_mi.fit.objectives.objective.LikelihoodObjective` or
-    :class:`~fmbrdf_mi.fit.objectives.objective.PaperObjective` (a bare ``Target`` is wrapped in the latter).
-    ``deadline``: ``time.time()`` after which no model evaluation may end (:meth:`timed`);
-    ``cell_material``: each fitted cell's material.
-    """
 
     def __init__(self, params, evaluator, objective, progress=None, deadline=None, cell_material=None):
         self.params = params if isinstance(params, Parameters) else Parameters(params)
@@ -44,15 +38,14 @@ class Problem:
         self.deadline = deadline
         self._cost = {False: 0.0, True: 0.0}
         self._cache = []
-        self.current = None     # latest accepted state (what a fit stopped by the clock reports)
+        self.current = None     # latest accepted state
         self.both_lobes = {}    # coarse-search point -> both albedos switched on
-        self.albedos_now = (1.0, 1.0)   # the layout's last albedos (from_z)
+        self.albedos_now = (1.0, 1.0)
         self.cell_material = None if cell_material is None else np.asarray(cell_material, dtype=np.int64)
 
     def with_fixed(self, values):
-        """The same problem with the shape parameters ``values`` ({name: value}) held fixed too and no
-        deadline; None for subclasses (problems with extra unknowns).  It starts with this problem's
-        evaluations (:meth:`parts`: the same evaluator at the same shape values)."""
+        """The same problem with ``values`` held fixed too and no deadline (None for subclasses), sharing
+        this problem's cached evaluations."""
         if type(self) is not Problem:
             return None
         sub = Problem(self.params.with_fixed(values), self.ev, self.obj, self.progress,
@@ -72,19 +65,16 @@ class Problem:
 
     @property
     def projects(self):
-        """Whether the albedos are eliminated by variable projection (an albedo layout): z is then the free
-        shape parameters only, :meth:`from_z` carries the last solved albedos (re-solved by :meth:`closed_form`
-        at every trial point)."""
+        """Whether the albedos are eliminated by variable projection: z is then the free shape parameters only."""
         return self.layout is not None
 
     @property
     def eliminates(self):
-        """Whether the eliminated albedos are maps (no rows of the parameter table:
-        :class:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos`)."""
+        """Whether the eliminated albedos are maps (no rows of the parameter table)."""
         return self.projects and not self.params.albedo_names
 
     def n_eliminated(self, st):
-        """How many albedos the data spent unknowns on outside z (the layout's free albedos)."""
+        """How many albedos the data spent unknowns on outside z."""
         return self.layout.free() if self.projects else 0
 
     def to_z(self, st):
@@ -108,8 +98,8 @@ class Problem:
         return State({n: float(self.fixed.get(n, shape[n])) for n in self.params.shape_names}, a_s, a_b)
 
     def timed(self, jac, evaluate, *args):
-        """``evaluate(*args)`` (with derivatives: ``jac``); raises :class:`TimeUp` first if the slowest
-        evaluation of its kind so far would end past the deadline, so the limit holds inside every loop."""
+        """``evaluate(*args)``; raises :class:`TimeUp` first if the slowest evaluation of its kind so far would
+        end past the deadline."""
         if self.deadline is not None and time.time() + self._cost[jac] > self.deadline:
             raise TimeUp()
         t = time.time()
@@ -118,8 +108,7 @@ class Problem:
         return out
 
     def parts(self, st, jac=False):
-        """The model's :class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` at ``st`` (with shape derivatives
-        when ``jac``), from a two-entry cache."""
+        """The model's :class:`~fmbrdf_mi.fit.evaluate.pixel_model.Parts` at ``st``, from a two-entry cache."""
         key = tuple(round(float(st.shape[n]), 12) for n in self.params.shape_names)
         for k, j, p in self._cache:
             if k == key and (j or not jac):
@@ -132,18 +121,14 @@ class Problem:
         return p
 
     def closed_form(self, shape, jac=False):
-        """(State, parts) of a coarse-search point: the shape values with the albedos in closed form; the parts
-        with their shape derivatives when ``jac``."""
+        """(State, parts) at ``shape`` with the albedos in closed form."""
         parts = self.parts(State(shape, 1.0, 1.0), jac)
         a_s, a_b = self.obj.albedos(parts)
         return State(dict(shape), a_s, a_b), parts
 
     def with_albedo_rows(self, st, parts, names, cov, scale, to_reported):
-        """(names, covariance) of the reported parameters ``names`` (``cov``; ``to_reported``: d z / d theta) with
-        the layout's eliminated albedos appended as the table's rows: the joint covariance of the shape and the
-        albedos (:meth:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos.joint_covariance`, from the unprojected
-        Jacobian at ``parts``; ``scale`` the noise scale in ``cov``) through the rows' derivatives in the
-        albedos (central differences)."""
+        """(names, covariance) of ``names`` (``cov``; ``to_reported``: d z / d theta) with the eliminated albedos
+        appended as the table's rows (:meth:`~fmbrdf_mi.fit.evaluate.albedos.GroupAlbedos.joint_covariance`)."""
         J = self.obj.shape_jacobian(parts, st, self.to_z(st), self.names, self.bounds) @ to_reported
         J[~np.isfinite(J)] = 0.0
         C = self.layout.joint_covariance(*self.obj.albedo_columns(parts), J, cov, scale)
@@ -165,7 +150,7 @@ class Problem:
         """r (m,) and dr/dz (m, len(z)) of the objective's residuals (Kaufman's projection with a layout)."""
         r, J, bad = self.obj.residuals_and_jacobian(parts, st, z, self.names, self.bounds)
         if bad is not None and bad.any():
-            # NaN forward-mode derivatives: the rows leave J, their residuals still count
+            # NaN derivatives: the rows leave J, their residuals still count
             J[bad] = 0.0
             self.n_nonfinite = max(self.n_nonfinite, int(parts.nonfinite.sum()))
         J[~np.isfinite(J)] = 0.0
@@ -174,14 +159,8 @@ class Problem:
 
 @dataclasses.dataclass
 class FitData:
-    """What one fit runs on (built by :func:`fmbrdf_mi.fit.problem.data.prepare`).
-
-    ``pixels``: flat indices of the fitted super-pixels, image by image; ``excluded``: what pixel
-    selection left out; ``samples``: the camera's :class:`~fmbrdf_mi.sensor.samples.Samples` (likelihood)
-    or None; ``image_pixels``, ``slices``: each image's flat indices and (start, stop) among ``pixels``;
-    ``make_problem``: builds a problem other than :class:`Problem`
-    (:func:`fmbrdf_mi.fit.problem.free_power.problem_factory`).
-    """
+    """What one fit runs on (:func:`fmbrdf_mi.fit.problem.data.prepare`): ``pixels`` the fitted super-pixels'
+    flat indices, image by image, ``slices`` each image's (start, stop) among them."""
 
     loss: str
     pixels: np.ndarray
@@ -194,11 +173,11 @@ class FitData:
     make_problem: object = None
     #: several materials: ``{"labels": (H, W), "count": M, "cell_material": (cells,), "pixels": [per material]}``
     materials: dict = None
-    #: likelihood: m of the m x m points per sample over which the model is averaged (None: not a likelihood)
+    #: likelihood: m of the m x m points per sample over which the model is averaged
     area_points: int = None
-    #: m -> the same data with m x m points per sample (refining the quadrature); None: cannot be remade
+    #: m -> the same data with m x m points per sample; None: cannot be remade
     remake: object = None
-    #: n -> the same data on a fixed, seeded subsample of n of the pixels; None: no subsample is made
+    #: n -> the same data on a seeded subsample of n pixels, or None
     subsample: object = None
 
     def problem(self, model, bounds, progress, fixed, deadline):
@@ -206,7 +185,8 @@ class FitData:
         if self.make_problem is not None:
             return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
         layout, mat = self.objective.layout, self.materials or {}
-        maps = isinstance(layout, PixelAlbedos)   # albedo maps, not rows of the table
+        maps = isinstance(layout, PixelAlbedos)
+
         params = Parameters(model, materials=mat.get("count"), maps=maps, bounds=bounds, fixed=fixed,
                             channels=None if layout is None or maps or mat else layout.labels)
         return Problem(params, self.evaluator, self.objective, progress, deadline, mat.get("cell_material"))

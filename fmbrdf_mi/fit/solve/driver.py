@@ -29,11 +29,11 @@ class Solution:
 
 def distinct_starts(problem, cands, n):
     """Up to ``n`` starts: the best candidate, then the best differing from all chosen in a shape parameter
-    other than eta and kappa (tuned last by the search, so only locally different), both lobes on first."""
+    other than eta and kappa (tuned last by the search, so only locally different)."""
     first = [k for k in problem.names if problem.params.row[k].kind == "shape"
              and k not in ("eta", "kappa")] or list(problem.names)
     chosen = [cands[0][1]]
-    # both lobes on first (the coarse search's own record: no table rebuild); sorted is stable: score order kept
+    # both lobes on first; sorted is stable, so the score order stays
     pool = sorted((c for _, c in cands[1:]), key=lambda c: not problem.both_lobes.get(
         tuple(round(c.shape[k], 9) for k in problem.params.shape_names), True))
     for c in pool:
@@ -44,16 +44,15 @@ def distinct_starts(problem, cands, n):
     return chosen
 
 
-#: Fits of images of more super-pixels than this (the largest image; a joint fit's images count once, as the
-#: albedo maps do) search and run their starts on a subsample of :data:`EXPLORE_PIXELS` pixels first.
+#: Fits of more super-pixels than this (the largest image's) search and run their starts on a subsample of
+#: :data:`EXPLORE_PIXELS` pixels first.
 EXPLORE_ABOVE = 100_000
 
-#: The pixels of that subsample: many more than the few shape parameters' search and starts need to tell
-#: their candidates apart.
+#: The pixels of that subsample.
 EXPLORE_PIXELS = 30_000
 
-#: Two starts' ends on the subsample at most this many of its standard errors apart (:func:`step_in_se`) are
-#: one optimum, continued on all pixels once.  Two ends of LM at one optimum differ by a fraction of that.
+#: Two ends on the subsample at most this many of its standard errors apart (:func:`step_in_se`) are one
+#: optimum, continued on all pixels once.
 SAME_END_SE = 1.0
 
 
@@ -70,10 +69,8 @@ def step_in_se(problem, st_old, st_new, J):
 
 def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02, history=None,
            report=None, label="lm", profiled=False):
-    """At most ``rounds`` reweighting rounds from ``st`` (:func:`~fmbrdf_mi.fit.solve.lm.reweighted`); the
-    likelihood's are settled when a round moves the estimate by < 0.05 standard errors.  Returns a
-    :class:`Solution` (``J``, ``r`` None for Adam).  ``label``: LM's progress tag, the round number added;
-    ``profiled``: LM's (:func:`~fmbrdf_mi.fit.solve.optimise.levenberg_marquardt`).
+    """A :class:`Solution` after at most ``rounds`` reweighting rounds from ``st``
+    (:func:`~fmbrdf_mi.fit.solve.lm.reweighted`); ``label``: LM's progress tag.
     """
     obj = problem.obj
     say = report or (lambda m: None)
@@ -114,14 +111,10 @@ def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_l
 
 def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02,
           max_time=None, history=None, report=None, explore=None, explore_above=None, explore_pixels=None):
-    """Minimise ``problem`` from ``init`` (a State) or up to ``starts`` :func:`distinct_starts` of the coarse
-    search, each refined by ``rounds`` reweighting rounds (:func:`refine`), and keep the best end; returns a
-    :class:`Solution`.  A deadline (:class:`~fmbrdf_mi.fit.problem.problem.TimeUp`; ``max_time`` names it)
-    ends at the latest accepted estimate, not converged.  ``history`` (a list) gets the search's best point
-    and every accepted step.  ``explore``: (pixels, ``make(n)``: the problem of a seeded subsample of n of
-    them, the largest image's pixels); above ``explore_above`` (default :data:`EXPLORE_ABOVE`), with no
-    ``init`` nor deadline, the search and starts run on ``explore_pixels`` (default :data:`EXPLORE_PIXELS`)
-    first (:func:`explore_then_polish`).
+    """The best :class:`Solution` of ``init`` (a State) or up to ``starts`` :func:`distinct_starts` of the
+    coarse search, each refined by :func:`refine`; a deadline ends at the latest accepted estimate, not
+    converged.  ``history`` gets the search's best point and every accepted step.  ``explore``: (pixels,
+    ``make(n)``: a subsample problem, the largest image's pixels), for :func:`explore_then_polish`.
     """
     explore_above = EXPLORE_ABOVE if explore_above is None else explore_above
     explore_pixels = EXPLORE_PIXELS if explore_pixels is None else explore_pixels
@@ -138,7 +131,7 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
                     and optimizer == "lm"):
                 sub = explore[1](int(explore_pixels))
                 if sub is not None:
-                    sub.t0 = problem.t0     # one clock for the progress lines and the history
+                    sub.t0 = problem.t0
                     say(f"[fit] search and starts on a fixed subsample of {int(explore_pixels)} of the {explore[0]} "
                         "pixels; the best ends continue on all of them")
             where = problem if sub is None else sub
@@ -162,9 +155,8 @@ def solve(problem, *, init=None, starts=2, rounds, optimizer="lm", max_iter=40, 
 
 
 def run_starts(problem, starts, done, say, head, where="", **kw):
-    """Each (number, State) of ``starts`` refined on ``problem`` from the same weights (:func:`refine`), announced
-    as ``start <number><head>`` and ending ``where``; ``done`` gets {number: (score, Solution)} as each ends.
-    Returns the best number, the objective left with its end's weights."""
+    """Each (number, State) of ``starts`` refined from the same weights; ``done`` gets {number: (score,
+    Solution)}.  Returns the best number, the objective left with its end's weights."""
     starts, best, t0 = list(starts), None, time.time()
     for i, (k, st0) in enumerate(starts):
         left = O.time_left(time.time() - t0, i, len(starts), "for the starts" + where)
@@ -182,42 +174,32 @@ def run_starts(problem, starts, done, say, head, where="", **kw):
 
 
 def end_record(params, st0, end, score, end_params=None):
-    """A start's entry of :attr:`Solution.starts`: where it started and ended (the :class:`Solution` ``end``,
-    reported by ``end_params``, default ``params``), the end's score."""
+    """A start's entry of :attr:`Solution.starts`: its start, end (reported by ``end_params``) and score."""
     return {"start": params.report(st0.shape, st0.a_s, st0.a_b),
             "end": (end_params or params).report(end.state.shape, end.state.a_s, end.state.a_b),
             "score": score, "converged": end.converged, "reason": end.reason}
 
 
 def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
-    """The starts ``chosen`` refined on ``sub`` (a subsample of ``problem``'s ``pixels``), then each distinct end
-    continued on all pixels; returns (the best Solution of all pixels, the starts' entries).
+    """The starts ``chosen`` refined on ``sub`` (a subsample of ``problem``'s pixels), then each distinct end
+    (:func:`same_end`) continued on all pixels; returns (the best Solution of all pixels, the starts' entries).
 
-    Each pixel's albedos are its own (eliminated per pixel) or shared, so the subsample's objective is the
-    same likelihood of fewer pixels: at every shape point its score times (all pixels / subsample) is an
-    unbiased estimate of all pixels' score, its minimum lies within a few of the subsample's standard errors
-    of all pixels' minimum, and its coarse search and start scores order the candidates as all pixels' do
-    wherever those differ by more than that sampling noise.  The subsample therefore decides only where
-    the fit starts on all pixels: ends on it within :data:`SAME_END_SE` of its standard errors of a better one are
-    that optimum (LM from either reaches the same end on all pixels) and are not continued again; every other
-    end is refined on all pixels (:func:`refine`, the albedos re-solved there first, steps on the profiled
-    curvature: the end is near the optimum, where Gauss-Newton converges linearly), and the best of those
-    converged ends of all pixels is the estimate, each start's entry recording its optimum's end on all
-    pixels.  No estimate of the subsample is returned.
+    The subsample's objective is the same likelihood of fewer pixels, so it decides only where the fit starts;
+    no estimate of the subsample is returned.
     """
     sub_ends = {}
     run_starts(sub, enumerate(chosen), sub_ends, say, f"/{len(chosen)} on the subsample", " on the subsample",
                **dict(kw, label="subsample lm"))
     order = sorted(range(len(sub_ends)), key=lambda i: sub_ends[i][0])
-    optimum = {}        # start -> the start whose end on the subsample is its optimum's (the best such)
+    optimum = {}        # start -> the best start at its optimum
     for i in order:
         end = sub_ends[i][1]
         optimum[i] = next((j for j in dict.fromkeys(optimum.values())
                            if same_end(sub, sub_ends[j][1], end)), i)
     continued, polished = [], {}
     optima = list(dict.fromkeys(optimum[i] for i in order))
-    for j in optima:        # each optimum once, its albedos re-solved on all pixels (one: with the derivatives
-        e = sub_ends[j][1].state        # LM's first linearisation takes there, so one evaluation)
+    for j in optima:        # albedos re-solved on all pixels (one optimum: with LM's first derivatives)
+        e = sub_ends[j][1].state
         continued.append((j, problem.closed_form(e.shape, jac=len(optima) == 1)[0] if problem.projects
                           else problem.state(e.shape, e.a_s, e.a_b)))
     out = polished[run_starts(problem, continued, polished, say, f" continued on all {pixels} pixels",
@@ -228,20 +210,16 @@ def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
 
 
 def same_end(sub, a, b):
-    """Whether the ends ``a``, ``b`` (:class:`Solution` of ``sub``) are one optimum: at most
-    :data:`SAME_END_SE` of the better's standard errors apart in every free shape parameter."""
+    """Whether the ends ``a`` (the better), ``b`` are at most :data:`SAME_END_SE` of ``a``'s SE apart."""
     if a.J is None:
         return False
     return step_in_se(sub, a.state, b.state, a.J) <= SAME_END_SE
 
 
 def refit_fixed(problem, st, name, value, start=None, max_iter=10, label=None, tol=LM.DECREMENT_TOL):
-    """(chi^2, evaluations): chi^2 with shape parameter ``name`` held at ``value``, the rest free, under the
-    current weights: one point of the profile likelihood (:func:`fmbrdf_mi.fit.uncertainty.profile_intervals`),
-    to within ``tol`` in chi^2 (LM's stop on its predicted decrease, on the profiled curvature), and the model
-    evaluations it took.  From ``start`` (a State) or ``st`` with ``name`` moved.  None where
-    :meth:`~fmbrdf_mi.fit.problem.problem.Problem.with_fixed` cannot hold it.  ``label``: the progress lines'
-    tag (default 'profile ``name``')."""
+    """(chi^2, evaluations): one profile-likelihood point, chi^2 with ``name`` held at ``value`` and the rest
+    refitted (to within ``tol``) from ``start`` or ``st``; None where
+    :meth:`~fmbrdf_mi.fit.problem.problem.Problem.with_fixed` cannot hold it."""
     sub = problem.with_fixed({name: float(value)})
     if sub is None:
         return None
@@ -252,7 +230,8 @@ def refit_fixed(problem, st, name, value, start=None, max_iter=10, label=None, t
     else:
         shape = dict(st.shape, **{name: float(value)})
         start = sub.closed_form(shape)[0]
-    if not sub.names and not sub.projects:   # only the albedos free: closed form
+    if not sub.names and not sub.projects:
+
         start = sub.closed_form(start.shape)[0]
         r = sub.obj.residuals(sub.parts(start), start)
         return float(r @ r), sub.n_evals

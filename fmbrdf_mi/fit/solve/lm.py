@@ -1,6 +1,5 @@
-"""The one Levenberg-Marquardt of every fit (:func:`levenberg_marquardt`: each fit plugs in its linearisation,
-linear solve and trial step; the result says why it stopped, :data:`REASONS`) and the one reweighting loop
-(IRLS, :func:`reweighted`) around it."""
+"""The one Levenberg-Marquardt of every fit (:func:`levenberg_marquardt`, each fit plugging in its
+linearisation, solve and trial) and the reweighting loop around it (IRLS, :func:`reweighted`)."""
 from __future__ import annotations
 
 import dataclasses
@@ -57,10 +56,9 @@ CURVATURE_FLOOR = 0.1
 
 
 def profiled_curvature(F, C, floor=CURVATURE_FLOOR):
-    """F - C with 1 - lambda floored at ``floor`` (lambda the eigenvalues of F^-1/2 C F^-1/2): the expected
-    curvature of chi^2 with incidental albedos eliminated, F = J^T J (Kaufman's) being on average that plus
-    their noise term C (:meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`).  A Gauss-Newton step
-    on F alone shrinks the error by only lambda per iteration along a direction where C is that share of F."""
+    """F - C with 1 - lambda floored at ``floor`` (lambda the eigenvalues of F^-1/2 C F^-1/2): chi^2's expected
+    curvature with the incidental albedos eliminated (C:
+    :meth:`~fmbrdf_mi.fit.evaluate.albedos.PixelAlbedos.incidental`), where Gauss-Newton on F converges slowly."""
     w, V = np.linalg.eigh(F)
     if len(w) == 0 or w.min() <= 0:
         return F
@@ -94,19 +92,16 @@ def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None,
                         step_small=None, time_up=None, budget=None, on_accept=None, final_linearise=True, lam=1e-3):
     """Minimise from ``x`` (objective ``f``); returns :class:`LMResult`.
 
-    * ``linearise(x)``: the system at ``x`` (residuals and Jacobian, or the normal refinement's Schur blocks);
-      its ``.f``, if any, replaces the trial's objective;
-    * ``solve(lin, lam)``: the damped step (:func:`dense_step`,
-      :func:`fmbrdf_mi.fit.solve.normal_system.solve_step`); ``LinAlgError`` raises the damping;
+    * ``linearise(x)``: the system at ``x``; its ``.f``, if any, replaces the trial's objective;
+    * ``solve(lin, lam)``: the damped step (:func:`dense_step`); ``LinAlgError`` raises the damping;
+
     * ``trial(x, step, lin)``: ``(x_new, f_new, r_new)`` (it may re-solve linear unknowns);
     * ``secant(lin, x, x_new, r_new)``: a Broyden update from every trial; ``moved(lin, x_new, r_new)``: the
-      linearisation carried to an accepted point, so ``refresh`` accepted steps share one Jacobian (a
-      rejected step on a secant Jacobian re-linearises first);
+      linearisation carried to an accepted point, so ``refresh`` accepted steps share one Jacobian;
     * stops: ``decrement(lin)`` < ``decrement_tol`` on a fresh linearisation, ``small(f_old, f_new)``
       ``small_count`` times in a row, ``step_small(x_old, x_new)``, ``time_up()``, ``max_iter``,
       ``budget()`` spent, or no step lowers f at any damping;
-    * ``lin``: the linearisation at ``x``, if known; ``final_linearise``: end on a fresh one (the uncertainty
-      needs it); ``on_accept(it, x, f)``: called after every accepted step.
+    * ``final_linearise``: end on a fresh linearisation (the uncertainty needs it).
     """
     if lin is None:
         lin = linearise(x)
@@ -175,11 +170,9 @@ def levenberg_marquardt(x, f, linearise, solve, trial, *, max_iter=40, lin=None,
 
 
 def reweighted(x, minimise, *, rounds, before):
-    """At most ``rounds`` rounds from ``x``; returns (x, converged of the last minimisation, settled, rounds run).
+    """(x, converged, settled, rounds run) after at most ``rounds`` rounds: ``before(x, k)`` refreshes the
+    weights (True: settled), ``minimise(x, k)`` -> (x, converged); a non-converged minimisation ends the rounds."""
 
-    ``before(x, k)`` refreshes the weights, True when settled (the loop stops); ``minimise(x, k)`` returns
-    (x, converged), and a minimisation that does not converge ends the rounds.
-    """
     converged, k = False, 0
     for k in range(rounds):
         if before(x, k):

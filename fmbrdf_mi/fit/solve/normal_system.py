@@ -1,15 +1,8 @@
 """The normal equations of the joint material + normals refinement (:mod:`fmbrdf_mi.fit.api.normal_joint`).
 
-Unknowns: p material values and two tangent-plane values per pixel.  With J = [J_m | J_n] the Jacobian of
-the residuals r (data rows, then the smoothness prior's), the Gauss-Newton system of (1/2) r.r is
-
-    [H_mm  H_mn] [dm]     [g_m]
-    [H_nm  H_nn] [dn] = - [g_n]
-
-A sample's normal interpolates the normal map bilinearly, so a row of J_n touches at most a few pixels
-and is kept as (pixel, value) lists; H_nn = J_n^T J_n + w P (:class:`NormalBlock`) is solved by
-block-Jacobi preconditioned conjugate gradients, the full system by the Schur complement onto the material
-(:func:`solve_step`).  NumPy only.
+Unknowns: p material values and two tangent-plane values per pixel.  H_nn = J_n^T J_n + w P
+(:class:`NormalBlock`, sparse: a sample's normal interpolates a few pixels) is solved by block-Jacobi
+preconditioned conjugate gradients, the full Gauss-Newton system by the Schur complement (:func:`solve_step`).
 """
 from __future__ import annotations
 
@@ -31,17 +24,12 @@ def _sums(idx, w, n):
 
 
 def data_products(pix, val, Jm, r, N):
-    """H_mm, H_mn (p, N, 2), g_m, g_n (N, 2) of the data rows.
-
-    ``pix`` (m, Q): the unknown pixels each row depends on (-1: fixed; repeats are summed), ``val``
-    (m, Q, 2) the row's derivatives in their tangent unknowns, ``Jm`` (m, p) the material columns, ``r`` (m,).
-    """
+    """H_mm, H_mn (p, N, 2), g_m, g_n (N, 2) of the data rows: ``pix`` (m, Q) the pixels each row depends on
+    (-1: fixed), ``val`` (m, Q, 2) its tangent derivatives, ``Jm`` (m, p) the material columns."""
     p = Jm.shape[1]
-    # dropping fixed pixels and zero derivatives keeps each sum's order
     row, slot = np.nonzero((pix >= 0) & np.any(val != 0, axis=2))
     q, v = pix[row, slot], val[row, slot]
-    # one column at a time: each sum adds the same terms in the same order as a sum of all columns at once,
-    # and the terms in flight are one column's (not 2 p of them per term)
+    # one column at a time: the same sums in the same order, one column's terms in memory
     Hmn = np.empty((p, N, 2))
     for b in range(p):
         jb = Jm[row, b]
@@ -52,13 +40,11 @@ def data_products(pix, val, Jm, r, N):
 
 
 def _pairs(pix, stencils, N, cache=None):
-    """The pixel pairs coupled by H_nn (its sparsity pattern); the last one is kept in the dict ``cache`` (the
-    caller's, so that it lives as long as the caller's refinement; None: not kept).
+    """The pixel pairs coupled by H_nn (its sparsity pattern), the last kept in the caller's dict ``cache``.
 
-    A dict: ``G`` distinct pixel lists; ``groups``: (lists (n,), their rows (n, c)) per row count c;
-    ``dsel``: the valid entries of the (G, Q, Q) term pairs (None: all); ``inv``: the pair index of each
-    valid term pair, then of each pixel's diagonal, then of each stencil pair; ``rows``, ``pos`` (P,): each
-    pair's pixel i and place in the (N, ``qmax``) neighbour list ``nbr`` (padding: pixel 0, zero block).
+    A dict: ``G`` distinct pixel lists; ``groups``: (lists, their rows) per row count; ``dsel``: the valid
+    (G, Q, Q) term pairs (None: all); ``inv``: the pair index of each valid term pair, each diagonal, each
+    stencil pair; ``rows``, ``pos``: each pair's pixel and place in the (N, ``qmax``) neighbour list ``nbr``.
     """
     c = (cache or {}).get("key")
     if c is not None and c[0] == N and np.array_equal(c[1], pix) and np.array_equal(c[2], stencils):
@@ -68,7 +54,7 @@ def _pairs(pix, stencils, N, cache=None):
     g = g.ravel()
     order = np.argsort(g, kind="stable")
     cnt = np.bincount(g, minlength=len(u))
-    first = np.cumsum(cnt) - cnt                        # list i's rows: order[first[i]:first[i] + cnt[i]]
+    first = np.cumsum(cnt) - cnt
     groups = []
     for c in np.unique(cnt):
         gs = np.nonzero(cnt == c)[0]
@@ -94,19 +80,14 @@ def _pairs(pix, stencils, N, cache=None):
 
 
 class NormalBlock:
-    """H_nn = J_n^T J_n (data) + w P (prior) (+ damping mu diag) as an operator on (N, 2, R) arrays.
+    """H_nn = J_n^T J_n + w P (+ damping mu diag) as an operator on (N, 2, R) arrays, stored as 2 x 2 blocks
+    in a padded neighbour list; the prior's residuals are sqrt(w) sum_s coef_s n_{stencil_s}, ``t1``, ``t2``
+    each pixel's tangent basis, ``cache`` the sparsity pattern kept for the next linearisation."""
 
-    ``pix``, ``val``: as :func:`data_products`; ``stencils`` (E, S) and ``coef`` (S,): the prior's residuals
-    sqrt(w) sum_s coef_s n_{stencil_s} (e.g. (1, -1), (1, -2, 1)); ``t1``, ``t2`` (N, 3): each pixel's
-    tangent basis; ``w``: the prior's weight.  Stored as 2 x 2 blocks of coupled pixel pairs in a padded
-    neighbour list, so a product is a gather and a batched matmul.  ``cache``: a dict that keeps the sparsity
-    pattern for the next block of the same pixels (one refinement's linearisations).
-    """
 
     def __init__(self, pix, val, stencils, coef, t1, t2, w, mu=0.0, cache=None):
         self.N = N = len(t1)
         ok = pix >= 0
-        # the caller's arrays, not copies, where no pixel is fixed (the refinement's extrapolated stencils)
         self.q = pix if ok.all() else np.where(ok, pix, 0)
         self.v = val if ok.all() else np.where(ok[..., None], val, 0.0)
         self.st, self.coef = stencils, np.asarray(coef, float)
@@ -114,7 +95,7 @@ class NormalBlock:
         self.csum = np.zeros(N)
         if len(stencils):
             self.csum = _sums(stencils.ravel(), np.tile(self.coef ** 2, len(stencils))[:, None], N)[:, 0]
-        nonzero = np.any(self.v != 0, axis=2)                          # (m, Q)
+        nonzero = np.any(self.v != 0, axis=2)
         row, slot = np.nonzero(ok & nonzero)
         vs = self.v[row, slot]
         diag = _sums(self.q[row, slot], (vs[:, :, None] * vs[:, None, :]).reshape(-1, 4), N).reshape(N, 2, 2)
@@ -132,8 +113,8 @@ class NormalBlock:
         return out
 
     def _damp(self, mu):
-        """Add the ridge (mu diag(H_nn) and a tiny constant) to the diagonal blocks, in the order a damped
-        assembly would sum (bit-identical results)."""
+        """Add the ridge mu diag(H_nn) (+ a tiny constant) to the diagonal blocks, summed as a damped assembly
+        would (bit-identical)."""
         diag = self._diag.copy()
         d = np.stack([diag[:, 0, 0], diag[:, 1, 1]], 1)
         # the tiny constant: a pixel with neither data nor neighbours keeps the system regular
@@ -150,9 +131,8 @@ class NormalBlock:
         self.B = B
 
     def _assemble(self, ok, nonzero, cache):
-        """The undamped 2 x 2 blocks B_ij of H_nn (:func:`_pairs`): data rows add v_a v_b^T, prior stencils
-        w c_s c_s' T_s^T T_s' (T = [t1 t2]); :meth:`_damp` adds the ridge.  Each block sums its terms in the
-        order data, ridge, prior."""
+        """The undamped 2 x 2 blocks B_ij of H_nn: data rows add v_a v_b^T, prior stencils w c_s c_s' T_s^T T_s'
+        (T = [t1 t2]), each summed in the order data, ridge, prior."""
         N, (m, Q) = self.N, self.q.shape
         prior = bool(len(self.st) and self.w)
         sp = _pairs(np.where(ok, self.q, -1), self.st if prior else self.st[:0], N, cache)
@@ -161,13 +141,11 @@ class NormalBlock:
         used = np.empty((G, Q), bool)
         for gs, rs in sp["groups"]:
             used[gs] = np.any(nonzero[rs], axis=1)
-        # the valid term pairs (g, a, b) in order, less those with an unused slot
         valid = np.ones(G * Q * Q, bool) if sp["dsel"] is None else sp["dsel"]
         keep = valid & (used[:, :, None] & used[:, None, :]).ravel()
         P, inv = len(sp["rows"]), sp["inv"]
         nd = int(valid.sum())
-        # W_g = sum over list g's rows of V_r V_r^T, a chunk of lists at a time (each product as the whole's), and
-        # of it the kept pairs' 2 x 2 blocks and pair indices, in order
+        # W_g = sum of list g's V_r V_r^T, a chunk of lists at a time
         nk = int(np.count_nonzero(keep))
         Wk, pair, done, at0 = np.empty((nk, 4)), np.empty(nk, np.int64), 0, 0
         for g0 in range(0, G, CHUNK):
@@ -175,32 +153,31 @@ class NormalBlock:
             W = np.empty((g1 - g0, 2 * Q, 2 * Q))
             for gs, rs in sp["groups"]:
                 i0, i1 = np.searchsorted(gs, (g0, g1))
-                Vg = V[rs[i0:i1]]                               # (lists, rows each, 2Q)
+                Vg = V[rs[i0:i1]]
                 W[gs[i0:i1] - g0] = np.matmul(Vg.transpose(0, 2, 1), Vg)
             v, k = valid[g0 * Q * Q:g1 * Q * Q], keep[g0 * Q * Q:g1 * Q * Q]
-            at = done + np.cumsum(v)[k] - 1                      # each kept pair's place among the valid (inv)
+            at = done + np.cumsum(v)[k] - 1
             done += int(np.count_nonzero(v))
             g, a, b = np.unravel_index(np.flatnonzero(k), (g1 - g0, Q, Q))
             Wk[at0:at0 + len(g)] = W.reshape(g1 - g0, Q, 2, Q, 2)[g, a, :, b, :].reshape(-1, 4)
             pair[at0:at0 + len(g)] = inv[at]
             at0 += len(g)
-        data = _sums(pair, Wk, P)                               # each pair's data sum
+        data = _sums(pair, Wk, P)
         vals, idx = [data], [np.arange(P)]
         pinv = inv[nd + N:]
         if prior:
-            T = np.stack([self.t1, self.t2], 1)[self.st]                                # (E, S, 2, 3)
+            T = np.stack([self.t1, self.t2], 1)[self.st]
             cc = self.w * self.coef[:, None] * self.coef[None, :]
-            TT = np.matmul(T[:, :, None], T[:, None].transpose(0, 1, 2, 4, 3))        # (E, S, S, 2, 2)
+            TT = np.matmul(T[:, :, None], T[:, None].transpose(0, 1, 2, 4, 3))
             pv = (cc[None, :, :, None, None] * TT).reshape(-1, 4)
             vals.append(pv)
             idx.append(pinv)
-        blocks = _sums(np.concatenate(idx), np.concatenate(vals), P)   # the undamped pairs (data, then prior)
+        blocks = _sums(np.concatenate(idx), np.concatenate(vals), P)
         B = np.zeros((N, sp["qmax"], 2, 2))
         B[sp["rows"], sp["pos"]] = blocks.reshape(P, 2, 2)
         self.nbr = sp["nbr"]
         self.B0 = np.ascontiguousarray(B.transpose(0, 2, 1, 3).reshape(N, 2, -1))  # [B_i,j1 B_i,j2 ...]
-        # the diagonal pairs' terms for _damp: data, ridge, prior
-        dpair = inv[nd:nd + N]                                   # pair index of (i, i)
+        dpair = inv[nd:nd + N]                                   # the diagonal pairs, for _damp
         on = np.zeros(P, np.int64) - 1
         on[dpair] = np.arange(N)
         if prior:
@@ -216,15 +193,14 @@ class NormalBlock:
         return np.einsum("mqa,mqar->mr", self.v, x[self.q])
 
     def apply(self, x, gather=None):
-        """H_nn x for x (N, 2, R): y_i = sum_j B_ij x_j over the stored pairs (a gather and a batched product).
-        ``gather``: an (N, qmax, 2, R) array for the gathered x_j, reused by :meth:`solve`'s iterations (a new
-        one each time costs page faults at every iteration of a large frame)."""
+        """H_nn x for x (N, 2, R); ``gather``: a reused (N, qmax, 2, R) buffer (a new one per iteration costs
+        page faults on a large frame)."""
         N, R = x.shape[0], x.shape[2]
         xg = np.take(x, self.nbr, axis=0) if gather is None else np.take(x, self.nbr, axis=0, out=gather, mode="clip")
         return np.matmul(self.B, xg.reshape(N, -1, R))
 
     def precondition(self, r):
-        """The block-Jacobi preconditioner applied to r (N, 2, R) (an einsum written out, for speed)."""
+        """The block-Jacobi preconditioner applied to r (N, 2, R)."""
         P = self.pre
         z = np.empty_like(r)
         np.multiply(P[:, 0, 0, None], r[:, 0], out=z[:, 0])
@@ -234,7 +210,7 @@ class NormalBlock:
         return z
 
     def solve(self, b, rtol=1e-10, max_iter=5000):
-        """x with H_nn x = b, b (N, 2, R): preconditioned conjugate gradients, column by column in parallel."""
+        """x with H_nn x = b, b (N, 2, R), by preconditioned conjugate gradients on all columns at once."""
         x = np.zeros_like(b)
         r = b.copy()
         z = self.precondition(r)
@@ -261,12 +237,9 @@ class NormalBlock:
 
 
 def solve_step(Hmm, Hmn, Hnn, gm, gn, mu):
-    """The damped Gauss-Newton step (dm (p,), dn (N, 2)) by the Schur complement onto the material.
-
-    ``Hmn`` (p, N, 2); ``Hnn`` a :class:`NormalBlock` built with damping ``mu``; ``gn`` (N, 2).
-    """
+    """The damped Gauss-Newton step (dm (p,), dn (N, 2)) by the Schur complement; ``Hnn`` damped by ``mu``."""
     p = len(gm)
-    rhs = np.concatenate([Hmn.transpose(1, 2, 0), gn[:, :, None]], axis=2)      # (N, 2, p + 1)
+    rhs = np.concatenate([Hmn.transpose(1, 2, 0), gn[:, :, None]], axis=2)
     X = Hnn.solve(rhs)
     Hmn2 = Hmn.reshape(p, -1)
     S = Hmm + np.diag(mu * np.maximum(np.diag(Hmm), 1e-12)) - Hmn2 @ X[:, :, :p].reshape(-1, p)
@@ -284,12 +257,12 @@ def schur(Hmm, Hmn, Hnn):
 
 
 def material_covariance(Hmm, Hmn, Hnn, Jm):
-    """Covariance of the material (p x p, the unknowns' units) with the normals free: the sandwich
-    [H^-1 F H^-1]_mm of the penalised likelihood, F = J^T J of the data rows only (``Hnn`` undamped), since
-    the prior is a regulariser, not information about the data.
+    """Covariance of the material (p x p) with the normals free: the sandwich [H^-1 F H^-1]_mm, F = J^T J of
+    the data rows only (the prior is a regulariser, not information); ``Hnn`` undamped.
     """
     Si = np.linalg.inv(schur(Hmm, Hmn, Hnn))
-    Yn = -Hnn.solve(np.einsum("pna,pq->naq", Hmn, Si))                        # (N, 2, p)
+    Yn = -Hnn.solve(np.einsum("pna,pq->naq", Hmn, Si))
+
     JY = Jm @ Si + Hnn.data_product(Yn)
     C = JY.T @ JY
     return 0.5 * (C + C.T)

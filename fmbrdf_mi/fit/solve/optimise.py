@@ -1,10 +1,5 @@
-"""Minimising an objective (:mod:`fmbrdf_mi.fit.objectives.objective`): coarse search, then LM or Adam.
-
-The unknowns are optimised on an unconstrained z (:class:`~fmbrdf_mi.fit.evaluate.models.Bounds` for the
-shape, exp for albedos), so every iterate is a valid material.  :func:`coarse_search` grids the shape with
-closed-form albedos; :func:`levenberg_marquardt` (forward-mode Jacobian) or :func:`adam` (the paper's
-optimiser, reverse-mode gradient) refines.
-"""
+"""Minimising an objective on an unconstrained z (every iterate a valid material): :func:`coarse_search`,
+then :func:`levenberg_marquardt` or :func:`adam` (the paper's optimiser)."""
 from __future__ import annotations
 
 import itertools
@@ -23,13 +18,8 @@ ALBEDO_BOUND = 1e-3
 
 
 def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of, keep=2, progress=None):
-    """The coarse search's stages over any point evaluation; returns [(score, point)] best first.
-
-    Stage 1: the ``first`` parameters on their grids, the ``later`` ones at ``mids``; then each ``later``
-    parameter on its grid for the ``keep`` best points so far, which bounds the BSDF table rebuilds (kappa
-    last: it changes the body term least).  ``evaluate(shape)`` returns (score, point), ``shape_of(point)``
-    its shape values; each grid point is evaluated once.
-    """
+    """The coarse search's stages, [(score, point)] best first: the ``first`` parameters on their grids, then
+    each ``later`` one on its grid for the ``keep`` best points (bounding the BSDF table rebuilds)."""
     results, say, t = {}, progress or (lambda m: None), time.time()
 
     def try_point(shape):
@@ -41,7 +31,7 @@ def staged_search(shape_names, grids, first, later, mids, evaluate, *, shape_of,
         return min(results.values(), key=lambda x: x[0])
 
     combos = list(itertools.product(*[grids[n] for n in first]))
-    most = len(combos) + keep * sum(len(grids[n]) for n in later)    # points the search evaluates at most
+    most = len(combos) + keep * sum(len(grids[n]) for n in later)
 
     def left():
         return time_left(time.time() - t, len(results), most, "in the search", bound=True)
@@ -66,12 +56,8 @@ MATERIAL_CANDIDATES = 6
 
 
 def coarse_search(problem, keep=2):
-    """:func:`staged_search` with closed-form albedos; returns candidates [(score, State)] best first.
+    """:func:`staged_search` with closed-form albedos; candidate j combines each material's j-th best point."""
 
-    With several materials each grid point is evaluated once for all and scored per material
-    (:meth:`~fmbrdf_mi.fit.problem.problem.Problem.material_scores`); candidate j combines every material's
-    j-th best point.
-    """
     params, M = problem.params, problem.params.count or 1
     if M == 1:
         model, rows, clip, fixed, names = params, None, problem.bounds.clip_grid, problem.fixed, problem.names
@@ -82,7 +68,7 @@ def coarse_search(problem, keep=2):
         fixed = {n: problem.fixed[r] for n, r in row0.items() if r in problem.fixed}
         names = [n for n, r in row0.items() if r in problem.names]
     grids = {n: ([fixed[n]] if n in fixed else clip(n, model.param(n).grid)) for n in model.shape_names}
-    later = [n for n in ("eta", "kappa") if n in names]     # free eta, kappa: after the others
+    later = [n for n in ("eta", "kappa") if n in names]
     first = [n for n in model.shape_names if n not in later]
     mids = {n: grids[n][len(grids[n]) // 2] for n in later}
     points, best = {}, [math.inf]
@@ -122,8 +108,7 @@ def format_state(problem, st):
 
 
 def time_left(elapsed, done, total, where, bound=False):
-    """'~N s left ``where``': ``total - done`` more units at the mean time per unit measured so far,
-    ``elapsed / done``; 'at most' first when ``total`` is an upper bound (``bound``); empty before the first."""
+    """'~N s left ``where``' at the mean time per unit so far; empty before the first."""
     if done <= 0:
         return ""
     left = elapsed / done * max(total - done, 0)
@@ -131,9 +116,7 @@ def time_left(elapsed, done, total, where, bound=False):
 
 
 def log_step(problem, history, name, round_no, it, f, st, say=True, t0=None, max_iter=None, label=None):
-    """Log an iterate of optimiser ``name`` to ``history`` (a list, or None) and, if ``say``, to progress, tagged
-    ``label`` (default: ``name`` and ``round_no``); with ``t0`` (the optimiser's start) and ``max_iter``, the
-    progress line carries :func:`time_left`."""
+    """Log an iterate of optimiser ``name`` to ``history`` (or None) and, if ``say``, to progress."""
     if history is not None:
         history.append({"stage": f"{name}{round_no}", "iter": it, "loss": f, "time": time.time() - problem.t0,
                         "params": problem.params.report(st.shape, st.a_s, st.a_b)})
@@ -147,18 +130,13 @@ def log_step(problem, history, name, round_no, it, f, st, say=True, t0=None, max
 def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, history=None,
                         round_no=0, refresh=3, final_jacobian=True, label=None, profiled=False,
                         decrement_tol=LM.DECREMENT_TOL, exact_decrease=False):
-    """Minimise the objective from ``st`` with its current weights (:func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`).
+    """(State, value, stop reason, converged, J, r) of :func:`fmbrdf_mi.fit.solve.lm.levenberg_marquardt`
+    from ``st`` with the objective's current weights.
 
-    The AD Jacobian (one table rebuild per shape parameter) is refreshed every ``refresh`` accepted steps,
-    with Broyden updates between; a problem that
-    :attr:`~fmbrdf_mi.fit.problem.problem.Problem.projects` its albedos re-solves them at every trial and
-    takes an AD Jacobian every step (its albedo coordinates jump).  Returns (State, value, stop reason,
-    converged, J, r); J, r at the result unless ``final_jacobian`` is False.  ``label``: the progress lines'
-    tag (:func:`log_step`).  ``profiled``: a problem that eliminates its albedos without a prior steps on the
-    profiled curvature H = J^T J - C (:func:`~fmbrdf_mi.fit.solve.lm.profiled_curvature`): Newton's rate near
-    the optimum, where Gauss-Newton's is linear.  A likelihood stops when the Gauss-Newton decrement g^T (J^T
-    J)^-1 g (the squared distance to the optimum in standard errors, the incidental sandwich's for H) is below
-    ``decrement_tol``, or with ``exact_decrease`` when H's, g^T H^-1 g (the decrease of chi^2 left), is.
+    The AD Jacobian is refreshed every ``refresh`` accepted steps with Broyden updates between (every step
+    when the albedos are projected: their coordinates jump).  ``profiled``: step on H = J^T J - C
+    (:func:`~fmbrdf_mi.fit.solve.lm.profiled_curvature`), Newton's rate where Gauss-Newton's is linear.  A
+    likelihood stops when g^T (J^T J)^-1 g, or with ``exact_decrease`` g^T H^-1 g, is below ``decrement_tol``.
     """
     obj, project = problem.obj, problem.projects
     profiled = profiled and problem.eliminates and problem.layout.incidental_reason is None
@@ -175,7 +153,8 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
     def trial(x, delta, lin):
         z_new = np.clip(x[1] + delta, -40, 40)
         st_new = problem.from_z(z_new)
-        if project:     # with the derivatives: an accepted trial is linearised next, from the same evaluation
+        if project:     # an accepted trial is linearised next from the same evaluation
+
             st_new, parts = problem.closed_form(st_new.shape, jac=True)
             z_new = problem.to_z(st_new)
         else:
