@@ -4,7 +4,7 @@ Every ``import`` / ``from ... import`` of the package's own modules is read
 with :mod:`ast` (function-level imports included: a deferred import is still
 a dependency), relative imports resolved.  Three rules:
 
-* **layers**: ``fmbrdf_mi.fit``'s sub-packages are ordered (the table in
+* **layers**: ``fmbrdf_mi.fit``'s sub-packages are ordered (the list in
   ``fmbrdf_mi/fit/__init__.py``); a module imports only from its own layer or
   the ones before it.  The package's top level is ordered too: the model's
   maths, then the Mitsuba plugins, then scenes and the sensor (the camera model), then the
@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import ast
 import os
+import re
 
 import pytest
 
@@ -192,12 +193,13 @@ def test_checker_finds_each_kind_of_violation(extra, expect):
 
 
 def test_fit_layers_match_the_package():
-    """Every sub-package of fmbrdf_mi.fit is a listed layer, and the package docstring's table lists them in order."""
+    """Every sub-package of fmbrdf_mi.fit is a listed layer, and the package docstring's list of layers names them
+    in order."""
     fit_dir = os.path.join(ROOT, "fit")
     found = {f[:-3] if f.endswith(".py") else f for f in os.listdir(fit_dir)
              if (f.endswith(".py") and f != "__init__.py") or os.path.isfile(os.path.join(fit_dir, f, "__init__.py"))}
     assert found == set(FIT_LAYERS)
     import fmbrdf_mi.fit as F
 
-    table = [line.split("``")[1] for line in F.__doc__.splitlines() if line.startswith("``")]
-    assert table == FIT_LAYERS
+    listed = re.findall(r"``(\w+)``", F.__doc__.split("Layers", 1)[1])
+    assert listed == FIT_LAYERS
