@@ -1,11 +1,18 @@
 import contextlib
 import os
+import signal
 import sys
 
 import numpy as np
 import pytest
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+
+# The Ctrl-C tests send SIGINT to a command, which must start with SIGINT's default action; a shell that starts
+# the suite in the background (`cmd &` without job control, as CI runners and nohup do) starts it with SIGINT
+# ignored, and a child inherits an ignored signal (a handled one is reset to the default at exec).
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(os.path.dirname(HERE), "tools"))
 
