@@ -203,7 +203,7 @@ def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
         continued.append((j, problem.closed_form(e.shape, jac=len(optima) == 1)[0] if problem.projects
                           else problem.state(e.shape, e.a_s, e.a_b)))
     out = polished[run_starts(problem, continued, polished, say, f" continued on all {pixels} pixels",
-                              " on all pixels", **dict(kw, profiled=True))][1]
+                              " on all pixels", **kw)][1]
     ends = [end_record(sub.params, st0, polished[optimum[k]][1], polished[optimum[k]][0], problem.params)
             for k, st0 in enumerate(chosen)]
     return out, ends
