@@ -139,7 +139,7 @@ class Problem:
             return np.array([rp[n] for n in rows])
 
         D = np.eye(p + len(rows), p + len(a))
-        for j, e in enumerate(np.diag(1e-6 * np.abs(a))):
+        for j, e in enumerate(np.diag(1e-6 * np.maximum(np.abs(a), 1e-6))):   # a step also where an albedo is 0
             D[p:, p + j] = (at(a + e) - at(a - e)) / (2 * e[j])
         return list(names) + list(rows), D @ C @ D.T
 
