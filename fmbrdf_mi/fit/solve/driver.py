@@ -68,7 +68,7 @@ def step_in_se(problem, st_old, st_new, J):
 
 
 def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02, history=None,
-           report=None, label="lm", profiled=False):
+           report=None, label="lm"):
     """A :class:`Solution` after at most ``rounds`` reweighting rounds from ``st``
     (:func:`~fmbrdf_mi.fit.solve.lm.reweighted`); ``label``: LM's progress tag.
     """
@@ -94,7 +94,7 @@ def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_l
         if optimizer == "lm":
             st, _, last.reason, converged, last.J, last.r = O.levenberg_marquardt(
                 problem, st_old, max_iter=max_iter, tol=tol, time_limit=time_limit, history=history, round_no=k + 1,
-                label=f"{label} {k + 1}", profiled=profiled)
+                label=f"{label} {k + 1}")
             step_se = step_in_se(problem, st_old, st, last.J) if last.J is not None else None
         else:
             st, _, last.reason, converged = O.adam(problem, st_old, max_iter=max_iter, lr=lr, tol=tol,
