@@ -17,12 +17,17 @@ sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(os.path.dirname(HERE), "tools"))
 
 
+#: The ``variant`` fixture's variant: FMBRDF_MI_TEST_VARIANT=cuda_ad_mono_polarized runs the tests that take it
+#: on a GPU (against the same NumPy references).
+TEST_VARIANT = os.environ.get("FMBRDF_MI_TEST_VARIANT", "llvm_ad_mono_polarized")
+
+
 @pytest.fixture
 def variant():
-    """Polarised monochrome variant with the plugin registered (float32 JIT)."""
+    """Polarised monochrome variant with the plugin registered (float32 JIT; :data:`TEST_VARIANT`)."""
     import mitsuba as mi
 
-    mi.set_variant("llvm_ad_mono_polarized")
+    mi.set_variant(TEST_VARIANT)
     import fmbrdf_mi
 
     fmbrdf_mi.register()

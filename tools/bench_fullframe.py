@@ -84,6 +84,7 @@ import math
 import os
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -335,8 +336,8 @@ def run_child(cmd, env, stdout=None, stderr=None, cwd=None):
 
 def child_env(code):
     """The environment of a child that imports the package of the checkout ``code`` (run it outside any
-    checkout: ``python -m`` puts the working directory first on the path)."""
-    return dict(os.environ, PYTHONPATH=code)
+    checkout: ``python -m`` puts the working directory first on the path), before the caller's own path."""
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([code] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
 
 
 def check_code(code):
@@ -560,11 +561,12 @@ def parse_res(text):
     return w, h
 
 
-def run_render(size, scene, spp, work, texture):
+def run_render(size, scene, spp, work, texture, variant=None):
     """One ``fmbrdf-mi render --raw`` in a child process: its wall time, CPU time and peak resident set."""
     w, h = size
     out = os.path.join(work, f"{scene}_{w}x{h}.exr")
     cmd = [sys.executable, "-m", "fmbrdf_mi", "render", out, "--raw", "--res", f"{w}x{h}", "--force"]
+    cmd += ["--variant", variant] if variant else []
     cmd += ["-D", f"k_s={texture}"] if scene == "textured" else []
     cmd += ["--spp", str(spp)] if spp else []
     with tempfile.TemporaryFile("w+") as f:
@@ -579,15 +581,15 @@ def run_render(size, scene, spp, work, texture):
         if f.startswith(f"{scene}_{w}x{h}"):
             written += os.path.getsize(os.path.join(work, f))
             os.remove(os.path.join(work, f))
-    return {"mode": "render", "scene": scene, "width": w, "height": h, "spp": spp_used, "time": wall,
-            "cpu": cpu, "peak": peak, "written": written}
+    return {"mode": "render", "scene": scene, "variant": variant, "width": w, "height": h, "spp": spp_used,
+            "time": wall, "cpu": cpu, "peak": peak, "written": written}
 
 
 def render_table(runs, head):
     lines = [head, "", "| scene | raw pixels | super-pixels | spp | time | CPU time | peak RSS | files written |",
              "|---|---|---|---|---|---|---|---|"]
     for r in runs:
-        lines.append(f"| {r['scene']} | {r['width']} × {r['height']} | {r['width'] // 2} × {r['height'] // 2} | "
+        lines.append(f"| {r['scene']}{' (' + r['variant'] + ')' if r.get('variant') else ''} | {r['width']} × {r['height']} | {r['width'] // 2} × {r['height'] // 2} | "
                      f"{r['spp']} | {r['time']:.1f} s | {r['cpu']:.1f} s | {r['peak'] / 2 ** 30:.2f} GiB | "
                      f"{r['written'] / 2 ** 20:.1f} MiB |")
     return "\n".join(lines)
@@ -625,7 +627,7 @@ def main_render(a):
             for scene in scenes:
                 print(f"[{time.time() - t0:.0f} s] render {size[0]}x{size[1]} ({scene}) ...", file=sys.stderr,
                       flush=True)
-                r = run_render(size, scene, a.spp, work, texture)
+                r = run_render(size, scene, a.spp, work, texture, a.variant)
                 runs.append(r)
                 print(f"[{time.time() - t0:.0f} s] render {size[0]}x{size[1]} ({scene}): {r['time']:.1f} s, "
                       f"peak {r['peak'] / 2 ** 30:.2f} GiB", file=sys.stderr, flush=True)
@@ -636,7 +638,10 @@ def main_render(a):
 def header():
     from _common import cpu_name
 
-    return (f"{datetime.date.today().isoformat()}, {cpu_name()}, {os.cpu_count()} cores, "
+    gpu = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
+                         text=True).stdout.strip() if shutil.which("nvidia-smi") else ""
+    return (f"{datetime.date.today().isoformat()}, {cpu_name()}, {len(os.sched_getaffinity(0))} of "
+            f"{os.cpu_count()} cores{', ' + gpu if gpu else ''}, "
             f"DRJIT_NUM_THREADS={os.environ.get('DRJIT_NUM_THREADS', 'unset')}")
 
 
@@ -667,6 +672,8 @@ def main(argv=None):
                    help="--render: raw-pixel sizes, N or WxH, comma-separated (default %(default)s)")
     p.add_argument("--scenes", default="plain,textured", help="--render: plain and/or textured")
     p.add_argument("--spp", type=int, help="--render: samples per pixel (default: the command's)")
+    p.add_argument("--variant", help="--render: the command's Mitsuba variant (default: the command's; a fit's: "
+                   "--fit-args=\"... --variant cuda_ad_mono_polarized\")")
     p.add_argument("--worker", choices=("make", "api"), help=argparse.SUPPRESS)
     p.add_argument("--size", help=argparse.SUPPRESS)
     p.add_argument("--out", help=argparse.SUPPRESS)

@@ -184,3 +184,30 @@ def test_a_per_pixel_fit_starts_from_the_shape_parameters_alone(capsys, tmp_path
     rec = json.load(open(tmp_path / "out" / "fit.json"))
     start = rec["models"]["fmbrdf"]["starts"][0]["start"]
     assert start == {"eta": 1.5, "alpha": 0.3, "beta": 2.0, "kappa": 10.0}, start
+
+
+# ---------------------------------------------------------------- the device
+def test_fit_cuda_variant_without_a_gpu(capsys, tmp_path):
+    """--variant cuda_ad_mono_polarized where Dr.Jit has no CUDA backend: one line before any file is read."""
+    import drjit as dr
+
+    if dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("this machine has a CUDA device")
+    rc, _, err = run(capsys, "fit", str(tmp_path / "missing.exr"), "--light", "0,0,1", "-o", str(tmp_path / "out"),
+                     "--variant", "cuda_ad_mono_polarized")
+    one_line_error(rc, err, "fit", "cuda_ad_mono_polarized", "no CUDA device", "llvm_ad_mono_polarized")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("before,after", [("llvm_ad_spectral_polarized", "llvm_ad_mono_polarized"),
+                                          ("llvm_ad_rgb", "llvm_ad_mono_polarized"),
+                                          ("llvm_ad_mono_polarized", "llvm_ad_mono_polarized")])
+def test_fit_variant_from_the_current_one(before, after):
+    """A fit runs in the caller's variant when it is a fit variant (so ``mi.set_variant`` picks the device), else
+    in the LLVM one (on a machine with Dr.Jit's LLVM backend)."""
+    import mitsuba as mi
+
+    from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
+
+    mi.set_variant(before)
+    assert set_variant().variant() == after

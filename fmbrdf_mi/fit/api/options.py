@@ -8,6 +8,7 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
 from fmbrdf_mi.fit.evaluate.models import MODELS, get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
+from fmbrdf_mi.fit.evaluate.pixel_model import FIT_VARIANTS
 from fmbrdf_mi.fit.inputs.files import check_image_options
 from fmbrdf_mi.fit.inputs.options import IMAGE_OPTIONS, RECORDS, Option
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed, parse_init
@@ -111,6 +112,9 @@ OPTIONS = (
            help="likelihood: model each raw sample as the BSDF's mean over M x M points of its pixel (default: 2 "
                 "for raw mosaics, raised to 4 or 8 where 2 would bias a shape parameter, fit.json "
                 "uncertainty.quadrature; 1 (the centre) for angle and Stokes images) (docs: computed.md)"),
+    Option("variant", None, kind="choice", choices=FIT_VARIANTS, flag="--variant", group=_FIT,
+           help="the Mitsuba variant that evaluates the model: cuda_ad_mono_polarized on a GPU (default: "
+                "llvm_ad_mono_polarized, or the CUDA one where Dr.Jit has no LLVM backend)"),
     Option("max_pixels", 20000, kind="int", lo=0, fit=True, records=_ALL, flag="--max-pixels", group=_FIT,
            help="random subset of usable pixels (0: all)"),
     Option("erode", 2, kind="int", lo=0, fit=True, records=_ALL, flag="--erode", group=_FIT,

@@ -11,7 +11,9 @@ import sys
 from fmbrdf_mi.fit.api.options import (OPTION, add_arguments, check_fit_options, check_input_options, flag,
                                         record_keys)
 from fmbrdf_mi.fit.cli.layout_check import mirrored_layout_hint
+from fmbrdf_mi import check_variant
 from fmbrdf_mi.fit.errors import InputError
+from fmbrdf_mi.fit.evaluate.pixel_model import set_variant
 from fmbrdf_mi.fit.inputs.authors import read_object
 from fmbrdf_mi.fit.inputs.colour import colour_sidecar, is_colour
 from fmbrdf_mi.fit.inputs.manifest import (PATH_KEYS, ImageSpec, absolute_paths, build_observations, image_names,
@@ -34,8 +36,8 @@ DEST = {flag(o.name): o.name for o in OPTION.values() if o.flag is not None and 
 #: The parser's defaults (what an option that is not given holds).
 DEFAULTS = {o.name: o.cli.get("default", o.default) for o in OPTION.values() if o.flag is not None}
 
-#: What goes with ``--from``: the output directory, --force, -q.
-RERUN_TAKES = ("out", "force", "quiet", "from_json")
+#: What goes with ``--from``: the output directory, --force, -q, --variant.
+RERUN_TAKES = ("out", "force", "quiet", "from_json", "variant")
 
 #: Options a message names with their value (``--path render``).
 WITH_VALUE = tuple(n for n, o in OPTION.items() if o.kind == "choice") + ("channel",)
@@ -253,6 +255,9 @@ RUN = {"joint": run_joint, "rerun": run_rerun, "colour": run_colour, "single": r
 def run_fit(args):
     """``fmbrdf-mi fit``: the option checks (before any file is read), the mode, its run, the summary."""
     check_args(args)
+    if args.variant:    # a cuda_ variant without a device: one line, before any file is read
+        check_variant(args.variant)
+        set_variant(args.variant)
     command = shlex.join(["fmbrdf-mi", "fit", *args.argv])
     joint = is_joint(args)
     if args.free_power and not joint:

@@ -8,14 +8,23 @@ import dataclasses
 
 import numpy as np
 
-#: Variant in which fits run: monochrome (channels are averaged before the fit), polarised, AD.
-FIT_VARIANT = "llvm_ad_mono_polarized"
+#: Variants in which fits run: monochrome (channels are averaged before the fit), polarised, AD; the CUDA one
+#: evaluates the model on a GPU, the linear algebra stays in NumPy.
+FIT_VARIANTS = ("llvm_ad_mono_polarized", "cuda_ad_mono_polarized")
 
 
 def set_variant(variant=None):
+    """Mitsuba set to ``variant`` (one of :data:`FIT_VARIANTS`) with the plugin registered.  None: the current
+    variant where it is a fit variant (a caller's ``mi.set_variant`` chooses the device), else the LLVM one, or the
+    CUDA one on a machine whose Dr.Jit has a CUDA backend and no LLVM backend."""
+    import drjit as dr
     import mitsuba as mi
 
-    variant = variant or FIT_VARIANT
+    if variant is None:
+        variant = mi.variant()
+        if variant not in FIT_VARIANTS:
+            gpu_only = dr.has_backend(dr.JitBackend.CUDA) and not dr.has_backend(dr.JitBackend.LLVM)
+            variant = FIT_VARIANTS[gpu_only]
     if mi.variant() != variant:
         mi.set_variant(variant)
     import fmbrdf_mi
