@@ -26,9 +26,9 @@ class PowerEvaluator:
 
     def parts(self, shape_values, wrt=()):
         p = self.base.parts(shape_values, wrt)
-        # points pixel-major, the same number per pixel
+        # points pixel-major, the same number per pixel; f: P_k / G_k (1 for the reference image)
         img = np.repeat(np.arange(len(self.counts)), self.counts * (p.surface.shape[1] // int(self.counts.sum())))
-        f = self.factors(shape_values)[img]
+        f = np.array([1.0] + [shape_values[r.name] / self.params.given[r.image] for r in self.params.powers])[img]
         out = Parts(p.surface * f, p.body * f, {n: d * f for n, d in p.d_surface.items()},
                     {n: d * f for n, d in p.d_body.items()}, p.nonfinite)
         for r in self.params.powers:
@@ -37,10 +37,6 @@ class PowerEvaluator:
                 out.d_surface[r.name] = p.surface * on
                 out.d_body[r.name] = p.body * on
         return out
-
-    def factors(self, shape_values):
-        """P_k / G_k for every image (1 for the reference)."""
-        return np.array([1.0] + [shape_values[r.name] / self.params.given[r.image] for r in self.params.powers])
 
 
 class PowerProblem(Problem):
