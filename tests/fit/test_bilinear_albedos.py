@@ -215,7 +215,7 @@ def test_samples_at_their_cells_centres_are_the_one_corner_design():
     bil = PixelAlbedos(own, n, pixels, corner_groups=np.searchsorted(pixels, corners[..., 0] * W + corners[..., 1]),
                        corner_weights=wts, name="per-pixel-bilinear")
     per = PixelAlbedos(own, n, pixels)
-    assert bil.one_corner and not bil.coupled and bil.corner_groups.shape == (n, 4, 1)
+    assert not bil.coupled and bil.corner_groups.shape == (n, 4, 1)
     rng = np.random.default_rng(3)
     S, B = rng.uniform(0.1, 1, (n, 4)), rng.uniform(0.1, 1, (n, 4))
     y, w = rng.uniform(0, 1, (n, 4)), rng.uniform(0.5, 2, (n, 4))

@@ -68,7 +68,7 @@ def test_materials_rows_in_report_and_optimiser_order():
     rep = t.report(values, np.array([0.2, 0.3]), np.array([0.5, 0.6]))
     assert rep == {"eta[0]": 1.4, "alpha[0]": 0.1, "specular_reflectance[0]": 0.2, "diffuse_reflectance[0]": 0.5,
                    "eta[1]": 1.7, "alpha[1]": 0.3, "specular_reflectance[1]": 0.3, "diffuse_reflectance[1]": 0.6}
-    assert t.of(values, 1) == {"eta": 1.7, "alpha": 0.3}
+    assert t.per_material(values)[1] == {"eta": 1.7, "alpha": 0.3}
     assert t.expand({"eta": 1.5, "alpha[1]": 0.2}) == {"eta[0]": 1.5, "eta[1]": 1.5, "alpha[1]": 0.2}
     assert t.per_material(rep) == [{"eta": 1.4, "alpha": 0.1, "specular_reflectance": 0.2, "diffuse_reflectance": 0.5},
                                    {"eta": 1.7, "alpha": 0.3, "specular_reflectance": 0.3, "diffuse_reflectance": 0.6}]

@@ -71,7 +71,6 @@ class SmoothPrior:
 
     def apply(self, x):
         """D x / tau for interleaved unknowns x (2 n_groups,) or (2 n_groups, p)."""
-
         x = np.asarray(x, dtype=np.float64)
         return self.residuals(x[0::2], x[1::2])
 

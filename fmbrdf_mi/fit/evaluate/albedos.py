@@ -73,7 +73,6 @@ class AlbedoLayout:
     non-negative: clipping poorly determined ones at 0 biases the shape.
     """
 
-
     #: Monte Carlo draws of the coupled :meth:`incidental`: [1] / pairs, clipped to [[0], [2]] (a draw's
     #: relative spread on C's diagonal falls as 1 / sqrt(pairs)).
     INCIDENTAL_DRAWS = (8, 60000, 512)
@@ -93,25 +92,24 @@ class AlbedoLayout:
                                                        for a in (self.corner_groups, self.corner_weights))
         self.labels = None if labels is None else tuple(labels)
         self.prior = prior
-        self.one_corner = self.corner_groups.shape[-1] == 1 and bool(np.all(self.corner_weights == 1.0))
-        self._single = np.ascontiguousarray(self.corner_groups[..., 0]) if self.one_corner else None
-        #: G banded (True) or block diagonal
-        self.coupled = not self.one_corner or prior is not None
+        #: G banded (True) or block diagonal (one corner of weight 1, no prior)
+        self.coupled = (prior is not None or self.corner_groups.shape[-1] > 1
+                        or not bool(np.all(self.corner_weights == 1.0)))
         lo, k, hi = self.INCIDENTAL_DRAWS
         self.incidental_draws = int(np.clip(np.ceil(k / max(self.n_groups, 1)), lo, hi))
+        #: why :meth:`incidental` gives None (with the prior), else None
+        self.incidental_reason = None if prior is None else (
+            "the incidental-parameter sandwich is not computed with the albedo smoothness prior (the posterior "
+            "covariance of the penalised likelihood is reported)")
         self._factor = None             # (key columns, factor of G) at the last columns
         self._incidental_last = None
 
-    def interpolate(self, a):
-        """Each sample's sum_c w_c a[g_c] of the per-group ``a``."""
-        a = np.asarray(a, dtype=np.float64)
-        if self.one_corner:
-            return a[self._single]
-        return np.einsum("...c,...c->...", self.corner_weights, a[self.corner_groups])
-
     def mu(self, S, B, a_s, a_b):
-        """(cells, n) predictions A a from the unit-albedo intensities S, B (cells, n)."""
-        return self.interpolate(a_s) * S + self.interpolate(a_b) * B
+        """(cells, n) predictions A a from the unit-albedo intensities S, B (cells, n): each sample's albedos
+        sum_c w_c a[g_c]."""
+        s, b = (np.einsum("...c,...c->...", self.corner_weights, np.asarray(a, float)[self.corner_groups])
+                for a in (a_s, a_b))
+        return s * S + b * B
 
     def design(self, us, ub):
         """A as (columns (N, 2c), values (N, 2c)) from the unit-albedo columns ``us``, ``ub`` (N,); a_s[g] is
@@ -211,20 +209,10 @@ class AlbedoLayout:
         return float(np.sum(Z[:, 0] * band[:, 0]) + 2.0 * np.sum(Z[:, 1:] * band[:, 1:]))
 
     @property
-    def incidental_reason(self):
-        """Why :meth:`incidental` gives None (with the prior), else None."""
-        if self.prior is not None:
-            return ("the incidental-parameter sandwich is not computed with the albedo smoothness prior (the "
-                    "posterior covariance of the penalised likelihood is reported)")
-        return None
-
-    @property
     def incidental_method(self):
         """How C is computed, for the uncertainty method (coupled pairs), else None."""
         if self.coupled and self.prior is None:
-            return (f"C estimated by Monte Carlo over {self.incidental_draws} noise draws (the albedo pairs are "
-                    "coupled)")
-        return None
+            return f"C estimated by Monte Carlo over {self.incidental_draws} noise draws (the albedo pairs are coupled)"
 
     def incidental(self, us, ub, dcols, draws=None, seed=0):
         """The incidental-parameter term C_jk = tr(G^-1 A_j^T (I - P) A_k) (p, p) in Kaufman's information (J^T J
@@ -297,7 +285,6 @@ class PixelAlbedos(AlbedoLayout):
     def maps(self, a_s, a_b, cov, factor, split_rel):
         """The maps (n_groups,): ``k_s``, ``k_b`` (``factor`` x albedo), their ``_se`` from ``cov``
         (:meth:`~AlbedoLayout.covariance`), ``correlation``, ``identified`` (both SE <= ``split_rel`` x albedo)."""
-
         f = float(factor)
         a_s, a_b = np.asarray(a_s, float), np.asarray(a_b, float)
         se_s, se_b = np.sqrt(np.clip(cov[:, 0, 0], 0, None)), np.sqrt(np.clip(cov[:, 1, 1], 0, None))

@@ -55,17 +55,11 @@ def bilinear_weights(rows, cols, offsets, present):
 
 
 def stack_rows(A, R):
-    """The design A with the rows R appended, the narrower padded with zero values."""
+    """The design A with the rows R (no wider) appended, R padded with zero values."""
     (ca, va), (cr, vr) = A, R
-    c = max(ca.shape[1], cr.shape[1])
-
-    def pad(cols, vals):
-        k = c - cols.shape[1]
-        return (np.concatenate([cols, np.repeat(cols[:, :1], k, 1)], 1),
-                np.concatenate([vals, np.zeros((len(vals), k))], 1))
-
-    (ca, va), (cr, vr) = pad(ca, va), pad(cr, vr)
-    return np.concatenate([ca, cr]), np.concatenate([va, vr])
+    k = ca.shape[1] - cr.shape[1]
+    return (np.concatenate([ca, np.concatenate([cr, np.repeat(cr[:, :1], k, 1)], 1)]),
+            np.concatenate([va, np.concatenate([vr, np.zeros((len(vr), k))], 1)]))
 
 
 def normal_band(A, n):
@@ -164,7 +158,6 @@ class BandCholesky:
         out = np.zeros((self.n, bw + 1))
 
         def fill(k, strip, c0):     # block k's rows of the band from Z's strip at column c0
-
             rows = np.arange(e[k], e[k + 1])
             for d in range(bw + 1):
                 j = rows - d

@@ -36,41 +36,39 @@ def check_labels(labels, shape, what="materials"):
     return lab
 
 
-def material_count(labels, what="materials"):
-    """M: the largest label + 1 of a checked label image; InputError when no pixel has a label >= 0."""
-    top = int(labels.max()) if labels.size else -1
-    if top < 0:
-        raise InputError(f"{what}: no pixel has a label >= 0 (0 .. M-1 are the materials)")
-    return top + 1
+class CachedParts:
+    """``evaluator``'s :class:`Parts` at the shape values ``names``, evaluated again only when they change or
+    derivatives not held are asked for."""
+
+    def __init__(self, evaluator, names):
+        self.evaluator, self.names, self.last = evaluator, tuple(names), None   # last: (key, wrt, Parts)
+
+    def parts(self, values, wrt=()):
+        key = tuple(round(float(values[n]), 12) for n in self.names)
+        wrt = tuple(n for n in wrt if n in self.names)
+        if self.last is None or self.last[0] != key or not set(wrt) <= set(self.last[1]):
+            self.last = (key, wrt, self.evaluator.parts({n: values[n] for n in self.names}, wrt))
+        return self.last[2]
 
 
 class MaterialEvaluator:
     """:class:`Parts` of all points from one evaluator per material (``columns``: each one's points); an
     unchanged material is not evaluated again."""
 
-
     def __init__(self, params, evaluators, columns, n_points):
         self.params = params
-        self.evaluators = list(evaluators)
+        self.evaluators = [CachedParts(ev, params.model.shape_names) for ev in evaluators]
         self.columns = [np.asarray(c, dtype=np.int64) for c in columns]
         self.n_points = int(n_points)
-        self._cache = [None] * len(self.evaluators)   # (shape key, wrt, Parts) per material
-
-    def _material_parts(self, m, values, wrt):
-        key = tuple(round(float(values[n]), 12) for n in self.params.model.shape_names)
-        c = self._cache[m]
-        if c is None or c[0] != key or not set(wrt) <= set(c[1]):
-            c = self._cache[m] = (key, tuple(wrt), self.evaluators[m].parts(values, tuple(wrt)))
-        return c[2]
 
     def parts(self, shape_values, wrt=()):
         N = self.n_points
         surface, body = np.zeros((3, N)), np.zeros((3, N))
         d_s, d_b, bad = {}, {}, None
-        for m, cols in enumerate(self.columns):
+        for m, (cols, values) in enumerate(zip(self.columns, self.params.per_material(shape_values))):
             rows = [r for r in self.params.shape if r.material == m and r.name in wrt]
             sub_wrt = [r.base for r in rows]
-            p = self._material_parts(m, self.params.of(shape_values, m), sub_wrt)
+            p = self.evaluators[m].parts(values, sub_wrt)
             surface[:, cols], body[:, cols] = p.surface, p.body
             for r in rows:
                 ds, db = np.zeros((3, N)), np.zeros((3, N))

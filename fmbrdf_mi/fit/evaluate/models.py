@@ -29,8 +29,8 @@ class Model:
     shape: tuple            # Param rows of kind shape (shape_param)
     surface_key: str        # traverse key of the surface albedo
     body_key: str           # traverse key of the body albedo
-    albedo_factor: float    # reported albedo = factor * BSDF albedo
     base_dict: dict         # BSDF dict with placeholders filled by bsdf_dict()
+    albedo_factor: float = 1.0  # reported albedo = factor * BSDF albedo
     surface_name: str = "k_s"   # reported name of the surface albedo
     body_name: str = "k_b"      # ... of the body albedo (or of k_b / k_s: ``body_ratio``)
     body_ratio: bool = False    # the body albedo is reported as its ratio to the surface's
@@ -68,7 +68,6 @@ FMBRDF = Model(
     ),
     surface_key="k_s.value",
     body_key="k_b.value",
-    albedo_factor=1.0,
     # float32 tables: residuals and derivatives smooth in the parameters (the compact ones round)
     base_dict={"type": "fmbrdf", "eta": "$eta", "alpha": "$alpha", "beta": "$beta",
                "kappa": "$kappa", "k_s": 1.0, "k_b": 1.0, "tables": "float32"},
@@ -86,7 +85,6 @@ PPLASTIC = Model(
     ),
     surface_key="specular_reflectance.value",
     body_key="diffuse_reflectance.value",
-    albedo_factor=1.0,
     base_dict={"type": "pplastic", "eta": "$eta", "alpha": "$alpha", "distribution": "ggx",
                "specular_reflectance": 1.0, "diffuse_reflectance": 1.0},
     surface_name="specular_reflectance",
@@ -108,7 +106,6 @@ LAMBERT_TS = Model(
                "bsdf_0": {"type": "diffuse", "reflectance": 1.0},
                "bsdf_1": {"type": "roughconductor", "distribution": "beckmann", "alpha": "$alpha",
                           "eta": "$eta", "k": 0.0, "specular_reflectance": 1.0}},
-    surface_name="k_s",
     body_name="k_d",
 )
 
@@ -128,7 +125,6 @@ OREN_NAYAR_TS = Model(
                "bsdf_0": {"type": "orennayar", "form": "qualitative", "sigma": "$sigma", "reflectance": 1.0},
                "bsdf_1": {"type": "roughconductor", "distribution": "beckmann", "alpha": "$alpha",
                           "eta": "$eta", "k": 0.0, "specular_reflectance": 1.0}},
-    surface_name="k_s",
     body_name="k_d",
 )
 

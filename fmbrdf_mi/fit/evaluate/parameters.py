@@ -156,10 +156,6 @@ class Parameters:
             a_s, a_b = np.full(self.count, a_s), np.full(self.count, a_b)
         return shape, a_s, a_b
 
-    def of(self, values, m):
-        """Material ``m``'s shape values under the model's names."""
-        return {r.base: values[r.name] for r in self.shape if r.kind == "shape" and r.material == m}
-
     def expand(self, values):
         """{name: v} of the model's shape names -> the same for every material (``eta[1]`` kept as is)."""
         if not values or self.count is None:

@@ -12,15 +12,11 @@ import numpy as np
 from fmbrdf_mi.fit.evaluate.models import State
 from fmbrdf_mi.fit.objectives.objective import PaperObjective
 
-#: Loss names a fit accepts: the polarimetric ones and the two variants.
-VARIANTS = ("intensity", "dolp")
-
-
 class _Rows(PaperObjective):
     """A loss that is r' . r' of a linear map r' = :meth:`rows` (r) of :class:`PaperObjective`'s residuals r."""
 
     def residuals(self, parts, st, w=None):
-        return self.rows(super().residuals(parts, st, self.w if w is None else w))
+        return self.rows(super().residuals(parts, st, w))
 
     def residuals_and_jacobian(self, parts, st, z, names, bounds):
         r, J, bad = super().residuals_and_jacobian(parts, st, z, names, bounds)
@@ -36,7 +32,6 @@ class IntensityObjective(_Rows):
     name = "intensity"
 
     def refresh(self, parts, st):
-
         pass
 
     def settled(self, old, parts, st, **_):
@@ -84,6 +79,5 @@ class DolpObjective(_Rows):
         return c, c * t
 
 
-def make(name, target):
-    """The objective for loss ``name`` ('intensity' or 'dolp') on a :class:`~fmbrdf_mi.fit.objectives.loss.Target`."""
-    return {"intensity": IntensityObjective, "dolp": DolpObjective}[name](target)
+#: The loss variants a fit accepts beside ``likelihood`` and ``paper``, by name.
+VARIANTS = {c.name: c for c in (IntensityObjective, DolpObjective)}

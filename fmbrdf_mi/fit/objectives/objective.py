@@ -80,8 +80,7 @@ class PaperObjective:
         return {"intensity": float(r[:m] @ r[:m]), "dolp": float(r[m:] @ r[m:])}
 
     def row_pixels(self, n_rows):
-        n = len(self.target.intensity)
-        return np.arange(n_rows) % n
+        return np.arange(n_rows) % len(self.target.intensity)
 
     def residuals_and_jacobian(self, parts, st, z, names, bounds):
         """r (m,) and dr/dz (m, k + 2)."""
@@ -191,8 +190,7 @@ class LikelihoodObjective:
 
     def nll(self, parts, st):
         """Negative log-likelihood (up to a constant) with the variance from this prediction."""
-        out = 0.5 * float(np.sum(self.nll_terms(parts, st)))
-        return out if self.prior is None else out + 0.5 * self.penalty(st)
+        return 0.5 * float(np.sum(self.nll_terms(parts, st))) + 0.5 * self.penalty(st)
 
     def score(self, parts, st):
         return self.nll(parts, st)
@@ -254,6 +252,5 @@ class LikelihoodObjective:
 
     def albedo_column_derivatives(self, parts, z, names, bounds):
         """[(d us / d z_j, d ub / d z_j)] of :meth:`albedo_columns` per free shape parameter."""
-
         return [tuple(self._white(self.samples_of(d[n])) * bounds.derivative(n, z[j])
                       for d in (parts.d_surface, parts.d_body)) for j, n in enumerate(names)]

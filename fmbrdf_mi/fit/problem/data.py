@@ -14,12 +14,11 @@ from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS, bilinear_
 from fmbrdf_mi.sensor import samples as SM
 from fmbrdf_mi.sensor.mosaic import COLOURS
 from fmbrdf_mi.sensor.noise import NoiseModel
-from fmbrdf_mi.fit.evaluate.materials import MIN_MATERIAL_PIXELS, MaterialEvaluator, check_labels, material_count
+from fmbrdf_mi.fit.evaluate.materials import MIN_MATERIAL_PIXELS, MaterialEvaluator, check_labels
 from fmbrdf_mi.fit.evaluate.models import get_model
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import Directions, PixelEvaluator
-from fmbrdf_mi.fit.inputs.observations import erode as erode_mask
-from fmbrdf_mi.fit.inputs.observations import validate
+from fmbrdf_mi.fit.inputs.observations import erode as erode_mask, validate
 from fmbrdf_mi.fit.objectives import loss as L
 from fmbrdf_mi.fit.objectives import loss_variants as LV
 from fmbrdf_mi.fit.objectives.objective import LikelihoodObjective, PaperObjective
@@ -90,7 +89,7 @@ def resolve_loss(obs, opts):
     if opts.loss == "auto":
         ok = opts.path == "pixel" and opts.optimizer == "lm"
         return "likelihood" if (ok and obs.noise is not None and obs.noise.known) else "paper"
-    if opts.loss not in ("likelihood", "paper") + LV.VARIANTS:
+    if opts.loss not in ("likelihood", "paper", *LV.VARIANTS):
         raise InputError(f"loss: expected 'likelihood', 'paper', 'intensity', 'dolp' or 'auto', got {opts.loss!r}")
     return opts.loss
 
@@ -189,7 +188,9 @@ def material_labels(observations, materials, loss, opts, evaluator=None):
     if opts.path != "pixel":
         raise InputError("materials: works on the pixel path (one evaluator per material), not the render path")
     lab = check_labels(materials, o0.shape)
-    count = material_count(lab)
+    count = int(lab.max(initial=-1)) + 1
+    if not count:
+        raise InputError("materials: no pixel has a label >= 0 (0 .. M-1 are the materials)")
     if count > 1 and evaluator is not None:
         raise InputError("materials: the fit builds one evaluator per material; give no evaluator")
     if count > 1 and opts.free_power:
@@ -197,29 +198,24 @@ def material_labels(observations, materials, loss, opts, evaluator=None):
     return lab, count
 
 
-def material_evaluators(model, count, cell_material, normals, views, lights, irr, weights):
-    """A :class:`~fmbrdf_mi.fit.evaluate.materials.MaterialEvaluator` of one evaluator per material."""
-    cells = len(cell_material)
-    dirs = len(normals) // cells
-    outs = dirs // (1 if weights is None else len(weights))
-    irr = np.broadcast_to(np.asarray(irr, dtype=np.float64), (len(normals),))
-    lights = np.broadcast_to(lights, normals.shape)
-    evs, cols = [], []
-    for m in range(count):
-        c = np.flatnonzero(cell_material == m)
-        rows = (c[:, None] * dirs + np.arange(dirs)).ravel()
-        cols.append((c[:, None] * outs + np.arange(outs)).ravel())
-        i = irr[rows]
-        evs.append(PixelEvaluator(model, normals[rows], views[rows], lights[rows],
-                                  float(i[0]) if np.allclose(i, i[0]) else i, weights=weights))
-    return MaterialEvaluator(Parameters(model, materials=count), evs, cols, cells * outs)
+def pixel_evaluator(model, geo):
+    """The :class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator` of ``geo`` ((observation, pixels,
+    footprint) per image) with one light and irradiance when the images share them (no per-direction copies)."""
+    directions, counts, weights = Directions.of_images(geo)
+    obs = [o for o, _, _ in geo]
+    irr_img = np.array([float(o.irradiance) for o in obs])
+    irr = (float(irr_img[0]) if np.allclose(irr_img, irr_img[0]) else
+           np.concatenate([np.full(c, o.irradiance) for o, c in zip(obs, counts)]))
+    same_light = all(np.array_equal(o.light_dir, obs[0].light_dir) for o in obs)
+    lights = (np.asarray(obs[0].light_dir, dtype=np.float64) if same_light else
+              np.concatenate([np.tile(o.light_dir, (c, 1)) for o, c in zip(obs, counts)]))
+    return PixelEvaluator(model, directions, None, lights, irr, weights=weights)
 
 
 def prepare(observations, opts, loss, *, single=False, evaluator=None, materials=None, only=None):
     """The :class:`~fmbrdf_mi.fit.problem.problem.FitData` of K >= 1 images; ``single``: messages name no
     image; ``materials``: a label image (< 0: not fitted); ``only``: per image, the selected pixels to keep."""
-
-    K = len(observations)
+    K, model = len(observations), get_model(opts.model)
     check_max_pixels(opts.max_pixels, K)
     lab = count = keep = None
     if materials is not None and opts.albedo_smooth is not None:
@@ -286,7 +282,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
             if lab is not None and opts.albedo == "per-pixel-bilinear":
                 raise InputError("materials: not with albedo per-pixel-bilinear yet (use albedo per-pixel)")
             layout = pixel_layout(observations, idxs, smps[0], bilinear=opts.albedo == "per-pixel-bilinear",
-                                  smooth=opts.albedo_smooth, factor=get_model(opts.model).albedo_factor)
+                                  smooth=opts.albedo_smooth, factor=model.albedo_factor)
         elif lab is not None:
             layout = GroupAlbedos("per-material", np.repeat(cell_material[:, None], smps[0].n, axis=1),
                                   [str(m) for m in range(count)])
@@ -309,7 +305,7 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
             raise InputError("joint fit: the camera noise is known for some images and not for others")
         target = L.Target.from_stokes(np.concatenate(stokes, axis=1), opts.dolp_min_intensity,
                                       None if var[0] is None else np.concatenate(var))
-        objective = PaperObjective(target) if loss == "paper" else LV.make(loss, target)
+        objective = PaperObjective(target) if loss == "paper" else LV.VARIANTS[loss](target)
         # demosaicked neighbours are correlated: stack the grids apart so no two images neighbour
         if all(o.samples is not None and o.samples.source == "raw mosaic" and o.meta.get("demosaic") != "superpixel"
                for o in observations):
@@ -321,24 +317,16 @@ def prepare(observations, opts, loss, *, single=False, evaluator=None, materials
                 off += o.shape[0] + 2
             objective.grid = (np.concatenate(rows), np.concatenate(cols))
         smp = None
-    directions, counts, weights = Directions.of_images(geo)
-    # one light and irradiance when the images share them (no per-direction copies)
-    irr_img = np.array([float(o.irradiance) for o in observations])
-    irr = (float(irr_img[0]) if np.allclose(irr_img, irr_img[0]) else
-           np.concatenate([np.full(c, o.irradiance) for o, c in zip(observations, counts)]))
-    same_light = all(np.array_equal(o.light_dir, observations[0].light_dir) for o in observations)
-    lights = (np.asarray(observations[0].light_dir, dtype=np.float64) if same_light else
-              np.concatenate([np.tile(o.light_dir, (c, 1)) for o, c in zip(observations, counts)]))
     own, mat = evaluator is None, None      # own: the evaluator is made here (a subsample makes its own)
-    if lab is not None:
-        normals, views = (np.concatenate(c) for c in zip(*directions.pieces()))
-        evaluator = material_evaluators(get_model(opts.model), count, cell_material, normals, views, lights, irr,
-                                        weights)
-        del normals, views
+    if lab is not None:     # one evaluator per material, of its cells' points
+        evs = [pixel_evaluator(model, [(o, i[lab.ravel()[i] == m], fp) for o, i, fp in geo]) for m in range(count)]
+        outs = evs[0].n // int(np.sum(cell_material == 0))      # outputs per cell
+        cols = [(np.flatnonzero(cell_material == m)[:, None] * outs + np.arange(outs)).ravel() for m in range(count)]
+        evaluator = MaterialEvaluator(Parameters(model, materials=count), evs, cols, len(cell_material) * outs)
         mat = {"labels": lab, "count": count, "cell_material": cell_material,
                "pixels": np.bincount(cell_material, minlength=count).tolist()}
     elif evaluator is None:
-        evaluator = PixelEvaluator(get_model(opts.model), directions, None, lights, irr, weights=weights)
+        evaluator = pixel_evaluator(model, geo)
     flat_idx = np.concatenate(idxs)
 
     def remake(m_new, cells=None):

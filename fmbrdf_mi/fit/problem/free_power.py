@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from fmbrdf_mi.fit.evaluate.materials import CachedParts
 from fmbrdf_mi.fit.evaluate.models import State
 from fmbrdf_mi.fit.evaluate.parameters import Parameters
 from fmbrdf_mi.fit.evaluate.pixel_model import Parts
@@ -20,24 +21,14 @@ class PowerEvaluator:
     """An evaluator's parts with image k's points scaled by P_k / G_k, and d/dP_k analytically (linear)."""
 
     def __init__(self, base, params, pixels_per_image):
-        self.base, self.params = base, params
+        self.base, self.params = CachedParts(base, params.model.shape_names), params
         self.counts = np.asarray(pixels_per_image, int)
-        self._cache = None   # (shape key, wrt, Parts) of the last BSDF evaluation
-
-    def base_parts(self, shape_values, wrt=()):
-        names = self.params.model.shape_names
-        key = tuple(round(float(shape_values[n]), 12) for n in names)
-        wrt = tuple(n for n in wrt if n in names)
-        c = self._cache
-        if c is None or c[0] != key or not set(wrt) <= set(c[1]):
-            c = self._cache = (key, wrt, self.base.parts({n: shape_values[n] for n in names}, wrt))
-        return c[2]
 
     def parts(self, shape_values, wrt=()):
-        p = self.base_parts(shape_values, wrt)
-        # points pixel-major, the same number per pixel
+        p = self.base.parts(shape_values, wrt)
+        # points pixel-major, the same number per pixel; f: P_k / G_k (1 for the reference image)
         img = np.repeat(np.arange(len(self.counts)), self.counts * (p.surface.shape[1] // int(self.counts.sum())))
-        f = self.factors(shape_values)[img]
+        f = np.array([1.0] + [shape_values[r.name] / self.params.given[r.image] for r in self.params.powers])[img]
         out = Parts(p.surface * f, p.body * f, {n: d * f for n, d in p.d_surface.items()},
                     {n: d * f for n, d in p.d_body.items()}, p.nonfinite)
         for r in self.params.powers:
@@ -46,10 +37,6 @@ class PowerEvaluator:
                 out.d_surface[r.name] = p.surface * on
                 out.d_body[r.name] = p.body * on
         return out
-
-    def factors(self, shape_values):
-        """P_k / G_k for every image (1 for the reference)."""
-        return np.array([1.0] + [shape_values[r.name] / self.params.given[r.image] for r in self.params.powers])
 
 
 class PowerProblem(Problem):
@@ -85,7 +72,7 @@ class PowerProblem(Problem):
     def closed_form(self, shape, jac=False):
         if self.start != "ratio":
             return super().closed_form(shape, jac)
-        base = self.ev.base_parts(shape)
+        base = self.ev.base.parts(shape)
         shape = dict(shape)
         for _ in range(30):   # block coordinate descent of one weighted least-squares criterion
             parts = self.ev.parts(shape)
@@ -103,7 +90,7 @@ class PowerProblem(Problem):
         """A start given as parameters (``init``): powers in closed form at those albedos (``ratio``)."""
         st = super().state(shape, a_s, a_b)
         if self.start == "ratio":
-            st.shape.update(self.closed_form_powers(st.shape, a_s, a_b, self.ev.base_parts(st.shape)))
+            st.shape.update(self.closed_form_powers(st.shape, a_s, a_b, self.ev.base.parts(st.shape)))
         return st
 
 
@@ -121,10 +108,7 @@ def problem_factory(evaluator, pixel_slices, start="ratio"):
 
 def split_result(res, params, names):
     """Move the powers out of a fit's params / std_errors; returns the ``powers`` block of fit.json."""
-
-    unc = res.uncertainty or {}
-    ci = unc.get("ci95", {})
-    given = params.given
+    ci, given = (res.uncertainty or {}).get("ci95", {}), params.given
     values, ses, cis = [given[0]], [0.0], [[given[0], given[0]]]
     for n in (r.name for r in params.powers):
         values.append(float(res.params.pop(n)))

@@ -23,7 +23,6 @@ class Problem:
     """A parameter table, an evaluator at the fitted pixels, the objective, the bounds, the clock; ``names``:
     the free shape parameters, ``deadline``: ``time.time()`` after which no model evaluation may end."""
 
-
     def __init__(self, params, evaluator, objective, progress=None, deadline=None, cell_material=None):
         self.params = params if isinstance(params, Parameters) else Parameters(params)
         self.model, self.ev = self.params.model, evaluator
@@ -186,7 +185,6 @@ class FitData:
             return self.make_problem(model, self.evaluator, self.objective, bounds, progress, fixed, deadline)
         layout, mat = self.objective.layout, self.materials or {}
         maps = isinstance(layout, PixelAlbedos)
-
         params = Parameters(model, materials=mat.get("count"), maps=maps, bounds=bounds, fixed=fixed,
                             channels=None if layout is None or maps or mat else layout.labels)
         return Problem(params, self.evaluator, self.objective, progress, deadline, mat.get("cell_material"))
