@@ -71,18 +71,13 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         raise InputError("normal refinement: fewer than 2 usable pixels in the mask")
     mdl = get_model(model)
     jp = NormalProblem(obs, m, Parameters(mdl, bounds=bounds, fixed=fixed), lam, prior)
-    shape, a_s, a_b = jp.params.split(params)
-    st = jp.state(shape, a_s, a_b)
+    st = jp.state(*jp.params.split(params))
     norm = np.linalg.norm(n_map, axis=-1, keepdims=True)
-    nmap = (n_map / np.where(norm > 0, norm, 1.0)).reshape(-1, 3)   # flat; the refined pixels change
-    jp.nmap = nmap
-    t0 = time.time()
-    history = []
-    last = {}
+    jp.nmap = nmap = (n_map / np.where(norm > 0, norm, 1.0)).reshape(-1, 3)   # flat; the refined pixels change
+    t0, history, last = time.time(), [], {}
     staged = lam_material is not None and lam_material < lam
     n_rounds = refreshes + 1 + int(staged)     # IRLS rounds, then the material's
-    round_times = []
-    pattern = {}    # H_nn's sparsity pattern, the same at every linearisation (NormalBlock)
+    round_times, pattern = [], {}    # pattern: H_nn's sparsity, the same at every linearisation (NormalBlock)
 
     def system(r, Jm, Jn, t, n):    # the normal equations' blocks: data, then the prior's gradient
         Hmm, Hmn, gm, gn = NS.data_products(Jn[0], Jn[1], Jm, r, jp.n)
@@ -103,13 +98,11 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         return False
 
     def linearise(x):
-        st, nmap = x[0], x[1]
-        t_lin = time.time()
-        r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
+        t_lin, n = time.time(), x[1][jp.idx]
+        r, Jm, Jn, t, z = jp.linearise(x[0], x[1], h)
         if not history:     # the first step's wait: a linearisation, then solves and trial energies
             say(f"[joint-normals] linearised {jp.n} pixels x {jp.K} images in {time.time() - t_lin:.1f} s; "
                 f"solving for the first step ({time.time() - t0:.1f} s)")
-        n = nmap[jp.idx]
         return (system(r, Jm, Jn, t, n), Jn, t, z, n, {})
 
     def solve(lin, mu):
@@ -181,15 +174,13 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     unc = {"std_errors": {}, "method": "not computed: the refinement did not converge"}
     if converged:
         say(f"[joint-normals] the material's covariance: one linearisation and two solves ({time.time() - t0:.1f} s)")
-        r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
-        Hmm, Hmn, gm, gn = system(r, Jm, Jn, t, nmap[jp.idx])
-        C = NS.material_covariance(Hmm, Hmn, block(Jn, t), Jm)
-        w, V = np.linalg.eigh(C)
+        r, Jm, Jn, t, _ = jp.linearise(st, nmap, h)
+        Hmm, Hmn, _, _ = NS.data_products(Jn[0], Jn[1], Jm, r, jp.n)
+        w, V = np.linalg.eigh(NS.material_covariance(Hmm, Hmn, block(Jn, t), Jm))
         # a p x p "Jacobian" L^T with (L L^T)^-1 = C, so that the fit's summary applies unchanged
         L = V / np.sqrt(np.clip(w, 1e-300, None))
-        chi2 = float(r @ r)
         n_ind = jp.K * jp.n * jp.obj.dof - 2 * jp.n   # the normals' unknowns take their share of the dof
-        unc = U.summarise(jp, st, L.T, np.array([math.sqrt(chi2)]), n_ind)
+        unc = U.summary(jp, st, U.covariance(jp, st, L.T, np.array([math.sqrt(float(r @ r))]), n_ind))
         unc["method"] = unc.get("method", "") + ("; sandwich of the penalised likelihood with the normals free "
                                                  "(the prior not counted as information)")
         if stage is not None:
