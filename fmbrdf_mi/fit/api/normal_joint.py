@@ -59,7 +59,6 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     first mask eroded by 1, less clipped super-pixels); ``refreshes``: IRLS rounds; ``lam_material``: the
     material's smoothness weight (None: ``lam``).  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with
     ``normals`` and ``mask``; ``loss_terms``: data (chi^2) and prior at ``lam``."""
-
     say = progress or (lambda msg: None)
     obs = list(observations)
     n_map = check_views(obs, normals)
@@ -79,10 +78,6 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     n_rounds = refreshes + 1 + int(staged)     # IRLS rounds, then the material's
     round_times, pattern = [], {}    # pattern: H_nn's sparsity, the same at every linearisation (NormalBlock)
 
-    def system(r, Jm, Jn, t, n):    # the normal equations' blocks: data, then the prior's gradient
-        Hmm, Hmn, gm, gn = NS.data_products(Jn[0], Jn[1], Jm, r, jp.n)
-        return Hmm, Hmn, gm, jp.prior_gradient(gn, t, n)
-
     def block(Jn, t, mu=0.0):
         return NS.NormalBlock(Jn[0], Jn[1], jp.stencils, jp.coef, t[0], t[1], jp.w_prior, mu, cache=pattern)
 
@@ -95,7 +90,6 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         last.update(ed=ed, ep=ep)
         say(f"[joint-normals] round {rnd}: energy {ed + ep:.6e} (data {ed:.6e}, prior {ep:.6e}), {jp.n} pixels, "
             f"variances {'from the data' if rnd == 0 else 'from the model'} ({time.time() - t0:.1f} s)")
-        return False
 
     def linearise(x):
         t_lin, n = time.time(), x[1][jp.idx]
@@ -103,7 +97,8 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         if not history:     # the first step's wait: a linearisation, then solves and trial energies
             say(f"[joint-normals] linearised {jp.n} pixels x {jp.K} images in {time.time() - t_lin:.1f} s; "
                 f"solving for the first step ({time.time() - t0:.1f} s)")
-        return (system(r, Jm, Jn, t, n), Jn, t, z, n, {})
+        Hmm, Hmn, gm, gn = NS.data_products(Jn[0], Jn[1], Jm, r, jp.n)    # the data's, then the prior's gradient
+        return ((Hmm, Hmn, gm, jp.prior_gradient(gn, t, n)), Jn, t, z, n, {})
 
     def solve(lin, mu):
         (Hmm, Hmn, gm, gn), Jn, t, _, _, cache = lin
