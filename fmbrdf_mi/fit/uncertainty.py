@@ -209,7 +209,6 @@ def incidental(problem, st, J, names, Hi, scale, parts=None):
 def paper_sandwich(problem, Jt, r, Hi):
     """(cov, applied): the paper's loss's sandwich H^-1 M H^-1 from leave-N(a)-out residuals (cluster
     jackknife "CR3"), N(a) pixel a or, demosaicked, its 3 x 3 neighbours."""
-
     row_pix, grid = np.asarray(problem.obj.row_pixels(len(r))), problem.obj.grid
     npx = int(row_pix.max()) + 1
     order = np.argsort(row_pix, kind="stable")
@@ -579,7 +578,6 @@ def other_optima(starts, params, unc, names):
 def widen_for_optima(unc, params, optima, lims=None):
     """Widen each 95 % interval to cover the same half-widths around each competing optimum, cut at ``lims``;
     returns the names widened."""
-
     comp, ci, before = [o for o in optima if o["competing"]], unc.get("ci95") or {}, {}
     for n in [n for n in ci if comp and all(n in o["params"] for o in comp)]:
         (lo, hi), v = ci[n], params[n]

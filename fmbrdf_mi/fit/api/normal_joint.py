@@ -73,22 +73,27 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     st = jp.state(*jp.params.split(params))
     norm = np.linalg.norm(n_map, axis=-1, keepdims=True)
     jp.nmap = nmap = (n_map / np.where(norm > 0, norm, 1.0)).reshape(-1, 3)   # flat; the refined pixels change
-    t0, history, last = time.time(), [], {}
-    staged = lam_material is not None and lam_material < lam
-    n_rounds = refreshes + 1 + int(staged)     # IRLS rounds, then the material's
+    t0, history, last, kept = time.time(), [], {}, {}
+    n_rounds = refreshes + 1 + int(lam_material is not None and lam_material < lam)   # IRLS, then the material's
     round_times, pattern = [], {}    # pattern: H_nn's sparsity, the same at every linearisation (NormalBlock)
 
     def block(Jn, t, mu=0.0):
         return NS.NormalBlock(Jn[0], Jn[1], jp.stencils, jp.coef, t[0], t[1], jp.w_prior, mu, cache=pattern)
 
-    def before(x, rnd):     # from the second round: variances and the prior's scale from the model
-        st, nmap = x
-        if rnd:
+    def before(x, rnd):     # rounds 1 .. refreshes: variances and the prior's scale from the model; the last
+        st, nmap = x        # round, if staged, the material's: the prior weakened, the refinement's end kept
+        if rnd > refreshes:
+            kept.update(last, normals=nmap)
+            jp.lam = float(lam_material)
+        elif rnd:
             jp.obj.refresh(jp.parts_at(st, nmap), st)
+        if rnd:
             jp.set_scale()
         ed, ep, _ = jp.energy(st, nmap)
         last.update(ed=ed, ep=ep)
-        say(f"[joint-normals] round {rnd}: energy {ed + ep:.6e} (data {ed:.6e}, prior {ep:.6e}), {jp.n} pixels, "
+        say(f"[joint-normals] material: prior weakened to lam {lam_material:g}, energy {ed + ep:.6e} "
+            f"({time.time() - t0:.1f} s)" if rnd > refreshes else
+            f"[joint-normals] round {rnd}: energy {ed + ep:.6e} (data {ed:.6e}, prior {ep:.6e}), {jp.n} pixels, "
             f"variances {'from the data' if rnd == 0 else 'from the model'} ({time.time() - t0:.1f} s)")
 
     def linearise(x):
@@ -153,19 +158,11 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         last.update(f=res.f, ed=ed, ep=ep, reason=res.describe("energy", "0.01", max_iter, time_limit))
         return (st, nmap), res.converged
 
-    (st, nmap), converged, _, _ = LM.reweighted((st, nmap), minimise, rounds=refreshes + 1, before=before)
-    f, ed, ep, reason = last["f"], last["ed"], last["ep"], last["reason"]
-    n_out, stage = nmap, None
-    if converged and staged:
-        jp.lam = float(lam_material)
-        jp.set_scale()
-        ed_m, ep_m, _ = jp.energy(st, nmap)
-        last.update(ed=ed_m, ep=ep_m)
-        say(f"[joint-normals] material: prior weakened to lam {lam_material:g}, energy {ed_m + ep_m:.6e} "
-            f"({time.time() - t0:.1f} s)")
-        (st, nmap), converged = minimise((st, nmap), refreshes + 1)
-        stage = {"lam": float(lam_material), "energy": last["f"], "data_chi2": last["ed"], "prior": last["ep"],
-                 "stop_reason": last["reason"]}
+    (st, nmap), converged, _, _ = LM.reweighted((st, nmap), minimise, rounds=n_rounds, before=before)
+    end = kept or last      # the refinement's end at lam, before the material's round
+    f, ed, ep, reason, n_out = end["f"], end["ed"], end["ep"], end["reason"], end.get("normals", nmap)
+    stage = None if not kept else {"lam": float(lam_material), "energy": last["f"], "data_chi2": last["ed"],
+                                   "prior": last["ep"], "stop_reason": last["reason"]}
     unc = {"std_errors": {}, "method": "not computed: the refinement did not converge"}
     if converged:
         say(f"[joint-normals] the material's covariance: one linearisation and two solves ({time.time() - t0:.1f} s)")
