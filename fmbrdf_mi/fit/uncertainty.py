@@ -1,6 +1,6 @@
 """Standard errors, 95 % intervals and correlations of the estimates (fit.json's ``uncertainty``).
 
-:func:`covariance` composes the estimators (:func:`fisher`, :func:`paper_sandwich`, :func:`incidental`),
+:func:`covariance` composes the estimators (inverse Fisher information, :func:`paper_sandwich`, :func:`incidental`),
 :func:`summary` makes fit.json's block; covariances are of the reported parameters.  Design: docs/computed.md.
 """
 from __future__ import annotations
@@ -90,7 +90,7 @@ def jacobian_in_reported(problem, st, J):
 #: Floor of 1 - lambda in :func:`incidental_sandwich`: no SE inflated more than 1 / this over Fisher's.
 INCIDENTAL_FLOOR = 0.1
 
-#: Above this :func:`noise_share` the sandwich understates the spread over captures (docs/benchmarks/coverage.md).
+#: Above this noise share (:func:`incidental_sandwich`) the sandwich understates the spread over captures.
 NOISE_SHARE_MAX = 0.5
 
 
@@ -154,37 +154,20 @@ def incidental_term(problem, st, parts):
     return problem.layout.incidental(*obj.albedo_columns(parts), dcols)
 
 
-def _shares(F, C):
-    """(R, lambda, Q): F^-1/2 = R V^T and the eigen-decomposition of F^-1/2 C F^-1/2; LinAlgError if F is
-    singular."""
+def incidental_sandwich(F, C):
+    """(cov, capped, share): H^-1 F H^-1, H = F - C, with 1 - lambda (lambda the eigenvalues of
+    F^-1/2 C F^-1/2) floored at :data:`INCIDENTAL_FLOOR` (C from few samples per albedo is noisy), the number
+    of directions floored, and the noise share max lambda: the largest share, in one direction, of the
+    information that is the eliminated albedos' noise.  LinAlgError if F is singular."""
     w, V = np.linalg.eigh(F)
     if w.min() <= 0:
         raise np.linalg.LinAlgError("singular information matrix")
     R = V / np.sqrt(w)
     lam, Q = np.linalg.eigh(R.T @ C @ R)
-    return R, lam, Q
-
-
-def noise_share(F, C):
-    """The largest eigenvalue of F^-1/2 C F^-1/2 (F = J^T J, C :func:`incidental_term` x scale): the largest
-    share, in one direction, of the information that is the eliminated albedos' noise."""
-    return float(_shares(F, C)[1].max()) if len(F) else 0.0
-
-
-def incidental_sandwich(F, C):
-    """(cov, capped): H^-1 F H^-1, H = F - C, and the number of directions where 1 - lambda is floored at
-    :data:`INCIDENTAL_FLOOR` (C from few samples per albedo is noisy)."""
-    R, lam, Q = _shares(F, C)
     d = 1.0 - lam
     capped = int(np.sum(d < INCIDENTAL_FLOOR))
-    d = np.maximum(d, INCIDENTAL_FLOOR)
     T = R @ Q
-    return (T / d ** 2) @ T.T, capped
-
-
-def fisher(Jt):
-    """(J^T J)^-1, ``Jt`` the whitened residuals' Jacobian in the reported parameters; LinAlgError if singular."""
-    return np.linalg.inv(Jt.T @ Jt)
+    return (T / np.maximum(d, INCIDENTAL_FLOOR) ** 2) @ T.T, capped, float(lam.max())
 
 
 def noise_scale(problem, r, n_independent, p):
@@ -208,32 +191,24 @@ def noise_scale(problem, r, n_independent, p):
 def incidental(problem, st, J, names, Hi, scale, parts=None):
     """(cov_theta / scale, cov_z / scale, info, applied): :func:`incidental_sandwich` from Kaufman's ``J``, or
     ``Hi`` for a layout without the term."""
-    if problem.layout.incidental_reason is not None:
-        reason = problem.layout.incidental_reason
-        return Hi, None, {"incidental_not_computed": reason}, [("incidental-not-computed", reason)]
-    if parts is None:
-        parts = problem.parts(st, jac=True)
+    lay, why = problem.layout, problem.layout.incidental_reason
+    if why is not None:
+        return Hi, None, {"incidental_not_computed": why}, [("incidental-not-computed", why)]
+    parts = problem.parts(st, jac=True) if parts is None else parts
     Gd = dtheta_dz(problem, st, names)
-    F, C = J.T @ J, scale * incidental_term(problem, st, parts)
-    cz, capped = incidental_sandwich(F, C)
-    share = noise_share(F, C)
+    cz, capped, share = incidental_sandwich(J.T @ J, scale * incidental_term(problem, st, parts))
     fisher_sd = np.sqrt(np.clip(np.diag(Hi), 0.0, None) * scale)
     info = {"incidental": {"fisher_std_errors": dict(zip(names, fisher_sd.tolist())), "capped_directions": capped,
                            "noise_share": share, "reliable": share <= NOISE_SHARE_MAX}}
-    applied = []
-    if problem.layout.incidental_method:
-        applied.append(("incidental-layout", problem.layout.incidental_method))
-    if capped:
-        applied.append(("incidental-capped", capped))
-    if share > NOISE_SHARE_MAX:
-        applied.append(("incidental-unreliable", f"{share:.2f}"))
+    applied = [(k, v) for k, v, on in (("incidental-layout", lay.incidental_method, lay.incidental_method),
+                                       ("incidental-capped", capped, capped),
+                                       ("incidental-unreliable", f"{share:.2f}", share > NOISE_SHARE_MAX)) if on]
     return Gd @ cz @ Gd.T, cz, info, applied
 
 
 def paper_sandwich(problem, Jt, r, Hi):
     """(cov, applied): the paper's loss's sandwich H^-1 M H^-1 from leave-N(a)-out residuals (cluster
     jackknife "CR3"), N(a) pixel a or, demosaicked, its 3 x 3 neighbours."""
-
     row_pix, grid = np.asarray(problem.obj.row_pixels(len(r))), problem.obj.grid
     npx = int(row_pix.max()) + 1
     order = np.argsort(row_pix, kind="stable")
@@ -285,7 +260,7 @@ def covariance(problem, st, J, r, n_independent=None, parts=None):
         names = list(problem.names) + list(problem.params.albedo_names)
         return Covariance(names, None, {}, [("singular-reparameterisation", "")])
     try:
-        Hi = fisher(Jt)
+        Hi = np.linalg.inv(Jt.T @ Jt)      # inverse Fisher information
         if not problem.obj.is_likelihood:
             cov, applied = paper_sandwich(problem, Jt, r, Hi)
             return Covariance(names, cov, {}, applied)
@@ -312,11 +287,6 @@ def kind_of(ends):
 def profiled(kinds):
     """The names of ``kinds`` (``interval_kind``) with an end from the profile likelihood."""
     return [n for n, k in kinds.items() if "profile" in k]
-
-
-def summarise(problem, st, J, r, n_independent=None, parts=None):
-    """The uncertainty block of fit.json: :func:`summary` of :func:`covariance`."""
-    return summary(problem, st, covariance(problem, st, J, r, n_independent, parts))
 
 
 def summary(problem, st, c):
@@ -608,7 +578,6 @@ def other_optima(starts, params, unc, names):
 def widen_for_optima(unc, params, optima, lims=None):
     """Widen each 95 % interval to cover the same half-widths around each competing optimum, cut at ``lims``;
     returns the names widened."""
-
     comp, ci, before = [o for o in optima if o["competing"]], unc.get("ci95") or {}, {}
     for n in [n for n in ci if comp and all(n in o["params"] for o in comp)]:
         (lo, hi), v = ci[n], params[n]

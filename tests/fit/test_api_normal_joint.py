@@ -29,14 +29,13 @@ def _dense_system(pix, val, st, coef, t1, t2, w, ridge):
 
 @pytest.mark.parametrize("prior", ["curvature", "membrane"])
 def test_normal_block_and_schur_step_match_dense_algebra(prior):
-    """NormalBlock's product, its CG solve, the Schur-complement step and the Schur complement itself against
+    """NormalBlock's product, its CG solve and the Schur-complement step against
     dense NumPy on a 4 x 5 mask with a hole (random Jacobians; 2 x 2 bilinear stencils with fixed pixels),
     and the material's sandwich covariance against [H^-1 F H^-1]_mm formed densely.
     CG stops at a relative residual of 1e-10 on a system of condition < 1e4: 1e-6 relative is generous."""
     from fmbrdf_mi.fit.problem.normals import stencils
     from fmbrdf_mi.fit.problem.normals import tangent_bases
-    from fmbrdf_mi.fit.solve.normal_system import (NormalBlock, data_products, material_covariance, schur,
-                                                   solve_step)
+    from fmbrdf_mi.fit.solve.normal_system import NormalBlock, data_products, material_covariance, solve_step
 
     rng = np.random.default_rng(4)
     mask = np.ones((4, 5), bool)
@@ -74,8 +73,6 @@ def test_normal_block_and_schur_step_match_dense_algebra(prior):
     np.testing.assert_allclose(np.concatenate([dm, dn.ravel()]), ref, rtol=1e-6, atol=1e-8)
     blk0 = NormalBlock(pix, val, st, coef, t1, t2, w, 0.0)
     _, H0 = _dense_system(pix, val, st, coef, t1, t2, w, blk0.ridge)
-    S = Hmm - (Jm.T @ Jd) @ np.linalg.solve(H0, Jd.T @ Jm)
-    np.testing.assert_allclose(schur(Hmm, Hmn, blk0), S, rtol=1e-6, atol=1e-6 * np.abs(S).max())
     # the sandwich: full H^-1 (with the prior) around the data's J^T J, material block
     Hfull = np.block([[Hmm, Jm.T @ Jd], [Jd.T @ Jm, H0]])
     Jfull = np.hstack([Jm, Jd])

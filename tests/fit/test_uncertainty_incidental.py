@@ -141,7 +141,7 @@ def test_sandwich_matches_the_spread_over_noise_draws(layout):
             if np.abs(step).max() < 1e-10:
                 break
         C = lay.incidental(Uw[:, 0], Uw[:, 1], [(Aj[:, 0] / sigma, Aj[:, 1] / sigma) for Aj in A])
-        cov, _ = incidental_sandwich(J.T @ J, C)
+        cov = incidental_sandwich(J.T @ J, C)[0]
         est.append(z)
         se_f.append(np.sqrt(np.diag(np.linalg.inv(J.T @ J))))
         se_s.append(np.sqrt(np.diag(cov)))
@@ -166,7 +166,7 @@ def test_sandwich_caps_a_direction_where_h_is_not_positive_definite():
 
     F = np.diag([4.0, 1.0])
     C = np.diag([2.0, 1.5])            # lambda = 0.5 (SE x 2) and 1.5 (H < 0 there)
-    cov, capped = incidental_sandwich(F, C)
+    cov, capped, _ = incidental_sandwich(F, C)
     assert capped == 1
     assert np.allclose(np.sqrt(np.diag(cov)), [0.5 * 2.0, 1.0 / INCIDENTAL_FLOOR])
 
@@ -176,7 +176,7 @@ def test_noise_share_is_the_largest_eigenvalue_of_c_relative_to_f():
     the share of the information that is C is 0.7 in the worst direction (the largest eigenvalue of
     F^-1 C, here built in), whatever the parameters' scales; at 0.7 the sandwich labels its errors
     unreliable, at 0.2 not."""
-    from fmbrdf_mi.fit.uncertainty import NOISE_SHARE_MAX, noise_share
+    from fmbrdf_mi.fit.uncertainty import NOISE_SHARE_MAX, incidental_sandwich
 
     rng = np.random.default_rng(5)
     B = rng.normal(size=(3, 3)) * np.array([1.0, 30.0, 0.01])
@@ -186,8 +186,9 @@ def test_noise_share_is_the_largest_eigenvalue_of_c_relative_to_f():
     Q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
     for top, unreliable in ((0.7, True), (0.2, False)):
         C = Fh @ Q @ np.diag([top, 0.2 * top, 0.05]) @ Q.T @ Fh
-        assert math.isclose(noise_share(F, C), top, rel_tol=1e-9), (noise_share(F, C), top)
-        assert (noise_share(F, C) > NOISE_SHARE_MAX) == unreliable
+        share = incidental_sandwich(F, C)[2]
+        assert math.isclose(share, top, rel_tol=1e-9), (share, top)
+        assert (share > NOISE_SHARE_MAX) == unreliable
     assert NOISE_SHARE_MAX == 0.5
 
 

@@ -39,7 +39,7 @@ def fitted():
     assert sol.converged
     st = sol.state
     r, J = problem.residuals_and_jacobian(problem.parts(st, jac=True), st, problem.to_z(st))
-    unc = U.summarise(problem, st, J, r, len(data.pixels) * 4)
+    unc = U.summary(problem, st, U.covariance(problem, st, J, r, len(data.pixels) * 4))
     return problem, st, J, r, unc
 
 

@@ -67,9 +67,8 @@ def fit(obs, options=None, *, scene=None, progress=True, evaluator=None, data=No
     if joint:
         say(f"[joint] {K} images, " + ", ".join(f"{n}: {b - a} px, light {np.round(o.light_dir, 3).tolist()}"
                                                 for n, o, (a, b) in zip(names, images, data.slices)))
-    fx = Fitted(None, data, None, opts, say, image_shape=images[0].shape, labels=materials, t0=t0)
-    if opts.max_time:
-        fx.deadline = t0 + float(opts.max_time)
+    fx = Fitted(None, data, None, opts, say, deadline=t0 + float(opts.max_time) if opts.max_time else None,
+                image_shape=images[0].shape, labels=materials, t0=t0)
     fx.problem = problem = fx.problem_of(data)
     report_start(problem, data, opts, say)
     init = None

@@ -59,7 +59,6 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
     first mask eroded by 1, less clipped super-pixels); ``refreshes``: IRLS rounds; ``lam_material``: the
     material's smoothness weight (None: ``lam``).  Returns a :class:`~fmbrdf_mi.fit.result.FitResult` with
     ``normals`` and ``mask``; ``loss_terms``: data (chi^2) and prior at ``lam``."""
-
     say = progress or (lambda msg: None)
     obs = list(observations)
     n_map = check_views(obs, normals)
@@ -71,46 +70,40 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         raise InputError("normal refinement: fewer than 2 usable pixels in the mask")
     mdl = get_model(model)
     jp = NormalProblem(obs, m, Parameters(mdl, bounds=bounds, fixed=fixed), lam, prior)
-    shape, a_s, a_b = jp.params.split(params)
-    st = jp.state(shape, a_s, a_b)
+    st = jp.state(*jp.params.split(params))
     norm = np.linalg.norm(n_map, axis=-1, keepdims=True)
-    nmap = (n_map / np.where(norm > 0, norm, 1.0)).reshape(-1, 3)   # flat; the refined pixels change
-    jp.nmap = nmap
-    t0 = time.time()
-    history = []
-    last = {}
-    staged = lam_material is not None and lam_material < lam
-    n_rounds = refreshes + 1 + int(staged)     # IRLS rounds, then the material's
-    round_times = []
-    pattern = {}    # H_nn's sparsity pattern, the same at every linearisation (NormalBlock)
-
-    def system(r, Jm, Jn, t, n):    # the normal equations' blocks: data, then the prior's gradient
-        Hmm, Hmn, gm, gn = NS.data_products(Jn[0], Jn[1], Jm, r, jp.n)
-        return Hmm, Hmn, gm, jp.prior_gradient(gn, t, n)
+    jp.nmap = nmap = (n_map / np.where(norm > 0, norm, 1.0)).reshape(-1, 3)   # flat; the refined pixels change
+    t0, history, last, kept = time.time(), [], {}, {}
+    n_rounds = refreshes + 1 + int(lam_material is not None and lam_material < lam)   # IRLS, then the material's
+    round_times, pattern = [], {}    # pattern: H_nn's sparsity, the same at every linearisation (NormalBlock)
 
     def block(Jn, t, mu=0.0):
         return NS.NormalBlock(Jn[0], Jn[1], jp.stencils, jp.coef, t[0], t[1], jp.w_prior, mu, cache=pattern)
 
-    def before(x, rnd):     # from the second round: variances and the prior's scale from the model
-        st, nmap = x
-        if rnd:
+    def before(x, rnd):     # rounds 1 .. refreshes: variances and the prior's scale from the model; the last
+        st, nmap = x        # round, if staged, the material's: the prior weakened, the refinement's end kept
+        if rnd > refreshes:
+            kept.update(last, normals=nmap)
+            jp.lam = float(lam_material)
+        elif rnd:
             jp.obj.refresh(jp.parts_at(st, nmap), st)
+        if rnd:
             jp.set_scale()
         ed, ep, _ = jp.energy(st, nmap)
         last.update(ed=ed, ep=ep)
-        say(f"[joint-normals] round {rnd}: energy {ed + ep:.6e} (data {ed:.6e}, prior {ep:.6e}), {jp.n} pixels, "
+        say(f"[joint-normals] material: prior weakened to lam {lam_material:g}, energy {ed + ep:.6e} "
+            f"({time.time() - t0:.1f} s)" if rnd > refreshes else
+            f"[joint-normals] round {rnd}: energy {ed + ep:.6e} (data {ed:.6e}, prior {ep:.6e}), {jp.n} pixels, "
             f"variances {'from the data' if rnd == 0 else 'from the model'} ({time.time() - t0:.1f} s)")
-        return False
 
     def linearise(x):
-        st, nmap = x[0], x[1]
-        t_lin = time.time()
-        r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
+        t_lin, n = time.time(), x[1][jp.idx]
+        r, Jm, Jn, t, z = jp.linearise(x[0], x[1], h)
         if not history:     # the first step's wait: a linearisation, then solves and trial energies
             say(f"[joint-normals] linearised {jp.n} pixels x {jp.K} images in {time.time() - t_lin:.1f} s; "
                 f"solving for the first step ({time.time() - t0:.1f} s)")
-        n = nmap[jp.idx]
-        return (system(r, Jm, Jn, t, n), Jn, t, z, n, {})
+        Hmm, Hmn, gm, gn = NS.data_products(Jn[0], Jn[1], Jm, r, jp.n)    # the data's, then the prior's gradient
+        return ((Hmm, Hmn, gm, jp.prior_gradient(gn, t, n)), Jn, t, z, n, {})
 
     def solve(lin, mu):
         (Hmm, Hmn, gm, gn), Jn, t, _, _, cache = lin
@@ -165,31 +158,21 @@ def refine_joint(observations, normals, params, *, mask=None, lam=0.3, prior="cu
         last.update(f=res.f, ed=ed, ep=ep, reason=res.describe("energy", "0.01", max_iter, time_limit))
         return (st, nmap), res.converged
 
-    (st, nmap), converged, _, _ = LM.reweighted((st, nmap), minimise, rounds=refreshes + 1, before=before)
-    f, ed, ep, reason = last["f"], last["ed"], last["ep"], last["reason"]
-    n_out, stage = nmap, None
-    if converged and staged:
-        jp.lam = float(lam_material)
-        jp.set_scale()
-        ed_m, ep_m, _ = jp.energy(st, nmap)
-        last.update(ed=ed_m, ep=ep_m)
-        say(f"[joint-normals] material: prior weakened to lam {lam_material:g}, energy {ed_m + ep_m:.6e} "
-            f"({time.time() - t0:.1f} s)")
-        (st, nmap), converged = minimise((st, nmap), refreshes + 1)
-        stage = {"lam": float(lam_material), "energy": last["f"], "data_chi2": last["ed"], "prior": last["ep"],
-                 "stop_reason": last["reason"]}
+    (st, nmap), converged, _, _ = LM.reweighted((st, nmap), minimise, rounds=n_rounds, before=before)
+    end = kept or last      # the refinement's end at lam, before the material's round
+    f, ed, ep, reason, n_out = end["f"], end["ed"], end["ep"], end["reason"], end.get("normals", nmap)
+    stage = None if not kept else {"lam": float(lam_material), "energy": last["f"], "data_chi2": last["ed"],
+                                   "prior": last["ep"], "stop_reason": last["reason"]}
     unc = {"std_errors": {}, "method": "not computed: the refinement did not converge"}
     if converged:
         say(f"[joint-normals] the material's covariance: one linearisation and two solves ({time.time() - t0:.1f} s)")
-        r, Jm, Jn, t, z = jp.linearise(st, nmap, h)
-        Hmm, Hmn, gm, gn = system(r, Jm, Jn, t, nmap[jp.idx])
-        C = NS.material_covariance(Hmm, Hmn, block(Jn, t), Jm)
-        w, V = np.linalg.eigh(C)
+        r, Jm, Jn, t, _ = jp.linearise(st, nmap, h)
+        Hmm, Hmn, _, _ = NS.data_products(Jn[0], Jn[1], Jm, r, jp.n)
+        w, V = np.linalg.eigh(NS.material_covariance(Hmm, Hmn, block(Jn, t), Jm))
         # a p x p "Jacobian" L^T with (L L^T)^-1 = C, so that the fit's summary applies unchanged
         L = V / np.sqrt(np.clip(w, 1e-300, None))
-        chi2 = float(r @ r)
         n_ind = jp.K * jp.n * jp.obj.dof - 2 * jp.n   # the normals' unknowns take their share of the dof
-        unc = U.summarise(jp, st, L.T, np.array([math.sqrt(chi2)]), n_ind)
+        unc = U.summary(jp, st, U.covariance(jp, st, L.T, np.array([math.sqrt(float(r @ r))]), n_ind))
         unc["method"] = unc.get("method", "") + ("; sandwich of the penalised likelihood with the normals free "
                                                  "(the prior not counted as information)")
         if stage is not None:

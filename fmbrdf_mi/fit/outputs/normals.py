@@ -107,8 +107,10 @@ class NormalRefinement(FitJob):
                                      "energy": {"total": joint.loss, "data_chi2": joint.loss_terms["data_chi2"],
                                                 "prior": joint.loss_terms["prior"]},
                                      "joint_history": joint.history, "time": time.time() - self.t_fit,
-                                     "angle_change": _errors(joint.normals, n0, m),
-                                     "angular_error": None, "outputs": self.files()},
+                                     "angle_change": _errors(joint.normals, n0, m), "outputs": self.files(),
+                                     "angular_error": None if self.gt is None else {
+                                         "before": _errors(n0, self.gt, m), "after": _errors(joint.normals, self.gt, m),
+                                         "reference": "normal/normal_GT.npy"}},
                   "models": {self.model: {"params": joint.params, "uncertainty": None,
                                           "converged": joint.converged, "stop_reason": joint.stop_reason}}}
         unc = joint.uncertainty or {}
@@ -117,10 +119,6 @@ class NormalRefinement(FitJob):
             report["models"][self.model]["uncertainty"] = unc
         elif unc.get("std_errors"):
             report["models"][self.model]["uncertainty_uncalibrated"] = dict(unc, note=UNCALIBRATED)
-        if self.gt is not None:
-            report["refine_normals"]["angular_error"] = {"before": _errors(n0, self.gt, m),
-                                                        "after": _errors(joint.normals, self.gt, m),
-                                                        "reference": "normal/normal_GT.npy"}
         report["reproduce"] = command_block(self.command)
         return report
 

@@ -29,7 +29,6 @@ PRIORS = {"curvature": (1.0, -2.0, 1.0), "membrane": (1.0, -1.0)}
 def stencils(mask, prior="curvature"):
     """(E, S) pixel indices of the prior's stencils and their coefficients (S,): ``membrane`` first
     differences, ``curvature`` second differences (constant curvature is not pulled flat)."""
-
     try:
         coef = PRIORS[prior]
     except KeyError:
@@ -56,9 +55,7 @@ class NormalProblem(Problem):
     map bilinearly, corners outside the refined pixels extrapolated linearly (constant extrapolation near the
     silhouette biases the material)."""
 
-
     def __init__(self, obs, m, params, lam, prior="curvature"):
-
         self.K = len(obs)
         self.shape = obs[0].shape
         self.idx = np.flatnonzero(m.ravel())
@@ -80,7 +77,6 @@ class NormalProblem(Problem):
         ev = PixelEvaluator(params.model, self.sample_views, self.sample_views, self.lights, irr)
         super().__init__(params, ev, LikelihoodObjective(y, A, noise, smps[0].dof))
         self.nmap = None
-        self.p = len(self.names) + 2
         self.stencils, self.coef = stencils(m, prior)
         self.lam = float(lam)
         self.set_scale()
@@ -113,11 +109,9 @@ class NormalProblem(Problem):
 
     def set_scale(self):
         """c = mean S0^2 / variance from the current variances, so lam c is the prior's weight in chi^2 units."""
-        y = self.obj.y.reshape(self.K, self.n, 4)
-        v = self.obj.var.reshape(self.K, self.n, 4)
-        s = y.sum(axis=2).mean(axis=1) / 2.0                                  # mean S0 per image
-        self.c = float(np.mean(s ** 2 / v.mean(axis=(1, 2))))
-        self.w_prior = self.lam * self.c
+        s = self.obj.y.reshape(self.K, self.n, 4).sum(axis=2).mean(axis=1) / 2.0      # mean S0 per image
+        v = self.obj.var.reshape(self.K, self.n, 4).mean(axis=(1, 2))
+        self.w_prior = self.lam * float(np.mean(s ** 2 / v))
 
     def full(self, base, n):
         """The flat (H W, 3) normal map: ``base`` with the refined pixels set to ``n``."""
@@ -185,18 +179,13 @@ class NormalProblem(Problem):
 
     def prior_gradient(self, gn, t, n):
         """Add the prior's gradient (w coef_s (sum_s' coef_s' n_s') on pixel s's tangents) to ``gn`` in place."""
-
-        if len(self.stencils):
-            t1, t2 = t
-            d = self.w_prior * sum(c * n[self.stencils[:, s]] for s, c in enumerate(self.coef))    # (E, 3)
-            S, E = len(self.coef), len(self.stencils)
-            k = self.stencils.T.ravel()                                              # place-major, as s loops
-            dd = np.tile(d, (S, 1))
-            g = np.repeat(np.asarray(self.coef, float), E)[:, None] * np.stack([np.sum(t1[k] * dd, 1),
-                                                                                 np.sum(t2[k] * dd, 1)], 1)
-            N = len(gn)
-            idx = np.concatenate([np.arange(N), k])
-            vals = np.concatenate([gn, g])
-            out = np.stack([np.bincount(idx, weights=vals[:, a], minlength=N) for a in range(2)], 1)
-            gn[...] = out
+        if not len(self.stencils):
+            return gn
+        d = self.w_prior * sum(c * n[self.stencils[:, s]] for s, c in enumerate(self.coef))    # (E, 3)
+        k = self.stencils.T.ravel()                                              # place-major, as s loops
+        dd = np.tile(d, (len(self.coef), 1))
+        g = np.repeat(np.asarray(self.coef, float), len(self.stencils))[:, None] * np.stack(
+            [np.sum(t[0][k] * dd, 1), np.sum(t[1][k] * dd, 1)], 1)
+        idx, vals = np.concatenate([np.arange(len(gn)), k]), np.concatenate([gn, g])
+        gn[...] = np.stack([np.bincount(idx, weights=vals[:, a], minlength=len(gn)) for a in range(2)], 1)
         return gn

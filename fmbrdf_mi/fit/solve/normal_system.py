@@ -84,7 +84,6 @@ class NormalBlock:
     in a padded neighbour list; the prior's residuals are sqrt(w) sum_s coef_s n_{stencil_s}, ``t1``, ``t2``
     each pixel's tangent basis, ``cache`` the sparsity pattern kept for the next linearisation."""
 
-
     def __init__(self, pix, val, stencils, coef, t1, t2, w, mu=0.0, cache=None):
         self.N = N = len(t1)
         ok = pix >= 0
@@ -92,16 +91,13 @@ class NormalBlock:
         self.v = val if ok.all() else np.where(ok[..., None], val, 0.0)
         self.st, self.coef = stencils, np.asarray(coef, float)
         self.t1, self.t2, self.w = t1, t2, float(w)
-        self.csum = np.zeros(N)
-        if len(stencils):
-            self.csum = _sums(stencils.ravel(), np.tile(self.coef ** 2, len(stencils))[:, None], N)[:, 0]
+        csum = _sums(stencils.ravel(), np.tile(self.coef ** 2, len(stencils))[:, None], N)[:, 0]
         nonzero = np.any(self.v != 0, axis=2)
         row, slot = np.nonzero(ok & nonzero)
         vs = self.v[row, slot]
         diag = _sums(self.q[row, slot], (vs[:, :, None] * vs[:, None, :]).reshape(-1, 4), N).reshape(N, 2, 2)
         del row, slot, vs
-        diag[:, 0, 0] += self.w * self.csum      # the tangent bases are orthonormal
-        diag[:, 1, 1] += self.w * self.csum
+        diag[:, [0, 1], [0, 1]] += (self.w * csum)[:, None]      # the tangent bases are orthonormal
         self._diag = diag
         self._assemble(ok, nonzero, cache)
         self._damp(mu)
@@ -115,12 +111,10 @@ class NormalBlock:
     def _damp(self, mu):
         """Add the ridge mu diag(H_nn) (+ a tiny constant) to the diagonal blocks, summed as a damped assembly
         would (bit-identical)."""
-        diag = self._diag.copy()
-        d = np.stack([diag[:, 0, 0], diag[:, 1, 1]], 1)
+        diag, on = self._diag.copy(), (slice(None), [0, 1], [0, 1])     # on: the diagonal of each 2 x 2 block
         # the tiny constant: a pixel with neither data nor neighbours keeps the system regular
-        self.ridge = mu * np.maximum(d, 1e-12) + 1e-12 * max(float(d.max()), 1e-300)
-        diag[:, 0, 0] += self.ridge[:, 0]
-        diag[:, 1, 1] += self.ridge[:, 1]
+        self.ridge = mu * np.maximum(diag[on], 1e-12) + 1e-12 * max(float(diag[on].max()), 1e-300)
+        diag[on] += self.ridge
         self.pre = np.linalg.inv(diag)
         N, dg = self.N, self._dg
         ridge = np.stack([self.ridge[:, 0], np.zeros(N), np.zeros(N), self.ridge[:, 1]], 1)
@@ -163,16 +157,13 @@ class NormalBlock:
             pair[at0:at0 + len(g)] = inv[at]
             at0 += len(g)
         data = _sums(pair, Wk, P)
-        vals, idx = [data], [np.arange(P)]
-        pinv = inv[nd + N:]
+        pinv, pv = inv[nd + N:], np.zeros((0, 4))                   # the stencil pairs (none without the prior)
         if prior:
             T = np.stack([self.t1, self.t2], 1)[self.st]
             cc = self.w * self.coef[:, None] * self.coef[None, :]
             TT = np.matmul(T[:, :, None], T[:, None].transpose(0, 1, 2, 4, 3))
             pv = (cc[None, :, :, None, None] * TT).reshape(-1, 4)
-            vals.append(pv)
-            idx.append(pinv)
-        blocks = _sums(np.concatenate(idx), np.concatenate(vals), P)
+        blocks = _sums(np.concatenate([np.arange(P), pinv]), np.concatenate([data, pv]), P)
         B = np.zeros((N, sp["qmax"], 2, 2))
         B[sp["rows"], sp["pos"]] = blocks.reshape(P, 2, 2)
         self.nbr = sp["nbr"]
@@ -180,13 +171,9 @@ class NormalBlock:
         dpair = inv[nd:nd + N]                                   # the diagonal pairs, for _damp
         on = np.zeros(P, np.int64) - 1
         on[dpair] = np.arange(N)
-        if prior:
-            sel = on[pinv] >= 0
-            pidx, pval = on[pinv][sel], pv[sel]
-        else:
-            pidx, pval = np.zeros(0, np.int64), np.zeros((0, 4))
-        self._dg = {"idx": np.concatenate([np.arange(N), np.arange(N), pidx]), "data": data[dpair],
-                    "prior": pval, "pos": sp["pos"][dpair]}
+        sel = on[pinv] >= 0
+        self._dg = {"idx": np.concatenate([np.arange(N), np.arange(N), on[pinv][sel]]), "data": data[dpair],
+                    "prior": pv[sel], "pos": sp["pos"][dpair]}
 
     def data_product(self, x):
         """J_n x (data rows only), x (N, 2, R) -> (m, R)."""
@@ -248,21 +235,14 @@ def solve_step(Hmm, Hmn, Hnn, gm, gn, mu):
     return dm, dn
 
 
-def schur(Hmm, Hmn, Hnn):
-    """H_mm - H_mn H_nn^-1 H_nm (undamped ``Hnn``): the material's information with the normals free."""
-    p = len(Hmm)
-    X = Hnn.solve(np.ascontiguousarray(Hmn.transpose(1, 2, 0)))
-    S = Hmm - Hmn.reshape(p, -1) @ X.reshape(-1, p)
-    return 0.5 * (S + S.T)
-
-
 def material_covariance(Hmm, Hmn, Hnn, Jm):
     """Covariance of the material (p x p) with the normals free: the sandwich [H^-1 F H^-1]_mm, F = J^T J of
-    the data rows only (the prior is a regulariser, not information); ``Hnn`` undamped.
-    """
-    Si = np.linalg.inv(schur(Hmm, Hmn, Hnn))
+    the data rows only (the prior is a regulariser, not information); ``Hnn`` undamped.  S = H_mm - H_mn
+    H_nn^-1 H_nm is the Schur complement, the material's information with the normals free."""
+    p = len(Hmm)
+    S = Hmm - Hmn.reshape(p, -1) @ Hnn.solve(np.ascontiguousarray(Hmn.transpose(1, 2, 0))).reshape(-1, p)
+    Si = np.linalg.inv(0.5 * (S + S.T))
     Yn = -Hnn.solve(np.einsum("pna,pq->naq", Hmn, Si))
-
     JY = Jm @ Si + Hnn.data_product(Yn)
     C = JY.T @ JY
     return 0.5 * (C + C.T)
