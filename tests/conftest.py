@@ -159,14 +159,14 @@ def fit_record(tmp_path, joint=False):
     if not joint:
         args = {"inputs": str(tmp_path / "raw.npy"), "sphere": "8,8,6", "light": [0, 0, 1], "model": "fmbrdf",
                 "max_iter": 1, "starts": 1}
-        return {"reproduce": {"command": "fmbrdf-mi fit ...", "cwd": str(tmp_path), "arguments": args,
-                              "files_sha256": hashes}}
+        return {"reproduce": {"kind": "single", "command": "fmbrdf-mi fit ...", "cwd": str(tmp_path),
+                              "arguments": args, "files_sha256": hashes}}
     spec = {"input": str(tmp_path / "raw.npy"), "light": [0, 0, 1], "power": 1.0, "holdout": False, "name": "a",
             "options": {"sphere": "8,8,6"}}
     images = [{"name": n, "spec": dict(spec, name=n, light=light)} for n, light in (("a", [0, 0, 1]), ("b", [0.3, 0, 1]))]
-    return {"reproduce": {"command": "fmbrdf-mi fit ...", "cwd": str(tmp_path),
+    return {"reproduce": {"kind": "manifest", "command": "fmbrdf-mi fit ...", "cwd": str(tmp_path),
                           "arguments": {"model": "fmbrdf", "max_iter": 1, "free_power": False},
-                          "joint": {"kind": "manifest", "images": images}, "files_sha256": hashes}}
+                          "images": images, "files_sha256": hashes}}
 
 
 def start_command(*argv, **kw):

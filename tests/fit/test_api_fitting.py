@@ -136,7 +136,9 @@ def test_cli_writes_estimates_plots_and_relighting(tmp_path, capsys):
     assert main(args) == 0, capsys.readouterr().err
     rep = json.loads((tmp_path / "out" / "fit.json").read_text())
     assert rep["models"]["pplastic"]["params"]["eta"] == pytest.approx(1.6, rel=0.01)
-    assert rep["relight"]["pplastic"]["rel_rmse"] < 0.01
+    assert rep["relight"]["b"]["pplastic"]["rel_rmse"] < 0.01
+    np.testing.assert_allclose(rep["reproduce"]["images"][1]["light"], np.array([-0.6, 0.1, 1]) / np.sqrt(1.37))
+    assert rep["reproduce"]["images"][1]["holdout"] and rep["reproduce"]["images"][1]["name"] == "b"
     assert "loss" in rep["models"]["pplastic"]["history"][-1]
     for f in ("profiles.png", "images.png", "history.png", "relight.png", "fitted_stokes.exr"):
         assert (tmp_path / "out" / f).stat().st_size > 1000

@@ -214,14 +214,15 @@ def test_joint_fits_rerun_from_fit_json(blob, tmp_path, capsys, no_figures):
     for run, kind in (("a", "manifest"), ("b", "authors")):
         rep = json.loads((tmp_path / run / "fit.json").read_text())
         r = rep["reproduce"]
-        assert r["joint"]["kind"] == kind and r["arguments"]["seed"] == 3 and r["versions"]["mitsuba"]
-        ims = r["joint"]["images"]
+        assert r["kind"] == kind and r["arguments"]["seed"] == 3 and r["versions"]["mitsuba"]
+        ims = r["images"]
         assert [im["holdout"] for im in ims] == [False, False, False, True]
         for im, l, p in zip(ims, LIGHTS, POWERS):
             np.testing.assert_allclose(im["light"], np.array(l) / np.linalg.norm(l), atol=1e-12)
             assert math.isclose(im["power"], p / max(POWERS)) and math.isclose(im["irradiance"], p / max(POWERS))
-        assert ims[1]["files_sha256"][img1] == sha256(img1) == r["files_sha256"][img1]
-        assert ims[0]["geometry"]["normals"].endswith("n.npy" if kind == "manifest" else "normal_GT.npy")
+        assert ims[1]["input"] == img1 and r["files_sha256"][img1] == sha256(img1)
+        normals = ims[0]["spec"]["options"]["normals"] if kind == "manifest" else str(root / "normal" / "normal_GT.npy")
+        assert normals.endswith("n.npy" if kind == "manifest" else "normal_GT.npy") and normals in r["files_sha256"]
         assert ims[0]["settings"]["conversion_gain"] == g
         # rerun from another directory: the record holds absolute paths
         cwd = os.getcwd()

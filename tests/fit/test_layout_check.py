@@ -15,7 +15,7 @@ def _report(objective="likelihood", chi2=800.0, samples=320, converged=True, mis
             layout=((90, 135), (45, 0))):
     return {"models": {"fmbrdf": {"objective": objective, "loss_terms": {"chi2": chi2, "samples": samples},
                                   "converged": converged, "uncertainty": {"misfit": misfit}}},
-            "reproduce": {"settings": {"demosaic": demosaic, "layout": [list(r) for r in layout]}}}
+            "reproduce": {"images": [{"settings": {"demosaic": demosaic, "layout": [list(r) for r in layout]}}]}}
 
 
 def test_mirrored_layout_swaps_45_and_135():
@@ -58,5 +58,5 @@ def test_a_swapped_capture_is_named(capsys, tmp_path, no_figures):
     assert "rerun with --layout 90,45,135,0" in lines[0] and "45 and 135 deg swapped" in lines[0]
     # the first fit's outputs are those of the layout given; the mirrored fit left nothing behind
     rep = json.loads((out / "fit.json").read_text())
-    assert rep["reproduce"]["settings"]["layout"] == [[90, 135], [45, 0]]
+    assert rep["reproduce"]["images"][0]["settings"]["layout"] == [[90, 135], [45, 0]]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.exr", "c_raw.json", "c_raw.png", "fit"]

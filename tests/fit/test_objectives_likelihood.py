@@ -229,8 +229,10 @@ def test_cli_likelihood_from_sidecar_and_rerun_from_fit_json(tmp_path, capsys, v
     assert m["objective"] == "likelihood" and m["converged"] is True
     assert set(m["uncertainty"]["ci95"]) == {"k_s", "r_k"}
     rep = a["reproduce"]
-    assert rep["settings"]["black_level"] == 32.0 and rep["settings"]["white_level"] == 4095
-    assert rep["sphere"]["found_from_mask"] and rep["versions"]["mitsuba"]
+    im = rep["images"][0]
+    assert rep["kind"] == "single" and im["name"] == "cap" and not im["holdout"]
+    assert im["settings"]["black_level"] == 32.0 and im["settings"]["white_level"] == 4095
+    assert im["sphere"]["found_from_mask"] and rep["versions"]["mitsuba"]
     assert any(p.endswith("cap.png") for p in rep["files_sha256"]) and any(
         p.endswith("cap.json") for p in rep["files_sha256"])
     assert main(["fit", "--from", str(tmp_path / "a" / "fit.json"), "-o", str(tmp_path / "b"), "-q"]) == 0

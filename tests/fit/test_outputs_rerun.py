@@ -24,7 +24,9 @@ def _set(d, key, value):
 @pytest.mark.parametrize("joint,key,value,words", [
     (False, "reproduce.arguments.bogus", 1, ["reproduce.arguments: unknown key(s) bogus", "valid: inputs"]),
     (False, "reproduce.arguments.inputs", 5, ["reproduce.arguments.inputs", "file name", "5"]),
-    (False, "reproduce.arguments.inputs", KeyError, ["no 'joint' block", "arguments.inputs"]),
+    (False, "reproduce.arguments.inputs", KeyError, ["reproduce.arguments.inputs", "file name", "None"]),
+    (False, "reproduce.kind", KeyError, ["reproduce.kind is missing", "older layout", "reproduce.command"]),
+    (False, "reproduce.kind", "joint", ["reproduce.kind is 'joint'", "single, colour, manifest"]),
     (False, "reproduce.arguments.mask", [1], ["reproduce.arguments.mask", "file name"]),
     (False, "reproduce.arguments", 5, ["reproduce.arguments: expected a table"]),
     (False, "reproduce.cwd", 5, ["reproduce.cwd"]),
@@ -35,18 +37,18 @@ def _set(d, key, value):
     (False, "reproduce.arguments.fixed", 5, ["fixed", "NAME=VALUE"]),
     (False, "reproduce.arguments.layout", 5, ["layout", "2x2"]),
     (False, "reproduce.arguments.conversion_gain", "2.4", ["conversion_gain"]),
-    (True, "reproduce.joint", KeyError, ["no 'joint' block", "arguments.inputs"]),
+    (True, "reproduce.kind", KeyError, ["reproduce.kind is missing", "older layout", "reproduce.command"]),
     (True, "reproduce.arguments.bogus", 1, ["reproduce.arguments: unknown key(s) bogus", "joint fit"]),
     (True, "reproduce.arguments.materials", 5, ["reproduce.arguments.materials", "file name", "5"]),
-    (True, "reproduce.joint.images", 5, ["joint-fit record is incomplete"]),
-    (True, "reproduce.joint.images.0.spec.input", 5, ["reproduce.joint.images[0].spec: input", "file name"]),
-    (True, "reproduce.joint.images.0.spec.light", [[0, 0, 1]], ["reproduce.joint.images[0].spec: light"]),
-    (True, "reproduce.joint.images.0.spec.power", "x", ["reproduce.joint.images[0].spec: power"]),
-    (True, "reproduce.joint.images.0.spec.holdout", "no", ["reproduce.joint.images[0].spec: holdout"]),
-    (True, "reproduce.joint.images.0.spec.options", 5, ["reproduce.joint.images[0].spec: options"]),
-    (True, "reproduce.joint.images.0.spec.options.bogus", 1, ["options: unknown key(s) bogus"]),
-    (True, "reproduce.joint.images.0.spec.options.conversion_gain", "2.4",
-     ["reproduce.joint.images[0].spec: options: conversion_gain", "'2.4'"]),
+    (True, "reproduce.images", 5, ["joint-fit record is incomplete"]),
+    (True, "reproduce.images.0.spec.input", 5, ["reproduce.images[0].spec: input", "file name"]),
+    (True, "reproduce.images.0.spec.light", [[0, 0, 1]], ["reproduce.images[0].spec: light"]),
+    (True, "reproduce.images.0.spec.power", "x", ["reproduce.images[0].spec: power"]),
+    (True, "reproduce.images.0.spec.holdout", "no", ["reproduce.images[0].spec: holdout"]),
+    (True, "reproduce.images.0.spec.options", 5, ["reproduce.images[0].spec: options"]),
+    (True, "reproduce.images.0.spec.options.bogus", 1, ["options: unknown key(s) bogus"]),
+    (True, "reproduce.images.0.spec.options.conversion_gain", "2.4",
+     ["reproduce.images[0].spec: options: conversion_gain", "'2.4'"]),
 ])
 def test_edited_fit_json_is_refused_in_one_line(tmp_path, capsys, joint, key, value, words):
     d = fit_record(tmp_path, joint)
@@ -58,7 +60,7 @@ def test_edited_fit_json_is_refused_in_one_line(tmp_path, capsys, joint, key, va
     one_line_error(rc, err, "fit", *words)
     lines = err.strip().splitlines()
     if key.startswith("reproduce.arguments") and key.split(".")[-1] in ("bogus", "inputs", "mask", "arguments") \
-            or "joint" in key or key in ("reproduce.cwd", "reproduce.files_sha256"):
+            or "images" in key or key in ("reproduce.cwd", "reproduce.files_sha256", "reproduce.kind"):
         assert str(path) in lines[0]
     assert not (tmp_path / "out" / "fit.json").exists()
 
@@ -73,9 +75,9 @@ def _edit(d, tmp_path, what):
     elif what == "mask":
         rep["arguments"]["mask"] = str(tmp_path / "other.npy")
     elif what == "joint input":
-        rep["joint"]["images"][1]["spec"]["input"] = str(tmp_path / "other.npy")
+        rep["images"][1]["spec"]["input"] = str(tmp_path / "other.npy")
     elif what == "joint mask":
-        rep["joint"]["images"][0]["spec"]["options"]["mask"] = str(tmp_path / "other.npy")
+        rep["images"][0]["spec"]["options"]["mask"] = str(tmp_path / "other.npy")
     elif what == "no hashes":
         del rep["files_sha256"]
     elif what == "refine":

@@ -197,7 +197,7 @@ def test_cli_free_power_through_a_manifest_and_rerun(tmp_path, capsys, variant, 
     assert p["names"] == ["cap0", "cap1", "cap2"] and p["given"] == [1.0, 1.0, 1.0]
     for k in (1, 2):
         assert abs(p["values"][k] - POWERS[k]) < 4 * p["std_errors"][k], (k, p)
-        assert rep["images"][k]["power_fitted"] == p["values"][k] and rep["images"][k]["power"] == 1.0
+        assert m["images"][k]["power"] == p["values"][k] and rep["reproduce"]["images"][k]["power"] == 1.0
     assert rep["reproduce"]["arguments"]["free_power"] is True
     assert (tmp_path / "a" / "images_cap2.png").is_file()
     assert main(["fit", "--from", str(tmp_path / "a" / "fit.json"), "-o", str(tmp_path / "b"), "-q"]) == 0

@@ -7,6 +7,7 @@ import os
 import sys
 import tempfile
 
+from fmbrdf_mi.fit.inputs.parse import layout_text, parse_layout
 from fmbrdf_mi.interrupt import interrupted
 
 #: chi^2 per raw sample from which a misfit is checked (the right layout gives about 1, a mirrored one more).
@@ -21,11 +22,6 @@ def mirrored(layout):
     return tuple(tuple({45: 135, 135: 45}.get(int(a), int(a)) for a in row) for row in layout)
 
 
-def layout_text(layout):
-    """``"90,45,135,0"``: the 2x2 layout as the command line writes it."""
-    return ",".join(str(int(a)) for row in layout for a in row)
-
-
 def chi2_per_sample(m):
     """chi^2 per raw sample of a likelihood fit's fit.json ``models`` entry ``m``, else None."""
     t = m.get("loss_terms") or {}
@@ -37,7 +33,7 @@ def chi2_per_sample(m):
 def needs_check(report, model):
     """Whether ``report`` (a single-image fit) is a raw-mosaic likelihood fit with a poor chi^2."""
     m = (report.get("models") or {}).get(model)
-    settings = (report.get("reproduce") or {}).get("settings") or {}
+    settings = ((report.get("reproduce") or {}).get("images") or [{}])[0].get("settings") or {}
     if m is None or settings.get("demosaic") is None or not settings.get("layout"):
         return False             # not a raw mosaic
     c = chi2_per_sample(m)
@@ -50,9 +46,9 @@ def mirrored_layout_hint(report, kw, fit_files, progress=True):
     model = kw.get("model", "fmbrdf")
     if not needs_check(report, model):
         return None
-    used = report["reproduce"]["settings"]["layout"]
+    used = report["reproduce"]["images"][0]["settings"]["layout"]
     other = mirrored(used)
-    if other == tuple(tuple(int(a) for a in row) for row in used):
+    if other == parse_layout(used):
         return None              # no 45 / 135 in the layout
     c0 = chi2_per_sample(report["models"][model])
     took = report["models"][model].get("timings", {}).get("total", 0.0)

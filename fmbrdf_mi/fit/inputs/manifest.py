@@ -10,7 +10,7 @@ from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.inputs.files import build_observation, check_image_options
 from fmbrdf_mi.fit.inputs.observations import check_direction, check_file
 from fmbrdf_mi.fit.inputs.options import IMAGE_KEYS, IRRADIANCE_RANGE, Option
-from fmbrdf_mi.fit.inputs.parse import check_keys, parse_layout, parse_vector
+from fmbrdf_mi.fit.inputs.parse import check_keys, layout_text, parse_layout, parse_vector
 
 #: An image's keys that name files.
 PATH_KEYS = ("input", "normals", "mask", "view")
@@ -35,7 +35,7 @@ def check_options(opts, where):
             raise InputError(f"{name}: expected " + ("mean, R, G or B" if key == "channel" else "a file name (text)")
                              + f", got {v!r}")
         elif key == "layout":
-            out[key] = ",".join(str(a) for row in parse_layout(v, name) for a in row)
+            out[key] = layout_text(parse_layout(v, name))
     return out
 
 

@@ -107,6 +107,11 @@ def parse_layout(value, name="layout"):
     return ((a[0], a[1]), (a[2], a[3]))
 
 
+def layout_text(layout):
+    """``"90,45,135,0"``: a 2x2 layout as the command line and manifests write it."""
+    return ",".join(str(int(a)) for row in layout for a in row)
+
+
 def check_render_parameters(p, where):
     """The built-in scene's parameters in a render's metadata (an EXR's or a capture sidecar's): ``width``,
     ``height``, ``camera``, ``fov`` and ``distance`` checked, else InputError naming ``where`` and the key."""

@@ -15,9 +15,9 @@ from fmbrdf_mi.fit.inputs.colour import COLOUR_KEYS, colour_sidecar, read_colour
 from fmbrdf_mi.fit.inputs.parse import parse_bounds, parse_fixed
 from fmbrdf_mi.fit.outputs import record
 from fmbrdf_mi.fit.inputs.manifest import image_names
-from fmbrdf_mi.fit.outputs.job import FitJob, image_entries, joint_outputs
+from fmbrdf_mi.fit.outputs.job import FitJob, joint_outputs
 from fmbrdf_mi.fit.outputs.plots import plot_colour_fit
-from fmbrdf_mi.fit.outputs.single import write_maps
+from fmbrdf_mi.fit.outputs.single import relative_errors, write_maps
 from fmbrdf_mi.sensor.mosaic import COLOURS
 
 #: The keywords of :func:`~fmbrdf_mi.fit.api.colour.fit_colour` the command sets.
@@ -40,14 +40,7 @@ def model_entry(res, truth, fixed):
                  weakly_identified=res.weakly_identified, fixed=fixed or {})
     entry.update({} if res.albedo is None else {"albedo": res.albedo})
     if truth:
-        rel = entry["relative_error"] = {}
-        for k, t in truth.items():
-            val = res.params.get(k)
-            if isinstance(val, dict):
-                tt = t if isinstance(t, (list, tuple)) else [t] * 3
-                rel[k] = {c: (val[c] - tt[i]) / tt[i] for i, c in enumerate(res.channels) if tt[i]}
-            elif val is not None and not isinstance(t, (list, tuple)) and t:
-                rel[k] = (val - t) / t
+        entry["relative_error"] = relative_errors(res.params, truth, res.channels)
     return entry
 
 
@@ -66,10 +59,10 @@ def fit_colour_files(inputs, out, *, force=False, progress=True, command=None, *
     return ColourFit(None, out, a, force=force, progress=progress, command=command).run()
 
 
-def fit_colour_images(specs, out, *, force=False, progress=True, command=None, extra=None, reproduce=None,
-                      **options):
+def fit_colour_images(specs, out, *, force=False, progress=True, command=None, reproduce=None, **options):
     """Joint colour fit of the non-held-out images of ``specs``; returns fit.json's dict.  ``options``: the joint
-    record's (``max_pixels`` default None: every period) less those the colour fit refuses or ignores."""
+    record's (``max_pixels`` default None: every period) less those the colour fit refuses or ignores;
+    ``reproduce``: as :func:`~fmbrdf_mi.fit.outputs.joint.fit_images`'."""
     a = arguments_of("joint", {"max_pixels": None, **options}, "fit_colour_images()")
     refused = [f"{k} {a[k]!r} ({flag(k)}; expected {' or '.join(map(repr, TAKES[k]))})" for k in TAKES
                if a[k] not in TAKES[k]] + [f"{k} ({flag(k)})" for k in record_keys("joint")
@@ -78,16 +71,17 @@ def fit_colour_images(specs, out, *, force=False, progress=True, command=None, e
     if refused:
         raise InputError(f"colour joint fit: {', '.join(refused)} not supported (the colour fit is the likelihood "
                          "of the raw samples)")
-    return ColourFit(specs, out, a, force=force, progress=progress, command=command, extra=extra,
-                     reproduce=reproduce).run()
+    return ColourFit(specs, out, a, force=force, progress=progress, command=command, reproduce=reproduce).run()
 
 
 class ColourFit(FitJob):
     """A colour fit of one mosaic (``specs`` None) or of the images ``specs``; ``a``: the entry function's arguments."""
 
-    def __init__(self, specs, out, a, *, extra=None, reproduce=None, **kw):
+    def __init__(self, specs, out, a, *, reproduce=None, **kw):
         super().__init__(out, **kw)
-        self.specs, self.a, self.extra, self.reproduce, self.model = specs, a, extra, reproduce, a["model"]
+        self.specs, self.a, self.model = specs, a, a["model"]
+        self.reproduce = reproduce or (lambda obs: record.joint_block("lights", specs, self.names, obs, a,
+                                                                      self.command))
         self.kw = {k: a[k] for k in FIT_KEYS}
 
     def check(self):
@@ -135,19 +129,13 @@ class ColourFit(FitJob):
         inputs, res = self.inputs, self.res
         truth = next((c.truth for c in inputs if c.truth), None)
         entry = model_entry(res, truth, self.kw["fixed"])
-        if self.specs is None:
-            return {"inputs": self.path, "sensor": "colour", "truth": truth,
-                    "reproduce": record.reproduce_block(self.a, self.command, inputs[0].obs.meta),
-                    "models": {self.model: entry}}
-        entry["chi2_per_sample"] = dict(zip([n for n, h in zip(self.names, self.holdout) if not h],
-                                            res["chi2_per_sample"]))
-        report = {"sensor": "colour", "truth": truth,
-                  "images": image_entries(self.names, self.specs, [c.obs for c in inputs]),
-                  "models": {self.model: entry}, "relight": {}}
-        if self.reproduce is not None:
-            report["reproduce"] = self.reproduce([c.obs for c in inputs])
-        report.update(self.extra or {})
-        return report
+        if self.specs is not None:
+            entry["chi2_per_sample"] = dict(zip([n for n, h in zip(self.names, self.holdout) if not h],
+                                                res["chi2_per_sample"]))
+        obs = [c.obs for c in inputs]
+        return {"sensor": "colour", "truth": truth, "models": {self.model: entry}, "relight": {},
+                "reproduce": record.one_image_block("colour", self.a, self.command, obs) if self.specs is None
+                else self.reproduce(obs)}
 
     def write(self, report):
         out, model, res = self.out, self.model, self.res

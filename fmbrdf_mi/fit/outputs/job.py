@@ -10,14 +10,13 @@ import time
 from fmbrdf_mi._paths import StageProgress, check_output_dir, locked_directory, staged_directory
 from fmbrdf_mi.fit.errors import InputError
 from fmbrdf_mi.fit.evaluate.bilinear_albedos import PER_PIXEL_LAYOUTS
-from fmbrdf_mi.fit.inputs.manifest import given_power
 from fmbrdf_mi.fit.result import json_default
 
 #: Every file a fit writes whatever its mode (single image, colour mosaic, joint, normal refinement), by name.
 FIXED_OUTPUTS = ("fit.json", "profiles.png", "images.png", "history.png", "fitted_stokes.exr", "relight.png",
                  "k_s.exr", "k_b.exr", "k_s_se.exr", "k_b_se.exr", "albedo_maps.png", "materials.png", "labels.png",
                  "colour_fit.png", "normals.npy", "normals.png", "normals_change.png")
-#: The files a joint fit writes per image (``{}``: the image's name, as its fit.json's ``images`` lists it).
+#: The files a joint fit writes per image (``{}``: the image's name, as its fit.json's ``reproduce.images`` has it).
 PER_IMAGE_OUTPUTS = ("relight_{}.png", "images_{}.png", "profiles_{}.png", "colour_fit_{}.png")
 #: A fit with per-pixel albedos (``albedo="per-pixel"``) writes the maps too.
 MAP_OUTPUTS = ("k_s.exr", "k_b.exr", "k_s_se.exr", "k_b_se.exr", "albedo_maps.png")
@@ -84,7 +83,8 @@ def stale_outputs(out, paths):
             earlier = json.load(f)
     except (OSError, ValueError):
         earlier = None
-    images = earlier.get("images") if isinstance(earlier, dict) else None
+    images = ((earlier.get("reproduce") or {}).get("images") or earlier.get("images")) if isinstance(earlier, dict) \
+        else None   # (before one layout for every kind: a joint fit's "images")
     for im in images if isinstance(images, list) else ():
         name = im.get("name") if isinstance(im, dict) else None
         if isinstance(name, str) and name and os.path.basename(name) == name and name not in (".", ".."):
@@ -132,9 +132,3 @@ def joint_outputs(out, names, holdout, albedo="shared", materials=None, colour=F
     files += list(MATERIAL_OUTPUTS) if materials is not None else []
     return [os.path.join(out, f) for f in files]
 
-
-def image_entries(names, specs, observations):
-    """fit.json's ``images`` of a joint fit."""
-    return [{"name": n, "input": s.input if isinstance(s.input, (str, list)) else None,
-             "light_dir": o.light_dir.tolist(), "irradiance": o.irradiance, "power": given_power(s, o),
-             "holdout": s.holdout} for n, s, o in zip(names, specs, observations)]

@@ -15,11 +15,11 @@ from fmbrdf_mi.fit.inputs.manifest import build_observations, given_power, image
 from fmbrdf_mi.fit.inputs.observations import check_direction
 from fmbrdf_mi.fit.inputs.parse import check_keys, parse_vector
 from fmbrdf_mi.fit.outputs.colour import fit_colour_images
-from fmbrdf_mi.fit.outputs.record import command_block, joint_block, sha256
+from fmbrdf_mi.fit.outputs.record import joint_block, sha256
 from fmbrdf_mi.fit.inputs.labels import read_labels
 from fmbrdf_mi.fit.api.find_materials import parse_auto
-from fmbrdf_mi.fit.outputs.single import ImageFits, model_entries
-from fmbrdf_mi.fit.outputs.job import image_entries, joint_outputs
+from fmbrdf_mi.fit.outputs.single import ImageFits
+from fmbrdf_mi.fit.outputs.job import joint_outputs
 from fmbrdf_mi.fit.problem.data import check_footprint, resolve_loss
 
 
@@ -53,23 +53,26 @@ def check_distinct(specs):
 
 
 def fit_images(specs, out, *, model="fmbrdf", baselines=False, force=False, progress=True, command=None,
-               observations=None, extra=None, reproduce=None, **fit_kw):
+               observations=None, reproduce=None, **fit_kw):
     """Joint fit of the non-held-out images of ``specs``, the held-out ones relit; writes the outputs to ``out``.
 
     ``fit_kw``: :class:`~fmbrdf_mi.fit.api.options.FitOptions` fields; ``reproduce``: observations -> fit.json's
-    ``reproduce`` block.  Returns fit.json's dict plus ``outputs`` (the files written) and ``wall_s``."""
+    ``reproduce`` block (default: the images as given, ``kind`` ``lights``).  Returns fit.json's dict plus
+    ``outputs`` (the files written) and ``wall_s``."""
     return Joint(specs, out, model=model, baselines=baselines, force=force, progress=progress, command=command,
-                 observations=observations, extra=extra, reproduce=reproduce, **fit_kw).run()
+                 observations=observations, reproduce=reproduce, **fit_kw).run()
 
 
 class Joint(ImageFits):
     """:func:`fit_images` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob`."""
 
-    def __init__(self, specs, out, *, model, baselines, observations, extra, reproduce, **kw):
+    def __init__(self, specs, out, *, model, baselines, observations, reproduce, **kw):
         fit_kw = {k: kw.pop(k) for k in list(kw) if k not in ("force", "progress", "command")}
         super().__init__(out, **kw)
-        self.specs, self.model, self.baselines, self.fit_kw = specs, model, baselines, fit_kw
-        self.obs, self.extra, self.reproduce = observations, extra, reproduce
+        self.specs, self.model, self.baselines, self.fit_kw, self.obs = specs, model, baselines, fit_kw, observations
+        self.reproduce = reproduce or (lambda obs: joint_block("lights", specs, self.names, obs,
+                                                               dict(fit_kw, model=model, baselines=baselines),
+                                                               self.command))
 
     def check(self):
         check_distinct(self.specs)
@@ -109,43 +112,14 @@ class Joint(ImageFits):
                         lambda name, o: fit_joint(fit_obs, o, names=fit_names, progress=self.progress, powers=given,
                                                   materials=self.labels))
 
-    def report(self):
-        specs, obs, model = self.specs, self.obs, self.model
-        main = self.results[model]
-        truth = next((o.meta.get("truth") for o in obs if o.meta.get("truth")), None)
-        report = {"images": image_entries(self.names, specs, obs), "truth": truth, "models": {}, "relight": {}}
-        fitted = {} if main.powers is None else {x["name"]: x for x in main.images}
-        for im, f in ((im, fitted[im["name"]]) for im in report["images"] if im["name"] in fitted):
-            im.update(power_fitted=f["power"], power_se=f["power_se"], power_reference=f["power_reference"])
-        if self.reproduce is not None:
-            report["reproduce"] = self.reproduce(obs)
-        elif self.command is not None:
-            report["reproduce"] = command_block(self.command)
-        report.update(self.extra or {})
-        report["models"] = model_entries(self.results, model, truth)
-        return report
-
-    def write(self, report):
-        results, pixels = self.results, iter(self.results[self.model].pixels)
-        for n, o, h in zip(self.names, self.obs, self.holdout):
-            if h:
-                report["relight"][n] = self.write_image(o, name=n, holdout=True)
-            else:
-                self.write_image(o, name=n, pixels=next(pixels),
-                                 im={m: next(x for x in r.images if x["name"] == n) for m, r in results.items()})
-        self.write_common(report, self.obs[0].shape)
-
 
 def run_images(kind, specs, out, fit_kw, *, command, force=False, progress=True, manifest=None, authors=None,
-               info=None, rerun_of=None):
+               info=None):
     """The joint fit of ``specs`` as the command and ``--from`` run it (colour mosaics:
     :func:`~fmbrdf_mi.fit.outputs.colour.fit_colour_images`), recording how the images were given (``kind``,
     ``manifest``, ``authors``, ``info``; :func:`~fmbrdf_mi.fit.outputs.record.joint_block`); returns fit.json's dict."""
-    names, colour = image_names(specs), is_colour(specs)
-    files = joint_outputs(out, names, [s.holdout for s in specs], fit_kw.get("albedo", "shared"),
-                          fit_kw.get("materials"), colour)
-    joint = {"outputs": files, "authors_layout": info, **({} if rerun_of is None else {"rerun_of": rerun_of})}
-    return (fit_colour_images if colour else fit_images)(
-        specs, out, force=force, progress=progress, command=command, extra={"joint": joint},
+    names = image_names(specs)
+    return (fit_colour_images if is_colour(specs) else fit_images)(
+        specs, out, force=force, progress=progress, command=command,
         reproduce=lambda obs: joint_block(kind, specs, names, obs, fit_kw, command, manifest=manifest, authors=authors,
                                           info=info), **fit_kw)

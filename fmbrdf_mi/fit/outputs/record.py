@@ -1,6 +1,8 @@
-"""fit.json's ``reproduce`` block, from which ``fmbrdf-mi fit --from`` reruns a fit: ``command``, ``cwd``,
-``versions``, the resolved options in ``arguments`` (so a changed default does not change the rerun) and the
-SHA-256 of every file read in ``files_sha256``."""
+"""fit.json's ``reproduce`` block, one format for every kind of fit, from which ``fmbrdf-mi fit --from`` reruns it:
+``kind`` (``single``, ``colour``: one image's arguments; ``manifest``, ``authors``, ``lights``: how a joint fit's
+images were given), ``command``, ``cwd``, the resolved options in ``arguments`` (so a changed default does not change
+the rerun), the SHA-256 of every file read in ``files_sha256``, per image in ``images`` its name, input, light,
+power, irradiance, held-out flag and the settings its input implied, and ``versions``."""
 from __future__ import annotations
 
 import hashlib
@@ -9,8 +11,18 @@ import sys
 
 from fmbrdf_mi import __version__
 from fmbrdf_mi.fit.api.options import record_keys
-from fmbrdf_mi.fit.inputs.manifest import absolute_paths
+from fmbrdf_mi.fit.inputs.manifest import ImageSpec, absolute_paths, given_power, image_names
 from fmbrdf_mi.sensor.camera import sidecar_path
+
+#: The kinds of a ``reproduce`` block that rerun one image's arguments; the others are joint fits'.
+ONE_IMAGE = ("single", "colour")
+
+#: The arguments of a single-image or colour fit that name files it reads.
+FILE_KEYS = ("inputs", "normals", "mask", "view", "relight", "materials")
+
+#: read_object keywords recorded for an authors' object.
+AUTHORS_KEYS = ("mask", "holdout", "conversion_gain", "read_noise", "white_level", "dark_level", "black_level",
+                "demosaic", "footprint")
 
 
 def sha256(path):
@@ -33,10 +45,6 @@ def jsonable(v):
     if isinstance(v, os.PathLike):
         return os.fspath(v)
     return {"not_recorded": type(v).__name__}
-
-
-#: The arguments of a single-image or colour fit that name files it reads.
-FILE_KEYS = ("inputs", "normals", "mask", "view", "relight", "materials")
 
 
 def existing_files(paths, sidecars=True):
@@ -66,71 +74,53 @@ def versions():
     return v
 
 
-def command_block(command, arguments=None, files=(), **more):
-    """A ``reproduce`` block: command line, directory, versions; for ``--from``, ``arguments``, ``files``' SHA-256."""
+def command_block(command, kind=None, arguments=None, files=(), images=(), **more):
+    """A ``reproduce`` block: command line, directory, versions; for ``--from``, the ``kind`` of fit, its
+    ``arguments``, ``files``' SHA-256 and the ``images`` (:func:`image_record`)."""
     block = {"command": command, "cwd": os.getcwd()}
     if arguments is not None:
-        block.update(arguments=arguments, files_sha256=_hashes(files), **more)
+        block.update(kind=kind, arguments=arguments, files_sha256={
+            os.path.abspath(p): sha256(p) for p in files if isinstance(p, str) and os.path.isfile(p)},
+            images=list(images), **more)
     return jsonable(dict(block, versions=versions()))
 
 
-def reproduce_block(arguments, command, meta):
-    """The ``reproduce`` block of a single-image or colour fit, with ``settings`` etc. of the input's ``meta``."""
-    return command_block(command, arguments, single_files(arguments),
-                         **{k: meta.get(k) for k in ("settings", "sphere", "sidecar")})
+def image_record(name, spec, obs, input=None):
+    """``reproduce.images``' entry of one image: its ``spec`` (:class:`~fmbrdf_mi.fit.inputs.manifest.ImageSpec`)
+    and its observation ``obs``: the light, power, irradiance used and the settings its input implied."""
+    return {"name": name, "input": spec.input if input is None else input, "light": [float(x) for x in obs.light_dir],
+            "power": given_power(spec, obs), "irradiance": float(obs.irradiance), "holdout": bool(spec.holdout),
+            **{k: obs.meta.get(k) for k in ("settings", "sphere", "sidecar")}}
 
 
-#: read_object keywords recorded for an authors' object.
-AUTHORS_KEYS = ("mask", "holdout", "conversion_gain", "read_noise", "white_level", "dark_level", "black_level",
-                "demosaic", "footprint")
-
-
-def _hashes(paths):
-    return {os.path.abspath(p): sha256(p) for p in paths if isinstance(p, str) and os.path.isfile(p)}
-
-
-def _geometry(spec, obs):
-    """Where image ``spec``'s normals, mask and view directions came from."""
-    o = spec.options
-    if o.get("normals") is not None:
-        return {"source": "normal map", "normals": o.get("normals"), "mask": o.get("mask"),
-                **({"view": o["view"]} if o.get("view") is not None else
-                   {"camera": o.get("camera", "orthographic"), "fov": o.get("fov")})}
-    if o.get("sphere") is not None:
-        return {"source": "sphere", "sphere": o["sphere"], "mask": o.get("mask"), "view": o.get("view"),
-                "camera": o.get("camera", "orthographic"), "fov": o.get("fov"), "found": obs.meta.get("sphere")}
-    if obs.meta.get("truth") is not None:
-        return {"source": "the input's metadata (fmbrdf-mi render, built-in sphere)"}
-    return {"source": "unknown"}
+def one_image_block(kind, arguments, command, observations):
+    """The ``reproduce`` block of a single-image or colour fit of ``arguments``: ``observations`` are the fitted
+    image's and, with ``relight``, the held-out image's."""
+    inputs = [arguments["inputs"]] + ([arguments["relight"]] if arguments.get("relight") is not None else [])
+    specs = [ImageSpec(x, holdout=k > 0) for k, x in enumerate(inputs)]
+    return command_block(command, kind, arguments, single_files(arguments),
+                         map(image_record, image_names(specs), specs, observations))
 
 
 def joint_block(kind, specs, names, observations, fit_kw, command, *, manifest=None, authors=None, info=None):
-    """The ``reproduce`` block of a joint fit, with ``joint``: how the images were given, each one's files and
-    settings; ``specs`` as fitted (paths resolved), ``authors``: read_object's keywords, ``info`` what it read."""
+    """The ``reproduce`` block of a joint fit given as ``kind``: ``specs`` as fitted (paths resolved; each image's
+    ``spec`` recorded but an authors' object's), ``authors``: read_object's keywords, ``info`` what it read."""
     images = []
-    for k, (s, n, o) in enumerate(zip(specs, names, observations)):
+    for s, n, o in zip(specs, names, observations):
         if kind == "authors":
-            inp, entry = o.meta["authors_layout"]["file"], {}
-            geo = {"source": "authors' layout", "normals": os.path.join(info["root"], "normal", "normal_GT.npy"),
-                   "view": os.path.join(info["root"], "calibration", info["view_rays"]),
-                   "mask": absolute_paths(info["mask"])}
-            power = info["intensities"][k] if info.get("intensities") else 1.0   # intensities.npy / max
+            images.append(image_record(n, s, o, input=o.meta["authors_layout"]["file"]))
         else:
-            inp, geo, power = s.input, _geometry(s, o), s.power
-            entry = {"spec": {"input": inp, "light": s.light, "power": s.power, "holdout": s.holdout,
-                              "name": s.name, "options": s.options}}
-        geo_files = [geo.get(x) for x in ("normals", "mask", "view") if isinstance(geo.get(x), str)]
-        images.append({"name": n, "input": inp, "files_sha256": _hashes(existing_files(inp) + geo_files),
-                       "light": [float(x) for x in o.light_dir], "power": float(power),
-                       "irradiance": float(o.irradiance), "holdout": bool(s.holdout), "geometry": geo,
-                       "settings": o.meta.get("settings"), "sidecar": o.meta.get("sidecar"), **entry})
-    joint = {"kind": kind, "images": images, **({} if manifest is None else {"manifest": absolute_paths(manifest)}),
-             **({"authors": {"root": info["root"], **authors}} if kind == "authors" else {})}
+            images.append(dict(image_record(n, s, o), spec={"input": s.input, "light": s.light, "power": s.power,
+                                                             "holdout": s.holdout, "name": s.name,
+                                                             "options": s.options}))
+    more = {} if manifest is None else {"manifest": absolute_paths(manifest)}
+    if kind == "authors":
+        more.update(authors={"root": info["root"], **authors}, authors_layout=info)
     files = read_files(kind, specs, info) + [absolute_paths(p) for p in (manifest, fit_kw.get("materials"))
                                              if p is not None]
     arguments = {k: absolute_paths(fit_kw[k]) if k == "materials" else fit_kw[k] for k in record_keys("joint")
                  if k in fit_kw}
-    return command_block(command, arguments, files, joint=joint)
+    return command_block(command, kind, arguments, files, images, **more)
 
 
 def read_files(kind, specs, info):

@@ -13,27 +13,44 @@ from fmbrdf_mi.fit.inputs.parse import check_keys
 from fmbrdf_mi.fit.outputs.colour import fit_colour_files
 from fmbrdf_mi.fit.outputs.joint import run_images
 from fmbrdf_mi.fit.api.options import record_keys
-from fmbrdf_mi.fit.outputs.record import AUTHORS_KEYS, FILE_KEYS, read_files, sha256, single_files
+from fmbrdf_mi.fit.outputs.record import AUTHORS_KEYS, FILE_KEYS, ONE_IMAGE, read_files, sha256, single_files
 from fmbrdf_mi.fit.outputs.single import fit_files
+
+#: The kinds of fit a ``reproduce`` block records (:mod:`fmbrdf_mi.fit.outputs.record`).
+KINDS = ONE_IMAGE + ("manifest", "authors", "lights")
 
 
 def rerun(path, out, *, force=False, progress=True, command=None):
     """Rerun the fit recorded in ``path`` (a fit.json) into ``out``; returns the dict written to fit.json."""
-    record, rep = load(path)
-    if "joint" in rep:
-        return joint_rerun(path, rep, out, force=force, progress=progress, command=command)
-    if "inputs" not in rep["arguments"]:
-        raise InputError(f"--from {path}: reproduce has no 'joint' block (a joint fit) and no arguments.inputs "
-                         "(a single-image fit): the record is incomplete")
-    kind = "colour" if record.get("sensor") == "colour" else "single"
-    args, given = recorded_arguments(path, rep, kind)
-    check_recorded(path, rep, given + single_files(args))
-    return (fit_colour_files if kind == "colour" else fit_files)(out=out, force=force, progress=progress,
-                                                                 command=command, **args)
+    rep = load(path)
+    kind = rep["kind"]
+    args, given = recorded_arguments(path, rep, kind if kind in ONE_IMAGE else "joint")
+    kw = dict(force=force, progress=progress, command=command)
+    if kind in ONE_IMAGE:
+        check_recorded(path, rep, given + single_files(args))
+        return (fit_colour_files if kind == "colour" else fit_files)(out=out, **kw, **args)
+    info = None
+    try:
+        if kind == "authors":
+            a = dict(rep["authors"])
+            check_keys(a, ("root",) + AUTHORS_KEYS, f"--from {path}: reproduce.authors")
+            specs, info = read_object(a.pop("root"), **a)
+        else:
+            specs = [image_spec(**im["spec"], where=f"--from {path}: reproduce.images[{k}].spec", at=": options")
+                     for k, im in enumerate(rep["images"])]
+        recorded = [im["name"] for im in rep["images"]]
+    except (KeyError, TypeError, AttributeError) as exc:
+        raise InputError(f"--from {path}: the joint-fit record is incomplete ({exc})") from None
+    check_recorded(path, rep, read_files(kind, specs, info) + given)
+    names = image_names(specs)
+    if names != recorded:
+        raise InputError(f"--from {path}: the images are now {names}, the fit had {recorded}")
+    authors = {k: v for k, v in (rep.get("authors") or {}).items() if k != "root"}
+    return run_images(kind, specs, out, args, **kw, manifest=rep.get("manifest"), authors=authors, info=info)
 
 
 def load(path):
-    """(fit.json's dict, its ``reproduce`` block); refuses a record that cannot be rerun or whose inputs changed."""
+    """fit.json's ``reproduce`` block; refuses a record that cannot be rerun or whose inputs changed."""
     try:
         with open(path) as f:
             d = json.load(f)
@@ -52,6 +69,11 @@ def load(path):
                             if rounds else ""))
     if not isinstance(rep, dict) or "arguments" not in rep:
         raise InputError(f"--from {path}: no 'reproduce' block (written by an older fmbrdf-mi?)")
+    if rep.get("kind") not in KINDS:
+        raise InputError(f"--from {path}: reproduce.kind is " + (f"{rep['kind']!r}, not one of {', '.join(KINDS)}"
+                                                                   if "kind" in rep else "missing")
+                         + ": a fit.json of an older layout cannot be rerun; rerun the command in its "
+                           "reproduce.command instead")
     if not isinstance(rep["arguments"], dict):
         raise InputError(f"--from {path}: reproduce.arguments: expected a table of the fit's options, "
                          f"got {rep['arguments']!r}")
@@ -66,7 +88,7 @@ def load(path):
             raise InputError(f"--from {path}: input {p} no longer exists")
         if sha256(p) != digest:
             raise InputError(f"--from {path}: input {p} has changed since the fit (SHA-256 differs)")
-    return d, rep
+    return rep
 
 
 def check_recorded(path, rep, files):
@@ -103,29 +125,3 @@ def recorded_arguments(path, rep, kind):
         args[key] = paths if isinstance(v, list) else paths[0]
         given += paths
     return args, given
-
-
-def joint_rerun(path, rep, out, *, force=False, progress=True, command=None):
-    joint = rep.get("joint")
-    if not isinstance(joint, dict) or joint.get("kind") not in ("manifest", "authors", "lights"):
-        raise InputError(f"--from {path}: not the record of a joint fit")
-    fit_kw, labels = recorded_arguments(path, rep, "joint")
-    info = None
-    try:
-        if joint["kind"] == "authors":
-            a = dict(joint["authors"])
-            check_keys(a, ("root",) + AUTHORS_KEYS, f"--from {path}: reproduce.joint.authors")
-            specs, info = read_object(a.pop("root"), **a)
-        else:
-            specs = [image_spec(**im["spec"], where=f"--from {path}: reproduce.joint.images[{k}].spec",
-                                at=": options") for k, im in enumerate(joint["images"])]
-    except (KeyError, TypeError, AttributeError) as exc:
-        raise InputError(f"--from {path}: the joint-fit record is incomplete ({exc})") from None
-    check_recorded(path, rep, read_files(joint["kind"], specs, info) + labels)
-    authors = {k: v for k, v in (joint.get("authors") or {}).items() if k != "root"}
-    names = image_names(specs)
-    recorded = [im["name"] for im in joint["images"]]
-    if names != recorded:
-        raise InputError(f"--from {path}: the images are now {names}, the fit had {recorded}")
-    return run_images(joint["kind"], specs, out, fit_kw, command=command, force=force, progress=progress,
-                      manifest=joint.get("manifest"), authors=authors, info=info, rerun_of=os.path.abspath(path))

@@ -51,13 +51,43 @@ def fit_files(inputs, out, *, force=False, progress=True, command=None, **option
 
 
 class ImageFits(FitJob):
-    """What single-image and joint fits share: the models fitted, each image's figures and the whole fit's.
-    Subclasses set ``model``, ``opts``, ``labels`` and ``results``."""
+    """What single-image and joint fits share: the models fitted, fit.json's dict, each image's figures and the
+    whole fit's.  Subclasses set ``model``, ``opts``, ``labels``, ``results``, the images ``obs`` (held-out ones
+    too) with their ``holdout`` flags and ``names`` in the file names (a single image's: None) and ``reproduce``
+    (the images -> fit.json's ``reproduce`` block)."""
 
     def fit_models(self, baselines, solve):
         """``results``: ``solve(name, options)`` for ``model`` and each baseline (:func:`baseline_options`)."""
         names = [self.model] + [m for m in baselines if m != self.model]
         self.results = {n: solve(n, self.opts if n == self.model else baseline_options(self.opts, n)) for n in names}
+
+    def report(self):
+        truth = next((o.meta.get("truth") for o in self.obs if o.meta.get("truth")), None)
+        return {"sensor": "mono", "truth": truth, "models": model_entries(self.results, self.model, truth),
+                "relight": {}, "reproduce": self.reproduce(self.obs)}
+
+    def write(self, report):
+        """Each image's figures (:meth:`write_image`; ``fitted``: the first fitted image's prediction), history.png,
+        and ``model``'s albedo maps (:func:`write_maps`) and materials.png when it has them."""
+        results, model, out = self.results, self.model, self.out
+        main = results[model]
+        per_image = main.pixels if isinstance(main.pixels, list) else [main.pixels]
+        pixels, self.fitted = iter(per_image), None
+        for n, o, h, rec in zip(self.names, self.obs, self.holdout, report["reproduce"]["images"]):
+            if h:
+                report["relight"][rec["name"]] = self.write_image(o, name=n, holdout=True)
+                continue
+            pred = self.write_image(o, name=n, pixels=next(pixels), im=None if n is None else {
+                m: next(x for x in r.images if x["name"] == n) for m, r in results.items()})
+            self.fitted = pred if self.fitted is None else self.fitted
+        plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
+        self.wrote("history.png")
+        write_maps(main, model, out, report, wrote=self.wrote)
+        if main.materials is not None:
+            plots.plot_materials(check_labels(self.labels, self.obs[0].shape), per_image[0], main.materials,
+                                 os.path.join(out, "materials.png"),
+                                 title=f"{model}: {main.materials['count']} material(s) (faint: labelled, not fitted)")
+            self.wrote("materials.png")
 
     def write_image(self, o, name=None, pixels=None, holdout=False, im=None):
         """The figures of image ``o`` (``name``: a joint fit's): a ``holdout``'s relight.png, returning each fit's
@@ -96,20 +126,6 @@ class ImageFits(FitJob):
         self.wrote(f"images{tail}.png")
         return pred
 
-    def write_common(self, report, shape):
-        """history.png, and ``model``'s albedo maps (:func:`write_maps`) and materials.png when it has them."""
-        results, model, out = self.results, self.model, self.out
-        plots.plot_loss_history({n: r.history for n, r in results.items()}, os.path.join(out, "history.png"))
-        self.wrote("history.png")
-        main = results[model]
-        write_maps(main, model, out, report, wrote=self.wrote)
-        if main.materials is not None:
-            pixels = main.pixels if not isinstance(main.pixels, list) else main.pixels[0]
-            plots.plot_materials(check_labels(self.labels, shape), pixels, main.materials,
-                                 os.path.join(out, "materials.png"),
-                                 title=f"{model}: {main.materials['count']} material(s) (faint: labelled, not fitted)")
-            self.wrote("materials.png")
-
 
 class SingleImage(ImageFits):
     """:func:`fit_files` as a :class:`~fmbrdf_mi.fit.outputs.job.FitJob` (``a``: its arguments by name)."""
@@ -133,20 +149,22 @@ class SingleImage(ImageFits):
         self.auto = parse_auto(a["materials"])
         self.found = None
         self.labels = None if a["materials"] is None or self.auto else read_labels(a["materials"])
-        self.obs = obs = build_observation(a["inputs"], light=a["light"], **{k: a[k] for k in IMAGE_KEYS})
-        self.obs2 = None
+        obs = build_observation(a["inputs"], light=a["light"], **{k: a[k] for k in IMAGE_KEYS})
+        self.obs = [obs]
         if a["relight"] is not None:
             geom = None if (a["normals"] is None and a["sphere"] is None and "truth" in obs.meta) \
                 else (obs.normals, obs.mask, obs.view_dirs)
-            self.obs2 = build_observation(a["relight"], light=a["relight_light"], irradiance=a["relight_irradiance"],
-                                          geometry=geom, **{k: a[k] for k in ("layout", "black_level", "channel",
-                                                                              "demosaic", "conversion_gain",
-                                                                              "read_noise", "footprint")})
-            if self.obs2.shape != obs.shape:
-                raise InputError(f"relight image: shape {self.obs2.shape} differs from the fitted image {obs.shape}")
+            self.obs.append(build_observation(a["relight"], light=a["relight_light"],
+                                              irradiance=a["relight_irradiance"], geometry=geom,
+                                              **{k: a[k] for k in ("layout", "black_level", "channel", "demosaic",
+                                                                   "conversion_gain", "read_noise", "footprint")}))
+            if self.obs[1].shape != obs.shape:
+                raise InputError(f"relight image: shape {self.obs[1].shape} differs from the fitted image {obs.shape}")
+        self.names, self.holdout = [None] * len(self.obs), [False, True][:len(self.obs)]
+        self.reproduce = lambda obs: record.one_image_block("single", a, self.command, obs)
 
     def fit(self):
-        a, obs, model = self.a, self.obs, self.model
+        a, obs, model = self.a, self.obs[0], self.model
         self.opts = opts = fit_options(a, max_time=a["max_time"] or None)
         loss = resolve_loss(obs, opts)
         check_resolved_loss(a, loss, "--loss likelihood" if a["loss"] == "likelihood" else
@@ -168,26 +186,17 @@ class SingleImage(ImageFits):
         self.fit_models(BASELINES if a["baselines"] else (), solve)
 
     def report(self):
-        a, obs = self.a, self.obs
-        inputs = a["inputs"]
-        report = {"inputs": inputs if isinstance(inputs, str) else list(inputs), "truth": obs.meta.get("truth"),
-                  "reproduce": record.reproduce_block(self.a, self.command, obs.meta),
-                  "models": model_entries(self.results, self.model, obs.meta.get("truth"))}
+        report = super().report()
         if self.found is not None:
             report["materials_found"] = dict(self.found.record, labels=os.path.join(self.out, "labels.png"))
         return report
 
     def write(self, report):
-        obs, obs2, model = self.obs, self.obs2, self.model
-        if obs2 is not None:
-            report["relight"] = {"light_dir": obs2.light_dir.tolist(), **self.write_image(obs2, holdout=True)}
-        main = self.results[model]
-        fitted = self.write_image(obs, pixels=main.pixels)
-        s4 = np.concatenate([fitted, np.zeros_like(fitted[:1])])[..., None]
+        super().write(report)
+        s4 = np.concatenate([self.fitted, np.zeros_like(self.fitted[:1])])[..., None]
         stokes_io.write_stokes_exr(os.path.join(self.out, "fitted_stokes.exr"), s4,
-                                   {"fit": main.params, "model": model}, force=True)
+                                   {"fit": self.results[self.model].params, "model": self.model}, force=True)
         self.wrote("fitted_stokes.exr")
-        self.write_common(report, obs.shape)
         if self.found is not None:
             write_labels(os.path.join(self.out, "labels.png"), self.labels)
             self.wrote("labels.png")
@@ -197,9 +206,22 @@ def model_entries(results, model, truth):
     """fit.json's ``models``, ``model``'s with its ``relative_error`` to the input's ``truth`` (if rendered)."""
     entries = {name: res.to_json() for name, res in results.items()}
     if truth:
-        entries[model]["relative_error"] = {k: (v - truth[k]) / truth[k] for k, v in results[model].params.items()
-                                            if isinstance(truth.get(k), (int, float)) and truth[k] != 0}
+        entries[model]["relative_error"] = relative_errors(results[model].params, truth)
     return entries
+
+
+def relative_errors(params, truth, channels=()):
+    """(estimate - truth) / truth where the truth is not 0; a colour fit's per-channel estimates (dicts over
+    ``channels``) against a true value per channel or one for all."""
+    rel = {}
+    for k, t in truth.items():
+        v = params.get(k)
+        if isinstance(v, dict):
+            tt = t if isinstance(t, (list, tuple)) else [t] * len(channels)
+            rel[k] = {c: (v[c] - tt[i]) / tt[i] for i, c in enumerate(channels) if tt[i]}
+        elif v is not None and isinstance(t, (int, float)) and t:
+            rel[k] = (v - t) / t
+    return rel
 
 
 def baseline_options(opts, name):

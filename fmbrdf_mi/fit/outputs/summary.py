@@ -146,17 +146,16 @@ def print_summary(report):
                   + ", ".join(f"{k}: {n}" for k, n in enumerate(b["pixels"]))
                   + ("; parameter[m] is material m's" if b["count"] > 1 else ""))
         status = max(status, convergence_status(name, m))
-    for name, m in report["models"].items() if report.get("joint") else ():
-        for im in m.get("images", []):
+    for name, m in report["models"].items():
+        for im in m.get("images") or []:
             line = (f"  {im['name']}: {im['n_pixels']} px, light {np.round(im['light_dir'], 3).tolist()}"
                     + ("" if im.get("chi2_per_dof") is None else f", chi2/dof {im['chi2_per_dof']:.3f}")
                     + f", intensity RMSE/mean {im['intensity_rel_rmse']:.4f}"
                     + ("" if im.get("power") is None else ", " + power_text(im)))
             print(f"{name}{line}" if len(report["models"]) > 1 else line)
-    for img, errs in (report.get("relight") or {}).items():   # per image and model; a single image's: per model
-        several = colour or report.get("joint")
-        for name, e in errs.items() if several else [(None, errs)] if isinstance(errs, dict) else ():
-            print(f"relighting {img}{f' ({name})' if several else ''}: " + (
+    for img, errs in (report.get("relight") or {}).items():   # per image and model
+        for name, e in errs.items():
+            print(f"relighting {img} ({name}): " + (
                 f"raw-sample RMSE / mean = {e['rel_rmse']:.4f} (R {e['rel_rmse_R']:.4f}, G {e['rel_rmse_G']:.4f}, B "
                 f"{e['rel_rmse_B']:.4f})" if colour else f"RMSE / mean intensity = {e['rel_rmse']:.4f}"))
     wrote(report)
