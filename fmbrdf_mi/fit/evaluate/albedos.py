@@ -39,9 +39,16 @@ class PairBlocks:
     :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`."""
 
     def __init__(self, blocks):
-        self.inverse = np.linalg.pinv(blocks, rcond=1e-10, hermitian=True)
+        # pinv(blocks, rcond=1e-10, hermitian=True) and matrix_rank from one eigh: |eigenvalues| descending
+        w, U = np.linalg.eigh(blocks)
+        order = np.where((np.abs(w[:, 0]) > np.abs(w[:, 1]))[:, None], [0, 1], [1, 0])
+        w, U = np.take_along_axis(w, order, 1), np.take_along_axis(U, order[:, None, :], 2)
+        s = np.abs(w)
+        large = s > 1e-10 * s.max(1, keepdims=True)
         #: each block's rank
-        self.rank = np.linalg.matrix_rank(blocks, rtol=1e-10, hermitian=True)
+        self.rank = large.sum(1)
+        s_inv = np.divide(1.0, s, out=np.zeros_like(s), where=large)
+        self.inverse = (U * np.sign(w)[:, None, :]) @ (s_inv[:, :, None] * U.transpose(0, 2, 1))
         det = blocks[:, 0, 0] * blocks[:, 1, 1] - blocks[:, 0, 1] ** 2
         #: pairs whose columns are parallel or empty
         self.undetermined = ~(det > 1e-10 * np.maximum(blocks[:, 0, 0] * blocks[:, 1, 1], 1e-300))
@@ -61,9 +68,9 @@ def pair_sums(X, Y, n_groups):
     """Per group the 2 x 2 block X^T Y (n_groups, 2, 2) of two one-corner designs on the same groups."""
     g = X[0][:, 0] // 2
     out = np.empty((n_groups, 2, 2))
-    for a in range(2):
-        for b in range(2):
-            out[:, a, b] = np.bincount(g, weights=X[1][:, a] * Y[1][:, b], minlength=n_groups)
+    for a, b in ((0, 0), (0, 1), (1, 0), (1, 1)):
+        out[:, a, b] = (out[:, b, a] if X is Y and b < a
+                        else np.bincount(g, weights=X[1][:, a] * Y[1][:, b], minlength=n_groups))
     return out
 
 
@@ -104,11 +111,14 @@ class AlbedoLayout:
         self._factor = None             # (key columns, factor of G) at the last columns
         self._incidental_last = None
 
+    def sample_albedos(self, a_s, a_b):
+        """Each sample's albedos sum_c w_c a[g_c] (cells, n), of the surface and of the body."""
+        return tuple(np.einsum("...c,...c->...", self.corner_weights, np.asarray(a, float)[self.corner_groups])
+                     for a in (a_s, a_b))
+
     def mu(self, S, B, a_s, a_b):
-        """(cells, n) predictions A a from the unit-albedo intensities S, B (cells, n): each sample's albedos
-        sum_c w_c a[g_c]."""
-        s, b = (np.einsum("...c,...c->...", self.corner_weights, np.asarray(a, float)[self.corner_groups])
-                for a in (a_s, a_b))
+        """(cells, n) predictions A a from the unit-albedo intensities S, B (cells, n)."""
+        s, b = self.sample_albedos(a_s, a_b)
         return s * S + b * B
 
     def design(self, us, ub):
@@ -124,7 +134,12 @@ class AlbedoLayout:
     def at(self, A, x):
         """A x: (N,) or (N, p) for x (2 n_groups,) or (2 n_groups, p)."""
         cols, vals = A
-        return np.einsum("rc,rc...->r...", vals, np.asarray(x, dtype=np.float64)[cols])
+        x = np.asarray(x, dtype=np.float64)
+        v = vals if x.ndim == 1 else vals[..., None]
+        out = v[:, 0] * x[cols[:, 0]]
+        for c in range(1, cols.shape[1]):
+            out += v[:, c] * x[cols[:, c]]
+        return out
 
     def t_at(self, A, v):
         """A^T v: (2 n_groups,) or (2 n_groups, p) for v (N,) or (N, p)."""
@@ -183,7 +198,8 @@ class AlbedoLayout:
         if not p:
             return np.zeros((J.shape[0] + extra, 0)), np.zeros((self.n_groups, 2, 0))
         K = fac.solve(self.t_at(A, J))
-        Jp = J - self.at(A, K)
+        Jp = self.at(A, K)
+        np.subtract(J, Jp, out=Jp)
         if self.prior is not None:
             Jp = np.concatenate([Jp, -self.prior.apply(K)])
         return Jp, K.reshape(self.n_groups, 2, p)

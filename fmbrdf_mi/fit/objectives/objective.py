@@ -134,6 +134,22 @@ class LikelihoodObjective:
         self.prior = None if layout is None else layout.prior
         self.n, self.m = self.y.shape
         self.var = np.maximum(noise.variance(self.y), 1e-300)
+        self._unit = (None, None)      # (parts.surface, parts.body) -> their samples, of the last parts seen
+
+    @property
+    def var(self):
+        """(n, m) the frozen variances v; setting them sets the standard deviations ``sd`` too."""
+        return self._var
+
+    @var.setter
+    def var(self, v):
+        self._var, self.sd = v, np.sqrt(v)
+
+    def unit_samples(self, parts):
+        """(S, B) = :meth:`samples_of` ``parts``' surface and body (n, m), kept for the last ``parts``."""
+        if self._unit[0] is not parts.surface or self._unit[1] is not parts.body:
+            self._unit = (parts.surface, parts.body, self.samples_of(parts.surface), self.samples_of(parts.body))
+        return self._unit[2:]
 
     def samples_of(self, stokes):
         """The analysed samples (n, m) of Stokes values (3, m n) at the samples' points or (3, n) at the centres."""
@@ -145,7 +161,7 @@ class LikelihoodObjective:
     def mu(self, parts, st):
         if self.layout is None:
             return self.samples_of(st.a_s * parts.surface + st.a_b * parts.body)
-        return self.layout.mu(self.samples_of(parts.surface), self.samples_of(parts.body), st.a_s, st.a_b)
+        return self.layout.mu(*self.unit_samples(parts), st.a_s, st.a_b)
 
     def refresh(self, parts, st):
         mu = self.mu(parts, st)
@@ -169,7 +185,7 @@ class LikelihoodObjective:
 
     def residuals(self, parts, st):
         """The whitened residuals (N,), then the albedo prior's rows if any: r @ r = data chi^2 + penalty."""
-        r = ((self.y - self.mu(parts, st)) / np.sqrt(self.var)).ravel()
+        r = ((self.y - self.mu(parts, st)) / self.sd).ravel()
         if self.prior is None:
             return r
         return np.concatenate([r, self.prior.residuals(st.a_s, st.a_b)])
@@ -196,7 +212,7 @@ class LikelihoodObjective:
         return self.nll(parts, st)
 
     def albedos(self, parts):
-        S, B = self.samples_of(parts.surface), self.samples_of(parts.body)
+        S, B = self.unit_samples(parts)
         if self.layout is not None:
             return self.layout.solve(S, B, self.y, 1.0 / self.var)
         return nnls2(S.ravel(), B.ravel(), self.y.ravel(), 1.0 / self.var.ravel())
@@ -224,7 +240,7 @@ class LikelihoodObjective:
         if bad is not None and len(bad) < len(r):      # the albedo prior's rows: finite (no BSDF derivative)
             bad = np.concatenate([bad, np.zeros(len(r) - len(bad), bool)])
         if self.layout is None:
-            inv_sd = 1.0 / np.sqrt(self.var)
+            inv_sd = 1.0 / self.sd
 
             def cols(ds):
                 return (-self.samples_of(ds) * inv_sd).ravel()
@@ -235,20 +251,19 @@ class LikelihoodObjective:
 
     def _white(self, mu):
         """d r / d mu of the samples' predictions ``mu`` (n, m): -mu / sd, raveled (N,)."""
-        return (-mu / np.sqrt(self.var)).ravel()
+        return (-mu / self.sd).ravel()
 
     def shape_jacobian(self, parts, st, z, names, bounds):
         """d r / d z of the free shape parameters ``names`` (N, len(names)), the albedos held."""
-        U = self.samples_of
+        U, (s, b) = self.samples_of, self.layout.sample_albedos(st.a_s, st.a_b)
         J = np.empty((self.y.size, len(names)))
         for j, n in enumerate(names):
-            dmu = self.layout.mu(U(parts.d_surface[n]), U(parts.d_body[n]), st.a_s, st.a_b)
-            J[:, j] = self._white(dmu) * bounds.derivative(n, z[j])
+            J[:, j] = self._white(s * U(parts.d_surface[n]) + b * U(parts.d_body[n])) * bounds.derivative(n, z[j])
         return J
 
     def albedo_columns(self, parts):
         """(us, ub) (N,): each residual's derivative in its sample's unit albedos (the layout's design columns)."""
-        return self._white(self.samples_of(parts.surface)), self._white(self.samples_of(parts.body))
+        return tuple(self._white(u) for u in self.unit_samples(parts))
 
     def albedo_column_derivatives(self, parts, z, names, bounds):
         """[(d us / d z_j, d ub / d z_j)] of :meth:`albedo_columns` per free shape parameter."""
