@@ -39,15 +39,14 @@ class PairBlocks:
     :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`."""
 
     def __init__(self, blocks):
-        # pinv(blocks, rcond=1e-10, hermitian=True) and matrix_rank from one eigh: |eigenvalues| descending
+        # NumPy's pinv(rcond=1e-10, hermitian=True) and matrix_rank from one eigh (|eigenvalues| descending)
         w, U = np.linalg.eigh(blocks)
-        order = np.where((np.abs(w[:, 0]) > np.abs(w[:, 1]))[:, None], [0, 1], [1, 0])
-        w, U = np.take_along_axis(w, order, 1), np.take_along_axis(U, order[:, None, :], 2)
-        s = np.abs(w)
-        large = s > 1e-10 * s.max(1, keepdims=True)
+        o = np.where((np.abs(w[:, 0]) > np.abs(w[:, 1]))[:, None], [0, 1], [1, 0])
+        w, U = np.take_along_axis(w, o, 1), np.take_along_axis(U, o[:, None, :], 2)
+        large = np.abs(w) > 1e-10 * np.abs(w).max(1, keepdims=True)
         #: each block's rank
         self.rank = large.sum(1)
-        s_inv = np.divide(1.0, s, out=np.zeros_like(s), where=large)
+        s_inv = np.divide(1.0, np.abs(w), out=np.zeros_like(w), where=large)
         self.inverse = (U * np.sign(w)[:, None, :]) @ (s_inv[:, :, None] * U.transpose(0, 2, 1))
         det = blocks[:, 0, 0] * blocks[:, 1, 1] - blocks[:, 0, 1] ** 2
         #: pairs whose columns are parallel or empty
@@ -112,14 +111,10 @@ class AlbedoLayout:
         self._incidental_last = None
 
     def sample_albedos(self, a_s, a_b):
-        """Each sample's albedos sum_c w_c a[g_c] (cells, n), of the surface and of the body."""
+        """Each sample's albedos sum_c w_c a[g_c] (cells, n), of the surface and of the body: the predictions
+        A a are s S + b B from the unit-albedo intensities S, B (cells, n)."""
         return tuple(np.einsum("...c,...c->...", self.corner_weights, np.asarray(a, float)[self.corner_groups])
                      for a in (a_s, a_b))
-
-    def mu(self, S, B, a_s, a_b):
-        """(cells, n) predictions A a from the unit-albedo intensities S, B (cells, n)."""
-        s, b = self.sample_albedos(a_s, a_b)
-        return s * S + b * B
 
     def design(self, us, ub):
         """A as (columns (N, 2c), values (N, 2c)) from the unit-albedo columns ``us``, ``ub`` (N,); a_s[g] is
@@ -134,22 +129,14 @@ class AlbedoLayout:
     def at(self, A, x):
         """A x: (N,) or (N, p) for x (2 n_groups,) or (2 n_groups, p)."""
         cols, vals = A
-        x = np.asarray(x, dtype=np.float64)
-        v = vals if x.ndim == 1 else vals[..., None]
-        out = v[:, 0] * x[cols[:, 0]]
-        for c in range(1, cols.shape[1]):
-            out += v[:, c] * x[cols[:, c]]
-        return out
+        return np.einsum("rc,rc...->r...", vals, np.asarray(x, dtype=np.float64)[cols])
 
     def t_at(self, A, v):
         """A^T v: (2 n_groups,) or (2 n_groups, p) for v (N,) or (N, p)."""
         cols, vals = A
         v = np.asarray(v, dtype=np.float64)
-        n = 2 * self.n_groups
-        if v.ndim == 1:
-            return np.bincount(cols.ravel(), weights=(vals * v[:, None]).ravel(), minlength=n)
-        return np.stack([np.bincount(cols.ravel(), weights=(vals * v[:, k, None]).ravel(), minlength=n)
-                         for k in range(v.shape[1])], 1)
+        return np.stack([np.bincount(cols.ravel(), weights=(vals * u[:, None]).ravel(), minlength=2 * self.n_groups)
+                         for u in v.reshape(len(v), -1).T], 1).reshape((-1,) + v.shape[1:])
 
     def _factorised(self, us, ub):
         """(A, factor of G) at the columns ``us``, ``ub``; reuses the last factor when |columns| match (the
@@ -259,11 +246,7 @@ class AlbedoLayout:
             m = int(draws or self.incidental_draws)
             e = np.random.default_rng(seed).standard_normal((A[0].shape[0], m))
             b = fac.solve(self.t_at(A, e))                           # covariance G^-1
-            V = []
-            for a in Aj:
-                v = self.at(a, b)
-                V.append(v - self.at(A, fac.solve(self.t_at(A, v))))
-            V = np.stack(V, 1)
+            V = np.stack([v - self.at(A, fac.solve(self.t_at(A, v))) for v in (self.at(a, b) for a in Aj)], 1)
             C = np.einsum("njd,nkd->jk", V, V) / m
         self._incidental_last = ((draws, seed, len(args)), [a.copy() for a in args], C)
         return C.copy()

@@ -136,15 +136,6 @@ class LikelihoodObjective:
         self.var = np.maximum(noise.variance(self.y), 1e-300)
         self._unit = (None, None)      # (parts.surface, parts.body) -> their samples, of the last parts seen
 
-    @property
-    def var(self):
-        """(n, m) the frozen variances v; setting them sets the standard deviations ``sd`` too."""
-        return self._var
-
-    @var.setter
-    def var(self, v):
-        self._var, self.sd = v, np.sqrt(v)
-
     def unit_samples(self, parts):
         """(S, B) = :meth:`samples_of` ``parts``' surface and body (n, m), kept for the last ``parts``."""
         if self._unit[0] is not parts.surface or self._unit[1] is not parts.body:
@@ -154,14 +145,13 @@ class LikelihoodObjective:
     def samples_of(self, stokes):
         """The analysed samples (n, m) of Stokes values (3, m n) at the samples' points or (3, n) at the centres."""
         s = stokes.reshape(3, self.n, -1)
-        if s.shape[2] == 1:
-            return np.einsum("kc,ci->ik", self.A, s[:, :, 0])
-        return np.einsum("kc,cik->ik", self.A, s)
+        return self.A[:, 0] * s[0] + self.A[:, 1] * s[1] + self.A[:, 2] * s[2]
 
     def mu(self, parts, st):
         if self.layout is None:
             return self.samples_of(st.a_s * parts.surface + st.a_b * parts.body)
-        return self.layout.mu(*self.unit_samples(parts), st.a_s, st.a_b)
+        (S, B), (s, b) = self.unit_samples(parts), self.layout.sample_albedos(st.a_s, st.a_b)
+        return s * S + b * B
 
     def refresh(self, parts, st):
         mu = self.mu(parts, st)
@@ -185,7 +175,7 @@ class LikelihoodObjective:
 
     def residuals(self, parts, st):
         """The whitened residuals (N,), then the albedo prior's rows if any: r @ r = data chi^2 + penalty."""
-        r = ((self.y - self.mu(parts, st)) / self.sd).ravel()
+        r = ((self.y - self.mu(parts, st)) / np.sqrt(self.var)).ravel()
         if self.prior is None:
             return r
         return np.concatenate([r, self.prior.residuals(st.a_s, st.a_b)])
@@ -208,8 +198,7 @@ class LikelihoodObjective:
         """Negative log-likelihood (up to a constant) with the variance from this prediction."""
         return 0.5 * float(np.sum(self.nll_terms(parts, st))) + 0.5 * self.penalty(st)
 
-    def score(self, parts, st):
-        return self.nll(parts, st)
+    score = nll
 
     def albedos(self, parts):
         S, B = self.unit_samples(parts)
@@ -222,8 +211,7 @@ class LikelihoodObjective:
         return f_old - f_new < 0.01
 
     def loss_terms(self, parts, st):
-        r = self.residuals(parts, st)
-        chi2 = float(r @ r)
+        chi2 = self.value(parts, st)
         out = {"chi2": chi2, "samples": int(self.y.size), "nll": self.nll(parts, st)}
         if self.prior is not None:
             out["albedo_prior"] = self.penalty(st)
@@ -235,12 +223,10 @@ class LikelihoodObjective:
 
     def residuals_and_jacobian(self, parts, st, z, names, bounds):
         r = self.residuals(parts, st)
-        bad = None if parts.nonfinite is None else np.repeat(
-            parts.nonfinite.reshape(self.n, -1).any(axis=1), self.m)
-        if bad is not None and len(bad) < len(r):      # the albedo prior's rows: finite (no BSDF derivative)
-            bad = np.concatenate([bad, np.zeros(len(r) - len(bad), bool)])
+        bad = None if parts.nonfinite is None else np.pad(   # the albedo prior's rows: finite (no BSDF derivative)
+            np.repeat(parts.nonfinite.reshape(self.n, -1).any(axis=1), self.m), (0, len(r) - self.y.size))
         if self.layout is None:
-            inv_sd = 1.0 / self.sd
+            inv_sd = 1.0 / np.sqrt(self.var)
 
             def cols(ds):
                 return (-self.samples_of(ds) * inv_sd).ravel()
@@ -251,7 +237,7 @@ class LikelihoodObjective:
 
     def _white(self, mu):
         """d r / d mu of the samples' predictions ``mu`` (n, m): -mu / sd, raveled (N,)."""
-        return (-mu / self.sd).ravel()
+        return (-mu / np.sqrt(self.var)).ravel()
 
     def shape_jacobian(self, parts, st, z, names, bounds):
         """d r / d z of the free shape parameters ``names`` (N, len(names)), the albedos held."""
