@@ -145,7 +145,9 @@ class LikelihoodObjective:
     def samples_of(self, stokes):
         """The analysed samples (n, m) of Stokes values (3, m n) at the samples' points or (3, n) at the centres."""
         s = stokes.reshape(3, self.n, -1)
-        return self.A[:, 0] * s[0] + self.A[:, 1] * s[1] + self.A[:, 2] * s[2]
+        if s.shape[2] == 1:
+            return np.einsum("kc,ci->ik", self.A, s[:, :, 0])
+        return np.einsum("kc,cik->ik", self.A, s)
 
     def mu(self, parts, st):
         if self.layout is None:
