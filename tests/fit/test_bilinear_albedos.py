@@ -97,7 +97,8 @@ def test_solve_is_the_dense_least_squares():
     n = lay.n_groups
     np.testing.assert_allclose(a_s, x[:n], rtol=0, atol=1e-10)
     np.testing.assert_allclose(a_b, x[n:], rtol=0, atol=1e-10)
-    np.testing.assert_allclose(lay.mu(S, B, a_s, a_b).ravel(), (dense @ a_s) * S.ravel() + (dense @ a_b) * B.ravel(),
+    s, b = lay.sample_albedos(a_s, a_b)
+    np.testing.assert_allclose((s * S + b * B).ravel(), (dense @ a_s) * S.ravel() + (dense @ a_b) * B.ravel(),
                                atol=1e-14)
 
 

@@ -142,3 +142,22 @@ def test_degenerate_pixels_are_flagged_not_identified():
     out = pixel_albedos(prob, st, parts, J, {"chi2_per_dof": 1.0})
     assert not out["identified"][:10].any(), out["k_s_se"][:10]
     assert out["identified"][10:].all(), out["k_s_se"][10:]
+
+
+def test_pair_blocks_are_numpys_pseudo_inverse_and_rank():
+    """PairBlocks' one eigendecomposition gives NumPy's pinv (rcond 1e-10) and matrix_rank of every 2 x 2 block,
+    to the last bit, also for singular, zero, tied and nearly parallel blocks."""
+    from fmbrdf_mi.fit.evaluate.albedos import PairBlocks
+
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(200, 6, 2))
+    X[10:20, :, 1] = 0.7 * X[10:20, :, 0]                            # parallel columns: rank 1
+    X[20:30, :, 1] = X[20:30, :, 0] * (1 + 1e-9)                     # nearly parallel
+    X[30:35] = 0.0                                                   # empty
+    blocks = np.einsum("gna,gnb->gab", X, X)
+    blocks[35:40] = np.eye(2) * 3.0                                  # tied eigenvalues
+    blocks[40:45] = [[1.0, 0.0], [0.0, 1e-12]]                       # below the cutoff
+    fac = PairBlocks(blocks)
+    assert np.array_equal(fac.inverse, np.linalg.pinv(blocks, rcond=1e-10, hermitian=True))
+    assert np.array_equal(fac.rank, np.linalg.matrix_rank(blocks, rtol=1e-10, hermitian=True))
+    assert set(fac.rank[10:20]) == {1} and set(fac.rank[30:35]) == {0} and set(fac.rank[40:45]) == {1}

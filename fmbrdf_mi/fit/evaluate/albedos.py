@@ -39,9 +39,15 @@ class PairBlocks:
     :class:`~fmbrdf_mi.fit.evaluate.bilinear_albedos.BandCholesky`."""
 
     def __init__(self, blocks):
-        self.inverse = np.linalg.pinv(blocks, rcond=1e-10, hermitian=True)
+        # NumPy's pinv(rcond=1e-10, hermitian=True) and matrix_rank from one eigh (|eigenvalues| descending)
+        w, U = np.linalg.eigh(blocks)
+        o = np.where((np.abs(w[:, 0]) > np.abs(w[:, 1]))[:, None], [0, 1], [1, 0])
+        w, U = np.take_along_axis(w, o, 1), np.take_along_axis(U, o[:, None, :], 2)
+        large = np.abs(w) > 1e-10 * np.abs(w).max(1, keepdims=True)
         #: each block's rank
-        self.rank = np.linalg.matrix_rank(blocks, rtol=1e-10, hermitian=True)
+        self.rank = large.sum(1)
+        s_inv = np.divide(1.0, np.abs(w), out=np.zeros_like(w), where=large)
+        self.inverse = (U * np.sign(w)[:, None, :]) @ (s_inv[:, :, None] * U.transpose(0, 2, 1))
         det = blocks[:, 0, 0] * blocks[:, 1, 1] - blocks[:, 0, 1] ** 2
         #: pairs whose columns are parallel or empty
         self.undetermined = ~(det > 1e-10 * np.maximum(blocks[:, 0, 0] * blocks[:, 1, 1], 1e-300))
@@ -61,9 +67,9 @@ def pair_sums(X, Y, n_groups):
     """Per group the 2 x 2 block X^T Y (n_groups, 2, 2) of two one-corner designs on the same groups."""
     g = X[0][:, 0] // 2
     out = np.empty((n_groups, 2, 2))
-    for a in range(2):
-        for b in range(2):
-            out[:, a, b] = np.bincount(g, weights=X[1][:, a] * Y[1][:, b], minlength=n_groups)
+    for a, b in ((0, 0), (0, 1), (1, 0), (1, 1)):
+        out[:, a, b] = (out[:, b, a] if X is Y and b < a
+                        else np.bincount(g, weights=X[1][:, a] * Y[1][:, b], minlength=n_groups))
     return out
 
 
@@ -104,12 +110,11 @@ class AlbedoLayout:
         self._factor = None             # (key columns, factor of G) at the last columns
         self._incidental_last = None
 
-    def mu(self, S, B, a_s, a_b):
-        """(cells, n) predictions A a from the unit-albedo intensities S, B (cells, n): each sample's albedos
-        sum_c w_c a[g_c]."""
-        s, b = (np.einsum("...c,...c->...", self.corner_weights, np.asarray(a, float)[self.corner_groups])
-                for a in (a_s, a_b))
-        return s * S + b * B
+    def sample_albedos(self, a_s, a_b):
+        """Each sample's albedos sum_c w_c a[g_c] (cells, n), of the surface and of the body: the predictions
+        A a are s S + b B from the unit-albedo intensities S, B (cells, n)."""
+        return tuple(np.einsum("...c,...c->...", self.corner_weights, np.asarray(a, float)[self.corner_groups])
+                     for a in (a_s, a_b))
 
     def design(self, us, ub):
         """A as (columns (N, 2c), values (N, 2c)) from the unit-albedo columns ``us``, ``ub`` (N,); a_s[g] is
@@ -130,11 +135,8 @@ class AlbedoLayout:
         """A^T v: (2 n_groups,) or (2 n_groups, p) for v (N,) or (N, p)."""
         cols, vals = A
         v = np.asarray(v, dtype=np.float64)
-        n = 2 * self.n_groups
-        if v.ndim == 1:
-            return np.bincount(cols.ravel(), weights=(vals * v[:, None]).ravel(), minlength=n)
-        return np.stack([np.bincount(cols.ravel(), weights=(vals * v[:, k, None]).ravel(), minlength=n)
-                         for k in range(v.shape[1])], 1)
+        return np.stack([np.bincount(cols.ravel(), weights=(vals * u[:, None]).ravel(), minlength=2 * self.n_groups)
+                         for u in v.reshape(len(v), -1).T], 1).reshape((-1,) + v.shape[1:])
 
     def _factorised(self, us, ub):
         """(A, factor of G) at the columns ``us``, ``ub``; reuses the last factor when |columns| match (the
@@ -183,7 +185,8 @@ class AlbedoLayout:
         if not p:
             return np.zeros((J.shape[0] + extra, 0)), np.zeros((self.n_groups, 2, 0))
         K = fac.solve(self.t_at(A, J))
-        Jp = J - self.at(A, K)
+        Jp = self.at(A, K)
+        np.subtract(J, Jp, out=Jp)
         if self.prior is not None:
             Jp = np.concatenate([Jp, -self.prior.apply(K)])
         return Jp, K.reshape(self.n_groups, 2, p)
@@ -243,11 +246,7 @@ class AlbedoLayout:
             m = int(draws or self.incidental_draws)
             e = np.random.default_rng(seed).standard_normal((A[0].shape[0], m))
             b = fac.solve(self.t_at(A, e))                           # covariance G^-1
-            V = []
-            for a in Aj:
-                v = self.at(a, b)
-                V.append(v - self.at(A, fac.solve(self.t_at(A, v))))
-            V = np.stack(V, 1)
+            V = np.stack([v - self.at(A, fac.solve(self.t_at(A, v))) for v in (self.at(a, b) for a in Aj)], 1)
             C = np.einsum("njd,nkd->jk", V, V) / m
         self._incidental_last = ((draws, seed, len(args)), [a.copy() for a in args], C)
         return C.copy()

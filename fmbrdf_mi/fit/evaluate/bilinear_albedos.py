@@ -125,18 +125,13 @@ class BandCholesky:
         r = sc * np.asarray(r, dtype=np.float64)
         e = self.edges
         K = len(e) - 1
-        y = [None] * K
+        y = []
         for k in range(K):
             v = r[e[k]:e[k + 1]]
-            if k:
-                v = v - self.M[k - 1] @ y[k - 1]
-            y[k] = self.Linv[k] @ v
+            y.append(self.Linv[k] @ (v - self.M[k - 1] @ y[-1] if k else v))
         x = [None] * K
         for k in range(K - 1, -1, -1):
-            v = y[k]
-            if k + 1 < K:
-                v = v - self.M[k].T @ x[k + 1]
-            x[k] = self.Linv[k].T @ v
+            x[k] = self.Linv[k].T @ (y[k] - self.M[k].T @ x[k + 1] if k + 1 < K else y[k])
         return sc * np.concatenate(x)
 
     def diagonal_blocks(self):

@@ -134,6 +134,13 @@ class LikelihoodObjective:
         self.prior = None if layout is None else layout.prior
         self.n, self.m = self.y.shape
         self.var = np.maximum(noise.variance(self.y), 1e-300)
+        self._unit = (None, None)      # (parts.surface, parts.body) -> their samples, of the last parts seen
+
+    def unit_samples(self, parts):
+        """(S, B) = :meth:`samples_of` ``parts``' surface and body (n, m), kept for the last ``parts``."""
+        if self._unit[0] is not parts.surface or self._unit[1] is not parts.body:
+            self._unit = (parts.surface, parts.body, self.samples_of(parts.surface), self.samples_of(parts.body))
+        return self._unit[2:]
 
     def samples_of(self, stokes):
         """The analysed samples (n, m) of Stokes values (3, m n) at the samples' points or (3, n) at the centres."""
@@ -145,7 +152,8 @@ class LikelihoodObjective:
     def mu(self, parts, st):
         if self.layout is None:
             return self.samples_of(st.a_s * parts.surface + st.a_b * parts.body)
-        return self.layout.mu(self.samples_of(parts.surface), self.samples_of(parts.body), st.a_s, st.a_b)
+        (S, B), (s, b) = self.unit_samples(parts), self.layout.sample_albedos(st.a_s, st.a_b)
+        return s * S + b * B
 
     def refresh(self, parts, st):
         mu = self.mu(parts, st)
@@ -192,11 +200,10 @@ class LikelihoodObjective:
         """Negative log-likelihood (up to a constant) with the variance from this prediction."""
         return 0.5 * float(np.sum(self.nll_terms(parts, st))) + 0.5 * self.penalty(st)
 
-    def score(self, parts, st):
-        return self.nll(parts, st)
+    score = nll
 
     def albedos(self, parts):
-        S, B = self.samples_of(parts.surface), self.samples_of(parts.body)
+        S, B = self.unit_samples(parts)
         if self.layout is not None:
             return self.layout.solve(S, B, self.y, 1.0 / self.var)
         return nnls2(S.ravel(), B.ravel(), self.y.ravel(), 1.0 / self.var.ravel())
@@ -206,8 +213,7 @@ class LikelihoodObjective:
         return f_old - f_new < 0.01
 
     def loss_terms(self, parts, st):
-        r = self.residuals(parts, st)
-        chi2 = float(r @ r)
+        chi2 = self.value(parts, st)
         out = {"chi2": chi2, "samples": int(self.y.size), "nll": self.nll(parts, st)}
         if self.prior is not None:
             out["albedo_prior"] = self.penalty(st)
@@ -219,10 +225,8 @@ class LikelihoodObjective:
 
     def residuals_and_jacobian(self, parts, st, z, names, bounds):
         r = self.residuals(parts, st)
-        bad = None if parts.nonfinite is None else np.repeat(
-            parts.nonfinite.reshape(self.n, -1).any(axis=1), self.m)
-        if bad is not None and len(bad) < len(r):      # the albedo prior's rows: finite (no BSDF derivative)
-            bad = np.concatenate([bad, np.zeros(len(r) - len(bad), bool)])
+        bad = None if parts.nonfinite is None else np.pad(   # the albedo prior's rows: finite (no BSDF derivative)
+            np.repeat(parts.nonfinite.reshape(self.n, -1).any(axis=1), self.m), (0, len(r) - self.y.size))
         if self.layout is None:
             inv_sd = 1.0 / np.sqrt(self.var)
 
@@ -239,16 +243,15 @@ class LikelihoodObjective:
 
     def shape_jacobian(self, parts, st, z, names, bounds):
         """d r / d z of the free shape parameters ``names`` (N, len(names)), the albedos held."""
-        U = self.samples_of
+        U, (s, b) = self.samples_of, self.layout.sample_albedos(st.a_s, st.a_b)
         J = np.empty((self.y.size, len(names)))
         for j, n in enumerate(names):
-            dmu = self.layout.mu(U(parts.d_surface[n]), U(parts.d_body[n]), st.a_s, st.a_b)
-            J[:, j] = self._white(dmu) * bounds.derivative(n, z[j])
+            J[:, j] = self._white(s * U(parts.d_surface[n]) + b * U(parts.d_body[n])) * bounds.derivative(n, z[j])
         return J
 
     def albedo_columns(self, parts):
         """(us, ub) (N,): each residual's derivative in its sample's unit albedos (the layout's design columns)."""
-        return self._white(self.samples_of(parts.surface)), self._white(self.samples_of(parts.body))
+        return tuple(self._white(u) for u in self.unit_samples(parts))
 
     def albedo_column_derivatives(self, parts, z, names, bounds):
         """[(d us / d z_j, d ub / d z_j)] of :meth:`albedo_columns` per free shape parameter."""
