@@ -40,11 +40,6 @@ def run(problem, **kw):
     return D.solve(problem, starts=2, rounds=3, max_iter=40, tol=1e-4, **kw)
 
 
-def fisher_se(problem, sol):
-    """Standard errors of the free shape parameters in z from the solution's J (J^T J)^-1."""
-    return np.sqrt(np.diag(np.linalg.pinv(sol.J.T @ sol.J)))
-
-
 def sandwich_se(problem, sol):
     """The reported standard errors of the free shape parameters in z: the incidental sandwich H^-1 F H^-1
     (F = J^T J, H = F - C) at the solution, whose inverse is the metric of LM's Gauss-Newton decrement."""
