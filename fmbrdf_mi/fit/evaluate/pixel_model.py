@@ -59,6 +59,7 @@ class _Evaluator:
         self.params = params
         self.prefix = prefix
         self._current = {}
+        self._chunk_geometry = None      # (chunk, its geometry) while :meth:`parts` evaluates that chunk
 
     def _assign(self, key, value):
         import mitsuba as mi
@@ -97,16 +98,23 @@ class _Evaluator:
 
     def parts(self, shape_values, wrt=()):
         """:class:`Parts` at ``shape_values`` with forward-mode derivatives in the shape parameters ``wrt``,
-        evaluated chunk by chunk (:meth:`_chunks`) to bound the Dr.Jit arrays."""
+        evaluated chunk by chunk (:meth:`_chunks`) to bound the Dr.Jit arrays; a chunk's geometry is made once
+        for both terms of each pass."""
+        try:
+            return self._parts(shape_values, wrt)
+        finally:
+            self._chunk_geometry = None
+
+    def _parts(self, shape_values, wrt):
         import drjit as dr
         import mitsuba as mi
 
         self.set_shape(shape_values)
         chunks = self._chunks()
         parts = Parts(np.empty((3, self.n)), np.empty((3, self.n)))
-        for out, a in zip((parts.surface, parts.body), UNIT_ALBEDOS):
-            self.set_albedos(*a)
-            for chunk, sl in chunks:
+        for chunk, sl in chunks:
+            for out, a in zip((parts.surface, parts.body), UNIT_ALBEDOS):
+                self.set_albedos(*a)
                 s = self._points(chunk)
                 dr.eval(s)
                 s = self._reduce(s)
@@ -124,7 +132,7 @@ class _Evaluator:
             self._assign(self.model.param(name).key, xs[name])
             parts.d_surface[name], parts.d_body[name] = np.empty((3, self.n)), np.empty((3, self.n))
         self.params.update()
-        for chunk, sl in chunks:
+        for chunk, sl in chunks[::-1]:      # the last chunk first: its geometry is still held
             s_all = []
             for a in UNIT_ALBEDOS:
                 self.set_albedos(*a)
@@ -286,6 +294,9 @@ class PixelEvaluator(_Evaluator):
 
         if chunk is None and self._whole is not None:
             return self._whole
+        if self._chunk_geometry is not None and self._chunk_geometry[0] == chunk:
+            return self._chunk_geometry[1]
+        self._chunk_geometry = None     # one chunk's geometry held at a time
         p0, p1 = (0, self.n) if chunk is None else chunk
         d = slice(p0 * self.k, p1 * self.k)
         n_dirs = (p1 - p0) * self.k
@@ -308,6 +319,8 @@ class PixelEvaluator(_Evaluator):
         dr.eval(si, wo, rot, irr, w)
         if chunk is None and self.n * self.k <= self.CHUNK_DIRECTIONS:
             self._whole = (si, wo, rot, irr, w)
+        else:
+            self._chunk_geometry = (chunk, (si, wo, rot, irr, w))
         return si, wo, rot, irr, w
 
     def _points(self, chunk=None):

@@ -68,9 +68,10 @@ def step_in_se(problem, st_old, st_new, J):
 
 
 def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_limit=None, lr=0.02, history=None,
-           report=None, label="lm"):
+           report=None, label="lm", profiled=False):
     """A :class:`Solution` after at most ``rounds`` reweighting rounds from ``st``
-    (:func:`~fmbrdf_mi.fit.solve.lm.reweighted`); ``label``: LM's progress tag.
+    (:func:`~fmbrdf_mi.fit.solve.lm.reweighted`); ``label``: LM's progress tag; ``profiled``: LM's steps on the
+    profiled curvature (:func:`~fmbrdf_mi.fit.solve.optimise.levenberg_marquardt`).
     """
     obj = problem.obj
     say = report or (lambda m: None)
@@ -94,7 +95,7 @@ def refine(problem, st, *, rounds, optimizer="lm", max_iter=40, tol=1e-4, time_l
         if optimizer == "lm":
             st, _, last.reason, converged, last.J, last.r = O.levenberg_marquardt(
                 problem, st_old, max_iter=max_iter, tol=tol, time_limit=time_limit, history=history, round_no=k + 1,
-                label=f"{label} {k + 1}")
+                label=f"{label} {k + 1}", profiled=profiled)
             step_se = step_in_se(problem, st_old, st, last.J) if last.J is not None else None
         else:
             st, _, last.reason, converged = O.adam(problem, st_old, max_iter=max_iter, lr=lr, tol=tol,
@@ -185,7 +186,9 @@ def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
     (:func:`same_end`) continued on all pixels; returns (the best Solution of all pixels, the starts' entries).
 
     The subsample's objective is the same likelihood of fewer pixels, so it decides only where the fit starts;
-    no estimate of the subsample is returned.
+    no estimate of the subsample is returned.  The continuation steps on the profiled curvature: its start lies
+    a few standard errors off along the η–α–β–κ ridge, where Gauss-Newton converges slowly; it stops, as every
+    fit does, when the Newton step is under 0.1 of the reported (incidental-sandwich) standard error.
     """
     sub_ends = {}
     run_starts(sub, enumerate(chosen), sub_ends, say, f"/{len(chosen)} on the subsample", " on the subsample",
@@ -203,7 +206,7 @@ def explore_then_polish(problem, sub, chosen, pixels, say, **kw):
         continued.append((j, problem.closed_form(e.shape, jac=len(optima) == 1)[0] if problem.projects
                           else problem.state(e.shape, e.a_s, e.a_b)))
     out = polished[run_starts(problem, continued, polished, say, f" continued on all {pixels} pixels",
-                              " on all pixels", **kw)][1]
+                              " on all pixels", **dict(kw, profiled=True))][1]
     ends = [end_record(sub.params, st0, polished[optimum[k]][1], polished[optimum[k]][0], problem.params)
             for k, st0 in enumerate(chosen)]
     return out, ends
