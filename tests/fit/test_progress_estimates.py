@@ -50,6 +50,6 @@ def test_mirrored_layout_check_announces_its_time_from_the_first_fit(capsys):
 
     report = {"models": {"fmbrdf": {"objective": "likelihood", "loss_terms": {"chi2": 800.0, "samples": 320},
                                     "converged": True, "uncertainty": {"misfit": True}, "timings": {"total": 42.4}}},
-              "reproduce": {"settings": {"demosaic": "bilinear", "layout": [[90, 135], [45, 0]]}}}
+              "reproduce": {"images": [{"settings": {"demosaic": "bilinear", "layout": [[90, 135], [45, 0]]}}]}}
     assert LC.mirrored_layout_hint(report, {"model": "fmbrdf"}, lambda **kw: report, progress=True) is None
     assert "~42 s" in capsys.readouterr().err
