@@ -1,5 +1,5 @@
-"""What a fit's model evaluations cost: Levenberg-Marquardt evaluates each trial point once (with the
-derivatives its linearisation needs when the trial is accepted), and the pixel evaluator's chunks give the
+"""What a fit's model evaluations cost: Levenberg-Marquardt evaluates a trial after an accepted step with the
+derivatives its linearisation needs when it is accepted too, a trial after a rejected one without, and the pixel evaluator's chunks give the
 same numbers as one evaluation of every pixel, in chunks large enough that the tables' per-chunk rebuild
 does not dominate (:class:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator`)."""
 import dataclasses
@@ -52,9 +52,10 @@ def counted_problem(obs, plain_trials=False):
     return problem, st, calls
 
 
-def test_lm_evaluates_each_point_once_and_iterates_as_before(obs):
-    """Every point LM evaluates is evaluated once (a trial comes with its derivatives, so an accepted one is
-    linearised from the same evaluation), and the iterates are those of plain trials, number for number."""
+def test_lm_evaluates_derivatives_once_per_point_and_iterates_as_before(obs):
+    """A trial after an accepted step comes with its derivatives (accepted, it is linearised from the same
+    evaluation), one after a rejected step without (accepted, it is evaluated again with them): no point is
+    evaluated twice with derivatives, and the iterates are those of plain trials, number for number."""
     problem, st, calls = counted_problem(obs)
     ref, st_ref, ref_calls = counted_problem(obs, plain_trials=True)
     del calls[:], ref_calls[:]
@@ -62,11 +63,16 @@ def test_lm_evaluates_each_point_once_and_iterates_as_before(obs):
     end_ref = O.levenberg_marquardt(ref, st_ref, max_iter=8)
     assert end[1] == end_ref[1] and end[0].shape == end_ref[0].shape
     assert np.array_equal(end[0].a_s, end_ref[0].a_s) and np.array_equal(end[5], end_ref[5])
-    points = [c[0] for c in calls]
-    assert len(points) == len(set(points)), "a point evaluated twice"
-    assert all(jac for _, jac in calls)
-    accepted = len({c[0] for c in ref_calls if c[1]}) - 1      # the start is linearised too
-    assert accepted >= 2 and len(ref_calls) - len(calls) >= accepted
+    with_jac = [p for p, jac in calls if jac]
+    assert len(with_jac) == len(set(with_jac)), "a point evaluated twice with derivatives"
+    first = {}
+    for p, jac in calls:
+        assert p not in first or (not first[p] and jac), "only a value-only trial is evaluated again"
+        first.setdefault(p, jac)
+    assert not all(first.values()), "every trial carried derivatives, also after a rejected step"
+    accepted = {p for p, jac in ref_calls if jac} - {ref_calls[0][0]}     # the start is linearised too
+    saved = {p for p in accepted if first.get(p)}      # accepted trials that carried their derivatives
+    assert len(saved) >= 2 and len(ref_calls) - len(calls) == len(saved)
 
 
 def test_chunked_evaluation_equals_one_evaluation():

@@ -150,12 +150,15 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         dcols = obj.albedo_column_derivatives(parts, z, problem.names, problem.bounds)
         return r, J, problem.layout.incidental(*obj.albedo_columns(parts), dcols)
 
+    last = {"accepted": True}
+
     def trial(x, delta, lin):
         z_new = np.clip(x[1] + delta, -40, 40)
         st_new = problem.from_z(z_new)
-        if project:     # an accepted trial is linearised next from the same evaluation
-
-            st_new, parts = problem.closed_form(st_new.shape, jac=True)
+        if project:     # an accepted trial is linearised from its own evaluation: after an accepted step the
+            # next trial is likely accepted too and evaluates the derivatives with the values, after a rejected one not
+            st_new, parts = problem.closed_form(st_new.shape, jac=last["accepted"])
+            last["accepted"] = False
             z_new = problem.to_z(st_new)
         else:
             parts = problem.parts(st_new)
@@ -166,6 +169,7 @@ def levenberg_marquardt(problem, st, *, max_iter=40, tol=1e-5, time_limit=None, 
         return lin[0], LM.broyden(lin[1], x_new[1] - x[1], r_new - lin[0]), None
 
     def on_accept(it, x, f):
+        last["accepted"] = True
         problem.current = x[0]
         log_step(problem, history, "lm", round_no, it, f, x[0], t0=t0, max_iter=max_iter, label=label)
 
