@@ -14,8 +14,18 @@ stay in the L1 cache: what eval would cost if no read missed the cache), and wit
 point (constants: the compiler then drops the lookup's arithmetic too, so this is about what eval costs
 without the body table).  full - cached is the cost of the table reads missing the caches; cached - one
 texel the lookup's arithmetic and its gathers from the L1 cache.
+
+``--pixel-evaluator``: instead, the CPU time of one evaluation of the fit's pixel evaluator with the
+derivatives in every shape parameter (:meth:`~fmbrdf_mi.fit.evaluate.pixel_model.PixelEvaluator.parts`) at
+``--n`` random normals (4 footprint directions each) in chunks of ``--chunk`` directions, three times at nearby
+shapes; reported: the least CPU time (user + system, all threads) of the second and third (the first compiles
+the kernels), also as ``--json``'s ``time``, so that ``tools/bench_interleave.py`` compares two checkouts::
+
+    python tools/bench_interleave.py --old ../old --rounds 2 -- tools/bench_eval.py --pixel-evaluator \
+        --n 4000000 --chunk 2000000
 """
 import argparse
+import json
 import os
 import time
 
@@ -33,7 +43,12 @@ def main():
                          "(repeatable): how eval's cost depends on the tables' size")
     ap.add_argument("--decompose", action="store_true",
                     help="also time fmbrdf with its table reads kept in the L1 cache, and at one point")
+    ap.add_argument("--pixel-evaluator", action="store_true", help="time the fit's pixel evaluator instead")
+    ap.add_argument("--chunk", type=int, default=2_000_000, help="--pixel-evaluator: directions per chunk")
+    ap.add_argument("--json", metavar="OUT.json", help="--pixel-evaluator: the CPU time as {'runs': [{'time': s}]}")
     args = ap.parse_args()
+    if args.pixel_evaluator:
+        return pixel_evaluator(args)
 
     import drjit as dr
     import mitsuba as mi
@@ -119,6 +134,32 @@ def main():
         rebuild.append(time.perf_counter() - t)
     print(f"rebuild after a parameter change: first {rebuild[0] * 1e3:.0f} ms, "
           f"then best {min(rebuild[1:]) * 1e3:.0f} ms (Smith table + body table)")
+
+
+def pixel_evaluator(args):
+    """The ``--pixel-evaluator`` bench (module docstring)."""
+    from fmbrdf_mi.fit.evaluate import pixel_model as PM
+    from fmbrdf_mi.fit.evaluate.models import get_model
+
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(args.n, 3))
+    n[:, 2] = np.abs(n[:, 2]) + 1.0
+    v = np.array([0.0, 0.0, 1.0]) + 0.1 * rng.normal(size=(args.n, 3))
+    model = get_model("fmbrdf")
+    PM.PixelEvaluator.CHUNK_DIRECTIONS = args.chunk
+    ev = PM.PixelEvaluator(model, n, v, (-0.5, 0.5, 1.0), weights=np.full(4, 0.25))
+    shape = dict(eta=1.45, alpha=0.25, beta=1.0, kappa=10.0)
+    cpu = []
+    for i in range(3):
+        c = time.process_time()
+        ev.parts({k: x * (1 + 0.01 * i) for k, x in shape.items()}, wrt=[p.name for p in model.shape])
+        cpu.append(time.process_time() - c)
+    print(f"pixel evaluator: {min(cpu[1:]):.2f} s CPU per evaluation with derivatives, {args.n} directions in "
+          f"chunks of {args.chunk}; {time.strftime('%Y-%m-%d')}, DRJIT_NUM_THREADS="
+          f"{os.environ.get('DRJIT_NUM_THREADS', 'default')}, load average {os.getloadavg()[0]:.1f}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"runs": [{"time": min(cpu[1:])}]}, f)
 
 
 if __name__ == "__main__":
